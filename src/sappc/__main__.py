@@ -1,0 +1,4 @@
+from sappc.cli import main
+import sys
+
+sys.exit(main())

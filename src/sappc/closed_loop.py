@@ -1,0 +1,148 @@
+"""The offline closed loop: controller core + rigid-body plant core, one run or a batch.
+
+Timing (the same as the lockstep ROS 2 graph): at ``t_k = k dt`` the plant's
+state is sampled, the controller computes the torque from it and the
+reference at ``t_k``, the disturbance is sampled at ``t_k``, and the plant
+integrates over ``[t_k, t_k+1]`` with both held (zero-order hold).  Samples are
+taken for ``k = 0 .. n_steps``; the torque computed at the last sample is
+logged but not applied.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sappc_controller.core.base import AttitudeController, ControlOutput
+from spacecraft_sim.core.disturbance import DisturbanceModel
+from spacecraft_sim.core.dynamics import RigidBody
+from spacecraft_sim.core.reference import ReferenceSamples
+
+__all__ = ["History", "HistoryRecorder", "run_closed_loop", "step_times"]
+
+Array = NDArray[np.float64]
+
+#: Observer called after each control computation: (k, t, state (N, 7), output, disturbance (N, 3)).
+Observer = Callable[[int, float, Array, ControlOutput, Array], None]
+
+
+def step_times(duration_s: float, control_period_s: float) -> Array:
+    """Sample times ``k dt`` for ``k = 0 .. round(duration / dt)``."""
+    n_steps = int(round(duration_s / control_period_s))
+    return np.arange(n_steps + 1) * control_period_s
+
+
+@dataclass
+class History:
+    """Full time histories of a run or a batch: arrays (T, N, ...) with ``t`` (T,)."""
+
+    t: Array
+    q_BN: Array
+    omega_BN_B: Array
+    q_BR: Array
+    torque_B: Array
+    torque_cmd_B: Array
+    saturated: NDArray[np.bool_]
+    disturbance_B: Array
+    rho: Array
+    band_lower: Array
+    band_upper: Array
+    eps: Array
+    z: Array
+    V: Array
+
+    @property
+    def q_ev(self) -> Array:
+        """Vector part of the error quaternion, (T, N, 3)."""
+        return self.q_BR[..., :3]
+
+    def run(self, k: int) -> History:
+        """The history of run ``k`` alone, keeping a batch axis of 1."""
+        return History(**{name: (value if name == "t" else value[:, k : k + 1]) for name, value in vars(self).items()})
+
+
+class HistoryRecorder:
+    """Observer that stores every sample (for single runs and small batches)."""
+
+    _FIELDS = ("q_BR", "torque_B", "torque_cmd_B", "saturated", "rho", "band_lower", "band_upper", "eps", "z", "V")
+
+    def __init__(self, t: Array, n_runs: int) -> None:
+        T = t.size
+        self.t = t
+        self.state = np.empty((T, n_runs, 7))
+        self.disturbance = np.empty((T, n_runs, 3))
+        self.arrays: dict[str, Array] = {}
+        self._T = T
+
+    def __call__(self, k: int, t: float, x: Array, out: ControlOutput, d: Array) -> None:
+        if not self.arrays:
+            for name in self._FIELDS:
+                v = getattr(out, name)
+                self.arrays[name] = np.empty((self._T,) + v.shape, dtype=v.dtype)
+        self.state[k] = x
+        self.disturbance[k] = d
+        for name, arr in self.arrays.items():
+            arr[k] = getattr(out, name)
+
+    def history(self) -> History:
+        return History(
+            t=self.t,
+            q_BN=self.state[..., :4],
+            omega_BN_B=self.state[..., 4:],
+            disturbance_B=self.disturbance,
+            **self.arrays,
+        )
+
+
+def run_closed_loop(
+    plant: RigidBody,
+    controller: AttitudeController,
+    reference: ReferenceSamples,
+    disturbance: DisturbanceModel,
+    x0: Array,
+    control_period_s: float,
+    *,
+    substeps: int = 1,
+    observer: Observer,
+) -> Array:
+    """Simulate the closed loop over the reference's time grid.
+
+    Parameters
+    ----------
+    plant : RigidBody
+    controller : AttitudeController
+        Reset before the run.
+    reference : ReferenceSamples
+        Desired trajectory sampled at ``step_times(duration, dt)``.
+    disturbance : DisturbanceModel
+    x0 : ndarray, shape (N, 7)
+        Initial states (unit quaternions, finite rates; checked by the caller).
+    control_period_s : float
+        Sampling period ``dt`` [s].
+    substeps : int
+        RK4 steps per control period.
+    observer : callable
+        Called at every sample (see :data:`Observer`).
+
+    Returns
+    -------
+    ndarray, shape (N, 7)
+        The final state.
+    """
+    controller.reset()
+    x = np.array(x0, dtype=np.float64)
+    n_runs = x.shape[0]
+    ref = reference
+    last = ref.t.size - 1
+    for k in range(ref.t.size):
+        t = float(ref.t[k])
+        err = controller.error_state(x[:, :4], x[:, 4:], ref.q_RN[k : k + 1], ref.omega_RN_R[k : k + 1], ref.omegadot_RN_R[k : k + 1])
+        out = controller.step_unchecked(t, control_period_s, err)
+        d = disturbance.torque_B(t, n_runs)
+        observer(k, t, x, out, d)
+        if k < last:
+            x = plant.propagate(x, out.torque_B + d, control_period_s, substeps)
+    return x

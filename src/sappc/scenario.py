@@ -1,0 +1,291 @@
+"""Scenario files: one YAML file holds every parameter of an experiment.
+
+A scenario names the plant, the initial state, the reference, the
+disturbances and faults, the actuator, the metric settings, and the
+parameters of each controller it can be run with.  Loading is strict: unknown
+keys, missing keys and invalid values raise :class:`ConfigError` naming the
+dotted key.  See ``config/scenarios/paper_tracking.yaml`` for the annotated
+format.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from sappc_controller.core.base import AttitudeController
+from sappc_controller.core.blfppc import BlfppcConfig, BlfppcController
+from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.sappc import SappcConfig, SappcController
+from sappc_controller.core.trappc import TrappcConfig, TrappcController
+from spacecraft_sim.core.disturbance import (
+    ConstantTorque,
+    DisturbanceModel,
+    DisturbanceSum,
+    PaperPeriodic,
+    PulseTorque,
+    RandomTorque,
+    StepTorque,
+)
+from spacecraft_sim.core.reference import PaperReference
+from spacecraft_sim.core.validation import (
+    ConfigError,
+    as_finite_array,
+    check_positive,
+    check_spd_inertia,
+    from_mapping,
+)
+
+__all__ = ["ControllerKind", "MetricSettings", "Scenario", "controller_kind", "load_scenario", "scenario_from_mapping"]
+
+Array = NDArray[np.float64]
+
+#: Largest norm error accepted (and corrected) in an initial quaternion typed
+#: into a scenario file: the paper prints q_s(0) with 4 decimals (norm error
+#: 3.5e-5); anything beyond 1e-3 is a typo, not rounding.
+INITIAL_QUATERNION_NORM_TOL = 1e-3
+
+
+class ControllerKind(str, Enum):
+    """The controllers a scenario can run."""
+
+    SAPPC = "sappc"
+    TRAPPC = "trappc"
+    BLFPPC = "blfppc"
+
+
+_CONFIG_CLASSES = {
+    ControllerKind.SAPPC: (SappcConfig, SappcController),
+    ControllerKind.TRAPPC: (TrappcConfig, TrappcController),
+    ControllerKind.BLFPPC: (BlfppcConfig, BlfppcController),
+}
+
+_DISTURBANCE_KINDS: dict[str, type] = {
+    "paper_periodic": PaperPeriodic,
+    "constant": ConstantTorque,
+    "step": StepTorque,
+    "pulse": PulseTorque,
+    "random": RandomTorque,
+}
+
+_TOP_KEYS = {
+    "name",
+    "description",
+    "duration_s",
+    "control_period_s",
+    "plant",
+    "initial_state",
+    "reference",
+    "disturbances",
+    "actuator",
+    "metrics",
+    "controller",
+    "controllers",
+}
+
+
+@dataclass(frozen=True)
+class MetricSettings:
+    """How run metrics are computed (see :mod:`sappc.metrics`).
+
+    Attributes
+    ----------
+    steady_from_s : float
+        Start of the steady-state window [s] (the paper's Monte Carlo uses [25, 50] s).
+    settle_threshold : float
+        ``settling_time_s`` is the first time after which ``max_i |q_ev,i|`` stays below this (experiment 1: 1e-3).
+    t2_s : float
+        Time at which ``rpf_error_at_t2`` is taken [s].
+    """
+
+    steady_from_s: float = 25.0
+    settle_threshold: float = 1e-3
+    t2_s: float = 20.0
+
+    def __post_init__(self) -> None:
+        check_positive("metrics.steady_from_s", self.steady_from_s, allow_zero=True)
+        check_positive("metrics.settle_threshold", self.settle_threshold)
+        check_positive("metrics.t2_s", self.t2_s, allow_zero=True)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A loaded, validated scenario.
+
+    Attributes
+    ----------
+    name, description : str
+    duration_s, control_period_s : float
+        Simulated duration and control period ``dt`` [s].
+    rk4_substeps : int
+        Plant RK4 steps per control period.
+    inertia_kg_m2 : ndarray (3, 3)
+        Plant inertia; also the controllers' known ``J`` (Assumption 1).
+    q_BN0 : ndarray (4,)
+        Initial attitude, normalised.
+    omega_BN_B0_rad_s : ndarray (3,)
+    reference : PaperReference
+    disturbance : DisturbanceSum
+    actuator : ActuatorConfig
+    metrics : MetricSettings
+    controller : ControllerKind
+        Default controller.
+    controllers : dict
+        Raw parameter mappings per controller kind, validated by :meth:`controller_config`.
+    raw : dict
+        The parsed file, for provenance.
+    """
+
+    name: str
+    description: str
+    duration_s: float
+    control_period_s: float
+    rk4_substeps: int
+    inertia_kg_m2: Array
+    q_BN0: Array
+    omega_BN_B0_rad_s: Array
+    reference: PaperReference
+    disturbance: DisturbanceSum
+    actuator: ActuatorConfig
+    metrics: MetricSettings
+    controller: ControllerKind
+    controllers: dict[str, Any] = field(repr=False)
+    raw: dict[str, Any] = field(repr=False)
+
+    def controller_config(self, kind: ControllerKind | str | None = None) -> Any:
+        """The validated config dataclass of controller ``kind`` (default: the scenario's)."""
+        k = self.resolve_controller(kind)
+        if k.value not in self.controllers:
+            raise ConfigError(f"scenario {self.name!r} has no parameters for controller {k.value!r} (controllers.{k.value})")
+        config_cls, _ = _CONFIG_CLASSES[k]
+        data = dict(self.controllers[k.value])
+        for key in ("inertia_kg_m2", "actuator"):
+            if key in data:
+                raise ConfigError(f"controllers.{k.value}.{key} is set by the scenario's plant/actuator sections, not per controller")
+        params = from_mapping(config_cls, {**data, "inertia_kg_m2": self.inertia_kg_m2.tolist()}, f"controllers.{k.value}")
+        return dataclasses.replace(params, actuator=self.actuator)
+
+    def build_controller(self, kind: ControllerKind | str | None = None, **options: Any) -> AttitudeController:
+        """A fresh controller of ``kind`` with this scenario's parameters."""
+        k = self.resolve_controller(kind)
+        _, controller_cls = _CONFIG_CLASSES[k]
+        return controller_cls(self.controller_config(k), **options)
+
+    def resolve_controller(self, kind: ControllerKind | str | None) -> ControllerKind:
+        """``kind`` parsed, or the scenario's default controller when ``None``."""
+        return self.controller if kind is None else controller_kind(kind)
+
+
+def controller_kind(name: ControllerKind | str) -> ControllerKind:
+    """Parse a controller name, raising :class:`ConfigError` naming the accepted ones."""
+    try:
+        return ControllerKind(name)
+    except ValueError:
+        raise ConfigError(f"unknown controller {name!r}; expected one of {[c.value for c in ControllerKind]}") from None
+
+
+def _disturbance(entry: Any, index: int) -> DisturbanceModel:
+    prefix = f"disturbances[{index}]"
+    if not isinstance(entry, dict) or "kind" not in entry:
+        raise ConfigError(f"{prefix} must be a mapping with a 'kind' key, got {entry!r}")
+    kind = entry["kind"]
+    if kind not in _DISTURBANCE_KINDS:
+        raise ConfigError(f"{prefix}.kind = {kind!r} is unknown; expected one of {sorted(_DISTURBANCE_KINDS)}")
+    return from_mapping(_DISTURBANCE_KINDS[kind], {k: v for k, v in entry.items() if k != "kind"}, prefix)  # type: ignore[no-any-return]
+
+
+def scenario_from_mapping(data: Any, *, source: str = "<mapping>") -> Scenario:
+    """Validate a parsed scenario mapping (see :func:`load_scenario`)."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: a scenario must be a mapping at the top level")
+    unknown = sorted(set(data) - _TOP_KEYS)
+    if unknown:
+        raise ConfigError(f"{source}: unknown key {unknown[0]}; a scenario accepts {', '.join(sorted(_TOP_KEYS))}")
+    for key in ("name", "duration_s", "control_period_s", "plant", "initial_state", "controllers"):
+        if key not in data:
+            raise ConfigError(f"{source}: missing key {key}")
+    duration = check_positive("duration_s", data["duration_s"])
+    dt = check_positive("control_period_s", data["control_period_s"])
+    if duration < dt:
+        raise ConfigError(f"duration_s ({duration!r}) must be at least control_period_s ({dt!r})")
+
+    plant = data["plant"]
+    if not isinstance(plant, dict) or set(plant) - {"inertia_kg_m2", "rk4_substeps"} or "inertia_kg_m2" not in plant:
+        raise ConfigError(f"plant must be a mapping with inertia_kg_m2 and optional rk4_substeps, got {plant!r}")
+    J = check_spd_inertia("plant.inertia_kg_m2", plant["inertia_kg_m2"])
+    substeps = plant.get("rk4_substeps", 1)
+    if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
+        raise ConfigError(f"plant.rk4_substeps must be a positive integer, got {substeps!r}")
+
+    init = data["initial_state"]
+    if not isinstance(init, dict) or set(init) != {"q_BN", "omega_BN_B_rad_s"}:
+        raise ConfigError(f"initial_state must have exactly q_BN and omega_BN_B_rad_s, got {init!r}")
+    q0 = as_finite_array("initial_state.q_BN", init["q_BN"], shape_tail=(4,))
+    norm = float(np.linalg.norm(q0))
+    if abs(norm - 1.0) > INITIAL_QUATERNION_NORM_TOL:
+        raise ConfigError(f"initial_state.q_BN = {list(q0)} has norm {norm:.6g}; expected a unit quaternion (x, y, z, w)")
+    w0 = as_finite_array("initial_state.omega_BN_B_rad_s", init["omega_BN_B_rad_s"], shape_tail=(3,))
+
+    reference = from_mapping(PaperReference, dict(data.get("reference", {})), "reference") if data.get("reference") is not None else PaperReference()
+    raw_dist = data.get("disturbances", []) or []
+    if not isinstance(raw_dist, list):
+        raise ConfigError(f"disturbances must be a list, got {raw_dist!r}")
+    disturbance = DisturbanceSum(tuple(_disturbance(e, i) for i, e in enumerate(raw_dist)))
+    actuator = from_mapping(ActuatorConfig, data.get("actuator", {}) or {}, "actuator")
+    metrics = from_mapping(MetricSettings, data.get("metrics", {}) or {}, "metrics")
+
+    controllers = data["controllers"]
+    if not isinstance(controllers, dict) or not controllers:
+        raise ConfigError("controllers must be a non-empty mapping of controller name to parameters")
+    for name in controllers:
+        controller_kind(name)
+    scenario = Scenario(
+        name=str(data["name"]),
+        description=str(data.get("description", "")),
+        duration_s=duration,
+        control_period_s=dt,
+        rk4_substeps=substeps,
+        inertia_kg_m2=J,
+        q_BN0=q0 / norm,
+        omega_BN_B0_rad_s=w0,
+        reference=reference,
+        disturbance=disturbance,
+        actuator=actuator,
+        metrics=metrics,
+        controller=controller_kind(data.get("controller", ControllerKind.SAPPC.value)),
+        controllers=controllers,
+        raw=data,
+    )
+    for name in controllers:  # validate every controller's parameters now, not at run time
+        scenario.controller_config(name)
+    return scenario
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario YAML file.
+
+    Raises
+    ------
+    ConfigError
+        If the file is missing, is not YAML, or any value is invalid (the message names the key).
+    """
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as exc:
+        raise ConfigError(f"cannot read scenario {p}: {exc.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{p} is not valid YAML: {exc}") from None
+    try:
+        return scenario_from_mapping(data, source=str(p))
+    except ConfigError as exc:
+        raise type(exc)(f"{p}: {exc}") from None

@@ -1,0 +1,178 @@
+"""The controller interface shared by SAPPC, TraPPC and BLFPPC.
+
+A controller never reads a clock: time ``t`` [s] and the sampling period
+``dt`` [s] are arguments of :meth:`AttitudeController.step`.  Inputs are
+checked there, once; the laws behind it work on clean (N, ...) arrays.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, fields
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from spacecraft_sim.core.validation import InputError, as_finite_array, check_unit_quaternion
+
+from .common import Actuator, ActuatorConfig, ErrorState, error_state
+
+__all__ = ["AttitudeController", "ControlOutput", "SINGULAR_Q0_AT_START"]
+
+Array = NDArray[np.float64]
+
+#: A run may not *start* with an error scalar part below this: the paper's
+#: Jacobian is singular at q_e0 = 0 (180 deg error, SPEC_NOTES error 5) and the
+#: RPF sign and the virtual control are undefined there.  1e-6 is 179.9998 deg.
+SINGULAR_Q0_AT_START = 1e-6
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """One control step's result for a batch (leading axis N), or one run (no batch axis).
+
+    Attributes
+    ----------
+    torque_B : torque produced by the actuator model [N m], body frame.
+    torque_cmd_B : torque commanded by the law before the actuator model [N m].
+    saturated : per-axis flag, ``|torque_cmd_B| > max_torque_Nm``.
+    q_BR : error quaternion used (scalar last, ``q0 >= 0``).
+    rho : performance / reference function value per component.
+    band_lower, band_upper : constraint band on ``q_ev`` per component.
+    eps : transformed error per component.
+    z : ``q_ev / rho`` per component (BLFPPC: ``q_ev``).
+    V : (…, 3) Lyapunov values ``V1, V2, V3`` of the backstepping layers.
+    """
+
+    torque_B: Array
+    torque_cmd_B: Array
+    saturated: NDArray[np.bool_]
+    q_BR: Array
+    rho: Array
+    band_lower: Array
+    band_upper: Array
+    eps: Array
+    z: Array
+    V: Array
+
+    def first(self) -> ControlOutput:
+        """The same output with the batch axis removed (run 0)."""
+        return ControlOutput(**{f.name: getattr(self, f.name)[0] for f in fields(self)})
+
+
+class AttitudeController(ABC):
+    """Base class: input checking, batching, actuator; subclasses implement the law.
+
+    Parameters
+    ----------
+    inertia_kg_m2 : array_like, shape (3, 3) or (N, 3, 3)
+        The known inertia ``J`` (Assumption 1), already checked SPD by the config.
+    actuator : ActuatorConfig
+        Actuator limits applied to the commanded torque.
+    """
+
+    def __init__(self, inertia_kg_m2: ArrayLike, actuator: ActuatorConfig) -> None:
+        self.J: Array = np.asarray(inertia_kg_m2, dtype=np.float64)
+        self.actuator = Actuator(actuator)
+        self.t0: float | None = None
+        self.n_runs: int | None = None
+
+    def reset(self) -> None:
+        """Forget the run: the next step starts a new one (RPF, filter, time origin)."""
+        self.t0 = None
+        self.n_runs = None
+        self._reset_law()
+
+    def step(
+        self,
+        t: float,
+        dt: float,
+        q_BN: ArrayLike,
+        omega_BN_B: ArrayLike,
+        q_RN: ArrayLike,
+        omega_RN_R: ArrayLike,
+        omegadot_RN_R: ArrayLike,
+    ) -> ControlOutput:
+        """Compute the torque for one sampling instant.
+
+        Parameters
+        ----------
+        t : float
+            Time [s]; the first call fixes the run's time origin.
+        dt : float
+            Sampling period [s] (> 0), used by the dynamic-surface filter.
+        q_BN : array_like, (4,) or (N, 4)
+            Measured attitude, unit quaternion, scalar last.
+        omega_BN_B : array_like, (3,) or (N, 3)
+            Measured body rate [rad/s].
+        q_RN, omega_RN_R, omegadot_RN_R : array_like
+            Desired attitude, rate [rad/s] and acceleration [rad/s^2] in the
+            desired frame; shapes (4,)/(3,) are shared by the whole batch.
+
+        Returns
+        -------
+        ControlOutput
+            Without a batch axis when ``q_BN`` was a single quaternion.
+
+        Raises
+        ------
+        InputError
+            Naming the offending input (non-finite values, non-unit or zero
+            quaternions, ``dt <= 0``, a batch size that changed, or a run that
+            starts at the 180 deg singularity).
+        """
+        t_f = float(as_finite_array("t", t))
+        dt_f = float(as_finite_array("dt", dt))
+        if dt_f <= 0.0:
+            raise InputError(f"dt must be > 0, got {dt!r}")
+        q = check_unit_quaternion("q_BN", q_BN)
+        single = q.ndim == 1
+        q2 = np.atleast_2d(q)
+        err = error_state(
+            q2,
+            np.atleast_2d(as_finite_array("omega_BN_B", omega_BN_B, shape_tail=(3,))),
+            np.atleast_2d(check_unit_quaternion("q_RN", q_RN)),
+            np.atleast_2d(as_finite_array("omega_RN_R", omega_RN_R, shape_tail=(3,))),
+            np.atleast_2d(as_finite_array("omegadot_RN_R", omegadot_RN_R, shape_tail=(3,))),
+        )
+        if self.n_runs is not None and q2.shape[0] != self.n_runs:
+            raise InputError(f"q_BN has {q2.shape[0]} runs but this run started with {self.n_runs}; call reset() first")
+        if self.t0 is None:
+            q0 = err.q_BR[:, 3]
+            if np.any(q0 < SINGULAR_Q0_AT_START):
+                k = int(np.argmax(q0 < SINGULAR_Q0_AT_START))
+                raise InputError(
+                    f"initial error quaternion scalar part q_e0 = {q0[k]:.3g} (run {k}) is at the 180 deg singularity "
+                    f"of Gamma(q_e) (needs q_e0 >= {SINGULAR_Q0_AT_START}): the RPF sign and the virtual control are undefined"
+                )
+        out = self.step_unchecked(t_f, dt_f, err)
+        if not (np.all(np.isfinite(out.torque_B)) and np.all(np.isfinite(out.torque_cmd_B))):
+            raise FloatingPointError("controller produced a non-finite torque; refusing to output it")
+        return out.first() if single else out
+
+    def step_unchecked(self, t: float, dt: float, err: ErrorState) -> ControlOutput:
+        """:meth:`step` for inputs already checked (the offline runner's hot path)."""
+        if self.t0 is None:
+            self.t0 = t
+            self.n_runs = err.q_BR.shape[0]
+            self._start(err)
+        torque_cmd, diag = self._law(t - self.t0, dt, err)
+        torque, saturated = self.actuator.apply(torque_cmd)
+        return ControlOutput(torque_B=torque, torque_cmd_B=torque_cmd, saturated=saturated, q_BR=err.q_BR, **diag)
+
+    @staticmethod
+    def error_state(q_BN: Array, omega_BN_B: Array, q_RN: Array, omega_RN_R: Array, omegadot_RN_R: Array) -> ErrorState:
+        """The error state of eq. (errorsystem), for callers of :meth:`step_unchecked`."""
+        return error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R)
+
+    @abstractmethod
+    def _reset_law(self) -> None:
+        """Clear the law's internal state (filter, performance functions)."""
+
+    @abstractmethod
+    def _start(self, err: ErrorState) -> None:
+        """Initialise the run from the first error state (RPF sign, magnitudes)."""
+
+    @abstractmethod
+    def _law(self, tau: float, dt: float, err: ErrorState) -> tuple[Array, dict[str, Array]]:
+        """Commanded torque (N, 3) and diagnostics at ``tau`` seconds into the run."""

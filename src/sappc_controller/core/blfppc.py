@@ -1,0 +1,215 @@
+"""BLFPPC benchmark (Appendix C): barrier-Lyapunov-function PPC with a finite-time performance function.
+
+Finite-time performance function (FTPPF), with ``rho_0 = rho(0) - rho_Tf`` and
+``m lambda = rho_0^m / T_f``:
+
+    rho(t) = (rho_0^m - m lambda t)^(1/m) + rho_Tf = rho_0 (1 - t/T_f)^(1/m) + rho_Tf,   t < T_f
+    rho(t) = rho_Tf,                                                                    t >= T_f
+
+with ``m = a1/a2 in (0, 1)``, ``a1`` odd and ``a2`` even.  The paper sets the
+FTPPF as the upper bound and ``rho_l = 0`` "to avoid overshooting"; for a
+component whose initial error is negative the mirror image is used
+(``rho_u = 0``, ``rho_l = -FTPPF``).
+
+Law (Appendix C):
+
+    eps   = (2 q_ev - (rho_u + rho_l)) / (rho_u - rho_l)                      (BLF-type transformation)
+    alpha = Gamma^-1 [ -K1 q_ev + 1/2 K1 P_lu + S_v ]
+    u     = -K2 J z2 - 2 K3 Gamma^-1 D_rho eps - W0 + J dS_d/dt - D_m tanh(z2 / mu)
+    P_lu  = rho_l + rho_u,   S_b = rho_l' rho_u - rho_u' rho_l
+    S_v   = diag(1 / (rho_u - rho_l)) [ diag(rho_u' - rho_l') q_ev + S_b ]
+    D_rho = diag(1 / ((1 - eps_i^2)(rho_u - rho_l)))
+
+``eps = 0`` at the middle of the funnel: the error is steered to
+``(rho_u + rho_l) / 2``.  ``S_d`` comes from the same dynamic-surface filter as
+SAPPC (:class:`~.common.DynamicSurfaceFilter`).
+
+SPEC_NOTES observation 6: the term ``-2 K3 Gamma^-1 D_rho eps`` is meant to
+cancel the cross term between the two backstepping layers; differentiating the
+log-barrier gives ``Gamma^T`` there, not ``Gamma^-1``.  This module implements
+the benchmark as the appendix writes it (``Gamma^-1``), because it is the
+paper's benchmark.
+
+Barrier guard: ``D_rho`` is infinite on the funnel boundary (``|eps| = 1``)
+and changes sign outside it, the "wrong direction repulsive force" the paper
+describes after the sudden fault.  The software must not emit NaN, so
+``1 - eps^2`` is kept at least ``BARRIER_MARGIN`` away from zero, with its sign.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from spacecraft_sim.core.attitude import gamma_inverse_times
+from spacecraft_sim.core.validation import ConfigError, check_positive, check_spd_inertia
+
+from .base import AttitudeController
+from .common import ActuatorConfig, DynamicSurfaceFilter, ErrorState, _matvec, robust_term, w0_dynamics
+
+__all__ = ["BARRIER_MARGIN", "BlfppcConfig", "BlfppcController", "BlfppcGains", "FiniteTimePF"]
+
+Array = NDArray[np.float64]
+
+#: Smallest |1 - eps^2| used in D_rho (see module docstring): on the boundary the
+#: barrier term is then 1e9 / (rho_u - rho_l) times its gain, saturating the actuator.
+BARRIER_MARGIN = 1e-9
+
+
+@dataclass(frozen=True)
+class FiniteTimePF:
+    """The FTPPF of Appendix C.
+
+    Attributes
+    ----------
+    rho_initial : float
+        ``rho(0)``; must exceed every ``|q_ev,i(0)|``.
+    rho_Tf : float
+        Terminal value, ``0 < rho_Tf < rho_initial``.
+    T_f_s : float
+        Settling time of the performance function [s].
+    m_odd, m_even : int
+        ``m = m_odd / m_even`` with ``m_odd`` a positive odd and ``m_even`` a positive even integer, ``m < 1``.
+    """
+
+    rho_initial: float
+    rho_Tf: float
+    T_f_s: float
+    m_odd: int = 1
+    m_even: int = 2
+
+    def __post_init__(self) -> None:
+        check_positive("ftppf.rho_initial", self.rho_initial)
+        check_positive("ftppf.rho_Tf", self.rho_Tf)
+        check_positive("ftppf.T_f_s", self.T_f_s)
+        if not self.rho_Tf < self.rho_initial:
+            raise ConfigError(f"ftppf.rho_Tf ({self.rho_Tf!r}) must be less than ftppf.rho_initial ({self.rho_initial!r})")
+        if not (isinstance(self.m_odd, int) and self.m_odd > 0 and self.m_odd % 2 == 1):
+            raise ConfigError(f"ftppf.m_odd must be a positive odd integer, got {self.m_odd!r}")
+        if not (isinstance(self.m_even, int) and self.m_even > 0 and self.m_even % 2 == 0):
+            raise ConfigError(f"ftppf.m_even must be a positive even integer, got {self.m_even!r}")
+        if not self.m_odd < self.m_even:
+            raise ConfigError(f"m = ftppf.m_odd / ftppf.m_even must be < 1, got {self.m_odd}/{self.m_even}")
+
+    def evaluate(self, t: float) -> tuple[float, float]:
+        """``rho(t)`` and ``rho'(t)``."""
+        if t >= self.T_f_s:
+            return self.rho_Tf, 0.0
+        inv_m = self.m_even / self.m_odd
+        rho_0 = self.rho_initial - self.rho_Tf
+        frac = 1.0 - max(t, 0.0) / self.T_f_s
+        return rho_0 * frac**inv_m + self.rho_Tf, -rho_0 * inv_m * frac ** (inv_m - 1.0) / self.T_f_s
+
+
+@dataclass(frozen=True)
+class BlfppcGains:
+    """Gains of the BLFPPC law (Appendix C) and of its dynamic-surface filter.
+
+    Attributes
+    ----------
+    K1, K2, K3 : float
+        Diagonal gains ``K_1``, ``K_2``, ``K_3`` (equal on the three axes).
+    D_m_Nm : float
+        Disturbance bound [N m].
+    mu_rad_s : float
+        ``tanh`` width [rad/s].
+    p, T3_s, V_floor : float
+        Filter parameters, as in :class:`~.sappc.BacksteppingGains`.
+    q0_floor : float
+        Floor of ``q_e0`` in ``Gamma^-1``.
+    """
+
+    K1: float
+    K2: float
+    K3: float
+    D_m_Nm: float
+    mu_rad_s: float
+    p: float = 0.1
+    T3_s: float = 2.0
+    V_floor: float = 1e-12
+    q0_floor: float = 1e-3
+
+    def __post_init__(self) -> None:
+        for name in ("K1", "K2", "mu_rad_s", "T3_s", "V_floor", "q0_floor"):
+            check_positive(f"gains.{name}", getattr(self, name))
+        check_positive("gains.K3", self.K3, allow_zero=True)
+        check_positive("gains.D_m_Nm", self.D_m_Nm, allow_zero=True)
+        if not 0.0 < self.p < 1.0:
+            raise ConfigError(f"gains.p must be in (0, 1), got {self.p!r}")
+        if self.V_floor > 1.0 or self.q0_floor >= 1.0:
+            raise ConfigError(f"gains.V_floor must be in (0, 1] and gains.q0_floor in (0, 1), got {self.V_floor!r}, {self.q0_floor!r}")
+
+
+@dataclass(frozen=True)
+class BlfppcConfig:
+    """Validated configuration of the BLFPPC benchmark."""
+
+    inertia_kg_m2: tuple[tuple[float, float, float], ...]
+    ftppf: FiniteTimePF
+    gains: BlfppcGains
+    actuator: ActuatorConfig = ActuatorConfig()
+
+    def __post_init__(self) -> None:
+        check_spd_inertia("inertia_kg_m2", self.inertia_kg_m2)
+
+
+class BlfppcController(AttitudeController):
+    """The BLFPPC benchmark controller of Appendix C."""
+
+    def __init__(self, config: BlfppcConfig) -> None:
+        super().__init__(config.inertia_kg_m2, config.actuator)
+        self.config = config
+        g = config.gains
+        self.filter = DynamicSurfaceFilter(p=g.p, T3=g.T3_s, V_floor=g.V_floor)
+        self.upper_side: NDArray[np.bool_] | None = None
+
+    def _reset_law(self) -> None:
+        self.filter.reset()
+        self.upper_side = None
+
+    def _start(self, err: ErrorState) -> None:
+        q_ev0 = err.q_BR[:, :3]
+        worst = float(np.max(np.abs(q_ev0)))
+        if worst >= self.config.ftppf.rho_initial:
+            raise ConfigError(
+                f"ftppf.rho_initial = {self.config.ftppf.rho_initial!r} must exceed the largest initial error "
+                f"|q_ev,i(0)| = {worst:.6g}: BLFPPC must start inside its funnel"
+            )
+        self.upper_side = q_ev0 >= 0.0
+
+    def _law(self, tau: float, dt: float, err: ErrorState) -> tuple[Array, dict[str, Array]]:
+        assert self.upper_side is not None
+        g = self.config.gains
+        q_ev = err.q_BR[:, :3]
+        f, f_dot = self.config.ftppf.evaluate(tau)
+        up = self.upper_side
+        rho_u = np.where(up, f, 0.0)
+        rho_l = np.where(up, 0.0, -f)
+        rho_u_dot = np.where(up, f_dot, 0.0)
+        rho_l_dot = np.where(up, 0.0, -f_dot)
+        width = rho_u - rho_l  # = f > 0
+        P_lu = rho_l + rho_u
+        eps = (2.0 * q_ev - P_lu) / width  # BLF-type transformation
+        S_b = rho_l_dot * rho_u - rho_u_dot * rho_l
+        S_v = ((rho_u_dot - rho_l_dot) * q_ev + S_b) / width
+        # alpha = Gamma^-1 [-K1 q_ev + 1/2 K1 P_lu + S_v]
+        alpha = gamma_inverse_times(err.q_BR, -g.K1 * q_ev + 0.5 * g.K1 * P_lu + S_v, g.q0_floor)
+        S_d, S_d_dot, V3 = self.filter.update(alpha, dt)
+        z2 = err.omega_BR_B - S_d
+        barrier = 1.0 - eps * eps
+        barrier = np.where(np.abs(barrier) < BARRIER_MARGIN, np.copysign(BARRIER_MARGIN, barrier), barrier)
+        D_rho_eps = eps / (barrier * width)
+        Jz2 = _matvec(self.J, z2)
+        # u = -K2 J z2 - 2 K3 Gamma^-1 D_rho eps - W0 + J dS_d/dt - D_m tanh(z2/mu)  (Gamma^-1 as written, obs. 6)
+        u = (
+            -g.K2 * Jz2
+            - 2.0 * g.K3 * gamma_inverse_times(err.q_BR, D_rho_eps, g.q0_floor)
+            - w0_dynamics(self.J, err)
+            + _matvec(self.J, S_d_dot)
+            - robust_term(g.D_m_Nm, z2, g.mu_rad_s)
+        )
+        V = np.stack((0.5 * (eps * eps).sum(axis=1), 0.5 * (z2 * Jz2).sum(axis=1), V3), axis=1)
+        rho_signed = np.where(up, rho_u, rho_l)
+        return u, {"rho": rho_signed, "band_lower": rho_l, "band_upper": rho_u, "eps": eps, "z": q_ev, "V": V}

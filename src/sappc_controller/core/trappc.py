@@ -1,0 +1,147 @@
+"""TraPPC benchmark (Appendix B): traditional homeomorphic PPC with the SAPPC backstepping law.
+
+Performance function: the usual exponential ``rho(t) = (rho_0 - rho_inf) exp(-l t) + rho_inf > 0``.
+Error transformation (Table "Characteristic of Traditional PPC Error
+Transformation", homeomorphic type, ``K = 0.3`` in the paper):
+
+* initial error ``e(0) >= 0``: ``eps = ln((K + z) / (K (1 - z)))``, constraint ``-K rho < e < rho``;
+* initial error ``e(0) < 0``:  ``eps = ln(K (1 + z) / (K - z))``,   constraint ``-rho < e < K rho``;
+
+with ``z = e / rho``.  The second row is the first mirrored,
+``eps_2(z) = -eps_1(-z)``, so with ``s = sign(e(0))``: ``eps = s f(s z)``,
+``f(x) = ln((K + x) / (K (1 - x)))``, ``d eps / d z = f'(s z) = 1/(K + s z) + 1/(1 - s z)``.
+``eps = 0`` at ``e = 0``: TraPPC drives the error to zero inside the funnel.
+Appendix B: the virtual control, actual control and filter are those of SAPPC,
+so ``psi = f'/rho``, ``eta = -rho_dot/rho`` and ``xi = 0`` feed
+:class:`~.sappc.BacksteppingPPC`.
+
+Singularity guard: the transformation is undefined once ``s z`` leaves
+``(-K, 1)`` (the traditional PPC's singularity, Sec. IV.E).  The software must
+not emit NaN, so ``s z`` is clipped to ``[-K + m, 1 - m]`` with
+``m = DOMAIN_MARGIN``: outside the funnel the law acts as if the error sat just
+inside the violated boundary (a large, finite, saturating command).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from spacecraft_sim.core.validation import ConfigError, check_positive, check_spd_inertia
+
+from .common import ActuatorConfig
+from .sappc import BacksteppingGains, BacksteppingPPC, Transformed
+
+__all__ = ["DOMAIN_MARGIN", "ExponentialPF", "TrappcConfig", "TrappcController", "TrappcTransformation"]
+
+Array = NDArray[np.float64]
+
+#: Distance in z kept from the transformation's asymptotes (see module
+#: docstring): ln(1/1e-9) = 20.7 bounds |eps|, a finite "at the wall" value.
+DOMAIN_MARGIN = 1e-9
+
+
+@dataclass(frozen=True)
+class ExponentialPF:
+    """``rho(t) = (rho_0 - rho_inf) exp(-l t) + rho_inf``.
+
+    Attributes
+    ----------
+    rho_0 : float
+        Initial value; must exceed every ``|q_ev,i(0)|`` so the run starts inside the funnel.
+    rho_inf : float
+        Terminal value, ``0 < rho_inf < rho_0``.
+    l : float
+        Decay rate [1/s].
+    """
+
+    rho_0: float
+    rho_inf: float
+    l: float
+
+    def __post_init__(self) -> None:
+        check_positive("pf.rho_0", self.rho_0)
+        check_positive("pf.rho_inf", self.rho_inf)
+        check_positive("pf.l", self.l)
+        if not self.rho_inf < self.rho_0:
+            raise ConfigError(f"pf.rho_inf ({self.rho_inf!r}) must be less than pf.rho_0 ({self.rho_0!r})")
+
+
+class TrappcTransformation:
+    """Exponential performance function + log-type homeomorphic transformation."""
+
+    def __init__(self, pf: ExponentialPF, K: float) -> None:
+        self.pf = pf
+        self.K = K
+        self.sign: Array | None = None
+
+    def start(self, q_ev0: Array) -> None:
+        worst = float(np.max(np.abs(q_ev0)))
+        if worst >= self.pf.rho_0:
+            raise ConfigError(
+                f"pf.rho_0 = {self.pf.rho_0!r} must exceed the largest initial error |q_ev,i(0)| = {worst:.6g}: "
+                "TraPPC must start inside its funnel"
+            )
+        self.sign = np.where(q_ev0 >= 0.0, 1.0, -1.0)
+
+    def reset(self) -> None:
+        self.sign = None
+
+    def transform(self, q_ev: Array, tau: float) -> Transformed:
+        assert self.sign is not None, "start() first"
+        pf, K, s = self.pf, self.K, self.sign
+        decay = (pf.rho_0 - pf.rho_inf) * np.exp(-pf.l * tau)
+        rho = decay + pf.rho_inf
+        rho_dot = -pf.l * decay
+        z = q_ev / rho
+        x = np.clip(s * z, -K + DOMAIN_MARGIN, 1.0 - DOMAIN_MARGIN)
+        eps = s * np.log((K + x) / (K * (1.0 - x)))  # homeomorphic transformation (Table, row by sign)
+        d_eps_dz = 1.0 / (K + x) + 1.0 / (1.0 - x)
+        rho_b = np.full_like(z, rho)
+        return Transformed(
+            eps=eps,
+            psi=d_eps_dz / rho,
+            eta=np.full_like(z, -rho_dot / rho),
+            xi=np.zeros_like(z),
+            rho=s * rho_b,
+            z=z,
+            band_lower=np.where(s > 0.0, -K * rho_b, -rho_b),
+            band_upper=np.where(s > 0.0, rho_b, K * rho_b),
+        )
+
+
+@dataclass(frozen=True)
+class TrappcConfig:
+    """Validated configuration of the TraPPC benchmark.
+
+    Attributes
+    ----------
+    inertia_kg_m2 : 3x3 known inertia [kg m^2].
+    pf : ExponentialPF
+    K : float
+        Asymmetry of the funnel, in (0, 1); the paper uses 0.3.
+    gains : BacksteppingGains
+        Same law as SAPPC (Appendix B).
+    actuator : ActuatorConfig
+    """
+
+    inertia_kg_m2: tuple[tuple[float, float, float], ...]
+    pf: ExponentialPF
+    gains: BacksteppingGains
+    actuator: ActuatorConfig = ActuatorConfig()
+    K: float = 0.3
+
+    def __post_init__(self) -> None:
+        check_spd_inertia("inertia_kg_m2", self.inertia_kg_m2)
+        if not 0.0 < self.K < 1.0:
+            raise ConfigError(f"K must be in (0, 1), got {self.K!r}")
+
+
+class TrappcController(BacksteppingPPC):
+    """The TraPPC benchmark controller built from a :class:`TrappcConfig`."""
+
+    def __init__(self, config: TrappcConfig) -> None:
+        self.config = config
+        super().__init__(config.inertia_kg_m2, TrappcTransformation(config.pf, config.K), config.gains, config.actuator)

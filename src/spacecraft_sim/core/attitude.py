@@ -1,0 +1,188 @@
+"""Attitude mathematics: the one quaternion convention of this project.
+
+Convention
+----------
+* **Order: scalar last**, ``q = (x, y, z, w)`` with vector part ``q_v = q[..., :3]``
+  and scalar part ``q_0 = q[..., 3]``.  This is the order of ROS
+  ``geometry_msgs/Quaternion`` and of the numbers in the paper's simulation
+  section (``q_s(0) = [0.3254, 0.4068, -0.3254, 0.7891]`` has scalar ``0.7891``).
+  The paper's equations write ``q = [q0, q_v]``; only the storage order differs.
+  :func:`from_scalar_first` and :func:`to_scalar_first` convert at the edges.
+* **Hamilton product**, ``p ⊗ q = (p0 q_v + q0 p_v + p_v × q_v,  p0 q0 - p_v·q_v)``.
+* ``q_BN`` is the attitude of frame B relative to frame N: a vector's
+  components transform as ``v_N = q_BN ⊗ v_B ⊗ q_BN^*``.
+* Kinematics: ``dq_BN/dt = 1/2 q_BN ⊗ (omega_BN_B, 0)`` with ``omega_BN_B`` the
+  body rate relative to N in body components.
+* Error quaternion (SPEC_NOTES): ``q_BR = q_RN^* ⊗ q_BN`` (body relative to
+  the desired/reference frame R), and the paper's ``C_e`` (eq. errorsystem) is
+  ``C_BR``, mapping R-frame components to B-frame components.
+
+Every function accepts a batch: a leading axis of N runs (or any leading
+shape); the last axis holds the 3 or 4 components.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "cross",
+    "dcm_BR_times",
+    "dot",
+    "error_quaternion",
+    "euler_to_quaternion",
+    "from_scalar_first",
+    "gamma_inverse_times",
+    "gamma_times",
+    "quat_conjugate",
+    "quat_kinematics",
+    "quat_multiply",
+    "quat_normalize",
+    "quat_to_dcm_BN",
+    "to_scalar_first",
+]
+
+Array = NDArray[np.float64]
+
+# Index permutations for the cross product with ndarray.take (3x faster than
+# np.cross on single vectors, see benchmarks/README.md).
+_I120 = np.array([1, 2, 0])
+_I201 = np.array([2, 0, 1])
+_ONES3 = np.ones(3)
+
+
+def dot(a: Array, b: Array) -> Array:
+    """Row-wise dot product of (..., 3) arrays, shape (...)."""
+    return (a * b) @ _ONES3
+
+
+def cross(a: Array, b: Array) -> Array:
+    """Row-wise cross product ``a × b`` of (..., 3) arrays."""
+    return a.take(_I120, axis=-1) * b.take(_I201, axis=-1) - a.take(_I201, axis=-1) * b.take(_I120, axis=-1)
+
+
+def from_scalar_first(q_wxyz: ArrayLike) -> Array:
+    """Reorder ``(w, x, y, z)`` quaternions to this project's ``(x, y, z, w)``."""
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    return np.concatenate((q[..., 1:], q[..., :1]), axis=-1)
+
+
+def to_scalar_first(q_xyzw: ArrayLike) -> Array:
+    """Reorder this project's ``(x, y, z, w)`` quaternions to ``(w, x, y, z)``."""
+    q = np.asarray(q_xyzw, dtype=np.float64)
+    return np.concatenate((q[..., 3:], q[..., :3]), axis=-1)
+
+
+def quat_multiply(p: Array, q: Array) -> Array:
+    """Hamilton product ``p ⊗ q`` of scalar-last quaternions, shape (..., 4)."""
+    pv, p0 = p[..., :3], p[..., 3:]
+    qv, q0 = q[..., :3], q[..., 3:]
+    vec = p0 * qv + q0 * pv + cross(pv, qv)
+    sca = p0 * q0 - dot(pv, qv)[..., None]
+    return np.concatenate((vec, sca), axis=-1)
+
+
+def quat_conjugate(q: Array) -> Array:
+    """Conjugate (inverse of a unit quaternion): ``(-q_v, q_0)``."""
+    return q * np.array([-1.0, -1.0, -1.0, 1.0])
+
+
+def quat_normalize(q: Array) -> Array:
+    """Scale quaternions to unit norm (the caller guarantees a non-zero norm)."""
+    return q / np.sqrt((q * q) @ np.ones(4))[..., None]
+
+
+def error_quaternion(q_RN: Array, q_BN: Array) -> Array:
+    """Attitude error ``q_BR = q_RN^* ⊗ q_BN`` with the scalar part kept ``>= 0``.
+
+    ``q`` and ``-q`` describe the same attitude; keeping ``q_0 >= 0`` selects
+    the shortest rotation (angle <= 180 deg).  When the true error passes
+    through 180 deg the returned vector part flips sign: the error is then
+    measured the short way round from the other side.  ``q_0 = 0`` exactly
+    (180 deg) is the singular point of the paper's Jacobian (SPEC_NOTES error 5);
+    the controllers guard it (see ``sappc_controller.core.sappc``).
+    """
+    q_BR = quat_multiply(quat_conjugate(q_RN), q_BN)
+    return np.where(q_BR[..., 3:] < 0.0, -q_BR, q_BR)
+
+
+def dcm_BR_times(q_BR: Array, v_R: Array) -> Array:
+    """``C_e v`` with ``C_e = (q0^2 - q_v·q_v) I + 2 q_v q_v^T - 2 q0 q_v^x`` (eq. errorsystem).
+
+    Maps R-frame components of ``v`` to B-frame components.
+    """
+    qv, q0 = q_BR[..., :3], q_BR[..., 3:]
+    return (q0 * q0 - dot(qv, qv)[..., None]) * v_R + 2.0 * dot(qv, v_R)[..., None] * qv - 2.0 * q0 * cross(qv, v_R)
+
+
+def quat_to_dcm_BN(q_BN: Array) -> Array:
+    """Direction cosine matrix ``C_BN`` (N components -> B components), shape (..., 3, 3)."""
+    qv, q0 = q_BN[..., :3], q_BN[..., 3]
+    x, y, z = qv[..., 0], qv[..., 1], qv[..., 2]
+    c = np.empty(q_BN.shape[:-1] + (3, 3))
+    c[..., 0, 0] = q0**2 + x**2 - y**2 - z**2
+    c[..., 0, 1] = 2 * (x * y + q0 * z)
+    c[..., 0, 2] = 2 * (x * z - q0 * y)
+    c[..., 1, 0] = 2 * (x * y - q0 * z)
+    c[..., 1, 1] = q0**2 - x**2 + y**2 - z**2
+    c[..., 1, 2] = 2 * (y * z + q0 * x)
+    c[..., 2, 0] = 2 * (x * z + q0 * y)
+    c[..., 2, 1] = 2 * (y * z - q0 * x)
+    c[..., 2, 2] = q0**2 - x**2 - y**2 + z**2
+    return c
+
+
+def gamma_times(q_BR: Array, omega_B: Array) -> Array:
+    """``Gamma(q_e) omega`` with ``Gamma = 1/2 (q0 I + q_v^x)`` (eq. Jacobian)."""
+    qv, q0 = q_BR[..., :3], q_BR[..., 3:]
+    return 0.5 * (q0 * omega_B + cross(qv, omega_B))
+
+
+def gamma_inverse_times(q_BR: Array, x: Array, q0_floor: float) -> Array:
+    """``Gamma(q_e)^{-1} x`` in closed form, with ``q0`` floored at ``q0_floor``.
+
+    For a unit quaternion ``(q0 I + q_v^x)^{-1} = q0 I - q_v^x + q_v q_v^T / q0``
+    (verified by multiplication, using ``q_v^x q_v = 0`` and
+    ``(q_v^x)^2 = q_v q_v^T - |q_v|^2 I``), so
+    ``Gamma^{-1} x = 2 (q0 x - q_v × x + q_v (q_v·x) / q0)``.
+    ``det(2 Gamma) = q0`` (the paper's remark after eq. virtualcontrol): the
+    inverse is singular at 180 deg.  ``q0`` is replaced by ``max(q0, q0_floor)``
+    so that the result stays finite and bounded by ``2 (1 + 1/q0_floor) |x|``
+    (SPEC_NOTES error 5).  Callers pass ``q_BR`` with ``q0 >= 0``.
+    """
+    qv = q_BR[..., :3]
+    q0 = np.maximum(q_BR[..., 3:], q0_floor)
+    return 2.0 * (q0 * x - cross(qv, x) + (dot(qv, x)[..., None] / q0) * qv)
+
+
+def quat_kinematics(q_BN: Array, omega_BN_B: Array) -> Array:
+    """``dq_BN/dt = 1/2 q_BN ⊗ (omega_BN_B, 0)``, shape (..., 4)."""
+    qv, q0 = q_BN[..., :3], q_BN[..., 3:]
+    vec = 0.5 * (q0 * omega_BN_B + cross(qv, omega_BN_B))
+    sca = -0.5 * dot(qv, omega_BN_B)[..., None]
+    return np.concatenate((vec, sca), axis=-1)
+
+
+def euler_to_quaternion(angles_rad: ArrayLike, sequence: str) -> Array:
+    """Quaternion ``q_BN`` (scalar last) from Euler angles about body axes.
+
+    Parameters
+    ----------
+    angles_rad : array_like, shape (..., 3)
+        Rotation angles in radians, applied in the order of ``sequence``.
+    sequence : str
+        Three axis letters; upper case (e.g. ``"ZYX"``) for intrinsic rotations
+        about the moving body axes, lower case for extrinsic rotations about
+        fixed axes (scipy's convention).
+
+    Notes
+    -----
+    Uses ``scipy.spatial.transform.Rotation``, whose quaternions are also
+    scalar-last and represent the active rotation taking N to B, i.e. ``q_BN``
+    in this module's sense.
+    """
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_euler(sequence, np.asarray(angles_rad, dtype=np.float64)).as_quat()
+    return np.where(q[..., 3:] < 0.0, -q, q)
