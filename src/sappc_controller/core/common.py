@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from spacecraft_sim.core.attitude import cross, dcm_BR_times, error_quaternion
+from spacecraft_sim.core.attitude import cross, dcm_BR_times, dot, error_quaternion, matvec
 from spacecraft_sim.core.validation import ConfigError, check_positive
 
 __all__ = [
@@ -95,15 +95,13 @@ class DynamicSurfaceFilter:
             self.S_d = alpha.copy()
         S_d = self.S_d
         H_d = S_d - alpha
-        V3 = 0.5 * ((H_d * H_d) @ _ONES3)
+        V3 = 0.5 * dot(H_d, H_d)
         M3 = predefined_time_gain(V3, self.p, self.T3, self.V_floor)
         rate = -np.expm1(-M3 * dt) / dt
         S_d_dot = -rate[:, None] * H_d
         self.S_d = S_d + dt * S_d_dot
         return S_d, S_d_dot, V3
 
-
-_ONES3 = np.ones(3)
 
 
 @dataclass(frozen=True)
@@ -144,21 +142,14 @@ def w0_dynamics(J: Array, err: ErrorState) -> Array:
 
     ``J`` is (3, 3) or (N, 3, 3).
     """
-    Jw = _matvec(J, err.omega_BN_B)
+    Jw = matvec(J, err.omega_BN_B)
     inner = cross(err.omega_BR_B, err.C_omega_d) - err.C_omegadot_d
-    return _matvec(J, inner) - cross(err.omega_BN_B, Jw)
+    return matvec(J, inner) - cross(err.omega_BN_B, Jw)
 
 
 def robust_term(D_m: float, z2: Array, mu: Array) -> Array:
     """``D_m vec(tanh(z2_i / mu_i))`` (eq. U, Lemma 1)."""
     return D_m * np.tanh(z2 / mu)
-
-
-def _matvec(J: Array, v: Array) -> Array:
-    """``J v`` for a shared (3, 3) or per-run (N, 3, 3) matrix and (N, 3) vectors."""
-    if J.ndim == 2:
-        return v @ J.T
-    return np.matmul(J, v[..., None])[..., 0]
 
 
 @dataclass(frozen=True)
@@ -196,6 +187,6 @@ class Actuator:
     def apply(self, torque_cmd_B: Array) -> tuple[Array, Array]:
         """Return the produced torque and a per-axis saturation flag, both (N, 3)."""
         c = self.config
-        saturated = np.abs(torque_cmd_B) >= c.max_torque_Nm
+        saturated = np.abs(torque_cmd_B) > c.max_torque_Nm
         torque = np.clip(torque_cmd_B, -c.max_torque_Nm, c.max_torque_Nm)
         return np.where(np.abs(torque) < c.min_torque_Nm, 0.0, torque), saturated

@@ -41,6 +41,12 @@ Feasible range of ``l`` (SPEC_NOTES error 2)
             = 2 (1 - G / A) / t2            otherwise,
     l_lower = min(ln(A / G), 2 (1 - G / A)) / t2.
 
+When ``ln(A / G)`` is the smaller, the lower end is **excluded**: there the
+root is ``s = 0`` (the exponential reaches ``g_inf`` exactly at ``t2`` and the
+parabola has zero length, ``a1`` infinite); :data:`_LOWER_BOUND_MARGIN` keeps
+``l`` away from it.  When ``2 (1 - G / A)`` is the smaller, the root is
+``s = t2`` (``t1 = 0``: the RPF is the parabola alone), which is valid.
+
 The paper's Table 1 (rho_e0 = 0.4, l = 0.5, t2 = 20, g_inf = 3e-5,
 rho_einf = 1e-6) gives ``l_upper = 0.4919``: infeasible.
 
@@ -83,6 +89,14 @@ Array = NDArray[np.float64]
 #: ulps of the quantities involved, so that ``l = l_upper`` computed by this
 #: module is itself accepted (it is a double root).
 _FEASIBILITY_RTOL = 1e-12
+#: Relative margin above an excluded lower bound ``ln(A/G)/t2`` (see module
+#: docstring): keeps ``s = t2 - t1 >= ~1e-6 t2``, where the W_-1 root still has
+#: 10 correct digits.
+_LOWER_BOUND_MARGIN = 1e-6
+#: Relative rounding allowance when comparing the W_0 root with t2 (the root
+#: is computed to ~1e-13 relative; 1e-9 is generous and still far from any
+#: meaningful difference in switch time).
+_ROOT_RTOL = 1e-9
 
 
 class InfeasibleRPFError(ConfigError):
@@ -153,7 +167,9 @@ def feasible_l_range(rho_e0: ArrayLike, rho_einf: float, g_inf: float, t2: float
     Returns
     -------
     l_lower, l_upper : ndarray
-        Shaped like ``rho_e0``.  See the module docstring for the derivation.
+        Shaped like ``rho_e0``.  See the module docstring for the derivation;
+        an excluded lower end is returned raised by ``_LOWER_BOUND_MARGIN``
+        (relative), so the returned interval is closed and every value in it works.
     """
     A = np.asarray(rho_e0, dtype=np.float64) - rho_einf
     G = g_inf - rho_einf
@@ -161,6 +177,8 @@ def feasible_l_range(rho_e0: ArrayLike, rho_einf: float, g_inf: float, t2: float
         ratio = A / G
         upper = np.where(ratio >= 2.0, np.log(np.e * ratio / 2.0), 2.0 * (1.0 - 1.0 / ratio)) / t2
         lower = np.minimum(np.log(ratio), 2.0 * (1.0 - 1.0 / ratio)) / t2
+        excluded = np.log(ratio) < 2.0 * (1.0 - 1.0 / ratio)
+    lower = np.where(excluded, lower * (1.0 + _LOWER_BOUND_MARGIN), lower)
     bad = ~(ratio > 1.0)
     return np.where(bad, np.nan, lower), np.where(bad, np.nan, upper)
 
@@ -226,10 +244,17 @@ class ReferencePerformanceFunction:
 
         A = np.where(self.flat, 1.0, rho_e0 - rho_einf)
         G = g_inf - rho_einf
-        arg = np.maximum(-2.0 * G * np.exp(l * t2 - 2.0) / A, -np.exp(-1.0))  # -2c, clamped at the branch point
-        s0 = 2.0 * (1.0 + lambertw(arg, 0).real / 2.0) / l  # x = -W/2, s = 2 (1 - x) / l
-        s_m1 = 2.0 * (1.0 + lambertw(arg, -1).real / 2.0) / l
-        s = np.where(s0 <= t2, s0, s_m1)
+        arg = -2.0 * G * np.exp(l * t2 - 2.0) / A  # -2c
+        # At (or, by rounding, just below) the branch point -1/e both branches equal -1
+        # (the double root at l = l_upper); scipy's lambertw returns NaN exactly there.
+        at_branch = arg <= -np.exp(-1.0)
+        with np.errstate(invalid="ignore"):
+            w0 = np.where(at_branch, -1.0, lambertw(arg, 0).real)
+            w_m1 = np.where(at_branch, -1.0, lambertw(arg, -1).real)
+        s0 = (2.0 + w0) / l  # x = -W/2, s = 2 (1 - x) / l
+        s_m1 = (2.0 + w_m1) / l
+        # The W_0 root when it lies in (0, t2] (allowing rounding at s = t2, i.e. t1 = 0), else the W_-1 root.
+        s = np.where(s0 <= t2 * (1.0 + _ROOT_RTOL), np.minimum(s0, t2), s_m1)
         s = np.where(self.flat, t2, s)
         self.t1: Array = t2 - s
         self._A = np.where(self.flat, 0.0, A)

@@ -24,11 +24,11 @@ from typing import NamedTuple, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from spacecraft_sim.core.attitude import gamma_inverse_times
+from spacecraft_sim.core.attitude import dot, gamma_inverse_times, matvec
 from spacecraft_sim.core.validation import ConfigError, check_positive, check_spd_inertia
 
 from .base import AttitudeController
-from .common import ActuatorConfig, DynamicSurfaceFilter, ErrorState, _matvec, predefined_time_gain, robust_term, w0_dynamics
+from .common import ActuatorConfig, DynamicSurfaceFilter, ErrorState, predefined_time_gain, robust_term, w0_dynamics
 from .rpf import ReferencePerformanceFunction, RPFParameters, constraint_bound
 from .smetf import smetf, smetf_derivatives
 
@@ -209,17 +209,17 @@ class BacksteppingPPC(AttitudeController):
         q_ev = err.q_BR[:, :3]
         tr = self.transformation.transform(q_ev, tau)
         eps = tr.eps
-        V1 = 0.5 * (eps * eps).sum(axis=1)  # V1 = z1^T z1 / 2, z1 = eps_q
+        V1 = 0.5 * dot(eps, eps)  # V1 = z1^T z1 / 2, z1 = eps_q
         M_q = predefined_time_gain(V1, g.p, g.T1_s, g.V_floor)
         # eq. (virtualcontrol): alpha = Gamma^-1 [-psi^-1 M_q K_q eps - eta q_ev]
         alpha = gamma_inverse_times(err.q_BR, -(g.K_q * M_q)[:, None] * eps / tr.psi - tr.eta * q_ev, g.q0_floor)
         S_d, S_d_dot, V3 = self.filter.update(alpha, dt)  # eq. (dSd), exact exponential update
         z2 = err.omega_BR_B - S_d  # z2 = omega_e - S_d
-        Jz2 = _matvec(self.J, z2)
-        V2 = 0.5 * (z2 * Jz2).sum(axis=1)  # V2 = z2^T J z2 / 2
+        Jz2 = matvec(self.J, z2)
+        V2 = 0.5 * dot(z2, Jz2)  # V2 = z2^T J z2 / 2
         M_w = predefined_time_gain(V2, g.p, g.T2_s, g.V_floor)
         # eq. (U): u = -W0 + J dS_d/dt - D_m tanh(z2/mu) - M_omega K_omega J z2
-        u = -w0_dynamics(self.J, err) + _matvec(self.J, S_d_dot) - robust_term(g.D_m_Nm, z2, g.mu_rad_s) - (g.K_omega * M_w)[:, None] * Jz2
+        u = -w0_dynamics(self.J, err) + matvec(self.J, S_d_dot) - robust_term(g.D_m_Nm, z2, g.mu_rad_s) - (g.K_omega * M_w)[:, None] * Jz2
         diag = {
             "rho": tr.rho,
             "band_lower": tr.band_lower,

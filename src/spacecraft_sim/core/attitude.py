@@ -35,6 +35,7 @@ __all__ = [
     "from_scalar_first",
     "gamma_inverse_times",
     "gamma_times",
+    "matvec",
     "quat_conjugate",
     "quat_kinematics",
     "quat_multiply",
@@ -46,15 +47,25 @@ __all__ = [
 Array = NDArray[np.float64]
 
 # Index permutations for the cross product with ndarray.take (3x faster than
-# np.cross on single vectors, see benchmarks/README.md).
+# np.cross on single vectors).
 _I120 = np.array([1, 2, 0])
 _I201 = np.array([2, 0, 1])
-_ONES3 = np.ones(3)
+
+# Reductions and 3x3 products use einsum, never matmul: BLAS rounds a product
+# differently for one row than for many, and every result of a run must be the
+# same bit for bit whether the run is alone or inside a batch of any size.
 
 
 def dot(a: Array, b: Array) -> Array:
     """Row-wise dot product of (..., 3) arrays, shape (...)."""
-    return (a * b) @ _ONES3
+    return np.einsum("...i,...i->...", a, b)
+
+
+def matvec(M: Array, v: Array) -> Array:
+    """``M v`` per row for a shared (3, 3) or per-run (..., 3, 3) matrix and (..., 3) vectors."""
+    if M.ndim == 2:
+        return np.einsum("ij,...j->...i", M, v)
+    return np.einsum("...ij,...j->...i", M, v)
 
 
 def cross(a: Array, b: Array) -> Array:
@@ -90,7 +101,7 @@ def quat_conjugate(q: Array) -> Array:
 
 def quat_normalize(q: Array) -> Array:
     """Scale quaternions to unit norm (the caller guarantees a non-zero norm)."""
-    return q / np.sqrt((q * q) @ np.ones(4))[..., None]
+    return q / np.sqrt(np.einsum("...i,...i->...", q, q))[..., None]
 
 
 def error_quaternion(q_RN: Array, q_BN: Array) -> Array:

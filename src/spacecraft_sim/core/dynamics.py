@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .attitude import cross
+from .attitude import cross, dot, matvec, quat_normalize
 from .validation import InputError, check_spd_inertia
 
 __all__ = ["RigidBody", "STATE_SIZE", "initial_state", "kinetic_energy_J"]
@@ -31,9 +31,6 @@ Array = NDArray[np.float64]
 
 #: Length of the state vector: quaternion (4) and body rate (3).
 STATE_SIZE = 7
-
-_I120 = np.array([1, 2, 0])
-_I201 = np.array([2, 0, 1])
 
 
 class RigidBody:
@@ -53,13 +50,6 @@ class RigidBody:
     def __init__(self, inertia_kg_m2: ArrayLike) -> None:
         self.J: Array = check_spd_inertia("inertia_kg_m2", inertia_kg_m2)
         self.J_inv: Array = np.linalg.inv(self.J)
-        self._shared = self.J.ndim == 2
-        # Transposes for row-vector products: (N, 3) @ J^T == (J v) per row.
-        self._JT = self.J.T if self._shared else None
-        self._JinvT = self.J_inv.T if self._shared else None
-
-    def _apply(self, M: Array, MT: Array | None, v: Array) -> Array:
-        return v @ MT if MT is not None else np.matmul(M, v[..., None])[..., 0]
 
     def derivative(self, x: Array, torque_B: Array) -> Array:
         """State derivative ``dx/dt`` for states (N, 7) and torques (N, 3)."""
@@ -67,17 +57,10 @@ class RigidBody:
         w = x[:, 4:]
         qv = q[:, :3]
         q0 = q[:, 3:]
-        Jw = self._apply(self.J, self._JT, w)
-        # omega x J omega and q_v x omega, in one take/multiply pass each
-        w_dot = self._apply(
-            self.J_inv,
-            self._JinvT,
-            torque_B - (w.take(_I120, axis=1) * Jw.take(_I201, axis=1) - w.take(_I201, axis=1) * Jw.take(_I120, axis=1)),
-        )
         out = np.empty_like(x)
         out[:, :3] = 0.5 * (q0 * w + cross(qv, w))
-        out[:, 3] = -0.5 * (qv * w).sum(axis=1)
-        out[:, 4:] = w_dot
+        out[:, 3] = -0.5 * dot(qv, w)
+        out[:, 4:] = matvec(self.J_inv, torque_B - cross(w, matvec(self.J, w)))
         return out
 
     def rk4_step(self, x: Array, torque_B: Array, dt: float) -> Array:
@@ -88,8 +71,7 @@ class RigidBody:
         k3 = self.derivative(x + h2 * k2, torque_B)
         k4 = self.derivative(x + dt * k3, torque_B)
         x_new = x + (dt / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
-        q = x_new[:, :4]
-        x_new[:, :4] = q / np.sqrt((q * q).sum(axis=1, keepdims=True))
+        x_new[:, :4] = quat_normalize(x_new[:, :4])
         return x_new
 
     def propagate(self, x: Array, torque_B: Array, dt: float, substeps: int = 1) -> Array:
@@ -120,5 +102,5 @@ def initial_state(q_BN: ArrayLike, omega_BN_B: ArrayLike) -> Array:
 
 def kinetic_energy_J(J: Array, omega_BN_B: Array) -> Array:
     """Rotational kinetic energy ``omega^T J omega / 2`` [J], shape (N,)."""
-    return 0.5 * np.einsum("ni,...ij,nj->n", omega_BN_B, J, omega_BN_B)
+    return 0.5 * dot(omega_BN_B, matvec(J, omega_BN_B))
 
