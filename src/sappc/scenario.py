@@ -37,6 +37,7 @@ from spacecraft_sim.core.disturbance import (
 from spacecraft_sim.core.reference import PaperReference
 from spacecraft_sim.core.validation import (
     ConfigError,
+    InputError,
     as_finite_array,
     check_positive,
     check_spd_inertia,
@@ -211,6 +212,13 @@ def scenario_from_mapping(data: Any, *, source: str = "<mapping>") -> Scenario:
     for key in ("name", "duration_s", "control_period_s", "plant", "initial_state", "controllers"):
         if key not in data:
             raise ConfigError(f"{source}: missing key {key}")
+    try:
+        return _scenario_from_mapping(data, source)
+    except InputError as exc:  # a non-finite or malformed number in the file
+        raise ConfigError(str(exc)) from None
+
+
+def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     duration = check_positive("duration_s", data["duration_s"])
     dt = check_positive("control_period_s", data["control_period_s"])
     if duration < dt:
@@ -245,7 +253,8 @@ def scenario_from_mapping(data: Any, *, source: str = "<mapping>") -> Scenario:
     if not isinstance(controllers, dict) or not controllers:
         raise ConfigError("controllers must be a non-empty mapping of controller name to parameters")
     for name in controllers:
-        controller_kind(name)
+        if name not in {c.value for c in ControllerKind}:
+            raise ConfigError(f"unknown key controllers.{name}; expected one of {[c.value for c in ControllerKind]}")
     scenario = Scenario(
         name=str(data["name"]),
         description=str(data.get("description", "")),

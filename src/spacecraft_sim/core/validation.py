@@ -183,7 +183,7 @@ def from_mapping(cls: type, data: Any, prefix: str) -> Any:
             kwargs[name] = _freeze(value)
     try:
         return cls(**kwargs)
-    except ConfigError as exc:
+    except (ConfigError, InputError) as exc:  # a bad value in a file is a configuration error
         msg = str(exc)
         raise ConfigError(msg if msg.startswith(prefix) else f"{prefix}: {msg}") from None
     except TypeError as exc:
