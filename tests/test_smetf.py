@@ -16,7 +16,8 @@ SHEAR_RTOL = 1e-12
 
 
 def _shear_residual(z_s, delta, k):  # type: ignore[no-untyped-def]
-    eps, z0 = smetf(z_s, delta, k)
+    eps, offset = smetf(z_s, delta, k)
+    z0 = 1.0 + offset
     scale = np.maximum.reduce([np.ones_like(z_s), np.abs(z_s), np.abs(z0), np.abs(eps * k)])
     return eps, z0, np.abs(z0 + eps * k - z_s) / scale
 
@@ -43,7 +44,7 @@ def test_finite_at_huge_inputs() -> None:
     for delta in (1e-12, 1.0, 1e12):
         eps, z0, rel = _shear_residual(z_s, np.full(3, delta), TAN10)
         assert np.all(np.isfinite(eps)) and np.all(np.isfinite(z0)) and rel.max() <= SHEAR_RTOL
-        P_s, d = smetf_derivatives(eps, np.full(3, delta), TAN10)
+        P_s, d = smetf_derivatives(eps, z0 - 1.0, np.full(3, delta), TAN10)
         assert np.all(np.isfinite(P_s)) and np.all(np.isfinite(d))
 
 
@@ -64,16 +65,16 @@ def test_newton_iterations_stay_small(monkeypatch) -> None:
     z = np.concatenate((1 - np.logspace(-16, 12, 200), 1 + np.logspace(-16, 12, 200)))
     Z, D = np.meshgrid(z, np.logspace(-8, 10, 100))
     smetf(Z, D, TAN10)
-    # one arctan per iteration plus the final z0: at most 12 iterations over this grid (module docstring)
-    assert len(calls) - 1 <= 13
+    # one arctan per iteration (the last one confirms convergence): at most 12 iterations over this grid
+    assert len(calls) <= 13
 
 
 def test_P_s_and_d_eps_d_delta_match_finite_differences() -> None:
     rng = np.random.default_rng(3)
     z_s = np.concatenate((rng.uniform(-5, 7, 200), 1 + rng.uniform(-1e-3, 1e-3, 50)))
     delta = np.concatenate((rng.uniform(0.01, 5, 200), rng.uniform(1.0, 1e3, 50)))
-    eps, _ = smetf(z_s, delta, TAN10)
-    P_s, d_eps_d_delta = smetf_derivatives(eps, delta, TAN10)
+    eps, offset = smetf(z_s, delta, TAN10)
+    P_s, d_eps_d_delta = smetf_derivatives(eps, offset, delta, TAN10)
     h_z = 1e-6 * np.maximum(1.0, np.abs(z_s))
     fd_z = (smetf(z_s + h_z, delta, TAN10)[0] - smetf(z_s - h_z, delta, TAN10)[0]) / (2 * h_z)
     h_d = 1e-6 * delta
@@ -89,8 +90,9 @@ def test_P_s_and_d_eps_d_delta_match_finite_differences() -> None:
 def test_paper_d_eps_d_delta_misses_the_denominator() -> None:
     # SPEC_NOTES error 3: the paper's d eps_0 / d delta equals the exact value times (1 + R_z tan(theta)).
     z_s, delta = np.array([1.3, 0.4, 5.0]), np.array([0.5, 0.8, 2.0])
-    eps, z0 = smetf(z_s, delta, TAN10)
-    P_s, exact = smetf_derivatives(eps, delta, TAN10)
+    eps, offset = smetf(z_s, delta, TAN10)
+    z0 = 1.0 + offset
+    P_s, exact = smetf_derivatives(eps, offset, delta, TAN10)
     paper = (np.pi / 2) * (eps**2 + 1) * (z0 - 1) * (-1 / delta**2)
     P0 = np.pi / (2 * delta) * (eps**2 + 1)
     np.testing.assert_allclose(paper / (1 + P0 * TAN10), exact, rtol=1e-12)
@@ -99,8 +101,8 @@ def test_paper_d_eps_d_delta_misses_the_denominator() -> None:
 
 def test_sign_property_of_eq_supcontrol() -> None:
     z_s = np.linspace(-10, 12, 1001)
-    eps, _ = smetf(z_s, np.full_like(z_s, 0.7), TAN10)
-    _, d = smetf_derivatives(eps, np.full_like(z_s, 0.7), TAN10)
+    eps, offset = smetf(z_s, np.full_like(z_s, 0.7), TAN10)
+    _, d = smetf_derivatives(eps, offset, np.full_like(z_s, 0.7), TAN10)
     assert np.all(eps * d <= 0.0)  # with delta_dot >= 0: eps^T xi <= 0
     assert np.all(np.diff(eps) > 0)  # R_s is strictly increasing
 
@@ -122,5 +124,16 @@ def test_property_global_solution(z_s, delta, theta_deg) -> None:
     eps, z0, rel = _shear_residual(np.array([z_s]), np.array([delta]), k)
     assert np.isfinite(eps[0]) and rel[0] <= SHEAR_RTOL
     assert 1 - delta <= z0[0] <= 1 + delta  # the pre-image lies in the base map's domain
-    P_s, _ = smetf_derivatives(eps, np.array([delta]), k)
+    P_s, _ = smetf_derivatives(eps, z0 - 1.0, np.array([delta]), k)
     assert 0.0 < P_s[0] <= 1.0 / k * (1 + 1e-15)  # slope bounded by 1/tan(theta): no singularity
+
+
+def test_any_warm_start_gives_the_same_root() -> None:
+    rng = np.random.default_rng(11)
+    z_s = np.concatenate((rng.uniform(-50, 50, 500), 1 + rng.uniform(-1e-4, 1e-4, 100)))
+    delta = rng.uniform(1e-3, 1e3, z_s.size)
+    cold, _ = smetf(z_s, delta, TAN10)
+    for guess in (np.zeros_like(z_s), -cold, 10 * cold, cold + rng.normal(0, 1, z_s.size), np.full_like(z_s, 1e12)):
+        warm, offset = smetf(z_s, delta, TAN10, guess)
+        np.testing.assert_allclose(warm, cold, rtol=1e-14, atol=1e-300)
+        assert np.all(np.abs(1.0 + offset + warm * TAN10 - z_s) <= SHEAR_RTOL * np.maximum(1, np.abs(z_s)))

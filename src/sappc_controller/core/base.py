@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from spacecraft_sim.core.attitude import Linear3
 from spacecraft_sim.core.validation import InputError, as_finite_array, check_unit_quaternion
 
 from .common import Actuator, ActuatorConfig, ErrorState, error_state
@@ -73,6 +74,7 @@ class AttitudeController(ABC):
 
     def __init__(self, inertia_kg_m2: ArrayLike, actuator: ActuatorConfig) -> None:
         self.J: Array = np.asarray(inertia_kg_m2, dtype=np.float64)
+        self.J_times = Linear3(self.J)  # v -> J v
         self.actuator = Actuator(actuator)
         self.t0: float | None = None
         self.n_runs: int | None = None

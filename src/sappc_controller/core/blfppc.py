@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from spacecraft_sim.core.attitude import dot, gamma_inverse_times, matvec
+from spacecraft_sim.core.attitude import dot, gamma_inverse_times
 from spacecraft_sim.core.validation import ConfigError, check_positive, check_spd_inertia
 
 from .base import AttitudeController
@@ -201,13 +201,13 @@ class BlfppcController(AttitudeController):
         barrier = 1.0 - eps * eps
         barrier = np.where(np.abs(barrier) < BARRIER_MARGIN, np.copysign(BARRIER_MARGIN, barrier), barrier)
         D_rho_eps = eps / (barrier * width)
-        Jz2 = matvec(self.J, z2)
+        Jz2 = self.J_times(z2)
         # u = -K2 J z2 - 2 K3 Gamma^-1 D_rho eps - W0 + J dS_d/dt - D_m tanh(z2/mu)  (Gamma^-1 as written, obs. 6)
         u = (
             -g.K2 * Jz2
             - 2.0 * g.K3 * gamma_inverse_times(err.q_BR, D_rho_eps, g.q0_floor)
-            - w0_dynamics(self.J, err)
-            + matvec(self.J, S_d_dot)
+            - w0_dynamics(self.J_times, err)
+            + self.J_times(S_d_dot)
             - robust_term(g.D_m_Nm, z2, g.mu_rad_s)
         )
         V = np.stack((0.5 * dot(eps, eps), 0.5 * dot(z2, Jz2), V3), axis=1)

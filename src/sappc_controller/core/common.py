@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from spacecraft_sim.core.attitude import cross, dcm_BR_times, dot, error_quaternion, matvec
+from spacecraft_sim.core.attitude import Linear3, cross, dcm_BR_times, dot, error_quaternion
 from spacecraft_sim.core.validation import ConfigError, check_positive
 
 __all__ = [
@@ -127,24 +127,24 @@ class ErrorState:
 def error_state(q_BN: Array, omega_BN_B: Array, q_RN: Array, omega_RN_R: Array, omegadot_RN_R: Array) -> ErrorState:
     """Build the error state of eq. (errorsystem) from measured and desired attitude and rate."""
     q_BR = error_quaternion(q_RN, q_BN)
-    C_omega_d = dcm_BR_times(q_BR, omega_RN_R)
+    # C_e applied to omega_d and omegadot_d in one broadcast call: (N, 1, 4) x (N or 1, 2, 3)
+    C_both = dcm_BR_times(q_BR[:, None, :], np.stack((omega_RN_R, omegadot_RN_R), axis=-2))
+    C_omega_d = C_both[:, 0]
     return ErrorState(
         q_BR=q_BR,
         omega_BR_B=omega_BN_B - C_omega_d,
         omega_BN_B=omega_BN_B,
         C_omega_d=C_omega_d,
-        C_omegadot_d=dcm_BR_times(q_BR, omegadot_RN_R),
+        C_omegadot_d=C_both[:, 1],
     )
 
 
-def w0_dynamics(J: Array, err: ErrorState) -> Array:
+def w0_dynamics(J_times: Linear3, err: ErrorState) -> Array:
     """``W0 = J omega_e^x C_e omega_d - J C_e omegadot_d - omega_s^x J omega_s`` (after eq. U).
 
-    ``J`` is (3, 3) or (N, 3, 3).
+    ``J_times`` applies the known inertia ``J`` (shared or per run).
     """
-    Jw = matvec(J, err.omega_BN_B)
-    inner = cross(err.omega_BR_B, err.C_omega_d) - err.C_omegadot_d
-    return matvec(J, inner) - cross(err.omega_BN_B, Jw)
+    return J_times(cross(err.omega_BR_B, err.C_omega_d) - err.C_omegadot_d) - cross(err.omega_BN_B, J_times(err.omega_BN_B))
 
 
 def robust_term(D_m: float, z2: Array, mu: Array) -> Array:

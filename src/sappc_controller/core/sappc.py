@@ -24,7 +24,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from spacecraft_sim.core.attitude import dot, gamma_inverse_times, matvec
+from spacecraft_sim.core.attitude import dot, gamma_inverse_times
 from spacecraft_sim.core.validation import ConfigError, check_positive, check_spd_inertia
 
 from .base import AttitudeController
@@ -146,20 +146,24 @@ class SappcTransformation:
         self.tan_theta = float(np.tan(theta_rad))
         self.on_infeasible = on_infeasible
         self.rpf: ReferencePerformanceFunction | None = None
+        self._eps_prev: Array | None = None  # warm start of the SMETF solver
 
     def start(self, q_ev0: Array) -> None:
         self.rpf = ReferencePerformanceFunction(self.rpf_params, q_ev0, on_infeasible=self.on_infeasible)  # type: ignore[arg-type]
+        self._eps_prev = None
 
     def reset(self) -> None:
         self.rpf = None
+        self._eps_prev = None
 
     def transform(self, q_ev: Array, tau: float) -> Transformed:
         assert self.rpf is not None, "start() first"
         rho, rho_dot = self.rpf.evaluate(tau)  # eq. RPF
         delta, delta_dot = constraint_bound(self.B0, rho, rho_dot)  # eq. delta_i
         z = q_ev / rho  # z_qi = q_evi / rho_i
-        eps, _ = smetf(z, delta, self.tan_theta)  # eqs. Rs, solve, chosenfunction
-        P_s, d_eps_d_delta = smetf_derivatives(eps, delta, self.tan_theta)  # eq. PS, SPEC_NOTES error 3
+        eps, z0_offset = smetf(z, delta, self.tan_theta, self._eps_prev)  # eqs. Rs, solve, chosenfunction
+        self._eps_prev = eps
+        P_s, d_eps_d_delta = smetf_derivatives(eps, z0_offset, delta, self.tan_theta)  # eq. PS, SPEC_NOTES error 3
         return Transformed(
             eps=eps,
             psi=P_s / rho,  # psi_si = P_si / rho_i (eq. dEpsilon)
@@ -215,11 +219,11 @@ class BacksteppingPPC(AttitudeController):
         alpha = gamma_inverse_times(err.q_BR, -(g.K_q * M_q)[:, None] * eps / tr.psi - tr.eta * q_ev, g.q0_floor)
         S_d, S_d_dot, V3 = self.filter.update(alpha, dt)  # eq. (dSd), exact exponential update
         z2 = err.omega_BR_B - S_d  # z2 = omega_e - S_d
-        Jz2 = matvec(self.J, z2)
+        Jz2 = self.J_times(z2)
         V2 = 0.5 * dot(z2, Jz2)  # V2 = z2^T J z2 / 2
         M_w = predefined_time_gain(V2, g.p, g.T2_s, g.V_floor)
         # eq. (U): u = -W0 + J dS_d/dt - D_m tanh(z2/mu) - M_omega K_omega J z2
-        u = -w0_dynamics(self.J, err) + matvec(self.J, S_d_dot) - robust_term(g.D_m_Nm, z2, g.mu_rad_s) - (g.K_omega * M_w)[:, None] * Jz2
+        u = -w0_dynamics(self.J_times, err) + self.J_times(S_d_dot) - robust_term(g.D_m_Nm, z2, g.mu_rad_s) - (g.K_omega * M_w)[:, None] * Jz2
         diag = {
             "rho": tr.rho,
             "band_lower": tr.band_lower,

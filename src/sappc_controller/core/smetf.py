@@ -34,7 +34,7 @@ Derivatives
   which cannot overflow.  Same as eq. (PS).
 * ``d eps / d delta`` (SPEC_NOTES error 3): implicit differentiation of
   ``h(eps, delta) = w`` gives ``(2/pi) arctan(eps) + h_eps d eps/d delta = 0``, so
-  ``d eps / d delta = -(2/pi) arctan(eps) P_s``.  This equals ``R_delta / (1 + k R_z)``
+  ``d eps / d delta = -(2/pi) arctan(eps) P_s = -((z0 - 1)/delta) P_s``.  This equals ``R_delta / (1 + k R_z)``
   of SPEC_NOTES; the paper's ``d eps_0 / d delta`` misses the denominator.  The
   sign claim of eq. (SupControl) still holds: ``eps d eps/d delta <= 0``.
 """
@@ -58,7 +58,7 @@ _EPS64 = float(np.finfo(np.float64).eps)
 _TWO_OVER_PI = 2.0 / np.pi
 
 
-def smetf(z_s: Array, delta: Array, tan_theta: float) -> tuple[Array, Array]:
+def smetf(z_s: Array, delta: Array, tan_theta: float, eps_guess: Array | None = None) -> tuple[Array, Array]:
     """Solve eq. (solve) for the transformed error.
 
     Parameters
@@ -69,19 +69,34 @@ def smetf(z_s: Array, delta: Array, tan_theta: float) -> tuple[Array, Array]:
         Constraint half-width in ``z`` (``> 0``), broadcastable with ``z_s``.
     tan_theta : float
         ``tan(theta)`` of the shear angle, ``> 0``.
+    eps_guess : ndarray, optional
+        A warm start (the previous sample's solution).  Any finite value is
+        safe: one Newton step from any ``|eps| >= 0`` lands at or below the root
+        of the concave ``h`` (its tangent lies above it), and the result is
+        raised to the lower bound, so the monotone convergence argument holds.
+        A guess of the wrong sign is ignored.  Only the number of iterations
+        depends on the guess; the root is the same to 4 ulps.
 
     Returns
     -------
     eps : ndarray
         ``eps_s = eps_0 = R(z0)``.
-    z0 : ndarray
-        Pre-image ``z0 = 1 + a arctan(eps)``, with ``z0 + eps tan(theta) = z_s``.
+    z0_offset : ndarray
+        ``z0 - 1 = a arctan(eps)``: the pre-image ``z0`` of eq. (Rs) relative to
+        the band centre, so that ``1 + z0_offset + eps tan(theta) = z_s``.
+        Returned as an offset because ``z0 - 1`` is what the derivatives need
+        and it is exact where ``1 + (z0 - 1)`` would round.
     """
     a = _TWO_OVER_PI * delta
     w = z_s - 1.0
     abs_w = np.abs(w)
     k = tan_theta
-    eps = np.maximum(abs_w / (a + k), (abs_w - a * (np.pi / 2.0)) / k)
+    lower = np.maximum(abs_w / (a + k), (abs_w - a * (np.pi / 2.0)) / k)
+    if eps_guess is None:
+        eps = lower
+    else:
+        g = np.maximum(eps_guess * np.sign(w), 0.0)
+        eps = np.maximum(g - (a * np.arctan(g) + k * g - abs_w) / (a / (1.0 + g * g) + k), lower)
     for _ in range(_MAX_NEWTON_ITERATIONS):
         a_atan = a * np.arctan(eps)
         k_eps = k * eps
@@ -90,19 +105,20 @@ def smetf(z_s: Array, delta: Array, tan_theta: float) -> tuple[Array, Array]:
         if not active.any():
             break
         eps = eps - np.where(active, resid / (a / (1.0 + eps * eps) + k), 0.0)
-    eps = np.copysign(eps, w)
-    return eps, 1.0 + a * np.arctan(eps)
+    # a_atan belongs to the final eps (the loop exits right after computing it)
+    return np.copysign(eps, w), np.copysign(a_atan, w)
 
 
-def smetf_derivatives(eps: Array, delta: Array, tan_theta: float) -> tuple[Array, Array]:
-    """Partial derivatives of ``eps_s(z_s, delta)`` at the solution ``eps``.
+def smetf_derivatives(eps: Array, z0_offset: Array, delta: Array, tan_theta: float) -> tuple[Array, Array]:
+    """Partial derivatives of ``eps_s(z_s, delta)`` at the solution ``(eps, z0 - 1)`` of :func:`smetf`.
 
     Returns
     -------
     P_s : ndarray
         ``d eps_s / d z_s`` (eq. PS).
     d_eps_d_delta : ndarray
-        ``d eps_s / d delta``, exact (SPEC_NOTES error 3).
+        ``d eps_s / d delta = -(2/pi) arctan(eps) P_s = -((z0 - 1) / delta) P_s``,
+        exact (SPEC_NOTES error 3).
     """
     P_s = 1.0 / (tan_theta + (_TWO_OVER_PI * delta) / (1.0 + eps * eps))
-    return P_s, -_TWO_OVER_PI * np.arctan(eps) * P_s
+    return P_s, -(z0_offset / delta) * P_s

@@ -1,7 +1,10 @@
 """External disturbance torque models [N m, body axes].
 
 Each model is a pure function of time (and, for the random model, of its
-seed): ``torque_B(t, n_runs) -> (N, 3)``.  The plant holds the disturbance
+seed): ``torque_B(t, n_runs)`` takes a vector of sample times ``t`` (T,) and
+returns (T, n, 3) with ``n = n_runs``, or ``n = 1`` when every run sees the
+same torque (broadcastable).  Evaluating a block of samples at once keeps the
+per-step cost of the closed loop independent of the models.  The plant holds the disturbance
 constant over a control period (sampled at the period's start, zero-order
 hold), exactly as it holds the control torque: that is what a disturbance
 injected as a message per step can do, so the offline runner and the ROS 2
@@ -43,8 +46,8 @@ TIME_TOLERANCE_S = 1e-9
 class DisturbanceModel(Protocol):
     """A disturbance torque model."""
 
-    def torque_B(self, t: float, n_runs: int) -> Array:
-        """Torque [N m] at time ``t`` [s], shape (n_runs, 3)."""
+    def torque_B(self, t: Array, n_runs: int) -> Array:
+        """Torque [N m] at times ``t`` [s] (T,), shape (T, n_runs or 1, 3)."""
 
     def events(self) -> list[tuple[float, float]]:
         """Fault windows ``(start_s, end_s)`` this model injects (empty for background disturbances)."""
@@ -76,17 +79,18 @@ class PaperPeriodic:
         as_finite_array("scale", self.scale)
         as_finite_array("phase_rad", self.phase_rad)
 
-    def torque_B(self, t: float, n_runs: int) -> Array:
-        wt = (self.omega_p_rad_s * t + np.asarray(self.phase_rad, dtype=np.float64)).reshape(-1, 1)
+    def torque_B(self, t: Array, n_runs: int) -> Array:
+        phase = np.asarray(self.phase_rad, dtype=np.float64).reshape(1, -1)
+        wt = (self.omega_p_rad_s * np.asarray(t, dtype=np.float64).reshape(-1, 1) + phase)[..., None]  # (T, n, 1)
         d = 1e-3 * np.concatenate(
             (
                 4.0 * np.sin(3.0 * wt) + 3.0 * np.cos(10.0 * wt) - 20.0,
                 -1.5 * np.sin(2.0 * wt) + 3.0 * np.cos(5.0 * wt) + 20.0,
                 3.0 * np.sin(10.0 * wt) - 8.0 * np.cos(4.0 * wt) + 20.0,
             ),
-            axis=1,
+            axis=-1,
         )
-        return np.broadcast_to(np.asarray(self.scale, dtype=np.float64).reshape(-1, 1) * d, (n_runs, 3))
+        return np.asarray(self.scale, dtype=np.float64).reshape(1, -1, 1) * d
 
     def events(self) -> list[tuple[float, float]]:
         return []
@@ -101,8 +105,8 @@ class ConstantTorque:
     def __post_init__(self) -> None:
         _vec3("torque_Nm", self.torque_Nm)
 
-    def torque_B(self, t: float, n_runs: int) -> Array:
-        return np.broadcast_to(np.asarray(self.torque_Nm, dtype=np.float64), (n_runs, 3))
+    def torque_B(self, t: Array, n_runs: int) -> Array:
+        return np.broadcast_to(np.asarray(self.torque_Nm, dtype=np.float64), (np.size(t), 1, 3))
 
     def events(self) -> list[tuple[float, float]]:
         return []
@@ -119,9 +123,9 @@ class StepTorque:
         check_positive("start_s", self.start_s, allow_zero=True)
         _vec3("torque_Nm", self.torque_Nm)
 
-    def torque_B(self, t: float, n_runs: int) -> Array:
-        on = t >= self.start_s - TIME_TOLERANCE_S
-        return np.broadcast_to(np.asarray(self.torque_Nm, dtype=np.float64) * on, (n_runs, 3))
+    def torque_B(self, t: Array, n_runs: int) -> Array:
+        on = np.asarray(t, dtype=np.float64).reshape(-1, 1, 1) >= self.start_s - TIME_TOLERANCE_S
+        return np.asarray(self.torque_Nm, dtype=np.float64) * on
 
     def events(self) -> list[tuple[float, float]]:
         return [(self.start_s, float("inf"))]
@@ -141,9 +145,10 @@ class PulseTorque:
         check_positive("duration_s", self.duration_s)
         _vec3("torque_Nm", self.torque_Nm)
 
-    def torque_B(self, t: float, n_runs: int) -> Array:
-        on = (self.start_s - TIME_TOLERANCE_S) <= t < (self.start_s + self.duration_s - TIME_TOLERANCE_S)
-        return np.broadcast_to(np.asarray(self.torque_Nm, dtype=np.float64) * on, (n_runs, 3))
+    def torque_B(self, t: Array, n_runs: int) -> Array:
+        tt = np.asarray(t, dtype=np.float64).reshape(-1, 1, 1)
+        on = ((self.start_s - TIME_TOLERANCE_S) <= tt) & (tt < (self.start_s + self.duration_s - TIME_TOLERANCE_S))
+        return np.asarray(self.torque_Nm, dtype=np.float64) * on
 
     def events(self) -> list[tuple[float, float]]:
         return [(self.start_s, self.start_s + self.duration_s)]
@@ -173,12 +178,12 @@ class RandomTorque:
         if int(self.seed) != self.seed or self.seed < 0:
             raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
 
-    def torque_B(self, t: float, n_runs: int) -> Array:
-        k = int(np.floor(t / self.hold_s + TIME_TOLERANCE_S / self.hold_s))
+    def torque_B(self, t: Array, n_runs: int) -> Array:
+        windows = np.floor(np.asarray(t, dtype=np.float64).reshape(-1) / self.hold_s + TIME_TOLERANCE_S / self.hold_s).astype(np.int64)
         seeds = self.seeds if self.seeds else tuple(self.seed + i for i in range(n_runs))
         if len(seeds) != n_runs:
             raise ConfigError(f"seeds lists {len(seeds)} runs, the batch has {n_runs}")
-        draws = np.stack([np.random.default_rng([int(s), k]).standard_normal(3) for s in seeds])
+        draws = np.array([[np.random.default_rng([int(s), int(k)]).standard_normal(3) for s in seeds] for k in windows])
         return draws * np.asarray(self.sigma_Nm, dtype=np.float64)
 
     def events(self) -> list[tuple[float, float]]:
@@ -191,8 +196,8 @@ class DisturbanceSum:
 
     models: tuple[DisturbanceModel, ...] = ()
 
-    def torque_B(self, t: float, n_runs: int) -> Array:
-        total = np.zeros((n_runs, 3))
+    def torque_B(self, t: Array, n_runs: int) -> Array:
+        total = np.zeros((np.size(t), 1, 3))
         for m in self.models:
             total = total + m.torque_B(t, n_runs)
         return total

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .attitude import cross, dot, matvec, quat_normalize
+from .attitude import Linear3, cross, dot, matvec, quat_normalize
 from .validation import InputError, check_spd_inertia
 
 __all__ = ["RigidBody", "STATE_SIZE", "initial_state", "kinetic_energy_J"]
@@ -50,26 +50,32 @@ class RigidBody:
     def __init__(self, inertia_kg_m2: ArrayLike) -> None:
         self.J: Array = check_spd_inertia("inertia_kg_m2", inertia_kg_m2)
         self.J_inv: Array = np.linalg.inv(self.J)
+        self._J = Linear3(self.J)
+        self._J_inv = Linear3(self.J_inv)
 
     def derivative(self, x: Array, torque_B: Array) -> Array:
         """State derivative ``dx/dt`` for states (N, 7) and torques (N, 3)."""
+        return self._derivative(x, self._J_inv(torque_B))
+
+    def _derivative(self, x: Array, accel_ext: Array) -> Array:
+        """``dx/dt`` given the external angular acceleration ``J^-1 torque`` (constant over a step)."""
         q = x[:, :4]
         w = x[:, 4:]
         qv = q[:, :3]
-        q0 = q[:, 3:]
         out = np.empty_like(x)
-        out[:, :3] = 0.5 * (q0 * w + cross(qv, w))
+        out[:, :3] = 0.5 * (q[:, 3:] * w + cross(qv, w))
         out[:, 3] = -0.5 * dot(qv, w)
-        out[:, 4:] = matvec(self.J_inv, torque_B - cross(w, matvec(self.J, w)))
+        out[:, 4:] = accel_ext - self._J_inv(cross(w, self._J(w)))
         return out
 
     def rk4_step(self, x: Array, torque_B: Array, dt: float) -> Array:
         """One RK4 step of length ``dt`` [s] with ``torque_B`` held constant; ``q`` renormalised."""
+        a = self._J_inv(torque_B)
         h2 = 0.5 * dt
-        k1 = self.derivative(x, torque_B)
-        k2 = self.derivative(x + h2 * k1, torque_B)
-        k3 = self.derivative(x + h2 * k2, torque_B)
-        k4 = self.derivative(x + dt * k3, torque_B)
+        k1 = self._derivative(x, a)
+        k2 = self._derivative(x + h2 * k1, a)
+        k3 = self._derivative(x + h2 * k2, a)
+        k4 = self._derivative(x + dt * k3, a)
         x_new = x + (dt / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
         x_new[:, :4] = quat_normalize(x_new[:, :4])
         return x_new
