@@ -12,7 +12,6 @@ from conftest import SCENARIOS, random_unit_quaternions
 from sappc.closed_loop import HistoryRecorder, run_closed_loop, step_times
 from sappc.scenario import load_scenario
 from sappc_controller.core.common import Actuator, ActuatorConfig, DynamicSurfaceFilter, predefined_time_gain
-from sappc_controller.core.rpf import RPFParameters
 from sappc_controller.core.sappc import SappcTransformation
 from spacecraft_sim.core.attitude import euler_to_quaternion
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
@@ -105,7 +104,7 @@ def test_sappc_law_matches_an_independent_implementation_of_the_paper_equations(
     states = [(0.0, q, np.array([0.01, -0.02, 0.03])), (dt, q + np.array([1e-3, -2e-3, 1e-3, 0]), np.array([0.02, -0.01, 0.04]))]
     states = [(t, qq / np.linalg.norm(qq), w) for t, qq, w in states]
     expected = _reference_sappc_torques(cfg, dt, states)
-    for (t, qq, w), u_ref in zip(states, expected):
+    for (t, qq, w), u_ref in zip(states, expected, strict=True):
         out = ctrl.step(t, dt, qq, w, Q_D, W_D, WDOT_D)
         # the bisection reference is exact to ~1e-15 in z0; through tan near the band edge that is ~1e-10 relative in u
         np.testing.assert_allclose(out.torque_cmd_B, u_ref, rtol=1e-8, atol=1e-12)
@@ -165,11 +164,11 @@ def test_dynamic_surface_filter_is_stable_for_any_gain() -> None:
     alpha = np.array([[1.0, -2.0, 0.5]])
     f.update(alpha, 0.01)
     H = [np.abs(f.S_d - 0).max()]
-    for k in range(200):
+    for _ in range(200):
         S_d, S_d_dot, _ = f.update(np.zeros((1, 3)), 0.01)
         assert np.all(np.isfinite(S_d_dot)) and np.abs(S_d_dot).max() <= np.abs(S_d).max() / 0.01 * (1 + 1e-15)
         H.append(np.abs(f.S_d).max())
-    assert all(b <= a for a, b in zip(H, H[1:]))  # a contraction, never an overshoot
+    assert all(b <= a for a, b in zip(H, H[1:], strict=False))  # a contraction, never an overshoot
     assert H[-1] < 1e-12
 
 

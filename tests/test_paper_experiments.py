@@ -18,7 +18,7 @@ from sappc.simulate import simulate
 pytestmark = pytest.mark.slow
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def metrics(scenario: str, controller: str) -> dict:
     return simulate(load_scenario(SCENARIOS / f"{scenario}.yaml"), controller).metrics
 
