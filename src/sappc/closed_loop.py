@@ -137,7 +137,7 @@ def run_closed_loop(
         The final state.
     """
     controller.reset()
-    x = np.array(x0, dtype=np.float64)
+    x = np.array(x0, dtype=np.float64, order="F")  # components contiguous over runs (see attitude.py)
     n_runs = x.shape[0]
     ref = reference
     last = ref.t.size - 1

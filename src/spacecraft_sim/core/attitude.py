@@ -47,28 +47,45 @@ __all__ = [
 
 Array = NDArray[np.float64]
 
-# Index permutations for the cross product with ndarray.take (3x faster than
-# np.cross on single vectors).
+# Memory layout: batch arrays are kept in Fortran order, so that each component
+# is contiguous over the N runs.  numpy's inner loops then run over N instead
+# of over the 3 components (a broadcast product on (3000, 3) drops from 25 us to
+# 6 us); for one run the layout makes no difference.  New arrays are allocated
+# with order="F" and element-wise operations preserve the order.
+#
+# Index permutations for the cross product: rows of the transposed (3, ...) view
+# are taken, which are contiguous blocks for Fortran-ordered input (4x faster
+# than np.cross on one vector, 2x faster than gathering columns for 3000 runs).
 _I120 = np.array([1, 2, 0])
 _I201 = np.array([2, 0, 1])
 
-# Reductions use the vecdot gufunc and 3x3 products einsum, never matmul: BLAS
-# rounds a product differently for one row than for many, and every result of a
-# run must be the same bit for bit whether the run is alone or inside a batch of
-# any size (tests/test_controllers.py checks it).  vecdot is 2x cheaper than
-# einsum for one run and on par for 3000.
+# Sums over components are written out element-wise (never matmul, einsum or
+# vecdot): BLAS and the SIMD reduction kernels sum in an order that depends on
+# the memory layout and on the number of rows, while every result of a run must
+# be the same bit for bit whether the run is alone or inside a batch of any
+# size (tests/test_controllers.py checks it).  Element-wise products and sums
+# are exact IEEE operations, identical for every layout.
 
 
 def dot(a: Array, b: Array) -> Array:
-    """Row-wise dot product of (..., n) arrays, shape (...)."""
-    return np.vecdot(a, b)
+    """Row-wise dot product of (..., n) arrays, shape (...): ``((a0 b0 + a1 b1) + a2 b2) ...``."""
+    aT, bT = a.T, b.T
+    acc = aT[0] * bT[0]
+    for i in range(1, aT.shape[0]):
+        acc = acc + aT[i] * bT[i]
+    return acc.T
 
 
 def matvec(M: Array, v: Array) -> Array:
-    """``M v`` per row for a shared (3, 3) or per-run (..., 3, 3) matrix and (..., 3) vectors."""
+    """``M v`` per row for a shared (3, 3) or per-run (N, 3, 3) matrix and (..., 3) vectors."""
+    vT = v.T
     if M.ndim == 2:
-        return np.einsum("ij,...j->...i", M, v)
-    return np.einsum("...ij,...j->...i", M, v)
+        col = (3,) + (1,) * (vT.ndim - 1)
+        out = M[:, 0].reshape(col) * vT[0] + M[:, 1].reshape(col) * vT[1] + M[:, 2].reshape(col) * vT[2]
+    else:
+        MT = M.T  # MT[j, i, n] = M[n, i, j]
+        out = MT[0] * vT[0] + MT[1] * vT[1] + MT[2] * vT[2]
+    return out.T
 
 
 class Linear3:
@@ -92,7 +109,8 @@ class Linear3:
 
 def cross(a: Array, b: Array) -> Array:
     """Row-wise cross product ``a × b`` of (..., 3) arrays."""
-    return a.take(_I120, axis=-1) * b.take(_I201, axis=-1) - a.take(_I201, axis=-1) * b.take(_I120, axis=-1)
+    aT, bT = a.T, b.T
+    return (aT.take(_I120, axis=0) * bT.take(_I201, axis=0) - aT.take(_I201, axis=0) * bT.take(_I120, axis=0)).T
 
 
 def from_scalar_first(q_wxyz: ArrayLike) -> Array:
@@ -111,9 +129,10 @@ def quat_multiply(p: Array, q: Array) -> Array:
     """Hamilton product ``p ⊗ q`` of scalar-last quaternions, shape (..., 4)."""
     pv, p0 = p[..., :3], p[..., 3:]
     qv, q0 = q[..., :3], q[..., 3:]
-    vec = p0 * qv + q0 * pv + cross(pv, qv)
-    sca = p0 * q0 - dot(pv, qv)[..., None]
-    return np.concatenate((vec, sca), axis=-1)
+    out = np.empty(np.broadcast_shapes(p.shape, q.shape), order="F")
+    out[..., :3] = p0 * qv + q0 * pv + cross(pv, qv)
+    out[..., 3] = p0[..., 0] * q0[..., 0] - dot(pv, qv)
+    return out
 
 
 def quat_conjugate(q: Array) -> Array:
@@ -123,7 +142,7 @@ def quat_conjugate(q: Array) -> Array:
 
 def quat_normalize(q: Array) -> Array:
     """Scale quaternions to unit norm (the caller guarantees a non-zero norm)."""
-    return q / np.sqrt(np.vecdot(q, q))[..., None]
+    return q / np.sqrt(dot(q, q))[..., None]
 
 
 def error_quaternion(q_RN: Array, q_BN: Array) -> Array:
@@ -192,9 +211,10 @@ def gamma_inverse_times(q_BR: Array, x: Array, q0_floor: float) -> Array:
 def quat_kinematics(q_BN: Array, omega_BN_B: Array) -> Array:
     """``dq_BN/dt = 1/2 q_BN ⊗ (omega_BN_B, 0)``, shape (..., 4)."""
     qv, q0 = q_BN[..., :3], q_BN[..., 3:]
-    vec = 0.5 * (q0 * omega_BN_B + cross(qv, omega_BN_B))
-    sca = -0.5 * dot(qv, omega_BN_B)[..., None]
-    return np.concatenate((vec, sca), axis=-1)
+    out = np.empty(np.broadcast_shapes(q_BN.shape[:-1], omega_BN_B.shape[:-1]) + (4,), order="F")
+    out[..., :3] = 0.5 * (q0 * omega_BN_B + cross(qv, omega_BN_B))
+    out[..., 3] = -0.5 * dot(qv, omega_BN_B)
+    return out
 
 
 def euler_to_quaternion(angles_rad: ArrayLike, sequence: str) -> Array:

@@ -99,11 +99,14 @@ class RigidBody:
 
 
 def initial_state(q_BN: ArrayLike, omega_BN_B: ArrayLike) -> Array:
-    """Stack quaternion(s) and rate(s) into the (N, 7) state array."""
+    """Stack quaternion(s) and rate(s) into the (N, 7) state array (Fortran order)."""
     q = np.atleast_2d(np.asarray(q_BN, dtype=np.float64))
     w = np.atleast_2d(np.asarray(omega_BN_B, dtype=np.float64))
     n = max(q.shape[0], w.shape[0])
-    return np.concatenate((np.broadcast_to(q, (n, 4)), np.broadcast_to(w, (n, 3))), axis=1)
+    x = np.empty((n, STATE_SIZE), order="F")  # components contiguous over runs (see attitude.py)
+    x[:, :4] = q
+    x[:, 4:] = w
+    return x
 
 
 def kinetic_energy_J(J: Array, omega_BN_B: Array) -> Array:
