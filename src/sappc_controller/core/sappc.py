@@ -146,24 +146,28 @@ class SappcTransformation:
         self.tan_theta = float(np.tan(theta_rad))
         self.on_infeasible = on_infeasible
         self.rpf: ReferencePerformanceFunction | None = None
-        self._eps_prev: Array | None = None  # warm start of the SMETF solver
+        # (eps, P_s, z, d eps/d delta, delta) of the previous sample: warm start of the SMETF solver
+        self._prev: tuple[Array, Array, Array, Array, Array] | None = None
 
     def start(self, q_ev0: Array) -> None:
         self.rpf = ReferencePerformanceFunction(self.rpf_params, q_ev0, on_infeasible=self.on_infeasible)  # type: ignore[arg-type]
-        self._eps_prev = None
+        self._prev = None
 
     def reset(self) -> None:
         self.rpf = None
-        self._eps_prev = None
+        self._prev = None
 
     def transform(self, q_ev: Array, tau: float) -> Transformed:
         assert self.rpf is not None, "start() first"
         rho, rho_dot = self.rpf.evaluate(tau)  # eq. RPF
         delta, delta_dot = constraint_bound(self.B0, rho, rho_dot)  # eq. delta_i
         z = q_ev / rho  # z_qi = q_evi / rho_i
-        eps, z0_offset = smetf(z, delta, self.tan_theta, self._eps_prev)  # eqs. Rs, solve, chosenfunction
-        self._eps_prev = eps
+        # Warm start: first-order prediction from the previous sample (any guess is safe, see smetf).
+        prev = self._prev
+        guess = None if prev is None else prev[0] + prev[1] * (z - prev[2]) + prev[3] * (delta - prev[4])
+        eps, z0_offset = smetf(z, delta, self.tan_theta, guess)  # eqs. Rs, solve, chosenfunction
         P_s, d_eps_d_delta = smetf_derivatives(eps, z0_offset, delta, self.tan_theta)  # eq. PS, SPEC_NOTES error 3
+        self._prev = (eps, P_s, z, d_eps_d_delta, delta)
         return Transformed(
             eps=eps,
             psi=P_s / rho,  # psi_si = P_si / rho_i (eq. dEpsilon)

@@ -70,12 +70,13 @@ def smetf(z_s: Array, delta: Array, tan_theta: float, eps_guess: Array | None = 
     tan_theta : float
         ``tan(theta)`` of the shear angle, ``> 0``.
     eps_guess : ndarray, optional
-        A warm start (the previous sample's solution).  Any finite value is
-        safe: one Newton step from any ``|eps| >= 0`` lands at or below the root
-        of the concave ``h`` (its tangent lies above it), and the result is
-        raised to the lower bound, so the monotone convergence argument holds.
-        A guess of the wrong sign is ignored.  Only the number of iterations
-        depends on the guess; the root is the same to 4 ulps.
+        A warm start (a prediction from the previous sample).  Any finite value
+        is safe: a guess below the lower bound (or of the wrong sign) is raised
+        to it; from a guess above the root one Newton step lands at or below
+        the root of the concave ``h`` (its tangent lies above it), and every
+        iterate is raised to the lower bound, so the monotone convergence
+        argument holds.  Only the number of iterations depends on the guess;
+        the root is the same to 4 ulps.
 
     Returns
     -------
@@ -92,11 +93,7 @@ def smetf(z_s: Array, delta: Array, tan_theta: float, eps_guess: Array | None = 
     abs_w = np.abs(w)
     k = tan_theta
     lower = np.maximum(abs_w / (a + k), (abs_w - a * (np.pi / 2.0)) / k)
-    if eps_guess is None:
-        eps = lower
-    else:
-        g = np.maximum(eps_guess * np.sign(w), 0.0)
-        eps = np.maximum(g - (a * np.arctan(g) + k * g - abs_w) / (a / (1.0 + g * g) + k), lower)
+    eps = lower if eps_guess is None else np.maximum(eps_guess * np.sign(w), lower)
     for _ in range(_MAX_NEWTON_ITERATIONS):
         a_atan = a * np.arctan(eps)
         k_eps = k * eps
@@ -104,7 +101,9 @@ def smetf(z_s: Array, delta: Array, tan_theta: float, eps_guess: Array | None = 
         active = np.abs(resid) > (_RESIDUAL_ULPS * _EPS64) * (a_atan + k_eps + abs_w)
         if not active.any():
             break
-        eps = eps - np.where(active, resid / (a / (1.0 + eps * eps) + k), 0.0)
+        # Newton step, raised to the lower bound: from above the root the step lands at or
+        # below it (concavity), from below the iterates increase monotonically to it.
+        eps = np.maximum(eps - np.where(active, resid / (a / (1.0 + eps * eps) + k), 0.0), lower)
     # a_atan belongs to the final eps (the loop exits right after computing it)
     return np.copysign(eps, w), np.copysign(a_atan, w)
 
