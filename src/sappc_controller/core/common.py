@@ -187,6 +187,6 @@ class Actuator:
     def apply(self, torque_cmd_B: Array) -> tuple[Array, Array]:
         """Return the produced torque and a per-axis saturation flag, both (N, 3)."""
         c = self.config
-        saturated = np.abs(torque_cmd_B) > c.max_torque_Nm
-        torque = np.clip(torque_cmd_B, -c.max_torque_Nm, c.max_torque_Nm)
-        return np.where(np.abs(torque) < c.min_torque_Nm, 0.0, torque), saturated
+        magnitude = np.abs(torque_cmd_B)
+        torque = np.minimum(np.maximum(torque_cmd_B, -c.max_torque_Nm), c.max_torque_Nm)
+        return np.where(magnitude < c.min_torque_Nm, 0.0, torque), magnitude > c.max_torque_Nm

@@ -271,12 +271,18 @@ class ReferencePerformanceFunction:
         t = max(float(t), 0.0)
         if t >= p.t2_s:
             return self.sign * p.g_inf, np.zeros_like(self.sign)
-        expo = self._A * np.exp(-self.l * t)
-        dt2 = t - p.t2_s
         in_exp = t < self.t1
-        rho = np.where(in_exp, expo + p.rho_einf, self.a1 * dt2 * dt2 + p.g_inf)
-        rho_dot = np.where(in_exp, -self.l * expo, 2.0 * self.a1 * dt2)
-        return self.sign * rho, self.sign * rho_dot
+        # Evaluate only the pieces some component is on (same values per element either way).
+        if in_exp.any():
+            expo = self._A * np.exp(-self.l * t)
+            rho_e, rho_e_dot = expo + p.rho_einf, -self.l * expo
+            if in_exp.all():
+                return self.sign * rho_e, self.sign * rho_e_dot
+        dt2 = t - p.t2_s
+        rho_p, rho_p_dot = self.a1 * dt2 * dt2 + p.g_inf, 2.0 * self.a1 * dt2
+        if in_exp.any():
+            rho_p, rho_p_dot = np.where(in_exp, rho_e, rho_p), np.where(in_exp, rho_e_dot, rho_p_dot)
+        return self.sign * rho_p, self.sign * rho_p_dot
 
 
 def constraint_bound(B0: float, rho: Array, rho_dot: Array) -> tuple[Array, Array]:
