@@ -13,8 +13,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from spacecraft_sim.core.attitude import Linear3
-from spacecraft_sim.core.validation import InputError, as_finite_array, check_unit_quaternion
+from spacecraft_sim.core.attitude import Linear3, dot
+from spacecraft_sim.core.validation import QUATERNION_NORM_TOL, InputError, as_finite_array, check_unit_quaternion
 
 from .common import Actuator, ActuatorConfig, ErrorState, error_state
 
@@ -26,6 +26,29 @@ Array = NDArray[np.float64]
 #: Jacobian is singular at q_e0 = 0 (180 deg error, SPEC_NOTES error 5) and the
 #: RPF sign and the virtual control are undefined there.  1e-6 is 179.9998 deg.
 SINGULAR_Q0_AT_START = 1e-6
+
+
+def _valid_inputs(t: object, dt: object, *arrays: ArrayLike) -> tuple | None:  # type: ignore[type-arg]
+    """All step inputs as float64 arrays if every check passes, else ``None``.
+
+    A fast path over all inputs at once (one finiteness test, one norm test per
+    quaternion); on ``None`` the caller runs the per-input checks, which raise
+    an :class:`InputError` naming the offending value.
+    """
+    try:
+        t_f, dt_f = float(t), float(dt)  # type: ignore[arg-type]
+        q, w, q_d, w_d, wdot_d = (np.asarray(a, dtype=np.float64) for a in arrays)
+    except (TypeError, ValueError):
+        return None
+    if q.shape[-1:] != (4,) or q_d.shape[-1:] != (4,) or w.shape[-1:] != (3,) or w_d.shape[-1:] != (3,) or wdot_d.shape[-1:] != (3,):
+        return None
+    values = np.concatenate((q.ravel(), w.ravel(), q_d.ravel(), w_d.ravel(), wdot_d.ravel(), (t_f, dt_f)))
+    if not (np.isfinite(values).all() and dt_f > 0.0):
+        return None
+    for quat in (q, q_d):
+        if (np.abs(np.sqrt(dot(quat, quat)) - 1.0) > QUATERNION_NORM_TOL).any():
+            return None
+    return t_f, dt_f, q, w, q_d, w_d, wdot_d
 
 
 @dataclass(frozen=True)
@@ -123,20 +146,25 @@ class AttitudeController(ABC):
             quaternions, ``dt <= 0``, a batch size that changed, or a run that
             starts at the 180 deg singularity).
         """
-        t_f = float(as_finite_array("t", t))
-        dt_f = float(as_finite_array("dt", dt))
-        if dt_f <= 0.0:
-            raise InputError(f"dt must be > 0, got {dt!r}")
-        q = check_unit_quaternion("q_BN", q_BN)
+        inputs = _valid_inputs(t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R)
+        if inputs is None:  # something is wrong: the detailed checks name it
+            t_f = float(as_finite_array("t", t))
+            dt_f = float(as_finite_array("dt", dt))
+            if dt_f <= 0.0:
+                raise InputError(f"dt must be > 0, got {dt!r}")
+            inputs = (
+                t_f,
+                dt_f,
+                check_unit_quaternion("q_BN", q_BN),
+                as_finite_array("omega_BN_B", omega_BN_B, shape_tail=(3,)),
+                check_unit_quaternion("q_RN", q_RN),
+                as_finite_array("omega_RN_R", omega_RN_R, shape_tail=(3,)),
+                as_finite_array("omegadot_RN_R", omegadot_RN_R, shape_tail=(3,)),
+            )
+        t_f, dt_f, q, w, q_d, w_d, wdot_d = inputs
         single = q.ndim == 1
         q2 = np.atleast_2d(q)
-        err = error_state(
-            q2,
-            np.atleast_2d(as_finite_array("omega_BN_B", omega_BN_B, shape_tail=(3,))),
-            np.atleast_2d(check_unit_quaternion("q_RN", q_RN)),
-            np.atleast_2d(as_finite_array("omega_RN_R", omega_RN_R, shape_tail=(3,))),
-            np.atleast_2d(as_finite_array("omegadot_RN_R", omegadot_RN_R, shape_tail=(3,))),
-        )
+        err = error_state(q2, np.atleast_2d(w), np.atleast_2d(q_d), np.atleast_2d(w_d), np.atleast_2d(wdot_d))
         if self.n_runs is not None and q2.shape[0] != self.n_runs:
             raise InputError(f"q_BN has {q2.shape[0]} runs but this run started with {self.n_runs}; call reset() first")
         if self.t0 is None:
