@@ -21,7 +21,7 @@ from spacecraft_sim.core.disturbance import DisturbanceModel
 from spacecraft_sim.core.dynamics import RigidBody
 from spacecraft_sim.core.reference import ReferenceSamples
 
-__all__ = ["History", "HistoryRecorder", "run_closed_loop", "step_times"]
+__all__ = ["History", "HistoryRecorder", "both", "run_closed_loop", "step_times"]
 
 Array = NDArray[np.float64]
 
@@ -66,6 +66,16 @@ class History:
     def run(self, k: int) -> History:
         """The history of run ``k`` alone, keeping a batch axis of 1."""
         return History(**{name: (value if name == "t" else value[:, k : k + 1]) for name, value in vars(self).items()})
+
+
+def both(*observers: Observer) -> Observer:
+    """An observer that calls each of ``observers`` in turn."""
+
+    def call(k: int, t: float, x: Array, out: ControlOutput, d: Array) -> None:
+        for obs in observers:
+            obs(k, t, x, out, d)
+
+    return call
 
 
 class HistoryRecorder:

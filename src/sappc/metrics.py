@@ -1,7 +1,9 @@
-"""Run metrics, computed from time histories (offline runs now, recorded bags later).
+"""Run metrics, accumulated sample by sample for a batch of runs.
 
-All metrics are per run (batch axis N); :func:`run_metrics` returns a dict for
-run 0 (or the only run).  Definitions:
+One implementation serves every path: `sappc simulate` (one run), Monte Carlo campaigns
+(thousands of runs, no stored histories) and, later, recorded bags.  Feed every control
+sample to :class:`MetricsAccumulator` (it is a closed-loop observer) and read
+:meth:`MetricsAccumulator.run_metrics`.  Definitions, per run:
 
 ``settling_time_s``
     The first sample time after which ``max_i |q_ev,i|`` stays below
@@ -12,7 +14,8 @@ run 0 (or the only run).  Definitions:
     ``i`` of the time-mean of ``|q_ev,i|`` (the paper's Monte Carlo criterion).
 ``rpf_error_at_t2``
     ``max_i |q_ev,i - rho_i|`` at the sample nearest ``t2_s``, with ``rho`` the
-    controller's own performance function (the RPF for SAPPC).
+    controller's own performance function (the RPF for SAPPC): the paper's
+    other Monte Carlo criterion.
 ``overshoot``
     The largest excursion of any component to the sign opposite its initial
     error, ``max_{i,t} max(0, -sign(q_ev,i(0)) q_ev,i(t))`` (``sign(0) = +1``).
@@ -28,6 +31,9 @@ run 0 (or the only run).  Definitions:
     to the end.  ``left_constraint_after_fault`` says whether the error left
     the band at or after the first fault's start, ``returned_at_s`` when it
     re-entered for good (``None`` if it never left or never returned).
+``finite``
+    ``False`` if the run's state or torque ever became non-finite (the run
+    failed); the other metrics then describe the samples before that.
 """
 
 from __future__ import annotations
@@ -37,58 +43,143 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .closed_loop import History
+from sappc_controller.core.base import ControlOutput
 
-__all__ = ["run_metrics"]
+__all__ = ["MetricsAccumulator", "METRIC_KEYS"]
 
 Array = NDArray[np.float64]
 
+#: Time comparisons on the sampling grid allow this much rounding in k * dt [s].
+_TIME_TOL_S = 1e-9
 
-def _settling_time(t: Array, max_abs: Array, threshold: float) -> float | None:
-    above = np.flatnonzero(max_abs >= threshold)
-    if above.size == 0:
-        return 0.0
-    if above[-1] + 1 >= t.size:
-        return None
-    return float(t[above[-1] + 1])
+#: Keys of :meth:`MetricsAccumulator.run_metrics`, in order.
+METRIC_KEYS = (
+    "settling_time_s",
+    "steady_max_abs_qev",
+    "steady_mean_abs_qev",
+    "rpf_error_at_t2",
+    "overshoot",
+    "max_abs_torque_Nm",
+    "saturation_fraction",
+    "time_outside_constraint_s",
+    "returned_to_constraint",
+    "left_constraint_after_fault",
+    "returned_at_s",
+    "finite",
+)
 
 
-def run_metrics(
-    h: History,
-    *,
-    steady_from_s: float,
-    settle_threshold: float,
-    t2_s: float,
-    fault_windows: list[tuple[float, float]],
-    run: int = 0,
-) -> dict[str, Any]:
-    """Metrics of run ``run`` of a history (see the module docstring for definitions)."""
-    t = h.t
-    dt = float(t[1] - t[0]) if t.size > 1 else 0.0
-    q_ev = h.q_ev[:, run]
-    abs_q = np.abs(q_ev)
-    steady = t >= steady_from_s - 1e-9
-    sign0 = np.where(q_ev[0] >= 0.0, 1.0, -1.0)
-    outside = ((q_ev < h.band_lower[:, run]) | (q_ev > h.band_upper[:, run])).any(axis=1)
-    k2 = int(np.argmin(np.abs(t - t2_s)))
-    m: dict[str, Any] = {
-        "settling_time_s": _settling_time(t, abs_q.max(axis=1), settle_threshold),
-        "steady_max_abs_qev": float(abs_q[steady].max()) if steady.any() else None,
-        "steady_mean_abs_qev": float(abs_q[steady].mean(axis=0).max()) if steady.any() else None,
-        "rpf_error_at_t2": float(np.abs(q_ev[k2] - h.rho[k2, run]).max()),
-        "overshoot": float(max(0.0, (-sign0 * q_ev).max())),
-        "max_abs_torque_Nm": float(np.abs(h.torque_B[:, run]).max()),
-        "saturation_fraction": float(h.saturated[:, run].any(axis=1).mean()),
-        "time_outside_constraint_s": float(outside.sum() * dt),
-        "returned_to_constraint": None,
-        "left_constraint_after_fault": None,
-        "returned_at_s": None,
-    }
-    if fault_windows:
-        first_start = min(start for start, _ in fault_windows)
-        left = outside & (t >= first_start - 1e-9)
-        m["left_constraint_after_fault"] = bool(left.any())
-        m["returned_to_constraint"] = bool(not outside[-1])
-        if left.any() and not outside[-1]:
-            m["returned_at_s"] = float(t[np.flatnonzero(outside)[-1] + 1])
-    return m
+class MetricsAccumulator:
+    """Closed-loop observer that accumulates the metrics of N runs without storing histories.
+
+    Parameters
+    ----------
+    t : ndarray, shape (T,)
+        The sample times the run will visit (``k dt``).
+    n_runs : int
+    steady_from_s, settle_threshold, t2_s : float
+        See :class:`sappc.scenario.MetricSettings`.
+    fault_windows : list of (start_s, end_s)
+        Injected fault windows; empty when there are none.
+    """
+
+    def __init__(
+        self,
+        t: Array,
+        n_runs: int,
+        *,
+        steady_from_s: float,
+        settle_threshold: float,
+        t2_s: float,
+        fault_windows: list[tuple[float, float]],
+    ) -> None:
+        self.t = np.asarray(t, dtype=np.float64)
+        self.dt = float(self.t[1] - self.t[0]) if self.t.size > 1 else 0.0
+        self.settle_threshold = settle_threshold
+        self.steady_from_s = steady_from_s
+        self.k_t2 = int(np.argmin(np.abs(self.t - t2_s)))
+        self.fault_start_s = min((s for s, _ in fault_windows), default=None)
+        n = n_runs
+        self.last_unsettled = np.full(n, -1)  # last sample with max|q_ev| >= threshold
+        self.steady_sum = np.zeros((n, 3))
+        self.steady_count = 0
+        self.steady_max = np.zeros(n)
+        self.rpf_error_t2_axis = np.full((n, 3), np.nan)
+        self.sign0: Array | None = None
+        self.overshoot = np.zeros(n)
+        self.max_torque = np.zeros(n)
+        self.saturated_count = np.zeros(n, dtype=np.int64)
+        self.outside_count = np.zeros(n, dtype=np.int64)
+        self.last_outside = np.full(n, -1)
+        self.left_after_fault = np.zeros(n, dtype=bool)
+        self.finite = np.ones(n, dtype=bool)
+        self.samples = 0
+
+    def __call__(self, k: int, t: float, x: Array, out: ControlOutput, d: Array) -> None:
+        q_ev = out.q_BR[:, :3]
+        ok = np.isfinite(x).all(axis=1) & np.isfinite(out.torque_B).all(axis=1)
+        self.finite &= ok
+        live = self.finite  # a failed run's metrics stop at its last finite sample
+        abs_q = np.abs(q_ev)
+        if self.sign0 is None:
+            self.sign0 = np.where(q_ev >= 0.0, 1.0, -1.0)
+        unsettled = live & (abs_q.max(axis=1) >= self.settle_threshold)
+        self.last_unsettled[unsettled] = k
+        if t >= self.steady_from_s - _TIME_TOL_S:
+            self.steady_sum += np.where(live[:, None], abs_q, 0.0)
+            self.steady_count += 1
+            self.steady_max = np.where(live, np.maximum(self.steady_max, abs_q.max(axis=1)), self.steady_max)
+        if k == self.k_t2:
+            self.rpf_error_t2_axis = np.where(live[:, None], np.abs(q_ev - out.rho), np.nan)
+        self.overshoot = np.where(live, np.maximum(self.overshoot, (-self.sign0 * q_ev).max(axis=1)), self.overshoot)
+        self.max_torque = np.where(live, np.maximum(self.max_torque, np.abs(out.torque_B).max(axis=1)), self.max_torque)
+        self.saturated_count += live & out.saturated.any(axis=1)
+        outside = live & ((q_ev < out.band_lower) | (q_ev > out.band_upper)).any(axis=1)
+        self.outside_count += outside
+        self.last_outside[outside] = k
+        if self.fault_start_s is not None and t >= self.fault_start_s - _TIME_TOL_S:
+            self.left_after_fault |= outside
+        self.samples += 1
+
+    def run_metrics(self, run: int = 0) -> dict[str, Any]:
+        """The metrics of run ``run`` (see the module docstring), JSON-ready."""
+        t, last = self.t, self.samples - 1
+        lu = int(self.last_unsettled[run])
+        settling = 0.0 if lu < 0 else (None if lu >= last else float(t[lu + 1]))
+        steady = self.steady_count > 0
+        lo = int(self.last_outside[run])
+        m: dict[str, Any] = {
+            "settling_time_s": settling,
+            "steady_max_abs_qev": float(self.steady_max[run]) if steady else None,
+            "steady_mean_abs_qev": float((self.steady_sum[run] / self.steady_count).max()) if steady else None,
+            "rpf_error_at_t2": None if np.isnan(self.rpf_error_t2_axis[run, 0]) else float(self.rpf_error_t2_axis[run].max()),
+            "overshoot": float(max(0.0, self.overshoot[run])),
+            "max_abs_torque_Nm": float(self.max_torque[run]),
+            "saturation_fraction": float(self.saturated_count[run] / max(self.samples, 1)),
+            "time_outside_constraint_s": float(self.outside_count[run] * self.dt),
+            "returned_to_constraint": None,
+            "left_constraint_after_fault": None,
+            "returned_at_s": None,
+            "finite": bool(self.finite[run]),
+        }
+        if self.fault_start_s is not None:
+            left = bool(self.left_after_fault[run])
+            returned = lo < last
+            m["left_constraint_after_fault"] = left
+            m["returned_to_constraint"] = returned
+            if left and returned:
+                m["returned_at_s"] = float(t[lo + 1])
+        return m
+
+    def criteria_arrays(self) -> dict[str, Array]:
+        """Per-run arrays for campaign tables: the two Monte Carlo criteria per component and more."""
+        steady_mean = self.steady_sum / max(self.steady_count, 1)
+        return {
+            "steady_mean_abs_qev_per_axis": steady_mean,
+            "steady_mean_abs_qev": steady_mean.max(axis=1),
+            "rpf_error_at_t2_per_axis": self.rpf_error_t2_axis,
+            "rpf_error_at_t2": self.rpf_error_t2_axis.max(axis=1),
+            "steady_max_abs_qev": self.steady_max,
+            "max_abs_torque_Nm": self.max_torque,
+            "finite": self.finite,
+        }

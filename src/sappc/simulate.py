@@ -11,11 +11,11 @@ import numpy as np
 
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
 
-from .closed_loop import History, HistoryRecorder, run_closed_loop, step_times
-from .metrics import run_metrics
+from .closed_loop import History, HistoryRecorder, both, run_closed_loop, step_times
+from .metrics import MetricsAccumulator
 from .scenario import ControllerKind, Scenario
 
-__all__ = ["SimulationResult", "simulate"]
+__all__ = ["SimulationResult", "metrics_accumulator", "simulate"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,7 @@ def simulate(scenario: Scenario, controller: ControllerKind | str | None = None)
     plant = RigidBody(scenario.inertia_kg_m2)
     t = step_times(scenario.duration_s, scenario.control_period_s)
     recorder = HistoryRecorder(t, 1)
+    metrics = metrics_accumulator(scenario, t, 1)
     run_closed_loop(
         plant,
         ctrl,
@@ -73,17 +74,23 @@ def simulate(scenario: Scenario, controller: ControllerKind | str | None = None)
         initial_state(scenario.q_BN0, scenario.omega_BN_B0_rad_s),
         scenario.control_period_s,
         substeps=scenario.rk4_substeps,
-        observer=recorder,
+        observer=both(recorder, metrics),
     )
     wall = time.perf_counter() - start
     history = recorder.history()
+    result = metrics.run_metrics(0)
+    result["wall_time_s"] = wall
+    return SimulationResult(scenario=scenario, controller=kind, history=history, metrics=result)
+
+
+def metrics_accumulator(scenario: Scenario, t: np.ndarray, n_runs: int) -> MetricsAccumulator:
+    """A :class:`MetricsAccumulator` with the scenario's metric settings and fault windows."""
     ms = scenario.metrics
-    metrics = run_metrics(
-        history,
+    return MetricsAccumulator(
+        t,
+        n_runs,
         steady_from_s=ms.steady_from_s,
         settle_threshold=ms.settle_threshold,
         t2_s=ms.t2_s,
         fault_windows=scenario.disturbance.events(),
     )
-    metrics["wall_time_s"] = wall
-    return SimulationResult(scenario=scenario, controller=kind, history=history, metrics=metrics)
