@@ -1,6 +1,8 @@
 """The ``sappc`` command line.
 
     sappc simulate SCENARIO.yaml [--controller sappc|trappc|blfppc] [--json FILE] [--plots DIR]
+    sappc simulate --from-campaign DIR --run K [--json FILE] [--plots DIR]
+    sappc montecarlo SCENARIO.yaml --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
 
 Errors in the input (bad scenario, infeasible parameters, bad values) print
 one line naming the problem and exit with status 2; no traceback.
@@ -22,6 +24,8 @@ __all__ = ["main"]
 
 #: Exit status for invalid input (argparse uses the same).
 EXIT_INVALID_INPUT = 2
+#: Exit status after Ctrl-C (128 + SIGINT), as shells report it.
+EXIT_INTERRUPTED = 130
 
 
 def _format_value(value: object) -> str:
@@ -37,36 +41,112 @@ def _print_metrics(scenario_name: str, controller: str, metrics: dict[str, objec
         print(f"  {key:<{width}}  {_format_value(value)}")
 
 
+def _write_json(path_str: str, data: object) -> None:
+    path = Path(path_str)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2) + "\n")
+    print(f"wrote {path}")
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .plots import plot_run
+
+    if args.from_campaign is not None:
+        return _simulate_from_campaign(args)
+    if args.scenario is None:
+        raise ConfigError("give a SCENARIO file, or --from-campaign DIR --run K")
+    if args.run is not None:
+        raise ConfigError("--run needs --from-campaign DIR")
     from .simulate import simulate
 
     scenario = load_scenario(args.scenario)
     result = simulate(scenario, args.controller)
     _print_metrics(scenario.name, result.controller.value, result.metrics)
     if args.json:
-        path = Path(args.json)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(result.report(), indent=2) + "\n")
-        print(f"wrote {path}")
+        _write_json(args.json, result.report())
     if args.plots:
-        from .plots import plot_run
-
         for p in plot_run(result.history, Path(args.plots), title=f"{scenario.name} ({result.controller.value})",
                           fault_windows=scenario.disturbance.events()):
             print(f"wrote {p}")
     return 0
 
 
+def _simulate_from_campaign(args: argparse.Namespace) -> int:
+    from .closed_loop import HistoryRecorder, step_times
+    from .montecarlo import load_campaign_run
+    from .plots import plot_run
+
+    if args.scenario is not None or args.controller is not None:
+        raise ConfigError("--from-campaign takes the scenario and controller from the campaign; give neither")
+    if args.run is None:
+        raise ConfigError("--from-campaign needs --run K")
+    recorder = None
+    if args.plots:
+        manifest = json.loads((Path(args.from_campaign) / "manifest.json").read_text())
+        s = manifest["scenario"]
+        recorder = HistoryRecorder(step_times(float(s["duration_s"]), float(s["control_period_s"])), 1)
+    scenario, row, metrics = load_campaign_run(args.from_campaign, args.run, recorder)
+    campaign_row = {
+        "run": int(row["run"][0]),
+        "rpf_error_at_t2": float(row["rpf_error_at_t2_per_axis"][0].max()),
+        "steady_mean_abs_qev": float(row["steady_mean_abs_qev_per_axis"][0].max()),
+        "steady_max_abs_qev": float(row["steady_max_abs_qev"][0]),
+        "max_abs_torque_Nm": float(row["max_abs_torque_Nm"][0]),
+    }
+    _print_metrics(f"{scenario.name} run {args.run} (from {args.from_campaign})", scenario.controller.value, metrics)
+    if args.json:
+        _write_json(args.json, {"scenario": scenario.name, "run": args.run, "metrics": metrics, "campaign_row": campaign_row})
+    if recorder is not None:
+        for p in plot_run(recorder.history(), Path(args.plots), title=f"{scenario.name} run {args.run}",
+                          fault_windows=scenario.disturbance.events()):
+            print(f"wrote {p}")
+    return 0
+
+
+def _cmd_montecarlo(args: argparse.Namespace) -> int:
+    from .montecarlo import run_campaign
+
+    out = args.out or f"out/montecarlo_{Path(args.scenario).stem}_seed{args.seed}"
+    summary = run_campaign(args.scenario, runs=args.runs, seed=args.seed, out_dir=out, workers=args.workers,
+                           scheduler=args.scheduler, resume=args.resume, progress=not args.no_progress)
+    print(f"campaign {summary['scenario']}: {summary['passed']}/{summary['runs']} runs pass "
+          f"(rpf_error_at_t2 < {summary['criteria']['rpf_error_at_t2_max']:g}, "
+          f"steady_mean_abs_qev < {summary['criteria']['steady_mean_abs_qev_max']:g})")
+    print(f"  rpf_error_at_t2      p50 {summary['rpf_error_at_t2']['p50']:.3g}  p99 {summary['rpf_error_at_t2']['p99']:.3g}  max {summary['rpf_error_at_t2']['max']:.3g}")
+    print(f"  steady_mean_abs_qev  p50 {summary['steady_mean_abs_qev']['p50']:.3g}  p99 {summary['steady_mean_abs_qev']['p99']:.3g}  max {summary['steady_mean_abs_qev']['max']:.3g}")
+    print(f"  non-finite runs {summary['non_finite_runs']}, RPF components clamped {summary['rpf_clamped_components']}, "
+          f"flat {summary['rpf_flat_components']}; wall {summary['wall_time_s']:.1f} s")
+    for f in summary["failed_runs"][:10]:
+        print(f"  failed run {f['run']}: {f['why']}")
+    print(f"results in {out}")
+    if args.json:
+        _write_json(args.json, summary)
+    return 0 if summary["passed"] == summary["runs"] else 1
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.")
     sub = parser.add_subparsers(dest="command", required=True)
     sim = sub.add_parser("simulate", help="run a scenario offline (no ROS) and print its metrics")
-    sim.add_argument("scenario", help="scenario YAML file, e.g. config/scenarios/paper_tracking.yaml")
+    sim.add_argument("scenario", nargs="?", help="scenario YAML file, e.g. config/scenarios/paper_tracking.yaml")
+    sim.add_argument("--from-campaign", metavar="DIR", help="re-run one run of a Monte Carlo campaign (with --run)")
+    sim.add_argument("--run", type=int, metavar="K", help="the run to re-run with --from-campaign")
     sim.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
                      help="controller to run (default: the scenario's 'controller' key)")
     sim.add_argument("--json", metavar="FILE", help="write metrics and all parameters used as JSON")
     sim.add_argument("--plots", metavar="DIR", help="write paper-style PNG figures to DIR")
     sim.set_defaults(func=_cmd_simulate)
+    mc = sub.add_parser("montecarlo", help="run a Monte Carlo campaign (scenario with a 'montecarlo' section)")
+    mc.add_argument("scenario", help="e.g. config/scenarios/paper_montecarlo.yaml")
+    mc.add_argument("--runs", type=int, required=True, help="number of runs")
+    mc.add_argument("--seed", type=int, default=0, help="root seed (default 0); run k uses SeedSequence(seed, spawn_key=(k,))")
+    mc.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
+    mc.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://10.0.0.5:8786")
+    mc.add_argument("--out", metavar="DIR", help="results directory (default out/montecarlo_<scenario>_seed<S>)")
+    mc.add_argument("--json", metavar="FILE", help="also write the summary here")
+    mc.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
+    mc.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
+    mc.set_defaults(func=_cmd_montecarlo)
     return parser
 
 
@@ -78,6 +158,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ConfigError, InputError) as exc:
         print(f"sappc: error: {exc}", file=sys.stderr)
         return EXIT_INVALID_INPUT
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

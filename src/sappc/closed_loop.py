@@ -10,13 +10,15 @@ logged but not applied.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sappc_controller.core.base import AttitudeController, ControlOutput
+from spacecraft_sim.core.attitude import error_quaternion
 from spacecraft_sim.core.disturbance import DisturbanceModel
 from spacecraft_sim.core.dynamics import RigidBody
 from spacecraft_sim.core.reference import ReferenceSamples
@@ -121,6 +123,7 @@ def run_closed_loop(
     *,
     substeps: int = 1,
     observer: Observer,
+    measure: Callable[[int, Array], Array] | None = None,
 ) -> Array:
     """Simulate the closed loop over the reference's time grid.
 
@@ -140,6 +143,11 @@ def run_closed_loop(
         RK4 steps per control period.
     observer : callable
         Called at every sample (see :data:`Observer`).
+    measure : callable, optional
+        ``measure(k, x) -> x_measured``: the state the controller sees (sensor
+        model).  The observer still gets the true state, and ``out.q_BR`` is
+        replaced by the *true* error quaternion, so metrics describe the real
+        attitude error while the torque comes from the measurement.
 
     Returns
     -------
@@ -156,8 +164,11 @@ def run_closed_loop(
         if k % DISTURBANCE_BLOCK == 0:  # disturbances are pure functions of time: sample a block at once
             d_block = disturbance.torque_B(ref.t[k : k + DISTURBANCE_BLOCK], n_runs)
         t = float(ref.t[k])
-        err = controller.error_state(x[:, :4], x[:, 4:], ref.q_RN[k : k + 1], ref.omega_RN_R[k : k + 1], ref.omegadot_RN_R[k : k + 1])
-        out = controller.step_unchecked(t, control_period_s, err)
+        ref_k = (ref.q_RN[k : k + 1], ref.omega_RN_R[k : k + 1], ref.omegadot_RN_R[k : k + 1])
+        y = x if measure is None else measure(k, x)
+        out = controller.step_unchecked(t, control_period_s, controller.error_state(y[:, :4], y[:, 4:], *ref_k))
+        if measure is not None:
+            out = dataclasses.replace(out, q_BR=error_quaternion(ref_k[0], x[:, :4]))
         d = d_block[k % DISTURBANCE_BLOCK]
         observer(k, t, x, out, d)
         if k < last:

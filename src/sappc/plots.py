@@ -74,3 +74,58 @@ def plot_run(
     plt.close(fig)
     paths.append(path)
     return paths
+
+
+def plot_campaign(tab: dict, out_dir: Path, *, criteria: tuple[float, float], title: str) -> list[Path]:  # type: ignore[type-arg]
+    """The paper's Monte Carlo figures: t2 tracking error and steady-state error per component
+    (one point per run, criterion dashed), and the kept trajectories overlaid with their RPFs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    runs = tab["run"]
+    for name, key, limit, label in (
+        ("montecarlo_t2_error.png", "rpf_error_at_t2_per_axis", criteria[0], r"$|q_{ev,i} - \rho_i|$ at $t_2$"),
+        ("montecarlo_steady_error.png", "steady_mean_abs_qev_per_axis", criteria[1], r"mean $|q_{ev,i}|$ over the steady window"),
+    ):
+        fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), sharey=True)
+        for i, ax in enumerate(axes):
+            ax.plot(runs, tab[key][:, i], ".", ms=2, color="tab:blue")
+            ax.axhline(limit, color="tab:red", ls="--", lw=1, label="criterion")
+            ax.set_yscale("log")
+            ax.set_xlabel("run")
+            ax.set_title(f"component {i + 1}")
+            ax.grid(True, alpha=0.3, which="both")
+        axes[0].set_ylabel(label)
+        axes[0].legend(fontsize=8)
+        fig.suptitle(f"{title}: {len(runs)} runs")
+        fig.tight_layout()
+        path = out_dir / name
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        paths.append(path)
+
+    t, q, rho = tab["traj_t"], tab["traj_q_ev"], tab["traj_rho"]
+    if q.size:
+        for name, mask, logy in (("montecarlo_trajectories.png", np.ones_like(t, dtype=bool), False),
+                                 ("montecarlo_trajectories_steady.png", t >= 15.0, True)):
+            fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+            for i, ax in enumerate(axes):
+                y, r = q[mask, :, i], rho[mask, :, i]
+                if logy:
+                    y, r = np.abs(y), np.abs(r)
+                    ax.set_yscale("log")
+                ax.plot(t[mask], y, color="tab:blue", lw=0.4, alpha=0.25)
+                ax.plot(t[mask], r, color="k", lw=0.4, alpha=0.25, ls="--")
+                ax.set_ylabel(r"$|q_{ev%d}|$" % (i + 1) if logy else r"$q_{ev%d}$" % (i + 1))
+                ax.grid(True, alpha=0.3)
+            axes[-1].set_xlabel("time [s]")
+            fig.suptitle(f"{title}: {q.shape[1]} trajectories (solid) and their RPFs (dashed)" + (", steady state" if logy else ""))
+            fig.tight_layout()
+            path = out_dir / name
+            fig.savefig(path, dpi=110)
+            plt.close(fig)
+            paths.append(path)
+    return paths

@@ -89,6 +89,7 @@ _TOP_KEYS = {
     "metrics",
     "controller",
     "controllers",
+    "montecarlo",  # validated by sappc.montecarlo.campaign_config
 }
 
 
