@@ -177,8 +177,11 @@ def from_mapping(cls: type, data: Any, prefix: str) -> Any:
             continue
         value = data[name]
         hint = hints[name]
-        if dataclasses.is_dataclass(hint):
-            kwargs[name] = from_mapping(hint, value, f"{prefix}.{name}")  # type: ignore[arg-type]
+        # a dataclass field, or an optional one (``SomeDataclass | None``)
+        options = [h for h in typing.get_args(hint) if h is not type(None)] if typing.get_args(hint) else [hint]
+        nested = options[0] if len(options) == 1 and dataclasses.is_dataclass(options[0]) else None
+        if nested is not None and value is not None:
+            kwargs[name] = from_mapping(nested, value, f"{prefix}.{name}")  # type: ignore[arg-type]
         else:
             kwargs[name] = _freeze(value)
     try:
