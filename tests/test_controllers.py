@@ -272,3 +272,21 @@ def test_single_run_output_has_no_batch_axis() -> None:
     q = np.where(q[:, 3:] < 0, -q, q)
     out = SCENARIO.build_controller("sappc").step(0.0, 0.01, q, np.zeros((5, 3)), Q_D, W_D, WDOT_D)
     assert out.torque_B.shape == (5, 3)
+
+
+def test_per_run_gains_in_a_batch_equal_the_same_gains_alone() -> None:
+    base = SCENARIO.controller_config("sappc")
+    K_q = np.array([0.25, 0.3, 0.35])
+    mu = np.array([6e-5, 7e-5, 8e-5])
+    batch_cfg = dataclasses.replace(base, gains=dataclasses.replace(base.gains, K_q=K_q, mu_rad_s=mu))
+    q = euler_to_quaternion(np.radians([[20, -15, 30], [-40, 10, 5], [5, 5, -25]]), "ZYX")
+    batch = type(SCENARIO.build_controller("sappc"))(batch_cfg)
+    outs = [batch.step(0.01 * k, 0.01, q, np.full((3, 3), 0.01), Q_D, W_D, WDOT_D) for k in range(3)]
+    for i in range(3):
+        alone_cfg = dataclasses.replace(base, gains=dataclasses.replace(base.gains, K_q=float(K_q[i]), mu_rad_s=float(mu[i])))
+        alone = type(SCENARIO.build_controller("sappc"))(alone_cfg)
+        for k in range(3):
+            out = alone.step(0.01 * k, 0.01, q[i], np.full(3, 0.01), Q_D, W_D, WDOT_D)
+            np.testing.assert_array_equal(out.torque_cmd_B, outs[k].torque_cmd_B[i])
+    with pytest.raises(ConfigError, match="gains.K_q must be finite and > 0"):
+        dataclasses.replace(base.gains, K_q=np.array([0.3, -0.1]))

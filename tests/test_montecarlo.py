@@ -35,6 +35,7 @@ def _short(tmp_path, chunk_runs: int = 5, **dispersions) -> str:  # type: ignore
         "disturbance_scale": {"distribution": "uniform", "low": 0.8, "high": 1.2},
         "disturbance_phase_rad": {"distribution": "uniform", "low": 0.0, "high": 6.283185307179586},
         "sensor_noise": {"attitude_sigma_rad": 1e-7, "rate_sigma_rad_s": 1e-7},
+        "gains": {"K_q": {"distribution": "uniform", "low": 0.25, "high": 0.35}, "mu_rad_s": {"distribution": "uniform", "low": 6e-5, "high": 8e-5}},
     }
     path = tmp_path / f"short_{chunk_runs}.yaml"
     path.write_text(yaml.safe_dump(raw))
@@ -54,6 +55,7 @@ def test_dispersion_statistics_and_per_run_reproducibility(tmp_path) -> None:
     assert np.all(np.abs(d.omega_BN_B0.mean(axis=0)) < 4 * 1e-3 / np.sqrt(n))
     assert np.all((d.inertia_relative >= -0.05) & (d.inertia_relative <= 0.05))
     assert np.all((d.disturbance_scale >= 0.8) & (d.disturbance_scale <= 1.2))
+    assert np.all((d.gains["K_q"] >= 0.25) & (d.gains["K_q"] <= 0.35)) and abs(d.gains["K_q"].mean() - 0.3) < 4 * 0.1 / np.sqrt(12 * n)
     # components are independent: correlation between axes ~ 0 (sd 1/sqrt(n) = 0.016)
     c = np.corrcoef(d.euler_deg.T)
     assert np.all(np.abs(c[np.triu_indices(3, 1)]) < 0.064)
@@ -141,6 +143,8 @@ def test_interrupted_campaign_resumes_to_the_same_results(tmp_path, monkeypatch)
         ({"inertia_relative": {"distribution": "normal", "mean": 0.0, "sigma": 0.01}}, "normal distribution is unbounded"),
         ({"disturbance_scale": {"distribution": "uniform", "low": [0.8, 0.8, 0.8], "high": 1.2}}, "disturbance_scale must have scalar"),
         ({"wind": {"distribution": "uniform", "low": 0, "high": 1}}, "unknown key montecarlo.dispersions.wind"),
+        ({"gains": {"K_q": {"distribution": "normal", "mean": 0.3, "sigma": 0.1}}}, "K_q must be a uniform distribution with low > 0"),
+        ({"gains": {"T1_s": {"distribution": "uniform", "low": 1, "high": 2}}}, "unknown key montecarlo.dispersions.gains.T1_s"),
     ],
 )
 def test_bad_dispersions_are_rejected_before_any_run(tmp_path, dispersions, fragment) -> None:

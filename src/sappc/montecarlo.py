@@ -45,7 +45,7 @@ from spacecraft_sim.core.dynamics import RigidBody, initial_state
 from spacecraft_sim.core.validation import ConfigError, check_positive, from_mapping
 
 from .closed_loop import both, run_closed_loop, step_times
-from .scenario import Scenario, scenario_from_mapping
+from .scenario import ControllerKind, Scenario, scenario_from_mapping
 from .simulate import metrics_accumulator
 
 __all__ = ["CampaignConfig", "Distribution", "run_campaign", "run_chunk", "load_campaign_run"]
@@ -141,6 +141,32 @@ class SensorNoise:
         return self.attitude_sigma_rad > 0.0 or self.rate_sigma_rad_s > 0.0
 
 
+#: SAPPC/TraPPC gains a campaign may disperse (per run; the law broadcasts them).
+DISPERSIBLE_GAINS = ("K_q", "K_omega", "D_m_Nm", "mu_rad_s")
+
+
+@dataclass(frozen=True)
+class GainDispersions:
+    """Per-run controller gains of the backstepping law (SAPPC, TraPPC); each a uniform
+    distribution with ``low > 0`` (a normal one could draw non-positive gains)."""
+
+    K_q: Distribution | None = None
+    K_omega: Distribution | None = None
+    D_m_Nm: Distribution | None = None
+    mu_rad_s: Distribution | None = None
+
+    def __post_init__(self) -> None:
+        for name in DISPERSIBLE_GAINS:
+            d = getattr(self, name)
+            if d is not None:
+                d.check_shape(name, ())
+                if d.distribution != "uniform" or not np.min(d.low) > 0.0:
+                    raise ConfigError(f"{name} must be a uniform distribution with low > 0, got {d!r}")
+
+    def items(self) -> list[tuple[str, Distribution]]:
+        return [(n, getattr(self, n)) for n in DISPERSIBLE_GAINS if getattr(self, n) is not None]
+
+
 @dataclass(frozen=True)
 class Dispersions:
     """What varies from run to run besides the initial attitude (all optional).
@@ -156,6 +182,8 @@ class Dispersions:
     disturbance_scale, disturbance_phase_rad : Distribution
         Scale and phase of the paper's periodic disturbance (scalar per run).
     sensor_noise : SensorNoise
+    gains : GainDispersions
+        Per-run controller gains (``K_q``, ``K_omega``, ``D_m_Nm``, ``mu_rad_s``).
     """
 
     initial_rate_rad_s: Distribution | None = None
@@ -163,6 +191,7 @@ class Dispersions:
     disturbance_scale: Distribution | None = None
     disturbance_phase_rad: Distribution | None = None
     sensor_noise: SensorNoise = SensorNoise()
+    gains: GainDispersions = GainDispersions()
 
 
 @dataclass(frozen=True)
@@ -243,6 +272,7 @@ class RunInputs:
     inertia_relative: Array
     disturbance_scale: Array
     disturbance_phase_rad: Array
+    gains: dict[str, Array]
 
 
 def _run_rngs(seed: int, run: int) -> tuple[np.random.Generator, np.random.Generator]:
@@ -263,7 +293,8 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
         inertia = d.inertia_relative.draw(rng, (3,)) if d.inertia_relative else np.zeros(3)
         scale = float(d.disturbance_scale.draw(rng, ())) if d.disturbance_scale else 1.0
         phase = float(d.disturbance_phase_rad.draw(rng, ())) if d.disturbance_phase_rad else 0.0
-        rows.append((euler, rate, inertia, scale, phase))
+        gains = {name: float(dist.draw(rng, ())) for name, dist in d.gains.items()}
+        rows.append((euler, rate, inertia, scale, phase, gains))
     euler = np.array([r[0] for r in rows]).reshape(-1, 3)
     return RunInputs(
         runs=runs_arr,
@@ -273,6 +304,7 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
         inertia_relative=np.array([r[2] for r in rows]).reshape(-1, 3),
         disturbance_scale=np.array([r[3] for r in rows]),
         disturbance_phase_rad=np.array([r[4] for r in rows]),
+        gains={name: np.array([r[5][name] for r in rows]) for name, _ in d.gains.items()},
     )
 
 
@@ -340,7 +372,13 @@ def simulate_runs(
         J = S[:, :, None] * J[None] * S[:, None, :]
     plant = RigidBody(J)
     disturbance = _dispersed_disturbance(scenario, inputs)
-    controller = scenario.build_controller(scenario.controller, **({"on_infeasible": "clamp"} if scenario.controller.value == "sappc" else {}))
+    config = scenario.controller_config()
+    if inputs.gains:
+        if not hasattr(config, "gains") or not hasattr(config.gains, "K_q"):
+            raise ConfigError(f"montecarlo.dispersions.gains needs a SAPPC or TraPPC controller, not {scenario.controller.value!r}")
+        config = dataclasses.replace(config, gains=dataclasses.replace(config.gains, **inputs.gains))
+    options = {"on_infeasible": "clamp"} if scenario.controller == ControllerKind.SAPPC else {}
+    controller = scenario.build_controller(config=config, **options)
     t = step_times(scenario.duration_s, scenario.control_period_s)
     metrics = metrics_accumulator(scenario, t, n)
     traj = _Trajectories(min(keep_trajectories, n), cfg.trajectory_stride)
@@ -367,6 +405,7 @@ def simulate_runs(
         "inertia_relative": inputs.inertia_relative,
         "disturbance_scale": inputs.disturbance_scale,
         "disturbance_phase_rad": inputs.disturbance_phase_rad,
+        **{f"gain_{name}": values for name, values in inputs.gains.items()},
         "rpf_error_at_t2_per_axis": crit["rpf_error_at_t2_per_axis"],
         "steady_mean_abs_qev_per_axis": crit["steady_mean_abs_qev_per_axis"],
         "steady_max_abs_qev": crit["steady_max_abs_qev"],
@@ -587,12 +626,13 @@ def _assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict
     ok_steady = finite & (steady < crit.steady_mean_abs_qev_max)
     passed = ok_t2 & ok_steady
 
+    gain_keys = [k for k in tab if k.startswith("gain_")]
     with (out / "runs.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
             ["run", "seed", "passed", "finite"]
             + [f"euler_deg_{i}" for i in _AXES] + [f"omega0_rad_s_{i}" for i in _AXES] + [f"inertia_relative_{i}" for i in _AXES]
-            + ["disturbance_scale", "disturbance_phase_rad"]
+            + ["disturbance_scale", "disturbance_phase_rad"] + gain_keys
             + [f"rpf_error_at_t2_{i}" for i in _AXES] + ["rpf_error_at_t2"]
             + [f"steady_mean_abs_qev_{i}" for i in _AXES] + ["steady_mean_abs_qev", "steady_max_abs_qev", "settling_time_s",
                                                            "max_abs_torque_Nm", "rpf_clamped_components", "rpf_flat_components"]
@@ -603,6 +643,7 @@ def _assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict
                 + [f"{v:.17g}" for v in tab["euler_deg"][k]] + [f"{v:.17g}" for v in tab["omega_BN_B0_rad_s"][k]]
                 + [f"{v:.17g}" for v in tab["inertia_relative"][k]]
                 + [f"{tab['disturbance_scale'][k]:.17g}", f"{tab['disturbance_phase_rad'][k]:.17g}"]
+                + [f"{tab[g][k]:.17g}" for g in gain_keys]
                 + [f"{v:.17g}" for v in tab["rpf_error_at_t2_per_axis"][k]] + [f"{t2[k]:.17g}"]
                 + [f"{v:.17g}" for v in tab["steady_mean_abs_qev_per_axis"][k]]
                 + [f"{steady[k]:.17g}", f"{tab['steady_max_abs_qev'][k]:.17g}", f"{tab['settling_time_s'][k]:.17g}",

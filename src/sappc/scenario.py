@@ -174,11 +174,12 @@ class Scenario:
         params = from_mapping(config_cls, {**data, "inertia_kg_m2": self.inertia_kg_m2.tolist()}, f"controllers.{k.value}")
         return dataclasses.replace(params, actuator=self.actuator)
 
-    def build_controller(self, kind: ControllerKind | str | None = None, **options: Any) -> AttitudeController:
-        """A fresh controller of ``kind`` with this scenario's parameters."""
+    def build_controller(self, kind: ControllerKind | str | None = None, *, config: Any = None, **options: Any) -> AttitudeController:
+        """A fresh controller of ``kind`` with this scenario's parameters, or with ``config``
+        (a config of that kind, e.g. this scenario's with dispersed gains)."""
         k = self.resolve_controller(kind)
         _, controller_cls = _CONFIG_CLASSES[k]
-        return controller_cls(self.controller_config(k), **options)
+        return controller_cls(self.controller_config(k) if config is None else config, **options)
 
     def resolve_controller(self, kind: ControllerKind | str | None) -> ControllerKind:
         """``kind`` parsed, or the scenario's default controller when ``None``."""

@@ -147,9 +147,14 @@ def w0_dynamics(J_times: Linear3, err: ErrorState) -> Array:
     return J_times(cross(err.omega_BR_B, err.C_omega_d) - err.C_omegadot_d) - cross(err.omega_BN_B, J_times(err.omega_BN_B))
 
 
-def robust_term(D_m: float, z2: Array, mu: Array) -> Array:
-    """``D_m vec(tanh(z2_i / mu_i))`` (eq. U, Lemma 1)."""
-    return D_m * np.tanh(z2 / mu)
+def per_run(value: float | Array) -> float | Array:
+    """A gain as a scalar, or its (N,) per-run values as an (N, 1) column for (N, 3) arrays."""
+    return np.reshape(value, (-1, 1)) if np.ndim(value) else value
+
+
+def robust_term(D_m: float | Array, z2: Array, mu: float | Array) -> Array:
+    """``D_m vec(tanh(z2_i / mu_i))`` (eq. U, Lemma 1); ``D_m`` and ``mu`` scalar or per run."""
+    return per_run(D_m) * np.tanh(z2 / per_run(mu))
 
 
 @dataclass(frozen=True)

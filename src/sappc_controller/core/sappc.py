@@ -55,6 +55,9 @@ class BacksteppingGains:
         First-layer gain (``K_q``, eq. virtualcontrol).
     K_omega : float
         Second-layer gain (``K_omega``, eq. U).
+
+    ``K_q``, ``K_omega``, ``D_m_Nm`` and ``mu_rad_s`` may also hold an (N,) array of per-run
+    values for a batch (Monte Carlo gain dispersions); the other fields are scalars.
     p : float
         Predefined-time exponent ``p1 = p2 = p3 = p`` in (0, 1); the paper uses 0.1.
     T1_s, T2_s, T3_s : float

@@ -96,16 +96,17 @@ def check_unit_quaternion(name: str, value: ArrayLike, *, tol: float = QUATERNIO
     return q
 
 
-def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
-    """Return ``value`` as a float after checking it is finite and positive."""
+def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> Any:
+    """Check that ``value`` is finite and positive; return it as a float, or as a float array when
+    it holds one value per run (Monte Carlo dispersions of a batch)."""
     try:
-        x = float(value)
+        x = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{name} must be a number, got {value!r}") from exc
-    if not np.isfinite(x) or (x < 0.0 if allow_zero else x <= 0.0):
+    if not np.all(np.isfinite(x)) or np.any(x < 0.0 if allow_zero else x <= 0.0):
         rel = ">= 0" if allow_zero else "> 0"
         raise ConfigError(f"{name} must be finite and {rel}, got {value!r}")
-    return x
+    return float(x) if x.ndim == 0 else x
 
 
 def check_spd_inertia(name: str, value: ArrayLike) -> NDArray[np.float64]:
