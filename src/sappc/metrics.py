@@ -141,11 +141,17 @@ class MetricsAccumulator:
             self.left_after_fault |= outside
         self.samples += 1
 
+    def settling_times(self) -> Array:
+        """``settling_time_s`` of every run, NaN for a run that never settles."""
+        lu = self.last_unsettled
+        after = np.minimum(lu + 1, self.t.size - 1)
+        return np.where(lu < 0, 0.0, np.where(lu >= self.samples - 1, np.nan, self.t[after]))
+
     def run_metrics(self, run: int = 0) -> dict[str, Any]:
         """The metrics of run ``run`` (see the module docstring), JSON-ready."""
         t, last = self.t, self.samples - 1
-        lu = int(self.last_unsettled[run])
-        settling = 0.0 if lu < 0 else (None if lu >= last else float(t[lu + 1]))
+        settling_s = float(self.settling_times()[run])
+        settling = None if np.isnan(settling_s) else settling_s
         steady = self.steady_count > 0
         lo = int(self.last_outside[run])
         m: dict[str, Any] = {
@@ -181,5 +187,6 @@ class MetricsAccumulator:
             "rpf_error_at_t2": self.rpf_error_t2_axis.max(axis=1),
             "steady_max_abs_qev": self.steady_max,
             "max_abs_torque_Nm": self.max_torque,
+            "settling_time_s": self.settling_times(),
             "finite": self.finite,
         }

@@ -396,7 +396,6 @@ def simulate_runs(
             measure=sensor,
         )
     crit = metrics.criteria_arrays()
-    settling = np.array([metrics.run_metrics(i)["settling_time_s"] for i in range(n)], dtype=object)
     rpf = getattr(getattr(controller, "transformation", None), "rpf", None)
     return {
         "run": inputs.runs,
@@ -410,7 +409,7 @@ def simulate_runs(
         "steady_mean_abs_qev_per_axis": crit["steady_mean_abs_qev_per_axis"],
         "steady_max_abs_qev": crit["steady_max_abs_qev"],
         "max_abs_torque_Nm": crit["max_abs_torque_Nm"],
-        "settling_time_s": np.array([np.nan if s is None else s for s in settling], dtype=float),
+        "settling_time_s": crit["settling_time_s"],
         "finite": crit["finite"],
         "rpf_clamped": rpf.clamped if rpf is not None else np.zeros((n, 3), dtype=bool),
         "rpf_flat": rpf.flat if rpf is not None else np.zeros((n, 3), dtype=bool),
@@ -567,8 +566,10 @@ def run_campaign(
         old = json.loads(manifest_path.read_text())
         if not resume:
             raise ConfigError(f"{out} already holds a campaign; pass --resume to continue it or choose another --out")
-        if {k: old.get(k) for k in manifest if k != "scenario_file"} != {k: v for k, v in manifest.items() if k != "scenario_file"}:
-            raise ConfigError(f"{out} holds a campaign with another scenario, seed, run count or chunk size; cannot resume it")
+        same = ("format", "scenario", "seed", "runs")
+        if any(old.get(k) != manifest[k] for k in same):
+            raise ConfigError(f"{out} holds a campaign with another scenario, seed or run count; cannot resume it")
+        chunk_runs = manifest["chunk_runs"] = old["chunk_runs"]  # the finished chunks fix the chunking
     elif resume:
         raise ConfigError(f"--resume: {out} holds no campaign (no manifest.json)")
     (out / "chunks").mkdir(parents=True, exist_ok=True)
