@@ -72,7 +72,7 @@ def test_results_are_identical_for_any_chunking_and_executor(tmp_path) -> None:
     assert (tmp_path / "a" / "runs.csv").read_bytes() == (tmp_path / "b" / "runs.csv").read_bytes()
     assert a["passed"] == b["passed"] == 12
     # a run of the campaign re-run alone gives its row exactly
-    _, row, metrics = load_campaign_run(tmp_path / "a", 9)
+    _, row, metrics, _ = load_campaign_run(tmp_path / "a", 9)
     table = np.genfromtxt(tmp_path / "a" / "runs.csv", delimiter=",", names=True)
     assert row["rpf_error_at_t2_per_axis"][0].max() == table["rpf_error_at_t2"][9]
     assert metrics["steady_mean_abs_qev"] == table["steady_mean_abs_qev"][9]
@@ -165,9 +165,12 @@ def test_cli_end_to_end(tmp_path) -> None:
     assert summary["runs"] == 4 and summary["pass_fraction"] == 1.0
     for name in ("runs.csv", "summary.json", "montecarlo_t2_error.png", "montecarlo_steady_error.png", "montecarlo_trajectories.png"):
         assert (tmp_path / "cli" / name).exists()
-    rerun = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "cli"), "--run", "3"],
+    rerun = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "cli"), "--run", "3",
+                            "--plots", str(tmp_path / "run3")], capture_output=True, text=True, cwd=ROOT)
+    assert rerun.returncode == 0 and "run 3" in rerun.stdout and (tmp_path / "run3" / "qev.png").exists()
+    nodir = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "nope"), "--run", "0", "--plots", str(tmp_path / "p")],
                            capture_output=True, text=True, cwd=ROOT)
-    assert rerun.returncode == 0 and "run 3" in rerun.stdout
+    assert nodir.returncode == 2 and "is not a campaign directory" in nodir.stderr and "Traceback" not in nodir.stderr
     bad = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "cli"), "--run", "9"],
                          capture_output=True, text=True, cwd=ROOT)
     assert bad.returncode == 2 and "--run must be in [0, 3]" in bad.stderr

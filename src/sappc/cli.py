@@ -72,7 +72,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _simulate_from_campaign(args: argparse.Namespace) -> int:
-    from .closed_loop import HistoryRecorder, step_times
     from .montecarlo import load_campaign_run
     from .plots import plot_run
 
@@ -80,12 +79,7 @@ def _simulate_from_campaign(args: argparse.Namespace) -> int:
         raise ConfigError("--from-campaign takes the scenario and controller from the campaign; give neither")
     if args.run is None:
         raise ConfigError("--from-campaign needs --run K")
-    recorder = None
-    if args.plots:
-        manifest = json.loads((Path(args.from_campaign) / "manifest.json").read_text())
-        s = manifest["scenario"]
-        recorder = HistoryRecorder(step_times(float(s["duration_s"]), float(s["control_period_s"])), 1)
-    scenario, row, metrics = load_campaign_run(args.from_campaign, args.run, recorder)
+    scenario, row, metrics, history = load_campaign_run(args.from_campaign, args.run, with_history=bool(args.plots))
     campaign_row = {
         "run": int(row["run"][0]),
         "rpf_error_at_t2": float(row["rpf_error_at_t2_per_axis"][0].max()),
@@ -96,8 +90,8 @@ def _simulate_from_campaign(args: argparse.Namespace) -> int:
     _print_metrics(f"{scenario.name} run {args.run} (from {args.from_campaign})", scenario.controller.value, metrics)
     if args.json:
         _write_json(args.json, {"scenario": scenario.name, "run": args.run, "metrics": metrics, "campaign_row": campaign_row})
-    if recorder is not None:
-        for p in plot_run(recorder.history(), Path(args.plots), title=f"{scenario.name} run {args.run}",
+    if history is not None:
+        for p in plot_run(history, Path(args.plots), title=f"{scenario.name} run {args.run}",
                           fault_windows=scenario.disturbance.events()):
             print(f"wrote {p}")
     return 0

@@ -693,12 +693,15 @@ def _assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict
     return summary
 
 
-def load_campaign_run(campaign_dir: str | Path, run: int, observer: Any = None) -> tuple[Scenario, dict[str, Array], dict[str, Any]]:
+def load_campaign_run(campaign_dir: str | Path, run: int, *, with_history: bool = False) -> tuple[Scenario, dict[str, Array], dict[str, Any], Any]:
     """Re-run run ``run`` of a campaign alone (for ``sappc simulate --from-campaign``).
 
     Returns the scenario, the run's campaign results (identical to its row of the campaign's
-    table) and its full metrics; ``observer`` also sees every sample (e.g. a history recorder).
+    table), its full metrics, and its :class:`~sappc.closed_loop.History` when ``with_history``
+    (else ``None``).
     """
+    from .closed_loop import HistoryRecorder
+
     out = Path(campaign_dir)
     try:
         manifest = json.loads((out / "manifest.json").read_text())
@@ -707,5 +710,6 @@ def load_campaign_run(campaign_dir: str | Path, run: int, observer: Any = None) 
     if not isinstance(run, int) or not 0 <= run < manifest["runs"]:
         raise ConfigError(f"--run must be in [0, {manifest['runs'] - 1}], got {run!r}")
     scenario = scenario_from_mapping(manifest["scenario"])
-    row, metrics = simulate_runs(manifest["scenario"], manifest["seed"], [run], 0, observer)
-    return scenario, row, metrics.run_metrics(0)
+    recorder = HistoryRecorder(step_times(scenario.duration_s, scenario.control_period_s), 1) if with_history else None
+    row, metrics = simulate_runs(manifest["scenario"], manifest["seed"], [run], 0, recorder)
+    return scenario, row, metrics.run_metrics(0), recorder.history() if recorder is not None else None
