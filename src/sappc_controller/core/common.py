@@ -189,7 +189,7 @@ class Actuator:
     def __init__(self, config: ActuatorConfig) -> None:
         self.config = config
 
-    def apply(self, torque_cmd_B: Array) -> tuple[Array, Array]:
+    def apply(self, torque_cmd_B: Array) -> tuple[Array, NDArray[np.bool_]]:
         """Return the produced torque and a per-axis saturation flag, both (N, 3)."""
         c = self.config
         magnitude = np.abs(torque_cmd_B)

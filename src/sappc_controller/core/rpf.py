@@ -147,7 +147,7 @@ class RPFParameters:
                 raise InfeasibleRPFError(_infeasible_message(self.l, self.rho_e0, self.rho_einf, self.g_inf, self.t2_s, lower, upper))
 
 
-def _infeasible_message(l: float, rho_e0: float, rho_einf: float, g_inf: float, t2: float, lower: float, upper: float) -> str:
+def _infeasible_message(l: float, rho_e0: ArrayLike, rho_einf: float, g_inf: float, t2: float, lower: ArrayLike, upper: ArrayLike) -> str:
     return (
         f"rpf.l = {l!r} is infeasible for rho_e0 = {float(rho_e0):.6g}, rho_einf = {rho_einf!r}, g_inf = {g_inf!r}, "
         f"t2_s = {t2!r}: eq. (RPFsolve) has a real solution only for {float(lower):.6g} <= l <= {float(upper):.6g}"
