@@ -78,7 +78,7 @@ def main() -> None:
         "campaign_loop_wall_s": summary["wall_time_s"],
         "runs_per_s": args.runs / wall,
         "target_wall_s_for_3000_runs": 15.0,
-        "meets_wall_target": args.runs != 3000 or wall <= 15.0,
+        "meets_wall_target": (wall <= 15.0) if args.runs == 3000 else None,  # the target is for 3000 runs
         "peak_rss_mb": peak_mb,
         "meets_memory_target": peak_mb <= 2048.0,
         "rss_after_chunk_mb": {"first": samples[0] if n else None, "middle": samples[n // 2] if n else None,
