@@ -90,5 +90,5 @@ def test_simulate_writes_json_and_plots(tmp_path) -> None:
     assert m["left_constraint_after_fault"] is True
     assert report["parameters"]["controller"]["gains"]["K1"] == raw["controllers"]["blfppc"]["gains"]["K1"]
     assert report["parameters"]["scenario"]["duration_s"] == 52.0
-    for name in ("qev.png", "qev_zoom.png", "torque.png"):
+    for name in ("qev.png", "qev_zoom.png", "qev_log.png", "torque.png"):
         assert (tmp_path / "fig" / name).stat().st_size > 10_000

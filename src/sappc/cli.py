@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from collections.abc import Sequence
@@ -134,7 +135,8 @@ def _parser() -> argparse.ArgumentParser:
     mc.add_argument("scenario", help="e.g. config/scenarios/paper_montecarlo.yaml")
     mc.add_argument("--runs", type=int, required=True, help="number of runs")
     mc.add_argument("--seed", type=int, default=0, help="root seed (default 0); run k uses SeedSequence(seed, spawn_key=(k,))")
-    mc.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
+    mc.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                    help="local worker processes (default: the number of CPUs); results do not depend on it")
     mc.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://10.0.0.5:8786")
     mc.add_argument("--out", metavar="DIR", help="results directory (default out/montecarlo_<scenario>_seed<S>)")
     mc.add_argument("--json", metavar="FILE", help="also write the summary here")

@@ -26,7 +26,7 @@ def plot_run(
     zoom_from_s: float = 15.0,
     run: int = 0,
 ) -> list[Path]:
-    """Write ``qev.png``, ``qev_zoom.png`` and ``torque.png`` to ``out_dir``; return their paths."""
+    """Write ``qev.png``, ``qev_zoom.png``, ``qev_log.png`` and ``torque.png`` to ``out_dir``; return their paths."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -59,6 +59,23 @@ def plot_run(
         fig.savefig(path, dpi=110)
         plt.close(fig)
         paths.append(path)
+
+    # |q_ev| on a log scale: the steady state (1e-5) is invisible on the linear plots
+    fig, axes = plt.subplots(3, 1, figsize=(8, 7.5), sharex=True)
+    for i, ax in enumerate(axes):
+        ax.semilogy(t, np.abs(h.rho[:, run, i]), "k--", lw=1.0, label=r"$|\rho_%d|$" % (i + 1))
+        ax.semilogy(t, np.abs(q_ev[:, i]), color="tab:blue", lw=1.2, label=r"$|q_{ev%d}|$" % (i + 1))
+        _mark_faults(ax, list(fault_windows), float(t[-1]))
+        ax.set_ylabel(r"$|q_{ev%d}|$" % (i + 1))
+        ax.grid(True, alpha=0.3, which="both")
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(f"{title}: attitude error magnitude")
+    fig.tight_layout()
+    path = out_dir / "qev_log.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    paths.append(path)
 
     fig, axes = plt.subplots(3, 1, figsize=(8, 6.5), sharex=True)
     for i, ax in enumerate(axes):
