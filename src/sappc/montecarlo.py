@@ -41,12 +41,11 @@ from numpy.typing import NDArray
 
 from spacecraft_sim.core.attitude import euler_to_quaternion, quat_multiply, quat_normalize
 from spacecraft_sim.core.disturbance import DisturbanceSum, PaperPeriodic
-from spacecraft_sim.core.dynamics import RigidBody, initial_state
 from spacecraft_sim.core.validation import ConfigError, check_positive, from_mapping
 
-from .closed_loop import both, run_closed_loop, step_times
+from .closed_loop import both, step_times
 from .scenario import ControllerKind, Scenario, scenario_from_mapping
-from .simulate import metrics_accumulator
+from .simulate import run_scenario
 
 __all__ = ["CampaignConfig", "Distribution", "run_campaign", "run_chunk", "load_campaign_run"]
 
@@ -370,30 +369,23 @@ def simulate_runs(
     if cfg.dispersions.inertia_relative is not None:
         S = np.sqrt(1.0 + inputs.inertia_relative)  # (n, 3)
         J = S[:, :, None] * J[None] * S[:, None, :]
-    plant = RigidBody(J)
-    disturbance = _dispersed_disturbance(scenario, inputs)
     config = scenario.controller_config()
     if inputs.gains:
         if not hasattr(config, "gains") or not hasattr(config.gains, "K_q"):
             raise ConfigError(f"montecarlo.dispersions.gains needs a SAPPC or TraPPC controller, not {scenario.controller.value!r}")
         config = dataclasses.replace(config, gains=dataclasses.replace(config.gains, **inputs.gains))
-    options = {"on_infeasible": "clamp"} if scenario.controller == ControllerKind.SAPPC else {}
-    controller = scenario.build_controller(config=config, **options)
-    t = step_times(scenario.duration_s, scenario.control_period_s)
-    metrics = metrics_accumulator(scenario, t, n)
     traj = _Trajectories(min(keep_trajectories, n), cfg.trajectory_stride)
-    sensor = _NoisySensor(cfg.dispersions.sensor_noise, seed, inputs.runs) if cfg.dispersions.sensor_noise.enabled else None
     with np.errstate(all="ignore"):  # a diverging run is reported, not raised
-        run_closed_loop(
-            plant,
-            controller,
-            scenario.reference.sample(t),
-            disturbance,
-            initial_state(inputs.q_BN0, inputs.omega_BN_B0),
-            scenario.control_period_s,
-            substeps=scenario.rk4_substeps,
-            observer=both(metrics, traj) if observer is None else both(metrics, traj, observer),
-            measure=sensor,
+        metrics, controller = run_scenario(
+            scenario,
+            controller_config=config,
+            controller_options={"on_infeasible": "clamp"} if scenario.controller == ControllerKind.SAPPC else {},
+            q_BN0=inputs.q_BN0,
+            omega_BN_B0_rad_s=inputs.omega_BN_B0,
+            inertia_kg_m2=J,
+            disturbance=_dispersed_disturbance(scenario, inputs),
+            measure=_NoisySensor(cfg.dispersions.sensor_noise, seed, inputs.runs) if cfg.dispersions.sensor_noise.enabled else None,
+            observer=traj if observer is None else both(traj, observer),
         )
     crit = metrics.criteria_arrays()
     rpf = getattr(getattr(controller, "transformation", None), "rpf", None)

@@ -5,17 +5,20 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from sappc_controller.core.base import AttitudeController
+from spacecraft_sim.core.disturbance import DisturbanceModel
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
 
-from .closed_loop import History, HistoryRecorder, both, run_closed_loop, step_times
+from .closed_loop import History, HistoryRecorder, Observer, both, run_closed_loop, step_times
 from .metrics import MetricsAccumulator
 from .scenario import ControllerKind, Scenario
 
-__all__ = ["SimulationResult", "metrics_accumulator", "simulate"]
+__all__ = ["SimulationResult", "metrics_accumulator", "run_scenario", "simulate"]
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,51 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
+def run_scenario(
+    scenario: Scenario,
+    *,
+    controller: ControllerKind | str | None = None,
+    controller_config: Any = None,
+    controller_options: dict[str, Any] | None = None,
+    q_BN0: np.ndarray | None = None,
+    omega_BN_B0_rad_s: np.ndarray | None = None,
+    inertia_kg_m2: np.ndarray | None = None,
+    disturbance: DisturbanceModel | None = None,
+    measure: Callable[[int, np.ndarray], np.ndarray] | None = None,
+    observer: Observer | None = None,
+) -> tuple[MetricsAccumulator, AttitudeController]:
+    """Run the scenario's closed loop, for one run or a batch: the one place that assembles it.
+
+    Every argument overrides the scenario's own value; the batch size is that of ``q_BN0``
+    (shape (N, 4)) or 1.  Used by :func:`simulate` (one run, the scenario as written) and by
+    Monte Carlo campaigns (dispersed initial states, inertias, disturbances, gains, sensors).
+
+    Returns
+    -------
+    metrics : MetricsAccumulator
+        Filled with every sample of every run.
+    controller : AttitudeController
+        The controller after the run (e.g. for its RPF's clamped/flat components).
+    """
+    q0 = np.atleast_2d(scenario.q_BN0 if q_BN0 is None else q_BN0)
+    x0 = initial_state(q0, scenario.omega_BN_B0_rad_s if omega_BN_B0_rad_s is None else omega_BN_B0_rad_s)
+    ctrl = scenario.build_controller(controller, config=controller_config, **(controller_options or {}))
+    t = step_times(scenario.duration_s, scenario.control_period_s)
+    metrics = metrics_accumulator(scenario, t, x0.shape[0])
+    run_closed_loop(
+        RigidBody(scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2),
+        ctrl,
+        scenario.reference.sample(t),
+        scenario.disturbance if disturbance is None else disturbance,
+        x0,
+        scenario.control_period_s,
+        substeps=scenario.rk4_substeps,
+        observer=metrics if observer is None else both(metrics, observer),
+        measure=measure,
+    )
+    return metrics, ctrl
+
+
 def simulate(scenario: Scenario, controller: ControllerKind | str | None = None) -> SimulationResult:
     """Run ``scenario`` with ``controller`` (default: the scenario's) and compute its metrics.
 
@@ -61,26 +109,11 @@ def simulate(scenario: Scenario, controller: ControllerKind | str | None = None)
     """
     kind = scenario.resolve_controller(controller)
     start = time.perf_counter()
-    ctrl = scenario.build_controller(kind)
-    plant = RigidBody(scenario.inertia_kg_m2)
-    t = step_times(scenario.duration_s, scenario.control_period_s)
-    recorder = HistoryRecorder(t, 1)
-    metrics = metrics_accumulator(scenario, t, 1)
-    run_closed_loop(
-        plant,
-        ctrl,
-        scenario.reference.sample(t),
-        scenario.disturbance,
-        initial_state(scenario.q_BN0, scenario.omega_BN_B0_rad_s),
-        scenario.control_period_s,
-        substeps=scenario.rk4_substeps,
-        observer=both(recorder, metrics),
-    )
-    wall = time.perf_counter() - start
-    history = recorder.history()
+    recorder = HistoryRecorder(step_times(scenario.duration_s, scenario.control_period_s), 1)
+    metrics, _ = run_scenario(scenario, controller=kind, observer=recorder)
     result = metrics.run_metrics(0)
-    result["wall_time_s"] = wall
-    return SimulationResult(scenario=scenario, controller=kind, history=history, metrics=result)
+    result["wall_time_s"] = time.perf_counter() - start
+    return SimulationResult(scenario=scenario, controller=kind, history=recorder.history(), metrics=result)
 
 
 def metrics_accumulator(scenario: Scenario, t: np.ndarray, n_runs: int) -> MetricsAccumulator:
