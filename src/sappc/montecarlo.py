@@ -30,7 +30,6 @@ import dataclasses
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Callable, Iterable
@@ -472,42 +471,60 @@ def _save_chunk(out: Path, index: int, result: dict[str, Array]) -> None:
     tmp.replace(path)  # atomic: a chunk file is either complete or absent
 
 
-def _submitter(workers: int, scheduler: str | None) -> tuple[Callable[..., Any], Callable[[list[Any]], Iterable[Any]], Callable[[], None]]:
-    """(submit, as_completed, close) for in-process, process-pool or Dask execution."""
-    if scheduler is not None:
-        from distributed import Client
-        from distributed import as_completed as dask_as_completed
+def _ignore_sigint() -> None:
+    """Worker initialiser: Ctrl-C is handled by the main process, which then terminates the workers."""
+    import signal
 
-        client = Client(scheduler)
-        return client.submit, lambda futs: dask_as_completed(futs), client.close
-    if workers > 1:
-        pool = ProcessPoolExecutor(max_workers=workers)
-        return pool.submit, as_completed, lambda: pool.shutdown(wait=False, cancel_futures=True)
-
-    inline = _InlineExecutor()
-    return inline.submit, inline.as_completed, lambda: None
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-class _InlineExecutor:
-    """Runs each submitted task when it is collected, in submission order (``--workers 1``):
-    one chunk in memory at a time, each saved before the next starts."""
+def _call(task: tuple[int, Callable[..., Any], tuple[Any, ...]]) -> tuple[int, Any]:
+    index, fn, args = task
+    return index, fn(*args)
 
-    class _Task:
-        def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
-            self.fn, self.args, self.value = fn, args, None
 
-        def result(self) -> Any:
-            return self.value
+class _Executor:
+    """Runs chunk tasks in this process (``workers == 1``), in a pool of local processes, or on a
+    Dask cluster, yielding ``(index, result)`` as tasks complete; :meth:`abort` stops at once."""
 
-    def submit(self, fn: Callable[..., Any], *args: Any) -> _Task:
-        return self._Task(fn, args)
+    def __init__(self, workers: int, scheduler: str | None) -> None:
+        self.pool: Any = None
+        self.client: Any = None
+        self.futures: list[Any] = []
+        if scheduler is not None:
+            from distributed import Client
 
-    @staticmethod
-    def as_completed(tasks: list[_Task]) -> Iterable[_Task]:
-        for task in tasks:
-            task.value = task.fn(*task.args)
-            yield task
-            task.value = None
+            self.client = Client(scheduler)
+        elif workers > 1:
+            import multiprocessing
+
+            self.pool = multiprocessing.get_context("fork").Pool(workers, initializer=_ignore_sigint)
+
+    def run(self, tasks: list[tuple[int, Callable[..., Any], tuple[Any, ...]]]) -> Iterable[tuple[int, Any]]:
+        if self.client is not None:
+            from distributed import as_completed as dask_as_completed
+
+            self.futures = [self.client.submit(_call, task, pure=False) for task in tasks]
+            for fut in dask_as_completed(self.futures):
+                yield fut.result()
+        elif self.pool is not None:
+            yield from self.pool.imap_unordered(_call, tasks)
+        else:  # one chunk in memory at a time, each saved before the next starts
+            for task in tasks:
+                yield _call(task)
+
+    def abort(self) -> None:
+        if self.pool is not None:
+            self.pool.terminate()
+        if self.client is not None:
+            self.client.cancel(self.futures)
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.close()
+            self.pool.join()
+        if self.client is not None:
+            self.client.close()
 
 
 def run_campaign(
@@ -569,23 +586,21 @@ def run_campaign(
 
     todo = [(i, r) for i, r in _chunks(runs, chunk_runs) if not _chunk_path(out, i).exists()]
     bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)
-    submit, completed, close = _submitter(workers, scheduler)
+    executor = _Executor(workers, scheduler)
     t0 = time.perf_counter()
+    sizes = dict(todo)
+    tasks = [(i, run_chunk, (scenario.raw, seed, r, max(0, min(cfg.trajectory_runs - r[0], len(r))))) for i, r in todo]
     try:
-        futures = {}
-        for i, r in todo:
-            keep = max(0, min(cfg.trajectory_runs - r[0], len(r)))
-            futures[submit(run_chunk, scenario.raw, seed, r, keep)] = (i, r)
-        for fut in completed(list(futures)):
-            i, r = futures[fut]
-            _save_chunk(out, i, fut.result())
-            bar.update(len(r))
+        for i, result in executor.run(tasks):
+            _save_chunk(out, i, result)
+            bar.update(len(sizes[i]))
     except KeyboardInterrupt:
+        executor.abort()
         done = len(list((out / "chunks").glob("chunk_*.npz")))
         print(f"\ninterrupted: {done} chunk(s) kept in {out}; continue with --resume", file=sys.stderr)
         raise
     finally:
-        close()
+        executor.close()
     return _assemble(out, scenario, cfg, manifest, wall_s=time.perf_counter() - t0)
 
 
