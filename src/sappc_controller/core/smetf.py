@@ -18,14 +18,18 @@ Write ``a = 2 delta / pi``, ``k = tan(theta)`` and ``w = z_s - 1``.  Since
 ``h`` is odd, strictly increasing with ``k <= h' <= a + k``, and concave on
 ``eps >= 0``, so the root is unique for every finite ``z_s`` and every
 ``delta > 0``: the transformation is global (no singularity, the point of the
-paper).  The solver works on ``|w|`` and restores the sign.  It starts from
-``max(|w| / (a + k), (|w| - a pi / 2) / k)``, a lower bound of the root (from
-``arctan x <= x`` and ``arctan x < pi / 2``), from which Newton's iterates
-increase monotonically to the root (a concave increasing function's tangent
-lies above it).  It stops when ``|h(eps) - |w||`` is within 4 ulps of the
-terms' magnitude; over ``|w|`` in [1e-16, 1e12] and ``delta`` in [1e-8, 1e10]
-that takes at most 12 iterations (``tests/test_smetf.py`` checks it).
-``_MAX_NEWTON_ITERATIONS`` bounds the loop in any case.
+paper).  The solver works on ``|w|`` and restores the sign.  Cold, it starts
+from ``lower = max(|w| / (a + k), (|w| - a pi / 2) / k)``, a lower bound of the
+root (from ``arctan x <= x`` and ``arctan x < pi / 2``), from which Newton's
+iterates increase monotonically to the root (a concave increasing function's
+tangent lies above it).  Warm (the controller passes a first-order prediction
+from the previous sample), it starts from ``max(guess, lower)``: from above the
+root one Newton step lands at or below it, and every iterate is raised to
+``lower``, so the same monotone argument applies after the first step.  It
+stops when ``|h(eps) - |w||`` is within 4 ulps of the terms' magnitude; cold,
+over ``|w|`` in [1e-16, 1e12] and ``delta`` in [1e-8, 1e10], that takes at most
+12 iterations, warm 1 to 3 (``tests/test_smetf.py`` checks the first and that
+any guess gives the same root).  ``_MAX_NEWTON_ITERATIONS`` bounds the loop.
 
 Derivatives
 -----------
@@ -34,8 +38,9 @@ Derivatives
   which cannot overflow.  Same as eq. (PS).
 * ``d eps / d delta`` (SPEC_NOTES error 3): implicit differentiation of
   ``h(eps, delta) = w`` gives ``(2/pi) arctan(eps) + h_eps d eps/d delta = 0``, so
-  ``d eps / d delta = -(2/pi) arctan(eps) P_s = -((z0 - 1)/delta) P_s``.  This equals ``R_delta / (1 + k R_z)``
-  of SPEC_NOTES; the paper's ``d eps_0 / d delta`` misses the denominator.  The
+  ``d eps / d delta = -(2/pi) arctan(eps) P_s = -((z0 - 1)/delta) P_s``.  This
+  equals ``R_delta / (1 + k R_z)`` of SPEC_NOTES; the paper's ``d eps_0 / d delta``
+  misses the denominator.  The
   sign claim of eq. (SupControl) still holds: ``eps d eps/d delta <= 0``.
 """
 
