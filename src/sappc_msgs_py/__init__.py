@@ -1,5 +1,9 @@
-"""The interface contract between plants and controllers (topic names, message types, QoS,
-frames, numpy <-> message conversions, MCAP schemas).
+"""The interface contract between plants and controllers.
 
-It is filled in with the ROS 2 node graph; the numerical cores do not depend on it.
+* :mod:`.contract`: topic names, message types, frame ids, QoS (the table in its docstring
+  and in README.md is what a plant must speak);
+* :mod:`.convert`: numpy <-> message conversions (quaternions stay ``(x, y, z, w)``);
+* :mod:`.schemas`: ``ros2msg`` schema texts and RIHS01 type hashes for MCAP recording.
+
+The numerical cores do not depend on this package.
 """

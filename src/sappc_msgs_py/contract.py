@@ -1,0 +1,141 @@
+"""The topic contract between a plant and the controller: names, message types, frames, QoS.
+
+A plant, whatever it is, publishes the measured attitude and body rate with header stamps and
+applies the torque command it receives; the controller knows nothing but these topics and its
+parameters.  Topic names are relative, so a namespace (``--ros-args -r __ns:=/sc1``) moves a
+whole spacecraft.
+
+============================  ==============================  ==========  =========================================
+topic                         type                            frame_id    content
+============================  ==============================  ==========  =========================================
+``state/attitude``            geometry_msgs/QuaternionStamped ``inertial`` measured ``q_BN`` (body relative to inertial)
+``state/rate``                geometry_msgs/Vector3Stamped    ``body``     measured ``omega_BN_B`` [rad/s]
+``reference/attitude``        geometry_msgs/QuaternionStamped ``inertial`` desired ``q_RN``
+``reference/rate``            geometry_msgs/Vector3Stamped    ``reference`` desired ``omega_RN_R`` [rad/s]
+``reference/acceleration``    geometry_msgs/Vector3Stamped    ``reference`` desired ``omegadot_RN_R`` [rad/s^2]
+``control/torque``            geometry_msgs/WrenchStamped     ``body``     commanded torque [N m] (force zero)
+``disturbance/torque``        geometry_msgs/WrenchStamped     ``body``     injected external torque [N m]
+``controller/diagnostics``    std_msgs/Float64MultiArray      (none)      see :data:`DIAGNOSTICS_LAYOUT`
+``/clock``                    rosgraph_msgs/Clock             (none)      simulation time (lockstep mode)
+============================  ==============================  ==========  =========================================
+
+Quaternions are ``geometry_msgs/Quaternion`` ``(x, y, z, w)``, the project's own scalar-last
+order (``spacecraft_sim.core.attitude``): no reordering happens anywhere.  The two state topics
+of one sample carry the same stamp; the controller pairs them by stamp.
+
+QoS: every topic RELIABLE, VOLATILE, KEEP_LAST with depth 10 (depth 1 would do for the loop,
+a recorder needs a queue; a best-effort publisher and a reliable subscriber never match).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+__all__ = [
+    "CLOCK",
+    "CONTROL_TORQUE",
+    "CONTROLLER_DIAGNOSTICS",
+    "DIAGNOSTICS_LAYOUT",
+    "DISTURBANCE_TORQUE",
+    "Frame",
+    "QOS_DEPTH",
+    "REFERENCE_ACCELERATION",
+    "REFERENCE_ATTITUDE",
+    "REFERENCE_RATE",
+    "STATE_ATTITUDE",
+    "STATE_RATE",
+    "TOPICS",
+    "Topic",
+    "qos_profile",
+]
+
+#: History depth of every topic: enough for a recorder to keep up at 1 kHz bursts.
+QOS_DEPTH = 10
+
+
+class Frame(str, Enum):
+    """Frame ids used in message headers."""
+
+    INERTIAL = "inertial"
+    BODY = "body"
+    REFERENCE = "reference"
+
+
+@dataclass(frozen=True)
+class Topic:
+    """One topic of the contract.
+
+    Attributes
+    ----------
+    name : str
+        Relative topic name (absolute for ``/clock``).
+    type_name : str
+        ROS 2 type, ``pkg/msg/Type``.
+    frame_id : str | None
+        Required header frame id (``None``: the type has no header).
+    """
+
+    name: str
+    type_name: str
+    frame_id: str | None
+
+    @property
+    def msg_class(self) -> type:
+        """The generated message class (imports the ROS 2 message package)."""
+        import importlib
+
+        pkg, _, cls = self.type_name.split("/")
+        return getattr(importlib.import_module(f"{pkg}.msg"), cls)  # type: ignore[no-any-return]
+
+
+STATE_ATTITUDE = Topic("state/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)
+STATE_RATE = Topic("state/rate", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
+REFERENCE_ATTITUDE = Topic("reference/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)
+REFERENCE_RATE = Topic("reference/rate", "geometry_msgs/msg/Vector3Stamped", Frame.REFERENCE.value)
+REFERENCE_ACCELERATION = Topic("reference/acceleration", "geometry_msgs/msg/Vector3Stamped", Frame.REFERENCE.value)
+CONTROL_TORQUE = Topic("control/torque", "geometry_msgs/msg/WrenchStamped", Frame.BODY.value)
+DISTURBANCE_TORQUE = Topic("disturbance/torque", "geometry_msgs/msg/WrenchStamped", Frame.BODY.value)
+CONTROLLER_DIAGNOSTICS = Topic("controller/diagnostics", "std_msgs/msg/Float64MultiArray", None)
+CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", None)
+
+#: Every topic of the contract.
+TOPICS = (
+    STATE_ATTITUDE,
+    STATE_RATE,
+    REFERENCE_ATTITUDE,
+    REFERENCE_RATE,
+    REFERENCE_ACCELERATION,
+    CONTROL_TORQUE,
+    DISTURBANCE_TORQUE,
+    CONTROLLER_DIAGNOSTICS,
+    CLOCK,
+)
+
+#: Layout of ``controller/diagnostics`` (``std_msgs/Float64MultiArray``): labelled rows of 3
+#: values each (per axis or per layer), in this order.  The message's ``layout.dim`` carries the
+#: same labels, so a reader never has to guess.
+DIAGNOSTICS_LAYOUT = (
+    "time_s",  # controller time of the sample (3 copies)
+    "rho",  # performance / reference function per axis
+    "band_lower",  # constraint band on q_ev per axis
+    "band_upper",
+    "eps",  # transformed error per axis
+    "z",  # q_ev / rho per axis (BLFPPC: q_ev)
+    "lyapunov_V",  # V1, V2, V3
+    "torque_cmd_Nm",  # commanded before the actuator model
+    "saturated",  # 1.0 where the axis saturated
+    "status",  # rejected messages, stale flag (1.0 = stale inputs, zero torque), 0.0
+)
+
+
+def qos_profile():  # type: ignore[no-untyped-def]
+    """The QoS of every topic: RELIABLE, VOLATILE, KEEP_LAST ``QOS_DEPTH`` (imports rclpy)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+        history=HistoryPolicy.KEEP_LAST,
+        depth=QOS_DEPTH,
+    )

@@ -1,0 +1,160 @@
+"""numpy <-> message conversions for the topics of :mod:`sappc_msgs_py.contract`.
+
+Encoders take SI arrays and a time in seconds; decoders return float64 arrays and check what a
+message can get wrong (frame id, non-finite values), raising :class:`InputError` naming the
+topic and value.  Quaternions keep the ``(x, y, z, w)`` order on both sides.
+
+Time: a stamp is ``sec`` + ``nanosec``; :func:`time_to_stamp` rounds to the nearest nanosecond,
+so the 10 ms grid of the lockstep loop is represented exactly.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from spacecraft_sim.core.validation import InputError, as_finite_array
+
+from .contract import (
+    CONTROL_TORQUE,
+    DIAGNOSTICS_LAYOUT,
+    DISTURBANCE_TORQUE,
+    Topic,
+)
+
+__all__ = [
+    "clock_msg",
+    "diagnostics_from_msg",
+    "diagnostics_msg",
+    "quaternion_from_msg",
+    "quaternion_msg",
+    "stamp_to_ns",
+    "stamp_to_time",
+    "time_to_stamp",
+    "torque_from_msg",
+    "torque_msg",
+    "vector3_from_msg",
+    "vector3_msg",
+]
+
+Array = NDArray[np.float64]
+_NS_PER_S = 1_000_000_000
+
+
+def time_to_stamp(t_s: float) -> Any:
+    """``builtin_interfaces/Time`` for ``t_s`` seconds (>= 0), rounded to the nanosecond."""
+    from builtin_interfaces.msg import Time
+
+    t = float(as_finite_array("t_s", t_s))
+    if t < 0.0:
+        raise InputError(f"t_s must be >= 0 for a ROS stamp, got {t_s!r}")
+    ns = round(t * _NS_PER_S)
+    return Time(sec=ns // _NS_PER_S, nanosec=ns % _NS_PER_S)
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """Integer nanoseconds of a stamp."""
+    return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
+
+
+def stamp_to_time(stamp: Any) -> float:
+    """Seconds of a stamp."""
+    return stamp_to_ns(stamp) / _NS_PER_S
+
+
+def _header(msg: Any, t_s: float, frame_id: str | None) -> Any:
+    msg.header.stamp = time_to_stamp(t_s)
+    msg.header.frame_id = frame_id or ""
+    return msg
+
+
+def _check_frame(msg: Any, topic: Topic) -> None:
+    if topic.frame_id is not None and msg.header.frame_id != topic.frame_id:
+        raise InputError(f"{topic.name}: frame_id must be {topic.frame_id!r}, got {msg.header.frame_id!r}")
+
+
+def quaternion_msg(q_xyzw: ArrayLike, t_s: float, topic: Topic) -> Any:
+    """A ``QuaternionStamped`` for ``topic`` (e.g. ``STATE_ATTITUDE``)."""
+    q = as_finite_array(f"{topic.name} quaternion", q_xyzw, shape_tail=(4,))
+    msg = _header(topic.msg_class(), t_s, topic.frame_id)
+    msg.quaternion.x, msg.quaternion.y, msg.quaternion.z, msg.quaternion.w = (float(v) for v in q)
+    return msg
+
+
+def quaternion_from_msg(msg: Any, topic: Topic) -> Array:
+    """``(x, y, z, w)`` from a ``QuaternionStamped`` of ``topic``; checks frame and finiteness
+    (the unit norm is the controller's check, which names the value)."""
+    _check_frame(msg, topic)
+    q = msg.quaternion
+    return as_finite_array(f"{topic.name} quaternion", [q.x, q.y, q.z, q.w])
+
+
+def vector3_msg(v: ArrayLike, t_s: float, topic: Topic) -> Any:
+    """A ``Vector3Stamped`` for ``topic``."""
+    a = as_finite_array(f"{topic.name} vector", v, shape_tail=(3,))
+    msg = _header(topic.msg_class(), t_s, topic.frame_id)
+    msg.vector.x, msg.vector.y, msg.vector.z = (float(x) for x in a)
+    return msg
+
+
+def vector3_from_msg(msg: Any, topic: Topic) -> Array:
+    """The vector of a ``Vector3Stamped`` of ``topic``; checks frame and finiteness."""
+    _check_frame(msg, topic)
+    v = msg.vector
+    return as_finite_array(f"{topic.name} vector", [v.x, v.y, v.z])
+
+
+def torque_msg(torque_B: ArrayLike, t_s: float, topic: Topic = CONTROL_TORQUE) -> Any:
+    """A ``WrenchStamped`` carrying ``torque_B`` [N m] (body frame, zero force)."""
+    if topic not in (CONTROL_TORQUE, DISTURBANCE_TORQUE):
+        raise ValueError(f"{topic.name} does not carry a torque")
+    a = as_finite_array(f"{topic.name} torque", torque_B, shape_tail=(3,))
+    msg = _header(topic.msg_class(), t_s, topic.frame_id)
+    msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = (float(x) for x in a)
+    return msg
+
+
+def torque_from_msg(msg: Any, topic: Topic = CONTROL_TORQUE) -> Array:
+    """The torque [N m] of a ``WrenchStamped``; checks frame and finiteness."""
+    _check_frame(msg, topic)
+    tq = msg.wrench.torque
+    return as_finite_array(f"{topic.name} torque", [tq.x, tq.y, tq.z])
+
+
+def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike]) -> Any:
+    """A ``Float64MultiArray`` with the rows of :data:`DIAGNOSTICS_LAYOUT` (3 values each).
+
+    ``rows`` maps every label except ``time_s`` to 3 values; the labels go into ``layout.dim``.
+    """
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+    data = np.empty((len(DIAGNOSTICS_LAYOUT), 3))
+    data[0] = t_s
+    missing = [k for k in DIAGNOSTICS_LAYOUT[1:] if k not in rows]
+    if missing or set(rows) - set(DIAGNOSTICS_LAYOUT):
+        raise ValueError(f"diagnostics need exactly {DIAGNOSTICS_LAYOUT[1:]}, missing {missing}, extra {sorted(set(rows) - set(DIAGNOSTICS_LAYOUT))}")
+    for i, label in enumerate(DIAGNOSTICS_LAYOUT[1:], start=1):
+        data[i] = np.asarray(rows[label], dtype=np.float64).reshape(3)
+    msg = Float64MultiArray()
+    msg.layout.dim = [
+        MultiArrayDimension(label=",".join(DIAGNOSTICS_LAYOUT), size=len(DIAGNOSTICS_LAYOUT), stride=data.size),
+        MultiArrayDimension(label="axis", size=3, stride=3),
+    ]
+    msg.data = data.ravel().tolist()
+    return msg
+
+
+def diagnostics_from_msg(msg: Any) -> dict[str, Array]:
+    """The labelled rows of a diagnostics message (labels read from its layout)."""
+    labels = msg.layout.dim[0].label.split(",")
+    data = np.asarray(msg.data, dtype=np.float64).reshape(len(labels), 3)
+    return {label: data[i] for i, label in enumerate(labels)}
+
+
+def clock_msg(t_s: float) -> Any:
+    """A ``rosgraph_msgs/Clock`` for simulation time ``t_s``."""
+    from rosgraph_msgs.msg import Clock
+
+    return Clock(clock=time_to_stamp(t_s))
