@@ -12,6 +12,21 @@ from .closed_loop import History
 __all__ = ["plot_run"]
 
 
+def _finish(fig, path: Path, title: str, paths: list[Path], *, margins: dict | None = None) -> None:  # type: ignore[no-untyped-def, type-arg]
+    """Title, lay out (``tight_layout`` unless fixed ``margins`` are given: it costs ~1 s on log
+    axes with many lines), save at 110 dpi, close, and record the path."""
+    import matplotlib.pyplot as plt
+
+    fig.suptitle(title)
+    if margins is None:
+        fig.tight_layout()
+    else:
+        fig.subplots_adjust(**margins)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    paths.append(path)
+
+
 def _mark_faults(ax, fault_windows: list[tuple[float, float]], t_end: float) -> None:  # type: ignore[no-untyped-def]
     for start, end in fault_windows:
         ax.axvspan(start, min(end, t_end), color="tab:red", alpha=0.15, lw=0)
@@ -53,12 +68,7 @@ def plot_run(
                 ax.set_ylim(lo - pad, hi + pad)
         axes[0].legend(loc="upper right", fontsize=8)
         axes[-1].set_xlabel("time [s]")
-        fig.suptitle(f"{title}: attitude error" + (" (zoom)" if zoom else ""))
-        fig.tight_layout()
-        path = out_dir / name
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        paths.append(path)
+        _finish(fig, out_dir / name, f"{title}: attitude error" + (" (zoom)" if zoom else ""), paths)
 
     # |q_ev| on a log scale: the steady state (1e-5) is invisible on the linear plots
     fig, axes = plt.subplots(3, 1, figsize=(8, 7.5), sharex=True)
@@ -70,12 +80,7 @@ def plot_run(
         ax.grid(True, alpha=0.3, which="both")
     axes[0].legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("time [s]")
-    fig.suptitle(f"{title}: attitude error magnitude")
-    fig.tight_layout()
-    path = out_dir / "qev_log.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    paths.append(path)
+    _finish(fig, out_dir / "qev_log.png", f"{title}: attitude error magnitude", paths)
 
     fig, axes = plt.subplots(3, 1, figsize=(8, 6.5), sharex=True)
     for i, ax in enumerate(axes):
@@ -84,12 +89,7 @@ def plot_run(
         ax.set_ylabel(r"$u_%d$ [N m]" % (i + 1))
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel("time [s]")
-    fig.suptitle(f"{title}: actuator torque")
-    fig.tight_layout()
-    path = out_dir / "torque.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    paths.append(path)
+    _finish(fig, out_dir / "torque.png", f"{title}: actuator torque", paths)
     return paths
 
 
@@ -119,12 +119,8 @@ def plot_campaign(tab: dict, out_dir: Path, *, criteria: tuple[float, float], ti
             ax.grid(True, alpha=0.3, which="both")
         axes[0].set_ylabel(label)
         axes[0].legend(fontsize=8)
-        fig.suptitle(f"{title}: {len(runs)} runs")
-        fig.subplots_adjust(left=0.07, right=0.98, bottom=0.14, top=0.86, wspace=0.08)  # tight_layout costs ~1 s on log axes
-        path = out_dir / name
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        paths.append(path)
+        _finish(fig, out_dir / name, f"{title}: {len(runs)} runs", paths,
+                margins=dict(left=0.07, right=0.98, bottom=0.14, top=0.86, wspace=0.08))
 
     t, q, rho = tab["traj_t"], tab["traj_q_ev"], tab["traj_rho"]
     if q.size:
@@ -144,10 +140,6 @@ def plot_campaign(tab: dict, out_dir: Path, *, criteria: tuple[float, float], ti
                 ax.set_ylabel(r"$|q_{ev%d}|$" % (i + 1) if logy else r"$q_{ev%d}$" % (i + 1))
                 ax.grid(True, alpha=0.3)
             axes[-1].set_xlabel("time [s]")
-            fig.suptitle(f"{title}: {q.shape[1]} trajectories (solid) and their RPFs (dashed)" + (", steady state" if logy else ""))
-            fig.subplots_adjust(left=0.11, right=0.97, bottom=0.07, top=0.94, hspace=0.12)
-            path = out_dir / name
-            fig.savefig(path, dpi=110)
-            plt.close(fig)
-            paths.append(path)
+            _finish(fig, out_dir / name, f"{title}: {q.shape[1]} trajectories (solid) and their RPFs (dashed)" + (", steady state" if logy else ""),
+                    paths, margins=dict(left=0.11, right=0.97, bottom=0.07, top=0.94, hspace=0.12))
     return paths
