@@ -32,7 +32,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -500,18 +500,16 @@ class _Executor:
 
             self.pool = multiprocessing.get_context("fork").Pool(workers, initializer=_ignore_sigint)
 
-    def run(self, tasks: list[tuple[int, Callable[..., Any], tuple[Any, ...]]]) -> Iterable[tuple[int, Any]]:
+    def run(self, tasks: list[tuple[int, Callable[..., Any], tuple[Any, ...]]]) -> Iterator[tuple[int, Any]]:
+        """Submit every task now (workers start at once) and iterate over the results as they complete."""
         if self.client is not None:
             from distributed import as_completed as dask_as_completed
 
             self.futures = [self.client.submit(_call, task, pure=False) for task in tasks]
-            for fut in dask_as_completed(self.futures):
-                yield fut.result()
-        elif self.pool is not None:
-            yield from self.pool.imap_unordered(_call, tasks)
-        else:  # one chunk in memory at a time, each saved before the next starts
-            for task in tasks:
-                yield _call(task)
+            return (fut.result() for fut in dask_as_completed(self.futures))
+        if self.pool is not None:
+            return self.pool.imap_unordered(_call, tasks)
+        return map(_call, tasks)  # in this process: one chunk at a time, each saved before the next starts
 
     def abort(self) -> None:
         if self.pool is not None:
@@ -591,7 +589,10 @@ def run_campaign(
     sizes = dict(todo)
     tasks = [(i, run_chunk, (scenario.raw, seed, r, max(0, min(cfg.trajectory_runs - r[0], len(r))))) for i, r in todo]
     try:
-        for i, result in executor.run(tasks):
+        results = executor.run(tasks)
+        if executor.pool is not None or executor.client is not None:
+            import matplotlib.pyplot  # noqa: F401  (the figures need it; import it while the workers compute)
+        for i, result in results:
             _save_chunk(out, i, result)
             bar.update(len(sizes[i]))
     except KeyboardInterrupt:
