@@ -65,10 +65,6 @@ class History:
         """Vector part of the error quaternion, (T, N, 3)."""
         return self.q_BR[..., :3]
 
-    def run(self, k: int) -> History:
-        """The history of run ``k`` alone, keeping a batch axis of 1."""
-        return History(**{name: (value if name == "t" else value[:, k : k + 1]) for name, value in vars(self).items()})
-
 
 def both(*observers: Observer) -> Observer:
     """An observer that calls each of ``observers`` in turn."""
