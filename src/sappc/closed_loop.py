@@ -22,6 +22,7 @@ from spacecraft_sim.core.attitude import error_quaternion
 from spacecraft_sim.core.disturbance import DisturbanceModel
 from spacecraft_sim.core.dynamics import RigidBody
 from spacecraft_sim.core.reference import ReferenceSamples
+from spacecraft_sim.core.reference import sample_times as step_times
 
 __all__ = ["History", "HistoryRecorder", "both", "run_closed_loop", "step_times"]
 
@@ -33,12 +34,6 @@ DISTURBANCE_BLOCK = 256
 
 #: Observer called after each control computation: (k, t, state (N, 7), output, disturbance (N, 3)).
 Observer = Callable[[int, float, Array, ControlOutput, Array], None]
-
-
-def step_times(duration_s: float, control_period_s: float) -> Array:
-    """Sample times ``k dt`` for ``k = 0 .. round(duration / dt)``."""
-    n_steps = int(round(duration_s / control_period_s))
-    return np.arange(n_steps + 1) * control_period_s
 
 
 @dataclass

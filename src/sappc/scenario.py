@@ -25,15 +25,8 @@ from sappc_controller.core.blfppc import BlfppcConfig, BlfppcController
 from sappc_controller.core.common import ActuatorConfig
 from sappc_controller.core.sappc import SappcConfig, SappcController
 from sappc_controller.core.trappc import TrappcConfig, TrappcController
-from spacecraft_sim.core.disturbance import (
-    ConstantTorque,
-    DisturbanceModel,
-    DisturbanceSum,
-    PaperPeriodic,
-    PulseTorque,
-    RandomTorque,
-    StepTorque,
-)
+from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
+from spacecraft_sim.core.faults import faults_from_list
 from spacecraft_sim.core.reference import PaperReference
 from spacecraft_sim.core.validation import (
     ConfigError,
@@ -68,13 +61,6 @@ _CONFIG_CLASSES = {
     ControllerKind.BLFPPC: (BlfppcConfig, BlfppcController),
 }
 
-_DISTURBANCE_KINDS: dict[str, type] = {
-    "paper_periodic": PaperPeriodic,
-    "constant": ConstantTorque,
-    "step": StepTorque,
-    "pulse": PulseTorque,
-    "random": RandomTorque,
-}
 
 _TOP_KEYS = {
     "name",
@@ -90,6 +76,7 @@ _TOP_KEYS = {
     "controller",
     "controllers",
     "montecarlo",  # validated by sappc.montecarlo.campaign_config
+    "faults",  # actuator, sensor and link faults, injected on the ROS 2 graph (sappc run)
 }
 
 
@@ -139,6 +126,9 @@ class Scenario:
     metrics : MetricSettings
     controller : ControllerKind
         Default controller.
+    faults : tuple
+        Actuator, sensor and link faults (:mod:`spacecraft_sim.core.faults`), injected by relaying
+        topics on the ROS 2 graph only.
     controllers : dict
         Raw parameter mappings per controller kind, validated by :meth:`controller_config`.
     raw : dict
@@ -158,6 +148,7 @@ class Scenario:
     actuator: ActuatorConfig
     metrics: MetricSettings
     controller: ControllerKind
+    faults: tuple[Any, ...]
     controllers: dict[str, Any] = field(repr=False)
     raw: dict[str, Any] = field(repr=False)
 
@@ -192,16 +183,6 @@ def controller_kind(name: ControllerKind | str) -> ControllerKind:
         return ControllerKind(name)
     except ValueError:
         raise ConfigError(f"unknown controller {name!r}; expected one of {[c.value for c in ControllerKind]}") from None
-
-
-def _disturbance(entry: Any, index: int) -> DisturbanceModel:
-    prefix = f"disturbances[{index}]"
-    if not isinstance(entry, dict) or "kind" not in entry:
-        raise ConfigError(f"{prefix} must be a mapping with a 'kind' key, got {entry!r}")
-    kind = entry["kind"]
-    if kind not in _DISTURBANCE_KINDS:
-        raise ConfigError(f"{prefix}.kind = {kind!r} is unknown; expected one of {sorted(_DISTURBANCE_KINDS)}")
-    return from_mapping(_DISTURBANCE_KINDS[kind], {k: v for k, v in entry.items() if k != "kind"}, prefix)  # type: ignore[no-any-return]
 
 
 def scenario_from_mapping(data: Any, *, source: str = "<mapping>") -> Scenario:
@@ -244,10 +225,8 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     w0 = as_finite_array("initial_state.omega_BN_B_rad_s", init["omega_BN_B_rad_s"], shape_tail=(3,))
 
     reference = from_mapping(PaperReference, dict(data.get("reference", {})), "reference") if data.get("reference") is not None else PaperReference()
-    raw_dist = data.get("disturbances", []) or []
-    if not isinstance(raw_dist, list):
-        raise ConfigError(f"disturbances must be a list, got {raw_dist!r}")
-    disturbance = DisturbanceSum(tuple(_disturbance(e, i) for i, e in enumerate(raw_dist)))
+    disturbance = disturbances_from_list(data.get("disturbances"))
+    faults = faults_from_list(data.get("faults"))
     actuator = from_mapping(ActuatorConfig, data.get("actuator", {}) or {}, "actuator")
     metrics = from_mapping(MetricSettings, data.get("metrics", {}) or {}, "metrics")
 
@@ -271,6 +250,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
         actuator=actuator,
         metrics=metrics,
         controller=controller_kind(data.get("controller", ControllerKind.SAPPC.value)),
+        faults=faults,
         controllers=controllers,
         raw=data,
     )

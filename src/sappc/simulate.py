@@ -13,6 +13,7 @@ import numpy as np
 from sappc_controller.core.base import AttitudeController
 from spacecraft_sim.core.disturbance import DisturbanceModel
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
+from spacecraft_sim.core.validation import ConfigError
 
 from .closed_loop import History, HistoryRecorder, Observer, both, run_closed_loop, step_times
 from .metrics import MetricsAccumulator
@@ -82,6 +83,11 @@ def run_scenario(
     controller : AttitudeController
         The controller after the run (e.g. for its RPF's clamped/flat components).
     """
+    if scenario.faults:
+        raise ConfigError(
+            f"scenario {scenario.name!r} has faults: they are injected by relaying topics on the ROS 2 graph; "
+            "run it with `sappc run` (the offline runner has only disturbance torques)"
+        )
     q0 = np.atleast_2d(scenario.q_BN0 if q_BN0 is None else q_BN0)
     x0 = initial_state(q0, scenario.omega_BN_B0_rad_s if omega_BN_B0_rad_s is None else omega_BN_B0_rad_s)
     ctrl = scenario.build_controller(controller, config=controller_config, **(controller_options or {}))

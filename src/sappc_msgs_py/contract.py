@@ -19,6 +19,11 @@ topic                         type                            frame_id    conten
 ``/clock``                    rosgraph_msgs/Clock             (none)      simulation time (lockstep mode)
 ============================  ==============================  ==========  =========================================
 
+When the fault injector relays a path (``python -m spacecraft_sim.disturbance``), it republishes
+the faulty samples under ``fault/`` (``fault/state/attitude``, ``fault/state/rate``,
+``fault/control/torque``, same types and frames) and the consumer is remapped to them
+(``--ros-args -r state/attitude:=fault/state/attitude``); the originals stay the truth.
+
 Quaternions are ``geometry_msgs/Quaternion`` ``(x, y, z, w)``, the project's own scalar-last
 order (``spacecraft_sim.core.attitude``): no reordering happens anywhere.  The two state topics
 of one sample carry the same stamp; the controller pairs them by stamp.
@@ -38,6 +43,7 @@ __all__ = [
     "CONTROLLER_DIAGNOSTICS",
     "DIAGNOSTICS_LAYOUT",
     "DISTURBANCE_TORQUE",
+    "FAULT_PREFIX",
     "Frame",
     "QOS_DEPTH",
     "REFERENCE_ACCELERATION",
@@ -47,6 +53,7 @@ __all__ = [
     "STATE_RATE",
     "TOPICS",
     "Topic",
+    "faulty",
     "qos_profile",
 ]
 
@@ -98,6 +105,15 @@ CONTROL_TORQUE = Topic("control/torque", "geometry_msgs/msg/WrenchStamped", Fram
 DISTURBANCE_TORQUE = Topic("disturbance/torque", "geometry_msgs/msg/WrenchStamped", Frame.BODY.value)
 CONTROLLER_DIAGNOSTICS = Topic("controller/diagnostics", "std_msgs/msg/Float64MultiArray", None)
 CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", None)
+
+#: Prefix of the topics a fault relay republishes.
+FAULT_PREFIX = "fault/"
+
+
+def faulty(topic: Topic) -> Topic:
+    """The relay's output topic for ``topic`` (same type and frame, under :data:`FAULT_PREFIX`)."""
+    return Topic(FAULT_PREFIX + topic.name, topic.type_name, topic.frame_id)
+
 
 #: Every topic of the contract.
 TOPICS = (

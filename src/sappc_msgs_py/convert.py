@@ -1,6 +1,6 @@
 """numpy <-> message conversions for the topics of :mod:`sappc_msgs_py.contract`.
 
-Encoders take SI arrays and a time in seconds; decoders return float64 arrays and check what a
+Encoders take SI arrays and a time in seconds (or a stamp); decoders return float64 arrays and check what a
 message can get wrong (frame id, non-finite values), raising :class:`InputError` naming the
 topic and value.  Quaternions keep the ``(x, y, z, w)`` order on both sides.
 
@@ -43,10 +43,17 @@ Array = NDArray[np.float64]
 _NS_PER_S = 1_000_000_000
 
 
-def time_to_stamp(t_s: float) -> Any:
-    """``builtin_interfaces/Time`` for ``t_s`` seconds (>= 0), rounded to the nanosecond."""
+def time_to_stamp(t_s: Any) -> Any:
+    """``builtin_interfaces/Time`` for ``t_s`` seconds (>= 0), rounded to the nanosecond.
+
+    ``t_s`` may also be a stamp (anything with ``sec`` and ``nanosec``, e.g. a received header's
+    stamp or ``Clock.now().to_msg()``), copied exactly: wall-clock times (1.7e9 s) lose about
+    0.2 us in a float of seconds, so relays and real-time nodes pass stamps, not floats.
+    """
     from builtin_interfaces.msg import Time
 
+    if hasattr(t_s, "sec") and hasattr(t_s, "nanosec"):
+        return Time(sec=int(t_s.sec), nanosec=int(t_s.nanosec))
     t = float(as_finite_array("t_s", t_s))
     if t < 0.0:
         raise InputError(f"t_s must be >= 0 for a ROS stamp, got {t_s!r}")
@@ -108,7 +115,7 @@ def vector3_from_msg(msg: Any, topic: Topic) -> Array:
 
 def torque_msg(torque_B: ArrayLike, t_s: float, topic: Topic = CONTROL_TORQUE) -> Any:
     """A ``WrenchStamped`` carrying ``torque_B`` [N m] (body frame, zero force)."""
-    if topic not in (CONTROL_TORQUE, DISTURBANCE_TORQUE):
+    if topic.type_name != CONTROL_TORQUE.type_name:
         raise ValueError(f"{topic.name} does not carry a torque")
     a = as_finite_array(f"{topic.name} torque", torque_B, shape_tail=(3,))
     msg = _header(topic.msg_class(), t_s, topic.frame_id)

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from spacecraft_sim.core.attitude import Linear3, dot
-from spacecraft_sim.core.validation import QUATERNION_NORM_TOL, InputError, as_finite_array, check_unit_quaternion
+from spacecraft_sim.core.validation import QUATERNION_NORM_TOL, ConfigError, InputError, as_finite_array, check_unit_quaternion
 
 from .common import Actuator, ActuatorConfig, ErrorState, error_state
 
@@ -101,6 +102,39 @@ class AttitudeController(ABC):
         self.actuator = Actuator(actuator)
         self.t0: float | None = None
         self.n_runs: int | None = None
+
+    #: Gain fields :meth:`reconfigure` may change during a run (the filter's p, T3_s and
+    #: V_floor are part of its state; the performance functions fix the run's envelope).
+    RUNTIME_GAINS = ("K_q", "K_omega", "K1", "K2", "K3", "D_m_Nm", "mu_rad_s", "q0_floor")
+
+    def reconfigure(self, config: Any) -> None:
+        """Take new gains and actuator limits during a run, all or nothing.
+
+        ``config`` is a validated config of this controller's kind; it may differ from the
+        current one only in ``gains`` fields listed in :data:`RUNTIME_GAINS` and in ``actuator``.
+
+        Raises
+        ------
+        ConfigError
+            Naming the first field that may not change during a run.
+        """
+        current = self.config  # type: ignore[attr-defined]
+        if type(config) is not type(current):
+            raise ConfigError(f"reconfigure needs a {type(current).__name__}, got {type(config).__name__}")
+        for f in fields(current):
+            if f.name in ("gains", "actuator"):
+                continue
+            if getattr(config, f.name) != getattr(current, f.name):
+                raise ConfigError(f"{f.name} cannot change during a run (it defines the performance envelope); restart the controller")
+        for f in fields(current.gains):
+            if f.name not in self.RUNTIME_GAINS and getattr(config.gains, f.name) != getattr(current.gains, f.name):
+                raise ConfigError(f"gains.{f.name} cannot change during a run (it is part of the filter's state); restart the controller")
+        self.config = config  # type: ignore[attr-defined]
+        self.actuator = Actuator(config.actuator)
+        self._set_gains(config.gains)
+
+    def _set_gains(self, gains: Any) -> None:
+        """Use ``gains`` from the next step on (laws that read ``self.config.gains`` need nothing)."""
 
     def reset(self) -> None:
         """Forget the run: the next step starts a new one (RPF, filter, time origin)."""

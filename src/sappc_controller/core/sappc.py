@@ -19,7 +19,7 @@ the published law does not cancel.  This module implements the published law.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -207,6 +207,9 @@ class BacksteppingPPC(AttitudeController):
         self.transformation = transformation
         self.gains = gains
         self.filter = DynamicSurfaceFilter(p=gains.p, T3=gains.T3_s, V_floor=gains.V_floor)
+
+    def _set_gains(self, gains: Any) -> None:
+        self.gains = gains
 
     def _reset_law(self) -> None:
         self.transformation.reset()

@@ -23,7 +23,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .validation import ConfigError, as_finite_array, check_positive
+from .validation import ConfigError, as_finite_array, check_positive, from_mapping
 
 __all__ = [
     "ConstantTorque",
@@ -34,6 +34,7 @@ __all__ = [
     "RandomTorque",
     "StepTorque",
     "TIME_TOLERANCE_S",
+    "disturbances_from_list",
 ]
 
 Array = NDArray[np.float64]
@@ -204,3 +205,32 @@ class DisturbanceSum:
 
     def events(self) -> list[tuple[float, float]]:
         return sorted(e for m in self.models for e in m.events())
+
+
+#: The ``kind`` names of the models in schedule files (scenario ``disturbances:`` lists).
+DISTURBANCE_KINDS: dict[str, type] = {
+    "paper_periodic": PaperPeriodic,
+    "constant": ConstantTorque,
+    "step": StepTorque,
+    "pulse": PulseTorque,
+    "random": RandomTorque,
+}
+
+
+def disturbances_from_list(entries: object, prefix: str = "disturbances") -> DisturbanceSum:
+    """Build the sum of the models listed as ``[{kind: ..., <fields>}, ...]`` (a scenario's
+    ``disturbances:`` section), raising :class:`ConfigError` naming the entry and key."""
+    if entries is None:
+        return DisturbanceSum(())
+    if not isinstance(entries, list):
+        raise ConfigError(f"{prefix} must be a list, got {entries!r}")
+    models = []
+    for i, entry in enumerate(entries):
+        where = f"{prefix}[{i}]"
+        if not isinstance(entry, dict) or "kind" not in entry:
+            raise ConfigError(f"{where} must be a mapping with a 'kind' key, got {entry!r}")
+        kind = entry["kind"]
+        if kind not in DISTURBANCE_KINDS:
+            raise ConfigError(f"{where}.kind = {kind!r} is unknown; expected one of {sorted(DISTURBANCE_KINDS)}")
+        models.append(from_mapping(DISTURBANCE_KINDS[kind], {k: v for k, v in entry.items() if k != "kind"}, where))
+    return DisturbanceSum(tuple(models))

@@ -26,7 +26,7 @@ from scipy.integrate import solve_ivp
 from .attitude import quat_kinematics, quat_normalize
 from .validation import ConfigError, as_finite_array, check_unit_quaternion
 
-__all__ = ["PaperReference", "ReferenceSamples"]
+__all__ = ["PaperReference", "ReferenceSamples", "sample_times"]
 
 Array = NDArray[np.float64]
 
@@ -35,6 +35,13 @@ Array = NDArray[np.float64]
 #: against a constant-rate closed form).
 _RTOL = 1e-12
 _ATOL = 1e-14
+
+
+def sample_times(duration_s: float, control_period_s: float) -> Array:
+    """The sample grid ``k dt``, ``k = 0 .. round(duration / dt)`` [s], shared by the offline
+    runner and the nodes (``k * dt`` is computed the same way everywhere)."""
+    n_steps = int(round(duration_s / control_period_s))
+    return np.arange(n_steps + 1) * control_period_s
 
 
 @dataclass(frozen=True)

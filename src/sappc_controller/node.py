@@ -1,0 +1,267 @@
+"""The controller node (``python -m sappc_controller``): SAPPC, TraPPC or BLFPPC on the graph.
+
+Subscribes to the state (``state/attitude``, ``state/rate``) and the reference
+(``reference/attitude``, ``reference/rate``, ``reference/acceleration``), publishes
+``control/torque`` and ``controller/diagnostics`` (see :mod:`sappc_msgs_py.contract`).
+
+Parameters come from a ROS YAML file (``--ros-args --params-file config/controller_sappc.yaml``,
+names in :mod:`sappc_controller.params`) and are turned into the core's validated config at
+start-up: a missing, unknown, invalid or infeasible parameter stops the node with one line
+naming it (exit status 2).  At run time the gains listed in
+:data:`~sappc_controller.core.base.AttitudeController.RUNTIME_GAINS` and the actuator limits may
+be changed (``ros2 param set`` or any parameter client); a change is validated as a whole and
+applied at the next step, or rejected with the reason, never half-applied.  Everything else is
+read-only during a run.
+
+Modes (parameter ``mode``):
+
+``lockstep`` (default)
+    The controller computes once per sample, when the two state messages and the three
+    reference messages of the same stamp have arrived, and stamps the torque with it.
+``realtime``
+    A wall-clock timer of period ``control_period_s`` computes from the latest state and
+    reference.
+
+Input checks: a message with a wrong frame id, a non-finite value, a zero or non-unit
+quaternion, a stamp in the past (lockstep: not after the last computed sample; real time: not
+after the topic's previous message) or more than
+``max_stamp_ahead_s`` ahead of the controller's time ("far future") is rejected, logged and
+counted (diagnostics ``status[0]``); it never reaches the law.  When no valid state newer than
+``stale_timeout_s`` exists at a control instant (real time: on the timer; lockstep: on a
+``/clock`` tick), the controller commands zero torque and says so (``status[1] = 1``); it
+computes again as soon as valid inputs return.  The published torque is always finite and
+within the actuator limits (the core refuses a non-finite torque; the node then publishes zero).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from typing import Any
+
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+
+from sappc_msgs_py.contract import (
+    CLOCK,
+    CONTROL_TORQUE,
+    CONTROLLER_DIAGNOSTICS,
+    REFERENCE_ACCELERATION,
+    REFERENCE_ATTITUDE,
+    REFERENCE_RATE,
+    STATE_ATTITUDE,
+    STATE_RATE,
+    qos_profile,
+)
+from sappc_msgs_py.convert import (
+    diagnostics_msg,
+    quaternion_from_msg,
+    stamp_to_ns,
+    torque_msg,
+    vector3_from_msg,
+)
+from sappc_msgs_py.runtime import ProjectNode, run_node
+from spacecraft_sim.core.validation import ConfigError, InputError, check_positive, check_unit_quaternion
+
+from .core.base import AttitudeController
+from .core.blfppc import BlfppcController
+from .core.sappc import SappcController
+from .core.trappc import TrappcController
+from .params import config_from_parameters, config_parameter_names
+
+__all__ = ["ControllerNode", "main"]
+
+LOCKSTEP = "lockstep"
+REALTIME = "realtime"
+_CONTROLLERS = {"sappc": SappcController, "trappc": TrappcController, "blfppc": BlfppcController}
+
+#: The five inputs of one control step, by topic.
+_INPUTS = (STATE_ATTITUDE, STATE_RATE, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
+#: Largest number of stamps waiting for their other inputs (lockstep); older ones are dropped.
+_MAX_PENDING = 64
+_NS = 1_000_000_000
+
+
+class ControllerNode(ProjectNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = "controller", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.kind = str(self.param("controller", "sappc", ParameterDescriptor(read_only=True)))
+        if self.kind not in _CONTROLLERS:
+            raise ConfigError(f"controller must be one of {sorted(_CONTROLLERS)}, got {self.kind!r}")
+        self._config_names = [name for name, _ in config_parameter_names(self.kind)]
+        for name, default in config_parameter_names(self.kind):
+            descriptor = ParameterDescriptor(dynamic_typing=True)
+            self.declare_parameter(name, None if default is dataclasses.MISSING else default, descriptor)
+        self._check_unknown_overrides()
+        config = config_from_parameters(self.kind, self._config_values())
+        self.controller: AttitudeController = _CONTROLLERS[self.kind](config)
+        self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01, ParameterDescriptor(read_only=True)))
+        self.mode = str(self.param("mode", LOCKSTEP, ParameterDescriptor(read_only=True)))
+        if self.mode not in (LOCKSTEP, REALTIME):
+            raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {self.mode!r}")
+        self.stale_timeout_ns = int(check_positive("stale_timeout_s", self.param("stale_timeout_s", 0.1)) * _NS)
+        self.max_ahead_ns = int(check_positive("max_stamp_ahead_s", self.param("max_stamp_ahead_s", 1.0)) * _NS)
+
+        self.pub_torque = self.counting_publisher(CONTROL_TORQUE, 1)
+        self.pub_diag = self.counting_publisher(CONTROLLER_DIAGNOSTICS)
+        qos = qos_profile()
+        for topic in _INPUTS:
+            self.create_subscription(topic.msg_class, topic.name, lambda m, tp=topic: self._on_input(m, tp), qos)
+        self.rejected = 0
+        self.stale = False
+        self.steps = 0
+        self._last_ns: int | None = None  # stamp of the last computed sample
+        self._last_state_ns: int | None = None  # stamp of the last valid state pair
+        self._clock_ns: int | None = None  # lockstep: the latest /clock
+        self._pending: dict[int, dict[str, np.ndarray]] = {}  # lockstep: stamp -> inputs
+        self._latest: dict[str, tuple[int, np.ndarray]] = {}  # real time: topic -> (stamp, value)
+        self._diag_rows = {k: np.zeros(3) for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
+        if self.mode == LOCKSTEP:
+            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
+        else:
+            self.create_timer(self.dt, self._on_timer)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.get_logger().info(f"{self.kind} controller ready ({self.mode}, dt = {self.dt} s)")
+
+    # ---- parameters -----------------------------------------------------------------------
+    def _config_values(self, changes: dict[str, Any] | None = None) -> dict[str, Any]:
+        values = {name: self.get_parameter(name).value for name in self._config_names}
+        values.update(changes or {})
+        return values
+
+    def _check_unknown_overrides(self) -> None:
+        """Reject overrides this node does not know (a typo would otherwise be ignored)."""
+        overrides = getattr(self, "_parameter_overrides", {})
+        known = set(self._parameters) | {"controller", "control_period_s", "mode", "stale_timeout_s", "max_stamp_ahead_s"}
+        other_kinds = tuple(f"{k}." for k in _CONTROLLERS if k != self.kind)
+        for name in sorted(overrides):
+            if name not in known and not name.startswith(other_kinds):
+                raise ConfigError(f"unknown parameter {name!r} for the {self.kind} controller node")
+
+    def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
+        changes = {p.name: p.value for p in params}
+        runtime = {f"{self.kind}.gains.{g}" for g in AttitudeController.RUNTIME_GAINS} | {"actuator.max_torque_Nm", "actuator.min_torque_Nm"}
+        fixed = sorted(n for n in changes if n in self._config_names and n not in runtime)
+        if fixed:
+            return SetParametersResult(successful=False, reason=f"{fixed[0]} cannot change during a run; restart the controller")
+        if not any(n in self._config_names for n in changes):
+            return SetParametersResult(successful=True)
+        try:
+            config = config_from_parameters(self.kind, self._config_values(changes))
+            self.controller.reconfigure(config)
+        except (ConfigError, ValueError, TypeError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.get_logger().info(f"parameters changed: {changes}")
+        return SetParametersResult(successful=True)
+
+    # ---- inputs ---------------------------------------------------------------------------
+    def _reject(self, reason: str) -> None:
+        self.rejected += 1
+        self.get_logger().warning(f"rejected a message ({self.rejected} so far): {reason}", throttle_duration_sec=1.0)
+
+    def _now_ns(self) -> int | None:
+        """The controller's time: the latest /clock in lockstep, the node clock in real time."""
+        return self._clock_ns if self.mode == LOCKSTEP else self.get_clock().now().nanoseconds
+
+    def _decode(self, msg: Any, topic: Any) -> np.ndarray:
+        if topic.type_name.endswith("QuaternionStamped"):
+            return check_unit_quaternion(f"{topic.name} quaternion", quaternion_from_msg(msg, topic))
+        return vector3_from_msg(msg, topic)
+
+    def _on_input(self, msg: Any, topic: Any) -> None:
+        ns = stamp_to_ns(msg.header.stamp)
+        try:
+            value = self._decode(msg, topic)
+        except InputError as exc:
+            self._reject(str(exc))
+            return
+        last = self._last_ns if self.mode == LOCKSTEP else self._latest.get(topic.name, (None,))[0]
+        if last is not None and ns <= last:
+            what = "the last computed sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
+            self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is in the past (not after {what}, {last / _NS:.9f} s)")
+            return
+        now = self._now_ns()
+        if now is not None and ns > now + self.max_ahead_ns:
+            self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is more than {self.max_ahead_ns / _NS} s ahead of the controller's time {now / _NS:.9f} s")
+            return
+        if self.mode == REALTIME:
+            self._latest[topic.name] = (ns, value)
+            return
+        entry = self._pending.setdefault(ns, {})
+        entry[topic.name] = value
+        if len(entry) == len(_INPUTS):
+            del self._pending[ns]
+            self._compute(ns, ns, *(entry[t.name] for t in _INPUTS))
+        elif len(self._pending) > _MAX_PENDING:
+            del self._pending[min(self._pending)]
+
+    # ---- control instants -----------------------------------------------------------------
+    def _on_clock(self, msg: Any) -> None:
+        self._clock_ns = stamp_to_ns(msg.clock)
+        if self._last_state_ns is not None and self._clock_ns - self._last_state_ns > self.stale_timeout_ns:
+            self._publish_zero(self._clock_ns, "no valid state")
+
+    def _on_timer(self) -> None:
+        now = self.get_clock().now().nanoseconds
+        latest = self._latest
+        if not all(t.name in latest for t in _INPUTS):
+            return  # not started
+        att, rate = latest[STATE_ATTITUDE.name], latest[STATE_RATE.name]
+        oldest = min(v[0] for v in latest.values())
+        if now - oldest > self.stale_timeout_ns:
+            self._publish_zero(now, f"inputs older than {self.stale_timeout_ns / _NS} s")
+            return
+        self._compute(now, max(att[0], rate[0]), *(latest[t.name][1] for t in _INPUTS))
+
+    def _compute(self, t_ns: int, state_ns: int, q: np.ndarray, w: np.ndarray, q_d: np.ndarray, w_d: np.ndarray, wdot_d: np.ndarray) -> None:
+        try:
+            out = self.controller.step(t_ns / _NS, self.dt, q, w, q_d, w_d, wdot_d)
+        except (InputError, FloatingPointError, ConfigError) as exc:
+            self.get_logger().error(f"control step at {t_ns / _NS:.9f} s failed: {exc}; commanding zero torque")
+            self._publish_zero(t_ns, "control step failed")
+            return
+        self._last_ns = t_ns
+        self._last_state_ns = state_ns
+        self.steps += 1
+        if self.stale:
+            self.get_logger().info("valid inputs again: control resumed")
+        self.stale = False
+        self._diag_rows = {"rho": out.rho, "band_lower": out.band_lower, "band_upper": out.band_upper, "eps": out.eps, "z": out.z, "lyapunov_V": out.V}
+        self._publish(t_ns, out.torque_B, out.torque_cmd_B, out.saturated)
+
+    def _publish_zero(self, t_ns: int, why: str) -> None:
+        if not self.stale:
+            self.get_logger().warning(f"{why}: commanding zero torque until valid inputs return")
+        self.stale = True
+        self._last_ns = t_ns if self._last_ns is None else max(self._last_ns, t_ns)
+        zero = np.zeros(3)
+        self._publish(t_ns, zero, zero, zero)
+
+    def _publish(self, t_ns: int, torque: np.ndarray, torque_cmd: np.ndarray, saturated: np.ndarray) -> None:
+        t = t_ns / _NS
+        stamp = _stamp(t_ns)
+        self.pub_torque.publish(torque_msg(torque, stamp, CONTROL_TORQUE))
+        rows = dict(self._diag_rows)
+        rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(self.stale), 0.0])
+        self.pub_diag.publish(diagnostics_msg(t, rows))
+
+    def finish(self) -> None:
+        self.get_logger().info(f"finished: {self.steps} control steps, {self.rejected} rejected messages")
+        super().finish()
+
+
+def _stamp(t_ns: int) -> Any:
+    from builtin_interfaces.msg import Time
+
+    return Time(sec=t_ns // _NS, nanosec=t_ns % _NS)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the controller node until stopped."""
+    return run_node(lambda args: ControllerNode(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

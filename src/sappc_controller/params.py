@@ -1,0 +1,130 @@
+"""ROS parameters <-> the controllers' validated config dataclasses (no rclpy here).
+
+A controller's parameters are its config's fields flattened with dots under the controller's
+name, plus the plant-level ones shared by all kinds::
+
+    controller: sappc               # sappc | trappc | blfppc
+    inertia_kg_m2: [4.0, 0, 0, 0, 4.0, 0, 0, 0, 4.0]   # row major, the known J
+    actuator.max_torque_Nm: 0.5
+    actuator.min_torque_Nm: 0.005
+    sappc.rpf.rho_e0: 0.4
+    sappc.gains.K_q: 0.3
+    ...
+
+In a ROS YAML file the dotted names are nested mappings under ``ros__parameters``
+(``config/controller_sappc.yaml``).  :func:`config_from_parameters` turns the flat values into
+the config, validated by the same code as a scenario file, so every error names the parameter.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from typing import Any
+
+import numpy as np
+
+from spacecraft_sim.core.validation import ConfigError, from_mapping
+
+from .core.blfppc import BlfppcConfig
+from .core.common import ActuatorConfig
+from .core.sappc import SappcConfig
+from .core.trappc import TrappcConfig
+
+__all__ = ["CONFIG_CLASSES", "config_from_parameters", "config_parameter_names", "parameters_from_config", "unflatten"]
+
+#: The config dataclass of each controller kind.
+CONFIG_CLASSES: dict[str, type] = {"sappc": SappcConfig, "trappc": TrappcConfig, "blfppc": BlfppcConfig}
+
+#: Config fields that are plant-level parameters, not under the controller's name.
+_SHARED = ("inertia_kg_m2", "actuator")
+
+
+def _is_dataclass_type(hint: Any) -> type | None:
+    options = [h for h in typing.get_args(hint) if h is not type(None)] or [hint]
+    return next((h for h in options if dataclasses.is_dataclass(h)), None)
+
+
+def _leaves(cls: type, prefix: str) -> list[tuple[str, Any]]:
+    """(dotted name, default or MISSING) of every leaf field of config class ``cls``."""
+    hints = typing.get_type_hints(cls)
+    out: list[tuple[str, Any]] = []
+    for f in dataclasses.fields(cls):
+        sub = _is_dataclass_type(hints[f.name])
+        name = f"{prefix}.{f.name}" if prefix else f.name
+        if sub is not None:
+            out.extend(_leaves(sub, name))
+        else:
+            out.append((name, f.default))
+    return out
+
+
+def config_parameter_names(kind: str) -> list[tuple[str, Any]]:
+    """Every parameter of controller ``kind``: (name, default or ``dataclasses.MISSING``)."""
+    cls = _config_class(kind)
+    names = [(n, d) for n, d in _leaves(cls, kind) if n.split(".")[1] not in _SHARED]
+    return [("inertia_kg_m2", dataclasses.MISSING)] + [(f"actuator.{n}", d) for n, d in _leaves(ActuatorConfig, "")] + names
+
+
+def _config_class(kind: str) -> type:
+    if kind not in CONFIG_CLASSES:
+        raise ConfigError(f"controller must be one of {sorted(CONFIG_CLASSES)}, got {kind!r}")
+    return CONFIG_CLASSES[kind]
+
+
+def unflatten(values: dict[str, Any]) -> dict[str, Any]:
+    """``{"a.b": 1}`` -> ``{"a": {"b": 1}}``."""
+    out: dict[str, Any] = {}
+    for name, value in values.items():
+        node = out
+        *parents, leaf = name.split(".")
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = value
+    return out
+
+
+def config_from_parameters(kind: str, values: dict[str, Any]) -> Any:
+    """The validated config of controller ``kind`` from flat parameter values (``None``: not set).
+
+    Raises
+    ------
+    ConfigError
+        Naming the parameter (``sappc.rpf.l``, ``inertia_kg_m2``...) that is missing or invalid.
+    """
+    cls = _config_class(kind)
+    given = {k: (list(v) if isinstance(v, (tuple, np.ndarray)) else v) for k, v in values.items() if v is not None}
+    J = given.pop("inertia_kg_m2", None)
+    if J is None:
+        raise ConfigError("missing parameter inertia_kg_m2 (9 values, row major)")
+    if len(J) != 9:
+        raise ConfigError(f"inertia_kg_m2 must have 9 values (row major 3x3), got {len(J)}")
+    tree = unflatten(given)
+    actuator = from_mapping(ActuatorConfig, tree.pop("actuator", {}), "actuator")
+    data = tree.pop(kind, {})
+    for key in _SHARED:
+        if key in data:
+            raise ConfigError(f"{kind}.{key} is a plant-level parameter: use {key}")
+    data["inertia_kg_m2"] = [J[0:3], J[3:6], J[6:9]]
+    config = from_mapping(cls, data, kind)
+    return dataclasses.replace(config, actuator=actuator)
+
+
+def parameters_from_config(kind: str, config: Any) -> dict[str, Any]:
+    """Flat parameter values of a config (the inverse of :func:`config_from_parameters`)."""
+    flat: dict[str, Any] = {"controller": kind}
+
+    def walk(obj: Any, prefix: str) -> None:
+        for f in dataclasses.fields(obj):
+            value = getattr(obj, f.name)
+            name = f"{prefix}.{f.name}" if prefix else f.name
+            if dataclasses.is_dataclass(value):
+                walk(value, name)
+            elif value is not None:
+                flat[name] = np.asarray(value, dtype=np.float64).ravel().tolist() if isinstance(value, (tuple, list)) else value
+
+    walk(config, kind)
+    flat["inertia_kg_m2"] = flat.pop(f"{kind}.inertia_kg_m2")
+    for key in [k for k in flat if k.startswith(f"{kind}.actuator.")]:
+        flat[key.replace(f"{kind}.actuator.", "actuator.")] = flat.pop(key)
+    return flat

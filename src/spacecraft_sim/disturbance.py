@@ -1,0 +1,152 @@
+"""The disturbance and fault injector (``python -m spacecraft_sim.disturbance``).
+
+Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: only its
+``disturbances:`` and ``faults:`` lists are read, see :mod:`spacecraft_sim.core.disturbance` and
+:mod:`spacecraft_sim.core.faults`):
+
+- external torques: publishes ``disturbance/torque`` for every sample, the sum of the
+  scheduled models at the sample time (``lockstep``: on each ``/clock`` tick, stamped with it;
+  ``realtime``: on a wall-clock timer of period ``control_period_s``, at the time elapsed since
+  its first tick).  The plant adds it to the control torque (``use_disturbance_topic``).
+- faults, by relaying topics: with sensor faults it subscribes to ``state/attitude`` and
+  ``state/rate``, pairs them by stamp and republishes the faulty measurement on
+  ``fault/state/*`` (the controller is remapped to those); with actuator faults it relays
+  ``control/torque`` to ``fault/control/torque`` (the plant is remapped to it).
+
+Parameters: ``schedule_file``, ``mode``, ``control_period_s``, and those of
+:class:`~sappc_msgs_py.runtime.ProjectNode`.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from sappc_msgs_py.contract import (
+    CLOCK,
+    CONTROL_TORQUE,
+    DISTURBANCE_TORQUE,
+    STATE_ATTITUDE,
+    STATE_RATE,
+    faulty,
+    qos_profile,
+)
+from sappc_msgs_py.convert import (
+    quaternion_from_msg,
+    quaternion_msg,
+    stamp_to_ns,
+    torque_from_msg,
+    torque_msg,
+    vector3_from_msg,
+    vector3_msg,
+)
+from sappc_msgs_py.runtime import ProjectNode, run_node
+
+from .core.disturbance import DisturbanceSum, disturbances_from_list
+from .core.faults import FaultSchedule, faults_from_list
+from .core.validation import ConfigError, InputError, check_positive
+from .plant_node import LOCKSTEP, REALTIME
+
+__all__ = ["InjectorNode", "load_schedule", "main"]
+
+
+def load_schedule(path: str) -> tuple[DisturbanceSum, FaultSchedule]:
+    """The disturbances and faults of a schedule (or scenario) file."""
+    if not path:
+        return DisturbanceSum(()), FaultSchedule(())
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except OSError as exc:
+        raise ConfigError(f"schedule_file {path!r}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"schedule_file {path!r} is not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"schedule_file {path!r} must hold a mapping with 'disturbances' and/or 'faults'")
+    return disturbances_from_list(data.get("disturbances")), FaultSchedule(faults_from_list(data.get("faults")))
+
+
+class InjectorNode(ProjectNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = "injector", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.disturbance, self.faults = load_schedule(str(self.param("schedule_file", "")))
+        self.mode = str(self.param("mode", LOCKSTEP))
+        if self.mode not in (LOCKSTEP, REALTIME):
+            raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {self.mode!r}")
+        self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
+        self.rejected = 0
+        qos = qos_profile()
+        self.pub_d = self.counting_publisher(DISTURBANCE_TORQUE, 1)
+        if self.mode == LOCKSTEP:
+            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
+        else:
+            self._t0_ns: int | None = None
+            self.create_timer(self.dt, self._on_timer)
+        if self.faults.has_sensor_faults:
+            self.pub_att = self.counting_publisher(faulty(STATE_ATTITUDE), 1)
+            self.pub_rate = self.counting_publisher(faulty(STATE_RATE), 1)
+            self._pending: dict[int, dict[str, Any]] = {}
+            self.create_subscription(STATE_ATTITUDE.msg_class, STATE_ATTITUDE.name, lambda m: self._on_state(m, "q"), qos)
+            self.create_subscription(STATE_RATE.msg_class, STATE_RATE.name, lambda m: self._on_state(m, "w"), qos)
+        if self.faults.has_actuator_faults:
+            self.pub_torque = self.counting_publisher(faulty(CONTROL_TORQUE), 1)
+            self.create_subscription(CONTROL_TORQUE.msg_class, CONTROL_TORQUE.name, self._on_torque, qos)
+
+    def _publish_disturbance(self, t_s: float, stamp: Any) -> None:
+        d = self.disturbance.torque_B(np.array([t_s]), 1)[0, 0]
+        self.pub_d.publish(torque_msg(d, stamp, DISTURBANCE_TORQUE))
+
+    def _on_clock(self, msg: Any) -> None:
+        self._publish_disturbance(stamp_to_ns(msg.clock) / 1e9, msg.clock)
+
+    def _on_timer(self) -> None:
+        now = self.get_clock().now()
+        if self._t0_ns is None:
+            self._t0_ns = now.nanoseconds
+        self._publish_disturbance((now.nanoseconds - self._t0_ns) / 1e9, now.to_msg())
+
+    def _reject(self, exc: Exception) -> None:
+        self.rejected += 1
+        self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
+
+    def _on_state(self, msg: Any, which: str) -> None:
+        try:
+            value = quaternion_from_msg(msg, STATE_ATTITUDE) if which == "q" else vector3_from_msg(msg, STATE_RATE)
+        except InputError as exc:
+            self._reject(exc)
+            return
+        ns = stamp_to_ns(msg.header.stamp)
+        entry = self._pending.setdefault(ns, {})
+        entry[which] = value
+        if len(entry) < 2:
+            return
+        del self._pending[ns]
+        for old in [k for k in self._pending if k < ns]:  # an unpaired older sample will never pair
+            del self._pending[old]
+        out = self.faults.sensor(ns / 1e9, ns, entry["q"], entry["w"])
+        if out is not None:
+            self.pub_att.publish(quaternion_msg(out[0], msg.header.stamp, faulty(STATE_ATTITUDE)))
+            self.pub_rate.publish(vector3_msg(out[1], msg.header.stamp, faulty(STATE_RATE)))
+
+    def _on_torque(self, msg: Any) -> None:
+        try:
+            torque = torque_from_msg(msg, CONTROL_TORQUE)
+        except InputError as exc:
+            self._reject(exc)
+            return
+        t = stamp_to_ns(msg.header.stamp) / 1e9
+        self.pub_torque.publish(torque_msg(self.faults.actuator(t, torque), msg.header.stamp, faulty(CONTROL_TORQUE)))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the injector until stopped."""
+    return run_node(lambda args: InjectorNode(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

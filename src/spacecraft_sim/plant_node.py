@@ -1,0 +1,208 @@
+"""The plant node (``python -m spacecraft_sim``): a rigid body on the ROS 2 graph.
+
+It publishes the measured attitude and body rate (``state/attitude``, ``state/rate``, see
+:mod:`sappc_msgs_py.contract`), applies the torque received on ``control/torque`` plus, when
+``use_disturbance_topic`` is true, the torque received on ``disturbance/torque``, and integrates
+with the plant core (:class:`~spacecraft_sim.core.dynamics.RigidBody`, RK4, zero-order hold).
+
+Modes (parameter ``mode``):
+
+``lockstep`` (default)
+    The plant owns time.  For sample ``k`` it publishes ``/clock`` = ``t_k = k dt``, then the
+    state stamped ``t_k``; it waits for the torque (and disturbance) stamped ``t_k``, then
+    integrates over ``[t_k, t_k+1]``.  This is the offline runner's timing
+    (:mod:`sappc.closed_loop`), so the results are the same.  When an input stamped ``t_k`` does
+    not arrive within ``lockstep_timeout_s`` of wall time, the last received value is held (as
+    an actuator holds its last command), the miss is counted and logged, and the run goes on.
+    After sample ``n = duration_s / dt`` (and its torque) the node finishes.
+``realtime``
+    A wall-clock timer of period ``dt`` integrates with the latest torque and disturbance
+    (zero-order hold) and publishes the state stamped with the node's clock.  No ``/clock``.
+
+Torques are clipped to ``max_torque_Nm`` per axis (the actuator cannot do more whatever it is
+commanded); a torque message that is non-finite or in the wrong frame is rejected, counted and
+logged, and the previous value is held.
+
+Parameters: ``inertia_kg_m2`` (9 values, row major), ``q_BN0`` (x, y, z, w), ``omega_BN_B0_rad_s``,
+``control_period_s``, ``duration_s`` (0: run until stopped, real time only), ``rk4_substeps``,
+``max_torque_Nm`` (default 0.5, the paper's actuator), ``mode``, ``lockstep_timeout_s``, ``use_disturbance_topic``,
+``timing_file`` (JSON: wall time from the first sample to the end, misses), and those of
+:class:`~sappc_msgs_py.runtime.ProjectNode`.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, qos_profile
+from sappc_msgs_py.convert import clock_msg, quaternion_msg, stamp_to_ns, time_to_stamp, torque_from_msg, vector3_msg
+from sappc_msgs_py.runtime import ProjectNode, run_node
+
+from .core.dynamics import RigidBody, initial_state
+from .core.validation import ConfigError, InputError, as_finite_array, check_positive
+
+__all__ = ["LOCKSTEP", "PlantNode", "REALTIME", "main"]
+
+LOCKSTEP = "lockstep"
+REALTIME = "realtime"
+
+
+class PlantNode(ProjectNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = "plant", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        J = np.asarray(self.param("inertia_kg_m2", [4.0, 0.0, 0.0, 0.0, 4.0, 0.0, 0.0, 0.0, 4.0]), dtype=np.float64)
+        if J.size != 9:
+            raise ConfigError(f"inertia_kg_m2 must have 9 values (row major 3x3), got {J.size}")
+        self.body = RigidBody(J.reshape(3, 3))
+        q0 = as_finite_array("q_BN0", self.param("q_BN0", [0.0, 0.0, 0.0, 1.0]), shape_tail=(4,))
+        norm = float(np.linalg.norm(q0))
+        if abs(norm - 1.0) > 1e-3:
+            raise ConfigError(f"q_BN0 = {q0.tolist()} has norm {norm:.6g}; expected a unit quaternion (x, y, z, w)")
+        w0 = as_finite_array("omega_BN_B0_rad_s", self.param("omega_BN_B0_rad_s", [0.0, 0.0, 0.0]), shape_tail=(3,))
+        self.x = initial_state(np.atleast_2d(q0 / norm), np.atleast_2d(w0))
+        self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
+        duration = check_positive("duration_s", self.param("duration_s", 60.0), allow_zero=True)
+        self.substeps = int(self.param("rk4_substeps", 1))
+        if self.substeps < 1:
+            raise ConfigError(f"rk4_substeps must be >= 1, got {self.substeps}")
+        self.max_torque = check_positive("max_torque_Nm", self.param("max_torque_Nm", 0.5))  # the paper's actuator
+        self.mode = str(self.param("mode", LOCKSTEP))
+        if self.mode not in (LOCKSTEP, REALTIME):
+            raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {self.mode!r}")
+        if self.mode == LOCKSTEP and duration == 0.0:
+            raise ConfigError("duration_s must be > 0 in lockstep mode")
+        self.timeout_s = check_positive("lockstep_timeout_s", self.param("lockstep_timeout_s", 2.0))
+        self.use_disturbance = bool(self.param("use_disturbance_topic", False))
+        self.timing_file = str(self.param("timing_file", ""))
+        self._wall_first: float | None = None
+        self.n_steps = int(round(duration / self.dt))  # samples k = 0 .. n_steps, as step_times()
+
+        qos = qos_profile()
+        self.pub_att = self.counting_publisher(STATE_ATTITUDE, 1)
+        self.pub_rate = self.counting_publisher(STATE_RATE, 1)
+        self.pub_clock = self.counting_publisher(CLOCK) if self.mode == LOCKSTEP else None
+        self.create_subscription(CONTROL_TORQUE.msg_class, CONTROL_TORQUE.name, self._on_torque, qos)
+        if self.use_disturbance:
+            self.create_subscription(DISTURBANCE_TORQUE.msg_class, DISTURBANCE_TORQUE.name, self._on_disturbance, qos)
+
+        self.torque = np.zeros((1, 3))
+        self.disturbance = np.zeros((1, 3))
+        self.rejected = 0
+        self.missed = {"torque": 0, "disturbance": 0}
+        self.k = 0
+        # lockstep: the stamp (ns) the plant waits for, and which inputs arrived for it
+        self._waiting_ns: int | None = None
+        self._got = {"torque": False, "disturbance": not self.use_disturbance}
+        self._waiting_since = 0.0
+        if self.mode == LOCKSTEP:
+            self._watchdog = self.create_timer(min(0.05, self.timeout_s / 4), self._check_timeout)
+            self._start_timer = self.create_timer(0.0, self._start_lockstep)
+        else:
+            self._t0_ns: int | None = None
+            self.create_timer(self.dt, self._realtime_tick)
+
+    # ---- inputs ---------------------------------------------------------------------------
+    def _decode(self, msg: Any, topic: Any) -> np.ndarray | None:
+        try:
+            return np.minimum(np.maximum(torque_from_msg(msg, topic), -self.max_torque), self.max_torque).reshape(1, 3)
+        except InputError as exc:
+            self.rejected += 1
+            self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
+            return None
+
+    def _on_torque(self, msg: Any) -> None:
+        self._on_input(msg, CONTROL_TORQUE, "torque")
+
+    def _on_disturbance(self, msg: Any) -> None:
+        self._on_input(msg, DISTURBANCE_TORQUE, "disturbance")
+
+    def _on_input(self, msg: Any, topic: Any, which: str) -> None:
+        value = self._decode(msg, topic)
+        if value is None:
+            return
+        if self.mode == REALTIME:
+            setattr(self, which, value)
+            return
+        if self._waiting_ns is None or stamp_to_ns(msg.header.stamp) != self._waiting_ns:
+            return  # a late answer to a sample already integrated (after a timeout), or not started
+        setattr(self, which, value)
+        self._got[which] = True
+        if all(self._got.values()):
+            self._advance()
+
+    # ---- lockstep -------------------------------------------------------------------------
+    def _start_lockstep(self) -> None:
+        self._start_timer.cancel()
+        self._publish_sample()
+
+    def _publish_sample(self) -> None:
+        t = self.k * self.dt  # the grid of sappc.closed_loop.step_times
+        assert self.pub_clock is not None
+        self.pub_clock.publish(clock_msg(t))
+        self._publish_state(t)
+        self._waiting_ns = stamp_to_ns(time_to_stamp(t))
+        self._got = {"torque": False, "disturbance": not self.use_disturbance}
+        self._waiting_since = time.monotonic()
+
+    def _advance(self) -> None:
+        self._waiting_ns = None
+        if self.k >= self.n_steps:  # the last sample's torque is received (and recorded), not applied
+            self.finished = True
+            return
+        self.x = self.body.propagate(self.x, self.torque + self.disturbance, self.dt, self.substeps)
+        self.k += 1
+        self._publish_sample()
+
+    def _check_timeout(self) -> None:
+        if self._waiting_ns is None or time.monotonic() - self._waiting_since < self.timeout_s:
+            return
+        missing = [w for w, got in self._got.items() if not got]
+        for which in missing:
+            self.missed[which] += 1
+        self.get_logger().warning(
+            f"t = {self.k * self.dt:.3f} s: no {' and no '.join(missing)} within {self.timeout_s} s; holding the last value "
+            f"(missed so far: {self.missed})"
+        )
+        self._advance()
+
+    # ---- real time ------------------------------------------------------------------------
+    def _realtime_tick(self) -> None:
+        now = self.get_clock().now()
+        if self._t0_ns is not None:
+            self.x = self.body.propagate(self.x, self.torque + self.disturbance, self.dt, self.substeps)
+        else:
+            self._t0_ns = now.nanoseconds
+        self._publish_state(now.to_msg())
+        self.k += 1
+        if self.n_steps and self.k > self.n_steps:
+            self.finished = True
+
+    def _publish_state(self, t_s: Any) -> None:
+        if self._wall_first is None:
+            self._wall_first = time.monotonic()
+        self.pub_att.publish(quaternion_msg(self.x[0, :4], t_s, STATE_ATTITUDE))
+        self.pub_rate.publish(vector3_msg(self.x[0, 4:], t_s, STATE_RATE))
+
+    def finish(self) -> None:
+        run_s = 0.0 if self._wall_first is None else time.monotonic() - self._wall_first
+        self.get_logger().info(f"finished at sample {self.k} after {run_s:.3f} s: {self.rejected} rejected messages, missed inputs {self.missed}")
+        super().finish()
+        if self.timing_file:
+            Path(self.timing_file).write_text(json.dumps({"run_s": run_s, "samples": self.k + 1, "rejected": self.rejected, "missed": self.missed}))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the plant node until its run ends or a signal arrives."""
+    return run_node(lambda args: PlantNode(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

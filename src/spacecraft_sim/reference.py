@@ -1,0 +1,92 @@
+"""The reference publisher (``python -m spacecraft_sim.reference``): the paper's desired trajectory.
+
+Publishes ``reference/attitude``, ``reference/rate`` and ``reference/acceleration`` (see
+:mod:`sappc_msgs_py.contract`) from :class:`~spacecraft_sim.core.reference.PaperReference`,
+sampled on the grid ``k dt``, ``k = 0 .. duration_s / dt``, exactly as the offline runner samples
+it (the attitude is integrated once over the whole grid).
+
+``lockstep``: on each ``/clock`` tick ``t_k`` of the grid it publishes sample ``k`` stamped with
+the tick, so the controller pairs it with the state of the same stamp.  ``realtime``: a
+wall-clock timer of period ``dt`` publishes the sample of the time elapsed since its first tick,
+stamped with the node's clock.
+
+Parameters: ``q_RN0``, ``amplitude_deg_s``, ``periods_s`` (the scenario's ``reference``),
+``control_period_s``, ``duration_s``, ``mode``, and those of
+:class:`~sappc_msgs_py.runtime.ProjectNode`.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import numpy as np
+
+from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, qos_profile
+from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, vector3_msg
+from sappc_msgs_py.runtime import ProjectNode, run_node
+
+from .core.reference import PaperReference, sample_times
+from .core.validation import ConfigError, check_positive
+from .plant_node import LOCKSTEP, REALTIME
+
+__all__ = ["ReferenceNode", "main"]
+
+
+class ReferenceNode(ProjectNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = "reference", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        ref = PaperReference(
+            q_RN0=tuple(self.param("q_RN0", [0.0, 0.0, 0.0, 1.0])),
+            amplitude_deg_s=float(self.param("amplitude_deg_s", 0.573)),
+            periods_s=tuple(self.param("periods_s", [40.0, 30.0, 50.0])),
+        )
+        self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
+        duration = check_positive("duration_s", self.param("duration_s", 60.0))
+        self.mode = str(self.param("mode", LOCKSTEP))
+        if self.mode not in (LOCKSTEP, REALTIME):
+            raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {self.mode!r}")
+        self.samples = ref.sample(sample_times(duration, self.dt))
+        # stamp (ns) of each grid sample -> index, for exact matching of /clock ticks
+        self._index = {stamp_to_ns(time_to_stamp(float(t))): k for k, t in enumerate(self.samples.t)}
+        self.pubs = [self.counting_publisher(t, 1) for t in (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)]
+        if self.mode == LOCKSTEP:
+            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile())
+        else:
+            self._t0_ns: int | None = None
+            self.create_timer(self.dt, self._on_timer)
+
+    def _publish(self, k: int, stamp: Any) -> None:
+        s = self.samples
+        self.pubs[0].publish(quaternion_msg(s.q_RN[k], stamp, REFERENCE_ATTITUDE))
+        self.pubs[1].publish(vector3_msg(s.omega_RN_R[k], stamp, REFERENCE_RATE))
+        self.pubs[2].publish(vector3_msg(s.omegadot_RN_R[k], stamp, REFERENCE_ACCELERATION))
+
+    def _on_clock(self, msg: Any) -> None:
+        ns = stamp_to_ns(msg.clock)
+        k = self._index.get(ns)
+        if k is None:
+            self.get_logger().warning(f"/clock {ns / 1e9:.9f} s is not on the reference grid (dt = {self.dt} s, n = {len(self._index)}); nothing published")
+            return
+        self._publish(k, msg.clock)
+
+    def _on_timer(self) -> None:
+        now = self.get_clock().now()
+        if self._t0_ns is None:
+            self._t0_ns = now.nanoseconds
+        k = int((now.nanoseconds - self._t0_ns) / 1e9 / self.dt + 0.5)
+        if k >= self.samples.t.size:
+            self.finished = True
+            return
+        self._publish(k, now.to_msg())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the reference publisher until stopped."""
+    return run_node(lambda args: ReferenceNode(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
