@@ -151,6 +151,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     }
     injector = {
         "schedule_file": paths["scenario"],
+        "duration_s": scenario.duration_s,
         **common,
         "expected_subscribers": expected(disturbance__torque=2)
         + (expected(fault__state__attitude=2, fault__state__rate=2) if sensor else [])

@@ -34,6 +34,7 @@ a recorder needs a queue; a best-effort publisher and a reliable subscriber neve
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from enum import Enum
 
@@ -90,10 +91,15 @@ class Topic:
     @property
     def msg_class(self) -> type:
         """The generated message class (imports the ROS 2 message package)."""
-        import importlib
+        return _msg_class(self.type_name)
 
-        pkg, _, cls = self.type_name.split("/")
-        return getattr(importlib.import_module(f"{pkg}.msg"), cls)  # type: ignore[no-any-return]
+
+@functools.cache
+def _msg_class(type_name: str) -> type:
+    import importlib
+
+    pkg, _, cls = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), cls)  # type: ignore[no-any-return]
 
 
 STATE_ATTITUDE = Topic("state/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)

@@ -10,6 +10,8 @@ so the 10 ms grid of the lockstep loop is represented exactly.
 
 from __future__ import annotations
 
+import functools
+import math
 from typing import Any
 
 import numpy as np
@@ -43,6 +45,21 @@ Array = NDArray[np.float64]
 _NS_PER_S = 1_000_000_000
 
 
+@functools.cache
+def _time_class() -> Any:
+    from builtin_interfaces.msg import Time
+
+    return Time
+
+
+def _finite(topic: Topic, what: str, values: list[float]) -> Array:
+    """``values`` as an array, or :class:`InputError` naming the topic (fast for 3-4 values:
+    this runs for every message a node receives)."""
+    if all(map(math.isfinite, values)):
+        return np.array(values)
+    return as_finite_array(f"{topic.name} {what}", values)  # raises, naming the value
+
+
 def time_to_stamp(t_s: Any) -> Any:
     """``builtin_interfaces/Time`` for ``t_s`` seconds (>= 0), rounded to the nanosecond.
 
@@ -50,8 +67,7 @@ def time_to_stamp(t_s: Any) -> Any:
     stamp or ``Clock.now().to_msg()``), copied exactly: wall-clock times (1.7e9 s) lose about
     0.2 us in a float of seconds, so relays and real-time nodes pass stamps, not floats.
     """
-    from builtin_interfaces.msg import Time
-
+    Time = _time_class()
     if hasattr(t_s, "sec") and hasattr(t_s, "nanosec"):
         return Time(sec=int(t_s.sec), nanosec=int(t_s.nanosec))
     t = float(as_finite_array("t_s", t_s))
@@ -95,7 +111,7 @@ def quaternion_from_msg(msg: Any, topic: Topic) -> Array:
     (the unit norm is the controller's check, which names the value)."""
     _check_frame(msg, topic)
     q = msg.quaternion
-    return as_finite_array(f"{topic.name} quaternion", [q.x, q.y, q.z, q.w])
+    return _finite(topic, "quaternion", [q.x, q.y, q.z, q.w])
 
 
 def vector3_msg(v: ArrayLike, t_s: float, topic: Topic) -> Any:
@@ -110,7 +126,7 @@ def vector3_from_msg(msg: Any, topic: Topic) -> Array:
     """The vector of a ``Vector3Stamped`` of ``topic``; checks frame and finiteness."""
     _check_frame(msg, topic)
     v = msg.vector
-    return as_finite_array(f"{topic.name} vector", [v.x, v.y, v.z])
+    return _finite(topic, "vector", [v.x, v.y, v.z])
 
 
 def torque_msg(torque_B: ArrayLike, t_s: float, topic: Topic = CONTROL_TORQUE) -> Any:
@@ -127,7 +143,7 @@ def torque_from_msg(msg: Any, topic: Topic = CONTROL_TORQUE) -> Array:
     """The torque [N m] of a ``WrenchStamped``; checks frame and finiteness."""
     _check_frame(msg, topic)
     tq = msg.wrench.torque
-    return as_finite_array(f"{topic.name} torque", [tq.x, tq.y, tq.z])
+    return _finite(topic, "torque", [tq.x, tq.y, tq.z])
 
 
 def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike]) -> Any:
@@ -135,7 +151,7 @@ def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike]) -> Any:
 
     ``rows`` maps every label except ``time_s`` to 3 values; the labels go into ``layout.dim``.
     """
-    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+    from std_msgs.msg import Float64MultiArray
 
     data = np.empty((len(DIAGNOSTICS_LAYOUT), 3))
     data[0] = t_s
@@ -145,12 +161,20 @@ def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike]) -> Any:
     for i, label in enumerate(DIAGNOSTICS_LAYOUT[1:], start=1):
         data[i] = np.asarray(rows[label], dtype=np.float64).reshape(3)
     msg = Float64MultiArray()
-    msg.layout.dim = [
-        MultiArrayDimension(label=",".join(DIAGNOSTICS_LAYOUT), size=len(DIAGNOSTICS_LAYOUT), stride=data.size),
-        MultiArrayDimension(label="axis", size=3, stride=3),
-    ]
+    msg.layout = _diagnostics_layout()
     msg.data = data.ravel().tolist()
     return msg
+
+
+@functools.cache
+def _diagnostics_layout() -> Any:
+    from std_msgs.msg import MultiArrayDimension, MultiArrayLayout
+
+    n = len(DIAGNOSTICS_LAYOUT)
+    return MultiArrayLayout(dim=[
+        MultiArrayDimension(label=",".join(DIAGNOSTICS_LAYOUT), size=n, stride=3 * n),
+        MultiArrayDimension(label="axis", size=3, stride=3),
+    ])
 
 
 def diagnostics_from_msg(msg: Any) -> dict[str, Array]:

@@ -18,6 +18,7 @@ The facts behind the choices are measured in ``ROS2_NOTES.md``:
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
 import time
@@ -190,8 +191,18 @@ def run_node(make_node: Callable[[list[str]], Any], argv: list[str] | None = Non
             return 2
         executor = EventsExecutor()
         executor.add_node(node)
+        profile_dir = os.environ.get("SAPPC_PROFILE_DIR")  # developer aid: cProfile of the spin loop
+        profiler = None
+        if profile_dir:
+            import cProfile
+
+            profiler = cProfile.Profile()
+            profiler.enable()
         while not stop["signal"] and not node.finished:
             executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+        if profiler is not None:
+            profiler.disable()
+            profiler.dump_stats(str(Path(profile_dir) / f"{node.get_name()}.prof"))
         if hasattr(node, "drain"):  # a recorder takes what is still queued
             node.drain(lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
         node.finish()

@@ -5,7 +5,8 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
 :mod:`spacecraft_sim.core.faults`):
 
 - external torques: publishes ``disturbance/torque`` for every sample, the sum of the
-  scheduled models at the sample time (``lockstep``: on each ``/clock`` tick, stamped with it;
+  scheduled models at the sample time (``lockstep``: on each ``/clock`` tick ``t_k`` for sample
+  ``k + 1``, one ahead so that it is never on the loop's critical path;
   ``realtime``: on a wall-clock timer of period ``control_period_s``, at the time elapsed since
   its first tick).  The plant adds it to the control torque (``use_disturbance_topic``).
 - faults, by relaying topics: with sensor faults it subscribes to ``state/attitude`` and
@@ -13,7 +14,8 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
   ``fault/state/*`` (the controller is remapped to those); with actuator faults it relays
   ``control/torque`` to ``fault/control/torque`` (the plant is remapped to it).
 
-Parameters: ``schedule_file``, ``mode``, ``control_period_s``, and those of
+Parameters: ``schedule_file``, ``mode``, ``control_period_s``, ``duration_s`` (the grid's end; 0:
+none), and those of
 :class:`~sappc_msgs_py.runtime.ProjectNode`.
 """
 
@@ -39,6 +41,7 @@ from sappc_msgs_py.convert import (
     quaternion_from_msg,
     quaternion_msg,
     stamp_to_ns,
+    time_to_stamp,
     torque_from_msg,
     torque_msg,
     vector3_from_msg,
@@ -79,6 +82,8 @@ class InjectorNode(ProjectNode):
         if self.mode not in (LOCKSTEP, REALTIME):
             raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {self.mode!r}")
         self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
+        duration = check_positive("duration_s", self.param("duration_s", 0.0), allow_zero=True)
+        self.last_k = int(round(duration / self.dt)) if duration > 0 else None  # the grid's last sample
         self.rejected = 0
         qos = qos_profile()
         self.pub_d = self.counting_publisher(DISTURBANCE_TORQUE, 1)
@@ -102,7 +107,13 @@ class InjectorNode(ProjectNode):
         self.pub_d.publish(torque_msg(d, stamp, DISTURBANCE_TORQUE))
 
     def _on_clock(self, msg: Any) -> None:
-        self._publish_disturbance(stamp_to_ns(msg.clock) / 1e9, msg.clock)
+        k = round(stamp_to_ns(msg.clock) / 1e9 / self.dt)
+        if k == 0:
+            self._publish_disturbance(0.0, msg.clock)
+        if self.last_k is not None and k + 1 > self.last_k:
+            return
+        t_next = (k + 1) * self.dt  # one sample ahead, on the plant's grid (k dt, as sample_times)
+        self._publish_disturbance(t_next, time_to_stamp(t_next))
 
     def _on_timer(self) -> None:
         now = self.get_clock().now()

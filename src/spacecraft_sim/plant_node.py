@@ -9,7 +9,8 @@ Modes (parameter ``mode``):
 
 ``lockstep`` (default)
     The plant owns time.  For sample ``k`` it publishes ``/clock`` = ``t_k = k dt``, then the
-    state stamped ``t_k``; it waits for the torque (and disturbance) stamped ``t_k``, then
+    state stamped ``t_k``; it waits for the torque (and disturbance) stamped ``t_k`` (inputs that
+    arrive ahead of their sample are kept until it comes), then
     integrates over ``[t_k, t_k+1]``.  This is the offline runner's timing
     (:mod:`sappc.closed_loop`), so the results are the same.  When an input stamped ``t_k`` does
     not arrive within ``lockstep_timeout_s`` of wall time, the last received value is held (as
@@ -100,7 +101,9 @@ class PlantNode(ProjectNode):
         self.k = 0
         # lockstep: the stamp (ns) the plant waits for, and which inputs arrived for it
         self._waiting_ns: int | None = None
-        self._got = {"torque": False, "disturbance": not self.use_disturbance}
+        self._inbox: dict[str, dict[int, np.ndarray]] = {"torque": {}}  # stamp -> value, per input
+        if self.use_disturbance:
+            self._inbox["disturbance"] = {}
         self._waiting_since = 0.0
         if self.mode == LOCKSTEP:
             self._watchdog = self.create_timer(min(0.05, self.timeout_s / 4), self._check_timeout)
@@ -131,12 +134,19 @@ class PlantNode(ProjectNode):
         if self.mode == REALTIME:
             setattr(self, which, value)
             return
-        if self._waiting_ns is None or stamp_to_ns(msg.header.stamp) != self._waiting_ns:
-            return  # a late answer to a sample already integrated (after a timeout), or not started
-        setattr(self, which, value)
-        self._got[which] = True
-        if all(self._got.values()):
-            self._advance()
+        ns = stamp_to_ns(msg.header.stamp)
+        if self._waiting_ns is not None and ns < self._waiting_ns:
+            return  # a late answer to a sample already integrated (after a timeout)
+        self._inbox[which][ns] = value  # inputs may arrive ahead of their sample (the injector publishes one ahead)
+        self._try_advance()
+
+    def _try_advance(self) -> None:
+        ns = self._waiting_ns
+        if ns is None or not all(ns in box for box in self._inbox.values()):
+            return
+        for which, box in self._inbox.items():
+            setattr(self, which, box.pop(ns))
+        self._advance()
 
     # ---- lockstep -------------------------------------------------------------------------
     def _start_lockstep(self) -> None:
@@ -149,10 +159,13 @@ class PlantNode(ProjectNode):
         self.pub_clock.publish(clock_msg(t))
         self._publish_state(t)
         self._waiting_ns = stamp_to_ns(time_to_stamp(t))
-        self._got = {"torque": False, "disturbance": not self.use_disturbance}
         self._waiting_since = time.monotonic()
+        self._try_advance()  # the disturbance may already be there
 
     def _advance(self) -> None:
+        for box in self._inbox.values():  # drop what belongs to this sample or earlier
+            for old in [k for k in box if self._waiting_ns is not None and k <= self._waiting_ns]:
+                del box[old]
         self._waiting_ns = None
         if self.k >= self.n_steps:  # the last sample's torque is received (and recorded), not applied
             self.finished = True
@@ -164,9 +177,12 @@ class PlantNode(ProjectNode):
     def _check_timeout(self) -> None:
         if self._waiting_ns is None or time.monotonic() - self._waiting_since < self.timeout_s:
             return
-        missing = [w for w, got in self._got.items() if not got]
+        missing = [w for w, box in self._inbox.items() if self._waiting_ns not in box]
         for which in missing:
             self.missed[which] += 1
+        for which, box in self._inbox.items():
+            if self._waiting_ns in box:
+                setattr(self, which, box.pop(self._waiting_ns))
         self.get_logger().warning(
             f"t = {self.k * self.dt:.3f} s: no {' and no '.join(missing)} within {self.timeout_s} s; holding the last value "
             f"(missed so far: {self.missed})"

@@ -5,8 +5,10 @@ Publishes ``reference/attitude``, ``reference/rate`` and ``reference/acceleratio
 sampled on the grid ``k dt``, ``k = 0 .. duration_s / dt``, exactly as the offline runner samples
 it (the attitude is integrated once over the whole grid).
 
-``lockstep``: on each ``/clock`` tick ``t_k`` of the grid it publishes sample ``k`` stamped with
-the tick, so the controller pairs it with the state of the same stamp.  ``realtime``: a
+``lockstep``: on each ``/clock`` tick ``t_k`` of the grid it publishes sample ``k + 1`` (and, at
+``t_0``, sample 0 first), stamped ``t_k+1``: the trajectory is known in advance, so publishing
+one sample ahead takes the reference off the loop's critical path; the controller pairs it with
+the state of the same stamp.  ``realtime``: a
 wall-clock timer of period ``dt`` publishes the sample of the time elapsed since its first tick,
 stamped with the node's clock.
 
@@ -50,7 +52,8 @@ class ReferenceNode(ProjectNode):
             raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {self.mode!r}")
         self.samples = ref.sample(sample_times(duration, self.dt))
         # stamp (ns) of each grid sample -> index, for exact matching of /clock ticks
-        self._index = {stamp_to_ns(time_to_stamp(float(t))): k for k, t in enumerate(self.samples.t)}
+        self._stamps = [time_to_stamp(float(t)) for t in self.samples.t]
+        self._index = {stamp_to_ns(st): k for k, st in enumerate(self._stamps)}
         self.pubs = [self.counting_publisher(t, 1) for t in (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)]
         if self.mode == LOCKSTEP:
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile())
@@ -70,7 +73,10 @@ class ReferenceNode(ProjectNode):
         if k is None:
             self.get_logger().warning(f"/clock {ns / 1e9:.9f} s is not on the reference grid (dt = {self.dt} s, n = {len(self._index)}); nothing published")
             return
-        self._publish(k, msg.clock)
+        if k == 0:
+            self._publish(0, msg.clock)
+        if k + 1 < self.samples.t.size:  # one sample ahead: never on the loop's critical path
+            self._publish(k + 1, self._stamps[k + 1])
 
     def _on_timer(self) -> None:
         now = self.get_clock().now()
