@@ -1,0 +1,257 @@
+"""Each node in-process with an executor, on an isolated domain: the controller's input checks,
+stale-input handling, runtime parameter changes; the plant's lockstep protocol; the reference
+publisher and the injector's relays.  Waits are on conditions (with a generous deadline), never
+on fixed sleeps."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from sappc.scenario import load_scenario
+from sappc_controller.params import parameters_from_config
+from sappc_msgs_py import contract as c
+from sappc_msgs_py.convert import (
+    clock_msg,
+    diagnostics_from_msg,
+    quaternion_from_msg,
+    quaternion_msg,
+    stamp_to_ns,
+    torque_from_msg,
+    torque_msg,
+    vector3_from_msg,
+    vector3_msg,
+)
+
+from conftest import SCENARIOS
+
+#: The paper's initial attitude, normalised.
+Q0 = tuple(np.array([0.3254, 0.4068, -0.3254, 0.7891]) / np.linalg.norm([0.3254, 0.4068, -0.3254, 0.7891]))
+#: Longest wait for a condition [s]: discovery takes 0.2-0.55 s with the project's profile.
+DEADLINE_S = 20.0
+
+
+class Driver:
+    """A test node publishing the controller's inputs and collecting its outputs."""
+
+    def __init__(self, context, nodes):  # type: ignore[no-untyped-def]
+        self.node = Node("driver", context=context)
+        qos = c.qos_profile()
+        self.pub = {t.name: self.node.create_publisher(t.msg_class, t.name, qos) for t in (c.STATE_ATTITUDE, c.STATE_RATE, c.REFERENCE_ATTITUDE, c.REFERENCE_RATE, c.REFERENCE_ACCELERATION, c.CLOCK)}
+        self.torques: list[tuple[int, np.ndarray]] = []
+        self.diags: list[dict[str, np.ndarray]] = []
+        self.node.create_subscription(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, lambda m: self.torques.append((stamp_to_ns(m.header.stamp), torque_from_msg(m))), qos)
+        self.node.create_subscription(c.CONTROLLER_DIAGNOSTICS.msg_class, c.CONTROLLER_DIAGNOSTICS.name, lambda m: self.diags.append(diagnostics_from_msg(m)), qos)
+        self.executor = SingleThreadedExecutor(context=context)
+        for n in (self.node, *nodes):
+            self.executor.add_node(n)
+
+    def spin_until(self, condition, what: str) -> None:  # type: ignore[no-untyped-def]
+        deadline = time.monotonic() + DEADLINE_S
+        while not condition():
+            assert time.monotonic() < deadline, f"timed out waiting for {what}"
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def matched(self) -> None:
+        self.spin_until(lambda: all(p.get_subscription_count() >= 1 for n, p in self.pub.items() if n != "/clock"), "the controller's subscriptions")
+
+    def send_sample(self, t: float, q=Q0, w=(0.0, 0.0, 0.0), q_d=(0.0, 0.0, 0.0, 1.0), frame=None) -> None:  # type: ignore[no-untyped-def]
+        att = quaternion_msg(Q0, t, c.STATE_ATTITUDE)  # then the raw fields: the encoder refuses bad values
+        att.quaternion.x, att.quaternion.y, att.quaternion.z, att.quaternion.w = (float(v) for v in q)
+        rate = vector3_msg([0.0, 0.0, 0.0], t, c.STATE_RATE)
+        rate.vector.x, rate.vector.y, rate.vector.z = (float(v) for v in w)
+        msgs = {
+            c.STATE_ATTITUDE.name: att,
+            c.STATE_RATE.name: rate,
+            c.REFERENCE_ATTITUDE.name: quaternion_msg(q_d, t, c.REFERENCE_ATTITUDE),
+            c.REFERENCE_RATE.name: vector3_msg([0.0, 0.0, 0.0], t, c.REFERENCE_RATE),
+            c.REFERENCE_ACCELERATION.name: vector3_msg([0.0, 0.0, 0.0], t, c.REFERENCE_ACCELERATION),
+        }
+        if frame is not None:
+            msgs[c.STATE_ATTITUDE.name].header.frame_id = frame
+        self.pub["/clock"].publish(clock_msg(t))
+        for name, m in msgs.items():
+            self.pub[name].publish(m)
+
+
+def _controller_overrides(**extra):  # type: ignore[no-untyped-def]
+    scenario = load_scenario(SCENARIOS / "paper_tracking.yaml")
+    flat = parameters_from_config("sappc", scenario.controller_config("sappc"))
+    flat.update(extra)
+    return [Parameter(k, value=v) for k, v in flat.items()]
+
+
+@pytest.fixture
+def controller(ros_context):  # type: ignore[no-untyped-def]
+    from sappc_controller.node import ControllerNode
+
+    node = ControllerNode(context=ros_context, parameter_overrides=_controller_overrides(stale_timeout_s=0.05))
+    driver = Driver(ros_context, [node])
+    driver.matched()
+    yield node, driver
+    driver.executor.shutdown()
+    node.destroy_node()
+    driver.node.destroy_node()
+
+
+
+def test_controller_computes_once_per_complete_sample_and_stamps_the_torque(controller) -> None:  # type: ignore[no-untyped-def]
+    node, drv = controller
+    for k in range(3):
+        drv.send_sample(k * 0.01, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 3, "three torques")
+    assert [ns for ns, _ in drv.torques] == [0, 10_000_000, 20_000_000]
+    for _, tq in drv.torques:
+        assert np.all(np.isfinite(tq)) and np.all(np.abs(tq) <= 0.5)
+    assert node.steps == 3 and node.rejected == 0
+    drv.spin_until(lambda: len(drv.diags) == 3, "diagnostics")
+    assert drv.diags[0]["status"].tolist() == [0.0, 0.0, 0.0]
+    assert drv.diags[0]["rho"][1] == pytest.approx(0.4, abs=1e-12)  # the RPF starts at rho_e0 on the largest axis
+
+
+BAD = {
+    "NaN in the attitude": dict(q=(math.nan, 0.0, 0.0, 1.0)),
+    "Inf in the rate": dict(w=(math.inf, 0.0, 0.0)),
+    "a zero quaternion": dict(q=(0.0, 0.0, 0.0, 0.0)),
+    "a non-unit quaternion": dict(q=(0.0, 0.0, 0.0, 1.1)),
+    "a wrong frame id": dict(frame="body"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_inputs_are_rejected_counted_and_never_reach_the_torque(controller, case) -> None:  # type: ignore[no-untyped-def]
+    node, drv = controller
+    drv.send_sample(0.0, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
+    kwargs = dict(q=Q0)
+    kwargs.update(BAD[case])
+    drv.send_sample(0.01, **kwargs)
+    drv.spin_until(lambda: node.rejected >= 1, "the rejection")
+    drv.send_sample(0.02, q=Q0)  # good inputs again: computed
+    drv.spin_until(lambda: len(drv.torques) == 2, "the next torque")
+    assert drv.torques[1][0] == 20_000_000  # the bad sample produced nothing
+    assert all(np.all(np.isfinite(tq)) for _, tq in drv.torques)
+    drv.spin_until(lambda: len(drv.diags) == 2, "diagnostics")
+    assert drv.diags[1]["status"][0] == node.rejected >= 1  # counted in diagnostics
+
+
+def test_stamps_in_the_past_or_far_future_are_rejected(controller) -> None:  # type: ignore[no-untyped-def]
+    node, drv = controller
+    drv.send_sample(1.0, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
+    drv.send_sample(0.5, q=Q0)  # in the past: 5 inputs rejected
+    drv.spin_until(lambda: node.rejected >= 5, "past stamps rejected")
+    drv.pub[c.STATE_ATTITUDE.name].publish(quaternion_msg(Q0, 100.0, c.STATE_ATTITUDE))  # 99 s ahead of /clock
+    drv.spin_until(lambda: node.rejected >= 6, "a far-future stamp rejected")
+    assert len(drv.torques) == 1
+
+
+def test_stale_inputs_give_zero_torque_then_control_resumes(controller) -> None:  # type: ignore[no-untyped-def]
+    node, drv = controller
+    drv.send_sample(0.0, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
+    assert np.any(drv.torques[0][1] != 0.0)
+    for t in (0.03, 0.06, 0.09):  # /clock moves on, no state: stale after 0.05 s
+        drv.pub["/clock"].publish(clock_msg(t))
+    drv.spin_until(lambda: node.stale, "the stale flag")
+    drv.spin_until(lambda: any(ns == 60_000_000 for ns, _ in drv.torques), "the zero torque at 0.06 s")
+    zero = [tq for ns, tq in drv.torques if ns >= 60_000_000]
+    assert all(np.all(tq == 0.0) for tq in zero)
+    drv.spin_until(lambda: any(d["status"][1] == 1.0 for d in drv.diags), "stale in diagnostics")
+    drv.send_sample(0.10, q=Q0)
+    drv.spin_until(lambda: drv.torques[-1][0] == 100_000_000, "control resumed")
+    assert not node.stale and np.any(drv.torques[-1][1] != 0.0)
+
+
+def test_runtime_gain_changes_are_validated_and_applied_whole(controller) -> None:  # type: ignore[no-untyped-def]
+    node, _ = controller
+    ok = node.set_parameters([Parameter("sappc.gains.K_q", value=0.25), Parameter("actuator.max_torque_Nm", value=0.4)])
+    assert all(r.successful for r in ok)
+    assert node.controller.gains.K_q == 0.25 and node.controller.actuator.config.max_torque_Nm == 0.4
+    bad = node.set_parameters_atomically([Parameter("sappc.gains.K_q", value=0.5), Parameter("sappc.gains.K_omega", value=-1.0)])
+    assert not bad.successful and "K_omega" in bad.reason
+    assert node.controller.gains.K_q == 0.25  # nothing of the rejected change was applied
+    fixed = node.set_parameters([Parameter("sappc.rpf.l", value=0.3)])[0]
+    assert not fixed.successful and "sappc.rpf.l" in fixed.reason
+    assert node.controller.config.rpf.l == 0.49
+
+
+def test_plant_lockstep_waits_for_the_torque_of_each_sample(ros_context) -> None:  # type: ignore[no-untyped-def]
+    from spacecraft_sim.core.dynamics import RigidBody, initial_state
+    from spacecraft_sim.plant_node import PlantNode
+
+    plant = PlantNode(context=ros_context, parameter_overrides=[Parameter("duration_s", value=0.03), Parameter("q_BN0", value=list(Q0))])
+    node = Node("torquer", context=ros_context)
+    qos = c.qos_profile()
+    pub = node.create_publisher(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, qos)
+    states: list[tuple[int, np.ndarray]] = []
+    node.create_subscription(c.STATE_ATTITUDE.msg_class, c.STATE_ATTITUDE.name, lambda m: states.append((stamp_to_ns(m.header.stamp), quaternion_from_msg(m, c.STATE_ATTITUDE))), qos)
+    node.create_subscription(c.STATE_RATE.msg_class, c.STATE_RATE.name, lambda m: None, qos)  # the plant waits for a subscriber on both
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(plant)
+    ex.add_node(node)
+    deadline = time.monotonic() + DEADLINE_S
+    answered = 0
+    torque = np.array([0.1, -0.2, 0.05])
+    while not plant.finished:
+        assert time.monotonic() < deadline, "the plant did not finish"
+        ex.spin_once(timeout_sec=0.02)
+        if len(states) > answered:  # answer each published sample with its torque
+            pub.publish(torque_msg(torque, states[answered][0] / 1e9))
+            answered += 1
+    assert [ns for ns, _ in states] == [0, 10_000_000, 20_000_000, 30_000_000]
+    body = RigidBody(np.diag([4.0, 4.0, 4.0]))
+    x = initial_state(np.array([Q0]), np.zeros((1, 3)))
+    for k in range(3):
+        x = body.propagate(x, torque[None], 0.01)
+        np.testing.assert_array_equal(states[k + 1][1], x[0, :4])  # the plant core, bit for bit
+    ex.shutdown()
+    plant.destroy_node()
+    node.destroy_node()
+
+
+def test_injector_relays_actuator_and_sensor_faults(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from spacecraft_sim.disturbance import InjectorNode
+
+    schedule = tmp_path / "faults.yaml"
+    schedule.write_text(
+        "disturbances:\n  - {kind: constant, torque_Nm: [0.01, 0.0, 0.0]}\n"
+        "faults:\n  - {kind: actuator_effectiveness, effectiveness: [0.5, 1.0, 1.0], start_s: 0.0}\n"
+        "  - {kind: sensor_dropout, start_s: 0.015, end_s: 0.025}\n"
+    )
+    inj = InjectorNode(context=ros_context, parameter_overrides=[Parameter("schedule_file", value=str(schedule))])
+    node = Node("probe", context=ros_context)
+    qos = c.qos_profile()
+    pubs = {t.name: node.create_publisher(t.msg_class, t.name, qos) for t in (c.CONTROL_TORQUE, c.STATE_ATTITUDE, c.STATE_RATE, c.CLOCK)}
+    got: dict[str, list] = {"d": [], "tq": [], "att": []}
+    node.create_subscription(c.DISTURBANCE_TORQUE.msg_class, c.DISTURBANCE_TORQUE.name, lambda m: got["d"].append(torque_from_msg(m, c.DISTURBANCE_TORQUE)), qos)
+    node.create_subscription(c.CONTROL_TORQUE.msg_class, "fault/control/torque", lambda m: got["tq"].append(torque_from_msg(m)), qos)
+    node.create_subscription(c.STATE_ATTITUDE.msg_class, "fault/state/attitude", lambda m: got["att"].append(stamp_to_ns(m.header.stamp)), qos)
+    node.create_subscription(c.STATE_RATE.msg_class, "fault/state/rate", lambda m: None, qos)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(inj)
+    ex.add_node(node)
+    deadline = time.monotonic() + DEADLINE_S
+    while not all(p.get_subscription_count() >= 1 for p in pubs.values()) or len(got) < 3:
+        assert time.monotonic() < deadline
+        ex.spin_once(timeout_sec=0.02)
+    pubs["/clock"].publish(clock_msg(0.0))
+    pubs[c.CONTROL_TORQUE.name].publish(torque_msg([0.2, 0.2, 0.2], 0.0))
+    for k in range(4):
+        pubs[c.STATE_ATTITUDE.name].publish(quaternion_msg(Q0, k * 0.01, c.STATE_ATTITUDE))
+        pubs[c.STATE_RATE.name].publish(vector3_msg([0.0, 0.0, 0.0], k * 0.01, c.STATE_RATE))
+    while len(got["d"]) < 2 or len(got["tq"]) < 1 or len(got["att"]) < 3:
+        assert time.monotonic() < deadline, got
+        ex.spin_once(timeout_sec=0.02)
+    np.testing.assert_array_equal(got["d"][0], [0.01, 0.0, 0.0])  # sample 0, then sample 1 ahead
+    np.testing.assert_array_equal(got["tq"][0], [0.1, 0.2, 0.2])  # 50 % effectiveness on x
+    assert got["att"] == [0, 10_000_000, 30_000_000]  # the sample at 0.02 s dropped
+    ex.shutdown()
+    inj.destroy_node()
+    node.destroy_node()
