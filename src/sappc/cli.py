@@ -4,6 +4,7 @@
     sappc simulate --from-campaign DIR --run K [--json FILE] [--plots DIR]
     sappc montecarlo SCENARIO.yaml --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
     sappc run SCENARIO.yaml [--out DIR] [--realtime] [--controller K] [--json FILE] [--domain-id N]
+    sappc params SCENARIO.yaml [--controller K]
 
 Errors in the input (bad scenario, infeasible parameters, bad values) print
 one line naming the problem and exit with status 2; no traceback.
@@ -155,6 +156,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0 if not mismatched else 1
 
 
+def _cmd_params(args: argparse.Namespace) -> int:
+    from .graph import controller_params_yaml
+
+    print(controller_params_yaml(load_scenario(args.scenario), args.controller), end="")
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -188,6 +196,10 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON")
     run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: the first free one, claimed with a lock file)")
     run.set_defaults(func=_cmd_run)
+    par = sub.add_parser("params", help="print the ROS parameters file of python -m sappc_controller for a scenario")
+    par.add_argument("scenario")
+    par.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None)
+    par.set_defaults(func=_cmd_params)
     return parser
 
 

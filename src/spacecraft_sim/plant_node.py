@@ -20,7 +20,7 @@ Modes (parameter ``mode``):
     A wall-clock timer of period ``dt`` integrates with the latest torque and disturbance
     (zero-order hold) and publishes the state stamped with the node's clock.  No ``/clock``.
 
-Torques are clipped to ``max_torque_Nm`` per axis (the actuator cannot do more whatever it is
+Control torques are clipped to ``max_torque_Nm`` per axis (the actuator cannot do more whatever it is
 commanded); a torque message that is non-finite or in the wrong frame is rejected, counted and
 logged, and the previous value is held.
 
@@ -115,7 +115,10 @@ class PlantNode(ProjectNode):
     # ---- inputs ---------------------------------------------------------------------------
     def _decode(self, msg: Any, topic: Any) -> np.ndarray | None:
         try:
-            return np.minimum(np.maximum(torque_from_msg(msg, topic), -self.max_torque), self.max_torque).reshape(1, 3)
+            torque = torque_from_msg(msg, topic).reshape(1, 3)
+            if topic is CONTROL_TORQUE:  # the actuator's limit; an external disturbance has none
+                torque = np.minimum(np.maximum(torque, -self.max_torque), self.max_torque)
+            return torque
         except InputError as exc:
             self.rejected += 1
             self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
