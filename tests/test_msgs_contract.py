@@ -138,4 +138,15 @@ def test_every_topic_has_a_message_class_and_the_shared_qos() -> None:
     for topic in c.TOPICS:
         assert topic.msg_class.__name__ == topic.type_name.split("/")[-1]
     qos = c.qos_profile()
-    assert qos.reliability == ReliabilityPolicy.RELIABLE and qos.durability == DurabilityPolicy.VOLATILE and qos.depth == 10
+    assert qos.reliability == ReliabilityPolicy.RELIABLE and qos.durability == DurabilityPolicy.VOLATILE and qos.depth == c.QOS_DEPTH == 1000
+
+
+def test_fault_relay_topics_keep_type_and_frame_and_stamps_copy_exactly() -> None:
+    relay = c.faulty(c.STATE_ATTITUDE)
+    assert relay.name == "fault/state/attitude" and relay.type_name == c.STATE_ATTITUDE.type_name and relay.frame_id == "inertial"
+    wall = time_to_stamp(1_795_350_022.171357654)  # a float of seconds loses ~0.2 us at this size...
+    exact = time_to_stamp(type("S", (), {"sec": 1_795_350_022, "nanosec": 171_357_654})())  # ...a stamp does not
+    assert (exact.sec, exact.nanosec) == (1_795_350_022, 171_357_654)
+    assert abs(stamp_to_ns(wall) - stamp_to_ns(exact)) < 1_000
+    msg = torque_msg([0.1, 0.2, 0.3], exact, c.faulty(c.CONTROL_TORQUE))
+    assert stamp_to_ns(msg.header.stamp) == 1_795_350_022_171_357_654 and msg.header.frame_id == "body"

@@ -124,6 +124,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         **common,
         "expected_subscribers": expected(control__torque=2, controller__diagnostics=1),
         "counts_file": counts_file("controller"),
+        "timing_file": str(Path(paths["counts"]).parent / "logs" / "controller_timing.json"),
     }
     plant = {
         "inertia_kg_m2": scenario.inertia_kg_m2.ravel().tolist(),
@@ -198,7 +199,7 @@ class GraphResult:
     startup_s: float
     run_s: float
     exit_codes: dict[str, int]
-    metrics: dict[str, Any] = field(default_factory=dict)
+    controller_timing: dict[str, Any] = field(default_factory=dict)
 
     @property
     def counts_match(self) -> bool:
@@ -333,4 +334,5 @@ def run_graph(
         startup_s=total - run_s,
         run_s=run_s,
         exit_codes=exit_codes,
+        controller_timing=json.loads(ctrl_timing.read_text()) if (ctrl_timing := run_dir / "logs" / "controller_timing.json").exists() else {},
     )

@@ -36,7 +36,10 @@ within the actuator limits (the core refuses a non-finite torque; the node then 
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
+import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -94,7 +97,6 @@ class ControllerNode(ProjectNode):
         for name, default in config_parameter_names(self.kind):
             descriptor = ParameterDescriptor(dynamic_typing=True)
             self.declare_parameter(name, None if default is dataclasses.MISSING else default, descriptor)
-        self._check_unknown_overrides()
         config = config_from_parameters(self.kind, self._config_values())
         self.controller: AttitudeController = _CONTROLLERS[self.kind](config)
         self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01, ParameterDescriptor(read_only=True)))
@@ -122,6 +124,9 @@ class ControllerNode(ProjectNode):
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
         else:
             self.create_timer(self.dt, self._on_timer)
+        self.timing_file = str(self.param("timing_file", ""))
+        self._tick_wall_ns: list[int] = []  # real time: wall time of every timer tick
+        self._check_unknown_overrides()  # after every declaration
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(f"{self.kind} controller ready ({self.mode}, dt = {self.dt} s)")
 
@@ -134,7 +139,7 @@ class ControllerNode(ProjectNode):
     def _check_unknown_overrides(self) -> None:
         """Reject overrides this node does not know (a typo would otherwise be ignored)."""
         overrides = getattr(self, "_parameter_overrides", {})
-        known = set(self._parameters) | {"controller", "control_period_s", "mode", "stale_timeout_s", "max_stamp_ahead_s"}
+        known = set(self._parameters)
         other_kinds = tuple(f"{k}." for k in _CONTROLLERS if k != self.kind)
         for name in sorted(overrides):
             if name not in known and not name.startswith(other_kinds):
@@ -204,6 +209,7 @@ class ControllerNode(ProjectNode):
             self._publish_zero(self._clock_ns, "no valid state")
 
     def _on_timer(self) -> None:
+        self._tick_wall_ns.append(time.monotonic_ns())
         now = self.get_clock().now().nanoseconds
         latest = self._latest
         if not all(t.name in latest for t in _INPUTS):
@@ -247,9 +253,27 @@ class ControllerNode(ProjectNode):
         rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(self.stale), 0.0])
         self.pub_diag.publish(diagnostics_msg(t, rows))
 
+    def timer_statistics(self) -> dict[str, Any]:
+        """Real time: the timer's period error (|interval - dt|) and missed ticks (intervals
+        longer than 1.5 dt)."""
+        ticks = np.asarray(self._tick_wall_ns, dtype=np.float64) / 1e9
+        if ticks.size < 2:
+            return {"ticks": int(ticks.size)}
+        err = np.abs(np.diff(ticks) - self.dt)
+        return {
+            "ticks": int(ticks.size),
+            "period_error_p50_ms": float(np.percentile(err, 50) * 1e3),
+            "period_error_p99_ms": float(np.percentile(err, 99) * 1e3),
+            "period_error_max_ms": float(err.max() * 1e3),
+            "missed_ticks": int(np.sum(np.diff(ticks) > 1.5 * self.dt)),
+        }
+
     def finish(self) -> None:
         self.get_logger().info(f"finished: {self.steps} control steps, {self.rejected} rejected messages")
         super().finish()
+        if self.timing_file:
+            stats = {"steps": self.steps, "rejected": self.rejected, **(self.timer_statistics() if self.mode == REALTIME else {})}
+            Path(self.timing_file).write_text(json.dumps(stats))
 
 
 def _stamp(t_ns: int) -> Any:

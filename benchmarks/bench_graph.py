@@ -1,0 +1,69 @@
+"""Benchmark of the ROS 2 node graph (issue: node graph, "Done means").
+
+Runs experiment 1 (``config/scenarios/paper_tracking.yaml``, 60 s at 100 Hz) through ``sappc run``
+(five processes, recorder included) and prints one JSON document:
+
+- lockstep: the wall time from the plant's first sample to its last (``run_s``, target <= 6 s,
+  i.e. 10x faster than real time) and the start-up time (process start, imports, discovery and
+  matching; reported separately), median of ``--repeats`` runs, and the bag's message count;
+- real time (``--realtime``): the controller timer's period error |interval - 10 ms| (p50, p99,
+  max; target p99 <= 0.5 ms) and missed ticks (intervals > 15 ms; target 0) over the 60 s run.
+
+    python benchmarks/bench_graph.py [--repeats 3] [--realtime] [--no-lockstep]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from sappc.graph import run_graph  # noqa: E402
+
+SCENARIO = ROOT / "config" / "scenarios" / "paper_tracking.yaml"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--realtime", action="store_true", help="also run once in real time (60 s)")
+    parser.add_argument("--no-lockstep", action="store_true")
+    args = parser.parse_args()
+    out: dict[str, object] = {
+        "machine": {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count()},
+        "scenario": str(SCENARIO.relative_to(ROOT)),
+    }
+    with tempfile.TemporaryDirectory() as tmp:
+        if not args.no_lockstep:
+            runs = [run_graph(SCENARIO, out_dir=Path(tmp) / f"lockstep{i}", progress=False) for i in range(args.repeats)]
+            out["lockstep"] = {
+                "run_s": [r.run_s for r in runs],
+                "run_s_median": statistics.median(r.run_s for r in runs),
+                "startup_s_median": statistics.median(r.startup_s for r in runs),
+                "speed_vs_real_time": 60.0 / statistics.median(r.run_s for r in runs),
+                "messages_recorded": sum(runs[0].recorded.values()),
+                "counts_match": all(r.counts_match for r in runs),
+                "target_run_s": 6.0,
+            }
+        if args.realtime:
+            r = run_graph(SCENARIO, out_dir=Path(tmp) / "realtime", realtime=True, progress=False)
+            out["realtime"] = {
+                **r.controller_timing,
+                "run_s": r.run_s,
+                "counts_match": r.counts_match,
+                "target_period_error_p99_ms": 0.5,
+                "target_missed_ticks": 0,
+            }
+    print(json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()
