@@ -84,8 +84,7 @@ class ReferenceNode(ProjectNode):
             self._t0_ns = now.nanoseconds
         k = int((now.nanoseconds - self._t0_ns) / 1e9 / self.dt + 0.5)
         if k >= self.samples.t.size:
-            self.finished = True
-            return
+            return  # past the grid: nothing more to publish (the node stays up until stopped)
         self._publish(k, now.to_msg())
 
 
