@@ -61,12 +61,13 @@ class Bag:
     path: Path
     series: dict[str, Series]
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
-    counts: dict[str, int] = field(default_factory=dict)
     truncated: str | None = None  # why reading stopped early, None when the file is whole
     diagnostics_labels: tuple[str, ...] = ()
 
-    def has(self, topic: str) -> bool:
-        return topic in self.series and self.series[topic].stamps_ns.size > 0
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages read per topic."""
+        return {t: s.stamps_ns.size for t, s in self.series.items()}
 
 
 def _mcap_file(path: Path) -> Path:
@@ -193,7 +194,6 @@ def read_bag(path: str | Path) -> Bag:
         path=p,
         series=series,
         metadata=metadata,
-        counts={t: s.stamps_ns.size for t, s in series.items()},
         truncated=truncated,
         diagnostics_labels=tuple(labels.split(",")) if labels else (),
     )

@@ -122,6 +122,8 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from spacecraft_sim.core.faults import FaultSchedule
+
     from .bag import bag_metrics, read_bag
     from .graph import run_graph
 
@@ -135,11 +137,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     bag = read_bag(result.bag_dir)
     ms = scenario.metrics
     metrics = bag_metrics(bag, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold, t2_s=ms.t2_s,
-                          fault_windows=scenario.disturbance.events() + [e for f in scenario.faults for e in f.events()])
+                          fault_windows=scenario.disturbance.events() + FaultSchedule(scenario.faults).events())
     metrics["wall_time_s"] = result.run_s
     metrics["startup_s"] = result.startup_s
     _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph", metrics)
-    mismatched = {t: (n, result.recorded.get(t, 0)) for t, n in result.published.items() if result.recorded.get(t, 0) != n}
+    mismatched = result.mismatched_counts()
     print(f"bag {result.bag_dir}: {sum(result.recorded.values())} messages on {sum(1 for n in result.recorded.values() if n)} topics; "
           + ("every topic's count matches what was published" if not mismatched else f"COUNT MISMATCH (published, recorded): {mismatched}"))
     if args.json:

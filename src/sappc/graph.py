@@ -34,7 +34,7 @@ from typing import Any
 import yaml
 
 from sappc_controller.params import parameters_from_config, unflatten
-from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
+from spacecraft_sim.core.faults import FaultSchedule
 from spacecraft_sim.core.validation import ConfigError
 
 from .scenario import ControllerKind, Scenario, load_scenario
@@ -107,7 +107,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     output) and ``counts`` (the directory of the counts files).
     """
     mode = "realtime" if realtime else "lockstep"
-    faults = FaultSchedule(faults_from_list(scenario.raw.get("faults")))
+    faults = FaultSchedule(scenario.faults)
     sensor, actuator = faults.has_sensor_faults, faults.has_actuator_faults
     lockstep = not realtime
     common = {"control_period_s": scenario.control_period_s, "mode": mode}
@@ -179,7 +179,7 @@ def controller_params_yaml(scenario: Scenario, kind: ControllerKind | str | None
 
 
 def _remaps(scenario: Scenario) -> dict[str, list[str]]:
-    faults = FaultSchedule(faults_from_list(scenario.raw.get("faults")))
+    faults = FaultSchedule(scenario.faults)
     remaps: dict[str, list[str]] = {n: [] for n in NODES}
     if faults.has_sensor_faults:
         remaps["controller"] += ["-r", "state/attitude:=fault/state/attitude", "-r", "state/rate:=fault/state/rate"]
@@ -201,9 +201,13 @@ class GraphResult:
     exit_codes: dict[str, int]
     controller_timing: dict[str, Any] = field(default_factory=dict)
 
+    def mismatched_counts(self) -> dict[str, tuple[int, int]]:
+        """Topics whose recorded count differs from the published one: (published, recorded)."""
+        return {t: (n, self.recorded.get(t, 0)) for t, n in self.published.items() if self.recorded.get(t, 0) != n}
+
     @property
     def counts_match(self) -> bool:
-        return all(self.recorded.get(topic, 0) == n for topic, n in self.published.items())
+        return not self.mismatched_counts()
 
 
 class _Process:

@@ -58,12 +58,13 @@ from sappc_msgs_py.contract import (
 )
 from sappc_msgs_py.convert import (
     diagnostics_msg,
+    ns_to_stamp,
     quaternion_from_msg,
     stamp_to_ns,
     torque_msg,
     vector3_from_msg,
 )
-from sappc_msgs_py.runtime import ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, REALTIME, ProjectNode, run_node
 from spacecraft_sim.core.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 
 from .core.base import AttitudeController
@@ -74,8 +75,6 @@ from .params import config_from_parameters, config_parameter_names
 
 __all__ = ["ControllerNode", "main"]
 
-LOCKSTEP = "lockstep"
-REALTIME = "realtime"
 _CONTROLLERS = {"sappc": SappcController, "trappc": TrappcController, "blfppc": BlfppcController}
 
 #: The five inputs of one control step, by topic.
@@ -100,9 +99,7 @@ class ControllerNode(ProjectNode):
         config = config_from_parameters(self.kind, self._config_values())
         self.controller: AttitudeController = _CONTROLLERS[self.kind](config)
         self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01, ParameterDescriptor(read_only=True)))
-        self.mode = str(self.param("mode", LOCKSTEP, ParameterDescriptor(read_only=True)))
-        if self.mode not in (LOCKSTEP, REALTIME):
-            raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {self.mode!r}")
+        self.mode = self.mode_param(ParameterDescriptor(read_only=True))
         self.stale_timeout_ns = int(check_positive("stale_timeout_s", self.param("stale_timeout_s", 0.1)) * _NS)
         self.max_ahead_ns = int(check_positive("max_stamp_ahead_s", self.param("max_stamp_ahead_s", 1.0)) * _NS)
 
@@ -247,7 +244,7 @@ class ControllerNode(ProjectNode):
 
     def _publish(self, t_ns: int, torque: np.ndarray, torque_cmd: np.ndarray, saturated: np.ndarray) -> None:
         t = t_ns / _NS
-        stamp = _stamp(t_ns)
+        stamp = ns_to_stamp(t_ns)
         self.pub_torque.publish(torque_msg(torque, stamp, CONTROL_TORQUE))
         rows = dict(self._diag_rows)
         rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(self.stale), 0.0])
@@ -274,12 +271,6 @@ class ControllerNode(ProjectNode):
         if self.timing_file:
             stats = {"steps": self.steps, "rejected": self.rejected, **(self.timer_statistics() if self.mode == REALTIME else {})}
             Path(self.timing_file).write_text(json.dumps(stats))
-
-
-def _stamp(t_ns: int) -> Any:
-    from builtin_interfaces.msg import Time
-
-    return Time(sec=t_ns // _NS, nanosec=t_ns % _NS)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -30,6 +30,7 @@ __all__ = [
     "clock_msg",
     "diagnostics_from_msg",
     "diagnostics_msg",
+    "ns_to_stamp",
     "quaternion_from_msg",
     "quaternion_msg",
     "stamp_to_ns",
@@ -75,6 +76,11 @@ def time_to_stamp(t_s: Any) -> Any:
         raise InputError(f"t_s must be >= 0 for a ROS stamp, got {t_s!r}")
     ns = round(t * _NS_PER_S)
     return Time(sec=ns // _NS_PER_S, nanosec=ns % _NS_PER_S)
+
+
+def ns_to_stamp(ns: int) -> Any:
+    """``builtin_interfaces/Time`` of integer nanoseconds (exact)."""
+    return _time_class()(sec=ns // _NS_PER_S, nanosec=ns % _NS_PER_S)
 
 
 def stamp_to_ns(stamp: Any) -> int:

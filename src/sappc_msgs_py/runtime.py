@@ -33,6 +33,8 @@ from spacecraft_sim.core.validation import ConfigError
 
 __all__ = [
     "ACK_TIMEOUT_S",
+    "LOCKSTEP",
+    "REALTIME",
     "CountingPublisher",
     "MATCH_TIMEOUT_S",
     "ProjectNode",
@@ -40,6 +42,11 @@ __all__ = [
     "parse_expected",
     "run_node",
 ]
+
+#: Timing modes of every node (see README "The ROS 2 node graph"): the plant owns time and the
+#: others follow its stamped samples, or every node runs on wall-clock timers.
+LOCKSTEP = "lockstep"
+REALTIME = "realtime"
 
 #: Longest blocking wait of the spin loop [s]: bounds the reaction time to a signal.
 SPIN_TIMEOUT_S = 0.05
@@ -71,7 +78,6 @@ class CountingPublisher:
         self.min_subscribers = min_subscribers
         self.count = 0
         self._ready = min_subscribers == 0
-        self._node = node
 
     @property
     def resolved_name(self) -> str:
@@ -133,6 +139,13 @@ class ProjectNode(Node):  # type: ignore[misc]
         if descriptor is None:
             return self.declare_parameter(name, default).value
         return self.declare_parameter(name, default, descriptor).value
+
+    def mode_param(self, descriptor: Any = None) -> str:
+        """Declare ``mode`` (:data:`LOCKSTEP` by default, or :data:`REALTIME`) and return it, checked."""
+        mode = str(self.param("mode", LOCKSTEP, descriptor))
+        if mode not in (LOCKSTEP, REALTIME):
+            raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {mode!r}")
+        return mode
 
     def counting_publisher(self, topic: Any, default_min_subscribers: int = 0) -> CountingPublisher:
         from .contract import qos_profile

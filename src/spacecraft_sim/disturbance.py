@@ -47,12 +47,11 @@ from sappc_msgs_py.convert import (
     vector3_from_msg,
     vector3_msg,
 )
-from sappc_msgs_py.runtime import ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, ProjectNode, run_node
 
 from .core.disturbance import DisturbanceSum, disturbances_from_list
 from .core.faults import FaultSchedule, faults_from_list
 from .core.validation import ConfigError, InputError, check_positive
-from .plant_node import LOCKSTEP, REALTIME
 
 __all__ = ["InjectorNode", "load_schedule", "main"]
 
@@ -78,9 +77,7 @@ class InjectorNode(ProjectNode):
     def __init__(self, node_name: str = "injector", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.disturbance, self.faults = load_schedule(str(self.param("schedule_file", "")))
-        self.mode = str(self.param("mode", LOCKSTEP))
-        if self.mode not in (LOCKSTEP, REALTIME):
-            raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {self.mode!r}")
+        self.mode = self.mode_param()
         self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
         duration = check_positive("duration_s", self.param("duration_s", 0.0), allow_zero=True)
         self.last_k = int(round(duration / self.dt)) if duration > 0 else None  # the grid's last sample

@@ -43,15 +43,13 @@ import numpy as np
 
 from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, qos_profile
 from sappc_msgs_py.convert import clock_msg, quaternion_msg, stamp_to_ns, time_to_stamp, torque_from_msg, vector3_msg
-from sappc_msgs_py.runtime import ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, REALTIME, ProjectNode, run_node
 
 from .core.dynamics import RigidBody, initial_state
 from .core.validation import ConfigError, InputError, as_finite_array, check_positive
 
-__all__ = ["LOCKSTEP", "PlantNode", "REALTIME", "main"]
+__all__ = ["PlantNode", "main"]
 
-LOCKSTEP = "lockstep"
-REALTIME = "realtime"
 
 
 class PlantNode(ProjectNode):
@@ -75,9 +73,7 @@ class PlantNode(ProjectNode):
         if self.substeps < 1:
             raise ConfigError(f"rk4_substeps must be >= 1, got {self.substeps}")
         self.max_torque = check_positive("max_torque_Nm", self.param("max_torque_Nm", 0.5))  # the paper's actuator
-        self.mode = str(self.param("mode", LOCKSTEP))
-        if self.mode not in (LOCKSTEP, REALTIME):
-            raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {self.mode!r}")
+        self.mode = self.mode_param()
         if self.mode == LOCKSTEP and duration == 0.0:
             raise ConfigError("duration_s must be > 0 in lockstep mode")
         self.timeout_s = check_positive("lockstep_timeout_s", self.param("lockstep_timeout_s", 2.0))

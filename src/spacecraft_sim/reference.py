@@ -22,15 +22,13 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-import numpy as np
 
 from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, qos_profile
 from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, vector3_msg
-from sappc_msgs_py.runtime import ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, ProjectNode, run_node
 
 from .core.reference import PaperReference, sample_times
-from .core.validation import ConfigError, check_positive
-from .plant_node import LOCKSTEP, REALTIME
+from .core.validation import check_positive
 
 __all__ = ["ReferenceNode", "main"]
 
@@ -47,9 +45,7 @@ class ReferenceNode(ProjectNode):
         )
         self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
         duration = check_positive("duration_s", self.param("duration_s", 60.0))
-        self.mode = str(self.param("mode", LOCKSTEP))
-        if self.mode not in (LOCKSTEP, REALTIME):
-            raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {self.mode!r}")
+        self.mode = self.mode_param()
         self.samples = ref.sample(sample_times(duration, self.dt))
         # stamp (ns) of each grid sample -> index, for exact matching of /clock ticks
         self._stamps = [time_to_stamp(float(t)) for t in self.samples.t]

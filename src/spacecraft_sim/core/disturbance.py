@@ -23,7 +23,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .validation import ConfigError, as_finite_array, check_positive, from_mapping
+from .validation import ConfigError, as_finite_array, check_positive, from_kind_list
 
 __all__ = [
     "ConstantTorque",
@@ -220,17 +220,4 @@ DISTURBANCE_KINDS: dict[str, type] = {
 def disturbances_from_list(entries: object, prefix: str = "disturbances") -> DisturbanceSum:
     """Build the sum of the models listed as ``[{kind: ..., <fields>}, ...]`` (a scenario's
     ``disturbances:`` section), raising :class:`ConfigError` naming the entry and key."""
-    if entries is None:
-        return DisturbanceSum(())
-    if not isinstance(entries, list):
-        raise ConfigError(f"{prefix} must be a list, got {entries!r}")
-    models = []
-    for i, entry in enumerate(entries):
-        where = f"{prefix}[{i}]"
-        if not isinstance(entry, dict) or "kind" not in entry:
-            raise ConfigError(f"{where} must be a mapping with a 'kind' key, got {entry!r}")
-        kind = entry["kind"]
-        if kind not in DISTURBANCE_KINDS:
-            raise ConfigError(f"{where}.kind = {kind!r} is unknown; expected one of {sorted(DISTURBANCE_KINDS)}")
-        models.append(from_mapping(DISTURBANCE_KINDS[kind], {k: v for k, v in entry.items() if k != "kind"}, where))
-    return DisturbanceSum(tuple(models))
+    return DisturbanceSum(from_kind_list(entries, DISTURBANCE_KINDS, prefix))

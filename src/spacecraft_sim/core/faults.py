@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from .attitude import quat_multiply, quat_normalize
 from .disturbance import TIME_TOLERANCE_S
-from .validation import ConfigError, as_finite_array, check_positive, from_mapping
+from .validation import ConfigError, as_finite_array, check_positive, from_kind_list
 
 __all__ = ["FAULT_KINDS", "FaultSchedule", "faults_from_list"]
 
@@ -175,23 +175,7 @@ _SENSOR = (SensorNoise, SensorBias, SensorDropout, SensorFreeze)
 
 def faults_from_list(entries: object, prefix: str = "faults") -> tuple[Any, ...]:
     """Validate a ``faults:`` list (see the module docstring); errors name the entry and key."""
-    if entries is None:
-        return ()
-    if not isinstance(entries, list):
-        raise ConfigError(f"{prefix} must be a list, got {entries!r}")
-    out = []
-    for i, entry in enumerate(entries):
-        where = f"{prefix}[{i}]"
-        if not isinstance(entry, dict) or "kind" not in entry:
-            raise ConfigError(f"{where} must be a mapping with a 'kind' key, got {entry!r}")
-        if entry["kind"] not in FAULT_KINDS:
-            raise ConfigError(f"{where}.kind = {entry['kind']!r} is unknown; expected one of {sorted(FAULT_KINDS)}")
-        try:
-            out.append(from_mapping(FAULT_KINDS[entry["kind"]], {k: v for k, v in entry.items() if k != "kind"}, where))
-        except ConfigError as exc:
-            msg = str(exc)
-            raise ConfigError(msg if msg.startswith(("unknown key", "missing key")) else f"{where}: {msg}") from None
-    return tuple(out)
+    return from_kind_list(entries, FAULT_KINDS, prefix)
 
 
 def _small_rotation(rotvec: Array) -> Array:

@@ -20,6 +20,7 @@ __all__ = [
     "check_positive",
     "check_spd_inertia",
     "check_unit_quaternion",
+    "from_kind_list",
     "from_mapping",
 ]
 
@@ -198,3 +199,32 @@ def _freeze(value: Any) -> Any:
     if isinstance(value, list):
         return tuple(_freeze(v) for v in value)
     return value
+
+
+def from_kind_list(entries: Any, kinds: dict[str, type], prefix: str) -> tuple[Any, ...]:
+    """Build ``[{kind: ..., <fields>}, ...]`` (a scenario's ``disturbances:`` or ``faults:``) with
+    :func:`from_mapping`, one dataclass of ``kinds[kind]`` per entry; ``None`` is an empty list.
+
+    Raises
+    ------
+    ConfigError
+        Naming the entry (``faults[2]``) and, where it applies, the key.
+    """
+    if entries is None:
+        return ()
+    if not isinstance(entries, list):
+        raise ConfigError(f"{prefix} must be a list, got {entries!r}")
+    out = []
+    for i, entry in enumerate(entries):
+        where = f"{prefix}[{i}]"
+        if not isinstance(entry, dict) or "kind" not in entry:
+            raise ConfigError(f"{where} must be a mapping with a 'kind' key, got {entry!r}")
+        kind = entry["kind"]
+        if kind not in kinds:
+            raise ConfigError(f"{where}.kind = {kind!r} is unknown; expected one of {sorted(kinds)}")
+        try:
+            out.append(from_mapping(kinds[kind], {k: v for k, v in entry.items() if k != "kind"}, where))
+        except ConfigError as exc:  # a field's own check does not know which entry it is in
+            msg = str(exc)
+            raise ConfigError(msg if msg.startswith(("unknown key", "missing key")) else f"{where}: {msg}") from None
+    return tuple(out)
