@@ -13,7 +13,6 @@ latest at or before it (zero-order hold, as the plant applies them).
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,7 +21,6 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from sappc_controller.core.base import ControlOutput
 from sappc_msgs_py.contract import (
     CONTROL_TORQUE,
     CONTROLLER_DIAGNOSTICS,
@@ -35,6 +33,9 @@ from sappc_msgs_py.contract import (
 from spacecraft_sim.core.attitude import error_quaternion, quat_normalize
 from spacecraft_sim.core.validation import ConfigError
 
+from .cdr import decode
+from .closed_loop import History
+from .mcap_scan import Scan, scan_mcap
 from .metrics import MetricsAccumulator
 
 __all__ = ["Bag", "BagError", "read_bag", "bag_metrics"]
@@ -52,6 +53,7 @@ class Series:
 
     stamps_ns: NDArray[np.int64]
     values: Array
+    log_time_ns: NDArray[np.int64]  # when the recorder received each message
 
 
 @dataclass
@@ -63,6 +65,8 @@ class Bag:
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     truncated: str | None = None  # why reading stopped early, None when the file is whole
     diagnostics_labels: tuple[str, ...] = ()
+    undecodable: dict[str, int] = field(default_factory=dict)  # topic -> messages not fitting its type
+    frame_ids: dict[str, tuple[str, ...]] = field(default_factory=dict)  # topic -> header frame ids seen
 
     @property
     def counts(self) -> dict[str, int]:
@@ -70,7 +74,8 @@ class Bag:
         return {t: s.stamps_ns.size for t, s in self.series.items()}
 
 
-def _mcap_file(path: Path) -> Path:
+def mcap_file(path: Path) -> Path:
+    """The MCAP file of a bag: ``path`` itself, or the one a rosbag2 directory lists."""
     if path.is_file():
         return path
     if not path.is_dir():
@@ -82,6 +87,8 @@ def _mcap_file(path: Path) -> Path:
             files = [path / f for f in info["relative_file_paths"]]
         except (yaml.YAMLError, KeyError, TypeError) as exc:
             raise BagError(f"{meta}: not a rosbag2 metadata file ({exc})") from None
+        if len(files) > 1:
+            raise BagError(f"{path}: a bag split into {len(files)} files is not supported; give one of them")
         if len(files) == 1 and files[0].exists():
             return files[0]
     found = sorted(path.glob("*.mcap"))
@@ -90,46 +97,15 @@ def _mcap_file(path: Path) -> Path:
     return found[0]
 
 
-def _decoders() -> dict[str, Any]:
-    from geometry_msgs.msg import QuaternionStamped, Vector3Stamped, WrenchStamped
-    from rclpy.serialization import deserialize_message
-    from rosgraph_msgs.msg import Clock
-    from std_msgs.msg import Float64MultiArray
-
-    def stamp(m: Any) -> int:
-        return int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
-
-    def quat(data: bytes) -> tuple[int, list[float]]:
-        m = deserialize_message(data, QuaternionStamped)
-        q = m.quaternion
-        return stamp(m), [q.x, q.y, q.z, q.w]
-
-    def vec(data: bytes) -> tuple[int, list[float]]:
-        m = deserialize_message(data, Vector3Stamped)
-        return stamp(m), [m.vector.x, m.vector.y, m.vector.z]
-
-    def wrench(data: bytes) -> tuple[int, list[float]]:
-        m = deserialize_message(data, WrenchStamped)
-        tq = m.wrench.torque
-        return stamp(m), [tq.x, tq.y, tq.z]
-
-    def clock(data: bytes) -> tuple[int, list[float]]:
-        m = deserialize_message(data, Clock)
-        ns = int(m.clock.sec) * 1_000_000_000 + int(m.clock.nanosec)
-        return ns, [ns / 1e9]
-
-    def multiarray(data: bytes) -> tuple[int, list[float], str]:
-        m = deserialize_message(data, Float64MultiArray)
-        values = list(m.data)
-        return int(round(values[0] * 1e9)) if values else 0, values, m.layout.dim[0].label if m.layout.dim else ""
-
-    return {
-        "geometry_msgs/msg/QuaternionStamped": quat,
-        "geometry_msgs/msg/Vector3Stamped": vec,
-        "geometry_msgs/msg/WrenchStamped": wrench,
-        "rosgraph_msgs/msg/Clock": clock,
-        "std_msgs/msg/Float64MultiArray": multiarray,
-    }
+def scan_bag(path: str | Path) -> Scan:
+    """The raw messages of the bag at ``path`` (see :func:`sappc.mcap_scan.scan_mcap`)."""
+    mcap_path = mcap_file(Path(path))
+    try:
+        return scan_mcap(mcap_path)
+    except ValueError as exc:
+        raise BagError(str(exc)) from None
+    except OSError as exc:
+        raise BagError(f"{mcap_path}: cannot read ({exc.strerror})") from None
 
 
 def read_bag(path: str | Path) -> Bag:
@@ -138,69 +114,35 @@ def read_bag(path: str | Path) -> Bag:
     Raises
     ------
     BagError
-        If ``path`` is not a bag (no MCAP file, not MCAP, no messages at all).
+        If ``path`` is not a bag (no MCAP file, not MCAP, no message of the contract's types).
     """
-    from mcap.exceptions import McapError
-    from mcap.records import Channel, Message, Metadata, Schema
-    from mcap.stream_reader import StreamReader
-
     p = Path(path)
-    mcap_path = _mcap_file(p)
-    decoders = _decoders()
-    stamps: dict[str, list[int]] = {}
-    values: dict[str, list[list[float]]] = {}
-    metadata: dict[str, dict[str, str]] = {}
-    labels = ""
-    truncated: str | None = None
-    with open(mcap_path, "rb") as f:
-        head = f.read(8)
-        if head != b"\x89MCAP0\r\n":
-            raise BagError(f"{mcap_path}: not an MCAP file")
-        f.seek(0)
-        schemas: dict[int, str] = {}
-        channels: dict[int, tuple[str, Any]] = {}
-        n = 0
-        try:  # one sequential pass: survives a missing summary and a torn last chunk
-            for record in StreamReader(f).records:
-                if isinstance(record, Message):
-                    topic, decode = channels.get(record.channel_id, ("", None))
-                    if decode is None:
-                        continue
-                    out = decode(record.data)
-                    stamps.setdefault(topic, []).append(out[0])
-                    values.setdefault(topic, []).append(out[1])
-                    if len(out) == 3 and not labels:
-                        labels = out[2]
-                    n += 1
-                elif isinstance(record, Channel):
-                    channels[record.id] = (record.topic, decoders.get(schemas.get(record.schema_id, "")))
-                elif isinstance(record, Schema):
-                    schemas[record.id] = record.name
-                elif isinstance(record, Metadata):
-                    metadata[record.name] = dict(record.metadata)
-        except (McapError, EOFError, ValueError, struct.error) as exc:
-            truncated = f"{type(exc).__name__}: {exc}"
-    if n == 0:
-        raise BagError(f"{p}: the bag holds no messages of the topic contract" + (f" (reading stopped: {truncated})" if truncated else ""))
-    series = {}
-    for topic, st in stamps.items():
-        vals = values[topic]
-        width = max(len(v) for v in vals)
-        arr = np.full((len(vals), width), np.nan)
-        for i, v in enumerate(vals):
-            arr[i, : len(v)] = v
-        series[topic] = Series(np.asarray(st, dtype=np.int64), arr)
-    return Bag(
-        path=p,
-        series=series,
-        metadata=metadata,
-        truncated=truncated,
-        diagnostics_labels=tuple(labels.split(",")) if labels else (),
-    )
+    scan = scan_bag(p)
+    series: dict[str, Series] = {}
+    labels: tuple[str, ...] = ()
+    undecodable: dict[str, int] = {}
+    frame_ids: dict[str, tuple[str, ...]] = {}
+    for cid, channel in scan.channels.items():
+        start, length, log_time = scan.payloads(cid)
+        if channel.message_encoding != "cdr" or start.size == 0:
+            continue
+        d = decode(channel.schema_name, scan.buffer, start, length)
+        if d is None:
+            continue
+        series[channel.topic] = Series(d.stamps_ns, d.values, log_time[d.index])
+        labels = labels or d.labels
+        frame_ids[channel.topic] = d.frame_ids
+        if d.undecodable:
+            undecodable[channel.topic] = d.undecodable
+    if not any(s.stamps_ns.size for s in series.values()):
+        raise BagError(f"{p}: the bag holds no messages of the topic contract" + (f" (reading stopped: {scan.truncated})" if scan.truncated else ""))
+    return Bag(path=p, series=series, metadata=scan.metadata, truncated=scan.truncated, diagnostics_labels=labels,
+               undecodable=undecodable, frame_ids=frame_ids)
 
 
 def _topic(bag: Bag, name: str) -> str | None:
     """The recorded topic whose name is ``name`` or ends with ``/name`` (namespaced runs)."""
+    name = name.lstrip("/")
     for t in bag.series:
         if t.lstrip("/") == name or t.endswith("/" + name):
             return t
@@ -218,22 +160,29 @@ def _latest_index(stamps: NDArray[np.int64], at: NDArray[np.int64]) -> NDArray[n
 class BagRun:
     """A run recovered from a bag, aligned on the state stamps."""
 
-    t: Array  # seconds since the first state
-    t0_ns: int
-    x: Array  # (T, 1, 7)
-    outputs: list[ControlOutput]
-    disturbance_B: Array  # (T, 1, 3)
+    history: History  # one run (N = 1), t in seconds since the first aligned state
+    t0_ns: int  # stamp of the first aligned state
+    stale: NDArray[np.bool_]  # (T,) the controller commanded zero torque for stale inputs
+    rejected: int  # messages the controller rejected (the last diagnostics' count)
+    torque_topic: str | None  # the topic the plant applied (a fault relay's when there was one)
+    has_diagnostics: bool  # controller/diagnostics present (rho, band, saturation, Lyapunov values)
 
 
 def bag_run(bag: Bag) -> BagRun:
-    """Align the bag's topics on the state stamps (see the module docstring)."""
+    """Align the bag's topics on the state stamps (see the module docstring).
+
+    Raises
+    ------
+    BagError
+        If the bag lacks the state or the reference, or they never overlap.
+    """
     names = {
         "att": STATE_ATTITUDE.name,
         "rate": STATE_RATE.name,
         "ref": REFERENCE_ATTITUDE.name,
     }
     found = {k: _topic(bag, v) for k, v in names.items()}
-    missing = [names[k] for k, v in found.items() if v is None]
+    missing = [names[k] for k, v in found.items() if v is None or bag.series[v].stamps_ns.size == 0]
     if missing:
         raise BagError(f"{bag.path}: the bag lacks {', '.join(missing)}; metrics need the state and the reference")
     att, rate, ref = (bag.series[found[k]] for k in ("att", "rate", "ref"))  # type: ignore[index]
@@ -243,7 +192,7 @@ def bag_run(bag: Bag) -> BagRun:
         raise BagError(f"{bag.path}: no state sample has both attitude and rate after the first reference")
     ia = _latest_index(att.stamps_ns, common)
     ir = _latest_index(rate.stamps_ns, common)
-    x = np.concatenate((att.values[ia, :4], rate.values[ir, :3]), axis=1)[:, None, :]
+    q_BN, w_BN_B = att.values[ia, :4], rate.values[ir, :3]
     # reference attitude at the state stamps: exact where they coincide, else normalised lerp
     order = np.argsort(ref.stamps_ns, kind="stable")
     rs, rq = ref.stamps_ns[order], ref.values[order, :4]
@@ -254,7 +203,7 @@ def bag_run(bag: Bag) -> BagRun:
     w = np.where(span > 0, (common - rs[j]) / np.where(span > 0, span, 1.0), 0.0)[:, None]
     q1 = np.where((np.sum(rq[j] * rq[j1], axis=1) < 0)[:, None], -rq[j1], rq[j1])
     q_RN = np.where(exact[:, None], rq[j], quat_normalize((1.0 - w) * rq[j] + w * q1))
-    q_BR = error_quaternion(q_RN, x[:, 0, :4])
+    q_BR = error_quaternion(q_RN, q_BN)
 
     torque_topic = _topic(bag, faulty(CONTROL_TORQUE).name) or _topic(bag, CONTROL_TORQUE.name)
     T = common.size
@@ -266,41 +215,60 @@ def bag_run(bag: Bag) -> BagRun:
         i = _latest_index(s.stamps_ns, common)
         return np.where((i >= 0)[:, None], s.values[np.maximum(i, 0), :width], 0.0)
 
-    torque = held(torque_topic, 3)
-    dist = held(_topic(bag, DISTURBANCE_TORQUE.name), 3)
+    rows: dict[str, Array] = {}
     diag_topic = _topic(bag, CONTROLLER_DIAGNOSTICS.name)
     labels = bag.diagnostics_labels
-    rows: dict[str, Array] = {}
-    if diag_topic is not None and labels:
+    if diag_topic is not None and labels and bag.series[diag_topic].values.shape[1] >= 3 * len(labels):
         d = bag.series[diag_topic]
         i = _latest_index(d.stamps_ns, common)
-        data = d.values[np.maximum(i, 0)].reshape(T, len(labels), 3)
+        data = d.values[np.maximum(i, 0), : 3 * len(labels)].reshape(T, len(labels), 3)
         data[i < 0] = np.nan
         rows = {label: data[:, n] for n, label in enumerate(labels)}
     nan3 = np.full((T, 3), np.nan)
-    outputs = [
-        ControlOutput(
-            torque_B=torque[k : k + 1],
-            torque_cmd_B=rows.get("torque_cmd_Nm", nan3)[k : k + 1],
-            saturated=(rows.get("saturated", np.zeros((T, 3)))[k : k + 1] > 0.5),
-            q_BR=q_BR[k : k + 1],
-            rho=rows.get("rho", nan3)[k : k + 1],
-            band_lower=rows.get("band_lower", nan3)[k : k + 1],
-            band_upper=rows.get("band_upper", nan3)[k : k + 1],
-            eps=rows.get("eps", nan3)[k : k + 1],
-            z=rows.get("z", nan3)[k : k + 1],
-            V=rows.get("lyapunov_V", nan3)[k : k + 1],
-        )
-        for k in range(T)
-    ]
+    status = rows.get("status", np.zeros((T, 3)))
+    one = lambda a: a[:, None, :]  # noqa: E731 - (T, 3) -> (T, 1, 3): one run
     t0 = int(common[0])
-    return BagRun(t=(common - t0) / 1e9, t0_ns=t0, x=x, outputs=outputs, disturbance_B=dist[:, None, :])
+    history = History(
+        t=(common - t0) / 1e9,
+        q_BN=q_BN[:, None, :],
+        omega_BN_B=w_BN_B[:, None, :],
+        q_BR=q_BR[:, None, :],
+        torque_B=one(held(torque_topic, 3)),
+        torque_cmd_B=one(rows.get("torque_cmd_Nm", nan3)),
+        saturated=one(rows.get("saturated", np.zeros((T, 3))) > 0.5),
+        disturbance_B=one(held(_topic(bag, DISTURBANCE_TORQUE.name), 3)),
+        rho=one(rows.get("rho", nan3)),
+        band_lower=one(rows.get("band_lower", nan3)),
+        band_upper=one(rows.get("band_upper", nan3)),
+        eps=one(rows.get("eps", nan3)),
+        z=one(rows.get("z", nan3)),
+        V=one(rows.get("lyapunov_V", nan3)),
+    )
+    finite_status = status[np.isfinite(status[:, 0])]
+    return BagRun(
+        history=history,
+        t0_ns=t0,
+        stale=status[:, 1] > 0.5,
+        rejected=int(finite_status[-1, 0]) if finite_status.size else 0,
+        torque_topic=torque_topic,
+        has_diagnostics=bool(rows),
+    )
 
 
-def bag_metrics(bag: Bag, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]]) -> dict[str, Any]:
-    """The metrics of :mod:`sappc.metrics` for the run in ``bag``."""
-    run = bag_run(bag)
-    acc = MetricsAccumulator(run.t, 1, steady_from_s=steady_from_s, settle_threshold=settle_threshold, t2_s=t2_s, fault_windows=fault_windows)
-    for k, t in enumerate(run.t):
-        acc(k, float(t), run.x[k], run.outputs[k], run.disturbance_B[k])
-    return acc.run_metrics(0)
+def bag_metrics(bag: Bag, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]],
+                run: BagRun | None = None) -> dict[str, Any]:
+    """The metrics of :mod:`sappc.metrics` for the run in ``bag`` (``run``: its alignment, if made already)."""
+    run = run or bag_run(bag)
+    acc = MetricsAccumulator(run.history.t, 1, steady_from_s=steady_from_s, settle_threshold=settle_threshold, t2_s=t2_s,
+                             fault_windows=fault_windows)
+    acc.add_history(run.history)
+    metrics = acc.run_metrics(0)
+    if not run.has_diagnostics:  # no rho, band or saturation flags: these are unknown, not zero
+        for key in _NEED_DIAGNOSTICS:
+            metrics[key] = None
+    return metrics
+
+
+#: Metrics that need ``controller/diagnostics``.
+_NEED_DIAGNOSTICS = ("rpf_error_at_t2", "saturation_fraction", "time_outside_constraint_s", "returned_to_constraint",
+                     "left_constraint_after_fault", "returned_at_s")

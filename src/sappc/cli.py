@@ -69,7 +69,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         _write_json(args.json, result.report())
     if args.plots:
         for p in plot_run(result.history, Path(args.plots), title=f"{scenario.name} ({result.controller.value})",
-                          fault_windows=scenario.disturbance.events()):
+                          fault_windows=scenario.event_windows()):
             print(f"wrote {p}")
     return 0
 
@@ -95,7 +95,7 @@ def _simulate_from_campaign(args: argparse.Namespace) -> int:
         _write_json(args.json, {"scenario": scenario.name, "run": args.run, "metrics": metrics, "campaign_row": campaign_row})
     if history is not None:
         for p in plot_run(history, Path(args.plots), title=f"{scenario.name} run {args.run}",
-                          fault_windows=scenario.disturbance.events()):
+                          fault_windows=scenario.event_windows()):
             print(f"wrote {p}")
     return 0
 
@@ -122,8 +122,6 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from spacecraft_sim.core.faults import FaultSchedule
-
     from .bag import bag_metrics, read_bag
     from .graph import run_graph
 
@@ -137,7 +135,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     bag = read_bag(result.bag_dir)
     ms = scenario.metrics
     metrics = bag_metrics(bag, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold, t2_s=ms.t2_s,
-                          fault_windows=scenario.disturbance.events() + FaultSchedule(scenario.faults).events())
+                          fault_windows=scenario.event_windows())
     metrics["wall_time_s"] = result.run_s
     metrics["startup_s"] = result.startup_s
     _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph", metrics)

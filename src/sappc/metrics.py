@@ -45,6 +45,8 @@ from numpy.typing import NDArray
 
 from sappc_controller.core.base import ControlOutput
 
+from .closed_loop import History
+
 __all__ = ["MetricsAccumulator", "METRIC_KEYS"]
 
 Array = NDArray[np.float64]
@@ -116,30 +118,57 @@ class MetricsAccumulator:
         self.samples = 0
 
     def __call__(self, k: int, t: float, x: Array, out: ControlOutput, d: Array) -> None:
-        q_ev = out.q_BR[:, :3]
-        ok = np.isfinite(x).all(axis=1) & np.isfinite(out.torque_B).all(axis=1)
-        self.finite &= ok
-        live = self.finite  # a failed run's metrics stop at its last finite sample
+        """Observe sample ``k`` (the closed loop's observer signature)."""
+        self.update(k, np.array([t]), x[None], out.torque_B[None], out.q_BR[None], out.rho[None], out.saturated[None],
+                    out.band_lower[None], out.band_upper[None])
+
+    def add_history(self, h: History) -> None:
+        """Observe every sample of a stored history at once (recorded bags)."""
+        x = np.concatenate((h.q_BN, h.omega_BN_B), axis=-1)
+        self.update(0, h.t, x, h.torque_B, h.q_BR, h.rho, h.saturated, h.band_lower, h.band_upper)
+
+    def update(self, k0: int, t: Array, x: Array, torque_B: Array, q_BR: Array, rho: Array, saturated: NDArray[np.bool_],
+               band_lower: Array, band_upper: Array) -> None:
+        """Observe the block of samples ``k0 .. k0 + B - 1``: ``t`` (B,), the others (B, N, ...).
+
+        A block gives the same result as its samples one by one.
+        """
+        B = t.size
+        if B == 0:
+            return
+        ks = k0 + np.arange(B)
+        q_ev = q_BR[..., :3]
+        ok = np.isfinite(x).all(axis=-1) & np.isfinite(torque_B).all(axis=-1)
+        live = np.logical_and.accumulate(ok, axis=0) & self.finite  # a failed run's metrics stop at its last finite sample
+        self.finite = live[-1].copy()
         abs_q = np.abs(q_ev)
         if self.sign0 is None:
-            self.sign0 = np.where(q_ev >= 0.0, 1.0, -1.0)
-        unsettled = live & (abs_q.max(axis=1) >= self.settle_threshold)
-        self.last_unsettled[unsettled] = k
-        if t >= self.steady_from_s - _TIME_TOL_S:
-            self.steady_sum += np.where(live[:, None], abs_q, 0.0)
-            self.steady_count += 1
-            self.steady_max = np.where(live, np.maximum(self.steady_max, abs_q.max(axis=1)), self.steady_max)
-        if k == self.k_t2:
-            self.rpf_error_t2_axis = np.where(live[:, None], np.abs(q_ev - out.rho), np.nan)
-        self.overshoot = np.where(live, np.maximum(self.overshoot, (-self.sign0 * q_ev).max(axis=1)), self.overshoot)
-        self.max_torque = np.where(live, np.maximum(self.max_torque, np.abs(out.torque_B).max(axis=1)), self.max_torque)
-        self.saturated_count += live & out.saturated.any(axis=1)
-        outside = live & ((q_ev < out.band_lower) | (q_ev > out.band_upper)).any(axis=1)
-        self.outside_count += outside
-        self.last_outside[outside] = k
-        if self.fault_start_s is not None and t >= self.fault_start_s - _TIME_TOL_S:
-            self.left_after_fault |= outside
-        self.samples += 1
+            self.sign0 = np.where(q_ev[0] >= 0.0, 1.0, -1.0)
+
+        def last_true(mask: NDArray[np.bool_], previous: NDArray[np.int64]) -> NDArray[np.int64]:
+            return np.where(mask.any(axis=0), ks[B - 1 - np.argmax(mask[::-1], axis=0)], previous)
+
+        self.last_unsettled = last_true(live & (abs_q.max(axis=-1) >= self.settle_threshold), self.last_unsettled)
+        steady = t >= self.steady_from_s - _TIME_TOL_S
+        if steady.any():
+            use = live & steady[:, None]
+            # a sequential sum (cumsum), so that a block adds exactly as its samples one by one would
+            terms = np.concatenate((self.steady_sum[None], np.where(use[..., None], abs_q, 0.0)), axis=0)
+            self.steady_sum = np.cumsum(terms, axis=0)[-1]
+            self.steady_count += int(steady.sum())
+            self.steady_max = np.maximum(self.steady_max, np.where(use, abs_q.max(axis=-1), 0.0).max(axis=0))
+        if k0 <= self.k_t2 < k0 + B:
+            j = self.k_t2 - k0
+            self.rpf_error_t2_axis = np.where(live[j][:, None], np.abs(q_ev[j] - rho[j]), np.nan)
+        self.overshoot = np.maximum(self.overshoot, np.where(live, (-self.sign0 * q_ev).max(axis=-1), -np.inf).max(axis=0))
+        self.max_torque = np.maximum(self.max_torque, np.where(live, np.abs(torque_B).max(axis=-1), 0.0).max(axis=0))
+        self.saturated_count += (live & saturated.any(axis=-1)).sum(axis=0)
+        outside = live & ((q_ev < band_lower) | (q_ev > band_upper)).any(axis=-1)
+        self.outside_count += outside.sum(axis=0)
+        self.last_outside = last_true(outside, self.last_outside)
+        if self.fault_start_s is not None:
+            self.left_after_fault |= (outside & (t >= self.fault_start_s - _TIME_TOL_S)[:, None]).any(axis=0)
+        self.samples += B
 
     def settling_times(self) -> Array:
         """``settling_time_s`` of every run, NaN for a run that never settles."""

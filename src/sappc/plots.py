@@ -1,5 +1,6 @@
-"""Paper-style figures of a run: each q_ev component with its performance function and
-constraint band (whole run and steady-state zoom), and the actuator torques."""
+"""Paper-style figures: of a run (each q_ev component with its performance function and
+constraint band, whole run and steady-state zoom; the actuator torques; the transformed error
+and Lyapunov values), of several runs overlaid, of a torque re-run, of a Monte Carlo campaign."""
 
 from __future__ import annotations
 
@@ -7,9 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
+from numpy.typing import NDArray
+
 from .closed_loop import History
 
-__all__ = ["plot_run"]
+__all__ = ["plot_campaign", "plot_compare", "plot_run", "plot_torque_rerun"]
+
+Array = NDArray[np.float64]
 
 
 def _finish(fig, path: Path, title: str, paths: list[Path], *, margins: dict | None = None) -> None:  # type: ignore[no-untyped-def, type-arg]
@@ -32,6 +37,20 @@ def _mark_faults(ax, fault_windows: list[tuple[float, float]], t_end: float) -> 
         ax.axvspan(start, min(end, t_end), color="tab:red", alpha=0.15, lw=0)
 
 
+#: Fixed margins of the 3-row figures: ``tight_layout`` would cost ~0.25 s per figure (it draws
+#: the figure once more to measure it), most of a report's time budget.
+_ROWS_MARGINS = dict(left=0.12, right=0.97, bottom=0.07, top=0.93, hspace=0.12)
+
+#: Line colours of the runs of a comparison, in order.
+_RUN_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray")
+
+
+def _rows(n: int = 3, height: float = 7.5):  # type: ignore[no-untyped-def]
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(n, 1, figsize=(8, height), sharex=True)
+
+
 def plot_run(
     h: History,
     out_dir: Path,
@@ -41,55 +60,142 @@ def plot_run(
     zoom_from_s: float = 15.0,
     run: int = 0,
 ) -> list[Path]:
-    """Write ``qev.png``, ``qev_zoom.png``, ``qev_log.png`` and ``torque.png`` to ``out_dir``; return their paths."""
+    """Write ``qev.png``, ``qev_zoom.png``, ``qev_log.png``, ``torque.png`` and
+    ``eps_lyapunov.png`` to ``out_dir``; return their paths.  Injected faults are shaded red."""
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     out_dir.mkdir(parents=True, exist_ok=True)
     t = h.t
+    t_end = float(t[-1])
+    faults = list(fault_windows)
     q_ev = h.q_ev[:, run]
-    paths = []
+    paths: list[Path] = []
     for name, mask, zoom in (("qev.png", np.ones_like(t, dtype=bool), False), ("qev_zoom.png", t >= zoom_from_s, True)):
-        fig, axes = plt.subplots(3, 1, figsize=(8, 7.5), sharex=True)
+        if not mask.any():
+            continue
+        fig, axes = _rows()
         for i, ax in enumerate(axes):
             ax.fill_between(t[mask], h.band_lower[mask, run, i], h.band_upper[mask, run, i], color="tab:blue", alpha=0.18,
                             lw=0, label="constraint band")
             ax.plot(t[mask], h.rho[mask, run, i], "k--", lw=1.0, label=r"$\rho_%d$" % (i + 1))
             ax.plot(t[mask], q_ev[mask, i], color="tab:blue", lw=1.3, label=r"$q_{ev%d}$" % (i + 1))
-            _mark_faults(ax, list(fault_windows), float(t[-1]))
+            _mark_faults(ax, faults, t_end)
             ax.set_ylabel(r"$q_{ev%d}$" % (i + 1))
             ax.grid(True, alpha=0.3)
             if zoom:
-                lo = min(q_ev[mask, i].min(), h.rho[mask, run, i].min())
-                hi = max(q_ev[mask, i].max(), h.rho[mask, run, i].max())
+                both = np.concatenate((q_ev[mask, i], h.rho[mask, run, i]))
+                both = both[np.isfinite(both)]
+                lo, hi = (both.min(), both.max()) if both.size else (-1.0, 1.0)
                 pad = 0.25 * max(hi - lo, 1e-6)
                 ax.set_ylim(lo - pad, hi + pad)
         axes[0].legend(loc="upper right", fontsize=8)
         axes[-1].set_xlabel("time [s]")
-        _finish(fig, out_dir / name, f"{title}: attitude error" + (" (zoom)" if zoom else ""), paths)
+        _finish(fig, out_dir / name, f"{title}: attitude error" + (" (zoom)" if zoom else ""), paths, margins=_ROWS_MARGINS)
 
     # |q_ev| on a log scale: the steady state (1e-5) is invisible on the linear plots
-    fig, axes = plt.subplots(3, 1, figsize=(8, 7.5), sharex=True)
+    fig, axes = _rows()
     for i, ax in enumerate(axes):
         ax.semilogy(t, np.abs(h.rho[:, run, i]), "k--", lw=1.0, label=r"$|\rho_%d|$" % (i + 1))
         ax.semilogy(t, np.abs(q_ev[:, i]), color="tab:blue", lw=1.2, label=r"$|q_{ev%d}|$" % (i + 1))
-        _mark_faults(ax, list(fault_windows), float(t[-1]))
+        _mark_faults(ax, faults, t_end)
         ax.set_ylabel(r"$|q_{ev%d}|$" % (i + 1))
         ax.grid(True, alpha=0.3, which="both")
     axes[0].legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("time [s]")
-    _finish(fig, out_dir / "qev_log.png", f"{title}: attitude error magnitude", paths)
+    _finish(fig, out_dir / "qev_log.png", f"{title}: attitude error magnitude", paths, margins=_ROWS_MARGINS)
 
-    fig, axes = plt.subplots(3, 1, figsize=(8, 6.5), sharex=True)
+    fig, axes = _rows(height=6.5)
     for i, ax in enumerate(axes):
         ax.plot(t, h.torque_B[:, run, i], lw=1.0, color="tab:green", label=r"$u_%d$" % (i + 1))
-        _mark_faults(ax, list(fault_windows), float(t[-1]))
+        _mark_faults(ax, faults, t_end)
         ax.set_ylabel(r"$u_%d$ [N m]" % (i + 1))
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel("time [s]")
-    _finish(fig, out_dir / "torque.png", f"{title}: actuator torque", paths)
+    _finish(fig, out_dir / "torque.png", f"{title}: actuator torque", paths, margins=_ROWS_MARGINS)
+
+    # the transformed error and the backstepping Lyapunov values
+    fig, axes = _rows(2, height=6.0)
+    for i in range(3):
+        axes[0].plot(t, h.eps[:, run, i], lw=1.0, label=r"$\varepsilon_%d$" % (i + 1))
+        axes[1].semilogy(t, np.abs(h.V[:, run, i]), lw=1.0, label=r"$V_%d$" % (i + 1))
+    for ax in axes:
+        _mark_faults(ax, faults, t_end)
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[0].set_ylabel(r"$\varepsilon$ (transformed error)")
+    axes[1].set_ylabel("Lyapunov values")
+    axes[-1].set_xlabel("time [s]")
+    _finish(fig, out_dir / "eps_lyapunov.png", f"{title}: transformed error and Lyapunov values", paths, margins=_ROWS_MARGINS)
+    return paths
+
+
+def plot_compare(runs: list[tuple[str, History]], out_dir: Path, *, title: str,
+                 fault_windows: list[tuple[float, float]] = ()) -> list[Path]:  # type: ignore[assignment]
+    """Overlay several runs, as the paper's comparison figures: ``compare_qev.png`` (each q_ev
+    component with its run's performance function dashed), ``compare_qev_log.png`` and
+    ``compare_torque.png``.  Each run is one colour, labelled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths: list[Path] = []
+    t_end = max(float(h.t[-1]) for _, h in runs)
+    faults = list(fault_windows)
+    for name, log in (("compare_qev.png", False), ("compare_qev_log.png", True)):
+        fig, axes = _rows()
+        for i, ax in enumerate(axes):
+            for n, (label, h) in enumerate(runs):
+                c = _RUN_COLORS[n % len(_RUN_COLORS)]
+                q, rho = h.q_ev[:, 0, i], h.rho[:, 0, i]
+                if log:
+                    q, rho = np.abs(q), np.abs(rho)
+                ax.plot(h.t, rho, "--", color=c, lw=0.9)
+                ax.plot(h.t, q, color=c, lw=1.2, label=label)
+            if log:
+                ax.set_yscale("log")
+            _mark_faults(ax, faults, t_end)
+            ax.set_ylabel(r"$|q_{ev%d}|$" % (i + 1) if log else r"$q_{ev%d}$" % (i + 1))
+            ax.grid(True, alpha=0.3, which="both" if log else "major")
+        axes[0].legend(loc="upper right", fontsize=8)
+        axes[-1].set_xlabel("time [s]")
+        _finish(fig, out_dir / name, f"{title}: attitude error (dashed: each run's performance function)", paths, margins=_ROWS_MARGINS)
+    fig, axes = _rows(height=6.5)
+    for i, ax in enumerate(axes):
+        for n, (label, h) in enumerate(runs):
+            ax.plot(h.t, h.torque_B[:, 0, i], color=_RUN_COLORS[n % len(_RUN_COLORS)], lw=1.0, label=label)
+        _mark_faults(ax, faults, t_end)
+        ax.set_ylabel(r"$u_%d$ [N m]" % (i + 1))
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    _finish(fig, out_dir / "compare_torque.png", f"{title}: actuator torque", paths, margins=_ROWS_MARGINS)
+    return paths
+
+
+def plot_torque_rerun(t: Array, recorded: Array, recomputed: Array, out_dir: Path, *, title: str) -> list[Path]:
+    """``rerun_torque.png``: recorded and recomputed torque per axis, and their difference."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths: list[Path] = []
+    fig, axes = _rows(4, height=8.0)
+    for i in range(3):
+        axes[i].plot(t, recorded[:, i], color="tab:green", lw=1.2, label="recorded")
+        axes[i].plot(t, recomputed[:, i], color="tab:purple", lw=1.0, ls="--", label="recomputed")
+        axes[i].set_ylabel(r"$u_%d$ [N m]" % (i + 1))
+        axes[i].grid(True, alpha=0.3)
+        axes[3].plot(t, recomputed[:, i] - recorded[:, i], lw=1.0, label=r"$\Delta u_%d$" % (i + 1))
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[3].legend(loc="upper right", fontsize=8)
+    axes[3].set_ylabel("recomputed - recorded")
+    axes[3].grid(True, alpha=0.3)
+    axes[-1].set_xlabel("time [s]")
+    _finish(fig, out_dir / "rerun_torque.png", f"{title}: torque re-run through the controller core", paths, margins=_ROWS_MARGINS)
     return paths
 
 

@@ -21,12 +21,10 @@ import yaml
 from numpy.typing import NDArray
 
 from sappc_controller.core.base import AttitudeController
-from sappc_controller.core.blfppc import BlfppcConfig, BlfppcController
 from sappc_controller.core.common import ActuatorConfig
-from sappc_controller.core.sappc import SappcConfig, SappcController
-from sappc_controller.core.trappc import TrappcConfig, TrappcController
+from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
-from spacecraft_sim.core.faults import faults_from_list
+from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
 from spacecraft_sim.core.validation import (
     ConfigError,
@@ -55,11 +53,7 @@ class ControllerKind(str, Enum):
     BLFPPC = "blfppc"
 
 
-_CONFIG_CLASSES = {
-    ControllerKind.SAPPC: (SappcConfig, SappcController),
-    ControllerKind.TRAPPC: (TrappcConfig, TrappcController),
-    ControllerKind.BLFPPC: (BlfppcConfig, BlfppcController),
-}
+_CONFIG_CLASSES = {k: (CONFIG_CLASSES[k.value], CONTROLLER_CLASSES[k.value]) for k in ControllerKind}
 
 
 _TOP_KEYS = {
@@ -171,6 +165,11 @@ class Scenario:
         k = self.resolve_controller(kind)
         _, controller_cls = _CONFIG_CLASSES[k]
         return controller_cls(self.controller_config(k) if config is None else config, **options)
+
+    def event_windows(self) -> list[tuple[float, float]]:
+        """Windows (start, end) [s] of every injected disturbance event and fault, sorted: for
+        marking figures and for the fault metrics."""
+        return sorted(self.disturbance.events() + FaultSchedule(self.faults).events())
 
     def resolve_controller(self, kind: ControllerKind | str | None) -> ControllerKind:
         """``kind`` parsed, or the scenario's default controller when ``None``."""

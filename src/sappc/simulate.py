@@ -131,5 +131,5 @@ def metrics_accumulator(scenario: Scenario, t: np.ndarray, n_runs: int) -> Metri
         steady_from_s=ms.steady_from_s,
         settle_threshold=ms.settle_threshold,
         t2_s=ms.t2_s,
-        fault_windows=scenario.disturbance.events(),
+        fault_windows=scenario.event_windows(),
     )

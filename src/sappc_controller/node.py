@@ -68,14 +68,11 @@ from sappc_msgs_py.runtime import LOCKSTEP, REALTIME, ProjectNode, run_node
 from spacecraft_sim.core.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 
 from .core.base import AttitudeController
-from .core.blfppc import BlfppcController
-from .core.sappc import SappcController
-from .core.trappc import TrappcController
-from .params import config_from_parameters, config_parameter_names
+from .params import CONTROLLER_CLASSES, DEFAULT_CONTROL_PERIOD_S, config_from_parameters, config_parameter_names
 
 __all__ = ["ControllerNode", "main"]
 
-_CONTROLLERS = {"sappc": SappcController, "trappc": TrappcController, "blfppc": BlfppcController}
+_CONTROLLERS = CONTROLLER_CLASSES
 
 #: The five inputs of one control step, by topic.
 _INPUTS = (STATE_ATTITUDE, STATE_RATE, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
@@ -98,7 +95,7 @@ class ControllerNode(ProjectNode):
             self.declare_parameter(name, None if default is dataclasses.MISSING else default, descriptor)
         config = config_from_parameters(self.kind, self._config_values())
         self.controller: AttitudeController = _CONTROLLERS[self.kind](config)
-        self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01, ParameterDescriptor(read_only=True)))
+        self.dt = check_positive("control_period_s", self.param("control_period_s", DEFAULT_CONTROL_PERIOD_S, ParameterDescriptor(read_only=True)))
         self.mode = self.mode_param(ParameterDescriptor(read_only=True))
         self.stale_timeout_ns = int(check_positive("stale_timeout_s", self.param("stale_timeout_s", 0.1)) * _NS)
         self.max_ahead_ns = int(check_positive("max_stamp_ahead_s", self.param("max_stamp_ahead_s", 1.0)) * _NS)

@@ -23,18 +23,34 @@ import typing
 from typing import Any
 
 import numpy as np
+import yaml
 
-from spacecraft_sim.core.validation import ConfigError, from_mapping
+from spacecraft_sim.core.validation import ConfigError, check_positive, from_mapping
 
-from .core.blfppc import BlfppcConfig
+from .core.base import AttitudeController
+from .core.blfppc import BlfppcConfig, BlfppcController
 from .core.common import ActuatorConfig
-from .core.sappc import SappcConfig
-from .core.trappc import TrappcConfig
+from .core.sappc import SappcConfig, SappcController
+from .core.trappc import TrappcConfig, TrappcController
 
-__all__ = ["CONFIG_CLASSES", "config_from_parameters", "config_parameter_names", "parameters_from_config", "unflatten"]
+__all__ = [
+    "CONFIG_CLASSES",
+    "CONTROLLER_CLASSES",
+    "config_from_parameters",
+    "config_parameter_names",
+    "controller_from_parameters_file",
+    "parameters_from_config",
+    "parameters_from_yaml",
+    "unflatten",
+]
 
 #: The config dataclass of each controller kind.
 CONFIG_CLASSES: dict[str, type] = {"sappc": SappcConfig, "trappc": TrappcConfig, "blfppc": BlfppcConfig}
+#: The controller class of each kind (built from its config).
+CONTROLLER_CLASSES: dict[str, type[AttitudeController]] = {"sappc": SappcController, "trappc": TrappcController, "blfppc": BlfppcController}
+
+#: The node's ``control_period_s`` when a parameters file does not set it [s] (100 Hz, the paper's).
+DEFAULT_CONTROL_PERIOD_S = 0.01
 
 #: Config fields that are plant-level parameters, not under the controller's name.
 _SHARED = ("inertia_kg_m2", "actuator")
@@ -70,6 +86,67 @@ def _config_class(kind: str) -> type:
     if kind not in CONFIG_CLASSES:
         raise ConfigError(f"controller must be one of {sorted(CONFIG_CLASSES)}, got {kind!r}")
     return CONFIG_CLASSES[kind]
+
+
+def flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"a": {"b": 1}}`` -> ``{"a.b": 1}`` (the inverse of :func:`unflatten`; lists are values)."""
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}.{key}" if prefix else str(key)
+        if isinstance(value, dict):
+            out.update(flatten(value, name))
+        else:
+            out[name] = value
+    return out
+
+
+def parameters_from_yaml(text: str, node: str = "controller", *, source: str = "<parameters>") -> dict[str, Any]:
+    """The flat parameters of node ``node`` in a ROS parameters YAML text, as ``--params-file``
+    applies them: the ``/**`` entry first, then ``node`` or ``/node`` over it.
+
+    Raises
+    ------
+    ConfigError
+        If the text is not YAML or has no ``ros__parameters`` for the node.
+    """
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source} is not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: a ROS parameters file is a mapping of node names to ros__parameters")
+    values: dict[str, Any] = {}
+    found = False
+    for key in ("/**", node, f"/{node}"):
+        entry = data.get(key)
+        if isinstance(entry, dict) and isinstance(entry.get("ros__parameters"), dict):
+            values.update(flatten(entry["ros__parameters"]))
+            found = True
+    if not found:
+        raise ConfigError(f"{source}: no ros__parameters for node {node!r} (keys: {sorted(map(str, data))})")
+    return values
+
+
+def controller_from_parameters_file(text: str, node: str = "controller", *, source: str = "<parameters>") -> tuple[str, Any, float]:
+    """(kind, validated config, control period [s]) of the controller node configured by a ROS
+    parameters file (``config/controller_*.yaml``, or the ``params.yaml`` of a run).
+
+    Parameters of the node that are not the controller's config (``mode``, timeouts...) are
+    ignored; a parameter under the controller's name or ``actuator.`` that the config does not
+    know is an error, as the node would refuse it.
+    """
+    values = parameters_from_yaml(text, node, source=source)
+    kind = str(values.get("controller", "sappc"))
+    names = [n for n, _ in config_parameter_names(kind)]
+    unknown = sorted(n for n in values if n.startswith((f"{kind}.", "actuator.")) and n not in names)
+    if unknown:
+        raise ConfigError(f"{source}: unknown parameter {unknown[0]!r} for the {kind} controller")
+    try:
+        config = config_from_parameters(kind, {n: values.get(n) for n in names})
+        period = check_positive("control_period_s", values.get("control_period_s", DEFAULT_CONTROL_PERIOD_S))
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    return kind, config, period
 
 
 def unflatten(values: dict[str, Any]) -> dict[str, Any]:
