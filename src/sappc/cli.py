@@ -5,6 +5,10 @@
     sappc montecarlo SCENARIO.yaml --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
     sappc run SCENARIO.yaml [--out DIR] [--realtime] [--controller K] [--json FILE] [--domain-id N]
     sappc params SCENARIO.yaml [--controller K]
+    sappc report BAG [--json FILE] [--out DIR] [--scenario FILE]
+    sappc compare BAG... [--out DIR] [--json FILE]
+    sappc rerun BAG [--params FILE] [--json FILE] [--out DIR]
+    sappc replay BAG [--rate X] [--topics T...] [--loop] [--wait-subscribers N] [--domain-id N]
 
 Errors in the input (bad scenario, infeasible parameters, bad values) print
 one line naming the problem and exit with status 2; no traceback.
@@ -163,6 +167,88 @@ def _cmd_params(args: argparse.Namespace) -> int:
     return 0
 
 
+def _default_out(bag: str, suffix: str) -> Path:
+    """``<bag>_<suffix>`` next to the bag (``runs/x/bag`` -> ``runs/x/bag_report``)."""
+    p = Path(bag.rstrip("/"))
+    return p.with_name(f"{p.stem if p.is_file() else p.name}_{suffix}")
+
+
+def _print_notes(a: object) -> None:
+    for line in getattr(a, "problems", []):
+        print(f"  problem: {line}")
+    for line in getattr(a, "notes", []):
+        print(f"  note: {line}")
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .report import analyse_bag, write_report
+
+    a = analyse_bag(args.bag, scenario=args.scenario)
+    print(f"bag {a.path}: {sum(a.bag.counts.values())} messages on {len(a.bag.counts)} topics"
+          + (f", data to t = {a.run.history.t[-1]:.3f} s" if a.run is not None else ""))
+    _print_notes(a)
+    if a.metrics is not None:
+        _print_metrics(a.scenario.name if a.scenario else a.path.name, a.label, a.metrics)
+    out = Path(args.out) if args.out else _default_out(args.bag, "report")
+    paths = write_report(a, out)
+    print(f"wrote {paths[-1]} and {len(paths) - 1} figure(s) in {out}")
+    if args.json:
+        _write_json(args.json, a.summary())
+    return 0 if a.metrics is not None else 1
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from .report import analyse_bag, compare_bags
+
+    analyses = [analyse_bag(b) for b in args.bags]
+    out = Path(args.out) if args.out else Path("compare")
+    header, rows, paths = compare_bags(analyses, out)
+    widths = [max(len(_format_value(r[c]) if c else str(r[c])) for r in [header] + rows) for c in range(len(header))]
+    for r in [header] + rows:
+        print("  ".join((str(v) if c == 0 or r is header else _format_value(v)).ljust(w) for c, (v, w) in enumerate(zip(r, widths))))
+    print(f"wrote {paths[-1]} and {len(paths) - 1} figure(s) in {out}")
+    if args.json:
+        _write_json(args.json, {"runs": [a.summary() for a in analyses]})
+    return 0
+
+
+def _cmd_rerun(args: argparse.Namespace) -> int:
+    from .bag import read_bag
+    from .plots import plot_torque_rerun
+    from .report import html_figure, html_page, html_table
+    from .rerun import rerun_bag
+
+    bag = read_bag(args.bag)
+    r = rerun_bag(bag, args.params)
+    s = r.summary()
+    print(f"re-ran {s['samples']} control steps of {args.bag} through the {r.controller} core ({r.mode} pairing), parameters from {r.params_source}")
+    for why, n in r.skipped.items():
+        print(f"  skipped {n}: {why}")
+    if r.failed_steps:
+        print(f"  {r.failed_steps} step(s) refused by the core (the node would command zero torque)")
+    print(f"  identical torques: {s['identical']} of {s['samples']}; largest difference {s['max_abs_diff_Nm']:.3g} N m")
+    if args.out:
+        out = Path(args.out)
+        t = (r.stamps_ns - r.stamps_ns[0]) / 1e9 if r.stamps_ns.size else r.stamps_ns.astype(float)
+        figures = plot_torque_rerun(t, r.recorded, r.recomputed, out, title=f"{Path(args.bag).name} ({r.controller})")
+        page = out / "rerun.html"
+        page.write_text(html_page(f"Re-run: {args.bag}", [html_table(["", ""], [[k, v] for k, v in s.items()])]
+                                  + [html_figure(p) for p in figures]))
+        print(f"wrote {page} and {len(figures)} figure(s)")
+    if args.json:
+        _write_json(args.json, s)
+    if args.params is None:  # the recorded parameters: a determinism check
+        return 0 if s["all_identical"] else 1
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from .replay import replay
+
+    return replay(args.bag, rate=args.rate, topics=args.topics, loop=args.loop, wait_subscribers=args.wait_subscribers,
+                  domain_id=args.domain_id, start_delay_s=args.start_delay)
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -200,6 +286,34 @@ def _parser() -> argparse.ArgumentParser:
     par.add_argument("scenario")
     par.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None)
     par.set_defaults(func=_cmd_params)
+    rep = sub.add_parser("report", help="metrics, figures and an HTML page from a recorded bag")
+    rep.add_argument("bag", help="a rosbag2 directory (e.g. runs/<run>/bag) or an .mcap file")
+    rep.add_argument("--out", metavar="DIR", help="figures and report.html (default <BAG>_report next to the bag)")
+    rep.add_argument("--json", metavar="FILE", help="write the metrics and what the bag holds as JSON")
+    rep.add_argument("--scenario", metavar="FILE", help="metric settings and events from this scenario (default: the one in the bag)")
+    rep.set_defaults(func=_cmd_report)
+    cmp = sub.add_parser("compare", help="overlaid figures and one metrics table for several bags")
+    cmp.add_argument("bags", nargs="+", metavar="BAG")
+    cmp.add_argument("--out", metavar="DIR", help="figures and compare.html (default ./compare)")
+    cmp.add_argument("--json", metavar="FILE", help="write every bag's metrics as JSON")
+    cmp.set_defaults(func=_cmd_compare)
+    rr = sub.add_parser("rerun", help="feed a bag's recorded inputs to the controller core and compare the torques")
+    rr.add_argument("bag")
+    rr.add_argument("--params", metavar="FILE", help="ROS parameters file of the controller (default: the bag's own; exit 1 unless every torque matches)")
+    rr.add_argument("--json", metavar="FILE", help="write the comparison as JSON")
+    rr.add_argument("--out", metavar="DIR", help="write rerun_torque.png (recorded and recomputed) and rerun.html")
+    rr.set_defaults(func=_cmd_rerun)
+    rp = sub.add_parser("replay", help="republish a bag on the ROS 2 graph with its timing and /clock")
+    rp.add_argument("bag")
+    rp.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: the recorded timing)")
+    rp.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all; /clock is always published)")
+    rp.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
+    rp.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
+                    help="before starting, wait until every replayed topic has N subscribers (default 0)")
+    rp.add_argument("--start-delay", type=float, default=1.0, metavar="S",
+                    help="seconds between creating the publishers and the first message, for discovery (default 1)")
+    rp.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: ROS_DOMAIN_ID from the environment)")
+    rp.set_defaults(func=_cmd_replay)
     return parser
 
 

@@ -76,7 +76,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.special import lambertw
 
 from spacecraft_sim.core.validation import ConfigError, check_positive
 
@@ -241,6 +240,8 @@ class ReferencePerformanceFunction:
         l = np.clip(np.full(rho_e0.shape, float(params.l)), l_lower, l_upper)
         l = np.where(infeasible, l, params.l)
         self.l: Array = l
+
+        from scipy.special import lambertw  # here, not at import: scipy.special costs 0.2 s (see cli)
 
         A = np.where(self.flat, 1.0, rho_e0 - rho_einf)
         G = g_inf - rho_einf

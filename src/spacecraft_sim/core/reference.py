@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.integrate import solve_ivp
 
 from .attitude import quat_kinematics, quat_normalize
 from .validation import ConfigError, as_finite_array, check_unit_quaternion
@@ -101,6 +100,8 @@ class PaperReference:
         q0 = np.asarray(self.q_RN0, dtype=np.float64)
         t_end = float(times[-1]) if times.size else 0.0
         if t_end > 0.0:
+            from scipy.integrate import solve_ivp  # here, not at import: it costs 0.2 s (see cli)
+
             sol = solve_ivp(
                 lambda tt, q: quat_kinematics(q, self.omega_RN_R(tt)),
                 (0.0, t_end),
