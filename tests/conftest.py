@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +12,24 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ROOT / "config" / "scenarios"
+#: The ``sappc`` command, run with the test interpreter.
+SAPPC = [sys.executable, "-m", "sappc"]
+
+
+def shm_files() -> set[str]:
+    """Fast DDS shared-memory files in /dev/shm (a finished run must leave none of its own)."""
+    return {p.name for p in Path("/dev/shm").glob("fastrtps_*")} | {p.name for p in Path("/dev/shm").glob("fast_datasharing*")}
+
+
+@pytest.fixture(scope="session")
+def tracking_run(tmp_path_factory):  # type: ignore[no-untyped-def]
+    """Experiment 1 through ``sappc run`` (60 s lockstep, recorded): (run dir, its JSON, /dev/shm before)."""
+    out = tmp_path_factory.mktemp("graph") / "run"
+    before = shm_files()
+    proc = subprocess.run([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--out", str(out), "--json", str(out.parent / "m.json")],
+                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return out, json.loads((out.parent / "m.json").read_text()), before
 
 
 def random_unit_quaternions(rng: np.random.Generator, n: int) -> np.ndarray:

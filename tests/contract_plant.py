@@ -28,9 +28,10 @@ def _f(x: np.ndarray, tau: np.ndarray) -> np.ndarray:
     return np.concatenate((0.5 * _qmul(q, np.concatenate((w, [0.0]))), np.linalg.solve(J, tau - np.cross(w, J @ w))))
 
 
-def run_contract_plant(context, q0: np.ndarray, steps: int, deadline_s: float = 120.0) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
-    """Fly ``steps`` lockstep samples against whatever controller is on the graph; returns
-    (attitude q_BN per sample (steps, 4), torque per sample (steps, 3))."""
+def run_contract_plant(context, q0: np.ndarray, steps: int, deadline_s: float = 120.0, subscribers: int = 1) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
+    """Fly ``steps`` lockstep samples against whatever controller is on the graph, once each
+    topic has ``subscribers`` subscribers (2 with a recorder); returns (attitude q_BN per sample
+    (steps, 4), torque per sample (steps, 3))."""
     node = Node("contract_plant", context=context)
     qos = c.qos_profile()
     pubs = {t.name: node.create_publisher(t.msg_class, t.name, qos) for t in
@@ -40,7 +41,7 @@ def run_contract_plant(context, q0: np.ndarray, steps: int, deadline_s: float = 
     ex = SingleThreadedExecutor(context=context)
     ex.add_node(node)
     end = time.monotonic() + deadline_s
-    while not all(p.get_subscription_count() >= 1 for n, p in pubs.items() if n != "/clock") or not node.count_publishers(c.CONTROL_TORQUE.name):
+    while not all(p.get_subscription_count() >= subscribers for p in pubs.values()) or not node.count_publishers(c.CONTROL_TORQUE.name):
         assert time.monotonic() < end, "no controller on the graph"
         ex.spin_once(timeout_sec=0.02)
     x = np.concatenate((q0, np.zeros(3)))

@@ -26,14 +26,9 @@ from sappc.bag import bag_run, read_bag
 from sappc.scenario import load_scenario
 from sappc.simulate import simulate
 
-from conftest import ROOT, SCENARIOS
+from conftest import ROOT, SAPPC, SCENARIOS, shm_files
 
-SAPPC = [sys.executable, "-m", "sappc"]
 pytestmark = pytest.mark.slow
-
-
-def _shm() -> set[str]:
-    return {p.name for p in Path("/dev/shm").glob("fastrtps_*")} | {p.name for p in Path("/dev/shm").glob("fast_datasharing*")}
 
 
 def _children_of(pid: int) -> list[int]:
@@ -51,16 +46,6 @@ def _rosbags_counts(bag_dir: Path) -> dict[str, int]:
             reader.deserialize(raw, conn.msgtype)  # every message decodes
             counts[conn.topic] = counts.get(conn.topic, 0) + 1
     return counts
-
-
-@pytest.fixture(scope="module")
-def tracking_run(tmp_path_factory):  # type: ignore[no-untyped-def]
-    out = tmp_path_factory.mktemp("graph") / "run"
-    before = _shm()
-    proc = subprocess.run([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--out", str(out), "--json", str(out.parent / "m.json")],
-                          capture_output=True, text=True, timeout=600, cwd=ROOT)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    return out, json.loads((out.parent / "m.json").read_text()), before
 
 
 def test_lockstep_graph_equals_the_offline_runner(tracking_run) -> None:  # type: ignore[no-untyped-def]
@@ -92,7 +77,7 @@ def test_bag_opens_with_rosbags_and_mcap_ros2_and_counts_what_was_published(trac
     meta = (out / "bag" / "metadata.yaml").read_text()
     assert "version: 9" in meta and "RIHS01_" in meta
     assert (out / "bag" / "scenario.yaml").exists() and (out / "bag" / "params.yaml").exists()
-    assert _shm() <= before  # nothing left in /dev/shm
+    assert shm_files() <= before  # nothing left in /dev/shm
 
 
 def test_fault_through_the_graph_returns_into_the_band(tmp_path) -> None:
@@ -106,27 +91,50 @@ def test_fault_through_the_graph_returns_into_the_band(tmp_path) -> None:
 
 
 def test_a_plant_written_against_the_contract_drives_the_controller(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """... recorded, and its bag analysed: report (no scenario in the bag: default metric
+    settings) and rerun (with the controller's parameters file: every torque identical)."""
     from contract_plant import run_contract_plant
 
     env = dict(os.environ)  # the fixture set the domain, discovery range and profile
-    ctrl = subprocess.Popen([sys.executable, "-m", "sappc_controller", "--ros-args", "--params-file", str(ROOT / "config" / "controller_sappc.yaml")],
+    bag_dir = tmp_path / "bag"
+    rec = subprocess.Popen([sys.executable, "-m", "sappc.recorder", "--ros-args", "-p", f"output_dir:={bag_dir}"],
+                           env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+    params = ROOT / "config" / "controller_sappc.yaml"
+    ctrl = subprocess.Popen([sys.executable, "-m", "sappc_controller", "--ros-args", "--params-file", str(params),
+                             "-p", 'expected_subscribers:=["control/torque=2","controller/diagnostics=1"]'],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+    steps = 2501
     try:
         q0 = np.array([0.3254, 0.4068, -0.3254, 0.7891])
-        q, tq = run_contract_plant(ros_context, q0 / np.linalg.norm(q0), steps=2501)
+        q, tq = run_contract_plant(ros_context, q0 / np.linalg.norm(q0), steps=steps, subscribers=2)
     finally:
         ctrl.send_signal(signal.SIGINT)
         log = ctrl.communicate(timeout=30)[0].decode()
+        rec.send_signal(signal.SIGINT)
+        rec_log = rec.communicate(timeout=30)[0].decode()
     assert ctrl.returncode == 0, log
+    assert rec.returncode == 0, rec_log
     assert np.all(np.isfinite(tq)) and np.abs(tq).max() <= 0.5
     # requirement 1 of the paper: max |q_ev,i| < 1e-3 by t = 20 s (here q_ev = the attitude's vector part)
     assert np.abs(q[2000:, :3]).max() < 1e-3, np.abs(q[2000:, :3]).max()
     assert q[0, 3] > 0 and abs(q[-1, 3]) > 0.999
 
+    from sappc.report import analyse_bag
+
+    a = analyse_bag(bag_dir)
+    assert a.scenario is None and a.metrics is not None
+    assert a.bag.counts["/state/attitude"] == steps and a.bag.counts["/control/torque"] == steps
+    assert np.array_equal(a.run.history.q_BN[:, 0], q)  # the bag holds what the plant flew
+    assert a.metrics["settling_time_s"] < 20.0 and a.metrics["finite"]
+    proc = subprocess.run([*SAPPC, "rerun", str(bag_dir), "--params", str(params), "--json", str(tmp_path / "rerun.json")],
+                          capture_output=True, text=True, cwd=ROOT)
+    rerun = json.loads((tmp_path / "rerun.json").read_text())
+    assert rerun["mode"] == "lockstep" and rerun["samples"] == steps and rerun["identical"] == steps, proc.stdout
+
 
 def test_sigint_finalises_the_bag_and_leaves_nothing_behind(tmp_path) -> None:
     out = tmp_path / "int"
-    before = _shm()
+    before = shm_files()
     proc = subprocess.Popen([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
     deadline = time.monotonic() + 120
@@ -147,7 +155,7 @@ def test_sigint_finalises_the_bag_and_leaves_nothing_behind(tmp_path) -> None:
     bag = read_bag(out / "bag")
     assert bag.truncated is None and counts == {t: n for t, n in bag.counts.items()}
     assert 0 < counts["/state/attitude"] < 6001
-    assert _shm() <= before
+    assert shm_files() <= before
 
 
 def test_a_sigkilled_recorder_leaves_its_flushed_messages_readable(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]

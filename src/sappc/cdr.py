@@ -139,36 +139,41 @@ def _parse_multiarray(payload: bytes) -> tuple[list[str], int, int]:
     return labels, _BODY + off, count
 
 
+def _multiarray_stamps(values: NDArray[np.float64], labels: list[str]) -> NDArray[np.int64]:
+    """The stamp of diagnostics rows: their ``time_s`` row (the project's layout), else zero."""
+    if labels and labels[0].split(",")[0] == "time_s" and values.shape[1]:
+        return np.round(values[:, 0] * 1e9).astype(np.int64)
+    return np.zeros(values.shape[0], np.int64)
+
+
 def _decode_multiarray(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]) -> Decoded:
-    idx, stamps, vals, labels = [], [], [], None
-    per_row: list[tuple[int, NDArray[np.float64]]] = []
+    # per layout: (positions, values, first dimension's labels)
+    parts: list[tuple[NDArray[np.int64], NDArray[np.float64], list[str]]] = []
     for pos, rows in _groups(u8, start, length):
         try:
-            lab, data_at, count = _parse_multiarray(bytes(rows[0]))
+            lab, data_at, _count = _parse_multiarray(bytes(rows[0]))
         except (ValueError, struct.error):
-            lab, data_at, count = [], -1, 0
+            lab, data_at = [], -1
         same = (rows[:, :data_at] == rows[0, :data_at]).all(axis=1) if data_at > 0 else np.zeros(rows.shape[0], bool)
         if same.any():
-            labels = labels or lab
-            idx.append(pos[same])
-            vals.append(_col(rows[same], data_at, rows.shape[1], "<f8"))
-        for r in np.flatnonzero(~same):  # a different layout in a message of the same length
+            parts.append((pos[same], _col(rows[same], data_at, rows.shape[1], "<f8"), lab))
+        for r in np.flatnonzero(~same):  # another layout in a message of the same length
             try:
                 lab_r, at, cnt = _parse_multiarray(bytes(rows[r]))
             except (ValueError, struct.error):
                 continue
-            labels = labels or lab_r
-            per_row.append((int(pos[r]), np.frombuffer(bytes(rows[r, at : at + 8 * cnt]), "<f8")))
-    width = max([v.shape[1] for v in vals] + [v.size for _, v in per_row] + [1])
-    vals = [np.pad(v, ((0, 0), (0, width - v.shape[1])), constant_values=np.nan) for v in vals]
-    for p, v in per_row:
-        idx.append(np.array([p]))
-        vals.append(np.pad(v, (0, width - v.size), constant_values=np.nan)[None, :])
-    first = (labels or [""])[0].split(",")
-    for v in vals:  # the stamp: the diagnostics' time_s row (the project's layout), else none
-        stamps.append(np.round(v[:, 0] * 1e9).astype(np.int64) if first[0] == "time_s" else np.zeros(v.shape[0], np.int64))
-    out = _assemble(idx, stamps, vals, width, length.size)
-    out.labels = tuple(first) if first != [""] else ()
+            parts.append((pos[r : r + 1], np.frombuffer(bytes(rows[r, at : at + 8 * cnt]), "<f8")[None, :], lab_r))
+    width = max([v.shape[1] for _, v, _ in parts] + [1])
+    out = _assemble(
+        [p for p, _, _ in parts],
+        [_multiarray_stamps(v, lab) for _, v, lab in parts],
+        [np.pad(v, ((0, 0), (0, width - v.shape[1])), constant_values=np.nan) for _, v, _ in parts],
+        width,
+        length.size,
+    )
+    if parts:  # the topic's layout: that of most of its messages
+        labels = max(parts, key=lambda part: part[0].size)[2]
+        out.labels = tuple(labels[0].split(",")) if labels and labels[0] else ()
     return out
 
 

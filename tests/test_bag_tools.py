@@ -1,0 +1,194 @@
+"""Reading bags and analysing them, on synthetic bags written by the ``mcap`` package's writer:
+
+- the vectorised CDR decoders equal ``rclpy`` deserialisation, message for message, for every
+  frame id length (every alignment), chunked or not, with each compression;
+- a bag cut anywhere yields the messages before the cut and says so; not a bag, an empty file,
+  a missing file, a bag without the contract's topics give one clear line, never a traceback;
+- a bag lacking the reference gives a partial report;
+- metrics from a whole history at once equal those of the sample-by-sample observer, bit for bit;
+- ROS parameters files -> controller config.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from bagmaker import write_bag
+
+from sappc.bag import BagError, read_bag
+from sappc_msgs_py import contract as c
+from sappc_msgs_py.convert import clock_msg, diagnostics_msg, quaternion_msg, torque_msg, vector3_msg
+from spacecraft_sim.core.validation import ConfigError
+
+from conftest import ROOT, SAPPC, SCENARIOS
+
+
+def _msgs_with_every_alignment(rng: np.random.Generator, n: int = 40) -> list[tuple[str, str, object, int]]:
+    """Messages of every contract type; header frame ids of length 0 to 9 (every padding)."""
+    from geometry_msgs.msg import QuaternionStamped, Vector3Stamped, WrenchStamped
+
+    out = []
+    for k in range(n):
+        t = k * 0.01 + rng.uniform(0, 1e-3)
+        frame = "f" * (k % 10)
+        q = QuaternionStamped()
+        q.header.stamp.sec, q.header.stamp.nanosec, q.header.frame_id = k - 3, int(rng.integers(0, 10**9)), frame
+        q.quaternion.x, q.quaternion.y, q.quaternion.z, q.quaternion.w = rng.standard_normal(4).tolist()
+        v = Vector3Stamped()
+        v.header.stamp.sec, v.header.frame_id = k, frame
+        v.vector.x, v.vector.y, v.vector.z = rng.standard_normal(3).tolist()
+        w = WrenchStamped()
+        w.header.stamp.nanosec, w.header.frame_id = k, frame
+        w.wrench.force.x, w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = rng.standard_normal(4).tolist()
+        rows = {label: rng.standard_normal(3) for label in c.DIAGNOSTICS_LAYOUT[1:]}
+        log = 1_000_000 * k
+        out += [("/q", c.STATE_ATTITUDE.type_name, q, log), ("/v", c.STATE_RATE.type_name, v, log + 1),
+                ("/w", c.CONTROL_TORQUE.type_name, w, log + 2), ("/clock", c.CLOCK.type_name, clock_msg(t), log + 3),
+                ("/d", c.CONTROLLER_DIAGNOSTICS.type_name, diagnostics_msg(t, rows), log + 4)]
+    # one Float64MultiArray of another layout and length: parsed on its own
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+    other = Float64MultiArray()
+    other.layout.dim = [MultiArrayDimension(label="x", size=2, stride=2)]
+    other.data = [1.5, -2.5]
+    out.append(("/d", c.CONTROLLER_DIAGNOSTICS.type_name, other, 10**9))
+    return out
+
+
+def _expected(messages):  # type: ignore[no-untyped-def]
+    """The values rclpy's deserialiser gives, per topic (the reader's truth)."""
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    exp: dict[str, list] = {}
+    for topic, type_name, msg, _ in messages:
+        m = deserialize_message(serialize_message(msg), type(msg))
+        if topic == "/q":
+            s, v = m.header.stamp, [m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w]
+        elif topic == "/v":
+            s, v = m.header.stamp, [m.vector.x, m.vector.y, m.vector.z]
+        elif topic == "/w":
+            s, v = m.header.stamp, [m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z]
+        elif topic == "/clock":
+            s, v = m.clock, [m.clock.sec + m.clock.nanosec / 1e9]
+        else:
+            s, v = None, list(m.data)
+        ns = None if s is None else s.sec * 1_000_000_000 + s.nanosec
+        exp.setdefault(topic, []).append((ns, v, getattr(getattr(m, "header", None), "frame_id", None)))
+    return exp
+
+
+@pytest.mark.parametrize("compression,chunked", [("zstd", True), ("lz4", True), ("none", True), ("none", False)])
+def test_decoders_equal_rclpy_for_every_alignment_and_layout(tmp_path, rng, compression, chunked) -> None:  # type: ignore[no-untyped-def]
+    messages = _msgs_with_every_alignment(rng)
+    bag = read_bag(write_bag(tmp_path / "a.mcap", messages, compression=compression, use_chunking=chunked))
+    assert bag.truncated is None and bag.undecodable == {}
+    for topic, rows in _expected(messages).items():
+        s = bag.series[topic]
+        assert s.values.shape[0] == len(rows), topic
+        for k, (ns, values, _) in enumerate(rows):
+            got = s.values[k][: len(values)]
+            assert np.array_equal(got, np.asarray(values)), (topic, k)  # bit for bit
+            if ns is not None:
+                assert s.stamps_ns[k] == ns, (topic, k)
+    assert bag.frame_ids["/q"] == tuple(sorted({"f" * n for n in range(10)}))
+    assert bag.diagnostics_labels == c.DIAGNOSTICS_LAYOUT
+    assert np.isnan(bag.series["/d"].values[-1, 2:]).all()  # the short layout is padded, not invented
+
+
+def test_a_bag_cut_anywhere_gives_the_messages_before_the_cut(tmp_path, rng) -> None:  # type: ignore[no-untyped-def]
+    messages = [("/v", c.STATE_RATE.type_name, vector3_msg([k, 0.0, 0.0], k * 0.01, c.STATE_RATE), k * 10**7) for k in range(3000)]
+    whole = write_bag(tmp_path / "whole.mcap", messages, chunk_size=2048).read_bytes()
+    for cut in np.linspace(200, len(whole) - 1, 25).astype(int):
+        part = tmp_path / f"cut{cut}.mcap"
+        part.write_bytes(whole[:cut])
+        try:
+            bag = read_bag(part)
+        except BagError as exc:  # only when nothing at all is readable
+            assert "no messages" in str(exc)
+            continue
+        values = bag.series["/v"].values[:, 0]
+        assert bag.truncated is not None
+        assert np.array_equal(values, np.arange(values.size, dtype=float))  # a prefix, in order, nothing invented
+    # a file cut at 90 % still has most of its messages
+    part.write_bytes(whole[: int(0.9 * len(whole))])
+    assert read_bag(part).series["/v"].values.shape[0] > 2000
+
+
+def test_what_is_not_a_bag_gets_one_clear_line(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    (tmp_path / "text.mcap").write_text("hello")
+    (tmp_path / "empty.mcap").write_bytes(b"")
+    (tmp_path / "nobag").mkdir()
+    only_other = write_bag(tmp_path / "other.mcap", [])
+    cases = {
+        tmp_path / "text.mcap": "not an MCAP file",
+        tmp_path / "empty.mcap": "not an MCAP file",
+        tmp_path / "nobag": "no .mcap file",
+        tmp_path / "missing": "no such bag",
+        only_other: "no messages of the topic contract",
+    }
+    for path, words in cases.items():
+        with pytest.raises(BagError, match=words):
+            read_bag(path)
+        proc = subprocess.run([*SAPPC, "report", str(path), "--out", str(tmp_path / "r")], capture_output=True, text=True, cwd=ROOT)
+        assert proc.returncode == 2, proc.stderr
+        assert "Traceback" not in proc.stderr and words in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_a_bag_without_the_reference_gives_a_partial_report(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    messages = []
+    for k in range(200):
+        t = k * 0.01
+        messages += [(c.STATE_ATTITUDE.name, c.STATE_ATTITUDE.type_name, quaternion_msg([0.0, 0.0, 0.0, 1.0], t, c.STATE_ATTITUDE), k),
+                     (c.CONTROL_TORQUE.name, c.CONTROL_TORQUE.type_name, torque_msg([0.1, 0.0, 0.0], t, c.CONTROL_TORQUE), k)]
+    path = write_bag(tmp_path / "partial.mcap", messages)
+    out = tmp_path / "report"
+    proc = subprocess.run([*SAPPC, "report", str(path), "--out", str(out), "--json", str(tmp_path / "r.json")],
+                          capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr
+    summary = json.loads((tmp_path / "r.json").read_text())
+    assert summary["metrics"] is None
+    assert any("state/rate" in p and "reference/attitude" in p for p in summary["problems"])
+    assert summary["messages"] == {"state/attitude": 200, "control/torque": 200}
+    page = (out / "report.html").read_text()
+    assert "reference/attitude" in page and "<img" not in page  # the page says why, and shows no invented figure
+
+
+def test_metrics_of_a_whole_history_equal_the_sample_by_sample_observer() -> None:
+    from sappc.metrics import MetricsAccumulator
+    from sappc.scenario import load_scenario
+    from sappc.simulate import simulate
+
+    scenario = load_scenario(SCENARIOS / "paper_fault.yaml")  # faults: every metric has a value
+    import dataclasses
+
+    scenario = dataclasses.replace(scenario, faults=())  # the offline runner refuses relayed faults
+    result = simulate(scenario)
+    ms = scenario.metrics
+    acc = MetricsAccumulator(result.history.t, 1, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold,
+                             t2_s=ms.t2_s, fault_windows=scenario.event_windows())
+    acc.add_history(result.history)
+    block = acc.run_metrics(0)
+    assert block["returned_at_s"] is not None and block["left_constraint_after_fault"] is True
+    for key, value in block.items():
+        assert result.metrics[key] == value, key  # exactly: the block sums in the same order
+
+
+def test_parameters_files_give_the_controller_config(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from sappc.scenario import load_scenario
+    from sappc_controller.params import controller_from_parameters_file, parameters_from_yaml
+
+    kind, config, dt = controller_from_parameters_file((ROOT / "config" / "controller_trappc.yaml").read_text())
+    assert kind == "trappc" and dt == 0.01
+    assert config == load_scenario(SCENARIOS / "paper_tracking.yaml").controller_config("trappc")
+    text = "/**:\n  ros__parameters:\n    a: 1\n    b: {c: 2}\ncontroller:\n  ros__parameters:\n    a: 3\n"
+    assert parameters_from_yaml(text) == {"a": 3, "b.c": 2}
+    with pytest.raises(ConfigError, match="no ros__parameters for node 'controller'"):
+        parameters_from_yaml("other:\n  ros__parameters: {a: 1}\n")
+    bad = (ROOT / "config" / "controller_sappc.yaml").read_text().replace("K_q:", "K_qq:")
+    with pytest.raises(ConfigError, match="unknown parameter 'sappc.gains.K_qq'"):
+        controller_from_parameters_file(bad, source="bad.yaml")
