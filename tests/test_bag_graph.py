@@ -64,6 +64,7 @@ def test_rerun_reproduces_every_recorded_torque(tracking_run, tmp_path) -> None:
     assert proc.returncode == 0, proc.stdout + proc.stderr
     same = json.loads((tmp_path / "same.json").read_text())
     assert same["samples"] == 6001 and same["identical"] == 6001 and same["max_abs_diff_Nm"] == 0.0 and same["mode"] == "lockstep"
+    assert same["pairing"] == "the input stamps the controller reported"
     # other parameters: what would have been commanded (a stiffer K_q changes every torque but the saturated ones)
     params = yaml.safe_load((ROOT / "config" / "controller_sappc.yaml").read_text())
     params["/controller"]["ros__parameters"]["sappc"]["gains"]["K_q"] = 0.6

@@ -38,7 +38,13 @@ from .closed_loop import History
 from .mcap_scan import Scan, scan_mcap
 from .metrics import MetricsAccumulator
 
-__all__ = ["Bag", "BagError", "read_bag", "bag_metrics"]
+__all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "Bag", "BagError", "BagRun", "bag_metrics", "bag_run", "find_topic", "latest_index",
+           "read_bag", "scan_bag"]
+
+#: Metadata records that ``sappc run``'s recorder embeds in the bag: the scenario file and the
+#: ROS parameters of every node (the recorder names them ``sappc/<file name>``).
+SCENARIO_RECORD = "sappc/scenario.yaml"
+PARAMS_RECORD = "sappc/params.yaml"
 
 Array = NDArray[np.float64]
 
@@ -140,7 +146,7 @@ def read_bag(path: str | Path) -> Bag:
                undecodable=undecodable, frame_ids=frame_ids)
 
 
-def _topic(bag: Bag, name: str) -> str | None:
+def find_topic(bag: Bag, name: str) -> str | None:
     """The recorded topic whose name is ``name`` or ends with ``/name`` (namespaced runs)."""
     name = name.lstrip("/")
     for t in bag.series:
@@ -149,7 +155,7 @@ def _topic(bag: Bag, name: str) -> str | None:
     return None
 
 
-def _latest_index(stamps: NDArray[np.int64], at: NDArray[np.int64]) -> NDArray[np.int64]:
+def latest_index(stamps: NDArray[np.int64], at: NDArray[np.int64]) -> NDArray[np.int64]:
     """Index of the latest sample at or before each of ``at`` (-1 if none)."""
     order = np.argsort(stamps, kind="stable")
     idx = np.searchsorted(stamps[order], at, side="right") - 1
@@ -181,7 +187,7 @@ def bag_run(bag: Bag) -> BagRun:
         "rate": STATE_RATE.name,
         "ref": REFERENCE_ATTITUDE.name,
     }
-    found = {k: _topic(bag, v) for k, v in names.items()}
+    found = {k: find_topic(bag, v) for k, v in names.items()}
     missing = [names[k] for k, v in found.items() if v is None or bag.series[v].stamps_ns.size == 0]
     if missing:
         raise BagError(f"{bag.path}: the bag lacks {', '.join(missing)}; metrics need the state and the reference")
@@ -190,8 +196,8 @@ def bag_run(bag: Bag) -> BagRun:
     common = common[common >= ref.stamps_ns.min()]
     if common.size == 0:
         raise BagError(f"{bag.path}: no state sample has both attitude and rate after the first reference")
-    ia = _latest_index(att.stamps_ns, common)
-    ir = _latest_index(rate.stamps_ns, common)
+    ia = latest_index(att.stamps_ns, common)
+    ir = latest_index(rate.stamps_ns, common)
     q_BN, w_BN_B = att.values[ia, :4], rate.values[ir, :3]
     # reference attitude at the state stamps: exact where they coincide, else normalised lerp
     order = np.argsort(ref.stamps_ns, kind="stable")
@@ -205,22 +211,22 @@ def bag_run(bag: Bag) -> BagRun:
     q_RN = np.where(exact[:, None], rq[j], quat_normalize((1.0 - w) * rq[j] + w * q1))
     q_BR = error_quaternion(q_RN, q_BN)
 
-    torque_topic = _topic(bag, faulty(CONTROL_TORQUE).name) or _topic(bag, CONTROL_TORQUE.name)
+    torque_topic = find_topic(bag, faulty(CONTROL_TORQUE).name) or find_topic(bag, CONTROL_TORQUE.name)
     T = common.size
 
     def held(topic: str | None, width: int) -> Array:
         if topic is None:
             return np.zeros((T, width))
         s = bag.series[topic]
-        i = _latest_index(s.stamps_ns, common)
+        i = latest_index(s.stamps_ns, common)
         return np.where((i >= 0)[:, None], s.values[np.maximum(i, 0), :width], 0.0)
 
     rows: dict[str, Array] = {}
-    diag_topic = _topic(bag, CONTROLLER_DIAGNOSTICS.name)
+    diag_topic = find_topic(bag, CONTROLLER_DIAGNOSTICS.name)
     labels = bag.diagnostics_labels
     if diag_topic is not None and labels and bag.series[diag_topic].values.shape[1] >= 3 * len(labels):
         d = bag.series[diag_topic]
-        i = _latest_index(d.stamps_ns, common)
+        i = latest_index(d.stamps_ns, common)
         data = d.values[np.maximum(i, 0), : 3 * len(labels)].reshape(T, len(labels), 3)
         data[i < 0] = np.nan
         rows = {label: data[:, n] for n, label in enumerate(labels)}
@@ -236,7 +242,7 @@ def bag_run(bag: Bag) -> BagRun:
         torque_B=one(held(torque_topic, 3)),
         torque_cmd_B=one(rows.get("torque_cmd_Nm", nan3)),
         saturated=one(rows.get("saturated", np.zeros((T, 3))) > 0.5),
-        disturbance_B=one(held(_topic(bag, DISTURBANCE_TORQUE.name), 3)),
+        disturbance_B=one(held(find_topic(bag, DISTURBANCE_TORQUE.name), 3)),
         rho=one(rows.get("rho", nan3)),
         band_lower=one(rows.get("band_lower", nan3)),
         band_upper=one(rows.get("band_upper", nan3)),

@@ -13,7 +13,8 @@ sample to :class:`MetricsAccumulator` (it is a closed-loop observer) and read
     Over ``t >= steady_from_s``: the largest ``|q_ev,i|``, and the largest over
     ``i`` of the time-mean of ``|q_ev,i|`` (the paper's Monte Carlo criterion).
 ``rpf_error_at_t2``
-    ``max_i |q_ev,i - rho_i|`` at the sample nearest ``t2_s``, with ``rho`` the
+    ``max_i |q_ev,i - rho_i|`` at the sample nearest ``t2_s`` (``None`` when the run ends
+    before ``t2_s``), with ``rho`` the
     controller's own performance function (the RPF for SAPPC): the paper's
     other Monte Carlo criterion.
 ``overshoot``
@@ -99,7 +100,9 @@ class MetricsAccumulator:
         self.dt = float(self.t[1] - self.t[0]) if self.t.size > 1 else 0.0
         self.settle_threshold = settle_threshold
         self.steady_from_s = steady_from_s
-        self.k_t2 = int(np.argmin(np.abs(self.t - t2_s)))
+        # the sample nearest t2, or none (-1) when the run ends before t2 (a run cut short)
+        k_t2 = int(np.argmin(np.abs(self.t - t2_s))) if self.t.size else -1
+        self.k_t2 = k_t2 if k_t2 >= 0 and abs(self.t[k_t2] - t2_s) <= 0.5 * self.dt + _TIME_TOL_S else -1
         self.fault_start_s = min((s for s, _ in fault_windows), default=None)
         n = n_runs
         self.last_unsettled = np.full(n, -1)  # last sample with max|q_ev| >= threshold

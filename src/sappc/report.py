@@ -24,14 +24,10 @@ from sappc_msgs_py.contract import CONTROL_TORQUE, TOPICS, Topic, faulty
 from sappc_controller.params import parameters_from_yaml
 from spacecraft_sim.core.validation import ConfigError
 
-from .bag import Bag, BagError, BagRun, bag_metrics, bag_run, read_bag
+from .bag import PARAMS_RECORD, SCENARIO_RECORD, Bag, BagError, BagRun, bag_metrics, bag_run, read_bag
 from .scenario import MetricSettings, Scenario, load_scenario, scenario_from_mapping
 
 __all__ = ["BagAnalysis", "analyse_bag", "compare_bags", "html_page", "write_report"]
-
-#: Metadata records that ``sappc run``'s recorder embeds in the bag.
-SCENARIO_RECORD = "sappc/scenario.yaml"
-PARAMS_RECORD = "sappc/params.yaml"
 
 #: Every topic the contract names, the fault relays' included, by name.
 _CONTRACT: dict[str, Topic] = {t.name.lstrip("/"): t for t in TOPICS} | {

@@ -9,11 +9,14 @@ one the node published on ``control/torque``.  With the recorded parameters and 
 the two are bit-for-bit equal: a determinism check of the whole chain (CDR, the node, the core).
 
 Which samples are re-run: every ``control/torque`` message whose diagnostics do not flag stale
-inputs (a stale sample is the node's zero torque, not a control step).  Lockstep bags (with
-``/clock``) pair inputs by exact stamp, as the node does.  Real-time bags pair each torque with
-the latest input the recorder had received before it: the node's own view may differ by a
-message in flight, so expect small differences there, which are reported, not hidden.
-Runtime parameter changes made during the run are not in the bag and are not replayed.
+inputs (a stale sample is the node's zero torque, not a control step).  Which inputs: those
+whose stamps the controller reported in its diagnostics (``input_stamps_state_s``,
+``input_stamps_reference_s``), so the re-run is exact in real time too.  For a bag without them
+(another controller node), lockstep bags (with ``/clock``) pair the inputs of equal stamps, as
+the node does, and real-time bags take the latest input the recorder had received before the
+torque, which may differ from the node's view by a message in flight: expect small differences
+there, which are reported, not hidden.  Runtime parameter changes made during the run are not
+in the bag and are not replayed.
 """
 
 from __future__ import annotations
@@ -39,14 +42,28 @@ from sappc_msgs_py.contract import (
 )
 from spacecraft_sim.core.validation import ConfigError, InputError
 
-from .bag import Bag, BagError, Series, _latest_index, _topic
-from .report import PARAMS_RECORD
+from .bag import PARAMS_RECORD, Bag, BagError, Series, find_topic, latest_index
 
 __all__ = ["RerunResult", "rerun_bag"]
 
 Array = NDArray[np.float64]
 
 _NS = 1_000_000_000
+#: Stamps carried as float seconds in the diagnostics (epoch times in real time) are exact to
+#: ~0.24 us; messages of one topic are milliseconds apart, so 1 us identifies one unambiguously.
+_STAMP_TOL_NS = 1_000
+
+
+def _nearest_index(stamps_ns: NDArray[np.int64], at_ns: NDArray[np.int64], tol_ns: int) -> NDArray[np.int64]:
+    """Index of the sample whose stamp is nearest each of ``at_ns``, or -1 when none is within ``tol_ns``."""
+    if stamps_ns.size == 0:
+        return np.full(np.shape(at_ns), -1, dtype=np.int64)
+    order = np.argsort(stamps_ns, kind="stable")
+    s = stamps_ns[order]
+    hi = np.clip(np.searchsorted(s, at_ns), 0, s.size - 1)
+    lo = np.maximum(hi - 1, 0)
+    best = np.where(np.abs(s[lo] - at_ns) <= np.abs(s[hi] - at_ns), lo, hi)
+    return np.where(np.abs(s[best] - at_ns) <= tol_ns, order[best], -1)
 
 
 @dataclass
@@ -55,7 +72,8 @@ class RerunResult:
 
     controller: str
     params_source: str
-    mode: str  # "lockstep" (pairs by stamp) or "realtime" (pairs by arrival)
+    mode: str  # "lockstep" (the bag has /clock) or "realtime"
+    pairing: str  # how each torque was matched with its inputs
     stamps_ns: NDArray[np.int64]  # (K,) the re-run samples
     recorded: Array  # (K, 3) control/torque as published [N m]
     recomputed: Array  # (K, 3) [N m]
@@ -78,6 +96,7 @@ class RerunResult:
             "controller": self.controller,
             "parameters": self.params_source,
             "mode": self.mode,
+            "pairing": self.pairing,
             "samples": k,
             "identical": self.identical,
             "all_identical": k > 0 and self.identical == k,
@@ -89,7 +108,7 @@ class RerunResult:
 
 def _series(bag: Bag, *names: str) -> Series:
     for name in names:
-        topic = _topic(bag, name)
+        topic = find_topic(bag, name)
         if topic is not None and bag.series[topic].stamps_ns.size:
             return bag.series[topic]
     raise BagError(f"{bag.path}: the bag lacks {names[-1]}; a re-run needs the state, the reference and control/torque")
@@ -132,27 +151,33 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
     torque = _series(bag, CONTROL_TORQUE.name)
     skipped: dict[str, int] = {}
     keep = np.ones(torque.stamps_ns.size, dtype=bool)
-    diag_topic = _topic(bag, CONTROLLER_DIAGNOSTICS.name)
-    if diag_topic is not None and "status" in bag.diagnostics_labels:
+    labels = bag.diagnostics_labels
+    diag_topic = find_topic(bag, CONTROLLER_DIAGNOSTICS.name)
+    diag = None
+    if diag_topic is not None and "status" in labels:
+        # the node publishes each torque with its diagnostics, stamped with the same time
         d = bag.series[diag_topic]
-        col = 3 * bag.diagnostics_labels.index("status") + 1  # status[1]: the stale flag
-        # the node publishes the torque and its diagnostics together, with the same time
-        i = _latest_index(d.stamps_ns, torque.stamps_ns)
-        stale = (i >= 0) & (d.stamps_ns[np.maximum(i, 0)] == torque.stamps_ns) & (d.values[np.maximum(i, 0), col] > 0.5)
+        j = _nearest_index(d.stamps_ns, torque.stamps_ns, _STAMP_TOL_NS)
+        diag = np.where((j >= 0)[:, None], d.values[np.maximum(j, 0)], np.nan)
+        stale = diag[:, 3 * labels.index("status") + 1] > 0.5  # status[1]: the stale flag
         keep &= ~stale
         if stale.any():
             skipped["stale (zero torque, no control step)"] = int(stale.sum())
 
-    lockstep = _topic(bag, CLOCK.name) is not None
-    if lockstep:  # pair by exact stamp, as the node does
-        pos = []
-        for s in inputs:
-            order = np.argsort(s.stamps_ns, kind="stable")
-            j = np.clip(np.searchsorted(s.stamps_ns[order], torque.stamps_ns), 0, s.stamps_ns.size - 1)
-            hit = s.stamps_ns[order][j] == torque.stamps_ns
-            pos.append(np.where(hit, order[j], -1))
-    else:  # pair by arrival at the recorder
-        pos = [_latest_index(s.log_time_ns, torque.log_time_ns) for s in inputs]
+    lockstep = find_topic(bag, CLOCK.name) is not None
+    if diag is not None and "input_stamps_state_s" in labels and "input_stamps_reference_s" in labels:
+        # the stamps of the messages the step used, as the controller reported them
+        a, b = 3 * labels.index("input_stamps_state_s"), 3 * labels.index("input_stamps_reference_s")
+        used = np.concatenate((diag[:, a : a + 2], diag[:, b : b + 3]), axis=1)
+        used_ns = np.where(np.isfinite(used), np.round(np.nan_to_num(used) * 1e9), -1).astype(np.int64)
+        pos = [_nearest_index(s.stamps_ns, used_ns[:, c], _STAMP_TOL_NS) for c, s in enumerate(inputs)]
+        pairing = "the input stamps the controller reported"
+    elif lockstep:  # the node pairs the inputs of one stamp
+        pos = [_nearest_index(s.stamps_ns, torque.stamps_ns, 0) for s in inputs]
+        pairing = "equal stamps"
+    else:  # the latest input at the recorder when the torque arrived: may differ from the node's view
+        pos = [latest_index(s.log_time_ns, torque.log_time_ns) for s in inputs]
+        pairing = "arrival at the recorder (approximate)"
     found = np.all(np.stack(pos) >= 0, axis=0)
     if (keep & ~found).any():
         skipped["an input of the sample is not in the bag"] = int((keep & ~found).sum())
@@ -172,6 +197,7 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
         controller=kind,
         params_source=source,
         mode="lockstep" if lockstep else "realtime",
+        pairing=pairing,
         stamps_ns=torque.stamps_ns[rows],
         recorded=torque.values[rows, :3],
         recomputed=recomputed,

@@ -192,7 +192,7 @@ class ControllerNode(ProjectNode):
         entry[topic.name] = value
         if len(entry) == len(_INPUTS):
             del self._pending[ns]
-            self._compute(ns, ns, *(entry[t.name] for t in _INPUTS))
+            self._compute(ns, [ns] * len(_INPUTS), *(entry[t.name] for t in _INPUTS))
         elif len(self._pending) > _MAX_PENDING:
             del self._pending[min(self._pending)]
 
@@ -213,9 +213,10 @@ class ControllerNode(ProjectNode):
         if now - oldest > self.stale_timeout_ns:
             self._publish_zero(now, f"inputs older than {self.stale_timeout_ns / _NS} s")
             return
-        self._compute(now, max(att[0], rate[0]), *(latest[t.name][1] for t in _INPUTS))
+        self._compute(now, [latest[t.name][0] for t in _INPUTS], *(latest[t.name][1] for t in _INPUTS))
 
-    def _compute(self, t_ns: int, state_ns: int, q: np.ndarray, w: np.ndarray, q_d: np.ndarray, w_d: np.ndarray, wdot_d: np.ndarray) -> None:
+    def _compute(self, t_ns: int, input_ns: list[int], q: np.ndarray, w: np.ndarray, q_d: np.ndarray, w_d: np.ndarray, wdot_d: np.ndarray) -> None:
+        """One control step at ``t_ns`` on the five inputs (stamped ``input_ns``, in :data:`_INPUTS` order)."""
         try:
             out = self.controller.step(t_ns / _NS, self.dt, q, w, q_d, w_d, wdot_d)
         except (InputError, FloatingPointError, ConfigError) as exc:
@@ -223,13 +224,13 @@ class ControllerNode(ProjectNode):
             self._publish_zero(t_ns, "control step failed")
             return
         self._last_ns = t_ns
-        self._last_state_ns = state_ns
+        self._last_state_ns = max(input_ns[0], input_ns[1])
         self.steps += 1
         if self.stale:
             self.get_logger().info("valid inputs again: control resumed")
         self.stale = False
         self._diag_rows = {"rho": out.rho, "band_lower": out.band_lower, "band_upper": out.band_upper, "eps": out.eps, "z": out.z, "lyapunov_V": out.V}
-        self._publish(t_ns, out.torque_B, out.torque_cmd_B, out.saturated)
+        self._publish(t_ns, out.torque_B, out.torque_cmd_B, out.saturated, input_ns)
 
     def _publish_zero(self, t_ns: int, why: str) -> None:
         if not self.stale:
@@ -237,14 +238,16 @@ class ControllerNode(ProjectNode):
         self.stale = True
         self._last_ns = t_ns if self._last_ns is None else max(self._last_ns, t_ns)
         zero = np.zeros(3)
-        self._publish(t_ns, zero, zero, zero)
+        self._publish(t_ns, zero, zero, zero, [0] * len(_INPUTS))
 
-    def _publish(self, t_ns: int, torque: np.ndarray, torque_cmd: np.ndarray, saturated: np.ndarray) -> None:
+    def _publish(self, t_ns: int, torque: np.ndarray, torque_cmd: np.ndarray, saturated: np.ndarray, input_ns: list[int]) -> None:
         t = t_ns / _NS
         stamp = ns_to_stamp(t_ns)
         self.pub_torque.publish(torque_msg(torque, stamp, CONTROL_TORQUE))
         rows = dict(self._diag_rows)
-        rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(self.stale), 0.0])
+        rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(self.stale), 0.0],
+                    input_stamps_state_s=[input_ns[0] / _NS, input_ns[1] / _NS, 0.0],
+                    input_stamps_reference_s=[n / _NS for n in input_ns[2:]])
         self.pub_diag.publish(diagnostics_msg(t, rows))
 
     def timer_statistics(self) -> dict[str, Any]:

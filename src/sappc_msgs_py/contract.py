@@ -140,7 +140,9 @@ TOPICS = (
 
 #: Layout of ``controller/diagnostics`` (``std_msgs/Float64MultiArray``): labelled rows of 3
 #: values each (per axis or per layer), in this order.  The message's ``layout.dim`` carries the
-#: same labels, so a reader never has to guess.
+#: same labels, so a reader never has to guess.  The input stamps say exactly which messages a
+#: step used (lockstep: all equal ``time_s``; real time: the latest of each topic), which makes
+#: ``sappc rerun`` exact in both modes; as float seconds they identify a message to ~0.5 us.
 DIAGNOSTICS_LAYOUT = (
     "time_s",  # controller time of the sample (3 copies)
     "rho",  # performance / reference function per axis
@@ -152,6 +154,8 @@ DIAGNOSTICS_LAYOUT = (
     "torque_cmd_Nm",  # commanded before the actuator model
     "saturated",  # 1.0 where the axis saturated
     "status",  # rejected messages, stale flag (1.0 = stale inputs, zero torque), 0.0
+    "input_stamps_state_s",  # header stamps of the state/attitude and state/rate used, 0.0 (0 when no step)
+    "input_stamps_reference_s",  # header stamps of the reference attitude, rate, acceleration used
 )
 
 
