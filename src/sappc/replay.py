@@ -71,7 +71,8 @@ def plan_replay(path: str | Path, topics: list[str] | None = None) -> ReplayPlan
         If the bag is not readable, or ``topics`` names a topic it does not have.
     """
     scan = scan_bag(path)
-    cdr = {cid: c for cid, c in scan.channels.items() if c.message_encoding == "cdr"}
+    present = set(np.unique(scan.channel_id).tolist())  # channels with at least one message
+    cdr = {cid: c for cid, c in scan.channels.items() if c.message_encoding == "cdr" and cid in present}
     clock_ids = [cid for cid, c in cdr.items() if c.topic.lstrip("/") == CLOCK.name.lstrip("/")]
     if topics:
         wanted = {t.lstrip("/") for t in topics}
