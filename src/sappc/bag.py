@@ -2,8 +2,9 @@
 
 Works on any bag that follows the topic contract (``sappc run``'s, or a user plant's): a rosbag2
 directory with ``metadata.yaml`` and an MCAP file, or a bare ``.mcap`` file.  The file is read
-sequentially, so a bag cut short by a crash (no summary, a torn last chunk) yields every message
-before the tear and says where it ends.
+sequentially (:mod:`sappc.mcap_scan`), so a bag cut short by a crash (no summary, a torn last
+chunk) yields every message before the tear and says where it ends, and decoded without ROS
+(:mod:`sappc.cdr`).
 
 Samples are aligned on the plant's state stamps (``state/attitude`` and ``state/rate``, the
 truth even when a fault relay feeds the controller): the reference is interpolated at each stamp

@@ -232,7 +232,7 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
         t = (r.stamps_ns - r.stamps_ns[0]) / 1e9 if r.stamps_ns.size else r.stamps_ns.astype(float)
         figures = plot_torque_rerun(t, r.recorded, r.recomputed, out, title=f"{Path(args.bag).name} ({r.controller})")
         page = out / "rerun.html"
-        page.write_text(html_page(f"Re-run: {args.bag}", [html_table(["", ""], [[k, v] for k, v in s.items()])]
+        page.write_text(html_page(f"Re-run: {args.bag}", [html_table(["item", "value"], [[k, v] for k, v in s.items()])]
                                   + [html_figure(p) for p in figures]))
         print(f"wrote {page} and {len(figures)} figure(s)")
     if args.json:

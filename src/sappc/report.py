@@ -75,7 +75,12 @@ def _embedded_scenario(bag: Bag) -> Scenario | None:
         return None
     import yaml
 
-    return scenario_from_mapping(yaml.safe_load(record["text"]), source=f"{bag.path} ({SCENARIO_RECORD})")
+    source = f"{bag.path} ({SCENARIO_RECORD})"
+    try:
+        data = yaml.safe_load(record["text"])
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source} is not valid YAML: {exc}") from None
+    return scenario_from_mapping(data, source=source)
 
 
 def _embedded_controller(bag: Bag) -> str | None:
@@ -221,7 +226,7 @@ def write_report(a: BagAnalysis, out_dir: Path) -> list[Path]:
         ["whole file", a.bag.truncated is None],
     ] + [[f"messages on {t}", n] for t, n in s["messages"].items()]
     blocks = [
-        "<h2>Bag</h2>" + html_table(["", ""], info),
+        "<h2>Bag</h2>" + html_table(["item", "value"], info),
         html_list(a.problems, "problem") + html_list(a.notes, "note"),
     ]
     if a.metrics is not None:
