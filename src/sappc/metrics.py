@@ -139,38 +139,43 @@ class MetricsAccumulator:
         B = t.size
         if B == 0:
             return
-        ks = k0 + np.arange(B)
-        q_ev = q_BR[..., :3]
-        ok = np.isfinite(x).all(axis=-1) & np.isfinite(torque_B).all(axis=-1)
-        live = np.logical_and.accumulate(ok, axis=0) & self.finite  # a failed run's metrics stop at its last finite sample
-        self.finite = live[-1].copy()
-        abs_q = np.abs(q_ev)
-        if self.sign0 is None:
-            self.sign0 = np.where(q_ev[0] >= 0.0, 1.0, -1.0)
+
+        def over_block(a: NDArray, reduce: np.ufunc) -> NDArray:  # type: ignore[type-arg]
+            """``reduce`` over the block's samples (a view for a one-sample block: the hot path)."""
+            return a[0] if B == 1 else reduce.reduce(a, axis=0)
 
         def last_true(mask: NDArray[np.bool_], previous: NDArray[np.int64]) -> NDArray[np.int64]:
-            return np.where(mask.any(axis=0), ks[B - 1 - np.argmax(mask[::-1], axis=0)], previous)
+            """Per run, the last sample of the block where ``mask`` holds, else ``previous``."""
+            return np.where(over_block(mask, np.logical_or), k0 + B - 1 - np.argmax(mask[::-1], axis=0), previous)
 
-        self.last_unsettled = last_true(live & (abs_q.max(axis=-1) >= self.settle_threshold), self.last_unsettled)
+        q_ev = q_BR[..., :3]
+        ok = np.isfinite(x).all(axis=-1) & np.isfinite(torque_B).all(axis=-1)
+        live = (ok if B == 1 else np.logical_and.accumulate(ok, axis=0)) & self.finite  # a failed run stops at its last finite sample
+        self.finite = live[-1].copy()
+        abs_q = np.abs(q_ev)
+        max_abs_q = abs_q.max(axis=-1)
+        if self.sign0 is None:
+            self.sign0 = np.where(q_ev[0] >= 0.0, 1.0, -1.0)
+        self.last_unsettled = last_true(live & (max_abs_q >= self.settle_threshold), self.last_unsettled)
         steady = t >= self.steady_from_s - _TIME_TOL_S
         if steady.any():
             use = live & steady[:, None]
-            # a sequential sum (cumsum), so that a block adds exactly as its samples one by one would
-            terms = np.concatenate((self.steady_sum[None], np.where(use[..., None], abs_q, 0.0)), axis=0)
-            self.steady_sum = np.cumsum(terms, axis=0)[-1]
+            # sample after sample, so that a block sums exactly as its samples one by one would
+            for row in np.where(use[..., None], abs_q, 0.0):
+                self.steady_sum = self.steady_sum + row
             self.steady_count += int(steady.sum())
-            self.steady_max = np.maximum(self.steady_max, np.where(use, abs_q.max(axis=-1), 0.0).max(axis=0))
+            self.steady_max = np.maximum(self.steady_max, over_block(np.where(use, max_abs_q, 0.0), np.maximum))
         if k0 <= self.k_t2 < k0 + B:
             j = self.k_t2 - k0
             self.rpf_error_t2_axis = np.where(live[j][:, None], np.abs(q_ev[j] - rho[j]), np.nan)
-        self.overshoot = np.maximum(self.overshoot, np.where(live, (-self.sign0 * q_ev).max(axis=-1), -np.inf).max(axis=0))
-        self.max_torque = np.maximum(self.max_torque, np.where(live, np.abs(torque_B).max(axis=-1), 0.0).max(axis=0))
-        self.saturated_count += (live & saturated.any(axis=-1)).sum(axis=0)
+        self.overshoot = np.maximum(self.overshoot, over_block(np.where(live, (-self.sign0 * q_ev).max(axis=-1), -np.inf), np.maximum))
+        self.max_torque = np.maximum(self.max_torque, over_block(np.where(live, np.abs(torque_B).max(axis=-1), 0.0), np.maximum))
+        self.saturated_count += over_block(live & saturated.any(axis=-1), np.add)
         outside = live & ((q_ev < band_lower) | (q_ev > band_upper)).any(axis=-1)
-        self.outside_count += outside.sum(axis=0)
+        self.outside_count += over_block(outside, np.add)
         self.last_outside = last_true(outside, self.last_outside)
         if self.fault_start_s is not None:
-            self.left_after_fault |= (outside & (t >= self.fault_start_s - _TIME_TOL_S)[:, None]).any(axis=0)
+            self.left_after_fault |= over_block(outside & (t >= self.fault_start_s - _TIME_TOL_S)[:, None], np.logical_or)
         self.samples += B
 
     def settling_times(self) -> Array:
