@@ -192,3 +192,34 @@ def test_parameters_files_give_the_controller_config(tmp_path) -> None:  # type:
     bad = (ROOT / "config" / "controller_sappc.yaml").read_text().replace("K_q:", "K_qq:")
     with pytest.raises(ConfigError, match="unknown parameter 'sappc.gains.K_qq'"):
         controller_from_parameters_file(bad, source="bad.yaml")
+
+
+def test_a_real_time_bag_without_diagnostics_interpolates_the_reference_and_leaves_unknowns_null(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """State at 100 Hz, reference at 100 Hz stamped 4 ms later (real time: no common stamps), no
+    controller/diagnostics.  The reference rotates about z at 0.1 rad/s and the body holds the
+    identity, so the true error is q_ev = (0, 0, -sin(w t / 2)); the normalised lerp between
+    samples 10 ms apart is exact to ~1e-9 here (the chord's angle error, (w dt)^2 / 8 ~ 1e-7 rad,
+    enters q_ev scaled by w t / 2 at most 0.1)."""
+    from sappc.report import analyse_bag
+
+    w = 0.1
+    messages = []
+    for k in range(400):
+        ts, tr = k * 0.01, k * 0.01 + 0.004
+        qr = [0.0, 0.0, np.sin(w * tr / 2), np.cos(w * tr / 2)]
+        messages += [
+            (c.STATE_ATTITUDE.name, c.STATE_ATTITUDE.type_name, quaternion_msg([0.0, 0.0, 0.0, 1.0], ts, c.STATE_ATTITUDE), k),
+            (c.STATE_RATE.name, c.STATE_RATE.type_name, vector3_msg([0.0, 0.0, 0.0], ts, c.STATE_RATE), k),
+            (c.REFERENCE_ATTITUDE.name, c.REFERENCE_ATTITUDE.type_name, quaternion_msg(qr, tr, c.REFERENCE_ATTITUDE), k),
+            (c.CONTROL_TORQUE.name, c.CONTROL_TORQUE.type_name, torque_msg([0.01, 0.0, -0.02], ts, c.CONTROL_TORQUE), k),
+        ]
+    a = analyse_bag(write_bag(tmp_path / "rt.mcap", messages))
+    h = a.run.history
+    assert a.run.t0_ns == 10_000_000 and h.t[0] == 0.0  # the first state after the first reference
+    expected = -np.sin(w * (h.t + 0.01) / 2)  # h.t counts from that first aligned state
+    assert np.abs(h.q_ev[:, 0, 2] - expected).max() < 1e-9
+    assert np.abs(h.q_ev[:, 0, :2]).max() == 0.0
+    assert a.metrics["max_abs_torque_Nm"] == 0.02 and a.metrics["overshoot"] == 0.0
+    for key in ("rpf_error_at_t2", "saturation_fraction", "time_outside_constraint_s"):
+        assert a.metrics[key] is None, key  # unknown without diagnostics, not zero
+    assert any("no controller/diagnostics" in p for p in a.problems)
