@@ -8,7 +8,7 @@
     sappc report BAG [--json FILE] [--out DIR] [--scenario FILE]
     sappc compare BAG... [--out DIR] [--json FILE]
     sappc rerun BAG [--params FILE] [--json FILE] [--out DIR]
-    sappc replay BAG [--rate X] [--topics T...] [--loop] [--wait-subscribers N] [--domain-id N]
+    sappc replay BAG [--rate X] [--topics T...] [--loop] [--wait-subscribers N] [--start-delay S] [--domain-id N]
 
 Errors in the input (bad scenario, infeasible parameters, bad values) print
 one line naming the problem and exit with status 2; no traceback.
@@ -173,20 +173,16 @@ def _default_out(bag: str, suffix: str) -> Path:
     return p.with_name(f"{p.stem if p.is_file() else p.name}_{suffix}")
 
 
-def _print_notes(a: object) -> None:
-    for line in getattr(a, "problems", []):
-        print(f"  problem: {line}")
-    for line in getattr(a, "notes", []):
-        print(f"  note: {line}")
-
-
 def _cmd_report(args: argparse.Namespace) -> int:
     from .report import analyse_bag, write_report
 
     a = analyse_bag(args.bag, scenario=args.scenario)
     print(f"bag {a.path}: {sum(a.bag.counts.values())} messages on {len(a.bag.counts)} topics"
           + (f", data to t = {a.run.history.t[-1]:.3f} s" if a.run is not None else ""))
-    _print_notes(a)
+    for line in a.problems:
+        print(f"  problem: {line}")
+    for line in a.notes:
+        print(f"  note: {line}")
     if a.metrics is not None:
         _print_metrics(a.scenario.name if a.scenario else a.path.name, a.label, a.metrics)
     out = Path(args.out) if args.out else _default_out(args.bag, "report")
@@ -203,9 +199,10 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     analyses = [analyse_bag(b) for b in args.bags]
     out = Path(args.out) if args.out else Path("compare")
     header, rows, paths = compare_bags(analyses, out)
-    widths = [max(len(_format_value(r[c]) if c else str(r[c])) for r in [header] + rows) for c in range(len(header))]
-    for r in [header] + rows:
-        print("  ".join((str(v) if c == 0 or r is header else _format_value(v)).ljust(w) for c, (v, w) in enumerate(zip(r, widths))))
+    cells = [[_format_value(v) for v in row] for row in [header] + rows]
+    widths = [max(len(row[c]) for row in cells) for c in range(len(header))]
+    for row in cells:
+        print("  ".join(v.ljust(w) for v, w in zip(row, widths)).rstrip())
     print(f"wrote {paths[-1]} and {len(paths) - 1} figure(s) in {out}")
     if args.json:
         _write_json(args.json, {"runs": [a.summary() for a in analyses]})
@@ -221,7 +218,7 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
     bag = read_bag(args.bag)
     r = rerun_bag(bag, args.params)
     s = r.summary()
-    print(f"re-ran {s['samples']} control steps of {args.bag} through the {r.controller} core ({r.mode} pairing), parameters from {r.params_source}")
+    print(f"re-ran {s['samples']} control steps of {args.bag} through the {r.controller} core ({r.mode} bag; inputs paired by {r.pairing}), parameters from {r.params_source}")
     for why, n in r.skipped.items():
         print(f"  skipped {n}: {why}")
     if r.failed_steps:
@@ -327,6 +324,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INVALID_INPUT
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # output piped into `head` and the like: stop quietly (Python docs' recipe)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 
 
 if __name__ == "__main__":

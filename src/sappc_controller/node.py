@@ -72,8 +72,6 @@ from .params import CONTROLLER_CLASSES, DEFAULT_CONTROL_PERIOD_S, config_from_pa
 
 __all__ = ["ControllerNode", "main"]
 
-_CONTROLLERS = CONTROLLER_CLASSES
-
 #: The five inputs of one control step, by topic.
 _INPUTS = (STATE_ATTITUDE, STATE_RATE, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
 #: Largest number of stamps waiting for their other inputs (lockstep); older ones are dropped.
@@ -87,14 +85,14 @@ class ControllerNode(ProjectNode):
     def __init__(self, node_name: str = "controller", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.kind = str(self.param("controller", "sappc", ParameterDescriptor(read_only=True)))
-        if self.kind not in _CONTROLLERS:
-            raise ConfigError(f"controller must be one of {sorted(_CONTROLLERS)}, got {self.kind!r}")
+        if self.kind not in CONTROLLER_CLASSES:
+            raise ConfigError(f"controller must be one of {sorted(CONTROLLER_CLASSES)}, got {self.kind!r}")
         self._config_names = [name for name, _ in config_parameter_names(self.kind)]
         for name, default in config_parameter_names(self.kind):
             descriptor = ParameterDescriptor(dynamic_typing=True)
             self.declare_parameter(name, None if default is dataclasses.MISSING else default, descriptor)
         config = config_from_parameters(self.kind, self._config_values())
-        self.controller: AttitudeController = _CONTROLLERS[self.kind](config)
+        self.controller: AttitudeController = CONTROLLER_CLASSES[self.kind](config)
         self.dt = check_positive("control_period_s", self.param("control_period_s", DEFAULT_CONTROL_PERIOD_S, ParameterDescriptor(read_only=True)))
         self.mode = self.mode_param(ParameterDescriptor(read_only=True))
         self.stale_timeout_ns = int(check_positive("stale_timeout_s", self.param("stale_timeout_s", 0.1)) * _NS)
@@ -134,7 +132,7 @@ class ControllerNode(ProjectNode):
         """Reject overrides this node does not know (a typo would otherwise be ignored)."""
         overrides = getattr(self, "_parameter_overrides", {})
         known = set(self._parameters)
-        other_kinds = tuple(f"{k}." for k in _CONTROLLERS if k != self.kind)
+        other_kinds = tuple(f"{k}." for k in CONTROLLER_CLASSES if k != self.kind)
         for name in sorted(overrides):
             if name not in known and not name.startswith(other_kinds):
                 raise ConfigError(f"unknown parameter {name!r} for the {self.kind} controller node")
