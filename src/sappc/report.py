@@ -20,11 +20,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sappc_msgs_py.contract import CONTROL_TORQUE, TOPICS, Topic, faulty
+from sappc_msgs_py.contract import CLOCK, TOPICS, Topic, faulty
 from sappc_controller.params import parameters_from_yaml
 from spacecraft_sim.core.validation import ConfigError
 
-from .bag import PARAMS_RECORD, SCENARIO_RECORD, Bag, BagError, BagRun, bag_metrics, bag_run, read_bag
+from .bag import PARAMS_RECORD, SCENARIO_RECORD, Bag, BagError, BagRun, bag_metrics, bag_run, find_topic, read_bag
 from .scenario import MetricSettings, Scenario, load_scenario, scenario_from_mapping
 
 __all__ = ["BagAnalysis", "analyse_bag", "compare_bags", "html_page", "write_report"]
@@ -123,11 +123,12 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
 
     for topic, n in bag.undecodable.items():
         notes.append(f"{topic}: {n} message(s) do not fit their type's layout and were skipped")
-    for topic, frames in bag.frame_ids.items():
-        spec = _CONTRACT.get(topic.lstrip("/"))
-        if spec is not None and spec.frame_id is not None and frames and set(frames) != {spec.frame_id}:
+    for name, spec in _CONTRACT.items():
+        topic = find_topic(bag, name)
+        frames = bag.frame_ids.get(topic, ()) if topic else ()
+        if spec.frame_id is not None and frames and set(frames) != {spec.frame_id}:
             notes.append(f"{topic}: frame id(s) {list(frames)}, the contract says {spec.frame_id!r}")
-    missing = [t.name for t in TOPICS if t.name.lstrip("/") not in {k.lstrip("/") for k in bag.series} and t.name != "/clock"]
+    missing = [t.name for t in TOPICS if t.name != CLOCK.name and find_topic(bag, t.name) is None]
     if missing:
         notes.append(f"topics absent from the bag: {', '.join(missing)}")
 
