@@ -152,31 +152,37 @@ def _spin_until(ex, got, until, proc, deadline_s: float = 120.0) -> None:  # typ
         ex.spin_once(timeout_sec=0.05)
 
 
-def test_replay_publishes_clock_and_messages_as_recorded_with_their_timing(ros_context, tracking_run) -> None:  # type: ignore[no-untyped-def]
+def _replay_and_listen(context, args: list[str], n_messages: int):  # type: ignore[no-untyped-def]
+    """Run ``sappc replay ARGS`` while listening to /clock and state/attitude until each has
+    ``n_messages``; return (clock stamps [ns], attitude messages with their receipt times, clock
+    receipt times)."""
     from sappc_msgs_py import contract as c
 
-    out, _, _ = tracking_run
-    bag = read_bag(out / "bag")
-    rate = 10.0
-    node, ex, got = _listen(ros_context, {"/clock": c.CLOCK.msg_class, c.STATE_ATTITUDE.name: c.STATE_ATTITUDE.msg_class})
-    proc = subprocess.Popen([*SAPPC, "replay", str(out / "bag"), "--rate", str(rate), "--topics", "state/attitude",
-                             "--wait-subscribers", "1", "--start-delay", "0"],
+    node, ex, got = _listen(context, {"/clock": c.CLOCK.msg_class, c.STATE_ATTITUDE.name: c.STATE_ATTITUDE.msg_class})
+    proc = subprocess.Popen([*SAPPC, "replay", *args, "--wait-subscribers", "1", "--start-delay", "0"],
                             env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
     try:
-        _spin_until(ex, got, lambda g: len(g["/clock"]) == 6001 and len(g[c.STATE_ATTITUDE.name]) == 6001, proc)
+        _spin_until(ex, got, lambda g: all(len(v) == n_messages for v in g.values()), proc)
     finally:
         log = proc.communicate(timeout=60)[0].decode()
         ex.shutdown()
         node.destroy_node()
     assert proc.returncode == 0, log
     clock_ns = np.array([m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, m in got["/clock"]])
+    return clock_ns, got[c.STATE_ATTITUDE.name], np.array([t for t, _ in got["/clock"]])
+
+
+def test_replay_publishes_clock_and_messages_as_recorded_with_their_timing(ros_context, tracking_run) -> None:  # type: ignore[no-untyped-def]
+    out, _, _ = tracking_run
+    bag = read_bag(out / "bag")
+    rate = 10.0
+    clock_ns, att_msgs, receipt = _replay_and_listen(ros_context, [str(out / "bag"), "--rate", str(rate), "--topics", "state/attitude"], 6001)
     assert np.array_equal(clock_ns, bag.series["/clock"].stamps_ns)  # /clock as recorded, in order
-    att = np.array([[m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w] for _, m in got[c.STATE_ATTITUDE.name]])
+    att = np.array([[m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w] for _, m in att_msgs])
     assert np.array_equal(att, bag.series["/state/attitude"].values)
     # Paced by simulated time: message k is never published before (clock_k - clock_0) / rate after the
     # first.  Measured on receipt, so the only slack is the first message's own delivery delay: 0.5 s
     # against a 6 s schedule (unpaced, the 12,002 messages take about 1.5 s).
-    receipt = np.array([t for t, _ in got["/clock"]])
     schedule = (clock_ns - clock_ns[0]) / 1e9 / rate
     assert np.all(receipt - receipt[0] >= schedule - 0.5)
     assert receipt[-1] - receipt[0] >= 60.0 / rate - 0.5
@@ -193,16 +199,7 @@ def test_replay_of_a_bag_without_clock_publishes_one_from_the_recording_time(ros
     messages = [(c.STATE_ATTITUDE.name, c.STATE_ATTITUDE.type_name, quaternion_msg([0, 0, 0, 1.0], ns / 1e9, c.STATE_ATTITUDE), ns)
                 for ns in log_ns]
     path = write_bag(tmp_path / "rt.mcap", messages)
-    node, ex, got = _listen(ros_context, {"/clock": c.CLOCK.msg_class, c.STATE_ATTITUDE.name: c.STATE_ATTITUDE.msg_class})
-    proc = subprocess.Popen([*SAPPC, "replay", str(path), "--wait-subscribers", "1", "--start-delay", "0"],
-                            env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
-    try:
-        _spin_until(ex, got, lambda g: len(g[c.STATE_ATTITUDE.name]) == 101 and len(g["/clock"]) == 101, proc)
-    finally:
-        log = proc.communicate(timeout=60)[0].decode()
-        ex.shutdown()
-        node.destroy_node()
-    assert proc.returncode == 0, log
-    clock_ns = np.array([m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, m in got["/clock"]])
+    clock_ns, att_msgs, _ = _replay_and_listen(ros_context, [str(path)], 101)
+    assert len(att_msgs) == 101
     # one /clock per recorded 10 ms step (CLOCK_RATE_HZ = 100), each a recording time, increasing
     assert np.array_equal(clock_ns, np.array(log_ns))

@@ -211,8 +211,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 def _cmd_rerun(args: argparse.Namespace) -> int:
     from .bag import read_bag
-    from .plots import plot_torque_rerun
-    from .report import html_figure, html_page, html_table
+    from .report import write_rerun_report
     from .rerun import rerun_bag
 
     bag = read_bag(args.bag)
@@ -225,13 +224,8 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
         print(f"  {r.failed_steps} step(s) refused by the core (the node would command zero torque)")
     print(f"  identical torques: {s['identical']} of {s['samples']}; largest difference {s['max_abs_diff_Nm']:.3g} N m")
     if args.out:
-        out = Path(args.out)
-        t = (r.stamps_ns - r.stamps_ns[0]) / 1e9 if r.stamps_ns.size else r.stamps_ns.astype(float)
-        figures = plot_torque_rerun(t, r.recorded, r.recomputed, out, title=f"{Path(args.bag).name} ({r.controller})")
-        page = out / "rerun.html"
-        page.write_text(html_page(f"Re-run: {args.bag}", [html_table(["item", "value"], [[k, v] for k, v in s.items()])]
-                                  + [html_figure(p) for p in figures]))
-        print(f"wrote {page} and {len(figures)} figure(s)")
+        paths = write_rerun_report(r, args.bag, Path(args.out))
+        print(f"wrote {paths[-1]} and {len(paths) - 1} figure(s)")
     if args.json:
         _write_json(args.json, s)
     if args.params is None:  # the recorded parameters: a determinism check

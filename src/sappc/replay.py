@@ -38,6 +38,7 @@ from sappc_msgs_py.runtime import ProjectNode, run_node
 from spacecraft_sim.core.validation import ConfigError, check_positive
 
 from .bag import BagError, scan_bag
+from .cdr import decode
 
 __all__ = ["CLOCK_RATE_HZ", "ReplayPlan", "plan_replay", "replay"]
 
@@ -89,11 +90,13 @@ def plan_replay(path: str | Path, topics: list[str] | None = None) -> ReplayPlan
     start, length = scan.start[sel], scan.length[sel]
     buf = scan.buffer
     payload = [buf[s : s + n] for s, n in zip(start.tolist(), length.tolist())]
-    is_clock = np.isin(channel, clock_ids)
+    on_clock = np.flatnonzero(np.isin(channel, clock_ids))
+    clock = decode(CLOCK.type_name, buf, start[on_clock], length[on_clock])
+    is_clock = np.zeros(channel.size, dtype=bool)
+    is_clock[on_clock[clock.index]] = True  # an undecodable /clock message is replayed, but times nothing
     if is_clock.any():
         # each message is due at the latest /clock recorded before it (the first clock before any)
-        clock_values = np.array([int.from_bytes(p[4:8], "little", signed=True) * _NS + int.from_bytes(p[8:12], "little")
-                                 for p, c in zip(payload, is_clock) if c], dtype=np.int64)
+        clock_values = clock.stamps_ns
         which = np.cumsum(is_clock) - 1
         bag_time = clock_values[np.maximum(which, 0)]
         clock_ns = np.zeros(0, dtype=np.int64)

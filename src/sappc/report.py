@@ -27,7 +27,7 @@ from spacecraft_sim.core.validation import ConfigError
 from .bag import PARAMS_RECORD, SCENARIO_RECORD, Bag, BagError, BagRun, bag_metrics, bag_run, find_topic, read_bag
 from .scenario import MetricSettings, Scenario, load_scenario, scenario_from_mapping
 
-__all__ = ["BagAnalysis", "analyse_bag", "compare_bags", "html_page", "write_report"]
+__all__ = ["BagAnalysis", "analyse_bag", "compare_bags", "html_page", "write_report", "write_rerun_report"]
 
 #: Every topic the contract names, the fault relays' included, by name.
 _CONTRACT: dict[str, Topic] = {t.name.lstrip("/"): t for t in TOPICS} | {
@@ -280,3 +280,17 @@ def compare_bags(analyses: list[BagAnalysis], out_dir: Path) -> tuple[list[str],
     page = out_dir / "compare.html"
     page.write_text(html_page(f"Comparison: {title}", blocks))
     return header, rows, figures + [page]
+
+
+def write_rerun_report(result: Any, bag_name: str, out_dir: Path) -> list[Path]:
+    """``rerun_torque.png`` (recorded, recomputed and their difference) and ``rerun.html`` for a
+    :class:`~sappc.rerun.RerunResult`; return their paths."""
+    from .plots import plot_torque_rerun
+
+    stamps = result.stamps_ns
+    t = (stamps - stamps[0]) / 1e9 if stamps.size else stamps.astype(float)
+    figures = plot_torque_rerun(t, result.recorded, result.recomputed, out_dir, title=f"{bag_name} ({result.controller})")
+    page = out_dir / "rerun.html"
+    page.write_text(html_page(f"Re-run: {bag_name}", [html_table(["item", "value"], [[k, v] for k, v in result.summary().items()])]
+                              + [html_figure(p) for p in figures]))
+    return figures + [page]

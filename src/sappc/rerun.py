@@ -29,17 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sappc_controller.params import CONTROLLER_CLASSES, controller_from_parameters_file
-from sappc_msgs_py.contract import (
-    CLOCK,
-    CONTROL_TORQUE,
-    CONTROLLER_DIAGNOSTICS,
-    REFERENCE_ACCELERATION,
-    REFERENCE_ATTITUDE,
-    REFERENCE_RATE,
-    STATE_ATTITUDE,
-    STATE_RATE,
-    faulty,
-)
+from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS, CONTROLLER_INPUTS, STATE_ATTITUDE, STATE_RATE, faulty
 from spacecraft_sim.core.validation import ConfigError, InputError
 
 from .bag import PARAMS_RECORD, Bag, BagError, Series, find_topic, latest_index
@@ -141,13 +131,8 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
     controller = CONTROLLER_CLASSES[kind](config)
 
     # the state the controller subscribed to: the relay's when the run relayed it
-    inputs = [
-        _series(bag, faulty(STATE_ATTITUDE).name, STATE_ATTITUDE.name),
-        _series(bag, faulty(STATE_RATE).name, STATE_RATE.name),
-        _series(bag, REFERENCE_ATTITUDE.name),
-        _series(bag, REFERENCE_RATE.name),
-        _series(bag, REFERENCE_ACCELERATION.name),
-    ]
+    relayed = (STATE_ATTITUDE, STATE_RATE)
+    inputs = [_series(bag, *((faulty(t).name,) if t in relayed else ()), t.name) for t in CONTROLLER_INPUTS]
     torque = _series(bag, CONTROL_TORQUE.name)
     skipped: dict[str, int] = {}
     keep = np.ones(torque.stamps_ns.size, dtype=bool)
@@ -186,8 +171,9 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
     rows = np.flatnonzero(keep)
     recomputed = np.full((rows.size, 3), np.nan)
     failed = 0
+    widths = [4 if t.type_name.endswith("QuaternionStamped") else 3 for t in CONTROLLER_INPUTS]
     for n, r in enumerate(rows):
-        q, w, q_d, w_d, wdot_d = (s.values[p[r], : (4 if c in (0, 2) else 3)] for c, (s, p) in enumerate(zip(inputs, pos)))
+        q, w, q_d, w_d, wdot_d = (s.values[p[r], :width] for s, p, width in zip(inputs, pos, widths))
         try:
             recomputed[n] = controller.step(int(torque.stamps_ns[r]) / _NS, dt, q, w, q_d, w_d, wdot_d).torque_B
         except (InputError, FloatingPointError, ConfigError):

@@ -49,11 +49,7 @@ from sappc_msgs_py.contract import (
     CLOCK,
     CONTROL_TORQUE,
     CONTROLLER_DIAGNOSTICS,
-    REFERENCE_ACCELERATION,
-    REFERENCE_ATTITUDE,
-    REFERENCE_RATE,
-    STATE_ATTITUDE,
-    STATE_RATE,
+    CONTROLLER_INPUTS,
     qos_profile,
 )
 from sappc_msgs_py.convert import (
@@ -73,7 +69,7 @@ from .params import CONTROLLER_CLASSES, DEFAULT_CONTROL_PERIOD_S, config_from_pa
 __all__ = ["ControllerNode", "main"]
 
 #: The five inputs of one control step, by topic.
-_INPUTS = (STATE_ATTITUDE, STATE_RATE, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
+_INPUTS = CONTROLLER_INPUTS
 #: Largest number of stamps waiting for their other inputs (lockstep); older ones are dropped.
 _MAX_PENDING = 64
 _NS = 1_000_000_000
@@ -206,7 +202,6 @@ class ControllerNode(ProjectNode):
         latest = self._latest
         if not all(t.name in latest for t in _INPUTS):
             return  # not started
-        att, rate = latest[STATE_ATTITUDE.name], latest[STATE_RATE.name]
         oldest = min(v[0] for v in latest.values())
         if now - oldest > self.stale_timeout_ns:
             self._publish_zero(now, f"inputs older than {self.stale_timeout_ns / _NS} s")

@@ -41,6 +41,7 @@ from enum import Enum
 __all__ = [
     "CLOCK",
     "CONTROL_TORQUE",
+    "CONTROLLER_INPUTS",
     "CONTROLLER_DIAGNOSTICS",
     "DIAGNOSTICS_LAYOUT",
     "DISTURBANCE_TORQUE",
@@ -124,6 +125,9 @@ def faulty(topic: Topic) -> Topic:
     """The relay's output topic for ``topic`` (same type and frame, under :data:`FAULT_PREFIX`)."""
     return Topic(FAULT_PREFIX + topic.name, topic.type_name, topic.frame_id)
 
+
+#: The controller's five inputs, in the order of ``AttitudeController.step(t, dt, q, w, q_d, w_d, wdot_d)``.
+CONTROLLER_INPUTS = (STATE_ATTITUDE, STATE_RATE, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
 
 #: Every topic of the contract.
 TOPICS = (
