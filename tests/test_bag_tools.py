@@ -178,6 +178,38 @@ def test_metrics_of_a_whole_history_equal_the_sample_by_sample_observer() -> Non
         assert result.metrics[key] == value, key  # exactly: the block sums in the same order
 
 
+def test_time_outside_the_band_on_a_jittered_grid_sums_the_hold_intervals() -> None:
+    """Real-time stamps: each sample outside the band counts until the next sample (zero-order
+    hold), the last one for the median interval; on the uniform grid it is count * dt exactly.
+    Fed as one block and sample by sample, the sums are identical (both sequential)."""
+    from sappc.metrics import MetricsAccumulator
+
+    t = np.array([0.0, 0.0101, 0.0199, 0.0302, 0.0398, 0.0500])
+    outside = np.array([False, True, True, False, False, True])  # samples 1, 2 and 5
+    q_BR = np.zeros((6, 1, 4))
+    q_BR[..., 3] = 1.0
+    q_BR[outside, 0, 0] = 0.5  # the band is [-0.1, 0.1] on every axis
+    band = np.full((6, 1, 3), 0.1)
+    args = dict(x=np.zeros((6, 1, 7)), torque_B=np.zeros((6, 1, 3)), q_BR=q_BR, rho=np.zeros((6, 1, 3)),
+                saturated=np.zeros((6, 1, 3), dtype=bool), band_lower=-band, band_upper=band)
+
+    def accumulator(times):  # type: ignore[no-untyped-def]
+        return MetricsAccumulator(times, 1, steady_from_s=1.0, settle_threshold=1e-3, t2_s=1.0, fault_windows=[])
+
+    block = accumulator(t)
+    block.update(0, t, **args)
+    one_by_one = accumulator(t)
+    for k in range(6):
+        one_by_one.update(k, t[k : k + 1], **{name: v[k : k + 1] for name, v in args.items()})
+    median = np.median(np.diff(t))
+    expected = (t[2] - t[1]) + (t[3] - t[2]) + median
+    assert block.run_metrics()["time_outside_constraint_s"] == pytest.approx(expected, rel=1e-15)
+    assert one_by_one.run_metrics()["time_outside_constraint_s"] == block.run_metrics()["time_outside_constraint_s"]
+    uniform = accumulator(np.arange(6) * 0.01)
+    uniform.update(0, np.arange(6) * 0.01, **args)
+    assert uniform.run_metrics()["time_outside_constraint_s"] == 3 * 0.01
+
+
 def test_parameters_files_give_the_controller_config(tmp_path) -> None:  # type: ignore[no-untyped-def]
     from sappc.scenario import load_scenario
     from sappc_controller.params import controller_from_parameters_file, parameters_from_yaml

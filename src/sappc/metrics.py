@@ -25,7 +25,10 @@ sample to :class:`MetricsAccumulator` (it is a closed-loop observer) and read
 ``saturation_fraction``
     Fraction of control samples at which at least one axis was saturated.
 ``time_outside_constraint_s``
-    Number of samples with any component outside its constraint band, times ``dt``.
+    Time with any component outside its constraint band, each sample held until the next
+    (zero-order hold): the number of such samples times ``dt`` on a uniform grid (every
+    interval within 1e-9 s of the first), else the sum of their intervals ``t[k+1] - t[k]``
+    (a real-time bag's jittered stamps), the last sample holding for the median interval.
 ``returned_to_constraint``
     Only with faults: ``True`` when every component is inside its band at the
     end of the run, i.e. from the sample after the last one outside the band
@@ -98,6 +101,11 @@ class MetricsAccumulator:
     ) -> None:
         self.t = np.asarray(t, dtype=np.float64)
         self.dt = float(self.t[1] - self.t[0]) if self.t.size > 1 else 0.0
+        intervals = np.diff(self.t)
+        # hold interval of each sample on a non-uniform grid (None: uniform, count * dt is exact)
+        self.hold_s: Array | None = None
+        if intervals.size and np.any(np.abs(intervals - self.dt) > _TIME_TOL_S):
+            self.hold_s = np.append(intervals, np.median(intervals))
         self.settle_threshold = settle_threshold
         self.steady_from_s = steady_from_s
         # the sample nearest t2, or none (-1) when the run ends before t2 (a run cut short)
@@ -115,6 +123,7 @@ class MetricsAccumulator:
         self.max_torque = np.zeros(n)
         self.saturated_count = np.zeros(n, dtype=np.int64)
         self.outside_count = np.zeros(n, dtype=np.int64)
+        self.outside_s = np.zeros(n)  # only on a non-uniform grid (hold_s)
         self.last_outside = np.full(n, -1)
         self.left_after_fault = np.zeros(n, dtype=bool)
         self.finite = np.ones(n, dtype=bool)
@@ -173,6 +182,10 @@ class MetricsAccumulator:
         self.saturated_count += over_block(live & saturated.any(axis=-1), np.add)
         outside = live & ((q_ev < band_lower) | (q_ev > band_upper)).any(axis=-1)
         self.outside_count += over_block(outside, np.add)
+        if self.hold_s is not None:
+            # a sequential running sum (cumsum), so that a block adds exactly as its samples one by one
+            held = np.where(outside, self.hold_s[k0 : k0 + B, None], 0.0)
+            self.outside_s = np.cumsum(np.concatenate((self.outside_s[None], held)), axis=0)[-1]
         self.last_outside = last_true(outside, self.last_outside)
         if self.fault_start_s is not None:
             self.left_after_fault |= over_block(outside & (t >= self.fault_start_s - _TIME_TOL_S)[:, None], np.logical_or)
@@ -199,7 +212,7 @@ class MetricsAccumulator:
             "overshoot": float(max(0.0, self.overshoot[run])),
             "max_abs_torque_Nm": float(self.max_torque[run]),
             "saturation_fraction": float(self.saturated_count[run] / max(self.samples, 1)),
-            "time_outside_constraint_s": float(self.outside_count[run] * self.dt),
+            "time_outside_constraint_s": float(self.outside_count[run] * self.dt if self.hold_s is None else self.outside_s[run]),
             "returned_to_constraint": None,
             "left_constraint_after_fault": None,
             "returned_at_s": None,
