@@ -129,13 +129,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .bag import bag_metrics, read_bag
     from .graph import run_graph
 
-    scenario = load_scenario(args.scenario)
-    kind = scenario.resolve_controller(args.controller)
     try:
-        result = run_graph(args.scenario, out_dir=args.out, controller=kind.value, realtime=args.realtime, domain_id=args.domain_id)
+        result = run_graph(args.scenario, out_dir=args.out, controller=args.controller, realtime=args.realtime, domain_id=args.domain_id)
     except RuntimeError as exc:
         print(f"sappc run: failed: {exc}", file=sys.stderr)
         return 1
+    scenario, kind = result.scenario, result.controller
     bag = read_bag(result.bag_dir)
     ms = scenario.metrics
     metrics = bag_metrics(bag, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold, t2_s=ms.t2_s,

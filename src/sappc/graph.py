@@ -190,8 +190,10 @@ def _remaps(scenario: Scenario) -> dict[str, list[str]]:
 
 @dataclass
 class GraphResult:
-    """A finished graph run."""
+    """A finished graph run: the scenario and controller it ran, where its files are, counts and timing."""
 
+    scenario: Scenario
+    controller: ControllerKind
     run_dir: Path
     bag_dir: Path
     published: dict[str, int]
@@ -331,6 +333,8 @@ def run_graph(
     total = run_end - start
     run_s = float(timing.get("run_s", total))  # the plant's first sample to its last
     return GraphResult(
+        scenario=scenario,
+        controller=kind,
         run_dir=run_dir,
         bag_dir=bag_dir,
         published=published,
