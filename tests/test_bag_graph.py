@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import signal
 import subprocess
 import sys
 import time
@@ -203,3 +205,40 @@ def test_replay_of_a_bag_without_clock_publishes_one_from_the_recording_time(ros
     assert len(att_msgs) == 101
     # one /clock per recorded 10 ms step (CLOCK_RATE_HZ = 100), each a recording time, increasing
     assert np.array_equal(clock_ns, np.array(log_ns))
+
+
+def test_replay_loop_starts_the_bag_again_until_interrupted(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """``--loop``: pass after pass, the same messages in the same order, /clock jumping back to the
+    bag's start at each wrap; SIGINT ends it cleanly (status 0) and it reports its passes."""
+    from bagmaker import write_bag
+
+    from sappc_msgs_py import contract as c
+    from sappc_msgs_py.convert import quaternion_msg
+
+    t0_ns = 1_700_000_000 * 1_000_000_000
+    log_ns = [t0_ns + k * 10_000_000 for k in range(21)]  # 0.2 s at 100 Hz
+    messages = [(c.STATE_ATTITUDE.name, c.STATE_ATTITUDE.type_name, quaternion_msg([0, 0, 0, 1.0], ns / 1e9, c.STATE_ATTITUDE), ns)
+                for ns in log_ns]
+    path = write_bag(tmp_path / "loop.mcap", messages)
+    node, ex, got = _listen(ros_context, {"/clock": c.CLOCK.msg_class, c.STATE_ATTITUDE.name: c.STATE_ATTITUDE.msg_class})
+    proc = subprocess.Popen([*SAPPC, "replay", str(path), "--loop", "--wait-subscribers", "1", "--start-delay", "0"],
+                            env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+    try:
+        _spin_until(ex, got, lambda g: len(g[c.STATE_ATTITUDE.name]) >= 3 * len(log_ns) + 5, proc)
+        proc.send_signal(signal.SIGINT)
+        log = proc.communicate(timeout=60)[0].decode()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        ex.shutdown()
+        node.destroy_node()
+    assert proc.returncode == 0, log
+    stamps = [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for _, m in got[c.STATE_ATTITUDE.name]]
+    recorded = read_bag(path).series["state/attitude"].stamps_ns.tolist()  # the payloads' own stamps
+    n = len(stamps)
+    assert stamps == (recorded * (n // len(recorded) + 1))[:n]  # every pass whole and in order
+    clock_ns = [m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, m in got["/clock"]]
+    wraps = [i for i in range(1, len(clock_ns)) if clock_ns[i] < clock_ns[i - 1]]
+    assert len(wraps) >= 3 and all(clock_ns[i] == log_ns[0] for i in wraps)  # back to the start at each pass
+    passes = int(re.search(r"\((\d+) pass\(es\)\)", log).group(1))  # type: ignore[union-attr]
+    assert passes >= 3
