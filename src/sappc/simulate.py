@@ -69,12 +69,18 @@ def run_scenario(
     disturbance: DisturbanceModel | None = None,
     measure: Callable[[int, np.ndarray], np.ndarray] | None = None,
     observer: Observer | None = None,
+    history: HistoryRecorder | None = None,
 ) -> tuple[MetricsAccumulator, AttitudeController]:
     """Run the scenario's closed loop, for one run or a batch: the one place that assembles it.
 
     Every argument overrides the scenario's own value; the batch size is that of ``q_BN0``
     (shape (N, 4)) or 1.  Used by :func:`simulate` (one run, the scenario as written) and by
     Monte Carlo campaigns (dispersed initial states, inertias, disturbances, gains, sensors).
+
+    With ``history`` (a recorder of every sample) the metrics are computed from the stored
+    history in one block after the run; without, the accumulator observes sample by sample (no
+    history kept: campaigns).  Both give the same metrics, bit for bit
+    (``tests/test_bag_tools.py``); one block costs a fraction of 6000 single-sample updates.
 
     Returns
     -------
@@ -93,6 +99,7 @@ def run_scenario(
     ctrl = scenario.build_controller(controller, config=controller_config, **(controller_options or {}))
     t = step_times(scenario.duration_s, scenario.control_period_s)
     metrics = metrics_accumulator(scenario, t, x0.shape[0])
+    observers: list[Observer] = [metrics if history is None else history] + ([] if observer is None else [observer])
     run_closed_loop(
         RigidBody(scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2),
         ctrl,
@@ -101,9 +108,11 @@ def run_scenario(
         x0,
         scenario.control_period_s,
         substeps=scenario.rk4_substeps,
-        observer=metrics if observer is None else both(metrics, observer),
+        observer=both(*observers),
         measure=measure,
     )
+    if history is not None:
+        metrics.add_history(history.history())
     return metrics, ctrl
 
 
@@ -116,7 +125,7 @@ def simulate(scenario: Scenario, controller: ControllerKind | str | None = None)
     kind = scenario.resolve_controller(controller)
     start = time.perf_counter()
     recorder = HistoryRecorder(step_times(scenario.duration_s, scenario.control_period_s), 1)
-    metrics, _ = run_scenario(scenario, controller=kind, observer=recorder)
+    metrics, _ = run_scenario(scenario, controller=kind, history=recorder)
     result = metrics.run_metrics(0)
     result["wall_time_s"] = time.perf_counter() - start
     return SimulationResult(scenario=scenario, controller=kind, history=recorder.history(), metrics=result)
