@@ -31,12 +31,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from sappc.closed_loop import run_closed_loop, step_times  # noqa: E402
+from sappc.offline.closed_loop import run_closed_loop, step_times  # noqa: E402
 from sappc.scenario import load_scenario  # noqa: E402
-from sappc.simulate import simulate  # noqa: E402
+from sappc.offline.simulate import simulate  # noqa: E402
 from sappc_controller.core.rpf import RPFParameters  # noqa: E402
 from sappc_controller.core.sappc import SappcController  # noqa: E402
-from spacecraft_sim.core.attitude import euler_to_quaternion  # noqa: E402
+from gnc_common.attitude import euler_to_quaternion  # noqa: E402
 from spacecraft_sim.core.dynamics import RigidBody, initial_state  # noqa: E402
 
 SCENARIO = ROOT / "config" / "scenarios" / "paper_tracking.yaml"

@@ -26,7 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from sappc.graph import run_graph  # noqa: E402
+from sappc.graph.launch import run_graph  # noqa: E402
 
 SCENARIO = ROOT / "config" / "scenarios" / "paper_tracking.yaml"
 

@@ -6,7 +6,7 @@ prints one JSON document:
 - ``report``: the wall time of the whole ``sappc report BAG --out DIR`` command as a user runs it
   (a fresh process: interpreter start, imports, reading, metrics, five figures, the HTML page),
   median of ``--repeats`` runs; target <= 2 s;
-- ``reading``: messages per second of :func:`sappc.bag.read_bag` (scan and decode every
+- ``reading``: messages per second of :func:`sappc.bag.read.read_bag` (scan and decode every
   message of the contract), median of ``--repeats`` runs; target >= 100,000 messages/s; with,
   measured in the same run as baselines, the ``mcap`` package's ``StreamReader`` alone (records
   only, no decoding) and ``StreamReader`` plus ``rclpy`` deserialisation (the previous reader).
@@ -30,7 +30,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from sappc.bag import mcap_file, read_bag  # noqa: E402
+from sappc.bag.read import mcap_file, read_bag  # noqa: E402
 
 SCENARIO = ROOT / "config" / "scenarios" / "paper_tracking.yaml"
 
@@ -77,7 +77,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         bag = args.bag
         if bag is None:
-            from sappc.graph import run_graph
+            from sappc.graph.launch import run_graph
 
             bag = run_graph(SCENARIO, out_dir=Path(tmp) / "run", progress=False).bag_dir
         out["bag"] = str(bag)

@@ -49,7 +49,7 @@ def ros_context(tmp_path, monkeypatch):  # type: ignore[no-untyped-def]
     the project's Fast DDS profile, logs under tmp_path); shut down afterwards."""
     import rclpy
 
-    from sappc.graph import claim_domain_id, isolated_environment
+    from sappc.graph.launch import claim_domain_id, isolated_environment
 
     with claim_domain_id() as domain:
         for key, value in isolated_environment(domain, tmp_path / "roslog", base={}).items():

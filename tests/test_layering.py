@@ -1,52 +1,158 @@
-"""The numerical cores are pure: no rclpy, no clocks (ARCHITECTURE.md, layer 'core')."""
+"""The layering of the house (README "Architecture"), enforced on every import in ``src/``.
+
+Rooms stand on floors; a module may import its own room and rooms on lower floors only, never a
+room beside it or above it.  On top of that:
+
+- the ground (``gnc_common``) and the numerical cores import no ROS and read no clock;
+- the controller (flight software) and the topic contract never import the simulator, and the
+  simulator never imports the controller;
+- ``rclpy`` is imported only by the node modules, the contract's node runtime and ``sappc.graph``.
+
+Imports are read from the source (every ``import`` statement, also those inside functions), so a
+lazy import cannot hide a wrong-way arrow.
+"""
 
 from __future__ import annotations
 
 import ast
 import subprocess
 import sys
+from pathlib import Path
+
+import pytest
 
 from conftest import ROOT
 
-CORE_DIRS = [ROOT / "src" / "sappc_controller" / "core", ROOT / "src" / "spacecraft_sim" / "core"]
-CORE_MODULES = sorted(
-    ".".join(p.relative_to(ROOT / "src").with_suffix("").parts)
-    for d in CORE_DIRS
-    for p in d.glob("*.py")
-)
+SRC = ROOT / "src"
+PROJECT = ("gnc_common", "sappc_controller", "spacecraft_sim", "sappc_msgs_py", "sappc")
+
+#: Room (a module prefix; the longest match wins) -> floor.
+FLOORS: dict[str, int] = {
+    "gnc_common": 0,
+    "sappc_controller.core": 1,
+    "spacecraft_sim.core": 1,
+    "sappc_msgs_py": 1,
+    "sappc_controller": 2,
+    "spacecraft_sim": 2,
+    "sappc.scenario": 3,
+    "sappc.evaluation": 4,
+    "sappc.offline": 5,
+    "sappc.bag": 5,
+    "sappc.analysis": 6,
+    "sappc.montecarlo": 7,
+    "sappc.graph": 7,
+    "sappc.cli": 8,
+    "sappc.__main__": 9,
+    "sappc": 9,
+}
+#: Pairs of packages that must never meet, whatever their floors.
+NEVER = {("sappc_controller", "spacecraft_sim"), ("spacecraft_sim", "sappc_controller"), ("sappc_msgs_py", "spacecraft_sim")}
+#: The modules that may import rclpy: nodes, the contract's node runtime (and its QoS), the graph tools.
+ROS_MODULES = ("sappc_msgs_py.runtime", "sappc_msgs_py.contract", "sappc_controller.node", "spacecraft_sim.plant_node",
+               "spacecraft_sim.reference", "spacecraft_sim.disturbance", "sappc.graph")
+PURE_ROOMS = ("gnc_common", "sappc_controller.core", "spacecraft_sim.core")
+CLOCK_MODULES = {"time", "datetime"}
 
 
-def test_core_modules_exist() -> None:
-    assert "sappc_controller.core.sappc" in CORE_MODULES and "spacecraft_sim.core.dynamics" in CORE_MODULES
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(SRC).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
 
 
-def test_importing_every_core_module_does_not_import_rclpy() -> None:
-    code = "import sys\n" + "".join(f"import {m}\n" for m in CORE_MODULES) + "print(sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'rosidl_runtime_py')))"
+def _modules() -> dict[str, Path]:
+    return {_module_name(p): p for pkg in PROJECT for p in (SRC / pkg).rglob("*.py")}
+
+
+def _imports(name: str, path: Path) -> set[str]:
+    """Every module that ``path`` imports, relative imports resolved."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module or ""
+            found.add(module)
+            found.update(f"{module}.{a.name}" for a in node.names if f"{module}.{a.name}" in MODULES)
+    return found
+
+
+def _room(module: str) -> str | None:
+    matches = [r for r in FLOORS if module == r or module.startswith(r + ".")]
+    return max(matches, key=len) if matches else None
+
+
+def _in(module: str, prefix: str) -> bool:
+    return module == prefix or module.startswith(prefix + ".")
+
+
+MODULES = _modules()
+IMPORTS = {name: _imports(name, path) for name, path in MODULES.items()}
+
+
+def test_every_source_module_is_in_a_room() -> None:
+    assert "sappc_controller.core.sappc" in MODULES and "gnc_common.attitude" in MODULES
+    assert [m for m in MODULES if _room(m) is None] == []
+
+
+def test_nothing_imports_sideways_or_upward() -> None:
+    wrong = []
+    for name, imported in IMPORTS.items():
+        room = _room(name)
+        for target in imported:
+            target_room = _room(target)
+            if target_room is None or target_room == room:
+                continue
+            if FLOORS[target_room] >= FLOORS[room]:  # type: ignore[index]  # every module has a room (test above)
+                wrong.append(f"{name} ({room}, floor {FLOORS[room]}) imports {target} ({target_room}, floor {FLOORS[target_room]})")  # type: ignore[index]
+    assert wrong == []
+
+
+def test_the_controller_and_the_contract_never_import_the_simulator() -> None:
+    wrong = [f"{name} imports {target}" for name, imported in IMPORTS.items() for target in imported
+             for a, b in NEVER if _in(name, a) and _in(target, b)]
+    assert wrong == []
+
+
+def test_ground_and_cores_import_no_ros_no_tools_and_no_clock() -> None:
+    wrong = []
+    for name, imported in IMPORTS.items():
+        if not any(_in(name, r) for r in PURE_ROOMS):
+            continue
+        for target in imported:
+            top = target.split(".")[0]
+            if top in CLOCK_MODULES or top in ("rclpy", "sappc", "sappc_msgs_py") or top.endswith("_msgs"):
+                wrong.append(f"{name} imports {target}")
+    assert wrong == []
+
+
+def test_only_nodes_and_the_graph_tools_import_rclpy() -> None:
+    wrong = [name for name, imported in IMPORTS.items()
+             if any(t.split(".")[0] == "rclpy" for t in imported) and not any(_in(name, m) for m in ROS_MODULES)]
+    assert wrong == []
+
+
+@pytest.mark.parametrize("room", [*PURE_ROOMS, "sappc.offline", "sappc.montecarlo", "sappc.bag", "sappc.analysis"])
+def test_importing_a_room_does_not_load_rclpy(room: str) -> None:
+    modules = sorted(m for m in MODULES if _in(m, room))
+    code = "import sys\n" + "".join(f"import {m}\n" for m in modules) + \
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'rosidl_runtime_py')))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
     assert out.stdout.strip() == "[]", out.stdout
 
 
-def _imported_names(path) -> set[str]:  # type: ignore[no-untyped-def]
-    tree = ast.parse(path.read_text())
-    names: set[str] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            names.update(a.name.split(".")[0] for a in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names.add(node.module.split(".")[0])
-    return names
-
-
-def test_core_sources_import_only_numpy_scipy_and_the_cores() -> None:
-    allowed = {"__future__", "numpy", "scipy", "dataclasses", "typing", "abc", "enum", "math", "collections", "sappc_controller", "spacecraft_sim"}
-    for d in CORE_DIRS:
-        for p in d.glob("*.py"):
-            extra = _imported_names(p) - allowed
-            assert not extra, f"{p.relative_to(ROOT)} imports {sorted(extra)}"
-
-
-def test_core_sources_read_no_clock() -> None:
-    for d in CORE_DIRS:
-        for p in d.glob("*.py"):
-            names = _imported_names(p)
-            assert not names & {"time", "datetime"}, f"{p.relative_to(ROOT)} imports a clock module"
+def test_the_checker_sees_a_wrong_way_import(tmp_path: Path) -> None:
+    """The rules above fail on a planted violation (a controller module importing the simulator)."""
+    planted = tmp_path / "src" / "sappc_controller" / "core" / "bad.py"
+    planted.parent.mkdir(parents=True)
+    planted.write_text("from spacecraft_sim.core import dynamics\nimport time\n")
+    imported = _imports("sappc_controller.core.bad", planted)
+    assert "spacecraft_sim.core.dynamics" in imported or "spacecraft_sim.core" in imported
+    assert any(_in("sappc_controller.core.bad", a) and _in(t, b) for t in imported for a, b in NEVER)
+    assert FLOORS[_room("spacecraft_sim.core.dynamics")] >= FLOORS[_room("sappc_controller.core.bad")]  # type: ignore[index]

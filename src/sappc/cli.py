@@ -23,9 +23,9 @@ import sys
 from pathlib import Path
 from collections.abc import Sequence
 
-from spacecraft_sim.core.validation import ConfigError, InputError
+from gnc_common.validation import ConfigError, InputError
 
-from .scenario import ControllerKind, load_scenario
+from sappc.scenario import ControllerKind, load_scenario
 
 __all__ = ["main"]
 
@@ -56,7 +56,7 @@ def _write_json(path_str: str, data: object) -> None:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .plots import plot_run
+    from sappc.analysis.plots import plot_run
 
     if args.from_campaign is not None:
         return _simulate_from_campaign(args)
@@ -64,7 +64,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         raise ConfigError("give a SCENARIO file, or --from-campaign DIR --run K")
     if args.run is not None:
         raise ConfigError("--run needs --from-campaign DIR")
-    from .simulate import simulate
+    from sappc.offline.simulate import simulate
 
     scenario = load_scenario(args.scenario)
     result = simulate(scenario, args.controller)
@@ -79,8 +79,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _simulate_from_campaign(args: argparse.Namespace) -> int:
-    from .montecarlo import load_campaign_run
-    from .plots import plot_run
+    from sappc.montecarlo.campaign import load_campaign_run
+    from sappc.analysis.plots import plot_run
 
     if args.scenario is not None or args.controller is not None:
         raise ConfigError("--from-campaign takes the scenario and controller from the campaign; give neither")
@@ -105,7 +105,7 @@ def _simulate_from_campaign(args: argparse.Namespace) -> int:
 
 
 def _cmd_montecarlo(args: argparse.Namespace) -> int:
-    from .montecarlo import run_campaign
+    from sappc.montecarlo.campaign import run_campaign
 
     out = args.out or f"out/montecarlo_{Path(args.scenario).stem}_seed{args.seed}"
     summary = run_campaign(args.scenario, runs=args.runs, seed=args.seed, out_dir=out, workers=args.workers,
@@ -126,8 +126,8 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from .bag import bag_metrics, read_bag
-    from .graph import run_graph
+    from sappc.bag.read import bag_metrics, read_bag
+    from sappc.graph.launch import run_graph
 
     try:
         result = run_graph(args.scenario, out_dir=args.out, controller=args.controller, realtime=args.realtime, domain_id=args.domain_id)
@@ -160,7 +160,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
-    from .graph import controller_params_yaml
+    from sappc.graph.launch import controller_params_yaml
 
     print(controller_params_yaml(load_scenario(args.scenario), args.controller), end="")
     return 0
@@ -173,7 +173,7 @@ def _default_out(bag: str, suffix: str) -> Path:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from .report import analyse_bag, write_report
+    from sappc.analysis.report import analyse_bag, write_report
 
     a = analyse_bag(args.bag, scenario=args.scenario)
     print(f"bag {a.path}: {sum(a.bag.counts.values())} messages on {len(a.bag.counts)} topics"
@@ -193,7 +193,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from .report import analyse_bag, compare_bags
+    from sappc.analysis.report import analyse_bag, compare_bags
 
     analyses = [analyse_bag(b) for b in args.bags]
     out = Path(args.out) if args.out else Path("compare")
@@ -209,9 +209,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 
 def _cmd_rerun(args: argparse.Namespace) -> int:
-    from .bag import read_bag
-    from .report import write_rerun_report
-    from .rerun import rerun_bag
+    from sappc.bag.read import read_bag
+    from sappc.analysis.report import write_rerun_report
+    from sappc.analysis.rerun import rerun_bag
 
     bag = read_bag(args.bag)
     r = rerun_bag(bag, args.params)
@@ -233,7 +233,7 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from .replay import replay
+    from sappc.graph.replay import replay
 
     return replay(args.bag, rate=args.rate, topics=args.topics, loop=args.loop, wait_subscribers=args.wait_subscribers,
                   domain_id=args.domain_id, start_delay_s=args.start_delay)

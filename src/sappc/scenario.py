@@ -26,7 +26,7 @@ from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
-from spacecraft_sim.core.validation import (
+from gnc_common.validation import (
     ConfigError,
     InputError,
     as_finite_array,
@@ -69,14 +69,14 @@ _TOP_KEYS = {
     "metrics",
     "controller",
     "controllers",
-    "montecarlo",  # validated by sappc.montecarlo.campaign_config
+    "montecarlo",  # validated by sappc.montecarlo.campaign.campaign_config
     "faults",  # actuator, sensor and link faults, injected on the ROS 2 graph (sappc run)
 }
 
 
 @dataclass(frozen=True)
 class MetricSettings:
-    """How run metrics are computed (see :mod:`sappc.metrics`).
+    """How run metrics are computed (see :mod:`sappc.evaluation.metrics`).
 
     Attributes
     ----------

@@ -61,10 +61,10 @@ from sappc_msgs_py.convert import (
     vector3_from_msg,
 )
 from sappc_msgs_py.runtime import LOCKSTEP, REALTIME, ProjectNode, run_node
-from spacecraft_sim.core.validation import ConfigError, InputError, check_positive, check_unit_quaternion
+from gnc_common.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 
-from .core.base import AttitudeController
-from .params import CONTROLLER_CLASSES, DEFAULT_CONTROL_PERIOD_S, config_from_parameters, config_parameter_names
+from sappc_controller.core.base import AttitudeController
+from sappc_controller.params import CONTROLLER_CLASSES, DEFAULT_CONTROL_PERIOD_S, config_from_parameters, config_parameter_names
 
 __all__ = ["ControllerNode", "main"]
 

@@ -25,13 +25,13 @@ from typing import Any
 import numpy as np
 import yaml
 
-from spacecraft_sim.core.validation import ConfigError, check_positive, from_mapping
+from gnc_common.validation import ConfigError, check_positive, from_mapping
 
-from .core.base import AttitudeController
-from .core.blfppc import BlfppcConfig, BlfppcController
-from .core.common import ActuatorConfig
-from .core.sappc import SappcConfig, SappcController
-from .core.trappc import TrappcConfig, TrappcController
+from sappc_controller.core.base import AttitudeController
+from sappc_controller.core.blfppc import BlfppcConfig, BlfppcController
+from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.sappc import SappcConfig, SappcController
+from sappc_controller.core.trappc import TrappcConfig, TrappcController
 
 __all__ = [
     "CONFIG_CLASSES",

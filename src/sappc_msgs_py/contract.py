@@ -25,7 +25,7 @@ the faulty samples under ``fault/`` (``fault/state/attitude``, ``fault/state/rat
 (``--ros-args -r state/attitude:=fault/state/attitude``); the originals stay the truth.
 
 Quaternions are ``geometry_msgs/Quaternion`` ``(x, y, z, w)``, the project's own scalar-last
-order (``spacecraft_sim.core.attitude``): no reordering happens anywhere.  The two state topics
+order (``gnc_common.attitude``): no reordering happens anywhere.  The two state topics
 of one sample carry the same stamp; the controller pairs them by stamp.
 
 QoS: every topic RELIABLE, VOLATILE, KEEP_LAST with depth :data:`QOS_DEPTH` = 1000 (depth 1

@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from spacecraft_sim.core.validation import InputError, as_finite_array
+from gnc_common.validation import InputError, as_finite_array
 
-from .contract import (
+from sappc_msgs_py.contract import (
     CONTROL_TORQUE,
     DIAGNOSTICS_LAYOUT,
     DISTURBANCE_TORQUE,

@@ -29,7 +29,7 @@ from typing import Any
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from spacecraft_sim.core.validation import ConfigError
+from gnc_common.validation import ConfigError
 
 __all__ = [
     "ACK_TIMEOUT_S",
@@ -148,7 +148,7 @@ class ProjectNode(Node):  # type: ignore[misc]
         return mode
 
     def counting_publisher(self, topic: Any, default_min_subscribers: int = 0) -> CountingPublisher:
-        from .contract import qos_profile
+        from sappc_msgs_py.contract import qos_profile
 
         pub = CountingPublisher(self, topic, self._expected.get(topic.name, default_min_subscribers), qos_profile())
         self._counting_pubs.append(pub)

@@ -49,9 +49,9 @@ from sappc_msgs_py.convert import (
 )
 from sappc_msgs_py.runtime import LOCKSTEP, ProjectNode, run_node
 
-from .core.disturbance import DisturbanceSum, disturbances_from_list
-from .core.faults import FaultSchedule, faults_from_list
-from .core.validation import ConfigError, InputError, check_positive
+from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
+from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
+from gnc_common.validation import ConfigError, InputError, check_positive
 
 __all__ = ["InjectorNode", "load_schedule", "main"]
 

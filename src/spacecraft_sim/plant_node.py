@@ -12,7 +12,7 @@ Modes (parameter ``mode``):
     state stamped ``t_k``; it waits for the torque (and disturbance) stamped ``t_k`` (inputs that
     arrive ahead of their sample are kept until it comes), then
     integrates over ``[t_k, t_k+1]``.  This is the offline runner's timing
-    (:mod:`sappc.closed_loop`), so the results are the same.  When an input stamped ``t_k`` does
+    (:mod:`sappc.offline.closed_loop`), so the results are the same.  When an input stamped ``t_k`` does
     not arrive within ``lockstep_timeout_s`` of wall time, the last received value is held (as
     an actuator holds its last command), the miss is counted and logged, and the run goes on.
     After sample ``n = duration_s / dt`` (and its torque) the node finishes.
@@ -45,8 +45,8 @@ from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, ST
 from sappc_msgs_py.convert import clock_msg, quaternion_msg, stamp_to_ns, time_to_stamp, torque_from_msg, vector3_msg
 from sappc_msgs_py.runtime import LOCKSTEP, REALTIME, ProjectNode, run_node
 
-from .core.dynamics import RigidBody, initial_state
-from .core.validation import ConfigError, InputError, as_finite_array, check_positive
+from spacecraft_sim.core.dynamics import RigidBody, initial_state
+from gnc_common.validation import ConfigError, InputError, as_finite_array, check_positive
 
 __all__ = ["PlantNode", "main"]
 
@@ -153,7 +153,7 @@ class PlantNode(ProjectNode):
         self._publish_sample()
 
     def _publish_sample(self) -> None:
-        t = self.k * self.dt  # the grid of sappc.closed_loop.step_times
+        t = self.k * self.dt  # the grid of sappc.offline.closed_loop.step_times
         assert self.pub_clock is not None
         self.pub_clock.publish(clock_msg(t))
         self._publish_state(t)

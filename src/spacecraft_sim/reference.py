@@ -27,8 +27,8 @@ from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTI
 from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, vector3_msg
 from sappc_msgs_py.runtime import LOCKSTEP, ProjectNode, run_node
 
-from .core.reference import PaperReference, sample_times
-from .core.validation import check_positive
+from spacecraft_sim.core.reference import PaperReference, sample_times
+from gnc_common.validation import check_positive
 
 __all__ = ["ReferenceNode", "main"]
 

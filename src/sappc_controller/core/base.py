@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from spacecraft_sim.core.attitude import Linear3, dot
-from spacecraft_sim.core.validation import QUATERNION_NORM_TOL, ConfigError, InputError, as_finite_array, check_unit_quaternion
+from gnc_common.attitude import Linear3, dot
+from gnc_common.validation import QUATERNION_NORM_TOL, ConfigError, InputError, as_finite_array, check_unit_quaternion
 
-from .common import Actuator, ActuatorConfig, ErrorState, error_state
+from sappc_controller.core.common import Actuator, ActuatorConfig, ErrorState, error_state
 
 __all__ = ["AttitudeController", "ControlOutput", "SINGULAR_Q0_AT_START"]
 

@@ -43,11 +43,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from spacecraft_sim.core.attitude import dot, gamma_inverse_times
-from spacecraft_sim.core.validation import ConfigError, check_positive, check_spd_inertia
+from gnc_common.attitude import dot, gamma_inverse_times
+from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
-from .base import AttitudeController
-from .common import ActuatorConfig, DynamicSurfaceFilter, ErrorState, robust_term, w0_dynamics
+from sappc_controller.core.base import AttitudeController
+from sappc_controller.core.common import ActuatorConfig, DynamicSurfaceFilter, ErrorState, robust_term, w0_dynamics
 
 __all__ = ["BARRIER_MARGIN", "BlfppcConfig", "BlfppcController", "BlfppcGains", "FiniteTimePF"]
 

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from spacecraft_sim.core.attitude import Linear3, cross, dcm_BR_times, dot, error_quaternion
-from spacecraft_sim.core.validation import ConfigError, check_positive
+from gnc_common.attitude import Linear3, cross, dcm_BR_times, dot, error_quaternion
+from gnc_common.validation import ConfigError, check_positive
 
 __all__ = [
     "ActuatorConfig",

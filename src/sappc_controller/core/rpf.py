@@ -77,7 +77,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from spacecraft_sim.core.validation import ConfigError, check_positive
+from gnc_common.validation import ConfigError, check_positive
 
 __all__ = ["InfeasibleRPFError", "RPFParameters", "ReferencePerformanceFunction", "constraint_bound", "feasible_l_range"]
 

@@ -24,13 +24,13 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from spacecraft_sim.core.attitude import dot, gamma_inverse_times
-from spacecraft_sim.core.validation import ConfigError, check_positive, check_spd_inertia
+from gnc_common.attitude import dot, gamma_inverse_times
+from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
-from .base import AttitudeController
-from .common import ActuatorConfig, DynamicSurfaceFilter, ErrorState, predefined_time_gain, robust_term, w0_dynamics
-from .rpf import ReferencePerformanceFunction, RPFParameters, constraint_bound
-from .smetf import smetf, smetf_derivatives
+from sappc_controller.core.base import AttitudeController
+from sappc_controller.core.common import ActuatorConfig, DynamicSurfaceFilter, ErrorState, predefined_time_gain, robust_term, w0_dynamics
+from sappc_controller.core.rpf import ReferencePerformanceFunction, RPFParameters, constraint_bound
+from sappc_controller.core.smetf import smetf, smetf_derivatives
 
 __all__ = [
     "BacksteppingGains",

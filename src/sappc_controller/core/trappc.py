@@ -29,10 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from spacecraft_sim.core.validation import ConfigError, check_positive, check_spd_inertia
+from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
-from .common import ActuatorConfig
-from .sappc import BacksteppingGains, BacksteppingPPC, Transformed
+from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.sappc import BacksteppingGains, BacksteppingPPC, Transformed
 
 __all__ = ["DOMAIN_MARGIN", "ExponentialPF", "TrappcConfig", "TrappcController", "TrappcTransformation"]
 

@@ -23,7 +23,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .validation import ConfigError, as_finite_array, check_positive, from_kind_list
+from gnc_common.validation import ConfigError, as_finite_array, check_positive, from_kind_list
 
 __all__ = [
     "ConstantTorque",

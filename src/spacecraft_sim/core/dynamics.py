@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .attitude import Linear3, cross, dot, matvec, quat_normalize
-from .validation import InputError, check_spd_inertia
+from gnc_common.attitude import Linear3, cross, dot, matvec, quat_normalize
+from gnc_common.validation import InputError, check_spd_inertia
 
 __all__ = ["RigidBody", "STATE_SIZE", "initial_state", "kinetic_energy_J"]
 

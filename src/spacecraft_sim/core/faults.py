@@ -36,9 +36,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .attitude import quat_multiply, quat_normalize
-from .disturbance import TIME_TOLERANCE_S
-from .validation import ConfigError, as_finite_array, check_positive, from_kind_list
+from gnc_common.attitude import quat_multiply, quat_normalize
+from spacecraft_sim.core.disturbance import TIME_TOLERANCE_S
+from gnc_common.validation import ConfigError, as_finite_array, check_positive, from_kind_list
 
 __all__ = ["FAULT_KINDS", "FaultSchedule", "faults_from_list"]
 

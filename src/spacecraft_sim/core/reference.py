@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .attitude import quat_kinematics, quat_normalize
-from .validation import ConfigError, as_finite_array, check_unit_quaternion
+from gnc_common.attitude import quat_kinematics, quat_normalize
+from gnc_common.validation import ConfigError, as_finite_array, check_unit_quaternion
 
 __all__ = ["PaperReference", "ReferenceSamples", "sample_times"]
 

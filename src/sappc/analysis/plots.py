@@ -1,0 +1,282 @@
+"""Paper-style figures: of a run (each q_ev component with its performance function and
+constraint band, whole run and steady-state zoom; the actuator torques; the transformed error
+and Lyapunov values), of several runs overlaid, of a torque re-run, of a Monte Carlo campaign."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from numpy.typing import NDArray
+
+from sappc.evaluation.history import History
+
+__all__ = ["plot_campaign", "plot_compare", "plot_run", "plot_torque_rerun"]
+
+Array = NDArray[np.float64]
+
+
+#: Subscripts 1 to 3 for axis labels.  Labels are plain Unicode, never mathtext: matplotlib's
+#: mathtext parser costs ~0.3 s at first use, a sixth of a report's time budget.
+_SUB = ("₁", "₂", "₃")
+
+
+def _log_axis(ax) -> None:  # type: ignore[no-untyped-def]
+    """Log scale on y with decade labels written 10⁻⁵ in Unicode (the default formatter uses mathtext)."""
+    from matplotlib.ticker import FuncFormatter
+
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(FuncFormatter(_decade_label))
+
+
+def _decade_label(value: float, _pos: int) -> str:
+    if value <= 0 or not np.isfinite(value):
+        return ""
+    exponent = np.log10(value)
+    if abs(exponent - round(exponent)) > 1e-9:
+        return ""
+    return "10" + str(int(round(exponent))).translate(_SUPERSCRIPT)
+
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+#: zlib level of the PNG files: 1 encodes ~3x faster than matplotlib's default 6 for files ~1.4x
+#: larger (about 100 kB a figure), which matters for a report made in under 2 s.
+PNG_COMPRESS_LEVEL = 1
+
+
+def _finish(fig, path: Path, title: str, paths: list[Path], *, margins: dict | None = None) -> None:  # type: ignore[no-untyped-def, type-arg]
+    """Title, lay out (``tight_layout`` unless fixed ``margins`` are given: it costs ~1 s on log
+    axes with many lines), save at 110 dpi, close, and record the path."""
+    import matplotlib.pyplot as plt
+
+    fig.suptitle(title)
+    if margins is None:
+        fig.tight_layout()
+    else:
+        fig.subplots_adjust(**margins)
+    fig.savefig(path, dpi=110, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
+    plt.close(fig)
+    paths.append(path)
+
+
+def _mark_faults(ax, fault_windows: list[tuple[float, float]], t_end: float) -> None:  # type: ignore[no-untyped-def]
+    for start, end in fault_windows:
+        ax.axvspan(start, min(end, t_end), color="tab:red", alpha=0.15, lw=0)
+
+
+#: Fixed margins of the 3-row figures: ``tight_layout`` would cost ~0.25 s per figure (it draws
+#: the figure once more to measure it), most of a report's time budget.
+_ROWS_MARGINS = dict(left=0.12, right=0.97, bottom=0.07, top=0.93, hspace=0.12)
+
+#: Line colours of the runs of a comparison, in order.
+_RUN_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray")
+
+
+def _rows(n: int = 3, height: float = 7.5):  # type: ignore[no-untyped-def]
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(n, 1, figsize=(8, height), sharex=True)
+
+
+def plot_run(
+    h: History,
+    out_dir: Path,
+    *,
+    title: str,
+    fault_windows: list[tuple[float, float]] = (),  # type: ignore[assignment]
+    zoom_from_s: float = 15.0,
+    run: int = 0,
+) -> list[Path]:
+    """Write ``qev.png``, ``qev_zoom.png``, ``qev_log.png``, ``torque.png`` and
+    ``eps_lyapunov.png`` to ``out_dir``; return their paths.  Injected faults are shaded red."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t = h.t
+    t_end = float(t[-1])
+    faults = list(fault_windows)
+    q_ev = h.q_ev[:, run]
+    paths: list[Path] = []
+    for name, mask, zoom in (("qev.png", np.ones_like(t, dtype=bool), False), ("qev_zoom.png", t >= zoom_from_s, True)):
+        if not mask.any():
+            continue
+        fig, axes = _rows()
+        for i, ax in enumerate(axes):
+            ax.fill_between(t[mask], h.band_lower[mask, run, i], h.band_upper[mask, run, i], color="tab:blue", alpha=0.18,
+                            lw=0, label="constraint band")
+            ax.plot(t[mask], h.rho[mask, run, i], "k--", lw=1.0, label=f"ρ{_SUB[i]}")
+            ax.plot(t[mask], q_ev[mask, i], color="tab:blue", lw=1.3, label=f"q_ev{_SUB[i]}")
+            _mark_faults(ax, faults, t_end)
+            ax.set_ylabel(f"q_ev{_SUB[i]}")
+            ax.grid(True, alpha=0.3)
+            if zoom:
+                both = np.concatenate((q_ev[mask, i], h.rho[mask, run, i]))
+                both = both[np.isfinite(both)]
+                lo, hi = (both.min(), both.max()) if both.size else (-1.0, 1.0)
+                pad = 0.25 * max(hi - lo, 1e-6)
+                ax.set_ylim(lo - pad, hi + pad)
+        axes[0].legend(loc="upper right", fontsize=8)
+        axes[-1].set_xlabel("time [s]")
+        _finish(fig, out_dir / name, f"{title}: attitude error" + (" (zoom)" if zoom else ""), paths, margins=_ROWS_MARGINS)
+
+    # |q_ev| on a log scale: the steady state (1e-5) is invisible on the linear plots
+    fig, axes = _rows()
+    for i, ax in enumerate(axes):
+        ax.plot(t, np.abs(h.rho[:, run, i]), "k--", lw=1.0, label=f"|ρ{_SUB[i]}|")
+        ax.plot(t, np.abs(q_ev[:, i]), color="tab:blue", lw=1.2, label=f"|q_ev{_SUB[i]}|")
+        _log_axis(ax)
+        _mark_faults(ax, faults, t_end)
+        ax.set_ylabel(f"|q_ev{_SUB[i]}|")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    _finish(fig, out_dir / "qev_log.png", f"{title}: attitude error magnitude", paths, margins=_ROWS_MARGINS)
+
+    fig, axes = _rows(height=6.5)
+    for i, ax in enumerate(axes):
+        ax.plot(t, h.torque_B[:, run, i], lw=1.0, color="tab:green", label=f"u{_SUB[i]}")
+        _mark_faults(ax, faults, t_end)
+        ax.set_ylabel(f"u{_SUB[i]} [N m]")
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("time [s]")
+    _finish(fig, out_dir / "torque.png", f"{title}: actuator torque", paths, margins=_ROWS_MARGINS)
+
+    # the transformed error and the backstepping Lyapunov values
+    fig, axes = _rows(2, height=6.0)
+    for i in range(3):
+        axes[0].plot(t, h.eps[:, run, i], lw=1.0, label=f"ε{_SUB[i]}")
+        axes[1].plot(t, np.abs(h.V[:, run, i]), lw=1.0, label=f"V{_SUB[i]}")
+    _log_axis(axes[1])
+    for ax in axes:
+        _mark_faults(ax, faults, t_end)
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[0].set_ylabel("ε (transformed error)")
+    axes[1].set_ylabel("Lyapunov values")
+    axes[-1].set_xlabel("time [s]")
+    _finish(fig, out_dir / "eps_lyapunov.png", f"{title}: transformed error and Lyapunov values", paths, margins=_ROWS_MARGINS)
+    return paths
+
+
+def plot_compare(runs: list[tuple[str, History]], out_dir: Path, *, title: str,
+                 fault_windows: list[tuple[float, float]] = ()) -> list[Path]:  # type: ignore[assignment]
+    """Overlay several runs, as the paper's comparison figures: ``compare_qev.png`` (each q_ev
+    component with its run's performance function dashed), ``compare_qev_log.png`` and
+    ``compare_torque.png``.  Each run is one colour, labelled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths: list[Path] = []
+    t_end = max(float(h.t[-1]) for _, h in runs)
+    faults = list(fault_windows)
+    for name, log in (("compare_qev.png", False), ("compare_qev_log.png", True)):
+        fig, axes = _rows()
+        for i, ax in enumerate(axes):
+            for n, (label, h) in enumerate(runs):
+                c = _RUN_COLORS[n % len(_RUN_COLORS)]
+                q, rho = h.q_ev[:, 0, i], h.rho[:, 0, i]
+                if log:
+                    q, rho = np.abs(q), np.abs(rho)
+                ax.plot(h.t, rho, "--", color=c, lw=0.9)
+                ax.plot(h.t, q, color=c, lw=1.2, label=label)
+            if log:
+                _log_axis(ax)
+            _mark_faults(ax, faults, t_end)
+            ax.set_ylabel(f"|q_ev{_SUB[i]}|" if log else f"q_ev{_SUB[i]}")
+            ax.grid(True, alpha=0.3, which="both" if log else "major")
+        axes[0].legend(loc="upper right", fontsize=8)
+        axes[-1].set_xlabel("time [s]")
+        _finish(fig, out_dir / name, f"{title}: attitude error (dashed: each run's performance function)", paths, margins=_ROWS_MARGINS)
+    fig, axes = _rows(height=6.5)
+    for i, ax in enumerate(axes):
+        for n, (label, h) in enumerate(runs):
+            ax.plot(h.t, h.torque_B[:, 0, i], color=_RUN_COLORS[n % len(_RUN_COLORS)], lw=1.0, label=label)
+        _mark_faults(ax, faults, t_end)
+        ax.set_ylabel(f"u{_SUB[i]} [N m]")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    _finish(fig, out_dir / "compare_torque.png", f"{title}: actuator torque", paths, margins=_ROWS_MARGINS)
+    return paths
+
+
+def plot_torque_rerun(t: Array, recorded: Array, recomputed: Array, out_dir: Path, *, title: str) -> list[Path]:
+    """``rerun_torque.png``: recorded and recomputed torque per axis, and their difference."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths: list[Path] = []
+    fig, axes = _rows(4, height=8.0)
+    for i in range(3):
+        axes[i].plot(t, recorded[:, i], color="tab:green", lw=1.2, label="recorded")
+        axes[i].plot(t, recomputed[:, i], color="tab:purple", lw=1.0, ls="--", label="recomputed")
+        axes[i].set_ylabel(f"u{_SUB[i]} [N m]")
+        axes[i].grid(True, alpha=0.3)
+        axes[3].plot(t, recomputed[:, i] - recorded[:, i], lw=1.0, label=f"Δu{_SUB[i]}")
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[3].legend(loc="upper right", fontsize=8)
+    axes[3].set_ylabel("recomputed - recorded")
+    axes[3].grid(True, alpha=0.3)
+    axes[-1].set_xlabel("time [s]")
+    _finish(fig, out_dir / "rerun_torque.png", f"{title}: torque re-run through the controller core", paths, margins=_ROWS_MARGINS)
+    return paths
+
+
+def plot_campaign(tab: dict, out_dir: Path, *, criteria: tuple[float, float], title: str) -> list[Path]:  # type: ignore[type-arg]
+    """The paper's Monte Carlo figures: t2 tracking error and steady-state error per component
+    (one point per run, criterion dashed), and the kept trajectories overlaid with their RPFs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from matplotlib.collections import LineCollection
+
+    paths = []
+    runs = tab["run"]
+    for name, key, limit, label in (
+        ("montecarlo_t2_error.png", "rpf_error_at_t2_per_axis", criteria[0], "|q_ev,i − ρᵢ| at t₂"),
+        ("montecarlo_steady_error.png", "steady_mean_abs_qev_per_axis", criteria[1], "mean |q_ev,i| over the steady window"),
+    ):
+        fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), sharey=True)
+        for i, ax in enumerate(axes):
+            ax.plot(runs, tab[key][:, i], ".", ms=2, color="tab:blue")
+            ax.axhline(limit, color="tab:red", ls="--", lw=1, label="criterion")
+            _log_axis(ax)
+            ax.set_xlabel("run")
+            ax.set_title(f"component {i + 1}")
+            ax.grid(True, alpha=0.3)
+        axes[0].set_ylabel(label)
+        axes[0].legend(fontsize=8)
+        _finish(fig, out_dir / name, f"{title}: {len(runs)} runs", paths,
+                margins=dict(left=0.07, right=0.98, bottom=0.14, top=0.86, wspace=0.08))
+
+    t, q, rho = tab["traj_t"], tab["traj_q_ev"], tab["traj_rho"]
+    if q.size:
+        for name, mask, logy in (("montecarlo_trajectories.png", np.ones_like(t, dtype=bool), False),
+                                 ("montecarlo_trajectories_steady.png", t >= 15.0, True)):
+            fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+            for i, ax in enumerate(axes):
+                y, r = q[mask, :, i], rho[mask, :, i]
+                if logy:
+                    y, r = np.abs(y), np.abs(r)
+                    _log_axis(ax)
+                # one collection per family: hundreds of Line2D objects take seconds to draw
+                tm = np.broadcast_to(t[mask][:, None], y.shape)
+                ax.add_collection(LineCollection(np.stack((tm, y), axis=-1).transpose(1, 0, 2), colors="tab:blue", linewidths=0.4, alpha=0.25))
+                ax.add_collection(LineCollection(np.stack((tm, r), axis=-1).transpose(1, 0, 2), colors="k", linewidths=0.4, alpha=0.25, linestyles="--"))
+                ax.autoscale_view()
+                ax.set_ylabel(f"|q_ev{_SUB[i]}|" if logy else f"q_ev{_SUB[i]}")
+                ax.grid(True, alpha=0.3)
+            axes[-1].set_xlabel("time [s]")
+            _finish(fig, out_dir / name, f"{title}: {q.shape[1]} trajectories (solid) and their RPFs (dashed)" + (", steady state" if logy else ""),
+                    paths, margins=dict(left=0.11, right=0.97, bottom=0.07, top=0.94, hspace=0.12))
+    return paths

@@ -1,0 +1,296 @@
+"""Reports from recorded bags: ``sappc report`` (one bag) and ``sappc compare`` (several).
+
+A bag is analysed as far as its data goes (:func:`analyse_bag`): the metrics of
+:mod:`sappc.evaluation.metrics` when it has the state and the reference, the paper-style figures of
+:mod:`sappc.analysis.plots`, and a list of what is missing or suspicious (cut short, undecodable
+messages, unexpected frame ids, rejected inputs, stale samples).  The scenario and the
+controller parameters embedded by ``sappc run`` (metadata records ``sappc/scenario.yaml`` and
+``sappc/params.yaml``) give the metric settings, the controller's name and the injected events to
+mark; a bag from another plant has none, and the default settings apply (or ``--scenario``).
+
+The HTML page (:func:`html_page`) is one self-contained file: the figures are embedded.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sappc_msgs_py.contract import CLOCK, TOPICS, Topic, faulty
+from sappc_controller.params import parameters_from_yaml
+from gnc_common.validation import ConfigError
+
+from sappc.bag.read import PARAMS_RECORD, SCENARIO_RECORD, Bag, BagError, BagRun, bag_metrics, bag_run, find_topic, read_bag
+from sappc.scenario import MetricSettings, Scenario, load_scenario, scenario_from_mapping
+
+__all__ = ["BagAnalysis", "analyse_bag", "compare_bags", "html_page", "write_report", "write_rerun_report"]
+
+#: Every topic the contract names, the fault relays' included, by name.
+_CONTRACT: dict[str, Topic] = {t.name.lstrip("/"): t for t in TOPICS} | {
+    faulty(t).name: faulty(t) for t in TOPICS if t.frame_id is not None
+}
+
+
+@dataclass
+class BagAnalysis:
+    """What a bag says, as far as its data goes."""
+
+    path: Path
+    bag: Bag
+    label: str  # a short name for tables and legends
+    scenario: Scenario | None
+    controller: str | None
+    run: BagRun | None
+    metrics: dict[str, Any] | None
+    fault_windows: list[tuple[float, float]]
+    problems: list[str] = field(default_factory=list)  # what could not be computed, and why
+    notes: list[str] = field(default_factory=list)  # what is worth knowing about the data
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready: metrics, where the data ends, counts, problems and notes."""
+        h = self.run.history if self.run is not None else None
+        return {
+            "bag": str(self.path),
+            "label": self.label,
+            "scenario": self.scenario.name if self.scenario else None,
+            "controller": self.controller,
+            "metrics": self.metrics,
+            "samples": int(h.t.size) if h is not None else 0,
+            "end_s": float(h.t[-1]) if h is not None else None,
+            "truncated": self.bag.truncated,
+            "messages": self.bag.counts,
+            "undecodable": self.bag.undecodable,
+            "problems": self.problems,
+            "notes": self.notes,
+        }
+
+
+def _embedded_scenario(bag: Bag) -> Scenario | None:
+    record = bag.metadata.get(SCENARIO_RECORD)
+    if not record or "text" not in record:
+        return None
+    import yaml
+
+    source = f"{bag.path} ({SCENARIO_RECORD})"
+    try:
+        data = yaml.safe_load(record["text"])
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source} is not valid YAML: {exc}") from None
+    return scenario_from_mapping(data, source=source)
+
+
+def _embedded_controller(bag: Bag) -> str | None:
+    record = bag.metadata.get(PARAMS_RECORD)
+    if not record or "text" not in record:
+        return None
+    try:
+        return str(parameters_from_yaml(record["text"], "controller", source=PARAMS_RECORD).get("controller", "sappc"))
+    except ConfigError:
+        return None
+
+
+def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagAnalysis:
+    """Read the bag at ``path`` and compute what its data allows (see the module docstring).
+
+    ``scenario``: a scenario file whose metric settings and events apply (default: the one
+    embedded in the bag, else :class:`~sappc.scenario.MetricSettings` defaults and no events).
+
+    Raises
+    ------
+    BagError
+        If ``path`` is not a bag or holds no message of the contract's types.
+    """
+    bag = read_bag(path)
+    notes: list[str] = []
+    problems: list[str] = []
+    sc: Scenario | None
+    if scenario is not None:
+        sc = load_scenario(scenario)
+    else:
+        try:
+            sc = _embedded_scenario(bag)
+        except ConfigError as exc:
+            sc = None
+            notes.append(f"the scenario embedded in the bag is not valid here ({exc}); default metric settings used")
+    controller = _embedded_controller(bag)
+    label = controller or Path(path).name
+    settings = sc.metrics if sc else MetricSettings()
+    windows = sc.event_windows() if sc else []
+
+    for topic, n in bag.undecodable.items():
+        notes.append(f"{topic}: {n} message(s) do not fit their type's layout and were skipped")
+    for name, spec in _CONTRACT.items():
+        topic = find_topic(bag, name)
+        frames = bag.frame_ids.get(topic, ()) if topic else ()
+        if spec.frame_id is not None and frames and set(frames) != {spec.frame_id}:
+            notes.append(f"{topic}: frame id(s) {list(frames)}, the contract says {spec.frame_id!r}")
+    missing = [t.name for t in TOPICS if t.name != CLOCK.name and find_topic(bag, t.name) is None]
+    if missing:
+        notes.append(f"topics absent from the bag: {', '.join(missing)}")
+
+    run: BagRun | None = None
+    metrics: dict[str, Any] | None = None
+    try:
+        run = bag_run(bag)
+    except BagError as exc:
+        problems.append(f"no metrics and no figures of the run: {exc}")
+    if run is not None:
+        metrics = bag_metrics(bag, steady_from_s=settings.steady_from_s, settle_threshold=settings.settle_threshold,
+                              t2_s=settings.t2_s, fault_windows=windows, run=run)
+        if not run.has_diagnostics:
+            problems.append("no controller/diagnostics: rho, the constraint band, saturation and the Lyapunov values are "
+                            "unknown, so the metrics that need them are null")
+        end = float(run.history.t[-1])
+        if bag.truncated:
+            of = f" of the scenario's {sc.duration_s:g} s" if sc else ""
+            notes.insert(0, f"the bag is cut short ({bag.truncated}); its data ends at t = {end:.3f} s{of}: "
+                            "the metrics describe the run up to there")
+        elif sc is not None and end + 0.5 * sc.control_period_s < sc.duration_s:
+            notes.insert(0, f"the run ends at t = {end:.3f} s, before the scenario's {sc.duration_s:g} s")
+        if run.rejected:
+            notes.append(f"the controller rejected {run.rejected} input message(s) (diagnostics status[0])")
+        if run.stale.any():
+            notes.append(f"{int(run.stale.sum())} sample(s) with zero torque because the inputs were stale (diagnostics status[1])")
+    elif bag.truncated:
+        notes.insert(0, f"the bag is cut short ({bag.truncated})")
+    return BagAnalysis(path=Path(path), bag=bag, label=label, scenario=sc, controller=controller, run=run,
+                       metrics=metrics, fault_windows=windows, problems=problems, notes=notes)
+
+
+# ---- HTML -------------------------------------------------------------------------------------
+
+_CSS = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 980px; color: #222; }
+h1 { font-size: 1.5em; } h2 { font-size: 1.2em; margin-top: 1.6em; }
+table { border-collapse: collapse; margin: 0.6em 0; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.7em; text-align: left; font-variant-numeric: tabular-nums; }
+th { background: #f3f3f3; }
+.problem { color: #a00; } .note { color: #865; }
+img { max-width: 100%; border: 1px solid #eee; margin: 0.5em 0; }
+"""
+
+
+def _fmt(value: Any) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else f"{value:.6g}"
+    return str(value)
+
+
+def html_table(header: list[str], rows: list[list[Any]]) -> str:
+    """An HTML table; values formatted as the command line prints them."""
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(v))}</td>" for v in row) + "</tr>" for row in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def html_page(title: str, blocks: list[str]) -> str:
+    """A self-contained HTML page: ``blocks`` are HTML fragments (see :func:`html_figure`)."""
+    return (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
+            f"<style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>\n" + "\n".join(blocks) + "\n</body></html>\n")
+
+
+def html_figure(path: Path) -> str:
+    """The PNG at ``path`` embedded in the page."""
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return f'<img alt="{html.escape(path.stem)}" src="data:image/png;base64,{data}">'
+
+
+def html_list(items: list[str], css: str) -> str:
+    return "<ul>" + "".join(f'<li class="{css}">{html.escape(i)}</li>' for i in items) + "</ul>" if items else ""
+
+
+def _run_title(a: BagAnalysis) -> str:
+    return f"{a.scenario.name if a.scenario else a.path.name} ({a.label})"
+
+
+def write_report(a: BagAnalysis, out_dir: Path) -> list[Path]:
+    """The figures of the run and ``report.html`` in ``out_dir``; return their paths."""
+    from sappc.analysis.plots import plot_run
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    figures = plot_run(a.run.history, out_dir, title=_run_title(a), fault_windows=a.fault_windows) if a.run is not None else []
+    s = a.summary()
+    info = [
+        ["bag", s["bag"]],
+        ["scenario", s["scenario"]],
+        ["controller", s["controller"]],
+        ["aligned samples", s["samples"]],
+        ["data ends at [s]", s["end_s"]],
+        ["whole file", a.bag.truncated is None],
+    ] + [[f"messages on {t}", n] for t, n in s["messages"].items()]
+    blocks = [
+        "<h2>Bag</h2>" + html_table(["item", "value"], info),
+        html_list(a.problems, "problem") + html_list(a.notes, "note"),
+    ]
+    if a.metrics is not None:
+        blocks.append("<h2>Metrics</h2>" + html_table(["metric", "value"], [[k, v] for k, v in a.metrics.items()]))
+    if a.fault_windows:
+        blocks.append("<p>Injected disturbance events and faults are shaded red: "
+                      + ", ".join(f"{s0:g} to {s1:g} s" for s0, s1 in a.fault_windows) + ".</p>")
+    blocks += ["<h2>Figures</h2>"] + [html_figure(p) for p in figures]
+    page = out_dir / "report.html"
+    page.write_text(html_page(f"Report: {_run_title(a)}", blocks))
+    return figures + [page]
+
+
+def compare_bags(analyses: list[BagAnalysis], out_dir: Path) -> tuple[list[str], list[list[Any]], list[Path]]:
+    """Overlaid figures, one metrics table (a row per metric, a column per bag) and
+    ``compare.html`` in ``out_dir``; return (header, rows, written paths).
+
+    Raises
+    ------
+    BagError
+        If a bag has no run to compare (no state or reference).
+    """
+    from sappc.analysis.plots import plot_compare
+
+    unusable = [f"{a.path}: {a.problems[0]}" for a in analyses if a.run is None]
+    if unusable:
+        raise BagError("cannot compare: " + "; ".join(unusable))
+    labels = [a.label for a in analyses]
+    for i, a in enumerate(analyses):  # the same controller twice: tell the runs apart by their bag
+        if labels.count(a.label) > 1:
+            labels[i] = f"{a.label} ({a.path.parent.name if a.path.name == 'bag' else a.path.name})"
+    keys = list(dict.fromkeys(k for a in analyses for k in (a.metrics or {})))
+    header = ["metric"] + labels
+    rows = [[k] + [(a.metrics or {}).get(k) for a in analyses] for k in keys]
+    names = {a.scenario.name for a in analyses if a.scenario}
+    title = names.pop() if len(names) == 1 else "comparison"
+    windows = sorted({w for a in analyses for w in a.fault_windows})
+    out_dir.mkdir(parents=True, exist_ok=True)
+    figures = plot_compare([(lab, a.run.history) for lab, a in zip(labels, analyses)], out_dir, title=title,  # type: ignore[union-attr]
+                           fault_windows=windows)
+    notes = [f"{lab}: {n}" for lab, a in zip(labels, analyses) for n in a.problems + a.notes]
+    blocks = [
+        "<h2>Runs</h2>" + html_table(["run", "bag", "scenario", "samples"],
+                                     [[lab, str(a.path), a.scenario.name if a.scenario else None, a.run.history.t.size]  # type: ignore[union-attr]
+                                      for lab, a in zip(labels, analyses)]),
+        html_list(notes, "note"),
+        "<h2>Metrics</h2>" + html_table(header, rows),
+        "<h2>Figures</h2>",
+    ] + [html_figure(p) for p in figures]
+    page = out_dir / "compare.html"
+    page.write_text(html_page(f"Comparison: {title}", blocks))
+    return header, rows, figures + [page]
+
+
+def write_rerun_report(result: Any, bag_name: str, out_dir: Path) -> list[Path]:
+    """``rerun_torque.png`` (recorded, recomputed and their difference) and ``rerun.html`` for a
+    :class:`~sappc.analysis.rerun.RerunResult`; return their paths."""
+    from sappc.analysis.plots import plot_torque_rerun
+
+    stamps = result.stamps_ns
+    t = (stamps - stamps[0]) / 1e9 if stamps.size else stamps.astype(float)
+    figures = plot_torque_rerun(t, result.recorded, result.recomputed, out_dir, title=f"{bag_name} ({result.controller})")
+    page = out_dir / "rerun.html"
+    page.write_text(html_page(f"Re-run: {bag_name}", [html_table(["item", "value"], [[k, v] for k, v in result.summary().items()])]
+                              + [html_figure(p) for p in figures]))
+    return figures + [page]

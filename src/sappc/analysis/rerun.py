@@ -1,0 +1,192 @@
+"""``sappc rerun``: feed a bag's recorded inputs into the controller core again.
+
+The controller node computes ``controller.step(t, dt, q, w, q_d, w_d, wdot_d)`` with
+``t = stamp_ns / 1e9`` from the five inputs of one stamp (the state it subscribes to, which is
+the fault relay's output when the run had sensor faults, and the reference).  The re-run makes
+the same calls, in the same order, on a fresh controller built from a ROS parameters file (the
+one embedded in the bag by ``sappc run``, or ``--params``), and compares each torque with the
+one the node published on ``control/torque``.  With the recorded parameters and a lockstep bag
+the two are bit-for-bit equal: a determinism check of the whole chain (CDR, the node, the core).
+
+Which samples are re-run: every ``control/torque`` message whose diagnostics do not flag stale
+inputs (a stale sample is the node's zero torque, not a control step).  Which inputs: those
+whose stamps the controller reported in its diagnostics (``input_stamps_state_s``,
+``input_stamps_reference_s``), so the re-run is exact in real time too.  For a bag without them
+(another controller node), lockstep bags (with ``/clock``) pair the inputs of equal stamps, as
+the node does, and real-time bags take the latest input the recorder had received before the
+torque, which may differ from the node's view by a message in flight: expect small differences
+there, which are reported, not hidden.  Runtime parameter changes made during the run are not
+in the bag and are not replayed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sappc_controller.params import CONTROLLER_CLASSES, controller_from_parameters_file
+from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS, CONTROLLER_INPUTS, STATE_ATTITUDE, STATE_RATE, faulty
+from gnc_common.validation import ConfigError, InputError
+
+from sappc.bag.read import PARAMS_RECORD, Bag, BagError, Series, find_topic, latest_index
+
+__all__ = ["RerunResult", "rerun_bag"]
+
+Array = NDArray[np.float64]
+
+_NS = 1_000_000_000
+#: Stamps carried as float seconds in the diagnostics (epoch times in real time) are exact to
+#: ~0.24 us; messages of one topic are milliseconds apart, so 1 us identifies one unambiguously.
+_STAMP_TOL_NS = 1_000
+
+
+def _nearest_index(stamps_ns: NDArray[np.int64], at_ns: NDArray[np.int64], tol_ns: int) -> NDArray[np.int64]:
+    """Index of the sample whose stamp is nearest each of ``at_ns``, or -1 when none is within ``tol_ns``."""
+    if stamps_ns.size == 0:
+        return np.full(np.shape(at_ns), -1, dtype=np.int64)
+    order = np.argsort(stamps_ns, kind="stable")
+    s = stamps_ns[order]
+    hi = np.clip(np.searchsorted(s, at_ns), 0, s.size - 1)
+    lo = np.maximum(hi - 1, 0)
+    best = np.where(np.abs(s[lo] - at_ns) <= np.abs(s[hi] - at_ns), lo, hi)
+    return np.where(np.abs(s[best] - at_ns) <= tol_ns, order[best], -1)
+
+
+@dataclass
+class RerunResult:
+    """Recorded and recomputed torques at the re-run samples."""
+
+    controller: str
+    params_source: str
+    mode: str  # "lockstep" (the bag has /clock) or "realtime"
+    pairing: str  # how each torque was matched with its inputs
+    stamps_ns: NDArray[np.int64]  # (K,) the re-run samples
+    recorded: Array  # (K, 3) control/torque as published [N m]
+    recomputed: Array  # (K, 3) [N m]
+    skipped: dict[str, int] = field(default_factory=dict)  # why some torque samples were not re-run
+    failed_steps: int = 0  # steps the core refused (the node would command zero; recomputed = 0)
+
+    @property
+    def identical(self) -> int:
+        """Samples whose three recomputed components equal the recorded ones bit for bit."""
+        return int(np.all(self.recomputed == self.recorded, axis=1).sum())
+
+    @property
+    def max_abs_diff_Nm(self) -> float:
+        return float(np.max(np.abs(self.recomputed - self.recorded))) if self.stamps_ns.size else 0.0
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready."""
+        k = int(self.stamps_ns.size)
+        return {
+            "controller": self.controller,
+            "parameters": self.params_source,
+            "mode": self.mode,
+            "pairing": self.pairing,
+            "samples": k,
+            "identical": self.identical,
+            "all_identical": k > 0 and self.identical == k,
+            "max_abs_diff_Nm": self.max_abs_diff_Nm,
+            "skipped": self.skipped,
+            "failed_steps": self.failed_steps,
+        }
+
+
+def _series(bag: Bag, *names: str) -> Series:
+    for name in names:
+        topic = find_topic(bag, name)
+        if topic is not None and bag.series[topic].stamps_ns.size:
+            return bag.series[topic]
+    raise BagError(f"{bag.path}: the bag lacks {names[-1]}; a re-run needs the state, the reference and control/torque")
+
+
+def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
+    """Re-run the controller of ``bag`` (see the module docstring).
+
+    ``params``: a ROS parameters file for the controller node (default: the bag's own).
+
+    Raises
+    ------
+    BagError
+        If the bag lacks an input or ``control/torque``, or carries no parameters and none are given.
+    ConfigError
+        If the parameters are invalid.
+    """
+    if params is not None:
+        source = str(params)
+        try:
+            text = Path(params).read_text()
+        except OSError as exc:
+            raise ConfigError(f"cannot read parameters {params}: {exc.strerror}") from None
+    else:
+        record = bag.metadata.get(PARAMS_RECORD)
+        if not record or "text" not in record:
+            raise BagError(f"{bag.path}: the bag carries no controller parameters ({PARAMS_RECORD}); give --params FILE")
+        source, text = f"the bag's {PARAMS_RECORD}", record["text"]
+    kind, config, dt = controller_from_parameters_file(text, source=source)
+    controller = CONTROLLER_CLASSES[kind](config)
+
+    # the state the controller subscribed to: the relay's when the run relayed it
+    relayed = (STATE_ATTITUDE, STATE_RATE)
+    inputs = [_series(bag, *((faulty(t).name,) if t in relayed else ()), t.name) for t in CONTROLLER_INPUTS]
+    torque = _series(bag, CONTROL_TORQUE.name)
+    skipped: dict[str, int] = {}
+    keep = np.ones(torque.stamps_ns.size, dtype=bool)
+    labels = bag.diagnostics_labels
+    diag_topic = find_topic(bag, CONTROLLER_DIAGNOSTICS.name)
+    diag = None
+    if diag_topic is not None and "status" in labels:
+        # the node publishes each torque with its diagnostics, stamped with the same time
+        d = bag.series[diag_topic]
+        j = _nearest_index(d.stamps_ns, torque.stamps_ns, _STAMP_TOL_NS)
+        diag = np.where((j >= 0)[:, None], d.values[np.maximum(j, 0)], np.nan)
+        stale = diag[:, 3 * labels.index("status") + 1] > 0.5  # status[1]: the stale flag
+        keep &= ~stale
+        if stale.any():
+            skipped["stale (zero torque, no control step)"] = int(stale.sum())
+
+    lockstep = find_topic(bag, CLOCK.name) is not None
+    if diag is not None and "input_stamps_state_s" in labels and "input_stamps_reference_s" in labels:
+        # the stamps of the messages the step used, as the controller reported them
+        a, b = 3 * labels.index("input_stamps_state_s"), 3 * labels.index("input_stamps_reference_s")
+        used = np.concatenate((diag[:, a : a + 2], diag[:, b : b + 3]), axis=1)
+        used_ns = np.where(np.isfinite(used), np.round(np.nan_to_num(used) * 1e9), -1).astype(np.int64)
+        pos = [_nearest_index(s.stamps_ns, used_ns[:, c], _STAMP_TOL_NS) for c, s in enumerate(inputs)]
+        pairing = "the input stamps the controller reported"
+    elif lockstep:  # the node pairs the inputs of one stamp
+        pos = [_nearest_index(s.stamps_ns, torque.stamps_ns, 0) for s in inputs]
+        pairing = "equal stamps"
+    else:  # the latest input at the recorder when the torque arrived: may differ from the node's view
+        pos = [latest_index(s.log_time_ns, torque.log_time_ns) for s in inputs]
+        pairing = "arrival at the recorder (approximate)"
+    found = np.all(np.stack(pos) >= 0, axis=0)
+    if (keep & ~found).any():
+        skipped["an input of the sample is not in the bag"] = int((keep & ~found).sum())
+    keep &= found
+
+    rows = np.flatnonzero(keep)
+    recomputed = np.full((rows.size, 3), np.nan)
+    failed = 0
+    widths = [4 if t.type_name.endswith("QuaternionStamped") else 3 for t in CONTROLLER_INPUTS]
+    for n, r in enumerate(rows):
+        q, w, q_d, w_d, wdot_d = (s.values[p[r], :width] for s, p, width in zip(inputs, pos, widths))
+        try:
+            recomputed[n] = controller.step(int(torque.stamps_ns[r]) / _NS, dt, q, w, q_d, w_d, wdot_d).torque_B
+        except (InputError, FloatingPointError, ConfigError):
+            failed += 1  # the node then publishes zero torque
+            recomputed[n] = 0.0
+    return RerunResult(
+        controller=kind,
+        params_source=source,
+        mode="lockstep" if lockstep else "realtime",
+        pairing=pairing,
+        stamps_ns=torque.stamps_ns[rows],
+        recorded=torque.values[rows, :3],
+        recomputed=recomputed,
+        skipped=skipped,
+        failed_steps=failed,
+    )

@@ -1,0 +1,281 @@
+"""Read a recorded bag back into arrays, and compute a run's metrics from it.
+
+Works on any bag that follows the topic contract (``sappc run``'s, or a user plant's): a rosbag2
+directory with ``metadata.yaml`` and an MCAP file, or a bare ``.mcap`` file.  The file is read
+sequentially (:mod:`sappc.bag.mcap_scan`), so a bag cut short by a crash (no summary, a torn last
+chunk) yields every message before the tear and says where it ends, and decoded without ROS
+(:mod:`sappc.bag.cdr`).
+
+Samples are aligned on the plant's state stamps (``state/attitude`` and ``state/rate``, the
+truth even when a fault relay feeds the controller): the reference is interpolated at each stamp
+(exact when the stamps coincide, as in lockstep), torques, disturbances and diagnostics are the
+latest at or before it (zero-order hold, as the plant applies them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from sappc_msgs_py.contract import (
+    CONTROL_TORQUE,
+    CONTROLLER_DIAGNOSTICS,
+    DISTURBANCE_TORQUE,
+    REFERENCE_ATTITUDE,
+    STATE_ATTITUDE,
+    STATE_RATE,
+    faulty,
+)
+from gnc_common.attitude import error_quaternion, quat_normalize
+from gnc_common.validation import ConfigError
+
+from sappc.bag.cdr import decode
+from sappc.evaluation.history import History
+from sappc.bag.mcap_scan import Scan, scan_mcap
+from sappc.evaluation.metrics import MetricsAccumulator
+
+__all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "Bag", "BagError", "BagRun", "bag_metrics", "bag_run", "find_topic", "latest_index",
+           "read_bag", "scan_bag"]
+
+#: Metadata records that ``sappc run``'s recorder embeds in the bag: the scenario file and the
+#: ROS parameters of every node (the recorder names them ``sappc/<file name>``).
+SCENARIO_RECORD = "sappc/scenario.yaml"
+PARAMS_RECORD = "sappc/params.yaml"
+
+Array = NDArray[np.float64]
+
+
+class BagError(ConfigError):
+    """The path is not a readable bag, or lacks what is asked of it."""
+
+
+@dataclass
+class Series:
+    """One topic: header stamps [ns] and values, in recording order."""
+
+    stamps_ns: NDArray[np.int64]
+    values: Array
+    log_time_ns: NDArray[np.int64]  # when the recorder received each message
+
+
+@dataclass
+class Bag:
+    """The messages of a bag as arrays (see :func:`read_bag`)."""
+
+    path: Path
+    series: dict[str, Series]
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    truncated: str | None = None  # why reading stopped early, None when the file is whole
+    diagnostics_labels: tuple[str, ...] = ()
+    undecodable: dict[str, int] = field(default_factory=dict)  # topic -> messages not fitting its type
+    frame_ids: dict[str, tuple[str, ...]] = field(default_factory=dict)  # topic -> header frame ids seen
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages read per topic."""
+        return {t: s.stamps_ns.size for t, s in self.series.items()}
+
+
+def mcap_file(path: Path) -> Path:
+    """The MCAP file of a bag: ``path`` itself, or the one a rosbag2 directory lists."""
+    if path.is_file():
+        return path
+    if not path.is_dir():
+        raise BagError(f"{path}: no such bag (a rosbag2 directory or an .mcap file)")
+    meta = path / "metadata.yaml"
+    if meta.exists():
+        try:
+            info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+            files = [path / f for f in info["relative_file_paths"]]
+        except (yaml.YAMLError, KeyError, TypeError) as exc:
+            raise BagError(f"{meta}: not a rosbag2 metadata file ({exc})") from None
+        if len(files) > 1:
+            raise BagError(f"{path}: a bag split into {len(files)} files is not supported; give one of them")
+        if len(files) == 1 and files[0].exists():
+            return files[0]
+    found = sorted(path.glob("*.mcap"))
+    if not found:
+        raise BagError(f"{path}: no .mcap file in the bag directory")
+    return found[0]
+
+
+def scan_bag(path: str | Path) -> Scan:
+    """The raw messages of the bag at ``path`` (see :func:`sappc.bag.mcap_scan.scan_mcap`)."""
+    mcap_path = mcap_file(Path(path))
+    try:
+        return scan_mcap(mcap_path)
+    except ValueError as exc:
+        raise BagError(str(exc)) from None
+    except OSError as exc:
+        raise BagError(f"{mcap_path}: cannot read ({exc.strerror})") from None
+
+
+def read_bag(path: str | Path) -> Bag:
+    """Every message of the contract's types in the bag at ``path``, as arrays.
+
+    Raises
+    ------
+    BagError
+        If ``path`` is not a bag (no MCAP file, not MCAP, no message of the contract's types).
+    """
+    p = Path(path)
+    scan = scan_bag(p)
+    series: dict[str, Series] = {}
+    labels: tuple[str, ...] = ()
+    undecodable: dict[str, int] = {}
+    frame_ids: dict[str, tuple[str, ...]] = {}
+    for cid, channel in scan.channels.items():
+        start, length, log_time = scan.payloads(cid)
+        if channel.message_encoding != "cdr" or start.size == 0:
+            continue
+        d = decode(channel.schema_name, scan.buffer, start, length)
+        if d is None:
+            continue
+        series[channel.topic] = Series(d.stamps_ns, d.values, log_time[d.index])
+        labels = labels or d.labels
+        frame_ids[channel.topic] = d.frame_ids
+        if d.undecodable:
+            undecodable[channel.topic] = d.undecodable
+    if not any(s.stamps_ns.size for s in series.values()):
+        raise BagError(f"{p}: the bag holds no messages of the topic contract" + (f" (reading stopped: {scan.truncated})" if scan.truncated else ""))
+    return Bag(path=p, series=series, metadata=scan.metadata, truncated=scan.truncated, diagnostics_labels=labels,
+               undecodable=undecodable, frame_ids=frame_ids)
+
+
+def find_topic(bag: Bag, name: str) -> str | None:
+    """The recorded topic whose name is ``name`` or ends with ``/name`` (namespaced runs)."""
+    name = name.lstrip("/")
+    for t in bag.series:
+        if t.lstrip("/") == name or t.endswith("/" + name):
+            return t
+    return None
+
+
+def latest_index(stamps: NDArray[np.int64], at: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Index of the latest sample at or before each of ``at`` (-1 if none)."""
+    order = np.argsort(stamps, kind="stable")
+    idx = np.searchsorted(stamps[order], at, side="right") - 1
+    return np.where(idx >= 0, order[np.maximum(idx, 0)], -1)
+
+
+@dataclass
+class BagRun:
+    """A run recovered from a bag, aligned on the state stamps."""
+
+    history: History  # one run (N = 1), t in seconds since the first aligned state
+    t0_ns: int  # stamp of the first aligned state
+    stale: NDArray[np.bool_]  # (T,) the controller commanded zero torque for stale inputs
+    rejected: int  # messages the controller rejected (the last diagnostics' count)
+    torque_topic: str | None  # the topic the plant applied (a fault relay's when there was one)
+    has_diagnostics: bool  # controller/diagnostics present (rho, band, saturation, Lyapunov values)
+
+
+def bag_run(bag: Bag) -> BagRun:
+    """Align the bag's topics on the state stamps (see the module docstring).
+
+    Raises
+    ------
+    BagError
+        If the bag lacks the state or the reference, or they never overlap.
+    """
+    names = {
+        "att": STATE_ATTITUDE.name,
+        "rate": STATE_RATE.name,
+        "ref": REFERENCE_ATTITUDE.name,
+    }
+    found = {k: find_topic(bag, v) for k, v in names.items()}
+    missing = [names[k] for k, v in found.items() if v is None or bag.series[v].stamps_ns.size == 0]
+    if missing:
+        raise BagError(f"{bag.path}: the bag lacks {', '.join(missing)}; metrics need the state and the reference")
+    att, rate, ref = (bag.series[found[k]] for k in ("att", "rate", "ref"))  # type: ignore[index]
+    common = np.intersect1d(att.stamps_ns, rate.stamps_ns)
+    common = common[common >= ref.stamps_ns.min()]
+    if common.size == 0:
+        raise BagError(f"{bag.path}: no state sample has both attitude and rate after the first reference")
+    ia = latest_index(att.stamps_ns, common)
+    ir = latest_index(rate.stamps_ns, common)
+    q_BN, w_BN_B = att.values[ia, :4], rate.values[ir, :3]
+    # reference attitude at the state stamps: exact where they coincide, else normalised lerp
+    order = np.argsort(ref.stamps_ns, kind="stable")
+    rs, rq = ref.stamps_ns[order], ref.values[order, :4]
+    j = np.clip(np.searchsorted(rs, common, side="right") - 1, 0, rs.size - 1)
+    j1 = np.minimum(j + 1, rs.size - 1)
+    exact = rs[j] == common
+    span = (rs[j1] - rs[j]).astype(np.float64)
+    w = np.where(span > 0, (common - rs[j]) / np.where(span > 0, span, 1.0), 0.0)[:, None]
+    q1 = np.where((np.sum(rq[j] * rq[j1], axis=1) < 0)[:, None], -rq[j1], rq[j1])
+    q_RN = np.where(exact[:, None], rq[j], quat_normalize((1.0 - w) * rq[j] + w * q1))
+    q_BR = error_quaternion(q_RN, q_BN)
+
+    torque_topic = find_topic(bag, faulty(CONTROL_TORQUE).name) or find_topic(bag, CONTROL_TORQUE.name)
+    T = common.size
+
+    def held(topic: str | None, width: int) -> Array:
+        if topic is None:
+            return np.zeros((T, width))
+        s = bag.series[topic]
+        i = latest_index(s.stamps_ns, common)
+        return np.where((i >= 0)[:, None], s.values[np.maximum(i, 0), :width], 0.0)
+
+    rows: dict[str, Array] = {}
+    diag_topic = find_topic(bag, CONTROLLER_DIAGNOSTICS.name)
+    labels = bag.diagnostics_labels
+    if diag_topic is not None and labels and bag.series[diag_topic].values.shape[1] >= 3 * len(labels):
+        d = bag.series[diag_topic]
+        i = latest_index(d.stamps_ns, common)
+        data = d.values[np.maximum(i, 0), : 3 * len(labels)].reshape(T, len(labels), 3)
+        data[i < 0] = np.nan
+        rows = {label: data[:, n] for n, label in enumerate(labels)}
+    nan3 = np.full((T, 3), np.nan)
+    status = rows.get("status", np.zeros((T, 3)))
+    one = lambda a: a[:, None, :]  # noqa: E731 - (T, 3) -> (T, 1, 3): one run
+    t0 = int(common[0])
+    history = History(
+        t=(common - t0) / 1e9,
+        q_BN=q_BN[:, None, :],
+        omega_BN_B=w_BN_B[:, None, :],
+        q_BR=q_BR[:, None, :],
+        torque_B=one(held(torque_topic, 3)),
+        torque_cmd_B=one(rows.get("torque_cmd_Nm", nan3)),
+        saturated=one(rows.get("saturated", np.zeros((T, 3))) > 0.5),
+        disturbance_B=one(held(find_topic(bag, DISTURBANCE_TORQUE.name), 3)),
+        rho=one(rows.get("rho", nan3)),
+        band_lower=one(rows.get("band_lower", nan3)),
+        band_upper=one(rows.get("band_upper", nan3)),
+        eps=one(rows.get("eps", nan3)),
+        z=one(rows.get("z", nan3)),
+        V=one(rows.get("lyapunov_V", nan3)),
+    )
+    finite_status = status[np.isfinite(status[:, 0])]
+    return BagRun(
+        history=history,
+        t0_ns=t0,
+        stale=status[:, 1] > 0.5,
+        rejected=int(finite_status[-1, 0]) if finite_status.size else 0,
+        torque_topic=torque_topic,
+        has_diagnostics=bool(rows),
+    )
+
+
+def bag_metrics(bag: Bag, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]],
+                run: BagRun | None = None) -> dict[str, Any]:
+    """The metrics of :mod:`sappc.evaluation.metrics` for the run in ``bag`` (``run``: its alignment, if made already)."""
+    run = run or bag_run(bag)
+    acc = MetricsAccumulator(run.history.t, 1, steady_from_s=steady_from_s, settle_threshold=settle_threshold, t2_s=t2_s,
+                             fault_windows=fault_windows)
+    acc.add_history(run.history)
+    metrics = acc.run_metrics(0)
+    if not run.has_diagnostics:  # no rho, band or saturation flags: these are unknown, not zero
+        for key in _NEED_DIAGNOSTICS:
+            metrics[key] = None
+    return metrics
+
+
+#: Metrics that need ``controller/diagnostics``.
+_NEED_DIAGNOSTICS = ("rpf_error_at_t2", "saturation_fraction", "time_outside_constraint_s", "returned_to_constraint",
+                     "left_constraint_after_fault", "returned_at_s")

@@ -1,0 +1,346 @@
+"""The entry script of ``sappc run``: a whole experiment through real ROS 2 processes.
+
+``run_graph`` turns a scenario into node parameters, starts each node as its own process on an
+isolated domain (recorder, controller, reference, injector, plant), lets the plant run the
+scenario to its end (lockstep) or for its duration (real time), stops the others with SIGINT in
+an order that loses no message (publishers first, they wait for acknowledgements; the recorder
+last, it drains its queues), checks that the bag holds exactly what was published, and computes
+the same metrics as ``sappc simulate`` from the bag.
+
+Isolation (ROS2_NOTES.md): a ``ROS_DOMAIN_ID`` claimed with a lock file (two runs at once never
+share a domain), ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, the project's Fast DDS profile for
+fast discovery, ``ROS_LOG_DIR`` inside the run directory.  No process outlives the run: every
+child is waited for, killed after :data:`STOP_TIMEOUT_S` if it must be, and stale Fast DDS
+shared-memory segments are cleaned when one had to be killed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sappc_controller.params import parameters_from_config, unflatten
+from spacecraft_sim.core.faults import FaultSchedule
+from gnc_common.validation import ConfigError
+
+from sappc.scenario import ControllerKind, Scenario, load_scenario
+
+__all__ = ["GraphResult", "claim_domain_id", "controller_params_yaml", "isolated_environment", "node_parameters", "run_graph"]
+
+#: How long a node may take to stop after SIGINT before it is killed [s].
+STOP_TIMEOUT_S = 15.0
+#: Domain ids tried by :func:`claim_domain_id` (0 is everyone's default; ids above 101 collide
+#: with ephemeral ports on Linux).
+DOMAIN_IDS = range(1, 102)
+#: The nodes of a run, in start order (the plant starts last: it owns time).
+NODES = ("recorder", "controller", "reference", "injector", "plant")
+_MODULES = {
+    "recorder": "sappc.graph.recorder",
+    "controller": "sappc_controller",
+    "reference": "spacecraft_sim.reference",
+    "injector": "spacecraft_sim.disturbance",
+    "plant": "spacecraft_sim",
+}
+
+
+def fastdds_profile() -> Path:
+    """The project's Fast DDS profile (fast discovery on one host)."""
+    return Path(str(resources.files("sappc.graph") / "fastdds_profile.xml"))
+
+
+@contextlib.contextmanager
+def claim_domain_id(preferred: int | None = None) -> Iterator[int]:
+    """Hold a ROS domain id no other ``sappc`` run or test on this machine uses meanwhile.
+
+    The claim is an exclusive ``flock`` on ``$TMPDIR/sappc-domain-<id>.lock``, released when the
+    context ends (or the process dies).
+    """
+    candidates = [preferred] if preferred is not None else list(DOMAIN_IDS)
+    for domain in candidates:
+        path = Path(tempfile.gettempdir()) / f"sappc-domain-{domain}.lock"
+        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        try:
+            yield domain
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+        return
+    raise RuntimeError(f"no free ROS domain id among {candidates[0]}..{candidates[-1]}")
+
+
+def isolated_environment(domain_id: int, log_dir: Path, base: dict[str, str] | None = None) -> dict[str, str]:
+    """The environment of a node process: the parent's, plus isolation and fast discovery."""
+    env = dict(os.environ if base is None else base)
+    env.update(
+        ROS_DOMAIN_ID=str(domain_id),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        FASTRTPS_DEFAULT_PROFILES_FILE=str(fastdds_profile()),
+        ROS_LOG_DIR=str(log_dir),
+        PYTHONUNBUFFERED="1",
+    )
+    return env
+
+
+def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool, paths: dict[str, str]) -> dict[str, Any]:
+    """The ROS parameters of every node of a run (``{"/node": {"ros__parameters": {...}}}``).
+
+    ``paths`` holds ``scenario`` (the schedule file of the injector), ``bag`` (the recorder's
+    output) and ``counts`` (the directory of the counts files).
+    """
+    mode = "realtime" if realtime else "lockstep"
+    faults = FaultSchedule(scenario.faults)
+    sensor, actuator = faults.has_sensor_faults, faults.has_actuator_faults
+    lockstep = not realtime
+    common = {"control_period_s": scenario.control_period_s, "mode": mode}
+
+    def expected(**counts: int) -> list[str]:
+        return [f"{topic.replace('__', '/')}={n}" for topic, n in counts.items()]
+
+    def counts_file(node: str) -> str:
+        return str(Path(paths["counts"]) / f"{node}.json")
+
+    clock_subs = 4  # controller (stale watchdog), reference, injector, recorder
+    controller = {
+        **unflatten(parameters_from_config(kind.value, scenario.controller_config(kind))),
+        **common,
+        "expected_subscribers": expected(control__torque=2, controller__diagnostics=1),
+        "counts_file": counts_file("controller"),
+        "timing_file": str(Path(paths["counts"]).parent / "logs" / "controller_timing.json"),
+    }
+    plant = {
+        "inertia_kg_m2": scenario.inertia_kg_m2.ravel().tolist(),
+        "q_BN0": scenario.q_BN0.tolist(),
+        "omega_BN_B0_rad_s": scenario.omega_BN_B0_rad_s.tolist(),
+        "duration_s": scenario.duration_s,
+        "rk4_substeps": scenario.rk4_substeps,
+        "max_torque_Nm": scenario.actuator.max_torque_Nm,
+        "use_disturbance_topic": True,
+        **common,
+        # state: the controller (or the sensor relay) and the recorder; /clock in lockstep only
+        "expected_subscribers": expected(state__attitude=2, state__rate=2) + ([f"/clock={clock_subs}"] if lockstep else []),
+        "counts_file": counts_file("plant"),
+        "timing_file": str(Path(paths["counts"]).parent / "logs" / "timing.json"),
+    }
+    ref = scenario.reference
+    reference = {
+        "q_RN0": list(ref.q_RN0),
+        "amplitude_deg_s": ref.amplitude_deg_s,
+        "periods_s": list(ref.periods_s),
+        "duration_s": scenario.duration_s,
+        **common,
+        "expected_subscribers": expected(reference__attitude=2, reference__rate=2, reference__acceleration=2),
+        "counts_file": counts_file("reference"),
+    }
+    injector = {
+        "schedule_file": paths["scenario"],
+        "duration_s": scenario.duration_s,
+        **common,
+        "expected_subscribers": expected(disturbance__torque=2)
+        + (expected(fault__state__attitude=2, fault__state__rate=2) if sensor else [])
+        + (expected(fault__control__torque=2) if actuator else []),
+        "counts_file": counts_file("injector"),
+    }
+    recorder = {
+        "output_dir": paths["bag"],
+        "metadata_files": [paths["scenario"], paths["params"]],
+        "counts_file": counts_file("recorder"),
+    }
+    return {f"/{name}": {"ros__parameters": p} for name, p in
+            (("controller", controller), ("plant", plant), ("reference", reference), ("injector", injector), ("recorder", recorder))}
+
+
+def controller_params_yaml(scenario: Scenario, kind: ControllerKind | str | None = None, node_name: str = "controller") -> str:
+    """A ROS parameters file for ``python -m sappc_controller`` with the scenario's controller
+    parameters (``sappc params``; the files in ``config/`` are made this way)."""
+    k = scenario.resolve_controller(kind)
+    params = unflatten(parameters_from_config(k.value, scenario.controller_config(k)))
+    params["control_period_s"] = scenario.control_period_s
+    header = f"# Parameters of python -m sappc_controller ({k.value}), from scenario {scenario.name!r}.\n# Made by: sappc params <scenario> --controller {k.value}\n"
+    return header + yaml.safe_dump({f"/{node_name}": {"ros__parameters": params}}, sort_keys=False)
+
+
+def _remaps(scenario: Scenario) -> dict[str, list[str]]:
+    faults = FaultSchedule(scenario.faults)
+    remaps: dict[str, list[str]] = {n: [] for n in NODES}
+    if faults.has_sensor_faults:
+        remaps["controller"] += ["-r", "state/attitude:=fault/state/attitude", "-r", "state/rate:=fault/state/rate"]
+    if faults.has_actuator_faults:
+        remaps["plant"] += ["-r", "control/torque:=fault/control/torque"]
+    return remaps
+
+
+@dataclass
+class GraphResult:
+    """A finished graph run: the scenario and controller it ran, where its files are, counts and timing."""
+
+    scenario: Scenario
+    controller: ControllerKind
+    run_dir: Path
+    bag_dir: Path
+    published: dict[str, int]
+    recorded: dict[str, int]
+    startup_s: float
+    run_s: float
+    exit_codes: dict[str, int]
+    controller_timing: dict[str, Any] = field(default_factory=dict)
+
+    def mismatched_counts(self) -> dict[str, tuple[int, int]]:
+        """Topics whose recorded count differs from the published one: (published, recorded)."""
+        return {t: (n, self.recorded.get(t, 0)) for t, n in self.published.items() if self.recorded.get(t, 0) != n}
+
+    @property
+    def counts_match(self) -> bool:
+        return not self.mismatched_counts()
+
+
+class _Process:
+    def __init__(self, name: str, cmd: list[str], env: dict[str, str], log_path: Path) -> None:
+        self.name = name
+        self.log_path = log_path
+        self._log = open(log_path, "wb")  # noqa: SIM115 (closed in wait)
+        self.proc = subprocess.Popen(cmd, env=env, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
+
+    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> tuple[int, bool]:
+        """SIGINT, wait, SIGKILL if needed; returns (exit code, killed)."""
+        killed = False
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+                killed = True
+        self._log.close()
+        return self.proc.returncode, killed
+
+    def tail(self, lines: int = 15) -> str:
+        return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
+
+
+def _fastdds_shm_clean() -> None:
+    tool = Path(sys.executable).parent / "fastdds"
+    if tool.exists():
+        subprocess.run([str(tool), "shm", "clean"], capture_output=True, check=False)
+
+
+def run_graph(
+    scenario_path: str | Path,
+    *,
+    out_dir: str | Path | None = None,
+    controller: str | None = None,
+    realtime: bool = False,
+    domain_id: int | None = None,
+    timeout_s: float | None = None,
+    progress: bool = True,
+) -> GraphResult:
+    """Run ``scenario_path`` through the node graph; see the module docstring.
+
+    Raises
+    ------
+    ConfigError
+        For an invalid scenario, or an ``out_dir`` that already holds a run.
+    RuntimeError
+        When a node fails (its log tail is in the message) or the run exceeds ``timeout_s``.
+    """
+    scenario = load_scenario(scenario_path)
+    kind = scenario.resolve_controller(controller)
+    scenario.controller_config(kind)  # validate before any process starts
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    run_dir = Path(out_dir) if out_dir is not None else Path("runs") / f"{scenario.name}-{kind.value}-{stamp}"
+    if run_dir.exists() and any(run_dir.iterdir()):
+        raise ConfigError(f"--out {run_dir} exists and is not empty; choose a new directory")
+    for sub in ("logs", "counts"):
+        (run_dir / sub).mkdir(parents=True, exist_ok=True)
+    scenario_copy = run_dir / "scenario.yaml"
+    scenario_copy.write_text(Path(scenario_path).read_text())
+    params_path = run_dir / "params.yaml"
+    bag_dir = run_dir / "bag"
+    paths = {"scenario": str(scenario_copy.resolve()), "bag": str(bag_dir.resolve()), "counts": str((run_dir / "counts").resolve()), "params": str(params_path.resolve())}
+    params = node_parameters(scenario, kind, realtime=realtime, paths=paths)
+    params_path.write_text(yaml.safe_dump(params, sort_keys=False))
+    remaps = _remaps(scenario)
+    limit = timeout_s if timeout_s is not None else (60.0 + (2.0 if realtime else 1.0) * scenario.duration_s)
+
+    def say(msg: str) -> None:
+        if progress:
+            print(msg, file=sys.stderr, flush=True)
+
+    with claim_domain_id(domain_id) as domain:
+        env = isolated_environment(domain, (run_dir / "logs").resolve())
+        procs: dict[str, _Process] = {}
+        killed_any = False
+        exit_codes: dict[str, int] = {}
+        start = time.monotonic()
+        try:
+            for name in NODES:
+                cmd = [sys.executable, "-m", _MODULES[name], "--ros-args", "-r", f"__node:={name}", "--params-file", str(params_path), *remaps[name]]
+                procs[name] = _Process(name, cmd, env, run_dir / "logs" / f"{name}.log")
+            say(f"sappc run: {scenario.name} with {kind.value} ({'real time' if realtime else 'lockstep'}), domain {domain}, in {run_dir}")
+            plant = procs["plant"]
+            deadline = start + limit
+            while plant.proc.poll() is None:
+                for name, p in procs.items():
+                    if p.proc.poll() is not None and name != "plant":
+                        raise RuntimeError(f"node {name} exited early with status {p.proc.returncode}; last log lines:\n{p.tail()}")
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"the run did not finish within {limit:.0f} s (see {run_dir / 'logs'})")
+                time.sleep(0.05)
+            run_end = time.monotonic()
+            if plant.proc.returncode != 0:
+                raise RuntimeError(f"the plant failed with status {plant.proc.returncode}; last log lines:\n{plant.tail()}")
+        finally:
+            # publishers first (they wait for acknowledgements), the recorder last (it drains)
+            for name in ("plant", "controller", "reference", "injector", "recorder"):
+                if name in procs:
+                    code, killed = procs[name].stop()
+                    exit_codes[name] = code
+                    killed_any |= killed
+            if killed_any:
+                _fastdds_shm_clean()
+        failed = {n: c for n, c in exit_codes.items() if c != 0}
+        if failed:
+            name = next(iter(failed))
+            raise RuntimeError(f"node {name} exited with status {failed[name]}; last log lines:\n{procs[name].tail()}")
+
+    counts = {p.stem: json.loads(p.read_text()) for p in (run_dir / "counts").glob("*.json")}
+    recorded = counts.pop("recorder", {})
+    published: dict[str, int] = {}
+    for c in counts.values():
+        for topic, n in c.items():
+            published[topic] = published.get(topic, 0) + n
+    timing_path = run_dir / "logs" / "timing.json"
+    timing = json.loads(timing_path.read_text()) if timing_path.exists() else {}
+    total = run_end - start
+    run_s = float(timing.get("run_s", total))  # the plant's first sample to its last
+    return GraphResult(
+        scenario=scenario,
+        controller=kind,
+        run_dir=run_dir,
+        bag_dir=bag_dir,
+        published=published,
+        recorded=recorded,
+        startup_s=total - run_s,
+        run_s=run_s,
+        exit_codes=exit_codes,
+        controller_timing=json.loads(ctrl_timing.read_text()) if (ctrl_timing := run_dir / "logs" / "controller_timing.json").exists() else {},
+    )

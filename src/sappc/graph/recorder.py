@@ -1,0 +1,221 @@
+"""The recorder (``python -m sappc.graph.recorder``): every topic of a run, raw CDR, into an MCAP bag.
+
+The bag is a rosbag2 version 9 directory (``output_dir``): ``<name>_0.mcap`` (profile ``ros2``,
+``ros2msg`` schemas with their full dependency text, channels carrying ``offered_qos_profiles``
+and ``topic_type_hash`` as rosbag2 writes them) and ``metadata.yaml``, plus copies of the files
+listed in ``metadata_files`` (the scenario and parameters of the run), which are also stored in
+the MCAP file as metadata records named ``sappc/<file name>``.
+
+Reliability: each subscription is RELIABLE with KEEP_ALL history, so Fast DDS acknowledges a
+sample once it is in the recorder's queue, independently of how fast Python writes it; the
+project's publishers wait for every acknowledgement before they exit
+(:meth:`~sappc_msgs_py.runtime.ProjectNode.finish`).  On SIGINT or SIGTERM the recorder drains
+its queues until they stay empty for :data:`DRAIN_QUIET_S`, then finalises the file (summary,
+index) and ``metadata.yaml``.  The MCAP file is flushed every :data:`FLUSH_PERIOD_S`: after a
+SIGKILL every flushed chunk is still readable (``metadata.yaml`` is written at start with the
+topics and rewritten with the counts at the end).
+
+Parameters: ``output_dir`` (required, must not exist), ``topics`` (names; default every topic of
+the contract and the fault relays' outputs), ``metadata_files``, and those of
+:class:`~sappc_msgs_py.runtime.ProjectNode` (``counts_file`` receives the messages recorded per topic).
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+from mcap.writer import CompressionType, Writer
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from sappc_msgs_py.contract import (
+    CONTROL_TORQUE,
+    QOS_DEPTH,
+    STATE_ATTITUDE,
+    STATE_RATE,
+    TOPICS,
+    Topic,
+    faulty,
+)
+from sappc_msgs_py.runtime import ProjectNode, run_node
+from sappc_msgs_py.schemas import schema_text, type_hash
+from gnc_common.validation import ConfigError
+
+__all__ = ["BAG_METADATA", "DEFAULT_TOPICS", "RecorderNode", "bag_metadata", "main"]
+
+#: Quiet time that ends the drain after a signal [s]: every publisher's samples are already in the
+#: local KEEP_ALL queues by then (publishers wait for acknowledgements), so this only bounds how
+#: long an empty pass of the executor may take.
+DRAIN_QUIET_S = 0.3
+#: Longest drain [s], in case a publisher keeps publishing after the signal.
+DRAIN_MAX_S = 10.0
+#: Period of the MCAP flush [s]: what a SIGKILL can lose.
+FLUSH_PERIOD_S = 1.0
+#: Name of the rosbag2 metadata file.
+BAG_METADATA = "metadata.yaml"
+#: MCAP chunk size [bytes]: about 1.5 s of a 100 Hz run; compression per chunk (zstd).
+CHUNK_SIZE = 256 * 1024
+
+#: Every topic of the contract and of the fault relays.
+DEFAULT_TOPICS = tuple(t.name for t in TOPICS) + tuple(faulty(t).name for t in (STATE_ATTITUDE, STATE_RATE, CONTROL_TORQUE))
+_KNOWN = {t.name: t for t in TOPICS} | {faulty(t).name: faulty(t) for t in (STATE_ATTITUDE, STATE_RATE, CONTROL_TORQUE)}
+
+
+def _qos_v9() -> list[dict[str, Any]]:
+    """The offered QoS of every project publisher, in rosbag2's version 9 layout."""
+    zero = {"sec": 0, "nsec": 0}
+    return [
+        {
+            "history": "keep_last",
+            "depth": QOS_DEPTH,
+            "reliability": "reliable",
+            "durability": "volatile",
+            "deadline": zero,
+            "lifespan": zero,
+            "liveliness": "automatic",
+            "liveliness_lease_duration": zero,
+            "avoid_ros_namespace_conventions": False,
+        }
+    ]
+
+
+def bag_metadata(mcap_name: str, topics: list[tuple[str, str]], counts: dict[str, int], start_ns: int, end_ns: int, custom: dict[str, str]) -> dict[str, Any]:
+    """The rosbag2 version 9 ``metadata.yaml`` content."""
+    total = sum(counts.values())
+    duration = max(0, end_ns - start_ns)
+    return {
+        "rosbag2_bagfile_information": {
+            "version": 9,
+            "storage_identifier": "mcap",
+            "relative_file_paths": [mcap_name],
+            "duration": {"nanoseconds": duration},
+            "starting_time": {"nanoseconds_since_epoch": start_ns},
+            "message_count": total,
+            "topics_with_message_count": [
+                {
+                    "topic_metadata": {
+                        "name": name,
+                        "type": type_name,
+                        "serialization_format": "cdr",
+                        "offered_qos_profiles": _qos_v9(),
+                        "type_description_hash": type_hash(type_name),
+                    },
+                    "message_count": counts.get(name, 0),
+                }
+                for name, type_name in topics
+            ],
+            "compression_format": "",
+            "compression_mode": "",
+            "files": [
+                {"path": mcap_name, "starting_time": {"nanoseconds_since_epoch": start_ns}, "duration": {"nanoseconds": duration}, "message_count": total}
+            ],
+            "custom_data": custom or None,
+            "ros_distro": "jazzy",
+        }
+    }
+
+
+class RecorderNode(ProjectNode):
+    """See the module docstring."""
+
+    def __init__(self, node_name: str = "recorder", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        out = str(self.param("output_dir", ""))
+        if not out:
+            raise ConfigError("output_dir must be set (the bag directory to create)")
+        self.dir = Path(out)
+        if self.dir.exists():
+            raise ConfigError(f"output_dir {self.dir} already exists; a recorder never overwrites a bag")
+        names = list(self.param("topics", list(DEFAULT_TOPICS)))
+        unknown = [n for n in names if n.lstrip("/") not in _KNOWN and n not in _KNOWN]
+        if unknown:
+            raise ConfigError(f"topics: {unknown[0]!r} is not a topic of the contract; known: {sorted(_KNOWN)}")
+        files = [Path(f) for f in (self.param("metadata_files", [""]) or []) if f]
+        for f in files:
+            if not f.is_file():
+                raise ConfigError(f"metadata_files: {f} is not a file")
+
+        self.dir.mkdir(parents=True)
+        self.mcap_name = f"{self.dir.name}_0.mcap"
+        self._file = open(self.dir / self.mcap_name, "wb")  # noqa: SIM115 (closed in finish)
+        self.writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self.writer.start(profile="ros2", library="sappc recorder (mcap-python)")
+        self.custom: dict[str, str] = {}
+        for f in files:
+            shutil.copyfile(f, self.dir / f.name)
+            self.writer.add_metadata(f"sappc/{f.name}", {"text": f.read_text()})
+            self.custom[f"sappc/{f.name}"] = f.name
+
+        qos = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_ALL)
+        schemas: dict[str, int] = {}
+        self.topics: list[tuple[str, str]] = []
+        self.counts: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        qos_text = yaml.safe_dump(_qos_v9(), sort_keys=False)
+        for name in names:
+            topic: Topic = _KNOWN.get(name.lstrip("/"), _KNOWN.get(name))  # type: ignore[assignment]
+            if topic.type_name not in schemas:
+                schemas[topic.type_name] = self.writer.register_schema(topic.type_name, "ros2msg", schema_text(topic.type_name).encode())
+            sub = self.create_subscription(topic.msg_class, topic.name, lambda data, n=topic.name: self._on_message(n, data), qos, raw=True)
+            resolved = str(sub.topic_name)
+            self._channels[topic.name] = self.writer.register_channel(
+                resolved, "cdr", schemas[topic.type_name], {"offered_qos_profiles": qos_text, "topic_type_hash": type_hash(topic.type_name)}
+            )
+            self.topics.append((resolved, topic.type_name))
+            self.counts[resolved] = 0
+        self._resolved = {(_KNOWN.get(n.lstrip("/")) or _KNOWN[n]).name: r for n, (r, _) in zip(names, self.topics)}
+        self.start_ns: int | None = None
+        self.end_ns = 0
+        self._last_message = time.monotonic()
+        self._write_metadata()
+        self.writer.flush()
+        self.create_timer(FLUSH_PERIOD_S, self.writer.flush)
+        self.get_logger().info(f"recording {len(self.topics)} topics into {self.dir}")
+
+    def _on_message(self, name: str, data: bytes) -> None:
+        now = time.time_ns()
+        if self.start_ns is None:
+            self.start_ns = now
+        self.end_ns = now
+        resolved = self._resolved[name]
+        self.counts[resolved] += 1
+        self.writer.add_message(self._channels[name], log_time=now, data=data, publish_time=now, sequence=self.counts[resolved])
+        self._last_message = time.monotonic()
+
+    def _write_metadata(self) -> None:
+        meta = bag_metadata(self.mcap_name, self.topics, self.counts, self.start_ns or 0, self.end_ns, self.custom)
+        tmp = self.dir / (BAG_METADATA + ".tmp")
+        tmp.write_text(yaml.safe_dump(meta, sort_keys=False))
+        tmp.replace(self.dir / BAG_METADATA)
+
+    def drain(self, spin_once: Any) -> None:
+        """Take every queued message until the queues stay empty for :data:`DRAIN_QUIET_S`."""
+        start = time.monotonic()
+        self._last_message = start
+        while time.monotonic() - self._last_message < DRAIN_QUIET_S and time.monotonic() - start < DRAIN_MAX_S:
+            spin_once(DRAIN_QUIET_S / 3)
+
+    def publish_counts(self) -> dict[str, int]:
+        return dict(self.counts)
+
+    def finish(self) -> None:
+        meta = bag_metadata(self.mcap_name, self.topics, self.counts, self.start_ns or 0, self.end_ns, self.custom)
+        self.writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})
+        self.writer.finish()
+        self._file.close()
+        self._write_metadata()
+        self.get_logger().info(f"bag {self.dir} closed: {sum(self.counts.values())} messages")
+        super().finish()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Record until SIGINT or SIGTERM, then finalise the bag."""
+    return run_node(lambda args: RecorderNode(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,152 @@
+"""The topic contract (sappc_msgs_py): conversions round-trip, quaternion order, exact stamps,
+input checks, and schema texts / type hashes verified by two independent decoders (mcap_ros2,
+rosbags) against bytes serialised by rclpy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from mcap_ros2._dynamic import generate_dynamic
+from rclpy.serialization import serialize_message
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from sappc_msgs_py import contract as c
+from sappc_msgs_py.convert import (
+    clock_msg,
+    diagnostics_from_msg,
+    diagnostics_msg,
+    quaternion_from_msg,
+    quaternion_msg,
+    stamp_to_ns,
+    stamp_to_time,
+    time_to_stamp,
+    torque_from_msg,
+    torque_msg,
+    vector3_from_msg,
+    vector3_msg,
+)
+from sappc_msgs_py.schemas import dependencies, schema_text, type_hash
+from gnc_common.validation import InputError
+
+
+def test_quaternion_keeps_the_scalar_last_order() -> None:
+    q = np.array([0.3254, 0.4068, -0.3254, 0.7891])
+    msg = quaternion_msg(q, 1.5, c.STATE_ATTITUDE)
+    assert (msg.quaternion.x, msg.quaternion.y, msg.quaternion.z, msg.quaternion.w) == tuple(q)
+    assert msg.header.frame_id == "inertial"
+    np.testing.assert_array_equal(quaternion_from_msg(msg, c.STATE_ATTITUDE), q)
+
+
+def test_vectors_and_torques_round_trip_with_their_frames() -> None:
+    w = np.array([0.01, -0.02, 0.03])
+    for topic in (c.STATE_RATE, c.REFERENCE_RATE, c.REFERENCE_ACCELERATION):
+        msg = vector3_msg(w, 2.0, topic)
+        assert msg.header.frame_id == topic.frame_id
+        np.testing.assert_array_equal(vector3_from_msg(msg, topic), w)
+    for topic in (c.CONTROL_TORQUE, c.DISTURBANCE_TORQUE):
+        msg = torque_msg([0.5, -0.25, 0.005], 2.0, topic)
+        assert msg.header.frame_id == "body" and (msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z) == (0.0, 0.0, 0.0)
+        np.testing.assert_array_equal(torque_from_msg(msg, topic), [0.5, -0.25, 0.005])
+
+
+def test_stamps_are_exact_on_the_control_grid() -> None:
+    for k in (0, 1, 7, 4999, 6000, 10**6 + 3):
+        stamp = time_to_stamp(k * 0.01)
+        assert stamp_to_ns(stamp) == k * 10_000_000
+        assert abs(stamp_to_time(stamp) - k * 0.01) <= 1e-9
+    assert stamp_to_ns(clock_msg(50.5).clock) == 50_500_000_000
+    with pytest.raises(InputError, match="t_s must be >= 0"):
+        time_to_stamp(-0.01)
+
+
+def test_bad_messages_are_rejected_naming_the_topic() -> None:
+    msg = vector3_msg([0.0, 0.0, 0.0], 0.0, c.STATE_RATE)
+    msg.header.frame_id = "imu_link"
+    with pytest.raises(InputError, match="state/rate: frame_id must be 'body', got 'imu_link'"):
+        vector3_from_msg(msg, c.STATE_RATE)
+    msg = quaternion_msg([0.0, 0.0, 0.0, 1.0], 0.0, c.STATE_ATTITUDE)
+    msg.quaternion.w = float("nan")
+    with pytest.raises(InputError, match="state/attitude quaternion contains a non-finite value nan"):
+        quaternion_from_msg(msg, c.STATE_ATTITUDE)
+    with pytest.raises(InputError, match="control/torque torque contains a non-finite value inf"):
+        torque_msg([0.0, float("inf"), 0.0], 0.0)
+
+
+def test_diagnostics_are_labelled() -> None:
+    rows = {label: np.arange(3.0) + i for i, label in enumerate(c.DIAGNOSTICS_LAYOUT[1:])}
+    back = diagnostics_from_msg(diagnostics_msg(12.5, rows))
+    assert list(back) == list(c.DIAGNOSTICS_LAYOUT)
+    np.testing.assert_array_equal(back["time_s"], [12.5] * 3)
+    for label, values in rows.items():
+        np.testing.assert_array_equal(back[label], values)
+    with pytest.raises(ValueError, match="missing"):
+        diagnostics_msg(0.0, {"rho": [0, 0, 0]})
+
+
+def _sample(topic: c.Topic):  # type: ignore[no-untyped-def]
+    if topic.type_name.endswith("QuaternionStamped"):
+        return quaternion_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], 12.34, topic)
+    if topic.type_name.endswith("Vector3Stamped"):
+        return vector3_msg([1e-3, -2e-3, 3e-3], 12.34, topic)
+    if topic.type_name.endswith("WrenchStamped"):
+        return torque_msg([0.1, -0.2, 0.3], 12.34, topic)
+    if topic.type_name.endswith("Clock"):
+        return clock_msg(12.34)
+    return diagnostics_msg(12.34, {label: [1.0, 2.0, 3.0] for label in c.DIAGNOSTICS_LAYOUT[1:]})
+
+
+@pytest.mark.parametrize("topic", c.TOPICS, ids=lambda t: t.name)
+def test_schema_text_decodes_rclpy_bytes_with_two_independent_decoders(topic) -> None:
+    msg = _sample(topic)
+    raw = serialize_message(msg)
+    pkg, _, name = topic.type_name.split("/")
+    text = schema_text(topic.type_name)
+    # mcap_ros2 (what an MCAP viewer uses) from the schema text alone
+    decoded = generate_dynamic(f"{pkg}/{name}", text)[f"{pkg}/{name}"](raw)
+    # rosbags' own CDR implementation from the same text
+    store = get_typestore(Stores.EMPTY)
+    store.register(get_types_from_msg(text, f"{pkg}/msg/{name}"))
+    other = store.deserialize_cdr(raw, f"{pkg}/msg/{name}")
+    if hasattr(msg, "header"):
+        assert decoded.header.frame_id == other.header.frame_id == msg.header.frame_id
+        assert decoded.header.stamp.nanosec == other.header.stamp.nanosec == msg.header.stamp.nanosec
+    if hasattr(msg, "quaternion"):
+        assert (decoded.quaternion.w, other.quaternion.w) == (msg.quaternion.w, msg.quaternion.w)
+    if hasattr(msg, "vector"):
+        assert decoded.vector.z == other.vector.z == msg.vector.z
+    if hasattr(msg, "wrench"):
+        assert decoded.wrench.torque.y == other.wrench.torque.y == msg.wrench.torque.y
+    if hasattr(msg, "data"):
+        assert list(decoded.data) == list(other.data) == list(msg.data)
+    # and the hash of the type as rosbags computes it from the definition equals the installed one
+    assert store.hash_rihs01(f"{pkg}/msg/{name}") == type_hash(topic.type_name)
+
+
+def test_schema_dependencies_are_sorted_and_recursive() -> None:
+    assert dependencies("geometry_msgs/msg/WrenchStamped") == [
+        "builtin_interfaces/Time", "geometry_msgs/Vector3", "geometry_msgs/Wrench", "std_msgs/Header"]
+    text = schema_text("geometry_msgs/msg/WrenchStamped")
+    assert text.count("=" * 80 + "\nMSG: ") == 4
+    assert type_hash("geometry_msgs/msg/WrenchStamped").startswith("RIHS01_") and len(type_hash("geometry_msgs/msg/WrenchStamped")) == 71
+    with pytest.raises(FileNotFoundError, match="nav_msgs"):
+        schema_text("nav_msgs/msg/Odometry")
+
+
+def test_every_topic_has_a_message_class_and_the_shared_qos() -> None:
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+
+    for topic in c.TOPICS:
+        assert topic.msg_class.__name__ == topic.type_name.split("/")[-1]
+    qos = c.qos_profile()
+    assert qos.reliability == ReliabilityPolicy.RELIABLE and qos.durability == DurabilityPolicy.VOLATILE and qos.depth == c.QOS_DEPTH == 1000
+
+
+def test_fault_relay_topics_keep_type_and_frame_and_stamps_copy_exactly() -> None:
+    relay = c.faulty(c.STATE_ATTITUDE)
+    assert relay.name == "fault/state/attitude" and relay.type_name == c.STATE_ATTITUDE.type_name and relay.frame_id == "inertial"
+    wall = time_to_stamp(1_795_350_022.171357654)  # a float of seconds loses ~0.2 us at this size...
+    exact = time_to_stamp(type("S", (), {"sec": 1_795_350_022, "nanosec": 171_357_654})())  # ...a stamp does not
+    assert (exact.sec, exact.nanosec) == (1_795_350_022, 171_357_654)
+    assert abs(stamp_to_ns(wall) - stamp_to_ns(exact)) < 1_000
+    msg = torque_msg([0.1, 0.2, 0.3], exact, c.faulty(c.CONTROL_TORQUE))
+    assert stamp_to_ns(msg.header.stamp) == 1_795_350_022_171_357_654 and msg.header.frame_id == "body"

@@ -1,0 +1,176 @@
+"""Monte Carlo campaigns: dispersions, determinism across chunkings and executors, re-runs,
+failures, resumption, and rejection of bad dispersions before any run."""
+
+from __future__ import annotations
+
+import copy
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import ROOT, SCENARIOS
+from sappc.montecarlo import campaign as mc
+from sappc.montecarlo.campaign import campaign_config, draw_inputs, load_campaign_run, run_campaign
+from sappc.scenario import scenario_from_mapping
+from spacecraft_sim.core.dynamics import RigidBody
+from gnc_common.validation import ConfigError
+
+BASE = yaml.safe_load((SCENARIOS / "paper_montecarlo.yaml").read_text())
+
+
+def _short(tmp_path, chunk_runs: int = 5, **dispersions) -> str:  # type: ignore[no-untyped-def]
+    """A 21 s campaign scenario (steady window [20.5, 21] s) with every dispersion switched on."""
+    raw = copy.deepcopy(BASE)
+    raw["duration_s"] = 21.0
+    raw["metrics"]["steady_from_s"] = 20.5
+    raw["montecarlo"]["chunk_runs"] = chunk_runs
+    raw["montecarlo"]["trajectory_runs"] = 4
+    raw["montecarlo"]["dispersions"] = dispersions or {
+        "initial_rate_rad_s": {"distribution": "normal", "mean": 0.0, "sigma": [1e-3, 1e-3, 1e-3]},
+        "inertia_relative": {"distribution": "uniform", "low": -0.05, "high": 0.05},
+        "disturbance_scale": {"distribution": "uniform", "low": 0.8, "high": 1.2},
+        "disturbance_phase_rad": {"distribution": "uniform", "low": 0.0, "high": 6.283185307179586},
+        "sensor_noise": {"attitude_sigma_rad": 1e-7, "rate_sigma_rad_s": 1e-7},
+        "gains": {"K_q": {"distribution": "uniform", "low": 0.25, "high": 0.35}, "mu_rad_s": {"distribution": "uniform", "low": 6e-5, "high": 8e-5}},
+    }
+    path = tmp_path / f"short_{chunk_runs}.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return str(path)
+
+
+def test_dispersion_statistics_and_per_run_reproducibility(tmp_path) -> None:
+    cfg = campaign_config(scenario_from_mapping(yaml.safe_load(open(_short(tmp_path)).read())))
+    n = 4000
+    d = draw_inputs(cfg, seed=3, runs=range(n))
+    # Euler angles uniform on [-85, 85] deg: mean 0 (sd of the mean 49.1/sqrt(n) = 0.78 deg), sd 170/sqrt(12) = 49.07 deg
+    assert np.all(np.abs(d.euler_deg) <= 85.0)
+    assert np.all(np.abs(d.euler_deg.mean(axis=0)) < 4 * 0.78)
+    assert np.all(np.abs(d.euler_deg.std(axis=0) - 49.07) < 1.5)  # sd of the sd ~ 0.55 deg at n = 4000
+    # normal initial rate, sigma 1e-3 per axis
+    assert np.all(np.abs(d.omega_BN_B0.std(axis=0) - 1e-3) < 0.05e-3)
+    assert np.all(np.abs(d.omega_BN_B0.mean(axis=0)) < 4 * 1e-3 / np.sqrt(n))
+    assert np.all((d.inertia_relative >= -0.05) & (d.inertia_relative <= 0.05))
+    assert np.all((d.disturbance_scale >= 0.8) & (d.disturbance_scale <= 1.2))
+    assert np.all((d.gains["K_q"] >= 0.25) & (d.gains["K_q"] <= 0.35)) and abs(d.gains["K_q"].mean() - 0.3) < 4 * 0.1 / np.sqrt(12 * n)
+    # components are independent: correlation between axes ~ 0 (sd 1/sqrt(n) = 0.016)
+    c = np.corrcoef(d.euler_deg.T)
+    assert np.all(np.abs(c[np.triu_indices(3, 1)]) < 0.064)
+    # a run's draws depend only on (seed, run)
+    alone = draw_inputs(cfg, seed=3, runs=[1234])
+    np.testing.assert_array_equal(alone.euler_deg[0], d.euler_deg[1234])
+    np.testing.assert_array_equal(alone.omega_BN_B0[0], d.omega_BN_B0[1234])
+    assert not np.array_equal(draw_inputs(cfg, seed=4, runs=[1234]).euler_deg, alone.euler_deg)
+
+
+def test_results_are_identical_for_any_chunking_and_executor(tmp_path) -> None:
+    a = run_campaign(_short(tmp_path, chunk_runs=5), runs=12, seed=7, out_dir=tmp_path / "a", progress=False)
+    b = run_campaign(_short(tmp_path, chunk_runs=3), runs=12, seed=7, out_dir=tmp_path / "b", workers=2, progress=False)
+    assert (tmp_path / "a" / "runs.csv").read_bytes() == (tmp_path / "b" / "runs.csv").read_bytes()
+    assert a["passed"] == b["passed"] == 12
+    # a run of the campaign re-run alone gives its row exactly
+    _, row, metrics, _ = load_campaign_run(tmp_path / "a", 9)
+    table = np.genfromtxt(tmp_path / "a" / "runs.csv", delimiter=",", names=True)
+    assert row["rpf_error_at_t2_per_axis"][0].max() == table["rpf_error_at_t2"][9]
+    assert metrics["steady_mean_abs_qev"] == table["steady_mean_abs_qev"][9]
+    assert metrics["max_abs_torque_Nm"] == table["max_abs_torque_Nm"][9]
+
+
+def test_local_dask_cluster_gives_the_same_results(tmp_path) -> None:
+    from distributed import LocalCluster
+
+    path = _short(tmp_path, chunk_runs=4)
+    run_campaign(path, runs=8, seed=11, out_dir=tmp_path / "local", progress=False)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        run_campaign(path, runs=8, seed=11, out_dir=tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
+    assert (tmp_path / "local" / "runs.csv").read_bytes() == (tmp_path / "dask" / "runs.csv").read_bytes()
+
+
+def test_a_run_that_goes_non_finite_is_marked_failed_and_the_campaign_continues(tmp_path, monkeypatch) -> None:
+    real = RigidBody.rk4_step
+    calls = {"n": 0}
+
+    def poisoned(self, x, torque_B, dt):  # type: ignore[no-untyped-def]
+        y = real(self, x, torque_B, dt)
+        calls["n"] += 1
+        if calls["n"] == 100 and y.shape[0] > 2:  # run 2 of the first chunk diverges at t = 1 s
+            y[2, 4] = np.inf
+        return y
+
+    monkeypatch.setattr(RigidBody, "rk4_step", poisoned)
+    s = run_campaign(_short(tmp_path, chunk_runs=5), runs=8, seed=1, out_dir=tmp_path / "f", progress=False)
+    assert s["non_finite_runs"] == 1 and s["passed"] == 7
+    (failed,) = s["failed_runs"]
+    assert failed["run"] == 2 and failed["seed_sequence"] == {"entropy": 1, "spawn_key": [2]}
+    assert "non-finite" in failed["why"]
+
+
+def test_interrupted_campaign_resumes_to_the_same_results(tmp_path, monkeypatch) -> None:
+    path = _short(tmp_path, chunk_runs=3)
+    run_campaign(path, runs=9, seed=5, out_dir=tmp_path / "full", progress=False)
+    real_save = mc._save_chunk
+    saved = {"n": 0}
+
+    def save_then_interrupt(out, index, result):  # type: ignore[no-untyped-def]
+        real_save(out, index, result)
+        saved["n"] += 1
+        if saved["n"] == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(mc, "_save_chunk", save_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_campaign(path, runs=9, seed=5, out_dir=tmp_path / "cut", progress=False)
+    assert len(list((tmp_path / "cut" / "chunks").glob("chunk_*.npz"))) == 2
+    monkeypatch.setattr(mc, "_save_chunk", real_save)
+    with pytest.raises(ConfigError, match="--resume"):
+        run_campaign(path, runs=9, seed=5, out_dir=tmp_path / "cut", progress=False)
+    with pytest.raises(ConfigError, match="another scenario, seed"):
+        run_campaign(path, runs=9, seed=6, out_dir=tmp_path / "cut", resume=True, progress=False)
+    run_campaign(path, runs=9, seed=5, out_dir=tmp_path / "cut", resume=True, workers=2, progress=False)  # any worker count
+    assert (tmp_path / "cut" / "runs.csv").read_bytes() == (tmp_path / "full" / "runs.csv").read_bytes()
+
+
+@pytest.mark.parametrize(
+    "dispersions, fragment",
+    [
+        ({"disturbance_scale": {"distribution": "uniform", "low": 1.2, "high": 0.8}}, r"dispersions.disturbance_scale: needs finite low <= high"),
+        ({"initial_rate_rad_s": {"distribution": "cauchy", "low": 0, "high": 1}}, "unknown distribution 'cauchy'"),
+        ({"initial_rate_rad_s": {"distribution": "normal", "mean": 0.0, "sigma": -1e-3}}, "sigma >= 0"),
+        ({"inertia_relative": {"distribution": "uniform", "low": -1.5, "high": 0.1}}, "inertia_relative must stay above -1"),
+        ({"inertia_relative": {"distribution": "normal", "mean": 0.0, "sigma": 0.01}}, "normal distribution is unbounded"),
+        ({"disturbance_scale": {"distribution": "uniform", "low": [0.8, 0.8, 0.8], "high": 1.2}}, "disturbance_scale must have scalar"),
+        ({"wind": {"distribution": "uniform", "low": 0, "high": 1}}, "unknown key montecarlo.dispersions.wind"),
+        ({"gains": {"K_q": {"distribution": "normal", "mean": 0.3, "sigma": 0.1}}}, "K_q must be a uniform distribution with low > 0"),
+        ({"gains": {"T1_s": {"distribution": "uniform", "low": 1, "high": 2}}}, "unknown key montecarlo.dispersions.gains.T1_s"),
+    ],
+)
+def test_bad_dispersions_are_rejected_before_any_run(tmp_path, dispersions, fragment) -> None:
+    with pytest.raises(ConfigError, match=fragment):
+        run_campaign(_short(tmp_path, **dispersions), runs=3, seed=0, out_dir=tmp_path / "x", progress=False)
+    assert not (tmp_path / "x").exists()
+
+
+def test_cli_end_to_end(tmp_path) -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "sappc", "montecarlo", _short(tmp_path, chunk_runs=3), "--runs", "4", "--seed", "2",
+         "--out", str(tmp_path / "cli"), "--json", str(tmp_path / "s.json"), "--no-progress"],
+        capture_output=True, text=True, cwd=ROOT,
+    )
+    assert out.returncode == 0, out.stderr
+    assert "4/4 runs pass" in out.stdout
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["runs"] == 4 and summary["pass_fraction"] == 1.0
+    for name in ("runs.csv", "summary.json", "montecarlo_t2_error.png", "montecarlo_steady_error.png", "montecarlo_trajectories.png"):
+        assert (tmp_path / "cli" / name).exists()
+    rerun = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "cli"), "--run", "3",
+                            "--plots", str(tmp_path / "run3")], capture_output=True, text=True, cwd=ROOT)
+    assert rerun.returncode == 0 and "run 3" in rerun.stdout and (tmp_path / "run3" / "qev.png").exists()
+    nodir = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "nope"), "--run", "0", "--plots", str(tmp_path / "p")],
+                           capture_output=True, text=True, cwd=ROOT)
+    assert nodir.returncode == 2 and "is not a campaign directory" in nodir.stderr and "Traceback" not in nodir.stderr
+    bad = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "cli"), "--run", "9"],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert bad.returncode == 2 and "--run must be in [0, 3]" in bad.stderr

@@ -1,0 +1,94 @@
+"""Scenario files and the `sappc simulate` command: strict loading, clear errors, outputs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from conftest import ROOT, SCENARIOS
+from sappc.cli import main
+from sappc.scenario import load_scenario, scenario_from_mapping
+from gnc_common.validation import ConfigError
+
+PAPER = sorted(SCENARIOS.glob("paper_*.yaml"))
+
+
+def _raw(name: str = "paper_tracking.yaml") -> dict:
+    return yaml.safe_load((SCENARIOS / name).read_text())
+
+
+@pytest.mark.parametrize("path", PAPER, ids=lambda p: p.name)
+def test_paper_scenarios_load_and_validate_every_controller(path) -> None:
+    s = load_scenario(path)
+    for kind in s.controllers:
+        s.controller_config(kind)
+    assert abs(sum(s.q_BN0**2) - 1.0) < 1e-15
+
+
+def test_table1_l_gives_the_infeasibility_error_through_the_cli(tmp_path, capsys) -> None:
+    raw = _raw()
+    raw["controllers"]["sappc"]["rpf"]["l"] = 0.5
+    bad = tmp_path / "table1.yaml"
+    bad.write_text(yaml.safe_dump(raw))
+    assert main(["simulate", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "rpf.l = 0.5 is infeasible" in err and "0.0999927 <= l <= 0.491939" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "mutate, fragment",
+    [
+        (lambda r: r.update(durration_s=5), "unknown key durration_s"),
+        (lambda r: r["controllers"]["sappc"]["gains"].update(Kq=1.0), "unknown key controllers.sappc.gains.Kq"),
+        (lambda r: r["controllers"]["sappc"].update(B0=-1.0), "B0 must be finite and > 0"),
+        (lambda r: r["plant"].update(inertia_kg_m2=[[1, 0, 0], [0, -2, 0], [0, 0, 1]]), "plant.inertia_kg_m2 must be positive definite"),
+        (lambda r: r["initial_state"].update(q_BN=[0, 0, 0, 0]), "initial_state.q_BN .* has norm 0"),
+        (lambda r: r["initial_state"].update(q_BN=[0, float("nan"), 0, 1]), "initial_state.q_BN contains a non-finite value nan"),
+        (lambda r: r.update(control_period_s=0), "control_period_s must be finite and > 0"),
+        (lambda r: r["disturbances"].append({"kind": "gust"}), r"disturbances\[1\].kind = 'gust' is unknown"),
+        (lambda r: r["disturbances"].append({"kind": "pulse", "start_s": 1.0, "torque_Nm": [1, 1, 1]}), r"missing key disturbances\[1\].duration_s"),
+        (lambda r: r["controllers"].update(pid={}), "unknown key controllers.pid"),
+        (lambda r: r["actuator"].update(max_torque_Nm=0.0), "actuator.max_torque_Nm"),
+        (lambda r: r.update(controller="lqr"), "unknown controller 'lqr'"),
+    ],
+)
+def test_bad_scenarios_name_the_offending_key(mutate, fragment) -> None:
+    raw = _raw()
+    mutate(raw)
+    with pytest.raises(ConfigError, match=fragment):
+        scenario_from_mapping(raw)
+
+
+def test_missing_and_malformed_files_are_clear(tmp_path) -> None:
+    with pytest.raises(ConfigError, match="cannot read scenario"):
+        load_scenario(tmp_path / "nope.yaml")
+    (tmp_path / "bad.yaml").write_text("name: [unclosed\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_scenario(tmp_path / "bad.yaml")
+
+
+def test_simulate_writes_json_and_plots(tmp_path) -> None:
+    raw = _raw("paper_fault.yaml")
+    raw["duration_s"] = 52.0
+    raw["metrics"]["steady_from_s"] = 25.0
+    path = tmp_path / "short.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    out = subprocess.run(
+        [sys.executable, "-m", "sappc", "simulate", str(path), "--controller", "blfppc", "--json", str(tmp_path / "m.json"), "--plots", str(tmp_path / "fig")],
+        capture_output=True, text=True, cwd=ROOT, check=True,
+    )
+    assert "controller blfppc" in out.stdout
+    report = json.loads((tmp_path / "m.json").read_text())
+    m = report["metrics"]
+    for key in ("settling_time_s", "steady_max_abs_qev", "steady_mean_abs_qev", "rpf_error_at_t2", "overshoot", "max_abs_torque_Nm",
+                "saturation_fraction", "time_outside_constraint_s", "returned_to_constraint", "wall_time_s"):
+        assert key in m
+    assert m["left_constraint_after_fault"] is True
+    assert report["parameters"]["controller"]["gains"]["K1"] == raw["controllers"]["blfppc"]["gains"]["K1"]
+    assert report["parameters"]["scenario"]["duration_s"] == 52.0
+    for name in ("qev.png", "qev_zoom.png", "qev_log.png", "torque.png"):
+        assert (tmp_path / "fig" / name).stat().st_size > 10_000
