@@ -42,6 +42,7 @@ __all__ = [
     "quat_multiply",
     "quat_normalize",
     "quat_to_dcm_BN",
+    "rotation_vector_to_quaternion",
     "to_scalar_first",
 ]
 
@@ -143,6 +144,15 @@ def quat_conjugate(q: Array) -> Array:
 def quat_normalize(q: Array) -> Array:
     """Scale quaternions to unit norm (the caller guarantees a non-zero norm)."""
     return q / np.sqrt(dot(q, q))[..., None]
+
+
+def rotation_vector_to_quaternion(rotvec: Array) -> Array:
+    """Unit quaternions ``(axis sin(angle/2), cos(angle/2))`` of rotation vectors ``rotvec`` [rad],
+    shape (..., 3) -> (..., 4); the zero vector gives the identity."""
+    rotvec = np.asarray(rotvec, dtype=np.float64)
+    angle = np.sqrt(dot(rotvec, rotvec))[..., None]
+    safe = np.where(angle > 0.0, angle, 1.0)
+    return np.concatenate((rotvec * (np.sin(angle / 2.0) / safe), np.cos(angle / 2.0)), axis=-1)
 
 
 def error_quaternion(q_RN: Array, q_BN: Array) -> Array:

@@ -7,6 +7,7 @@ error names the offending quantity and value.
 
 from __future__ import annotations
 
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -182,8 +183,15 @@ def from_mapping(cls: type, data: Any, prefix: str) -> Any:
         # a dataclass field, or an optional one (``SomeDataclass | None``)
         options = [h for h in typing.get_args(hint) if h is not type(None)] if typing.get_args(hint) else [hint]
         nested = options[0] if len(options) == 1 and dataclasses.is_dataclass(options[0]) else None
+        enum = options[0] if len(options) == 1 and isinstance(options[0], type) and issubclass(options[0], Enum) else None
         if nested is not None and value is not None:
             kwargs[name] = from_mapping(nested, value, f"{prefix}.{name}")  # type: ignore[arg-type]
+        elif enum is not None and value is not None:
+            try:
+                kwargs[name] = enum(value)
+            except ValueError:
+                accepted = ", ".join(repr(m.value) for m in enum)
+                raise ConfigError(f"{prefix}.{name} must be one of {accepted}, got {value!r}") from None
         else:
             kwargs[name] = _freeze(value)
     try:

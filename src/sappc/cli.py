@@ -80,6 +80,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 def _simulate_from_campaign(args: argparse.Namespace) -> int:
     from sappc.montecarlo.campaign import load_campaign_run
+    from sappc.montecarlo.config import campaign_config
+    from sappc.montecarlo.results import run_criteria
     from sappc.analysis.plots import plot_run
 
     if args.scenario is not None or args.controller is not None:
@@ -87,10 +89,12 @@ def _simulate_from_campaign(args: argparse.Namespace) -> int:
     if args.run is None:
         raise ConfigError("--from-campaign needs --run K")
     scenario, row, metrics, history = load_campaign_run(args.from_campaign, args.run, with_history=bool(args.plots))
+    crit = run_criteria(row, campaign_config(scenario).criteria)
     campaign_row = {
         "run": int(row["run"][0]),
-        "rpf_error_at_t2": float(row["rpf_error_at_t2_per_axis"][0].max()),
-        "steady_mean_abs_qev": float(row["steady_mean_abs_qev_per_axis"][0].max()),
+        "passed": bool(crit.passed[0]),
+        "rpf_error_at_t2": float(crit.rpf_error_at_t2[0]),
+        "steady_mean_abs_qev": float(crit.steady_mean_abs_qev[0]),
         "steady_max_abs_qev": float(row["steady_max_abs_qev"][0]),
         "max_abs_torque_Nm": float(row["max_abs_torque_Nm"][0]),
     }

@@ -25,310 +25,29 @@ Files in the output directory
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import sys
 import time
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from gnc_common.attitude import euler_to_quaternion, quat_multiply, quat_normalize
-from spacecraft_sim.core.disturbance import DisturbanceSum, PaperPeriodic
-from gnc_common.validation import ConfigError, check_positive, from_mapping
-
+from gnc_common.validation import ConfigError
 from sappc.evaluation.history import both
+from sappc.montecarlo.config import campaign_config
+from sappc.montecarlo.draws import NoisySensor, dispersed_disturbance, draw_inputs
+from sappc.montecarlo.results import FORMAT_VERSION, assemble, chunk_path, chunks, save_chunk
 from sappc.offline.closed_loop import step_times
-from sappc.scenario import ControllerKind, Scenario, scenario_from_mapping
 from sappc.offline.simulate import run_scenario
+from sappc.scenario import ControllerKind, Scenario, scenario_from_mapping
 
-__all__ = ["CampaignConfig", "Distribution", "run_campaign", "run_chunk", "load_campaign_run"]
+__all__ = ["load_campaign_run", "run_campaign", "run_chunk", "simulate_runs"]
 
 Array = NDArray[np.float64]
-
-
-# ----------------------------------------------------------------------------- configuration
-
-
-@dataclass(frozen=True)
-class Distribution:
-    """A scalar or per-axis distribution.
-
-    ``distribution: uniform`` with ``low`` and ``high`` (``low <= high``), or
-    ``distribution: normal`` with ``mean`` and ``sigma`` (``sigma >= 0``);
-    each value a number or a list of 3 (per axis).
-    """
-
-    distribution: str
-    low: float | tuple[float, ...] | None = None
-    high: float | tuple[float, ...] | None = None
-    mean: float | tuple[float, ...] | None = None
-    sigma: float | tuple[float, ...] | None = None
-
-    def __post_init__(self) -> None:
-        if self.distribution == "uniform":
-            if self.low is None or self.high is None or self.mean is not None or self.sigma is not None:
-                raise ConfigError("a uniform distribution takes exactly 'low' and 'high'")
-            lo, hi = np.asarray(self.low, dtype=float), np.asarray(self.high, dtype=float)
-            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(hi < lo):
-                raise ConfigError(f"needs finite low <= high, got low = {self.low!r}, high = {self.high!r}")
-        elif self.distribution == "normal":
-            if self.mean is None or self.sigma is None or self.low is not None or self.high is not None:
-                raise ConfigError("a normal distribution takes exactly 'mean' and 'sigma'")
-            sig = np.asarray(self.sigma, dtype=float)
-            if not np.all(np.isfinite(sig)) or np.any(sig < 0) or not np.all(np.isfinite(np.asarray(self.mean, dtype=float))):
-                raise ConfigError(f"needs finite mean and sigma >= 0, got mean = {self.mean!r}, sigma = {self.sigma!r}")
-        else:
-            raise ConfigError(f"unknown distribution {self.distribution!r}; expected 'uniform' or 'normal'")
-
-    def _params(self) -> tuple[Array, Array]:
-        a, b = (self.low, self.high) if self.distribution == "uniform" else (self.mean, self.sigma)
-        return np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-
-    def check_shape(self, name: str, shape: tuple[int, ...]) -> None:
-        """Raise unless the parameters broadcast to ``shape`` (``()`` scalar, ``(3,)`` per axis)."""
-        a, b = self._params()
-        try:
-            if np.broadcast_shapes(a.shape, b.shape, shape) != shape:
-                raise ValueError
-        except ValueError:
-            raise ConfigError(f"{name} must have {'scalar' if not shape else f'scalar or {shape[0]}-vector'} parameters, got {self!r}") from None
-
-    def draw(self, rng: np.random.Generator, shape: tuple[int, ...]) -> Array:
-        """Independent draws of the given shape (``(3,)``: one per axis)."""
-        a, b = self._params()
-        if self.distribution == "uniform":
-            return a + (b - a) * rng.random(shape)
-        return a + b * rng.standard_normal(shape)
-
-
-@dataclass(frozen=True)
-class InitialAttitude:
-    """Initial attitude from Euler angles, each uniform in ``[low_deg, high_deg]``, applied in ``sequence``
-    (upper case: intrinsic rotations about body axes, scipy's convention)."""
-
-    sequence: str = "ZYX"
-    low_deg: float = -85.0
-    high_deg: float = 85.0
-
-    def __post_init__(self) -> None:
-        if len(self.sequence) != 3 or not (self.sequence.isupper() or self.sequence.islower()) or set(self.sequence.upper()) - set("XYZ"):
-            raise ConfigError(f"sequence must be three axis letters like 'ZYX' (intrinsic) or 'zyx' (extrinsic), got {self.sequence!r}")
-        if not (np.isfinite(self.low_deg) and np.isfinite(self.high_deg)) or self.high_deg < self.low_deg:
-            raise ConfigError(f"needs low_deg <= high_deg, got {self.low_deg!r}, {self.high_deg!r}")
-
-
-@dataclass(frozen=True)
-class SensorNoise:
-    """White measurement noise, a new draw every control period: a small rotation of the measured
-    attitude (standard deviation per axis [rad]) and an additive rate error [rad/s]."""
-
-    attitude_sigma_rad: float = 0.0
-    rate_sigma_rad_s: float = 0.0
-
-    def __post_init__(self) -> None:
-        check_positive("attitude_sigma_rad", self.attitude_sigma_rad, allow_zero=True)
-        check_positive("rate_sigma_rad_s", self.rate_sigma_rad_s, allow_zero=True)
-
-    @property
-    def enabled(self) -> bool:
-        return self.attitude_sigma_rad > 0.0 or self.rate_sigma_rad_s > 0.0
-
-
-#: SAPPC/TraPPC gains a campaign may disperse (per run; the law broadcasts them).
-DISPERSIBLE_GAINS = ("K_q", "K_omega", "D_m_Nm", "mu_rad_s")
-
-
-@dataclass(frozen=True)
-class GainDispersions:
-    """Per-run controller gains of the backstepping law (SAPPC, TraPPC); each a uniform
-    distribution with ``low > 0`` (a normal one could draw non-positive gains)."""
-
-    K_q: Distribution | None = None
-    K_omega: Distribution | None = None
-    D_m_Nm: Distribution | None = None
-    mu_rad_s: Distribution | None = None
-
-    def __post_init__(self) -> None:
-        for name in DISPERSIBLE_GAINS:
-            d = getattr(self, name)
-            if d is not None:
-                d.check_shape(name, ())
-                if d.distribution != "uniform" or not np.min(d.low) > 0.0:
-                    raise ConfigError(f"{name} must be a uniform distribution with low > 0, got {d!r}")
-
-    def items(self) -> list[tuple[str, Distribution]]:
-        return [(n, getattr(self, n)) for n in DISPERSIBLE_GAINS if getattr(self, n) is not None]
-
-
-@dataclass(frozen=True)
-class Dispersions:
-    """What varies from run to run besides the initial attitude (all optional).
-
-    Attributes
-    ----------
-    initial_rate_rad_s : Distribution
-        Initial body rate, per axis [rad/s].
-    inertia_relative : Distribution
-        ``u`` per axis: the plant's inertia is ``S J S`` with ``S = diag(sqrt(1 + u))``,
-        symmetric positive definite for ``u > -1`` (a congruence).  The controller keeps the
-        nominal ``J`` (what flight software knows).
-    disturbance_scale, disturbance_phase_rad : Distribution
-        Scale and phase of the paper's periodic disturbance (scalar per run).
-    sensor_noise : SensorNoise
-    gains : GainDispersions
-        Per-run controller gains (``K_q``, ``K_omega``, ``D_m_Nm``, ``mu_rad_s``).
-    """
-
-    initial_rate_rad_s: Distribution | None = None
-    inertia_relative: Distribution | None = None
-    disturbance_scale: Distribution | None = None
-    disturbance_phase_rad: Distribution | None = None
-    sensor_noise: SensorNoise = SensorNoise()
-    gains: GainDispersions = GainDispersions()
-
-
-@dataclass(frozen=True)
-class Criteria:
-    """Pass criteria of a run (the paper's experiment 4)."""
-
-    rpf_error_at_t2_max: float = 1e-4
-    steady_mean_abs_qev_max: float = 5e-5
-
-
-@dataclass(frozen=True)
-class CampaignConfig:
-    """The ``montecarlo`` section of a scenario file.
-
-    Attributes
-    ----------
-    initial_attitude : InitialAttitude
-    dispersions : Dispersions
-    criteria : Criteria
-    chunk_runs : int
-        Runs per batch (a unit of work and of resumption); results do not depend on it.
-    trajectory_runs : int
-        How many runs (the first ones) keep a down-sampled trajectory for the overlay figure.
-    trajectory_stride : int
-        Keep every ``trajectory_stride``-th sample of those trajectories.
-    """
-
-    initial_attitude: InitialAttitude = InitialAttitude()
-    dispersions: Dispersions = Dispersions()
-    criteria: Criteria = Criteria()
-    chunk_runs: int = 500
-    trajectory_runs: int = 300
-    trajectory_stride: int = 10
-
-    def __post_init__(self) -> None:
-        for name in ("chunk_runs", "trajectory_stride"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or v < 1:
-                raise ConfigError(f"{name} must be a positive integer, got {v!r}")
-        if not isinstance(self.trajectory_runs, int) or self.trajectory_runs < 0:
-            raise ConfigError(f"trajectory_runs must be a non-negative integer, got {self.trajectory_runs!r}")
-        d = self.dispersions
-        for name, shape in (("initial_rate_rad_s", (3,)), ("inertia_relative", (3,)), ("disturbance_scale", ()), ("disturbance_phase_rad", ())):
-            dist = getattr(d, name)
-            if dist is not None:
-                dist.check_shape(f"dispersions.{name}", shape)
-        inertia = self.dispersions.inertia_relative
-        if inertia is not None:
-            lowest = np.min(inertia.low) if inertia.distribution == "uniform" else -np.inf
-            if inertia.distribution == "normal" and np.all(np.asarray(inertia.sigma) == 0):
-                lowest = np.min(inertia.mean)
-            if not lowest > -1.0:
-                raise ConfigError(
-                    "dispersions.inertia_relative must stay above -1 (S J S with S = diag(sqrt(1 + u)) is positive "
-                    f"definite only then); got {inertia!r}" + (" (a normal distribution is unbounded)" if inertia.distribution == "normal" else "")
-                )
-
-
-def campaign_config(scenario: Scenario) -> CampaignConfig:
-    """Parse and validate the scenario's ``montecarlo`` section (before any run starts)."""
-    section = scenario.raw.get("montecarlo")
-    if section is None:
-        raise ConfigError(f"scenario {scenario.name!r} has no 'montecarlo' section")
-    return from_mapping(CampaignConfig, section, "montecarlo")
-
-
-# ----------------------------------------------------------------------------- one chunk
-
-
-@dataclass(frozen=True)
-class RunInputs:
-    """Dispersed inputs of a set of runs, arrays with a leading axis of runs."""
-
-    runs: NDArray[np.int64]
-    euler_deg: Array
-    q_BN0: Array
-    omega_BN_B0: Array
-    inertia_relative: Array
-    disturbance_scale: Array
-    disturbance_phase_rad: Array
-    gains: dict[str, Array]
-
-
-def _run_rngs(seed: int, run: int) -> tuple[np.random.Generator, np.random.Generator]:
-    dispersion, noise = np.random.SeedSequence(seed, spawn_key=(run,)).spawn(2)
-    return np.random.default_rng(dispersion), np.random.default_rng(noise)
-
-
-def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInputs:
-    """The dispersed values of ``runs``: each run's from its own generator, in a fixed order."""
-    runs_arr = np.fromiter(runs, dtype=np.int64)
-    d = cfg.dispersions
-    rows = []
-    for k in runs_arr:
-        rng, _ = _run_rngs(seed, int(k))
-        ia = cfg.initial_attitude
-        euler = rng.uniform(ia.low_deg, ia.high_deg, 3)
-        rate = d.initial_rate_rad_s.draw(rng, (3,)) if d.initial_rate_rad_s else np.zeros(3)
-        inertia = d.inertia_relative.draw(rng, (3,)) if d.inertia_relative else np.zeros(3)
-        scale = float(d.disturbance_scale.draw(rng, ())) if d.disturbance_scale else 1.0
-        phase = float(d.disturbance_phase_rad.draw(rng, ())) if d.disturbance_phase_rad else 0.0
-        gains = {name: float(dist.draw(rng, ())) for name, dist in d.gains.items()}
-        rows.append((euler, rate, inertia, scale, phase, gains))
-    euler = np.array([r[0] for r in rows]).reshape(-1, 3)
-    return RunInputs(
-        runs=runs_arr,
-        euler_deg=euler,
-        q_BN0=euler_to_quaternion(np.radians(euler), cfg.initial_attitude.sequence).reshape(-1, 4),
-        omega_BN_B0=np.array([r[1] for r in rows]).reshape(-1, 3),
-        inertia_relative=np.array([r[2] for r in rows]).reshape(-1, 3),
-        disturbance_scale=np.array([r[3] for r in rows]),
-        disturbance_phase_rad=np.array([r[4] for r in rows]),
-        gains={name: np.array([r[5][name] for r in rows]) for name, _ in d.gains.items()},
-    )
-
-
-class _NoisySensor:
-    """Measured state = true state with the campaign's sensor noise, drawn per run from its own stream."""
-
-    #: Samples of noise drawn per run at once.
-    BLOCK = 256
-
-    def __init__(self, noise: SensorNoise, seed: int, runs: NDArray[np.int64]) -> None:
-        self.noise = noise
-        self.rngs = [_run_rngs(seed, int(k))[1] for k in runs]
-        self.block: Array | None = None
-
-    def __call__(self, k: int, x: Array) -> Array:
-        if k % self.BLOCK == 0:
-            self.block = np.stack([rng.standard_normal((self.BLOCK, 6)) for rng in self.rngs], axis=1)  # (BLOCK, n, 6)
-        assert self.block is not None
-        z = self.block[k % self.BLOCK]
-        half = 0.5 * self.noise.attitude_sigma_rad * z[:, :3]
-        dq = np.concatenate((half, np.ones((z.shape[0], 1))), axis=1)
-        y = np.array(x, order="F")
-        y[:, :4] = quat_normalize(quat_multiply(x[:, :4], dq))  # body-frame small rotation error
-        y[:, 4:] = x[:, 4:] + self.noise.rate_sigma_rad_s * z[:, 3:]
-        return y
 
 
 class _Trajectories:
@@ -383,8 +102,8 @@ def simulate_runs(
             q_BN0=inputs.q_BN0,
             omega_BN_B0_rad_s=inputs.omega_BN_B0,
             inertia_kg_m2=J,
-            disturbance=_dispersed_disturbance(scenario, inputs),
-            measure=_NoisySensor(cfg.dispersions.sensor_noise, seed, inputs.runs) if cfg.dispersions.sensor_noise.enabled else None,
+            disturbance=dispersed_disturbance(scenario, inputs),
+            measure=NoisySensor(cfg.dispersions.sensor_noise, seed, inputs.runs) if cfg.dispersions.sensor_noise.enabled else None,
             observer=traj if observer is None else both(traj, observer),
         )
     crit = metrics.criteria_arrays()
@@ -411,28 +130,6 @@ def simulate_runs(
     }, metrics
 
 
-def _dispersed_disturbance(scenario: Scenario, inputs: RunInputs) -> DisturbanceSum:
-    """The scenario's disturbances with the paper model's scale and phase set per run."""
-    models = []
-    for m in scenario.disturbance.models:
-        if isinstance(m, PaperPeriodic):
-            m = dataclasses.replace(
-                m,
-                scale=tuple(inputs.disturbance_scale * np.asarray(m.scale, dtype=float)),
-                phase_rad=tuple(inputs.disturbance_phase_rad + np.asarray(m.phase_rad, dtype=float)),
-            )
-        models.append(m)
-    return DisturbanceSum(tuple(models))
-
-
-# ----------------------------------------------------------------------------- the campaign
-
-#: Version of the chunk/manifest format (bumped when their contents change).
-FORMAT_VERSION = 1
-#: Per-axis columns of the run table.
-_AXES = (1, 2, 3)
-
-
 class _Progress:
     """A one-line progress report on stderr: runs done, runs/s, ETA."""
 
@@ -455,21 +152,6 @@ class _Progress:
         elif now - self.last_print > 5.0 or self.done == self.total:
             print(line, file=sys.stderr, flush=True)
             self.last_print = now
-
-
-def _chunks(n_runs: int, chunk_runs: int) -> list[tuple[int, list[int]]]:
-    return [(i, list(range(s, min(s + chunk_runs, n_runs)))) for i, s in enumerate(range(0, n_runs, chunk_runs))]
-
-
-def _chunk_path(out: Path, index: int) -> Path:
-    return out / "chunks" / f"chunk_{index:06d}.npz"
-
-
-def _save_chunk(out: Path, index: int, result: dict[str, Array]) -> None:
-    path = _chunk_path(out, index)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **result)
-    tmp.replace(path)  # atomic: a chunk file is either complete or absent
 
 
 def _ignore_sigint() -> None:
@@ -583,7 +265,7 @@ def run_campaign(
     (out / "chunks").mkdir(parents=True, exist_ok=True)
     manifest_path.write_text(json.dumps(manifest, indent=2) + "\n")
 
-    todo = [(i, r) for i, r in _chunks(runs, chunk_runs) if not _chunk_path(out, i).exists()]
+    todo = [(i, r) for i, r in chunks(runs, chunk_runs) if not chunk_path(out, i).exists()]
     bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)
     executor = _Executor(workers, scheduler)
     t0 = time.perf_counter()
@@ -594,7 +276,7 @@ def run_campaign(
         if executor.pool is not None or executor.client is not None:
             import matplotlib.pyplot  # noqa: F401  (the figures need it; import it while the workers compute)
         for i, result in results:
-            _save_chunk(out, i, result)
+            save_chunk(out, i, result)
             bar.update(len(sizes[i]))
     except KeyboardInterrupt:
         executor.abort()
@@ -603,103 +285,7 @@ def run_campaign(
         raise
     finally:
         executor.close()
-    return _assemble(out, scenario, cfg, manifest, wall_s=time.perf_counter() - t0)
-
-
-def _load_chunks(out: Path, n_chunks: int) -> dict[str, Any]:
-    parts = [dict(np.load(_chunk_path(out, i), allow_pickle=False)) for i in range(n_chunks)]
-    keys = [k for k in parts[0] if not k.startswith("traj_")]
-    table = {k: np.concatenate([p[k] for p in parts]) for k in keys}
-    traj = [p for p in parts if p["traj_q_ev"].size]
-    table["traj_t"] = traj[0]["traj_t"] if traj else np.zeros(0)
-    table["traj_q_ev"] = np.concatenate([p["traj_q_ev"] for p in traj], axis=1) if traj else np.zeros((0, 0, 3))
-    table["traj_rho"] = np.concatenate([p["traj_rho"] for p in traj], axis=1) if traj else np.zeros((0, 0, 3))
-    return table
-
-
-def _percentiles(x: Array) -> dict[str, float | None]:
-    x = x[np.isfinite(x)]
-    if not x.size:
-        return {"p50": None, "p90": None, "p99": None, "max": None}
-    p = np.percentile(x, [50, 90, 99])
-    return {"p50": float(p[0]), "p90": float(p[1]), "p99": float(p[2]), "max": float(x.max())}
-
-
-def _assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[str, Any], *, wall_s: float) -> dict[str, Any]:
-    runs, seed = manifest["runs"], manifest["seed"]
-    tab = _load_chunks(out, len(_chunks(runs, manifest["chunk_runs"])))
-    crit = cfg.criteria
-    t2 = tab["rpf_error_at_t2_per_axis"].max(axis=1)
-    steady = tab["steady_mean_abs_qev_per_axis"].max(axis=1)
-    finite = tab["finite"].astype(bool)
-    ok_t2 = finite & (t2 < crit.rpf_error_at_t2_max)
-    ok_steady = finite & (steady < crit.steady_mean_abs_qev_max)
-    passed = ok_t2 & ok_steady
-
-    gain_keys = [k for k in tab if k.startswith("gain_")]
-    with (out / "runs.csv").open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(
-            ["run", "seed", "passed", "finite"]
-            + [f"euler_deg_{i}" for i in _AXES] + [f"omega0_rad_s_{i}" for i in _AXES] + [f"inertia_relative_{i}" for i in _AXES]
-            + ["disturbance_scale", "disturbance_phase_rad"] + gain_keys
-            + [f"rpf_error_at_t2_{i}" for i in _AXES] + ["rpf_error_at_t2"]
-            + [f"steady_mean_abs_qev_{i}" for i in _AXES] + ["steady_mean_abs_qev", "steady_max_abs_qev", "settling_time_s",
-                                                           "max_abs_torque_Nm", "rpf_clamped_components", "rpf_flat_components"]
-        )
-        for k in range(runs):
-            w.writerow(
-                [int(tab["run"][k]), seed, bool(passed[k]), bool(finite[k])]
-                + [f"{v:.17g}" for v in tab["euler_deg"][k]] + [f"{v:.17g}" for v in tab["omega_BN_B0_rad_s"][k]]
-                + [f"{v:.17g}" for v in tab["inertia_relative"][k]]
-                + [f"{tab['disturbance_scale'][k]:.17g}", f"{tab['disturbance_phase_rad'][k]:.17g}"]
-                + [f"{tab[g][k]:.17g}" for g in gain_keys]
-                + [f"{v:.17g}" for v in tab["rpf_error_at_t2_per_axis"][k]] + [f"{t2[k]:.17g}"]
-                + [f"{v:.17g}" for v in tab["steady_mean_abs_qev_per_axis"][k]]
-                + [f"{steady[k]:.17g}", f"{tab['steady_max_abs_qev'][k]:.17g}", f"{tab['settling_time_s'][k]:.17g}",
-                   f"{tab['max_abs_torque_Nm'][k]:.17g}", int(tab["rpf_clamped"][k].sum()), int(tab["rpf_flat"][k].sum())]
-            )
-
-    def run_ref(k: int) -> dict[str, Any]:
-        return {"run": int(k), "seed_sequence": {"entropy": seed, "spawn_key": [int(k)]},
-                "rpf_error_at_t2": float(t2[k]), "steady_mean_abs_qev": float(steady[k]), "finite": bool(finite[k])}
-
-    failing = np.flatnonzero(~passed)
-    reasons = []
-    for k in failing[:100]:
-        why = [] if finite[k] else ["non-finite state"]
-        if finite[k] and not ok_t2[k]:
-            why.append(f"rpf_error_at_t2 {t2[k]:.3g} >= {crit.rpf_error_at_t2_max:g}")
-        if finite[k] and not ok_steady[k]:
-            why.append(f"steady_mean_abs_qev {steady[k]:.3g} >= {crit.steady_mean_abs_qev_max:g}")
-        reasons.append({**run_ref(int(k)), "why": "; ".join(why)})
-    worst_t2 = int(np.nanargmax(np.where(finite, t2, -np.inf)))
-    worst_steady = int(np.nanargmax(np.where(finite, steady, -np.inf)))
-    summary: dict[str, Any] = {
-        "scenario": scenario.name,
-        "runs": runs,
-        "seed": seed,
-        "criteria": dataclasses.asdict(crit),
-        "passed": int(passed.sum()),
-        "pass_fraction": float(passed.mean()),
-        "failed_runs": reasons,
-        "failed_runs_listed": len(reasons),
-        "non_finite_runs": int((~finite).sum()),
-        "rpf_clamped_components": int(tab["rpf_clamped"].sum()),
-        "rpf_flat_components": int(tab["rpf_flat"].sum()),
-        "worst_rpf_error_at_t2": run_ref(worst_t2),
-        "worst_steady_mean_abs_qev": run_ref(worst_steady),
-        "rpf_error_at_t2": _percentiles(t2),
-        "steady_mean_abs_qev": _percentiles(steady),
-        "settling_time_s": _percentiles(tab["settling_time_s"]),
-        "max_abs_torque_Nm": _percentiles(tab["max_abs_torque_Nm"]),
-        "wall_time_s": wall_s,
-    }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    from sappc.analysis.plots import plot_campaign
-
-    plot_campaign(tab, out, criteria=(crit.rpf_error_at_t2_max, crit.steady_mean_abs_qev_max), title=scenario.name)
-    return summary
+    return assemble(out, scenario, cfg, manifest, wall_s=time.perf_counter() - t0)
 
 
 def load_campaign_run(campaign_dir: str | Path, run: int, *, with_history: bool = False) -> tuple[Scenario, dict[str, Array], dict[str, Any], Any]:

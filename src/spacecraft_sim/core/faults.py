@@ -36,11 +36,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from gnc_common.attitude import quat_multiply, quat_normalize
+from gnc_common.attitude import quat_multiply, quat_normalize, rotation_vector_to_quaternion
 from spacecraft_sim.core.disturbance import TIME_TOLERANCE_S
 from gnc_common.validation import ConfigError, as_finite_array, check_positive, from_kind_list
 
-__all__ = ["FAULT_KINDS", "FaultSchedule", "faults_from_list"]
+__all__ = ["FAULT_KINDS", "FaultSchedule", "faults_from_list", "noisy_measurement"]
 
 Array = NDArray[np.float64]
 
@@ -178,13 +178,16 @@ def faults_from_list(entries: object, prefix: str = "faults") -> tuple[Any, ...]
     return from_kind_list(entries, FAULT_KINDS, prefix)
 
 
-def _small_rotation(rotvec: Array) -> Array:
-    """Unit quaternion (x, y, z, w) of the rotation vector ``rotvec`` [rad]."""
-    angle = float(np.linalg.norm(rotvec))
-    if angle == 0.0:
-        return np.array([0.0, 0.0, 0.0, 1.0])
-    axis = rotvec / angle
-    return np.concatenate((axis * np.sin(angle / 2.0), [np.cos(angle / 2.0)]))
+def noisy_measurement(q_BN: Array, omega_BN_B: Array, n: Array, attitude_std_rad: float, rate_std_rad_s: float) -> tuple[Array, Array]:
+    """The sensor-noise model, the one used everywhere (fault injector, offline runs, Monte Carlo).
+
+    The measured attitude is the true one rotated in the body frame by the small rotation vector
+    ``attitude_std_rad * n[..., :3]``; the measured rate is the true one plus
+    ``rate_std_rad_s * n[..., 3:]``.  ``n`` (..., 6) holds standard normal draws, whose source
+    (per stamp, per run) is the caller's.
+    """
+    q = quat_normalize(quat_multiply(q_BN, rotation_vector_to_quaternion(attitude_std_rad * n[..., :3])))
+    return q, omega_BN_B + rate_std_rad_s * n[..., 3:]
 
 
 class _History:
@@ -253,12 +256,10 @@ class FaultSchedule:
         w = np.array(omega_BN_B, dtype=np.float64)
         for i, f in enumerate(self.faults):
             if isinstance(f, SensorNoise) and f.active(t):
-                rng = np.random.default_rng([int(f.seed), int(stamp_ns)])
-                n = rng.standard_normal(6)
-                q = quat_normalize(quat_multiply(q[None], _small_rotation(f.attitude_std_rad * n[:3])[None]))[0]
-                w = w + f.rate_std_rad_s * n[3:]
+                n = np.random.default_rng([int(f.seed), int(stamp_ns)]).standard_normal(6)
+                q, w = noisy_measurement(q, w, n, f.attitude_std_rad, f.rate_std_rad_s)
             elif isinstance(f, SensorBias) and f.active(t):
-                q = quat_normalize(quat_multiply(q[None], _small_rotation(np.asarray(f.attitude_bias_rad, dtype=np.float64))[None]))[0]
+                q = quat_normalize(quat_multiply(q[None], rotation_vector_to_quaternion(np.asarray(f.attitude_bias_rad, dtype=np.float64))[None]))[0]
                 w = w + np.asarray(f.rate_bias_rad_s)
             elif isinstance(f, SensorDropout) and f.active(t):
                 return None

@@ -1,0 +1,233 @@
+"""The ``montecarlo`` section of a scenario file: distributions, dispersions, pass criteria.
+
+Everything is validated when the section is parsed (:func:`campaign_config`), before any run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnc_common.validation import ConfigError, check_positive, from_mapping
+from sappc.scenario import Scenario
+
+__all__ = ["CampaignConfig", "Criteria", "Dispersions", "Distribution", "DistributionKind", "GainDispersions",
+           "InitialAttitude", "SensorNoise", "campaign_config"]
+
+Array = NDArray[np.float64]
+
+
+class DistributionKind(str, Enum):
+    """The distributions a dispersion may take."""
+
+    UNIFORM = "uniform"
+    NORMAL = "normal"
+
+
+@dataclass(frozen=True)
+class Distribution:
+    """A scalar or per-axis distribution.
+
+    ``distribution: uniform`` with ``low`` and ``high`` (``low <= high``), or
+    ``distribution: normal`` with ``mean`` and ``sigma`` (``sigma >= 0``);
+    each value a number or a list of 3 (per axis).
+    """
+
+    distribution: DistributionKind
+    low: float | tuple[float, ...] | None = None
+    high: float | tuple[float, ...] | None = None
+    mean: float | tuple[float, ...] | None = None
+    sigma: float | tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "distribution", DistributionKind(self.distribution))
+        except ValueError:
+            raise ConfigError(f"unknown distribution {self.distribution!r}; expected 'uniform' or 'normal'") from None
+        if self.distribution is DistributionKind.UNIFORM:
+            if self.low is None or self.high is None or self.mean is not None or self.sigma is not None:
+                raise ConfigError("a uniform distribution takes exactly 'low' and 'high'")
+            lo, hi = np.asarray(self.low, dtype=float), np.asarray(self.high, dtype=float)
+            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))) or np.any(hi < lo):
+                raise ConfigError(f"needs finite low <= high, got low = {self.low!r}, high = {self.high!r}")
+        elif self.distribution is DistributionKind.NORMAL:
+            if self.mean is None or self.sigma is None or self.low is not None or self.high is not None:
+                raise ConfigError("a normal distribution takes exactly 'mean' and 'sigma'")
+            sig = np.asarray(self.sigma, dtype=float)
+            if not np.all(np.isfinite(sig)) or np.any(sig < 0) or not np.all(np.isfinite(np.asarray(self.mean, dtype=float))):
+                raise ConfigError(f"needs finite mean and sigma >= 0, got mean = {self.mean!r}, sigma = {self.sigma!r}")
+        else:
+            raise ConfigError(f"unknown distribution {self.distribution!r}; expected 'uniform' or 'normal'")
+
+    def _params(self) -> tuple[Array, Array]:
+        a, b = (self.low, self.high) if self.distribution is DistributionKind.UNIFORM else (self.mean, self.sigma)
+        return np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+
+    def check_shape(self, name: str, shape: tuple[int, ...]) -> None:
+        """Raise unless the parameters broadcast to ``shape`` (``()`` scalar, ``(3,)`` per axis)."""
+        a, b = self._params()
+        try:
+            if np.broadcast_shapes(a.shape, b.shape, shape) != shape:
+                raise ValueError
+        except ValueError:
+            raise ConfigError(f"{name} must have {'scalar' if not shape else f'scalar or {shape[0]}-vector'} parameters, got {self!r}") from None
+
+    def draw(self, rng: np.random.Generator, shape: tuple[int, ...]) -> Array:
+        """Independent draws of the given shape (``(3,)``: one per axis)."""
+        a, b = self._params()
+        if self.distribution is DistributionKind.UNIFORM:
+            return a + (b - a) * rng.random(shape)
+        return a + b * rng.standard_normal(shape)
+
+
+@dataclass(frozen=True)
+class InitialAttitude:
+    """Initial attitude from Euler angles, each uniform in ``[low_deg, high_deg]``, applied in ``sequence``
+    (upper case: intrinsic rotations about body axes, scipy's convention)."""
+
+    sequence: str = "ZYX"
+    low_deg: float = -85.0
+    high_deg: float = 85.0
+
+    def __post_init__(self) -> None:
+        if len(self.sequence) != 3 or not (self.sequence.isupper() or self.sequence.islower()) or set(self.sequence.upper()) - set("XYZ"):
+            raise ConfigError(f"sequence must be three axis letters like 'ZYX' (intrinsic) or 'zyx' (extrinsic), got {self.sequence!r}")
+        if not (np.isfinite(self.low_deg) and np.isfinite(self.high_deg)) or self.high_deg < self.low_deg:
+            raise ConfigError(f"needs low_deg <= high_deg, got {self.low_deg!r}, {self.high_deg!r}")
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """White measurement noise, a new draw every control period: a small rotation of the measured
+    attitude (standard deviation per axis [rad]) and an additive rate error [rad/s]."""
+
+    attitude_sigma_rad: float = 0.0
+    rate_sigma_rad_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_positive("attitude_sigma_rad", self.attitude_sigma_rad, allow_zero=True)
+        check_positive("rate_sigma_rad_s", self.rate_sigma_rad_s, allow_zero=True)
+
+    @property
+    def enabled(self) -> bool:
+        return self.attitude_sigma_rad > 0.0 or self.rate_sigma_rad_s > 0.0
+
+
+#: SAPPC/TraPPC gains a campaign may disperse (per run; the law broadcasts them).
+DISPERSIBLE_GAINS = ("K_q", "K_omega", "D_m_Nm", "mu_rad_s")
+
+
+@dataclass(frozen=True)
+class GainDispersions:
+    """Per-run controller gains of the backstepping law (SAPPC, TraPPC); each a uniform
+    distribution with ``low > 0`` (a normal one could draw non-positive gains)."""
+
+    K_q: Distribution | None = None
+    K_omega: Distribution | None = None
+    D_m_Nm: Distribution | None = None
+    mu_rad_s: Distribution | None = None
+
+    def __post_init__(self) -> None:
+        for name in DISPERSIBLE_GAINS:
+            d = getattr(self, name)
+            if d is not None:
+                d.check_shape(name, ())
+                if d.distribution is not DistributionKind.UNIFORM or not np.min(d.low) > 0.0:
+                    raise ConfigError(f"{name} must be a uniform distribution with low > 0, got {d!r}")
+
+    def items(self) -> list[tuple[str, Distribution]]:
+        return [(n, getattr(self, n)) for n in DISPERSIBLE_GAINS if getattr(self, n) is not None]
+
+
+@dataclass(frozen=True)
+class Dispersions:
+    """What varies from run to run besides the initial attitude (all optional).
+
+    Attributes
+    ----------
+    initial_rate_rad_s : Distribution
+        Initial body rate, per axis [rad/s].
+    inertia_relative : Distribution
+        ``u`` per axis: the plant's inertia is ``S J S`` with ``S = diag(sqrt(1 + u))``,
+        symmetric positive definite for ``u > -1`` (a congruence).  The controller keeps the
+        nominal ``J`` (what flight software knows).
+    disturbance_scale, disturbance_phase_rad : Distribution
+        Scale and phase of the paper's periodic disturbance (scalar per run).
+    sensor_noise : SensorNoise
+    gains : GainDispersions
+        Per-run controller gains (``K_q``, ``K_omega``, ``D_m_Nm``, ``mu_rad_s``).
+    """
+
+    initial_rate_rad_s: Distribution | None = None
+    inertia_relative: Distribution | None = None
+    disturbance_scale: Distribution | None = None
+    disturbance_phase_rad: Distribution | None = None
+    sensor_noise: SensorNoise = SensorNoise()
+    gains: GainDispersions = GainDispersions()
+
+
+@dataclass(frozen=True)
+class Criteria:
+    """Pass criteria of a run (the paper's experiment 4)."""
+
+    rpf_error_at_t2_max: float = 1e-4
+    steady_mean_abs_qev_max: float = 5e-5
+
+
+@dataclass(frozen=True)
+class CampaignConfig:
+    """The ``montecarlo`` section of a scenario file.
+
+    Attributes
+    ----------
+    initial_attitude : InitialAttitude
+    dispersions : Dispersions
+    criteria : Criteria
+    chunk_runs : int
+        Runs per batch (a unit of work and of resumption); results do not depend on it.
+    trajectory_runs : int
+        How many runs (the first ones) keep a down-sampled trajectory for the overlay figure.
+    trajectory_stride : int
+        Keep every ``trajectory_stride``-th sample of those trajectories.
+    """
+
+    initial_attitude: InitialAttitude = InitialAttitude()
+    dispersions: Dispersions = Dispersions()
+    criteria: Criteria = Criteria()
+    chunk_runs: int = 500
+    trajectory_runs: int = 300
+    trajectory_stride: int = 10
+
+    def __post_init__(self) -> None:
+        for name in ("chunk_runs", "trajectory_stride"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 1:
+                raise ConfigError(f"{name} must be a positive integer, got {v!r}")
+        if not isinstance(self.trajectory_runs, int) or self.trajectory_runs < 0:
+            raise ConfigError(f"trajectory_runs must be a non-negative integer, got {self.trajectory_runs!r}")
+        d = self.dispersions
+        for name, shape in (("initial_rate_rad_s", (3,)), ("inertia_relative", (3,)), ("disturbance_scale", ()), ("disturbance_phase_rad", ())):
+            dist = getattr(d, name)
+            if dist is not None:
+                dist.check_shape(f"dispersions.{name}", shape)
+        inertia = self.dispersions.inertia_relative
+        if inertia is not None:
+            lowest = np.min(inertia.low) if inertia.distribution is DistributionKind.UNIFORM else -np.inf
+            if inertia.distribution is DistributionKind.NORMAL and np.all(np.asarray(inertia.sigma) == 0):
+                lowest = np.min(inertia.mean)
+            if not lowest > -1.0:
+                raise ConfigError(
+                    "dispersions.inertia_relative must stay above -1 (S J S with S = diag(sqrt(1 + u)) is positive "
+                    f"definite only then); got {inertia!r}" + (" (a normal distribution is unbounded)" if inertia.distribution is DistributionKind.NORMAL else "")
+                )
+
+
+def campaign_config(scenario: Scenario) -> CampaignConfig:
+    """Parse and validate the scenario's ``montecarlo`` section (before any run starts)."""
+    section = scenario.raw.get("montecarlo")
+    if section is None:
+        raise ConfigError(f"scenario {scenario.name!r} has no 'montecarlo' section")
+    return from_mapping(CampaignConfig, section, "montecarlo")

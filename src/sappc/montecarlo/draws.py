@@ -1,0 +1,107 @@
+"""The random inputs of each run of a campaign, from its own seed.
+
+Every random input of run ``k`` comes from ``SeedSequence(seed, spawn_key=(k,))``: its first
+child draws the dispersed values (:func:`draw_inputs`), its second the sensor noise
+(:class:`NoisySensor`).  A run therefore depends only on ``(seed, k)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnc_common.attitude import euler_to_quaternion
+from spacecraft_sim.core.disturbance import DisturbanceSum, PaperPeriodic
+from spacecraft_sim.core.faults import noisy_measurement
+from sappc.montecarlo.config import CampaignConfig, SensorNoise
+from sappc.scenario import Scenario
+
+__all__ = ["NoisySensor", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_generators"]
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """Dispersed inputs of a set of runs, arrays with a leading axis of runs."""
+
+    runs: NDArray[np.int64]
+    euler_deg: Array
+    q_BN0: Array
+    omega_BN_B0: Array
+    inertia_relative: Array
+    disturbance_scale: Array
+    disturbance_phase_rad: Array
+    gains: dict[str, Array]
+
+
+def run_generators(seed: int, run: int) -> tuple[np.random.Generator, np.random.Generator]:
+    dispersion, noise = np.random.SeedSequence(seed, spawn_key=(run,)).spawn(2)
+    return np.random.default_rng(dispersion), np.random.default_rng(noise)
+
+
+def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInputs:
+    """The dispersed values of ``runs``: each run's from its own generator, in a fixed order."""
+    runs_arr = np.fromiter(runs, dtype=np.int64)
+    d = cfg.dispersions
+    rows = []
+    for k in runs_arr:
+        rng, _ = run_generators(seed, int(k))
+        ia = cfg.initial_attitude
+        euler = rng.uniform(ia.low_deg, ia.high_deg, 3)
+        rate = d.initial_rate_rad_s.draw(rng, (3,)) if d.initial_rate_rad_s else np.zeros(3)
+        inertia = d.inertia_relative.draw(rng, (3,)) if d.inertia_relative else np.zeros(3)
+        scale = float(d.disturbance_scale.draw(rng, ())) if d.disturbance_scale else 1.0
+        phase = float(d.disturbance_phase_rad.draw(rng, ())) if d.disturbance_phase_rad else 0.0
+        gains = {name: float(dist.draw(rng, ())) for name, dist in d.gains.items()}
+        rows.append((euler, rate, inertia, scale, phase, gains))
+    euler = np.array([r[0] for r in rows]).reshape(-1, 3)
+    return RunInputs(
+        runs=runs_arr,
+        euler_deg=euler,
+        q_BN0=euler_to_quaternion(np.radians(euler), cfg.initial_attitude.sequence).reshape(-1, 4),
+        omega_BN_B0=np.array([r[1] for r in rows]).reshape(-1, 3),
+        inertia_relative=np.array([r[2] for r in rows]).reshape(-1, 3),
+        disturbance_scale=np.array([r[3] for r in rows]),
+        disturbance_phase_rad=np.array([r[4] for r in rows]),
+        gains={name: np.array([r[5][name] for r in rows]) for name, _ in d.gains.items()},
+    )
+
+
+class NoisySensor:
+    """Measured state = true state with the campaign's sensor noise, drawn per run from its own stream."""
+
+    #: Samples of noise drawn per run at once.
+    BLOCK = 256
+
+    def __init__(self, noise: SensorNoise, seed: int, runs: NDArray[np.int64]) -> None:
+        self.noise = noise
+        self.rngs = [run_generators(seed, int(k))[1] for k in runs]
+        self.block: Array | None = None
+
+    def __call__(self, k: int, x: Array) -> Array:
+        if k % self.BLOCK == 0:
+            self.block = np.stack([rng.standard_normal((self.BLOCK, 6)) for rng in self.rngs], axis=1)  # (BLOCK, n, 6)
+        assert self.block is not None
+        z = self.block[k % self.BLOCK]
+        y = np.array(x, order="F")
+        y[:, :4], y[:, 4:] = noisy_measurement(x[:, :4], x[:, 4:], z, self.noise.attitude_sigma_rad, self.noise.rate_sigma_rad_s)
+        return y
+
+
+def dispersed_disturbance(scenario: Scenario, inputs: RunInputs) -> DisturbanceSum:
+    """The scenario's disturbances with the paper model's scale and phase set per run."""
+    models = []
+    for m in scenario.disturbance.models:
+        if isinstance(m, PaperPeriodic):
+            m = dataclasses.replace(
+                m,
+                scale=tuple(inputs.disturbance_scale * np.asarray(m.scale, dtype=float)),
+                phase_rad=tuple(inputs.disturbance_phase_rad + np.asarray(m.phase_rad, dtype=float)),
+            )
+        models.append(m)
+    return DisturbanceSum(tuple(models))

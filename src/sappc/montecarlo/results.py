@@ -1,0 +1,164 @@
+"""A campaign's results: chunk files, the pass criteria per run, the table, the summary, the figures."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sappc.montecarlo.config import CampaignConfig, Criteria
+from sappc.scenario import Scenario
+
+__all__ = ["FORMAT_VERSION", "RunCriteria", "assemble", "chunk_path", "chunks", "run_criteria", "save_chunk"]
+
+Array = NDArray[np.float64]
+
+#: Version of the chunk/manifest format (bumped when their contents change).
+FORMAT_VERSION = 1
+#: Per-axis columns of the run table.
+_AXES = (1, 2, 3)
+
+
+def chunks(n_runs: int, chunk_runs: int) -> list[tuple[int, list[int]]]:
+    return [(i, list(range(s, min(s + chunk_runs, n_runs)))) for i, s in enumerate(range(0, n_runs, chunk_runs))]
+
+
+def chunk_path(out: Path, index: int) -> Path:
+    return out / "chunks" / f"chunk_{index:06d}.npz"
+
+
+def save_chunk(out: Path, index: int, result: dict[str, Array]) -> None:
+    path = chunk_path(out, index)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, **result)
+    tmp.replace(path)  # atomic: a chunk file is either complete or absent
+
+
+def _load_chunks(out: Path, n_chunks: int) -> dict[str, Any]:
+    parts = [dict(np.load(chunk_path(out, i), allow_pickle=False)) for i in range(n_chunks)]
+    keys = [k for k in parts[0] if not k.startswith("traj_")]
+    table = {k: np.concatenate([p[k] for p in parts]) for k in keys}
+    traj = [p for p in parts if p["traj_q_ev"].size]
+    table["traj_t"] = traj[0]["traj_t"] if traj else np.zeros(0)
+    table["traj_q_ev"] = np.concatenate([p["traj_q_ev"] for p in traj], axis=1) if traj else np.zeros((0, 0, 3))
+    table["traj_rho"] = np.concatenate([p["traj_rho"] for p in traj], axis=1) if traj else np.zeros((0, 0, 3))
+    return table
+
+
+def _percentiles(x: Array) -> dict[str, float | None]:
+    x = x[np.isfinite(x)]
+    if not x.size:
+        return {"p50": None, "p90": None, "p99": None, "max": None}
+    p = np.percentile(x, [50, 90, 99])
+    return {"p50": float(p[0]), "p90": float(p[1]), "p99": float(p[2]), "max": float(x.max())}
+
+
+@dataclasses.dataclass(frozen=True)
+class RunCriteria:
+    """The paper's pass criteria (experiment 4) evaluated per run, arrays over runs.
+
+    Attributes
+    ----------
+    rpf_error_at_t2 : max over axes of ``|q_ev,i - rho_i|`` at ``t2``.
+    steady_mean_abs_qev : max over axes of the mean ``|q_ev,i|`` over the steady window.
+    finite : the run's state stayed finite.
+    ok_t2, ok_steady : each criterion met (and the run finite).
+    passed : both met.
+    """
+
+    rpf_error_at_t2: Array
+    steady_mean_abs_qev: Array
+    finite: NDArray[np.bool_]
+    ok_t2: NDArray[np.bool_]
+    ok_steady: NDArray[np.bool_]
+    passed: NDArray[np.bool_]
+
+
+def run_criteria(table: dict[str, Any], criteria: Criteria) -> RunCriteria:
+    """The pass criteria of the runs in ``table`` (a chunk's or the campaign's per-run arrays):
+    the one place that defines what passing means, for the campaign table and for
+    ``sappc simulate --from-campaign``."""
+    t2 = np.asarray(table["rpf_error_at_t2_per_axis"]).max(axis=1)
+    steady = np.asarray(table["steady_mean_abs_qev_per_axis"]).max(axis=1)
+    finite = np.asarray(table["finite"]).astype(bool)
+    ok_t2 = finite & (t2 < criteria.rpf_error_at_t2_max)
+    ok_steady = finite & (steady < criteria.steady_mean_abs_qev_max)
+    return RunCriteria(t2, steady, finite, ok_t2, ok_steady, ok_t2 & ok_steady)
+
+
+def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[str, Any], *, wall_s: float) -> dict[str, Any]:
+    runs, seed = manifest["runs"], manifest["seed"]
+    tab = _load_chunks(out, len(chunks(runs, manifest["chunk_runs"])))
+    crit = cfg.criteria
+    rc = run_criteria(tab, crit)
+    t2, steady, finite, ok_t2, ok_steady, passed = rc.rpf_error_at_t2, rc.steady_mean_abs_qev, rc.finite, rc.ok_t2, rc.ok_steady, rc.passed
+
+    gain_keys = [k for k in tab if k.startswith("gain_")]
+    with (out / "runs.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(
+            ["run", "seed", "passed", "finite"]
+            + [f"euler_deg_{i}" for i in _AXES] + [f"omega0_rad_s_{i}" for i in _AXES] + [f"inertia_relative_{i}" for i in _AXES]
+            + ["disturbance_scale", "disturbance_phase_rad"] + gain_keys
+            + [f"rpf_error_at_t2_{i}" for i in _AXES] + ["rpf_error_at_t2"]
+            + [f"steady_mean_abs_qev_{i}" for i in _AXES] + ["steady_mean_abs_qev", "steady_max_abs_qev", "settling_time_s",
+                                                           "max_abs_torque_Nm", "rpf_clamped_components", "rpf_flat_components"]
+        )
+        for k in range(runs):
+            w.writerow(
+                [int(tab["run"][k]), seed, bool(passed[k]), bool(finite[k])]
+                + [f"{v:.17g}" for v in tab["euler_deg"][k]] + [f"{v:.17g}" for v in tab["omega_BN_B0_rad_s"][k]]
+                + [f"{v:.17g}" for v in tab["inertia_relative"][k]]
+                + [f"{tab['disturbance_scale'][k]:.17g}", f"{tab['disturbance_phase_rad'][k]:.17g}"]
+                + [f"{tab[g][k]:.17g}" for g in gain_keys]
+                + [f"{v:.17g}" for v in tab["rpf_error_at_t2_per_axis"][k]] + [f"{t2[k]:.17g}"]
+                + [f"{v:.17g}" for v in tab["steady_mean_abs_qev_per_axis"][k]]
+                + [f"{steady[k]:.17g}", f"{tab['steady_max_abs_qev'][k]:.17g}", f"{tab['settling_time_s'][k]:.17g}",
+                   f"{tab['max_abs_torque_Nm'][k]:.17g}", int(tab["rpf_clamped"][k].sum()), int(tab["rpf_flat"][k].sum())]
+            )
+
+    def run_ref(k: int) -> dict[str, Any]:
+        return {"run": int(k), "seed_sequence": {"entropy": seed, "spawn_key": [int(k)]},
+                "rpf_error_at_t2": float(t2[k]), "steady_mean_abs_qev": float(steady[k]), "finite": bool(finite[k])}
+
+    failing = np.flatnonzero(~passed)
+    reasons = []
+    for k in failing[:100]:
+        why = [] if finite[k] else ["non-finite state"]
+        if finite[k] and not ok_t2[k]:
+            why.append(f"rpf_error_at_t2 {t2[k]:.3g} >= {crit.rpf_error_at_t2_max:g}")
+        if finite[k] and not ok_steady[k]:
+            why.append(f"steady_mean_abs_qev {steady[k]:.3g} >= {crit.steady_mean_abs_qev_max:g}")
+        reasons.append({**run_ref(int(k)), "why": "; ".join(why)})
+    worst_t2 = int(np.nanargmax(np.where(finite, t2, -np.inf)))
+    worst_steady = int(np.nanargmax(np.where(finite, steady, -np.inf)))
+    summary: dict[str, Any] = {
+        "scenario": scenario.name,
+        "runs": runs,
+        "seed": seed,
+        "criteria": dataclasses.asdict(crit),
+        "passed": int(passed.sum()),
+        "pass_fraction": float(passed.mean()),
+        "failed_runs": reasons,
+        "failed_runs_listed": len(reasons),
+        "non_finite_runs": int((~finite).sum()),
+        "rpf_clamped_components": int(tab["rpf_clamped"].sum()),
+        "rpf_flat_components": int(tab["rpf_flat"].sum()),
+        "worst_rpf_error_at_t2": run_ref(worst_t2),
+        "worst_steady_mean_abs_qev": run_ref(worst_steady),
+        "rpf_error_at_t2": _percentiles(t2),
+        "steady_mean_abs_qev": _percentiles(steady),
+        "settling_time_s": _percentiles(tab["settling_time_s"]),
+        "max_abs_torque_Nm": _percentiles(tab["max_abs_torque_Nm"]),
+        "wall_time_s": wall_s,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    from sappc.analysis.plots import plot_campaign
+
+    plot_campaign(tab, out, criteria=(crit.rpf_error_at_t2_max, crit.steady_mean_abs_qev_max), title=scenario.name)
+    return summary
