@@ -13,7 +13,7 @@ Convention
   components transform as ``v_N = q_BN ⊗ v_B ⊗ q_BN^*``.
 * Kinematics: ``dq_BN/dt = 1/2 q_BN ⊗ (omega_BN_B, 0)`` with ``omega_BN_B`` the
   body rate relative to N in body components.
-* Error quaternion (SPEC_NOTES): ``q_BR = q_RN^* ⊗ q_BN`` (body relative to
+* Error quaternion (docs/paper_notes.md): ``q_BR = q_RN^* ⊗ q_BN`` (body relative to
   the desired/reference frame R), and the paper's ``C_e`` (eq. errorsystem) is
   ``C_BR``, mapping R-frame components to B-frame components.
 
@@ -162,7 +162,7 @@ def error_quaternion(q_RN: Array, q_BN: Array) -> Array:
     the shortest rotation (angle <= 180 deg).  When the true error passes
     through 180 deg the returned vector part flips sign: the error is then
     measured the short way round from the other side.  ``q_0 = 0`` exactly
-    (180 deg) is the singular point of the paper's Jacobian (SPEC_NOTES error 5);
+    (180 deg) is the singular point of the paper's Jacobian (docs/paper_notes.md, error 5);
     the controllers guard it (see ``sappc_controller.core.sappc``).
     """
     q_BR = quat_multiply(quat_conjugate(q_RN), q_BN)
@@ -211,7 +211,7 @@ def gamma_inverse_times(q_BR: Array, x: Array, q0_floor: float) -> Array:
     ``det(2 Gamma) = q0`` (the paper's remark after eq. virtualcontrol): the
     inverse is singular at 180 deg.  ``q0`` is replaced by ``max(q0, q0_floor)``
     so that the result stays finite and bounded by ``2 (1 + 1/q0_floor) |x|``
-    (SPEC_NOTES error 5).  Callers pass ``q_BR`` with ``q0 >= 0``.
+    (docs/paper_notes.md, error 5).  Callers pass ``q_BR`` with ``q0 >= 0``.
     """
     qv = q_BR[..., :3]
     q0 = np.maximum(q_BR[..., 3:], q0_floor)

@@ -15,13 +15,17 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "ConfigError",
+    "INITIAL_QUATERNION_NORM_TOL",
     "InputError",
     "QUATERNION_NORM_TOL",
     "as_finite_array",
+    "check_initial_quaternion",
     "check_positive",
+    "check_positive_int",
     "check_spd_inertia",
     "check_unit_quaternion",
     "from_kind_list",
+    "inertia_from_row_major",
     "from_mapping",
 ]
 
@@ -31,6 +35,10 @@ __all__ = [
 #: that was never normalised (e.g. the paper's q_s(0) as printed has a norm error
 #: of 3e-5 and is normalised explicitly by the scenario loader instead).
 QUATERNION_NORM_TOL = 1e-6
+#: Largest norm error accepted (and corrected) in an initial quaternion typed by hand (a scenario
+#: file, a plant node parameter): the paper prints q_s(0) with 4 decimals (norm error 3.5e-5);
+#: anything beyond 1e-3 is a typo, not rounding.
+INITIAL_QUATERNION_NORM_TOL = 1e-3
 
 
 class InputError(ValueError):
@@ -111,6 +119,50 @@ def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> Any:
     return float(x) if x.ndim == 0 else x
 
 
+def check_initial_quaternion(name: str, value: Any, *, tol: float = INITIAL_QUATERNION_NORM_TOL) -> NDArray[np.float64]:
+    """Check an initial attitude typed by hand and return it normalised.
+
+    Parameters
+    ----------
+    name : str
+        Name used in the error message (e.g. ``"initial_state.q_BN"``).
+    value : array_like
+        Scalar-last quaternion ``(x, y, z, w)``.
+    tol : float
+        Largest accepted | ||q|| - 1 | (default :data:`INITIAL_QUATERNION_NORM_TOL`).
+
+    Returns
+    -------
+    ndarray (4,)
+        ``value / ||value||``.
+
+    Raises
+    ------
+    InputError
+        If it is not 4 finite numbers.
+    ConfigError
+        If its norm differs from 1 by more than ``tol`` (a typo, not rounding).
+    """
+    q = as_finite_array(name, value, shape_tail=(4,))
+    norm = float(np.linalg.norm(q))
+    if abs(norm - 1.0) > tol:
+        raise ConfigError(f"{name} = {q.tolist()} has norm {norm:.6g}; expected a unit quaternion (x, y, z, w)")
+    return q / norm
+
+
+def check_positive_int(name: str, value: Any) -> int:
+    """Check that ``value`` is an integer >= 1 (a count: substeps, samples) and return it.
+
+    Raises
+    ------
+    ConfigError
+        If it is not an ``int`` (a ``bool`` or a float is refused) or is less than 1.
+    """
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+    return value
+
+
 def check_spd_inertia(name: str, value: ArrayLike) -> NDArray[np.float64]:
     """Check an inertia matrix (3x3, or a batch (..., 3, 3)) is symmetric positive definite.
 
@@ -139,6 +191,38 @@ def check_spd_inertia(name: str, value: ArrayLike) -> NDArray[np.float64]:
         eig = np.linalg.eigvalsh(J.reshape(-1, 3, 3))
         raise ConfigError(f"{name} must be positive definite; its eigenvalues are {_describe(eig)}") from None
     return J
+
+
+def inertia_from_row_major(name: str, value: Any) -> NDArray[np.float64]:
+    """An inertia given as 9 numbers, row major (a ROS parameter), as a 3x3 matrix.
+
+    Only the count is checked here; whoever builds on the matrix checks it with
+    :func:`check_spd_inertia` (the plant core, the controller configs), as for a scenario file.
+
+    Parameters
+    ----------
+    name : str
+        Name used in the error message (e.g. ``"inertia_kg_m2"``).
+    value : array_like
+        ``[J11, J12, J13, J21, ..., J33]`` [kg m^2].
+
+    Returns
+    -------
+    ndarray (3, 3)
+        The matrix [kg m^2].
+
+    Raises
+    ------
+    ConfigError
+        If it is not 9 numbers.
+    """
+    try:
+        flat = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{name} must be 9 numbers (row major 3x3), got {value!r}") from exc
+    if flat.size != 9:
+        raise ConfigError(f"{name} must have 9 values (row major 3x3), got {flat.size}")
+    return flat.reshape(3, 3)
 
 
 def from_mapping(cls: type, data: Any, prefix: str) -> Any:
@@ -234,5 +318,5 @@ def from_kind_list(entries: Any, kinds: dict[str, type], prefix: str) -> tuple[A
             out.append(from_mapping(kinds[kind], {k: v for k, v in entry.items() if k != "kind"}, where))
         except ConfigError as exc:  # a field's own check does not know which entry it is in
             msg = str(exc)
-            raise ConfigError(msg if msg.startswith(("unknown key", "missing key")) else f"{where}: {msg}") from None
+            raise ConfigError(msg if msg.startswith(("unknown key", "missing key", where)) else f"{where}: {msg}") from None
     return tuple(out)

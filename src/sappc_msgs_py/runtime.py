@@ -1,6 +1,6 @@
 """How every node of the project runs: start-up, readiness, the spin loop, a clean shutdown.
 
-The facts behind the choices are measured in ``ROS2_NOTES.md``:
+The facts behind the choices are measured in ``docs/ros2_notes.md``:
 
 - ``EventsExecutor`` is the fastest executor for a lockstep loop (about 3,400 round trips/s
   across processes against 2,200 for ``SingleThreadedExecutor``), but its ``spin()`` without a

@@ -1,4 +1,4 @@
-"""RPF (eq. RPF, SPEC_NOTES errors 1 and 2) and the time-varying constraint (eq. delta_i)."""
+"""RPF (eq. RPF, docs/paper_notes.md, errors 1 and 2) and the time-varying constraint (eq. delta_i)."""
 
 from __future__ import annotations
 

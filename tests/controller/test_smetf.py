@@ -1,4 +1,4 @@
-"""SMETF (eqs. Rs, solve, PS; SPEC_NOTES error 3): global solvability, shear identity, derivatives."""
+"""SMETF (eqs. Rs, solve, PS; docs/paper_notes.md, error 3): global solvability, shear identity, derivatives."""
 
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ def test_P_s_and_d_eps_d_delta_match_finite_differences() -> None:
 
 
 def test_paper_d_eps_d_delta_misses_the_denominator() -> None:
-    # SPEC_NOTES error 3: the paper's d eps_0 / d delta equals the exact value times (1 + R_z tan(theta)).
+    # docs/paper_notes.md, error 3: the paper's d eps_0 / d delta equals the exact value times (1 + R_z tan(theta)).
     z_s, delta = np.array([1.3, 0.4, 5.0]), np.array([0.5, 0.8, 2.0])
     eps, offset = smetf(z_s, delta, TAN10)
     z0 = 1.0 + offset

@@ -157,7 +157,7 @@ def test_window_edges_are_on_the_grid_start_inclusive_end_exclusive() -> None:
     [
         ({"kind": "actuator_effectiveness", "effectiveness": [1.2, 1.0, 1.0]}, "effectiveness must be in [0, 1]"),
         ({"kind": "delay", "path": "sensor", "samples": 0}, "delay.samples must be a positive integer"),
-        ({"kind": "delay", "path": "both", "samples": 1}, "delay.path must be 'sensor' or 'actuator'"),
+        ({"kind": "delay", "path": "both", "samples": 1}, "faults[0].path must be one of 'sensor', 'actuator', got 'both'"),
         ({"kind": "sensor_noise", "seed": -1}, "seed must be a non-negative integer"),
         ({"kind": "sensor_dropout", "start_s": 2.0, "end_s": 1.0}, "end_s (1.0) must be after start_s (2.0)"),
         ({"kind": "sensor_bias", "rate_bias_rad_s": [0.0, float("nan"), 0.0]}, "rate_bias_rad_s"),

@@ -51,29 +51,12 @@ from sappc_controller.core.base import ControlOutput
 
 from sappc.evaluation.history import History
 
-__all__ = ["MetricsAccumulator", "METRIC_KEYS"]
+__all__ = ["MetricsAccumulator"]
 
 Array = NDArray[np.float64]
 
 #: Time comparisons on the sampling grid allow this much rounding in k * dt [s].
 _TIME_TOL_S = 1e-9
-
-#: Keys of :meth:`MetricsAccumulator.run_metrics`, in order.
-METRIC_KEYS = (
-    "settling_time_s",
-    "steady_max_abs_qev",
-    "steady_mean_abs_qev",
-    "rpf_error_at_t2",
-    "overshoot",
-    "max_abs_torque_Nm",
-    "saturation_fraction",
-    "time_outside_constraint_s",
-    "returned_to_constraint",
-    "left_constraint_after_fault",
-    "returned_at_s",
-    "finite",
-)
-
 
 class MetricsAccumulator:
     """Closed-loop observer that accumulates the metrics of N runs without storing histories.

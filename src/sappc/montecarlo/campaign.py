@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.validation import ConfigError
+from sappc_controller.core.rpf import InfeasiblePolicy
 from sappc.evaluation.history import both
 from sappc.montecarlo.config import campaign_config
 from sappc.montecarlo.draws import NoisySensor, dispersed_disturbance, draw_inputs
@@ -98,7 +99,7 @@ def simulate_runs(
         metrics, controller = run_scenario(
             scenario,
             controller_config=config,
-            controller_options={"on_infeasible": "clamp"} if scenario.controller == ControllerKind.SAPPC else {},
+            controller_options={"on_infeasible": InfeasiblePolicy.CLAMP} if scenario.controller == ControllerKind.SAPPC else {},
             q_BN0=inputs.q_BN0,
             omega_BN_B0_rad_s=inputs.omega_BN_B0,
             inertia_kg_m2=J,

@@ -24,7 +24,7 @@ Law (Appendix C):
 ``(rho_u + rho_l) / 2``.  ``S_d`` comes from the same dynamic-surface filter as
 SAPPC (:class:`~.common.DynamicSurfaceFilter`).
 
-SPEC_NOTES observation 6: the term ``-2 K3 Gamma^-1 D_rho eps`` is meant to
+docs/paper_notes.md, observation 6: the term ``-2 K3 Gamma^-1 D_rho eps`` is meant to
 cancel the cross term between the two backstepping layers; differentiating the
 log-barrier gives ``Gamma^T`` there, not ``Gamma^-1``.  This module implements
 the benchmark as the appendix writes it (``Gamma^-1``), because it is the

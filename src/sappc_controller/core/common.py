@@ -32,7 +32,7 @@ def predefined_time_gain(V: Array, p: float, T: float, V_floor: float) -> Array:
     """``M = exp(V^p) V^(-p) / (2 p T)`` (eqs. for M_q, M_omega and eq. dSd).
 
     ``M`` grows without bound as ``V -> 0`` and is undefined at ``V = 0``
-    (SPEC_NOTES error 4).  A sampled controller evaluates it at
+    (docs/paper_notes.md, error 4).  A sampled controller evaluates it at
     ``max(V, V_floor)``: ``M`` is decreasing on ``(0, 1)`` (its derivative is
     ``p exp(V^p) V^(-p-1) (V^p - 1)``), so this caps the gain at
     ``M(V_floor)`` and leaves it unchanged for ``V >= V_floor``.
@@ -58,7 +58,7 @@ class DynamicSurfaceFilter:
 
     Eq. (dSd) is ``dS_d/dt = -M3 H_d`` with ``H_d = S_d - alpha`` and
     ``M3 = exp(V3^p) V3^(-p) / (2 p T3)``, ``V3 = |H_d|^2 / 2``.  Forward Euler
-    is unstable once ``M3 dt > 2``, which happens as ``H_d -> 0`` (SPEC_NOTES
+    is unstable once ``M3 dt > 2``, which happens as ``H_d -> 0`` (docs/paper_notes.md
     error 4).  The update here freezes ``M3`` and ``alpha`` over one step and
     integrates exactly:
 
@@ -167,7 +167,7 @@ class ActuatorConfig:
         Per-axis saturation: commands are clipped to ``[-max, max]``.
     min_torque_Nm : float
         Smallest producible magnitude: commands with ``|u_i| < min`` give 0
-        (SPEC_NOTES reading of "minimum output"); 0 disables it.
+        (docs/paper_notes.md reading of "minimum output"); 0 disables it.
     """
 
     max_torque_Nm: float = 0.5

@@ -8,7 +8,7 @@ The RPF of one error component is
 
 with value and slope continuous at ``t1`` and ``t2``.
 
-Coefficients (SPEC_NOTES error 1)
+Coefficients (docs/paper_notes.md, error 1)
 ---------------------------------
 The paper's eq. (RPFsolve) has ``k`` for ``l`` and a wrong ``a1``.  Matching
 slopes at ``t1`` gives ``a1 = l (rho_e0 - rho_einf) exp(-l t1) / (2 (t2 - t1))``;
@@ -31,13 +31,13 @@ the largest root ``s`` in ``(0, t2]``.  That is the ``W_0`` root whenever it
 lies in ``(0, t2]`` (the parabola then takes over as early as possible, which
 gives the gentlest landing on ``g_inf``), and the ``W_-1`` root otherwise.
 
-Feasible range of ``l`` (SPEC_NOTES error 2)
+Feasible range of ``l`` (docs/paper_notes.md, error 2)
 --------------------------------------------
 ``f`` rises on ``s < 1/l`` and falls after, so a root in ``(0, t2]`` exists iff
 ``min(f(0), f(t2)) <= G <= f(min(1/l, t2))``.  In closed form
 ``l_lower <= l <= l_upper`` with
 
-    l_upper = ln(e A / (2 G)) / t2          if A >= 2 G   (the bound of SPEC_NOTES)
+    l_upper = ln(e A / (2 G)) / t2          if A >= 2 G   (the bound of docs/paper_notes.md)
             = 2 (1 - G / A) / t2            otherwise,
     l_lower = min(ln(A / G), 2 (1 - G / A)) / t2.
 
@@ -72,14 +72,14 @@ paper's sign rule after eq. RPF); ``e(0) = 0`` takes ``+1``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from enum import Enum
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gnc_common.validation import ConfigError, check_positive
 
-__all__ = ["InfeasibleRPFError", "RPFParameters", "ReferencePerformanceFunction", "constraint_bound", "feasible_l_range"]
+__all__ = ["InfeasiblePolicy", "InfeasibleRPFError", "RPFParameters", "ReferencePerformanceFunction", "constraint_bound", "feasible_l_range"]
 
 Array = NDArray[np.float64]
 
@@ -182,6 +182,13 @@ def feasible_l_range(rho_e0: ArrayLike, rho_einf: float, g_inf: float, t2: float
     return np.where(bad, np.nan, lower), np.where(bad, np.nan, upper)
 
 
+class InfeasiblePolicy(str, Enum):
+    """What :class:`ReferencePerformanceFunction` does with a component whose ``l`` is infeasible."""
+
+    RAISE = "raise"  #: raise :class:`InfeasibleRPFError` naming ``l`` and the feasible range
+    CLAMP = "clamp"  #: move ``l`` to the nearest bound and flag the component (Monte Carlo campaigns)
+
+
 class ReferencePerformanceFunction:
     """The RPF of eq. (RPF) for a batch of error components, shape (N, 3).
 
@@ -192,7 +199,7 @@ class ReferencePerformanceFunction:
     e0 : array_like, shape (N, 3) or (3,)
         Initial error of each component (``q_ev(0)``); gives the sign, and the
         initial magnitude when ``params.rho_e0`` is ``None``.
-    on_infeasible : {"raise", "clamp"}
+    on_infeasible : InfeasiblePolicy or {"raise", "clamp"}
         What to do when ``l`` is outside the feasible range of a component
         whose initial magnitude exceeds ``g_inf``.  ``"raise"`` (default)
         raises :class:`InfeasibleRPFError` naming ``l`` and the range;
@@ -215,10 +222,12 @@ class ReferencePerformanceFunction:
         params: RPFParameters,
         e0: ArrayLike,
         *,
-        on_infeasible: Literal["raise", "clamp"] = "raise",
+        on_infeasible: InfeasiblePolicy | str = InfeasiblePolicy.RAISE,
     ) -> None:
-        if on_infeasible not in ("raise", "clamp"):
-            raise ConfigError(f"on_infeasible must be 'raise' or 'clamp', got {on_infeasible!r}")
+        try:
+            policy = InfeasiblePolicy(on_infeasible)
+        except ValueError:
+            raise ConfigError(f"on_infeasible must be 'raise' or 'clamp', got {on_infeasible!r}") from None
         e0_arr = np.atleast_2d(np.asarray(e0, dtype=np.float64))
         self.params = params
         self.sign: Array = np.where(e0_arr >= 0.0, 1.0, -1.0)
@@ -231,7 +240,7 @@ class ReferencePerformanceFunction:
         too_high = params.l > l_upper * (1.0 + _FEASIBILITY_RTOL)
         too_low = params.l < l_lower * (1.0 - _FEASIBILITY_RTOL)
         infeasible = ~self.flat & (too_high | too_low)
-        if np.any(infeasible) and on_infeasible == "raise":
+        if np.any(infeasible) and policy is InfeasiblePolicy.RAISE:
             k = tuple(int(i) for i in np.argwhere(infeasible)[0])
             raise InfeasibleRPFError(
                 _infeasible_message(params.l, rho_e0[k], rho_einf, g_inf, t2, l_lower[k], l_upper[k]) + f" (run {k[0]}, component {k[1]})"

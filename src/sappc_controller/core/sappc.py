@@ -11,7 +11,7 @@ The law (eqs. virtualcontrol, U, dSd):
 so the law lives in :class:`BacksteppingPPC`, parameterised by an
 :class:`ErrorTransformation`.
 
-SPEC_NOTES observation 7: with ``omega_e = z2 + H_d + alpha``, ``dV1/dt``
+docs/paper_notes.md, observation 7: with ``omega_e = z2 + H_d + alpha``, ``dV1/dt``
 contains ``eps^T psi Gamma (z2 + H_d)``, which the paper's analysis drops and
 the published law does not cancel.  This module implements the published law.
 """
@@ -29,7 +29,7 @@ from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.common import ActuatorConfig, DynamicSurfaceFilter, ErrorState, predefined_time_gain, robust_term, w0_dynamics
-from sappc_controller.core.rpf import ReferencePerformanceFunction, RPFParameters, constraint_bound
+from sappc_controller.core.rpf import InfeasiblePolicy, ReferencePerformanceFunction, RPFParameters, constraint_bound
 from sappc_controller.core.smetf import smetf, smetf_derivatives
 
 __all__ = [
@@ -67,9 +67,9 @@ class BacksteppingGains:
     mu_rad_s : float
         Smoothing width of ``tanh(z2 / mu)`` [rad/s] (Lemma 1; same for all axes).
     V_floor : float
-        Floor of ``V`` in the predefined-time gains (SPEC_NOTES error 4), in (0, 1].
+        Floor of ``V`` in the predefined-time gains (docs/paper_notes.md, error 4), in (0, 1].
     q0_floor : float
-        Floor of ``q_e0`` in ``Gamma^-1`` (SPEC_NOTES error 5), in (0, 1).
+        Floor of ``q_e0`` in ``Gamma^-1`` (docs/paper_notes.md, error 5), in (0, 1).
     """
 
     K_q: float
@@ -139,11 +139,11 @@ class SappcTransformation:
         Constraint constant: the band is ``|q_ev,i - rho_i| < B0``.
     theta_rad : float
         Shear angle in (0, pi/2).
-    on_infeasible : {"raise", "clamp"}
+    on_infeasible : InfeasiblePolicy or {"raise", "clamp"}
         Passed to :class:`ReferencePerformanceFunction`.
     """
 
-    def __init__(self, rpf: RPFParameters, B0: float, theta_rad: float, *, on_infeasible: str = "raise") -> None:
+    def __init__(self, rpf: RPFParameters, B0: float, theta_rad: float, *, on_infeasible: InfeasiblePolicy | str = InfeasiblePolicy.RAISE) -> None:
         self.rpf_params = rpf
         self.B0 = B0
         self.tan_theta = float(np.tan(theta_rad))
@@ -153,7 +153,7 @@ class SappcTransformation:
         self._prev: tuple[Array, Array, Array, Array, Array] | None = None
 
     def start(self, q_ev0: Array) -> None:
-        self.rpf = ReferencePerformanceFunction(self.rpf_params, q_ev0, on_infeasible=self.on_infeasible)  # type: ignore[arg-type]
+        self.rpf = ReferencePerformanceFunction(self.rpf_params, q_ev0, on_infeasible=self.on_infeasible)
         self._prev = None
 
     def reset(self) -> None:
@@ -169,7 +169,7 @@ class SappcTransformation:
         prev = self._prev
         guess = None if prev is None else prev[0] + prev[1] * (z - prev[2]) + prev[3] * (delta - prev[4])
         eps, z0_offset = smetf(z, delta, self.tan_theta, guess)  # eqs. Rs, solve, chosenfunction
-        P_s, d_eps_d_delta = smetf_derivatives(eps, z0_offset, delta, self.tan_theta)  # eq. PS, SPEC_NOTES error 3
+        P_s, d_eps_d_delta = smetf_derivatives(eps, z0_offset, delta, self.tan_theta)  # eq. PS, docs/paper_notes.md, error 3
         self._prev = (eps, P_s, z, d_eps_d_delta, delta)
         return Transformed(
             eps=eps,
@@ -283,12 +283,12 @@ class SappcController(BacksteppingPPC):
     Parameters
     ----------
     config : SappcConfig
-    on_infeasible : {"raise", "clamp"}
+    on_infeasible : InfeasiblePolicy or {"raise", "clamp"}
         RPF policy for infeasible components (see :mod:`.rpf`); ``"raise"``
         unless a Monte Carlo campaign asks otherwise.
     """
 
-    def __init__(self, config: SappcConfig, *, on_infeasible: str = "raise") -> None:
+    def __init__(self, config: SappcConfig, *, on_infeasible: InfeasiblePolicy | str = InfeasiblePolicy.RAISE) -> None:
         self.config = config
         super().__init__(
             config.inertia_kg_m2,

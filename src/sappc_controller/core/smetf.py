@@ -36,10 +36,10 @@ Derivatives
 * ``P_s = d eps / d z_s = P_0 / (1 + k P_0)`` (eq. P0PS) with
   ``P_0 = (1 + eps^2) / a`` (eq. P0i); evaluated as ``1 / (k + a / (1 + eps^2))``,
   which cannot overflow.  Same as eq. (PS).
-* ``d eps / d delta`` (SPEC_NOTES error 3): implicit differentiation of
+* ``d eps / d delta`` (docs/paper_notes.md, error 3): implicit differentiation of
   ``h(eps, delta) = w`` gives ``(2/pi) arctan(eps) + h_eps d eps/d delta = 0``, so
   ``d eps / d delta = -(2/pi) arctan(eps) P_s = -((z0 - 1)/delta) P_s``.  This
-  equals ``R_delta / (1 + k R_z)`` of SPEC_NOTES; the paper's ``d eps_0 / d delta``
+  equals ``R_delta / (1 + k R_z)`` of docs/paper_notes.md; the paper's ``d eps_0 / d delta``
   misses the denominator.  The
   sign claim of eq. (SupControl) still holds: ``eps d eps/d delta <= 0``.
 """
@@ -122,7 +122,7 @@ def smetf_derivatives(eps: Array, z0_offset: Array, delta: Array, tan_theta: flo
         ``d eps_s / d z_s`` (eq. PS).
     d_eps_d_delta : ndarray
         ``d eps_s / d delta = -(2/pi) arctan(eps) P_s = -((z0 - 1) / delta) P_s``,
-        exact (SPEC_NOTES error 3).
+        exact (docs/paper_notes.md, error 3).
     """
     P_s = 1.0 / (tan_theta + (_TWO_OVER_PI * delta) / (1.0 + eps * eps))
     return P_s, -(z0_offset / delta) * P_s

@@ -1,7 +1,7 @@
 """Actuator, sensor and link faults, applied to samples travelling between plant and controller.
 
 The injector node relays the controller's torque to the plant and the plant's state to the
-controller through these models (ARCHITECTURE.md, "Faults"); they are pure numpy, so any other
+controller through these models (README, "Faults"); they are pure numpy, so any other
 caller gets the same faulty samples.  Each fault acts in a window ``start_s <= t < end_s``
 (``end_s`` omitted: until the end), compared with
 :data:`~spacecraft_sim.core.disturbance.TIME_TOLERANCE_S`, where ``t`` is the sample's stamp.
@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -40,7 +41,7 @@ from gnc_common.attitude import quat_multiply, quat_normalize, rotation_vector_t
 from spacecraft_sim.core.disturbance import TIME_TOLERANCE_S
 from gnc_common.validation import ConfigError, as_finite_array, check_positive, from_kind_list
 
-__all__ = ["FAULT_KINDS", "FaultSchedule", "faults_from_list", "noisy_measurement"]
+__all__ = ["FAULT_KINDS", "FaultPath", "FaultSchedule", "faults_from_list", "noisy_measurement"]
 
 Array = NDArray[np.float64]
 
@@ -143,16 +144,25 @@ class SensorFreeze(_Windowed):
         _window_check(self)
 
 
+class FaultPath(str, Enum):
+    """The link a delay acts on."""
+
+    SENSOR = "sensor"  #: plant -> controller (the measured state)
+    ACTUATOR = "actuator"  #: controller -> plant (the torque command)
+
+
 @dataclass(frozen=True)
 class Delay(_Windowed):
-    path: str
+    path: FaultPath
     samples: int
     start_s: float = 0.0
     end_s: float | None = None
 
     def __post_init__(self) -> None:
-        if self.path not in ("sensor", "actuator"):
-            raise ConfigError(f"delay.path must be 'sensor' or 'actuator', got {self.path!r}")
+        try:
+            object.__setattr__(self, "path", FaultPath(self.path))
+        except ValueError:
+            raise ConfigError(f"delay.path must be 'sensor' or 'actuator', got {self.path!r}") from None
         if not isinstance(self.samples, int) or isinstance(self.samples, bool) or self.samples < 1:
             raise ConfigError(f"delay.samples must be a positive integer, got {self.samples!r}")
         _window_check(self)
@@ -213,11 +223,11 @@ class FaultSchedule:
 
     @property
     def has_sensor_faults(self) -> bool:
-        return any(isinstance(f, _SENSOR) or (isinstance(f, Delay) and f.path == "sensor") for f in self.faults)
+        return any(isinstance(f, _SENSOR) or (isinstance(f, Delay) and f.path is FaultPath.SENSOR) for f in self.faults)
 
     @property
     def has_actuator_faults(self) -> bool:
-        return any(isinstance(f, _ACTUATOR) or (isinstance(f, Delay) and f.path == "actuator") for f in self.faults)
+        return any(isinstance(f, _ACTUATOR) or (isinstance(f, Delay) and f.path is FaultPath.ACTUATOR) for f in self.faults)
 
     def events(self) -> list[tuple[float, float]]:
         """Windows of every fault (for marking plots and metrics)."""
@@ -245,7 +255,7 @@ class FaultSchedule:
                 out = np.asarray(f.effectiveness) * out
             elif isinstance(f, ActuatorBias) and f.active(t):
                 out = out + np.asarray(f.bias_Nm)
-            elif isinstance(f, ActuatorStuck) or (isinstance(f, Delay) and f.path == "actuator"):
+            elif isinstance(f, ActuatorStuck) or (isinstance(f, Delay) and f.path is FaultPath.ACTUATOR):
                 out = np.array(self._delayed(i, f, t, out))
         return out
 
@@ -263,6 +273,6 @@ class FaultSchedule:
                 w = w + np.asarray(f.rate_bias_rad_s)
             elif isinstance(f, SensorDropout) and f.active(t):
                 return None
-            elif isinstance(f, SensorFreeze) or (isinstance(f, Delay) and f.path == "sensor"):
+            elif isinstance(f, SensorFreeze) or (isinstance(f, Delay) and f.path is FaultPath.SENSOR):
                 q, w = (np.array(v) for v in self._delayed(i, f, t, (q, w)))
         return q, w

@@ -4,7 +4,7 @@
     omega_d(t) = A [cos(t/40), sin(t/30), -cos(t/50)],      A = 0.573 deg/s
 
 ``omega_d`` is the rate of the desired frame R relative to N in R components
-(``omega_RN_R``).  SPEC_NOTES: the amplitude is in deg/s (0.573 deg/s = 0.01
+(``omega_RN_R``).  docs/paper_notes.md: the amplitude is in deg/s (0.573 deg/s = 0.01
 rad/s); read as rad/s the 0.5 N m actuator could not follow it.  ``q_RN`` is
 integrated from ``dq_RN/dt = 1/2 q_RN ⊗ (omega_RN_R, 0)``; ``omegadot_RN_R``
 is analytic.

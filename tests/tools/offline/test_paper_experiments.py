@@ -1,6 +1,6 @@
 """Closed-loop regression tests: the paper's experiments 1 to 3 against the paper's reported numbers.
 
-Each check is a claim of the paper (SPEC_NOTES, "what reproduced means"), evaluated on this
+Each check is a claim of the paper (docs/paper_notes.md, "what reproduced means"), evaluated on this
 implementation with the gains of config/scenarios/*.yaml.  Where a benchmark does not behave as
 the paper reports, the test pins what it does and README.md says so.
 """
