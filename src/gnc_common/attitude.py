@@ -70,23 +70,27 @@ _I201 = np.array([2, 0, 1])
 
 def dot(a: Array, b: Array) -> Array:
     """Row-wise dot product of (..., n) arrays, shape (...): ``((a0 b0 + a1 b1) + a2 b2) ...``."""
-    aT, bT = a.T, b.T
-    acc = aT[0] * bT[0]
+    aT: Array = a.T
+    bT: Array = b.T
+    acc: Array = aT[0] * bT[0]
     for i in range(1, aT.shape[0]):
         acc = acc + aT[i] * bT[i]
-    return acc.T
+    row_sums: Array = acc.T
+    return row_sums
 
 
 def matvec(M: Array, v: Array) -> Array:
     """``M v`` per row for a shared (3, 3) or per-run (N, 3, 3) matrix and (..., 3) vectors."""
-    vT = v.T
+    vT: Array = v.T
+    out: Array
     if M.ndim == 2:
         col = (3,) + (1,) * (vT.ndim - 1)
         out = M[:, 0].reshape(col) * vT[0] + M[:, 1].reshape(col) * vT[1] + M[:, 2].reshape(col) * vT[2]
     else:
-        MT = M.T  # MT[j, i, n] = M[n, i, j]
+        MT: Array = M.T  # MT[j, i, n] = M[n, i, j]
         out = MT[0] * vT[0] + MT[1] * vT[1] + MT[2] * vT[2]
-    return out.T
+    out_T: Array = out.T
+    return out_T
 
 
 class Linear3:
@@ -110,8 +114,10 @@ class Linear3:
 
 def cross(a: Array, b: Array) -> Array:
     """Row-wise cross product ``a × b`` of (..., 3) arrays."""
-    aT, bT = a.T, b.T
-    return (aT.take(_I120, axis=0) * bT.take(_I201, axis=0) - aT.take(_I201, axis=0) * bT.take(_I120, axis=0)).T
+    aT: Array = a.T
+    bT: Array = b.T
+    c: Array = (aT.take(_I120, axis=0) * bT.take(_I201, axis=0) - aT.take(_I201, axis=0) * bT.take(_I120, axis=0)).T
+    return c
 
 
 def from_scalar_first(q_wxyz: ArrayLike) -> Array:
@@ -138,7 +144,8 @@ def quat_multiply(p: Array, q: Array) -> Array:
 
 def quat_conjugate(q: Array) -> Array:
     """Conjugate (inverse of a unit quaternion): ``(-q_v, q_0)``."""
-    return q * np.array([-1.0, -1.0, -1.0, 1.0])
+    conj: Array = q * np.array([-1.0, -1.0, -1.0, 1.0])
+    return conj
 
 
 def quat_normalize(q: Array) -> Array:
@@ -247,5 +254,5 @@ def euler_to_quaternion(angles_rad: ArrayLike, sequence: str) -> Array:
     """
     from scipy.spatial.transform import Rotation
 
-    q = Rotation.from_euler(sequence, np.asarray(angles_rad, dtype=np.float64)).as_quat()
+    q: Array = Rotation.from_euler(sequence, np.asarray(angles_rad, dtype=np.float64)).as_quat()
     return np.where(q[..., 3:] < 0.0, -q, q)

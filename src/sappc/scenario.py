@@ -30,7 +30,9 @@ from gnc_common.validation import (
     ConfigError,
     InputError,
     as_finite_array,
+    check_initial_quaternion,
     check_positive,
+    check_positive_int,
     check_spd_inertia,
     from_mapping,
 )
@@ -38,11 +40,6 @@ from gnc_common.validation import (
 __all__ = ["ControllerKind", "MetricSettings", "Scenario", "controller_kind", "load_scenario", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
-
-#: Largest norm error accepted (and corrected) in an initial quaternion typed
-#: into a scenario file: the paper prints q_s(0) with 4 decimals (norm error
-#: 3.5e-5); anything beyond 1e-3 is a typo, not rounding.
-INITIAL_QUATERNION_NORM_TOL = 1e-3
 
 
 class ControllerKind(str, Enum):
@@ -210,17 +207,12 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     if not isinstance(plant, dict) or set(plant) - {"inertia_kg_m2", "rk4_substeps"} or "inertia_kg_m2" not in plant:
         raise ConfigError(f"plant must be a mapping with inertia_kg_m2 and optional rk4_substeps, got {plant!r}")
     J = check_spd_inertia("plant.inertia_kg_m2", plant["inertia_kg_m2"])
-    substeps = plant.get("rk4_substeps", 1)
-    if not isinstance(substeps, int) or isinstance(substeps, bool) or substeps < 1:
-        raise ConfigError(f"plant.rk4_substeps must be a positive integer, got {substeps!r}")
+    substeps = check_positive_int("plant.rk4_substeps", plant.get("rk4_substeps", 1))
 
     init = data["initial_state"]
     if not isinstance(init, dict) or set(init) != {"q_BN", "omega_BN_B_rad_s"}:
         raise ConfigError(f"initial_state must have exactly q_BN and omega_BN_B_rad_s, got {init!r}")
-    q0 = as_finite_array("initial_state.q_BN", init["q_BN"], shape_tail=(4,))
-    norm = float(np.linalg.norm(q0))
-    if abs(norm - 1.0) > INITIAL_QUATERNION_NORM_TOL:
-        raise ConfigError(f"initial_state.q_BN = {list(q0)} has norm {norm:.6g}; expected a unit quaternion (x, y, z, w)")
+    q0 = check_initial_quaternion("initial_state.q_BN", init["q_BN"])  # normalised
     w0 = as_finite_array("initial_state.omega_BN_B_rad_s", init["omega_BN_B_rad_s"], shape_tail=(3,))
 
     reference = from_mapping(PaperReference, dict(data.get("reference", {})), "reference") if data.get("reference") is not None else PaperReference()
@@ -242,7 +234,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
         control_period_s=dt,
         rk4_substeps=substeps,
         inertia_kg_m2=J,
-        q_BN0=q0 / norm,
+        q_BN0=q0,
         omega_BN_B0_rad_s=w0,
         reference=reference,
         disturbance=disturbance,

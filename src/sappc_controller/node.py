@@ -49,7 +49,6 @@ from sappc_msgs_py.contract import (
     CLOCK,
     CONTROL_TORQUE,
     CONTROLLER_DIAGNOSTICS,
-    CONTROLLER_INPUTS,
     qos_profile,
 )
 from sappc_msgs_py.convert import (
@@ -64,15 +63,14 @@ from sappc_msgs_py.runtime import LOCKSTEP, REALTIME, ProjectNode, run_node
 from gnc_common.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 
 from sappc_controller.core.base import AttitudeController
+from sappc_controller.inputs import INPUT_TOPICS, NS_PER_S, STEP_ERRORS, ControlSample, LatestInputs, LockstepPairing, step_sample
 from sappc_controller.params import CONTROLLER_CLASSES, DEFAULT_CONTROL_PERIOD_S, config_from_parameters, config_parameter_names
 
 __all__ = ["ControllerNode", "main"]
 
-#: The five inputs of one control step, by topic.
-_INPUTS = CONTROLLER_INPUTS
-#: Largest number of stamps waiting for their other inputs (lockstep); older ones are dropped.
-_MAX_PENDING = 64
-_NS = 1_000_000_000
+#: The five inputs of one control step, by topic (paired by :mod:`sappc_controller.inputs`).
+_INPUTS = INPUT_TOPICS
+_NS = NS_PER_S
 
 
 class ControllerNode(ProjectNode):
@@ -105,8 +103,8 @@ class ControllerNode(ProjectNode):
         self._last_ns: int | None = None  # stamp of the last computed sample
         self._last_state_ns: int | None = None  # stamp of the last valid state pair
         self._clock_ns: int | None = None  # lockstep: the latest /clock
-        self._pending: dict[int, dict[str, np.ndarray]] = {}  # lockstep: stamp -> inputs
-        self._latest: dict[str, tuple[int, np.ndarray]] = {}  # real time: topic -> (stamp, value)
+        self._pending = LockstepPairing(_INPUTS)  # lockstep: the inputs of each stamp until complete
+        self._latest = LatestInputs(_INPUTS)  # real time: the latest input of each topic
         self._diag_rows = {k: np.zeros(3) for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
         if self.mode == LOCKSTEP:
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
@@ -170,7 +168,7 @@ class ControllerNode(ProjectNode):
         except InputError as exc:
             self._reject(str(exc))
             return
-        last = self._last_ns if self.mode == LOCKSTEP else self._latest.get(topic.name, (None,))[0]
+        last = self._last_ns if self.mode == LOCKSTEP else self._latest.last_ns(topic.name)
         if last is not None and ns <= last:
             what = "the last computed sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
             self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is in the past (not after {what}, {last / _NS:.9f} s)")
@@ -180,15 +178,11 @@ class ControllerNode(ProjectNode):
             self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is more than {self.max_ahead_ns / _NS} s ahead of the controller's time {now / _NS:.9f} s")
             return
         if self.mode == REALTIME:
-            self._latest[topic.name] = (ns, value)
+            self._latest.add(topic.name, ns, value)
             return
-        entry = self._pending.setdefault(ns, {})
-        entry[topic.name] = value
-        if len(entry) == len(_INPUTS):
-            del self._pending[ns]
-            self._compute(ns, [ns] * len(_INPUTS), *(entry[t.name] for t in _INPUTS))
-        elif len(self._pending) > _MAX_PENDING:
-            del self._pending[min(self._pending)]
+        sample = self._pending.add(topic.name, ns, value)
+        if sample is not None:
+            self._compute(sample)
 
     # ---- control instants -----------------------------------------------------------------
     def _on_clock(self, msg: Any) -> None:
@@ -199,20 +193,20 @@ class ControllerNode(ProjectNode):
     def _on_timer(self) -> None:
         self._tick_wall_ns.append(time.monotonic_ns())
         now = self.get_clock().now().nanoseconds
-        latest = self._latest
-        if not all(t.name in latest for t in _INPUTS):
+        sample = self._latest.sample_at(now)
+        if sample is None:
             return  # not started
-        oldest = min(v[0] for v in latest.values())
-        if now - oldest > self.stale_timeout_ns:
+        if now - self._latest.oldest_ns > self.stale_timeout_ns:
             self._publish_zero(now, f"inputs older than {self.stale_timeout_ns / _NS} s")
             return
-        self._compute(now, [latest[t.name][0] for t in _INPUTS], *(latest[t.name][1] for t in _INPUTS))
+        self._compute(sample)
 
-    def _compute(self, t_ns: int, input_ns: list[int], q: np.ndarray, w: np.ndarray, q_d: np.ndarray, w_d: np.ndarray, wdot_d: np.ndarray) -> None:
-        """One control step at ``t_ns`` on the five inputs (stamped ``input_ns``, in :data:`_INPUTS` order)."""
+    def _compute(self, sample: ControlSample) -> None:
+        """One control step on a complete sample (the inputs paired by :mod:`sappc_controller.inputs`)."""
+        t_ns, input_ns = sample.t_ns, list(sample.input_ns)
         try:
-            out = self.controller.step(t_ns / _NS, self.dt, q, w, q_d, w_d, wdot_d)
-        except (InputError, FloatingPointError, ConfigError) as exc:
+            out = step_sample(self.controller, self.dt, sample)
+        except STEP_ERRORS as exc:
             self.get_logger().error(f"control step at {t_ns / _NS:.9f} s failed: {exc}; commanding zero torque")
             self._publish_zero(t_ns, "control step failed")
             return

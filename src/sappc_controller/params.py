@@ -58,7 +58,7 @@ _SHARED = ("inertia_kg_m2", "actuator")
 
 def _is_dataclass_type(hint: Any) -> type | None:
     options = [h for h in typing.get_args(hint) if h is not type(None)] or [hint]
-    return next((h for h in options if dataclasses.is_dataclass(h)), None)
+    return next((h for h in options if isinstance(h, type) and dataclasses.is_dataclass(h)), None)
 
 
 def _leaves(cls: type, prefix: str) -> list[tuple[str, Any]]:

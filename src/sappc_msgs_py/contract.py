@@ -22,7 +22,11 @@ topic                         type                            frame_id    conten
 When the fault injector relays a path (``python -m spacecraft_sim.disturbance``), it republishes
 the faulty samples under ``fault/`` (``fault/state/attitude``, ``fault/state/rate``,
 ``fault/control/torque``, same types and frames) and the consumer is remapped to them
-(``--ros-args -r state/attitude:=fault/state/attitude``); the originals stay the truth.
+(``--ros-args -r state/attitude:=fault/state/attitude``); the originals stay the truth.  This
+module is the one place that says which topics are relayed (:data:`RELAYED_SENSOR_TOPICS`,
+:data:`RELAYED_ACTUATOR_TOPICS`, :data:`RELAYED_TOPICS`, :data:`FAULT_TOPICS`), how a consumer
+is remapped (:func:`relay_remaps`) and which names a consumer may have read
+(:func:`consumed_names`).
 
 Quaternions are ``geometry_msgs/Quaternion`` ``(x, y, z, w)``, the project's own scalar-last
 order (``gnc_common.attitude``): no reordering happens anywhere.  The two state topics
@@ -35,6 +39,7 @@ would do for the loop; a best-effort publisher and a reliable subscriber never m
 from __future__ import annotations
 
 import functools
+from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import Enum
 
@@ -46,17 +51,23 @@ __all__ = [
     "DIAGNOSTICS_LAYOUT",
     "DISTURBANCE_TORQUE",
     "FAULT_PREFIX",
+    "FAULT_TOPICS",
     "Frame",
     "QOS_DEPTH",
     "REFERENCE_ACCELERATION",
     "REFERENCE_ATTITUDE",
     "REFERENCE_RATE",
+    "RELAYED_ACTUATOR_TOPICS",
+    "RELAYED_SENSOR_TOPICS",
+    "RELAYED_TOPICS",
     "STATE_ATTITUDE",
     "STATE_RATE",
     "TOPICS",
     "Topic",
+    "consumed_names",
     "faulty",
     "qos_profile",
+    "relay_remaps",
 ]
 
 #: History depth of every topic.  A reliable writer can only repair what is still in its history:
@@ -124,6 +135,40 @@ FAULT_PREFIX = "fault/"
 def faulty(topic: Topic) -> Topic:
     """The relay's output topic for ``topic`` (same type and frame, under :data:`FAULT_PREFIX`)."""
     return Topic(FAULT_PREFIX + topic.name, topic.type_name, topic.frame_id)
+
+
+#: The measurements a sensor-fault relay republishes (the controller is remapped to their
+#: :func:`faulty` twins), in the order of ``FaultSchedule.sensor(t, stamp, q_BN, omega_BN_B)``.
+RELAYED_SENSOR_TOPICS = (STATE_ATTITUDE, STATE_RATE)
+#: The command an actuator-fault relay republishes (the plant is remapped to its :func:`faulty` twin).
+RELAYED_ACTUATOR_TOPICS = (CONTROL_TORQUE,)
+#: Every topic a fault relay may republish (the originals).
+RELAYED_TOPICS = RELAYED_SENSOR_TOPICS + RELAYED_ACTUATOR_TOPICS
+#: The relays' outputs, :func:`faulty` of each of :data:`RELAYED_TOPICS`.
+FAULT_TOPICS = tuple(faulty(t) for t in RELAYED_TOPICS)
+
+
+def relay_remaps(topics: Iterable[Topic]) -> list[str]:
+    """The ``--ros-args`` remap arguments that move a consumer of ``topics`` to the relay's outputs.
+
+    Parameters
+    ----------
+    topics : iterable of Topic
+        Relayed topics the consumer subscribes to (e.g. :data:`RELAYED_SENSOR_TOPICS` for the
+        controller).
+
+    Returns
+    -------
+    list of str
+        ``["-r", "state/attitude:=fault/state/attitude", ...]``, one pair per topic.
+    """
+    return [arg for t in topics for arg in ("-r", f"{t.name}:={faulty(t).name}")]
+
+
+def consumed_names(topic: Topic) -> tuple[str, ...]:
+    """The names under which a consumer of ``topic`` may have received it, the one to prefer first:
+    the relay's output, then the original, for a relayed topic; the original alone otherwise."""
+    return (faulty(topic).name, topic.name) if topic in RELAYED_TOPICS else (topic.name,)
 
 
 #: The controller's five inputs, in the order of ``AttitudeController.step(t, dt, q, w, q_d, w_d, wdot_d)``.

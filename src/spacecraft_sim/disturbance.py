@@ -9,10 +9,12 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
   ``k + 1``, one ahead so that it is never on the loop's critical path;
   ``realtime``: on a wall-clock timer of period ``control_period_s``, at the time elapsed since
   its first tick).  The plant adds it to the control torque (``use_disturbance_topic``).
-- faults, by relaying topics: with sensor faults it subscribes to ``state/attitude`` and
-  ``state/rate``, pairs them by stamp and republishes the faulty measurement on
-  ``fault/state/*`` (the controller is remapped to those); with actuator faults it relays
-  ``control/torque`` to ``fault/control/torque`` (the plant is remapped to it).
+- faults, by relaying the contract's relayed topics
+  (:data:`~sappc_msgs_py.contract.RELAYED_SENSOR_TOPICS`,
+  :data:`~sappc_msgs_py.contract.RELAYED_ACTUATOR_TOPICS`): with sensor faults it subscribes
+  to ``state/attitude`` and ``state/rate``, pairs them by stamp and republishes the faulty
+  measurement on ``fault/state/*`` (the controller is remapped to those); with actuator faults
+  it relays ``control/torque`` to ``fault/control/torque`` (the plant is remapped to it).
 
 Parameters: ``schedule_file``, ``mode``, ``control_period_s``, ``duration_s`` (the grid's end; 0:
 none), and those of
@@ -22,6 +24,7 @@ none), and those of
 from __future__ import annotations
 
 import sys
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -30,10 +33,10 @@ import yaml
 
 from sappc_msgs_py.contract import (
     CLOCK,
-    CONTROL_TORQUE,
     DISTURBANCE_TORQUE,
-    STATE_ATTITUDE,
-    STATE_RATE,
+    RELAYED_ACTUATOR_TOPICS,
+    RELAYED_SENSOR_TOPICS,
+    Topic,
     faulty,
     qos_profile,
 )
@@ -54,6 +57,10 @@ from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from gnc_common.validation import ConfigError, InputError, check_positive
 
 __all__ = ["InjectorNode", "load_schedule", "main"]
+
+
+def _is_quaternion(topic: Topic) -> bool:
+    return topic.type_name.endswith("QuaternionStamped")
 
 
 def load_schedule(path: str) -> tuple[DisturbanceSum, FaultSchedule]:
@@ -89,15 +96,15 @@ class InjectorNode(ProjectNode):
         else:
             self._t0_ns: int | None = None
             self.create_timer(self.dt, self._on_timer)
-        if self.faults.has_sensor_faults:
-            self.pub_att = self.counting_publisher(faulty(STATE_ATTITUDE), 1)
-            self.pub_rate = self.counting_publisher(faulty(STATE_RATE), 1)
-            self._pending: dict[int, dict[str, Any]] = {}
-            self.create_subscription(STATE_ATTITUDE.msg_class, STATE_ATTITUDE.name, lambda m: self._on_state(m, "q"), qos)
-            self.create_subscription(STATE_RATE.msg_class, STATE_RATE.name, lambda m: self._on_state(m, "w"), qos)
-        if self.faults.has_actuator_faults:
-            self.pub_torque = self.counting_publisher(faulty(CONTROL_TORQUE), 1)
-            self.create_subscription(CONTROL_TORQUE.msg_class, CONTROL_TORQUE.name, self._on_torque, qos)
+        if self.faults.has_sensor_faults:  # the measurements (q_BN, omega_BN_B), paired by stamp
+            self.pub_state = {t.name: self.counting_publisher(faulty(t), 1) for t in RELAYED_SENSOR_TOPICS}
+            self._pending: dict[int, dict[str, Any]] = {}  # stamp [ns] -> topic name -> value
+            for t in RELAYED_SENSOR_TOPICS:
+                self.create_subscription(t.msg_class, t.name, partial(self._on_state, topic=t), qos)
+        if self.faults.has_actuator_faults:  # the torque command
+            self.pub_command = {t.name: self.counting_publisher(faulty(t), 1) for t in RELAYED_ACTUATOR_TOPICS}
+            for t in RELAYED_ACTUATOR_TOPICS:
+                self.create_subscription(t.msg_class, t.name, partial(self._on_command, topic=t), qos)
 
     def _publish_disturbance(self, t_s: float, stamp: Any) -> None:
         d = self.disturbance.torque_B(np.array([t_s]), 1)[0, 0]
@@ -122,33 +129,34 @@ class InjectorNode(ProjectNode):
         self.rejected += 1
         self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
 
-    def _on_state(self, msg: Any, which: str) -> None:
+    def _on_state(self, msg: Any, topic: Topic) -> None:
         try:
-            value = quaternion_from_msg(msg, STATE_ATTITUDE) if which == "q" else vector3_from_msg(msg, STATE_RATE)
+            value = quaternion_from_msg(msg, topic) if _is_quaternion(topic) else vector3_from_msg(msg, topic)
         except InputError as exc:
             self._reject(exc)
             return
         ns = stamp_to_ns(msg.header.stamp)
         entry = self._pending.setdefault(ns, {})
-        entry[which] = value
-        if len(entry) < 2:
+        entry[topic.name] = value
+        if len(entry) < len(RELAYED_SENSOR_TOPICS):
             return
         del self._pending[ns]
         for old in [k for k in self._pending if k < ns]:  # an unpaired older sample will never pair
             del self._pending[old]
-        out = self.faults.sensor(ns / 1e9, ns, entry["q"], entry["w"])
+        out = self.faults.sensor(ns / 1e9, ns, *(entry[t.name] for t in RELAYED_SENSOR_TOPICS))
         if out is not None:
-            self.pub_att.publish(quaternion_msg(out[0], msg.header.stamp, faulty(STATE_ATTITUDE)))
-            self.pub_rate.publish(vector3_msg(out[1], msg.header.stamp, faulty(STATE_RATE)))
+            for t, value in zip(RELAYED_SENSOR_TOPICS, out):
+                encode = quaternion_msg if _is_quaternion(t) else vector3_msg
+                self.pub_state[t.name].publish(encode(value, msg.header.stamp, faulty(t)))
 
-    def _on_torque(self, msg: Any) -> None:
+    def _on_command(self, msg: Any, topic: Topic) -> None:
         try:
-            torque = torque_from_msg(msg, CONTROL_TORQUE)
+            torque = torque_from_msg(msg, topic)
         except InputError as exc:
             self._reject(exc)
             return
         t = stamp_to_ns(msg.header.stamp) / 1e9
-        self.pub_torque.publish(torque_msg(self.faults.actuator(t, torque), msg.header.stamp, faulty(CONTROL_TORQUE)))
+        self.pub_command[topic.name].publish(torque_msg(self.faults.actuator(t, torque), msg.header.stamp, faulty(topic)))
 
 
 def main(argv: list[str] | None = None) -> int:

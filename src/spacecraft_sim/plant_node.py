@@ -20,6 +20,10 @@ Modes (parameter ``mode``):
     A wall-clock timer of period ``dt`` integrates with the latest torque and disturbance
     (zero-order hold) and publishes the state stamped with the node's clock.  No ``/clock``.
 
+Every parameter is checked at start-up by the same functions the scenario loader uses
+(:mod:`gnc_common.validation`); a missing or invalid one stops the node with one line naming it
+(exit status 2).
+
 Control torques are clipped to ``max_torque_Nm`` per axis (the actuator cannot do more whatever it is
 commanded); a torque message that is non-finite or in the wrong frame is rejected, counted and
 logged, and the previous value is held.
@@ -46,7 +50,7 @@ from sappc_msgs_py.convert import clock_msg, quaternion_msg, stamp_to_ns, time_t
 from sappc_msgs_py.runtime import LOCKSTEP, REALTIME, ProjectNode, run_node
 
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
-from gnc_common.validation import ConfigError, InputError, as_finite_array, check_positive
+from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
 
 __all__ = ["PlantNode", "main"]
 
@@ -57,21 +61,14 @@ class PlantNode(ProjectNode):
 
     def __init__(self, node_name: str = "plant", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        J = np.asarray(self.param("inertia_kg_m2", [4.0, 0.0, 0.0, 0.0, 4.0, 0.0, 0.0, 0.0, 4.0]), dtype=np.float64)
-        if J.size != 9:
-            raise ConfigError(f"inertia_kg_m2 must have 9 values (row major 3x3), got {J.size}")
-        self.body = RigidBody(J.reshape(3, 3))
-        q0 = as_finite_array("q_BN0", self.param("q_BN0", [0.0, 0.0, 0.0, 1.0]), shape_tail=(4,))
-        norm = float(np.linalg.norm(q0))
-        if abs(norm - 1.0) > 1e-3:
-            raise ConfigError(f"q_BN0 = {q0.tolist()} has norm {norm:.6g}; expected a unit quaternion (x, y, z, w)")
+        J = inertia_from_row_major("inertia_kg_m2", self.param("inertia_kg_m2", [4.0, 0.0, 0.0, 0.0, 4.0, 0.0, 0.0, 0.0, 4.0]))
+        self.body = RigidBody(J)  # checks J with check_spd_inertia, as the scenario loader does
+        q0 = check_initial_quaternion("q_BN0", self.param("q_BN0", [0.0, 0.0, 0.0, 1.0]))  # normalised
         w0 = as_finite_array("omega_BN_B0_rad_s", self.param("omega_BN_B0_rad_s", [0.0, 0.0, 0.0]), shape_tail=(3,))
-        self.x = initial_state(np.atleast_2d(q0 / norm), np.atleast_2d(w0))
+        self.x = initial_state(np.atleast_2d(q0), np.atleast_2d(w0))
         self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
         duration = check_positive("duration_s", self.param("duration_s", 60.0), allow_zero=True)
-        self.substeps = int(self.param("rk4_substeps", 1))
-        if self.substeps < 1:
-            raise ConfigError(f"rk4_substeps must be >= 1, got {self.substeps}")
+        self.substeps = check_positive_int("rk4_substeps", self.param("rk4_substeps", 1))
         self.max_torque = check_positive("max_torque_Nm", self.param("max_torque_Nm", 0.5))  # the paper's actuator
         self.mode = self.mode_param()
         if self.mode == LOCKSTEP and duration == 0.0:

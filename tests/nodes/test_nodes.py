@@ -255,3 +255,37 @@ def test_injector_relays_actuator_and_sensor_faults(ros_context, tmp_path) -> No
     ex.shutdown()
     inj.destroy_node()
     node.destroy_node()
+
+
+def test_a_start_at_the_singularity_is_refused_as_offline(controller, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """q_e0 = 0 at the first sample (180 deg from the reference): the node refuses the step with
+    the offline runner's error (issue 12: every entry point applies the same start check),
+    commands zero torque, and starts the run at the next valid sample."""
+    from gnc_common.validation import InputError
+    from sappc.offline.simulate import run_scenario
+
+    node, drv = controller
+    singular = (1.0, 0.0, 0.0, 0.0)
+    with pytest.raises(InputError) as offline:
+        run_scenario(load_scenario(SCENARIOS / "paper_tracking.yaml"), q_BN0=np.array([singular]))
+    errors: list[str] = []
+    logger = node.get_logger()
+
+    class _Logger:  # the node's logger, keeping its error lines
+        def error(self, msg: str, **kw):  # type: ignore[no-untyped-def]
+            errors.append(msg)
+            return logger.error(msg, **kw)
+
+        def __getattr__(self, name: str):  # type: ignore[no-untyped-def]
+            return getattr(logger, name)
+
+    monkeypatch.setattr(node, "get_logger", lambda: _Logger())
+    drv.send_sample(0.0, q=singular)
+    drv.spin_until(lambda: len(drv.torques) == 1, "the zero torque")
+    assert np.all(drv.torques[0][1] == 0.0) and node.steps == 0 and node.stale
+    assert len(errors) == 1 and str(offline.value) in errors[0], errors
+    drv.send_sample(0.01, q=Q0)  # a valid start: the run starts here
+    drv.spin_until(lambda: len(drv.torques) == 2, "the first computed torque")
+    assert node.steps == 1 and np.any(drv.torques[1][1] != 0.0)
+    drv.spin_until(lambda: len(drv.diags) == 2, "diagnostics")
+    assert drv.diags[1]["rho"][1] == pytest.approx(0.4, abs=1e-12)  # the RPF starts at this sample

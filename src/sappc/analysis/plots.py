@@ -240,7 +240,7 @@ def plot_campaign(tab: dict, out_dir: Path, *, criteria: tuple[float, float], ti
 
     from matplotlib.collections import LineCollection
 
-    paths = []
+    paths: list[Path] = []
     runs = tab["run"]
     for name, key, limit, label in (
         ("montecarlo_t2_error.png", "rpf_error_at_t2_per_axis", criteria[0], "|q_ev,i − ρᵢ| at t₂"),

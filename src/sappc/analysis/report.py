@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sappc_msgs_py.contract import CLOCK, TOPICS, Topic, faulty
+from sappc_msgs_py.contract import CLOCK, FAULT_TOPICS, TOPICS, Topic
 from sappc_controller.params import parameters_from_yaml
 from gnc_common.validation import ConfigError
 
@@ -30,9 +30,7 @@ from sappc.scenario import MetricSettings, Scenario, load_scenario, scenario_fro
 __all__ = ["BagAnalysis", "analyse_bag", "compare_bags", "html_page", "write_report", "write_rerun_report"]
 
 #: Every topic the contract names, the fault relays' included, by name.
-_CONTRACT: dict[str, Topic] = {t.name.lstrip("/"): t for t in TOPICS} | {
-    faulty(t).name: faulty(t) for t in TOPICS if t.frame_id is not None
-}
+_CONTRACT: dict[str, Topic] = {t.name.lstrip("/"): t for t in TOPICS + FAULT_TOPICS}
 
 
 @dataclass

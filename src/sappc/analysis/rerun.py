@@ -12,11 +12,13 @@ Which samples are re-run: every ``control/torque`` message whose diagnostics do 
 inputs (a stale sample is the node's zero torque, not a control step).  Which inputs: those
 whose stamps the controller reported in its diagnostics (``input_stamps_state_s``,
 ``input_stamps_reference_s``), so the re-run is exact in real time too.  For a bag without them
-(another controller node), lockstep bags (with ``/clock``) pair the inputs of equal stamps, as
-the node does, and real-time bags take the latest input the recorder had received before the
-torque, which may differ from the node's view by a message in flight: expect small differences
-there, which are reported, not hidden.  Runtime parameter changes made during the run are not
-in the bag and are not replayed.
+(another controller node), the recorded inputs are fed, in the order the recorder received
+them, through the node's own input pairing (:mod:`sappc_controller.inputs`): lockstep bags
+(with ``/clock``) pair the inputs of equal stamps, and real-time bags take the latest input the
+recorder had received before the torque, which may differ from the node's view by a message in
+flight: expect small differences there, which are reported, not hidden.  Each step is the
+node's step (:func:`~sappc_controller.inputs.step_sample`).  Runtime parameter changes made
+during the run are not in the bag and are not replayed.
 """
 
 from __future__ import annotations
@@ -28,17 +30,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sappc_controller.inputs import INPUT_TOPICS, STEP_ERRORS, ControlSample, LatestInputs, LockstepPairing, step_sample
 from sappc_controller.params import CONTROLLER_CLASSES, controller_from_parameters_file
-from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS, CONTROLLER_INPUTS, STATE_ATTITUDE, STATE_RATE, faulty
-from gnc_common.validation import ConfigError, InputError
+from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS, consumed_names
+from gnc_common.validation import ConfigError
 
-from sappc.bag.read import PARAMS_RECORD, Bag, BagError, Series, find_topic, latest_index
+from sappc.bag.read import PARAMS_RECORD, Bag, BagError, Series, find_topic
 
 __all__ = ["RerunResult", "rerun_bag"]
 
 Array = NDArray[np.float64]
 
-_NS = 1_000_000_000
 #: Stamps carried as float seconds in the diagnostics (epoch times in real time) are exact to
 #: ~0.24 us; messages of one topic are milliseconds apart, so 1 us identifies one unambiguously.
 _STAMP_TOL_NS = 1_000
@@ -54,6 +56,43 @@ def _nearest_index(stamps_ns: NDArray[np.int64], at_ns: NDArray[np.int64], tol_n
     lo = np.maximum(hi - 1, 0)
     best = np.where(np.abs(s[lo] - at_ns) <= np.abs(s[hi] - at_ns), lo, hi)
     return np.where(np.abs(s[best] - at_ns) <= tol_ns, order[best], -1)
+
+
+def _arrival_order(inputs: list[Series], extra: NDArray[np.int64] | None = None) -> list[tuple[int, int]]:
+    """``(input, row)`` of every recorded input message in the order the recorder received them
+    (``input`` = ``len(inputs)`` for the rows of ``extra``, which come after the inputs received at
+    the same time)."""
+    logs = [s.log_time_ns for s in inputs] + ([extra] if extra is not None else [])
+    which = np.concatenate([np.full(t.size, c, dtype=np.int64) for c, t in enumerate(logs)])
+    rows = np.concatenate([np.arange(t.size, dtype=np.int64) for t in logs])
+    order = np.lexsort((which, np.concatenate(logs)))  # by time received, then inputs before `extra`
+    return list(zip(which[order].tolist(), rows[order].tolist()))
+
+
+def _replay_lockstep(inputs: list[Series], widths: list[int]) -> dict[int, ControlSample]:
+    """The samples the node's lockstep pairing completes from the recorded inputs, by stamp [ns]."""
+    pairing = LockstepPairing(INPUT_TOPICS)
+    samples: dict[int, ControlSample] = {}
+    for c, r in _arrival_order(inputs):
+        s = inputs[c]
+        sample = pairing.add(INPUT_TOPICS[c].name, int(s.stamps_ns[r]), s.values[r, : widths[c]])
+        if sample is not None:
+            samples.setdefault(sample.t_ns, sample)  # the node rejects a stamp it has computed
+    return samples
+
+
+def _replay_realtime(inputs: list[Series], widths: list[int], torque: Series) -> list[ControlSample | None]:
+    """For each torque, the node's real-time sample from the inputs the recorder had received when
+    the torque arrived (``None`` before every input has arrived)."""
+    latest = LatestInputs(INPUT_TOPICS)
+    samples: list[ControlSample | None] = [None] * torque.stamps_ns.size
+    for c, r in _arrival_order(inputs, torque.log_time_ns):
+        if c == len(inputs):
+            samples[r] = latest.sample_at(int(torque.stamps_ns[r]))
+        else:
+            s = inputs[c]
+            latest.add(INPUT_TOPICS[c].name, int(s.stamps_ns[r]), s.values[r, : widths[c]])
+    return samples
 
 
 @dataclass
@@ -130,9 +169,9 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
     kind, config, dt = controller_from_parameters_file(text, source=source)
     controller = CONTROLLER_CLASSES[kind](config)
 
-    # the state the controller subscribed to: the relay's when the run relayed it
-    relayed = (STATE_ATTITUDE, STATE_RATE)
-    inputs = [_series(bag, *((faulty(t).name,) if t in relayed else ()), t.name) for t in CONTROLLER_INPUTS]
+    # the inputs the controller subscribed to: the relay's when the run relayed them
+    inputs = [_series(bag, *consumed_names(t)) for t in INPUT_TOPICS]
+    widths = [4 if t.type_name.endswith("QuaternionStamped") else 3 for t in INPUT_TOPICS]
     torque = _series(bag, CONTROL_TORQUE.name)
     skipped: dict[str, int] = {}
     keep = np.ones(torque.stamps_ns.size, dtype=bool)
@@ -155,15 +194,22 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
         a, b = 3 * labels.index("input_stamps_state_s"), 3 * labels.index("input_stamps_reference_s")
         used = np.concatenate((diag[:, a : a + 2], diag[:, b : b + 3]), axis=1)
         used_ns = np.where(np.isfinite(used), np.round(np.nan_to_num(used) * 1e9), -1).astype(np.int64)
-        pos = [_nearest_index(s.stamps_ns, used_ns[:, c], _STAMP_TOL_NS) for c, s in enumerate(inputs)]
+        pos = np.stack([_nearest_index(s.stamps_ns, used_ns[:, c], _STAMP_TOL_NS) for c, s in enumerate(inputs)], axis=1)
+        samples: list[ControlSample | None] = [
+            ControlSample(int(t_ns), tuple(int(s.stamps_ns[p]) for s, p in zip(inputs, row)),
+                          tuple(s.values[p, :width] for s, p, width in zip(inputs, row, widths)))
+            if np.all(row >= 0) else None
+            for t_ns, row in zip(torque.stamps_ns, pos)
+        ]
         pairing = "the input stamps the controller reported"
-    elif lockstep:  # the node pairs the inputs of one stamp
-        pos = [_nearest_index(s.stamps_ns, torque.stamps_ns, 0) for s in inputs]
+    elif lockstep:  # the node's pairing: the inputs of one stamp
+        by_stamp = _replay_lockstep(inputs, widths)
+        samples = [by_stamp.get(int(t_ns)) for t_ns in torque.stamps_ns]
         pairing = "equal stamps"
-    else:  # the latest input at the recorder when the torque arrived: may differ from the node's view
-        pos = [latest_index(s.log_time_ns, torque.log_time_ns) for s in inputs]
+    else:  # the node's pairing on the latest input at the recorder when the torque arrived: may differ from the node's view
+        samples = _replay_realtime(inputs, widths, torque)
         pairing = "arrival at the recorder (approximate)"
-    found = np.all(np.stack(pos) >= 0, axis=0)
+    found = np.array([s is not None for s in samples], dtype=bool)
     if (keep & ~found).any():
         skipped["an input of the sample is not in the bag"] = int((keep & ~found).sum())
     keep &= found
@@ -171,12 +217,12 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
     rows = np.flatnonzero(keep)
     recomputed = np.full((rows.size, 3), np.nan)
     failed = 0
-    widths = [4 if t.type_name.endswith("QuaternionStamped") else 3 for t in CONTROLLER_INPUTS]
     for n, r in enumerate(rows):
-        q, w, q_d, w_d, wdot_d = (s.values[p[r], :width] for s, p, width in zip(inputs, pos, widths))
+        sample = samples[r]
+        assert sample is not None  # kept rows have their inputs
         try:
-            recomputed[n] = controller.step(int(torque.stamps_ns[r]) / _NS, dt, q, w, q_d, w_d, wdot_d).torque_B
-        except (InputError, FloatingPointError, ConfigError):
+            recomputed[n] = step_sample(controller, dt, sample).torque_B
+        except STEP_ERRORS:
             failed += 1  # the node then publishes zero torque
             recomputed[n] = 0.0
     return RerunResult(

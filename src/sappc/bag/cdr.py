@@ -15,7 +15,10 @@ from the end of the 4-byte encapsulation header):
     ``sequence<MultiArrayDimension{string label, uint32 size, uint32 stride}> dim``,
     ``uint32 data_offset``, ``sequence<float64> data`` (the doubles aligned to 8).  Parsed in
     Python for the first message of a group; the others must carry the same bytes up to the
-    data (the same layout), which is checked, or they are parsed one by one.
+    data (the same layout), which is checked, or they are parsed one by one (the slow path,
+    counted in :attr:`Decoded.slow_path`).  Only the bytes the parse reads are compared: the
+    encapsulation options and the alignment padding (after each label, before the doubles) are
+    left uninitialised by the serializer and may differ between messages of one layout.
 
 A message that does not fit its type's layout (wrong length, big-endian encapsulation, an
 inconsistent string length) is not decoded and is counted.  The decoders are tested against
@@ -56,6 +59,7 @@ class Decoded:
     frame_ids: tuple[str, ...] = ()  # the distinct header frame ids seen
     labels: tuple[str, ...] = ()  # Float64MultiArray: the first dimension's label, split at commas
     undecodable: int = 0
+    slow_path: int = 0  # messages parsed one by one (not in a group's vectorised layout)
 
 
 def _groups(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]):  # type: ignore[no-untyped-def]
@@ -116,27 +120,40 @@ def _decode_clock(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArr
     return _assemble(idx, stamps, vals, 1, length.size)
 
 
-def _parse_multiarray(payload: bytes) -> tuple[list[str], int, int]:
-    """(dimension labels, absolute offset of the data, number of doubles) of one message.
+def _parse_multiarray(payload: bytes) -> tuple[list[str], int, int, NDArray[np.bool_]]:
+    """(dimension labels, absolute offset of the data, number of doubles, meaningful bytes) of one message.
+
+    The meaningful bytes (a mask over ``payload[:data offset]``) are those the parse reads: the
+    encapsulation kind, the counts, lengths, characters (with the NUL), sizes, strides and
+    ``data_offset``; not the encapsulation options nor the alignment padding.  A message of the
+    same length whose meaningful bytes are equal parses to the same layout, whatever its padding.
 
     Raises ``ValueError`` (or ``struct.error``) when the payload does not fit the layout.
     """
     if tuple(payload[:2]) != _CDR_LE:
         raise ValueError("not little-endian CDR")
     body = memoryview(payload)[_BODY:]
+    read = [(0, 2)]  # absolute [begin, end) ranges read; the encapsulation kind
     (ndim,) = struct.unpack_from("<I", body, 0)
+    read.append((_BODY, _BODY + 4))
     off, labels = 4, []
     for _ in range(ndim):
         (n,) = struct.unpack_from("<I", body, off)
         labels.append(bytes(body[off + 4 : off + 4 + n - 1]).decode("utf-8") if n else "")
+        read.append((_BODY + off, _BODY + off + 4 + n))  # length, characters, NUL
         off = (off + 4 + n + 3) // 4 * 4
-        off += 8  # size, stride
+        read.append((_BODY + off, _BODY + off + 8))  # size, stride
+        off += 8
+    read.append((_BODY + off, _BODY + off + 8))  # data_offset, count
     off += 4  # data_offset
     (count,) = struct.unpack_from("<I", body, off)
     off = (off + 4 + 7) // 8 * 8
     if off + 8 * count != len(body):
         raise ValueError(f"{count} doubles do not fill the message ({len(body) - off} bytes left)")
-    return labels, _BODY + off, count
+    meaningful = np.zeros(_BODY + off, dtype=bool)
+    for begin, end in read:
+        meaningful[begin:end] = True
+    return labels, _BODY + off, count, meaningful
 
 
 def _multiarray_stamps(values: NDArray[np.float64], labels: list[str]) -> NDArray[np.int64]:
@@ -149,19 +166,25 @@ def _multiarray_stamps(values: NDArray[np.float64], labels: list[str]) -> NDArra
 def _decode_multiarray(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]) -> Decoded:
     # per layout: (positions, values, first dimension's labels)
     parts: list[tuple[NDArray[np.int64], NDArray[np.float64], list[str]]] = []
+    slow = 0
     for pos, rows in _groups(u8, start, length):
         try:
-            lab, data_at, _count = _parse_multiarray(bytes(rows[0]))
+            lab, data_at, _count, meaningful = _parse_multiarray(bytes(rows[0]))
         except (ValueError, struct.error):
-            lab, data_at = [], -1
-        same = (rows[:, :data_at] == rows[0, :data_at]).all(axis=1) if data_at > 0 else np.zeros(rows.shape[0], bool)
+            lab, data_at, meaningful = [], -1, np.zeros(0, bool)
+        if data_at > 0:  # the same layout: equal meaningful bytes (padding is not compared)
+            cols = np.flatnonzero(meaningful)
+            same = (rows[:, cols] == rows[0, cols]).all(axis=1)
+        else:
+            same = np.zeros(rows.shape[0], bool)
         if same.any():
             parts.append((pos[same], _col(rows[same], data_at, rows.shape[1], "<f8"), lab))
         for r in np.flatnonzero(~same):  # another layout in a message of the same length
             try:
-                lab_r, at, cnt = _parse_multiarray(bytes(rows[r]))
+                lab_r, at, cnt, _ = _parse_multiarray(bytes(rows[r]))
             except (ValueError, struct.error):
                 continue
+            slow += 1
             parts.append((pos[r : r + 1], np.frombuffer(bytes(rows[r, at : at + 8 * cnt]), "<f8")[None, :], lab_r))
     width = max([v.shape[1] for _, v, _ in parts] + [1])
     out = _assemble(
@@ -174,6 +197,7 @@ def _decode_multiarray(u8: NDArray[np.uint8], start: NDArray[np.int64], length: 
     if parts:  # the topic's layout: that of most of its messages
         labels = max(parts, key=lambda part: part[0].size)[2]
         out.labels = tuple(labels[0].split(",")) if labels and labels[0] else ()
+    out.slow_path = slow
     return out
 
 

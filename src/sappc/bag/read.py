@@ -29,7 +29,7 @@ from sappc_msgs_py.contract import (
     REFERENCE_ATTITUDE,
     STATE_ATTITUDE,
     STATE_RATE,
-    faulty,
+    consumed_names,
 )
 from gnc_common.attitude import error_quaternion, quat_normalize
 from gnc_common.validation import ConfigError
@@ -212,7 +212,8 @@ def bag_run(bag: Bag) -> BagRun:
     q_RN = np.where(exact[:, None], rq[j], quat_normalize((1.0 - w) * rq[j] + w * q1))
     q_BR = error_quaternion(q_RN, q_BN)
 
-    torque_topic = find_topic(bag, faulty(CONTROL_TORQUE).name) or find_topic(bag, CONTROL_TORQUE.name)
+    # the torque the plant applied: the actuator relay's output when the run relayed it
+    torque_topic = next((t for name in consumed_names(CONTROL_TORQUE) if (t := find_topic(bag, name)) is not None), None)
     T = common.size
 
     def held(topic: str | None, width: int) -> Array:

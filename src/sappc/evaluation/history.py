@@ -82,5 +82,5 @@ class HistoryRecorder:
             q_BN=self.state[..., :4],
             omega_BN_B=self.state[..., 4:],
             disturbance_B=self.disturbance,
-            **self.arrays,
+            **self.arrays,  # type: ignore[arg-type]  # the fields of ControlOutput by name (saturated is bool)
         )

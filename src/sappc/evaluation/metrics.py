@@ -132,9 +132,10 @@ class MetricsAccumulator:
         if B == 0:
             return
 
-        def over_block(a: NDArray, reduce: np.ufunc) -> NDArray:  # type: ignore[type-arg]
+        def over_block(a: NDArray[Any], reduce: np.ufunc) -> NDArray[Any]:
             """``reduce`` over the block's samples (a view for a one-sample block: the hot path)."""
-            return a[0] if B == 1 else reduce.reduce(a, axis=0)
+            reduced: NDArray[Any] = a[0] if B == 1 else reduce.reduce(a, axis=0)
+            return reduced
 
         def last_true(mask: NDArray[np.bool_], previous: NDArray[np.int64]) -> NDArray[np.int64]:
             """Per run, the last sample of the block where ``mask`` holds, else ``previous``."""

@@ -34,6 +34,7 @@ from typing import Any
 import yaml
 
 from sappc_controller.params import parameters_from_config, unflatten
+from sappc_msgs_py.contract import RELAYED_ACTUATOR_TOPICS, RELAYED_SENSOR_TOPICS, faulty, relay_remaps
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
@@ -155,8 +156,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "duration_s": scenario.duration_s,
         **common,
         "expected_subscribers": expected(disturbance__torque=2)
-        + (expected(fault__state__attitude=2, fault__state__rate=2) if sensor else [])
-        + (expected(fault__control__torque=2) if actuator else []),
+        + ([f"{faulty(t).name}=2" for t in RELAYED_SENSOR_TOPICS] if sensor else [])
+        + ([f"{faulty(t).name}=2" for t in RELAYED_ACTUATOR_TOPICS] if actuator else []),
         "counts_file": counts_file("injector"),
     }
     recorder = {
@@ -182,9 +183,9 @@ def _remaps(scenario: Scenario) -> dict[str, list[str]]:
     faults = FaultSchedule(scenario.faults)
     remaps: dict[str, list[str]] = {n: [] for n in NODES}
     if faults.has_sensor_faults:
-        remaps["controller"] += ["-r", "state/attitude:=fault/state/attitude", "-r", "state/rate:=fault/state/rate"]
+        remaps["controller"] += relay_remaps(RELAYED_SENSOR_TOPICS)
     if faults.has_actuator_faults:
-        remaps["plant"] += ["-r", "control/torque:=fault/control/torque"]
+        remaps["plant"] += relay_remaps(RELAYED_ACTUATOR_TOPICS)
     return remaps
 
 
@@ -265,6 +266,11 @@ def run_graph(
     scenario = load_scenario(scenario_path)
     kind = scenario.resolve_controller(controller)
     scenario.controller_config(kind)  # validate before any process starts
+    # the controller's first step, as the node will compute it: a start the core refuses (the
+    # 180 deg singularity) stops here with the core's error, before any process starts
+    ref0 = scenario.reference.sample([0.0])
+    scenario.build_controller(kind).step(0.0, scenario.control_period_s, scenario.q_BN0, scenario.omega_BN_B0_rad_s,
+                                         ref0.q_RN[0], ref0.omega_RN_R[0], ref0.omegadot_RN_R[0])
     stamp = time.strftime("%Y%m%d-%H%M%S")
     run_dir = Path(out_dir) if out_dir is not None else Path("runs") / f"{scenario.name}-{kind.value}-{stamp}"
     if run_dir.exists() and any(run_dir.iterdir()):

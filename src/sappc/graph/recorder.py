@@ -33,13 +33,10 @@ from mcap.writer import CompressionType, Writer
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from sappc_msgs_py.contract import (
-    CONTROL_TORQUE,
+    FAULT_TOPICS,
     QOS_DEPTH,
-    STATE_ATTITUDE,
-    STATE_RATE,
     TOPICS,
     Topic,
-    faulty,
 )
 from sappc_msgs_py.runtime import ProjectNode, run_node
 from sappc_msgs_py.schemas import schema_text, type_hash
@@ -61,8 +58,8 @@ BAG_METADATA = "metadata.yaml"
 CHUNK_SIZE = 256 * 1024
 
 #: Every topic of the contract and of the fault relays.
-DEFAULT_TOPICS = tuple(t.name for t in TOPICS) + tuple(faulty(t).name for t in (STATE_ATTITUDE, STATE_RATE, CONTROL_TORQUE))
-_KNOWN = {t.name: t for t in TOPICS} | {faulty(t).name: faulty(t) for t in (STATE_ATTITUDE, STATE_RATE, CONTROL_TORQUE)}
+DEFAULT_TOPICS = tuple(t.name for t in TOPICS + FAULT_TOPICS)
+_KNOWN = {t.name: t for t in TOPICS + FAULT_TOPICS}
 
 
 def _qos_v9() -> list[dict[str, Any]]:

@@ -92,6 +92,7 @@ def plan_replay(path: str | Path, topics: list[str] | None = None) -> ReplayPlan
     payload = [buf[s : s + n] for s, n in zip(start.tolist(), length.tolist())]
     on_clock = np.flatnonzero(np.isin(channel, clock_ids))
     clock = decode(CLOCK.type_name, buf, start[on_clock], length[on_clock])
+    assert clock is not None, "/clock is one of the contract's types, which decode() always knows"
     is_clock = np.zeros(channel.size, dtype=bool)
     is_clock[on_clock[clock.index]] = True  # an undecodable /clock message is replayed, but times nothing
     if is_clock.any():

@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.validation import ConfigError
+from sappc_controller.core.base import SingularStartError
 from sappc_controller.core.rpf import InfeasiblePolicy
 from sappc.evaluation.history import both
 from sappc.montecarlo.config import campaign_config
@@ -67,7 +68,7 @@ class _Trajectories:
             self.rho.append(out.rho[: self.n].astype(np.float32))
 
 
-def run_chunk(scenario_raw: dict[str, Any], seed: int, runs: list[int], keep_trajectories: int) -> dict[str, Array]:
+def run_chunk(scenario_raw: dict[str, Any], seed: int, runs: list[int], keep_trajectories: int) -> dict[str, NDArray[Any]]:
     """Simulate ``runs`` of a campaign as one batch; return the per-run results (a worker task).
 
     Takes the parsed scenario mapping (not objects) so that it can run in any process or on
@@ -79,7 +80,7 @@ def run_chunk(scenario_raw: dict[str, Any], seed: int, runs: list[int], keep_tra
 
 def simulate_runs(
     scenario_raw: dict[str, Any], seed: int, runs: list[int], keep_trajectories: int, observer: Any = None
-) -> tuple[dict[str, Array], Any]:
+) -> tuple[dict[str, NDArray[Any]], Any]:
     """:func:`run_chunk` with an optional extra observer; also returns the metrics accumulator."""
     scenario = scenario_from_mapping(scenario_raw)
     cfg = campaign_config(scenario)
@@ -96,17 +97,20 @@ def simulate_runs(
         config = dataclasses.replace(config, gains=dataclasses.replace(config.gains, **inputs.gains))
     traj = _Trajectories(min(keep_trajectories, n), cfg.trajectory_stride)
     with np.errstate(all="ignore"):  # a diverging run is reported, not raised
-        metrics, controller = run_scenario(
-            scenario,
-            controller_config=config,
-            controller_options={"on_infeasible": InfeasiblePolicy.CLAMP} if scenario.controller == ControllerKind.SAPPC else {},
-            q_BN0=inputs.q_BN0,
-            omega_BN_B0_rad_s=inputs.omega_BN_B0,
-            inertia_kg_m2=J,
-            disturbance=dispersed_disturbance(scenario, inputs),
-            measure=NoisySensor(cfg.dispersions.sensor_noise, seed, inputs.runs) if cfg.dispersions.sensor_noise.enabled else None,
-            observer=traj if observer is None else both(traj, observer),
-        )
+        try:
+            metrics, controller = run_scenario(
+                scenario,
+                controller_config=config,
+                controller_options={"on_infeasible": InfeasiblePolicy.CLAMP} if scenario.controller == ControllerKind.SAPPC else {},
+                q_BN0=inputs.q_BN0,
+                omega_BN_B0_rad_s=inputs.omega_BN_B0,
+                inertia_kg_m2=J,
+                disturbance=dispersed_disturbance(scenario, inputs),
+                measure=NoisySensor(cfg.dispersions.sensor_noise, seed, inputs.runs) if cfg.dispersions.sensor_noise.enabled else None,
+                observer=traj if observer is None else both(traj, observer),
+            )
+        except SingularStartError as exc:  # name the campaign's run, not its place in this chunk
+            raise SingularStartError(exc.q_e0, int(inputs.runs[exc.run])) from None
     crit = metrics.criteria_arrays()
     rpf = getattr(getattr(controller, "transformation", None), "rpf", None)
     return {
@@ -190,9 +194,11 @@ class _Executor:
             from distributed import as_completed as dask_as_completed
 
             self.futures = [self.client.submit(_call, task, pure=False) for task in tasks]
-            return (fut.result() for fut in dask_as_completed(self.futures))
+            done: Iterator[tuple[int, Any]] = (fut.result() for fut in dask_as_completed(self.futures))
+            return done
         if self.pool is not None:
-            return self.pool.imap_unordered(_call, tasks)
+            unordered: Iterator[tuple[int, Any]] = self.pool.imap_unordered(_call, tasks)
+            return unordered
         return map(_call, tasks)  # in this process: one chunk at a time, each saved before the next starts
 
     def abort(self) -> None:

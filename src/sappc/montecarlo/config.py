@@ -215,9 +215,10 @@ class CampaignConfig:
                 dist.check_shape(f"dispersions.{name}", shape)
         inertia = self.dispersions.inertia_relative
         if inertia is not None:
-            lowest = np.min(inertia.low) if inertia.distribution is DistributionKind.UNIFORM else -np.inf
+            low, _ = inertia._params()
+            lowest = float(np.min(low)) if inertia.distribution is DistributionKind.UNIFORM else -np.inf
             if inertia.distribution is DistributionKind.NORMAL and np.all(np.asarray(inertia.sigma) == 0):
-                lowest = np.min(inertia.mean)
+                lowest = float(np.min(low))  # mean (the first parameter of a normal)
             if not lowest > -1.0:
                 raise ConfigError(
                     "dispersions.inertia_relative must stay above -1 (S J S with S = diag(sqrt(1 + u)) is positive "
@@ -230,4 +231,5 @@ def campaign_config(scenario: Scenario) -> CampaignConfig:
     section = scenario.raw.get("montecarlo")
     if section is None:
         raise ConfigError(f"scenario {scenario.name!r} has no 'montecarlo' section")
-    return from_mapping(CampaignConfig, section, "montecarlo")
+    config: CampaignConfig = from_mapping(CampaignConfig, section, "montecarlo")
+    return config

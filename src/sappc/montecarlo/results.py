@@ -32,10 +32,10 @@ def chunk_path(out: Path, index: int) -> Path:
     return out / "chunks" / f"chunk_{index:06d}.npz"
 
 
-def save_chunk(out: Path, index: int, result: dict[str, Array]) -> None:
+def save_chunk(out: Path, index: int, result: dict[str, NDArray[Any]]) -> None:
     path = chunk_path(out, index)
     tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **result)
+    np.savez(tmp, **result)  # type: ignore[arg-type]  # numpy's stub types **kwds as the allow_pickle flag
     tmp.replace(path)  # atomic: a chunk file is either complete or absent
 
 

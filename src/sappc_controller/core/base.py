@@ -19,7 +19,7 @@ from gnc_common.validation import QUATERNION_NORM_TOL, ConfigError, InputError, 
 
 from sappc_controller.core.common import Actuator, ActuatorConfig, ErrorState, error_state
 
-__all__ = ["AttitudeController", "ControlOutput", "SINGULAR_Q0_AT_START"]
+__all__ = ["AttitudeController", "ControlOutput", "SINGULAR_Q0_AT_START", "SingularStartError", "check_start"]
 
 Array = NDArray[np.float64]
 
@@ -83,6 +83,43 @@ class ControlOutput:
     def first(self) -> ControlOutput:
         """The same output with the batch axis removed (run 0)."""
         return ControlOutput(**{f.name: getattr(self, f.name)[0] for f in fields(self)})
+
+
+class SingularStartError(InputError):
+    """A run starts at the 180 deg singularity: ``q_e0 < SINGULAR_Q0_AT_START``.
+
+    Attributes
+    ----------
+    q_e0 : float
+        The run's initial error scalar part.
+    run : int
+        The run's index (along the batch axis, or a campaign's run number once the campaign names it).
+    """
+
+    def __init__(self, q_e0: float, run: int) -> None:
+        self.q_e0, self.run = q_e0, run
+        super().__init__(
+            f"initial error quaternion scalar part q_e0 = {q_e0:.3g} (run {run}) is at the 180 deg singularity "
+            f"of Gamma(q_e) (needs q_e0 >= {SINGULAR_Q0_AT_START}): the RPF sign and the virtual control are undefined"
+        )
+
+    def __reduce__(self) -> tuple[type[SingularStartError], tuple[float, int]]:  # crosses process boundaries (campaign workers)
+        return SingularStartError, (self.q_e0, self.run)
+
+
+def check_start(err: ErrorState) -> None:
+    """Refuse a run that starts at the 180 deg singularity (``q_e0 < SINGULAR_Q0_AT_START``).
+
+    Raises
+    ------
+    SingularStartError
+        Naming the first such run of the batch (its index along the batch axis) and its ``q_e0``.
+    """
+    q0 = err.q_BR[:, 3]
+    bad = q0 < SINGULAR_Q0_AT_START
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise SingularStartError(float(q0[k]), k)
 
 
 class AttitudeController(ABC):
@@ -201,22 +238,25 @@ class AttitudeController(ABC):
         err = error_state(q2, np.atleast_2d(w), np.atleast_2d(q_d), np.atleast_2d(w_d), np.atleast_2d(wdot_d))
         if self.n_runs is not None and q2.shape[0] != self.n_runs:
             raise InputError(f"q_BN has {q2.shape[0]} runs but this run started with {self.n_runs}; call reset() first")
-        if self.t0 is None:
-            q0 = err.q_BR[:, 3]
-            if np.any(q0 < SINGULAR_Q0_AT_START):
-                k = int(np.argmax(q0 < SINGULAR_Q0_AT_START))
-                raise InputError(
-                    f"initial error quaternion scalar part q_e0 = {q0[k]:.3g} (run {k}) is at the 180 deg singularity "
-                    f"of Gamma(q_e) (needs q_e0 >= {SINGULAR_Q0_AT_START}): the RPF sign and the virtual control are undefined"
-                )
-        out = self.step_unchecked(t_f, dt_f, err)
+        out = self.step_unchecked(t_f, dt_f, err)  # the start check is there, on every path
         if not (np.all(np.isfinite(out.torque_B)) and np.all(np.isfinite(out.torque_cmd_B))):
             raise FloatingPointError("controller produced a non-finite torque; refusing to output it")
         return out.first() if single else out
 
     def step_unchecked(self, t: float, dt: float, err: ErrorState) -> ControlOutput:
-        """:meth:`step` for inputs already checked (the offline runner's hot path)."""
+        """:meth:`step` for inputs already checked (the offline runner's hot path).
+
+        The start of a run is checked here, not in :meth:`step`, so that every caller (the
+        node, the offline runner, Monte Carlo, rerun) refuses the same starts with the same error.
+
+        Raises
+        ------
+        InputError
+            At the first step of a run, if a run starts at the 180 deg singularity (see
+            :func:`check_start`); the controller then stays unstarted.
+        """
         if self.t0 is None:
+            check_start(err)
             self.t0 = t
             self.n_runs = err.q_BR.shape[0]
             self._start(err)

@@ -143,10 +143,10 @@ class RPFParameters:
         if self.rho_e0 is not None and self.rho_e0 > self.g_inf:
             lower, upper = feasible_l_range(self.rho_e0, self.rho_einf, self.g_inf, self.t2_s)
             if not lower * (1.0 - _FEASIBILITY_RTOL) <= self.l <= upper * (1.0 + _FEASIBILITY_RTOL):
-                raise InfeasibleRPFError(_infeasible_message(self.l, self.rho_e0, self.rho_einf, self.g_inf, self.t2_s, lower, upper))
+                raise InfeasibleRPFError(_infeasible_message(self.l, self.rho_e0, self.rho_einf, self.g_inf, self.t2_s, float(lower), float(upper)))
 
 
-def _infeasible_message(l: float, rho_e0: ArrayLike, rho_einf: float, g_inf: float, t2: float, lower: ArrayLike, upper: ArrayLike) -> str:
+def _infeasible_message(l: float, rho_e0: float, rho_einf: float, g_inf: float, t2: float, lower: float, upper: float) -> str:
     return (
         f"rpf.l = {l!r} is infeasible for rho_e0 = {float(rho_e0):.6g}, rho_einf = {rho_einf!r}, g_inf = {g_inf!r}, "
         f"t2_s = {t2!r}: eq. (RPFsolve) has a real solution only for {float(lower):.6g} <= l <= {float(upper):.6g}"

@@ -49,7 +49,7 @@ class RigidBody:
 
     def __init__(self, inertia_kg_m2: ArrayLike) -> None:
         self.J: Array = check_spd_inertia("inertia_kg_m2", inertia_kg_m2)
-        self.J_inv: Array = np.linalg.inv(self.J)
+        self.J_inv: Array = np.asarray(np.linalg.inv(self.J), dtype=np.float64)
         self._J = Linear3(self.J)
         self._J_inv = Linear3(self.J_inv)
 

@@ -40,7 +40,7 @@ def sample_times(duration_s: float, control_period_s: float) -> Array:
     """The sample grid ``k dt``, ``k = 0 .. round(duration / dt)`` [s], shared by the offline
     runner and the nodes (``k * dt`` is computed the same way everywhere)."""
     n_steps = int(round(duration_s / control_period_s))
-    return np.arange(n_steps + 1) * control_period_s
+    return np.arange(n_steps + 1, dtype=np.float64) * control_period_s  # k exact in float64: the same products as int k
 
 
 @dataclass(frozen=True)
@@ -83,14 +83,16 @@ class PaperReference:
         a = np.radians(self.amplitude_deg_s)
         tt = np.asarray(t, dtype=np.float64)[..., None]
         p = np.asarray(self.periods_s)
-        return a * np.concatenate((np.cos(tt / p[0]), np.sin(tt / p[1]), -np.cos(tt / p[2])), axis=-1)
+        omega: Array = a * np.concatenate((np.cos(tt / p[0]), np.sin(tt / p[1]), -np.cos(tt / p[2])), axis=-1)
+        return omega
 
     def omegadot_RN_R(self, t: ArrayLike) -> Array:
         """Desired angular acceleration [rad/s^2], shape (..., 3)."""
         a = np.radians(self.amplitude_deg_s)
         tt = np.asarray(t, dtype=np.float64)[..., None]
         p = np.asarray(self.periods_s)
-        return a * np.concatenate((-np.sin(tt / p[0]) / p[0], np.cos(tt / p[1]) / p[1], np.sin(tt / p[2]) / p[2]), axis=-1)
+        omegadot: Array = a * np.concatenate((-np.sin(tt / p[0]) / p[0], np.cos(tt / p[1]) / p[1], np.sin(tt / p[2]) / p[2]), axis=-1)
+        return omegadot
 
     def sample(self, t: ArrayLike) -> ReferenceSamples:
         """The reference at increasing times ``t`` >= 0 [s], shape (T,)."""

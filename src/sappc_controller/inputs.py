@@ -1,0 +1,191 @@
+"""The controller's input pairing: which inputs, of which stamps, make one control step.
+
+The one owner of this rule, used by the controller node (:mod:`sappc_controller.node`) and by
+``sappc rerun`` (:mod:`sappc.analysis.rerun`), so that a re-run pairs the recorded inputs exactly
+as the node paired them when they arrived.  Pure: no ROS, no clock; values are numpy arrays
+already decoded and checked by the caller, stamps are integer nanoseconds.
+
+The five inputs are :data:`~sappc_msgs_py.contract.CONTROLLER_INPUTS`, in the order of
+``AttitudeController.step(t, dt, q, w, q_d, w_d, wdot_d)``.
+
+``lockstep`` (:class:`LockstepPairing`)
+    A sample is complete when the five inputs of one stamp have arrived; the step runs at that
+    stamp.  At most :data:`MAX_PENDING` incomplete stamps wait for their other inputs; beyond
+    that the oldest is dropped.
+``realtime`` (:class:`LatestInputs`)
+    The step at a control instant uses the latest input of each topic; there is no sample until
+    every topic has delivered one.  Whether the inputs are too old is the caller's decision
+    (:attr:`LatestInputs.oldest_ns`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnc_common.validation import ConfigError, InputError
+from sappc_msgs_py.contract import CONTROLLER_INPUTS, Topic
+
+from sappc_controller.core.base import AttitudeController, ControlOutput
+
+__all__ = [
+    "INPUT_TOPICS",
+    "MAX_PENDING",
+    "NS_PER_S",
+    "STEP_ERRORS",
+    "ControlSample",
+    "LatestInputs",
+    "LockstepPairing",
+    "step_sample",
+]
+
+Array = NDArray[np.float64]
+
+#: Nanoseconds per second: stamps are integer nanoseconds, the core's time is float seconds.
+NS_PER_S = 1_000_000_000
+#: The five inputs of one control step, by topic, in the order of ``AttitudeController.step``.
+INPUT_TOPICS: tuple[Topic, ...] = CONTROLLER_INPUTS
+#: Largest number of stamps waiting for their other inputs (lockstep); older ones are dropped.
+MAX_PENDING = 64
+#: The errors with which the core refuses a step; the node then commands zero torque.
+STEP_ERRORS = (InputError, FloatingPointError, ConfigError)
+
+
+@dataclass(frozen=True)
+class ControlSample:
+    """One complete set of the controller's inputs and the time of the step they feed.
+
+    Attributes
+    ----------
+    t_ns : int
+        Controller time of the step [ns] (lockstep: the inputs' common stamp; real time: the
+        control instant).
+    input_ns : tuple of int
+        Header stamps of the inputs used [ns], in :data:`INPUT_TOPICS` order.
+    values : tuple of ndarray
+        The inputs in :data:`INPUT_TOPICS` order: ``q_BN`` (x, y, z, w), ``omega_BN_B``
+        [rad/s], ``q_RN`` (x, y, z, w), ``omega_RN_R`` [rad/s], ``omegadot_RN_R`` [rad/s^2].
+    """
+
+    t_ns: int
+    input_ns: tuple[int, ...]
+    values: tuple[Array, ...]
+
+    @property
+    def t_s(self) -> float:
+        """Controller time of the step [s], as the core receives it (``t_ns / 1e9``)."""
+        return self.t_ns / NS_PER_S
+
+
+class LockstepPairing:
+    """Lockstep pairing: the inputs of one stamp, gathered until all have arrived.
+
+    Parameters
+    ----------
+    topics : sequence of Topic
+        The inputs of a step, in step order (default :data:`INPUT_TOPICS`).
+    max_pending : int
+        Largest number of incomplete stamps kept (default :data:`MAX_PENDING`).
+    """
+
+    def __init__(self, topics: Sequence[Topic] = INPUT_TOPICS, max_pending: int = MAX_PENDING) -> None:
+        self.topics = tuple(topics)
+        self.max_pending = max_pending
+        self._pending: dict[int, dict[str, Array]] = {}  # stamp [ns] -> topic name -> value
+
+    @property
+    def pending(self) -> int:
+        """Number of stamps waiting for their other inputs."""
+        return len(self._pending)
+
+    def add(self, topic_name: str, stamp_ns: int, value: Array) -> ControlSample | None:
+        """Take one (checked) input; return the sample it completes, if any.
+
+        Parameters
+        ----------
+        topic_name : str
+            The input's topic (a name of :attr:`topics`).
+        stamp_ns : int
+            Its header stamp [ns].
+        value : ndarray
+            Its decoded value.
+
+        Returns
+        -------
+        ControlSample or None
+            The five inputs of ``stamp_ns``, stepped at ``stamp_ns``, when this input was the last
+            one missing; else ``None`` (and the oldest incomplete stamp is dropped when more than
+            :attr:`max_pending` wait).
+        """
+        entry = self._pending.setdefault(stamp_ns, {})
+        entry[topic_name] = value
+        if len(entry) == len(self.topics):
+            del self._pending[stamp_ns]
+            return ControlSample(stamp_ns, (stamp_ns,) * len(self.topics), tuple(entry[t.name] for t in self.topics))
+        if len(self._pending) > self.max_pending:
+            del self._pending[min(self._pending)]
+        return None
+
+
+class LatestInputs:
+    """Real-time pairing: the latest input of each topic, stepped at the control instant.
+
+    Parameters
+    ----------
+    topics : sequence of Topic
+        The inputs of a step, in step order (default :data:`INPUT_TOPICS`).
+    """
+
+    def __init__(self, topics: Sequence[Topic] = INPUT_TOPICS) -> None:
+        self.topics = tuple(topics)
+        self._latest: dict[str, tuple[int, Array]] = {}  # topic name -> (stamp [ns], value)
+
+    def add(self, topic_name: str, stamp_ns: int, value: Array) -> None:
+        """Take one (checked) input: it replaces the topic's previous one."""
+        self._latest[topic_name] = (stamp_ns, value)
+
+    def last_ns(self, topic_name: str) -> int | None:
+        """Stamp [ns] of the topic's latest input, ``None`` before the first."""
+        latest = self._latest.get(topic_name)
+        return None if latest is None else latest[0]
+
+    @property
+    def complete(self) -> bool:
+        """Every topic has delivered an input (before that there is no sample: not started)."""
+        return all(t.name in self._latest for t in self.topics)
+
+    @property
+    def oldest_ns(self) -> int:
+        """Stamp [ns] of the oldest of the latest inputs (call when :attr:`complete`)."""
+        return min(v[0] for v in self._latest.values())
+
+    def sample_at(self, t_ns: int) -> ControlSample | None:
+        """The sample of a step at controller time ``t_ns`` [ns]: the latest input of each topic
+        (``None`` until :attr:`complete`)."""
+        if not self.complete:
+            return None
+        latest = self._latest
+        return ControlSample(t_ns, tuple(latest[t.name][0] for t in self.topics), tuple(latest[t.name][1] for t in self.topics))
+
+
+def step_sample(controller: AttitudeController, dt_s: float, sample: ControlSample) -> ControlOutput:
+    """One control step on ``sample``: ``controller.step(t_ns / 1e9, dt_s, q, w, q_d, w_d, wdot_d)``.
+
+    Parameters
+    ----------
+    controller : AttitudeController
+        The controller core.
+    dt_s : float
+        Control period [s].
+    sample : ControlSample
+        The step's time and inputs.
+
+    Raises
+    ------
+    InputError, FloatingPointError, ConfigError
+        (:data:`STEP_ERRORS`) when the core refuses the step; the node then commands zero torque.
+    """
+    return controller.step(sample.t_s, dt_s, *sample.values)
