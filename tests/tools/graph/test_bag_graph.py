@@ -60,6 +60,20 @@ def test_report_of_the_recorded_bag_equals_the_offline_runner(tracking_run, tmp_
     assert "steady_max_abs_qev" in page and "settling_time_s" in page
 
 
+def test_every_diagnostics_message_of_a_60_s_bag_takes_the_fast_decode_path(tracking_run) -> None:  # type: ignore[no-untyped-def]
+    """The 6001 ``controller/diagnostics`` messages decode as one vectorised group (none one by one)."""
+    from sappc.bag.cdr import decode
+    from sappc.bag.read import scan_bag
+
+    out, _, _ = tracking_run
+    scan = scan_bag(out / "bag")
+    (cid,) = [c for c, ch in scan.channels.items() if ch.topic.lstrip("/") == "controller/diagnostics"]
+    start, length, _ = scan.payloads(cid)
+    d = decode(scan.channels[cid].schema_name, scan.buffer, start, length)
+    assert d is not None and start.size == 6001
+    assert d.slow_path == 0 and d.undecodable == 0
+
+
 def test_rerun_reproduces_every_recorded_torque(tracking_run, tmp_path) -> None:  # type: ignore[no-untyped-def]
     out, _, _ = tracking_run
     proc = subprocess.run([*SAPPC, "rerun", str(out / "bag"), "--json", str(tmp_path / "same.json")], capture_output=True, text=True, cwd=ROOT)
