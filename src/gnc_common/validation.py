@@ -266,10 +266,10 @@ def from_mapping(cls: type, data: Any, prefix: str) -> Any:
         hint = hints[name]
         # a dataclass field, or an optional one (``SomeDataclass | None``)
         options = [h for h in typing.get_args(hint) if h is not type(None)] if typing.get_args(hint) else [hint]
-        nested = options[0] if len(options) == 1 and dataclasses.is_dataclass(options[0]) else None
+        nested = options[0] if len(options) == 1 and isinstance(options[0], type) and dataclasses.is_dataclass(options[0]) else None
         enum = options[0] if len(options) == 1 and isinstance(options[0], type) and issubclass(options[0], Enum) else None
         if nested is not None and value is not None:
-            kwargs[name] = from_mapping(nested, value, f"{prefix}.{name}")  # type: ignore[arg-type]
+            kwargs[name] = from_mapping(nested, value, f"{prefix}.{name}")
         elif enum is not None and value is not None:
             try:
                 kwargs[name] = enum(value)

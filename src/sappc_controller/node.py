@@ -39,16 +39,19 @@ import dataclasses
 import json
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 
 from sappc_msgs_py.contract import (
     CLOCK,
     CONTROL_TORQUE,
     CONTROLLER_DIAGNOSTICS,
+    Topic,
     qos_profile,
 )
 from sappc_msgs_py.convert import (
@@ -96,7 +99,7 @@ class ControllerNode(ProjectNode):
         self.pub_diag = self.counting_publisher(CONTROLLER_DIAGNOSTICS)
         qos = qos_profile()
         for topic in _INPUTS:
-            self.create_subscription(topic.msg_class, topic.name, lambda m, tp=topic: self._on_input(m, tp), qos)
+            self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos)
         self.rejected = 0
         self.stale = False
         self.steps = 0
@@ -156,12 +159,12 @@ class ControllerNode(ProjectNode):
         """The controller's time: the latest /clock in lockstep, the node clock in real time."""
         return self._clock_ns if self.mode == LOCKSTEP else self.get_clock().now().nanoseconds
 
-    def _decode(self, msg: Any, topic: Any) -> np.ndarray:
+    def _decode(self, msg: Any, topic: Topic) -> np.ndarray:
         if topic.type_name.endswith("QuaternionStamped"):
             return check_unit_quaternion(f"{topic.name} quaternion", quaternion_from_msg(msg, topic))
         return vector3_from_msg(msg, topic)
 
-    def _on_input(self, msg: Any, topic: Any) -> None:
+    def _on_input(self, msg: Any, topic: Topic) -> None:
         ns = stamp_to_ns(msg.header.stamp)
         try:
             value = self._decode(msg, topic)
@@ -231,7 +234,7 @@ class ControllerNode(ProjectNode):
         t = t_ns / _NS
         stamp = ns_to_stamp(t_ns)
         self.pub_torque.publish(torque_msg(torque, stamp, CONTROL_TORQUE))
-        rows = dict(self._diag_rows)
+        rows: dict[str, ArrayLike] = dict(self._diag_rows)
         rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(self.stale), 0.0],
                     input_stamps_state_s=[input_ns[0] / _NS, input_ns[1] / _NS, 0.0],
                     input_stamps_reference_s=[n / _NS for n in input_ns[2:]])

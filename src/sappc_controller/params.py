@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -46,8 +47,10 @@ __all__ = [
 
 #: The config dataclass of each controller kind.
 CONFIG_CLASSES: dict[str, type] = {"sappc": SappcConfig, "trappc": TrappcConfig, "blfppc": BlfppcConfig}
-#: The controller class of each kind (built from its config).
-CONTROLLER_CLASSES: dict[str, type[AttitudeController]] = {"sappc": SappcController, "trappc": TrappcController, "blfppc": BlfppcController}
+#: The controller class of each kind, built from a config of that kind (SAPPC also takes
+#: ``on_infeasible``).  Typed by what they build: ``type[AttitudeController]`` would check the
+#: calls against the base class's ``(inertia_kg_m2, actuator)`` constructor, which no caller uses.
+CONTROLLER_CLASSES: dict[str, Callable[..., AttitudeController]] = {"sappc": SappcController, "trappc": TrappcController, "blfppc": BlfppcController}
 
 #: The node's ``control_period_s`` when a parameters file does not set it [s] (100 Hz, the paper's).
 DEFAULT_CONTROL_PERIOD_S = 0.01

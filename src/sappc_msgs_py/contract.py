@@ -42,6 +42,10 @@ import functools
 from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import Enum
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # rclpy is imported where a node needs it, not by every user of the contract
+    from rclpy.qos import QoSProfile
 
 __all__ = [
     "CLOCK",
@@ -115,7 +119,8 @@ def _msg_class(type_name: str) -> type:
     import importlib
 
     pkg, _, cls = type_name.split("/")
-    return getattr(importlib.import_module(f"{pkg}.msg"), cls)  # type: ignore[no-any-return]
+    msg_class: type = getattr(importlib.import_module(f"{pkg}.msg"), cls)
+    return msg_class
 
 
 STATE_ATTITUDE = Topic("state/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)
@@ -208,7 +213,7 @@ DIAGNOSTICS_LAYOUT = (
 )
 
 
-def qos_profile():  # type: ignore[no-untyped-def]
+def qos_profile() -> QoSProfile:
     """The QoS of every topic: RELIABLE, VOLATILE, KEEP_LAST ``QOS_DEPTH`` (imports rclpy)."""
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 

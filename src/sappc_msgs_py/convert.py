@@ -22,7 +22,6 @@ from gnc_common.validation import InputError, as_finite_array
 from sappc_msgs_py.contract import (
     CONTROL_TORQUE,
     DIAGNOSTICS_LAYOUT,
-    DISTURBANCE_TORQUE,
     Topic,
 )
 

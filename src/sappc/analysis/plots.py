@@ -4,13 +4,19 @@ and Lyapunov values), of several runs overlaid, of a torque re-run, of a Monte C
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from numpy.typing import NDArray
 
 from sappc.evaluation.history import History
+
+if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with this module
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 __all__ = ["plot_campaign", "plot_compare", "plot_run", "plot_torque_rerun"]
 
@@ -22,7 +28,7 @@ Array = NDArray[np.float64]
 _SUB = ("₁", "₂", "₃")
 
 
-def _log_axis(ax) -> None:  # type: ignore[no-untyped-def]
+def _log_axis(ax: Axes) -> None:
     """Log scale on y with decade labels written 10⁻⁵ in Unicode (the default formatter uses mathtext)."""
     from matplotlib.ticker import FuncFormatter
 
@@ -46,7 +52,7 @@ _SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
 PNG_COMPRESS_LEVEL = 1
 
 
-def _finish(fig, path: Path, title: str, paths: list[Path], *, margins: dict | None = None) -> None:  # type: ignore[no-untyped-def, type-arg]
+def _finish(fig: Figure, path: Path, title: str, paths: list[Path], *, margins: dict[str, float] | None = None) -> None:
     """Title, lay out (``tight_layout`` unless fixed ``margins`` are given: it costs ~1 s on log
     axes with many lines), save at 110 dpi, close, and record the path."""
     import matplotlib.pyplot as plt
@@ -61,7 +67,7 @@ def _finish(fig, path: Path, title: str, paths: list[Path], *, margins: dict | N
     paths.append(path)
 
 
-def _mark_faults(ax, fault_windows: list[tuple[float, float]], t_end: float) -> None:  # type: ignore[no-untyped-def]
+def _mark_faults(ax: Axes, fault_windows: Sequence[tuple[float, float]], t_end: float) -> None:
     for start, end in fault_windows:
         ax.axvspan(start, min(end, t_end), color="tab:red", alpha=0.15, lw=0)
 
@@ -74,7 +80,8 @@ _ROWS_MARGINS = dict(left=0.12, right=0.97, bottom=0.07, top=0.93, hspace=0.12)
 _RUN_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray")
 
 
-def _rows(n: int = 3, height: float = 7.5):  # type: ignore[no-untyped-def]
+def _rows(n: int = 3, height: float = 7.5) -> tuple[Figure, NDArray[np.object_]]:
+    """A figure of ``n`` (at least 2) rows sharing the time axis, and its array of Axes."""
     import matplotlib.pyplot as plt
 
     return plt.subplots(n, 1, figsize=(8, height), sharex=True)
@@ -85,7 +92,7 @@ def plot_run(
     out_dir: Path,
     *,
     title: str,
-    fault_windows: list[tuple[float, float]] = (),  # type: ignore[assignment]
+    fault_windows: Sequence[tuple[float, float]] = (),
     zoom_from_s: float = 15.0,
     run: int = 0,
 ) -> list[Path]:
@@ -163,7 +170,7 @@ def plot_run(
 
 
 def plot_compare(runs: list[tuple[str, History]], out_dir: Path, *, title: str,
-                 fault_windows: list[tuple[float, float]] = ()) -> list[Path]:  # type: ignore[assignment]
+                 fault_windows: Sequence[tuple[float, float]] = ()) -> list[Path]:
     """Overlay several runs, as the paper's comparison figures: ``compare_qev.png`` (each q_ev
     component with its run's performance function dashed), ``compare_qev_log.png`` and
     ``compare_torque.png``.  Each run is one colour, labelled."""
@@ -230,7 +237,7 @@ def plot_torque_rerun(t: Array, recorded: Array, recomputed: Array, out_dir: Pat
     return paths
 
 
-def plot_campaign(tab: dict, out_dir: Path, *, criteria: tuple[float, float], title: str) -> list[Path]:  # type: ignore[type-arg]
+def plot_campaign(tab: dict[str, NDArray[Any]], out_dir: Path, *, criteria: tuple[float, float], title: str) -> list[Path]:
     """The paper's Monte Carlo figures: t2 tracking error and steady-state error per component
     (one point per run, criterion dashed), and the kept trajectories overlaid with their RPFs."""
     import matplotlib

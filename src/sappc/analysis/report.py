@@ -119,8 +119,8 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
     settings = sc.metrics if sc else MetricSettings()
     windows = sc.event_windows() if sc else []
 
-    for topic, n in bag.undecodable.items():
-        notes.append(f"{topic}: {n} message(s) do not fit their type's layout and were skipped")
+    for undecodable, n in bag.undecodable.items():
+        notes.append(f"{undecodable}: {n} message(s) do not fit their type's layout and were skipped")
     for name, spec in _CONTRACT.items():
         topic = find_topic(bag, name)
         frames = bag.frame_ids.get(topic, ()) if topic else ()
@@ -253,6 +253,7 @@ def compare_bags(analyses: list[BagAnalysis], out_dir: Path) -> tuple[list[str],
     unusable = [f"{a.path}: {a.problems[0]}" for a in analyses if a.run is None]
     if unusable:
         raise BagError("cannot compare: " + "; ".join(unusable))
+    runs = [a.run for a in analyses if a.run is not None]  # every one of them: none is unusable
     labels = [a.label for a in analyses]
     for i, a in enumerate(analyses):  # the same controller twice: tell the runs apart by their bag
         if labels.count(a.label) > 1:
@@ -264,13 +265,13 @@ def compare_bags(analyses: list[BagAnalysis], out_dir: Path) -> tuple[list[str],
     title = names.pop() if len(names) == 1 else "comparison"
     windows = sorted({w for a in analyses for w in a.fault_windows})
     out_dir.mkdir(parents=True, exist_ok=True)
-    figures = plot_compare([(lab, a.run.history) for lab, a in zip(labels, analyses)], out_dir, title=title,  # type: ignore[union-attr]
+    figures = plot_compare([(lab, run.history) for lab, run in zip(labels, runs)], out_dir, title=title,
                            fault_windows=windows)
     notes = [f"{lab}: {n}" for lab, a in zip(labels, analyses) for n in a.problems + a.notes]
     blocks = [
         "<h2>Runs</h2>" + html_table(["run", "bag", "scenario", "samples"],
-                                     [[lab, str(a.path), a.scenario.name if a.scenario else None, a.run.history.t.size]  # type: ignore[union-attr]
-                                      for lab, a in zip(labels, analyses)]),
+                                     [[lab, str(a.path), a.scenario.name if a.scenario else None, run.history.t.size]
+                                      for lab, a, run in zip(labels, analyses, runs)]),
         html_list(notes, "note"),
         "<h2>Metrics</h2>" + html_table(header, rows),
         "<h2>Figures</h2>",

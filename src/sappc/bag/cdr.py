@@ -28,7 +28,9 @@ inconsistent string length) is not decoded and is counted.  The decoders are tes
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,7 +64,7 @@ class Decoded:
     slow_path: int = 0  # messages parsed one by one (not in a group's vectorised layout)
 
 
-def _groups(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]):  # type: ignore[no-untyped-def]
+def _groups(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]) -> Iterator[tuple[NDArray[np.int64], NDArray[np.uint8]]]:
     """Yield (positions, rows) per distinct payload length: rows is (g, L) uint8."""
     for L in np.unique(length):
         pos = np.flatnonzero(length == L)
@@ -72,10 +74,11 @@ def _groups(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.
 
 
 def _le(rows: NDArray[np.uint8]) -> NDArray[np.bool_]:
-    return (rows[:, 0] == _CDR_LE[0]) & (rows[:, 1] == _CDR_LE[1])
+    le: NDArray[np.bool_] = (rows[:, 0] == _CDR_LE[0]) & (rows[:, 1] == _CDR_LE[1])  # numpy's stub: & of the comparisons is Any
+    return le
 
 
-def _col(rows: NDArray[np.uint8], begin: int, end: int, dtype: str) -> NDArray:  # type: ignore[type-arg]
+def _col(rows: NDArray[np.uint8], begin: int, end: int, dtype: str) -> NDArray[Any]:
     return np.ascontiguousarray(rows[:, begin:end]).view(dtype)
 
 
@@ -86,7 +89,10 @@ def _stamp_ns(rows: NDArray[np.uint8]) -> NDArray[np.int64]:
 
 
 def _decode_stamped(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64], n_doubles: int, keep: slice) -> Decoded:
-    idx, stamps, vals, frames = [], [], [], set()
+    idx: list[NDArray[np.int64]] = []
+    stamps: list[NDArray[np.int64]] = []
+    vals: list[NDArray[np.float64]] = []
+    frames: set[str] = set()
     width = keep.stop - keep.start
     for pos, rows in _groups(u8, start, length):
         L = rows.shape[1]
@@ -201,7 +207,8 @@ def _decode_multiarray(u8: NDArray[np.uint8], start: NDArray[np.int64], length: 
     return out
 
 
-def _assemble(idx: list, stamps: list, vals: list, width: int, total: int, frame_ids: tuple[str, ...] = ()) -> Decoded:  # type: ignore[type-arg]
+def _assemble(idx: list[NDArray[np.int64]], stamps: list[NDArray[np.int64]], vals: list[NDArray[np.float64]], width: int, total: int,
+              frame_ids: tuple[str, ...] = ()) -> Decoded:
     if not idx:
         return Decoded(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, width)), frame_ids, undecodable=total)
     index = np.concatenate(idx)
@@ -215,8 +222,15 @@ def _assemble(idx: list, stamps: list, vals: list, width: int, total: int, frame
     )
 
 
+_Decoder = Callable[[NDArray[np.uint8], NDArray[np.int64], NDArray[np.int64]], Decoded]
+
+
+def _stamped_decoder(n_doubles: int, keep: slice) -> _Decoder:
+    return lambda u8, s, n: _decode_stamped(u8, s, n, n_doubles, keep)
+
+
 #: Decoder of each type name: ``f(u8, start, length) -> Decoded``.
-DECODERS = {name: (lambda u8, s, n, _d=d, _k=k: _decode_stamped(u8, s, n, _d, _k)) for name, (d, k) in _STAMPED.items()}
+DECODERS: dict[str, _Decoder] = {name: _stamped_decoder(d, k) for name, (d, k) in _STAMPED.items()}
 DECODERS["rosgraph_msgs/msg/Clock"] = _decode_clock
 DECODERS["std_msgs/msg/Float64MultiArray"] = _decode_multiarray
 

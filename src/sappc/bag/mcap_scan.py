@@ -107,6 +107,8 @@ class _Builder:
     def top_level(self, raw: bytes) -> int:
         """Walk the data section; return the offset where the walk stopped."""
         off, end = 8, len(raw)
+        op: int  # struct's unpack_from yields tuple[Any, ...]
+        n: int
         while off + 9 <= end:
             op, n = _RECORD_HEAD.unpack_from(raw, off)
             body = off + 9

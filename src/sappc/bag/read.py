@@ -91,7 +91,7 @@ def mcap_file(path: Path) -> Path:
     if meta.exists():
         try:
             info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
-            files = [path / f for f in info["relative_file_paths"]]
+            files: list[Path] = [path / f for f in info["relative_file_paths"]]
         except (yaml.YAMLError, KeyError, TypeError) as exc:
             raise BagError(f"{meta}: not a rosbag2 metadata file ({exc})") from None
         if len(files) > 1:
@@ -192,7 +192,7 @@ def bag_run(bag: Bag) -> BagRun:
     missing = [names[k] for k, v in found.items() if v is None or bag.series[v].stamps_ns.size == 0]
     if missing:
         raise BagError(f"{bag.path}: the bag lacks {', '.join(missing)}; metrics need the state and the reference")
-    att, rate, ref = (bag.series[found[k]] for k in ("att", "rate", "ref"))  # type: ignore[index]
+    att, rate, ref = (bag.series[found[k]] for k in ("att", "rate", "ref"))  # type: ignore[index]  # no found[k] is None: `missing` raised
     common = np.intersect1d(att.stamps_ns, rate.stamps_ns)
     common = common[common >= ref.stamps_ns.min()]
     if common.size == 0:
@@ -234,7 +234,10 @@ def bag_run(bag: Bag) -> BagRun:
         rows = {label: data[:, n] for n, label in enumerate(labels)}
     nan3 = np.full((T, 3), np.nan)
     status = rows.get("status", np.zeros((T, 3)))
-    one = lambda a: a[:, None, :]  # noqa: E731 - (T, 3) -> (T, 1, 3): one run
+
+    def one(a: NDArray[Any]) -> NDArray[Any]:
+        return a[:, None, :]  # (T, 3) -> (T, 1, 3): one run
+
     t0 = int(common[0])
     history = History(
         t=(common - t0) / 1e9,

@@ -25,6 +25,7 @@ from __future__ import annotations
 import shutil
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +37,6 @@ from sappc_msgs_py.contract import (
     FAULT_TOPICS,
     QOS_DEPTH,
     TOPICS,
-    Topic,
 )
 from sappc_msgs_py.runtime import ProjectNode, run_node
 from sappc_msgs_py.schemas import schema_text, type_hash
@@ -154,10 +154,10 @@ class RecorderNode(ProjectNode):
         self._channels: dict[str, int] = {}
         qos_text = yaml.safe_dump(_qos_v9(), sort_keys=False)
         for name in names:
-            topic: Topic = _KNOWN.get(name.lstrip("/"), _KNOWN.get(name))  # type: ignore[assignment]
+            topic = _KNOWN.get(name.lstrip("/")) or _KNOWN[name]  # known: checked above
             if topic.type_name not in schemas:
                 schemas[topic.type_name] = self.writer.register_schema(topic.type_name, "ros2msg", schema_text(topic.type_name).encode())
-            sub = self.create_subscription(topic.msg_class, topic.name, lambda data, n=topic.name: self._on_message(n, data), qos, raw=True)
+            sub = self.create_subscription(topic.msg_class, topic.name, partial(self._on_message, topic.name), qos, raw=True)
             resolved = str(sub.topic_name)
             self._channels[topic.name] = self.writer.register_channel(
                 resolved, "cdr", schemas[topic.type_name], {"offered_qos_profiles": qos_text, "topic_type_hash": type_hash(topic.type_name)}

@@ -170,7 +170,7 @@ class ReplayNode(ProjectNode):
 
         msg = CLOCK.msg_class()
         msg.clock = ns_to_stamp(ns)
-        self.clock_pub.publish(msg)  # type: ignore[union-attr]
+        self.clock_pub.publish(msg)  # type: ignore[union-attr]  # called only when clock_pub is set (see _tick)
         self._last_clock_ns = ns
 
     def _tick(self) -> None:

@@ -16,7 +16,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from sappc_controller.core.base import AttitudeController, ControlOutput
+from sappc_controller.core.base import AttitudeController
 from gnc_common.attitude import error_quaternion
 from spacecraft_sim.core.disturbance import DisturbanceModel
 from spacecraft_sim.core.dynamics import RigidBody

@@ -29,15 +29,16 @@ Array = NDArray[np.float64]
 SINGULAR_Q0_AT_START = 1e-6
 
 
-def _valid_inputs(t: object, dt: object, *arrays: ArrayLike) -> tuple | None:  # type: ignore[type-arg]
+def _valid_inputs(t: float, dt: float, *arrays: ArrayLike) -> tuple[float, float, Array, Array, Array, Array, Array] | None:
     """All step inputs as float64 arrays if every check passes, else ``None``.
 
     A fast path over all inputs at once (one finiteness test, one norm test per
     quaternion); on ``None`` the caller runs the per-input checks, which raise
-    an :class:`InputError` naming the offending value.
+    an :class:`InputError` naming the offending value.  ``t`` and ``dt`` are typed as
+    :meth:`AttitudeController.step` declares them; anything else that arrives is caught here.
     """
     try:
-        t_f, dt_f = float(t), float(dt)  # type: ignore[arg-type]
+        t_f, dt_f = float(t), float(dt)
         q, w, q_d, w_d, wdot_d = (np.asarray(a, dtype=np.float64) for a in arrays)
     except (TypeError, ValueError):
         return None
@@ -140,6 +141,10 @@ class AttitudeController(ABC):
         self.t0: float | None = None
         self.n_runs: int | None = None
 
+    #: The validated config of the controller's kind (a dataclass with ``gains`` and
+    #: ``actuator``), set by each subclass's ``__init__``.
+    config: Any
+
     #: Gain fields :meth:`reconfigure` may change during a run (the filter's p, T3_s and
     #: V_floor are part of its state; the performance functions fix the run's envelope).
     RUNTIME_GAINS = ("K_q", "K_omega", "K1", "K2", "K3", "D_m_Nm", "mu_rad_s", "q0_floor")
@@ -155,7 +160,7 @@ class AttitudeController(ABC):
         ConfigError
             Naming the first field that may not change during a run.
         """
-        current = self.config  # type: ignore[attr-defined]
+        current = self.config
         if type(config) is not type(current):
             raise ConfigError(f"reconfigure needs a {type(current).__name__}, got {type(config).__name__}")
         for f in fields(current):
@@ -166,7 +171,7 @@ class AttitudeController(ABC):
         for f in fields(current.gains):
             if f.name not in self.RUNTIME_GAINS and getattr(config.gains, f.name) != getattr(current.gains, f.name):
                 raise ConfigError(f"gains.{f.name} cannot change during a run (it is part of the filter's state); restart the controller")
-        self.config = config  # type: ignore[attr-defined]
+        self.config = config
         self.actuator = Actuator(config.actuator)
         self._set_gains(config.gains)
 
