@@ -182,3 +182,18 @@ def test_start_checks_apply() -> None:
         prepare(sc, "sappc", q_BN0=np.array([1.0, 0.0, 0.0, 0.0]))
     with pytest.raises(ConfigError, match="must start inside its funnel"):
         prepare(sc, "trappc", q_BN0=np.array([0.6, 0.0, 0.0, 0.8]))
+
+
+def test_cache_dir_falls_back_to_user_dir_when_install_is_read_only(monkeypatch, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from gnc_common import compiled
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(compiled.os, "access", lambda path, mode: False)
+    chosen = compiled._choose_cache_dir()
+    assert chosen == str(tmp_path / "sappc" / "numba")
+    assert (tmp_path / "sappc" / "numba").is_dir()
+    assert compiled.os.environ["NUMBA_CACHE_DIR"] == chosen
+    # a directory the user chose wins
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
+    assert compiled._choose_cache_dir() == str(tmp_path / "mine")
