@@ -1,0 +1,243 @@
+"""The compiled ground: the project's ``jit`` decorator and per-run quaternion kernels.
+
+Compilation policy
+------------------
+Every compiled function of the project is made with :func:`jit` (or :func:`jit_parallel` for
+the batch entry points), i.e. ``numba.njit`` with
+
+* ``cache=True``: machine code is kept on disk and loaded by later processes;
+* ``fastmath=False``: no reassociation, no fused multiply-add contraction, IEEE semantics for
+  NaN and infinities, so a run is reproducible and equal to itself on every path (node step,
+  offline run, run ``k`` of a campaign) bit for bit;
+* ``error_model="numpy"``: a division by zero gives ``inf``/``nan`` as numpy does, instead of
+  raising ``ZeroDivisionError`` (and no per-division check in the machine code).
+
+Compiled kernels call the system ``libm`` for ``exp``, ``tanh``, ``pow``, ``expm1``, ``atan``,
+while numpy uses its own SIMD routines even for one element: results agree with the numpy
+formulas of the same operations to the last bit or two (about 1e-16 relative per call, ~1e-13
+over a closed-loop run), not bitwise.
+
+Cache location (read-only installs)
+-----------------------------------
+numba writes its cache next to the source (``__pycache__``).  When the installed package
+directory is not writable (a system or container install) and the user has not chosen a
+directory with ``NUMBA_CACHE_DIR``, this module sets ``NUMBA_CACHE_DIR`` to
+``$XDG_CACHE_HOME/sappc/numba`` (``~/.cache/sappc/numba`` without ``XDG_CACHE_HOME``) **before**
+any kernel is compiled, and reloads numba's configuration if numba was already imported.  The
+chosen directory is :data:`CACHE_DIR` (``None``: numba's in-tree default).
+
+Quaternion kernels
+------------------
+The convention is that of :mod:`gnc_common.attitude`: scalar last ``(x, y, z, w)``, Hamilton
+product.  Each kernel works on one run's small float64 arrays (length 3 or 4) and writes into an
+``out`` array supplied by the caller (no allocation per call); ``out`` may not alias an input
+unless the docstring says so.  The operations are written in the same order as the numpy
+functions of :mod:`gnc_common.attitude` (e.g. ``dot = (a0 b0 + a1 b1) + a2 b2``), so the two
+agree bit for bit wherever no transcendental function is involved.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "CACHE_DIR",
+    "cross3",
+    "dcm_BR_times",
+    "dot3",
+    "error_quaternion",
+    "gamma_inverse_times",
+    "jit",
+    "jit_parallel",
+    "matvec3",
+    "quat_conjugate",
+    "quat_multiply",
+    "quat_normalize",
+    "quat_rotate",
+]
+
+
+def _choose_cache_dir() -> str | None:
+    """``NUMBA_CACHE_DIR`` for a read-only install (see module docstring), or ``None``."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return os.environ["NUMBA_CACHE_DIR"]
+    package_root = Path(__file__).resolve().parent.parent  # src/ or site-packages/
+    pycache = Path(__file__).resolve().parent / "__pycache__"
+    probe = pycache if pycache.is_dir() else pycache.parent
+    if os.access(probe, os.W_OK) and os.access(package_root, os.R_OK):
+        return None
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    path = os.path.join(base, "sappc", "numba")
+    os.makedirs(path, exist_ok=True)
+    os.environ["NUMBA_CACHE_DIR"] = path
+    return path
+
+
+#: The numba cache directory used by this process (``None``: next to the sources).
+CACHE_DIR: str | None = _choose_cache_dir()
+
+_numba_was_imported = "numba" in sys.modules
+import numba  # noqa: E402  (after the cache directory is chosen)
+
+if CACHE_DIR is not None and _numba_was_imported:
+    numba.core.config.reload_config()
+
+_OPTIONS = {"cache": True, "fastmath": False, "error_model": "numpy", "nogil": True}
+
+
+def jit(*args, **kwargs):  # type: ignore[no-untyped-def]
+    """``numba.njit`` with the project's options (module docstring); usable bare or with options."""
+    options = {**_OPTIONS, **kwargs}
+    if args and callable(args[0]) and len(args) == 1:
+        return numba.njit(**options)(args[0])
+    return numba.njit(*args, **options)
+
+
+def jit_parallel(func):  # type: ignore[no-untyped-def]
+    """:func:`jit` with ``parallel=True`` for batch entry points (``prange`` over runs)."""
+    return numba.njit(parallel=True, **_OPTIONS)(func)
+
+
+# ----------------------------------------------------------------------------- vectors
+
+
+@jit
+def dot3(a, b):  # type: ignore[no-untyped-def]
+    """``(a0 b0 + a1 b1) + a2 b2`` (the order of :func:`gnc_common.attitude.dot`)."""
+    return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+
+
+@jit
+def cross3(a, b, out):  # type: ignore[no-untyped-def]
+    """``out = a × b`` for 3-vectors."""
+    c0 = a[1] * b[2] - a[2] * b[1]
+    c1 = a[2] * b[0] - a[0] * b[2]
+    c2 = a[0] * b[1] - a[1] * b[0]
+    out[0] = c0
+    out[1] = c1
+    out[2] = c2
+
+
+@jit
+def matvec3(M, v, out):  # type: ignore[no-untyped-def]
+    """``out = M v`` for a (3, 3) matrix, summed ``(M_i0 v0 + M_i1 v1) + M_i2 v2``
+    (as :func:`gnc_common.attitude.matvec`; for a diagonal ``M`` the zero terms are exact)."""
+    v0, v1, v2 = v[0], v[1], v[2]
+    for i in range(3):
+        out[i] = (M[i, 0] * v0 + M[i, 1] * v1) + M[i, 2] * v2
+
+
+# ----------------------------------------------------------------------------- quaternions
+
+
+@jit
+def quat_multiply(p, q, out):  # type: ignore[no-untyped-def]
+    """Hamilton product ``out = p ⊗ q`` (scalar last); ``out`` may alias ``p`` or ``q``."""
+    p0, q0 = p[3], q[3]
+    c0 = p[1] * q[2] - p[2] * q[1]
+    c1 = p[2] * q[0] - p[0] * q[2]
+    c2 = p[0] * q[1] - p[1] * q[0]
+    w = p0 * q0 - ((p[0] * q[0] + p[1] * q[1]) + p[2] * q[2])
+    x = (p0 * q[0] + q0 * p[0]) + c0
+    y = (p0 * q[1] + q0 * p[1]) + c1
+    z = (p0 * q[2] + q0 * p[2]) + c2
+    out[0] = x
+    out[1] = y
+    out[2] = z
+    out[3] = w
+
+
+@jit
+def quat_conjugate(q, out):  # type: ignore[no-untyped-def]
+    """``out = (-q_v, q_0)``; ``out`` may alias ``q``."""
+    out[0] = -q[0]
+    out[1] = -q[1]
+    out[2] = -q[2]
+    out[3] = q[3]
+
+
+@jit
+def quat_normalize(q, out):  # type: ignore[no-untyped-def]
+    """``out = q / |q|`` (non-zero ``q``), norm summed ``((x² + y²) + z²) + w²``; may alias."""
+    n = np.sqrt(((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3])
+    for i in range(4):
+        out[i] = q[i] / n
+
+
+@jit
+def error_quaternion(q_RN, q_BN, out):  # type: ignore[no-untyped-def]
+    """``out = q_BR = q_RN^* ⊗ q_BN`` with ``q_0 >= 0`` (see :func:`gnc_common.attitude.error_quaternion`)."""
+    # conjugate folded in: p = (-r_v, r_0)
+    p0 = q_RN[3]
+    px, py, pz = -q_RN[0], -q_RN[1], -q_RN[2]
+    c0 = py * q_BN[2] - pz * q_BN[1]
+    c1 = pz * q_BN[0] - px * q_BN[2]
+    c2 = px * q_BN[1] - py * q_BN[0]
+    w = p0 * q_BN[3] - ((px * q_BN[0] + py * q_BN[1]) + pz * q_BN[2])
+    x = (p0 * q_BN[0] + q_BN[3] * px) + c0
+    y = (p0 * q_BN[1] + q_BN[3] * py) + c1
+    z = (p0 * q_BN[2] + q_BN[3] * pz) + c2
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    out[0] = x
+    out[1] = y
+    out[2] = z
+    out[3] = w
+
+
+@jit
+def dcm_BR_times(q_BR, v_R, out):  # type: ignore[no-untyped-def]
+    """``out = C_e v`` with ``C_e = (q0² - q_v·q_v) I + 2 q_v q_v^T - 2 q0 q_v^x`` (eq. errorsystem)."""
+    q0 = q_BR[3]
+    qq = (q_BR[0] * q_BR[0] + q_BR[1] * q_BR[1]) + q_BR[2] * q_BR[2]
+    qv_v = (q_BR[0] * v_R[0] + q_BR[1] * v_R[1]) + q_BR[2] * v_R[2]
+    s = q0 * q0 - qq
+    two_d = 2.0 * qv_v
+    two_q0 = 2.0 * q0
+    c0 = q_BR[1] * v_R[2] - q_BR[2] * v_R[1]
+    c1 = q_BR[2] * v_R[0] - q_BR[0] * v_R[2]
+    c2 = q_BR[0] * v_R[1] - q_BR[1] * v_R[0]
+    o0 = (s * v_R[0] + two_d * q_BR[0]) - two_q0 * c0
+    o1 = (s * v_R[1] + two_d * q_BR[1]) - two_q0 * c1
+    o2 = (s * v_R[2] + two_d * q_BR[2]) - two_q0 * c2
+    out[0] = o0
+    out[1] = o1
+    out[2] = o2
+
+
+@jit
+def quat_rotate(q_BN, v_B, out):  # type: ignore[no-untyped-def]
+    """``out = v_N``, the components of ``v`` in N: ``q_BN ⊗ (v_B, 0) ⊗ q_BN^*``."""
+    x, y, z, w = q_BN[0], q_BN[1], q_BN[2], q_BN[3]
+    # t = 2 q_v × v;  v_N = v + w t + q_v × t
+    t0 = 2.0 * (y * v_B[2] - z * v_B[1])
+    t1 = 2.0 * (z * v_B[0] - x * v_B[2])
+    t2 = 2.0 * (x * v_B[1] - y * v_B[0])
+    o0 = v_B[0] + w * t0 + (y * t2 - z * t1)
+    o1 = v_B[1] + w * t1 + (z * t0 - x * t2)
+    o2 = v_B[2] + w * t2 + (x * t1 - y * t0)
+    out[0] = o0
+    out[1] = o1
+    out[2] = o2
+
+
+@jit
+def gamma_inverse_times(q_BR, x, q0_floor, out):  # type: ignore[no-untyped-def]
+    """``out = Gamma(q_e)^-1 x = 2 (q0 x - q_v × x + q_v (q_v·x) / q0)``, ``q0`` floored at
+    ``q0_floor`` (SPEC_NOTES error 5; see :func:`gnc_common.attitude.gamma_inverse_times`)."""
+    q0 = max(q_BR[3], q0_floor)
+    d = ((q_BR[0] * x[0] + q_BR[1] * x[1]) + q_BR[2] * x[2]) / q0
+    c0 = q_BR[1] * x[2] - q_BR[2] * x[1]
+    c1 = q_BR[2] * x[0] - q_BR[0] * x[2]
+    c2 = q_BR[0] * x[1] - q_BR[1] * x[0]
+    o0 = 2.0 * ((q0 * x[0] - c0) + d * q_BR[0])
+    o1 = 2.0 * ((q0 * x[1] - c1) + d * q_BR[1])
+    o2 = 2.0 * ((q0 * x[2] - c2) + d * q_BR[2])
+    out[0] = o0
+    out[1] = o1
+    out[2] = o2
+

@@ -1,0 +1,531 @@
+"""Compiled per-run step kernels of SAPPC, TraPPC and BLFPPC (numba, see :mod:`gnc_common.compiled`).
+
+One call of :func:`controller_step` computes one run's torque for one sampling instant, the
+same law as :mod:`.sappc`, :mod:`.trappc` and :mod:`.blfppc` (equation numbers are the paper's,
+SPEC_NOTES items as cited there), written over small float64 arrays the caller owns:
+
+``prm`` (:data:`N_PARAMS`,)
+    Gains, actuator limits, the known inertia ``J`` and the performance-function constants,
+    laid out by the ``P_*`` indices below (:func:`pack_params` fills it from a config).
+``coef`` (:data:`N_COEF`, 3)
+    Per-run constants fixed at the run's first sample: the sign of each initial error and, for
+    SAPPC, the RPF coefficients ``t1, a1, l, A = rho_e0 - rho_einf`` (computed once in Python
+    with scipy's Lambert W by :class:`.rpf.ReferencePerformanceFunction`: :func:`start_coef`).
+``state`` (:data:`N_STATE`,)
+    What a run carries from sample to sample: the dynamic-surface filter output ``S_d``, the
+    SMETF warm start (previous ``eps, P_s, z, d eps/d delta, delta``) and the time origin ``t0``.
+    :func:`new_state` gives a fresh one.
+``work`` (:data:`N_WORK`, 4)
+    Scratch (no allocation per step); its first rows hold the error state after a step.
+``out`` (:data:`N_OUT`, 4)
+    Results, rows ``O_*``: produced torque, commanded torque, saturation flags (1.0/0.0), the
+    error quaternion, ``rho``, band lower/upper, ``eps``, ``z`` and ``V = (V1, V2, V3)``; the
+    same quantities as :class:`.base.ControlOutput`.
+
+Nothing inside is a Python object: the kernels run unchanged in the controller node (one call
+per sample, inputs checked in Python before), in the offline whole-run loop and in a ``prange``
+over the runs of a campaign (:mod:`sappc.offline.compiled_loop`).  The kernels check nothing:
+the start checks (180 deg singularity, funnel contains the initial error, RPF feasibility) are
+made once, in Python, by :func:`start_coef`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gnc_common.compiled import dcm_BR_times, dot3, error_quaternion, gamma_inverse_times, jit, matvec3
+from gnc_common.validation import ConfigError, InputError
+
+from sappc_controller.core.base import SINGULAR_Q0_AT_START
+from sappc_controller.core.blfppc import BARRIER_MARGIN, BlfppcConfig
+from sappc_controller.core.rpf import ReferencePerformanceFunction
+from sappc_controller.core.sappc import SappcConfig
+from sappc_controller.core.smetf import _MAX_NEWTON_ITERATIONS, _RESIDUAL_ULPS
+from sappc_controller.core.trappc import DOMAIN_MARGIN, TrappcConfig
+
+__all__ = [
+    "KIND_BLFPPC",
+    "KIND_SAPPC",
+    "KIND_TRAPPC",
+    "N_COEF",
+    "N_OUT",
+    "N_PARAMS",
+    "N_STATE",
+    "N_WORK",
+    "controller_step",
+    "kind_of",
+    "new_state",
+    "pack_params",
+    "start_coef",
+]
+
+#: Controller kinds (the ``kind`` argument of :func:`controller_step`).
+KIND_SAPPC, KIND_TRAPPC, KIND_BLFPPC = 0, 1, 2
+
+# --- prm layout -------------------------------------------------------------------------------
+P_P, P_T1, P_T2, P_T3, P_VFLOOR, P_Q0FLOOR = 0, 1, 2, 3, 4, 5
+#: SAPPC/TraPPC: K_q, K_omega; BLFPPC: K1, K2.
+P_KQ, P_KW = 6, 7
+P_K1, P_K2 = 6, 7
+P_DM, P_MU = 8, 9
+#: SAPPC: B0; BLFPPC: K3.
+P_B0 = 10
+P_K3 = 10
+#: SAPPC: tan(theta); TraPPC: K.
+P_TANTH = 11
+P_KFUN = 11
+P_UMAX, P_UMIN = 12, 13
+P_J = 14  # 9 entries, row major
+#: SAPPC RPF: rho_einf, g_inf, t2.
+P_RHO_EINF, P_GINF, P_RPF_T2 = 23, 24, 25
+#: TraPPC exponential PF: rho_0, rho_inf, l.
+P_PF_RHO0, P_PF_RHOINF, P_PF_L = 23, 24, 25
+#: BLFPPC FTPPF: rho(0), rho_Tf, T_f, 1/m.
+P_FT_RHO0, P_FT_RHOTF, P_FT_TF, P_FT_INVM = 23, 24, 25, 26
+N_PARAMS = 27
+
+# --- coef rows --------------------------------------------------------------------------------
+C_SIGN, C_T1, C_A1, C_L, C_A = 0, 1, 2, 3, 4
+N_COEF = 5
+
+# --- state layout -----------------------------------------------------------------------------
+S_SD = 0  # 3: filter output S_d
+S_FILTER_ON = 3  # 0.0 until the filter has its first input
+S_PREV = 4  # 15: previous eps, P_s, z, d eps/d delta, delta (3 each)
+S_HAS_PREV = 19
+S_T0 = 20
+N_STATE = 21
+
+# --- work rows --------------------------------------------------------------------------------
+W_QBR, W_WBR, W_WBN, W_CWD, W_CWDD = 0, 1, 2, 3, 4  # error state (eq. errorsystem)
+W_EPS, W_PSI, W_ETA, W_QEV = 5, 6, 7, 8
+W_X, W_ALPHA, W_SD, W_SDDOT, W_Z2, W_JZ2, W_T1, W_T2 = 9, 10, 11, 12, 13, 14, 15, 16
+N_WORK = 17
+
+# --- out rows ---------------------------------------------------------------------------------
+O_TORQUE, O_CMD, O_SAT, O_QBR, O_RHO, O_BL, O_BU, O_EPS, O_Z, O_V = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
+N_OUT = 10
+
+_TWO_OVER_PI = 2.0 / np.pi
+_HALF_PI = np.pi / 2.0
+_TOL = _RESIDUAL_ULPS * float(np.finfo(np.float64).eps)
+_MAX_IT = _MAX_NEWTON_ITERATIONS
+
+
+# ============================================================================= shared pieces
+
+
+@jit
+def predefined_time_gain(V, p, T, V_floor):  # type: ignore[no-untyped-def]
+    """``M = exp(V^p) V^(-p) / (2 p T)`` at ``max(V, V_floor)`` (eqs. M_q, M_omega, dSd; SPEC_NOTES error 4)."""
+    Vp = max(V, V_floor) ** p
+    return np.exp(Vp) / (Vp * (2.0 * p * T))
+
+
+@jit
+def error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work):  # type: ignore[no-untyped-def]
+    """Error state of eq. (errorsystem) into ``work`` rows ``W_QBR .. W_CWDD``:
+    ``q_e = q_d^* ⊗ q_s`` (``q_e0 >= 0``), ``omega_e = omega_s - C_e omega_d``, ``C_e omega_d``,
+    ``C_e omegadot_d`` and ``omega_s``."""
+    error_quaternion(q_RN, q_BN, work[W_QBR])
+    dcm_BR_times(work[W_QBR], omega_RN_R, work[W_CWD])  # C_e omega_d
+    dcm_BR_times(work[W_QBR], omegadot_RN_R, work[W_CWDD])  # C_e omegadot_d
+    for i in range(3):
+        work[W_WBN, i] = omega_BN_B[i]
+        work[W_WBR, i] = omega_BN_B[i] - work[W_CWD, i]  # omega_e = omega_s - C_e omega_d
+
+
+@jit
+def filter_update(prm, state, dt, alpha, S_d_out, S_d_dot_out):  # type: ignore[no-untyped-def]
+    """Dynamic-surface filter (eq. dSd) with the exact exponential update (SPEC_NOTES error 4):
+    ``S_d[k+1] = S_d + dt dS_d/dt``, ``dS_d/dt = -(1 - exp(-M3 dt)) / dt H_d``, ``H_d = S_d - alpha``,
+    ``M3`` frozen over the step; starts at ``S_d = alpha``.  Writes the output before the update and
+    its derivative; returns ``V3 = |H_d|^2 / 2``.  Same as :class:`.common.DynamicSurfaceFilter`."""
+    if state[S_FILTER_ON] == 0.0:
+        for i in range(3):
+            state[S_SD + i] = alpha[i]
+        state[S_FILTER_ON] = 1.0
+    h0 = state[S_SD] - alpha[0]  # H_d = S_d - alpha
+    h1 = state[S_SD + 1] - alpha[1]
+    h2 = state[S_SD + 2] - alpha[2]
+    V3 = 0.5 * ((h0 * h0 + h1 * h1) + h2 * h2)
+    M3 = predefined_time_gain(V3, prm[P_P], prm[P_T3], prm[P_VFLOOR])  # eq. (dSd)
+    neg_rate = -(-np.expm1(-M3 * dt) / dt)
+    S_d_dot_out[0] = neg_rate * h0
+    S_d_dot_out[1] = neg_rate * h1
+    S_d_dot_out[2] = neg_rate * h2
+    for i in range(3):
+        S_d_out[i] = state[S_SD + i]
+        state[S_SD + i] = state[S_SD + i] + dt * S_d_dot_out[i]
+    return V3
+
+
+@jit
+def w0_plus(prm, work, out):  # type: ignore[no-untyped-def]
+    """``out = -W0``, ``W0 = J omega_e^x C_e omega_d - J C_e omegadot_d - omega_s^x J omega_s`` (after eq. U)."""
+    J = prm[P_J : P_J + 9].reshape((3, 3))
+    a, b = work[W_WBR], work[W_CWD]
+    t = work[W_T1]
+    t[0] = (a[1] * b[2] - a[2] * b[1]) - work[W_CWDD, 0]
+    t[1] = (a[2] * b[0] - a[0] * b[2]) - work[W_CWDD, 1]
+    t[2] = (a[0] * b[1] - a[1] * b[0]) - work[W_CWDD, 2]
+    Jt = work[W_T2]
+    matvec3(J, t, Jt)  # J (omega_e^x C_e omega_d - C_e omegadot_d)
+    w = work[W_WBN]
+    matvec3(J, w, t)  # J omega_s
+    c0 = w[1] * t[2] - w[2] * t[1]
+    c1 = w[2] * t[0] - w[0] * t[2]
+    c2 = w[0] * t[1] - w[1] * t[0]
+    out[0] = -(Jt[0] - c0)
+    out[1] = -(Jt[1] - c1)
+    out[2] = -(Jt[2] - c2)
+
+
+@jit
+def actuator(prm, out):  # type: ignore[no-untyped-def]
+    """Per-axis saturation at ``max`` and minimum-output deadband (``|u_i| < min`` gives 0),
+    from ``out[O_CMD]`` into ``out[O_TORQUE]`` and ``out[O_SAT]`` (:class:`.common.Actuator`)."""
+    umax, umin = prm[P_UMAX], prm[P_UMIN]
+    for i in range(3):
+        u = out[O_CMD, i]
+        mag = abs(u)
+        torque = min(max(u, -umax), umax)
+        out[O_TORQUE, i] = 0.0 if mag < umin else torque
+        out[O_SAT, i] = 1.0 if mag > umax else 0.0
+
+
+# ============================================================================= SAPPC pieces
+
+
+@jit
+def rpf_evaluate(prm, coef, tau, i):  # type: ignore[no-untyped-def]
+    """RPF value and slope of component ``i`` at ``tau`` (eq. RPF; SPEC_NOTES error 1), as
+    :meth:`.rpf.ReferencePerformanceFunction.evaluate`."""
+    t = max(tau, 0.0)
+    sign = coef[C_SIGN, i]
+    g_inf, t2 = prm[P_GINF], prm[P_RPF_T2]
+    if t >= t2:
+        return sign * g_inf, 0.0
+    if t < coef[C_T1, i]:  # exponential part
+        l = coef[C_L, i]
+        expo = coef[C_A, i] * np.exp(-l * t)
+        return sign * (expo + prm[P_RHO_EINF]), sign * (-l * expo)
+    a1 = coef[C_A1, i]  # parabola a1 (t - t2)^2 + g_inf
+    dt2 = t - t2
+    return sign * (a1 * dt2 * dt2 + g_inf), sign * (2.0 * a1 * dt2)
+
+
+@jit
+def smetf_solve(z_s, delta, k, has_guess, guess):  # type: ignore[no-untyped-def]
+    """Solve eq. (solve) ``(2 delta / pi) arctan(eps) + tan(theta) eps = z_s - 1`` by monotone
+    Newton from a lower bound (warm start ``max(guess sign(w), lower)``), as :func:`.smetf.smetf`.
+    Returns ``eps`` and ``z0 - 1 = a arctan(eps)`` (eqs. Rs, chosenfunction)."""
+    a = _TWO_OVER_PI * delta
+    w = z_s - 1.0
+    abs_w = abs(w)
+    lower = max(abs_w / (a + k), (abs_w - a * _HALF_PI) / k)
+    if has_guess:
+        sgn = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else 0.0)
+        eps = max(guess * sgn, lower)
+    else:
+        eps = lower
+    a_atan = 0.0
+    for _ in range(_MAX_IT):
+        a_atan = a * np.arctan(eps)
+        k_eps = k * eps
+        resid = a_atan + k_eps - abs_w
+        if not abs(resid) > _TOL * (a_atan + k_eps + abs_w):
+            break
+        eps = max(eps - resid / (a / (1.0 + eps * eps) + k), lower)
+    return np.copysign(eps, w), np.copysign(a_atan, w)
+
+
+@jit
+def sappc_transform(prm, coef, state, tau, work, out):  # type: ignore[no-untyped-def]
+    """RPF (eq. RPF) + time-varying constraint (eq. delta_i) + SMETF (eqs. Rs, solve, PS) per component:
+    writes ``eps``, ``psi``, ``eta`` to ``work`` and ``rho``, the band, ``eps``, ``z`` to ``out``
+    (:class:`.sappc.SappcTransformation`)."""
+    B0, k = prm[P_B0], prm[P_TANTH]
+    has_prev = state[S_HAS_PREV] != 0.0
+    for i in range(3):
+        q_ev = work[W_QBR, i]
+        rho, rho_dot = rpf_evaluate(prm, coef, tau, i)  # eq. RPF
+        abs_rho = abs(rho)
+        delta = B0 / abs_rho  # eq. delta_i
+        z = q_ev / rho  # z_qi = q_evi / rho_i
+        guess = 0.0
+        if has_prev:  # warm start: first-order prediction from the previous sample
+            guess = (state[S_PREV + i] + state[S_PREV + 3 + i] * (z - state[S_PREV + 6 + i])) + state[S_PREV + 9 + i] * (
+                delta - state[S_PREV + 12 + i]
+            )
+        eps, z0_offset = smetf_solve(z, delta, k, has_prev, guess)  # eqs. Rs, solve, chosenfunction
+        P_s = 1.0 / (k + (_TWO_OVER_PI * delta) / (1.0 + eps * eps))  # eq. PS
+        d_eps_d_delta = -(z0_offset / delta) * P_s  # SPEC_NOTES error 3
+        state[S_PREV + i] = eps
+        state[S_PREV + 3 + i] = P_s
+        state[S_PREV + 6 + i] = z
+        state[S_PREV + 9 + i] = d_eps_d_delta
+        state[S_PREV + 12 + i] = delta
+        work[W_EPS, i] = eps
+        work[W_PSI, i] = P_s / rho  # psi_si = P_si / rho_i (eq. dEpsilon)
+        work[W_ETA, i] = -rho_dot / rho  # eta_si = -rho_dot_i / rho_i
+        # xi_si = (d eps / d delta) delta_dot (eq. dEpsilon) enters no term of the law (eq. virtualcontrol),
+        # so delta_dot (eq. delta_i) is not computed here.
+        out[O_RHO, i] = rho
+        out[O_BL, i] = rho - B0
+        out[O_BU, i] = rho + B0
+        out[O_EPS, i] = eps
+        out[O_Z, i] = z
+    state[S_HAS_PREV] = 1.0
+
+
+@jit
+def trappc_transform(prm, coef, tau, work, out):  # type: ignore[no-untyped-def]
+    """Exponential PF + homeomorphic log transformation (Appendix B, :class:`.trappc.TrappcTransformation`)."""
+    K = prm[P_KFUN]
+    decay = (prm[P_PF_RHO0] - prm[P_PF_RHOINF]) * np.exp(-prm[P_PF_L] * tau)
+    rho = decay + prm[P_PF_RHOINF]  # rho(t) = (rho_0 - rho_inf) exp(-l t) + rho_inf
+    rho_dot = -prm[P_PF_L] * decay
+    eta = -rho_dot / rho  # eta = -rho_dot / rho
+    for i in range(3):
+        s = coef[C_SIGN, i]
+        z = work[W_QBR, i] / rho
+        x = min(max(s * z, -K + DOMAIN_MARGIN), 1.0 - DOMAIN_MARGIN)  # singularity guard (module trappc)
+        eps = s * np.log((K + x) / (K * (1.0 - x)))  # homeomorphic transformation (Table, row by sign)
+        d_eps_dz = 1.0 / (K + x) + 1.0 / (1.0 - x)
+        work[W_EPS, i] = eps
+        work[W_PSI, i] = d_eps_dz / rho
+        work[W_ETA, i] = eta
+        out[O_RHO, i] = s * rho
+        out[O_BL, i] = -K * rho if s > 0.0 else -rho
+        out[O_BU, i] = rho if s > 0.0 else K * rho
+        out[O_EPS, i] = eps
+        out[O_Z, i] = z
+
+
+@jit
+def backstepping_law(prm, state, dt, work, out):  # type: ignore[no-untyped-def]
+    """The predefined-time backstepping law of Sec. IV.F (:class:`.sappc.BacksteppingPPC`), from
+    ``eps``, ``psi``, ``eta`` in ``work``; writes the commanded torque and ``V``."""
+    J = prm[P_J : P_J + 9].reshape((3, 3))
+    eps = work[W_EPS]
+    V1 = 0.5 * dot3(eps, eps)  # V1 = z1^T z1 / 2, z1 = eps_q
+    M_q = predefined_time_gain(V1, prm[P_P], prm[P_T1], prm[P_VFLOOR])
+    neg_kq_mq = -(prm[P_KQ] * M_q)
+    x = work[W_X]
+    for i in range(3):  # eq. (virtualcontrol): alpha = Gamma^-1 [-psi^-1 M_q K_q eps - eta q_ev]
+        x[i] = neg_kq_mq * eps[i] / work[W_PSI, i] - work[W_ETA, i] * work[W_QBR, i]
+    alpha = work[W_ALPHA]
+    gamma_inverse_times(work[W_QBR], x, prm[P_Q0FLOOR], alpha)
+    S_d, S_d_dot = work[W_SD], work[W_SDDOT]
+    V3 = filter_update(prm, state, dt, alpha, S_d, S_d_dot)  # eq. (dSd), exact exponential update
+    z2, Jz2 = work[W_Z2], work[W_JZ2]
+    for i in range(3):
+        z2[i] = work[W_WBR, i] - S_d[i]  # z2 = omega_e - S_d
+    matvec3(J, z2, Jz2)
+    V2 = 0.5 * dot3(z2, Jz2)  # V2 = z2^T J z2 / 2
+    M_w = predefined_time_gain(V2, prm[P_P], prm[P_T2], prm[P_VFLOOR])
+    kw_mw = prm[P_KW] * M_w
+    minus_w0 = work[W_X]  # x is no longer needed
+    w0_plus(prm, work, minus_w0)
+    JSdd = work[W_ALPHA]  # alpha is no longer needed
+    matvec3(J, S_d_dot, JSdd)
+    D_m, mu = prm[P_DM], prm[P_MU]
+    for i in range(3):  # eq. (U): u = -W0 + J dS_d/dt - D_m tanh(z2/mu) - M_omega K_omega J z2
+        out[O_CMD, i] = ((minus_w0[i] + JSdd[i]) - D_m * np.tanh(z2[i] / mu)) - kw_mw * Jz2[i]
+    out[O_V, 0] = V1
+    out[O_V, 1] = V2
+    out[O_V, 2] = V3
+
+
+# ============================================================================= BLFPPC
+
+
+@jit
+def blfppc_law(prm, coef, state, tau, dt, work, out):  # type: ignore[no-untyped-def]
+    """The BLFPPC benchmark law of Appendix C (:class:`.blfppc.BlfppcController`), with
+    ``Gamma^-1`` in the coupling term as the appendix writes it (SPEC_NOTES observation 6)."""
+    J = prm[P_J : P_J + 9].reshape((3, 3))
+    # FTPPF rho(t) = rho_0 (1 - t/T_f)^(1/m) + rho_Tf, t < T_f
+    T_f, rho_Tf = prm[P_FT_TF], prm[P_FT_RHOTF]
+    if tau >= T_f:
+        f, f_dot = rho_Tf, 0.0
+    else:
+        inv_m = prm[P_FT_INVM]
+        rho_0 = prm[P_FT_RHO0] - rho_Tf
+        frac = 1.0 - max(tau, 0.0) / T_f
+        f = rho_0 * frac**inv_m + rho_Tf
+        f_dot = -rho_0 * inv_m * frac ** (inv_m - 1.0) / T_f
+    K1 = prm[P_K1]
+    x, eps_a = work[W_X], work[W_EPS]
+    for i in range(3):
+        up = coef[C_SIGN, i] > 0.0
+        rho_u = f if up else 0.0
+        rho_l = 0.0 if up else -f
+        rho_u_dot = f_dot if up else 0.0
+        rho_l_dot = 0.0 if up else -f_dot
+        q_ev = work[W_QBR, i]
+        width = rho_u - rho_l
+        P_lu = rho_l + rho_u  # P_lu = rho_l + rho_u
+        eps = (2.0 * q_ev - P_lu) / width  # BLF-type transformation
+        S_b = rho_l_dot * rho_u - rho_u_dot * rho_l  # S_b = rho_l' rho_u - rho_u' rho_l
+        S_v = ((rho_u_dot - rho_l_dot) * q_ev + S_b) / width  # S_v
+        x[i] = (-K1 * q_ev + 0.5 * K1 * P_lu) + S_v  # -K1 q_ev + 1/2 K1 P_lu + S_v
+        eps_a[i] = eps
+        out[O_RHO, i] = rho_u if up else rho_l
+        out[O_BL, i] = rho_l
+        out[O_BU, i] = rho_u
+        out[O_EPS, i] = eps
+        out[O_Z, i] = q_ev
+        work[W_PSI, i] = width  # kept for D_rho below
+    alpha = work[W_ALPHA]
+    gamma_inverse_times(work[W_QBR], x, prm[P_Q0FLOOR], alpha)  # alpha = Gamma^-1 [...]
+    S_d, S_d_dot = work[W_SD], work[W_SDDOT]
+    V3 = filter_update(prm, state, dt, alpha, S_d, S_d_dot)  # eq. (dSd)
+    z2, Jz2 = work[W_Z2], work[W_JZ2]
+    D_rho_eps = work[W_ETA]
+    for i in range(3):
+        z2[i] = work[W_WBR, i] - S_d[i]
+        e = eps_a[i]
+        barrier = 1.0 - e * e  # barrier guard: |1 - eps^2| >= BARRIER_MARGIN (module blfppc)
+        if abs(barrier) < BARRIER_MARGIN:
+            barrier = np.copysign(BARRIER_MARGIN, barrier)
+        D_rho_eps[i] = e / (barrier * work[W_PSI, i])  # D_rho eps
+    matvec3(J, z2, Jz2)
+    coupling = work[W_X]
+    gamma_inverse_times(work[W_QBR], D_rho_eps, prm[P_Q0FLOOR], coupling)
+    minus_w0 = work[W_ALPHA]  # alpha is no longer needed
+    w0_plus(prm, work, minus_w0)
+    JSdd = work[W_PSI]  # width no longer needed
+    matvec3(J, S_d_dot, JSdd)
+    K2, two_K3, D_m, mu = prm[P_K2], 2.0 * prm[P_K3], prm[P_DM], prm[P_MU]
+    for i in range(3):  # u = -K2 J z2 - 2 K3 Gamma^-1 D_rho eps - W0 + J dS_d/dt - D_m tanh(z2/mu)
+        out[O_CMD, i] = (((-K2 * Jz2[i] - two_K3 * coupling[i]) + minus_w0[i]) + JSdd[i]) - D_m * np.tanh(z2[i] / mu)
+    out[O_V, 0] = 0.5 * dot3(eps_a, eps_a)
+    out[O_V, 1] = 0.5 * dot3(z2, Jz2)
+    out[O_V, 2] = V3
+
+
+# ============================================================================= the step
+
+
+@jit
+def controller_step(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, prm, coef, state, work, out):  # type: ignore[no-untyped-def]
+    """One sampling instant of one run: error state, law, actuator (see module docstring).
+
+    ``t`` [s] is absolute; the law sees ``tau = t - state[S_T0]``.  The run must have been
+    started (:func:`start_coef`, :func:`new_state`).  Results in ``out``.
+    """
+    error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work)
+    for i in range(4):
+        out[O_QBR, i] = work[W_QBR, i]
+    tau = t - state[S_T0]
+    if kind == KIND_BLFPPC:
+        blfppc_law(prm, coef, state, tau, dt, work, out)
+    else:
+        if kind == KIND_SAPPC:
+            sappc_transform(prm, coef, state, tau, work, out)
+        else:
+            trappc_transform(prm, coef, tau, work, out)
+        backstepping_law(prm, state, dt, work, out)
+    actuator(prm, out)
+
+
+# ============================================================================= Python side (start)
+
+
+def kind_of(config: object) -> int:
+    """The kernel kind of a controller config."""
+    if isinstance(config, SappcConfig):
+        return KIND_SAPPC
+    if isinstance(config, TrappcConfig):
+        return KIND_TRAPPC
+    if isinstance(config, BlfppcConfig):
+        return KIND_BLFPPC
+    raise ConfigError(f"no compiled kernel for {type(config).__name__}")
+
+
+def pack_params(config: object, n_runs: int = 1, gains: dict[str, np.ndarray] | None = None) -> np.ndarray:
+    """``prm`` rows for ``n_runs`` runs, shape (n_runs, N_PARAMS), from a validated config.
+
+    ``gains`` optionally gives per-run values (N,) of ``K_q``, ``K_omega``, ``D_m_Nm``, ``mu_rad_s``
+    (Monte Carlo gain dispersions; the config's gains may also hold such arrays).
+    """
+    prm = np.zeros((n_runs, N_PARAMS))
+    g = config.gains  # type: ignore[attr-defined]
+    J = np.asarray(config.inertia_kg_m2, dtype=np.float64)  # type: ignore[attr-defined]
+    prm[:, P_P], prm[:, P_T3], prm[:, P_VFLOOR], prm[:, P_Q0FLOOR] = g.p, g.T3_s, g.V_floor, g.q0_floor
+    prm[:, P_DM], prm[:, P_MU] = g.D_m_Nm, g.mu_rad_s
+    prm[:, P_UMAX] = config.actuator.max_torque_Nm  # type: ignore[attr-defined]
+    prm[:, P_UMIN] = config.actuator.min_torque_Nm  # type: ignore[attr-defined]
+    prm[:, P_J : P_J + 9] = J.reshape(-1)
+    if isinstance(config, BlfppcConfig):
+        prm[:, P_K1], prm[:, P_K2], prm[:, P_K3] = g.K1, g.K2, g.K3
+        pf = config.ftppf
+        prm[:, P_FT_RHO0], prm[:, P_FT_RHOTF], prm[:, P_FT_TF] = pf.rho_initial, pf.rho_Tf, pf.T_f_s
+        prm[:, P_FT_INVM] = pf.m_even / pf.m_odd
+    else:
+        prm[:, P_T1], prm[:, P_T2], prm[:, P_KQ], prm[:, P_KW] = g.T1_s, g.T2_s, g.K_q, g.K_omega
+        if isinstance(config, SappcConfig):
+            prm[:, P_B0] = config.B0
+            prm[:, P_TANTH] = float(np.tan(np.radians(config.theta_deg)))
+            prm[:, P_RHO_EINF], prm[:, P_GINF], prm[:, P_RPF_T2] = config.rpf.rho_einf, config.rpf.g_inf, config.rpf.t2_s
+        elif isinstance(config, TrappcConfig):
+            prm[:, P_KFUN] = config.K
+            prm[:, P_PF_RHO0], prm[:, P_PF_RHOINF], prm[:, P_PF_L] = config.pf.rho_0, config.pf.rho_inf, config.pf.l
+        else:
+            raise ConfigError(f"no compiled kernel for {type(config).__name__}")
+    for name, col in (("K_q", P_KQ), ("K_omega", P_KW), ("D_m_Nm", P_DM), ("mu_rad_s", P_MU)):
+        if gains and name in gains:
+            prm[:, col] = np.asarray(gains[name], dtype=np.float64)
+    return prm
+
+
+@jit
+def error_quaternions(q_RN, q_BN):  # type: ignore[no-untyped-def]
+    """``q_BR`` (N, 4) of states ``q_BN`` (N, 4) against one ``q_RN`` (4,), by the kernel's formula."""
+    out = np.empty((q_BN.shape[0], 4))
+    for n in range(q_BN.shape[0]):
+        error_quaternion(q_RN, q_BN[n], out[n])
+    return out
+
+
+def start_coef(config: object, q_BR0: np.ndarray, *, on_infeasible: str = "raise") -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Run constants ``coef`` (N, N_COEF, 3) from the first error quaternions ``q_BR0`` (N, 4), with
+    the start checks of the numpy core: the 180 deg singularity, the funnel containing the initial
+    error (TraPPC, BLFPPC), the RPF feasibility (SAPPC; ``on_infeasible`` as in
+    :class:`.rpf.ReferencePerformanceFunction`).  Also returns the RPF's ``flat`` and ``clamped`` flags.
+    """
+    q_BR0 = np.atleast_2d(np.asarray(q_BR0, dtype=np.float64))
+    q0 = q_BR0[:, 3]
+    if np.any(q0 < SINGULAR_Q0_AT_START):
+        k = int(np.argmax(q0 < SINGULAR_Q0_AT_START))
+        raise InputError(
+            f"initial error quaternion scalar part q_e0 = {q0[k]:.3g} (run {k}) is at the 180 deg singularity "
+            f"of Gamma(q_e) (needs q_e0 >= {SINGULAR_Q0_AT_START}): the RPF sign and the virtual control are undefined"
+        )
+    q_ev0 = q_BR0[:, :3]
+    n = q_ev0.shape[0]
+    coef = np.zeros((n, N_COEF, 3))
+    flags = {"flat": np.zeros((n, 3), bool), "clamped": np.zeros((n, 3), bool)}
+    coef[:, C_SIGN] = np.where(q_ev0 >= 0.0, 1.0, -1.0)
+    if isinstance(config, SappcConfig):
+        rpf = ReferencePerformanceFunction(config.rpf, q_ev0, on_infeasible=on_infeasible)  # type: ignore[arg-type]
+        coef[:, C_SIGN], coef[:, C_T1], coef[:, C_A1], coef[:, C_L], coef[:, C_A] = rpf.sign, rpf.t1, rpf.a1, rpf.l, rpf._A
+        flags = {"flat": rpf.flat, "clamped": rpf.clamped}
+    else:
+        rho0, name = (config.pf.rho_0, "pf.rho_0") if isinstance(config, TrappcConfig) else (config.ftppf.rho_initial, "ftppf.rho_initial")  # type: ignore[attr-defined]
+        worst = float(np.max(np.abs(q_ev0)))
+        if worst >= rho0:
+            raise ConfigError(
+                f"{name} = {rho0!r} must exceed the largest initial error |q_ev,i(0)| = {worst:.6g}: "
+                f"{'TraPPC' if isinstance(config, TrappcConfig) else 'BLFPPC'} must start inside its funnel"
+            )
+    return coef, flags
+
+
+def new_state(n_runs: int = 1, t0: float | np.ndarray = 0.0) -> np.ndarray:
+    """Fresh per-run states (n_runs, N_STATE): empty filter, no warm start, time origin ``t0``."""
+    state = np.zeros((n_runs, N_STATE))
+    state[:, S_T0] = t0
+    return state

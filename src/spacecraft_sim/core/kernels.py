@@ -1,0 +1,284 @@
+"""Compiled per-run plant kernels: rigid-body RK4 with zero-order hold, the paper's reference
+rates, and every disturbance kind (numba, see :mod:`gnc_common.compiled`).
+
+The same models as :mod:`.dynamics`, :mod:`.reference` and :mod:`.disturbance`, over one run's
+small float64 arrays, operations in the same order (results agree to the last bit or two where
+``sin``, ``cos`` or ``sqrt`` of the system libm and numpy's SIMD routines differ).
+
+Disturbances
+------------
+A :class:`~.disturbance.DisturbanceSum` is encoded by :func:`encode_disturbance` as
+
+``kinds`` (M,) int64
+    One of ``D_PERIODIC`` (paper_periodic), ``D_CONSTANT``, ``D_STEP``, ``D_PULSE``, ``D_RANDOM``.
+``dparams`` (M, 8)
+    ``periodic: omega_p``; ``constant: tx, ty, tz``; ``step: tx, ty, tz, start``;
+    ``pulse: tx, ty, tz, start, duration``; ``random: sx, sy, sz, hold, r`` (``r``: index of its
+    draw table).
+``dscale``, ``dphase`` (N, M)
+    Per-run scale and phase of each periodic model (Monte Carlo dispersions; 1 and 0 otherwise).
+``rand_draws`` (R, N, W, 3), ``rand_win`` (R, T)
+    The random kind's Gaussian draws.  ``RandomTorque`` draws window ``k`` of seed ``s`` from
+    ``numpy.random.default_rng([s, k])``, which compiled code cannot reproduce; the draws of every
+    window of the run's time grid are therefore made **before** the loop, in Python, by the same
+    calls (:func:`random_draws`), and the kernel looks them up (``rand_win[r, k]`` is the draw
+    index of sample ``k``).  Same values, bit for bit.
+
+:func:`disturbance_sample` evaluates the sum at one time for one run, models in list order
+(``((0 + d_1) + d_2) ...``, as :class:`~.disturbance.DisturbanceSum`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gnc_common.compiled import jit, matvec3
+
+from spacecraft_sim.core.disturbance import (
+    TIME_TOLERANCE_S,
+    ConstantTorque,
+    DisturbanceSum,
+    PaperPeriodic,
+    PulseTorque,
+    RandomTorque,
+    StepTorque,
+)
+
+__all__ = [
+    "D_CONSTANT",
+    "D_PERIODIC",
+    "D_PULSE",
+    "D_RANDOM",
+    "D_STEP",
+    "disturbance_sample",
+    "disturbance_table",
+    "encode_disturbance",
+    "propagate",
+    "random_draws",
+    "reference_rates",
+    "reference_rate_tables",
+    "rk4_step",
+]
+
+D_PERIODIC, D_CONSTANT, D_STEP, D_PULSE, D_RANDOM = 0, 1, 2, 3, 4
+N_DPARAMS = 8
+#: Rows of the plant's scratch array (:func:`propagate`).
+N_PLANT_WORK = 8
+_TOL = TIME_TOLERANCE_S
+
+
+# ============================================================================= rigid body
+
+
+@jit
+def derivative(x, accel_ext, J, J_inv, work, out):  # type: ignore[no-untyped-def]
+    """``dx/dt`` of ``x = (q_BN, omega_BN_B)`` (7,) given ``J^-1 torque`` (3,) (module dynamics):
+    ``dq/dt = 1/2 q ⊗ (omega, 0)``, ``domega/dt = J^-1 torque - J^-1 (omega × J omega)``."""
+    q0 = x[3]
+    w0, w1, w2 = x[4], x[5], x[6]
+    c0 = x[1] * w2 - x[2] * w1
+    c1 = x[2] * w0 - x[0] * w2
+    c2 = x[0] * w1 - x[1] * w0
+    out[0] = 0.5 * (q0 * w0 + c0)
+    out[1] = 0.5 * (q0 * w1 + c1)
+    out[2] = 0.5 * (q0 * w2 + c2)
+    out[3] = -0.5 * ((x[0] * w0 + x[1] * w1) + x[2] * w2)
+    Jw = work[0]
+    matvec3(J, x[4:7], Jw)  # J omega
+    cr = work[1]
+    cr[0] = w1 * Jw[2] - w2 * Jw[1]  # omega × J omega
+    cr[1] = w2 * Jw[0] - w0 * Jw[2]
+    cr[2] = w0 * Jw[1] - w1 * Jw[0]
+    Jic = work[2]
+    matvec3(J_inv, cr, Jic)
+    out[4] = accel_ext[0] - Jic[0]
+    out[5] = accel_ext[1] - Jic[1]
+    out[6] = accel_ext[2] - Jic[2]
+
+
+@jit
+def rk4_step(x, accel_ext, dt, J, J_inv, work):  # type: ignore[no-untyped-def]
+    """One classical RK4 step of ``dt`` in place, input held (ZOH), then ``q`` renormalised
+    (:meth:`.dynamics.RigidBody.rk4_step`).  ``work`` (N_PLANT_WORK, 7)."""
+    k1, k2, k3, k4, xs = work[3], work[4], work[5], work[6], work[7]
+    h2 = 0.5 * dt
+    derivative(x, accel_ext, J, J_inv, work, k1)
+    for i in range(7):
+        xs[i] = x[i] + h2 * k1[i]
+    derivative(xs, accel_ext, J, J_inv, work, k2)
+    for i in range(7):
+        xs[i] = x[i] + h2 * k2[i]
+    derivative(xs, accel_ext, J, J_inv, work, k3)
+    for i in range(7):
+        xs[i] = x[i] + dt * k3[i]
+    derivative(xs, accel_ext, J, J_inv, work, k4)
+    c = dt / 6.0
+    for i in range(7):
+        x[i] = x[i] + c * ((k1[i] + 2.0 * (k2[i] + k3[i])) + k4[i])
+    n = np.sqrt(((x[0] * x[0] + x[1] * x[1]) + x[2] * x[2]) + x[3] * x[3])
+    for i in range(4):
+        x[i] = x[i] / n
+
+
+@jit
+def propagate(x, torque_B, dt, substeps, J, J_inv, work):  # type: ignore[no-untyped-def]
+    """Advance ``x`` (7,) in place by ``dt`` in ``substeps`` RK4 steps with ``torque_B`` held
+    (zero-order hold, :meth:`.dynamics.RigidBody.propagate`; inputs checked by the caller)."""
+    accel = work[0, 4:7]  # row 0 columns 4..6 are free (derivative uses columns 0..2)
+    matvec3(J_inv, torque_B, accel)
+    h = dt / substeps
+    for _ in range(substeps):
+        rk4_step(x, accel, h, J, J_inv, work)
+
+
+# ============================================================================= reference
+
+
+@jit
+def reference_rates(t, a_rad_s, periods, w_out, wdot_out):  # type: ignore[no-untyped-def]
+    """Paper reference (Sec. V.A): ``omega_d = A [cos(t/40), sin(t/30), -cos(t/50)]`` and its
+    derivative, ``A`` in rad/s (:class:`.reference.PaperReference`)."""
+    p0, p1, p2 = periods[0], periods[1], periods[2]
+    w_out[0] = a_rad_s * np.cos(t / p0)
+    w_out[1] = a_rad_s * np.sin(t / p1)
+    w_out[2] = a_rad_s * -np.cos(t / p2)
+    wdot_out[0] = a_rad_s * (-np.sin(t / p0) / p0)
+    wdot_out[1] = a_rad_s * (np.cos(t / p1) / p1)
+    wdot_out[2] = a_rad_s * (np.sin(t / p2) / p2)
+
+
+@jit
+def _rate_tables(t, a_rad_s, periods):  # type: ignore[no-untyped-def]
+    w = np.empty((t.shape[0], 3))
+    wd = np.empty((t.shape[0], 3))
+    for k in range(t.shape[0]):
+        reference_rates(t[k], a_rad_s, periods, w[k], wd[k])
+    return w, wd
+
+
+def reference_rate_tables(reference, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
+    """``omega_RN_R`` and ``omegadot_RN_R`` (T, 3) of a :class:`.reference.PaperReference` on ``t``.
+
+    ``q_RN`` comes from :meth:`.reference.PaperReference.sample` (DOP853, once per scenario):
+    an adaptive high-order integration is set-up work, not per-step work.
+    """
+    return _rate_tables(np.ascontiguousarray(t, dtype=np.float64), float(np.radians(reference.amplitude_deg_s)),
+                        np.asarray(reference.periods_s, dtype=np.float64))
+
+
+# ============================================================================= disturbances
+
+
+@jit
+def paper_periodic(t, omega_p, scale, phase, out):  # type: ignore[no-untyped-def]
+    """The paper's disturbance (Sec. V.A) with ``w t`` shifted by ``phase`` and scaled by ``scale``,
+    added to ``out`` (:class:`.disturbance.PaperPeriodic`)."""
+    wt = omega_p * t + phase
+    d0 = 1e-3 * ((4.0 * np.sin(3.0 * wt) + 3.0 * np.cos(10.0 * wt)) - 20.0)
+    d1 = 1e-3 * ((-1.5 * np.sin(2.0 * wt) + 3.0 * np.cos(5.0 * wt)) + 20.0)
+    d2 = 1e-3 * ((3.0 * np.sin(10.0 * wt) - 8.0 * np.cos(4.0 * wt)) + 20.0)
+    out[0] = out[0] + scale * d0
+    out[1] = out[1] + scale * d1
+    out[2] = out[2] + scale * d2
+
+
+@jit
+def disturbance_sample(k, t, kinds, dparams, dscale, dphase, rand_draws, rand_win, out):  # type: ignore[no-untyped-def]
+    """Total disturbance [N m] of one run at sample ``k``, time ``t``, into ``out`` (3,): the models
+    in list order (module docstring).  ``dscale``, ``dphase`` (M,), ``rand_draws`` (R, W, 3) are
+    this run's."""
+    out[0] = 0.0
+    out[1] = 0.0
+    out[2] = 0.0
+    for m in range(kinds.shape[0]):
+        kind = kinds[m]
+        p = dparams[m]
+        if kind == D_PERIODIC:
+            paper_periodic(t, p[0], dscale[m], dphase[m], out)
+        elif kind == D_CONSTANT:
+            for i in range(3):
+                out[i] = out[i] + p[i]
+        elif kind == D_STEP:  # on from start_s (TIME_TOLERANCE_S)
+            on = 1.0 if t >= p[3] - _TOL else 0.0
+            for i in range(3):
+                out[i] = out[i] + p[i] * on
+        elif kind == D_PULSE:  # on during [start_s, start_s + duration_s)
+            on = 1.0 if ((p[3] - _TOL) <= t and t < (p[3] + p[4] - _TOL)) else 0.0
+            for i in range(3):
+                out[i] = out[i] + p[i] * on
+        else:  # D_RANDOM: the draw of this sample's window, times sigma
+            r = int(p[4])
+            j = rand_win[r, k]
+            for i in range(3):
+                out[i] = out[i] + rand_draws[r, j, i] * p[i]
+
+
+@jit
+def disturbance_table(t, kinds, dparams, dscale, dphase, rand_draws, rand_win):  # type: ignore[no-untyped-def]
+    """:func:`disturbance_sample` on every time of ``t`` (T,) for one run: (T, 3)."""
+    d = np.empty((t.shape[0], 3))
+    for k in range(t.shape[0]):
+        disturbance_sample(k, t[k], kinds, dparams, dscale, dphase, rand_draws, rand_win, d[k])
+    return d
+
+
+def encode_disturbance(model: DisturbanceSum, n_runs: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``kinds``, ``dparams``, ``dscale`` (n_runs, M), ``dphase`` (n_runs, M) of a disturbance sum.
+
+    A periodic model's ``scale`` and ``phase_rad`` may be per-run tuples (length ``n_runs``).
+    """
+    models = model.models
+    M = len(models)
+    kinds = np.zeros(M, dtype=np.int64)
+    dparams = np.zeros((M, N_DPARAMS))
+    dscale = np.ones((n_runs, M))
+    dphase = np.zeros((n_runs, M))
+    r = 0
+    for m, mod in enumerate(models):
+        if isinstance(mod, PaperPeriodic):
+            kinds[m] = D_PERIODIC
+            dparams[m, 0] = mod.omega_p_rad_s
+            dscale[:, m] = np.broadcast_to(np.asarray(mod.scale, dtype=np.float64), (n_runs,))
+            dphase[:, m] = np.broadcast_to(np.asarray(mod.phase_rad, dtype=np.float64), (n_runs,))
+        elif isinstance(mod, ConstantTorque):
+            kinds[m] = D_CONSTANT
+            dparams[m, :3] = mod.torque_Nm
+        elif isinstance(mod, StepTorque):
+            kinds[m] = D_STEP
+            dparams[m, :3], dparams[m, 3] = mod.torque_Nm, mod.start_s
+        elif isinstance(mod, PulseTorque):
+            kinds[m] = D_PULSE
+            dparams[m, :3], dparams[m, 3], dparams[m, 4] = mod.torque_Nm, mod.start_s, mod.duration_s
+        elif isinstance(mod, RandomTorque):
+            kinds[m] = D_RANDOM
+            dparams[m, :3], dparams[m, 3], dparams[m, 4] = mod.sigma_Nm, mod.hold_s, r
+            r += 1
+        else:
+            raise TypeError(f"no compiled kernel for disturbance model {type(mod).__name__}")
+    return kinds, dparams, dscale, dphase
+
+
+def random_draws(model: DisturbanceSum, t: np.ndarray, n_runs: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """``rand_draws`` (R, n_runs, W, 3) and ``rand_win`` (R, T) of the random models of ``model``
+    on the grid ``t``: the draws ``default_rng([seed, window]).standard_normal(3)`` that
+    :meth:`.disturbance.RandomTorque.torque_B` makes, one per run and window (module docstring)."""
+    randoms = [m for m in model.models if isinstance(m, RandomTorque)]
+    t = np.asarray(t, dtype=np.float64).reshape(-1)
+    if not randoms:
+        return np.zeros((0, n_runs, 1, 3)), np.zeros((0, t.size), dtype=np.int64)
+    wins, invs = [], []
+    for m in randoms:
+        windows = np.floor(t / m.hold_s + TIME_TOLERANCE_S / m.hold_s).astype(np.int64)
+        uniq, inv = np.unique(windows, return_inverse=True)
+        wins.append(uniq)
+        invs.append(inv.reshape(-1))
+    W = max(u.size for u in wins)
+    draws = np.zeros((len(randoms), n_runs, W, 3))
+    for r, m in enumerate(randoms):
+        seeds = m.seeds if m.seeds else tuple(m.seed + i for i in range(n_runs))
+        if len(seeds) != n_runs:
+            raise ValueError(f"seeds lists {len(seeds)} runs, the batch has {n_runs}")
+        for n, s in enumerate(seeds):
+            for j, k in enumerate(wins[r]):
+                draws[r, n, j] = np.random.default_rng([int(s), int(k)]).standard_normal(3)
+    return draws, np.stack(invs).astype(np.int64)
