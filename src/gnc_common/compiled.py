@@ -41,6 +41,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -86,10 +87,10 @@ import numba  # noqa: E402  (after the cache directory is chosen)
 if CACHE_DIR is not None and _numba_was_imported:
     numba.core.config.reload_config()
 
-_OPTIONS = {"cache": True, "fastmath": False, "error_model": "numpy", "nogil": True}
+_OPTIONS: dict[str, Any] = {"cache": True, "fastmath": False, "error_model": "numpy", "nogil": True}
 
 
-def jit(*args, **kwargs):  # type: ignore[no-untyped-def]
+def jit(*args, **kwargs):
     """``numba.njit`` with the project's options (module docstring); usable bare or with options."""
     options = {**_OPTIONS, **kwargs}
     if args and callable(args[0]) and len(args) == 1:
@@ -97,7 +98,7 @@ def jit(*args, **kwargs):  # type: ignore[no-untyped-def]
     return numba.njit(*args, **options)
 
 
-def jit_parallel(func):  # type: ignore[no-untyped-def]
+def jit_parallel(func):
     """:func:`jit` with ``parallel=True`` for batch entry points (``prange`` over runs)."""
     return numba.njit(parallel=True, **_OPTIONS)(func)
 
@@ -106,13 +107,13 @@ def jit_parallel(func):  # type: ignore[no-untyped-def]
 
 
 @jit
-def dot3(a, b):  # type: ignore[no-untyped-def]
+def dot3(a, b):
     """``(a0 b0 + a1 b1) + a2 b2`` (the order of :func:`gnc_common.attitude.dot`)."""
     return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
 
 
 @jit
-def cross3(a, b, out):  # type: ignore[no-untyped-def]
+def cross3(a, b, out):
     """``out = a × b`` for 3-vectors."""
     c0 = a[1] * b[2] - a[2] * b[1]
     c1 = a[2] * b[0] - a[0] * b[2]
@@ -123,7 +124,7 @@ def cross3(a, b, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def matvec3(M, v, out):  # type: ignore[no-untyped-def]
+def matvec3(M, v, out):
     """``out = M v`` for a (3, 3) matrix, summed ``(M_i0 v0 + M_i1 v1) + M_i2 v2``
     (as :func:`gnc_common.attitude.matvec`; for a diagonal ``M`` the zero terms are exact)."""
     v0, v1, v2 = v[0], v[1], v[2]
@@ -135,7 +136,7 @@ def matvec3(M, v, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def quat_multiply(p, q, out):  # type: ignore[no-untyped-def]
+def quat_multiply(p, q, out):
     """Hamilton product ``out = p ⊗ q`` (scalar last); ``out`` may alias ``p`` or ``q``."""
     p0, q0 = p[3], q[3]
     c0 = p[1] * q[2] - p[2] * q[1]
@@ -152,7 +153,7 @@ def quat_multiply(p, q, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def quat_conjugate(q, out):  # type: ignore[no-untyped-def]
+def quat_conjugate(q, out):
     """``out = (-q_v, q_0)``; ``out`` may alias ``q``."""
     out[0] = -q[0]
     out[1] = -q[1]
@@ -161,7 +162,7 @@ def quat_conjugate(q, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def quat_normalize(q, out):  # type: ignore[no-untyped-def]
+def quat_normalize(q, out):
     """``out = q / |q|`` (non-zero ``q``), norm summed ``((x² + y²) + z²) + w²``; may alias."""
     n = np.sqrt(((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3])
     for i in range(4):
@@ -169,7 +170,7 @@ def quat_normalize(q, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def error_quaternion(q_RN, q_BN, out):  # type: ignore[no-untyped-def]
+def error_quaternion(q_RN, q_BN, out):
     """``out = q_BR = q_RN^* ⊗ q_BN`` with ``q_0 >= 0`` (see :func:`gnc_common.attitude.error_quaternion`)."""
     # conjugate folded in: p = (-r_v, r_0)
     p0 = q_RN[3]
@@ -190,7 +191,7 @@ def error_quaternion(q_RN, q_BN, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def dcm_BR_times(q_BR, v_R, out):  # type: ignore[no-untyped-def]
+def dcm_BR_times(q_BR, v_R, out):
     """``out = C_e v`` with ``C_e = (q0² - q_v·q_v) I + 2 q_v q_v^T - 2 q0 q_v^x`` (eq. errorsystem)."""
     q0 = q_BR[3]
     qq = (q_BR[0] * q_BR[0] + q_BR[1] * q_BR[1]) + q_BR[2] * q_BR[2]
@@ -210,7 +211,7 @@ def dcm_BR_times(q_BR, v_R, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def quat_rotate(q_BN, v_B, out):  # type: ignore[no-untyped-def]
+def quat_rotate(q_BN, v_B, out):
     """``out = v_N``, the components of ``v`` in N: ``q_BN ⊗ (v_B, 0) ⊗ q_BN^*``."""
     x, y, z, w = q_BN[0], q_BN[1], q_BN[2], q_BN[3]
     # t = 2 q_v × v;  v_N = v + w t + q_v × t
@@ -226,7 +227,7 @@ def quat_rotate(q_BN, v_B, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def gamma_inverse_times(q_BR, x, q0_floor, out):  # type: ignore[no-untyped-def]
+def gamma_inverse_times(q_BR, x, q0_floor, out):
     """``out = Gamma(q_e)^-1 x = 2 (q0 x - q_v × x + q_v (q_v·x) / q0)``, ``q0`` floored at
     ``q0_floor`` (SPEC_NOTES error 5; see :func:`gnc_common.attitude.gamma_inverse_times`)."""
     q0 = max(q_BR[3], q0_floor)

@@ -89,7 +89,8 @@ class NoisySensor:
         assert self.block is not None
         z = self.block[k % self.BLOCK]
         y = np.array(x, order="F")
-        y[:, :4], y[:, 4:] = noisy_measurement(x[:, :4], x[:, 4:], z, self.noise.attitude_sigma_rad, self.noise.rate_sigma_rad_s)
+        for r in range(y.shape[0]):
+            y[r, :4], y[r, 4:] = noisy_measurement(x[r, :4], x[r, 4:], z[r], self.noise.attitude_sigma_rad, self.noise.rate_sigma_rad_s)
         return y
 
 

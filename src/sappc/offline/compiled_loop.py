@@ -42,7 +42,7 @@ __all__ = ["CompiledInputs", "CompiledRun", "prepare", "run_batch", "run_single"
 
 @jit
 def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-             kinds, dparams, dscale, dphase, rand_draws, rand_win, stride, hist, x_hist, d_hist, x_final):  # type: ignore[no-untyped-def]
+             kinds, dparams, dscale, dphase, rand_draws, rand_win, stride, hist, x_hist, d_hist, x_final):
     """The whole time loop of one run (module docstring); histories every ``stride`` samples
     (``stride = 0``: none), final state into ``x_final``."""
     state = np.zeros(N_STATE)
@@ -81,7 +81,7 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
 
 @jit_parallel
 def run_batch_kernel(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-                     kinds, dparams, dscale, dphase, rand_draws, rand_win, stride, hist, x_hist, d_hist, x_final):  # type: ignore[no-untyped-def]
+                     kinds, dparams, dscale, dphase, rand_draws, rand_win, stride, hist, x_hist, d_hist, x_final):
     """Every run of a batch, in parallel over runs (``prange``); per-run arrays have a leading axis N."""
     for n in prange(x0.shape[0]):
         _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
@@ -91,7 +91,7 @@ def run_batch_kernel(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q,
 
 @jit
 def run_single_kernel(n, kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-                      kinds, dparams, dscale, dphase, rand_draws, rand_win, stride, hist, x_hist, d_hist, x_final):  # type: ignore[no-untyped-def]
+                      kinds, dparams, dscale, dphase, rand_draws, rand_win, stride, hist, x_hist, d_hist, x_final):
     """Run ``n`` of the batch arrays alone (same argument types as in :func:`run_batch_kernel`); outputs
     (leading axis 1) at index 0."""
     _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,

@@ -116,14 +116,14 @@ _MAX_IT = _MAX_NEWTON_ITERATIONS
 
 
 @jit
-def predefined_time_gain(V, p, T, V_floor):  # type: ignore[no-untyped-def]
+def predefined_time_gain(V, p, T, V_floor):
     """``M = exp(V^p) V^(-p) / (2 p T)`` at ``max(V, V_floor)`` (eqs. M_q, M_omega, dSd; SPEC_NOTES error 4)."""
     Vp = max(V, V_floor) ** p
     return np.exp(Vp) / (Vp * (2.0 * p * T))
 
 
 @jit
-def error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work):  # type: ignore[no-untyped-def]
+def error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work):
     """Error state of eq. (errorsystem) into ``work`` rows ``W_QBR .. W_CWDD``:
     ``q_e = q_d^* ⊗ q_s`` (``q_e0 >= 0``), ``omega_e = omega_s - C_e omega_d``, ``C_e omega_d``,
     ``C_e omegadot_d`` and ``omega_s``."""
@@ -136,7 +136,7 @@ def error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work):  # typ
 
 
 @jit
-def filter_update(prm, state, dt, alpha, S_d_out, S_d_dot_out):  # type: ignore[no-untyped-def]
+def filter_update(prm, state, dt, alpha, S_d_out, S_d_dot_out):
     """Dynamic-surface filter (eq. dSd) with the exact exponential update (SPEC_NOTES error 4):
     ``S_d[k+1] = S_d + dt dS_d/dt``, ``dS_d/dt = -(1 - exp(-M3 dt)) / dt H_d``, ``H_d = S_d - alpha``,
     ``M3`` frozen over the step; starts at ``S_d = alpha``.  Writes the output before the update and
@@ -161,7 +161,7 @@ def filter_update(prm, state, dt, alpha, S_d_out, S_d_dot_out):  # type: ignore[
 
 
 @jit
-def w0_plus(prm, work, out):  # type: ignore[no-untyped-def]
+def w0_plus(prm, work, out):
     """``out = -W0``, ``W0 = J omega_e^x C_e omega_d - J C_e omegadot_d - omega_s^x J omega_s`` (after eq. U)."""
     J = prm[P_J : P_J + 9].reshape((3, 3))
     a, b = work[W_WBR], work[W_CWD]
@@ -182,7 +182,7 @@ def w0_plus(prm, work, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def actuator(prm, out):  # type: ignore[no-untyped-def]
+def actuator(prm, out):
     """Per-axis saturation at ``max`` and minimum-output deadband (``|u_i| < min`` gives 0),
     from ``out[O_CMD]`` into ``out[O_TORQUE]`` and ``out[O_SAT]`` (:class:`.common.Actuator`)."""
     umax, umin = prm[P_UMAX], prm[P_UMIN]
@@ -198,7 +198,7 @@ def actuator(prm, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def rpf_evaluate(prm, coef, tau, i):  # type: ignore[no-untyped-def]
+def rpf_evaluate(prm, coef, tau, i):
     """RPF value and slope of component ``i`` at ``tau`` (eq. RPF; SPEC_NOTES error 1), as
     :meth:`.rpf.ReferencePerformanceFunction.evaluate`."""
     t = max(tau, 0.0)
@@ -216,7 +216,7 @@ def rpf_evaluate(prm, coef, tau, i):  # type: ignore[no-untyped-def]
 
 
 @jit
-def smetf_solve(z_s, delta, k, has_guess, guess):  # type: ignore[no-untyped-def]
+def smetf_solve(z_s, delta, k, has_guess, guess):
     """Solve eq. (solve) ``(2 delta / pi) arctan(eps) + tan(theta) eps = z_s - 1`` by monotone
     Newton from a lower bound (warm start ``max(guess sign(w), lower)``), as :func:`.smetf.smetf`.
     Returns ``eps`` and ``z0 - 1 = a arctan(eps)`` (eqs. Rs, chosenfunction)."""
@@ -241,7 +241,7 @@ def smetf_solve(z_s, delta, k, has_guess, guess):  # type: ignore[no-untyped-def
 
 
 @jit
-def sappc_transform(prm, coef, state, tau, work, out):  # type: ignore[no-untyped-def]
+def sappc_transform(prm, coef, state, tau, work, out):
     """RPF (eq. RPF) + time-varying constraint (eq. delta_i) + SMETF (eqs. Rs, solve, PS) per component:
     writes ``eps``, ``psi``, ``eta`` to ``work`` and ``rho``, the band, ``eps``, ``z`` to ``out``
     (:class:`.sappc.SappcTransformation`)."""
@@ -280,7 +280,7 @@ def sappc_transform(prm, coef, state, tau, work, out):  # type: ignore[no-untype
 
 
 @jit
-def trappc_transform(prm, coef, tau, work, out):  # type: ignore[no-untyped-def]
+def trappc_transform(prm, coef, tau, work, out):
     """Exponential PF + homeomorphic log transformation (Appendix B, :class:`.trappc.TrappcTransformation`)."""
     K = prm[P_KFUN]
     decay = (prm[P_PF_RHO0] - prm[P_PF_RHOINF]) * np.exp(-prm[P_PF_L] * tau)
@@ -304,7 +304,7 @@ def trappc_transform(prm, coef, tau, work, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def backstepping_law(prm, state, dt, work, out):  # type: ignore[no-untyped-def]
+def backstepping_law(prm, state, dt, work, out):
     """The predefined-time backstepping law of Sec. IV.F (:class:`.sappc.BacksteppingPPC`), from
     ``eps``, ``psi``, ``eta`` in ``work``; writes the commanded torque and ``V``."""
     J = prm[P_J : P_J + 9].reshape((3, 3))
@@ -342,7 +342,7 @@ def backstepping_law(prm, state, dt, work, out):  # type: ignore[no-untyped-def]
 
 
 @jit
-def blfppc_law(prm, coef, state, tau, dt, work, out):  # type: ignore[no-untyped-def]
+def blfppc_law(prm, coef, state, tau, dt, work, out):
     """The BLFPPC benchmark law of Appendix C (:class:`.blfppc.BlfppcController`), with
     ``Gamma^-1`` in the coupling term as the appendix writes it (SPEC_NOTES observation 6)."""
     J = prm[P_J : P_J + 9].reshape((3, 3))
@@ -410,7 +410,7 @@ def blfppc_law(prm, coef, state, tau, dt, work, out):  # type: ignore[no-untyped
 
 
 @jit
-def controller_step(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, prm, coef, state, work, out):  # type: ignore[no-untyped-def]
+def controller_step(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, prm, coef, state, work, out):
     """One sampling instant of one run: error state, law, actuator (see module docstring).
 
     ``t`` [s] is absolute; the law sees ``tau = t - state[S_T0]``.  The run must have been
@@ -482,7 +482,7 @@ def pack_params(config: object, n_runs: int = 1, gains: dict[str, np.ndarray] | 
 
 
 @jit
-def error_quaternions(q_RN, q_BN):  # type: ignore[no-untyped-def]
+def error_quaternions(q_RN, q_BN):
     """``q_BR`` (N, 4) of states ``q_BN`` (N, 4) against one ``q_RN`` (4,), by the kernel's formula."""
     out = np.empty((q_BN.shape[0], 4))
     for n in range(q_BN.shape[0]):
@@ -510,7 +510,7 @@ def start_coef(config: object, q_BR0: np.ndarray, *, on_infeasible: str = "raise
     flags = {"flat": np.zeros((n, 3), bool), "clamped": np.zeros((n, 3), bool)}
     coef[:, C_SIGN] = np.where(q_ev0 >= 0.0, 1.0, -1.0)
     if isinstance(config, SappcConfig):
-        rpf = ReferencePerformanceFunction(config.rpf, q_ev0, on_infeasible=on_infeasible)  # type: ignore[arg-type]
+        rpf = ReferencePerformanceFunction(config.rpf, q_ev0, on_infeasible=on_infeasible)
         coef[:, C_SIGN], coef[:, C_T1], coef[:, C_A1], coef[:, C_L], coef[:, C_A] = rpf.sign, rpf.t1, rpf.a1, rpf.l, rpf._A
         flags = {"flat": rpf.flat, "clamped": rpf.clamped}
     else:

@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.attitude import quat_multiply, quat_normalize, rotation_vector_to_quaternion
+from spacecraft_sim.core import kernels
 from spacecraft_sim.core.disturbance import TIME_TOLERANCE_S
 from gnc_common.validation import ConfigError, as_finite_array, check_positive, from_kind_list
 
@@ -189,15 +190,13 @@ def faults_from_list(entries: object, prefix: str = "faults") -> tuple[Any, ...]
 
 
 def noisy_measurement(q_BN: Array, omega_BN_B: Array, n: Array, attitude_std_rad: float, rate_std_rad_s: float) -> tuple[Array, Array]:
-    """The sensor-noise model, the one used everywhere (fault injector, offline runs, Monte Carlo).
-
-    The measured attitude is the true one rotated in the body frame by the small rotation vector
-    ``attitude_std_rad * n[..., :3]``; the measured rate is the true one plus
-    ``rate_std_rad_s * n[..., 3:]``.  ``n`` (..., 6) holds standard normal draws, whose source
-    (per stamp, per run) is the caller's.
-    """
-    q = quat_normalize(quat_multiply(q_BN, rotation_vector_to_quaternion(attitude_std_rad * n[..., :3])))
-    return q, omega_BN_B + rate_std_rad_s * n[..., 3:]
+    """The sensor-noise model (:func:`spacecraft_sim.core.kernels.noisy_measurement`, the one
+    implementation) for one sample: ``q_BN`` (4,), ``omega_BN_B`` (3,), standard normal draws ``n`` (6,)."""
+    q = np.empty(4)
+    w = np.empty(3)
+    kernels.noisy_measurement(np.ascontiguousarray(q_BN, dtype=np.float64), np.ascontiguousarray(omega_BN_B, dtype=np.float64),
+                              np.ascontiguousarray(n, dtype=np.float64), float(attitude_std_rad), float(rate_std_rad_s), q, w)
+    return q, w
 
 
 class _History:

@@ -32,8 +32,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from gnc_common.compiled import jit, matvec3
+from gnc_common.compiled import jit, matvec3, quat_multiply, quat_normalize
 
+from spacecraft_sim.core.reference import PaperReference
 from spacecraft_sim.core.disturbance import (
     TIME_TOLERANCE_S,
     ConstantTorque,
@@ -53,6 +54,7 @@ __all__ = [
     "disturbance_sample",
     "disturbance_table",
     "encode_disturbance",
+    "noisy_measurement",
     "propagate",
     "random_draws",
     "reference_rates",
@@ -71,7 +73,7 @@ _TOL = TIME_TOLERANCE_S
 
 
 @jit
-def derivative(x, accel_ext, J, J_inv, work, out):  # type: ignore[no-untyped-def]
+def derivative(x, accel_ext, J, J_inv, work, out):
     """``dx/dt`` of ``x = (q_BN, omega_BN_B)`` (7,) given ``J^-1 torque`` (3,) (module dynamics):
     ``dq/dt = 1/2 q ⊗ (omega, 0)``, ``domega/dt = J^-1 torque - J^-1 (omega × J omega)``."""
     q0 = x[3]
@@ -97,7 +99,7 @@ def derivative(x, accel_ext, J, J_inv, work, out):  # type: ignore[no-untyped-de
 
 
 @jit
-def rk4_step(x, accel_ext, dt, J, J_inv, work):  # type: ignore[no-untyped-def]
+def rk4_step(x, accel_ext, dt, J, J_inv, work):
     """One classical RK4 step of ``dt`` in place, input held (ZOH), then ``q`` renormalised
     (:meth:`.dynamics.RigidBody.rk4_step`).  ``work`` (N_PLANT_WORK, 7)."""
     k1, k2, k3, k4, xs = work[3], work[4], work[5], work[6], work[7]
@@ -121,7 +123,7 @@ def rk4_step(x, accel_ext, dt, J, J_inv, work):  # type: ignore[no-untyped-def]
 
 
 @jit
-def propagate(x, torque_B, dt, substeps, J, J_inv, work):  # type: ignore[no-untyped-def]
+def propagate(x, torque_B, dt, substeps, J, J_inv, work):
     """Advance ``x`` (7,) in place by ``dt`` in ``substeps`` RK4 steps with ``torque_B`` held
     (zero-order hold, :meth:`.dynamics.RigidBody.propagate`; inputs checked by the caller)."""
     accel = work[0, 4:7]  # row 0 columns 4..6 are free (derivative uses columns 0..2)
@@ -135,7 +137,7 @@ def propagate(x, torque_B, dt, substeps, J, J_inv, work):  # type: ignore[no-unt
 
 
 @jit
-def reference_rates(t, a_rad_s, periods, w_out, wdot_out):  # type: ignore[no-untyped-def]
+def reference_rates(t, a_rad_s, periods, w_out, wdot_out):
     """Paper reference (Sec. V.A): ``omega_d = A [cos(t/40), sin(t/30), -cos(t/50)]`` and its
     derivative, ``A`` in rad/s (:class:`.reference.PaperReference`)."""
     p0, p1, p2 = periods[0], periods[1], periods[2]
@@ -148,7 +150,7 @@ def reference_rates(t, a_rad_s, periods, w_out, wdot_out):  # type: ignore[no-un
 
 
 @jit
-def _rate_tables(t, a_rad_s, periods):  # type: ignore[no-untyped-def]
+def _rate_tables(t, a_rad_s, periods):
     w = np.empty((t.shape[0], 3))
     wd = np.empty((t.shape[0], 3))
     for k in range(t.shape[0]):
@@ -156,21 +158,22 @@ def _rate_tables(t, a_rad_s, periods):  # type: ignore[no-untyped-def]
     return w, wd
 
 
-def reference_rate_tables(reference, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
+def reference_rate_tables(reference: PaperReference, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``omega_RN_R`` and ``omegadot_RN_R`` (T, 3) of a :class:`.reference.PaperReference` on ``t``.
 
     ``q_RN`` comes from :meth:`.reference.PaperReference.sample` (DOP853, once per scenario):
     an adaptive high-order integration is set-up work, not per-step work.
     """
-    return _rate_tables(np.ascontiguousarray(t, dtype=np.float64), float(np.radians(reference.amplitude_deg_s)),
-                        np.asarray(reference.periods_s, dtype=np.float64))
+    tables: tuple[np.ndarray, np.ndarray] = _rate_tables(np.ascontiguousarray(t, dtype=np.float64), float(np.radians(reference.amplitude_deg_s)),
+                                                         np.asarray(reference.periods_s, dtype=np.float64))
+    return tables
 
 
 # ============================================================================= disturbances
 
 
 @jit
-def paper_periodic(t, omega_p, scale, phase, out):  # type: ignore[no-untyped-def]
+def paper_periodic(t, omega_p, scale, phase, out):
     """The paper's disturbance (Sec. V.A) with ``w t`` shifted by ``phase`` and scaled by ``scale``,
     added to ``out`` (:class:`.disturbance.PaperPeriodic`)."""
     wt = omega_p * t + phase
@@ -183,7 +186,7 @@ def paper_periodic(t, omega_p, scale, phase, out):  # type: ignore[no-untyped-de
 
 
 @jit
-def disturbance_sample(k, t, kinds, dparams, dscale, dphase, rand_draws, rand_win, out):  # type: ignore[no-untyped-def]
+def disturbance_sample(k, t, kinds, dparams, dscale, dphase, rand_draws, rand_win, out):
     """Total disturbance [N m] of one run at sample ``k``, time ``t``, into ``out`` (3,): the models
     in list order (module docstring).  ``dscale``, ``dphase`` (M,), ``rand_draws`` (R, W, 3) are
     this run's."""
@@ -214,7 +217,7 @@ def disturbance_sample(k, t, kinds, dparams, dscale, dphase, rand_draws, rand_wi
 
 
 @jit
-def disturbance_table(t, kinds, dparams, dscale, dphase, rand_draws, rand_win):  # type: ignore[no-untyped-def]
+def disturbance_table(t, kinds, dparams, dscale, dphase, rand_draws, rand_win):
     """:func:`disturbance_sample` on every time of ``t`` (T,) for one run: (T, 3)."""
     d = np.empty((t.shape[0], 3))
     for k in range(t.shape[0]):
@@ -282,3 +285,27 @@ def random_draws(model: DisturbanceSum, t: np.ndarray, n_runs: int = 1) -> tuple
             for j, k in enumerate(wins[r]):
                 draws[r, n, j] = np.random.default_rng([int(s), int(k)]).standard_normal(3)
     return draws, np.stack(invs).astype(np.int64)
+
+
+# ============================================================================= sensors
+
+
+@jit
+def noisy_measurement(q_BN, omega_BN_B, n, attitude_std_rad, rate_std_rad_s, q_out, omega_out):
+    """The sensor-noise model of one sample (the one implementation: the fault injector through
+    :func:`spacecraft_sim.core.faults.noisy_measurement`, offline runs and campaigns).
+
+    The measured attitude is the true one rotated in the body frame by the rotation vector
+    ``attitude_std_rad * n[:3]``; the measured rate is the true one plus ``rate_std_rad_s * n[3:]``.
+    ``n`` (6,) holds standard normal draws (their source is the caller's); results in ``q_out`` (4,)
+    and ``omega_out`` (3,), which may alias the inputs.
+    """
+    rx, ry, rz = attitude_std_rad * n[0], attitude_std_rad * n[1], attitude_std_rad * n[2]
+    angle = np.sqrt((rx * rx + ry * ry) + rz * rz)
+    s = np.sin(angle / 2.0) / angle if angle > 0.0 else 0.0
+    dq = np.empty(4)
+    dq[0], dq[1], dq[2], dq[3] = rx * s, ry * s, rz * s, np.cos(angle / 2.0)
+    quat_multiply(q_BN, dq, q_out)
+    quat_normalize(q_out, q_out)
+    for i in range(3):
+        omega_out[i] = omega_BN_B[i] + rate_std_rad_s * n[3 + i]
