@@ -238,6 +238,26 @@ class _Process:
         return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
 
 
+@contextlib.contextmanager
+def _interrupts_deferred(what: str) -> Iterator[None]:
+    """Hold SIGINT while ``what`` runs (node start-up or shutdown must not be cut in half), then
+    raise the :class:`KeyboardInterrupt` it would have raised, once."""
+    caught: list[int] = []
+
+    def hold(signum: int, _frame: object) -> None:
+        if not caught:
+            print(f"sappc run: interrupted while {what}; finishing that first", file=sys.stderr, flush=True)
+        caught.append(signum)
+
+    old = signal.signal(signal.SIGINT, hold)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+    if caught:
+        raise KeyboardInterrupt
+
+
 def _fastdds_shm_clean() -> None:
     tool = Path(sys.executable).parent / "fastdds"
     if tool.exists():
@@ -300,7 +320,8 @@ def run_graph(
         try:
             for name in NODES:
                 cmd = [sys.executable, "-m", _MODULES[name], "--ros-args", "-r", f"__node:={name}", "--params-file", str(params_path), *remaps[name]]
-                procs[name] = _Process(name, cmd, env, run_dir / "logs" / f"{name}.log")
+                with _interrupts_deferred("starting the nodes"):  # a started process is always in procs, to be stopped
+                    procs[name] = _Process(name, cmd, env, run_dir / "logs" / f"{name}.log")
             say(f"sappc run: {scenario.name} with {kind.value} ({'real time' if realtime else 'lockstep'}), domain {domain}, in {run_dir}")
             plant = procs["plant"]
             deadline = start + limit
@@ -315,14 +336,16 @@ def run_graph(
             if plant.proc.returncode != 0:
                 raise RuntimeError(f"the plant failed with status {plant.proc.returncode}; last log lines:\n{plant.tail()}")
         finally:
-            # publishers first (they wait for acknowledgements), the recorder last (it drains)
-            for name in ("plant", "controller", "reference", "injector", "recorder"):
-                if name in procs:
-                    code, killed = procs[name].stop()
-                    exit_codes[name] = code
-                    killed_any |= killed
-            if killed_any:
-                _fastdds_shm_clean()
+            # publishers first (they wait for acknowledgements), the recorder last (it drains); a
+            # further Ctrl-C cannot cut this short and leave a node running
+            with _interrupts_deferred("stopping the nodes cleanly"):
+                for name in ("plant", "controller", "reference", "injector", "recorder"):
+                    if name in procs:
+                        code, killed = procs[name].stop()
+                        exit_codes[name] = code
+                        killed_any |= killed
+                if killed_any:
+                    _fastdds_shm_clean()
         failed = {n: c for n, c in exit_codes.items() if c != 0}
         if failed:
             name = next(iter(failed))

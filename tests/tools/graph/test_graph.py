@@ -132,7 +132,10 @@ def test_a_plant_written_against_the_contract_drives_the_controller(ros_context,
     assert rerun["mode"] == "lockstep" and rerun["samples"] == steps and rerun["identical"] == steps, proc.stdout
 
 
-def test_sigint_finalises_the_bag_and_leaves_nothing_behind(tmp_path) -> None:
+@pytest.mark.parametrize("second_sigint_after_s", [None, 0.3], ids=["one_sigint", "two_sigints_0.3_s_apart"])
+def test_sigint_finalises_the_bag_and_leaves_nothing_behind(tmp_path, second_sigint_after_s) -> None:  # type: ignore[no-untyped-def]
+    """One Ctrl-C, or a second one 0.3 s later while the nodes are being stopped: either way every
+    node is stopped, the bag is finalised and no shared-memory segment is left."""
     out = tmp_path / "int"
     before = shm_files()
     proc = subprocess.Popen([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--out", str(out)],
@@ -147,7 +150,10 @@ def test_sigint_finalises_the_bag_and_leaves_nothing_behind(tmp_path) -> None:
     children = _children_of(proc.pid)
     assert len(children) == 5
     proc.send_signal(signal.SIGINT)
-    log = proc.communicate(timeout=60)[0].decode()
+    if second_sigint_after_s is not None:
+        time.sleep(second_sigint_after_s)
+        proc.send_signal(signal.SIGINT)
+    log = proc.communicate(timeout=120)[0].decode()
     assert proc.returncode == 130, log
     for pid in children:
         assert not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2]
