@@ -236,6 +236,24 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_repair(args: argparse.Namespace) -> int:
+    from sappc.bag.rosbag2 import repair
+
+    r = repair(args.bag)
+    if r.was_complete:
+        print(f"{r.path}: already complete ({r.messages} messages); metadata.yaml rewritten")
+    else:
+        span = (r.last_ns - r.first_ns) / 1e9
+        print(f"{r.path}: rewritten complete with {r.messages} messages over {span:.3f} s of recording time "
+              f"({'; '.join(f'{t} {n}' for t, n in sorted(r.counts.items()))})")
+        if r.stopped_at:
+            print(f"  reading stopped at the torn end of the file: {r.stopped_at}")
+    if args.json:
+        _write_json(args.json, {"path": str(r.path), "was_complete": r.was_complete, "messages": r.messages, "counts": r.counts,
+                                "stopped_at": r.stopped_at, "first_log_time_ns": r.first_ns, "last_log_time_ns": r.last_ns})
+    return 0
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     from sappc.graph.replay import replay
 
@@ -297,6 +315,10 @@ def _parser() -> argparse.ArgumentParser:
     rr.add_argument("--json", metavar="FILE", help="write the comparison as JSON")
     rr.add_argument("--out", metavar="DIR", help="write rerun_torque.png (recorded and recomputed) and rerun.html")
     rr.set_defaults(func=_cmd_rerun)
+    rpr = sub.add_parser("repair", help="make a bag whose recorder was killed readable by every MCAP/rosbag2 reader (as ros2 bag reindex)")
+    rpr.add_argument("bag")
+    rpr.add_argument("--json", metavar="FILE", help="write what was recovered as JSON")
+    rpr.set_defaults(func=_cmd_repair)
     rp = sub.add_parser("replay", help="republish a bag on the ROS 2 graph with its timing and /clock")
     rp.add_argument("bag")
     rp.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: the recorded timing)")

@@ -35,14 +35,14 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from sappc_msgs_py.contract import (
     FAULT_TOPICS,
-    QOS_DEPTH,
     TOPICS,
 )
+from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, write_bag_metadata
 from sappc_msgs_py.runtime import ProjectNode, run_node
 from sappc_msgs_py.schemas import schema_text, type_hash
 from gnc_common.validation import ConfigError
 
-__all__ = ["BAG_METADATA", "DEFAULT_TOPICS", "RecorderNode", "bag_metadata", "main"]
+__all__ = ["DEFAULT_TOPICS", "RecorderNode", "main"]
 
 #: Quiet time that ends the drain after a signal [s]: every publisher's samples are already in the
 #: local KEEP_ALL queues by then (publishers wait for acknowledgements), so this only bounds how
@@ -50,70 +50,15 @@ __all__ = ["BAG_METADATA", "DEFAULT_TOPICS", "RecorderNode", "bag_metadata", "ma
 DRAIN_QUIET_S = 0.3
 #: Longest drain [s], in case a publisher keeps publishing after the signal.
 DRAIN_MAX_S = 10.0
-#: Period of the MCAP flush [s]: what a SIGKILL can lose.
-FLUSH_PERIOD_S = 1.0
-#: Name of the rosbag2 metadata file.
-BAG_METADATA = "metadata.yaml"
+#: Period of the MCAP flush [s]: what a SIGKILL can lose (with the messages still in the queues);
+#: half the README's 1 s bound, so that a recorder lagging by a few hundred ms still meets it.
+FLUSH_PERIOD_S = 0.5
 #: MCAP chunk size [bytes]: about 1.5 s of a 100 Hz run; compression per chunk (zstd).
 CHUNK_SIZE = 256 * 1024
 
 #: Every topic of the contract and of the fault relays.
 DEFAULT_TOPICS = tuple(t.name for t in TOPICS + FAULT_TOPICS)
 _KNOWN = {t.name: t for t in TOPICS + FAULT_TOPICS}
-
-
-def _qos_v9() -> list[dict[str, Any]]:
-    """The offered QoS of every project publisher, in rosbag2's version 9 layout."""
-    zero = {"sec": 0, "nsec": 0}
-    return [
-        {
-            "history": "keep_last",
-            "depth": QOS_DEPTH,
-            "reliability": "reliable",
-            "durability": "volatile",
-            "deadline": zero,
-            "lifespan": zero,
-            "liveliness": "automatic",
-            "liveliness_lease_duration": zero,
-            "avoid_ros_namespace_conventions": False,
-        }
-    ]
-
-
-def bag_metadata(mcap_name: str, topics: list[tuple[str, str]], counts: dict[str, int], start_ns: int, end_ns: int, custom: dict[str, str]) -> dict[str, Any]:
-    """The rosbag2 version 9 ``metadata.yaml`` content."""
-    total = sum(counts.values())
-    duration = max(0, end_ns - start_ns)
-    return {
-        "rosbag2_bagfile_information": {
-            "version": 9,
-            "storage_identifier": "mcap",
-            "relative_file_paths": [mcap_name],
-            "duration": {"nanoseconds": duration},
-            "starting_time": {"nanoseconds_since_epoch": start_ns},
-            "message_count": total,
-            "topics_with_message_count": [
-                {
-                    "topic_metadata": {
-                        "name": name,
-                        "type": type_name,
-                        "serialization_format": "cdr",
-                        "offered_qos_profiles": _qos_v9(),
-                        "type_description_hash": type_hash(type_name),
-                    },
-                    "message_count": counts.get(name, 0),
-                }
-                for name, type_name in topics
-            ],
-            "compression_format": "",
-            "compression_mode": "",
-            "files": [
-                {"path": mcap_name, "starting_time": {"nanoseconds_since_epoch": start_ns}, "duration": {"nanoseconds": duration}, "message_count": total}
-            ],
-            "custom_data": custom or None,
-            "ros_distro": "jazzy",
-        }
-    }
 
 
 class RecorderNode(ProjectNode):
@@ -152,7 +97,7 @@ class RecorderNode(ProjectNode):
         self.topics: list[tuple[str, str]] = []
         self.counts: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        qos_text = yaml.safe_dump(_qos_v9(), sort_keys=False)
+        qos_text = yaml.safe_dump(offered_qos_v9(), sort_keys=False)
         for name in names:
             topic = _KNOWN.get(name.lstrip("/")) or _KNOWN[name]  # known: checked above
             if topic.type_name not in schemas:
@@ -184,10 +129,7 @@ class RecorderNode(ProjectNode):
         self._last_message = time.monotonic()
 
     def _write_metadata(self) -> None:
-        meta = bag_metadata(self.mcap_name, self.topics, self.counts, self.start_ns or 0, self.end_ns, self.custom)
-        tmp = self.dir / (BAG_METADATA + ".tmp")
-        tmp.write_text(yaml.safe_dump(meta, sort_keys=False))
-        tmp.replace(self.dir / BAG_METADATA)
+        write_bag_metadata(self.dir, bag_metadata(self.mcap_name, self.topics, self.counts, self.start_ns or 0, self.end_ns, self.custom))
 
     def drain(self, spin_once: Any) -> None:
         """Take every queued message until the queues stay empty for :data:`DRAIN_QUIET_S`."""

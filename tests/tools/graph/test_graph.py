@@ -205,6 +205,20 @@ def test_a_sigkilled_recorder_leaves_its_flushed_messages_readable(ros_context, 
     assert bag.truncated is not None  # no summary, no footer
     values = bag.series["/state/rate"].values[:, 0]
     assert values.size == 500 and np.array_equal(values, np.arange(500.0))
+    # rosbags and mcap's indexed reader need the footer: `sappc repair` writes it back (ros2 bag reindex)
+    proc = subprocess.run([*SAPPC, "repair", str(bag_dir), "--json", str(tmp_path / "repair.json")], capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    repaired = json.loads((tmp_path / "repair.json").read_text())
+    assert not repaired["was_complete"] and repaired["counts"]["/state/rate"] == 500
+    assert _rosbags_counts(bag_dir)["/state/rate"] == 500  # through metadata.yaml, as rosbags opens a bag
+    from mcap.reader import make_reader
+
+    with (bag_dir / f"{bag_dir.name}_0.mcap").open("rb") as f:
+        reader = make_reader(f)
+        assert reader.get_summary() is not None  # the indexed reader's view
+        rates = [m for _, ch, m in reader.iter_messages() if ch.topic == "/state/rate"]
+    assert len(rates) == 500
+    assert read_bag(bag_dir).truncated is None and np.array_equal(read_bag(bag_dir).series["/state/rate"].values[:, 0], values)
 
 
 def test_real_time_mode_runs_on_wall_clock_timers(tmp_path) -> None:

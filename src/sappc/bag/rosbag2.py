@@ -1,0 +1,210 @@
+"""The rosbag2 directory layout the project writes, and ``sappc repair``: a bag made whole again.
+
+A bag is a rosbag2 version 9 directory: one MCAP file (profile ``ros2``) and ``metadata.yaml``
+(:func:`bag_metadata`).  The recorder (:mod:`sappc.graph.recorder`) writes both; when it is killed
+(SIGKILL, power loss) the MCAP file has no summary and no footer, and ``metadata.yaml`` still holds
+the counts of its start.  Readers that need the footer (rosbags, mcap's indexed reader) then read
+nothing, although every chunk the recorder flushed (every :data:`~sappc.graph.recorder.FLUSH_PERIOD_S`)
+is intact.
+
+:func:`repair` does what ``ros2 bag reindex`` does for rosbag2: it reads the file record by record
+up to the first torn record, and writes the same schemas, channels, messages (with their log and
+publish times and sequence numbers) and metadata records into a complete MCAP file (summary,
+indexes, footer), then a ``metadata.yaml`` with the counts and times of what it holds.  The
+original file is replaced only once the new one is complete (write, fsync, rename).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sappc.bag.read import BagError, mcap_file
+from sappc_msgs_py.contract import QOS_DEPTH
+from sappc_msgs_py.schemas import type_hash
+
+__all__ = ["BAG_METADATA", "RepairResult", "bag_metadata", "offered_qos_v9", "repair", "write_bag_metadata"]
+
+#: Name of the rosbag2 metadata file.
+BAG_METADATA = "metadata.yaml"
+
+
+def offered_qos_v9() -> list[dict[str, Any]]:
+    """The offered QoS of every project publisher, in rosbag2's version 9 layout."""
+    zero = {"sec": 0, "nsec": 0}
+    return [
+        {
+            "history": "keep_last",
+            "depth": QOS_DEPTH,
+            "reliability": "reliable",
+            "durability": "volatile",
+            "deadline": zero,
+            "lifespan": zero,
+            "liveliness": "automatic",
+            "liveliness_lease_duration": zero,
+            "avoid_ros_namespace_conventions": False,
+        }
+    ]
+
+
+def bag_metadata(mcap_name: str, topics: list[tuple[str, str]], counts: dict[str, int], start_ns: int, end_ns: int, custom: dict[str, str]) -> dict[str, Any]:
+    """The rosbag2 version 9 ``metadata.yaml`` content for one MCAP file.
+
+    Parameters
+    ----------
+    mcap_name : the MCAP file's name in the bag directory.
+    topics : (resolved topic name, ROS type name) of every channel.
+    counts : messages per topic.
+    start_ns, end_ns : log times of the first and last message [ns since the epoch].
+    custom : rosbag2 ``custom_data`` (the project: metadata record name -> copied file name).
+    """
+    total = sum(counts.values())
+    duration = max(0, end_ns - start_ns)
+    return {
+        "rosbag2_bagfile_information": {
+            "version": 9,
+            "storage_identifier": "mcap",
+            "relative_file_paths": [mcap_name],
+            "duration": {"nanoseconds": duration},
+            "starting_time": {"nanoseconds_since_epoch": start_ns},
+            "message_count": total,
+            "topics_with_message_count": [
+                {
+                    "topic_metadata": {
+                        "name": name,
+                        "type": type_name,
+                        "serialization_format": "cdr",
+                        "offered_qos_profiles": offered_qos_v9(),
+                        "type_description_hash": type_hash(type_name),
+                    },
+                    "message_count": counts.get(name, 0),
+                }
+                for name, type_name in topics
+            ],
+            "compression_format": "",
+            "compression_mode": "",
+            "files": [
+                {"path": mcap_name, "starting_time": {"nanoseconds_since_epoch": start_ns}, "duration": {"nanoseconds": duration}, "message_count": total}
+            ],
+            "custom_data": custom or None,
+            "ros_distro": "jazzy",
+        }
+    }
+
+
+def write_bag_metadata(bag_dir: Path, meta: dict[str, Any]) -> None:
+    """Write ``metadata.yaml`` atomically (a reader never sees half a file)."""
+    tmp = bag_dir / (BAG_METADATA + ".tmp")
+    tmp.write_text(yaml.safe_dump(meta, sort_keys=False))
+    tmp.replace(bag_dir / BAG_METADATA)
+
+
+@dataclass(frozen=True)
+class RepairResult:
+    """What :func:`repair` found and wrote.
+
+    Attributes
+    ----------
+    path : the repaired MCAP file.
+    was_complete : the file already had its footer (nothing was rewritten but ``metadata.yaml``).
+    messages : messages in the repaired file.
+    counts : messages per topic.
+    stopped_at : why reading stopped (a torn record at the end of a killed recording), or ``None``.
+    first_ns, last_ns : log times of the first and last message kept [ns since the epoch].
+    """
+
+    path: Path
+    was_complete: bool
+    messages: int
+    counts: dict[str, int]
+    stopped_at: str | None
+    first_ns: int
+    last_ns: int
+
+
+def _has_footer(path: Path) -> bool:
+    from sappc.bag.mcap_scan import MAGIC
+
+    size = path.stat().st_size
+    if size < 2 * len(MAGIC):
+        return False
+    with path.open("rb") as f:
+        f.seek(size - len(MAGIC))
+        return f.read(len(MAGIC)) == MAGIC
+
+
+def repair(bag: str | Path) -> RepairResult:
+    """Make the bag at ``bag`` (a rosbag2 directory or an ``.mcap`` file) readable by every MCAP
+    and rosbag2 reader again; see the module docstring.
+
+    Raises
+    ------
+    BagError
+        If ``bag`` is not a bag, or not even its first records can be read.
+    """
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import CompressionType, Writer
+
+    path = mcap_file(Path(bag))
+    bag_dir = path.parent if Path(bag).is_dir() else None
+    complete = _has_footer(path)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    metadata: list[Metadata] = []
+    messages: list[Message] = []
+    stopped_at: str | None = None
+    try:
+        with path.open("rb") as f:
+            for record in StreamReader(f, validate_crcs=True).records:
+                if isinstance(record, Message):
+                    messages.append(record)
+                elif isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Metadata):
+                    metadata.append(record)
+    except (McapError, EOFError, ValueError, OSError) as exc:  # the torn tail of a killed recording
+        stopped_at = f"{type(exc).__name__}: {exc}"
+    if not channels:
+        raise BagError(f"{path}: no channel could be read (is it an MCAP file?{' ' + stopped_at if stopped_at else ''})")
+    messages = [m for m in messages if m.channel_id in channels]
+    counts = {ch.topic: 0 for ch in channels.values()}
+    for m in messages:
+        counts[channels[m.channel_id].topic] += 1
+    first_ns = min((m.log_time for m in messages), default=0)
+    last_ns = max((m.log_time for m in messages), default=0)
+
+    topics = [(ch.topic, schemas[ch.schema_id].name) for ch in channels.values() if ch.schema_id in schemas]
+    custom = {md.name: md.name.split("/", 1)[1] for md in metadata if md.name.startswith("sappc/")}
+    meta = bag_metadata(path.name, topics, counts, first_ns, last_ns, custom)
+    if not complete:
+        tmp = path.with_name(path.name + ".repair.tmp")
+        with tmp.open("wb") as out:
+            writer = Writer(out, compression=CompressionType.ZSTD)
+            writer.start(profile="ros2", library="sappc repair (mcap-python)")
+            schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in schemas.items()}
+            channel_ids = {
+                cid: writer.register_channel(ch.topic, ch.message_encoding, schema_ids.get(ch.schema_id, 0), ch.metadata)
+                for cid, ch in channels.items()
+            }
+            for md in metadata:
+                writer.add_metadata(md.name, md.metadata)
+            for m in messages:
+                writer.add_message(channel_ids[m.channel_id], log_time=m.log_time, data=m.data, publish_time=m.publish_time, sequence=m.sequence)
+            if not any(md.name == "rosbag2" for md in metadata):  # what the recorder writes when it closes the bag
+                writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})
+            writer.finish()
+            out.flush()
+            os.fsync(out.fileno())
+        tmp.replace(path)
+    if bag_dir is not None:
+        write_bag_metadata(bag_dir, meta)
+    return RepairResult(path=path, was_complete=complete, messages=len(messages), counts=counts, stopped_at=stopped_at,
+                        first_ns=first_ns, last_ns=last_ns)
