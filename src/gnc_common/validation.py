@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "ConfigError",
+    "INERTIA_TRIANGLE_RTOL",
     "INITIAL_QUATERNION_NORM_TOL",
     "InputError",
     "QUATERNION_NORM_TOL",
@@ -163,8 +164,15 @@ def check_positive_int(name: str, value: Any) -> int:
     return value
 
 
+#: Relative slack of the triangle inequality of principal moments, ``I1 + I2 >= I3 (1 - rtol)``:
+#: the eigenvalues of a symmetric 3x3 matrix carry ~1e-15 relative rounding, so a flat plate
+#: (equality) written with rounded moments still passes.
+INERTIA_TRIANGLE_RTOL = 1e-9
+
+
 def check_spd_inertia(name: str, value: ArrayLike) -> NDArray[np.float64]:
-    """Check an inertia matrix (3x3, or a batch (..., 3, 3)) is symmetric positive definite.
+    """Check an inertia matrix (3x3, or a batch (..., 3, 3)) is physical: symmetric positive
+    definite, and its principal moments satisfy the triangle inequality ``I1 + I2 >= I3``.
 
     Symmetry is required to 1e-9 relative to the largest element; positive
     definiteness is tested with a Cholesky factorisation.
@@ -190,6 +198,15 @@ def check_spd_inertia(name: str, value: ArrayLike) -> NDArray[np.float64]:
     except np.linalg.LinAlgError:
         eig = np.linalg.eigvalsh(J.reshape(-1, 3, 3))
         raise ConfigError(f"{name} must be positive definite; its eigenvalues are {_describe(eig)}") from None
+    moments = np.linalg.eigvalsh(J.reshape(-1, 3, 3))  # ascending principal moments, per matrix
+    thin = moments[:, 0] + moments[:, 1] < moments[:, 2] * (1.0 - INERTIA_TRIANGLE_RTOL)
+    if np.any(thin):
+        k = int(np.argmax(thin))
+        raise ConfigError(
+            f"{name} is not the inertia of a rigid body: its principal moments {_describe(moments[k])} kg m^2 violate the "
+            f"triangle inequality I1 + I2 >= I3 (every mass distribution satisfies it; equality is a flat plate)"
+            + (f" (matrix {k} of the batch)" if J.ndim > 2 else "")
+        )
     return J
 
 

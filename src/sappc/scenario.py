@@ -50,6 +50,42 @@ class ControllerKind(str, Enum):
     BLFPPC = "blfppc"
 
 
+#: Memory one control sample of a run takes while it is simulated and analysed [bytes]: the
+#: History's 40 float64 values per sample (state, error quaternion, torques, flags, rho, band,
+#: eps, z, V, disturbance), held twice at once (the loop's output buffer and the History).
+RUN_BYTES_PER_SAMPLE = 2 * 40 * 8
+#: Share of the machine's memory one run may take.
+RUN_MEMORY_SHARE = 0.5
+
+
+def machine_memory_bytes() -> int:
+    """Physical memory of this machine [bytes]."""
+    import os
+
+    return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+
+
+def check_run_fits_in_memory(duration_s: float, control_period_s: float) -> int:
+    """The number of control samples of a run, after checking that its histories fit in
+    :data:`RUN_MEMORY_SHARE` of this machine's memory (before anything is allocated).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``duration_s``, the memory needed and the longest duration that fits.
+    """
+    samples = round(duration_s / control_period_s) + 1
+    limit = RUN_MEMORY_SHARE * machine_memory_bytes()
+    if samples * RUN_BYTES_PER_SAMPLE > limit:
+        longest = (limit / RUN_BYTES_PER_SAMPLE - 1) * control_period_s
+        raise ConfigError(
+            f"duration_s = {duration_s!r} at control_period_s = {control_period_s!r} is {samples:.3g} control samples, whose "
+            f"histories need {samples * RUN_BYTES_PER_SAMPLE / 2**30:.3g} GiB; this machine allows a run "
+            f"{limit / 2**30:.3g} GiB ({RUN_MEMORY_SHARE:.0%} of its memory): duration_s <= {longest:.6g} s at this period"
+        )
+    return int(samples)
+
+
 _CONFIG_CLASSES = {k: (CONFIG_CLASSES[k.value], CONTROLLER_CLASSES[k.value]) for k in ControllerKind}
 
 
@@ -202,6 +238,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     dt = check_positive("control_period_s", data["control_period_s"])
     if duration < dt:
         raise ConfigError(f"duration_s ({duration!r}) must be at least control_period_s ({dt!r})")
+    check_run_fits_in_memory(duration, dt)
 
     plant = data["plant"]
     if not isinstance(plant, dict) or set(plant) - {"inertia_kg_m2", "rk4_substeps"} or "inertia_kg_m2" not in plant:

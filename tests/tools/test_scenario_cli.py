@@ -92,3 +92,36 @@ def test_simulate_writes_json_and_plots(tmp_path) -> None:
     assert report["parameters"]["scenario"]["duration_s"] == 52.0
     for name in ("qev.png", "qev_zoom.png", "qev_log.png", "torque.png"):
         assert (tmp_path / "fig" / name).stat().st_size > 10_000
+
+
+def test_a_run_too_long_for_this_machine_stops_before_anything_is_allocated(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """duration_s = 1e9 s at 100 Hz is 1e11 samples: one line naming the key and the longest duration
+    that fits, exit status 2, in well under a second (nothing is allocated)."""
+    import time
+
+    from sappc.scenario import RUN_BYTES_PER_SAMPLE, RUN_MEMORY_SHARE, machine_memory_bytes
+
+    raw = yaml.safe_load((SCENARIOS / "paper_tracking.yaml").read_text())
+    raw["duration_s"] = 1.0e9
+    path = tmp_path / "long.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    start = time.perf_counter()
+    assert main(["simulate", str(path)]) == 2
+    assert time.perf_counter() - start < 5.0
+    err = capsys.readouterr().err
+    longest = (RUN_MEMORY_SHARE * machine_memory_bytes() / RUN_BYTES_PER_SAMPLE - 1) * 0.01
+    assert err.startswith(f"sappc: error: {path}: duration_s = 1000000000.0 at control_period_s = 0.01 is 1e+11 control samples")
+    assert f"duration_s <= {longest:.6g} s" in err and err.count("\n") == 1
+    raw["duration_s"] = 0.9 * longest  # just inside the bound: accepted
+    scenario_from_mapping(raw)
+
+
+@pytest.mark.parametrize("moments", [(1.0, 1.0, 4.0), (1.0, 2.0, 3.5)])
+def test_an_inertia_that_no_body_has_is_refused(moments) -> None:  # type: ignore[no-untyped-def]
+    """Positive definite but violating I1 + I2 >= I3 (e.g. diag(1, 1, 4)): not a rigid body."""
+    raw = yaml.safe_load((SCENARIOS / "paper_tracking.yaml").read_text())
+    raw["plant"]["inertia_kg_m2"] = [[moments[0], 0, 0], [0, moments[1], 0], [0, 0, moments[2]]]
+    with pytest.raises(ConfigError, match=r"plant.inertia_kg_m2 is not the inertia of a rigid body: its principal moments .* violate the triangle inequality"):
+        scenario_from_mapping(raw)
+    raw["plant"]["inertia_kg_m2"] = [[1.0, 0, 0], [0, 1.0, 0], [0, 0, 2.0]]  # a flat plate: the limit, accepted
+    scenario_from_mapping(raw)
