@@ -12,7 +12,7 @@ Modes (parameter ``mode``):
     state stamped ``t_k``; it waits for the torque (and disturbance) stamped ``t_k`` (inputs that
     arrive ahead of their sample are kept until it comes), then
     integrates over ``[t_k, t_k+1]``.  This is the offline runner's timing
-    (:mod:`sappc.offline.closed_loop`), so the results are the same.  When an input stamped ``t_k`` does
+    (:mod:`sappc.offline.compiled_loop`), so the results are the same.  When an input stamped ``t_k`` does
     not arrive within ``lockstep_timeout_s`` of wall time, the last received value is held (as
     an actuator holds its last command), the miss is counted and logged, and the run goes on.
     After sample ``n = duration_s / dt`` (and its torque) the node finishes.
@@ -77,7 +77,7 @@ class PlantNode(ProjectNode):
         self.use_disturbance = bool(self.param("use_disturbance_topic", False))
         self.timing_file = str(self.param("timing_file", ""))
         self._wall_first: float | None = None
-        self.n_steps = int(round(duration / self.dt))  # samples k = 0 .. n_steps, as step_times()
+        self.n_steps = int(round(duration / self.dt))  # samples k = 0 .. n_steps, as sample_times()
 
         qos = qos_profile()
         self.pub_att = self.counting_publisher(STATE_ATTITUDE, 1)
@@ -150,7 +150,7 @@ class PlantNode(ProjectNode):
         self._publish_sample()
 
     def _publish_sample(self) -> None:
-        t = self.k * self.dt  # the grid of sappc.offline.closed_loop.step_times
+        t = self.k * self.dt  # the grid of spacecraft_sim.core.reference.sample_times
         assert self.pub_clock is not None
         self.pub_clock.publish(clock_msg(t))
         self._publish_state(t)

@@ -1,12 +1,23 @@
-"""Disturbance models: the paper's formula, fault windows on a sampling grid, seeded randomness, blocks."""
+"""Disturbance models (the compiled kernels behind ``torque_B``): the paper's formula, fault windows
+on a sampling grid, seeded randomness, blocks, every kind against the numpy oracle
+(``tests/sim/oracle.py``)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sappc.offline.closed_loop import step_times
-from spacecraft_sim.core.disturbance import ConstantTorque, DisturbanceSum, PaperPeriodic, PulseTorque, RandomTorque, StepTorque
+from sim import oracle
+from spacecraft_sim.core.disturbance import (
+    ConstantTorque,
+    DisturbanceSum,
+    PaperPeriodic,
+    PulseTorque,
+    RandomTorque,
+    StepTorque,
+    disturbances_from_list,
+)
+from spacecraft_sim.core.reference import sample_times
 from gnc_common.validation import ConfigError
 
 
@@ -27,7 +38,7 @@ def test_paper_periodic_per_run_scale_and_phase() -> None:
 
 
 def test_sudden_fault_covers_exactly_fifty_samples_at_100_hz() -> None:
-    t = step_times(80.0, 0.01)
+    t = sample_times(80.0, 0.01)
     d = PulseTorque(start_s=50.0, duration_s=0.5, torque_Nm=(1.0, 1.0, 1.0)).torque_B(t, 1)[:, 0]
     on = np.flatnonzero(d[:, 0] > 0)
     assert on.size == 50 and t[on[0]] == pytest.approx(50.0) and t[on[-1]] == pytest.approx(50.49)
@@ -59,6 +70,49 @@ def test_sum_and_events() -> None:
     assert s.events() == [(50.0, 50.5), (70.0, float("inf"))]
     d = s.torque_B(np.array([50.0]), 4)
     np.testing.assert_allclose(d[0, 0], PaperPeriodic().torque_B(np.array([50.0]), 1)[0, 0] + 1.0)
+
+
+def test_every_kind_and_the_sum_equal_the_numpy_oracle() -> None:
+    entries = [
+        {"kind": "paper_periodic", "omega_p_rad_s": 0.01, "scale": [0.9, 1.1, 1.0], "phase_rad": [0.0, 1.3, -0.4]},
+        {"kind": "constant", "torque_Nm": [1e-3, -2e-3, 3e-3]},
+        {"kind": "step", "start_s": 0.5, "torque_Nm": [0.1, 0.2, -0.3]},
+        {"kind": "pulse", "start_s": 1.0, "duration_s": 0.5, "torque_Nm": [1.0, 1.0, 1.0]},
+        {"kind": "random", "sigma_Nm": [1e-3, 2e-3, 3e-3], "hold_s": 0.03, "seed": 11},
+        {"kind": "random", "sigma_Nm": [4e-3, 0.0, 1e-3], "hold_s": 0.01, "seeds": [5, 9, 2]},
+    ]
+    t = sample_times(3.0, 0.01)
+    model = disturbances_from_list(entries)
+    expected = [
+        oracle.paper_periodic(t, 0.01, np.array([0.9, 1.1, 1.0]), np.array([0.0, 1.3, -0.4])),
+        oracle.window(t, 0.0, np.inf, (1e-3, -2e-3, 3e-3)),
+        oracle.window(t, 0.5, np.inf, (0.1, 0.2, -0.3)),
+        oracle.window(t, 1.0, 1.5, (1.0, 1.0, 1.0)),
+        oracle.random_torque(t, (1e-3, 2e-3, 3e-3), 0.03, [11, 12, 13]),
+        oracle.random_torque(t, (4e-3, 0.0, 1e-3), 0.01, [5, 9, 2]),
+    ]
+    for m, ref in zip(model.models, expected):
+        d = m.torque_B(t, 3)
+        assert d.shape == (t.size, ref.shape[1], 3), type(m).__name__
+        if isinstance(m, PaperPeriodic):  # sin, cos: libm against numpy's, a few ulps of 0.02 N m
+            np.testing.assert_allclose(d, ref, rtol=0.0, atol=2e-17)
+        else:  # no arithmetic but a product: bit for bit (windows switch on the same samples)
+            np.testing.assert_array_equal(d, ref)
+    total = model.torque_B(t, 3)
+    np.testing.assert_allclose(total, sum(expected[1:], expected[0]), rtol=0.0, atol=1e-16)
+    # a block of samples and the samples one by one (the injector node's calls) agree bit for bit
+    np.testing.assert_array_equal(np.concatenate([model.torque_B(t[k : k + 1], 3) for k in range(0, t.size, 7)]), total[::7])
+
+
+def test_shared_models_give_one_column_and_per_run_models_n() -> None:
+    t = np.array([0.0, 1.0])
+    assert DisturbanceSum((PaperPeriodic(), StepTorque(0.5, (0.1, 0.0, 0.0)))).torque_B(t, 4).shape == (2, 1, 3)
+    assert DisturbanceSum((PaperPeriodic(), RandomTorque((0.1, 0.1, 0.1), 1.0))).torque_B(t, 4).shape == (2, 4, 3)
+    assert DisturbanceSum().torque_B(t, 2).shape == (2, 1, 3)
+    m = RandomTorque((0.1, 0.1, 0.1), 1.0, seed=3)
+    np.testing.assert_array_equal(m.torque_B(t, 1)[:, 0], m.torque_B(t, 3)[:, 0])  # encodings per batch size, cached
+    with pytest.raises(ConfigError, match="seeds lists 2 runs, the batch has 3"):
+        RandomTorque((0.1, 0.1, 0.1), 1.0, seeds=(1, 2)).torque_B(t, 3)
 
 
 @pytest.mark.parametrize(

@@ -1,4 +1,5 @@
-"""Rigid-body plant: conservation laws, integrator order, closed forms, batch equivalence, input checks."""
+"""Rigid-body plant (the compiled kernels behind :class:`RigidBody`): conservation laws, integrator
+order, closed forms, the numpy oracle (``tests/sim/oracle.py``), batch equivalence, shapes, input checks."""
 
 from __future__ import annotations
 
@@ -7,12 +8,14 @@ import pytest
 
 from conftest import random_unit_quaternions
 from gnc_common.attitude import quat_to_dcm_BN
+from sim import oracle
 from spacecraft_sim.core.dynamics import RigidBody, initial_state, kinetic_energy_J
 from gnc_common.validation import ConfigError, InputError
 
-# A general (non-diagonal) SPD inertia: principal moments 3, 5, 9 kg m^2 in a rotated frame.
+# A general (non-diagonal) SPD inertia: principal moments 3, 5, 7 kg m^2 in a rotated frame (a rigid
+# body: I1 + I2 >= I3, gnc_common.validation.check_spd_inertia).
 _R = np.linalg.qr(np.array([[1.0, 2.0, 0.5], [0.3, -1.0, 2.0], [2.0, 0.1, 1.0]]))[0]
-J_GENERAL = _R @ np.diag([3.0, 5.0, 9.0]) @ _R.T
+J_GENERAL = _R @ np.diag([3.0, 5.0, 7.0]) @ _R.T
 
 
 def _momentum_N(J: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -40,8 +43,9 @@ def test_torque_free_motion_conserves_momentum_and_energy_to_fourth_order() -> N
         dE = abs(kinetic_energy_J(J_GENERAL, x[:, 4:]) - kinetic_energy_J(J_GENERAL, x0[:, 4:]))[0]
         errs[dt] = (dH, dE)
     # RK4's global error is O(dt^4): halving dt divides the momentum drift by 2^4 = 16
-    # (measured 16.0; accepted 2^3.6 .. 2^4.3).  The energy drift falls at least as fast
-    # (measured 32: RK4 is superconvergent in energy here), so only a lower bound is asserted.
+    # (measured 15.9 with the compiled kernel; accepted 2^3.6 .. 2^4.3).  The energy drift falls at
+    # least as fast (measured 29: RK4 is superconvergent in energy here), so only a lower bound is
+    # asserted.
     # Step sizes are large enough that round-off (1e-13 over the run) does not blur the ratios.
     ratio_H = errs[0.04][0] / errs[0.02][0]
     ratio_E = errs[0.04][1] / errs[0.02][1]
@@ -51,7 +55,7 @@ def test_torque_free_motion_conserves_momentum_and_energy_to_fourth_order() -> N
 
 
 def test_spin_about_principal_axis_is_steady_and_matches_closed_form() -> None:
-    body = RigidBody(np.diag([3.0, 5.0, 9.0]))
+    body = RigidBody(np.diag([3.0, 5.0, 7.0]))
     w = 0.5
     x = initial_state([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, w])
     for _ in range(1000):
@@ -91,6 +95,46 @@ def test_per_run_inertia_batch_matches_shared_inertia(rng) -> None:
     np.testing.assert_allclose(per_run, shared, atol=1e-15)
 
 
+@pytest.mark.parametrize("per_run", [False, True])
+def test_compiled_plant_equals_the_numpy_oracle(rng, per_run: bool) -> None:
+    n = 16
+    J = J_GENERAL
+    if per_run:  # dispersed inertias, one per run
+        S = np.sqrt(1.0 + rng.uniform(-0.2, 0.2, (n, 3)))
+        J = S[:, :, None] * J_GENERAL[None] * S[:, None, :]
+    body = RigidBody(J)
+    x = initial_state(random_unit_quaternions(rng, n), 0.5 * rng.standard_normal((n, 3)))
+    u = 0.3 * rng.standard_normal((n, 3))
+    np.testing.assert_allclose(body.derivative(x, u), oracle.derivative(x, u, J), rtol=0.0, atol=2e-15)
+    np.testing.assert_allclose(body.propagate(x, u, 0.1, substeps=3), oracle.propagate(x, u, J, 0.1, 3), rtol=0.0, atol=2e-15)
+    y, y_oracle = x, x
+    for _ in range(200):  # 20 s: the two stay together over a run, not only on one step
+        y, y_oracle = body.propagate(y, u, 0.1), oracle.propagate(y_oracle, u, J, 0.1, 1)
+    np.testing.assert_allclose(y, y_oracle, rtol=0.0, atol=1e-12)
+
+
+def test_one_run_shapes_layout_and_sharing(rng) -> None:
+    body = RigidBody(J_GENERAL)
+    x = initial_state(random_unit_quaternions(rng, 3), rng.standard_normal((3, 3)))  # Fortran order
+    u = rng.standard_normal((3, 3))
+    x_before = x.copy()
+    batch = body.propagate(x, u, 0.05, 2)
+    np.testing.assert_array_equal(x, x_before)  # a new array; the input is not changed
+    assert batch.shape == (3, 7) and batch.flags.f_contiguous  # a Fortran batch stays Fortran
+    one = body.propagate(np.ascontiguousarray(x[1]), u[1], 0.05, 2)
+    assert one.shape == (7,)
+    np.testing.assert_array_equal(one, batch[1])  # one run (7,) = its row of the batch, bit for bit
+    shared = body.propagate(x[:1], u, 0.05, 2)  # one state, three torques
+    for k in range(3):
+        np.testing.assert_array_equal(shared[k], body.propagate(x[0], u[k], 0.05, 2))
+    with pytest.raises(InputError, match="batch sizes"):
+        body.propagate(x, u[:2], 0.05)
+    with pytest.raises(InputError, match="expected states"):
+        body.propagate(x[:, :6], u, 0.05)
+    with pytest.raises(InputError, match="batch sizes"):
+        RigidBody(np.broadcast_to(J_GENERAL, (2, 3, 3))).propagate(x, u, 0.05)
+
+
 @pytest.mark.parametrize(
     "J, fragment",
     [
@@ -110,3 +154,9 @@ def test_bad_step_is_rejected(dt) -> None:
     body = RigidBody(np.eye(3))
     with pytest.raises(InputError, match="dt"):
         body.propagate(initial_state([0, 0, 0, 1.0], [0, 0, 0]), np.zeros((1, 3)), dt)
+
+
+@pytest.mark.parametrize("substeps", [0, -1, 1.5])
+def test_bad_substeps_are_rejected(substeps) -> None:
+    with pytest.raises(InputError, match="substeps"):
+        RigidBody(np.eye(3)).propagate(initial_state([0, 0, 0, 1.0], [0, 0, 0]), np.zeros((1, 3)), 0.01, substeps)

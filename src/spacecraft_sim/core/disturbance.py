@@ -13,17 +13,28 @@ graph see the same torque.
 Time windows (pulse, step) are compared with a tolerance of
 ``TIME_TOLERANCE_S`` so that a window sampled on a grid covers exactly
 ``duration / dt`` samples despite rounding in ``k * dt``.
+
+The formulas are computed by the compiled kernels (:mod:`spacecraft_sim.core.kernels`,
+:func:`~spacecraft_sim.core.kernels.disturbance_sample`, the one implementation used by the
+injector node, the offline run and a campaign): a model is encoded once
+(:func:`~spacecraft_sim.core.kernels.encode_disturbance`, cached on the frozen dataclass) and each
+``torque_B`` call evaluates the block in compiled code.  The random kind's draws are made in
+Python before (:func:`~spacecraft_sim.core.kernels.random_draws`, the same
+``default_rng([seed, window])`` calls).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gnc_common.validation import ConfigError, as_finite_array, check_positive, from_kind_list
+from spacecraft_sim.core import kernels
+from spacecraft_sim.core.kernels import TIME_TOLERANCE_S
 
 __all__ = [
     "ConstantTorque",
@@ -38,10 +49,6 @@ __all__ = [
 ]
 
 Array = NDArray[np.float64]
-
-#: Tolerance of time-window comparisons [s]: far below any control period
-#: (>= 1e-4 s), far above the rounding of k * dt over hours (1e-12 s).
-TIME_TOLERANCE_S = 1e-9
 
 
 class DisturbanceModel(Protocol):
@@ -58,8 +65,51 @@ def _vec3(name: str, value: ArrayLike) -> Array:
     return as_finite_array(name, value, shape_tail=(3,))
 
 
+class _Compiled:
+    """``torque_B`` of a model (or a sum of models) through the compiled kernels."""
+
+    @cached_property
+    def _kernel_sum(self) -> DisturbanceSum:
+        """The models the kernels evaluate: this model alone, or the sum itself."""
+        return self if isinstance(self, DisturbanceSum) else DisturbanceSum((self,))  # type: ignore[arg-type]  # a kind satisfies DisturbanceModel
+
+    @cached_property
+    def _plan(self) -> tuple[bool, bool, dict[int, tuple[Array, Array, Array, Array, Array]]]:
+        """Whether each run has its own torque, whether there is a random model, and the encodings
+        made so far: n -> (kinds, dparams, dscale, dphase, no_draws) (:func:`kernels.encode_disturbance`)."""
+        models = self._kernel_sum.models
+        return any(_per_run(m) for m in models), any(isinstance(m, RandomTorque) for m in models), {}
+
+    def torque_B(self, t: Array, n_runs: int) -> Array:
+        """Torque [N m] at times ``t`` [s] (T,), shape (T, n_runs, 3), or (T, 1, 3) when every
+        run sees the same torque."""
+        per_run, has_random, encodings = self._plan
+        n = n_runs if per_run else 1
+        enc = encodings.get(n)
+        if enc is None:  # once per model and batch size
+            enc = (*kernels.encode_disturbance(self._kernel_sum, n), np.zeros((0, n, 1, 3)))
+            encodings[n] = enc
+        kinds, dparams, dscale, dphase, no_draws = enc
+        tt = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+        if has_random:
+            draws, win = kernels.random_draws(self._kernel_sum, tt, n)
+        else:
+            draws, win = no_draws, np.zeros((0, tt.size), dtype=np.int64)
+        total: Array = kernels.disturbance_tables(tt, kinds, dparams, dscale, dphase, draws, win)
+        return total
+
+
+def _per_run(model: DisturbanceModel) -> bool:
+    """Whether ``model`` gives each run of a batch its own torque."""
+    if isinstance(model, RandomTorque):
+        return True
+    if isinstance(model, PaperPeriodic):
+        return int(np.size(model.scale)) > 1 or int(np.size(model.phase_rad)) > 1
+    return False
+
+
 @dataclass(frozen=True)
-class PaperPeriodic:
+class PaperPeriodic(_Compiled):
     """The paper's disturbance (Sec. V.A), ``omega_p = 0.01`` rad/s:
 
         d = 1e-3 [ 4 sin(3 w t) + 3 cos(10 w t) - 20,
@@ -80,25 +130,12 @@ class PaperPeriodic:
         as_finite_array("scale", self.scale)
         as_finite_array("phase_rad", self.phase_rad)
 
-    def torque_B(self, t: Array, n_runs: int) -> Array:
-        phase = np.asarray(self.phase_rad, dtype=np.float64).reshape(1, -1)
-        wt = (self.omega_p_rad_s * np.asarray(t, dtype=np.float64).reshape(-1, 1) + phase)[..., None]  # (T, n, 1)
-        d = 1e-3 * np.concatenate(
-            (
-                4.0 * np.sin(3.0 * wt) + 3.0 * np.cos(10.0 * wt) - 20.0,
-                -1.5 * np.sin(2.0 * wt) + 3.0 * np.cos(5.0 * wt) + 20.0,
-                3.0 * np.sin(10.0 * wt) - 8.0 * np.cos(4.0 * wt) + 20.0,
-            ),
-            axis=-1,
-        )
-        return np.asarray(self.scale, dtype=np.float64).reshape(1, -1, 1) * d
-
     def events(self) -> list[tuple[float, float]]:
         return []
 
 
 @dataclass(frozen=True)
-class ConstantTorque:
+class ConstantTorque(_Compiled):
     """A constant torque for all time."""
 
     torque_Nm: tuple[float, float, float]
@@ -106,15 +143,12 @@ class ConstantTorque:
     def __post_init__(self) -> None:
         _vec3("torque_Nm", self.torque_Nm)
 
-    def torque_B(self, t: Array, n_runs: int) -> Array:
-        return np.broadcast_to(np.asarray(self.torque_Nm, dtype=np.float64), (np.size(t), 1, 3))
-
     def events(self) -> list[tuple[float, float]]:
         return []
 
 
 @dataclass(frozen=True)
-class StepTorque:
+class StepTorque(_Compiled):
     """A torque switched on at ``start_s`` and kept (a fault that does not clear)."""
 
     start_s: float
@@ -124,16 +158,12 @@ class StepTorque:
         check_positive("start_s", self.start_s, allow_zero=True)
         _vec3("torque_Nm", self.torque_Nm)
 
-    def torque_B(self, t: Array, n_runs: int) -> Array:
-        on = np.asarray(t, dtype=np.float64).reshape(-1, 1, 1) >= self.start_s - TIME_TOLERANCE_S
-        return np.asarray(self.torque_Nm, dtype=np.float64) * on
-
     def events(self) -> list[tuple[float, float]]:
         return [(self.start_s, float("inf"))]
 
 
 @dataclass(frozen=True)
-class PulseTorque:
+class PulseTorque(_Compiled):
     """A torque on during ``[start_s, start_s + duration_s)``: the paper's sudden fault is
     ``(1, 1, 1)`` N m for 0.5 s at 50 s (Sec. V.C)."""
 
@@ -146,17 +176,12 @@ class PulseTorque:
         check_positive("duration_s", self.duration_s)
         _vec3("torque_Nm", self.torque_Nm)
 
-    def torque_B(self, t: Array, n_runs: int) -> Array:
-        tt = np.asarray(t, dtype=np.float64).reshape(-1, 1, 1)
-        on = ((self.start_s - TIME_TOLERANCE_S) <= tt) & (tt < (self.start_s + self.duration_s - TIME_TOLERANCE_S))
-        return np.asarray(self.torque_Nm, dtype=np.float64) * on
-
     def events(self) -> list[tuple[float, float]]:
         return [(self.start_s, self.start_s + self.duration_s)]
 
 
 @dataclass(frozen=True)
-class RandomTorque:
+class RandomTorque(_Compiled):
     """Zero-mean Gaussian torque, piecewise constant over windows of ``hold_s``.
 
     The value in window ``k = floor(t / hold_s)`` is drawn from
@@ -179,29 +204,15 @@ class RandomTorque:
         if int(self.seed) != self.seed or self.seed < 0:
             raise ConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
 
-    def torque_B(self, t: Array, n_runs: int) -> Array:
-        windows = np.floor(np.asarray(t, dtype=np.float64).reshape(-1) / self.hold_s + TIME_TOLERANCE_S / self.hold_s).astype(np.int64)
-        seeds = self.seeds if self.seeds else tuple(self.seed + i for i in range(n_runs))
-        if len(seeds) != n_runs:
-            raise ConfigError(f"seeds lists {len(seeds)} runs, the batch has {n_runs}")
-        draws = np.array([[np.random.default_rng([int(s), int(k)]).standard_normal(3) for s in seeds] for k in windows])
-        return draws * np.asarray(self.sigma_Nm, dtype=np.float64)
-
     def events(self) -> list[tuple[float, float]]:
         return []
 
 
 @dataclass(frozen=True)
-class DisturbanceSum:
+class DisturbanceSum(_Compiled):
     """The sum of several models."""
 
     models: tuple[DisturbanceModel, ...] = ()
-
-    def torque_B(self, t: Array, n_runs: int) -> Array:
-        total = np.zeros((np.size(t), 1, 3))
-        for m in self.models:
-            total = total + m.torque_B(t, n_runs)
-        return total
 
     def events(self) -> list[tuple[float, float]]:
         return sorted(e for m in self.models for e in m.events())

@@ -15,15 +15,23 @@ Integration: classical RK4 with the torque held constant over the step
 (zero-order hold, as a sampled actuator applies it), followed by a projection
 of ``q_BN`` back onto the unit sphere.  The projection changes ``q`` by
 the RK4 truncation error only (``O(dt^5)`` per step).
+
+The model and the integrator are computed by the compiled kernels
+(:func:`spacecraft_sim.core.kernels.propagate`, one implementation for the plant
+node, the offline run and a campaign); :class:`RigidBody` checks the inertia once
+and the step at each call, and loops over the runs of a batch in compiled code.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gnc_common.attitude import Linear3, cross, dot, matvec, quat_normalize
+from gnc_common.attitude import dot, matvec
 from gnc_common.validation import InputError, check_spd_inertia
+from spacecraft_sim.core import kernels
 
 __all__ = ["RigidBody", "STATE_SIZE", "initial_state", "kinetic_energy_J"]
 
@@ -50,52 +58,67 @@ class RigidBody:
     def __init__(self, inertia_kg_m2: ArrayLike) -> None:
         self.J: Array = check_spd_inertia("inertia_kg_m2", inertia_kg_m2)
         self.J_inv: Array = np.asarray(np.linalg.inv(self.J), dtype=np.float64)
-        self._J = Linear3(self.J)
-        self._J_inv = Linear3(self.J_inv)
+        # (NJ, 3, 3), C order, NJ = 1 (shared) or N: the kernels' layout, made once
+        self._J3: Array = np.ascontiguousarray(self.J.reshape(-1, 3, 3), dtype=np.float64)
+        self._J_inv3: Array = np.ascontiguousarray(self.J_inv.reshape(-1, 3, 3), dtype=np.float64)
 
-    def derivative(self, x: Array, torque_B: Array) -> Array:
-        """State derivative ``dx/dt`` for states (N, 7) and torques (N, 3)."""
-        return self._derivative(x, self._J_inv(torque_B))
+    def _runs(self, x: ArrayLike, torque_B: ArrayLike) -> tuple[Array, Array, Array, int]:
+        """``x`` (Nx, 7) and ``torque_B`` (Nu, 3) as C-contiguous float64 and a new (N, 7) output
+        (the kernels' layout), and how to return it: 0 as (N, 7), 1 as one run (7,), 2 in Fortran
+        order; raises :class:`InputError` on shapes that do not match."""
+        xa = np.asarray(x, dtype=np.float64)
+        u = np.asarray(torque_B, dtype=np.float64)
+        x2 = xa.reshape(1, -1) if xa.ndim == 1 else xa
+        u2 = u.reshape(1, -1) if u.ndim == 1 else u
+        if x2.ndim != 2 or x2.shape[1] != STATE_SIZE or u2.ndim != 2 or u2.shape[1] != 3:
+            raise InputError(f"expected states (7,) or (N, 7) and torques (3,) or (N, 3), got shapes {xa.shape} and {u.shape}")
+        nx, nu, nj = x2.shape[0], u2.shape[0], self._J3.shape[0]
+        n = max(nx, nu, nj)
+        if (nx != n and nx != 1) or (nu != n and nu != 1) or (nj != n and nj != 1):
+            raise InputError(f"batch sizes do not match: states {nx}, torques {nu}, inertias {nj}")
+        form = 1 if (xa.ndim == 1 and n == 1) else (2 if (n > 1 and not xa.flags.c_contiguous and xa.flags.f_contiguous) else 0)
+        return np.ascontiguousarray(x2), np.ascontiguousarray(u2), np.empty((n, STATE_SIZE)), form
 
-    def _derivative(self, x: Array, accel_ext: Array) -> Array:
-        """``dx/dt`` given the external angular acceleration ``J^-1 torque`` (constant over a step)."""
-        q = x[:, :4]
-        w = x[:, 4:]
-        qv = q[:, :3]
-        out = np.empty_like(x)
-        out[:, :3] = 0.5 * (q[:, 3:] * w + cross(qv, w))
-        out[:, 3] = -0.5 * dot(qv, w)
-        out[:, 4:] = accel_ext - self._J_inv(cross(w, self._J(w)))
-        return out
+    @staticmethod
+    def _shaped(out: Array, form: int) -> Array:
+        if form == 1:
+            one: Array = out[0]
+            return one
+        return np.asfortranarray(out) if form == 2 else out  # a Fortran batch stays Fortran (see initial_state)
 
-    def rk4_step(self, x: Array, torque_B: Array, dt: float) -> Array:
-        """One RK4 step of length ``dt`` [s] with ``torque_B`` held constant; ``q`` renormalised."""
-        a = self._J_inv(torque_B)
-        h2 = 0.5 * dt
-        k1 = self._derivative(x, a)
-        k2 = self._derivative(x + h2 * k1, a)
-        k3 = self._derivative(x + h2 * k2, a)
-        k4 = self._derivative(x + dt * k3, a)
-        x_new = x + (dt / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
-        x_new[:, :4] = quat_normalize(x_new[:, :4])
-        return x_new
+    def derivative(self, x: ArrayLike, torque_B: ArrayLike) -> Array:
+        """State derivative ``dx/dt`` for states (N, 7) or (7,) and torques (N, 3) or (3,)
+        (:func:`spacecraft_sim.core.kernels.derivative`)."""
+        x2, u2, out, form = self._runs(x, torque_B)
+        kernels.derivative_runs(x2, u2, self._J3, self._J_inv3, out)
+        return self._shaped(out, form)
 
-    def propagate(self, x: Array, torque_B: Array, dt: float, substeps: int = 1) -> Array:
+    def rk4_step(self, x: ArrayLike, torque_B: ArrayLike, dt: float) -> Array:
+        """One RK4 step of length ``dt`` [s] with ``torque_B`` held constant; ``q`` renormalised
+        (:meth:`propagate` with one substep)."""
+        return self.propagate(x, torque_B, dt, 1)
+
+    def propagate(self, x: ArrayLike, torque_B: ArrayLike, dt: float, substeps: int = 1) -> Array:
         """Advance ``x`` by ``dt`` [s] in ``substeps`` RK4 steps with the torque held (ZOH).
+
+        ``x`` is one run (7,) or a batch (N, 7), ``torque_B`` (3,) or (N, 3) [N m]; a batch of
+        one (states, torques or the inertia) is shared by the N runs.  Returns a new state array
+        of ``x``'s shape and memory order (``x`` is not changed), computed by
+        :func:`spacecraft_sim.core.kernels.propagate` for each run (a compiled loop over runs).
 
         Raises
         ------
         InputError
-            If ``dt`` is not finite and positive or ``substeps`` is not a positive integer.
+            If ``dt`` is not finite and positive, ``substeps`` is not a positive integer, or the
+            shapes do not match.
         """
-        if not (np.isfinite(dt) and dt > 0.0):
+        if not (math.isfinite(dt) and dt > 0.0):
             raise InputError(f"dt must be finite and > 0, got {dt!r}")
         if int(substeps) != substeps or substeps < 1:
             raise InputError(f"substeps must be a positive integer, got {substeps!r}")
-        h = dt / substeps
-        for _ in range(int(substeps)):
-            x = self.rk4_step(x, torque_B, h)
-        return x
+        x2, u2, out, form = self._runs(x, torque_B)
+        kernels.propagate_runs(x2, u2, float(dt), int(substeps), self._J3, self._J_inv3, out)
+        return self._shaped(out, form)
 
 
 def initial_state(q_BN: ArrayLike, omega_BN_B: ArrayLike) -> Array:
@@ -112,4 +135,3 @@ def initial_state(q_BN: ArrayLike, omega_BN_B: ArrayLike) -> Array:
 def kinetic_energy_J(J: Array, omega_BN_B: Array) -> Array:
     """Rotational kinetic energy ``omega^T J omega / 2`` [J], shape (N,)."""
     return 0.5 * dot(omega_BN_B, matvec(J, omega_BN_B))
-

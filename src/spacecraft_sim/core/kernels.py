@@ -1,9 +1,11 @@
 """Compiled per-run plant kernels: rigid-body RK4 with zero-order hold, the paper's reference
-rates, and every disturbance kind (numba, see :mod:`gnc_common.compiled`).
+rates, every disturbance kind and the sensor-noise model (numba, see :mod:`gnc_common.compiled`).
 
-The same models as :mod:`.dynamics`, :mod:`.reference` and :mod:`.disturbance`, over one run's
-small float64 arrays, operations in the same order (results agree to the last bit or two where
-``sin``, ``cos`` or ``sqrt`` of the system libm and numpy's SIMD routines differ).
+These are **the** implementation of the plant models: :class:`.dynamics.RigidBody`,
+:class:`.reference.PaperReference` (rates) and the models of :mod:`.disturbance` evaluate through
+them (the node, the offline run and a campaign share one code path).  Each works over one run's
+small float64 arrays; the ``*_runs`` / ``*_tables`` functions loop over runs or times in compiled
+code.  A plain numpy oracle of the same formulas lives in ``tests/sim/oracle.py`` (tests only).
 
 Disturbances
 ------------
@@ -30,20 +32,16 @@ A :class:`~.disturbance.DisturbanceSum` is encoded by :func:`encode_disturbance`
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from gnc_common.compiled import jit, matvec3, quat_multiply, quat_normalize
+from gnc_common.validation import ConfigError
 
-from spacecraft_sim.core.reference import PaperReference
-from spacecraft_sim.core.disturbance import (
-    TIME_TOLERANCE_S,
-    ConstantTorque,
-    DisturbanceSum,
-    PaperPeriodic,
-    PulseTorque,
-    RandomTorque,
-    StepTorque,
-)
+if TYPE_CHECKING:  # the model modules import this one (their one implementation): no import cycle at run time
+    from spacecraft_sim.core.disturbance import DisturbanceSum
+    from spacecraft_sim.core.reference import PaperReference
 
 __all__ = [
     "D_CONSTANT",
@@ -51,21 +49,31 @@ __all__ = [
     "D_PULSE",
     "D_RANDOM",
     "D_STEP",
+    "TIME_TOLERANCE_S",
+    "derivative_runs",
     "disturbance_sample",
     "disturbance_table",
+    "disturbance_tables",
     "encode_disturbance",
     "noisy_measurement",
     "propagate",
+    "propagate_runs",
     "random_draws",
-    "reference_rates",
+    "rate_tables",
     "reference_rate_tables",
+    "reference_rates",
     "rk4_step",
+    "warm_up",
 ]
 
 D_PERIODIC, D_CONSTANT, D_STEP, D_PULSE, D_RANDOM = 0, 1, 2, 3, 4
 N_DPARAMS = 8
 #: Rows of the plant's scratch array (:func:`propagate`).
 N_PLANT_WORK = 8
+#: Tolerance of time-window comparisons [s] (step and pulse disturbances, fault windows): far
+#: below any control period (>= 1e-4 s), far above the rounding of k * dt over hours (1e-12 s).
+#: Re-exported by :mod:`.disturbance`.
+TIME_TOLERANCE_S = 1e-9
 _TOL = TIME_TOLERANCE_S
 
 
@@ -133,6 +141,41 @@ def propagate(x, torque_B, dt, substeps, J, J_inv, work):
         rk4_step(x, accel, h, J, J_inv, work)
 
 
+@jit
+def propagate_runs(x, torque_B, dt, substeps, J, J_inv, out):
+    """:func:`propagate` for each run ``n`` of ``out`` (N, 7), from ``x`` (Nx, 7) with ``torque_B``
+    (Nu, 3) and ``J``, ``J_inv`` (NJ, 3, 3); each of Nx, Nu, NJ is 1 (shared by every run) or N.
+    ``x`` is not changed (``out`` may not alias it); inputs checked by the caller
+    (:meth:`.dynamics.RigidBody.propagate`)."""
+    work = np.empty((N_PLANT_WORK, 7))
+    xs = np.empty(7)
+    u = np.empty(3)
+    for n in range(out.shape[0]):
+        nx = n if x.shape[0] > 1 else 0
+        nu = n if torque_B.shape[0] > 1 else 0
+        nj = n if J.shape[0] > 1 else 0
+        for i in range(7):
+            xs[i] = x[nx, i]
+        for i in range(3):
+            u[i] = torque_B[nu, i]
+        propagate(xs, u, dt, substeps, J[nj], J_inv[nj], work)
+        for i in range(7):
+            out[n, i] = xs[i]
+
+
+@jit
+def derivative_runs(x, torque_B, J, J_inv, out):
+    """:func:`derivative` of each run, ``J^-1 torque`` formed first (shapes of :func:`propagate_runs`)."""
+    work = np.empty((N_PLANT_WORK, 7))
+    accel = np.empty(3)
+    for n in range(out.shape[0]):
+        nx = n if x.shape[0] > 1 else 0
+        nu = n if torque_B.shape[0] > 1 else 0
+        nj = n if J.shape[0] > 1 else 0
+        matvec3(J_inv[nj], torque_B[nu], accel)
+        derivative(x[nx], accel, J[nj], J_inv[nj], work, out[n])
+
+
 # ============================================================================= reference
 
 
@@ -150,7 +193,8 @@ def reference_rates(t, a_rad_s, periods, w_out, wdot_out):
 
 
 @jit
-def _rate_tables(t, a_rad_s, periods):
+def rate_tables(t, a_rad_s, periods):
+    """:func:`reference_rates` on every time of ``t`` (T,): ``omega``, ``omegadot`` (T, 3)."""
     w = np.empty((t.shape[0], 3))
     wd = np.empty((t.shape[0], 3))
     for k in range(t.shape[0]):
@@ -164,8 +208,9 @@ def reference_rate_tables(reference: PaperReference, t: np.ndarray) -> tuple[np.
     ``q_RN`` comes from :meth:`.reference.PaperReference.sample` (DOP853, once per scenario):
     an adaptive high-order integration is set-up work, not per-step work.
     """
-    tables: tuple[np.ndarray, np.ndarray] = _rate_tables(np.ascontiguousarray(t, dtype=np.float64), float(np.radians(reference.amplitude_deg_s)),
-                                                         np.asarray(reference.periods_s, dtype=np.float64))
+    tables: tuple[np.ndarray, np.ndarray] = rate_tables(np.ascontiguousarray(t, dtype=np.float64).reshape(-1),
+                                                        float(np.radians(reference.amplitude_deg_s)),
+                                                        np.asarray(reference.periods_s, dtype=np.float64))
     return tables
 
 
@@ -225,11 +270,25 @@ def disturbance_table(t, kinds, dparams, dscale, dphase, rand_draws, rand_win):
     return d
 
 
+@jit
+def disturbance_tables(t, kinds, dparams, dscale, dphase, rand_draws, rand_win):
+    """:func:`disturbance_sample` on every time of ``t`` (T,) for every run of ``dscale`` (N, M):
+    (T, N, 3); ``rand_draws`` (R, N, W, 3) (:func:`encode_disturbance`, :func:`random_draws`)."""
+    d = np.empty((t.shape[0], dscale.shape[0], 3))
+    for n in range(dscale.shape[0]):
+        draws = rand_draws[:, n]
+        for k in range(t.shape[0]):
+            disturbance_sample(k, t[k], kinds, dparams, dscale[n], dphase[n], draws, rand_win, d[k, n])
+    return d
+
+
 def encode_disturbance(model: DisturbanceSum, n_runs: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``kinds``, ``dparams``, ``dscale`` (n_runs, M), ``dphase`` (n_runs, M) of a disturbance sum.
 
     A periodic model's ``scale`` and ``phase_rad`` may be per-run tuples (length ``n_runs``).
     """
+    from spacecraft_sim.core.disturbance import ConstantTorque, PaperPeriodic, PulseTorque, RandomTorque, StepTorque
+
     models = model.models
     M = len(models)
     kinds = np.zeros(M, dtype=np.int64)
@@ -265,6 +324,8 @@ def random_draws(model: DisturbanceSum, t: np.ndarray, n_runs: int = 1) -> tuple
     """``rand_draws`` (R, n_runs, W, 3) and ``rand_win`` (R, T) of the random models of ``model``
     on the grid ``t``: the draws ``default_rng([seed, window]).standard_normal(3)`` that
     :meth:`.disturbance.RandomTorque.torque_B` makes, one per run and window (module docstring)."""
+    from spacecraft_sim.core.disturbance import RandomTorque
+
     randoms = [m for m in model.models if isinstance(m, RandomTorque)]
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     if not randoms:
@@ -280,7 +341,7 @@ def random_draws(model: DisturbanceSum, t: np.ndarray, n_runs: int = 1) -> tuple
     for r, m in enumerate(randoms):
         seeds = m.seeds if m.seeds else tuple(m.seed + i for i in range(n_runs))
         if len(seeds) != n_runs:
-            raise ValueError(f"seeds lists {len(seeds)} runs, the batch has {n_runs}")
+            raise ConfigError(f"seeds lists {len(seeds)} runs, the batch has {n_runs}")
         for n, s in enumerate(seeds):
             for j, k in enumerate(wins[r]):
                 draws[r, n, j] = np.random.default_rng([int(s), int(k)]).standard_normal(3)
@@ -309,3 +370,28 @@ def noisy_measurement(q_BN, omega_BN_B, n, attitude_std_rad, rate_std_rad_s, q_o
     quat_normalize(q_out, q_out)
     for i in range(3):
         omega_out[i] = omega_BN_B[i] + rate_std_rad_s * n[3 + i]
+
+
+# ============================================================================= cache
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the entry points the plant cores call from Python, with
+    the argument types they pass: :meth:`.dynamics.RigidBody.propagate` and ``derivative`` (shared
+    and per-run inertia), ``torque_B`` of every disturbance kind, :class:`.reference.PaperReference`
+    rates and sample.  For ``sappcw`` (through :func:`sappc.offline.compiled_loop.warm_up`), so that
+    a node's first sample does not compile."""
+    from spacecraft_sim.core.disturbance import ConstantTorque, DisturbanceSum, PaperPeriodic, PulseTorque, RandomTorque, StepTorque
+    from spacecraft_sim.core.dynamics import RigidBody, initial_state
+    from spacecraft_sim.core.reference import PaperReference
+
+    x = initial_state([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    for J in (np.eye(3), np.stack((np.eye(3), np.eye(3)))):
+        body = RigidBody(J)
+        body.propagate(x, np.zeros((1, 3)), 0.01)
+        body.derivative(x, np.zeros((1, 3)))
+    t = np.array([0.0, 0.01])
+    DisturbanceSum((PaperPeriodic(), ConstantTorque((0.0, 0.0, 0.0)), StepTorque(0.0, (0.0, 0.0, 0.0)),
+                    PulseTorque(0.0, 1.0, (0.0, 0.0, 0.0)), RandomTorque((0.0, 0.0, 0.0), 1.0))).torque_B(t, 1)
+    PaperPeriodic().torque_B(t, 1)
+    PaperReference().sample(t)

@@ -9,7 +9,9 @@ rad/s); read as rad/s the 0.5 N m actuator could not follow it.  ``q_RN`` is
 integrated from ``dq_RN/dt = 1/2 q_RN ⊗ (omega_RN_R, 0)``; ``omegadot_RN_R``
 is analytic.
 
-The quaternion is integrated once per scenario with an 8th-order Dormand-Prince
+The rates are computed by the compiled kernel
+(:func:`spacecraft_sim.core.kernels.reference_rates`, the one implementation of the
+formula).  The quaternion is integrated once per scenario with an 8th-order Dormand-Prince
 method at ``rtol = 1e-12`` and sampled on the control grid, so the reference is
 the same wherever it is used (offline runner, reference publisher node) and is
 far more accurate than the plant's RK4 step.
@@ -24,6 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gnc_common.attitude import quat_kinematics, quat_normalize
 from gnc_common.validation import ConfigError, as_finite_array, check_unit_quaternion
+from spacecraft_sim.core import kernels
 
 __all__ = ["PaperReference", "ReferenceSamples", "sample_times"]
 
@@ -78,21 +81,21 @@ class PaperReference:
         if np.any(periods <= 0.0):
             raise ConfigError(f"reference.periods_s must be > 0, got {self.periods_s!r}")
 
+    def rates(self, t: ArrayLike) -> tuple[Array, Array]:
+        """Desired rate [rad/s] and angular acceleration [rad/s^2], each of shape ``t.shape + (3,)``
+        (:func:`spacecraft_sim.core.kernels.reference_rates`)."""
+        tt = np.asarray(t, dtype=np.float64)
+        w, wd = kernels.rate_tables(np.ascontiguousarray(tt.reshape(-1)), float(np.radians(self.amplitude_deg_s)),
+                                    np.asarray(self.periods_s, dtype=np.float64))
+        return w.reshape(tt.shape + (3,)), wd.reshape(tt.shape + (3,))
+
     def omega_RN_R(self, t: ArrayLike) -> Array:
         """Desired rate [rad/s], shape (..., 3)."""
-        a = np.radians(self.amplitude_deg_s)
-        tt = np.asarray(t, dtype=np.float64)[..., None]
-        p = np.asarray(self.periods_s)
-        omega: Array = a * np.concatenate((np.cos(tt / p[0]), np.sin(tt / p[1]), -np.cos(tt / p[2])), axis=-1)
-        return omega
+        return self.rates(t)[0]
 
     def omegadot_RN_R(self, t: ArrayLike) -> Array:
         """Desired angular acceleration [rad/s^2], shape (..., 3)."""
-        a = np.radians(self.amplitude_deg_s)
-        tt = np.asarray(t, dtype=np.float64)[..., None]
-        p = np.asarray(self.periods_s)
-        omegadot: Array = a * np.concatenate((-np.sin(tt / p[0]) / p[0], np.cos(tt / p[1]) / p[1], np.sin(tt / p[2]) / p[2]), axis=-1)
-        return omegadot
+        return self.rates(t)[1]
 
     def sample(self, t: ArrayLike) -> ReferenceSamples:
         """The reference at increasing times ``t`` >= 0 [s], shape (T,)."""
@@ -104,8 +107,16 @@ class PaperReference:
         if t_end > 0.0:
             from scipy.integrate import solve_ivp  # here, not at import: it costs 0.2 s (see cli)
 
+            a_rad_s = float(np.radians(self.amplitude_deg_s))
+            periods = np.asarray(self.periods_s, dtype=np.float64)
+            w, wd = np.empty(3), np.empty(3)
+
+            def rhs(tt: float, q: Array) -> Array:
+                kernels.reference_rates(float(tt), a_rad_s, periods, w, wd)
+                return quat_kinematics(q, w)
+
             sol = solve_ivp(
-                lambda tt, q: quat_kinematics(q, self.omega_RN_R(tt)),
+                rhs,
                 (0.0, t_end),
                 q0,
                 method="DOP853",
@@ -116,4 +127,4 @@ class PaperReference:
             q = quat_normalize(sol.y.T)
         else:
             q = np.broadcast_to(q0, (times.size, 4)).copy()
-        return ReferenceSamples(times, q, self.omega_RN_R(times), self.omegadot_RN_R(times))
+        return ReferenceSamples(times, q, *self.rates(times))
