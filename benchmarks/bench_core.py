@@ -7,7 +7,7 @@ Prints one JSON document:
 * ``sappc_step_single_us``: one SAPPC control step for a single run, through the public,
   input-checking ``step`` (target <= 100 us), and through ``step_unchecked`` as the offline runner calls it.
 * ``closed_loop_step_batch3000_ms``: one closed-loop step (SAPPC + RK4 plant + disturbance) for a
-  batch of 3000 runs with random attitudes (target <= 3 ms).
+  batch of 3000 runs with random attitudes, compiled batch loop (target <= 3 ms).
 * ``numpy_ufunc_call_us``: the cost of one tiny numpy call measured in the same run, as a
   machine baseline: the single-run figures are also given in units of it.
 
@@ -31,13 +31,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from sappc.offline.closed_loop import run_closed_loop, step_times  # noqa: E402
+from sappc.offline.compiled_loop import prepare, run_batch  # noqa: E402
 from sappc.scenario import load_scenario  # noqa: E402
 from sappc.offline.simulate import simulate  # noqa: E402
 from sappc_controller.core.rpf import RPFParameters  # noqa: E402
-from sappc_controller.core.sappc import SappcController  # noqa: E402
 from gnc_common.attitude import euler_to_quaternion  # noqa: E402
-from spacecraft_sim.core.dynamics import RigidBody, initial_state  # noqa: E402
 
 SCENARIO = ROOT / "config" / "scenarios" / "paper_tracking.yaml"
 
@@ -82,21 +80,17 @@ def bench_single_step(repeats: int, n_steps: int = 2000) -> tuple[float, float]:
 
 
 def bench_batch(repeats: int, n_runs: int = 3000, n_steps: int = 100) -> float:
+    """One closed-loop step of ``n_runs`` runs: the compiled batch loop (``prange`` over runs) over
+    ``n_steps`` steps, per step (the numpy batch loop has left src/)."""
     scenario = load_scenario(SCENARIO)
     rng = np.random.default_rng(0)
     q0 = euler_to_quaternion(np.radians(rng.uniform(-85.0, 85.0, (n_runs, 3))), "ZYX")
     # Monte Carlo RPF of experiment 4: rho_e0 = |q_ev,i(0)|, l = 0.2
     config = dataclasses.replace(scenario.controller_config("sappc"), rpf=RPFParameters(None, 1e-6, 0.2, 20.0, 3e-5))
-    ctrl = SappcController(config, on_infeasible="clamp")
-    plant = RigidBody(scenario.inertia_kg_m2)
-    t = step_times(n_steps * 0.01, 0.01)
-    ref = scenario.reference.sample(t)
-    x0 = initial_state(q0, np.zeros(3))
-
-    def run() -> None:
-        run_closed_loop(plant, ctrl, ref, scenario.disturbance, x0, 0.01, observer=lambda *a: None)
-
-    return _median_time(run, repeats) / t.size
+    short = dataclasses.replace(scenario, duration_s=n_steps * 0.01)
+    inp = prepare(short, config=config, q_BN0=q0, on_infeasible="clamp")
+    run_batch(inp)
+    return _median_time(lambda: run_batch(inp), repeats) / inp.t.size
 
 
 def bench_numpy_call(repeats: int) -> float:

@@ -1,13 +1,18 @@
-"""Benchmark of Monte Carlo campaigns (issue: Monte Carlo, "Done means").
+"""Whole-command benchmarks of the compiled offline runner and Monte Carlo (issue 13).
 
-Runs ``config/scenarios/paper_montecarlo.yaml`` in this process and prints one JSON document:
-wall time, runs/s, peak resident memory (``ru_maxrss``), and the resident memory sampled after
-every finished chunk (flat memory means the last samples do not grow with the run count).
+Each figure is the wall time of a whole `sappc` process (imports, numba cache load, the runs,
+the table and the figures), median of ``--repeats``, warm numba cache; peak memory is the
+largest resident set of the command and its workers (``ru_maxrss`` of the children).
 
-    python benchmarks/bench_montecarlo.py [--runs 3000] [--seed 0] [--workers 1] [--repeats 1]
+* ``simulate_paper_tracking_s``: ``sappc simulate config/scenarios/paper_tracking.yaml`` (target <= 1.5 s);
+* ``montecarlo_3000_s``: ``sappc montecarlo config/scenarios/paper_montecarlo.yaml --runs 3000``
+  with its figures (target <= 4 s);
+* ``montecarlo_100000_s`` (``--big``, once): ``--runs 100000`` (target <= 120 s, peak <= 500 MB).
 
-Targets: 3000 runs of 50 s at 100 Hz in <= 15 s with peak memory <= 2 GB; a 100,000-run
-campaign with flat memory (``--runs 100000``, about 9 minutes on one core).
+    python benchmarks/bench_montecarlo.py [--repeats 5] [--workers W] [--big]
+
+The numpy core's figures (issue 13, this machine): simulate 1.6-4 s, 3000 runs 6.8-11.8 s,
+100,000 runs 680 s on one worker with a 204 MB peak.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import os
 import platform
 import resource
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -26,66 +32,61 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "src"))
-
-from sappc import montecarlo as mc  # noqa: E402
-
-SCENARIO = ROOT / "config" / "scenarios" / "paper_montecarlo.yaml"
+SCENARIOS = ROOT / "config" / "scenarios"
+NUMPY_CORE = {"simulate_s": [1.6, 4.0], "montecarlo_3000_s": [6.8, 11.8], "montecarlo_100000_s": 680.0, "peak_100000_mb": 204.0}
 
 
-def _rss_mb() -> float:
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
+def _run(args: list[str]) -> tuple[float, float, str]:
+    """Wall time [s], peak RSS [MB] of the command and its workers, stderr."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "sappc", *args], capture_output=True, text=True, cwd=ROOT, env=env)
+    wall = time.perf_counter() - t0
+    if proc.returncode not in (0, 1):
+        raise RuntimeError(proc.stderr)
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return wall, max(peak, before) / 1024.0, proc.stderr
+
+
+def _median(args_fn, repeats: int) -> dict[str, object]:  # type: ignore[no-untyped-def]
+    walls, peaks = [], []
+    for _ in range(repeats):
+        with tempfile.TemporaryDirectory() as tmp:
+            wall, peak, _ = _run(args_fn(tmp))
+        walls.append(wall)
+        peaks.append(peak)
+    return {"median_s": statistics.median(walls), "all_s": walls, "peak_rss_mb_so_far": max(peaks)}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--runs", type=int, default=3000)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--workers", type=int, default=1)
-    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--big", action="store_true", help="also the 100,000-run campaign (once)")
     args = parser.parse_args()
-
-    samples: list[float] = []
-    real_save = mc._save_chunk
-
-    def save_and_sample(out, index, result):  # type: ignore[no-untyped-def]
-        real_save(out, index, result)
-        samples.append(_rss_mb())
-
-    mc._save_chunk = save_and_sample  # type: ignore[assignment]
-    walls, summary = [], {}
-    for _ in range(args.repeats):
-        samples.clear()
-        with tempfile.TemporaryDirectory() as tmp:
-            t0 = time.perf_counter()
-            summary = mc.run_campaign(SCENARIO, runs=args.runs, seed=args.seed, out_dir=tmp, workers=args.workers, progress=False)
-            walls.append(time.perf_counter() - t0)
-    wall = statistics.median(walls)
-    # the largest resident set of this process and of any worker process (ru_maxrss is per process)
-    peak_mb = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)) / 1024.0
-    n = len(samples)
-    result = {
-        "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__},
-        "runs": args.runs,
-        "workers": args.workers,
-        "repeats": args.repeats,
-        "statistic": "median",
-        "wall_time_s": wall,
-        "campaign_loop_wall_s": summary["wall_time_s"],
-        "runs_per_s": args.runs / wall,
-        "target_wall_s_for_3000_runs": 15.0,
-        "meets_wall_target": (wall <= 15.0) if args.runs == 3000 else None,  # the target is for 3000 runs
-        "peak_rss_mb": peak_mb,
-        "meets_memory_target": peak_mb <= 2048.0,
-        "rss_after_chunk_mb": {"first": samples[0] if n else None, "middle": samples[n // 2] if n else None,
-                               "last": samples[-1] if n else None, "max": max(samples) if n else None, "chunks": n},
-        "pass_fraction": summary["pass_fraction"],
-        "passed": summary["passed"],
+    w = ["--workers", str(args.workers)]
+    _run(["simulate", str(SCENARIOS / "paper_tracking.yaml")])  # warm the cache (and the page cache)
+    sim = _median(lambda tmp: ["simulate", str(SCENARIOS / "paper_tracking.yaml")], args.repeats)
+    mc = _median(lambda tmp: ["montecarlo", str(SCENARIOS / "paper_montecarlo.yaml"), "--runs", "3000", "--out", tmp, "--no-progress", *w],
+                 args.repeats)
+    result: dict[str, object] = {
+        "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "python": platform.python_version(),
+                    "numpy": np.__version__, "note": "shared 2-core VM: timings drift 10-50 % between invocations"},
+        "repeats": args.repeats, "statistic": "median", "workers": args.workers,
+        "simulate_paper_tracking_s": {**sim, "target_s": 1.5, "meets_target": sim["median_s"] <= 1.5},  # type: ignore[operator]
+        "montecarlo_3000_s": {**mc, "target_s": 4.0, "meets_target": mc["median_s"] <= 4.0},  # type: ignore[operator]
+        "numpy_core_issue13": NUMPY_CORE,
     }
+    if args.big:
+        with tempfile.TemporaryDirectory() as tmp:
+            before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+            wall, peak, _ = _run(["montecarlo", str(SCENARIOS / "paper_montecarlo.yaml"), "--runs", "100000", "--out", tmp, "--no-progress", *w])
+        result["montecarlo_100000"] = {"wall_s": wall, "target_s": 120.0, "meets_target": wall <= 120.0,
+                                       "peak_rss_mb": peak if peak * 1024 > before else None, "peak_target_mb": 500.0,
+                                       "ratio_numpy_over_compiled": NUMPY_CORE["montecarlo_100000_s"] / wall}
+    result["simulate_paper_tracking_s"]["ratio_numpy_over_compiled"] = [v / sim["median_s"] for v in NUMPY_CORE["simulate_s"]]  # type: ignore[index, operator]
+    result["montecarlo_3000_s"]["ratio_numpy_over_compiled"] = [v / mc["median_s"] for v in NUMPY_CORE["montecarlo_3000_s"]]  # type: ignore[index, operator]
     print(json.dumps(result, indent=2))
 
 

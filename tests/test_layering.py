@@ -156,3 +156,17 @@ def test_the_checker_sees_a_wrong_way_import(tmp_path: Path) -> None:
     assert "spacecraft_sim.core.dynamics" in imported or "spacecraft_sim.core" in imported
     assert any(_in("sappc_controller.core.bad", a) and _in(t, b) for t in imported for a, b in NEVER)
     assert FLOORS[_room("spacecraft_sim.core.dynamics")] >= FLOORS[_room("sappc_controller.core.bad")]  # type: ignore[index]
+
+
+def test_every_module_with_compiled_functions_is_in_the_cache_digest() -> None:
+    """The numba cache directory is named by a digest of the kernel modules' sources
+    (``gnc_common.compiled.KERNEL_MODULES``): a module with ``@jit`` functions missing from that list
+    could run a stale cached kernel after an edit."""
+    from gnc_common.compiled import KERNEL_MODULES
+
+    uses_jit = {name for name, path in MODULES.items()
+                if any(isinstance(d, ast.Name) and d.id in ("jit", "jit_parallel") or
+                       isinstance(d, ast.Call) and isinstance(d.func, ast.Name) and d.func.id in ("jit", "jit_parallel")
+                       for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.FunctionDef)
+                       for d in node.decorator_list)}
+    assert uses_jit and uses_jit <= set(KERNEL_MODULES), sorted(uses_jit - set(KERNEL_MODULES))

@@ -17,14 +17,17 @@ while numpy uses its own SIMD routines even for one element: results agree with 
 formulas of the same operations to the last bit or two (about 1e-16 relative per call, ~1e-13
 over a closed-loop run), not bitwise.
 
-Cache location (read-only installs)
------------------------------------
-numba writes its cache next to the source (``__pycache__``).  When the installed package
-directory is not writable (a system or container install) and the user has not chosen a
-directory with ``NUMBA_CACHE_DIR``, this module sets ``NUMBA_CACHE_DIR`` to
-``$XDG_CACHE_HOME/sappc/numba`` (``~/.cache/sappc/numba`` without ``XDG_CACHE_HOME``) **before**
-any kernel is compiled, and reloads numba's configuration if numba was already imported.  The
-chosen directory is :data:`CACHE_DIR` (``None``: numba's in-tree default).
+Cache location
+--------------
+numba keeps compiled machine code on disk, keyed on each function's own source file.  A compiled
+function that calls a kernel of another module would therefore keep running the old kernel after
+that module changed, so this module chooses the cache directory, **before** any kernel is compiled,
+as ``<base>/numba/sappc-<digest>``, where ``<digest>`` hashes the sources of every module in
+:data:`KERNEL_MODULES`: any edit of any kernel starts a fresh cache (a recompile of about a
+minute), an unchanged install loads the old one.  ``<base>`` is ``$SAPPC_CACHE_DIR``, else
+``$XDG_CACHE_HOME/sappc``, else ``~/.cache/sappc``: a user directory, so a read-only install
+works.  The choice is exported as ``NUMBA_CACHE_DIR`` (child processes, e.g. ROS nodes and
+campaign workers, inherit it) and is :data:`CACHE_DIR`.
 
 Quaternion kernels
 ------------------
@@ -38,6 +41,7 @@ agree bit for bit wherever no transcendental function is involved.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 from pathlib import Path
@@ -47,6 +51,8 @@ import numpy as np
 
 __all__ = [
     "CACHE_DIR",
+    "KERNEL_MODULES",
+    "kernel_sources_digest",
     "cross3",
     "dcm_BR_times",
     "dot3",
@@ -62,29 +68,52 @@ __all__ = [
 ]
 
 
-def _choose_cache_dir() -> str | None:
-    """``NUMBA_CACHE_DIR`` for a read-only install (see module docstring), or ``None``."""
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return os.environ["NUMBA_CACHE_DIR"]
-    package_root = Path(__file__).resolve().parent.parent  # src/ or site-packages/
-    pycache = Path(__file__).resolve().parent / "__pycache__"
-    probe = pycache if pycache.is_dir() else pycache.parent
-    if os.access(probe, os.W_OK) and os.access(package_root, os.R_OK):
-        return None
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    path = os.path.join(base, "sappc", "numba")
+#: The modules that hold compiled functions, which call one another.  numba keys a cached function
+#: on its own source file only, so a cached function that calls a kernel of another module would
+#: survive an edit of that kernel; the cache directory is therefore named by a digest of all of
+#: them (``tests/test_layering.py`` checks that every module using :func:`jit` is listed).
+KERNEL_MODULES = ("gnc_common.compiled", "sappc_controller.core.kernels", "spacecraft_sim.core.kernels", "sappc.offline.compiled_loop")
+#: Characters of the sources' SHA-256 digest in the cache directory's name.
+_DIGEST_CHARS = 16
+
+
+def kernel_sources_digest() -> str:
+    """SHA-256 (first :data:`_DIGEST_CHARS` hex digits) of the sources of :data:`KERNEL_MODULES`.
+
+    The files are found next to this package (the same ``src/`` or ``site-packages``), without
+    importing them.
+    """
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha256()
+    for name in KERNEL_MODULES:
+        h.update(name.encode())
+        h.update((root / Path(*name.split(".")).with_suffix(".py")).read_bytes())
+    return h.hexdigest()[:_DIGEST_CHARS]
+
+
+def _choose_cache_dir() -> str:
+    """``NUMBA_CACHE_DIR`` for this process: ``<base>/numba/sappc-<digest of the kernel sources>``
+    with ``<base>`` = ``$SAPPC_CACHE_DIR``, else ``$XDG_CACHE_HOME/sappc``, else ``~/.cache/sappc``
+    (a user directory: it works from a read-only install).  A child process that inherits the
+    same directory keeps it."""
+    name = f"sappc-{kernel_sources_digest()}"
+    inherited = os.environ.get("NUMBA_CACHE_DIR")
+    if inherited and Path(inherited).name == name:
+        return inherited
+    base = os.environ.get("SAPPC_CACHE_DIR") or os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "sappc")
+    path = os.path.join(base, "numba", name)
     os.makedirs(path, exist_ok=True)
     os.environ["NUMBA_CACHE_DIR"] = path
     return path
 
 
-#: The numba cache directory used by this process (``None``: next to the sources).
-CACHE_DIR: str | None = _choose_cache_dir()
+#: The numba cache directory used by this process (and inherited by its children).
+CACHE_DIR: str = _choose_cache_dir()
 
 _numba_was_imported = "numba" in sys.modules
 import numba  # noqa: E402  (after the cache directory is chosen)
 
-if CACHE_DIR is not None and _numba_was_imported:
+if _numba_was_imported:
     numba.core.config.reload_config()
 
 _OPTIONS: dict[str, Any] = {"cache": True, "fastmath": False, "error_model": "numpy", "nogil": True}

@@ -219,7 +219,9 @@ class ControllerNode(ProjectNode):
         if self.stale:
             self.get_logger().info("valid inputs again: control resumed")
         self.stale = False
-        self._diag_rows = {"rho": out.rho, "band_lower": out.band_lower, "band_upper": out.band_upper, "eps": out.eps, "z": out.z, "lyapunov_V": out.V}
+        # out's arrays are the core's buffer, overwritten by the next step: keep copies (republished with zero torque)
+        self._diag_rows = {"rho": out.rho.copy(), "band_lower": out.band_lower.copy(), "band_upper": out.band_upper.copy(), "eps": out.eps.copy(),
+                           "z": out.z.copy(), "lyapunov_V": out.V.copy()}
         self._publish(t_ns, out.torque_B, out.torque_cmd_B, out.saturated, input_ns)
 
     def _publish_zero(self, t_ns: int, why: str) -> None:

@@ -1,5 +1,7 @@
-"""Controller cores: the law against an independent implementation, batch == single run (bitwise),
-eq. (dEpsilon) against finite differences, regularisations, guards and input errors."""
+"""The compiled controller law (``sappc_controller.core.kernels``, through ``AttitudeController.step``
+and its pieces): against an independent implementation of the paper's equations, batch == single
+run (bitwise), eq. (dEpsilon) against finite differences, regularisations, guards, input errors,
+runtime gain changes."""
 
 from __future__ import annotations
 
@@ -9,13 +11,12 @@ import numpy as np
 import pytest
 
 from conftest import SCENARIOS, random_unit_quaternions
-from sappc.evaluation.history import HistoryRecorder
-from sappc.offline.closed_loop import run_closed_loop, step_times
+from controller.oracle import constraint_bound, rpf_evaluate
 from sappc.scenario import load_scenario
-from sappc_controller.core.common import Actuator, ActuatorConfig, DynamicSurfaceFilter, predefined_time_gain
-from sappc_controller.core.sappc import SappcTransformation
-from gnc_common.attitude import euler_to_quaternion
-from spacecraft_sim.core.dynamics import RigidBody, initial_state
+from sappc_controller.core import kernels as K
+from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.rpf import ReferencePerformanceFunction
+from gnc_common.attitude import euler_to_quaternion, quat_multiply
 from gnc_common.validation import ConfigError, InputError
 
 SCENARIO = load_scenario(SCENARIOS / "paper_tracking.yaml")
@@ -46,7 +47,7 @@ def _reference_sappc_torques(cfg, dt, states) -> list[np.ndarray]:  # type: igno
     g = cfg.gains
     J = np.asarray(cfg.inertia_kg_m2)
     k = np.tan(np.radians(cfg.theta_deg))
-    tr = SappcTransformation(cfg.rpf, cfg.B0, np.radians(cfg.theta_deg))
+    rpf = None
     out = []
     S_d = None
     for t, q, w in states:
@@ -55,9 +56,9 @@ def _reference_sappc_torques(cfg, dt, states) -> list[np.ndarray]:  # type: igno
         qv, q0 = q_e[:3], q_e[3]
         C_e = (q0**2 - qv @ qv) * np.eye(3) + 2 * np.outer(qv, qv) - 2 * q0 * _skew(qv)
         w_e = w - C_e @ W_D
-        if S_d is None:
-            tr.start(qv[None])
-        rho, rho_dot = tr.rpf.evaluate(t)
+        if rpf is None:
+            rpf = ReferencePerformanceFunction(cfg.rpf, qv[None])  # the run's set-up (Lambert W)
+        rho, rho_dot = rpf_evaluate(rpf, t)  # the oracle's eq. (RPF)
         rho, rho_dot = rho[0], rho_dot[0]
         delta = cfg.B0 / np.abs(rho)
         z = qv / rho
@@ -111,48 +112,77 @@ def test_sappc_law_matches_an_independent_implementation_of_the_paper_equations(
         np.testing.assert_allclose(out.torque_cmd_B, u_ref, rtol=1e-8, atol=1e-12)
 
 
-def _batch_histories(kind: str, q0s: np.ndarray, duration_s: float = 3.0):  # type: ignore[no-untyped-def]
-    t = step_times(duration_s, SCENARIO.control_period_s)
+def _open_loop_outputs(kind: str, q0s: np.ndarray, runs: np.ndarray, batch: bool, n_steps: int = 60) -> list[dict[str, np.ndarray]]:
+    """Outputs (copied) of one controller stepping runs ``runs`` (rows of ``q0s``) along smooth
+    state sequences (each run's own), as a batch or, for one run, with (4,)/(3,) inputs."""
+    ctrl = SCENARIO.build_controller(kind)
+    t = np.arange(n_steps) * SCENARIO.control_period_s
     ref = REF.sample(t)
-    rec = HistoryRecorder(t, q0s.shape[0])
-    run_closed_loop(RigidBody(SCENARIO.inertia_kg_m2), SCENARIO.build_controller(kind), ref, SCENARIO.disturbance,
-                    initial_state(q0s, np.zeros(3)), SCENARIO.control_period_s, observer=rec)
-    return rec.history()
+    w_d, wd_d = REF.omega_RN_R(t), REF.omegadot_RN_R(t)
+    q0s, k_run = q0s[runs], runs[:, None]
+    outs = []
+    for k in range(n_steps):
+        rot = euler_to_quaternion(np.radians(0.05 * k * np.hstack((k_run + 1, -k_run, 0.5 + k_run))), "ZYX")
+        q = quat_multiply(q0s, rot)
+        w = 0.01 * np.sin(0.1 * k + np.hstack((k_run, 2 * k_run, 3 * k_run)))
+        args = (q, w) if batch else (q[0], w[0])
+        out = ctrl.step(float(t[k]), SCENARIO.control_period_s, *args, ref.q_RN[k], w_d[k], wd_d[k])
+        outs.append({f.name: np.array(getattr(out, f.name)).reshape(q.shape[0], -1) for f in dataclasses.fields(out)})
+    return outs
 
 
 @pytest.mark.parametrize("kind", ["sappc", "trappc", "blfppc"])
 def test_one_run_alone_equals_the_same_run_inside_a_batch_bit_for_bit(kind) -> None:
     angles = np.radians([[20, -15, 30], [-40, 10, 5], [5, 5, -25], [30, 20, 10]])
     q0s = euler_to_quaternion(angles, "ZYX")
-    batch = _batch_histories(kind, q0s)
+    batch = _open_loop_outputs(kind, q0s, np.arange(4), batch=True)
     for k in (0, 2):
-        alone = _batch_histories(kind, q0s[k : k + 1])
-        for name, value in vars(alone).items():
-            if name != "t":
-                np.testing.assert_array_equal(value[:, 0], getattr(batch, name)[:, k], err_msg=name)
+        alone = _open_loop_outputs(kind, q0s, np.array([k]), batch=False)
+        for step_b, step_a in zip(batch, alone, strict=True):
+            for name, value in step_a.items():
+                np.testing.assert_array_equal(value[0], step_b[name][k], err_msg=name)
+
+
+def _sappc_transform(cfg, rpf: ReferencePerformanceFunction):  # type: ignore[no-untyped-def]
+    """The compiled SMETF transformation (``kernels.sappc_transform``) of one run, cold (no warm
+    start): ``(q_ev, tau) -> (eps, psi, eta, d eps / d delta)``."""
+    prm, coef = K.pack_params(cfg)[0], K.rpf_coef(rpf)[0]
+    work, out = np.zeros((K.N_WORK, 4)), np.zeros((K.N_OUT, 4))
+
+    def transform(q_ev: np.ndarray, tau: float) -> tuple[np.ndarray, ...]:
+        state = K.new_state(1)[0]
+        work[K.W_QBR, :3] = q_ev
+        K.sappc_transform(prm, coef, state, tau, work, out)
+        return work[K.W_EPS, :3].copy(), work[K.W_PSI, :3].copy(), work[K.W_ETA, :3].copy(), state[K.S_PREV + 9 : K.S_PREV + 12].copy()
+
+    return transform
 
 
 def test_eps_dot_identity_of_eq_dEpsilon_along_a_smooth_trajectory() -> None:
+    """The compiled transformation's psi, eta and d eps / d delta satisfy eq. (dEpsilon),
+    ``eps_dot = psi (q_ev_dot + eta q_ev) + xi`` with ``xi = (d eps / d delta) delta_dot``
+    (``delta_dot`` of eq. delta_i in closed form), against central differences of its eps."""
     cfg = SCENARIO.controller_config("sappc")
-    tr = SappcTransformation(cfg.rpf, cfg.B0, np.radians(cfg.theta_deg))
-    tr.start(np.array([[0.3, 0.4, -0.3]]))
+    rpf = ReferencePerformanceFunction(cfg.rpf, np.array([[0.3, 0.4, -0.3]]))
+    transform = _sappc_transform(cfg, rpf)
 
     def q_ev(t: float) -> np.ndarray:  # a smooth error trajectory crossing in and out of the band
-        return np.array([[0.3 * np.exp(-0.3 * t) + 0.01 * np.sin(t), 0.4 * np.exp(-0.5 * t), -0.3 * np.exp(-0.4 * t) + 0.02 * np.cos(2 * t)]])
+        return np.array([0.3 * np.exp(-0.3 * t) + 0.01 * np.sin(t), 0.4 * np.exp(-0.5 * t), -0.3 * np.exp(-0.4 * t) + 0.02 * np.cos(2 * t)])
 
     h = 1e-6
     for t in (0.5, 3.0, 12.0, 18.5, 19.9):
         e = q_ev(t)
         e_dot = (q_ev(t + h) - q_ev(t - h)) / (2 * h)
-        tr_now = tr.transform(e, t)
-        eps_fd = (tr.transform(q_ev(t + h), t + h).eps - tr.transform(q_ev(t - h), t - h).eps) / (2 * h)
-        predicted = tr_now.psi * (e_dot + tr_now.eta * e) + tr_now.xi
-        np.testing.assert_allclose(predicted, eps_fd, rtol=1e-6, atol=1e-6 * np.abs(tr_now.eps).max())
+        eps, psi, eta, d_eps_d_delta = transform(e, t)
+        _, delta_dot = constraint_bound(cfg.B0, *rpf_evaluate(rpf, t))
+        eps_fd = (transform(q_ev(t + h), t + h)[0] - transform(q_ev(t - h), t - h)[0]) / (2 * h)
+        predicted = psi * (e_dot + eta * e) + d_eps_d_delta * delta_dot[0]
+        np.testing.assert_allclose(predicted, eps_fd, rtol=1e-6, atol=1e-6 * np.abs(eps).max())
 
 
 def test_predefined_time_gain_is_finite_at_zero_and_exact_above_the_floor() -> None:
     V = np.array([0.0, 1e-300, 1e-12, 1e-6, 0.5, 1.0, 30.0])
-    M = predefined_time_gain(V, 0.1, 3.0, 1e-12)
+    M = np.array([K.predefined_time_gain(v, 0.1, 3.0, 1e-12) for v in V])
     assert np.all(np.isfinite(M))
     exact = np.exp(V[2:] ** 0.1) * V[2:] ** -0.1 / 0.6
     np.testing.assert_allclose(M[2:], exact, rtol=1e-14)
@@ -160,32 +190,50 @@ def test_predefined_time_gain_is_finite_at_zero_and_exact_above_the_floor() -> N
     assert np.all(np.diff(M[2:6]) < 0) and M[6] > M[5]  # decreasing below V = 1, increasing above
 
 
+def _filter(V_floor: float):  # type: ignore[no-untyped-def]
+    """The compiled dynamic-surface filter (``kernels.filter_update``), p = 0.1, T3 = 2 s:
+    ``(alpha, dt) -> (S_d, S_d_dot, V3)``, and its state."""
+    prm, state = np.zeros(K.N_PARAMS), K.new_state(1)[0]
+    prm[K.P_P], prm[K.P_T3], prm[K.P_VFLOOR] = 0.1, 2.0, V_floor
+    S_d, S_d_dot = np.zeros(3), np.zeros(3)
+
+    def update(alpha: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, float]:
+        V3 = K.filter_update(prm, state, dt, np.asarray(alpha, dtype=float), S_d, S_d_dot)
+        return S_d.copy(), S_d_dot.copy(), V3
+
+    return update, state
+
+
 def test_dynamic_surface_filter_is_stable_for_any_gain() -> None:
-    f = DynamicSurfaceFilter(p=0.1, T3=2.0, V_floor=1e-300)  # floor so low that M3 reaches ~1e29
-    alpha = np.array([[1.0, -2.0, 0.5]])
-    f.update(alpha, 0.01)
-    H = [np.abs(f.S_d - 0).max()]
+    update, state = _filter(1e-300)  # floor so low that M3 reaches ~1e29
+    update(np.array([1.0, -2.0, 0.5]), 0.01)
+    H = [np.abs(state[K.S_SD : K.S_SD + 3]).max()]
     for _ in range(200):
-        S_d, S_d_dot, _ = f.update(np.zeros((1, 3)), 0.01)
+        S_d, S_d_dot, _ = update(np.zeros(3), 0.01)
         assert np.all(np.isfinite(S_d_dot)) and np.abs(S_d_dot).max() <= np.abs(S_d).max() / 0.01 * (1 + 1e-15)
-        H.append(np.abs(f.S_d).max())
+        H.append(np.abs(state[K.S_SD : K.S_SD + 3]).max())
     assert all(b <= a for a, b in zip(H, H[1:], strict=False))  # a contraction, never an overshoot
     assert H[-1] < 1e-12
 
 
 def test_filter_derivative_tends_to_eq_dSd_for_small_steps() -> None:
-    f = DynamicSurfaceFilter(p=0.1, T3=2.0, V_floor=1e-12)
-    f.S_d = np.array([[0.01, 0.0, -0.02]])
-    _, S_d_dot, V3 = f.update(np.zeros((1, 3)), 1e-7)
+    update, state = _filter(1e-12)
+    state[K.S_SD : K.S_SD + 3] = [0.01, 0.0, -0.02]
+    state[K.S_FILTER_ON] = 1.0
+    _, S_d_dot, V3 = update(np.zeros(3), 1e-7)
     M3 = np.exp(V3**0.1) * V3**-0.1 / (2 * 0.1 * 2.0)
-    np.testing.assert_allclose(S_d_dot, -M3[:, None] * np.array([[0.01, 0.0, -0.02]]), rtol=1e-5)
+    np.testing.assert_allclose(S_d_dot, -M3 * np.array([0.01, 0.0, -0.02]), rtol=1e-5)
 
 
 def test_actuator_saturates_per_axis_and_drops_commands_below_the_minimum() -> None:
-    act = Actuator(ActuatorConfig(max_torque_Nm=0.5, min_torque_Nm=0.005))
-    u, sat = act.apply(np.array([[0.7, -0.004, 0.004999], [-3.0, 0.005, 0.2]]))
-    np.testing.assert_array_equal(u, [[0.5, 0.0, 0.0], [-0.5, 0.005, 0.2]])
-    np.testing.assert_array_equal(sat, [[True, False, False], [True, False, False]])
+    prm, out = np.zeros(K.N_PARAMS), np.zeros((K.N_OUT, 4))
+    prm[K.P_UMAX], prm[K.P_UMIN] = 0.5, 0.005  # ActuatorConfig(max_torque_Nm=0.5, min_torque_Nm=0.005)
+    for u_cmd, u_ref, sat_ref in (([0.7, -0.004, 0.004999], [0.5, 0.0, 0.0], [1.0, 0.0, 0.0]),
+                                   ([-3.0, 0.005, 0.2], [-0.5, 0.005, 0.2], [1.0, 0.0, 0.0])):
+        out[K.O_CMD, :3] = u_cmd
+        K.actuator(prm, out)
+        np.testing.assert_array_equal(out[K.O_TORQUE, :3], u_ref)
+        np.testing.assert_array_equal(out[K.O_SAT, :3], sat_ref)
     with pytest.raises(ConfigError, match="min_torque_Nm"):
         ActuatorConfig(max_torque_Nm=0.5, min_torque_Nm=0.6)
 
@@ -282,7 +330,7 @@ def test_per_run_gains_in_a_batch_equal_the_same_gains_alone() -> None:
     batch_cfg = dataclasses.replace(base, gains=dataclasses.replace(base.gains, K_q=K_q, mu_rad_s=mu))
     q = euler_to_quaternion(np.radians([[20, -15, 30], [-40, 10, 5], [5, 5, -25]]), "ZYX")
     batch = type(SCENARIO.build_controller("sappc"))(batch_cfg)
-    outs = [batch.step(0.01 * k, 0.01, q, np.full((3, 3), 0.01), Q_D, W_D, WDOT_D) for k in range(3)]
+    outs = [batch.step(0.01 * k, 0.01, q, np.full((3, 3), 0.01), Q_D, W_D, WDOT_D).copy() for k in range(3)]
     for i in range(3):
         alone_cfg = dataclasses.replace(base, gains=dataclasses.replace(base.gains, K_q=float(K_q[i]), mu_rad_s=float(mu[i])))
         alone = type(SCENARIO.build_controller("sappc"))(alone_cfg)
@@ -291,3 +339,37 @@ def test_per_run_gains_in_a_batch_equal_the_same_gains_alone() -> None:
             np.testing.assert_array_equal(out.torque_cmd_B, outs[k].torque_cmd_B[i])
     with pytest.raises(ConfigError, match="gains.K_q must be finite and > 0"):
         dataclasses.replace(base.gains, K_q=np.array([0.3, -0.1]))
+
+
+def test_reconfigure_changes_the_packed_gains_from_the_next_step() -> None:
+    """A runtime gain change (the node's parameters) reaches the compiled law: after it, the run
+    continues as a run that had the new gains from the start would at that sample (same state)."""
+    base = SCENARIO.controller_config("sappc")
+    new = dataclasses.replace(base, gains=dataclasses.replace(base.gains, K_q=0.2, D_m_Nm=0.002),
+                              actuator=ActuatorConfig(max_torque_Nm=0.4, min_torque_Nm=0.001))
+    q = np.array([0.1, 0.2, -0.1, np.sqrt(0.94)])
+    changed, fresh = SCENARIO.build_controller("sappc"), type(SCENARIO.build_controller("sappc"))(new)
+    a = changed.step(0.0, 0.01, q, [0.01, 0, 0], Q_D, W_D, WDOT_D).copy()
+    b = fresh.step(0.0, 0.01, q, [0.01, 0, 0], Q_D, W_D, WDOT_D).copy()
+    assert not np.array_equal(a.torque_cmd_B, b.torque_cmd_B)
+    changed.reconfigure(new)
+    np.testing.assert_array_equal(changed._prm, K.pack_params(new))
+    changed._state[...] = fresh._state  # same filter and warm start: only the gains can differ
+    a = changed.step(0.01, 0.01, q, [0.02, 0, 0], Q_D, W_D, WDOT_D).copy()
+    b = fresh.step(0.01, 0.01, q, [0.02, 0, 0], Q_D, W_D, WDOT_D).copy()
+    np.testing.assert_array_equal(a.torque_cmd_B, b.torque_cmd_B)
+    np.testing.assert_array_equal(a.torque_B, b.torque_B)
+    with pytest.raises(ConfigError, match="gains.T3_s cannot change"):
+        changed.reconfigure(dataclasses.replace(new, gains=dataclasses.replace(new.gains, T3_s=1.0)))
+    np.testing.assert_array_equal(changed._prm, K.pack_params(new))  # all or nothing
+
+
+def test_outputs_are_views_valid_until_the_next_step_and_copy_keeps_them() -> None:
+    c = SCENARIO.build_controller("sappc")
+    first = c.step(0.0, 0.01, [0.1, 0.2, -0.1, np.sqrt(0.94)], [0, 0, 0], Q_D, W_D, WDOT_D)
+    kept = first.copy()
+    second = c.step(0.01, 0.01, [0.1, 0.2, -0.1, np.sqrt(0.94)], [0.1, 0, 0], Q_D, W_D, WDOT_D)
+    assert not np.array_equal(kept.torque_cmd_B, second.torque_cmd_B)
+    np.testing.assert_array_equal(first.torque_cmd_B, second.torque_cmd_B)  # the first output now shows the second step
+    q = np.array([0.1, 0.2, -0.1, np.sqrt(0.94)])
+    assert c.step(0.02, 0.01, q, np.zeros(3), Q_D, W_D, WDOT_D) is c.step(0.03, 0.01, q, np.zeros(3), Q_D, W_D, WDOT_D)

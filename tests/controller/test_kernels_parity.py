@@ -1,10 +1,13 @@
-"""Parity of the compiled core (numba kernels) with the numpy core.
+"""Parity of the compiled law (the one implementation) with the numpy oracle and with itself on every path.
 
-(a) each controller's compiled step equals the numpy core's step on random valid inputs, sample
-after sample (filter and SMETF warm start carried), to 1e-12 relative;
+(a) each controller's step (``AttitudeController.step``, the compiled kernel) equals the numpy
+oracle (``tests/controller/oracle.py``) on random valid inputs, sample after sample (filter and
+SMETF warm start carried), to 1e-12 relative;
 (b) the whole-run compiled loop reproduces the numpy core's experiment 1-3 histories
-(``tests/data/golden_numpy_core.npz``) to 1e-12 N m in torque;
+(``tests/data/golden_numpy_core.npz``, recorded before the numpy core was removed) to 1e-12 N m;
 (c) run k of a ``prange`` batch is the same run alone, bit for bit;
+(d) the node's path (``AttitudeController.step``, sample by sample) gives the offline compiled
+run's outputs bit for bit;
 plus the plant kernels (RK4, reference rates, every disturbance kind) against the numpy models.
 """
 
@@ -12,14 +15,19 @@ from __future__ import annotations
 
 import copy
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from conftest import ROOT, SCENARIOS, random_unit_quaternions
 from gnc_common.attitude import quat_multiply
+from controller.oracle import OracleController
 from sappc.offline.compiled_loop import prepare, run_batch, run_single, simulate_compiled
 from sappc.scenario import load_scenario, scenario_from_mapping
 from sappc_controller.core import kernels as K
+from sappc_controller.inputs import ControlSample, step_sample
+from sappc_controller.params import CONTROLLER_CLASSES, config_from_parameters, parameters_from_config
 from spacecraft_sim.core import kernels as PK
 from spacecraft_sim.core.disturbance import disturbances_from_list
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
@@ -29,8 +37,9 @@ GOLDEN_RUNS = [("paper_tracking", c) for c in ("sappc", "trappc", "blfppc")] + [
     ("paper_comparison", c) for c in ("sappc", "trappc", "blfppc")
 ] + [("paper_fault", c) for c in ("sappc", "blfppc")]
 KINDS = {"sappc": K.KIND_SAPPC, "trappc": K.KIND_TRAPPC, "blfppc": K.KIND_BLFPPC}
-DIAG = (("torque_cmd_B", K.O_CMD), ("rho", K.O_RHO), ("band_lower", K.O_BL), ("band_upper", K.O_BU), ("eps", K.O_EPS),
-        ("z", K.O_Z), ("V", K.O_V))
+DIAG = ("torque_cmd_B", "rho", "band_lower", "band_upper", "eps", "z", "V")
+ROWS = {"torque_B": K.O_TORQUE, "torque_cmd_B": K.O_CMD, "q_BR": K.O_QBR, "rho": K.O_RHO, "band_lower": K.O_BL,
+        "band_upper": K.O_BU, "eps": K.O_EPS, "z": K.O_Z, "V": K.O_V}
 
 
 def _close(a: np.ndarray, b: np.ndarray, rtol: float = 1e-12) -> float:
@@ -39,7 +48,10 @@ def _close(a: np.ndarray, b: np.ndarray, rtol: float = 1e-12) -> float:
 
 
 @pytest.mark.parametrize("name", ["sappc", "trappc", "blfppc"])
-def test_step_kernel_equals_numpy_step(name: str) -> None:
+def test_step_equals_the_numpy_oracle(name: str) -> None:
+    """The compiled step against the oracle: equal to 1e-12 relative (libm vs numpy's SIMD
+    transcendental functions differ in the last bit, gnc_common.compiled; the error quaternion,
+    free of them, is equal bit for bit)."""
     sc = load_scenario(SCENARIOS / "paper_comparison.yaml")
     rng = np.random.default_rng(20261123 + KINDS[name])
     cfg = sc.controller_config(name)
@@ -52,25 +64,57 @@ def test_step_kernel_equals_numpy_step(name: str) -> None:
         q_d = random_unit_quaternions(rng, 1)[0] if trial % 2 else np.array([0.0, 0.0, 0.0, 1.0])
         q_BN = quat_multiply(q_d[None], q[None])[0]  # q_BR = q at the first sample
         w = 0.02 * rng.standard_normal(3)
-        prm = K.pack_params(cfg)[0]
-        coef = K.start_coef(cfg, K.error_quaternions(q_d, q_BN[None]))[0][0]
-        state = K.new_state(1, t0=0.3)[0]
-        work, out = np.zeros((K.N_WORK, 4)), np.zeros((K.N_OUT, 4))
+        oracle = OracleController(cfg, K.error_quaternions(q_d, q_BN[None]))
         for k in range(40):
             t = 0.3 + 0.01 * k + (25.0 if k >= 30 else 0.0)  # also beyond t2 and T_f
             w_d, wdot_d = 0.01 * rng.standard_normal(3), 1e-3 * rng.standard_normal(3)
-            ref = ctrl.step(t, 0.01, q_BN, w, q_d, w_d, wdot_d)
-            K.controller_step(KINDS[name], t, 0.01, q_BN, w, q_d, w_d, wdot_d, prm, coef, state, work, out)
-            assert np.array_equal(out[K.O_QBR], ref.q_BR)
-            for field, row in DIAG:
-                worst = max(worst, _close(out[row, :3], getattr(ref, field)))
-            assert np.array_equal(out[K.O_TORQUE, :3] == 0.0, ref.torque_B == 0.0)
-            assert np.array_equal(out[K.O_SAT, :3] != 0.0, ref.saturated)
-            worst = max(worst, _close(out[K.O_TORQUE, :3], ref.torque_B))
+            out = ctrl.step(t, 0.01, q_BN, w, q_d, w_d, wdot_d)
+            ref = {f: v[0] for f, v in oracle.step(t - 0.3, 0.01, q_BN, w, q_d, w_d, wdot_d).items()}
+            assert np.array_equal(out.q_BR, ref["q_BR"])
+            for field in DIAG:
+                worst = max(worst, _close(getattr(out, field), ref[field]))
+            assert np.array_equal(out.torque_B == 0.0, ref["torque_B"] == 0.0)
+            assert np.array_equal(out.saturated, ref["saturated"])
+            worst = max(worst, _close(out.torque_B, ref["torque_B"]))
             q_BN = q_BN + 0.002 * rng.standard_normal(4)
             q_BN /= np.linalg.norm(q_BN)
             w = w + 0.002 * rng.standard_normal(3)
     assert worst <= 1e-12, worst
+
+
+@pytest.mark.parametrize("name", ["sappc", "trappc", "blfppc"])
+def test_the_node_step_gives_the_offline_run_bit_for_bit(name: str) -> None:
+    """Experiment 1 (paper_tracking.yaml): the offline compiled run's states and references fed
+    sample by sample to the controller the node builds (from its ROS parameters) through the node's
+    call (:func:`sappc_controller.inputs.step_sample`, i.e. ``AttitudeController.step``) give the
+    offline run's torques and diagnostics bit for bit.  The sample time is the offline grid's
+    ``t_k`` (the node's stamps are integer nanoseconds, the same instant to the last bit or not)."""
+    sc = load_scenario(SCENARIOS / "paper_tracking.yaml")
+    inp = prepare(sc, name)
+    run = run_single(inp, 0, stride=1)
+    config = config_from_parameters(name, parameters_from_config(name, sc.controller_config(name)))
+    assert config == sc.controller_config(name)
+    ctrl = CONTROLLER_CLASSES[name](config)
+
+    class Sample(ControlSample):  # the node's sample, with the offline grid's time
+        @property
+        def t_s(self) -> float:
+            return float(inp.t[self.t_ns])
+
+    outs = {f: np.empty((inp.t.size, 4 if f == "q_BR" else 3)) for f in ROWS}
+    saturated = np.empty((inp.t.size, 3), dtype=bool)
+    for k in range(inp.t.size):
+        x = run.x[0, k]
+        sample = Sample(k, (k,) * 5, (x[:4].copy(), x[4:].copy(), inp.ref_q[k], inp.ref_w[k], inp.ref_wd[k]))
+        out = step_sample(ctrl, inp.dt, sample)
+        for f in ROWS:
+            outs[f][k] = getattr(out, f)
+        saturated[k] = out.saturated
+    for f, row in ROWS.items():
+        width = 4 if f == "q_BR" else 3
+        assert np.array_equal(outs[f], run.out[0, :, row, :width]), f
+    assert np.array_equal(saturated, run.out[0, :, K.O_SAT, :3] != 0.0)
+    assert np.any(outs["torque_B"] != 0.0)
 
 
 @pytest.fixture(scope="module")
@@ -184,16 +228,27 @@ def test_start_checks_apply() -> None:
         prepare(sc, "trappc", q_BN0=np.array([0.6, 0.0, 0.0, 0.8]))
 
 
-def test_cache_dir_falls_back_to_user_dir_when_install_is_read_only(monkeypatch, tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_the_cache_directory_is_a_user_directory_named_by_the_kernel_sources(monkeypatch, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A user directory (works from a read-only install), named by a digest of every kernel module:
+    an edit of any kernel gives a fresh cache (numba alone would keep a stale caller of that kernel)."""
     from gnc_common import compiled
 
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.delenv("SAPPC_CACHE_DIR", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    monkeypatch.setattr(compiled.os, "access", lambda path, mode: False)
     chosen = compiled._choose_cache_dir()
-    assert chosen == str(tmp_path / "sappc" / "numba")
-    assert (tmp_path / "sappc" / "numba").is_dir()
-    assert compiled.os.environ["NUMBA_CACHE_DIR"] == chosen
-    # a directory the user chose wins
-    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
-    assert compiled._choose_cache_dir() == str(tmp_path / "mine")
+    assert chosen == str(tmp_path / "sappc" / "numba" / f"sappc-{compiled.kernel_sources_digest()}")
+    assert Path(chosen).is_dir() and compiled.os.environ["NUMBA_CACHE_DIR"] == chosen
+    assert compiled._choose_cache_dir() == chosen  # a child process inheriting it keeps it
+    monkeypatch.setenv("SAPPC_CACHE_DIR", str(tmp_path / "mine"))
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    assert compiled._choose_cache_dir().startswith(str(tmp_path / "mine" / "numba" / "sappc-"))
+    # the digest covers every kernel module: changing one changes it
+    real = Path.read_bytes
+
+    def edited(self: Path) -> bytes:
+        return real(self) + (b"# edit" if self.name == "kernels.py" and "spacecraft_sim" in str(self) else b"")
+
+    before = compiled.kernel_sources_digest()
+    monkeypatch.setattr(Path, "read_bytes", edited)
+    assert compiled.kernel_sources_digest() != before

@@ -1,4 +1,6 @@
-"""RPF (eq. RPF, docs/paper_notes.md, errors 1 and 2) and the time-varying constraint (eq. delta_i)."""
+"""RPF (eq. RPF, docs/paper_notes.md, errors 1 and 2) and the time-varying constraint (eq. delta_i):
+the set-up (coefficients by Lambert W, feasibility) in Python, the evaluation compiled
+(``kernels.rpf_evaluate``, fed by ``kernels.rpf_coef``), as the law uses them."""
 
 from __future__ import annotations
 
@@ -7,21 +9,35 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from controller.oracle import constraint_bound
+from sappc_controller.core import kernels as K
 from sappc_controller.core.rpf import (
     InfeasibleRPFError,
     ReferencePerformanceFunction,
     RPFParameters,
-    constraint_bound,
     feasible_l_range,
 )
+from sappc_controller.core.sappc import BacksteppingGains, SappcConfig
 from gnc_common.validation import ConfigError
 
 TABLE1 = dict(rho_e0=0.4, rho_einf=1e-6, t2_s=20.0, g_inf=3e-5)
 E0_EXP1 = [0.3254, 0.4068, -0.3254]
 
 
+def _evaluate(r: ReferencePerformanceFunction, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """``rho``, ``rho_dot`` (N, 3) of the compiled ``kernels.rpf_evaluate`` with the run constants of
+    ``kernels.rpf_coef`` and the parameters packed from a SAPPC config holding ``r.params``."""
+    cfg = SappcConfig(((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), r.params, B0=0.01, gains=BacksteppingGains(1.0, 1.0, 0.0, 1.0))
+    prm, coef = K.pack_params(cfg)[0], K.rpf_coef(r)
+    rho, rho_dot = np.empty(r.sign.shape), np.empty(r.sign.shape)
+    for n in range(coef.shape[0]):
+        for i in range(3):
+            rho[n, i], rho_dot[n, i] = K.rpf_evaluate(prm, coef[n], float(t), i)
+    return rho, rho_dot
+
+
 def _pieces(r: ReferencePerformanceFunction, p: RPFParameters):  # type: ignore[no-untyped-def]
-    """The exponential and parabolic pieces and their slopes, evaluated independently of evaluate()."""
+    """The exponential and parabolic pieces and their slopes, evaluated independently of the kernel."""
     A = r.rho_e0 - p.rho_einf
 
     def expo(t):  # type: ignore[no-untyped-def]
@@ -69,9 +85,9 @@ def test_value_and_slope_are_continuous_at_t1_and_t2(l) -> None:
     # at t2 the parabola lands on g_inf with zero slope
     v2, s2 = para(p.t2_s)
     assert v2[0, 0] == pytest.approx(p.g_inf, rel=1e-15) and s2[0, 0] == 0.0
-    # evaluate() agrees with the pieces on each side
+    # the compiled evaluation agrees with the pieces on each side
     for t in (0.5 * t1, t1, 0.5 * (t1 + p.t2_s), p.t2_s, p.t2_s + 5):
-        rho, rho_dot = r.evaluate(t)
+        rho, rho_dot = _evaluate(r, t)
         ref = expo(t) if t < t1 else para(t) if t < p.t2_s else (np.full((1, 3), p.g_inf), np.zeros((1, 3)))
         np.testing.assert_allclose(np.abs(rho), ref[0], rtol=1e-14)
         np.testing.assert_allclose(np.abs(rho_dot), np.abs(ref[1]), rtol=1e-13, atol=1e-300)
@@ -81,9 +97,9 @@ def test_derivative_matches_finite_differences() -> None:
     r = ReferencePerformanceFunction(RPFParameters(l=0.49, **TABLE1), E0_EXP1)
     h = 1e-6
     for t in np.linspace(0.1, 25.0, 57):
-        fd = (r.evaluate(t + h)[0] - r.evaluate(t - h)[0]) / (2 * h)
+        fd = (_evaluate(r, t + h)[0] - _evaluate(r, t - h)[0]) / (2 * h)
         # central difference error h^2 |rho'''| / 6 <= 1e-13 here; 1e-9 absolute covers rounding of rho / h
-        np.testing.assert_allclose(r.evaluate(t)[1], fd, atol=1e-9)
+        np.testing.assert_allclose(_evaluate(r, t)[1], fd, atol=1e-9)
 
 
 def test_root_rule_is_the_earliest_switch_time() -> None:
@@ -100,7 +116,7 @@ def test_root_rule_is_the_earliest_switch_time() -> None:
 def test_sign_follows_the_initial_error() -> None:
     r = ReferencePerformanceFunction(RPFParameters(l=0.49, **TABLE1), [0.3, -0.2, 0.0])
     np.testing.assert_array_equal(r.sign, [[1.0, -1.0, 1.0]])
-    rho, rho_dot = r.evaluate(1.0)
+    rho, rho_dot = _evaluate(r, 1.0)
     assert rho[0, 0] > 0 > rho_dot[0, 0] and rho[0, 1] < 0 < rho_dot[0, 1]
 
 
@@ -109,7 +125,7 @@ def test_initial_error_at_or_below_terminal_value_gives_a_flat_rpf() -> None:
     r = ReferencePerformanceFunction(p, [[3e-5, -1e-5, 0.0]])
     assert r.flat.all()
     for t in (0.0, 5.0, 19.9, 20.0, 30.0):
-        rho, rho_dot = r.evaluate(t)
+        rho, rho_dot = _evaluate(r, t)
         np.testing.assert_array_equal(rho, [[3e-5, -3e-5, 3e-5]])
         np.testing.assert_array_equal(rho_dot, np.zeros((1, 3)))
 
@@ -122,8 +138,8 @@ def test_small_initial_error_with_auto_rho_e0_is_infeasible_unless_clamped() -> 
     np.testing.assert_array_equal(r.clamped, [[False, True, False]])
     _, upper = feasible_l_range(5e-4, 1e-6, 3e-5, 20.0)
     assert r.l[0, 1] == upper and r.l[0, 0] == 0.2
-    rho0, _ = r.evaluate(0.0)
-    rho2, _ = r.evaluate(20.0)
+    rho0, _ = _evaluate(r, 0.0)
+    rho2, _ = _evaluate(r, 20.0)
     np.testing.assert_allclose(np.abs(rho0), [[0.3, 5e-4, 0.2]], rtol=1e-12)
     np.testing.assert_allclose(np.abs(rho2), 3e-5, rtol=1e-15)
 
@@ -146,12 +162,12 @@ def test_constraint_is_a_tube_of_half_width_B0() -> None:
     r = ReferencePerformanceFunction(RPFParameters(l=0.49, **TABLE1), E0_EXP1)
     B0 = 0.016
     for t in (0.0, 3.0, 18.0, 25.0):
-        rho, rho_dot = r.evaluate(t)
-        delta, delta_dot = constraint_bound(B0, rho, rho_dot)
+        rho, rho_dot = _evaluate(r, t)
+        delta, delta_dot = constraint_bound(B0, rho, rho_dot)  # the oracle's eq. (delta_i), on the compiled RPF
         np.testing.assert_allclose(delta * np.abs(rho), B0, rtol=1e-15)
         assert np.all(delta_dot >= 0.0)
         h = 1e-6
-        fd = (constraint_bound(B0, *r.evaluate(t + h))[0] - constraint_bound(B0, *r.evaluate(t - h))[0]) / (2 * h) if t > 0 else delta_dot
+        fd = (constraint_bound(B0, *_evaluate(r, t + h))[0] - constraint_bound(B0, *_evaluate(r, t - h))[0]) / (2 * h) if t > 0 else delta_dot
         np.testing.assert_allclose(delta_dot, fd, rtol=1e-6)
 
 
@@ -177,5 +193,24 @@ def test_every_feasible_l_has_a_continuous_rpf(rho_e0, frac, t2) -> None:
     s_exp = -l * A * np.exp(-l * t1)
     s_par = 2 * r.a1[0, 0] * (t1 - t2)
     assert abs(s_exp - s_par) <= 1e-9 * abs(s_exp) + 1e-15
-    rho, _ = r.evaluate(np.nextafter(t1, 0) if t1 > 0 else 0.0)
+    rho, _ = _evaluate(r, np.nextafter(t1, 0) if t1 > 0 else 0.0)
     assert np.all(np.isfinite(rho))
+
+
+def test_the_compiled_law_uses_the_tube_of_half_width_B0() -> None:
+    """In the law (``kernels.sappc_transform``): ``delta = B0 / |rho|`` (eq. delta_i), the band is
+    ``rho -+ B0``, and ``z = q_ev / rho``."""
+    r = ReferencePerformanceFunction(RPFParameters(l=0.49, **TABLE1), E0_EXP1)
+    cfg = SappcConfig(((4.0, 0.0, 0.0), (0.0, 4.0, 0.0), (0.0, 0.0, 4.0)), r.params, B0=0.016, gains=BacksteppingGains(0.3, 1.0, 0.0, 1.0))
+    prm, coef = K.pack_params(cfg)[0], K.rpf_coef(r)[0]
+    work, out = np.zeros((K.N_WORK, 4)), np.zeros((K.N_OUT, 4))
+    for t in (0.0, 3.0, 18.0, 25.0):
+        work[K.W_QBR, :3] = [0.3, 0.2, -0.1]
+        state = K.new_state(1)[0]
+        K.sappc_transform(prm, coef, state, t, work, out)
+        rho = _evaluate(r, t)[0][0]
+        np.testing.assert_array_equal(out[K.O_RHO, :3], rho)
+        np.testing.assert_array_equal(out[K.O_BL, :3], rho - 0.016)
+        np.testing.assert_array_equal(out[K.O_BU, :3], rho + 0.016)
+        np.testing.assert_array_equal(out[K.O_Z, :3], np.array([0.3, 0.2, -0.1]) / rho)
+        np.testing.assert_array_equal(state[K.S_PREV + 12 : K.S_PREV + 15], 0.016 / np.abs(rho))  # delta, kept for the warm start

@@ -15,6 +15,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from sappc.scenario import load_scenario
+from sappc_controller.core.kernels import pack_params
 from sappc_controller.params import parameters_from_config
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import (
@@ -25,7 +26,6 @@ from sappc_msgs_py.convert import (
     stamp_to_ns,
     torque_from_msg,
     torque_msg,
-    vector3_from_msg,
     vector3_msg,
 )
 
@@ -170,13 +170,16 @@ def test_stale_inputs_give_zero_torque_then_control_resumes(controller) -> None:
 
 
 def test_runtime_gain_changes_are_validated_and_applied_whole(controller) -> None:  # type: ignore[no-untyped-def]
-    node, _ = controller
+    node, drv = controller
+    drv.send_sample(0.0, q=Q0)  # a run in progress: its packed gains must follow the change
+    drv.spin_until(lambda: len(drv.torques) == 1, "first torque")
     ok = node.set_parameters([Parameter("sappc.gains.K_q", value=0.25), Parameter("actuator.max_torque_Nm", value=0.4)])
     assert all(r.successful for r in ok)
-    assert node.controller.gains.K_q == 0.25 and node.controller.actuator.config.max_torque_Nm == 0.4
+    assert node.controller.config.gains.K_q == 0.25 and node.controller.config.actuator.max_torque_Nm == 0.4
+    np.testing.assert_array_equal(node.controller._prm, pack_params(node.controller.config, 1))  # the compiled law's gains
     bad = node.set_parameters_atomically([Parameter("sappc.gains.K_q", value=0.5), Parameter("sappc.gains.K_omega", value=-1.0)])
     assert not bad.successful and "K_omega" in bad.reason
-    assert node.controller.gains.K_q == 0.25  # nothing of the rejected change was applied
+    assert node.controller.config.gains.K_q == 0.25  # nothing of the rejected change was applied
     fixed = node.set_parameters([Parameter("sappc.rpf.l", value=0.3)])[0]
     assert not fixed.successful and "sappc.rpf.l" in fixed.reason
     assert node.controller.config.rpf.l == 0.49

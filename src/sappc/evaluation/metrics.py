@@ -1,9 +1,11 @@
 """Run metrics, accumulated sample by sample for a batch of runs.
 
 One implementation serves every path: `sappc simulate` (one run), Monte Carlo campaigns
-(thousands of runs, no stored histories) and, later, recorded bags.  Feed every control
-sample to :class:`MetricsAccumulator` (it is a closed-loop observer) and read
-:meth:`MetricsAccumulator.run_metrics`.  Definitions, per run:
+(thousands of runs, each sub-batch's history fed as one block, then dropped) and recorded
+bags.  Feed blocks of control samples to :class:`MetricsAccumulator` (:meth:`~MetricsAccumulator.update`,
+:meth:`~MetricsAccumulator.add_history`), combine accumulators of disjoint sets of runs with
+:meth:`~MetricsAccumulator.concatenate`, and read :meth:`MetricsAccumulator.run_metrics`.
+Definitions, per run:
 
 ``settling_time_s``
     The first sample time after which ``max_i |q_ev,i|`` stays below
@@ -42,12 +44,12 @@ sample to :class:`MetricsAccumulator` (it is a closed-loop observer) and read
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-
-from sappc_controller.core.base import ControlOutput
 
 from sappc.evaluation.history import History
 
@@ -59,7 +61,7 @@ Array = NDArray[np.float64]
 _TIME_TOL_S = 1e-9
 
 class MetricsAccumulator:
-    """Closed-loop observer that accumulates the metrics of N runs without storing histories.
+    """Accumulates the metrics of N runs from blocks of samples (the history need not be kept).
 
     Parameters
     ----------
@@ -112,13 +114,25 @@ class MetricsAccumulator:
         self.finite = np.ones(n, dtype=bool)
         self.samples = 0
 
-    def __call__(self, k: int, t: float, x: Array, out: ControlOutput, d: Array) -> None:
-        """Observe sample ``k`` (the closed loop's observer signature)."""
-        self.update(k, np.array([t]), x[None], out.torque_B[None], out.q_BR[None], out.rho[None], out.saturated[None],
-                    out.band_lower[None], out.band_upper[None])
+    #: Per-run state (leading axis N), concatenated by :meth:`concatenate`.
+    _PER_RUN = ("last_unsettled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
+                "saturated_count", "outside_count", "outside_s", "last_outside", "left_after_fault", "finite")
+
+    @classmethod
+    def concatenate(cls, parts: Sequence[MetricsAccumulator]) -> MetricsAccumulator:
+        """One accumulator of the runs of ``parts`` in order (the same grid and settings, every part
+        fed the same samples: sub-batches of a campaign).  Per-run results are unchanged."""
+        first = parts[0]
+        if any(p.samples != first.samples or p.steady_count != first.steady_count for p in parts):
+            raise ValueError("accumulators fed different samples cannot be concatenated")
+        merged = copy.copy(first)
+        for name in cls._PER_RUN:
+            values = [getattr(p, name) for p in parts]
+            setattr(merged, name, None if any(v is None for v in values) else np.concatenate(values))
+        return merged
 
     def add_history(self, h: History) -> None:
-        """Observe every sample of a stored history at once (recorded bags)."""
+        """Observe every sample of a stored history at once (offline runs, campaign sub-batches, bags)."""
         x = np.concatenate((h.q_BN, h.omega_BN_B), axis=-1)
         self.update(0, h.t, x, h.torque_B, h.q_BR, h.rho, h.saturated, h.band_lower, h.band_upper)
 
@@ -153,9 +167,10 @@ class MetricsAccumulator:
         steady = t >= self.steady_from_s - _TIME_TOL_S
         if steady.any():
             use = live & steady[:, None]
-            # sample after sample, so that a block sums exactly as its samples one by one would
-            for row in np.where(use[..., None], abs_q, 0.0):
-                self.steady_sum = self.steady_sum + row
+            # a sequential running sum (add.accumulate), so that a block sums exactly as its samples one by one would
+            rows = np.where(use[..., None], abs_q, 0.0)
+            rows[0] += self.steady_sum
+            self.steady_sum = np.add.accumulate(rows, axis=0, out=rows)[-1].copy()
             self.steady_count += int(steady.sum())
             self.steady_max = np.maximum(self.steady_max, over_block(np.where(use, max_abs_q, 0.0), np.maximum))
         if k0 <= self.k_t2 < k0 + B:

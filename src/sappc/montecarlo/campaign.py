@@ -1,16 +1,19 @@
-"""Monte Carlo campaigns: thousands of dispersed runs as vectorised batches, locally or on Dask.
+"""Monte Carlo campaigns: thousands of dispersed runs in compiled code, locally or on Dask.
 
 A campaign is a scenario file with a ``montecarlo`` section (see
-``config/scenarios/paper_montecarlo.yaml``).  Runs are simulated in chunks, each
-chunk one batch through the same closed loop and metrics as `sappc simulate`.
+``config/scenarios/paper_montecarlo.yaml``).  Runs are simulated in chunks (one task each, on a
+local process or a Dask worker); inside a chunk, :func:`sappc.offline.simulate.run_scenario`
+runs sub-batches of runs in parallel (``prange``) through the same compiled loop and metrics
+as `sappc simulate`, each sub-batch reporting its progress.
 
 Reproducibility
 ---------------
 Every random input of run ``k`` comes from ``SeedSequence(seed, spawn_key=(k,))``:
-its first child draws the dispersed values, its second the sensor noise.  A
+its first child draws the dispersed values, its second the sensor noise (the whole run's,
+before the loop).  A
 run therefore depends only on ``(seed, k)``, not on the chunk size, the number
 of workers or the scheduler, and since a run inside a batch is bit for bit the
-run alone (see ``gnc_common.attitude``), the per-run results are
+run alone (one compiled loop, :func:`sappc.offline.compiled_loop._run_one`), the per-run results are
 identical however the campaign is split.  ``sappc simulate --from-campaign DIR
 --run K`` re-runs run ``K`` alone with the same function.
 
@@ -25,8 +28,9 @@ Files in the output directory
 
 from __future__ import annotations
 
-import dataclasses
 import json
+import os
+import re
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -37,13 +41,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.validation import ConfigError
-from sappc_controller.core.base import SingularStartError
-from sappc_controller.core.rpf import InfeasiblePolicy
-from sappc.evaluation.history import both
+from gnc_common.validation import InputError
 from sappc.montecarlo.config import campaign_config
-from sappc.montecarlo.draws import NoisySensor, dispersed_disturbance, draw_inputs
+from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, sensor_noise_draws
 from sappc.montecarlo.results import FORMAT_VERSION, assemble, chunk_path, chunks, save_chunk
-from sappc.offline.closed_loop import step_times
+from sappc.offline import compiled_loop
 from sappc.offline.simulate import run_scenario
 from sappc.scenario import ControllerKind, Scenario, scenario_from_mapping
 
@@ -52,36 +54,37 @@ __all__ = ["load_campaign_run", "run_campaign", "run_chunk", "simulate_runs"]
 Array = NDArray[np.float64]
 
 
-class _Trajectories:
-    """Observer keeping a down-sampled copy of q_ev and rho for the first few runs of a chunk."""
+#: Where sub-batches report finished runs: a callable in this process, a queue given to the local
+#: workers, or ``None`` (Dask workers: progress per chunk).
+_progress_sink: Any = None
 
-    def __init__(self, n_keep: int, stride: int) -> None:
-        self.n, self.stride = n_keep, stride
-        self.t: list[float] = []
-        self.q_ev: list[Array] = []
-        self.rho: list[Array] = []
 
-    def __call__(self, k: int, t: float, x: Array, out: Any, d: Array) -> None:
-        if self.n and k % self.stride == 0:
-            self.t.append(t)
-            self.q_ev.append(out.q_BR[: self.n, :3].astype(np.float32))
-            self.rho.append(out.rho[: self.n].astype(np.float32))
+def _report_progress(n: int) -> None:
+    sink = _progress_sink
+    if sink is None:
+        return
+    if callable(sink):
+        sink(n)
+    else:
+        sink.put(n)
 
 
 def run_chunk(scenario_raw: dict[str, Any], seed: int, runs: list[int], keep_trajectories: int) -> dict[str, NDArray[Any]]:
-    """Simulate ``runs`` of a campaign as one batch; return the per-run results (a worker task).
+    """Simulate ``runs`` of a campaign; return the per-run results (a worker task).
 
     Takes the parsed scenario mapping (not objects) so that it can run in any process or on
     any Dask worker.  A run whose state becomes non-finite is reported with ``finite = False``;
-    the other runs of the batch are unaffected (every operation is per run).
+    the other runs are unaffected (every operation is per run).
     """
-    return simulate_runs(scenario_raw, seed, runs, keep_trajectories)[0]
+    return simulate_runs(scenario_raw, seed, runs, keep_trajectories, progress=_report_progress)[0]
 
 
 def simulate_runs(
-    scenario_raw: dict[str, Any], seed: int, runs: list[int], keep_trajectories: int, observer: Any = None
-) -> tuple[dict[str, NDArray[Any]], Any]:
-    """:func:`run_chunk` with an optional extra observer; also returns the metrics accumulator."""
+    scenario_raw: dict[str, Any], seed: int, runs: list[int], keep_trajectories: int, *, with_history: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[dict[str, NDArray[Any]], Any, Any]:
+    """:func:`run_chunk`, also returning the metrics accumulator and the :class:`~sappc.offline.simulate.ScenarioRun`
+    (with the history of every run when ``with_history``: for a single run)."""
     scenario = scenario_from_mapping(scenario_raw)
     cfg = campaign_config(scenario)
     inputs = draw_inputs(cfg, seed, runs)
@@ -91,28 +94,35 @@ def simulate_runs(
         S = np.sqrt(1.0 + inputs.inertia_relative)  # (n, 3)
         J = S[:, :, None] * J[None] * S[:, None, :]
     config = scenario.controller_config()
-    if inputs.gains:
-        if not hasattr(config, "gains") or not hasattr(config.gains, "K_q"):
-            raise ConfigError(f"montecarlo.dispersions.gains needs a SAPPC or TraPPC controller, not {scenario.controller.value!r}")
-        config = dataclasses.replace(config, gains=dataclasses.replace(config.gains, **inputs.gains))
-    traj = _Trajectories(min(keep_trajectories, n), cfg.trajectory_stride)
+    if inputs.gains and (not hasattr(config, "gains") or not hasattr(config.gains, "K_q")):
+        raise ConfigError(f"montecarlo.dispersions.gains needs a SAPPC or TraPPC controller, not {scenario.controller.value!r}")
+    noise = cfg.dispersions.sensor_noise
+    n_samples = int(round(scenario.duration_s / scenario.control_period_s)) + 1
+
+    def noise_draws(lo: int, hi: int) -> NDArray[np.float64]:
+        return sensor_noise_draws(seed, inputs.runs[lo:hi], n_samples)
+
     with np.errstate(all="ignore"):  # a diverging run is reported, not raised
         try:
-            metrics, controller = run_scenario(
+            metrics, run = run_scenario(
                 scenario,
                 controller_config=config,
-                controller_options={"on_infeasible": InfeasiblePolicy.CLAMP} if scenario.controller == ControllerKind.SAPPC else {},
+                on_infeasible="clamp" if scenario.controller == ControllerKind.SAPPC else "raise",
                 q_BN0=inputs.q_BN0,
                 omega_BN_B0_rad_s=inputs.omega_BN_B0,
                 inertia_kg_m2=J,
                 disturbance=dispersed_disturbance(scenario, inputs),
-                measure=NoisySensor(cfg.dispersions.sensor_noise, seed, inputs.runs) if cfg.dispersions.sensor_noise.enabled else None,
-                observer=traj if observer is None else both(traj, observer),
+                gains=inputs.gains or None,
+                sensor_noise=(noise.attitude_sigma_rad, noise.rate_sigma_rad_s, noise_draws) if noise.enabled else None,
+                keep_history=with_history,
+                trajectory=(min(keep_trajectories, n), cfg.trajectory_stride) if keep_trajectories > 0 else None,
+                progress=progress,
             )
-        except SingularStartError as exc:  # name the campaign's run, not its place in this chunk
-            raise SingularStartError(exc.q_e0, int(inputs.runs[exc.run])) from None
+        except InputError as exc:  # name the campaign's run, not its place in this chunk
+            message = re.sub(r"\(run (\d+)\)", lambda m: f"(run {int(inputs.runs[int(m.group(1))])})", str(exc), count=1)
+            raise InputError(message) from None
     crit = metrics.criteria_arrays()
-    rpf = getattr(getattr(controller, "transformation", None), "rpf", None)
+    traj = run.trajectory
     return {
         "run": inputs.runs,
         "euler_deg": inputs.euler_deg,
@@ -127,12 +137,12 @@ def simulate_runs(
         "max_abs_torque_Nm": crit["max_abs_torque_Nm"],
         "settling_time_s": crit["settling_time_s"],
         "finite": crit["finite"],
-        "rpf_clamped": rpf.clamped if rpf is not None else np.zeros((n, 3), dtype=bool),
-        "rpf_flat": rpf.flat if rpf is not None else np.zeros((n, 3), dtype=bool),
-        "traj_t": np.asarray(traj.t),
-        "traj_q_ev": np.stack(traj.q_ev, axis=0) if traj.q_ev and traj.n else np.zeros((0, 0, 3), np.float32),
-        "traj_rho": np.stack(traj.rho, axis=0) if traj.rho and traj.n else np.zeros((0, 0, 3), np.float32),
-    }, metrics
+        "rpf_clamped": run.flags["clamped"],
+        "rpf_flat": run.flags["flat"],
+        "traj_t": traj[0] if traj is not None else np.zeros(0),
+        "traj_q_ev": traj[1] if traj is not None else np.zeros((0, 0, 3), np.float32),
+        "traj_rho": traj[2] if traj is not None else np.zeros((0, 0, 3), np.float32),
+    }, metrics, run
 
 
 class _Progress:
@@ -144,26 +154,54 @@ class _Progress:
         self.tty = sys.stderr.isatty()
         self.last_print = 0.0
 
+    #: Seconds between two lines (a terminal's line is rewritten in place; a log gets new lines).
+    TTY_PERIOD_S, LOG_PERIOD_S = 0.2, 1.0
+
     def update(self, n: int) -> None:
-        self.done += n
+        """``n`` more runs finished (sub-batches report a few tens of runs each, several times a second)."""
+        if n <= 0 and self.last_print > 0.0:
+            return
+        self.done = min(self.done + n, self.total)
         if not self.enabled:
             return
         now = time.perf_counter()
+        finished = self.done == self.total
+        if now - self.last_print < (self.TTY_PERIOD_S if self.tty else self.LOG_PERIOD_S) and not finished:
+            return
+        self.last_print = now
         rate = (self.done - self.start_done) / max(now - self.t0, 1e-9)
         eta = (self.total - self.done) / rate if rate > 0 else float("inf")
         line = f"runs {self.done}/{self.total} ({100 * self.done / self.total:.0f} %)  {rate:.0f} runs/s  ETA {eta:.0f} s"
         if self.tty:
-            print("\r" + line, end="" if self.done < self.total else "\n", file=sys.stderr, flush=True)
-        elif now - self.last_print > 5.0 or self.done == self.total:
+            print("\r" + line, end="\n" if finished else "", file=sys.stderr, flush=True)
+        else:
             print(line, file=sys.stderr, flush=True)
-            self.last_print = now
 
 
-def _ignore_sigint() -> None:
-    """Worker initialiser: Ctrl-C is handled by the main process, which then terminates the workers."""
+def _init_worker(threads: int, progress_queue: Any) -> None:
+    """Local worker initialiser: Ctrl-C is handled by the main process, which then terminates the
+    workers; the compiled loop runs on ``threads`` threads (the CPUs shared among the workers);
+    sub-batches report to ``progress_queue``."""
     import signal
 
+    import numba
+
+    global _progress_sink
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    numba.set_num_threads(max(1, min(threads, int(getattr(numba.config, "NUMBA_NUM_THREADS")))))
+    _progress_sink = progress_queue
+
+
+def _start_method() -> str:
+    """``fork`` (fast) unless this process has started numba's thread pool, which a forked child
+    cannot use (OpenMP hangs): then ``forkserver`` (a clean process forks the workers)."""
+    try:
+        from numba.np.ufunc import parallel
+
+        launched = bool(getattr(parallel, "_is_initialized", True))
+    except ImportError:
+        launched = True
+    return "forkserver" if launched else "fork"
 
 
 def _call(task: tuple[int, Callable[..., Any], tuple[Any, ...]]) -> tuple[int, Any]:
@@ -178,6 +216,7 @@ class _Executor:
     def __init__(self, workers: int, scheduler: str | None) -> None:
         self.pool: Any = None
         self.client: Any = None
+        self.queue: Any = None  # sub-batch progress of local workers
         self.futures: list[Any] = []
         if scheduler is not None:
             from distributed import Client
@@ -186,7 +225,18 @@ class _Executor:
         elif workers > 1:
             import multiprocessing
 
-            self.pool = multiprocessing.get_context("fork").Pool(workers, initializer=_ignore_sigint)
+            ctx = multiprocessing.get_context(_start_method())
+            if ctx.get_start_method() == "forkserver":
+                ctx.set_forkserver_preload(["sappc.montecarlo.campaign"])
+            self.queue = ctx.SimpleQueue()
+            self.pool = ctx.Pool(workers, initializer=_init_worker, initargs=(max(1, (os.cpu_count() or 1) // workers), self.queue))
+
+    def progress(self) -> int:
+        """Runs reported finished by local workers since the last call."""
+        n = 0
+        while self.queue is not None and not self.queue.empty():
+            n += int(self.queue.get())
+        return n
 
     def run(self, tasks: list[tuple[int, Callable[..., Any], tuple[Any, ...]]]) -> Iterator[tuple[int, Any]]:
         """Submit every task now (workers start at once) and iterate over the results as they complete."""
@@ -197,9 +247,20 @@ class _Executor:
             done: Iterator[tuple[int, Any]] = (fut.result() for fut in dask_as_completed(self.futures))
             return done
         if self.pool is not None:
-            unordered: Iterator[tuple[int, Any]] = self.pool.imap_unordered(_call, tasks)
-            return unordered
+            return self._poll(self.pool.imap_unordered(_call, tasks))
         return map(_call, tasks)  # in this process: one chunk at a time, each saved before the next starts
+
+    def _poll(self, results: Any) -> Iterator[tuple[int, Any]]:
+        """Pool results as they complete, waking up every 0.1 s (``None``) to read the workers' progress."""
+        import multiprocessing
+
+        while True:
+            try:
+                yield results.next(timeout=0.1)
+            except multiprocessing.TimeoutError:
+                yield None  # type: ignore[misc]  # a tick: no result yet
+            except StopIteration:
+                return
 
     def abort(self) -> None:
         if self.pool is not None:
@@ -274,23 +335,35 @@ def run_campaign(
 
     todo = [(i, r) for i, r in chunks(runs, chunk_runs) if not chunk_path(out, i).exists()]
     bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)
+    if todo and scheduler is None:
+        compiled_loop.ensure_compiled(in_subprocess=workers > 1)  # compile once, here, not in every worker
     executor = _Executor(workers, scheduler)
+    global _progress_sink
     t0 = time.perf_counter()
     sizes = dict(todo)
     tasks = [(i, run_chunk, (scenario.raw, seed, r, max(0, min(cfg.trajectory_runs - r[0], len(r))))) for i, r in todo]
+    if executor.pool is None and executor.client is None:
+        _progress_sink = bar.update  # sub-batches in this process report directly
     try:
         results = executor.run(tasks)
         if executor.pool is not None or executor.client is not None:
             import matplotlib.pyplot  # noqa: F401  (the figures need it; import it while the workers compute)
-        for i, result in results:
+        for item in results:
+            if executor.queue is not None:
+                bar.update(executor.progress())
+            if item is None:
+                continue
+            i, result = item
             save_chunk(out, i, result)
-            bar.update(len(sizes[i]))
+            if executor.client is not None:  # Dask workers report per chunk
+                bar.update(len(sizes[i]))
     except KeyboardInterrupt:
         executor.abort()
         done = len(list((out / "chunks").glob("chunk_*.npz")))
         print(f"\ninterrupted: {done} chunk(s) kept in {out}; continue with --resume", file=sys.stderr)
         raise
     finally:
+        _progress_sink = None
         executor.close()
     return assemble(out, scenario, cfg, manifest, wall_s=time.perf_counter() - t0)
 
@@ -299,11 +372,9 @@ def load_campaign_run(campaign_dir: str | Path, run: int, *, with_history: bool 
     """Re-run run ``run`` of a campaign alone (for ``sappc simulate --from-campaign``).
 
     Returns the scenario, the run's campaign results (identical to its row of the campaign's
-    table), its full metrics, and its :class:`~sappc.offline.closed_loop.History` when ``with_history``
-    (else ``None``).
+    table), its full metrics, and its :class:`~sappc.evaluation.history.History` when ``with_history``
+    (else ``None``).  The same compiled loop as the campaign's: the same numbers, bit for bit.
     """
-    from sappc.evaluation.history import HistoryRecorder
-
     out = Path(campaign_dir)
     try:
         manifest = json.loads((out / "manifest.json").read_text())
@@ -312,6 +383,5 @@ def load_campaign_run(campaign_dir: str | Path, run: int, *, with_history: bool 
     if not isinstance(run, int) or not 0 <= run < manifest["runs"]:
         raise ConfigError(f"--run must be in [0, {manifest['runs'] - 1}], got {run!r}")
     scenario = scenario_from_mapping(manifest["scenario"])
-    recorder = HistoryRecorder(step_times(scenario.duration_s, scenario.control_period_s), 1) if with_history else None
-    row, metrics = simulate_runs(manifest["scenario"], manifest["seed"], [run], 0, recorder)
-    return scenario, row, metrics.run_metrics(0), recorder.history() if recorder is not None else None
+    row, metrics, result = simulate_runs(manifest["scenario"], manifest["seed"], [run], 0, with_history=with_history)
+    return scenario, row, metrics.run_metrics(0), result.history

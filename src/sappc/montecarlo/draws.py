@@ -2,7 +2,8 @@
 
 Every random input of run ``k`` comes from ``SeedSequence(seed, spawn_key=(k,))``: its first
 child draws the dispersed values (:func:`draw_inputs`), its second the sensor noise
-(:class:`NoisySensor`).  A run therefore depends only on ``(seed, k)``.
+(:func:`sensor_noise_draws`, the whole run's before the loop).  A run therefore depends only on
+``(seed, k)``.
 """
 
 from __future__ import annotations
@@ -16,11 +17,14 @@ from numpy.typing import NDArray
 
 from gnc_common.attitude import euler_to_quaternion
 from spacecraft_sim.core.disturbance import DisturbanceSum, PaperPeriodic
-from spacecraft_sim.core.faults import noisy_measurement
-from sappc.montecarlo.config import CampaignConfig, SensorNoise
+from sappc.montecarlo.config import CampaignConfig
 from sappc.scenario import Scenario
 
-__all__ = ["NoisySensor", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_generators"]
+__all__ = ["NOISE_BLOCK", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_generators", "sensor_noise_draws"]
+
+#: Samples of sensor noise drawn per call of the run's noise generator (``standard_normal((NOISE_BLOCK, 6))``,
+#: block after block): the sequence campaigns have always used.
+NOISE_BLOCK = 256
 
 Array = NDArray[np.float64]
 
@@ -72,26 +76,19 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
     )
 
 
-class NoisySensor:
-    """Measured state = true state with the campaign's sensor noise, drawn per run from its own stream."""
-
-    #: Samples of noise drawn per run at once.
-    BLOCK = 256
-
-    def __init__(self, noise: SensorNoise, seed: int, runs: NDArray[np.int64]) -> None:
-        self.noise = noise
-        self.rngs = [run_generators(seed, int(k))[1] for k in runs]
-        self.block: Array | None = None
-
-    def __call__(self, k: int, x: Array) -> Array:
-        if k % self.BLOCK == 0:
-            self.block = np.stack([rng.standard_normal((self.BLOCK, 6)) for rng in self.rngs], axis=1)  # (BLOCK, n, 6)
-        assert self.block is not None
-        z = self.block[k % self.BLOCK]
-        y = np.array(x, order="F")
-        for r in range(y.shape[0]):
-            y[r, :4], y[r, 4:] = noisy_measurement(x[r, :4], x[r, 4:], z[r], self.noise.attitude_sigma_rad, self.noise.rate_sigma_rad_s)
-        return y
+def sensor_noise_draws(seed: int, runs: Iterable[int], n_samples: int) -> Array:
+    """Standard normals (n, n_samples, 6) of the sensor noise of ``runs``: each run's from its own
+    second generator, drawn in blocks of :data:`NOISE_BLOCK` samples as the campaign has always
+    drawn them, sample ``k`` of the run in row ``k`` (the compiled loop applies
+    :func:`spacecraft_sim.core.kernels.noisy_measurement` with it)."""
+    runs_list = [int(k) for k in runs]
+    n_blocks = -(-n_samples // NOISE_BLOCK)
+    out = np.empty((len(runs_list), n_blocks * NOISE_BLOCK, 6))
+    for i, k in enumerate(runs_list):
+        _, rng = run_generators(seed, k)
+        for b in range(n_blocks):
+            out[i, b * NOISE_BLOCK : (b + 1) * NOISE_BLOCK] = rng.standard_normal((NOISE_BLOCK, 6))
+    return out[:, :n_samples]
 
 
 def dispersed_disturbance(scenario: Scenario, inputs: RunInputs) -> DisturbanceSum:

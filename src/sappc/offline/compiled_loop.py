@@ -21,42 +21,60 @@ kernel; a shared disturbance becomes a (T, 3) table.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+import sys
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numba import prange
 
-from gnc_common.compiled import jit, jit_parallel
+from gnc_common.compiled import error_quaternion, jit, jit_parallel
 from gnc_common.validation import ConfigError
-from sappc_controller.core.kernels import N_COEF, N_OUT, N_STATE, N_WORK, O_TORQUE, S_T0, controller_step, error_quaternions
+from sappc_controller.core.kernels import N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
+from sappc_controller.core.kernels import controller_step, error_quaternions
 from sappc_controller.core.kernels import kind_of, pack_params, start_coef
 from spacecraft_sim.core.kernels import N_PLANT_WORK, disturbance_sample, disturbance_table, encode_disturbance, propagate
-from spacecraft_sim.core.kernels import random_draws, reference_rate_tables
+from spacecraft_sim.core.kernels import noisy_measurement, random_draws, reference_rate_tables
 from spacecraft_sim.core.reference import sample_times
 
+from sappc.evaluation.history import History
 from sappc.scenario import Scenario
 
-__all__ = ["CompiledInputs", "CompiledRun", "prepare", "run_batch", "run_single", "simulate_compiled"]
+__all__ = ["CompiledInputs", "CompiledRun", "cache_is_warm", "ensure_compiled", "prepare", "run_batch", "run_single",
+           "simulate_compiled", "warm_up"]
 
 
 @jit
 def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-             kinds, dparams, dscale, dphase, rand_draws, rand_win, stride, hist, x_hist, d_hist, x_final):
+             kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma, stride, hist, x_hist, d_hist, x_final):
     """The whole time loop of one run (module docstring); histories every ``stride`` samples
-    (``stride = 0``: none), final state into ``x_final``."""
+    (``stride = 0``: none), final state into ``x_final``.
+
+    Sensor noise: with rows in ``noise`` (T, 6) (standard normals) the controller sees
+    :func:`spacecraft_sim.core.kernels.noisy_measurement` of the true state with the sigmas
+    ``noise_sigma`` (attitude [rad], rate [rad/s]), and the recorded error quaternion is the *true*
+    one, so that the metrics describe the real attitude error while the torque comes from the
+    measurement.  No rows: no noise."""
     state = np.zeros(N_STATE)
     state[S_T0] = t_grid[0]  # the first sample fixes the time origin
     work = np.zeros((N_WORK, 4))
     out = np.zeros((N_OUT, 4))
     pwork = np.zeros((N_PLANT_WORK, 7))
     x = x0.copy()
+    y = np.zeros(7)  # the measured state (sensor noise)
+    noisy = noise.shape[0] > 0
     d = np.zeros(3)
     u = np.zeros(3)
     T = t_grid.shape[0]
     for k in range(T):
         t = t_grid[k]
-        controller_step(kind, t, dt, x[:4], x[4:], ref_q[k], ref_w[k], ref_wd[k], prm, coef, state, work, out)
+        if noisy:
+            noisy_measurement(x[:4], x[4:], noise[k], noise_sigma[0], noise_sigma[1], y[:4], y[4:])
+            controller_step(kind, t, dt, y[:4], y[4:], ref_q[k], ref_w[k], ref_wd[k], prm, coef, state, work, out)
+            error_quaternion(ref_q[k], x[:4], out[O_QBR])  # the true error (metrics)
+        else:
+            controller_step(kind, t, dt, x[:4], x[4:], ref_q[k], ref_w[k], ref_wd[k], prm, coef, state, work, out)
         if use_table:
             for i in range(3):
                 d[i] = d_table[k, i]
@@ -81,27 +99,37 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
 
 @jit_parallel
 def run_batch_kernel(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-                     kinds, dparams, dscale, dphase, rand_draws, rand_win, stride, hist, x_hist, d_hist, x_final):
+                     kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma, stride, hist, x_hist, d_hist,
+                     x_final):
     """Every run of a batch, in parallel over runs (``prange``); per-run arrays have a leading axis N."""
     for n in prange(x0.shape[0]):
         _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
-                 d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, stride, hist[n], x_hist[n],
-                 d_hist[n], x_final[n])
+                 d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], noise_sigma, stride,
+                 hist[n], x_hist[n], d_hist[n], x_final[n])
 
 
 @jit
 def run_single_kernel(n, kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-                      kinds, dparams, dscale, dphase, rand_draws, rand_win, stride, hist, x_hist, d_hist, x_final):
+                      kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma, stride, hist, x_hist, d_hist,
+                      x_final):
     """Run ``n`` of the batch arrays alone (same argument types as in :func:`run_batch_kernel`); outputs
     (leading axis 1) at index 0."""
     _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
-             d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, stride, hist[0], x_hist[0],
-             d_hist[0], x_final[0])
+             d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], noise_sigma, stride,
+             hist[0], x_hist[0], d_hist[0], x_final[0])
+
+
+#: Per-run fields of :class:`CompiledInputs` (leading axis N); ``rand_draws`` has it second.
+_PER_RUN = ("prm", "coef", "x0", "J", "J_inv", "dscale", "dphase", "noise")
 
 
 @dataclass
 class CompiledInputs:
-    """Everything a compiled batch needs, as arrays (see :func:`prepare`)."""
+    """Everything a compiled batch needs, as arrays (see :func:`prepare`).
+
+    ``noise`` (N, T or 0, 6): each run's sensor-noise draws (standard normals; no rows: no noise),
+    ``noise_sigma`` (2,): attitude [rad] and rate [rad/s] sigmas.  ``flags``: the RPF's ``flat`` and
+    ``clamped`` components (N, 3)."""
 
     kind: int
     prm: np.ndarray
@@ -124,6 +152,8 @@ class CompiledInputs:
     rand_draws: np.ndarray
     rand_win: np.ndarray
     flags: dict[str, np.ndarray]
+    noise: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 6)))
+    noise_sigma: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
     @property
     def n_runs(self) -> int:
@@ -132,7 +162,16 @@ class CompiledInputs:
     def args(self) -> tuple[Any, ...]:
         return (self.kind, self.prm, self.coef, self.x0, self.J, self.J_inv, self.substeps, self.dt, self.t, self.ref_q,
                 self.ref_w, self.ref_wd, self.use_table, self.d_table, self.kinds, self.dparams, self.dscale, self.dphase,
-                self.rand_draws, self.rand_win)
+                self.rand_draws, self.rand_win, self.noise, self.noise_sigma)
+
+    def subset(self, lo: int, hi: int, noise: np.ndarray | None = None) -> CompiledInputs:
+        """Runs ``lo .. hi - 1`` (contiguous copies: the same argument types), with ``noise``
+        (hi - lo, T, 6) as their sensor-noise draws when given."""
+        per_run: dict[str, Any] = {name: np.ascontiguousarray(getattr(self, name)[lo:hi]) for name in _PER_RUN}
+        if noise is not None:
+            per_run["noise"] = np.ascontiguousarray(noise, dtype=np.float64)
+        return dataclasses.replace(self, **per_run, rand_draws=np.ascontiguousarray(self.rand_draws[:, lo:hi]),
+                                   flags={k: v[lo:hi] for k, v in self.flags.items()})
 
 
 @dataclass
@@ -146,38 +185,57 @@ class CompiledRun:
     d: np.ndarray
     x_final: np.ndarray
 
+    def history(self) -> History:
+        """The runs as a :class:`~sappc.evaluation.history.History` (arrays (T, N, ...): views, no copy)."""
+        o = self.out.transpose(1, 0, 2, 3)  # (T, N, N_OUT, 4)
+        x = self.x.transpose(1, 0, 2)
+        return History(
+            t=self.t, q_BN=x[..., :4], omega_BN_B=x[..., 4:], q_BR=o[:, :, O_QBR, :], torque_B=o[:, :, O_TORQUE, :3],
+            torque_cmd_B=o[:, :, O_CMD, :3], saturated=o[:, :, O_SAT, :3] != 0.0, disturbance_B=self.d.transpose(1, 0, 2),
+            rho=o[:, :, O_RHO, :3], band_lower=o[:, :, O_BL, :3], band_upper=o[:, :, O_BU, :3], eps=o[:, :, O_EPS, :3],
+            z=o[:, :, O_Z, :3], V=o[:, :, O_V, :3],
+        )
+
+
+def _f64(a: Any, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    """A writable, C-contiguous float64 copy (one argument type for every call: no recompiles)."""
+    arr = np.asarray(a, dtype=np.float64)
+    return np.array(arr if shape is None else np.broadcast_to(arr, shape), dtype=np.float64, order="C", copy=True)
+
 
 def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | None = None, omega_BN_B0: np.ndarray | None = None,
             inertia_kg_m2: np.ndarray | None = None, disturbance: Any = None, config: Any = None, gains: dict[str, np.ndarray] | None = None,
-            on_infeasible: str = "raise") -> CompiledInputs:
+            on_infeasible: str = "raise", noise_sigma: tuple[float, float] = (0.0, 0.0)) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
-    with the start checks of the numpy core (180 deg singularity, funnel, RPF feasibility)."""
+    with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
+    Sensor-noise draws are given per batch (:meth:`CompiledInputs.subset`); none here."""
+    ensure_compiled()
     if scenario.faults:
         raise ConfigError(f"scenario {scenario.name!r} has faults: the compiled loop does not model them yet (run it with `sappc run`)")
     cfg = scenario.controller_config(controller) if config is None else config
-    q0 = np.atleast_2d(np.asarray(scenario.q_BN0 if q_BN0 is None else q_BN0, dtype=np.float64))
+    q0 = _f64(np.atleast_2d(np.asarray(scenario.q_BN0 if q_BN0 is None else q_BN0, dtype=np.float64)))
     n = q0.shape[0]
-    w0 = np.broadcast_to(np.asarray(scenario.omega_BN_B0_rad_s if omega_BN_B0 is None else omega_BN_B0, dtype=np.float64), (n, 3))
-    x0 = np.ascontiguousarray(np.concatenate((q0, w0), axis=1))
-    J = np.asarray(scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2, dtype=np.float64)
-    J = np.ascontiguousarray(np.broadcast_to(J, (n, 3, 3)))
-    J_inv = np.ascontiguousarray(np.linalg.inv(J))
-    t = sample_times(scenario.duration_s, scenario.control_period_s)
+    w0 = _f64(scenario.omega_BN_B0_rad_s if omega_BN_B0 is None else omega_BN_B0, (n, 3))
+    x0 = _f64(np.concatenate((q0, w0), axis=1))
+    J = _f64(scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2, (n, 3, 3))
+    J_inv = _f64(np.linalg.inv(J))
+    t = _f64(sample_times(scenario.duration_s, scenario.control_period_s))
     ref = scenario.reference.sample(t)
     ref_w, ref_wd = reference_rate_tables(scenario.reference, t)
-    ref_q = np.ascontiguousarray(ref.q_RN)
+    ref_q = _f64(ref.q_RN)
     q_BR0 = error_quaternions(ref_q[0], q0)
     coef, flags = start_coef(cfg, q_BR0, on_infeasible=on_infeasible)
-    prm = pack_params(cfg, n, gains)
+    prm = _f64(pack_params(cfg, n, gains))
     model = scenario.disturbance if disturbance is None else disturbance
     kinds, dparams, dscale, dphase = encode_disturbance(model, n)
     rand_draws, rand_win = random_draws(model, t, n)
     use_table = rand_draws.shape[0] == 0 and bool(np.all(dscale == dscale[:1]) and np.all(dphase == dphase[:1]))
     d_table = (disturbance_table(t, kinds, dparams, dscale[0], dphase[0], rand_draws[:, 0], rand_win) if use_table
                else np.zeros((0, 3)))
-    return CompiledInputs(kind_of(cfg), prm, coef, x0, J, J_inv, int(scenario.rk4_substeps), float(scenario.control_period_s), t,
-                          ref_q, np.ascontiguousarray(ref_w), np.ascontiguousarray(ref_wd), use_table, d_table, kinds, dparams,
-                          dscale, dphase, rand_draws, rand_win, flags)
+    return CompiledInputs(kind_of(cfg), prm, _f64(coef), x0, J, J_inv, int(scenario.rk4_substeps), float(scenario.control_period_s), t,
+                          ref_q, _f64(ref_w), _f64(ref_wd), use_table, _f64(d_table), np.ascontiguousarray(kinds, dtype=np.int64),
+                          _f64(dparams), _f64(dscale), _f64(dphase), _f64(rand_draws), np.ascontiguousarray(rand_win, dtype=np.int64),
+                          flags, np.zeros((n, 0, 6)), _f64(noise_sigma))
 
 
 def _outputs(inp: CompiledInputs, stride: int, n: int) -> tuple[np.ndarray, ...]:
@@ -186,15 +244,29 @@ def _outputs(inp: CompiledInputs, stride: int, n: int) -> tuple[np.ndarray, ...]
     return (np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, 7)))
 
 
-def run_batch(inp: CompiledInputs, stride: int = 0) -> CompiledRun:
-    """Every run of ``inp`` in one compiled call, in parallel over runs."""
-    hist, x_hist, d_hist, x_final = _outputs(inp, stride, inp.n_runs)
+def _check_noise(inp: CompiledInputs) -> None:
+    if inp.noise.shape[0] != inp.n_runs or inp.noise.shape[1] not in (0, inp.t.size):
+        raise ValueError(f"noise must be (N, 0 or T, 6) = ({inp.n_runs}, 0 or {inp.t.size}, 6), got {inp.noise.shape}")
+
+
+def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = None) -> CompiledRun:
+    """Every run of ``inp`` in one compiled call, in parallel over runs.
+
+    ``into``: the result of an earlier call with the same number of runs and stride, whose arrays
+    are overwritten (sub-batches of a campaign reuse one buffer: no new pages per sub-batch).
+    """
+    _check_noise(inp)
+    if into is not None and into.out.shape[0] == inp.n_runs and into.x.shape[1] == (0 if stride == 0 else (inp.t.size - 1) // stride + 1):
+        hist, x_hist, d_hist, x_final = into.out, into.x, into.d, into.x_final
+    else:
+        hist, x_hist, d_hist, x_final = _outputs(inp, stride, inp.n_runs)
     run_batch_kernel(*inp.args(), stride, hist, x_hist, d_hist, x_final)
     return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, x_final)
 
 
 def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
     """Run ``n`` of ``inp`` alone (one thread): histories with a leading axis of length 1."""
+    _check_noise(inp)
     hist, x_hist, d_hist, x_final = _outputs(inp, stride, 1)
     run_single_kernel(n, *inp.args(), stride, hist, x_hist, d_hist, x_final)
     return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, x_final)
@@ -203,3 +275,79 @@ def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
 def simulate_compiled(scenario: Scenario, controller: Any = None) -> CompiledRun:
     """The scenario as written, one run, full histories (the compiled ``sappc simulate`` loop)."""
     return run_single(prepare(scenario, controller), 0, 1)
+
+
+# ============================================================================= compile once
+
+#: The kernels whose cache decides whether a process must compile (the entry points).
+_ENTRY_KERNELS = (run_single_kernel, run_batch_kernel)
+_checked = False
+
+
+def cache_is_warm() -> bool:
+    """Whether numba's on-disk cache holds the entry kernels for the current sources (no compile needed)."""
+    for kernel in _ENTRY_KERNELS:
+        try:
+            if not kernel._cache._cache_file._load_index():  # empty when absent or stale (source stamp)
+                return False
+        except Exception:  # numba internals moved: assume warm, print nothing
+            return True
+    return True
+
+
+def ensure_compiled(*, in_subprocess: bool = False) -> None:
+    """Once per process, before the first kernel call: when the cache is cold (first use after an
+    install or a change of the sources), say so in one line on stderr and compile every kernel
+    now (:func:`warm_up`), so that later processes (campaign workers included) only load them.
+
+    ``in_subprocess``: compile in a child process (a parent about to fork workers keeps numba's
+    thread pool unstarted)."""
+    global _checked
+    if _checked:
+        return
+    _checked = True
+    if cache_is_warm():
+        return
+    print("sappc: compiling the numerical core once (~1 min; later runs load it from the cache)...", file=sys.stderr, flush=True)
+    if in_subprocess:
+        import subprocess
+
+        subprocess.run([sys.executable, "-c", "from sappc.offline.compiled_loop import warm_up; warm_up()"], check=True)
+    else:
+        warm_up()
+
+
+def warm_up() -> None:
+    """Compile (or load) every kernel the offline runs and campaigns call, on a tiny scenario: the
+    single-run and batch loops (every controller kind, every disturbance kind, sensor noise), and the
+    set-up kernels.  ``sappcw`` calls it once after building the venv."""
+    global _checked
+    _checked = True
+    from sappc.scenario import scenario_from_mapping
+
+    from spacecraft_sim.core.faults import noisy_measurement
+
+    raw = {
+        "name": "warm_up", "duration_s": 0.05, "control_period_s": 0.01,
+        "plant": {"inertia_kg_m2": [[4.0, 0.0, 0.0], [0.0, 4.0, 0.0], [0.0, 0.0, 4.0]], "rk4_substeps": 1},
+        "initial_state": {"q_BN": [0.1, 0.1, 0.1, 0.9848857801796104], "omega_BN_B_rad_s": [0.0, 0.0, 0.0]},
+        "reference": {"q_RN0": [0.0, 0.0, 0.0, 1.0], "amplitude_deg_s": 0.573, "periods_s": [40.0, 30.0, 50.0]},
+        "disturbances": [{"kind": "paper_periodic", "omega_p_rad_s": 0.01},
+                         {"kind": "random", "sigma_Nm": [1e-3, 1e-3, 1e-3], "hold_s": 0.02, "seed": 1}],
+        "actuator": {"max_torque_Nm": 0.5, "min_torque_Nm": 0.005},
+        "metrics": {"steady_from_s": 0.02, "settle_threshold": 1e-3, "t2_s": 0.03},
+        "controller": "sappc",
+        "controllers": {
+            "sappc": {"rpf": {"rho_e0": 0.4, "rho_einf": 1e-6, "l": 0.2, "t2_s": 20.0, "g_inf": 3e-5}, "B0": 0.016, "theta_deg": 10.0,
+                      "gains": {"K_q": 0.3, "K_omega": 0.35, "D_m_Nm": 0.05, "mu_rad_s": 7e-5, "p": 0.1, "T1_s": 3.0, "T2_s": 3.0,
+                                "T3_s": 2.0, "V_floor": 1e-12, "q0_floor": 1e-3}},
+        },
+    }
+    scenario = scenario_from_mapping(raw)
+    inp = prepare(scenario, on_infeasible="clamp", noise_sigma=(1e-7, 1e-7))
+    noisy = inp.subset(0, 1, noise=np.zeros((1, inp.t.size, 6)))
+    for case in (inp, noisy):
+        run_single(case, 0, 1)
+        run_batch(case, 1)
+        run_batch(case, 0)
+    noisy_measurement(np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(6), 1e-7, 1e-7)

@@ -1,4 +1,9 @@
-"""Run a scenario offline: build the cores from the scenario, run the closed loop, compute metrics."""
+"""Run a scenario offline: the scenario's arrays into the compiled whole-run loop
+(:mod:`sappc.offline.compiled_loop`), its history into the metrics (:mod:`sappc.evaluation.metrics`).
+
+No Python runs per time step: one compiled call runs a whole run (``sappc simulate``) or a
+sub-batch of runs in parallel (campaigns); the metrics are computed from each sub-batch's stored
+history in one block, by the one definition of every metric."""
 
 from __future__ import annotations
 
@@ -10,17 +15,19 @@ from typing import Any
 
 import numpy as np
 
-from sappc_controller.core.base import AttitudeController
-from spacecraft_sim.core.disturbance import DisturbanceModel
-from spacecraft_sim.core.dynamics import RigidBody, initial_state
 from gnc_common.validation import ConfigError
+from spacecraft_sim.core.disturbance import DisturbanceModel
 
-from sappc.evaluation.history import History, HistoryRecorder, Observer, both
-from sappc.offline.closed_loop import run_closed_loop, step_times
+from sappc.evaluation.history import History
 from sappc.evaluation.metrics import MetricsAccumulator
+from sappc.offline import compiled_loop
 from sappc.scenario import ControllerKind, Scenario
 
-__all__ = ["SimulationResult", "metrics_accumulator", "run_scenario", "simulate"]
+__all__ = ["ScenarioRun", "SimulationResult", "metrics_accumulator", "run_scenario", "simulate"]
+
+#: Runs per compiled call in a batch: their full histories (~2 MB a run for 50 s at 100 Hz) are
+#: kept for the metrics block, then dropped; the buffer is reused from one sub-batch to the next.
+SUB_BATCH = 32
 
 
 @dataclass(frozen=True)
@@ -58,78 +65,114 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
+@dataclass
+class ScenarioRun:
+    """What :func:`run_scenario` gives besides the metrics.
+
+    ``flags``: the RPF's ``flat`` and ``clamped`` components (N, 3); ``history``: every sample of
+    every run (``keep_history``), else ``None``; ``trajectory``: ``(t, q_ev, rho)`` of the first
+    runs every ``stride`` samples (float32 (T_s, n, 3)), else ``None``; ``x_final`` (N, 7)."""
+
+    flags: dict[str, np.ndarray]
+    history: History | None
+    trajectory: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    x_final: np.ndarray
+
+
 def run_scenario(
     scenario: Scenario,
     *,
     controller: ControllerKind | str | None = None,
     controller_config: Any = None,
-    controller_options: dict[str, Any] | None = None,
+    on_infeasible: str = "raise",
     q_BN0: np.ndarray | None = None,
     omega_BN_B0_rad_s: np.ndarray | None = None,
     inertia_kg_m2: np.ndarray | None = None,
     disturbance: DisturbanceModel | None = None,
-    measure: Callable[[int, np.ndarray], np.ndarray] | None = None,
-    observer: Observer | None = None,
-    history: HistoryRecorder | None = None,
-) -> tuple[MetricsAccumulator, AttitudeController]:
+    gains: dict[str, np.ndarray] | None = None,
+    sensor_noise: tuple[float, float, Callable[[int, int], np.ndarray]] | None = None,
+    keep_history: bool = False,
+    trajectory: tuple[int, int] | None = None,
+    sub_batch: int = SUB_BATCH,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[MetricsAccumulator, ScenarioRun]:
     """Run the scenario's closed loop, for one run or a batch: the one place that assembles it.
 
     Every argument overrides the scenario's own value; the batch size is that of ``q_BN0``
     (shape (N, 4)) or 1.  Used by :func:`simulate` (one run, the scenario as written) and by
-    Monte Carlo campaigns (dispersed initial states, inertias, disturbances, gains, sensors).
+    Monte Carlo campaigns (dispersed initial states, inertias, disturbances, ``gains`` (N,) per
+    name, sensor noise).  The start checks (180 deg singularity, funnel, RPF feasibility with
+    ``on_infeasible``) are made for every run before any runs.
 
-    With ``history`` (a recorder of every sample) the metrics are computed from the stored
-    history in one block after the run; without, the accumulator observes sample by sample (no
-    history kept: campaigns).  Both give the same metrics, bit for bit
-    (``tests/test_bag_tools.py``); one block costs a fraction of 6000 single-sample updates.
+    The runs go through the compiled loop ``sub_batch`` at a time (in parallel over runs); each
+    sub-batch's full history feeds the metrics in one block and is dropped unless
+    ``keep_history``.  ``sensor_noise = (attitude_sigma_rad, rate_sigma_rad_s, draws)`` with
+    ``draws(lo, hi)`` the standard normals (hi - lo, T, 6) of runs ``lo .. hi - 1``.
+    ``trajectory = (n, stride)`` keeps q_ev and rho of the first ``n`` runs every ``stride``
+    samples.  ``progress(n)`` is called after each sub-batch with its number of runs.
 
     Returns
     -------
     metrics : MetricsAccumulator
         Filled with every sample of every run.
-    controller : AttitudeController
-        The controller after the run (e.g. for its RPF's clamped/flat components).
+    run : ScenarioRun
+        RPF flags, the history when kept, trajectories, final states.
     """
     if scenario.faults:
         raise ConfigError(
             f"scenario {scenario.name!r} has faults: they are injected by relaying topics on the ROS 2 graph; "
             "run it with `sappc run` (the offline runner has only disturbance torques)"
         )
-    q0 = np.atleast_2d(scenario.q_BN0 if q_BN0 is None else q_BN0)
-    x0 = initial_state(q0, scenario.omega_BN_B0_rad_s if omega_BN_B0_rad_s is None else omega_BN_B0_rad_s)
-    ctrl = scenario.build_controller(controller, config=controller_config, **(controller_options or {}))
-    t = step_times(scenario.duration_s, scenario.control_period_s)
-    metrics = metrics_accumulator(scenario, t, x0.shape[0])
-    observers: list[Observer] = [metrics if history is None else history] + ([] if observer is None else [observer])
-    run_closed_loop(
-        RigidBody(scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2),
-        ctrl,
-        scenario.reference.sample(t),
-        scenario.disturbance if disturbance is None else disturbance,
-        x0,
-        scenario.control_period_s,
-        substeps=scenario.rk4_substeps,
-        observer=both(*observers),
-        measure=measure,
+    config = scenario.controller_config(controller) if controller_config is None else controller_config
+    inp = compiled_loop.prepare(
+        scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
+        disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
+        noise_sigma=(0.0, 0.0) if sensor_noise is None else (sensor_noise[0], sensor_noise[1]),
     )
-    if history is not None:
-        metrics.add_history(history.history())
-    return metrics, ctrl
+    n = inp.n_runs
+    step = n if keep_history else max(1, min(sub_batch, n))
+    n_traj, traj_stride = trajectory if trajectory is not None else (0, 1)
+    parts: list[MetricsAccumulator] = []
+    histories: list[History] = []
+    traj: list[tuple[np.ndarray, np.ndarray]] = []
+    x_final = np.empty((n, 7))
+    buffer: compiled_loop.CompiledRun | None = None
+    for lo in range(0, n, step):
+        hi = min(lo + step, n)
+        sub = inp.subset(lo, hi, None if sensor_noise is None else sensor_noise[2](lo, hi)) if step < n or sensor_noise else inp
+        buffer = compiled_loop.run_batch(sub, 1, into=buffer)
+        h = buffer.history()
+        acc = metrics_accumulator(scenario, inp.t, hi - lo)
+        acc.add_history(h)
+        parts.append(acc)
+        x_final[lo:hi] = buffer.x_final
+        if keep_history:
+            histories.append(h)
+        if lo < n_traj:
+            m = min(n_traj, hi) - lo
+            traj.append((h.q_BR[::traj_stride, :m, :3].astype(np.float32), h.rho[::traj_stride, :m].astype(np.float32)))
+        if progress is not None:
+            progress(hi - lo)
+    metrics = parts[0] if len(parts) == 1 else MetricsAccumulator.concatenate(parts)
+    trajectories = None
+    if traj:
+        trajectories = (inp.t[::traj_stride].copy(), np.concatenate([q for q, _ in traj], axis=1), np.concatenate([r for _, r in traj], axis=1))
+    return metrics, ScenarioRun(inp.flags, histories[0] if keep_history else None, trajectories, x_final)
 
 
 def simulate(scenario: Scenario, controller: ControllerKind | str | None = None) -> SimulationResult:
     """Run ``scenario`` with ``controller`` (default: the scenario's) and compute its metrics.
 
-    ``metrics["wall_time_s"]`` is the wall time of the closed loop (reference
-    generation and model set-up included, file output excluded).
+    ``metrics["wall_time_s"]`` is the wall time of the run (reference generation, start checks
+    and the metrics included, file output excluded).
     """
     kind = scenario.resolve_controller(controller)
     start = time.perf_counter()
-    recorder = HistoryRecorder(step_times(scenario.duration_s, scenario.control_period_s), 1)
-    metrics, _ = run_scenario(scenario, controller=kind, history=recorder)
+    metrics, run = run_scenario(scenario, controller=kind, keep_history=True)
     result = metrics.run_metrics(0)
     result["wall_time_s"] = time.perf_counter() - start
-    return SimulationResult(scenario=scenario, controller=kind, history=recorder.history(), metrics=result)
+    assert run.history is not None
+    return SimulationResult(scenario=scenario, controller=kind, history=run.history, metrics=result)
 
 
 def metrics_accumulator(scenario: Scenario, t: np.ndarray, n_runs: int) -> MetricsAccumulator:

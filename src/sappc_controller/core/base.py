@@ -1,61 +1,44 @@
 """The controller interface shared by SAPPC, TraPPC and BLFPPC.
 
-A controller never reads a clock: time ``t`` [s] and the sampling period
-``dt`` [s] are arguments of :meth:`AttitudeController.step`.  Inputs are
-checked there, once; the laws behind it work on clean (N, ...) arrays.
+A controller never reads a clock: time ``t`` [s] and the sampling period ``dt`` [s] are arguments
+of :meth:`AttitudeController.step`.  Inputs are checked there, in Python, once; the law itself is
+the compiled kernel :func:`sappc_controller.core.kernels.controller_step` (one implementation for
+the node, ``sappc rerun``, the offline loop and Monte Carlo), called for one run or a batch.
+
+``kernels`` is imported when the first controller is built, not with this module: the kernels
+depend on this module's start check, and modules that only need :class:`ControlOutput` (bag
+analysis, metrics) do not pay numba's import.
 """
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
+import math
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gnc_common.attitude import Linear3, dot
 from gnc_common.validation import QUATERNION_NORM_TOL, ConfigError, InputError, as_finite_array, check_unit_quaternion
-
-from sappc_controller.core.common import Actuator, ActuatorConfig, ErrorState, error_state
 
 __all__ = ["AttitudeController", "ControlOutput", "SINGULAR_Q0_AT_START", "SingularStartError", "check_start"]
 
 Array = NDArray[np.float64]
+_F64 = np.dtype(np.float64)
 
-#: A run may not *start* with an error scalar part below this: the paper's
-#: Jacobian is singular at q_e0 = 0 (180 deg error, SPEC_NOTES error 5) and the
-#: RPF sign and the virtual control are undefined there.  1e-6 is 179.9998 deg.
+#: A run may not *start* with an error scalar part below this: the paper's Jacobian is singular
+#: at q_e0 = 0 (180 deg error, docs/paper_notes.md, error 5) and the RPF sign and the virtual
+#: control are undefined there.  1e-6 is 179.9998 deg.
 SINGULAR_Q0_AT_START = 1e-6
-
-
-def _valid_inputs(t: float, dt: float, *arrays: ArrayLike) -> tuple[float, float, Array, Array, Array, Array, Array] | None:
-    """All step inputs as float64 arrays if every check passes, else ``None``.
-
-    A fast path over all inputs at once (one finiteness test, one norm test per
-    quaternion); on ``None`` the caller runs the per-input checks, which raise
-    an :class:`InputError` naming the offending value.  ``t`` and ``dt`` are typed as
-    :meth:`AttitudeController.step` declares them; anything else that arrives is caught here.
-    """
-    try:
-        t_f, dt_f = float(t), float(dt)
-        q, w, q_d, w_d, wdot_d = (np.asarray(a, dtype=np.float64) for a in arrays)
-    except (TypeError, ValueError):
-        return None
-    if q.shape[-1:] != (4,) or q_d.shape[-1:] != (4,) or w.shape[-1:] != (3,) or w_d.shape[-1:] != (3,) or wdot_d.shape[-1:] != (3,):
-        return None
-    values = np.concatenate((q.ravel(), w.ravel(), q_d.ravel(), w_d.ravel(), wdot_d.ravel(), (t_f, dt_f)))
-    if not (np.isfinite(values).all() and dt_f > 0.0):
-        return None
-    for quat in (q, q_d):
-        if (np.abs(np.sqrt(dot(quat, quat)) - 1.0) > QUATERNION_NORM_TOL).any():
-            return None
-    return t_f, dt_f, q, w, q_d, w_d, wdot_d
 
 
 @dataclass(frozen=True)
 class ControlOutput:
     """One control step's result for a batch (leading axis N), or one run (no batch axis).
+
+    The arrays are views of the controller's output buffer: they hold this step's values until
+    the controller's next :meth:`~AttitudeController.step` (or :meth:`~AttitudeController.reset`),
+    which overwrites them.  Copy what you keep (:meth:`copy`).
 
     Attributes
     ----------
@@ -85,6 +68,10 @@ class ControlOutput:
         """The same output with the batch axis removed (run 0)."""
         return ControlOutput(**{f.name: getattr(self, f.name)[0] for f in fields(self)})
 
+    def copy(self) -> ControlOutput:
+        """The same output in arrays of its own (not overwritten by the next step)."""
+        return ControlOutput(**{f.name: np.array(getattr(self, f.name)) for f in fields(self)})
+
 
 class SingularStartError(InputError):
     """A run starts at the 180 deg singularity: ``q_e0 < SINGULAR_Q0_AT_START``.
@@ -108,49 +95,94 @@ class SingularStartError(InputError):
         return SingularStartError, (self.q_e0, self.run)
 
 
-def check_start(err: ErrorState) -> None:
+def check_start(q_BR: ArrayLike) -> None:
     """Refuse a run that starts at the 180 deg singularity (``q_e0 < SINGULAR_Q0_AT_START``).
+
+    Parameters
+    ----------
+    q_BR : array_like, (N, 4) or (4,)
+        The runs' first error quaternions (scalar last, ``q0 >= 0``).
 
     Raises
     ------
     SingularStartError
         Naming the first such run of the batch (its index along the batch axis) and its ``q_e0``.
     """
-    q0 = err.q_BR[:, 3]
+    q0 = np.atleast_2d(np.asarray(q_BR, dtype=np.float64))[:, 3]
     bad = q0 < SINGULAR_Q0_AT_START
     if np.any(bad):
         k = int(np.argmax(bad))
         raise SingularStartError(float(q0[k]), k)
 
 
-class AttitudeController(ABC):
-    """Base class: input checking, batching, actuator; subclasses implement the law.
+class StepInputs(NamedTuple):
+    """The five inputs of one step for a batch, checked: (N, 4) and (N, 3) C-contiguous float64
+    arrays of their own; each reference input has N rows or one row shared by the batch."""
+
+    q_BN: Array
+    omega_BN_B: Array
+    q_RN: Array
+    omega_RN_R: Array
+    omegadot_RN_R: Array
+
+
+def _as_vector(x: object, n: int) -> Array | None:
+    """``x`` itself when the compiled step can take it as it is: an aligned, writable, C-contiguous
+    float64 array of shape ``(n,)`` (anything else would be copied, or compiled anew by numba); else ``None``."""
+    return x if type(x) is np.ndarray and x.shape == (n,) and x.dtype == _F64 and x.flags.carray else None
+
+
+def _is_unit(q: list[float]) -> bool:
+    """``| |q| - 1 | <= QUATERNION_NORM_TOL`` (norm summed as :func:`gnc_common.attitude.dot` does);
+    false for a non-finite component too (NaN compares false, an infinite norm exceeds the tolerance)."""
+    x, y, z, w = q
+    return abs(math.sqrt(((x * x + y * y) + z * z) + w * w) - 1.0) <= QUATERNION_NORM_TOL
+
+
+class AttitudeController:
+    """One controller of a run or of a batch of runs: input checks, start, compiled law.
 
     Parameters
     ----------
-    inertia_kg_m2 : array_like, shape (3, 3) or (N, 3, 3)
-        The known inertia ``J`` (Assumption 1), already checked SPD by the config.
-    actuator : ActuatorConfig
-        Actuator limits applied to the commanded torque.
+    config : SappcConfig, TrappcConfig or BlfppcConfig
+        The validated config; its type selects the law (:func:`.kernels.kind_of`).
+    on_infeasible : {"raise", "clamp"}
+        SAPPC's policy for an infeasible RPF component (:class:`.rpf.ReferencePerformanceFunction`);
+        the other laws have no RPF.
+
+    State: the packed parameters, per-run constants, filter and SMETF warm start are arrays
+    (:mod:`.kernels`), created at the first step of a run (which fixes the time origin ``t0`` and
+    the number of runs), forgotten by :meth:`reset`.
     """
-
-    def __init__(self, inertia_kg_m2: ArrayLike, actuator: ActuatorConfig) -> None:
-        self.J: Array = np.asarray(inertia_kg_m2, dtype=np.float64)
-        self.J_times = Linear3(self.J)  # v -> J v
-        self.actuator = Actuator(actuator)
-        self.t0: float | None = None
-        self.n_runs: int | None = None
-
-    #: The validated config of the controller's kind (a dataclass with ``gains`` and
-    #: ``actuator``), set by each subclass's ``__init__``.
-    config: Any
 
     #: Gain fields :meth:`reconfigure` may change during a run (the filter's p, T3_s and
     #: V_floor are part of its state; the performance functions fix the run's envelope).
     RUNTIME_GAINS = ("K_q", "K_omega", "K1", "K2", "K3", "D_m_Nm", "mu_rad_s", "q0_floor")
 
+    def __init__(self, config: Any, *, on_infeasible: str = "raise") -> None:
+        from sappc_controller.core import kernels  # see the module docstring
+
+        self._K = kernels
+        self.config = config
+        self.kind: int = kernels.kind_of(config)
+        self.on_infeasible = on_infeasible
+        self.t0: float | None = None
+        self.n_runs: int | None = None
+        #: The RPF's ``flat`` and ``clamped`` components (N, 3) of the current run (all False for
+        #: the laws without an RPF); ``None`` before the run starts.
+        self.start_flags: dict[str, NDArray[np.bool_]] | None = None
+        self._work = np.zeros((kernels.N_WORK, 4))
+        self._prm = np.zeros((0, kernels.N_PARAMS))
+        self._coef = np.zeros((0, kernels.N_COEF, 3))
+        self._state = np.zeros((0, kernels.N_STATE))
+        self._out = np.zeros((0, kernels.N_OUT, 4))
+        self._sat = np.zeros((0, 3), dtype=bool)
+        self._batch_output: ControlOutput | None = None
+        self._single_output: ControlOutput | None = None
+        self._torque_rows = self._out[:0, 0, :3]
+
     def reconfigure(self, config: Any) -> None:
-        """Take new gains and actuator limits during a run, all or nothing.
+        """Take new gains and actuator limits during a run, all or nothing, from the next step on.
 
         ``config`` is a validated config of this controller's kind; it may differ from the
         current one only in ``gains`` fields listed in :data:`RUNTIME_GAINS` and in ``actuator``.
@@ -171,18 +203,16 @@ class AttitudeController(ABC):
         for f in fields(current.gains):
             if f.name not in self.RUNTIME_GAINS and getattr(config.gains, f.name) != getattr(current.gains, f.name):
                 raise ConfigError(f"gains.{f.name} cannot change during a run (it is part of the filter's state); restart the controller")
+        prm = self._K.pack_params(config, self.n_runs) if self.n_runs is not None else None  # may raise: nothing changed yet
         self.config = config
-        self.actuator = Actuator(config.actuator)
-        self._set_gains(config.gains)
-
-    def _set_gains(self, gains: Any) -> None:
-        """Use ``gains`` from the next step on (laws that read ``self.config.gains`` need nothing)."""
+        if prm is not None:
+            self._prm[...] = prm
 
     def reset(self) -> None:
         """Forget the run: the next step starts a new one (RPF, filter, time origin)."""
         self.t0 = None
         self.n_runs = None
-        self._reset_law()
+        self.start_flags = None
 
     def step(
         self,
@@ -213,7 +243,8 @@ class AttitudeController(ABC):
         Returns
         -------
         ControlOutput
-            Without a batch axis when ``q_BN`` was a single quaternion.
+            Without a batch axis when ``q_BN`` was a single quaternion.  Its arrays are views of
+            the controller's output buffer, valid until the next step (copy what you keep).
 
         Raises
         ------
@@ -221,67 +252,133 @@ class AttitudeController(ABC):
             Naming the offending input (non-finite values, non-unit or zero
             quaternions, ``dt <= 0``, a batch size that changed, or a run that
             starts at the 180 deg singularity).
+        FloatingPointError
+            If the law produced a non-finite torque (never returned).
         """
-        inputs = _valid_inputs(t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R)
-        if inputs is None:  # something is wrong: the detailed checks name it
-            t_f = float(as_finite_array("t", t))
-            dt_f = float(as_finite_array("dt", dt))
-            if dt_f <= 0.0:
-                raise InputError(f"dt must be > 0, got {dt!r}")
-            inputs = (
-                t_f,
-                dt_f,
-                check_unit_quaternion("q_BN", q_BN),
-                as_finite_array("omega_BN_B", omega_BN_B, shape_tail=(3,)),
-                check_unit_quaternion("q_RN", q_RN),
-                as_finite_array("omega_RN_R", omega_RN_R, shape_tail=(3,)),
-                as_finite_array("omegadot_RN_R", omegadot_RN_R, shape_tail=(3,)),
-            )
-        t_f, dt_f, q, w, q_d, w_d, wdot_d = inputs
-        single = q.ndim == 1
-        q2 = np.atleast_2d(q)
-        err = error_state(q2, np.atleast_2d(w), np.atleast_2d(q_d), np.atleast_2d(w_d), np.atleast_2d(wdot_d))
-        if self.n_runs is not None and q2.shape[0] != self.n_runs:
-            raise InputError(f"q_BN has {q2.shape[0]} runs but this run started with {self.n_runs}; call reset() first")
-        out = self.step_unchecked(t_f, dt_f, err)  # the start check is there, on every path
-        if not (np.all(np.isfinite(out.torque_B)) and np.all(np.isfinite(out.torque_cmd_B))):
-            raise FloatingPointError("controller produced a non-finite torque; refusing to output it")
-        return out.first() if single else out
+        # Fast path: one run given as float64 vectors (the node's call), checked on Python floats;
+        # anything else, or anything these checks refuse, takes the detailed checks below.
+        q, w, q_d = _as_vector(q_BN, 4), _as_vector(omega_BN_B, 3), _as_vector(q_RN, 4)
+        w_d, wdot_d = _as_vector(omega_RN_R, 3), _as_vector(omegadot_RN_R, 3)
+        if q is not None and w is not None and q_d is not None and w_d is not None and wdot_d is not None and self.n_runs in (None, 1):
+            try:
+                t_f, dt_f = float(t), float(dt)
+            except (TypeError, ValueError):
+                t_f = dt_f = math.nan
+            # the rates, t and dt are all finite iff their sum is (a NaN or an infinity propagates; an
+            # overflow of finite values is a false alarm that the detailed checks accept); the
+            # quaternions' norm check fails on a non-finite component
+            rates = sum(w.tolist() + w_d.tolist() + wdot_d.tolist())
+            if math.isfinite(rates + t_f + dt_f) and dt_f > 0.0 and _is_unit(q.tolist()) and _is_unit(q_d.tolist()):
+                if self.n_runs is None:
+                    self._start(t_f, q[None], q_d[None])
+                self._K.controller_step_one(self.kind, t_f, dt_f, q, w, q_d, w_d, wdot_d, self._prm, self._coef, self._state,
+                                            self._work, self._out, self._sat)
+                torque = self._torque_rows.tolist()  # produced and commanded torque
+                if not math.isfinite(sum(torque[0]) + sum(torque[1])):
+                    raise FloatingPointError("controller produced a non-finite torque; refusing to output it")
+                assert self._single_output is not None
+                return self._single_output
+        t_f, dt_f, inputs, single = self._checked_inputs(t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R)
+        out = self._step_batch(t_f, dt_f, inputs)
+        if single:
+            assert self._single_output is not None
+            return self._single_output  # out.first(), built once
+        return out
 
-    def step_unchecked(self, t: float, dt: float, err: ErrorState) -> ControlOutput:
-        """:meth:`step` for inputs already checked (the offline runner's hot path).
-
-        The start of a run is checked here, not in :meth:`step`, so that every caller (the
-        node, the offline runner, Monte Carlo, rerun) refuses the same starts with the same error.
+    @staticmethod
+    def _checked_inputs(
+        t: float, dt: float, *arrays: ArrayLike
+    ) -> tuple[float, float, StepInputs, bool]:
+        """Every input checked (a batch, or one run the fast path did not take): ``t``, ``dt``, the
+        inputs as C-contiguous (N, k) arrays, and whether ``q_BN`` was a single quaternion.
 
         Raises
         ------
         InputError
-            At the first step of a run, if a run starts at the 180 deg singularity (see
-            :func:`check_start`); the controller then stays unstarted.
+            Naming the offending value.
         """
-        if self.t0 is None:
-            check_start(err)
-            self.t0 = t
-            self.n_runs = err.q_BR.shape[0]
-            self._start(err)
-        torque_cmd, diag = self._law(t - self.t0, dt, err)
-        torque, saturated = self.actuator.apply(torque_cmd)
-        return ControlOutput(torque_B=torque, torque_cmd_B=torque_cmd, saturated=saturated, q_BR=err.q_BR, **diag)
+        t_f = float(as_finite_array("t", t))
+        dt_f = float(as_finite_array("dt", dt))
+        if dt_f <= 0.0:
+            raise InputError(f"dt must be > 0, got {dt!r}")
+        q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R = arrays
+        checked = (
+            check_unit_quaternion("q_BN", q_BN),
+            as_finite_array("omega_BN_B", omega_BN_B, shape_tail=(3,)),
+            check_unit_quaternion("q_RN", q_RN),
+            as_finite_array("omega_RN_R", omega_RN_R, shape_tail=(3,)),
+            as_finite_array("omegadot_RN_R", omegadot_RN_R, shape_tail=(3,)),
+        )
+        single = checked[0].ndim == 1
+        q2 = np.atleast_2d(checked[0])
+        if q2.ndim != 2:
+            raise InputError(f"q_BN must have shape (4,) or (N, 4), got {checked[0].shape}")
+        n = q2.shape[0]
+        rows: list[Array] = [q2]
+        for name, a in zip(("omega_BN_B", "q_RN", "omega_RN_R", "omegadot_RN_R"), checked[1:]):
+            a2 = np.atleast_2d(a)
+            if a2.ndim != 2 or a2.shape[0] not in (1, n):
+                raise InputError(f"{name} must have shape {a2.shape[-1:]} or ({n}, {a2.shape[-1]}) for a batch of {n} runs, got {a.shape}")
+            rows.append(a2)
+        if rows[1].shape[0] != n:  # the measured rate belongs to each run
+            rows[1] = np.broadcast_to(rows[1], (n, 3))
+        c = [np.array(a, dtype=np.float64, order="C") for a in rows]  # own, writable, C-contiguous
+        return t_f, dt_f, StepInputs(c[0], c[1], c[2], c[3], c[4]), single
 
-    @staticmethod
-    def error_state(q_BN: Array, omega_BN_B: Array, q_RN: Array, omega_RN_R: Array, omegadot_RN_R: Array) -> ErrorState:
-        """The error state of eq. (errorsystem), for callers of :meth:`step_unchecked`."""
-        return error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R)
+    def _step_batch(self, t: float, dt: float, inputs: StepInputs) -> ControlOutput:
+        """:meth:`step` for a batch whose inputs are checked, with the batch axis in the result.
 
-    @abstractmethod
-    def _reset_law(self) -> None:
-        """Clear the law's internal state (filter, performance functions)."""
+        A run starts here or in :meth:`step`'s fast path, both through :meth:`_start`, so that every
+        caller refuses the same starts with the same error (:func:`.kernels.start_coef`:
+        :func:`check_start`, the funnels, the RPF).
 
-    @abstractmethod
-    def _start(self, err: ErrorState) -> None:
-        """Initialise the run from the first error state (RPF sign, magnitudes)."""
+        Raises
+        ------
+        InputError
+            If the batch size changed, or at the first step of a run that starts at the 180 deg
+            singularity (the controller then stays unstarted).
+        FloatingPointError
+            If the law produced a non-finite torque.
+        """
+        K = self._K
+        q = inputs.q_BN
+        n = q.shape[0]
+        if self.n_runs is not None and n != self.n_runs:
+            raise InputError(f"q_BN has {n} runs but this run started with {self.n_runs}; call reset() first")
+        q, w, q_d, w_d, wdot_d = inputs
+        if self.n_runs is None:
+            self._start(t, q, q_d)
+        K.controller_step_batch(self.kind, float(t), float(dt), q, w, q_d, w_d, wdot_d, self._prm, self._coef, self._state,
+                                self._work, self._out, self._sat)
+        if not np.isfinite(self._out[:, K.O_TORQUE : K.O_CMD + 1]).all():
+            raise FloatingPointError("controller produced a non-finite torque; refusing to output it")
+        assert self._batch_output is not None
+        return self._batch_output
 
-    @abstractmethod
-    def _law(self, tau: float, dt: float, err: ErrorState) -> tuple[Array, dict[str, Array]]:
-        """Commanded torque (N, 3) and diagnostics at ``tau`` seconds into the run."""
+    def _start(self, t: float, q_BN: Array, q_RN: Array) -> None:
+        """Start a run of ``q_BN.shape[0]`` runs at time ``t``: start checks and run constants
+        (:func:`.kernels.start_coef`), packed parameters, a fresh state and the output buffers."""
+        K = self._K
+        n = q_BN.shape[0]
+        if q_RN.shape[0] == 1:
+            q_BR0 = K.error_quaternions(q_RN[0], q_BN)
+        else:
+            q_BR0 = np.concatenate([K.error_quaternions(q_RN[k], q_BN[k : k + 1]) for k in range(n)])
+        coef, flags = K.start_coef(self.config, q_BR0, on_infeasible=self.on_infeasible)  # raises before anything changes
+        self._prm = K.pack_params(self.config, n)
+        self._coef = np.ascontiguousarray(coef)
+        self._state = K.new_state(n, t0=t)
+        if self._out.shape[0] != n:
+            self._out = np.zeros((n, K.N_OUT, 4))
+            self._sat = np.zeros((n, 3), dtype=bool)
+            o, s = self._out, self._sat
+            self._batch_output = ControlOutput(
+                torque_B=o[:, K.O_TORQUE, :3], torque_cmd_B=o[:, K.O_CMD, :3], saturated=s, q_BR=o[:, K.O_QBR],
+                rho=o[:, K.O_RHO, :3], band_lower=o[:, K.O_BL, :3], band_upper=o[:, K.O_BU, :3], eps=o[:, K.O_EPS, :3],
+                z=o[:, K.O_Z, :3], V=o[:, K.O_V, :3],
+            )
+            self._single_output = self._batch_output.first()
+            self._torque_rows = o[0, K.O_TORQUE : K.O_CMD + 1, :3]
+        self.start_flags = flags
+        self.t0 = t
+        self.n_runs = n

@@ -22,7 +22,8 @@ Law (Appendix C):
 
 ``eps = 0`` at the middle of the funnel: the error is steered to
 ``(rho_u + rho_l) / 2``.  ``S_d`` comes from the same dynamic-surface filter as
-SAPPC (:class:`~.common.DynamicSurfaceFilter`).
+SAPPC.  Implemented, compiled, in :mod:`.kernels` (``blfppc_law``); this module holds the
+configuration and the controller class.
 
 docs/paper_notes.md, observation 6: the term ``-2 K3 Gamma^-1 D_rho eps`` is meant to
 cancel the cross term between the two backstepping layers; differentiating the
@@ -40,18 +41,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-from numpy.typing import NDArray
-
-from gnc_common.attitude import dot, gamma_inverse_times
 from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
 from sappc_controller.core.base import AttitudeController
-from sappc_controller.core.common import ActuatorConfig, DynamicSurfaceFilter, ErrorState, robust_term, w0_dynamics
+from sappc_controller.core.common import ActuatorConfig
 
 __all__ = ["BARRIER_MARGIN", "BlfppcConfig", "BlfppcController", "BlfppcGains", "FiniteTimePF"]
-
-Array = NDArray[np.float64]
 
 #: Smallest |1 - eps^2| used in D_rho (see module docstring): on the boundary the
 #: barrier term is then 1e9 / (rho_u - rho_l) times its gain, saturating the actuator.
@@ -92,15 +87,6 @@ class FiniteTimePF:
             raise ConfigError(f"ftppf.m_even must be a positive even integer, got {self.m_even!r}")
         if not self.m_odd < self.m_even:
             raise ConfigError(f"m = ftppf.m_odd / ftppf.m_even must be < 1, got {self.m_odd}/{self.m_even}")
-
-    def evaluate(self, t: float) -> tuple[float, float]:
-        """``rho(t)`` and ``rho'(t)``."""
-        if t >= self.T_f_s:
-            return self.rho_Tf, 0.0
-        inv_m = self.m_even / self.m_odd
-        rho_0 = self.rho_initial - self.rho_Tf
-        frac = 1.0 - max(t, 0.0) / self.T_f_s
-        return rho_0 * frac**inv_m + self.rho_Tf, -rho_0 * inv_m * frac ** (inv_m - 1.0) / self.T_f_s
 
 
 @dataclass(frozen=True)
@@ -158,58 +144,7 @@ class BlfppcConfig:
 class BlfppcController(AttitudeController):
     """The BLFPPC benchmark controller of Appendix C."""
 
+    config: BlfppcConfig
+
     def __init__(self, config: BlfppcConfig) -> None:
-        super().__init__(config.inertia_kg_m2, config.actuator)
-        self.config = config
-        g = config.gains
-        self.filter = DynamicSurfaceFilter(p=g.p, T3=g.T3_s, V_floor=g.V_floor)
-        self.upper_side: NDArray[np.bool_] | None = None
-
-    def _reset_law(self) -> None:
-        self.filter.reset()
-        self.upper_side = None
-
-    def _start(self, err: ErrorState) -> None:
-        q_ev0 = err.q_BR[:, :3]
-        worst = float(np.max(np.abs(q_ev0)))
-        if worst >= self.config.ftppf.rho_initial:
-            raise ConfigError(
-                f"ftppf.rho_initial = {self.config.ftppf.rho_initial!r} must exceed the largest initial error "
-                f"|q_ev,i(0)| = {worst:.6g}: BLFPPC must start inside its funnel"
-            )
-        self.upper_side = q_ev0 >= 0.0
-
-    def _law(self, tau: float, dt: float, err: ErrorState) -> tuple[Array, dict[str, Array]]:
-        assert self.upper_side is not None
-        g = self.config.gains
-        q_ev = err.q_BR[:, :3]
-        f, f_dot = self.config.ftppf.evaluate(tau)
-        up = self.upper_side
-        rho_u = np.where(up, f, 0.0)
-        rho_l = np.where(up, 0.0, -f)
-        rho_u_dot = np.where(up, f_dot, 0.0)
-        rho_l_dot = np.where(up, 0.0, -f_dot)
-        width = rho_u - rho_l  # = f > 0
-        P_lu = rho_l + rho_u
-        eps = (2.0 * q_ev - P_lu) / width  # BLF-type transformation
-        S_b = rho_l_dot * rho_u - rho_u_dot * rho_l
-        S_v = ((rho_u_dot - rho_l_dot) * q_ev + S_b) / width
-        # alpha = Gamma^-1 [-K1 q_ev + 1/2 K1 P_lu + S_v]
-        alpha = gamma_inverse_times(err.q_BR, -g.K1 * q_ev + 0.5 * g.K1 * P_lu + S_v, g.q0_floor)
-        S_d, S_d_dot, V3 = self.filter.update(alpha, dt)
-        z2 = err.omega_BR_B - S_d
-        barrier = 1.0 - eps * eps
-        barrier = np.where(np.abs(barrier) < BARRIER_MARGIN, np.copysign(BARRIER_MARGIN, barrier), barrier)
-        D_rho_eps = eps / (barrier * width)
-        Jz2 = self.J_times(z2)
-        # u = -K2 J z2 - 2 K3 Gamma^-1 D_rho eps - W0 + J dS_d/dt - D_m tanh(z2/mu)  (Gamma^-1 as written, obs. 6)
-        u = (
-            -g.K2 * Jz2
-            - 2.0 * g.K3 * gamma_inverse_times(err.q_BR, D_rho_eps, g.q0_floor)
-            - w0_dynamics(self.J_times, err)
-            + self.J_times(S_d_dot)
-            - robust_term(g.D_m_Nm, z2, g.mu_rad_s)
-        )
-        V = np.stack((0.5 * dot(eps, eps), 0.5 * dot(z2, Jz2), V3), axis=1)
-        rho_signed = np.where(up, rho_u, rho_l)
-        return u, {"rho": rho_signed, "band_lower": rho_l, "band_upper": rho_u, "eps": eps, "z": q_ev, "V": V}
+        super().__init__(config)

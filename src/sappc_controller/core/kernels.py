@@ -1,8 +1,19 @@
-"""Compiled per-run step kernels of SAPPC, TraPPC and BLFPPC (numba, see :mod:`gnc_common.compiled`).
+"""The three control laws, compiled: SAPPC, TraPPC and BLFPPC as per-run numba kernels.
 
-One call of :func:`controller_step` computes one run's torque for one sampling instant, the
-same law as :mod:`.sappc`, :mod:`.trappc` and :mod:`.blfppc` (equation numbers are the paper's,
-SPEC_NOTES items as cited there), written over small float64 arrays the caller owns:
+This module is **the** implementation of the laws (issue 13: one code path); every caller goes
+through :func:`controller_step`:
+
+* the controller node and ``sappc rerun``, one sample at a time, through
+  :meth:`.base.AttitudeController.step` (inputs checked there, in Python, once; it calls
+  :func:`controller_step_batch` for one run or a batch);
+* the offline whole-run loop and Monte Carlo (:mod:`sappc.offline.compiled_loop`), inside compiled
+  code, one run per loop iteration or in a ``prange`` over runs.
+
+The config dataclasses, their validation and the run set-up that needs scipy (the RPF's
+coefficients by Lambert W, :mod:`.rpf`) stay in Python; :func:`start_coef` turns them into arrays.
+Equation numbers are the paper's; the paper's errors are cited as ``docs/paper_notes.md, error N``.
+One call of :func:`controller_step` computes one run's torque for one sampling instant from small
+float64 arrays the caller owns:
 
 ``prm`` (:data:`N_PARAMS`,)
     Gains, actuator limits, the known inertia ``J`` and the performance-function constants,
@@ -22,11 +33,34 @@ SPEC_NOTES items as cited there), written over small float64 arrays the caller o
     error quaternion, ``rho``, band lower/upper, ``eps``, ``z`` and ``V = (V1, V2, V3)``; the
     same quantities as :class:`.base.ControlOutput`.
 
-Nothing inside is a Python object: the kernels run unchanged in the controller node (one call
-per sample, inputs checked in Python before), in the offline whole-run loop and in a ``prange``
-over the runs of a campaign (:mod:`sappc.offline.compiled_loop`).  The kernels check nothing:
-the start checks (180 deg singularity, funnel contains the initial error, RPF feasibility) are
-made once, in Python, by :func:`start_coef`.
+Nothing inside is a Python object, and the kernels check nothing: the start checks (180 deg
+singularity through :func:`.base.check_start`, funnel contains the initial error, RPF
+feasibility) are made once, in Python, by :func:`start_coef`.
+
+SMETF solver (eqs. Rs, solve, chosenfunction, P0PS, PS)
+--------------------------------------------------------
+With the paper's base transformation (eq. chosenfunction, ``a = delta``, ``b = 1``)
+``R(z0) = tan(pi (z0 - 1) / (2 delta))`` on ``z0 in (1 - delta, 1 + delta)``, the SMETF value
+``eps = R_s(z_s)`` is defined implicitly by ``z0 + tan(theta) R(z0) = z_s``, ``eps = R(z0)``
+(eqs. Rs, solve).  With ``a = 2 delta / pi``, ``k = tan(theta)``, ``w = z_s - 1`` and
+``z0 - 1 = a arctan(eps)`` this is, in ``eps``, ``h(eps) = a arctan(eps) + k eps = w``.  ``h`` is
+odd, strictly increasing with ``k <= h' <= a + k`` and concave on ``eps >= 0``, so the root is
+unique for every finite ``z_s`` and every ``delta > 0`` (the transformation is global, the point of
+the paper).  :func:`smetf_solve` works on ``|w|`` and restores the sign.  Cold, it starts from
+``lower = max(|w| / (a + k), (|w| - a pi / 2) / k)``, a lower bound of the root (``arctan x <= x``,
+``arctan x < pi / 2``), from which Newton's iterates increase monotonically to the root (the
+tangent of a concave increasing function lies above it).  Warm (the controller passes a
+first-order prediction from the previous sample) it starts from ``max(guess, lower)``: from above
+the root one Newton step lands at or below it, and every iterate is raised to ``lower``, so the
+same argument applies after the first step.  It stops when ``|h(eps) - |w||`` is within
+:data:`_RESIDUAL_ULPS` ulps of the terms' magnitude; cold, over ``|w|`` in [1e-16, 1e12] and
+``delta`` in [1e-8, 1e10], that takes at most 12 iterations, warm 1 to 3
+(``tests/controller/test_smetf.py``); :data:`_MAX_NEWTON_ITERATIONS` only bounds pathological
+inputs.  Derivatives (:func:`smetf_derivatives`): ``P_s = d eps / d z_s = P_0 / (1 + k P_0)``,
+``P_0 = (1 + eps^2) / a`` (eqs. P0i, P0PS, PS), evaluated as ``1 / (k + a / (1 + eps^2))``, which
+cannot overflow; ``d eps / d delta = -(2/pi) arctan(eps) P_s = -((z0 - 1) / delta) P_s`` by
+implicit differentiation (docs/paper_notes.md, error 3: the paper's ``d eps_0 / d delta`` misses
+the denominator ``1 + k R_z``); ``eps d eps/d delta <= 0``, the sign claim of eq. (SupControl).
 """
 
 from __future__ import annotations
@@ -34,13 +68,12 @@ from __future__ import annotations
 import numpy as np
 
 from gnc_common.compiled import dcm_BR_times, dot3, error_quaternion, gamma_inverse_times, jit, matvec3
-from gnc_common.validation import ConfigError, InputError
+from gnc_common.validation import ConfigError
 
-from sappc_controller.core.base import SINGULAR_Q0_AT_START
+from sappc_controller.core.base import check_start
 from sappc_controller.core.blfppc import BARRIER_MARGIN, BlfppcConfig
 from sappc_controller.core.rpf import ReferencePerformanceFunction
 from sappc_controller.core.sappc import SappcConfig
-from sappc_controller.core.smetf import _MAX_NEWTON_ITERATIONS, _RESIDUAL_ULPS
 from sappc_controller.core.trappc import DOMAIN_MARGIN, TrappcConfig
 
 __all__ = [
@@ -53,9 +86,12 @@ __all__ = [
     "N_STATE",
     "N_WORK",
     "controller_step",
+    "controller_step_batch",
+    "controller_step_one",
     "kind_of",
     "new_state",
     "pack_params",
+    "rpf_coef",
     "start_coef",
 ]
 
@@ -106,6 +142,12 @@ N_WORK = 17
 O_TORQUE, O_CMD, O_SAT, O_QBR, O_RHO, O_BL, O_BU, O_EPS, O_Z, O_V = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
 N_OUT = 10
 
+#: Iteration cap of the SMETF Newton solver; 12 iterations suffice over the tested range (module
+#: docstring), the cap only bounds pathological inputs.
+_MAX_NEWTON_ITERATIONS = 60
+#: Stopping tolerance of the solver in units of the float64 epsilon times the magnitude of the
+#: terms of ``h(eps) - |w|``: below this the residual is rounding noise.
+_RESIDUAL_ULPS = 4.0
 _TWO_OVER_PI = 2.0 / np.pi
 _HALF_PI = np.pi / 2.0
 _TOL = _RESIDUAL_ULPS * float(np.finfo(np.float64).eps)
@@ -117,9 +159,15 @@ _MAX_IT = _MAX_NEWTON_ITERATIONS
 
 @jit
 def predefined_time_gain(V, p, T, V_floor):
-    """``M = exp(V^p) V^(-p) / (2 p T)`` at ``max(V, V_floor)`` (eqs. M_q, M_omega, dSd; SPEC_NOTES error 4)."""
-    Vp = max(V, V_floor) ** p
-    return np.exp(Vp) / (Vp * (2.0 * p * T))
+    """Predefined-time gain ``M = exp(V^p) V^(-p) / (2 p T)`` (eqs. M_q, M_omega, dSd) at ``max(V, V_floor)``.
+
+    ``M`` grows without bound as ``V -> 0`` and is undefined at ``V = 0`` (docs/paper_notes.md,
+    error 4).  ``M`` is decreasing on ``(0, 1)`` (its derivative is ``p exp(V^p) V^(-p-1) (V^p - 1)``),
+    so evaluating it at ``max(V, V_floor)`` (``0 < V_floor <= 1``) caps the gain at ``M(V_floor)``
+    and leaves it unchanged for ``V >= V_floor``.
+    """
+    Vp = max(V, V_floor) ** p  # docs/paper_notes.md, error 4
+    return np.exp(Vp) / (Vp * (2.0 * p * T))  # eqs. M_q, M_omega, dSd
 
 
 @jit
@@ -137,10 +185,16 @@ def error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work):
 
 @jit
 def filter_update(prm, state, dt, alpha, S_d_out, S_d_dot_out):
-    """Dynamic-surface filter (eq. dSd) with the exact exponential update (SPEC_NOTES error 4):
-    ``S_d[k+1] = S_d + dt dS_d/dt``, ``dS_d/dt = -(1 - exp(-M3 dt)) / dt H_d``, ``H_d = S_d - alpha``,
-    ``M3`` frozen over the step; starts at ``S_d = alpha``.  Writes the output before the update and
-    its derivative; returns ``V3 = |H_d|^2 / 2``.  Same as :class:`.common.DynamicSurfaceFilter`."""
+    """Dynamic-surface filter of the virtual control (eq. dSd), stable for any gain.
+
+    Eq. (dSd) is ``dS_d/dt = -M3 H_d`` with ``H_d = S_d - alpha``, ``M3 = exp(V3^p) V3^(-p) / (2 p T3)``
+    and ``V3 = |H_d|^2 / 2``.  Forward Euler is unstable once ``M3 dt > 2``, which happens as
+    ``H_d -> 0`` (docs/paper_notes.md, error 4).  The update freezes ``M3`` and ``alpha`` over one
+    step and integrates exactly, ``S_d[k+1] = alpha + exp(-M3 dt) (S_d[k] - alpha)``: a contraction
+    for every ``M3 >= 0`` and ``dt > 0``.  The derivative fed to the law is the secant of that
+    update, ``dS_d/dt = -(1 - exp(-M3 dt)) / dt H_d``, whose gain is bounded by ``1 / dt`` and tends
+    to eq. (dSd) as ``dt -> 0``.  The filter starts at the first virtual control (``H_d(0) = 0``).
+    Writes the output before the update and its derivative; returns ``V3``."""
     if state[S_FILTER_ON] == 0.0:
         for i in range(3):
             state[S_SD + i] = alpha[i]
@@ -150,7 +204,7 @@ def filter_update(prm, state, dt, alpha, S_d_out, S_d_dot_out):
     h2 = state[S_SD + 2] - alpha[2]
     V3 = 0.5 * ((h0 * h0 + h1 * h1) + h2 * h2)
     M3 = predefined_time_gain(V3, prm[P_P], prm[P_T3], prm[P_VFLOOR])  # eq. (dSd)
-    neg_rate = -(-np.expm1(-M3 * dt) / dt)
+    neg_rate = -(-np.expm1(-M3 * dt) / dt)  # exact exponential update (docs/paper_notes.md, error 4)
     S_d_dot_out[0] = neg_rate * h0
     S_d_dot_out[1] = neg_rate * h1
     S_d_dot_out[2] = neg_rate * h2
@@ -184,7 +238,7 @@ def w0_plus(prm, work, out):
 @jit
 def actuator(prm, out):
     """Per-axis saturation at ``max`` and minimum-output deadband (``|u_i| < min`` gives 0),
-    from ``out[O_CMD]`` into ``out[O_TORQUE]`` and ``out[O_SAT]`` (:class:`.common.Actuator`)."""
+    from ``out[O_CMD]`` into ``out[O_TORQUE]`` and ``out[O_SAT]`` (:class:`.common.ActuatorConfig`)."""
     umax, umin = prm[P_UMAX], prm[P_UMIN]
     for i in range(3):
         u = out[O_CMD, i]
@@ -199,8 +253,9 @@ def actuator(prm, out):
 
 @jit
 def rpf_evaluate(prm, coef, tau, i):
-    """RPF value and slope of component ``i`` at ``tau`` (eq. RPF; SPEC_NOTES error 1), as
-    :meth:`.rpf.ReferencePerformanceFunction.evaluate`."""
+    """RPF value and slope of component ``i`` at ``tau`` seconds into the run (eq. RPF, with the
+    coefficients of docs/paper_notes.md, error 1, from :func:`rpf_coef`): exponential before ``t1``,
+    parabola ``a1 (t - t2)^2 + g_inf`` up to ``t2``, ``g_inf`` after; times the sign of ``e(0)``."""
     t = max(tau, 0.0)
     sign = coef[C_SIGN, i]
     g_inf, t2 = prm[P_GINF], prm[P_RPF_T2]
@@ -217,34 +272,52 @@ def rpf_evaluate(prm, coef, tau, i):
 
 @jit
 def smetf_solve(z_s, delta, k, has_guess, guess):
-    """Solve eq. (solve) ``(2 delta / pi) arctan(eps) + tan(theta) eps = z_s - 1`` by monotone
-    Newton from a lower bound (warm start ``max(guess sign(w), lower)``), as :func:`.smetf.smetf`.
-    Returns ``eps`` and ``z0 - 1 = a arctan(eps)`` (eqs. Rs, chosenfunction)."""
+    """Solve eq. (solve) ``(2 delta / pi) arctan(eps) + tan(theta) eps = z_s - 1`` for ``eps`` by
+    monotone Newton from a lower bound, warm started at ``max(guess sign(w), lower)`` when
+    ``has_guess`` (module docstring; any finite guess gives the same root to 4 ulps).
+
+    Returns ``eps = R_s(z_s)``, ``z0 - 1 = a arctan(eps)`` (eqs. Rs, chosenfunction: the pre-image
+    relative to the band centre, exact where ``1 + (z0 - 1)`` would round) and the number of
+    Newton steps taken."""
     a = _TWO_OVER_PI * delta
     w = z_s - 1.0
     abs_w = abs(w)
-    lower = max(abs_w / (a + k), (abs_w - a * _HALF_PI) / k)
+    lower = max(abs_w / (a + k), (abs_w - a * _HALF_PI) / k)  # arctan x <= x, arctan x < pi/2
     if has_guess:
         sgn = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else 0.0)
         eps = max(guess * sgn, lower)
     else:
         eps = lower
     a_atan = 0.0
+    steps = 0
     for _ in range(_MAX_IT):
         a_atan = a * np.arctan(eps)
         k_eps = k * eps
-        resid = a_atan + k_eps - abs_w
+        resid = a_atan + k_eps - abs_w  # h(eps) - |w|, eq. (solve)
         if not abs(resid) > _TOL * (a_atan + k_eps + abs_w):
             break
+        # Newton step, raised to the lower bound: from above the root the step lands at or below
+        # it (concavity), from below the iterates increase monotonically to it.
         eps = max(eps - resid / (a / (1.0 + eps * eps) + k), lower)
-    return np.copysign(eps, w), np.copysign(a_atan, w)
+        steps += 1
+    # a_atan belongs to the final eps (the loop exits right after computing it)
+    return np.copysign(eps, w), np.copysign(a_atan, w), steps
+
+
+@jit
+def smetf_derivatives(eps, z0_offset, delta, k):
+    """Partial derivatives of ``eps_s(z_s, delta)`` at the solution ``(eps, z0 - 1)`` of
+    :func:`smetf_solve`: ``P_s = d eps_s / d z_s`` (eqs. P0PS, PS) and
+    ``d eps_s / d delta = -((z0 - 1) / delta) P_s`` (docs/paper_notes.md, error 3)."""
+    P_s = 1.0 / (k + (_TWO_OVER_PI * delta) / (1.0 + eps * eps))  # eq. PS
+    return P_s, -(z0_offset / delta) * P_s  # docs/paper_notes.md, error 3
 
 
 @jit
 def sappc_transform(prm, coef, state, tau, work, out):
     """RPF (eq. RPF) + time-varying constraint (eq. delta_i) + SMETF (eqs. Rs, solve, PS) per component:
     writes ``eps``, ``psi``, ``eta`` to ``work`` and ``rho``, the band, ``eps``, ``z`` to ``out``
-    (:class:`.sappc.SappcTransformation`)."""
+    (eq. dEpsilon: ``eps_dot = psi (q_ev_dot + eta q_ev) + xi``)."""
     B0, k = prm[P_B0], prm[P_TANTH]
     has_prev = state[S_HAS_PREV] != 0.0
     for i in range(3):
@@ -258,9 +331,8 @@ def sappc_transform(prm, coef, state, tau, work, out):
             guess = (state[S_PREV + i] + state[S_PREV + 3 + i] * (z - state[S_PREV + 6 + i])) + state[S_PREV + 9 + i] * (
                 delta - state[S_PREV + 12 + i]
             )
-        eps, z0_offset = smetf_solve(z, delta, k, has_prev, guess)  # eqs. Rs, solve, chosenfunction
-        P_s = 1.0 / (k + (_TWO_OVER_PI * delta) / (1.0 + eps * eps))  # eq. PS
-        d_eps_d_delta = -(z0_offset / delta) * P_s  # SPEC_NOTES error 3
+        eps, z0_offset, _ = smetf_solve(z, delta, k, has_prev, guess)  # eqs. Rs, solve, chosenfunction
+        P_s, d_eps_d_delta = smetf_derivatives(eps, z0_offset, delta, k)  # eq. PS; docs/paper_notes.md, error 3
         state[S_PREV + i] = eps
         state[S_PREV + 3 + i] = P_s
         state[S_PREV + 6 + i] = z
@@ -281,7 +353,8 @@ def sappc_transform(prm, coef, state, tau, work, out):
 
 @jit
 def trappc_transform(prm, coef, tau, work, out):
-    """Exponential PF + homeomorphic log transformation (Appendix B, :class:`.trappc.TrappcTransformation`)."""
+    """TraPPC's exponential PF + homeomorphic log transformation (Appendix B; module :mod:`.trappc`):
+    ``eps = s f(s z)``, ``f(x) = ln((K + x) / (K (1 - x)))``, ``psi = f'(s z) / rho``, ``eta = -rho_dot / rho``."""
     K = prm[P_KFUN]
     decay = (prm[P_PF_RHO0] - prm[P_PF_RHOINF]) * np.exp(-prm[P_PF_L] * tau)
     rho = decay + prm[P_PF_RHOINF]  # rho(t) = (rho_0 - rho_inf) exp(-l t) + rho_inf
@@ -305,8 +378,11 @@ def trappc_transform(prm, coef, tau, work, out):
 
 @jit
 def backstepping_law(prm, state, dt, work, out):
-    """The predefined-time backstepping law of Sec. IV.F (:class:`.sappc.BacksteppingPPC`), from
-    ``eps``, ``psi``, ``eta`` in ``work``; writes the commanded torque and ``V``."""
+    """The predefined-time backstepping law of Sec. IV.F, shared by SAPPC and TraPPC (Appendix B),
+    from ``eps``, ``psi``, ``eta`` in ``work``; writes the commanded torque and ``V``.
+
+    docs/paper_notes.md, observation 7: ``dV1/dt`` contains ``eps^T psi Gamma (z2 + H_d)``, which the
+    paper's analysis drops and the published law does not cancel; this is the published law."""
     J = prm[P_J : P_J + 9].reshape((3, 3))
     eps = work[W_EPS]
     V1 = 0.5 * dot3(eps, eps)  # V1 = z1^T z1 / 2, z1 = eps_q
@@ -316,7 +392,7 @@ def backstepping_law(prm, state, dt, work, out):
     for i in range(3):  # eq. (virtualcontrol): alpha = Gamma^-1 [-psi^-1 M_q K_q eps - eta q_ev]
         x[i] = neg_kq_mq * eps[i] / work[W_PSI, i] - work[W_ETA, i] * work[W_QBR, i]
     alpha = work[W_ALPHA]
-    gamma_inverse_times(work[W_QBR], x, prm[P_Q0FLOOR], alpha)
+    gamma_inverse_times(work[W_QBR], x, prm[P_Q0FLOOR], alpha)  # q_e0 floored: docs/paper_notes.md, error 5
     S_d, S_d_dot = work[W_SD], work[W_SDDOT]
     V3 = filter_update(prm, state, dt, alpha, S_d, S_d_dot)  # eq. (dSd), exact exponential update
     z2, Jz2 = work[W_Z2], work[W_JZ2]
@@ -343,8 +419,8 @@ def backstepping_law(prm, state, dt, work, out):
 
 @jit
 def blfppc_law(prm, coef, state, tau, dt, work, out):
-    """The BLFPPC benchmark law of Appendix C (:class:`.blfppc.BlfppcController`), with
-    ``Gamma^-1`` in the coupling term as the appendix writes it (SPEC_NOTES observation 6)."""
+    """The BLFPPC benchmark law of Appendix C (module :mod:`.blfppc`), with ``Gamma^-1`` in the
+    coupling term as the appendix writes it (docs/paper_notes.md, observation 6)."""
     J = prm[P_J : P_J + 9].reshape((3, 3))
     # FTPPF rho(t) = rho_0 (1 - t/T_f)^(1/m) + rho_Tf, t < T_f
     T_f, rho_Tf = prm[P_FT_TF], prm[P_FT_RHOTF]
@@ -431,6 +507,35 @@ def controller_step(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN
     actuator(prm, out)
 
 
+@jit
+def controller_step_one(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, prm, coef, state, work, out, saturated):
+    """:func:`controller_step_batch` for a batch of one run given as vectors (``q_BN`` (4,), ...):
+    the node's path, without reshaping the inputs in Python; the same :func:`controller_step` call."""
+    controller_step(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, prm[0], coef[0], state[0], work, out[0])
+    for i in range(3):
+        saturated[0, i] = out[0, O_SAT, i] != 0.0
+
+
+@jit
+def controller_step_batch(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, prm, coef, state, work, out, saturated):
+    """:func:`controller_step` for every run of a batch, one after another (the path of
+    :meth:`.base.AttitudeController.step`, one run being a batch of one).
+
+    ``q_BN`` (N, 4), ``omega_BN_B`` (N, 3), ``prm`` (N, N_PARAMS), ``coef`` (N, N_COEF, 3), ``state``
+    (N, N_STATE), ``out`` (N, N_OUT, 4), ``saturated`` (N, 3) bool (``out[:, O_SAT] != 0``); each
+    reference input has one row per run or one row shared by all runs.  Every run gets rows of
+    C-contiguous arrays, the argument types of the offline loop: run ``k`` of a batch is the run
+    alone, and the offline run, bit for bit.
+    """
+    shared = q_RN.shape[0] == 1
+    for n in range(q_BN.shape[0]):
+        m = 0 if shared else n
+        controller_step(kind, t, dt, q_BN[n], omega_BN_B[n], q_RN[m], omega_RN_R[m], omegadot_RN_R[m], prm[n], coef[n], state[n],
+                        work, out[n])
+        for i in range(3):
+            saturated[n, i] = out[n, O_SAT, i] != 0.0
+
+
 # ============================================================================= Python side (start)
 
 
@@ -490,37 +595,39 @@ def error_quaternions(q_RN, q_BN):
     return out
 
 
+def rpf_coef(rpf: ReferencePerformanceFunction) -> np.ndarray:
+    """``coef`` rows (N, N_COEF, 3) of an RPF set up for N runs: sign, ``t1``, ``a1``, ``l``, ``A``."""
+    coef = np.zeros((rpf.sign.shape[0], N_COEF, 3))
+    coef[:, C_SIGN], coef[:, C_T1], coef[:, C_A1], coef[:, C_L], coef[:, C_A] = rpf.sign, rpf.t1, rpf.a1, rpf.l, rpf.A
+    return coef
+
+
 def start_coef(config: object, q_BR0: np.ndarray, *, on_infeasible: str = "raise") -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Run constants ``coef`` (N, N_COEF, 3) from the first error quaternions ``q_BR0`` (N, 4), with
-    the start checks of the numpy core: the 180 deg singularity, the funnel containing the initial
-    error (TraPPC, BLFPPC), the RPF feasibility (SAPPC; ``on_infeasible`` as in
+    """Run constants ``coef`` (N, N_COEF, 3) from the first error quaternions ``q_BR0`` (N, 4), after
+    the start checks: the 180 deg singularity (:func:`.base.check_start`, raising
+    :class:`.base.SingularStartError`), the funnel containing the initial error (TraPPC, BLFPPC:
+    ``ConfigError``), the RPF feasibility (SAPPC; ``on_infeasible`` as in
     :class:`.rpf.ReferencePerformanceFunction`).  Also returns the RPF's ``flat`` and ``clamped`` flags.
     """
     q_BR0 = np.atleast_2d(np.asarray(q_BR0, dtype=np.float64))
-    q0 = q_BR0[:, 3]
-    if np.any(q0 < SINGULAR_Q0_AT_START):
-        k = int(np.argmax(q0 < SINGULAR_Q0_AT_START))
-        raise InputError(
-            f"initial error quaternion scalar part q_e0 = {q0[k]:.3g} (run {k}) is at the 180 deg singularity "
-            f"of Gamma(q_e) (needs q_e0 >= {SINGULAR_Q0_AT_START}): the RPF sign and the virtual control are undefined"
-        )
+    check_start(q_BR0)
     q_ev0 = q_BR0[:, :3]
     n = q_ev0.shape[0]
-    coef = np.zeros((n, N_COEF, 3))
     flags = {"flat": np.zeros((n, 3), bool), "clamped": np.zeros((n, 3), bool)}
-    coef[:, C_SIGN] = np.where(q_ev0 >= 0.0, 1.0, -1.0)
     if isinstance(config, SappcConfig):
         rpf = ReferencePerformanceFunction(config.rpf, q_ev0, on_infeasible=on_infeasible)
-        coef[:, C_SIGN], coef[:, C_T1], coef[:, C_A1], coef[:, C_L], coef[:, C_A] = rpf.sign, rpf.t1, rpf.a1, rpf.l, rpf._A
-        flags = {"flat": rpf.flat, "clamped": rpf.clamped}
+        return rpf_coef(rpf), {"flat": rpf.flat, "clamped": rpf.clamped}
+    if isinstance(config, TrappcConfig):
+        rho0, name, who = config.pf.rho_0, "pf.rho_0", "TraPPC"
+    elif isinstance(config, BlfppcConfig):
+        rho0, name, who = config.ftppf.rho_initial, "ftppf.rho_initial", "BLFPPC"
     else:
-        rho0, name = (config.pf.rho_0, "pf.rho_0") if isinstance(config, TrappcConfig) else (config.ftppf.rho_initial, "ftppf.rho_initial")  # type: ignore[attr-defined]
-        worst = float(np.max(np.abs(q_ev0)))
-        if worst >= rho0:
-            raise ConfigError(
-                f"{name} = {rho0!r} must exceed the largest initial error |q_ev,i(0)| = {worst:.6g}: "
-                f"{'TraPPC' if isinstance(config, TrappcConfig) else 'BLFPPC'} must start inside its funnel"
-            )
+        raise ConfigError(f"no compiled kernel for {type(config).__name__}")
+    worst = float(np.max(np.abs(q_ev0)))
+    if worst >= rho0:
+        raise ConfigError(f"{name} = {rho0!r} must exceed the largest initial error |q_ev,i(0)| = {worst:.6g}: {who} must start inside its funnel")
+    coef = np.zeros((n, N_COEF, 3))
+    coef[:, C_SIGN] = np.where(q_ev0 >= 0.0, 1.0, -1.0)  # sign of e(0); BLFPPC: the side of its funnel
     return coef, flags
 
 

@@ -1,4 +1,9 @@
-"""Reference performance function (RPF, eq. RPF) and the time-varying constraint (eq. delta_i).
+"""Reference performance function (RPF, eq. RPF): parameters, feasibility and coefficients.
+
+This module sets a run up (once, in Python, with scipy's Lambert W); the RPF is evaluated at every
+sample by the compiled law (:func:`.kernels.rpf_evaluate`, fed by :func:`.kernels.rpf_coef`), with
+the time-varying constraint ``delta = B0 / |rho|`` of eq. (delta_i) (a tube of half-width ``B0``
+around the RPF: ``1 - delta < q_ev / rho < 1 + delta`` is ``|q_ev - rho| < B0``).
 
 The RPF of one error component is
 
@@ -79,7 +84,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gnc_common.validation import ConfigError, check_positive
 
-__all__ = ["InfeasiblePolicy", "InfeasibleRPFError", "RPFParameters", "ReferencePerformanceFunction", "constraint_bound", "feasible_l_range"]
+__all__ = ["InfeasiblePolicy", "InfeasibleRPFError", "RPFParameters", "ReferencePerformanceFunction", "feasible_l_range"]
 
 Array = NDArray[np.float64]
 
@@ -211,6 +216,8 @@ class ReferencePerformanceFunction:
     sign, t1, a1, l, rho_e0 : ndarray, shape (N, 3)
         Per-component sign, switch time [s], parabola coefficient, exponential
         rate actually used [1/s] and initial magnitude.
+    A : ndarray, shape (N, 3)
+        ``rho_e0 - rho_einf``, the amplitude of the exponential part (0 where flat).
     flat : ndarray of bool, shape (N, 3)
         Components with ``rho_e0 <= g_inf`` (flat RPF, see module docstring).
     clamped : ndarray of bool, shape (N, 3)
@@ -267,47 +274,5 @@ class ReferencePerformanceFunction:
         s = np.where(s0 <= t2 * (1.0 + _ROOT_RTOL), np.minimum(s0, t2), s_m1)
         s = np.where(self.flat, t2, s)
         self.t1: Array = t2 - s
-        self._A = np.where(self.flat, 0.0, A)
-        self.a1: Array = np.where(self.flat, 0.0, l * self._A * np.exp(-l * self.t1) / (2.0 * s))
-
-    def evaluate(self, t: float) -> tuple[Array, Array]:
-        """Value and time derivative of the RPF at time ``t`` [s] since the start.
-
-        Returns
-        -------
-        rho, rho_dot : ndarray, shape (N, 3)
-        """
-        p = self.params
-        t = max(float(t), 0.0)
-        if t >= p.t2_s:
-            return self.sign * p.g_inf, np.zeros_like(self.sign)
-        in_exp = t < self.t1
-        # Evaluate only the pieces some component is on (same values per element either way).
-        if in_exp.any():
-            expo = self._A * np.exp(-self.l * t)
-            rho_e, rho_e_dot = expo + p.rho_einf, -self.l * expo
-            if in_exp.all():
-                return self.sign * rho_e, self.sign * rho_e_dot
-        dt2 = t - p.t2_s
-        rho_p, rho_p_dot = self.a1 * dt2 * dt2 + p.g_inf, 2.0 * self.a1 * dt2
-        if in_exp.any():
-            rho_p, rho_p_dot = np.where(in_exp, rho_e, rho_p), np.where(in_exp, rho_e_dot, rho_p_dot)
-        return self.sign * rho_p, self.sign * rho_p_dot
-
-
-def constraint_bound(B0: float, rho: Array, rho_dot: Array) -> tuple[Array, Array]:
-    """Time-varying constraint ``delta = B0 / |rho|`` (eq. delta_i) and its derivative.
-
-    The constraint (eq. constraint) ``1 - delta < z < 1 + delta`` with
-    ``z = e / rho`` is equivalent to ``|e - rho| < B0``: a tube of constant
-    half-width ``B0`` around the RPF.
-
-    Returns
-    -------
-    delta, delta_dot : ndarray
-        ``delta_dot = -B0 sign(rho) rho_dot / rho^2`` (``d|rho|/dt = sign(rho) rho_dot``),
-        which is ``>= 0`` for ``t <= t2`` and ``0`` after.
-    """
-    abs_rho = np.abs(rho)
-    delta = B0 / abs_rho
-    return delta, -delta * np.sign(rho) * rho_dot / abs_rho
+        self.A: Array = np.where(self.flat, 0.0, A)
+        self.a1: Array = np.where(self.flat, 0.0, l * self.A * np.exp(-l * self.t1) / (2.0 * s))  # docs/paper_notes.md, error 1

@@ -12,8 +12,9 @@ with ``z = e / rho``.  The second row is the first mirrored,
 ``f(x) = ln((K + x) / (K (1 - x)))``, ``d eps / d z = f'(s z) = 1/(K + s z) + 1/(1 - s z)``.
 ``eps = 0`` at ``e = 0``: TraPPC drives the error to zero inside the funnel.
 Appendix B: the virtual control, actual control and filter are those of SAPPC,
-so ``psi = f'/rho``, ``eta = -rho_dot/rho`` and ``xi = 0`` feed
-:class:`~.sappc.BacksteppingPPC`.
+so ``psi = f'/rho``, ``eta = -rho_dot/rho`` and ``xi = 0`` feed the same backstepping law.
+Implemented, compiled, in :mod:`.kernels` (``trappc_transform``, ``backstepping_law``); this
+module holds the configuration and the controller class.
 
 Singularity guard: the transformation is undefined once ``s z`` leaves
 ``(-K, 1)`` (the traditional PPC's singularity, Sec. IV.E).  The software must
@@ -26,17 +27,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-from numpy.typing import NDArray
-
 from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
+from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.common import ActuatorConfig
-from sappc_controller.core.sappc import BacksteppingGains, BacksteppingPPC, Transformed
+from sappc_controller.core.sappc import BacksteppingGains
 
-__all__ = ["DOMAIN_MARGIN", "ExponentialPF", "TrappcConfig", "TrappcController", "TrappcTransformation"]
-
-Array = NDArray[np.float64]
+__all__ = ["DOMAIN_MARGIN", "ExponentialPF", "TrappcConfig", "TrappcController"]
 
 #: Distance in z kept from the transformation's asymptotes (see module
 #: docstring): ln(1/1e-9) = 20.7 bounds |eps|, a finite "at the wall" value.
@@ -69,49 +66,6 @@ class ExponentialPF:
             raise ConfigError(f"pf.rho_inf ({self.rho_inf!r}) must be less than pf.rho_0 ({self.rho_0!r})")
 
 
-class TrappcTransformation:
-    """Exponential performance function + log-type homeomorphic transformation."""
-
-    def __init__(self, pf: ExponentialPF, K: float) -> None:
-        self.pf = pf
-        self.K = K
-        self.sign: Array | None = None
-
-    def start(self, q_ev0: Array) -> None:
-        worst = float(np.max(np.abs(q_ev0)))
-        if worst >= self.pf.rho_0:
-            raise ConfigError(
-                f"pf.rho_0 = {self.pf.rho_0!r} must exceed the largest initial error |q_ev,i(0)| = {worst:.6g}: "
-                "TraPPC must start inside its funnel"
-            )
-        self.sign = np.where(q_ev0 >= 0.0, 1.0, -1.0)
-
-    def reset(self) -> None:
-        self.sign = None
-
-    def transform(self, q_ev: Array, tau: float) -> Transformed:
-        assert self.sign is not None, "start() first"
-        pf, K, s = self.pf, self.K, self.sign
-        decay = (pf.rho_0 - pf.rho_inf) * np.exp(-pf.l * tau)
-        rho = decay + pf.rho_inf
-        rho_dot = -pf.l * decay
-        z = q_ev / rho
-        x = np.clip(s * z, -K + DOMAIN_MARGIN, 1.0 - DOMAIN_MARGIN)
-        eps = s * np.log((K + x) / (K * (1.0 - x)))  # homeomorphic transformation (Table, row by sign)
-        d_eps_dz = 1.0 / (K + x) + 1.0 / (1.0 - x)
-        rho_b = np.full_like(z, rho)
-        return Transformed(
-            eps=eps,
-            psi=d_eps_dz / rho,
-            eta=np.full_like(z, -rho_dot / rho),
-            xi=np.zeros_like(z),
-            rho=s * rho_b,
-            z=z,
-            band_lower=np.where(s > 0.0, -K * rho_b, -rho_b),
-            band_upper=np.where(s > 0.0, rho_b, K * rho_b),
-        )
-
-
 @dataclass(frozen=True)
 class TrappcConfig:
     """Validated configuration of the TraPPC benchmark.
@@ -139,9 +93,10 @@ class TrappcConfig:
             raise ConfigError(f"K must be in (0, 1), got {self.K!r}")
 
 
-class TrappcController(BacksteppingPPC):
+class TrappcController(AttitudeController):
     """The TraPPC benchmark controller built from a :class:`TrappcConfig`."""
 
+    config: TrappcConfig
+
     def __init__(self, config: TrappcConfig) -> None:
-        self.config = config
-        super().__init__(config.inertia_kg_m2, TrappcTransformation(config.pf, config.K), config.gains, config.actuator)
+        super().__init__(config)

@@ -1,5 +1,6 @@
 """Monte Carlo campaigns: dispersions, determinism across chunkings and executors, re-runs,
-failures, resumption, and rejection of bad dispersions before any run."""
+failures, resumption, rejection of bad dispersions before any run, the numpy core's table
+reproduced, the sensor-noise sequence, progress."""
 
 from __future__ import annotations
 
@@ -16,10 +17,13 @@ from conftest import ROOT, SCENARIOS
 from sappc.montecarlo import campaign as mc
 from sappc.montecarlo.campaign import load_campaign_run, run_campaign
 from sappc.montecarlo.config import campaign_config
-from sappc.montecarlo.draws import draw_inputs
+from sappc.montecarlo.draws import NOISE_BLOCK, draw_inputs, run_generators, sensor_noise_draws
+from sappc.offline import compiled_loop
+from sappc.offline import simulate as offline_simulate
 from sappc.scenario import scenario_from_mapping
-from spacecraft_sim.core.dynamics import RigidBody
 from gnc_common.validation import ConfigError
+
+GOLDEN_TABLE = ROOT / "tests" / "data" / "golden_numpy_core_mc24_seed7.csv"
 
 BASE = yaml.safe_load((SCENARIOS / "paper_montecarlo.yaml").read_text())
 
@@ -92,17 +96,17 @@ def test_local_dask_cluster_gives_the_same_results(tmp_path) -> None:
 
 
 def test_a_run_that_goes_non_finite_is_marked_failed_and_the_campaign_continues(tmp_path, monkeypatch) -> None:
-    real = RigidBody.rk4_step
+    real = compiled_loop.prepare
     calls = {"n": 0}
 
-    def poisoned(self, x, torque_B, dt):  # type: ignore[no-untyped-def]
-        y = real(self, x, torque_B, dt)
+    def poisoned(*args, **kwargs):  # type: ignore[no-untyped-def]
+        inp = real(*args, **kwargs)
         calls["n"] += 1
-        if calls["n"] == 100 and y.shape[0] > 2:  # run 2 of the first chunk diverges at t = 1 s
-            y[2, 4] = np.inf
-        return y
+        if calls["n"] == 1:  # run 2 of the first chunk: an infinite initial rate
+            inp.x0[2, 4] = np.inf
+        return inp
 
-    monkeypatch.setattr(RigidBody, "rk4_step", poisoned)
+    monkeypatch.setattr(offline_simulate.compiled_loop, "prepare", poisoned)
     s = run_campaign(_short(tmp_path, chunk_runs=5), runs=8, seed=1, out_dir=tmp_path / "f", progress=False)
     assert s["non_finite_runs"] == 1 and s["passed"] == 7
     (failed,) = s["failed_runs"]
@@ -176,3 +180,66 @@ def test_cli_end_to_end(tmp_path) -> None:
     bad = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "cli"), "--run", "9"],
                          capture_output=True, text=True, cwd=ROOT)
     assert bad.returncode == 2 and "--run must be in [0, 3]" in bad.stderr
+
+
+def test_the_numpy_cores_24_run_table_is_reproduced(tmp_path) -> None:
+    """``paper_montecarlo.yaml --runs 24 --seed 7``: every numeric column of the table equals the
+    numpy core's (recorded before it left src/) to 1e-12 relative; flags and counts exactly."""
+    run_campaign(SCENARIOS / "paper_montecarlo.yaml", runs=24, seed=7, out_dir=tmp_path / "mc", progress=False)
+    new = np.genfromtxt(tmp_path / "mc" / "runs.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
+    old = np.genfromtxt(GOLDEN_TABLE, delimiter=",", names=True, dtype=None, encoding="utf-8")
+    assert new.dtype.names == old.dtype.names and new.shape == old.shape == (24,)
+    for name in old.dtype.names:
+        if old[name].dtype.kind in "biU":
+            assert np.array_equal(new[name], old[name]), name
+            continue
+        a, b = new[name].astype(float), old[name].astype(float)
+        rel = np.abs(a - b) / np.maximum(np.abs(b), 1e-300)
+        assert np.all(rel <= 1e-12), (name, float(rel.max()))
+
+
+def test_sensor_noise_draws_are_the_campaigns_block_sequence() -> None:
+    """Each run's noise: its second generator's ``standard_normal((256, 6))`` block after block (the
+    numpy core's per-block draws), drawn whole before the loop."""
+    n_samples = 2 * NOISE_BLOCK + 17
+    draws = sensor_noise_draws(5, [3, 11], n_samples)
+    assert draws.shape == (2, n_samples, 6)
+    for i, k in enumerate((3, 11)):
+        _, rng = run_generators(5, k)
+        blocks = np.concatenate([rng.standard_normal((NOISE_BLOCK, 6)) for _ in range(3)])
+        assert np.array_equal(draws[i], blocks[:n_samples])
+    # a sub-range of runs draws the same values
+    assert np.array_equal(sensor_noise_draws(5, [11], n_samples)[0], draws[1])
+
+
+def test_sensor_noise_moves_the_torque_not_the_recorded_true_error(tmp_path) -> None:
+    """With sensor noise the controller sees a noisy state (other torques), the metrics the true error;
+    a noisy run in a campaign equals the run alone bit for bit (``load_campaign_run``)."""
+    path = _short(tmp_path, chunk_runs=3, sensor_noise={"attitude_sigma_rad": 1e-6, "rate_sigma_rad_s": 1e-6})
+    run_campaign(path, runs=3, seed=2, out_dir=tmp_path / "n", progress=False)
+    _, row, metrics, history = load_campaign_run(tmp_path / "n", 1, with_history=True)
+    table = np.genfromtxt(tmp_path / "n" / "runs.csv", delimiter=",", names=True)
+    assert metrics["steady_mean_abs_qev"] == table["steady_mean_abs_qev"][1]
+    assert row["rpf_error_at_t2_per_axis"][0].max() == table["rpf_error_at_t2"][1]
+    # the recorded error quaternion is the true one: q_BR from the true attitude and the reference
+    from gnc_common.attitude import error_quaternion
+
+    sc = scenario_from_mapping(yaml.safe_load(open(path).read()))
+    q_RN = sc.reference.sample(history.t).q_RN
+    np.testing.assert_allclose(history.q_BR[:, 0], error_quaternion(q_RN, history.q_BN[:, 0]), rtol=0, atol=1e-15)
+
+
+def test_progress_moves_during_a_chunk(tmp_path, monkeypatch) -> None:
+    """One worker, one chunk: the progress line reports sub-batches as they finish, not only the chunk."""
+    reports: list[int] = []
+    real_update = mc._Progress.update
+
+    def spy(self, n):  # type: ignore[no-untyped-def]
+        reports.append(n)
+        real_update(self, n)
+
+    monkeypatch.setattr(mc._Progress, "update", spy)
+    monkeypatch.setattr(offline_simulate, "SUB_BATCH", 4)
+    monkeypatch.setattr(offline_simulate.run_scenario, "__kwdefaults__", {**offline_simulate.run_scenario.__kwdefaults__, "sub_batch": 4})
+    run_campaign(_short(tmp_path, chunk_runs=12), runs=12, seed=3, out_dir=tmp_path / "p", workers=1, progress=False)
+    assert reports == [4, 4, 4]
