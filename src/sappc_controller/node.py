@@ -29,7 +29,15 @@ after the topic's previous message) or more than
 counted (diagnostics ``status[0]``); it never reaches the law.  When no valid state newer than
 ``stale_timeout_s`` exists at a control instant (real time: on the timer; lockstep: on a
 ``/clock`` tick), the controller commands zero torque and says so (``status[1] = 1``); it
-computes again as soon as valid inputs return.  The published torque is always finite and
+computes again as soon as valid inputs return.
+
+Recovery in lockstep is decided by stamps alone, whatever the order in which ``/clock`` and the
+inputs arrive: the plant publishes ``/clock`` t_k and waits for the torque of t_k, so during an
+outage the watchdog answers each tick with zero torque; the first complete sample after an outage
+(its state more than ``stale_timeout_s`` after the last valid one) is computed (the core steps on
+it, and it ends the outage), but its torque is the watchdog's zero, because its tick may already
+have been answered; control torques are applied again from the next sample.  A zero torque never
+moves the "last computed sample", so no valid input after an outage is refused as "in the past".  The published torque is always finite and
 within the actuator limits (the core refuses a non-finite torque; the node then publishes zero).
 """
 
@@ -105,6 +113,7 @@ class ControllerNode(ProjectNode):
         self.steps = 0
         self._last_ns: int | None = None  # stamp of the last computed sample
         self._last_state_ns: int | None = None  # stamp of the last valid state pair
+        self._answered_ns: int | None = None  # lockstep: the latest stamp a torque was published for
         self._clock_ns: int | None = None  # lockstep: the latest /clock
         self._pending = LockstepPairing(_INPUTS)  # lockstep: the inputs of each stamp until complete
         self._latest = LatestInputs(_INPUTS)  # real time: the latest input of each topic
@@ -188,9 +197,14 @@ class ControllerNode(ProjectNode):
             self._compute(sample)
 
     # ---- control instants -----------------------------------------------------------------
+    def _outage_at(self, t_ns: int) -> bool:
+        """Lockstep: whether the last valid state is more than ``stale_timeout_s`` before ``t_ns``."""
+        return self._last_state_ns is not None and t_ns - self._last_state_ns > self.stale_timeout_ns
+
     def _on_clock(self, msg: Any) -> None:
         self._clock_ns = stamp_to_ns(msg.clock)
-        if self._last_state_ns is not None and self._clock_ns - self._last_state_ns > self.stale_timeout_ns:
+        answered = self._answered_ns is not None and self._clock_ns <= self._answered_ns
+        if not answered and self._outage_at(self._clock_ns):
             self._publish_zero(self._clock_ns, "no valid state")
 
     def _on_timer(self) -> None:
@@ -207,6 +221,7 @@ class ControllerNode(ProjectNode):
     def _compute(self, sample: ControlSample) -> None:
         """One control step on a complete sample (the inputs paired by :mod:`sappc_controller.inputs`)."""
         t_ns, input_ns = sample.t_ns, list(sample.input_ns)
+        ends_outage = self.mode == LOCKSTEP and (self._outage_at(t_ns) or (self._answered_ns is not None and t_ns <= self._answered_ns))
         try:
             out = step_sample(self.controller, self.dt, sample)
         except STEP_ERRORS as exc:
@@ -216,6 +231,11 @@ class ControllerNode(ProjectNode):
         self._last_ns = t_ns
         self._last_state_ns = max(input_ns[0], input_ns[1])
         self.steps += 1
+        if ends_outage:  # computed; its tick is (or will be) answered with the watchdog's zero (module docstring)
+            if self._answered_ns is None or t_ns > self._answered_ns:
+                self._publish_zero(t_ns, "first sample after an outage")
+            self.get_logger().info("valid inputs again: control resumes at the next sample")
+            return
         if self.stale:
             self.get_logger().info("valid inputs again: control resumed")
         self.stale = False
@@ -228,11 +248,11 @@ class ControllerNode(ProjectNode):
         if not self.stale:
             self.get_logger().warning(f"{why}: commanding zero torque until valid inputs return")
         self.stale = True
-        self._last_ns = t_ns if self._last_ns is None else max(self._last_ns, t_ns)
         zero = np.zeros(3)
         self._publish(t_ns, zero, zero, zero, [0] * len(_INPUTS))
 
     def _publish(self, t_ns: int, torque: np.ndarray, torque_cmd: np.ndarray, saturated: np.ndarray, input_ns: list[int]) -> None:
+        self._answered_ns = t_ns if self._answered_ns is None else max(self._answered_ns, t_ns)
         t = t_ns / _NS
         stamp = ns_to_stamp(t_ns)
         self.pub_torque.publish(torque_msg(torque, stamp, CONTROL_TORQUE))

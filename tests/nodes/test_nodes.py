@@ -61,7 +61,7 @@ class Driver:
     def matched(self) -> None:
         self.spin_until(lambda: all(p.get_subscription_count() >= 1 for n, p in self.pub.items() if n != "/clock"), "the controller's subscriptions")
 
-    def send_sample(self, t: float, q=Q0, w=(0.0, 0.0, 0.0), q_d=(0.0, 0.0, 0.0, 1.0), frame=None) -> None:  # type: ignore[no-untyped-def]
+    def send_sample(self, t: float, q=Q0, w=(0.0, 0.0, 0.0), q_d=(0.0, 0.0, 0.0, 1.0), frame=None, clock=True) -> None:  # type: ignore[no-untyped-def]
         att = quaternion_msg(Q0, t, c.STATE_ATTITUDE)  # then the raw fields: the encoder refuses bad values
         att.quaternion.x, att.quaternion.y, att.quaternion.z, att.quaternion.w = (float(v) for v in q)
         rate = vector3_msg([0.0, 0.0, 0.0], t, c.STATE_RATE)
@@ -75,7 +75,8 @@ class Driver:
         }
         if frame is not None:
             msgs[c.STATE_ATTITUDE.name].header.frame_id = frame
-        self.pub["/clock"].publish(clock_msg(t))
+        if clock:
+            self.pub["/clock"].publish(clock_msg(t))
         for name, m in msgs.items():
             self.pub[name].publish(m)
 
@@ -164,9 +165,42 @@ def test_stale_inputs_give_zero_torque_then_control_resumes(controller) -> None:
     zero = [tq for ns, tq in drv.torques if ns >= 60_000_000]
     assert all(np.all(tq == 0.0) for tq in zero)
     drv.spin_until(lambda: any(d["status"][1] == 1.0 for d in drv.diags), "stale in diagnostics")
-    drv.send_sample(0.10, q=Q0)
-    drv.spin_until(lambda: drv.torques[-1][0] == 100_000_000, "control resumed")
-    assert not node.stale and np.any(drv.torques[-1][1] != 0.0)
+    drv.send_sample(0.10, q=Q0)  # the first sample after the outage: computed, answered with zero
+    drv.spin_until(lambda: node.steps == 2, "the first sample after the outage computed")
+    drv.send_sample(0.11, q=Q0)
+    drv.spin_until(lambda: drv.torques[-1][0] == 110_000_000, "control resumed")
+    assert [tq for ns, tq in drv.torques if ns == 100_000_000][0].tolist() == [0.0, 0.0, 0.0]
+    assert not node.stale and np.any(drv.torques[-1][1] != 0.0) and node.rejected == 0
+
+
+@pytest.mark.parametrize("first", ["clock", "state"])
+def test_recovery_after_an_outage_does_not_depend_on_the_arrival_order(controller, first) -> None:  # type: ignore[no-untyped-def]
+    """Lockstep: after an outage the first complete sample is computed (no input refused as "in the
+    past", the old failure that kept the controller at zero torque for the rest of the run) and is
+    answered with one zero torque, whether its /clock tick or its state arrives first; torque
+    resumes at the next sample."""
+    node, drv = controller
+    drv.send_sample(0.0, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
+    for t in (0.02, 0.04, 0.06, 0.08):  # an outage: /clock moves on, no state
+        drv.pub["/clock"].publish(clock_msg(t))
+        drv.spin_until(lambda: node._clock_ns == round(t * 1e9), f"/clock {t}")
+    if first == "clock":
+        drv.pub["/clock"].publish(clock_msg(0.10))
+        drv.spin_until(lambda: node._clock_ns == 100_000_000, "/clock 0.10")
+        drv.send_sample(0.10, q=Q0, clock=False)
+    else:
+        drv.send_sample(0.10, q=Q0, clock=False)
+        drv.spin_until(lambda: node.steps == 2, "the sample of 0.10 computed")
+        drv.pub["/clock"].publish(clock_msg(0.10))
+        drv.spin_until(lambda: node._clock_ns == 100_000_000, "/clock 0.10")
+    drv.spin_until(lambda: node.steps == 2, "the sample of 0.10 computed")
+    drv.send_sample(0.11, q=Q0)
+    drv.spin_until(lambda: any(ns == 110_000_000 for ns, _ in drv.torques), "the torque of 0.11")
+    at_010 = [tq for ns, tq in drv.torques if ns == 100_000_000]
+    assert len(at_010) == 1 and at_010[0].tolist() == [0.0, 0.0, 0.0]
+    assert np.any([tq for ns, tq in drv.torques if ns == 110_000_000][0] != 0.0)
+    assert node.rejected == 0 and node.steps == 3 and not node.stale
 
 
 def test_runtime_gain_changes_are_validated_and_applied_whole(controller) -> None:  # type: ignore[no-untyped-def]
