@@ -84,6 +84,10 @@ _INPUTS = INPUT_TOPICS
 _NS = NS_PER_S
 
 
+#: Inputs of the warm-up step (identity attitude and reference, at rest).
+_AT_REST_Q = np.array([0.0, 0.0, 0.0, 1.0])
+_ZERO3 = np.zeros(3)
+
 class ControllerNode(ProjectNode):
     """See the module docstring."""
 
@@ -103,6 +107,10 @@ class ControllerNode(ProjectNode):
         self.stale_timeout_ns = int(check_positive("stale_timeout_s", self.param("stale_timeout_s", 0.1)) * _NS)
         self.max_ahead_ns = int(check_positive("max_stamp_ahead_s", self.param("max_stamp_ahead_s", 1.0)) * _NS)
 
+        # load the compiled step now (cache load ~1 s), not at the first sample, which the plant
+        # waits for at most lockstep_timeout_s: a step at rest, then forget it
+        self.controller.step(0.0, self.dt, _AT_REST_Q, _ZERO3, _AT_REST_Q, _ZERO3, _ZERO3)
+        self.controller.reset()
         self.pub_torque = self.counting_publisher(CONTROL_TORQUE, 1)
         self.pub_diag = self.counting_publisher(CONTROLLER_DIAGNOSTICS)
         qos = qos_profile()

@@ -79,6 +79,7 @@ class PlantNode(ProjectNode):
         self._wall_first: float | None = None
         self.n_steps = int(round(duration / self.dt))  # samples k = 0 .. n_steps, as sample_times()
 
+        self.body.propagate(self.x, np.zeros((1, 3)), self.dt, self.substeps)  # load the compiled plant now, not at the first sample
         qos = qos_profile()
         self.pub_att = self.counting_publisher(STATE_ATTITUDE, 1)
         self.pub_rate = self.counting_publisher(STATE_RATE, 1)
