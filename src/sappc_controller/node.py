@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 
 from sappc_msgs_py.contract import (
     CLOCK,
@@ -84,6 +84,28 @@ _INPUTS = INPUT_TOPICS
 _NS = NS_PER_S
 
 
+#: Watchdog parameters: changeable at run time, applied at once, each within this range [s].
+_WATCHDOG_PARAMS = ("stale_timeout_s", "max_stamp_ahead_s")
+#: Range of the watchdog parameters [s]: from one microsecond to an hour (a stale input older than
+#: an hour is never "fresh"; below a microsecond the nanosecond stamps cannot resolve it).
+_WATCHDOG_RANGE_S = (1e-6, 3600.0)
+
+
+def _watchdog_descriptor(description: str) -> ParameterDescriptor:
+    """A descriptor with the watchdog range (shown by parameter tools, enforced by rclpy)."""
+    lo, hi = _WATCHDOG_RANGE_S
+    return ParameterDescriptor(description=description, floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi, step=0.0)])
+
+
+def _seconds_to_ns(name: str, value: Any) -> int:
+    """A watchdog parameter [s] checked (finite, within :data:`_WATCHDOG_RANGE_S`) -> [ns]."""
+    seconds = float(check_positive(name, value))
+    lo, hi = _WATCHDOG_RANGE_S
+    if not lo <= seconds <= hi:
+        raise ConfigError(f"{name} must be within [{lo:g}, {hi:g}] s, got {value!r}")
+    return int(round(seconds * _NS))
+
+
 #: Inputs of the warm-up step (identity attitude and reference, at rest).
 _AT_REST_Q = np.array([0.0, 0.0, 0.0, 1.0])
 _ZERO3 = np.zeros(3)
@@ -104,8 +126,10 @@ class ControllerNode(ProjectNode):
         self.controller: AttitudeController = CONTROLLER_CLASSES[self.kind](config)
         self.dt = check_positive("control_period_s", self.param("control_period_s", DEFAULT_CONTROL_PERIOD_S, ParameterDescriptor(read_only=True)))
         self.mode = self.mode_param(ParameterDescriptor(read_only=True))
-        self.stale_timeout_ns = int(check_positive("stale_timeout_s", self.param("stale_timeout_s", 0.1)) * _NS)
-        self.max_ahead_ns = int(check_positive("max_stamp_ahead_s", self.param("max_stamp_ahead_s", 1.0)) * _NS)
+        self.stale_timeout_ns = _seconds_to_ns("stale_timeout_s", self.param("stale_timeout_s", 0.1, _watchdog_descriptor(
+            "[s] zero torque when no valid state is newer than this at a control instant")))
+        self.max_ahead_ns = _seconds_to_ns("max_stamp_ahead_s", self.param("max_stamp_ahead_s", 1.0, _watchdog_descriptor(
+            "[s] inputs stamped further ahead of the controller's time are rejected")))
 
         # load the compiled step now (cache load ~1 s), not at the first sample, which the plant
         # waits for at most lockstep_timeout_s: a step at rest, then forget it
@@ -153,19 +177,32 @@ class ControllerNode(ProjectNode):
 
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
         changes = {p.name: p.value for p in params}
+        watchdog = {n: v for n, v in changes.items() if n in _WATCHDOG_PARAMS}
+        try:  # checked whole before anything is applied
+            watchdog_ns = {n: _seconds_to_ns(n, v) for n, v in watchdog.items()}
+        except (ConfigError, InputError, TypeError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
         runtime = {f"{self.kind}.gains.{g}" for g in AttitudeController.RUNTIME_GAINS} | {"actuator.max_torque_Nm", "actuator.min_torque_Nm"}
         fixed = sorted(n for n in changes if n in self._config_names and n not in runtime)
         if fixed:
             return SetParametersResult(successful=False, reason=f"{fixed[0]} cannot change during a run; restart the controller")
         if not any(n in self._config_names for n in changes):
+            self._apply_watchdog(watchdog_ns)
+            if watchdog:
+                self.get_logger().info(f"parameters changed: {watchdog}")
             return SetParametersResult(successful=True)
         try:
             config = config_from_parameters(self.kind, self._config_values(changes))
             self.controller.reconfigure(config)
         except (ConfigError, ValueError, TypeError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
+        self._apply_watchdog(watchdog_ns)
         self.get_logger().info(f"parameters changed: {changes}")
         return SetParametersResult(successful=True)
+
+    def _apply_watchdog(self, watchdog_ns: dict[str, int]) -> None:
+        self.stale_timeout_ns = watchdog_ns.get("stale_timeout_s", self.stale_timeout_ns)
+        self.max_ahead_ns = watchdog_ns.get("max_stamp_ahead_s", self.max_ahead_ns)
 
     # ---- inputs ---------------------------------------------------------------------------
     def _reject(self, reason: str) -> None:

@@ -326,3 +326,25 @@ def test_a_start_at_the_singularity_is_refused_as_offline(controller, monkeypatc
     assert node.steps == 1 and np.any(drv.torques[1][1] != 0.0)
     drv.spin_until(lambda: len(drv.diags) == 2, "diagnostics")
     assert drv.diags[1]["rho"][1] == pytest.approx(0.4, abs=1e-12)  # the RPF starts at this sample
+
+
+def test_watchdog_parameters_take_effect_at_run_time_or_are_refused(controller) -> None:  # type: ignore[no-untyped-def]
+    """stale_timeout_s and max_stamp_ahead_s: a valid change applies at once (the watchdog then waits
+    5 s, not 0.05 s); a negative, NaN or out-of-range value is refused with the reason; both carry
+    their range in the descriptor (what parameter tools show)."""
+    node, drv = controller
+    for name, bad in (("stale_timeout_s", -1.0), ("stale_timeout_s", float("nan")), ("max_stamp_ahead_s", 1e9)):
+        (result,) = node.set_parameters([Parameter(name, value=bad)])
+        assert not result.successful and (name in result.reason or "range" in result.reason), result.reason
+    assert node.stale_timeout_ns == 50_000_000 and node.max_ahead_ns == 1_000_000_000
+    (result,) = node.set_parameters([Parameter("stale_timeout_s", value=5.0)])
+    assert result.successful and node.stale_timeout_ns == 5_000_000_000
+    assert node.get_parameter("stale_timeout_s").value == 5.0
+    rng = node.describe_parameter("stale_timeout_s").floating_point_range[0]
+    assert (rng.from_value, rng.to_value) == (1e-6, 3600.0)
+    drv.send_sample(0.0, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
+    for t in (0.5, 1.0, 1.5):  # far past the old 0.05 s, within the new 5 s: no zero torque
+        drv.pub["/clock"].publish(clock_msg(t))
+        drv.spin_until(lambda: node._clock_ns == round(t * 1e9), f"/clock {t}")
+    assert not node.stale and len(drv.torques) == 1
