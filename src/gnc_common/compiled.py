@@ -61,6 +61,7 @@ __all__ = [
     "jit",
     "jit_parallel",
     "matvec3",
+    "matvec3_flat",
     "quat_conjugate",
     "quat_multiply",
     "quat_normalize",
@@ -72,7 +73,8 @@ __all__ = [
 #: on its own source file only, so a cached function that calls a kernel of another module would
 #: survive an edit of that kernel; the cache directory is therefore named by a digest of all of
 #: them (``tests/test_layering.py`` checks that every module using :func:`jit` is listed).
-KERNEL_MODULES = ("gnc_common.compiled", "sappc_controller.core.kernels", "spacecraft_sim.core.kernels", "sappc.offline.compiled_loop")
+KERNEL_MODULES = ("gnc_common.compiled", "sappc_controller.core.kernels", "spacecraft_sim.core.kernels", "sappc.offline.compiled_loop",
+                  "sappc.evaluation.metrics")
 #: Characters of the sources' SHA-256 digest in the cache directory's name.
 _DIGEST_CHARS = 16
 
@@ -159,6 +161,16 @@ def matvec3(M, v, out):
     v0, v1, v2 = v[0], v[1], v[2]
     for i in range(3):
         out[i] = (M[i, 0] * v0 + M[i, 1] * v1) + M[i, 2] * v2
+
+
+@jit
+def matvec3_flat(m, offset, v, out):
+    """:func:`matvec3` of the (3, 3) matrix stored row major in ``m[offset : offset + 9]`` (a packed
+    parameter row: no reshape, which costs a helper call per use in compiled code); same sums."""
+    v0, v1, v2 = v[0], v[1], v[2]
+    for i in range(3):
+        r = offset + 3 * i
+        out[i] = (m[r] * v0 + m[r + 1] * v1) + m[r + 2] * v2
 
 
 # ----------------------------------------------------------------------------- quaternions

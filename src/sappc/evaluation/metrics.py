@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from gnc_common.compiled import jit
 from sappc.evaluation.history import History
 
 __all__ = ["MetricsAccumulator"]
@@ -59,6 +60,8 @@ Array = NDArray[np.float64]
 
 #: Time comparisons on the sampling grid allow this much rounding in k * dt [s].
 _TIME_TOL_S = 1e-9
+#: ``hold_s`` of a uniform grid, for the compiled update (no per-sample hold intervals).
+_NO_HOLD = np.zeros(0)
 
 class MetricsAccumulator:
     """Accumulates the metrics of N runs from blocks of samples (the history need not be kept).
@@ -133,8 +136,7 @@ class MetricsAccumulator:
 
     def add_history(self, h: History) -> None:
         """Observe every sample of a stored history at once (offline runs, campaign sub-batches, bags)."""
-        x = np.concatenate((h.q_BN, h.omega_BN_B), axis=-1)
-        self.update(0, h.t, x, h.torque_B, h.q_BR, h.rho, h.saturated, h.band_lower, h.band_upper)
+        self._update(0, h.t, h.q_BN, h.omega_BN_B, h.torque_B, h.q_BR, h.rho, h.saturated, h.band_lower, h.band_upper)
 
     def update(self, k0: int, t: Array, x: Array, torque_B: Array, q_BR: Array, rho: Array, saturated: NDArray[np.bool_],
                band_lower: Array, band_upper: Array) -> None:
@@ -142,53 +144,31 @@ class MetricsAccumulator:
 
         A block gives the same result as its samples one by one.
         """
-        B = t.size
-        if B == 0:
+        x = np.asarray(x, dtype=np.float64)
+        self._update(k0, t, x[..., :4], x[..., 4:], torque_B, q_BR, rho, saturated, band_lower, band_upper)
+
+    def _update(self, k0: int, t: Array, q_BN: Array, omega: Array, torque_B: Array, q_BR: Array, rho: Array,
+                saturated: NDArray[np.bool_], band_lower: Array, band_upper: Array) -> None:
+        """:meth:`update` with the state split into attitude and rate: one compiled pass over the block
+        (:func:`_update_kernel`, run by run, in the arrays' own layout: no copies, no temporaries)."""
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        if t.size == 0:
             return
-
-        def over_block(a: NDArray[Any], reduce: np.ufunc) -> NDArray[Any]:
-            """``reduce`` over the block's samples (a view for a one-sample block: the hot path)."""
-            reduced: NDArray[Any] = a[0] if B == 1 else reduce.reduce(a, axis=0)
-            return reduced
-
-        def last_true(mask: NDArray[np.bool_], previous: NDArray[np.int64]) -> NDArray[np.int64]:
-            """Per run, the last sample of the block where ``mask`` holds, else ``previous``."""
-            return np.where(over_block(mask, np.logical_or), k0 + B - 1 - np.argmax(mask[::-1], axis=0), previous)
-
-        q_ev = q_BR[..., :3]
-        ok = np.isfinite(x).all(axis=-1) & np.isfinite(torque_B).all(axis=-1)
-        live = (ok if B == 1 else np.logical_and.accumulate(ok, axis=0)) & self.finite  # a failed run stops at its last finite sample
-        self.finite = live[-1].copy()
-        abs_q = np.abs(q_ev)
-        max_abs_q = abs_q.max(axis=-1)
+        first = self.sign0 is None
         if self.sign0 is None:
-            self.sign0 = np.where(q_ev[0] >= 0.0, 1.0, -1.0)
-        self.last_unsettled = last_true(live & (max_abs_q >= self.settle_threshold), self.last_unsettled)
-        steady = t >= self.steady_from_s - _TIME_TOL_S
-        if steady.any():
-            use = live & steady[:, None]
-            # a sequential running sum (add.accumulate), so that a block sums exactly as its samples one by one would
-            rows = np.where(use[..., None], abs_q, 0.0)
-            rows[0] += self.steady_sum
-            self.steady_sum = np.add.accumulate(rows, axis=0, out=rows)[-1].copy()
-            self.steady_count += int(steady.sum())
-            self.steady_max = np.maximum(self.steady_max, over_block(np.where(use, max_abs_q, 0.0), np.maximum))
-        if k0 <= self.k_t2 < k0 + B:
-            j = self.k_t2 - k0
-            self.rpf_error_t2_axis = np.where(live[j][:, None], np.abs(q_ev[j] - rho[j]), np.nan)
-        self.overshoot = np.maximum(self.overshoot, over_block(np.where(live, (-self.sign0 * q_ev).max(axis=-1), -np.inf), np.maximum))
-        self.max_torque = np.maximum(self.max_torque, over_block(np.where(live, np.abs(torque_B).max(axis=-1), 0.0), np.maximum))
-        self.saturated_count += over_block(live & saturated.any(axis=-1), np.add)
-        outside = live & ((q_ev < band_lower) | (q_ev > band_upper)).any(axis=-1)
-        self.outside_count += over_block(outside, np.add)
-        if self.hold_s is not None:
-            # a sequential running sum (cumsum), so that a block adds exactly as its samples one by one
-            held = np.where(outside, self.hold_s[k0 : k0 + B, None], 0.0)
-            self.outside_s = np.cumsum(np.concatenate((self.outside_s[None], held)), axis=0)[-1]
-        self.last_outside = last_true(outside, self.last_outside)
-        if self.fault_start_s is not None:
-            self.left_after_fault |= over_block(outside & (t >= self.fault_start_s - _TIME_TOL_S)[:, None], np.logical_or)
-        self.samples += B
+            self.sign0 = np.zeros((self.finite.shape[0], 3))
+        hold = self.hold_s if self.hold_s is not None else _NO_HOLD
+        fault = np.nan if self.fault_start_s is None else float(self.fault_start_s)
+        def f64(a: Any) -> Array:
+            return np.asarray(a, dtype=np.float64)
+
+        self.steady_count += _update_kernel(
+            int(k0), t, f64(q_BN), f64(omega), f64(torque_B), f64(q_BR), f64(rho), np.asarray(saturated, dtype=np.bool_), f64(band_lower),
+            f64(band_upper), first, float(self.settle_threshold), float(self.steady_from_s), int(self.k_t2), hold, fault, self.finite,
+            self.last_unsettled, self.steady_sum, self.steady_max, self.rpf_error_t2_axis, self.sign0, self.overshoot, self.max_torque,
+            self.saturated_count, self.outside_count, self.outside_s, self.last_outside, self.left_after_fault,
+        )
+        self.samples += t.size
 
     def settling_times(self) -> Array:
         """``settling_time_s`` of every run, NaN for a run that never settles."""
@@ -239,3 +219,96 @@ class MetricsAccumulator:
             "settling_time_s": self.settling_times(),
             "finite": self.finite,
         }
+
+
+@jit
+def _maximum(a, b):  # type: ignore[no-untyped-def]  # a numba kernel (float64 scalars)
+    """``numpy.maximum`` of two floats (a NaN wins, the first argument on a tie)."""
+    return a if (a >= b or a != a) else b
+
+
+@jit("int64(int64, float64[:], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], "  # type: ignore[no-untyped-call]
+     "boolean[:, :, :], float64[:, :, :], float64[:, :, :], boolean, float64, float64, int64, float64[:], float64, boolean[:], "
+     "int64[:], float64[:, :], float64[:], float64[:, :], float64[:, :], float64[:], float64[:], int64[:], int64[:], float64[:], "
+     "int64[:], boolean[:])")
+def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower, band_upper, first, settle_threshold,  # type: ignore[no-untyped-def]
+                   steady_from_s, k_t2, hold_s, fault_start_s, finite, last_unsettled, steady_sum, steady_max, rpf_error_t2_axis,
+                   sign0, overshoot, max_torque, saturated_count, outside_count, outside_s, last_outside, left_after_fault):
+    """One block of samples ``k0 .. k0 + B - 1`` (arrays (B, N, ...)) into the per-run state of a
+    :class:`MetricsAccumulator` (in place), run by run, sample by sample: the definitions of the
+    module docstring.  Sums run sample by sample in time order, maxima and counts are exact, so a
+    block gives the same bits as its samples one by one.  Returns the block's number of samples in
+    the steady window.  ``fault_start_s`` NaN: no faults; ``hold_s`` empty: uniform grid."""
+    B = t.shape[0]
+    steady_from = steady_from_s - _TIME_TOL_S
+    has_fault = fault_start_s == fault_start_s
+    fault_from = fault_start_s - _TIME_TOL_S
+    n_steady = 0
+    for k in range(B):
+        if t[k] >= steady_from:
+            n_steady += 1
+    for n in range(finite.shape[0]):
+        if first:
+            for i in range(3):
+                sign0[n, i] = 1.0 if q_BR[0, n, i] >= 0.0 else -1.0
+        live = finite[n]
+        lu, lo = last_unsettled[n], last_outside[n]
+        s0, s1, s2 = steady_sum[n, 0], steady_sum[n, 1], steady_sum[n, 2]
+        smax, over, tmax = 0.0, 0.0, 0.0  # block maxima (numpy's reduce: from the first sample on)
+        n_sat, n_out, left = 0, 0, False
+        held = outside_s[n]
+        g0, g1, g2 = -sign0[n, 0], -sign0[n, 1], -sign0[n, 2]
+        for k in range(B):
+            ok = True
+            for i in range(4):
+                ok = ok and np.isfinite(q_BN[k, n, i])
+            for i in range(3):
+                ok = ok and np.isfinite(omega[k, n, i])
+            for i in range(3):
+                ok = ok and np.isfinite(torque[k, n, i])
+            live = live and ok  # a failed run stops at its last finite sample
+            e0, e1, e2 = q_BR[k, n, 0], q_BR[k, n, 1], q_BR[k, n, 2]
+            a0, a1, a2 = abs(e0), abs(e1), abs(e2)
+            max_abs_q = _maximum(_maximum(a0, a1), a2)
+            if live and max_abs_q >= settle_threshold:
+                lu = k0 + k
+            if n_steady > 0:
+                use = live and t[k] >= steady_from
+                s0 = s0 + (a0 if use else 0.0)  # a sequential running sum, sample by sample
+                s1 = s1 + (a1 if use else 0.0)
+                s2 = s2 + (a2 if use else 0.0)
+                v = max_abs_q if use else 0.0
+                smax = v if k == 0 else _maximum(smax, v)
+            if k0 + k == k_t2:
+                rpf_error_t2_axis[n, 0] = abs(e0 - rho[k, n, 0]) if live else np.nan
+                rpf_error_t2_axis[n, 1] = abs(e1 - rho[k, n, 1]) if live else np.nan
+                rpf_error_t2_axis[n, 2] = abs(e2 - rho[k, n, 2]) if live else np.nan
+            v = _maximum(_maximum(g0 * e0, g1 * e1), g2 * e2) if live else -np.inf
+            over = v if k == 0 else _maximum(over, v)
+            v = _maximum(_maximum(abs(torque[k, n, 0]), abs(torque[k, n, 1])), abs(torque[k, n, 2])) if live else 0.0
+            tmax = v if k == 0 else _maximum(tmax, v)
+            if live and (saturated[k, n, 0] or saturated[k, n, 1] or saturated[k, n, 2]):
+                n_sat += 1
+            outside = live and ((e0 < band_lower[k, n, 0] or e0 > band_upper[k, n, 0]) or (e1 < band_lower[k, n, 1] or e1 > band_upper[k, n, 1])
+                                or (e2 < band_lower[k, n, 2] or e2 > band_upper[k, n, 2]))
+            if outside:
+                n_out += 1
+                lo = k0 + k
+                if has_fault and t[k] >= fault_from:
+                    left = True
+            if hold_s.shape[0] > 0:
+                held = held + (hold_s[k0 + k] if outside else 0.0)  # a sequential running sum
+        finite[n] = live
+        last_unsettled[n], last_outside[n] = lu, lo
+        if n_steady > 0:
+            steady_sum[n, 0], steady_sum[n, 1], steady_sum[n, 2] = s0, s1, s2
+            steady_max[n] = _maximum(steady_max[n], smax)
+        overshoot[n] = _maximum(overshoot[n], over)
+        max_torque[n] = _maximum(max_torque[n], tmax)
+        saturated_count[n] += n_sat
+        outside_count[n] += n_out
+        if hold_s.shape[0] > 0:
+            outside_s[n] = held
+        if left:
+            left_after_fault[n] = True
+    return n_steady

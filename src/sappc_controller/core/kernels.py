@@ -67,7 +67,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gnc_common.compiled import dcm_BR_times, dot3, error_quaternion, gamma_inverse_times, jit, matvec3
+from gnc_common.compiled import dcm_BR_times, dot3, error_quaternion, gamma_inverse_times, jit, matvec3_flat
 from gnc_common.validation import ConfigError
 
 from sappc_controller.core.base import check_start
@@ -157,7 +157,7 @@ _MAX_IT = _MAX_NEWTON_ITERATIONS
 # ============================================================================= shared pieces
 
 
-@jit
+@jit(inline="always")
 def predefined_time_gain(V, p, T, V_floor):
     """Predefined-time gain ``M = exp(V^p) V^(-p) / (2 p T)`` (eqs. M_q, M_omega, dSd) at ``max(V, V_floor)``.
 
@@ -170,7 +170,7 @@ def predefined_time_gain(V, p, T, V_floor):
     return np.exp(Vp) / (Vp * (2.0 * p * T))  # eqs. M_q, M_omega, dSd
 
 
-@jit
+@jit(inline="always")
 def error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work):
     """Error state of eq. (errorsystem) into ``work`` rows ``W_QBR .. W_CWDD``:
     ``q_e = q_d^* ⊗ q_s`` (``q_e0 >= 0``), ``omega_e = omega_s - C_e omega_d``, ``C_e omega_d``,
@@ -183,7 +183,7 @@ def error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work):
         work[W_WBR, i] = omega_BN_B[i] - work[W_CWD, i]  # omega_e = omega_s - C_e omega_d
 
 
-@jit
+@jit(inline="always")
 def filter_update(prm, state, dt, alpha, S_d_out, S_d_dot_out):
     """Dynamic-surface filter of the virtual control (eq. dSd), stable for any gain.
 
@@ -214,19 +214,18 @@ def filter_update(prm, state, dt, alpha, S_d_out, S_d_dot_out):
     return V3
 
 
-@jit
+@jit(inline="always")
 def w0_plus(prm, work, out):
     """``out = -W0``, ``W0 = J omega_e^x C_e omega_d - J C_e omegadot_d - omega_s^x J omega_s`` (after eq. U)."""
-    J = prm[P_J : P_J + 9].reshape((3, 3))
     a, b = work[W_WBR], work[W_CWD]
     t = work[W_T1]
     t[0] = (a[1] * b[2] - a[2] * b[1]) - work[W_CWDD, 0]
     t[1] = (a[2] * b[0] - a[0] * b[2]) - work[W_CWDD, 1]
     t[2] = (a[0] * b[1] - a[1] * b[0]) - work[W_CWDD, 2]
     Jt = work[W_T2]
-    matvec3(J, t, Jt)  # J (omega_e^x C_e omega_d - C_e omegadot_d)
+    matvec3_flat(prm, P_J, t, Jt)  # J (omega_e^x C_e omega_d - C_e omegadot_d)
     w = work[W_WBN]
-    matvec3(J, w, t)  # J omega_s
+    matvec3_flat(prm, P_J, w, t)  # J omega_s
     c0 = w[1] * t[2] - w[2] * t[1]
     c1 = w[2] * t[0] - w[0] * t[2]
     c2 = w[0] * t[1] - w[1] * t[0]
@@ -235,7 +234,7 @@ def w0_plus(prm, work, out):
     out[2] = -(Jt[2] - c2)
 
 
-@jit
+@jit(inline="always")
 def actuator(prm, out):
     """Per-axis saturation at ``max`` and minimum-output deadband (``|u_i| < min`` gives 0),
     from ``out[O_CMD]`` into ``out[O_TORQUE]`` and ``out[O_SAT]`` (:class:`.common.ActuatorConfig`)."""
@@ -251,7 +250,7 @@ def actuator(prm, out):
 # ============================================================================= SAPPC pieces
 
 
-@jit
+@jit(inline="always")
 def rpf_evaluate(prm, coef, tau, i):
     """RPF value and slope of component ``i`` at ``tau`` seconds into the run (eq. RPF, with the
     coefficients of docs/paper_notes.md, error 1, from :func:`rpf_coef`): exponential before ``t1``,
@@ -270,7 +269,7 @@ def rpf_evaluate(prm, coef, tau, i):
     return sign * (a1 * dt2 * dt2 + g_inf), sign * (2.0 * a1 * dt2)
 
 
-@jit
+@jit(inline="always")
 def smetf_solve(z_s, delta, k, has_guess, guess):
     """Solve eq. (solve) ``(2 delta / pi) arctan(eps) + tan(theta) eps = z_s - 1`` for ``eps`` by
     monotone Newton from a lower bound, warm started at ``max(guess sign(w), lower)`` when
@@ -304,7 +303,7 @@ def smetf_solve(z_s, delta, k, has_guess, guess):
     return np.copysign(eps, w), np.copysign(a_atan, w), steps
 
 
-@jit
+@jit(inline="always")
 def smetf_derivatives(eps, z0_offset, delta, k):
     """Partial derivatives of ``eps_s(z_s, delta)`` at the solution ``(eps, z0 - 1)`` of
     :func:`smetf_solve`: ``P_s = d eps_s / d z_s`` (eqs. P0PS, PS) and
@@ -313,7 +312,7 @@ def smetf_derivatives(eps, z0_offset, delta, k):
     return P_s, -(z0_offset / delta) * P_s  # docs/paper_notes.md, error 3
 
 
-@jit
+@jit(inline="always")
 def sappc_transform(prm, coef, state, tau, work, out):
     """RPF (eq. RPF) + time-varying constraint (eq. delta_i) + SMETF (eqs. Rs, solve, PS) per component:
     writes ``eps``, ``psi``, ``eta`` to ``work`` and ``rho``, the band, ``eps``, ``z`` to ``out``
@@ -351,7 +350,7 @@ def sappc_transform(prm, coef, state, tau, work, out):
     state[S_HAS_PREV] = 1.0
 
 
-@jit
+@jit(inline="always")
 def trappc_transform(prm, coef, tau, work, out):
     """TraPPC's exponential PF + homeomorphic log transformation (Appendix B; module :mod:`.trappc`):
     ``eps = s f(s z)``, ``f(x) = ln((K + x) / (K (1 - x)))``, ``psi = f'(s z) / rho``, ``eta = -rho_dot / rho``."""
@@ -376,14 +375,13 @@ def trappc_transform(prm, coef, tau, work, out):
         out[O_Z, i] = z
 
 
-@jit
+@jit(inline="always")
 def backstepping_law(prm, state, dt, work, out):
     """The predefined-time backstepping law of Sec. IV.F, shared by SAPPC and TraPPC (Appendix B),
     from ``eps``, ``psi``, ``eta`` in ``work``; writes the commanded torque and ``V``.
 
     docs/paper_notes.md, observation 7: ``dV1/dt`` contains ``eps^T psi Gamma (z2 + H_d)``, which the
     paper's analysis drops and the published law does not cancel; this is the published law."""
-    J = prm[P_J : P_J + 9].reshape((3, 3))
     eps = work[W_EPS]
     V1 = 0.5 * dot3(eps, eps)  # V1 = z1^T z1 / 2, z1 = eps_q
     M_q = predefined_time_gain(V1, prm[P_P], prm[P_T1], prm[P_VFLOOR])
@@ -398,14 +396,14 @@ def backstepping_law(prm, state, dt, work, out):
     z2, Jz2 = work[W_Z2], work[W_JZ2]
     for i in range(3):
         z2[i] = work[W_WBR, i] - S_d[i]  # z2 = omega_e - S_d
-    matvec3(J, z2, Jz2)
+    matvec3_flat(prm, P_J, z2, Jz2)
     V2 = 0.5 * dot3(z2, Jz2)  # V2 = z2^T J z2 / 2
     M_w = predefined_time_gain(V2, prm[P_P], prm[P_T2], prm[P_VFLOOR])
     kw_mw = prm[P_KW] * M_w
     minus_w0 = work[W_X]  # x is no longer needed
     w0_plus(prm, work, minus_w0)
     JSdd = work[W_ALPHA]  # alpha is no longer needed
-    matvec3(J, S_d_dot, JSdd)
+    matvec3_flat(prm, P_J, S_d_dot, JSdd)
     D_m, mu = prm[P_DM], prm[P_MU]
     for i in range(3):  # eq. (U): u = -W0 + J dS_d/dt - D_m tanh(z2/mu) - M_omega K_omega J z2
         out[O_CMD, i] = ((minus_w0[i] + JSdd[i]) - D_m * np.tanh(z2[i] / mu)) - kw_mw * Jz2[i]
@@ -417,11 +415,10 @@ def backstepping_law(prm, state, dt, work, out):
 # ============================================================================= BLFPPC
 
 
-@jit
+@jit(inline="always")
 def blfppc_law(prm, coef, state, tau, dt, work, out):
     """The BLFPPC benchmark law of Appendix C (module :mod:`.blfppc`), with ``Gamma^-1`` in the
     coupling term as the appendix writes it (docs/paper_notes.md, observation 6)."""
-    J = prm[P_J : P_J + 9].reshape((3, 3))
     # FTPPF rho(t) = rho_0 (1 - t/T_f)^(1/m) + rho_Tf, t < T_f
     T_f, rho_Tf = prm[P_FT_TF], prm[P_FT_RHOTF]
     if tau >= T_f:
@@ -467,13 +464,13 @@ def blfppc_law(prm, coef, state, tau, dt, work, out):
         if abs(barrier) < BARRIER_MARGIN:
             barrier = np.copysign(BARRIER_MARGIN, barrier)
         D_rho_eps[i] = e / (barrier * work[W_PSI, i])  # D_rho eps
-    matvec3(J, z2, Jz2)
+    matvec3_flat(prm, P_J, z2, Jz2)
     coupling = work[W_X]
     gamma_inverse_times(work[W_QBR], D_rho_eps, prm[P_Q0FLOOR], coupling)
     minus_w0 = work[W_ALPHA]  # alpha is no longer needed
     w0_plus(prm, work, minus_w0)
     JSdd = work[W_PSI]  # width no longer needed
-    matvec3(J, S_d_dot, JSdd)
+    matvec3_flat(prm, P_J, S_d_dot, JSdd)
     K2, two_K3, D_m, mu = prm[P_K2], 2.0 * prm[P_K3], prm[P_DM], prm[P_MU]
     for i in range(3):  # u = -K2 J z2 - 2 K3 Gamma^-1 D_rho eps - W0 + J dS_d/dt - D_m tanh(z2/mu)
         out[O_CMD, i] = (((-K2 * Jz2[i] - two_K3 * coupling[i]) + minus_w0[i]) + JSdd[i]) - D_m * np.tanh(z2[i] / mu)
@@ -485,7 +482,7 @@ def blfppc_law(prm, coef, state, tau, dt, work, out):
 # ============================================================================= the step
 
 
-@jit
+@jit(inline="always")
 def controller_step(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, prm, coef, state, work, out):
     """One sampling instant of one run: error state, law, actuator (see module docstring).
 

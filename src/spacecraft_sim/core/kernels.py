@@ -80,7 +80,7 @@ _TOL = TIME_TOLERANCE_S
 # ============================================================================= rigid body
 
 
-@jit
+@jit(inline="always")
 def derivative(x, accel_ext, J, J_inv, work, out):
     """``dx/dt`` of ``x = (q_BN, omega_BN_B)`` (7,) given ``J^-1 torque`` (3,) (module dynamics):
     ``dq/dt = 1/2 q ⊗ (omega, 0)``, ``domega/dt = J^-1 torque - J^-1 (omega × J omega)``."""
@@ -106,7 +106,7 @@ def derivative(x, accel_ext, J, J_inv, work, out):
     out[6] = accel_ext[2] - Jic[2]
 
 
-@jit
+@jit(inline="always")
 def rk4_step(x, accel_ext, dt, J, J_inv, work):
     """One classical RK4 step of ``dt`` in place, input held (ZOH), then ``q`` renormalised
     (:meth:`.dynamics.RigidBody.rk4_step`).  ``work`` (N_PLANT_WORK, 7)."""
@@ -130,7 +130,7 @@ def rk4_step(x, accel_ext, dt, J, J_inv, work):
         x[i] = x[i] / n
 
 
-@jit
+@jit(inline="always")
 def propagate(x, torque_B, dt, substeps, J, J_inv, work):
     """Advance ``x`` (7,) in place by ``dt`` in ``substeps`` RK4 steps with ``torque_B`` held
     (zero-order hold, :meth:`.dynamics.RigidBody.propagate`; inputs checked by the caller)."""
@@ -217,7 +217,7 @@ def reference_rate_tables(reference: PaperReference, t: np.ndarray) -> tuple[np.
 # ============================================================================= disturbances
 
 
-@jit
+@jit(inline="always")
 def paper_periodic(t, omega_p, scale, phase, out):
     """The paper's disturbance (Sec. V.A) with ``w t`` shifted by ``phase`` and scaled by ``scale``,
     added to ``out`` (:class:`.disturbance.PaperPeriodic`)."""
@@ -230,7 +230,7 @@ def paper_periodic(t, omega_p, scale, phase, out):
     out[2] = out[2] + scale * d2
 
 
-@jit
+@jit(inline="always")
 def disturbance_sample(k, t, kinds, dparams, dscale, dphase, rand_draws, rand_win, out):
     """Total disturbance [N m] of one run at sample ``k``, time ``t``, into ``out`` (3,): the models
     in list order (module docstring).  ``dscale``, ``dphase`` (M,), ``rand_draws`` (R, W, 3) are
@@ -351,7 +351,7 @@ def random_draws(model: DisturbanceSum, t: np.ndarray, n_runs: int = 1) -> tuple
 # ============================================================================= sensors
 
 
-@jit
+@jit(inline="always")
 def noisy_measurement(q_BN, omega_BN_B, n, attitude_std_rad, rate_std_rad_s, q_out, omega_out):
     """The sensor-noise model of one sample (the one implementation: the fault injector through
     :func:`spacecraft_sim.core.faults.noisy_measurement`, offline runs and campaigns).
