@@ -60,3 +60,12 @@ def ros_context(tmp_path, monkeypatch):  # type: ignore[no-untyped-def]
             yield context
         finally:
             rclpy.try_shutdown(context=context)
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile the numerical core once before any test when the cache is cold (after an edit of a
+    kernel; ``./sappcw`` compiles it when it builds the venv): no test then sees the one-line
+    compile notice or pays the compile inside its own time limits."""
+    from sappc.offline.compiled_loop import ensure_compiled
+
+    ensure_compiled()

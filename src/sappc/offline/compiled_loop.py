@@ -351,3 +351,13 @@ def warm_up() -> None:
         run_batch(case, 1)
         run_batch(case, 0)
     noisy_measurement(np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(6), 1e-7, 1e-7)
+    # the entry points the nodes and `sappc rerun` call from Python: the controller step (one run and
+    # a batch), the plant, the disturbances, the reference
+    from spacecraft_sim.core import kernels as plant_kernels
+
+    plant_kernels.warm_up()
+    ctrl = scenario.build_controller()
+    for q in (scenario.q_BN0, np.stack((scenario.q_BN0, scenario.q_BN0))):
+        ctrl.reset()
+        ctrl.step(0.0, 0.01, q, np.zeros(q.shape[:-1] + (3,)), np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(3))
+
