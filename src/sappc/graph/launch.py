@@ -7,7 +7,7 @@ an order that loses no message (publishers first, they wait for acknowledgements
 last, it drains its queues), checks that the bag holds exactly what was published, and computes
 the same metrics as ``sappc simulate`` from the bag.
 
-Isolation (ROS2_NOTES.md): a ``ROS_DOMAIN_ID`` claimed with a lock file (two runs at once never
+Isolation (docs/ros2_notes.md): a ``ROS_DOMAIN_ID`` claimed with a lock file (two runs at once never
 share a domain), ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, the project's Fast DDS profile for
 fast discovery, ``ROS_LOG_DIR`` inside the run directory.  No process outlives the run: every
 child is waited for, killed after :data:`STOP_TIMEOUT_S` if it must be, and stale Fast DDS
