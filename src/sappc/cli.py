@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import sys
+from typing import Any
 from pathlib import Path
 from collections.abc import Sequence
 
@@ -31,6 +32,8 @@ __all__ = ["main"]
 
 #: Exit status for invalid input (argparse uses the same).
 EXIT_INVALID_INPUT = 2
+#: Exit status of ``sappc run`` when the controller commanded no torque in the whole run.
+EXIT_CONTROLLER_NEVER_COMMANDED = 3
 #: Exit status after Ctrl-C (128 + SIGINT), as shells report it.
 EXIT_INTERRUPTED = 130
 
@@ -130,7 +133,7 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from sappc.bag.read import bag_metrics, read_bag
+    from sappc.bag.read import bag_metrics, bag_run, read_bag
     from sappc.graph.launch import run_graph
 
     try:
@@ -140,13 +143,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return 1
     scenario, kind = result.scenario, result.controller
     bag = read_bag(result.bag_dir)
+    run = bag_run(bag)
     ms = scenario.metrics
     metrics = bag_metrics(bag, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold, t2_s=ms.t2_s,
-                          fault_windows=scenario.event_windows())
+                          fault_windows=scenario.event_windows(), run=run)
     metrics["wall_time_s"] = result.run_s
     metrics["startup_s"] = result.startup_s
     _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph", metrics)
     mismatched = result.mismatched_counts()
+    ctrl = run.controller_summary()
+    if ctrl["commanded"] is not None:
+        print(f"controller: computed the torque of {ctrl['commanded']} of {ctrl['samples']} samples; "
+              f"{ctrl['zero_torque_stale']} answered with zero torque (stale inputs or a refused step); {ctrl['rejected_inputs']} input messages rejected")
     print(f"bag {result.bag_dir}: {sum(result.recorded.values())} messages on {sum(1 for n in result.recorded.values() if n)} topics; "
           + ("every topic's count matches what was published" if not mismatched else f"COUNT MISMATCH (published, recorded): {mismatched}"))
     if args.json:
@@ -158,8 +166,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "bag": str(result.bag_dir),
             "published": result.published,
             "recorded": result.recorded,
+            "controller_summary": ctrl,
             "parameters": {"scenario": scenario.raw, "nodes": str(result.run_dir / "params.yaml")},
         })
+    return run_exit_status(mismatched, ctrl)
+
+
+def run_exit_status(mismatched: dict[str, tuple[int, int]], controller: dict[str, Any]) -> int:
+    """``sappc run``'s exit status: :data:`EXIT_CONTROLLER_NEVER_COMMANDED` when the controller never
+    commanded a torque (every sample stale or refused), 1 when a topic's recorded count differs from
+    what was published, else 0."""
+    if controller["commanded"] == 0:
+        return EXIT_CONTROLLER_NEVER_COMMANDED
     return 0 if not mismatched else 1
 
 

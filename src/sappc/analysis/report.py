@@ -152,7 +152,8 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
         if run.rejected:
             notes.append(f"the controller rejected {run.rejected} input message(s) (diagnostics status[0])")
         if run.stale.any():
-            notes.append(f"{int(run.stale.sum())} sample(s) with zero torque because the inputs were stale (diagnostics status[1])")
+            notes.append(f"{run.controller_summary()['zero_torque_stale']} sample(s) with zero torque because the inputs were stale "
+                         "or the step was refused (diagnostics status[1])")
     elif bag.truncated:
         notes.insert(0, f"the bag is cut short ({bag.truncated})")
     return BagAnalysis(path=Path(path), bag=bag, label=label, scenario=sc, controller=controller, run=run,

@@ -174,6 +174,16 @@ class BagRun:
     torque_topic: str | None  # the topic the plant applied (a fault relay's when there was one)
     has_diagnostics: bool  # controller/diagnostics present (rho, band, saturation, Lyapunov values)
 
+    def controller_summary(self) -> dict[str, Any]:
+        """What the controller did, from its diagnostics: ``samples`` aligned, ``zero_torque_stale``
+        (samples answered with zero torque by the watchdog or a refused step), ``rejected_inputs``,
+        and ``commanded`` (samples with a computed torque); ``None`` values without diagnostics."""
+        if not self.has_diagnostics:
+            return {"samples": int(self.stale.size), "zero_torque_stale": None, "rejected_inputs": None, "commanded": None}
+        stale = int(self.stale.sum())
+        return {"samples": int(self.stale.size), "zero_torque_stale": stale, "rejected_inputs": self.rejected,
+                "commanded": int(self.stale.size) - stale}
+
 
 def bag_run(bag: Bag) -> BagRun:
     """Align the bag's topics on the state stamps (see the module docstring).

@@ -251,3 +251,23 @@ def test_a_real_time_bag_without_diagnostics_interpolates_the_reference_and_leav
     for key in ("rpf_error_at_t2", "saturation_fraction", "time_outside_constraint_s"):
         assert a.metrics[key] is None, key  # unknown without diagnostics, not zero
     assert any("no controller/diagnostics" in p for p in a.problems)
+
+
+def test_the_run_summary_counts_what_the_controller_did_and_sets_the_exit_status() -> None:
+    """``sappc run`` reports, from the diagnostics, the samples with a computed torque, those
+    answered with zero torque and the rejected inputs; it exits 3 when the controller never
+    commanded a torque, 1 on a count mismatch, else 0."""
+    from sappc.bag.read import BagRun
+    from sappc.cli import EXIT_CONTROLLER_NEVER_COMMANDED, run_exit_status
+
+    def run(stale: list[bool], rejected: int, diagnostics: bool = True) -> BagRun:
+        return BagRun(history=None, t0_ns=0, stale=np.array(stale), rejected=rejected, torque_topic=None,  # type: ignore[arg-type]
+                      has_diagnostics=diagnostics)
+
+    s = run([False, True, True, False], 7).controller_summary()
+    assert s == {"samples": 4, "zero_torque_stale": 2, "rejected_inputs": 7, "commanded": 2}
+    assert run_exit_status({}, s) == 0 and run_exit_status({"/state/rate": (10, 9)}, s) == 1
+    never = run([True, True, True], 0).controller_summary()
+    assert never["commanded"] == 0 and run_exit_status({}, never) == EXIT_CONTROLLER_NEVER_COMMANDED == 3
+    unknown = run([False, False], 0, diagnostics=False).controller_summary()
+    assert unknown["commanded"] is None and run_exit_status({}, unknown) == 0  # a plant of one's own without diagnostics
