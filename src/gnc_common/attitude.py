@@ -27,15 +27,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
-    "Linear3",
     "cross",
-    "dcm_BR_times",
     "dot",
     "error_quaternion",
     "euler_to_quaternion",
     "from_scalar_first",
-    "gamma_inverse_times",
-    "gamma_times",
     "matvec",
     "quat_conjugate",
     "quat_kinematics",
@@ -91,25 +87,6 @@ def matvec(M: Array, v: Array) -> Array:
         out = MT[0] * vT[0] + MT[1] * vT[1] + MT[2] * vT[2]
     out_T: Array = out.T
     return out_T
-
-
-class Linear3:
-    """A fixed 3x3 matrix (shared, or one per run) applied to (..., 3) vectors.
-
-    A shared diagonal matrix (the common case of principal-axis inertia) is
-    applied as an element-wise product, which gives exactly the same bits as
-    :func:`matvec` (the skipped terms are exact zeros) at a fraction of the cost.
-    """
-
-    __slots__ = ("M", "_diag")
-
-    def __init__(self, M: ArrayLike) -> None:
-        self.M: Array = np.asarray(M, dtype=np.float64)
-        is_diag = self.M.ndim == 2 and not np.any(self.M - np.diag(np.diag(self.M)))
-        self._diag: Array | None = np.diag(self.M).copy() if is_diag else None
-
-    def __call__(self, v: Array) -> Array:
-        return v * self._diag if self._diag is not None else matvec(self.M, v)
 
 
 def cross(a: Array, b: Array) -> Array:
@@ -176,15 +153,6 @@ def error_quaternion(q_RN: Array, q_BN: Array) -> Array:
     return np.where(q_BR[..., 3:] < 0.0, -q_BR, q_BR)
 
 
-def dcm_BR_times(q_BR: Array, v_R: Array) -> Array:
-    """``C_e v`` with ``C_e = (q0^2 - q_v·q_v) I + 2 q_v q_v^T - 2 q0 q_v^x`` (eq. errorsystem).
-
-    Maps R-frame components of ``v`` to B-frame components.
-    """
-    qv, q0 = q_BR[..., :3], q_BR[..., 3:]
-    return (q0 * q0 - dot(qv, qv)[..., None]) * v_R + 2.0 * dot(qv, v_R)[..., None] * qv - 2.0 * q0 * cross(qv, v_R)
-
-
 def quat_to_dcm_BN(q_BN: Array) -> Array:
     """Direction cosine matrix ``C_BN`` (N components -> B components), shape (..., 3, 3)."""
     qv, q0 = q_BN[..., :3], q_BN[..., 3]
@@ -200,29 +168,6 @@ def quat_to_dcm_BN(q_BN: Array) -> Array:
     c[..., 2, 1] = 2 * (y * z - q0 * x)
     c[..., 2, 2] = q0**2 - x**2 - y**2 + z**2
     return c
-
-
-def gamma_times(q_BR: Array, omega_B: Array) -> Array:
-    """``Gamma(q_e) omega`` with ``Gamma = 1/2 (q0 I + q_v^x)`` (eq. Jacobian)."""
-    qv, q0 = q_BR[..., :3], q_BR[..., 3:]
-    return 0.5 * (q0 * omega_B + cross(qv, omega_B))
-
-
-def gamma_inverse_times(q_BR: Array, x: Array, q0_floor: float) -> Array:
-    """``Gamma(q_e)^{-1} x`` in closed form, with ``q0`` floored at ``q0_floor``.
-
-    For a unit quaternion ``(q0 I + q_v^x)^{-1} = q0 I - q_v^x + q_v q_v^T / q0``
-    (verified by multiplication, using ``q_v^x q_v = 0`` and
-    ``(q_v^x)^2 = q_v q_v^T - |q_v|^2 I``), so
-    ``Gamma^{-1} x = 2 (q0 x - q_v × x + q_v (q_v·x) / q0)``.
-    ``det(2 Gamma) = q0`` (the paper's remark after eq. virtualcontrol): the
-    inverse is singular at 180 deg.  ``q0`` is replaced by ``max(q0, q0_floor)``
-    so that the result stays finite and bounded by ``2 (1 + 1/q0_floor) |x|``
-    (docs/paper_notes.md, error 5).  Callers pass ``q_BR`` with ``q0 >= 0``.
-    """
-    qv = q_BR[..., :3]
-    q0 = np.maximum(q_BR[..., 3:], q0_floor)
-    return 2.0 * (q0 * x - cross(qv, x) + (dot(qv, x)[..., None] / q0) * qv)
 
 
 def quat_kinematics(q_BN: Array, omega_BN_B: Array) -> Array:

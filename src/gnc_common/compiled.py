@@ -270,7 +270,8 @@ def quat_rotate(q_BN, v_B, out):
 @jit
 def gamma_inverse_times(q_BR, x, q0_floor, out):
     """``out = Gamma(q_e)^-1 x = 2 (q0 x - q_v × x + q_v (q_v·x) / q0)``, ``q0`` floored at
-    ``q0_floor`` (docs/paper_notes.md, error 5; see :func:`gnc_common.attitude.gamma_inverse_times`)."""
+    ``q0_floor`` (docs/paper_notes.md, error 5): finite and bounded by ``2 (1 + 1/q0_floor) |x|`` at
+    180 deg.  Closed form of ``(q0 I + q_v^x)^-1 = q0 I - q_v^x + q_v q_v^T / q0`` for a unit quaternion."""
     q0 = max(q_BR[3], q0_floor)
     d = ((q_BR[0] * x[0] + q_BR[1] * x[1]) + q_BR[2] * x[2]) / q0
     c0 = q_BR[1] * x[2] - q_BR[2] * x[1]

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from gnc_common.attitude import cross, dcm_BR_times, dot, error_quaternion, gamma_inverse_times, matvec
+from gnc_common.attitude import cross, dot, error_quaternion, matvec
 from sappc_controller.core.blfppc import BARRIER_MARGIN, BlfppcConfig
 from sappc_controller.core.rpf import ReferencePerformanceFunction
 from sappc_controller.core.sappc import SappcConfig
@@ -21,6 +21,19 @@ from sappc_controller.core.trappc import DOMAIN_MARGIN, TrappcConfig
 
 Array = np.ndarray
 _TWO_OVER_PI = 2.0 / np.pi
+
+
+def dcm_BR_times(q_BR: Array, v_R: Array) -> Array:
+    """``C_e v``, ``C_e = (q0^2 - q_v·q_v) I + 2 q_v q_v^T - 2 q0 q_v^x`` (eq. errorsystem), (N, 3)."""
+    qv, q0 = q_BR[..., :3], q_BR[..., 3:]
+    return (q0 * q0 - dot(qv, qv)[..., None]) * v_R + 2.0 * dot(qv, v_R)[..., None] * qv - 2.0 * q0 * cross(qv, v_R)
+
+
+def gamma_inverse_times(q_BR: Array, x: Array, q0_floor: float) -> Array:
+    """``Gamma(q_e)^-1 x = 2 (q0 x - q_v × x + q_v (q_v·x) / q0)`` with ``q0`` floored (docs/paper_notes.md, error 5)."""
+    qv = q_BR[..., :3]
+    q0 = np.maximum(q_BR[..., 3:], q0_floor)
+    return 2.0 * (q0 * x - cross(qv, x) + (dot(qv, x)[..., None] / q0) * qv)
 
 
 def rpf_evaluate(r: ReferencePerformanceFunction, t: float) -> tuple[Array, Array]:

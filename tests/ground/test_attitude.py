@@ -9,14 +9,12 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from conftest import random_unit_quaternions
+from gnc_common import compiled
 from gnc_common.attitude import (
     cross,
-    dcm_BR_times,
     error_quaternion,
     euler_to_quaternion,
     from_scalar_first,
-    gamma_inverse_times,
-    gamma_times,
     quat_conjugate,
     quat_kinematics,
     quat_multiply,
@@ -27,6 +25,30 @@ from gnc_common.attitude import (
 unit_quat = st.lists(st.floats(-1, 1, allow_nan=False), min_size=4, max_size=4).filter(
     lambda v: np.linalg.norm(v) > 1e-3
 ).map(lambda v: np.asarray(v) / np.linalg.norm(v))
+
+
+def dcm_BR_times(q_BR: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The compiled ``C_e v`` (:func:`gnc_common.compiled.dcm_BR_times`) row by row, (N, 3)."""
+    out = np.empty(np.broadcast_shapes(q_BR.shape[:-1], v.shape[:-1]) + (3,))
+    q, w = np.broadcast_to(q_BR, out.shape[:-1] + (4,)), np.broadcast_to(v, out.shape)
+    for i in range(out.shape[0]):
+        compiled.dcm_BR_times(np.ascontiguousarray(q[i]), np.ascontiguousarray(w[i]), out[i])
+    return out
+
+
+def gamma_inverse_times(q_BR: np.ndarray, x: np.ndarray, q0_floor: float) -> np.ndarray:
+    """The compiled ``Gamma^-1 x`` (:func:`gnc_common.compiled.gamma_inverse_times`) row by row."""
+    out = np.empty(x.shape)
+    for i in range(x.shape[0]):
+        compiled.gamma_inverse_times(np.ascontiguousarray(q_BR[i]), np.ascontiguousarray(x[i]), q0_floor, out[i])
+    return out
+
+
+def gamma_times(q_BR: np.ndarray, omega: np.ndarray) -> np.ndarray:
+    """``Gamma(q_e) omega = 1/2 (q0 I + q_v^x) omega`` (eq. Jacobian), written out for the test."""
+    return 0.5 * (q_BR[:, 3:] * omega + np.cross(q_BR[:, :3], omega))
+
+
 vec3 = st.lists(st.floats(-10, 10, allow_nan=False), min_size=3, max_size=3).map(np.asarray)
 
 

@@ -1,2 +1,2 @@
-"""Offline runs, without ROS: the closed loop of controller and plant cores (``closed_loop``) and
-``sappc simulate`` (``simulate``: a scenario in, metrics and histories out)."""
+"""Offline runs, without ROS: the compiled whole-run loop of controller and plant kernels
+(``compiled_loop``) and ``sappc simulate`` (``simulate``: a scenario in, metrics and histories out)."""
