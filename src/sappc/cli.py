@@ -12,6 +12,11 @@
 
 Errors in the input (bad scenario, infeasible parameters, bad values) print
 one line naming the problem and exit with status 2; no traceback.
+
+Exit status of ``simulate`` and ``run`` (``montecarlo``: 1 when a run fails the campaign's
+criteria): 0 the run met the scenario's requirements; 1 (``run``) a topic's recorded count differs
+from what was published; 2 invalid input; 3 the controller never commanded a torque; 4 the run
+broke a requirement of the scenario's ``metrics.requirements`` or became non-finite; 130 Ctrl-C.
 """
 
 from __future__ import annotations
@@ -32,8 +37,10 @@ __all__ = ["main"]
 
 #: Exit status for invalid input (argparse uses the same).
 EXIT_INVALID_INPUT = 2
-#: Exit status of ``sappc run`` when the controller commanded no torque in the whole run.
+#: Exit status of ``sappc run`` / ``simulate`` when the controller commanded no torque in the whole run.
 EXIT_CONTROLLER_NEVER_COMMANDED = 3
+#: Exit status of ``sappc run`` / ``simulate`` when the run broke a requirement of the scenario.
+EXIT_REQUIREMENT_FAILED = 4
 #: Exit status after Ctrl-C (128 + SIGINT), as shells report it.
 EXIT_INTERRUPTED = 130
 
@@ -72,13 +79,32 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     result = simulate(scenario, args.controller)
     _print_metrics(scenario.name, result.controller.value, result.metrics)
+    failed = _print_outcome(scenario, result.metrics, result.controller_summary)
     if args.json:
-        _write_json(args.json, result.report())
+        _write_json(args.json, {**result.report(), "failed_requirements": failed})
     if args.plots:
         for p in plot_run(result.history, Path(args.plots), title=f"{scenario.name} ({result.controller.value})",
                           fault_windows=scenario.event_windows()):
             print(f"wrote {p}")
-    return 0
+    return run_exit_status({}, result.controller_summary, failed)
+
+
+def _print_outcome(scenario: Any, metrics: dict[str, Any], controller: dict[str, Any]) -> list[str]:
+    """Print what the controller did and the scenario's requirements that the run broke; return those."""
+    from sappc.evaluation.requirements import failed_requirements
+
+    if controller.get("commanded") is not None:
+        others = ", ".join(f"{k.replace('_', ' ')} {controller[k]}" for k in ("watchdog_zero", "no_answer", "refused") if controller[k])
+        rejected = controller.get("rejected_inputs")
+        print(f"controller: computed the torque of {controller['commanded']} of {controller['samples']} samples"
+              + (f"; not commanded: {others}" if others else "")
+              + (f"; {rejected} input messages rejected" if rejected is not None else ""))
+    failed = failed_requirements(metrics, scenario.metrics.requirements)
+    if failed:
+        print("FAILED the scenario's requirements: " + "; ".join(failed))
+    elif scenario.metrics.requirements:
+        print(f"met every requirement of the scenario ({', '.join(f'{k} {v:g}' for k, v in scenario.metrics.requirements.items())})")
+    return failed
 
 
 def _simulate_from_campaign(args: argparse.Namespace) -> int:
@@ -151,10 +177,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     metrics["startup_s"] = result.startup_s
     _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph", metrics)
     mismatched = result.mismatched_counts()
-    ctrl = run.controller_summary()
-    if ctrl["commanded"] is not None:
-        print(f"controller: computed the torque of {ctrl['commanded']} of {ctrl['samples']} samples; "
-              f"{ctrl['zero_torque_stale']} answered with zero torque (stale inputs or a refused step); {ctrl['rejected_inputs']} input messages rejected")
+    ctrl = {**run.controller_summary(), **_node_statistics(result.run_dir)}
+    failed = _print_outcome(scenario, metrics, ctrl)
     print(f"bag {result.bag_dir}: {sum(result.recorded.values())} messages on {sum(1 for n in result.recorded.values() if n)} topics; "
           + ("every topic's count matches what was published" if not mismatched else f"COUNT MISMATCH (published, recorded): {mismatched}"))
     if args.json:
@@ -167,17 +191,31 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "published": result.published,
             "recorded": result.recorded,
             "controller_summary": ctrl,
+            "failed_requirements": failed,
             "parameters": {"scenario": scenario.raw, "nodes": str(result.run_dir / "params.yaml")},
         })
-    return run_exit_status(mismatched, ctrl)
+    return run_exit_status(mismatched, ctrl, failed)
 
 
-def run_exit_status(mismatched: dict[str, tuple[int, int]], controller: dict[str, Any]) -> int:
-    """``sappc run``'s exit status: :data:`EXIT_CONTROLLER_NEVER_COMMANDED` when the controller never
-    commanded a torque (every sample stale or refused), 1 when a topic's recorded count differs from
-    what was published, else 0."""
-    if controller["commanded"] == 0:
+def _node_statistics(run_dir: Path) -> dict[str, Any]:
+    """The controller node's own counts (``refused_steps``, ``rejected_by_reason``) from its timing file."""
+    path = run_dir / "logs" / "controller_timing.json"
+    try:
+        stats = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return {k: stats[k] for k in ("refused_steps", "rejected_by_reason") if k in stats}
+
+
+def run_exit_status(mismatched: dict[str, tuple[int, int]], controller: dict[str, Any], failed: Sequence[str] = ()) -> int:
+    """The exit status of ``sappc run`` and ``simulate`` (module docstring):
+    :data:`EXIT_CONTROLLER_NEVER_COMMANDED` when the controller never commanded a torque,
+    :data:`EXIT_REQUIREMENT_FAILED` when the run broke a requirement (``failed``), 1 when a topic's
+    recorded count differs from what was published, else 0."""
+    if controller.get("commanded") == 0:
         return EXIT_CONTROLLER_NEVER_COMMANDED
+    if failed:
+        return EXIT_REQUIREMENT_FAILED
     return 0 if not mismatched else 1
 
 

@@ -10,6 +10,9 @@ format.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
+
 import dataclasses
 from dataclasses import dataclass, field
 from enum import Enum
@@ -22,7 +25,7 @@ from numpy.typing import NDArray
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.common import ActuatorConfig
-from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES
+from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES, DEFAULT_STALE_TIMEOUT_S, check_watchdog_seconds
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
@@ -37,7 +40,7 @@ from gnc_common.validation import (
     from_mapping,
 )
 
-__all__ = ["ControllerKind", "MetricSettings", "Scenario", "controller_kind", "load_scenario", "scenario_from_mapping"]
+__all__ = ["BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "load_scenario", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
 
@@ -103,8 +106,58 @@ _TOP_KEYS = {
     "controller",
     "controllers",
     "montecarlo",  # validated by sappc.montecarlo.campaign.campaign_config
-    "faults",  # actuator, sensor and link faults, injected on the ROS 2 graph (sappc run)
+    "faults",  # actuator, sensor and link faults (offline, in campaigns and on the ROS 2 graph)
+    "controller_node",  # the controller node's input watchdog (both paths model it)
 }
+
+
+@dataclass(frozen=True)
+class ControllerNodeSettings:
+    """How the controller answers when its inputs stop (:mod:`sappc_controller.node`), modelled by
+    the offline loop too.
+
+    Attributes
+    ----------
+    stale_timeout_s : float
+        Zero torque when no valid state is newer than this at a control instant [s]; within
+        :data:`~sappc_controller.params.WATCHDOG_RANGE_S` (the node parameter's range).
+    """
+
+    stale_timeout_s: float = DEFAULT_STALE_TIMEOUT_S
+
+    def __post_init__(self) -> None:
+        check_watchdog_seconds("controller_node.stale_timeout_s", self.stale_timeout_s)
+
+
+#: Metrics a requirement may bound from above (``<name>_max``).
+BOUNDED_METRICS = (
+    "settling_time_s",
+    "steady_max_abs_qev",
+    "steady_mean_abs_qev",
+    "rpf_error_at_t2",
+    "overshoot",
+    "max_abs_torque_Nm",
+    "saturation_fraction",
+    "time_outside_constraint_s",
+)
+
+
+def check_requirements(requirements: object, prefix: str = "metrics.requirements") -> dict[str, float]:
+    """Validate a ``requirements`` mapping: every key ``<metric>_max`` of :data:`BOUNDED_METRICS`,
+    every bound a finite number >= 0; errors name the key."""
+    if requirements is None:
+        return {}
+    if not isinstance(requirements, Mapping):
+        raise ConfigError(f"{prefix} must be a mapping of <metric>_max to a bound, got {requirements!r}")
+    known = {f"{m}_max" for m in BOUNDED_METRICS}
+    out: dict[str, float] = {}
+    for key, bound in requirements.items():
+        if key not in known:
+            raise ConfigError(f"unknown key {prefix}.{key}; expected one of {sorted(known)}")
+        if isinstance(bound, bool) or not isinstance(bound, (int, float)) or not math.isfinite(bound) or bound < 0:
+            raise ConfigError(f"{prefix}.{key} must be a finite number >= 0, got {bound!r}")
+        out[str(key)] = float(bound)
+    return out
 
 
 @dataclass(frozen=True)
@@ -119,13 +172,18 @@ class MetricSettings:
         ``settling_time_s`` is the first time after which ``max_i |q_ev,i|`` stays below this (experiment 1: 1e-3).
     t2_s : float
         Time at which ``rpf_error_at_t2`` is taken [s].
+    requirements : dict
+        Upper bounds ``<metric>_max`` that a run must meet (:mod:`sappc.evaluation.requirements`);
+        a run that breaks one exits with status 4.
     """
 
     steady_from_s: float = 25.0
     settle_threshold: float = 1e-3
     t2_s: float = 20.0
+    requirements: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "requirements", check_requirements(self.requirements))
         check_positive("metrics.steady_from_s", self.steady_from_s, allow_zero=True)
         check_positive("metrics.settle_threshold", self.settle_threshold)
         check_positive("metrics.t2_s", self.t2_s, allow_zero=True)
@@ -154,8 +212,10 @@ class Scenario:
     controller : ControllerKind
         Default controller.
     faults : tuple
-        Actuator, sensor and link faults (:mod:`spacecraft_sim.core.faults`), injected by relaying
-        topics on the ROS 2 graph only.
+        Actuator, sensor and link faults (:mod:`spacecraft_sim.core.faults`): applied by the
+        offline loop, and by relaying topics on the ROS 2 graph.
+    controller_node : ControllerNodeSettings
+        The controller's input watchdog.
     controllers : dict
         Raw parameter mappings per controller kind, validated by :meth:`controller_config`.
     raw : dict
@@ -178,6 +238,7 @@ class Scenario:
     faults: tuple[Any, ...]
     controllers: dict[str, Any] = field(repr=False)
     raw: dict[str, Any] = field(repr=False)
+    controller_node: ControllerNodeSettings = ControllerNodeSettings()
 
     def controller_config(self, kind: ControllerKind | str | None = None) -> Any:
         """The validated config dataclass of controller ``kind`` (default: the scenario's)."""
@@ -257,6 +318,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     faults = faults_from_list(data.get("faults"))
     actuator = from_mapping(ActuatorConfig, data.get("actuator", {}) or {}, "actuator")
     metrics = from_mapping(MetricSettings, data.get("metrics", {}) or {}, "metrics")
+    node_settings = from_mapping(ControllerNodeSettings, data.get("controller_node", {}) or {}, "controller_node")
 
     controllers = data["controllers"]
     if not isinstance(controllers, dict) or not controllers:
@@ -281,6 +343,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
         faults=faults,
         controllers=controllers,
         raw=data,
+        controller_node=node_settings,
     )
     for name in controllers:  # validate every controller's parameters now, not at run time
         scenario.controller_config(name)

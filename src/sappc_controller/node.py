@@ -56,6 +56,9 @@ from numpy.typing import ArrayLike
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 
 from sappc_msgs_py.contract import (
+    ANSWER_COMMANDED,
+    ANSWER_REFUSED,
+    ANSWER_WATCHDOG_ZERO,
     CLOCK,
     CONTROL_TORQUE,
     CONTROLLER_DIAGNOSTICS,
@@ -75,7 +78,16 @@ from gnc_common.validation import ConfigError, InputError, check_positive, check
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.inputs import INPUT_TOPICS, NS_PER_S, STEP_ERRORS, ControlSample, LatestInputs, LockstepPairing, step_sample
-from sappc_controller.params import CONTROLLER_CLASSES, DEFAULT_CONTROL_PERIOD_S, config_from_parameters, config_parameter_names
+from sappc_controller.params import (
+    CONTROLLER_CLASSES,
+    DEFAULT_CONTROL_PERIOD_S,
+    DEFAULT_MAX_STAMP_AHEAD_S,
+    DEFAULT_STALE_TIMEOUT_S,
+    WATCHDOG_RANGE_S,
+    check_watchdog_seconds,
+    config_from_parameters,
+    config_parameter_names,
+)
 
 __all__ = ["ControllerNode", "main"]
 
@@ -84,26 +96,24 @@ _INPUTS = INPUT_TOPICS
 _NS = NS_PER_S
 
 
-#: Watchdog parameters: changeable at run time, applied at once, each within this range [s].
+#: Why an input is rejected (``rejected_by_reason`` keys): a wrong frame id, a non-finite value or a
+#: zero or non-unit quaternion; a stamp not after the last computed sample (lockstep) or the topic's
+#: previous message (real time); a stamp more than ``max_stamp_ahead_s`` ahead.
+REJECT_REASONS = ("invalid", "stamp_in_past", "stamp_too_far_ahead")
+
+#: Watchdog parameters: changeable at run time, applied at once, each within WATCHDOG_RANGE_S.
 _WATCHDOG_PARAMS = ("stale_timeout_s", "max_stamp_ahead_s")
-#: Range of the watchdog parameters [s]: from one microsecond to an hour (a stale input older than
-#: an hour is never "fresh"; below a microsecond the nanosecond stamps cannot resolve it).
-_WATCHDOG_RANGE_S = (1e-6, 3600.0)
 
 
 def _watchdog_descriptor(description: str) -> ParameterDescriptor:
     """A descriptor with the watchdog range (shown by parameter tools, enforced by rclpy)."""
-    lo, hi = _WATCHDOG_RANGE_S
+    lo, hi = WATCHDOG_RANGE_S
     return ParameterDescriptor(description=description, floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi, step=0.0)])
 
 
 def _seconds_to_ns(name: str, value: Any) -> int:
-    """A watchdog parameter [s] checked (finite, within :data:`_WATCHDOG_RANGE_S`) -> [ns]."""
-    seconds = float(check_positive(name, value))
-    lo, hi = _WATCHDOG_RANGE_S
-    if not lo <= seconds <= hi:
-        raise ConfigError(f"{name} must be within [{lo:g}, {hi:g}] s, got {value!r}")
-    return int(round(seconds * _NS))
+    """A watchdog parameter [s] checked (finite, within :data:`~sappc_controller.params.WATCHDOG_RANGE_S`) -> [ns]."""
+    return int(round(check_watchdog_seconds(name, value) * _NS))
 
 
 #: Inputs of the warm-up step (identity attitude and reference, at rest).
@@ -126,9 +136,9 @@ class ControllerNode(ProjectNode):
         self.controller: AttitudeController = CONTROLLER_CLASSES[self.kind](config)
         self.dt = check_positive("control_period_s", self.param("control_period_s", DEFAULT_CONTROL_PERIOD_S, ParameterDescriptor(read_only=True)))
         self.mode = self.mode_param(ParameterDescriptor(read_only=True))
-        self.stale_timeout_ns = _seconds_to_ns("stale_timeout_s", self.param("stale_timeout_s", 0.1, _watchdog_descriptor(
+        self.stale_timeout_ns = _seconds_to_ns("stale_timeout_s", self.param("stale_timeout_s", DEFAULT_STALE_TIMEOUT_S, _watchdog_descriptor(
             "[s] zero torque when no valid state is newer than this at a control instant")))
-        self.max_ahead_ns = _seconds_to_ns("max_stamp_ahead_s", self.param("max_stamp_ahead_s", 1.0, _watchdog_descriptor(
+        self.max_ahead_ns = _seconds_to_ns("max_stamp_ahead_s", self.param("max_stamp_ahead_s", DEFAULT_MAX_STAMP_AHEAD_S, _watchdog_descriptor(
             "[s] inputs stamped further ahead of the controller's time are rejected")))
 
         # load the compiled step now (cache load ~1 s), not at the first sample, which the plant
@@ -141,6 +151,8 @@ class ControllerNode(ProjectNode):
         for topic in _INPUTS:
             self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos)
         self.rejected = 0
+        self.rejected_by_reason: dict[str, int] = {}
+        self.refused = 0  # control steps whose torque the core refused (non-finite)
         self.stale = False
         self.steps = 0
         self._last_ns: int | None = None  # stamp of the last computed sample
@@ -205,8 +217,10 @@ class ControllerNode(ProjectNode):
         self.max_ahead_ns = watchdog_ns.get("max_stamp_ahead_s", self.max_ahead_ns)
 
     # ---- inputs ---------------------------------------------------------------------------
-    def _reject(self, reason: str) -> None:
+    def _reject(self, reason: str, kind: str) -> None:
+        """Count (in total and by ``kind``: one of :data:`REJECT_REASONS`) and log a rejected input."""
         self.rejected += 1
+        self.rejected_by_reason[kind] = self.rejected_by_reason.get(kind, 0) + 1
         self.get_logger().warning(f"rejected a message ({self.rejected} so far): {reason}", throttle_duration_sec=1.0)
 
     def _now_ns(self) -> int | None:
@@ -223,16 +237,16 @@ class ControllerNode(ProjectNode):
         try:
             value = self._decode(msg, topic)
         except InputError as exc:
-            self._reject(str(exc))
+            self._reject(str(exc), "invalid")
             return
         last = self._last_ns if self.mode == LOCKSTEP else self._latest.last_ns(topic.name)
         if last is not None and ns <= last:
             what = "the last computed sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
-            self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is in the past (not after {what}, {last / _NS:.9f} s)")
+            self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is in the past (not after {what}, {last / _NS:.9f} s)", "stamp_in_past")
             return
         now = self._now_ns()
         if now is not None and ns > now + self.max_ahead_ns:
-            self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is more than {self.max_ahead_ns / _NS} s ahead of the controller's time {now / _NS:.9f} s")
+            self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is more than {self.max_ahead_ns / _NS} s ahead of the controller's time {now / _NS:.9f} s", "stamp_too_far_ahead")
             return
         if self.mode == REALTIME:
             self._latest.add(topic.name, ns, value)
@@ -250,7 +264,7 @@ class ControllerNode(ProjectNode):
         self._clock_ns = stamp_to_ns(msg.clock)
         answered = self._answered_ns is not None and self._clock_ns <= self._answered_ns
         if not answered and self._outage_at(self._clock_ns):
-            self._publish_zero(self._clock_ns, "no valid state")
+            self._publish_zero(self._clock_ns, "no valid state", ANSWER_WATCHDOG_ZERO)
 
     def _on_timer(self) -> None:
         self._tick_wall_ns.append(time.monotonic_ns())
@@ -259,7 +273,7 @@ class ControllerNode(ProjectNode):
         if sample is None:
             return  # not started
         if now - self._latest.oldest_ns > self.stale_timeout_ns:
-            self._publish_zero(now, f"inputs older than {self.stale_timeout_ns / _NS} s")
+            self._publish_zero(now, f"inputs older than {self.stale_timeout_ns / _NS} s", ANSWER_WATCHDOG_ZERO)
             return
         self._compute(sample)
 
@@ -271,14 +285,15 @@ class ControllerNode(ProjectNode):
             out = step_sample(self.controller, self.dt, sample)
         except STEP_ERRORS as exc:
             self.get_logger().error(f"control step at {t_ns / _NS:.9f} s failed: {exc}; commanding zero torque")
-            self._publish_zero(t_ns, "control step failed")
+            self.refused += 1
+            self._publish_zero(t_ns, "control step failed", ANSWER_REFUSED)
             return
         self._last_ns = t_ns
         self._last_state_ns = max(input_ns[0], input_ns[1])
         self.steps += 1
         if ends_outage:  # computed; its tick is (or will be) answered with the watchdog's zero (module docstring)
             if self._answered_ns is None or t_ns > self._answered_ns:
-                self._publish_zero(t_ns, "first sample after an outage")
+                self._publish_zero(t_ns, "first sample after an outage", ANSWER_WATCHDOG_ZERO)
             self.get_logger().info("valid inputs again: control resumes at the next sample")
             return
         if self.stale:
@@ -287,22 +302,22 @@ class ControllerNode(ProjectNode):
         # out's arrays are the core's buffer, overwritten by the next step: keep copies (republished with zero torque)
         self._diag_rows = {"rho": out.rho.copy(), "band_lower": out.band_lower.copy(), "band_upper": out.band_upper.copy(), "eps": out.eps.copy(),
                            "z": out.z.copy(), "lyapunov_V": out.V.copy()}
-        self._publish(t_ns, out.torque_B, out.torque_cmd_B, out.saturated, input_ns)
+        self._publish(t_ns, out.torque_B, out.torque_cmd_B, out.saturated, input_ns, ANSWER_COMMANDED)
 
-    def _publish_zero(self, t_ns: int, why: str) -> None:
+    def _publish_zero(self, t_ns: int, why: str, answer: int) -> None:
         if not self.stale:
             self.get_logger().warning(f"{why}: commanding zero torque until valid inputs return")
         self.stale = True
         zero = np.zeros(3)
-        self._publish(t_ns, zero, zero, zero, [0] * len(_INPUTS))
+        self._publish(t_ns, zero, zero, zero, [0] * len(_INPUTS), answer)
 
-    def _publish(self, t_ns: int, torque: np.ndarray, torque_cmd: np.ndarray, saturated: np.ndarray, input_ns: list[int]) -> None:
+    def _publish(self, t_ns: int, torque: np.ndarray, torque_cmd: np.ndarray, saturated: np.ndarray, input_ns: list[int], answer: int) -> None:
         self._answered_ns = t_ns if self._answered_ns is None else max(self._answered_ns, t_ns)
         t = t_ns / _NS
         stamp = ns_to_stamp(t_ns)
         self.pub_torque.publish(torque_msg(torque, stamp, CONTROL_TORQUE))
         rows: dict[str, ArrayLike] = dict(self._diag_rows)
-        rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(self.stale), 0.0],
+        rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(self.stale), float(answer)],
                     input_stamps_state_s=[input_ns[0] / _NS, input_ns[1] / _NS, 0.0],
                     input_stamps_reference_s=[n / _NS for n in input_ns[2:]])
         self.pub_diag.publish(diagnostics_msg(t, rows))
@@ -323,10 +338,13 @@ class ControllerNode(ProjectNode):
         }
 
     def finish(self) -> None:
-        self.get_logger().info(f"finished: {self.steps} control steps, {self.rejected} rejected messages")
+        self.get_logger().info(f"finished: {self.steps} control steps ({self.refused} refused), {self.rejected} rejected messages "
+                               f"{self.rejected_by_reason or ''}")
         super().finish()
         if self.timing_file:
-            stats = {"steps": self.steps, "rejected": self.rejected, **(self.timer_statistics() if self.mode == REALTIME else {})}
+            stats = {"steps": self.steps, "refused_steps": self.refused, "rejected": self.rejected,
+                     "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
+                     **(self.timer_statistics() if self.mode == REALTIME else {})}
             Path(self.timing_file).write_text(json.dumps(stats))
 
 

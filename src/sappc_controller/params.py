@@ -35,6 +35,10 @@ from sappc_controller.core.sappc import SappcConfig, SappcController
 from sappc_controller.core.trappc import TrappcConfig, TrappcController
 
 __all__ = [
+    "DEFAULT_MAX_STAMP_AHEAD_S",
+    "DEFAULT_STALE_TIMEOUT_S",
+    "WATCHDOG_RANGE_S",
+    "check_watchdog_seconds",
     "CONFIG_CLASSES",
     "CONTROLLER_CLASSES",
     "config_from_parameters",
@@ -54,6 +58,24 @@ CONTROLLER_CLASSES: dict[str, Callable[..., AttitudeController]] = {"sappc": Sap
 
 #: The node's ``control_period_s`` when a parameters file does not set it [s] (100 Hz, the paper's).
 DEFAULT_CONTROL_PERIOD_S = 0.01
+#: Default ``stale_timeout_s`` [s]: zero torque when no valid state is newer than this at a
+#: control instant (ten samples at the default period: a short outage is ridden through).
+DEFAULT_STALE_TIMEOUT_S = 0.1
+#: Default ``max_stamp_ahead_s`` [s]: inputs stamped further ahead of the controller's time are
+#: rejected (a clock jump or a wrong stamp, not a late sample).
+DEFAULT_MAX_STAMP_AHEAD_S = 1.0
+#: Range of the watchdog parameters [s]: from one microsecond (below it the nanosecond stamps
+#: cannot resolve the timeout) to an hour (an input older than an hour is never "fresh").
+WATCHDOG_RANGE_S = (1e-6, 3600.0)
+
+
+def check_watchdog_seconds(name: str, value: Any) -> float:
+    """A watchdog time [s] checked: finite, within :data:`WATCHDOG_RANGE_S` (error names ``name``)."""
+    seconds = float(check_positive(name, value))
+    lo, hi = WATCHDOG_RANGE_S
+    if not lo <= seconds <= hi:
+        raise ConfigError(f"{name} must be within [{lo:g}, {hi:g}] s, got {value!r}")
+    return seconds
 
 #: Config fields that are plant-level parameters, not under the controller's name.
 _SHARED = ("inertia_kg_m2", "actuator")

@@ -21,10 +21,11 @@ topic                         type                            frame_id    conten
 
 When the fault injector relays a path (``python -m spacecraft_sim.disturbance``), it republishes
 the faulty samples under ``fault/`` (``fault/state/attitude``, ``fault/state/rate``,
-``fault/control/torque``, same types and frames) and the consumer is remapped to them
-(``--ros-args -r state/attitude:=fault/state/attitude``); the originals stay the truth.  This
-module is the one place that says which topics are relayed (:data:`RELAYED_SENSOR_TOPICS`,
-:data:`RELAYED_ACTUATOR_TOPICS`, :data:`RELAYED_TOPICS`, :data:`FAULT_TOPICS`), how a consumer
+``fault/reference/*``, ``fault/control/torque``, same types and frames) and the consumer is
+remapped to them (``--ros-args -r state/attitude:=fault/state/attitude``); the originals stay the
+truth.  This module is the one place that says which topics are relayed
+(:data:`RELAYED_SENSOR_TOPICS`, :data:`RELAYED_REFERENCE_TOPICS`, :data:`RELAYED_ACTUATOR_TOPICS`,
+:data:`RELAYED_TOPICS`, :data:`FAULT_TOPICS`), how a consumer
 is remapped (:func:`relay_remaps`) and which names a consumer may have read
 (:func:`consumed_names`).
 
@@ -62,6 +63,12 @@ __all__ = [
     "REFERENCE_ATTITUDE",
     "REFERENCE_RATE",
     "RELAYED_ACTUATOR_TOPICS",
+    "ANSWER_COMMANDED",
+    "ANSWER_NAMES",
+    "ANSWER_NO_ANSWER",
+    "ANSWER_REFUSED",
+    "ANSWER_WATCHDOG_ZERO",
+    "RELAYED_REFERENCE_TOPICS",
     "RELAYED_SENSOR_TOPICS",
     "RELAYED_TOPICS",
     "STATE_ATTITUDE",
@@ -145,10 +152,12 @@ def faulty(topic: Topic) -> Topic:
 #: The measurements a sensor-fault relay republishes (the controller is remapped to their
 #: :func:`faulty` twins), in the order of ``FaultSchedule.sensor(t, stamp, q_BN, omega_BN_B)``.
 RELAYED_SENSOR_TOPICS = (STATE_ATTITUDE, STATE_RATE)
+#: The reference a reference-fault relay republishes, paired by stamp (the controller is remapped).
+RELAYED_REFERENCE_TOPICS = (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
 #: The command an actuator-fault relay republishes (the plant is remapped to its :func:`faulty` twin).
 RELAYED_ACTUATOR_TOPICS = (CONTROL_TORQUE,)
 #: Every topic a fault relay may republish (the originals).
-RELAYED_TOPICS = RELAYED_SENSOR_TOPICS + RELAYED_ACTUATOR_TOPICS
+RELAYED_TOPICS = RELAYED_SENSOR_TOPICS + RELAYED_REFERENCE_TOPICS + RELAYED_ACTUATOR_TOPICS
 #: The relays' outputs, :func:`faulty` of each of :data:`RELAYED_TOPICS`.
 FAULT_TOPICS = tuple(faulty(t) for t in RELAYED_TOPICS)
 
@@ -207,10 +216,23 @@ DIAGNOSTICS_LAYOUT = (
     "lyapunov_V",  # V1, V2, V3
     "torque_cmd_Nm",  # commanded before the actuator model
     "saturated",  # 1.0 where the axis saturated
-    "status",  # rejected messages, stale flag (1.0 = stale inputs, zero torque), 0.0
+    "status",  # rejected messages, stale flag (1.0 = zero torque), the answer's ANSWER_* code
     "input_stamps_state_s",  # header stamps of the state/attitude and state/rate used, 0.0 (0 when no step)
     "input_stamps_reference_s",  # header stamps of the reference attitude, rate, acceleration used
 )
+
+
+#: How the controller answered a sample (``controller/diagnostics`` ``status[2]``; the offline loop
+#: records the same codes): a computed torque; zero torque from the stale-input watchdog (no valid
+#: state newer than ``stale_timeout_s`` at the sample's tick; this includes the first complete
+#: sample after such an outage, on which the law steps but whose tick the watchdog answers,
+#: whatever the order in which ``/clock`` and the inputs arrive); no answer (inputs missing and
+#: not yet stale: the plant holds its last torque; no message, so a bag shows it as a sample
+#: without diagnostics of its stamp); zero torque because the core refused the step (a
+#: non-finite torque).
+ANSWER_COMMANDED, ANSWER_WATCHDOG_ZERO, ANSWER_NO_ANSWER, ANSWER_REFUSED = 0, 1, 2, 3
+#: Names of the answer codes, in code order (run summaries).
+ANSWER_NAMES = ("commanded", "watchdog_zero", "no_answer", "refused")
 
 
 def qos_profile() -> QoSProfile:

@@ -73,8 +73,14 @@ def time_to_stamp(t_s: Any) -> Any:
     t = float(as_finite_array("t_s", t_s))
     if t < 0.0:
         raise InputError(f"t_s must be >= 0 for a ROS stamp, got {t_s!r}")
-    ns = round(t * _NS_PER_S)
+    ns = seconds_to_ns(t)
     return Time(sec=ns // _NS_PER_S, nanosec=ns % _NS_PER_S)
+
+
+def seconds_to_ns(t_s: float) -> int:
+    """The integer nanoseconds a stamp of ``t_s`` seconds carries (rounded half to even): the
+    plant's stamp of sample ``k`` is ``seconds_to_ns(k * dt)`` (offline runs use the same stamps)."""
+    return round(t_s * _NS_PER_S)
 
 
 def ns_to_stamp(ns: int) -> Any:

@@ -11,10 +11,15 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
   its first tick).  The plant adds it to the control torque (``use_disturbance_topic``).
 - faults, by relaying the contract's relayed topics
   (:data:`~sappc_msgs_py.contract.RELAYED_SENSOR_TOPICS`,
-  :data:`~sappc_msgs_py.contract.RELAYED_ACTUATOR_TOPICS`): with sensor faults it subscribes
-  to ``state/attitude`` and ``state/rate``, pairs them by stamp and republishes the faulty
-  measurement on ``fault/state/*`` (the controller is remapped to those); with actuator faults
-  it relays ``control/torque`` to ``fault/control/torque`` (the plant is remapped to it).
+  :data:`~sappc_msgs_py.contract.RELAYED_REFERENCE_TOPICS`,
+  :data:`~sappc_msgs_py.contract.RELAYED_ACTUATOR_TOPICS`) through
+  :class:`~spacecraft_sim.core.faults.FaultSchedule`: with sensor faults it subscribes to
+  ``state/attitude`` and ``state/rate``, pairs them by stamp and republishes the faulty
+  measurement on ``fault/state/*`` (the controller is remapped to those); with reference faults
+  it does the same with the three reference topics (``fault/reference/*``); with actuator faults
+  it relays ``control/torque`` to ``fault/control/torque`` (the plant is remapped to it).  A
+  dropped command is answered with the last delivered torque, with the dropped command's stamp
+  (the actuator holds it; the plant does not wait for a command that will never come).
 
 Parameters: ``schedule_file``, ``mode``, ``control_period_s``, ``duration_s`` (the grid's end; 0:
 none), and those of
@@ -35,6 +40,7 @@ from sappc_msgs_py.contract import (
     CLOCK,
     DISTURBANCE_TORQUE,
     RELAYED_ACTUATOR_TOPICS,
+    RELAYED_REFERENCE_TOPICS,
     RELAYED_SENSOR_TOPICS,
     Topic,
     faulty,
@@ -97,15 +103,20 @@ class InjectorNode(ProjectNode):
         else:
             self._t0_ns: int | None = None
             self.create_timer(self.dt, self._on_timer)
-        if self.faults.has_sensor_faults:  # the measurements (q_BN, omega_BN_B), paired by stamp
-            self.pub_state = {t.name: self.counting_publisher(faulty(t), 1) for t in RELAYED_SENSOR_TOPICS}
-            self._pending: dict[int, dict[str, Any]] = {}  # stamp [ns] -> topic name -> value
-            for t in RELAYED_SENSOR_TOPICS:
-                self.create_subscription(t.msg_class, t.name, partial(self._on_state, topic=t), qos)
-        if self.faults.has_actuator_faults:  # the torque command
-            self.pub_command = {t.name: self.counting_publisher(faulty(t), 1) for t in RELAYED_ACTUATOR_TOPICS}
-            for t in RELAYED_ACTUATOR_TOPICS:
-                self.create_subscription(t.msg_class, t.name, partial(self._on_command, topic=t), qos)
+        # the paired paths: the measurements (q_BN, omega_BN_B) and the reference, each paired by stamp
+        self._paired: dict[tuple[Topic, ...], dict[int, dict[str, Any]]] = {}  # path -> stamp [ns] -> topic name -> value
+        self.pub_relay: dict[str, Any] = {}
+        paths = ((RELAYED_SENSOR_TOPICS, self.faults.has_sensor_faults), (RELAYED_REFERENCE_TOPICS, self.faults.has_reference_faults),
+                 (RELAYED_ACTUATOR_TOPICS, self.faults.has_actuator_faults))
+        for topics, relayed in paths:
+            if not relayed:
+                continue
+            for t in topics:
+                self.pub_relay[t.name] = self.counting_publisher(faulty(t), 1)
+                handler = self._on_command if topics is RELAYED_ACTUATOR_TOPICS else partial(self._on_paired, path=topics)
+                self.create_subscription(t.msg_class, t.name, partial(handler, topic=t), qos)
+            if topics is not RELAYED_ACTUATOR_TOPICS:
+                self._paired[topics] = {}
 
     def _publish_disturbance(self, t_s: float, stamp: Any) -> None:
         d = self.disturbance.torque_B(np.array([t_s]), 1)[0, 0]
@@ -130,25 +141,32 @@ class InjectorNode(ProjectNode):
         self.rejected += 1
         self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
 
-    def _on_state(self, msg: Any, topic: Topic) -> None:
+    def _on_paired(self, msg: Any, topic: Topic, path: tuple[Topic, ...]) -> None:
+        """A measurement or reference message: relayed (faulty) once its path's sample is complete."""
         try:
             value = quaternion_from_msg(msg, topic) if _is_quaternion(topic) else vector3_from_msg(msg, topic)
         except InputError as exc:
             self._reject(exc)
             return
         ns = stamp_to_ns(msg.header.stamp)
-        entry = self._pending.setdefault(ns, {})
+        pending = self._paired[path]
+        entry = pending.setdefault(ns, {})
         entry[topic.name] = value
-        if len(entry) < len(RELAYED_SENSOR_TOPICS):
+        if len(entry) < len(path):
             return
-        del self._pending[ns]
-        for old in [k for k in self._pending if k < ns]:  # an unpaired older sample will never pair
-            del self._pending[old]
-        out = self.faults.sensor(ns / 1e9, ns, *(entry[t.name] for t in RELAYED_SENSOR_TOPICS))
-        if out is not None:
-            for t, value in zip(RELAYED_SENSOR_TOPICS, out):
-                encode = quaternion_msg if _is_quaternion(t) else vector3_msg
-                self.pub_state[t.name].publish(encode(value, msg.header.stamp, faulty(t)))
+        del pending[ns]
+        for old in [k for k in pending if k < ns]:  # an unpaired older sample will never pair
+            del pending[old]
+        values: tuple[Any, ...] | None = tuple(entry[t.name] for t in path)
+        if path is RELAYED_SENSOR_TOPICS:
+            values = self.faults.sensor(ns / 1e9, ns, *values)  # type: ignore[misc]  # the two state values
+        elif not self.faults.reference(ns / 1e9):
+            values = None
+        if values is None:
+            return  # dropped
+        for t, value in zip(path, values):
+            encode = quaternion_msg if _is_quaternion(t) else vector3_msg
+            self.pub_relay[t.name].publish(encode(value, msg.header.stamp, faulty(t)))
 
     def _on_command(self, msg: Any, topic: Topic) -> None:
         try:
@@ -157,7 +175,7 @@ class InjectorNode(ProjectNode):
             self._reject(exc)
             return
         t = stamp_to_ns(msg.header.stamp) / 1e9
-        self.pub_command[topic.name].publish(torque_msg(self.faults.actuator(t, torque), msg.header.stamp, faulty(topic)))
+        self.pub_relay[topic.name].publish(torque_msg(self.faults.actuator(t, torque), msg.header.stamp, faulty(topic)))
 
 
 def main(argv: list[str] | None = None) -> int:

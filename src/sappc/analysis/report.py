@@ -151,9 +151,11 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
             notes.insert(0, f"the run ends at t = {end:.3f} s, before the scenario's {sc.duration_s:g} s")
         if run.rejected:
             notes.append(f"the controller rejected {run.rejected} input message(s) (diagnostics status[0])")
-        if run.stale.any():
-            notes.append(f"{run.controller_summary()['zero_torque_stale']} sample(s) with zero torque because the inputs were stale "
-                         "or the step was refused (diagnostics status[1])")
+        summary = run.controller_summary()
+        zero = {k: summary[k] for k in ("watchdog_zero", "refused", "no_answer") if summary[k]}
+        if zero:
+            notes.append("samples the controller did not command: " + ", ".join(f"{k} {v}" for k, v in zero.items())
+                         + " (diagnostics status; no_answer: the plant held its last torque)")
     elif bag.truncated:
         notes.insert(0, f"the bag is cut short ({bag.truncated})")
     return BagAnalysis(path=Path(path), bag=bag, label=label, scenario=sc, controller=controller, run=run,

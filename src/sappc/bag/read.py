@@ -26,6 +26,11 @@ from sappc_msgs_py.contract import (
     CONTROL_TORQUE,
     CONTROLLER_DIAGNOSTICS,
     DISTURBANCE_TORQUE,
+    ANSWER_NAMES,
+    ANSWER_NO_ANSWER,
+    ANSWER_REFUSED,
+    ANSWER_WATCHDOG_ZERO,
+    FAULT_PREFIX,
     REFERENCE_ATTITUDE,
     STATE_ATTITUDE,
     STATE_RATE,
@@ -148,10 +153,15 @@ def read_bag(path: str | Path) -> Bag:
 
 
 def find_topic(bag: Bag, name: str) -> str | None:
-    """The recorded topic whose name is ``name`` or ends with ``/name`` (namespaced runs)."""
+    """The recorded topic whose name is ``name``, else one that ends with ``/name`` (a namespaced
+    run) and is not a fault relay's output (``fault/state/attitude`` is not ``state/attitude``)."""
     name = name.lstrip("/")
     for t in bag.series:
-        if t.lstrip("/") == name or t.endswith("/" + name):
+        if t.lstrip("/") == name:
+            return t
+    relay = "/" + FAULT_PREFIX.strip("/") + "/" + name
+    for t in bag.series:
+        if t.endswith("/" + name) and not ("/" + t.lstrip("/")).endswith(relay):
             return t
     return None
 
@@ -169,20 +179,24 @@ class BagRun:
 
     history: History  # one run (N = 1), t in seconds since the first aligned state
     t0_ns: int  # stamp of the first aligned state
-    stale: NDArray[np.bool_]  # (T,) the controller commanded zero torque for stale inputs
+    answer: NDArray[np.int8]  # (T,) how the controller answered each sample (contract ANSWER_* codes)
     rejected: int  # messages the controller rejected (the last diagnostics' count)
     torque_topic: str | None  # the topic the plant applied (a fault relay's when there was one)
     has_diagnostics: bool  # controller/diagnostics present (rho, band, saturation, Lyapunov values)
 
+    @property
+    def stale(self) -> NDArray[np.bool_]:
+        """(T,) samples answered with zero torque (the watchdog, or a refused step)."""
+        return np.isin(self.answer, (ANSWER_WATCHDOG_ZERO, ANSWER_REFUSED))
+
     def controller_summary(self) -> dict[str, Any]:
-        """What the controller did, from its diagnostics: ``samples`` aligned, ``zero_torque_stale``
-        (samples answered with zero torque by the watchdog or a refused step), ``rejected_inputs``,
-        and ``commanded`` (samples with a computed torque); ``None`` values without diagnostics."""
+        """What the controller did, from its diagnostics: ``samples`` aligned, then the samples
+        answered in each way (:data:`~sappc_msgs_py.contract.ANSWER_NAMES`: the same counts as
+        ``sappc simulate``'s summary) and ``rejected_inputs``; ``None`` values without diagnostics."""
         if not self.has_diagnostics:
-            return {"samples": int(self.stale.size), "zero_torque_stale": None, "rejected_inputs": None, "commanded": None}
-        stale = int(self.stale.sum())
-        return {"samples": int(self.stale.size), "zero_torque_stale": stale, "rejected_inputs": self.rejected,
-                "commanded": int(self.stale.size) - stale}
+            return {"samples": int(self.answer.size), **{name: None for name in ANSWER_NAMES}, "rejected_inputs": None}
+        counts = {name: int(np.count_nonzero(self.answer == code)) for code, name in enumerate(ANSWER_NAMES)}
+        return {"samples": int(self.answer.size), **counts, "rejected_inputs": self.rejected}
 
 
 def bag_run(bag: Bag) -> BagRun:
@@ -236,14 +250,22 @@ def bag_run(bag: Bag) -> BagRun:
     rows: dict[str, Array] = {}
     diag_topic = find_topic(bag, CONTROLLER_DIAGNOSTICS.name)
     labels = bag.diagnostics_labels
+    exact = np.zeros(T, dtype=bool)  # a diagnostics message of the sample's own stamp
     if diag_topic is not None and labels and bag.series[diag_topic].values.shape[1] >= 3 * len(labels):
         d = bag.series[diag_topic]
         i = latest_index(d.stamps_ns, common)
         data = d.values[np.maximum(i, 0), : 3 * len(labels)].reshape(T, len(labels), 3)
         data[i < 0] = np.nan
         rows = {label: data[:, n] for n, label in enumerate(labels)}
+        exact = (i >= 0) & (d.stamps_ns[np.maximum(i, 0)] == common)
+        if not exact.any():  # real time: the controller's stamps are its own instants, not the state's
+            exact = i >= 0
     nan3 = np.full((T, 3), np.nan)
     status = rows.get("status", np.zeros((T, 3)))
+    # the answer: the code of the sample's diagnostics (a bag from before the codes: stale flag ->
+    # watchdog); no message of its stamp: no answer (the plant held its torque)
+    code = np.where((status[:, 1] > 0.5) & (status[:, 2] == 0.0), float(ANSWER_WATCHDOG_ZERO), np.nan_to_num(status[:, 2]))
+    answer = np.where(exact, code, float(ANSWER_NO_ANSWER)).astype(np.int8)
 
     def one(a: NDArray[Any]) -> NDArray[Any]:
         return a[:, None, :]  # (T, 3) -> (T, 1, 3): one run
@@ -269,7 +291,7 @@ def bag_run(bag: Bag) -> BagRun:
     return BagRun(
         history=history,
         t0_ns=t0,
-        stale=status[:, 1] > 0.5,
+        answer=answer,
         rejected=int(finite_status[-1, 0]) if finite_status.size else 0,
         torque_topic=torque_topic,
         has_diagnostics=bool(rows),

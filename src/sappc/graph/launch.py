@@ -34,7 +34,7 @@ from typing import Any
 import yaml
 
 from sappc_controller.params import parameters_from_config, unflatten
-from sappc_msgs_py.contract import RELAYED_ACTUATOR_TOPICS, RELAYED_SENSOR_TOPICS, faulty, relay_remaps
+from sappc_msgs_py.contract import RELAYED_ACTUATOR_TOPICS, RELAYED_REFERENCE_TOPICS, RELAYED_SENSOR_TOPICS, faulty, relay_remaps
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
@@ -108,8 +108,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     output) and ``counts`` (the directory of the counts files).
     """
     mode = "realtime" if realtime else "lockstep"
-    faults = FaultSchedule(scenario.faults)
-    sensor, actuator = faults.has_sensor_faults, faults.has_actuator_faults
+    relayed = _relayed(scenario)
     lockstep = not realtime
     common = {"control_period_s": scenario.control_period_s, "mode": mode}
 
@@ -123,6 +122,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     controller = {
         **unflatten(parameters_from_config(kind.value, scenario.controller_config(kind))),
         **common,
+        "stale_timeout_s": scenario.controller_node.stale_timeout_s,
         "expected_subscribers": expected(control__torque=2, controller__diagnostics=1),
         "counts_file": counts_file("controller"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "controller_timing.json"),
@@ -155,9 +155,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "schedule_file": paths["scenario"],
         "duration_s": scenario.duration_s,
         **common,
-        "expected_subscribers": expected(disturbance__torque=2)
-        + ([f"{faulty(t).name}=2" for t in RELAYED_SENSOR_TOPICS] if sensor else [])
-        + ([f"{faulty(t).name}=2" for t in RELAYED_ACTUATOR_TOPICS] if actuator else []),
+        "expected_subscribers": expected(disturbance__torque=2) + [f"{faulty(t).name}=2" for topics in relayed for t in topics],
         "counts_file": counts_file("injector"),
     }
     recorder = {
@@ -179,13 +177,18 @@ def controller_params_yaml(scenario: Scenario, kind: ControllerKind | str | None
     return header + yaml.safe_dump({f"/{node_name}": {"ros__parameters": params}}, sort_keys=False)
 
 
-def _remaps(scenario: Scenario) -> dict[str, list[str]]:
+def _relayed(scenario: Scenario) -> list[tuple[Any, ...]]:
+    """The paths the injector relays for the scenario's faults (each a tuple of contract topics)."""
     faults = FaultSchedule(scenario.faults)
+    paths = ((RELAYED_SENSOR_TOPICS, faults.has_sensor_faults), (RELAYED_REFERENCE_TOPICS, faults.has_reference_faults),
+             (RELAYED_ACTUATOR_TOPICS, faults.has_actuator_faults))
+    return [topics for topics, on in paths if on]
+
+
+def _remaps(scenario: Scenario) -> dict[str, list[str]]:
     remaps: dict[str, list[str]] = {n: [] for n in NODES}
-    if faults.has_sensor_faults:
-        remaps["controller"] += relay_remaps(RELAYED_SENSOR_TOPICS)
-    if faults.has_actuator_faults:
-        remaps["plant"] += relay_remaps(RELAYED_ACTUATOR_TOPICS)
+    for topics in _relayed(scenario):  # the consumer of each relayed path reads the relay's output
+        remaps["plant" if topics is RELAYED_ACTUATOR_TOPICS else "controller"] += relay_remaps(topics)
     return remaps
 
 

@@ -30,12 +30,14 @@ import numpy as np
 from numba import prange
 
 from gnc_common.compiled import error_quaternion, jit, jit_parallel
-from gnc_common.validation import ConfigError
 from sappc_controller.core.kernels import N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
 from sappc_controller.core.kernels import controller_step, error_quaternions
 from sappc_controller.core.kernels import kind_of, pack_params, start_coef
 from spacecraft_sim.core.kernels import N_PLANT_WORK, disturbance_sample, disturbance_table, encode_disturbance, propagate
-from spacecraft_sim.core.kernels import noisy_measurement, random_draws, reference_rate_tables
+from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_sensor, noisy_measurement, random_draws, reference_rate_tables
+from spacecraft_sim.core.faults import encode_faults, noise_draws
+from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_NO_ANSWER, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
+from sappc_msgs_py.convert import seconds_to_ns
 from spacecraft_sim.core.reference import sample_times
 
 from sappc.evaluation.history import History
@@ -45,36 +47,103 @@ __all__ = ["CompiledInputs", "CompiledRun", "cache_is_warm", "ensure_compiled", 
            "simulate_compiled", "warm_up"]
 
 
+#: What the controller answered at a sample (``CompiledRun.status``): the codes of
+#: :data:`sappc_msgs_py.contract.ANSWER_NAMES`, decided as the controller node decides them in
+#: lockstep (:mod:`sappc_controller.node`).
+STATUS_COMMANDED, STATUS_WATCHDOG_ZERO, STATUS_NO_ANSWER, STATUS_REFUSED = ANSWER_COMMANDED, ANSWER_WATCHDOG_ZERO, ANSWER_NO_ANSWER, ANSWER_REFUSED
+STATUS_NAMES = ANSWER_NAMES
+
+
 @jit
 def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-             kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma, stride, hist, x_hist, d_hist, x_final):
+             kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma,
+             t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws,
+             stride, hist, x_hist, d_hist, s_hist, x_final):
     """The whole time loop of one run (module docstring); histories every ``stride`` samples
     (``stride = 0``: none), final state into ``x_final``.
 
     Sensor noise: with rows in ``noise`` (T, 6) (standard normals) the controller sees
     :func:`spacecraft_sim.core.kernels.noisy_measurement` of the true state with the sigmas
-    ``noise_sigma`` (attitude [rad], rate [rad/s]), and the recorded error quaternion is the *true*
-    one, so that the metrics describe the real attitude error while the torque comes from the
-    measurement.  No rows: no noise."""
+    ``noise_sigma`` (attitude [rad], rate [rad/s]).
+
+    Faults (``fkind`` (F,) ... as :func:`spacecraft_sim.core.faults.encode_faults`, ``fdraws``
+    (T or 1, F, 6) the noise faults' draws): the measurement and the reference go through
+    :func:`~spacecraft_sim.core.kernels.fault_sensor` and ``fault_reference``, the answer through
+    ``fault_actuator``, and the controller answers as the node does in lockstep (the ``STATUS_*``
+    codes, into ``s_hist``), with the stale-input watchdog of ``stale_ns`` [ns] on the stamps
+    ``t_ns``.  The plant applies the delivered torque clipped to ``u_max`` per axis.
+
+    Recorded, as a bag of the same run records it: the *true* error quaternion and state (the
+    metrics describe the real attitude), the delivered torque (held when no torque came), and the
+    controller's rows as last published (a zero answer publishes zero command and saturation and
+    keeps the previous rows; no answer publishes nothing)."""
     state = np.zeros(N_STATE)
     state[S_T0] = t_grid[0]  # the first sample fixes the time origin
     work = np.zeros((N_WORK, 4))
     out = np.zeros((N_OUT, 4))
+    pub = np.full((N_OUT, 4), np.nan)  # the rows last published (nothing yet)
     pwork = np.zeros((N_PLANT_WORK, 7))
     x = x0.copy()
-    y = np.zeros(7)  # the measured state (sensor noise)
+    y = np.zeros(7)  # the measured state
     noisy = noise.shape[0] > 0
+    nf = fkind.shape[0]
+    fcount = np.zeros(nf, dtype=np.int64)
+    fbuf = np.zeros((nf, fdepth, 7))
+    u_last = np.zeros(3)  # the last delivered torque (what the plant holds)
+    has_last = False
+    last_state_ns = 0
     d = np.zeros(3)
     u = np.zeros(3)
+    cmd = np.zeros(3)
     T = t_grid.shape[0]
     for k in range(T):
         t = t_grid[k]
         if noisy:
             noisy_measurement(x[:4], x[4:], noise[k], noise_sigma[0], noise_sigma[1], y[:4], y[4:])
-            controller_step(kind, t, dt, y[:4], y[4:], ref_q[k], ref_w[k], ref_wd[k], prm, coef, state, work, out)
-            error_quaternion(ref_q[k], x[:4], out[O_QBR])  # the true error (metrics)
         else:
-            controller_step(kind, t, dt, x[:4], x[4:], ref_q[k], ref_w[k], ref_wd[k], prm, coef, state, work, out)
+            for i in range(7):
+                y[i] = x[i]
+        delivered = True
+        if nf > 0:
+            delivered = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, fdraws[min(k, fdraws.shape[0] - 1)], y)
+            delivered = fault_reference(t, fkind, fwin) and delivered
+        status = STATUS_COMMANDED
+        if delivered:
+            outage = has_last and t_ns[k] - last_state_ns > stale_ns
+            controller_step(kind, t, dt, y[:4], y[4:], ref_q[k], ref_w[k], ref_wd[k], prm, coef, state, work, out)
+            if not (np.isfinite(out[O_TORQUE, 0] + out[O_TORQUE, 1] + out[O_TORQUE, 2])
+                    and np.isfinite(out[O_CMD, 0] + out[O_CMD, 1] + out[O_CMD, 2])):
+                status = STATUS_REFUSED
+            else:
+                has_last = True
+                last_state_ns = t_ns[k]
+                if outage:  # the first sample after an outage: the law steps, the watchdog answers
+                    status = STATUS_WATCHDOG_ZERO
+        elif has_last and t_ns[k] - last_state_ns > stale_ns:
+            status = STATUS_WATCHDOG_ZERO
+        else:
+            status = STATUS_NO_ANSWER
+        if status == STATUS_COMMANDED:
+            for r in range(N_OUT):
+                for c in range(4):
+                    pub[r, c] = out[r, c]
+            for i in range(3):
+                cmd[i] = out[O_TORQUE, i]
+        elif status != STATUS_NO_ANSWER:  # a zero answer: zero command and saturation, earlier rows
+            for i in range(3):
+                cmd[i] = 0.0
+                pub[O_CMD, i] = 0.0
+                pub[O_SAT, i] = 0.0
+        if status != STATUS_NO_ANSWER:
+            if nf > 0:
+                fault_actuator(t, fkind, fwin, fprm, fint, fcount, fbuf, cmd, u_last)
+            else:
+                for i in range(3):
+                    u_last[i] = cmd[i]
+        for i in range(3):
+            pub[O_TORQUE, i] = u_last[i]
+        if noisy or nf > 0:
+            error_quaternion(ref_q[k], x[:4], pub[O_QBR])  # the true error (metrics)
         if use_table:
             for i in range(3):
                 d[i] = d_table[k, i]
@@ -84,14 +153,15 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
             j = k // stride
             for r in range(N_OUT):
                 for c in range(4):
-                    hist[j, r, c] = out[r, c]
+                    hist[j, r, c] = pub[r, c]
             for i in range(7):
                 x_hist[j, i] = x[i]
             for i in range(3):
                 d_hist[j, i] = d[i]
+            s_hist[j] = status
         if k < T - 1:
-            for i in range(3):
-                u[i] = out[O_TORQUE, i] + d[i]  # control + disturbance, held over [t_k, t_k+1]
+            for i in range(3):  # control (clipped by the actuator) + disturbance, held over [t_k, t_k+1]
+                u[i] = min(max(u_last[i], -u_max), u_max) + d[i]
             propagate(x, u, dt, substeps, J, J_inv, pwork)
     for i in range(7):
         x_final[i] = x[i]
@@ -99,28 +169,33 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
 
 @jit_parallel
 def run_batch_kernel(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-                     kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma, stride, hist, x_hist, d_hist,
-                     x_final):
-    """Every run of a batch, in parallel over runs (``prange``); per-run arrays have a leading axis N."""
+                     kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma,
+                     t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws,
+                     stride, hist, x_hist, d_hist, s_hist, x_final):
+    """Every run of a batch, in parallel over runs (``prange``); per-run arrays have a leading axis N
+    (the faults' too: a campaign may disperse them)."""
     for n in prange(x0.shape[0]):
         _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
-                 d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], noise_sigma, stride,
-                 hist[n], x_hist[n], d_hist[n], x_final[n])
+                 d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], noise_sigma,
+                 t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws,
+                 stride, hist[n], x_hist[n], d_hist[n], s_hist[n], x_final[n])
 
 
 @jit
 def run_single_kernel(n, kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-                      kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma, stride, hist, x_hist, d_hist,
-                      x_final):
+                      kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma,
+                      t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws,
+                      stride, hist, x_hist, d_hist, s_hist, x_final):
     """Run ``n`` of the batch arrays alone (same argument types as in :func:`run_batch_kernel`); outputs
     (leading axis 1) at index 0."""
     _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
-             d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], noise_sigma, stride,
-             hist[0], x_hist[0], d_hist[0], x_final[0])
+             d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], noise_sigma,
+             t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws,
+             stride, hist[0], x_hist[0], d_hist[0], s_hist[0], x_final[0])
 
 
 #: Per-run fields of :class:`CompiledInputs` (leading axis N); ``rand_draws`` has it second.
-_PER_RUN = ("prm", "coef", "x0", "J", "J_inv", "dscale", "dphase", "noise")
+_PER_RUN = ("prm", "coef", "x0", "J", "J_inv", "dscale", "dphase", "noise", "fkind", "fwin", "fprm", "fint")
 
 
 @dataclass
@@ -129,7 +204,11 @@ class CompiledInputs:
 
     ``noise`` (N, T or 0, 6): each run's sensor-noise draws (standard normals; no rows: no noise),
     ``noise_sigma`` (2,): attitude [rad] and rate [rad/s] sigmas.  ``flags``: the RPF's ``flat`` and
-    ``clamped`` components (N, 3)."""
+    ``clamped`` components (N, 3).  ``t_ns`` (T,): the samples' stamps [ns]; ``stale_ns``: the
+    controller's stale-input timeout [ns]; ``u_max``: the actuator's limit [N m]; ``fkind`` (N, F),
+    ``fwin`` (N, F, 2), ``fprm`` (N, F, P), ``fint`` (N, F): each run's faults
+    (:func:`spacecraft_sim.core.faults.encode_faults`), ``fdepth`` their delay rings' slots,
+    ``fdraws`` (T or 1, F, 6) the noise faults' draws."""
 
     kind: int
     prm: np.ndarray
@@ -154,6 +233,15 @@ class CompiledInputs:
     flags: dict[str, np.ndarray]
     noise: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 6)))
     noise_sigma: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    t_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    stale_ns: int = 0
+    u_max: float = np.inf
+    fkind: np.ndarray = field(default_factory=lambda: np.zeros((1, 0), dtype=np.int64))
+    fwin: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 2)))
+    fprm: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 7)))
+    fint: np.ndarray = field(default_factory=lambda: np.zeros((1, 0), dtype=np.int64))
+    fdepth: int = 1
+    fdraws: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 6)))
 
     @property
     def n_runs(self) -> int:
@@ -162,12 +250,14 @@ class CompiledInputs:
     def args(self) -> tuple[Any, ...]:
         return (self.kind, self.prm, self.coef, self.x0, self.J, self.J_inv, self.substeps, self.dt, self.t, self.ref_q,
                 self.ref_w, self.ref_wd, self.use_table, self.d_table, self.kinds, self.dparams, self.dscale, self.dphase,
-                self.rand_draws, self.rand_win, self.noise, self.noise_sigma)
+                self.rand_draws, self.rand_win, self.noise, self.noise_sigma, self.t_ns, self.stale_ns, self.u_max,
+                self.fkind, self.fwin, self.fprm, self.fint, self.fdepth, self.fdraws)
 
     def subset(self, lo: int, hi: int, noise: np.ndarray | None = None) -> CompiledInputs:
         """Runs ``lo .. hi - 1`` (contiguous copies: the same argument types), with ``noise``
         (hi - lo, T, 6) as their sensor-noise draws when given."""
-        per_run: dict[str, Any] = {name: np.ascontiguousarray(getattr(self, name)[lo:hi]) for name in _PER_RUN}
+        per_run: dict[str, Any] = {name: np.ascontiguousarray(getattr(self, name)[lo:hi]) for name in _PER_RUN if name != "noise"}
+        per_run["noise"] = np.ascontiguousarray(self.noise[lo:hi])
         if noise is not None:
             per_run["noise"] = np.ascontiguousarray(noise, dtype=np.float64)
         return dataclasses.replace(self, **per_run, rand_draws=np.ascontiguousarray(self.rand_draws[:, lo:hi]),
@@ -177,13 +267,19 @@ class CompiledInputs:
 @dataclass
 class CompiledRun:
     """Histories of a batch (T_rec samples every ``stride``): ``out`` (N, T_rec, N_OUT, 4) rows as in
-    :mod:`sappc_controller.core.kernels`, ``x`` (N, T_rec, 7), ``d`` (N, T_rec, 3), final states (N, 7)."""
+    :mod:`sappc_controller.core.kernels` (as published: see :func:`_run_one`), ``x`` (N, T_rec, 7),
+    ``d`` (N, T_rec, 3), ``status`` (N, T_rec) int8 (``STATUS_*``), final states (N, 7)."""
 
     t: np.ndarray
     out: np.ndarray
     x: np.ndarray
     d: np.ndarray
+    status: np.ndarray
     x_final: np.ndarray
+
+    def status_counts(self) -> dict[str, np.ndarray]:
+        """Samples of each status per run (N,), by :data:`STATUS_NAMES`."""
+        return {name: np.count_nonzero(self.status == code, axis=1) for code, name in enumerate(STATUS_NAMES)}
 
     def history(self) -> History:
         """The runs as a :class:`~sappc.evaluation.history.History` (arrays (T, N, ...): views, no copy)."""
@@ -205,13 +301,13 @@ def _f64(a: Any, shape: tuple[int, ...] | None = None) -> np.ndarray:
 
 def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | None = None, omega_BN_B0: np.ndarray | None = None,
             inertia_kg_m2: np.ndarray | None = None, disturbance: Any = None, config: Any = None, gains: dict[str, np.ndarray] | None = None,
-            on_infeasible: str = "raise", noise_sigma: tuple[float, float] = (0.0, 0.0)) -> CompiledInputs:
+            on_infeasible: str = "raise", noise_sigma: tuple[float, float] = (0.0, 0.0), faults: list[tuple[Any, ...]] | None = None) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
-    Sensor-noise draws are given per batch (:meth:`CompiledInputs.subset`); none here."""
+    Sensor-noise draws are given per batch (:meth:`CompiledInputs.subset`); none here.  ``faults``:
+    one fault list per run (a campaign's dispersed faults; the same kinds in the same slots), else
+    the scenario's for every run."""
     ensure_compiled()
-    if scenario.faults:
-        raise ConfigError(f"scenario {scenario.name!r} has faults: the compiled loop does not model them yet (run it with `sappc run`)")
     cfg = scenario.controller_config(controller) if config is None else config
     q0 = _f64(np.atleast_2d(np.asarray(scenario.q_BN0 if q_BN0 is None else q_BN0, dtype=np.float64)))
     n = q0.shape[0]
@@ -232,16 +328,30 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     use_table = rand_draws.shape[0] == 0 and bool(np.all(dscale == dscale[:1]) and np.all(dphase == dphase[:1]))
     d_table = (disturbance_table(t, kinds, dparams, dscale[0], dphase[0], rand_draws[:, 0], rand_win) if use_table
                else np.zeros((0, 3)))
+    t_ns = np.array([seconds_to_ns(float(tk)) for tk in t], dtype=np.int64)  # the plant's stamps
+    per_run_faults = [scenario.faults] * n if faults is None else list(faults)
+    if len(per_run_faults) != n:
+        raise ValueError(f"faults must hold one list per run ({n}), got {len(per_run_faults)}")
+    enc = [encode_faults(tuple(f)) for f in per_run_faults]
+    if any(e.kind.shape != enc[0].kind.shape for e in enc):
+        raise ValueError("every run's faults must have the same number of entries")
+    fkind = np.ascontiguousarray(np.stack([e.kind for e in enc]), dtype=np.int64)
+    fint = np.ascontiguousarray(np.stack([e.samples for e in enc]), dtype=np.int64)
+    fdraws = noise_draws(tuple(per_run_faults[0]), t_ns) if any(e.has_noise for e in enc) else np.zeros((1, enc[0].n, 6))
     return CompiledInputs(kind_of(cfg), prm, _f64(coef), x0, J, J_inv, int(scenario.rk4_substeps), float(scenario.control_period_s), t,
                           ref_q, _f64(ref_w), _f64(ref_wd), use_table, _f64(d_table), np.ascontiguousarray(kinds, dtype=np.int64),
                           _f64(dparams), _f64(dscale), _f64(dphase), _f64(rand_draws), np.ascontiguousarray(rand_win, dtype=np.int64),
-                          flags, np.zeros((n, 0, 6)), _f64(noise_sigma))
+                          flags, np.zeros((n, 0, 6)), _f64(noise_sigma), t_ns,
+                          seconds_to_ns(scenario.controller_node.stale_timeout_s), float(scenario.actuator.max_torque_Nm),
+                          fkind, _f64(np.stack([e.window for e in enc])), _f64(np.stack([e.params for e in enc])), fint,
+                          max(e.depth for e in enc), _f64(fdraws))
 
 
 def _outputs(inp: CompiledInputs, stride: int, n: int) -> tuple[np.ndarray, ...]:
     T = inp.t.size
     T_rec = 0 if stride == 0 else (T - 1) // stride + 1
-    return (np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, 7)))
+    return (np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, T_rec), dtype=np.int8),
+            np.zeros((n, 7)))
 
 
 def _check_noise(inp: CompiledInputs) -> None:
@@ -257,19 +367,19 @@ def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = N
     """
     _check_noise(inp)
     if into is not None and into.out.shape[0] == inp.n_runs and into.x.shape[1] == (0 if stride == 0 else (inp.t.size - 1) // stride + 1):
-        hist, x_hist, d_hist, x_final = into.out, into.x, into.d, into.x_final
+        hist, x_hist, d_hist, s_hist, x_final = into.out, into.x, into.d, into.status, into.x_final
     else:
-        hist, x_hist, d_hist, x_final = _outputs(inp, stride, inp.n_runs)
-    run_batch_kernel(*inp.args(), stride, hist, x_hist, d_hist, x_final)
-    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, x_final)
+        hist, x_hist, d_hist, s_hist, x_final = _outputs(inp, stride, inp.n_runs)
+    run_batch_kernel(*inp.args(), stride, hist, x_hist, d_hist, s_hist, x_final)
+    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, x_final)
 
 
 def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
     """Run ``n`` of ``inp`` alone (one thread): histories with a leading axis of length 1."""
     _check_noise(inp)
-    hist, x_hist, d_hist, x_final = _outputs(inp, stride, 1)
-    run_single_kernel(n, *inp.args(), stride, hist, x_hist, d_hist, x_final)
-    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, x_final)
+    hist, x_hist, d_hist, s_hist, x_final = _outputs(inp, stride, 1)
+    run_single_kernel(n, *inp.args(), stride, hist, x_hist, d_hist, s_hist, x_final)
+    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, x_final)
 
 
 def simulate_compiled(scenario: Scenario, controller: Any = None) -> CompiledRun:

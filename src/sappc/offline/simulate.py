@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 
-from gnc_common.validation import ConfigError
 from spacecraft_sim.core.disturbance import DisturbanceModel
 
 from sappc.evaluation.history import History
@@ -38,6 +37,7 @@ class SimulationResult:
     controller: ControllerKind
     history: History
     metrics: dict[str, Any]
+    controller_summary: dict[str, int] = dataclasses.field(default_factory=dict)
 
     def report(self) -> dict[str, Any]:
         """JSON-ready summary: metrics, controller, and every parameter used."""
@@ -46,6 +46,7 @@ class SimulationResult:
             "scenario": self.scenario.name,
             "controller": self.controller.value,
             "metrics": self.metrics,
+            "controller_summary": self.controller_summary,
             "parameters": {
                 "scenario": self.scenario.raw,
                 "controller": _jsonable(dataclasses.asdict(config)),
@@ -71,12 +72,21 @@ class ScenarioRun:
 
     ``flags``: the RPF's ``flat`` and ``clamped`` components (N, 3); ``history``: every sample of
     every run (``keep_history``), else ``None``; ``trajectory``: ``(t, q_ev, rho)`` of the first
-    runs every ``stride`` samples (float32 (T_s, n, 3)), else ``None``; ``x_final`` (N, 7)."""
+    runs every ``stride`` samples (float32 (T_s, n, 3)), else ``None``; ``x_final`` (N, 7);
+    ``status``: per run (N,), the samples the controller answered in each way
+    (:data:`~sappc.offline.compiled_loop.STATUS_NAMES`)."""
 
     flags: dict[str, np.ndarray]
     history: History | None
     trajectory: tuple[np.ndarray, np.ndarray, np.ndarray] | None
     x_final: np.ndarray
+    status: dict[str, np.ndarray]
+
+    def controller_summary(self, k: int = 0) -> dict[str, int]:
+        """What the controller did in run ``k``: samples answered in each way (``commanded``,
+        ``watchdog_zero``, ``no_answer``, ``refused``) and ``samples``."""
+        counts = {name: int(v[k]) for name, v in self.status.items()}
+        return {"samples": sum(counts.values()), **counts}
 
 
 def run_scenario(
@@ -90,6 +100,7 @@ def run_scenario(
     inertia_kg_m2: np.ndarray | None = None,
     disturbance: DisturbanceModel | None = None,
     gains: dict[str, np.ndarray] | None = None,
+    faults: list[tuple[Any, ...]] | None = None,
     sensor_noise: tuple[float, float, Callable[[int, int], np.ndarray]] | None = None,
     keep_history: bool = False,
     trajectory: tuple[int, int] | None = None,
@@ -118,16 +129,11 @@ def run_scenario(
     run : ScenarioRun
         RPF flags, the history when kept, trajectories, final states.
     """
-    if scenario.faults:
-        raise ConfigError(
-            f"scenario {scenario.name!r} has faults: they are injected by relaying topics on the ROS 2 graph; "
-            "run it with `sappc run` (the offline runner has only disturbance torques)"
-        )
     config = scenario.controller_config(controller) if controller_config is None else controller_config
     inp = compiled_loop.prepare(
         scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
         disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
-        noise_sigma=(0.0, 0.0) if sensor_noise is None else (sensor_noise[0], sensor_noise[1]),
+        noise_sigma=(0.0, 0.0) if sensor_noise is None else (sensor_noise[0], sensor_noise[1]), faults=faults,
     )
     n = inp.n_runs
     step = n if keep_history else max(1, min(sub_batch, n))
@@ -136,6 +142,7 @@ def run_scenario(
     histories: list[History] = []
     traj: list[tuple[np.ndarray, np.ndarray]] = []
     x_final = np.empty((n, 7))
+    status = {name: np.zeros(n, dtype=np.int64) for name in compiled_loop.STATUS_NAMES}
     buffer: compiled_loop.CompiledRun | None = None
     for lo in range(0, n, step):
         hi = min(lo + step, n)
@@ -146,6 +153,8 @@ def run_scenario(
         acc.add_history(h)
         parts.append(acc)
         x_final[lo:hi] = buffer.x_final
+        for name, count in buffer.status_counts().items():
+            status[name][lo:hi] = count
         if keep_history:
             histories.append(h)
         if lo < n_traj:
@@ -157,7 +166,7 @@ def run_scenario(
     trajectories = None
     if traj:
         trajectories = (inp.t[::traj_stride].copy(), np.concatenate([q for q, _ in traj], axis=1), np.concatenate([r for _, r in traj], axis=1))
-    return metrics, ScenarioRun(inp.flags, histories[0] if keep_history else None, trajectories, x_final)
+    return metrics, ScenarioRun(inp.flags, histories[0] if keep_history else None, trajectories, x_final, status)
 
 
 def simulate(scenario: Scenario, controller: ControllerKind | str | None = None) -> SimulationResult:
@@ -172,7 +181,7 @@ def simulate(scenario: Scenario, controller: ControllerKind | str | None = None)
     result = metrics.run_metrics(0)
     result["wall_time_s"] = time.perf_counter() - start
     assert run.history is not None
-    return SimulationResult(scenario=scenario, controller=kind, history=run.history, metrics=result)
+    return SimulationResult(scenario=scenario, controller=kind, history=run.history, metrics=result, controller_summary=run.controller_summary(0))
 
 
 def metrics_accumulator(scenario: Scenario, t: np.ndarray, n_runs: int) -> MetricsAccumulator:

@@ -1,10 +1,13 @@
 """Actuator, sensor and link faults, applied to samples travelling between plant and controller.
 
-The injector node relays the controller's torque to the plant and the plant's state to the
-controller through these models (README, "Faults"); they are pure numpy, so any other
-caller gets the same faulty samples.  Each fault acts in a window ``start_s <= t < end_s``
-(``end_s`` omitted: until the end), compared with
-:data:`~spacecraft_sim.core.disturbance.TIME_TOLERANCE_S`, where ``t`` is the sample's stamp.
+One implementation, two callers: the injector node relays the plant's state, the reference and
+the controller's torque through :class:`FaultSchedule` one message at a time (README, "Faults"),
+and the offline loop (:mod:`sappc.offline.compiled_loop`) applies the same compiled kernels
+(:func:`spacecraft_sim.core.kernels.fault_sensor`, ``fault_reference``, ``fault_actuator``) to
+its arrays, so a fault scenario gives the same run offline, in a campaign and through the
+lockstep graph.  Each fault acts in a window ``start_s <= t < end_s`` (``end_s`` omitted: until
+the end), compared with :data:`~spacecraft_sim.core.disturbance.TIME_TOLERANCE_S`, where ``t``
+is the sample's stamp.
 
 Kinds (a scenario's ``faults:`` list, ``{kind: ..., <fields>}``):
 
@@ -12,24 +15,28 @@ Kinds (a scenario's ``faults:`` list, ``{kind: ..., <fields>}``):
 ``actuator_effectiveness``  ``effectiveness`` (3 values in [0, 1]): applied torque = e * command
 ``actuator_bias``           ``bias_Nm`` (3): applied torque = command + bias
 ``actuator_stuck``          the torque commanded at the window's first sample is held
+``actuator_dropout``        commands are lost on the link: the actuator holds the last
+                            delivered torque
 ``sensor_noise``            ``attitude_std_rad``, ``rate_std_rad_s``, ``seed``: white noise, a
                             small rotation on the attitude and an additive rate error, drawn
                             from ``default_rng([seed, stamp_ns])`` (a pure function of the
                             sample, whatever order samples are asked in)
 ``sensor_bias``             ``attitude_bias_rad`` (a rotation vector), ``rate_bias_rad_s``
-``sensor_dropout``          samples are not delivered
+``sensor_dropout``          state samples are not delivered
 ``sensor_freeze``           the sample at the window's start is delivered again and again
+``reference_dropout``       reference samples are not delivered
 ``delay``                   ``path`` (``sensor`` or ``actuator``), ``samples`` n: the content of
                             the sample n steps earlier is delivered with the current stamp
                             (the first n samples of the window deliver the window's first one)
 =========================  =====================================================================
 
-Sensor faults compose in list order; the attitude stays a unit quaternion.
+Faults on one path compose in list order (a dropout hides the sample from the faults after it);
+the attitude stays a unit quaternion.  What the controller does without inputs (the stale-input
+watchdog) is the controller node's rule, modelled offline by the compiled loop.
 """
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 from enum import Enum
 from typing import Any
@@ -37,12 +44,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from gnc_common.attitude import quat_multiply, quat_normalize, rotation_vector_to_quaternion
+from gnc_common.attitude import rotation_vector_to_quaternion
 from spacecraft_sim.core import kernels
 from spacecraft_sim.core.disturbance import TIME_TOLERANCE_S
 from gnc_common.validation import ConfigError, as_finite_array, check_positive, from_kind_list
 
-__all__ = ["FAULT_KINDS", "FaultPath", "FaultSchedule", "faults_from_list", "noisy_measurement"]
+__all__ = ["FAULT_KINDS", "EncodedFaults", "FaultPath", "FaultSchedule", "encode_faults", "faults_from_list", "noise_draws", "noisy_measurement"]
 
 Array = NDArray[np.float64]
 
@@ -145,6 +152,24 @@ class SensorFreeze(_Windowed):
         _window_check(self)
 
 
+@dataclass(frozen=True)
+class ReferenceDropout(_Windowed):
+    start_s: float = 0.0
+    end_s: float | None = None
+
+    def __post_init__(self) -> None:
+        _window_check(self)
+
+
+@dataclass(frozen=True)
+class ActuatorDropout(_Windowed):
+    start_s: float = 0.0
+    end_s: float | None = None
+
+    def __post_init__(self) -> None:
+        _window_check(self)
+
+
 class FaultPath(str, Enum):
     """The link a delay acts on."""
 
@@ -173,15 +198,14 @@ FAULT_KINDS: dict[str, type] = {
     "actuator_effectiveness": ActuatorEffectiveness,
     "actuator_bias": ActuatorBias,
     "actuator_stuck": ActuatorStuck,
+    "actuator_dropout": ActuatorDropout,
     "sensor_noise": SensorNoise,
     "sensor_bias": SensorBias,
     "sensor_dropout": SensorDropout,
     "sensor_freeze": SensorFreeze,
+    "reference_dropout": ReferenceDropout,
     "delay": Delay,
 }
-
-_ACTUATOR = (ActuatorEffectiveness, ActuatorBias, ActuatorStuck)
-_SENSOR = (SensorNoise, SensorBias, SensorDropout, SensorFreeze)
 
 
 def faults_from_list(entries: object, prefix: str = "faults") -> tuple[Any, ...]:
@@ -199,16 +223,82 @@ def noisy_measurement(q_BN: Array, omega_BN_B: Array, n: Array, attitude_std_rad
     return q, w
 
 
-class _History:
-    """The last ``n + 1`` samples delivered to a delay, and the sample held by a freeze/stuck."""
+@dataclass(frozen=True)
+class EncodedFaults:
+    """A fault list as the kernels take it (:func:`encode_faults`).
 
-    def __init__(self) -> None:
-        self.held: dict[int, Any] = {}
-        self.queues: dict[int, deque[Any]] = {}
+    ``kind`` (F,) int64 (``kernels.F_*``), ``window`` (F, 2) start and end [s] (``inf``: open),
+    ``params`` (F, N_FPARAMS), ``samples`` (F,) int64 (a delay's samples, 0 otherwise), ``depth``:
+    the slots of the largest delay ring (``max(samples) + 1``)."""
+
+    kind: NDArray[np.int64]
+    window: Array
+    params: Array
+    samples: NDArray[np.int64]
+    depth: int
+
+    @property
+    def n(self) -> int:
+        return int(self.kind.size)
+
+    @property
+    def has_noise(self) -> bool:
+        """Whether a noise fault needs draws (:func:`noise_draws`)."""
+        return bool(np.any(self.kind == kernels.F_SENSOR_NOISE))
+
+    def new_state(self) -> tuple[NDArray[np.int64], Array]:
+        """Fresh delay/freeze state of one run: ``fcount`` (F,), ``fbuf`` (F, depth, N_FVALUE)."""
+        return np.zeros(self.n, dtype=np.int64), np.zeros((self.n, self.depth, kernels.N_FVALUE))
+
+
+def _kind_code(f: Any) -> int:
+    if isinstance(f, Delay):
+        return kernels.F_DELAY_SENSOR if f.path is FaultPath.SENSOR else kernels.F_DELAY_ACTUATOR
+    return _KIND_CODES[type(f)]
+
+
+def encode_faults(faults: tuple[Any, ...]) -> EncodedFaults:
+    """The faults of :func:`faults_from_list` as arrays for the kernels (list order kept)."""
+    n = len(faults)
+    kind = np.zeros(n, dtype=np.int64)
+    window = np.zeros((n, 2))
+    params = np.zeros((n, kernels.N_FPARAMS))
+    samples = np.zeros(n, dtype=np.int64)
+    for i, f in enumerate(faults):
+        kind[i] = _kind_code(f)
+        window[i] = (f.start_s, np.inf if f.end_s is None else f.end_s)
+        if isinstance(f, ActuatorEffectiveness):
+            params[i, :3] = f.effectiveness
+        elif isinstance(f, ActuatorBias):
+            params[i, :3] = f.bias_Nm
+        elif isinstance(f, SensorNoise):
+            params[i, :2] = (f.attitude_std_rad, f.rate_std_rad_s)
+        elif isinstance(f, SensorBias):
+            params[i, :4] = rotation_vector_to_quaternion(np.asarray(f.attitude_bias_rad, dtype=np.float64))
+            params[i, 4:7] = f.rate_bias_rad_s
+        elif isinstance(f, Delay):
+            samples[i] = f.samples
+    return EncodedFaults(kind, window, params, samples, int(samples.max(initial=0)) + 1)
+
+
+def noise_draws(faults: tuple[Any, ...], stamps_ns: NDArray[np.int64]) -> Array:
+    """The standard normals (T, F, 6) of every noise fault at every stamp (zeros for the other
+    faults): ``default_rng([seed, stamp_ns]).standard_normal(6)``, a pure function of the
+    sample's stamp [ns], so the injector (one sample at a time) and the offline loop (every sample,
+    before the loop; the kernel uses those inside the window) draw the same values.  About 10 us
+    a sample and noise fault."""
+    out = np.zeros((stamps_ns.size, len(faults), 6))
+    for i, f in enumerate(faults):
+        if isinstance(f, SensorNoise):
+            for k, ns in enumerate(stamps_ns.tolist()):
+                out[k, i] = np.random.default_rng([int(f.seed), int(ns)]).standard_normal(6)
+    return out
 
 
 class FaultSchedule:
-    """The faults of one run, applied sample by sample (stateful: delays, freezes, stuck).
+    """The faults of one run, applied sample by sample through the fault kernels
+    (:func:`spacecraft_sim.core.kernels.fault_sensor` and friends: the offline loop calls the same
+    ones on arrays).  Stateful: delays, freezes, a stuck actuator, the last delivered torque.
 
     Parameters
     ----------
@@ -218,60 +308,75 @@ class FaultSchedule:
 
     def __init__(self, faults: tuple[Any, ...] = ()) -> None:
         self.faults = tuple(faults)
-        self._h = _History()
+        self.encoded = encode_faults(self.faults)
+        self.reset()
+
+    def _has(self, codes: tuple[int, ...]) -> bool:
+        return bool(np.isin(self.encoded.kind, codes).any())
 
     @property
     def has_sensor_faults(self) -> bool:
-        return any(isinstance(f, _SENSOR) or (isinstance(f, Delay) and f.path is FaultPath.SENSOR) for f in self.faults)
+        """Faults acting on the measured state (the state is relayed)."""
+        return self._has(_SENSOR_CODES)
+
+    @property
+    def has_reference_faults(self) -> bool:
+        """Faults acting on the reference (the reference is relayed)."""
+        return self._has((kernels.F_REFERENCE_DROPOUT,))
 
     @property
     def has_actuator_faults(self) -> bool:
-        return any(isinstance(f, _ACTUATOR) or (isinstance(f, Delay) and f.path is FaultPath.ACTUATOR) for f in self.faults)
+        """Faults acting on the torque command (the command is relayed)."""
+        return self._has(_ACTUATOR_CODES)
 
     def events(self) -> list[tuple[float, float]]:
         """Windows of every fault (for marking plots and metrics)."""
         return sorted(e for f in self.faults for e in f.events())
 
     def reset(self) -> None:
-        self._h = _History()
-
-    def _delayed(self, i: int, f: Any, t: float, value: Any) -> Any:
-        if not f.active(t):
-            self._h.queues.pop(i, None)
-            self._h.held.pop(i, None)
-            return value
-        if isinstance(f, Delay):
-            q = self._h.queues.setdefault(i, deque([value] * f.samples, maxlen=f.samples + 1))
-            q.append(value)
-            return q[0]
-        return self._h.held.setdefault(i, value)  # freeze / stuck: the window's first sample
+        """Forget every held sample (a new run)."""
+        self._count, self._buf = self.encoded.new_state()
+        self._u_last = np.zeros(3)
+        self._y = np.zeros(7)
+        self._u = np.zeros(3)
+        self._draws = np.zeros((self.encoded.n, 6))
 
     def actuator(self, t: float, torque_B: Array) -> Array:
-        """Torque applied [N m] for the command ``torque_B`` (3,) stamped ``t``."""
-        out = np.array(torque_B, dtype=np.float64)
-        for i, f in enumerate(self.faults):
-            if isinstance(f, ActuatorEffectiveness) and f.active(t):
-                out = np.asarray(f.effectiveness) * out
-            elif isinstance(f, ActuatorBias) and f.active(t):
-                out = out + np.asarray(f.bias_Nm)
-            elif isinstance(f, ActuatorStuck) or (isinstance(f, Delay) and f.path is FaultPath.ACTUATOR):
-                out = np.array(self._delayed(i, f, t, out))
-        return out
+        """Torque the actuator applies [N m] for the command ``torque_B`` (3,) stamped ``t``
+        (while the command link drops commands: the last delivered torque, held)."""
+        e, u = self.encoded, self._u
+        u[:] = torque_B
+        kernels.fault_actuator_one(float(t), e.kind, e.window, e.params, e.samples, self._count, self._buf, u, self._u_last)
+        delivered: Array = u.copy()
+        return delivered
+
+    def reference(self, t: float) -> bool:
+        """Whether the reference stamped ``t`` is delivered."""
+        return bool(kernels.fault_reference_one(float(t), self.encoded.kind, self.encoded.window))
 
     def sensor(self, t: float, stamp_ns: int, q_BN: Array, omega_BN_B: Array) -> tuple[Array, Array] | None:
         """The measurement delivered for the true sample ``(q_BN, omega_BN_B)`` stamped ``t``
         (``stamp_ns`` in nanoseconds, the noise key), or ``None`` when it is dropped."""
-        q = np.array(q_BN, dtype=np.float64)
-        w = np.array(omega_BN_B, dtype=np.float64)
-        for i, f in enumerate(self.faults):
-            if isinstance(f, SensorNoise) and f.active(t):
-                n = np.random.default_rng([int(f.seed), int(stamp_ns)]).standard_normal(6)
-                q, w = noisy_measurement(q, w, n, f.attitude_std_rad, f.rate_std_rad_s)
-            elif isinstance(f, SensorBias) and f.active(t):
-                q = quat_normalize(quat_multiply(q[None], rotation_vector_to_quaternion(np.asarray(f.attitude_bias_rad, dtype=np.float64))[None]))[0]
-                w = w + np.asarray(f.rate_bias_rad_s)
-            elif isinstance(f, SensorDropout) and f.active(t):
-                return None
-            elif isinstance(f, SensorFreeze) or (isinstance(f, Delay) and f.path is FaultPath.SENSOR):
-                q, w = (np.array(v) for v in self._delayed(i, f, t, (q, w)))
-        return q, w
+        e, y = self.encoded, self._y
+        y[:4] = q_BN
+        y[4:] = omega_BN_B
+        if e.has_noise:
+            self._draws[:] = noise_draws(self.faults, np.array([stamp_ns], dtype=np.int64))[0]
+        if not kernels.fault_sensor_one(float(t), e.kind, e.window, e.params, e.samples, self._count, self._buf, self._draws, y):
+            return None
+        return y[:4].copy(), y[4:].copy()
+
+
+_KIND_CODES: dict[type, int] = {
+    ActuatorEffectiveness: kernels.F_ACT_EFFECTIVENESS,
+    ActuatorBias: kernels.F_ACT_BIAS,
+    ActuatorStuck: kernels.F_ACT_STUCK,
+    ActuatorDropout: kernels.F_ACT_DROPOUT,
+    SensorNoise: kernels.F_SENSOR_NOISE,
+    SensorBias: kernels.F_SENSOR_BIAS,
+    SensorDropout: kernels.F_SENSOR_DROPOUT,
+    SensorFreeze: kernels.F_SENSOR_FREEZE,
+    ReferenceDropout: kernels.F_REFERENCE_DROPOUT,
+}
+_SENSOR_CODES = (kernels.F_SENSOR_NOISE, kernels.F_SENSOR_BIAS, kernels.F_SENSOR_DROPOUT, kernels.F_SENSOR_FREEZE, kernels.F_DELAY_SENSOR)
+_ACTUATOR_CODES = (kernels.F_ACT_EFFECTIVENESS, kernels.F_ACT_BIAS, kernels.F_ACT_STUCK, kernels.F_ACT_DROPOUT, kernels.F_DELAY_ACTUATOR)

@@ -372,6 +372,139 @@ def noisy_measurement(q_BN, omega_BN_B, n, attitude_std_rad, rate_std_rad_s, q_o
         omega_out[i] = omega_BN_B[i] + rate_std_rad_s * n[3 + i]
 
 
+# ============================================================================= faults
+
+#: Fault kinds of :func:`fault_sensor` / :func:`fault_actuator` (``fkind``); see
+#: :mod:`.faults` for their meaning and :func:`.faults.encode_faults` for the encoding.
+(F_ACT_EFFECTIVENESS, F_ACT_BIAS, F_ACT_STUCK, F_ACT_DROPOUT, F_SENSOR_NOISE, F_SENSOR_BIAS, F_SENSOR_DROPOUT, F_SENSOR_FREEZE,
+ F_DELAY_SENSOR, F_DELAY_ACTUATOR, F_REFERENCE_DROPOUT) = range(11)
+#: Columns of ``fprm`` (per fault): effectiveness or bias (3); noise sigmas (2); sensor bias:
+#: the bias rotation as a quaternion (4) then the rate bias (3).
+N_FPARAMS = 7
+#: Values of a sample a delay or freeze keeps: the measured state (q, omega: 7) or a torque (3).
+N_FVALUE = 7
+
+
+@jit(inline="always")
+def fault_active(fwin, f, t):
+    """Whether fault ``f`` acts at ``t``: ``start_s <= t < end_s`` (``fwin[f] = (start, end)``,
+    ``end = inf`` when open), with :data:`TIME_TOLERANCE_S`."""
+    return fwin[f, 0] - _TOL <= t and t < fwin[f, 1] - _TOL
+
+
+@jit(inline="always")
+def _fault_hold(fcount, fbuf, f, n, value, m):
+    """A delay of ``n`` samples (``n = 0``: a freeze, the window's first sample held) through
+    fault ``f``'s ring ``fbuf[f]`` (``n + 1`` slots): ``value[:m]`` is replaced in place by the
+    value ``n`` samples earlier in the window (the window's first while fewer have passed)."""
+    j = fcount[f]
+    slots = n + 1
+    if n == 0:
+        if j == 0:
+            for i in range(m):
+                fbuf[f, 0, i] = value[i]
+        else:
+            for i in range(m):
+                value[i] = fbuf[f, 0, i]
+    else:
+        for i in range(m):
+            fbuf[f, j % slots, i] = value[i]
+        src = j - n if j >= n else 0
+        for i in range(m):
+            value[i] = fbuf[f, src % slots, i]
+    fcount[f] = j + 1
+
+
+@jit(inline="always")
+def fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, draws, y):
+    """The measurement delivered for the true sample ``y`` = (q_BN, omega_BN_B) (7,) at ``t``,
+    through the sensor faults in list order, in place; ``False`` when it is dropped (the faults
+    after the dropout in the list do not see the sample).
+
+    ``fcount`` (F,) int64 and ``fbuf`` (F, D, N_FVALUE): the delays' and freezes' state (samples
+    since the window opened; reset when it closes).  ``draws`` (F, 6): this sample's standard
+    normals of each noise fault (their source is the caller's, :func:`.faults.noise_draws`)."""
+    tmp = np.empty(4)
+    for f in range(fkind.shape[0]):
+        kind = fkind[f]
+        if kind == F_SENSOR_NOISE:
+            if fault_active(fwin, f, t):
+                noisy_measurement(y[:4], y[4:], draws[f], fprm[f, 0], fprm[f, 1], y[:4], y[4:])
+        elif kind == F_SENSOR_BIAS:
+            if fault_active(fwin, f, t):
+                quat_multiply(y[:4], fprm[f, :4], tmp)
+                quat_normalize(tmp, y[:4])
+                for i in range(3):
+                    y[4 + i] = y[4 + i] + fprm[f, 4 + i]
+        elif kind == F_SENSOR_DROPOUT:
+            if fault_active(fwin, f, t):
+                return False
+        elif kind == F_SENSOR_FREEZE or kind == F_DELAY_SENSOR:
+            if fault_active(fwin, f, t):
+                _fault_hold(fcount, fbuf, f, fint[f], y, 7)
+            else:
+                fcount[f] = 0
+    return True
+
+
+@jit(inline="always")
+def fault_reference(t, fkind, fwin):
+    """Whether the reference of ``t`` is delivered (no reference dropout acts)."""
+    for f in range(fkind.shape[0]):
+        if fkind[f] == F_REFERENCE_DROPOUT and fault_active(fwin, f, t):
+            return False
+    return True
+
+
+@jit(inline="always")
+def fault_actuator(t, fkind, fwin, fprm, fint, fcount, fbuf, u, u_last):
+    """The torque delivered to the plant for the command ``u`` (3,) at ``t``, through the actuator
+    faults in list order, in place.  A dropped command (``actuator_dropout``) leaves the actuator
+    holding the last delivered one: ``u`` becomes ``u_last`` and ``False`` is returned; otherwise
+    ``u_last`` becomes ``u``.  State as in :func:`fault_sensor`."""
+    for f in range(fkind.shape[0]):
+        kind = fkind[f]
+        if kind == F_ACT_EFFECTIVENESS:
+            if fault_active(fwin, f, t):
+                for i in range(3):
+                    u[i] = fprm[f, i] * u[i]
+        elif kind == F_ACT_BIAS:
+            if fault_active(fwin, f, t):
+                for i in range(3):
+                    u[i] = u[i] + fprm[f, i]
+        elif kind == F_ACT_DROPOUT:
+            if fault_active(fwin, f, t):
+                for i in range(3):
+                    u[i] = u_last[i]
+                return False
+        elif kind == F_ACT_STUCK or kind == F_DELAY_ACTUATOR:
+            if fault_active(fwin, f, t):
+                _fault_hold(fcount, fbuf, f, fint[f], u, 3)
+            else:
+                fcount[f] = 0
+    for i in range(3):
+        u_last[i] = u[i]
+    return True
+
+
+@jit
+def fault_sensor_one(t, fkind, fwin, fprm, fint, fcount, fbuf, draws, y):
+    """:func:`fault_sensor` called from Python (the injector node, one sample)."""
+    return fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, draws, y)
+
+
+@jit
+def fault_actuator_one(t, fkind, fwin, fprm, fint, fcount, fbuf, u, u_last):
+    """:func:`fault_actuator` called from Python (the injector node, one sample)."""
+    return fault_actuator(t, fkind, fwin, fprm, fint, fcount, fbuf, u, u_last)
+
+
+@jit
+def fault_reference_one(t, fkind, fwin):
+    """:func:`fault_reference` called from Python (the injector node, one sample)."""
+    return fault_reference(t, fkind, fwin)
+
+
 # ============================================================================= cache
 
 
