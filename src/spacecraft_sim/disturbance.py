@@ -91,6 +91,7 @@ class InjectorNode(ProjectNode):
         super().__init__(node_name, **kwargs)
         self.disturbance, self.faults = load_schedule(str(self.param("schedule_file", "")))
         self.disturbance.torque_B(np.array([0.0]), 1)  # load the compiled models now, not at the first sample
+        self.faults.warm_up()  # (the plant waits lockstep_timeout_s for the first torque, a compile is longer)
         self.mode = self.mode_param()
         self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
         duration = check_positive("duration_s", self.param("duration_s", 0.0), allow_zero=True)

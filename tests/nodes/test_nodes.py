@@ -140,6 +140,7 @@ def test_bad_inputs_are_rejected_counted_and_never_reach_the_torque(controller, 
     assert all(np.all(np.isfinite(tq)) for _, tq in drv.torques)
     drv.spin_until(lambda: len(drv.diags) == 2, "diagnostics")
     assert drv.diags[1]["status"][0] == node.rejected >= 1  # counted in diagnostics
+    assert node.rejected_by_reason == {"invalid": node.rejected}
 
 
 def test_stamps_in_the_past_or_far_future_are_rejected(controller) -> None:  # type: ignore[no-untyped-def]
@@ -151,6 +152,19 @@ def test_stamps_in_the_past_or_far_future_are_rejected(controller) -> None:  # t
     drv.pub[c.STATE_ATTITUDE.name].publish(quaternion_msg(Q0, 100.0, c.STATE_ATTITUDE))  # 99 s ahead of /clock
     drv.spin_until(lambda: node.rejected >= 6, "a far-future stamp rejected")
     assert len(drv.torques) == 1
+    assert node.rejected_by_reason == {"stamp_in_past": 5, "stamp_too_far_ahead": 1}  # counted by reason
+
+
+def test_a_finite_input_that_gives_a_non_finite_torque_is_refused_and_counted(controller) -> None:  # type: ignore[no-untyped-def]
+    """A rate of 1e300 rad/s is finite, so the input checks pass, but the law's torque is not:
+    the core refuses it, the node publishes zero, counts the refused step and codes the answer."""
+    node, drv = controller
+    drv.send_sample(0.0, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
+    drv.send_sample(0.01, q=Q0, w=(1e300, 0.0, 0.0))
+    drv.spin_until(lambda: len(drv.torques) == 2 and len(drv.diags) == 2, "the refused step's answer")
+    assert np.all(drv.torques[1][1] == 0.0) and node.refused == 1 and node.rejected == 0
+    assert drv.diags[1]["status"][2] == c.ANSWER_REFUSED
 
 
 def test_stale_inputs_give_zero_torque_then_control_resumes(controller) -> None:  # type: ignore[no-untyped-def]

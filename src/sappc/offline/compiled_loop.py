@@ -464,8 +464,14 @@ def warm_up() -> None:
     # the entry points the nodes and `sappc rerun` call from Python: the controller step (one run and
     # a batch), the plant, the disturbances, the reference
     from spacecraft_sim.core import kernels as plant_kernels
+    from spacecraft_sim.core.faults import FAULT_KINDS, FaultSchedule, faults_from_list
 
     plant_kernels.warm_up()
+    # the injector's per-message fault kernels (one schedule holding every kind)
+    every_kind = [{"kind": k, **({"path": "sensor", "samples": 1} if k == "delay" else {}),
+                   **({"effectiveness": [1.0, 1.0, 1.0]} if k == "actuator_effectiveness" else {}),
+                   **({"bias_Nm": [0.0, 0.0, 0.0]} if k == "actuator_bias" else {})} for k in FAULT_KINDS]
+    FaultSchedule(faults_from_list(every_kind)).warm_up()
     ctrl = scenario.build_controller()
     for q in (scenario.q_BN0, np.stack((scenario.q_BN0, scenario.q_BN0))):
         ctrl.reset()

@@ -333,6 +333,14 @@ class FaultSchedule:
         """Windows of every fault (for marking plots and metrics)."""
         return sorted(e for f in self.faults for e in f.events())
 
+    def warm_up(self) -> None:
+        """Load the fault kernels now (numba's cache), not at the first relayed sample, then
+        forget the sample used (a node calls this before its first message)."""
+        self.sensor(0.0, 0, np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3))
+        self.reference(0.0)
+        self.actuator(0.0, np.zeros(3))
+        self.reset()
+
     def reset(self) -> None:
         """Forget every held sample (a new run)."""
         self._count, self._buf = self.encoded.new_state()

@@ -254,20 +254,22 @@ def test_a_real_time_bag_without_diagnostics_interpolates_the_reference_and_leav
 
 
 def test_the_run_summary_counts_what_the_controller_did_and_sets_the_exit_status() -> None:
-    """``sappc run`` reports, from the diagnostics, the samples with a computed torque, those
-    answered with zero torque and the rejected inputs; it exits 3 when the controller never
-    commanded a torque, 1 on a count mismatch, else 0."""
+    """``sappc run`` reports, from the diagnostics, how the controller answered each sample
+    (computed, watchdog zero, no answer, refused) and the rejected inputs; it exits 3 when the
+    controller never commanded a torque, 4 when the run broke a requirement, 1 on a count
+    mismatch, else 0."""
     from sappc.bag.read import BagRun
-    from sappc.cli import EXIT_CONTROLLER_NEVER_COMMANDED, run_exit_status
+    from sappc.cli import EXIT_CONTROLLER_NEVER_COMMANDED, EXIT_REQUIREMENT_FAILED, run_exit_status
 
-    def run(stale: list[bool], rejected: int, diagnostics: bool = True) -> BagRun:
-        return BagRun(history=None, t0_ns=0, stale=np.array(stale), rejected=rejected, torque_topic=None,  # type: ignore[arg-type]
+    def run(answer: list[int], rejected: int, diagnostics: bool = True) -> BagRun:
+        return BagRun(history=None, t0_ns=0, answer=np.array(answer, dtype=np.int8), rejected=rejected, torque_topic=None,  # type: ignore[arg-type]
                       has_diagnostics=diagnostics)
 
-    s = run([False, True, True, False], 7).controller_summary()
-    assert s == {"samples": 4, "zero_torque_stale": 2, "rejected_inputs": 7, "commanded": 2}
+    s = run([0, 1, 1, 2, 3, 0], 7).controller_summary()
+    assert s == {"samples": 6, "commanded": 2, "watchdog_zero": 2, "no_answer": 1, "refused": 1, "rejected_inputs": 7}
     assert run_exit_status({}, s) == 0 and run_exit_status({"/state/rate": (10, 9)}, s) == 1
-    never = run([True, True, True], 0).controller_summary()
+    assert run_exit_status({}, s, ["steady_max_abs_qev = 2e-4 > 1e-4"]) == EXIT_REQUIREMENT_FAILED == 4
+    never = run([1, 1, 3], 0).controller_summary()
     assert never["commanded"] == 0 and run_exit_status({}, never) == EXIT_CONTROLLER_NEVER_COMMANDED == 3
-    unknown = run([False, False], 0, diagnostics=False).controller_summary()
+    unknown = run([0, 0], 0, diagnostics=False).controller_summary()
     assert unknown["commanded"] is None and run_exit_status({}, unknown) == 0  # a plant of one's own without diagnostics
