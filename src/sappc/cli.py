@@ -94,7 +94,7 @@ def _print_outcome(scenario: Any, metrics: dict[str, Any], controller: dict[str,
     from sappc.evaluation.requirements import failed_requirements
 
     if controller.get("commanded") is not None:
-        others = ", ".join(f"{k.replace('_', ' ')} {controller[k]}" for k in ("watchdog_zero", "no_answer", "refused") if controller[k])
+        others = ", ".join(f"{k.replace('_', ' ')} {controller[k]}" for k in ("watchdog_zero", "held", "refused") if controller[k])
         rejected = controller.get("rejected_inputs")
         print(f"controller: computed the torque of {controller['commanded']} of {controller['samples']} samples"
               + (f"; not commanded: {others}" if others else "")

@@ -10,8 +10,12 @@ The five inputs are :data:`~sappc_msgs_py.contract.CONTROLLER_INPUTS`, in the or
 
 ``lockstep`` (:class:`LockstepPairing`)
     A sample is complete when the five inputs of one stamp have arrived; the step runs at that
-    stamp.  At most :data:`MAX_PENDING` incomplete stamps wait for their other inputs; beyond
-    that the oldest is dropped.
+    stamp.  An input that arrived but is invalid (a sensor's "no data": non-finite values, as
+    REP 117 has for invalid ranges; a wrong frame or a non-unit quaternion) still counts as
+    arrived (:meth:`LockstepPairing.add_invalid`): the sample completes without a step
+    (``valid`` false), so the controller answers it at once instead of waiting for a timeout.
+    At most :data:`MAX_PENDING` incomplete stamps wait for their other inputs; beyond that the
+    oldest is dropped.
 ``realtime`` (:class:`LatestInputs`)
     The step at a control instant uses the latest input of each topic; there is no sample until
     every topic has delivered one.  Whether the inputs are too old is the caller's decision
@@ -68,11 +72,15 @@ class ControlSample:
     values : tuple of ndarray
         The inputs in :data:`INPUT_TOPICS` order: ``q_BN`` (x, y, z, w), ``omega_BN_B``
         [rad/s], ``q_RN`` (x, y, z, w), ``omega_RN_R`` [rad/s], ``omegadot_RN_R`` [rad/s^2].
+        Empty when the sample is not ``valid``.
+    valid : bool
+        Every input arrived valid (lockstep: ``False`` when one arrived invalid).
     """
 
     t_ns: int
     input_ns: tuple[int, ...]
     values: tuple[Array, ...]
+    valid: bool = True
 
     @property
     def t_s(self) -> float:
@@ -94,15 +102,15 @@ class LockstepPairing:
     def __init__(self, topics: Sequence[Topic] = INPUT_TOPICS, max_pending: int = MAX_PENDING) -> None:
         self.topics = tuple(topics)
         self.max_pending = max_pending
-        self._pending: dict[int, dict[str, Array]] = {}  # stamp [ns] -> topic name -> value
+        self._pending: dict[int, dict[str, Array | None]] = {}  # stamp [ns] -> topic name -> value (None: invalid)
 
     @property
     def pending(self) -> int:
         """Number of stamps waiting for their other inputs."""
         return len(self._pending)
 
-    def add(self, topic_name: str, stamp_ns: int, value: Array) -> ControlSample | None:
-        """Take one (checked) input; return the sample it completes, if any.
+    def add(self, topic_name: str, stamp_ns: int, value: Array | None) -> ControlSample | None:
+        """Take one (checked) input, ``None`` when it arrived invalid; return the sample it completes, if any.
 
         Parameters
         ----------
@@ -124,10 +132,19 @@ class LockstepPairing:
         entry[topic_name] = value
         if len(entry) == len(self.topics):
             del self._pending[stamp_ns]
-            return ControlSample(stamp_ns, (stamp_ns,) * len(self.topics), tuple(entry[t.name] for t in self.topics))
+            values = [entry[t.name] for t in self.topics]
+            valid = [v for v in values if v is not None]
+            if len(valid) < len(values):
+                return ControlSample(stamp_ns, (stamp_ns,) * len(self.topics), (), valid=False)
+            return ControlSample(stamp_ns, (stamp_ns,) * len(self.topics), tuple(valid))
         if len(self._pending) > self.max_pending:
             del self._pending[min(self._pending)]
         return None
+
+    def add_invalid(self, topic_name: str, stamp_ns: int) -> ControlSample | None:
+        """Take an input that arrived invalid; return the sample it completes (``valid`` false), if
+        any (see :meth:`add`)."""
+        return self.add(topic_name, stamp_ns, None)
 
 
 class LatestInputs:

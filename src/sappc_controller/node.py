@@ -23,22 +23,27 @@ Modes (parameter ``mode``):
     reference.
 
 Input checks: a message with a wrong frame id, a non-finite value, a zero or non-unit
-quaternion, a stamp in the past (lockstep: not after the last computed sample; real time: not
-after the topic's previous message) or more than
-``max_stamp_ahead_s`` ahead of the controller's time ("far future") is rejected, logged and
-counted (diagnostics ``status[0]``); it never reaches the law.  When no valid state newer than
-``stale_timeout_s`` exists at a control instant (real time: on the timer; lockstep: on a
-``/clock`` tick), the controller commands zero torque and says so (``status[1] = 1``); it
-computes again as soon as valid inputs return.
+quaternion ("invalid"), a stamp in the past (lockstep: not after the last computed sample; real
+time: not after the topic's previous message) or more than ``max_stamp_ahead_s`` ahead of the
+controller's time ("far future") is rejected, logged and counted, in total (diagnostics
+``status[0]``) and by reason (:data:`REJECT_REASONS`); it never reaches the law.
 
-Recovery in lockstep is decided by stamps alone, whatever the order in which ``/clock`` and the
-inputs arrive: the plant publishes ``/clock`` t_k and waits for the torque of t_k, so during an
-outage the watchdog answers each tick with zero torque; the first complete sample after an outage
-(its state more than ``stale_timeout_s`` after the last valid one) is computed (the core steps on
-it, and it ends the outage), but its torque is the watchdog's zero, because its tick may already
-have been answered; control torques are applied again from the next sample.  A zero torque never
-moves the "last computed sample", so no valid input after an outage is refused as "in the past".  The published torque is always finite and
-within the actuator limits (the core refuses a non-finite torque; the node then publishes zero).
+Answers (diagnostics ``status[2]``, :data:`~sappc_msgs_py.contract.ANSWER_NAMES`): a sample
+whose inputs are complete and valid is computed.  Without one at a control instant, the
+controller commands zero torque when no valid state is newer than ``stale_timeout_s`` (the
+watchdog; ``status[1] = 1``), else it holds its last answer (a short outage is ridden through);
+it computes again as soon as valid inputs return.
+
+In lockstep the control instant of sample t_k is decided by the inputs themselves, whatever
+the order in which ``/clock`` and the inputs arrive: when the five inputs of t_k have arrived,
+valid or not (an invalid input, e.g. the fault injector's non-finite "no data" for a dropped
+measurement, counts as arrived), the sample is answered at once.  Only when an input of the
+latest ``/clock`` tick never arrives (a message lost on the network) does the tick wait
+``lockstep_grace_s`` of wall time before the same rule answers it, so a lost message costs that
+wait, not the plant's longer ``lockstep_timeout_s``.  A zero or held answer never moves the
+"last computed sample", so no valid input after an outage is refused as "in the past".  The
+published torque is always finite and within the actuator limits (the core refuses a
+non-finite torque; the node then publishes zero, counts the refused step and says so).
 """
 
 from __future__ import annotations
@@ -57,6 +62,7 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 
 from sappc_msgs_py.contract import (
     ANSWER_COMMANDED,
+    ANSWER_HELD,
     ANSWER_REFUSED,
     ANSWER_WATCHDOG_ZERO,
     CLOCK,
@@ -81,6 +87,7 @@ from sappc_controller.inputs import INPUT_TOPICS, NS_PER_S, STEP_ERRORS, Control
 from sappc_controller.params import (
     CONTROLLER_CLASSES,
     DEFAULT_CONTROL_PERIOD_S,
+    DEFAULT_LOCKSTEP_GRACE_S,
     DEFAULT_MAX_STAMP_AHEAD_S,
     DEFAULT_STALE_TIMEOUT_S,
     WATCHDOG_RANGE_S,
@@ -102,7 +109,9 @@ _NS = NS_PER_S
 REJECT_REASONS = ("invalid", "stamp_in_past", "stamp_too_far_ahead")
 
 #: Watchdog parameters: changeable at run time, applied at once, each within WATCHDOG_RANGE_S.
-_WATCHDOG_PARAMS = ("stale_timeout_s", "max_stamp_ahead_s")
+_WATCHDOG_PARAMS = ("stale_timeout_s", "max_stamp_ahead_s", "lockstep_grace_s")
+#: Period of the lockstep grace check [s]: the grace is honoured to within this.
+_GRACE_CHECK_S = 0.05
 
 
 def _watchdog_descriptor(description: str) -> ParameterDescriptor:
@@ -140,6 +149,8 @@ class ControllerNode(ProjectNode):
             "[s] zero torque when no valid state is newer than this at a control instant")))
         self.max_ahead_ns = _seconds_to_ns("max_stamp_ahead_s", self.param("max_stamp_ahead_s", DEFAULT_MAX_STAMP_AHEAD_S, _watchdog_descriptor(
             "[s] inputs stamped further ahead of the controller's time are rejected")))
+        self.grace_ns = _seconds_to_ns("lockstep_grace_s", self.param("lockstep_grace_s", DEFAULT_LOCKSTEP_GRACE_S, _watchdog_descriptor(
+            "[s] lockstep: wall time a /clock tick waits for an input that never arrives before it is answered")))
 
         # load the compiled step now (cache load ~1 s), not at the first sample, which the plant
         # waits for at most lockstep_timeout_s: a step at rest, then forget it
@@ -159,11 +170,14 @@ class ControllerNode(ProjectNode):
         self._last_state_ns: int | None = None  # stamp of the last valid state pair
         self._answered_ns: int | None = None  # lockstep: the latest stamp a torque was published for
         self._clock_ns: int | None = None  # lockstep: the latest /clock
+        self._clock_wall_ns = 0  # lockstep: wall time [ns] the latest /clock arrived
         self._pending = LockstepPairing(_INPUTS)  # lockstep: the inputs of each stamp until complete
         self._latest = LatestInputs(_INPUTS)  # real time: the latest input of each topic
         self._diag_rows = {k: np.zeros(3) for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
+        self._held: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros(3), np.zeros(3), np.zeros(3))  # last torque, command, saturation
         if self.mode == LOCKSTEP:
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
+            self.create_timer(_GRACE_CHECK_S, self._check_grace)
         else:
             self.create_timer(self.dt, self._on_timer)
         self.timing_file = str(self.param("timing_file", ""))
@@ -215,6 +229,7 @@ class ControllerNode(ProjectNode):
     def _apply_watchdog(self, watchdog_ns: dict[str, int]) -> None:
         self.stale_timeout_ns = watchdog_ns.get("stale_timeout_s", self.stale_timeout_ns)
         self.max_ahead_ns = watchdog_ns.get("max_stamp_ahead_s", self.max_ahead_ns)
+        self.grace_ns = watchdog_ns.get("lockstep_grace_s", self.grace_ns)
 
     # ---- inputs ---------------------------------------------------------------------------
     def _reject(self, reason: str, kind: str) -> None:
@@ -234,11 +249,6 @@ class ControllerNode(ProjectNode):
 
     def _on_input(self, msg: Any, topic: Topic) -> None:
         ns = stamp_to_ns(msg.header.stamp)
-        try:
-            value = self._decode(msg, topic)
-        except InputError as exc:
-            self._reject(str(exc), "invalid")
-            return
         last = self._last_ns if self.mode == LOCKSTEP else self._latest.last_ns(topic.name)
         if last is not None and ns <= last:
             what = "the last computed sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
@@ -248,23 +258,53 @@ class ControllerNode(ProjectNode):
         if now is not None and ns > now + self.max_ahead_ns:
             self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is more than {self.max_ahead_ns / _NS} s ahead of the controller's time {now / _NS:.9f} s", "stamp_too_far_ahead")
             return
+        value: np.ndarray | None
+        try:
+            value = self._decode(msg, topic)
+        except InputError as exc:
+            self._reject(str(exc), "invalid")
+            value = None  # lockstep: it arrived, invalid (module docstring)
         if self.mode == REALTIME:
-            self._latest.add(topic.name, ns, value)
+            if value is not None:
+                self._latest.add(topic.name, ns, value)
             return
         sample = self._pending.add(topic.name, ns, value)
-        if sample is not None:
+        if sample is None:
+            return
+        if sample.valid:
             self._compute(sample)
+        else:
+            self._answer_without_inputs(sample.t_ns)
 
     # ---- control instants -----------------------------------------------------------------
     def _outage_at(self, t_ns: int) -> bool:
-        """Lockstep: whether the last valid state is more than ``stale_timeout_s`` before ``t_ns``."""
+        """Whether the last valid state is more than ``stale_timeout_s`` before ``t_ns``."""
         return self._last_state_ns is not None and t_ns - self._last_state_ns > self.stale_timeout_ns
+
+    def _answered(self, t_ns: int) -> bool:
+        return self._answered_ns is not None and t_ns <= self._answered_ns
+
+    def _answer_without_inputs(self, t_ns: int) -> None:
+        """Lockstep: sample ``t_ns`` has no valid inputs: zero torque when stale, else the last answer held."""
+        if self._answered(t_ns):
+            return
+        if self._outage_at(t_ns):
+            self._publish_zero(t_ns, "no valid state", ANSWER_WATCHDOG_ZERO)
+        else:
+            torque, torque_cmd, saturated = self._held
+            self._publish(t_ns, torque, torque_cmd, saturated, [0] * len(_INPUTS), ANSWER_HELD)
 
     def _on_clock(self, msg: Any) -> None:
         self._clock_ns = stamp_to_ns(msg.clock)
-        answered = self._answered_ns is not None and self._clock_ns <= self._answered_ns
-        if not answered and self._outage_at(self._clock_ns):
-            self._publish_zero(self._clock_ns, "no valid state", ANSWER_WATCHDOG_ZERO)
+        self._clock_wall_ns = time.monotonic_ns()
+
+    def _check_grace(self) -> None:
+        """Lockstep: answer the latest tick when an input of it has not arrived within ``lockstep_grace_s``."""
+        t_ns = self._clock_ns
+        if t_ns is None or self._answered(t_ns) or time.monotonic_ns() - self._clock_wall_ns < self.grace_ns:
+            return
+        self.get_logger().warning(f"t = {t_ns / _NS:.3f} s: an input did not arrive within {self.grace_ns / _NS} s", throttle_duration_sec=1.0)
+        self._answer_without_inputs(t_ns)
 
     def _on_timer(self) -> None:
         self._tick_wall_ns.append(time.monotonic_ns())
@@ -280,7 +320,7 @@ class ControllerNode(ProjectNode):
     def _compute(self, sample: ControlSample) -> None:
         """One control step on a complete sample (the inputs paired by :mod:`sappc_controller.inputs`)."""
         t_ns, input_ns = sample.t_ns, list(sample.input_ns)
-        ends_outage = self.mode == LOCKSTEP and (self._outage_at(t_ns) or (self._answered_ns is not None and t_ns <= self._answered_ns))
+        late = self.mode == LOCKSTEP and self._answered(t_ns)  # its tick already answered (after the grace)
         try:
             out = step_sample(self.controller, self.dt, sample)
         except STEP_ERRORS as exc:
@@ -291,10 +331,8 @@ class ControllerNode(ProjectNode):
         self._last_ns = t_ns
         self._last_state_ns = max(input_ns[0], input_ns[1])
         self.steps += 1
-        if ends_outage:  # computed; its tick is (or will be) answered with the watchdog's zero (module docstring)
-            if self._answered_ns is None or t_ns > self._answered_ns:
-                self._publish_zero(t_ns, "first sample after an outage", ANSWER_WATCHDOG_ZERO)
-            self.get_logger().info("valid inputs again: control resumes at the next sample")
+        if late:  # computed (the law steps), but the tick was answered without it
+            self.get_logger().warning(f"the inputs of {t_ns / _NS:.3f} s arrived after their tick was answered")
             return
         if self.stale:
             self.get_logger().info("valid inputs again: control resumed")
@@ -313,11 +351,12 @@ class ControllerNode(ProjectNode):
 
     def _publish(self, t_ns: int, torque: np.ndarray, torque_cmd: np.ndarray, saturated: np.ndarray, input_ns: list[int], answer: int) -> None:
         self._answered_ns = t_ns if self._answered_ns is None else max(self._answered_ns, t_ns)
+        self._held = (np.array(torque, dtype=np.float64), np.array(torque_cmd, dtype=np.float64), np.array(saturated, dtype=np.float64))
         t = t_ns / _NS
         stamp = ns_to_stamp(t_ns)
         self.pub_torque.publish(torque_msg(torque, stamp, CONTROL_TORQUE))
         rows: dict[str, ArrayLike] = dict(self._diag_rows)
-        rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(self.stale), float(answer)],
+        rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(answer != ANSWER_COMMANDED), float(answer)],
                     input_stamps_state_s=[input_ns[0] / _NS, input_ns[1] / _NS, 0.0],
                     input_stamps_reference_s=[n / _NS for n in input_ns[2:]])
         self.pub_diag.publish(diagnostics_msg(t, rows))

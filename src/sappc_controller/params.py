@@ -35,6 +35,7 @@ from sappc_controller.core.sappc import SappcConfig, SappcController
 from sappc_controller.core.trappc import TrappcConfig, TrappcController
 
 __all__ = [
+    "DEFAULT_LOCKSTEP_GRACE_S",
     "DEFAULT_MAX_STAMP_AHEAD_S",
     "DEFAULT_STALE_TIMEOUT_S",
     "WATCHDOG_RANGE_S",
@@ -64,6 +65,11 @@ DEFAULT_STALE_TIMEOUT_S = 0.1
 #: Default ``max_stamp_ahead_s`` [s]: inputs stamped further ahead of the controller's time are
 #: rejected (a clock jump or a wrong stamp, not a late sample).
 DEFAULT_MAX_STAMP_AHEAD_S = 1.0
+#: Default ``lockstep_grace_s`` [s]: how long a lockstep tick waits for an input that never arrives
+#: (a message lost on the network) before it is answered; half the plant's default
+#: ``lockstep_timeout_s`` (2 s), so the controller answers first, and 100 times a control period,
+#: so a loaded machine's latency is not taken for a loss.
+DEFAULT_LOCKSTEP_GRACE_S = 1.0
 #: Range of the watchdog parameters [s]: from one microsecond (below it the nanosecond stamps
 #: cannot resolve the timeout) to an hour (an input older than an hour is never "fresh").
 WATCHDOG_RANGE_S = (1e-6, 3600.0)

@@ -65,7 +65,7 @@ __all__ = [
     "RELAYED_ACTUATOR_TOPICS",
     "ANSWER_COMMANDED",
     "ANSWER_NAMES",
-    "ANSWER_NO_ANSWER",
+    "ANSWER_HELD",
     "ANSWER_REFUSED",
     "ANSWER_WATCHDOG_ZERO",
     "RELAYED_REFERENCE_TOPICS",
@@ -223,16 +223,14 @@ DIAGNOSTICS_LAYOUT = (
 
 
 #: How the controller answered a sample (``controller/diagnostics`` ``status[2]``; the offline loop
-#: records the same codes): a computed torque; zero torque from the stale-input watchdog (no valid
-#: state newer than ``stale_timeout_s`` at the sample's tick; this includes the first complete
-#: sample after such an outage, on which the law steps but whose tick the watchdog answers,
-#: whatever the order in which ``/clock`` and the inputs arrive); no answer (inputs missing and
-#: not yet stale: the plant holds its last torque; no message, so a bag shows it as a sample
-#: without diagnostics of its stamp); zero torque because the core refused the step (a
-#: non-finite torque).
-ANSWER_COMMANDED, ANSWER_WATCHDOG_ZERO, ANSWER_NO_ANSWER, ANSWER_REFUSED = 0, 1, 2, 3
+#: records the same codes): a computed torque; zero torque from the stale-input watchdog (the
+#: sample's inputs are missing or invalid and no valid state is newer than ``stale_timeout_s``);
+#: the last torque held (inputs missing or invalid, not yet stale: a short outage is ridden
+#: through, as an actuator holds its last command); zero torque because the core refused the
+#: step (a non-finite torque).
+ANSWER_COMMANDED, ANSWER_WATCHDOG_ZERO, ANSWER_HELD, ANSWER_REFUSED = 0, 1, 2, 3
 #: Names of the answer codes, in code order (run summaries).
-ANSWER_NAMES = ("commanded", "watchdog_zero", "no_answer", "refused")
+ANSWER_NAMES = ("commanded", "watchdog_zero", "held", "refused")
 
 
 def qos_profile() -> QoSProfile:

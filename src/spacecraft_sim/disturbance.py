@@ -18,8 +18,10 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
   measurement on ``fault/state/*`` (the controller is remapped to those); with reference faults
   it does the same with the three reference topics (``fault/reference/*``); with actuator faults
   it relays ``control/torque`` to ``fault/control/torque`` (the plant is remapped to it).  A
-  dropped command is answered with the last delivered torque, with the dropped command's stamp
-  (the actuator holds it; the plant does not wait for a command that will never come).
+  dropped measurement or reference is relayed as "no data" (non-finite values, its stamp), which
+  the controller rejects but answers at once; a dropped command is answered with the last
+  delivered torque, with the dropped command's stamp (the actuator holds it; the plant does not
+  wait for a command that will never come).
 
 Parameters: ``schedule_file``, ``mode``, ``control_period_s``, ``duration_s`` (the grid's end; 0:
 none), and those of
@@ -63,6 +65,28 @@ from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from gnc_common.validation import ConfigError, InputError, check_positive
 
 __all__ = ["InjectorNode", "load_schedule", "main"]
+
+
+#: What a dropped measurement or reference is relayed as: a message of its stamp whose values are
+#: all NaN, a sensor's "no data" (the convention of REP 117 for invalid ranges).  The controller
+#: rejects it as invalid but knows the sample is complete, so it answers at once (held torque, or
+#: zero once stale) rather than after a timeout, and lockstep stays deterministic.
+_NO_DATA = float("nan")
+
+
+def _relayed_msg(topic: Topic, value: Any, stamp: Any) -> Any:
+    """The relay's message for ``topic`` (its :func:`faulty` twin) carrying ``value``, or "no data"
+    (:data:`_NO_DATA` in every field) when ``value`` is ``None``."""
+    out = faulty(topic)
+    if _is_quaternion(topic):
+        msg = quaternion_msg(np.array([0.0, 0.0, 0.0, 1.0]) if value is None else value, stamp, out)
+        if value is None:
+            msg.quaternion.x = msg.quaternion.y = msg.quaternion.z = msg.quaternion.w = _NO_DATA
+        return msg
+    msg = vector3_msg(np.zeros(3) if value is None else value, stamp, out)
+    if value is None:
+        msg.vector.x = msg.vector.y = msg.vector.z = _NO_DATA
+    return msg
 
 
 def _is_quaternion(topic: Topic) -> bool:
@@ -163,11 +187,8 @@ class InjectorNode(ProjectNode):
             values = self.faults.sensor(ns / 1e9, ns, *values)  # type: ignore[misc]  # the two state values
         elif not self.faults.reference(ns / 1e9):
             values = None
-        if values is None:
-            return  # dropped
-        for t, value in zip(path, values):
-            encode = quaternion_msg if _is_quaternion(t) else vector3_msg
-            self.pub_relay[t.name].publish(encode(value, msg.header.stamp, faulty(t)))
+        for t, value in zip(path, values or [None] * len(path)):
+            self.pub_relay[t.name].publish(_relayed_msg(t, value, msg.header.stamp))
 
     def _on_command(self, msg: Any, topic: Topic) -> None:
         try:

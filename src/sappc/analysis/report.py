@@ -152,10 +152,10 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
         if run.rejected:
             notes.append(f"the controller rejected {run.rejected} input message(s) (diagnostics status[0])")
         summary = run.controller_summary()
-        zero = {k: summary[k] for k in ("watchdog_zero", "refused", "no_answer") if summary[k]}
+        zero = {k: summary[k] for k in ("watchdog_zero", "refused", "held") if summary[k]}
         if zero:
             notes.append("samples the controller did not command: " + ", ".join(f"{k} {v}" for k, v in zero.items())
-                         + " (diagnostics status; no_answer: the plant held its last torque)")
+                         + " (diagnostics status; held: the plant held its last torque)")
     elif bag.truncated:
         notes.insert(0, f"the bag is cut short ({bag.truncated})")
     return BagAnalysis(path=Path(path), bag=bag, label=label, scenario=sc, controller=controller, run=run,

@@ -27,7 +27,7 @@ from sappc_msgs_py.contract import (
     CONTROLLER_DIAGNOSTICS,
     DISTURBANCE_TORQUE,
     ANSWER_NAMES,
-    ANSWER_NO_ANSWER,
+    ANSWER_HELD,
     ANSWER_REFUSED,
     ANSWER_WATCHDOG_ZERO,
     FAULT_PREFIX,
@@ -265,7 +265,7 @@ def bag_run(bag: Bag) -> BagRun:
     # the answer: the code of the sample's diagnostics (a bag from before the codes: stale flag ->
     # watchdog); no message of its stamp: no answer (the plant held its torque)
     code = np.where((status[:, 1] > 0.5) & (status[:, 2] == 0.0), float(ANSWER_WATCHDOG_ZERO), np.nan_to_num(status[:, 2]))
-    answer = np.where(exact, code, float(ANSWER_NO_ANSWER)).astype(np.int8)
+    answer = np.where(exact, code, float(ANSWER_HELD)).astype(np.int8)
 
     def one(a: NDArray[Any]) -> NDArray[Any]:
         return a[:, None, :]  # (T, 3) -> (T, 1, 3): one run

@@ -36,7 +36,7 @@ from sappc_controller.core.kernels import kind_of, pack_params, start_coef
 from spacecraft_sim.core.kernels import N_PLANT_WORK, disturbance_sample, disturbance_table, encode_disturbance, propagate
 from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_sensor, noisy_measurement, random_draws, reference_rate_tables
 from spacecraft_sim.core.faults import encode_faults, noise_draws
-from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_NO_ANSWER, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
+from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
 from sappc_msgs_py.convert import seconds_to_ns
 from spacecraft_sim.core.reference import sample_times
 
@@ -50,7 +50,7 @@ __all__ = ["CompiledInputs", "CompiledRun", "cache_is_warm", "ensure_compiled", 
 #: What the controller answered at a sample (``CompiledRun.status``): the codes of
 #: :data:`sappc_msgs_py.contract.ANSWER_NAMES`, decided as the controller node decides them in
 #: lockstep (:mod:`sappc_controller.node`).
-STATUS_COMMANDED, STATUS_WATCHDOG_ZERO, STATUS_NO_ANSWER, STATUS_REFUSED = ANSWER_COMMANDED, ANSWER_WATCHDOG_ZERO, ANSWER_NO_ANSWER, ANSWER_REFUSED
+STATUS_COMMANDED, STATUS_WATCHDOG_ZERO, STATUS_HELD, STATUS_REFUSED = ANSWER_COMMANDED, ANSWER_WATCHDOG_ZERO, ANSWER_HELD, ANSWER_REFUSED
 STATUS_NAMES = ANSWER_NAMES
 
 
@@ -70,13 +70,15 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
     (T or 1, F, 6) the noise faults' draws): the measurement and the reference go through
     :func:`~spacecraft_sim.core.kernels.fault_sensor` and ``fault_reference``, the answer through
     ``fault_actuator``, and the controller answers as the node does in lockstep (the ``STATUS_*``
-    codes, into ``s_hist``), with the stale-input watchdog of ``stale_ns`` [ns] on the stamps
-    ``t_ns``.  The plant applies the delivered torque clipped to ``u_max`` per axis.
+    codes, into ``s_hist``): a complete valid sample is computed; without one, zero torque when
+    the last valid state is more than ``stale_ns`` [ns] older than the sample (stamps ``t_ns``),
+    else its last answer again (held).  The plant applies the delivered torque clipped to
+    ``u_max`` per axis.
 
     Recorded, as a bag of the same run records it: the *true* error quaternion and state (the
-    metrics describe the real attitude), the delivered torque (held when no torque came), and the
-    controller's rows as last published (a zero answer publishes zero command and saturation and
-    keeps the previous rows; no answer publishes nothing)."""
+    metrics describe the real attitude), the delivered torque, and the controller's rows as last
+    published (a zero answer publishes zero command and saturation and keeps the previous rows; a
+    held answer repeats them)."""
     state = np.zeros(N_STATE)
     state[S_T0] = t_grid[0]  # the first sample fixes the time origin
     work = np.zeros((N_WORK, 4))
@@ -94,7 +96,8 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
     last_state_ns = 0
     d = np.zeros(3)
     u = np.zeros(3)
-    cmd = np.zeros(3)
+    cmd = np.zeros(3)  # the controller's last answer (what a held sample repeats)
+    u_cmd = np.zeros(3)
     T = t_grid.shape[0]
     for k in range(T):
         t = t_grid[k]
@@ -109,7 +112,6 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
             delivered = fault_reference(t, fkind, fwin) and delivered
         status = STATUS_COMMANDED
         if delivered:
-            outage = has_last and t_ns[k] - last_state_ns > stale_ns
             controller_step(kind, t, dt, y[:4], y[4:], ref_q[k], ref_w[k], ref_wd[k], prm, coef, state, work, out)
             if not (np.isfinite(out[O_TORQUE, 0] + out[O_TORQUE, 1] + out[O_TORQUE, 2])
                     and np.isfinite(out[O_CMD, 0] + out[O_CMD, 1] + out[O_CMD, 2])):
@@ -117,29 +119,29 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
             else:
                 has_last = True
                 last_state_ns = t_ns[k]
-                if outage:  # the first sample after an outage: the law steps, the watchdog answers
-                    status = STATUS_WATCHDOG_ZERO
         elif has_last and t_ns[k] - last_state_ns > stale_ns:
             status = STATUS_WATCHDOG_ZERO
         else:
-            status = STATUS_NO_ANSWER
+            status = STATUS_HELD
         if status == STATUS_COMMANDED:
             for r in range(N_OUT):
                 for c in range(4):
                     pub[r, c] = out[r, c]
             for i in range(3):
                 cmd[i] = out[O_TORQUE, i]
-        elif status != STATUS_NO_ANSWER:  # a zero answer: zero command and saturation, earlier rows
+        elif status != STATUS_HELD:  # a zero answer: zero command and saturation, earlier rows
             for i in range(3):
                 cmd[i] = 0.0
                 pub[O_CMD, i] = 0.0
                 pub[O_SAT, i] = 0.0
-        if status != STATUS_NO_ANSWER:
-            if nf > 0:
-                fault_actuator(t, fkind, fwin, fprm, fint, fcount, fbuf, cmd, u_last)
-            else:
-                for i in range(3):
-                    u_last[i] = cmd[i]
+        # (held: the last command and rows again) the answer goes through the actuator link
+        for i in range(3):
+            u_cmd[i] = cmd[i]
+        if nf > 0:
+            fault_actuator(t, fkind, fwin, fprm, fint, fcount, fbuf, u_cmd, u_last)
+        else:
+            for i in range(3):
+                u_last[i] = u_cmd[i]
         for i in range(3):
             pub[O_TORQUE, i] = u_last[i]
         if noisy or nf > 0:

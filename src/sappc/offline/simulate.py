@@ -84,7 +84,7 @@ class ScenarioRun:
 
     def controller_summary(self, k: int = 0) -> dict[str, int]:
         """What the controller did in run ``k``: samples answered in each way (``commanded``,
-        ``watchdog_zero``, ``no_answer``, ``refused``) and ``samples``."""
+        ``watchdog_zero``, ``held``, ``refused``) and ``samples``."""
         counts = {name: int(v[k]) for name, v in self.status.items()}
         return {"samples": sum(counts.values()), **counts}
 

@@ -3,19 +3,16 @@
 Each case is the fault matrix's (``benchmarks/bench_fault_matrix.py``): experiment 1 with one
 fault from t = 30 s.  The injector applies the fault to messages, the offline loop to arrays,
 through the same compiled fault kernels, and the offline loop models the controller node's
-lockstep answers; so:
+lockstep answers (computed, held, watchdog zero); a dropped measurement or reference reaches the
+controller as "no data", so every sample is answered as soon as its inputs are in, whatever the
+order of arrival, and no sample waits for a timeout.  So for every kind:
 
-- a fault that loses no controller input (delays, stuck, bias, noise, a dropped command, which the
-  actuator holds) gives the same metrics through ``sappc run`` as through ``sappc simulate`` to
-  1e-9 (the issue's bound; measured ~1e-14 in the torques, from libm's last bit in the nodes'
-  separate processes), and the same controller answers sample for sample;
-- an input dropout (state or reference) gives the same torques up to the sample where the
-  outage ends: the watchdog answers each stale ``/clock`` tick at once, so the plant may publish
-  the next tick before the relayed inputs of the resuming sample arrive, and that tick is then
-  answered with zero too (README, "Faults").  The outcome is asserted instead: ten samples
-  unanswered (the plant holds its torque; its own miss count agrees), at least the offline
-  runner's zero answers and at most two more, and over the last 20 s the accuracy of
-  experiment 1 without the fault (the no-fault run's steady max |q_ev|, computed here).
+- the same metrics through ``sappc run`` as through ``sappc simulate`` to 1e-9 (the issue's
+  bound; the torques agree to ~1e-14, libm's last bit in the nodes' separate processes);
+- the same answer at every sample, and no lockstep timeout in the plant;
+- the outcome: for SAPPC the error is back in its band at the end, and for the dropouts (the
+  issue's case) the last 20 s hold the accuracy of experiment 1 without the fault (the
+  no-fault run's steady max |q_ev|, computed here).
 """
 
 from __future__ import annotations
@@ -43,11 +40,6 @@ pytestmark = pytest.mark.slow
 
 #: The issue's bound on graph-against-offline metric differences.
 METRIC_TOL = 1e-9
-#: Zero answers the graph may add at the end of an input outage (module docstring): one tick when
-#: the resuming inputs arrive after the next ``/clock``, two when they are two ticks late.
-RESUME_RACE_SAMPLES = 2
-
-
 def _graph(tmp_path: Path, raw: dict) -> tuple[dict, object, dict]:  # type: ignore[type-arg]
     path = tmp_path / "scenario.yaml"
     path.write_text(yaml.safe_dump(raw, sort_keys=False))
@@ -58,10 +50,12 @@ def _graph(tmp_path: Path, raw: dict) -> tuple[dict, object, dict]:  # type: ign
     return json.loads((tmp_path / "m.json").read_text()), bag_run(read_bag(tmp_path / "run" / "bag")), plant
 
 
-@pytest.mark.parametrize("kind", ["actuator_dropout", "sensor_delay_3", "actuator_stuck", "actuator_bias_20mNm", "sensor_noise"])
-def test_a_fault_that_loses_no_input_gives_the_offline_run_through_the_graph(tmp_path, kind: str) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("kind", ["sensor_dropout", "reference_dropout", "actuator_dropout", "sensor_delay_3", "actuator_stuck",
+                                  "actuator_bias_20mNm", "sensor_noise", "sensor_freeze"])
+def test_every_fault_kind_gives_the_offline_run_through_the_graph(tmp_path, kind: str) -> None:  # type: ignore[no-untyped-def]
     raw = case_scenario(kind, "sappc")
-    offline = simulate(scenario_from_mapping(raw))
+    scenario = scenario_from_mapping(raw)
+    offline = simulate(scenario)
     report, run, plant = _graph(tmp_path, raw)
     for key, value in offline.metrics.items():
         if key == "wall_time_s":
@@ -71,27 +65,13 @@ def test_a_fault_that_loses_no_input_gives_the_offline_run_through_the_graph(tmp
             assert got == pytest.approx(value, abs=METRIC_TOL), key
         else:
             assert got == value, key
-    status = compiled_loop.run_single(compiled_loop.prepare(scenario_from_mapping(raw)), 0, 1).status[0]
+    status = compiled_loop.run_single(compiled_loop.prepare(scenario), 0, 1).status[0]
     np.testing.assert_array_equal(run.answer, status)  # type: ignore[attr-defined]
+    assert {k: report["controller_summary"][k] for k in offline.controller_summary} == offline.controller_summary
     assert plant["missed"]["torque"] == 0  # every sample answered: no lockstep timeout
-
-
-@pytest.mark.parametrize("kind", ["sensor_dropout", "reference_dropout"])
-def test_an_input_dropout_recovers_through_the_graph_as_offline(tmp_path, kind: str) -> None:  # type: ignore[no-untyped-def]
-    raw = case_scenario(kind, "sappc")
-    offline = simulate(scenario_from_mapping(raw))
-    no_fault = simulate(load_scenario(SCENARIOS / "paper_tracking.yaml"))
-    report, run, plant = _graph(tmp_path, raw)
-    ctrl, want = report["controller_summary"], offline.controller_summary
-    assert ctrl["no_answer"] == want["no_answer"] == plant["missed"]["torque"] == 10
-    assert want["watchdog_zero"] <= ctrl["watchdog_zero"] <= want["watchdog_zero"] + RESUME_RACE_SAMPLES
-    assert ctrl["refused"] == 0 and ctrl["rejected_inputs"] == 0
-    # the same torques up to the outage's end (30.5 s): the graph runs the offline loop's rules
-    t = offline.history.t
-    before = t < 30.5 - 1e-9
-    np.testing.assert_allclose(run.history.torque_B[before, 0], offline.history.torque_B[before, 0], rtol=0, atol=1e-12)  # type: ignore[attr-defined]
-    # back in the band, and over the last 20 s experiment 1's accuracy without the fault
     assert report["metrics"]["returned_to_constraint"] is True
-    h = run.history  # type: ignore[attr-defined]
-    last = np.abs(h.q_ev[h.t >= LAST_S - 1e-9]).max()
-    assert last <= no_fault.metrics["steady_max_abs_qev"], (last, no_fault.metrics["steady_max_abs_qev"])
+    if kind.endswith("dropout"):
+        no_fault = simulate(load_scenario(SCENARIOS / "paper_tracking.yaml"))
+        h = run.history  # type: ignore[attr-defined]
+        last = np.abs(h.q_ev[h.t >= LAST_S - 1e-9]).max()
+        assert last <= no_fault.metrics["steady_max_abs_qev"], (last, no_fault.metrics["steady_max_abs_qev"])

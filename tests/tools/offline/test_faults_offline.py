@@ -17,7 +17,7 @@ import yaml
 
 from gnc_common.validation import ConfigError
 from sappc.offline import compiled_loop
-from sappc.offline.compiled_loop import STATUS_COMMANDED, STATUS_NO_ANSWER, STATUS_WATCHDOG_ZERO
+from sappc.offline.compiled_loop import STATUS_COMMANDED, STATUS_HELD, STATUS_WATCHDOG_ZERO
 from sappc.offline.simulate import simulate
 from sappc.scenario import scenario_from_mapping
 
@@ -39,29 +39,27 @@ def _run(raw: dict) -> compiled_loop.CompiledRun:  # type: ignore[type-arg]
 
 
 def test_a_dropout_is_ridden_through_then_answered_with_zero_then_control_resumes() -> None:
-    """State lost for [1.0, 1.5) s with the default 0.1 s stale timeout: the plant holds the last
-    torque for the ten samples 1.00 .. 1.09 (t - 0.99 <= 0.1 s: no answer), the watchdog answers
-    1.10 .. 1.49 with zero, the first sample back (1.50) is stepped by the law but answered with
-    zero (its tick was the watchdog's), control resumes at 1.51."""
+    """State lost for [1.0, 1.5) s with the default 0.1 s stale timeout: the controller holds its
+    last torque for the ten samples 1.00 .. 1.09 (t - 0.99 <= 0.1 s), the watchdog answers
+    1.10 .. 1.49 with zero, and the first sample back (1.50) is computed and commanded."""
     run = _run(_scenario(faults=[{"kind": "sensor_dropout", "start_s": 1.0, "end_s": 1.5}]))
     status, torque = run.status[0], run.out[0, :, compiled_loop.O_TORQUE, :3]
     k = np.arange(status.size)
-    np.testing.assert_array_equal(status[(k >= 100) & (k < 110)], STATUS_NO_ANSWER)
-    np.testing.assert_array_equal(status[(k >= 110) & (k <= 150)], STATUS_WATCHDOG_ZERO)
-    np.testing.assert_array_equal(status[(k < 100) | (k > 150)], STATUS_COMMANDED)
+    np.testing.assert_array_equal(status[(k >= 100) & (k < 110)], STATUS_HELD)
+    np.testing.assert_array_equal(status[(k >= 110) & (k < 150)], STATUS_WATCHDOG_ZERO)
+    np.testing.assert_array_equal(status[(k < 100) | (k >= 150)], STATUS_COMMANDED)
     np.testing.assert_array_equal(torque[100:110], np.repeat(torque[99:100], 10, axis=0))  # held
-    np.testing.assert_array_equal(torque[110:151], 0.0)
-    assert np.all(np.abs(torque[151]) > 0.0)  # computed again
-    # the law stepped on 1.50: its filter state moved, so 1.51's torque differs from a law that skipped it
-    assert run.status_counts()["watchdog_zero"][0] == 41 and run.status_counts()["no_answer"][0] == 10
+    np.testing.assert_array_equal(torque[110:150], 0.0)
+    assert np.all(np.abs(torque[150]) > 0.0)  # computed again at once
+    assert run.status_counts()["watchdog_zero"][0] == 40 and run.status_counts()["held"][0] == 10
 
 
 def test_a_dropout_shorter_than_the_stale_timeout_is_only_held_and_the_scenario_sets_the_timeout() -> None:
     short = _run(_scenario(faults=[{"kind": "reference_dropout", "start_s": 1.0, "end_s": 1.05}]))
-    assert short.status_counts()["no_answer"][0] == 5 and short.status_counts()["watchdog_zero"][0] == 0
+    assert short.status_counts()["held"][0] == 5 and short.status_counts()["watchdog_zero"][0] == 0
     tight = _run(_scenario(faults=[{"kind": "reference_dropout", "start_s": 1.0, "end_s": 1.05}], controller_node={"stale_timeout_s": 0.02}))
-    # 1.00 and 1.01 are within 0.02 s of the last state (0.99): held; 1.02 .. 1.05 answered with zero
-    assert tight.status_counts()["no_answer"][0] == 2 and tight.status_counts()["watchdog_zero"][0] == 4
+    # 1.00 and 1.01 are within 0.02 s of the last state (0.99): held; 1.02 .. 1.04 answered with zero
+    assert tight.status_counts()["held"][0] == 2 and tight.status_counts()["watchdog_zero"][0] == 3
 
 
 def test_a_dropped_command_is_held_by_the_actuator_and_the_controller_never_stops() -> None:
@@ -94,7 +92,7 @@ def test_bad_requirements_name_the_key(requirements: dict, message: str) -> None
 def test_simulate_reports_what_the_controller_did_and_exits_4_on_a_broken_requirement(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """The dropout of the README through `sappc simulate`: the summary line counts the answers, and a
     requirement the run breaks (steady max |q_ev| over [25, 60] s <= 1e-4: the dropout's transient
-    reaches 2.8e-4) gives exit status 4 naming it; without the requirement the run exits 0."""
+    reaches 2.7e-4) gives exit status 4 naming it; without the requirement the run exits 0."""
     raw = copy.deepcopy(BASE)
     raw["faults"] = [{"kind": "sensor_dropout", "start_s": 30.0, "end_s": 30.5}]
     raw["metrics"] = {**BASE["metrics"], "requirements": {"steady_max_abs_qev_max": 1e-4}}
@@ -103,10 +101,10 @@ def test_simulate_reports_what_the_controller_did_and_exits_4_on_a_broken_requir
     proc = subprocess.run([*SAPPC, "simulate", str(path), "--json", str(tmp_path / "m.json")], capture_output=True, text=True, cwd=ROOT,
                           timeout=300)
     assert proc.returncode == 4, proc.stdout + proc.stderr
-    assert "computed the torque of 5950 of 6001 samples; not commanded: watchdog zero 41, no answer 10" in proc.stdout
-    assert "FAILED the scenario's requirements: steady_max_abs_qev = 0.000282659 > 0.0001" in proc.stdout
+    assert "computed the torque of 5951 of 6001 samples; not commanded: watchdog zero 40, held 10" in proc.stdout
+    assert "FAILED the scenario's requirements: steady_max_abs_qev = 0.000270054 > 0.0001" in proc.stdout
     report = json.loads((tmp_path / "m.json").read_text())
-    assert report["controller_summary"]["no_answer"] == 10 and report["failed_requirements"]
+    assert report["controller_summary"]["held"] == 10 and report["failed_requirements"]
     del raw["metrics"]["requirements"]
     path.write_text(yaml.safe_dump(raw))
     assert subprocess.run([*SAPPC, "simulate", str(path)], capture_output=True, cwd=ROOT, timeout=300).returncode == 0
