@@ -150,6 +150,12 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
     print(f"  steady_mean_abs_qev  p50 {summary['steady_mean_abs_qev']['p50']:.3g}  p99 {summary['steady_mean_abs_qev']['p99']:.3g}  max {summary['steady_mean_abs_qev']['max']:.3g}")
     print(f"  non-finite runs {summary['non_finite_runs']}, RPF components clamped {summary['rpf_clamped_components']}, "
           f"flat {summary['rpf_flat_components']}; wall {summary['wall_time_s']:.1f} s")
+    answers = summary["controller_answers"]
+    not_commanded = {k: v for k, v in answers.items() if k != "commanded" and v["samples"]}
+    if not_commanded or summary["runs_never_commanded"]:
+        print("  controller answers not commanded: " + ", ".join(f"{k.replace('_', ' ')} {v['samples']} samples in {v['runs']} runs"
+                                                             for k, v in not_commanded.items())
+              + f"; runs never commanded {summary['runs_never_commanded']}")
     for f in summary["failed_runs"][:10]:
         print(f"  failed run {f['run']}: {f['why']}")
     print(f"results in {out}")

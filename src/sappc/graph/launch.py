@@ -24,6 +24,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -252,13 +253,19 @@ def _interrupts_deferred(what: str) -> Iterator[None]:
             print(f"sappc run: interrupted while {what}; finishing that first", file=sys.stderr, flush=True)
         caught.append(signum)
 
-    old = signal.signal(signal.SIGINT, hold)
+    old = {sig: signal.signal(sig, hold) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, old)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
     if caught:
         raise KeyboardInterrupt
+
+
+def _terminate_as_interrupt(_signum: int, _frame: object) -> None:
+    """SIGTERM (``kill``, a CI runner's stop) stops a run as Ctrl-C does: every node stopped cleanly."""
+    raise KeyboardInterrupt
 
 
 def _fastdds_shm_clean() -> None:
@@ -286,6 +293,19 @@ def run_graph(
     RuntimeError
         When a node fails (its log tail is in the message) or the run exceeds ``timeout_s``.
     """
+    if threading.current_thread() is threading.main_thread():
+        old_term = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+        try:
+            return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
+                              timeout_s=timeout_s, progress=progress)
+        finally:
+            signal.signal(signal.SIGTERM, old_term)
+    return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
+                      timeout_s=timeout_s, progress=progress)
+
+
+def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, controller: str | None, realtime: bool,
+               domain_id: int | None, timeout_s: float | None, progress: bool) -> GraphResult:
     scenario = load_scenario(scenario_path)
     kind = scenario.resolve_controller(controller)
     scenario.controller_config(kind)  # validate before any process starts

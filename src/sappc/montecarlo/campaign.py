@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 from gnc_common.validation import ConfigError
 from gnc_common.validation import InputError
 from sappc.montecarlo.config import campaign_config
-from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, sensor_noise_draws
+from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_faults, sensor_noise_draws
 from sappc.montecarlo.results import FORMAT_VERSION, assemble, chunk_path, chunks, save_chunk
 from sappc.offline import compiled_loop
 from sappc.offline.simulate import run_scenario
@@ -113,6 +113,7 @@ def simulate_runs(
                 inertia_kg_m2=J,
                 disturbance=dispersed_disturbance(scenario, inputs),
                 gains=inputs.gains or None,
+                faults=run_faults(scenario, cfg, inputs),
                 sensor_noise=(noise.attitude_sigma_rad, noise.rate_sigma_rad_s, noise_draws) if noise.enabled else None,
                 keep_history=with_history,
                 trajectory=(min(keep_trajectories, n), cfg.trajectory_stride) if keep_trajectories > 0 else None,
@@ -137,6 +138,10 @@ def simulate_runs(
         "max_abs_torque_Nm": crit["max_abs_torque_Nm"],
         "settling_time_s": crit["settling_time_s"],
         "finite": crit["finite"],
+        "fault_choice": inputs.fault_choice,
+        "fault_start_s": inputs.fault_start_s,
+        "fault_duration_s": inputs.fault_duration_s,
+        **{f"answers_{name}": count for name, count in run.status.items()},
         "rpf_clamped": run.flags["clamped"],
         "rpf_flat": run.flags["flat"],
         "traj_t": traj[0] if traj is not None else np.zeros(0),

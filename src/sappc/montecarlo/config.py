@@ -7,14 +7,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.validation import ConfigError, check_positive, from_mapping
 from sappc.scenario import Scenario
+from spacecraft_sim.core.faults import faults_from_list
 
-__all__ = ["CampaignConfig", "Criteria", "Dispersions", "Distribution", "DistributionKind", "GainDispersions",
+__all__ = ["CampaignConfig", "Criteria", "Dispersions", "Distribution", "DistributionKind", "FaultDispersion", "GainDispersions",
            "InitialAttitude", "SensorNoise", "campaign_config"]
 
 Array = NDArray[np.float64]
@@ -143,6 +145,50 @@ class GainDispersions:
 
 
 @dataclass(frozen=True)
+class FaultDispersion:
+    """One fault per run, drawn: which (one of ``choices``, uniformly), when (``start_s``) and for
+    how long (``duration_s``; omitted: to the end of the run).  The fault is added to the
+    scenario's own ``faults`` list for that run.
+
+    ``choices`` are fault entries as in a scenario's ``faults:`` list, without ``start_s`` and
+    ``end_s`` (e.g. ``{kind: sensor_dropout}``, ``{kind: actuator_effectiveness, effectiveness:
+    [0.5, 0.5, 0.5]}``); at most one ``sensor_noise`` entry (its draws are shared by the runs).
+    ``duration_s`` must be a uniform distribution with ``low > 0``."""
+
+    choices: tuple[dict[str, Any], ...]
+    start_s: Distribution
+    duration_s: Distribution | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.choices, tuple) or not self.choices:
+            raise ConfigError(f"dispersions.faults.choices must be a non-empty list of fault entries, got {self.choices!r}")
+        for i, entry in enumerate(self.choices):
+            if not isinstance(entry, dict) or {"start_s", "end_s"} & set(entry):
+                raise ConfigError(f"dispersions.faults.choices[{i}] must be a fault entry without start_s/end_s (they are drawn), got {entry!r}")
+        faults_from_list([dict(e) for e in self.choices], "dispersions.faults.choices")
+        if sum(1 for e in self.choices if e.get("kind") == "sensor_noise") > 1:
+            raise ConfigError("dispersions.faults.choices may hold one sensor_noise entry at most (its draws are shared by the runs)")
+        self.start_s.check_shape("dispersions.faults.start_s", ())
+        if self.duration_s is not None:
+            self.duration_s.check_shape("dispersions.faults.duration_s", ())
+            if self.duration_s.distribution is not DistributionKind.UNIFORM or not np.min(np.asarray(self.duration_s.low, dtype=float)) > 0.0:
+                raise ConfigError(f"dispersions.faults.duration_s must be a uniform distribution with low > 0, got {self.duration_s!r}")
+
+    def draw(self, rng: np.random.Generator) -> tuple[int, float, float]:
+        """``(choice, start_s, duration_s)`` of one run (``duration_s = inf``: to the end); a start
+        drawn below 0 starts at 0."""
+        choice = int(rng.integers(len(self.choices)))
+        start = max(0.0, float(self.start_s.draw(rng, ())))
+        duration = float(self.duration_s.draw(rng, ())) if self.duration_s is not None else float("inf")
+        return choice, start, duration
+
+    def fault(self, choice: int, start_s: float, duration_s: float) -> Any:
+        """The drawn fault, validated as a scenario's."""
+        entry = {**self.choices[choice], "start_s": start_s, **({"end_s": start_s + duration_s} if np.isfinite(duration_s) else {})}
+        return faults_from_list([entry], "dispersions.faults")[0]
+
+
+@dataclass(frozen=True)
 class Dispersions:
     """What varies from run to run besides the initial attitude (all optional).
 
@@ -159,6 +205,8 @@ class Dispersions:
     sensor_noise : SensorNoise
     gains : GainDispersions
         Per-run controller gains (``K_q``, ``K_omega``, ``D_m_Nm``, ``mu_rad_s``).
+    faults : FaultDispersion
+        One drawn fault per run (kind, start, duration), added to the scenario's faults.
     """
 
     initial_rate_rad_s: Distribution | None = None
@@ -167,6 +215,7 @@ class Dispersions:
     disturbance_phase_rad: Distribution | None = None
     sensor_noise: SensorNoise = SensorNoise()
     gains: GainDispersions = GainDispersions()
+    faults: FaultDispersion | None = None
 
 
 @dataclass(frozen=True)

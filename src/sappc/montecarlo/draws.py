@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,7 +21,7 @@ from spacecraft_sim.core.disturbance import DisturbanceSum, PaperPeriodic
 from sappc.montecarlo.config import CampaignConfig
 from sappc.scenario import Scenario
 
-__all__ = ["NOISE_BLOCK", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_generators", "sensor_noise_draws"]
+__all__ = ["NOISE_BLOCK", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_faults", "run_generators", "sensor_noise_draws"]
 
 #: Samples of sensor noise drawn per call of the run's noise generator (``standard_normal((NOISE_BLOCK, 6))``,
 #: block after block): the sequence campaigns have always used.
@@ -41,6 +42,9 @@ class RunInputs:
     disturbance_scale: Array
     disturbance_phase_rad: Array
     gains: dict[str, Array]
+    fault_choice: NDArray[np.int64]  # index into dispersions.faults.choices (-1: no fault dispersion)
+    fault_start_s: Array
+    fault_duration_s: Array  # inf: to the end
 
 
 def run_generators(seed: int, run: int) -> tuple[np.random.Generator, np.random.Generator]:
@@ -62,7 +66,8 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
         scale = float(d.disturbance_scale.draw(rng, ())) if d.disturbance_scale else 1.0
         phase = float(d.disturbance_phase_rad.draw(rng, ())) if d.disturbance_phase_rad else 0.0
         gains = {name: float(dist.draw(rng, ())) for name, dist in d.gains.items()}
-        rows.append((euler, rate, inertia, scale, phase, gains))
+        fault = d.faults.draw(rng) if d.faults is not None else (-1, np.nan, np.nan)  # drawn last: older campaigns keep their draws
+        rows.append((euler, rate, inertia, scale, phase, gains, fault))
     euler = np.array([r[0] for r in rows]).reshape(-1, 3)
     return RunInputs(
         runs=runs_arr,
@@ -73,7 +78,20 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
         disturbance_scale=np.array([r[3] for r in rows]),
         disturbance_phase_rad=np.array([r[4] for r in rows]),
         gains={name: np.array([r[5][name] for r in rows]) for name, _ in d.gains.items()},
+        fault_choice=np.array([r[6][0] for r in rows], dtype=np.int64),
+        fault_start_s=np.array([r[6][1] for r in rows], dtype=np.float64),
+        fault_duration_s=np.array([r[6][2] for r in rows], dtype=np.float64),
     )
+
+
+def run_faults(scenario: Scenario, cfg: CampaignConfig, inputs: RunInputs) -> list[tuple[Any, ...]] | None:
+    """Each run's faults: the scenario's plus its drawn one; ``None`` without a fault dispersion
+    (every run has the scenario's)."""
+    disp = cfg.dispersions.faults
+    if disp is None:
+        return None
+    return [tuple(scenario.faults) + (disp.fault(int(c), float(s), float(d)),)
+            for c, s, d in zip(inputs.fault_choice, inputs.fault_start_s, inputs.fault_duration_s)]
 
 
 def sensor_noise_draws(seed: int, runs: Iterable[int], n_samples: int) -> Array:

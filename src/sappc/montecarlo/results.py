@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sappc.montecarlo.config import CampaignConfig, Criteria
+from sappc_msgs_py.contract import ANSWER_NAMES
 from sappc.scenario import Scenario
 
 __all__ = ["FORMAT_VERSION", "RunCriteria", "assemble", "chunk_path", "chunks", "run_criteria", "save_chunk"]
@@ -19,7 +20,7 @@ __all__ = ["FORMAT_VERSION", "RunCriteria", "assemble", "chunk_path", "chunks", 
 Array = NDArray[np.float64]
 
 #: Version of the chunk/manifest format (bumped when their contents change).
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 #: Per-axis columns of the run table.
 _AXES = (1, 2, 3)
 
@@ -85,7 +86,8 @@ def run_criteria(table: dict[str, Any], criteria: Criteria) -> RunCriteria:
     ``sappc simulate --from-campaign``."""
     t2 = np.asarray(table["rpf_error_at_t2_per_axis"]).max(axis=1)
     steady = np.asarray(table["steady_mean_abs_qev_per_axis"]).max(axis=1)
-    finite = np.asarray(table["finite"]).astype(bool)
+    # a refused control step (a non-finite torque, answered with zero) fails the run as a non-finite state does
+    finite = np.asarray(table["finite"]).astype(bool) & (np.asarray(table.get("answers_refused", 0)) == 0)
     ok_t2 = finite & (t2 < criteria.rpf_error_at_t2_max)
     ok_steady = finite & (steady < criteria.steady_mean_abs_qev_max)
     return RunCriteria(t2, steady, finite, ok_t2, ok_steady, ok_t2 & ok_steady)
@@ -99,6 +101,8 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
     t2, steady, finite, ok_t2, ok_steady, passed = rc.rpf_error_at_t2, rc.steady_mean_abs_qev, rc.finite, rc.ok_t2, rc.ok_steady, rc.passed
 
     gain_keys = [k for k in tab if k.startswith("gain_")]
+    dispersed = cfg.dispersions.faults is not None
+    fault_kinds = [str(c["kind"]) for c in cfg.dispersions.faults.choices] if cfg.dispersions.faults is not None else []
     with (out / "runs.csv").open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
@@ -108,6 +112,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
             + [f"rpf_error_at_t2_{i}" for i in _AXES] + ["rpf_error_at_t2"]
             + [f"steady_mean_abs_qev_{i}" for i in _AXES] + ["steady_mean_abs_qev", "steady_max_abs_qev", "settling_time_s",
                                                            "max_abs_torque_Nm", "rpf_clamped_components", "rpf_flat_components"]
+            + [f"answers_{name}" for name in ANSWER_NAMES] + (["fault_kind", "fault_start_s", "fault_end_s"] if dispersed else [])
         )
         for k in range(runs):
             w.writerow(
@@ -120,6 +125,9 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
                 + [f"{v:.17g}" for v in tab["steady_mean_abs_qev_per_axis"][k]]
                 + [f"{steady[k]:.17g}", f"{tab['steady_max_abs_qev'][k]:.17g}", f"{tab['settling_time_s'][k]:.17g}",
                    f"{tab['max_abs_torque_Nm'][k]:.17g}", int(tab["rpf_clamped"][k].sum()), int(tab["rpf_flat"][k].sum())]
+                + [int(tab[f"answers_{name}"][k]) for name in ANSWER_NAMES]
+                + ([fault_kinds[int(tab["fault_choice"][k])], f"{tab['fault_start_s'][k]:.17g}",
+                    f"{tab['fault_start_s'][k] + tab['fault_duration_s'][k]:.17g}"] if dispersed else [])
             )
 
     def run_ref(k: int) -> dict[str, Any]:
@@ -129,7 +137,8 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
     failing = np.flatnonzero(~passed)
     reasons = []
     for k in failing[:100]:
-        why = [] if finite[k] else ["non-finite state"]
+        refused = int(tab["answers_refused"][k])
+        why = ([] if tab["finite"][k] else ["non-finite state"]) + ([f"{refused} refused control steps"] if refused else [])
         if finite[k] and not ok_t2[k]:
             why.append(f"rpf_error_at_t2 {t2[k]:.3g} >= {crit.rpf_error_at_t2_max:g}")
         if finite[k] and not ok_steady[k]:
@@ -147,6 +156,9 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
         "failed_runs": reasons,
         "failed_runs_listed": len(reasons),
         "non_finite_runs": int((~finite).sum()),
+        "controller_answers": {name: {"runs": int((tab[f"answers_{name}"] > 0).sum()), "samples": int(tab[f"answers_{name}"].sum())}
+                               for name in ANSWER_NAMES},
+        "runs_never_commanded": int((tab["answers_commanded"] == 0).sum()),
         "rpf_clamped_components": int(tab["rpf_clamped"].sum()),
         "rpf_flat_components": int(tab["rpf_flat"].sum()),
         "worst_rpf_error_at_t2": run_ref(worst_t2),

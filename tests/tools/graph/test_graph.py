@@ -132,10 +132,11 @@ def test_a_plant_written_against_the_contract_drives_the_controller(ros_context,
     assert rerun["mode"] == "lockstep" and rerun["samples"] == steps and rerun["identical"] == steps, proc.stdout
 
 
-@pytest.mark.parametrize("second_sigint_after_s", [None, 0.3], ids=["one_sigint", "two_sigints_0.3_s_apart"])
-def test_sigint_finalises_the_bag_and_leaves_nothing_behind(tmp_path, second_sigint_after_s) -> None:  # type: ignore[no-untyped-def]
-    """One Ctrl-C, or a second one 0.3 s later while the nodes are being stopped: either way every
-    node is stopped, the bag is finalised and no shared-memory segment is left."""
+@pytest.mark.parametrize(("stop", "second_sigint_after_s"), [(signal.SIGINT, None), (signal.SIGINT, 0.3), (signal.SIGTERM, None)],
+                         ids=["one_sigint", "two_sigints_0.3_s_apart", "sigterm"])
+def test_sigint_finalises_the_bag_and_leaves_nothing_behind(tmp_path, stop, second_sigint_after_s) -> None:  # type: ignore[no-untyped-def]
+    """One Ctrl-C, a second one 0.3 s later while the nodes are being stopped, or a SIGTERM (``kill``):
+    every node is stopped, the bag is finalised and no shared-memory segment is left."""
     out = tmp_path / "int"
     before = shm_files()
     proc = subprocess.Popen([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--out", str(out)],
@@ -149,7 +150,7 @@ def test_sigint_finalises_the_bag_and_leaves_nothing_behind(tmp_path, second_sig
         time.sleep(0.1)
     children = _children_of(proc.pid)
     assert len(children) == 5
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(stop)
     if second_sigint_after_s is not None:
         time.sleep(second_sigint_after_s)
         proc.send_signal(signal.SIGINT)

@@ -22,6 +22,7 @@ from sappc.offline import compiled_loop
 from sappc.offline import simulate as offline_simulate
 from sappc.scenario import scenario_from_mapping
 from gnc_common.validation import ConfigError
+from spacecraft_sim.core.faults import faults_from_list
 
 GOLDEN_TABLE = ROOT / "tests" / "data" / "golden_numpy_core_mc24_seed7.csv"
 
@@ -188,7 +189,7 @@ def test_the_numpy_cores_24_run_table_is_reproduced(tmp_path) -> None:
     run_campaign(SCENARIOS / "paper_montecarlo.yaml", runs=24, seed=7, out_dir=tmp_path / "mc", progress=False)
     new = np.genfromtxt(tmp_path / "mc" / "runs.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
     old = np.genfromtxt(GOLDEN_TABLE, delimiter=",", names=True, dtype=None, encoding="utf-8")
-    assert new.dtype.names == old.dtype.names and new.shape == old.shape == (24,)
+    assert set(old.dtype.names) <= set(new.dtype.names) and new.shape == old.shape == (24,)  # columns added since: answers_*
     for name in old.dtype.names:
         if old[name].dtype.kind in "biU":
             assert np.array_equal(new[name], old[name]), name
@@ -243,3 +244,38 @@ def test_progress_moves_during_a_chunk(tmp_path, monkeypatch) -> None:
     monkeypatch.setattr(offline_simulate.run_scenario, "__kwdefaults__", {**offline_simulate.run_scenario.__kwdefaults__, "sub_batch": 4})
     run_campaign(_short(tmp_path, chunk_runs=12), runs=12, seed=3, out_dir=tmp_path / "p", workers=1, progress=False)
     assert reports == [4, 4, 4]
+
+
+def test_a_campaign_disperses_fault_kinds_times_and_lengths_and_run_k_is_the_fault_alone(tmp_path) -> None:
+    """``dispersions.faults``: one fault per run, its kind, start and length drawn from the run's
+    own generator; the table records them with the controller's answers, and run k equals
+    `sappc simulate` of the scenario with run k's fault written out (one fault implementation)."""
+    faults = {"choices": [{"kind": "sensor_dropout"}, {"kind": "actuator_dropout"}, {"kind": "actuator_effectiveness", "effectiveness": [0.5, 0.5, 0.5]}],
+              "start_s": {"distribution": "uniform", "low": 10.0, "high": 15.0},
+              "duration_s": {"distribution": "uniform", "low": 0.2, "high": 1.0}}
+    path = _short(tmp_path, chunk_runs=4, faults=faults)
+    run_campaign(path, runs=8, seed=9, out_dir=tmp_path / "f", progress=False)
+    table = np.genfromtxt(tmp_path / "f" / "runs.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
+    assert set(table["fault_kind"]) <= {"sensor_dropout", "actuator_dropout", "actuator_effectiveness"} and len(set(table["fault_kind"])) >= 2
+    assert np.all((table["fault_start_s"] >= 10.0) & (table["fault_start_s"] <= 15.0))
+    length = table["fault_end_s"] - table["fault_start_s"]
+    assert np.all((length >= 0.2 - 1e-12) & (length <= 1.0 + 1e-12))
+    dropouts = table["fault_kind"] == "sensor_dropout"
+    assert np.all(table["answers_watchdog_zero"][dropouts] > 0) and np.all(table["answers_watchdog_zero"][~dropouts] == 0)
+    assert np.all(table["answers_held"][dropouts] == 10)  # the default 0.1 s stale timeout at 100 Hz
+    k = int(np.flatnonzero(dropouts)[0])
+    raw = yaml.safe_load(open(path).read())
+    scenario = scenario_from_mapping(raw)
+    cfg = campaign_config(scenario)
+    inputs = draw_inputs(cfg, 9, [k])
+    entry = {"kind": "sensor_dropout", "start_s": float(inputs.fault_start_s[0]), "end_s": float(inputs.fault_start_s[0] + inputs.fault_duration_s[0])}
+    assert faults_from_list([entry])[0].end_s > faults_from_list([entry])[0].start_s
+    explicit = copy.deepcopy(raw)
+    explicit["faults"] = [entry]
+    del explicit["montecarlo"]["dispersions"]["faults"]
+    # the fault is drawn after every other value of the run, so the others do not move without it
+    again, _, _ = mc.simulate_runs(explicit, 9, [k], 0)
+    same, _, _ = mc.simulate_runs(raw, 9, [k], 0)
+    for key in ("steady_max_abs_qev", "max_abs_torque_Nm", "answers_watchdog_zero", "answers_held"):
+        np.testing.assert_array_equal(again[key], same[key], err_msg=key)
+    assert int(table["answers_watchdog_zero"][k]) == int(same["answers_watchdog_zero"][0])
