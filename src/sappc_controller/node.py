@@ -58,7 +58,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 
 from sappc_msgs_py.contract import (
     ANSWER_COMMANDED,
@@ -94,6 +94,7 @@ from sappc_controller.params import (
     check_watchdog_seconds,
     config_from_parameters,
     config_parameter_names,
+    parameter_range,
 )
 
 __all__ = ["ControllerNode", "main"]
@@ -120,6 +121,18 @@ def _watchdog_descriptor(description: str) -> ParameterDescriptor:
     return ParameterDescriptor(description=description, floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi, step=0.0)])
 
 
+def _config_descriptor(name: str, default: Any) -> ParameterDescriptor:
+    """A controller parameter's descriptor, with its range (:func:`~sappc_controller.params.parameter_range`:
+    shown by ``ros2 param describe`` and Foxglove, enforced by rclpy on a double or integer value)."""
+    bounds = parameter_range(name, default)
+    descriptor = ParameterDescriptor(dynamic_typing=True, description=f"controller parameter {name} (see sappc_controller.params)")
+    if bounds is not None and isinstance(bounds[0], int):
+        descriptor.integer_range = [IntegerRange(from_value=int(bounds[0]), to_value=int(bounds[1]), step=1)]
+    elif bounds is not None:
+        descriptor.floating_point_range = [FloatingPointRange(from_value=float(bounds[0]), to_value=float(bounds[1]), step=0.0)]
+    return descriptor
+
+
 def _seconds_to_ns(name: str, value: Any) -> int:
     """A watchdog parameter [s] checked (finite, within :data:`~sappc_controller.params.WATCHDOG_RANGE_S`) -> [ns]."""
     return int(round(check_watchdog_seconds(name, value) * _NS))
@@ -139,8 +152,7 @@ class ControllerNode(ProjectNode):
             raise ConfigError(f"controller must be one of {sorted(CONTROLLER_CLASSES)}, got {self.kind!r}")
         self._config_names = [name for name, _ in config_parameter_names(self.kind)]
         for name, default in config_parameter_names(self.kind):
-            descriptor = ParameterDescriptor(dynamic_typing=True)
-            self.declare_parameter(name, None if default is dataclasses.MISSING else default, descriptor)
+            self.declare_parameter(name, None if default is dataclasses.MISSING else default, _config_descriptor(name, default))
         config = config_from_parameters(self.kind, self._config_values())
         self.controller: AttitudeController = CONTROLLER_CLASSES[self.kind](config)
         self.dt = check_positive("control_period_s", self.param("control_period_s", DEFAULT_CONTROL_PERIOD_S, ParameterDescriptor(read_only=True)))

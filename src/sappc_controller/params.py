@@ -35,6 +35,8 @@ from sappc_controller.core.sappc import SappcConfig, SappcController
 from sappc_controller.core.trappc import TrappcConfig, TrappcController
 
 __all__ = [
+    "PARAMETER_MAX",
+    "parameter_range",
     "DEFAULT_LOCKSTEP_GRACE_S",
     "DEFAULT_MAX_STAMP_AHEAD_S",
     "DEFAULT_STALE_TIMEOUT_S",
@@ -192,6 +194,37 @@ def unflatten(values: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+#: Largest value of any scalar controller parameter (gains [1/s, N m, rad/s], times [s], bounds):
+#: a gain of 1e6 1/s moves the virtual control by a million times the error each second, far
+#: beyond any actuator at any control rate the nodes run (a period >= 1e-4 s); a larger value is a
+#: typo (``1e300`` once was accepted).  Every scalar parameter of the three configs is >= 0.
+PARAMETER_MAX = 1e6
+#: Range of the integer parameters (BLFPPC's odd/even exponents of its performance function).
+INTEGER_PARAMETER_RANGE = (1, 99)
+
+
+def parameter_range(name: str, default: Any) -> tuple[float, float] | tuple[int, int] | None:
+    """The range of scalar parameter ``name`` (for its ROS descriptor and the start-up check):
+    integers :data:`INTEGER_PARAMETER_RANGE`, floats ``[0, PARAMETER_MAX]``; ``None`` for arrays."""
+    if name == "inertia_kg_m2":
+        return None
+    if isinstance(default, int) and not isinstance(default, bool):
+        return INTEGER_PARAMETER_RANGE
+    return (0.0, PARAMETER_MAX)
+
+
+def check_parameter_ranges(values: dict[str, Any], names: list[tuple[str, Any]]) -> None:
+    """Raise :class:`ConfigError` naming the first parameter outside :func:`parameter_range`."""
+    for name, default in names:
+        value = values.get(name)
+        bounds = parameter_range(name, default)
+        if bounds is None or value is None or isinstance(value, bool) or not isinstance(value, (int, float)):
+            continue
+        lo, hi = bounds
+        if not lo <= value <= hi:
+            raise ConfigError(f"parameter {name} = {value!r} is outside its range [{lo:g}, {hi:g}]")
+
+
 def config_from_parameters(kind: str, values: dict[str, Any]) -> Any:
     """The validated config of controller ``kind`` from flat parameter values (``None``: not set).
 
@@ -202,6 +235,7 @@ def config_from_parameters(kind: str, values: dict[str, Any]) -> Any:
     """
     cls = _config_class(kind)
     given = {k: (list(v) if isinstance(v, (tuple, np.ndarray)) else v) for k, v in values.items() if v is not None}
+    check_parameter_ranges(given, config_parameter_names(kind))
     J = given.pop("inertia_kg_m2", None)
     if J is None:
         raise ConfigError("missing parameter inertia_kg_m2 (9 values, row major)")

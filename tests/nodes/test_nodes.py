@@ -16,7 +16,7 @@ from rclpy.parameter import Parameter
 
 from sappc.scenario import load_scenario
 from sappc_controller.core.kernels import pack_params
-from sappc_controller.params import parameters_from_config
+from sappc_controller.params import PARAMETER_MAX, parameters_from_config
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import (
     clock_msg,
@@ -231,6 +231,10 @@ def test_runtime_gain_changes_are_validated_and_applied_whole(controller) -> Non
     fixed = node.set_parameters([Parameter("sappc.rpf.l", value=0.3)])[0]
     assert not fixed.successful and "sappc.rpf.l" in fixed.reason
     assert node.controller.config.rpf.l == 0.49
+    huge = node.set_parameters([Parameter("sappc.gains.K_omega", value=1e300)])[0]  # finite, but no gain: refused by its range
+    assert not huge.successful and node.controller.config.gains.K_omega != 1e300
+    (described,) = node.describe_parameters(["sappc.gains.K_omega"])
+    assert described.floating_point_range[0].from_value == 0.0 and described.floating_point_range[0].to_value == PARAMETER_MAX
 
 
 def test_plant_lockstep_waits_for_the_torque_of_each_sample(ros_context) -> None:  # type: ignore[no-untyped-def]

@@ -155,7 +155,7 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
         zero = {k: summary[k] for k in ("watchdog_zero", "refused", "held") if summary[k]}
         if zero:
             notes.append("samples the controller did not command: " + ", ".join(f"{k} {v}" for k, v in zero.items())
-                         + " (diagnostics status; held: the plant held its last torque)")
+                         + " (diagnostics status[2]; held: the last torque again)")
     elif bag.truncated:
         notes.insert(0, f"the bag is cut short ({bag.truncated})")
     return BagAnalysis(path=Path(path), bag=bag, label=label, scenario=sc, controller=controller, run=run,
