@@ -10,7 +10,8 @@ or the sudden torque pulse of experiment 3 at the same time.  For every case it 
 * with ``--graph``: the same case through ``sappc run`` (lockstep, five processes), and the
   largest difference of any metric from the offline run (the issue's bound: 1e-9).
 
-    python benchmarks/bench_fault_matrix.py [--graph] [--controllers sappc,trappc,blfppc] [--kinds K,...]
+    python benchmarks/bench_fault_matrix.py [--graph] [--controllers sappc,trappc,blfppc] [--kinds K,...] > matrix.json
+    python benchmarks/bench_fault_matrix.py --table matrix.json     # the README's table (markdown)
 
 The graph half takes ~15 s a case plus 2 s of wall time per sample the controller does not
 answer (the plant's ``lockstep_timeout_s``: 10 per dropout at the default ``stale_timeout_s``).
@@ -42,6 +43,7 @@ LAST_S = 40.0
 
 #: One case per fault kind (and the torque pulse of experiment 3), acting from FAULT_START_S.
 CASES: dict[str, dict[str, Any]] = {
+    "none": {},  # the baseline: experiment 1 as it is
     "sensor_dropout": {"faults": [{"kind": "sensor_dropout", "start_s": 30.0, "end_s": 30.5}]},
     "reference_dropout": {"faults": [{"kind": "reference_dropout", "start_s": 30.0, "end_s": 30.5}]},
     "actuator_dropout": {"faults": [{"kind": "actuator_dropout", "start_s": 30.0, "end_s": 30.5}]},
@@ -66,6 +68,7 @@ def case_scenario(kind: str, controller: str) -> dict[str, Any]:
     raw["name"] = f"fault_matrix_{kind}"
     raw["controller"] = controller
     raw["faults"] = case.get("faults", [])
+    raw["name"] = f"fault_matrix_{kind}"
     raw["disturbances"] = list(raw.get("disturbances") or []) + case.get("disturbances", [])
     return raw
 
@@ -120,12 +123,33 @@ def metric_difference(a: dict[str, Any], b: dict[str, Any]) -> float:
     return worst
 
 
+def table(path: str) -> str:
+    """The matrix of a JSON output as a markdown table: per case and controller, the last-20-s
+    max |q_ev| offline, back in the band at the end, the answers not commanded, and (with the
+    graph) the largest metric difference graph - offline and whether the answers agree."""
+    data = json.loads(Path(path).read_text())
+    rows = ["| fault (from 30 s) | controller | last 20 s max abs q_ev | in band at the end | held / zero answers | graph - offline (max metric diff) |",
+            "| --- | --- | --- | --- | --- | --- |"]
+    for r in data["cases"]:
+        o, g = r["offline"], r.get("graph")
+        c = o["controller"]
+        agree = "-" if g is None else (f"{g['max_metric_difference']:.1e}" + ("" if g["controller"]["held"] == c["held"] and
+                                                                                g["controller"]["watchdog_zero"] == c["watchdog_zero"] else ", answers differ"))
+        rows.append(f"| {r['case']} | {r['controller']} | {o['last20_max_abs_qev']:.3g} | {'-' if o['returned_to_band'] is None else 'yes' if o['returned_to_band'] else 'no'} | "
+                    f"{c['held']} / {c['watchdog_zero']} | {agree} |")
+    return "\n".join(rows)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--graph", action="store_true", help="also run every case through the ROS 2 graph (minutes)")
     ap.add_argument("--controllers", default="sappc,trappc,blfppc")
     ap.add_argument("--kinds", default=",".join(CASES))
+    ap.add_argument("--table", metavar="JSON", help="print the markdown table of an earlier output and exit")
     args = ap.parse_args()
+    if args.table:
+        print(table(args.table))
+        return 0
     rows = []
     for kind in args.kinds.split(","):
         for controller in args.controllers.split(","):

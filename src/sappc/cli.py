@@ -185,6 +185,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     mismatched = result.mismatched_counts()
     ctrl = {**run.controller_summary(), **_node_statistics(result.run_dir)}
     failed = _print_outcome(scenario, metrics, ctrl)
+    missed = _plant_missed(result.run_dir)
+    if missed:
+        print(f"plant: {missed} sample(s) integrated with the last torque after lockstep_timeout_s without an answer "
+              "(a message lost outside the fault injector, or a machine too loaded to answer in time): see logs/plant.log")
     print(f"bag {result.bag_dir}: {sum(result.recorded.values())} messages on {sum(1 for n in result.recorded.values() if n)} topics; "
           + ("every topic's count matches what was published" if not mismatched else f"COUNT MISMATCH (published, recorded): {mismatched}"))
     if args.json:
@@ -211,6 +215,14 @@ def _node_statistics(run_dir: Path) -> dict[str, Any]:
     except (OSError, ValueError):
         return {}
     return {k: stats[k] for k in ("refused_steps", "rejected_by_reason") if k in stats}
+
+
+def _plant_missed(run_dir: Path) -> int:
+    """Samples the plant integrated without the torque of their stamp (its timing file), 0 if unknown."""
+    try:
+        return int(json.loads((run_dir / "logs" / "timing.json").read_text())["missed"]["torque"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0
 
 
 def run_exit_status(mismatched: dict[str, tuple[int, int]], controller: dict[str, Any], failed: Sequence[str] = ()) -> int:
