@@ -146,9 +146,13 @@ class ProjectNode(Node):
 
     def param(self, name: str, default: Any, descriptor: Any = None) -> Any:
         """Declare parameter ``name`` and return its value (``default`` may be a ``Parameter.Type``:
-        no default, ``None`` when not given)."""
+        no default, ``None`` when not given).  Without a ``descriptor`` the parameter is read-only:
+        it is read once at start-up, so a change at run time is refused (rclpy says why) rather
+        than accepted and never applied; a node that applies a change passes its own descriptor."""
         if descriptor is None:
-            return self.declare_parameter(name, default).value
+            from rcl_interfaces.msg import ParameterDescriptor
+
+            descriptor = ParameterDescriptor(read_only=True, description="read at start-up; restart the node to change it")
         return self.declare_parameter(name, default, descriptor).value
 
     def mode_param(self, descriptor: Any = None) -> str:

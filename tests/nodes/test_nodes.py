@@ -242,6 +242,9 @@ def test_plant_lockstep_waits_for_the_torque_of_each_sample(ros_context) -> None
     from spacecraft_sim.plant_node import PlantNode
 
     plant = PlantNode(context=ros_context, parameter_overrides=[Parameter("duration_s", value=0.03), Parameter("q_BN0", value=list(Q0))])
+    # read once at start-up, so a change at run time is refused with the reason, not accepted and ignored
+    refused = plant.set_parameters([Parameter("max_torque_Nm", value=0.1)])[0]
+    assert not refused.successful and "read-only" in refused.reason and plant.max_torque == 0.5
     node = Node("torquer", context=ros_context)
     qos = c.qos_profile()
     pub = node.create_publisher(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, qos)
