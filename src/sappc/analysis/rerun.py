@@ -8,8 +8,8 @@ one embedded in the bag by ``sappc run``, or ``--params``), and compares each to
 one the node published on ``control/torque``.  With the recorded parameters and a lockstep bag
 the two are bit-for-bit equal: a determinism check of the whole chain (CDR, the node, the core).
 
-Which samples are re-run: every ``control/torque`` message whose diagnostics do not flag stale
-inputs (a stale sample is the node's zero torque, not a control step).  Which inputs: those
+Which samples are re-run: every ``control/torque`` message whose diagnostics do not flag it as
+no control step (``status[1]``: a held torque or the watchdog's zero, see the node's answers).  Which inputs: those
 whose stamps the controller reported in its diagnostics (``input_stamps_state_s``,
 ``input_stamps_reference_s``), so the re-run is exact in real time too.  For a bag without them
 (another controller node), the recorded inputs are fed, in the order the recorder received
@@ -183,10 +183,10 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
         d = bag.series[diag_topic]
         j = _nearest_index(d.stamps_ns, torque.stamps_ns, _STAMP_TOL_NS)
         diag = np.where((j >= 0)[:, None], d.values[np.maximum(j, 0)], np.nan)
-        stale = diag[:, 3 * labels.index("status") + 1] > 0.5  # status[1]: the stale flag
+        stale = diag[:, 3 * labels.index("status") + 1] > 0.5  # status[1]: not a control step (held or zero torque)
         keep &= ~stale
         if stale.any():
-            skipped["stale (zero torque, no control step)"] = int(stale.sum())
+            skipped["not a control step (the last torque held, or zero torque)"] = int(stale.sum())
 
     lockstep = find_topic(bag, CLOCK.name) is not None
     if diag is not None and "input_stamps_state_s" in labels and "input_stamps_reference_s" in labels:
