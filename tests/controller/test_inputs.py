@@ -63,3 +63,15 @@ def test_a_step_on_a_sample_is_the_cores_step_at_the_sample_time() -> None:
     out = step_sample(a, dt, sample)
     ref = b.step(30_000_000 / NS_PER_S, dt, *VALUES)
     assert np.array_equal(out.torque_B, ref.torque_B) and sample.t_s == 0.03
+
+
+def test_a_sample_is_an_immutable_record() -> None:
+    """A ``ControlSample`` is handed from the pairing to the step (and by ``sappc rerun`` to its
+    report): a frozen record, no step can change the time or the stamps of the inputs it used."""
+    import dataclasses
+
+    import pytest
+
+    sample = ControlSample(30_000_000, (30_000_000,) * 5, VALUES)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        sample.t_ns = 0  # type: ignore[misc]

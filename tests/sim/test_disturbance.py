@@ -128,3 +128,38 @@ def test_shared_models_give_one_column_and_per_run_models_n() -> None:
 def test_bad_models_are_rejected_by_name(build, fragment) -> None:
     with pytest.raises((ConfigError, ValueError), match=fragment):
         build()
+
+
+def test_random_draws_default_to_one_run_of_the_models_seed() -> None:
+    """The compiled random disturbance's draw tables (``kernels.random_draws``): one run by default,
+    run n drawing with ``seed + n``, one draw per hold window of the grid."""
+    from spacecraft_sim.core import kernels as PK
+
+    model = DisturbanceSum((RandomTorque((1e-3, 2e-3, 3e-3), 0.5, seed=4),))
+    t = np.arange(5) * 0.25  # windows 0, 0, 1, 1, 2
+    draws, win = PK.random_draws(model, t)
+    assert draws.shape == (1, 1, 3, 3) and win.tolist() == [[0, 0, 1, 1, 2]]
+    np.testing.assert_array_equal(draws[0, 0, 2], np.random.default_rng([4, 2]).standard_normal(3))
+    kinds, dparams, dscale, dphase = PK.encode_disturbance(model)  # its encoding: one run by default too
+    assert kinds.tolist() == [PK.D_RANDOM] and dscale.shape == dphase.shape == (1, 1) and dparams[0, :3].tolist() == [1e-3, 2e-3, 3e-3]
+    two, _ = PK.random_draws(model, t, 2)
+    np.testing.assert_array_equal(two[0, 0], draws[0, 0])
+    np.testing.assert_array_equal(two[0, 1, 1], np.random.default_rng([5, 1]).standard_normal(3))
+
+
+def test_models_add_per_axis_in_list_order_and_a_step_allows_the_grid_rounding() -> None:
+    """The sum adds each model's own components (a constant before the paper model keeps its
+    per-axis values); a step is on from ``start_s`` less the 1e-9 s allowed for ``k * dt``
+    rounding: on at a sample 1e-9 s before its start, off 2e-9 s before."""
+    t = np.array([0.0, 7.0, 250.0])
+    const = ConstantTorque((1e-3, -2e-3, 3e-3))
+    total = DisturbanceSum((const, PaperPeriodic())).torque_B(t, 1)
+    np.testing.assert_array_equal(total, const.torque_B(t, 1) + PaperPeriodic().torque_B(t, 1))
+    start = 0.3 + 1e-9  # (0.3 + 1e-9) - 1e-9 == 0.3 exactly in float64
+    assert start - 1e-9 == 0.3
+    on = StepTorque(start, (1.0, 2.0, 3.0)).torque_B(np.array([0.3, 0.3 - 1e-9]), 1)
+    assert on[:, 0].tolist() == [[1.0, 2.0, 3.0], [0.0, 0.0, 0.0]]
+    # a pulse: on during [start_s, start_s + duration_s), both ends less the same 1e-9 s
+    assert start + 0.25 - 1e-9 == 0.55
+    pulse = PulseTorque(start, 0.25, (1.0, 2.0, 3.0)).torque_B(np.array([0.3 - 1e-9, 0.3, 0.55 - 1e-9, 0.55]), 1)
+    assert pulse[:, 0, 0].tolist() == [0.0, 1.0, 1.0, 0.0]

@@ -160,3 +160,28 @@ def test_bad_step_is_rejected(dt) -> None:
 def test_bad_substeps_are_rejected(substeps) -> None:
     with pytest.raises(InputError, match="substeps"):
         RigidBody(np.eye(3)).propagate(initial_state([0, 0, 0, 1.0], [0, 0, 0]), np.zeros((1, 3)), 0.01, substeps)
+
+
+def test_derivative_shares_a_batch_of_one_as_propagate_does(rng) -> None:  # type: ignore[no-untyped-def]
+    """``derivative`` of N runs with one torque, one state or one inertia shared by them (a batch
+    of one is shared, as in ``propagate``) equals each run's derivative alone, bit for bit."""
+    x = initial_state(random_unit_quaternions(rng, 3), rng.standard_normal((3, 3)))
+    u = rng.standard_normal((3, 3))
+    Js = np.stack([J_GENERAL, np.diag([2.0, 3.0, 4.0]), np.diag([4.0, 4.0, 5.0])])
+    body, per_run = RigidBody(J_GENERAL), RigidBody(Js)
+    alone = [body.derivative(np.ascontiguousarray(x[k]), u[k]) for k in range(3)]
+    np.testing.assert_array_equal(body.derivative(x, u[:1]), [body.derivative(np.ascontiguousarray(x[k]), u[0]) for k in range(3)])
+    np.testing.assert_array_equal(body.derivative(x[:1], u), [body.derivative(np.ascontiguousarray(x[0]), u[k]) for k in range(3)])
+    np.testing.assert_array_equal(body.derivative(x, u), alone)
+    np.testing.assert_array_equal(per_run.derivative(x, u), [RigidBody(Js[k]).derivative(np.ascontiguousarray(x[k]), u[k]) for k in range(3)])
+    np.testing.assert_array_equal(body.derivative(x[:2], u[:2]), alone[:2])  # two runs, two torques
+    np.testing.assert_array_equal(RigidBody(Js[:2]).derivative(x[:2], u[:2]),  # two runs, two inertias
+                                  [RigidBody(Js[k]).derivative(np.ascontiguousarray(x[k]), u[k]) for k in range(2)])
+    shared_torque = body.propagate(x, u[:1], 0.05, 2)  # propagate too: one torque for three states
+    for k in range(3):
+        np.testing.assert_array_equal(shared_torque[k], body.propagate(np.ascontiguousarray(x[k]), u[0], 0.05, 2))
+    two = body.propagate(x[:2], u[:2], 0.05, 2)  # two runs, two torques
+    two_J = RigidBody(Js[:2]).propagate(x[:2], u[:2], 0.05, 2)  # two runs, two inertias
+    for k in range(2):
+        np.testing.assert_array_equal(two[k], body.propagate(np.ascontiguousarray(x[k]), u[k], 0.05, 2))
+        np.testing.assert_array_equal(two_J[k], RigidBody(Js[k]).propagate(np.ascontiguousarray(x[k]), u[k], 0.05, 2))

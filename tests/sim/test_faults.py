@@ -167,3 +167,29 @@ def test_window_edges_are_on_the_grid_start_inclusive_end_exclusive() -> None:
 def test_bad_fault_entries_name_the_value(entry: dict, message: str) -> None:  # type: ignore[type-arg]
     with pytest.raises(ConfigError, match=re.escape(message)):
         faults_from_list([entry])
+
+
+def test_the_noise_model_rotates_about_the_body_axis_of_each_draw_and_adds_the_rate_draws() -> None:
+    """The sensor-noise model (``spacecraft_sim.core.faults.noisy_measurement``): draws ``n[:3]``
+    give the body-frame rotation vector ``attitude_std_rad * n[:3]``, ``n[3:]`` the rate error
+    ``rate_std_rad_s * n[3:]``; checked one axis at a time against the closed form of a rotation
+    by angle a about body axis i, ``q ⊗ (sin(a/2) e_i, cos(a/2))``, to 4e-16 (a few ulps: sin, cos, a
+    product, the normalisation)."""
+    from spacecraft_sim.core.faults import noisy_measurement
+
+    q = np.array([0.3254, 0.4068, -0.3254, 0.7891])
+    q /= np.linalg.norm(q)
+    w = np.array([0.01, -0.02, 0.03])
+    for i in range(3):
+        n = np.zeros(6)
+        n[i], n[3 + i] = 2.0, -3.0
+        q_out, w_out = noisy_measurement(q, w, n, 0.1, 1e-3)
+        dq = np.zeros(4)
+        dq[i], dq[3] = np.sin(0.1), np.cos(0.1)  # angle 0.1 * 2 = 0.2 rad about axis i
+        np.testing.assert_allclose(q_out, quat_multiply(q[None], dq[None])[0], rtol=0, atol=4e-16)
+        expected_w = w.copy()
+        expected_w[i] += 1e-3 * -3.0
+        np.testing.assert_array_equal(w_out, expected_w)
+    q_out, w_out = noisy_measurement(q, w, np.zeros(6), 0.1, 1e-3)  # zero draws: no rotation (angle 0 is no 0/0)
+    np.testing.assert_allclose(q_out, q, rtol=0, atol=4e-16)
+    np.testing.assert_array_equal(w_out, w)

@@ -1,0 +1,436 @@
+"""The run metrics (:mod:`sappc.evaluation.metrics`) against their definitions.
+
+Every metric of every run equals an independent numpy model of the module docstring's
+definitions (:func:`oracle`), on synthetic histories built so that each definition is exercised:
+three runs with different data on each axis, one run that goes non-finite, a fault window,
+saturation, band exits and returns, uniform and jittered time grids, and blocks of uneven sizes.
+Then the boundaries stated in the docstring, each by its own test: the settling time (the first
+sample after which ``max_i |q_ev,i|`` stays below the threshold: a sample *at* the threshold is
+not settled), the steady window (``t >= steady_from_s``, the sample at ``steady_from_s`` and one
+that ``k * dt`` rounds just below it included, the one before excluded), the sample nearest
+``t2_s`` (``None`` when the run ends more than half a step before it).
+
+Tolerances: maxima, counts, selected samples and times are exact (they are selections, no
+arithmetic); the time-mean of ``|q_ev,i|`` is a running sum divided by a count, compared at 1e-14
+relative (numpy's pairwise sum in the model adds in another order: a few ulps).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sappc.evaluation.history import History
+from sappc.evaluation.metrics import MetricsAccumulator
+
+#: Relative tolerance of the steady-state time-mean (summation order only, see module docstring).
+SUM_RTOL = 1e-14
+#: The module's rounding allowance of ``k * dt`` [s] (stated in its ``_TIME_TOL_S``).
+TIME_TOL_S = 1e-9
+
+
+def _history(t: np.ndarray, q_ev: np.ndarray, *, torque: np.ndarray | None = None, rho: np.ndarray | None = None,
+             saturated: np.ndarray | None = None, band: tuple[np.ndarray, np.ndarray] | None = None) -> History:
+    """A History of T samples and N runs from the error's vector part ``q_ev`` (T, N, 3)."""
+    T, N, _ = q_ev.shape
+    q_BR = np.concatenate((q_ev, np.sqrt(np.clip(1.0 - np.sum(q_ev**2, axis=2, keepdims=True), 0.0, None))), axis=2)
+    q_BN = q_BR.copy()
+    zeros = np.zeros((T, N, 3))
+    lower, upper = band if band is not None else (np.full((T, N, 3), -1.0), np.full((T, N, 3), 1.0))
+    return History(t=np.asarray(t, dtype=float), q_BN=q_BN, omega_BN_B=zeros.copy(), q_BR=q_BR,
+                   torque_B=zeros.copy() if torque is None else torque, torque_cmd_B=zeros.copy(),
+                   saturated=np.zeros((T, N, 3), dtype=bool) if saturated is None else saturated, disturbance_B=zeros.copy(),
+                   rho=zeros.copy() if rho is None else rho, band_lower=lower, band_upper=upper, eps=zeros.copy(), z=zeros.copy(),
+                   V=zeros.copy())
+
+
+def _accumulator(t: np.ndarray, n: int, **settings: Any) -> MetricsAccumulator:
+    opts: dict[str, Any] = {"steady_from_s": 1.0, "settle_threshold": 0.1, "t2_s": 1.0, "fault_windows": []}
+    opts.update(settings)
+    return MetricsAccumulator(t, n, **opts)
+
+
+def oracle(h: History, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]]) -> list[dict[str, Any]]:
+    """The module docstring's definitions, written again with numpy, run by run."""
+    t = h.t
+    T = t.size
+    dt = t[1] - t[0] if T > 1 else 0.0
+    intervals = np.diff(t)
+    uniform = not np.any(np.abs(intervals - dt) > TIME_TOL_S)
+    hold = np.append(intervals, np.median(intervals)) if intervals.size else np.zeros(1)
+    steady = t >= steady_from_s - TIME_TOL_S
+    k2 = int(np.argmin(np.abs(t - t2_s)))
+    has_t2 = abs(t[k2] - t2_s) <= 0.5 * dt + TIME_TOL_S
+    fault = min((s for s, _ in fault_windows), default=None)
+    out = []
+    for n in range(h.q_BR.shape[1]):
+        finite = np.all(np.isfinite(h.q_BN[:, n]), axis=1) & np.all(np.isfinite(h.omega_BN_B[:, n]), axis=1) & np.all(
+            np.isfinite(h.torque_B[:, n]), axis=1)
+        live = np.logical_and.accumulate(finite)  # the samples before the run failed
+        e = h.q_BR[:, n, :3]
+        big = np.abs(e).max(axis=1)
+        unsettled = np.flatnonzero(live & (big >= settle_threshold))
+        if unsettled.size == 0:
+            settling: float | None = 0.0
+        elif unsettled[-1] == T - 1:
+            settling = None
+        else:
+            settling = float(t[unsettled[-1] + 1])
+        use = live & steady
+        outside = live & np.any((e < h.band_lower[:, n]) | (e > h.band_upper[:, n]), axis=1)
+        sign0 = np.where(e[0] >= 0.0, 1.0, -1.0)
+        m: dict[str, Any] = {
+            "settling_time_s": settling,
+            "steady_max_abs_qev": float(np.max(np.where(use, big, 0.0))) if steady.any() else None,
+            "steady_mean_abs_qev": float((np.sum(np.abs(e[use]), axis=0) / steady.sum()).max()) if steady.any() else None,
+            "rpf_error_at_t2": float(np.abs(e[k2] - h.rho[k2, n]).max()) if has_t2 and live[k2] else None,
+            "overshoot": float(max(0.0, np.max(-sign0 * e[live]))) if live.any() else 0.0,
+            "max_abs_torque_Nm": float(np.abs(h.torque_B[live, n]).max()) if live.any() else 0.0,
+            "saturation_fraction": float(np.sum(live & h.saturated[:, n].any(axis=1)) / T),
+            "time_outside_constraint_s": float(outside.sum() * dt) if uniform else float(np.sum(hold[outside])),
+            "returned_to_constraint": None,
+            "left_constraint_after_fault": None,
+            "returned_at_s": None,
+            "finite": bool(live[-1]),
+        }
+        if fault is not None:
+            last_out = int(np.flatnonzero(outside)[-1]) if outside.any() else -1
+            left = bool(np.any(outside & (t >= fault - TIME_TOL_S)))
+            returned = last_out < T - 1
+            m.update(left_constraint_after_fault=left, returned_to_constraint=returned,
+                     returned_at_s=float(t[last_out + 1]) if left and returned else None)
+        out.append(m)
+    return out
+
+
+def _check(got: dict[str, Any], want: dict[str, Any]) -> None:
+    assert got.keys() == want.keys()
+    for key, value in want.items():
+        if key == "steady_mean_abs_qev" and value is not None:
+            assert got[key] == pytest.approx(value, rel=SUM_RTOL, abs=0.0), key
+        else:
+            assert got[key] == value, (key, got[key], value)
+
+
+def _rich_history(t: np.ndarray) -> History:
+    """Three runs, 3 axes, all different: decaying errors of both signs with late bumps, a run that
+    goes non-finite, torques, saturation, a band that the error leaves and re-enters."""
+    rng = np.random.default_rng(20261124)
+    T = t.size
+    decay = np.exp(-3.0 * (t - t[0]))[:, None, None]
+    q_ev = decay * np.array([[0.30, -0.20, 0.05], [-0.25, 0.15, 0.40], [0.10, 0.35, -0.30]])[None] + 0.004 * rng.standard_normal((T, 3, 3))
+    q_ev[T // 2, 1, 2] = 0.2  # run 1 is unsettled again half-way
+    q_ev[-1, 0, 1] = 0.15  # run 0 ends unsettled: it never settles
+    torque = 0.1 * rng.standard_normal((T, 3, 3))
+    torque[5, 0, 0], torque[9, 1, 2], torque[3, 2, 1] = -0.7, 0.8, 0.9  # each run's largest torque on another axis
+    saturated = rng.random((T, 3, 3)) < 0.05
+    # a band of its own per axis and run, not symmetric about zero
+    lower = -(0.05 + 0.1 * decay) * np.array([[1.0, 0.6, 1.3], [0.8, 1.1, 0.5], [1.2, 0.7, 0.9]])[None]
+    upper = (0.04 + 0.1 * decay) * np.array([[0.7, 1.2, 0.9], [1.1, 0.6, 1.4], [0.5, 1.0, 1.3]])[None]
+    rho = 0.02 * rng.standard_normal((T, 3, 3))
+    h = _history(t, q_ev, torque=torque, rho=rho, saturated=saturated, band=(lower, upper))
+    h.omega_BN_B[T - 7, 2, 1] = np.inf  # run 2 fails 7 samples before the end
+    return h
+
+
+SETTINGS: dict[str, Any] = {"steady_from_s": 1.2, "settle_threshold": 0.03, "t2_s": 0.75, "fault_windows": [(1.0, 1.1), (0.9, 2.0)]}
+
+
+@pytest.mark.parametrize("grid", ["uniform", "jittered"])
+def test_every_metric_of_every_run_equals_the_definitions(grid: str) -> None:
+    t = 2.0 + np.arange(41) * 0.05  # a run (a bag) need not start at 0
+    if grid == "jittered":  # real-time stamps: hold intervals of their own
+        t = t + np.random.default_rng(3).uniform(-0.004, 0.004, t.size) * (np.arange(t.size) > 0)
+    h = _rich_history(t)
+    settings = {"steady_from_s": 3.2, "settle_threshold": 0.03, "t2_s": 2.75, "fault_windows": [(3.0, 3.1), (2.9, 4.0)]}
+    acc = _accumulator(t, 3, **settings)
+    acc.add_history(h)
+    want = oracle(h, **settings)  # type: ignore[arg-type]
+    assert [w["finite"] for w in want] == [True, True, False]
+    assert want[0]["settling_time_s"] is None and want[1]["settling_time_s"] is not None  # both cases exercised
+    assert any(w["left_constraint_after_fault"] for w in want) and any(w["returned_at_s"] for w in want)
+    for n in range(3):
+        _check(acc.run_metrics(n), want[n])
+
+
+def test_blocks_of_any_size_give_the_same_metrics_as_the_whole_history() -> None:
+    """``update`` on blocks (the campaign's sub-batches, the node's samples) equals ``add_history``
+    bit for bit; the runs' accumulators concatenated equal one accumulator of all runs."""
+    t = np.asarray(np.arange(41) * 0.05, dtype=np.float64)
+    h = _rich_history(t)
+    whole = _accumulator(t, 3, **SETTINGS)
+    whole.add_history(h)
+    blocks = _accumulator(t, 3, **SETTINGS)
+    x = np.asarray(np.concatenate((h.q_BN, h.omega_BN_B), axis=2), dtype=np.float64)
+    assert t[24] >= SETTINGS["steady_from_s"] > t[23]  # block (24, 25) is the window's first sample alone
+    for k0, k1 in ((0, 1), (1, 7), (7, 8), (8, 24), (24, 25), (25, 41)):
+        blocks.update(k0, t[k0:k1], x[k0:k1], h.torque_B[k0:k1], h.q_BR[k0:k1], h.rho[k0:k1], h.saturated[k0:k1],
+                      h.band_lower[k0:k1], h.band_upper[k0:k1])
+    parts = []
+    for n in range(3):
+        part = _accumulator(t, 1, **SETTINGS)
+        fields: dict[str, Any] = {f: h.t if f == "t" else getattr(h, f)[:, n : n + 1] for f in History.__dataclass_fields__}
+        part.add_history(History(**fields))
+        parts.append(part)
+    joined = MetricsAccumulator.concatenate(parts)
+    for n in range(3):
+        assert blocks.run_metrics(n) == whole.run_metrics(n) == joined.run_metrics(n)
+    for key, value in whole.criteria_arrays().items():
+        np.testing.assert_array_equal(blocks.criteria_arrays()[key], value, err_msg=key)
+        np.testing.assert_array_equal(joined.criteria_arrays()[key], value, err_msg=key)
+    short = []
+    for k1 in (5, 10):  # fed different samples, none in the steady window
+        part = _accumulator(t, 1, **SETTINGS)
+        part.update(0, t[:k1], x[:k1, :1], h.torque_B[:k1, :1], h.q_BR[:k1, :1], h.rho[:k1, :1], h.saturated[:k1, :1],
+                    h.band_lower[:k1, :1], h.band_upper[:k1, :1])
+        short.append(part)
+    for mixed in ([parts[0], short[0]], short):
+        with pytest.raises(ValueError, match="different samples"):
+            MetricsAccumulator.concatenate(mixed)
+
+
+def test_criteria_arrays_are_the_per_axis_criteria_of_every_run() -> None:
+    t = np.arange(41) * 0.05
+    h = _rich_history(t)
+    acc = _accumulator(t, 3, **SETTINGS)
+    acc.add_history(h)
+    want = oracle(h, **SETTINGS)
+    c = acc.criteria_arrays()
+    e = np.abs(h.q_BR[..., :3])
+    steady = t >= SETTINGS["steady_from_s"] - TIME_TOL_S
+    np.testing.assert_allclose(c["steady_mean_abs_qev_per_axis"][:2], e[steady, :2].sum(axis=0) / steady.sum(), rtol=SUM_RTOL, atol=0)
+    np.testing.assert_array_equal(c["steady_mean_abs_qev"], c["steady_mean_abs_qev_per_axis"].max(axis=1))
+    k2 = int(round(SETTINGS["t2_s"] / 0.05))
+    np.testing.assert_array_equal(c["rpf_error_at_t2_per_axis"], np.abs(h.q_BR[k2, :, :3] - h.rho[k2]))
+    np.testing.assert_array_equal(c["rpf_error_at_t2"], [w["rpf_error_at_t2"] for w in want])
+    np.testing.assert_array_equal(c["steady_max_abs_qev"], [w["steady_max_abs_qev"] for w in want])
+    np.testing.assert_array_equal(c["max_abs_torque_Nm"], [w["max_abs_torque_Nm"] for w in want])
+    np.testing.assert_array_equal(c["settling_time_s"], [np.nan if w["settling_time_s"] is None else w["settling_time_s"] for w in want])
+    np.testing.assert_array_equal(c["finite"], [True, True, False])
+
+
+def _one_axis(values: list[float], t: np.ndarray | None = None) -> History:
+    """One run whose largest error component is ``values`` (on axis 1; the others 10x smaller)."""
+    v = np.asarray(values, dtype=float)
+    q_ev = np.stack((0.1 * v, v, -0.1 * v), axis=1)[:, None, :]
+    return _history(np.arange(v.size) * 0.1 if t is None else t, q_ev)
+
+
+def test_settling_time_is_the_first_sample_after_the_last_one_at_or_above_the_threshold() -> None:
+    """``settling_time_s``: the first sample time after which ``max_i |q_ev,i|`` stays *below* the
+    threshold until the end; a sample exactly at the threshold is not settled; ``0`` if it always
+    was below, ``None`` if the last sample is not."""
+    def settling(values: list[float]) -> float | None:
+        h = _one_axis(values)
+        acc = _accumulator(h.t, 1, settle_threshold=0.25)
+        acc.add_history(h)
+        result: float | None = acc.run_metrics(0)["settling_time_s"]
+        return result
+
+    assert settling([0.9, 0.5, 0.1, 0.3, 0.1, 0.0]) == 0.4  # the last unsettled sample is k = 3 (t = 0.3 s)
+    assert settling([0.9, 0.5, 0.1, 0.25, 0.1, 0.0]) == 0.4  # at the threshold: not settled
+    assert settling([0.9, 0.5, 0.1, 0.2499, 0.1, 0.0]) == 0.2  # just below: settled from k = 2
+    assert settling([0.3, 0.2, 0.0, 0.1]) == 0.1  # only the first sample unsettled: settled from the second
+    assert settling([0.1, 0.2, 0.0, 0.1]) == 0.0  # always below
+    assert settling([0.1, 0.0, 0.0, 0.25]) is None  # the last sample is at the threshold: never settled
+    assert settling([-0.9, -0.3, 0.0]) == 0.2  # magnitudes
+
+
+def test_the_steady_window_starts_at_steady_from_s_with_the_grid_rounding_allowed() -> None:
+    """``t >= steady_from_s``, with ``k * dt`` allowed to round below by up to 1e-9 s: the sample
+    at ``steady_from_s`` is in the window, the one before is not; a window with no sample gives None."""
+    dt = 0.03
+    t = np.arange(60) * dt
+    k_below = 11  # 11 * 0.03 = 0.32999999999999996 < 0.33: k * dt rounds below its decimal value
+    assert t[k_below] < 0.33
+    values = np.arange(60, dtype=float) / 100.0  # max |q_ev| grows with k: the window's start shows in the maximum and the mean
+    h = _one_axis(list(values), t)
+
+    def window(steady_from_s: float) -> tuple[float, float]:
+        acc = _accumulator(t, 1, steady_from_s=steady_from_s)
+        acc.add_history(h)
+        m = acc.run_metrics(0)
+        return m["steady_max_abs_qev"], m["steady_mean_abs_qev"]
+
+    for k in (30, k_below):
+        mx, mean = window(round(k * dt, 6))
+        assert mx == values[-1]
+        assert mean == pytest.approx(values[k:].mean(), rel=SUM_RTOL, abs=0.0), k  # samples k .. 59: k included
+    mx, mean = window(t[30] + 2 * TIME_TOL_S)  # just after sample 30: it is out
+    assert mean == pytest.approx(values[31:].mean(), rel=SUM_RTOL, abs=0.0)
+    mx, mean = window(t[30] + TIME_TOL_S)  # sample 30 is 1e-9 s early: the rounding allowed, in
+    assert mean == pytest.approx(values[30:].mean(), rel=SUM_RTOL, abs=0.0)
+    acc = _accumulator(t, 1, steady_from_s=t[-1])  # a window of one sample
+    acc.add_history(h)
+    assert acc.run_metrics(0)["steady_mean_abs_qev"] == acc.run_metrics(0)["steady_max_abs_qev"] == values[-1]
+    assert acc.criteria_arrays()["steady_mean_abs_qev"].tolist() == [values[-1]]
+    acc = _accumulator(t, 1, steady_from_s=t[-1] + 2 * TIME_TOL_S)  # after the last sample
+    acc.add_history(h)
+    assert acc.run_metrics(0)["steady_max_abs_qev"] is None and acc.run_metrics(0)["steady_mean_abs_qev"] is None
+
+
+def test_rpf_error_is_taken_at_the_sample_nearest_t2_or_none_when_the_run_ends_before() -> None:
+    t = np.arange(10) * 0.1
+    q_ev = np.zeros((10, 1, 3))
+    q_ev[:, 0, 0] = np.arange(10) / 100.0
+    rho = np.zeros((10, 1, 3))
+    rho[:, 0, 0] = 0.5
+    h = _history(t, q_ev, rho=rho)
+
+    def at(t2_s: float) -> float | None:
+        acc = _accumulator(t, 1, t2_s=t2_s)
+        acc.add_history(h)
+        result: float | None = acc.run_metrics(0)["rpf_error_at_t2"]
+        return result
+
+    assert at(0.0) == 0.5  # the first sample
+    assert at(0.34) == pytest.approx(0.5 - 0.03, abs=1e-16)  # nearest sample: k = 3
+    assert at(0.36) == pytest.approx(0.5 - 0.04, abs=1e-16)  # k = 4
+    assert at(0.9 + 0.05) == pytest.approx(0.5 - 0.09, abs=1e-16)  # half a step after the end: still the last sample
+    assert at(0.9 + 0.06) is None  # the run ended before t2
+
+
+def test_overshoot_is_the_largest_excursion_opposite_to_the_initial_sign() -> None:
+    """``max_{i,t} max(0, -sign(q_ev,i(0)) q_ev,i(t))`` with ``sign(0) = +1``."""
+    q_ev = np.array([[0.3, -0.2, 0.0], [0.1, -0.1, -0.02], [-0.04, 0.05, 0.01], [-0.01, 0.07, -0.03]])[:, None, :]
+    h = _history(np.arange(4) * 0.1, q_ev)
+    acc = _accumulator(h.t, 1)
+    acc.add_history(h)
+    assert acc.run_metrics(0)["overshoot"] == 0.07  # axis 1 started negative and reached +0.07
+    h2 = _history(np.arange(2) * 0.1, np.array([[0.3, -0.2, 0.1], [0.1, -0.1, 0.05]])[:, None, :])
+    acc2 = _accumulator(h2.t, 1)
+    acc2.add_history(h2)
+    assert acc2.run_metrics(0)["overshoot"] == 0.0  # never opposite: zero, not negative
+    h3 = _history(np.arange(2) * 0.1, np.array([[0.1, -0.1, 0.0], [0.05, -0.05, -0.04]])[:, None, :])
+    acc3 = _accumulator(h3.t, 1)
+    acc3.add_history(h3)
+    assert acc3.run_metrics(0)["overshoot"] == 0.04  # axis 2 started at 0: sign +1, so -0.04 is opposite
+
+
+def test_band_exits_saturation_and_return_after_a_fault() -> None:
+    """Time outside the band (count x dt on a uniform grid), the fraction of saturated samples, and
+    with faults: whether the error left the band at or after the first fault's start and when it
+    re-entered for good; an error outside at the end has not returned."""
+    t = np.arange(10) * 0.1
+    q_ev = np.zeros((10, 2, 3))
+    q_ev[[1, 5, 6], 0, 2] = 0.2  # run 0: outside at 0.1 (before the fault) and 0.5, 0.6 s
+    q_ev[[2, 9], 1, 0] = -0.2  # run 1: outside at 0.2 and at the end
+    band = (np.full((10, 2, 3), -0.1), np.full((10, 2, 3), 0.1))
+    saturated = np.zeros((10, 2, 3), dtype=bool)
+    saturated[[0, 3, 4], 0, 1] = True
+    saturated[4, 0, 2] = True
+    h = _history(t, q_ev, band=band, saturated=saturated)
+    acc = _accumulator(t, 2, fault_windows=[(0.5, 0.7), (0.4, 0.45)])
+    acc.add_history(h)
+    m0, m1 = acc.run_metrics(0), acc.run_metrics(1)
+    assert m0["time_outside_constraint_s"] == 3 * 0.1 and m1["time_outside_constraint_s"] == 2 * 0.1
+    assert m0["saturation_fraction"] == 0.3 and m1["saturation_fraction"] == 0.0
+    assert (m0["left_constraint_after_fault"], m0["returned_to_constraint"], m0["returned_at_s"]) == (True, True, t[7])
+    assert (m1["left_constraint_after_fault"], m1["returned_to_constraint"], m1["returned_at_s"]) == (True, False, None)
+    before = _accumulator(t, 2, fault_windows=[(0.65, 0.7)])  # run 0 left only before this fault
+    before.add_history(h)
+    assert (before.run_metrics(0)["left_constraint_after_fault"], before.run_metrics(0)["returned_at_s"]) == (False, None)
+    assert before.run_metrics(0)["returned_to_constraint"] is True
+    none = _accumulator(t, 2)  # no faults: the fault metrics are null
+    none.add_history(h)
+    assert none.run_metrics(0)["returned_to_constraint"] is None and none.run_metrics(0)["left_constraint_after_fault"] is None
+
+
+def test_a_failed_run_is_described_by_its_samples_before_the_failure() -> None:
+    """``finite`` is False once the state or the torque is non-finite; the other metrics use the
+    samples before (torque, overshoot, band, saturation); a NaN error at t2 gives None."""
+    t = np.arange(8) * 0.1
+    q_ev = np.full((8, 1, 3), 0.01)
+    q_ev[6:, 0, 0] = -0.5  # after the failure: ignored
+    torque = np.full((8, 1, 3), 0.2)
+    torque[5:, 0, 2] = 0.9
+    saturated = np.zeros((8, 1, 3), dtype=bool)
+    saturated[5:, 0, 0] = True
+    h = _history(t, q_ev, torque=torque, saturated=saturated, band=(np.full((8, 1, 3), -0.1), np.full((8, 1, 3), 0.1)))
+    h.torque_B[5, 0, 1] = math.nan  # fails at sample 5
+    acc = _accumulator(t, 1, t2_s=0.6)
+    acc.add_history(h)
+    m = acc.run_metrics(0)
+    assert m["finite"] is False and m["max_abs_torque_Nm"] == 0.2 and m["overshoot"] == 0.0
+    assert m["time_outside_constraint_s"] == 0.0 and m["saturation_fraction"] == 0.0 and m["rpf_error_at_t2"] is None
+    for field in ("q_BN", "omega_BN_B"):  # the state too
+        h2 = _history(t, np.full((8, 1, 3), 0.01), torque=np.full((8, 1, 3), 0.2))
+        getattr(h2, field)[3, 0, 0] = math.inf
+        acc2 = _accumulator(t, 1)
+        acc2.add_history(h2)
+        assert acc2.run_metrics(0)["finite"] is False and acc2.run_metrics(0)["max_abs_torque_Nm"] == 0.2, field
+
+
+def test_the_band_is_closed_and_the_error_returns_at_the_last_sample() -> None:
+    """An error exactly on a band edge is inside (each axis, each side); an error outside up to the
+    second-to-last sample has returned, at the last sample's time; a sample 1e-9 s before the
+    fault's start counts as at the start (the grid rounding allowed)."""
+    t = np.arange(8) * 0.1
+    q_ev = np.zeros((8, 1, 3))
+    for k, (i, side) in enumerate(((0, -1), (0, 1), (1, -1), (1, 1), (2, -1), (2, 1)), start=1):
+        q_ev[k, 0, i] = 0.1 * side  # on the edge
+    band = (np.full((8, 1, 3), -0.1), np.full((8, 1, 3), 0.1))
+    h = _history(t, q_ev, band=band)
+    acc = _accumulator(t, 1, fault_windows=[(0.3, 0.4)])
+    acc.add_history(h)
+    m = acc.run_metrics(0)
+    assert m["time_outside_constraint_s"] == 0.0 and m["left_constraint_after_fault"] is False and m["returned_to_constraint"] is True
+    q_ev[6, 0, 1] = 0.2  # outside at the second-to-last sample only
+    h = _history(t, q_ev, band=band)
+    for start in (0.6, t[6] + TIME_TOL_S):  # the fault starts at the sample, or 1e-9 s after it
+        acc = _accumulator(t, 1, fault_windows=[(start, 0.7)])
+        acc.add_history(h)
+        m = acc.run_metrics(0)
+        assert (m["left_constraint_after_fault"], m["returned_to_constraint"], m["returned_at_s"]) == (True, True, t[7]), start
+
+
+def test_runs_of_one_and_two_samples() -> None:
+    """The shortest runs: one sample (its saturation is the whole run; nothing to hold it for), two
+    samples on a grid of their own step (time outside = count x dt; never outside: returned)."""
+    q_ev = np.array([[[0.2, 0.0, 0.0]]])
+    saturated = np.ones((1, 1, 3), dtype=bool)
+    h = _history(np.array([0.0]), q_ev, saturated=saturated)
+    acc = _accumulator(h.t, 1, settle_threshold=0.5, t2_s=0.0)
+    acc.add_history(h)
+    m = acc.run_metrics(0)
+    assert m["saturation_fraction"] == 1.0 and m["settling_time_s"] == 0.0 and m["rpf_error_at_t2"] == 0.2
+    t = np.array([0.0, 0.25])
+    band = (np.full((2, 2, 3), -0.1), np.full((2, 2, 3), 0.1))
+    q_ev = np.zeros((2, 2, 3))
+    q_ev[:, 0, 0] = 0.3  # run 0 outside at both samples, run 1 never
+    h = _history(t, q_ev, band=band)
+    acc = _accumulator(t, 2, fault_windows=[(0.0, 0.25)])
+    acc.add_history(h)
+    assert acc.run_metrics(0)["time_outside_constraint_s"] == 0.5 and acc.run_metrics(0)["returned_to_constraint"] is False
+    assert acc.run_metrics(1)["time_outside_constraint_s"] == 0.0 and acc.run_metrics(1)["returned_to_constraint"] is True
+
+
+def test_the_settings_are_keyword_only() -> None:
+    """``steady_from_s``, ``settle_threshold``, ``t2_s``, ``fault_windows`` are keyword-only (three
+    floats in a row are easy to swap)."""
+    with pytest.raises(TypeError):
+        MetricsAccumulator(np.zeros(3), 1, 1.0, 0.1, 1.0, [])  # type: ignore[call-arg]
+
+
+def test_each_component_is_held_to_its_own_band() -> None:
+    """"Any component outside its constraint band": component i against band i, on each side.
+    One component moves per sample (the others at 0, inside), over bands of different widths, so
+    a component compared with another's band would count differently."""
+    rng = np.random.default_rng(7)
+    T = 300
+    t = np.arange(T) * 0.01
+    q_ev = np.zeros((T, 1, 3))
+    axis = np.arange(T) % 3
+    q_ev[np.arange(T), 0, axis] = rng.uniform(-0.4, 0.4, T)
+    lower = np.broadcast_to(np.array([-0.1, -0.25, -0.05]), (T, 1, 3)).copy()
+    upper = np.broadcast_to(np.array([0.2, 0.05, 0.3]), (T, 1, 3)).copy()
+    h = _history(t, q_ev, band=(lower, upper))
+    acc = _accumulator(t, 1)
+    acc.add_history(h)
+    own = q_ev[np.arange(T), 0, axis]
+    outside = (own < lower[0, 0, axis]) | (own > upper[0, 0, axis])
+    assert 0 < outside.sum() < T
+    assert acc.run_metrics(0)["time_outside_constraint_s"] == outside.sum() * 0.01
