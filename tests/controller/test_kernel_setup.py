@@ -98,7 +98,7 @@ def test_start_coef_flags_and_options() -> None:
         assert coef[0, K.C_SIGN].tolist() == [1.0, -1.0, 1.0]
         assert {k: (v.shape, bool(v.any())) for k, v in flags.items()} == {"flat": ((1, 3), False), "clamped": ((1, 3), False)}
     with pytest.raises(TypeError):
-        K.start_coef(_distinct("sappc"), q_BR0, "raise")  # type: ignore[misc]
+        K.start_coef(_distinct("sappc"), q_BR0, "raise")  # type: ignore[call-arg]
 
 
 @pytest.mark.parametrize("name", ["trappc", "blfppc"])
