@@ -183,9 +183,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     metrics["startup_s"] = result.startup_s
     _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph", metrics)
     mismatched = result.mismatched_counts()
-    ctrl = {**run.controller_summary(), **_node_statistics(result.run_dir)}
+    node_counts: dict[str, Any] = {k: result.controller_timing[k] for k in ("refused_steps", "rejected_by_reason") if k in result.controller_timing}
+    ctrl = {**run.controller_summary(), **node_counts}
     failed = _print_outcome(scenario, metrics, ctrl)
-    missed = _plant_missed(result.run_dir)
+    missed = int(result.plant_timing.get("missed", {}).get("torque", 0))
     if missed:
         print(f"plant: {missed} sample(s) integrated with the last torque after lockstep_timeout_s without an answer "
               "(a message lost outside the fault injector, or a machine too loaded to answer in time): see logs/plant.log")
@@ -205,24 +206,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "parameters": {"scenario": scenario.raw, "nodes": str(result.run_dir / "params.yaml")},
         })
     return run_exit_status(mismatched, ctrl, failed)
-
-
-def _node_statistics(run_dir: Path) -> dict[str, Any]:
-    """The controller node's own counts (``refused_steps``, ``rejected_by_reason``) from its timing file."""
-    path = run_dir / "logs" / "controller_timing.json"
-    try:
-        stats = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
-    return {k: stats[k] for k in ("refused_steps", "rejected_by_reason") if k in stats}
-
-
-def _plant_missed(run_dir: Path) -> int:
-    """Samples the plant integrated without the torque of their stamp (its timing file), 0 if unknown."""
-    try:
-        return int(json.loads((run_dir / "logs" / "timing.json").read_text())["missed"]["torque"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return 0
 
 
 def run_exit_status(mismatched: dict[str, tuple[int, int]], controller: dict[str, Any], failed: Sequence[str] = ()) -> int:

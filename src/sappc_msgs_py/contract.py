@@ -68,6 +68,7 @@ __all__ = [
     "ANSWER_HELD",
     "ANSWER_REFUSED",
     "ANSWER_WATCHDOG_ZERO",
+    "RELAYED_PATHS",
     "RELAYED_REFERENCE_TOPICS",
     "RELAYED_SENSOR_TOPICS",
     "RELAYED_TOPICS",
@@ -156,6 +157,9 @@ RELAYED_SENSOR_TOPICS = (STATE_ATTITUDE, STATE_RATE)
 RELAYED_REFERENCE_TOPICS = (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
 #: The command an actuator-fault relay republishes (the plant is remapped to its :func:`faulty` twin).
 RELAYED_ACTUATOR_TOPICS = (CONTROL_TORQUE,)
+#: The relayed paths by name (``FaultSchedule.acts_on(name)``): the injector relays a path's topics
+#: when a fault acts on it, and its consumer (the controller; the plant for ``actuator``) is remapped.
+RELAYED_PATHS = {"sensor": RELAYED_SENSOR_TOPICS, "reference": RELAYED_REFERENCE_TOPICS, "actuator": RELAYED_ACTUATOR_TOPICS}
 #: Every topic a fault relay may republish (the originals).
 RELAYED_TOPICS = RELAYED_SENSOR_TOPICS + RELAYED_REFERENCE_TOPICS + RELAYED_ACTUATOR_TOPICS
 #: The relays' outputs, :func:`faulty` of each of :data:`RELAYED_TOPICS`.

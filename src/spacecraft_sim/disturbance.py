@@ -42,7 +42,7 @@ from sappc_msgs_py.contract import (
     CLOCK,
     DISTURBANCE_TORQUE,
     RELAYED_ACTUATOR_TOPICS,
-    RELAYED_REFERENCE_TOPICS,
+    RELAYED_PATHS,
     RELAYED_SENSOR_TOPICS,
     Topic,
     faulty,
@@ -131,10 +131,8 @@ class InjectorNode(ProjectNode):
         # the paired paths: the measurements (q_BN, omega_BN_B) and the reference, each paired by stamp
         self._paired: dict[tuple[Topic, ...], dict[int, dict[str, Any]]] = {}  # path -> stamp [ns] -> topic name -> value
         self.pub_relay: dict[str, Any] = {}
-        paths = ((RELAYED_SENSOR_TOPICS, self.faults.has_sensor_faults), (RELAYED_REFERENCE_TOPICS, self.faults.has_reference_faults),
-                 (RELAYED_ACTUATOR_TOPICS, self.faults.has_actuator_faults))
-        for topics, relayed in paths:
-            if not relayed:
+        for path, topics in RELAYED_PATHS.items():
+            if not self.faults.acts_on(path):
                 continue
             for t in topics:
                 self.pub_relay[t.name] = self.counting_publisher(faulty(t), 1)

@@ -35,7 +35,7 @@ from typing import Any
 import yaml
 
 from sappc_controller.params import parameters_from_config, unflatten
-from sappc_msgs_py.contract import RELAYED_ACTUATOR_TOPICS, RELAYED_REFERENCE_TOPICS, RELAYED_SENSOR_TOPICS, faulty, relay_remaps
+from sappc_msgs_py.contract import RELAYED_ACTUATOR_TOPICS, RELAYED_PATHS, faulty, relay_remaps
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
@@ -181,9 +181,7 @@ def controller_params_yaml(scenario: Scenario, kind: ControllerKind | str | None
 def _relayed(scenario: Scenario) -> list[tuple[Any, ...]]:
     """The paths the injector relays for the scenario's faults (each a tuple of contract topics)."""
     faults = FaultSchedule(scenario.faults)
-    paths = ((RELAYED_SENSOR_TOPICS, faults.has_sensor_faults), (RELAYED_REFERENCE_TOPICS, faults.has_reference_faults),
-             (RELAYED_ACTUATOR_TOPICS, faults.has_actuator_faults))
-    return [topics for topics, on in paths if on]
+    return [topics for path, topics in RELAYED_PATHS.items() if faults.acts_on(path)]
 
 
 def _remaps(scenario: Scenario) -> dict[str, list[str]]:
@@ -206,7 +204,8 @@ class GraphResult:
     startup_s: float
     run_s: float
     exit_codes: dict[str, int]
-    controller_timing: dict[str, Any] = field(default_factory=dict)
+    controller_timing: dict[str, Any] = field(default_factory=dict)  # the controller node's timing file
+    plant_timing: dict[str, Any] = field(default_factory=dict)  # the plant node's (run_s, samples, missed)
 
     def mismatched_counts(self) -> dict[str, tuple[int, int]]:
         """Topics whose recorded count differs from the published one: (published, recorded)."""
@@ -395,4 +394,5 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         run_s=run_s,
         exit_codes=exit_codes,
         controller_timing=json.loads(ctrl_timing.read_text()) if (ctrl_timing := run_dir / "logs" / "controller_timing.json").exists() else {},
+        plant_timing=timing,
     )

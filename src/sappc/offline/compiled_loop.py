@@ -47,13 +47,6 @@ __all__ = ["CompiledInputs", "CompiledRun", "cache_is_warm", "ensure_compiled", 
            "simulate_compiled", "warm_up"]
 
 
-#: What the controller answered at a sample (``CompiledRun.status``): the codes of
-#: :data:`sappc_msgs_py.contract.ANSWER_NAMES`, decided as the controller node decides them in
-#: lockstep (:mod:`sappc_controller.node`).
-STATUS_COMMANDED, STATUS_WATCHDOG_ZERO, STATUS_HELD, STATUS_REFUSED = ANSWER_COMMANDED, ANSWER_WATCHDOG_ZERO, ANSWER_HELD, ANSWER_REFUSED
-STATUS_NAMES = ANSWER_NAMES
-
-
 @jit
 def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
              kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma,
@@ -69,8 +62,8 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
     Faults (``fkind`` (F,) ... as :func:`spacecraft_sim.core.faults.encode_faults`, ``fdraws``
     (T or 1, F, 6) the noise faults' draws): the measurement and the reference go through
     :func:`~spacecraft_sim.core.kernels.fault_sensor` and ``fault_reference``, the answer through
-    ``fault_actuator``, and the controller answers as the node does in lockstep (the ``STATUS_*``
-    codes, into ``s_hist``): a complete valid sample is computed; without one, zero torque when
+    ``fault_actuator``, and the controller answers as the node does in lockstep (the ``ANSWER_*``
+    codes of :mod:`sappc_msgs_py.contract`, into ``s_hist``): a complete valid sample is computed; without one, zero torque when
     the last valid state is more than ``stale_ns`` [ns] older than the sample (stamps ``t_ns``),
     else its last answer again (held).  The plant applies the delivered torque clipped to
     ``u_max`` per axis.
@@ -110,26 +103,26 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
         if nf > 0:
             delivered = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, fdraws[min(k, fdraws.shape[0] - 1)], y)
             delivered = fault_reference(t, fkind, fwin) and delivered
-        status = STATUS_COMMANDED
+        status = ANSWER_COMMANDED
         if delivered:
             controller_step(kind, t, dt, y[:4], y[4:], ref_q[k], ref_w[k], ref_wd[k], prm, coef, state, work, out)
             if not (np.isfinite(out[O_TORQUE, 0] + out[O_TORQUE, 1] + out[O_TORQUE, 2])
                     and np.isfinite(out[O_CMD, 0] + out[O_CMD, 1] + out[O_CMD, 2])):
-                status = STATUS_REFUSED
+                status = ANSWER_REFUSED
             else:
                 has_last = True
                 last_state_ns = t_ns[k]
         elif has_last and t_ns[k] - last_state_ns > stale_ns:
-            status = STATUS_WATCHDOG_ZERO
+            status = ANSWER_WATCHDOG_ZERO
         else:
-            status = STATUS_HELD
-        if status == STATUS_COMMANDED:
+            status = ANSWER_HELD
+        if status == ANSWER_COMMANDED:
             for r in range(N_OUT):
                 for c in range(4):
                     pub[r, c] = out[r, c]
             for i in range(3):
                 cmd[i] = out[O_TORQUE, i]
-        elif status != STATUS_HELD:  # a zero answer: zero command and saturation, earlier rows
+        elif status != ANSWER_HELD:  # a zero answer: zero command and saturation, earlier rows
             for i in range(3):
                 cmd[i] = 0.0
                 pub[O_CMD, i] = 0.0
@@ -270,7 +263,7 @@ class CompiledInputs:
 class CompiledRun:
     """Histories of a batch (T_rec samples every ``stride``): ``out`` (N, T_rec, N_OUT, 4) rows as in
     :mod:`sappc_controller.core.kernels` (as published: see :func:`_run_one`), ``x`` (N, T_rec, 7),
-    ``d`` (N, T_rec, 3), ``status`` (N, T_rec) int8 (``STATUS_*``), final states (N, 7)."""
+    ``d`` (N, T_rec, 3), ``status`` (N, T_rec) int8 (the contract's ``ANSWER_*`` codes), final states (N, 7)."""
 
     t: np.ndarray
     out: np.ndarray
@@ -280,8 +273,8 @@ class CompiledRun:
     x_final: np.ndarray
 
     def status_counts(self) -> dict[str, np.ndarray]:
-        """Samples of each status per run (N,), by :data:`STATUS_NAMES`."""
-        return {name: np.count_nonzero(self.status == code, axis=1) for code, name in enumerate(STATUS_NAMES)}
+        """Samples of each status per run (N,), by :data:`ANSWER_NAMES`."""
+        return {name: np.count_nonzero(self.status == code, axis=1) for code, name in enumerate(ANSWER_NAMES)}
 
     def history(self) -> History:
         """The runs as a :class:`~sappc.evaluation.history.History` (arrays (T, N, ...): views, no copy)."""

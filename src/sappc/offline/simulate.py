@@ -20,6 +20,7 @@ from spacecraft_sim.core.disturbance import DisturbanceModel
 from sappc.evaluation.history import History
 from sappc.evaluation.metrics import MetricsAccumulator
 from sappc.offline import compiled_loop
+from sappc_msgs_py.contract import ANSWER_NAMES
 from sappc.scenario import ControllerKind, Scenario
 
 __all__ = ["ScenarioRun", "SimulationResult", "metrics_accumulator", "run_scenario", "simulate"]
@@ -74,7 +75,7 @@ class ScenarioRun:
     every run (``keep_history``), else ``None``; ``trajectory``: ``(t, q_ev, rho)`` of the first
     runs every ``stride`` samples (float32 (T_s, n, 3)), else ``None``; ``x_final`` (N, 7);
     ``status``: per run (N,), the samples the controller answered in each way
-    (:data:`~sappc.offline.compiled_loop.STATUS_NAMES`)."""
+    (:data:`~sappc_msgs_py.contract.ANSWER_NAMES`)."""
 
     flags: dict[str, np.ndarray]
     history: History | None
@@ -142,7 +143,7 @@ def run_scenario(
     histories: list[History] = []
     traj: list[tuple[np.ndarray, np.ndarray]] = []
     x_final = np.empty((n, 7))
-    status = {name: np.zeros(n, dtype=np.int64) for name in compiled_loop.STATUS_NAMES}
+    status = {name: np.zeros(n, dtype=np.int64) for name in ANSWER_NAMES}
     buffer: compiled_loop.CompiledRun | None = None
     for lo in range(0, n, step):
         hi = min(lo + step, n)

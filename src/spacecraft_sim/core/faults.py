@@ -314,20 +314,25 @@ class FaultSchedule:
     def _has(self, codes: tuple[int, ...]) -> bool:
         return bool(np.isin(self.encoded.kind, codes).any())
 
+    def acts_on(self, path: str) -> bool:
+        """Whether a fault acts on link ``path``: ``"sensor"`` (the measured state), ``"reference"``
+        or ``"actuator"`` (the torque command); that link is then relayed."""
+        return self._has(_PATH_CODES[path])
+
     @property
     def has_sensor_faults(self) -> bool:
         """Faults acting on the measured state (the state is relayed)."""
-        return self._has(_SENSOR_CODES)
+        return self.acts_on("sensor")
 
     @property
     def has_reference_faults(self) -> bool:
         """Faults acting on the reference (the reference is relayed)."""
-        return self._has((kernels.F_REFERENCE_DROPOUT,))
+        return self.acts_on("reference")
 
     @property
     def has_actuator_faults(self) -> bool:
         """Faults acting on the torque command (the command is relayed)."""
-        return self._has(_ACTUATOR_CODES)
+        return self.acts_on("actuator")
 
     def events(self) -> list[tuple[float, float]]:
         """Windows of every fault (for marking plots and metrics)."""
@@ -388,3 +393,4 @@ _KIND_CODES: dict[type, int] = {
 }
 _SENSOR_CODES = (kernels.F_SENSOR_NOISE, kernels.F_SENSOR_BIAS, kernels.F_SENSOR_DROPOUT, kernels.F_SENSOR_FREEZE, kernels.F_DELAY_SENSOR)
 _ACTUATOR_CODES = (kernels.F_ACT_EFFECTIVENESS, kernels.F_ACT_BIAS, kernels.F_ACT_STUCK, kernels.F_ACT_DROPOUT, kernels.F_DELAY_ACTUATOR)
+_PATH_CODES = {"sensor": _SENSOR_CODES, "reference": (kernels.F_REFERENCE_DROPOUT,), "actuator": _ACTUATOR_CODES}

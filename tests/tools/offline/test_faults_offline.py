@@ -17,7 +17,7 @@ import yaml
 
 from gnc_common.validation import ConfigError
 from sappc.offline import compiled_loop
-from sappc.offline.compiled_loop import STATUS_COMMANDED, STATUS_HELD, STATUS_WATCHDOG_ZERO
+from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_HELD, ANSWER_WATCHDOG_ZERO
 from sappc.offline.simulate import simulate
 from sappc.scenario import scenario_from_mapping
 
@@ -45,9 +45,9 @@ def test_a_dropout_is_ridden_through_then_answered_with_zero_then_control_resume
     run = _run(_scenario(faults=[{"kind": "sensor_dropout", "start_s": 1.0, "end_s": 1.5}]))
     status, torque = run.status[0], run.out[0, :, compiled_loop.O_TORQUE, :3]
     k = np.arange(status.size)
-    np.testing.assert_array_equal(status[(k >= 100) & (k < 110)], STATUS_HELD)
-    np.testing.assert_array_equal(status[(k >= 110) & (k < 150)], STATUS_WATCHDOG_ZERO)
-    np.testing.assert_array_equal(status[(k < 100) | (k >= 150)], STATUS_COMMANDED)
+    np.testing.assert_array_equal(status[(k >= 100) & (k < 110)], ANSWER_HELD)
+    np.testing.assert_array_equal(status[(k >= 110) & (k < 150)], ANSWER_WATCHDOG_ZERO)
+    np.testing.assert_array_equal(status[(k < 100) | (k >= 150)], ANSWER_COMMANDED)
     np.testing.assert_array_equal(torque[100:110], np.repeat(torque[99:100], 10, axis=0))  # held
     np.testing.assert_array_equal(torque[110:150], 0.0)
     assert np.all(np.abs(torque[150]) > 0.0)  # computed again at once
@@ -67,14 +67,14 @@ def test_a_dropped_command_is_held_by_the_actuator_and_the_controller_never_stop
     run = _run(_scenario(16.0, faults=[{"kind": "actuator_dropout", "start_s": 15.0, "end_s": 15.2}]))
     torque = run.out[0, :, compiled_loop.O_TORQUE, :3]
     np.testing.assert_array_equal(torque[1500:1520], np.repeat(torque[1499:1500], 20, axis=0))
-    np.testing.assert_array_equal(run.status[0], STATUS_COMMANDED)
+    np.testing.assert_array_equal(run.status[0], ANSWER_COMMANDED)
     assert not np.array_equal(torque[1520], torque[1499])
 
 
 def test_without_faults_the_loop_is_the_one_it_was() -> None:
     """No fault: every sample commanded, the delivered torque is the law's (bit for bit)."""
     run = _run(_scenario())
-    np.testing.assert_array_equal(run.status[0], STATUS_COMMANDED)
+    np.testing.assert_array_equal(run.status[0], ANSWER_COMMANDED)
     assert run.status_counts()["commanded"][0] == 201
 
 
