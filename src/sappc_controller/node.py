@@ -178,8 +178,7 @@ class ControllerNode(ProjectNode):
         self.refused = 0  # control steps whose torque the core refused (non-finite)
         self.stale = False
         self.steps = 0
-        self._last_ns: int | None = None  # stamp of the last computed sample
-        self._last_state_ns: int | None = None  # stamp of the last valid state pair
+        self._last_ns: int | None = None  # stamp of the last computed sample (lockstep: every input of it carries it)
         self._answered_ns: int | None = None  # lockstep: the latest stamp a torque was published for
         self._clock_ns: int | None = None  # lockstep: the latest /clock
         self._clock_wall_ns = 0  # lockstep: wall time [ns] the latest /clock arrived
@@ -290,8 +289,8 @@ class ControllerNode(ProjectNode):
 
     # ---- control instants -----------------------------------------------------------------
     def _outage_at(self, t_ns: int) -> bool:
-        """Whether the last valid state is more than ``stale_timeout_s`` before ``t_ns``."""
-        return self._last_state_ns is not None and t_ns - self._last_state_ns > self.stale_timeout_ns
+        """Lockstep: whether the last valid sample (its state included) is more than ``stale_timeout_s`` before ``t_ns``."""
+        return self._last_ns is not None and t_ns - self._last_ns > self.stale_timeout_ns
 
     def _answered(self, t_ns: int) -> bool:
         return self._answered_ns is not None and t_ns <= self._answered_ns
@@ -341,7 +340,6 @@ class ControllerNode(ProjectNode):
             self._publish_zero(t_ns, "control step failed", ANSWER_REFUSED)
             return
         self._last_ns = t_ns
-        self._last_state_ns = max(input_ns[0], input_ns[1])
         self.steps += 1
         if late:  # computed (the law steps), but the tick was answered without it
             self.get_logger().warning(f"the inputs of {t_ns / _NS:.3f} s arrived after their tick was answered")

@@ -189,6 +189,7 @@ def test_stale_inputs_give_zero_torque_then_control_resumes(controller) -> None:
     assert answers == [c.ANSWER_HELD, c.ANSWER_WATCHDOG_ZERO, c.ANSWER_WATCHDOG_ZERO]
     assert np.array_equal(drv.torques[1][1], drv.torques[0][1]) and np.all(drv.torques[2][1] == 0.0) and np.all(drv.torques[3][1] == 0.0)
     assert all(d["status"][1] == 1.0 for d in drv.diags[1:])  # not a control step
+    assert all(d["input_stamps_state_s"].tolist() == [0.0, 0.0, 0.0] and d["input_stamps_reference_s"].tolist() == [0.0, 0.0, 0.0] for d in drv.diags[1:])  # no input used
     drv.send_sample(0.10, q=Q0)  # valid inputs again: computed and commanded
     drv.spin_until(lambda: drv.torques[-1][0] == 100_000_000, "control resumed")
     assert node.steps == 2 and np.any(drv.torques[-1][1] != 0.0) and node.rejected == 0
@@ -409,23 +410,77 @@ def test_lockstep_accepts_a_stamp_exactly_max_stamp_ahead_s_after_the_clock(cont
     assert node.steps == 1
 
 
+NO_DATA_Q = (math.nan, math.nan, math.nan, math.nan)
+
+
 def test_lockstep_outage_begins_more_than_stale_timeout_s_after_the_last_valid_state(controller) -> None:  # type: ignore[no-untyped-def]
-    """A /clock tick exactly stale_timeout_s (0.05 s) after the last valid state is no outage (no
-    zero torque); 1 ns later it is: zero torque at that tick, stale in diagnostics."""
+    """A sample without valid data (the injector's "no data" relay: NaN values) exactly
+    stale_timeout_s (0.05 s) after the last valid sample is answered at once with the last torque
+    held; 1 ns later it is an outage: zero torque, stale in diagnostics.  One torque per tick."""
     node, drv = controller
     drv.send_sample(0.0, q=Q0)
-    drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
-    drv.pub["/clock"].publish(clock_msg(0.05))
-    drv.spin_until(lambda: node._clock_ns == 50_000_000, "/clock 0.05 s")
-    assert not node.stale and node._answered_ns == 0
-    drv.pub["/clock"].publish(clock_msg(0.050000001))
-    drv.spin_until(lambda: any(ns == 50_000_001 for ns, _ in drv.torques), "the zero torque 1 ns later")
-    assert node.stale and [tq.tolist() for ns, tq in drv.torques if ns == 50_000_001] == [[0.0, 0.0, 0.0]]
-    drv.spin_until(lambda: any(d["status"][1] == 1.0 for d in drv.diags), "stale in diagnostics")
+    drv.spin_until(lambda: len(drv.torques) == 1 and len(drv.diags) == 1, "the first torque")
+    drv.send_sample(0.05, q=NO_DATA_Q)
+    drv.spin_until(lambda: len(drv.torques) == 2 and len(drv.diags) == 2, "the answer of 0.05 s")
+    assert drv.torques[1][0] == 50_000_000 and np.array_equal(drv.torques[1][1], drv.torques[0][1]) and np.any(drv.torques[1][1] != 0.0)
+    assert drv.diags[1]["status"][2] == c.ANSWER_HELD and not node.stale
+    drv.send_sample(0.050000001, q=NO_DATA_Q)
+    drv.spin_until(lambda: len(drv.torques) == 3 and len(drv.diags) == 3, "the answer 1 ns later")
+    assert drv.torques[2][0] == 50_000_001 and drv.torques[2][1].tolist() == [0.0, 0.0, 0.0]
+    assert node.stale and drv.diags[2]["status"][2] == c.ANSWER_WATCHDOG_ZERO and drv.diags[2]["status"][1] == 1.0
     drv.pub["/clock"].publish(clock_msg(0.050000001))  # the same tick again: already answered
-    drv.pub["/clock"].publish(clock_msg(0.06))
+    drv.send_sample(0.06, q=NO_DATA_Q)
     drv.spin_until(lambda: any(ns == 60_000_000 for ns, _ in drv.torques), "the zero torque of 0.06 s")
-    assert [ns for ns, _ in drv.torques] == [0, 50_000_001, 60_000_000]  # one torque per tick
+    assert [ns for ns, _ in drv.torques] == [0, 50_000_000, 50_000_001, 60_000_000]  # one torque per tick
+    assert node.rejected == 3 and node.steps == 1
+
+
+class _WallClock:
+    """The node module's ``time`` as the test sets it (``monotonic_ns``)."""
+
+    def __init__(self, ns: int) -> None:
+        self.ns = ns
+
+    def monotonic_ns(self) -> int:
+        return self.ns
+
+
+def test_lockstep_grace_answers_a_tick_whose_inputs_never_arrive_once_lockstep_grace_s_has_passed(controller, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """A /clock tick whose inputs never arrive is answered by the grace check no sooner than
+    lockstep_grace_s (1 s) of wall time after the tick arrived, exactly then, and once: here with
+    the last torque held (the last valid sample is within stale_timeout_s, 10 s here) and no input
+    stamps in diagnostics; inputs arriving later are computed but not answered again."""
+    import sappc_controller.node as node_module
+
+    node, drv = controller
+    (result,) = node.set_parameters([Parameter("stale_timeout_s", value=10.0)])
+    assert result.successful
+    wall = _WallClock(7 * NS)
+    monkeypatch.setattr(node_module, "time", wall)
+    published: list[tuple[int, int]] = []
+    publish = node._publish
+    monkeypatch.setattr(node, "_publish", lambda t_ns, *rest: (published.append((t_ns, rest[-1])), publish(t_ns, *rest)))
+    node._check_grace()  # no tick yet: nothing to answer
+    drv.send_sample(0.0, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 1 and len(drv.diags) == 1, "the first torque")
+    drv.pub["/clock"].publish(clock_msg(0.01))  # its inputs never arrive
+    drv.spin_until(lambda: node._clock_ns == 10_000_000, "/clock 0.01 s")
+    assert node._clock_wall_ns == 7 * NS
+    wall.ns = 7 * NS + node.grace_ns - 1
+    node._check_grace()
+    assert published == [(0, c.ANSWER_COMMANDED)]  # 1 ns short of the grace: not answered
+    wall.ns = 7 * NS + node.grace_ns
+    node._check_grace()
+    assert published == [(0, c.ANSWER_COMMANDED), (10_000_000, c.ANSWER_HELD)]
+    wall.ns = 9 * NS
+    node._check_grace()  # answered already
+    drv.spin_until(lambda: len(drv.torques) == 2 and len(drv.diags) == 2, "the held torque")
+    assert drv.torques[1][0] == 10_000_000 and np.array_equal(drv.torques[1][1], drv.torques[0][1])
+    assert drv.diags[1]["input_stamps_state_s"].tolist() == [0.0, 0.0, 0.0] and drv.diags[1]["input_stamps_reference_s"].tolist() == [0.0, 0.0, 0.0]
+    drv.send_sample(0.01, q=Q0, clock=False)  # the lost inputs arrive after all: computed, not answered
+    drv.spin_until(lambda: node.steps == 2, "the late sample computed")
+    node._check_grace()
+    assert published == [(0, c.ANSWER_COMMANDED), (10_000_000, c.ANSWER_HELD)] and len(drv.torques) == 2
 
 
 class _FakeClock:
@@ -470,7 +525,7 @@ def _tick(node, drv, n_torques: int) -> tuple[int, np.ndarray]:  # type: ignore[
 
 def test_realtime_watchdog_commands_zero_torque_once_the_inputs_are_older_than_stale_timeout_s(realtime) -> None:  # type: ignore[no-untyped-def]
     """Real time: at each tick the latest inputs are used while the oldest is at most
-    stale_timeout_s old; 1 ns older, the tick commands zero torque and reports stale; with new
+    stale_timeout_s old (exactly that old included); 1 ns older, the tick commands zero torque and reports stale; with new
     inputs the next tick computes again.  Nothing is published before every input has arrived."""
     node, drv, clock = realtime
     node._on_timer()  # no input yet: not started
@@ -488,18 +543,21 @@ def test_realtime_watchdog_commands_zero_torque_once_the_inputs_are_older_than_s
     drv.spin_until(lambda: len(drv.diags) == 1, "diagnostics")
     assert drv.diags[0]["input_stamps_state_s"].tolist() == [stamps[0] / NS, stamps[1] / NS, 0.0]  # the inputs used
     assert drv.diags[0]["input_stamps_reference_s"].tolist() == [s / NS for s in stamps[2:]]
-    clock.ns = 10 * NS + 50_000_001  # 1 ns older than stale_timeout_s
+    clock.ns = 10 * NS + 50_000_000  # the oldest input exactly stale_timeout_s old: still used
     ns, tq = _tick(node, drv, 2)
-    assert ns == clock.ns and tq.tolist() == [0.0, 0.0, 0.0] and node.steps == 1 and node.stale
-    drv.spin_until(lambda: len(drv.diags) == 2, "diagnostics")
-    assert drv.diags[1]["status"][1] == 1.0
-    assert drv.diags[1]["input_stamps_state_s"].tolist() == [0.0, 0.0, 0.0]  # no step: no input used
-    assert drv.diags[1]["input_stamps_reference_s"].tolist() == [0.0, 0.0, 0.0]
+    assert ns == clock.ns and np.any(tq != 0.0) and node.steps == 2 and not node.stale
+    clock.ns = 10 * NS + 50_000_001  # 1 ns older than stale_timeout_s
+    ns, tq = _tick(node, drv, 3)
+    assert ns == clock.ns and tq.tolist() == [0.0, 0.0, 0.0] and node.steps == 2 and node.stale
+    drv.spin_until(lambda: len(drv.diags) == 3, "diagnostics")
+    assert drv.diags[2]["status"][1] == 1.0 and drv.diags[2]["status"][2] == c.ANSWER_WATCHDOG_ZERO
+    assert drv.diags[2]["input_stamps_state_s"].tolist() == [0.0, 0.0, 0.0]  # no step: no input used
+    assert drv.diags[2]["input_stamps_reference_s"].tolist() == [0.0, 0.0, 0.0]
     clock.ns = 10 * NS + 200_000_000
     drv.send_sample(10.2, q=Q0, clock=False)  # valid inputs again
     drv.spin_until(lambda: node._latest.oldest_ns == clock.ns, "the new inputs")
-    ns, tq = _tick(node, drv, 3)
-    assert ns == clock.ns and np.any(tq != 0.0) and node.steps == 2 and not node.stale and node.rejected == 0
+    ns, tq = _tick(node, drv, 4)
+    assert ns == clock.ns and np.any(tq != 0.0) and node.steps == 3 and not node.stale and node.rejected == 0
 
 
 def test_realtime_input_checks_are_per_topic_and_relative_to_the_node_clock(realtime) -> None:  # type: ignore[no-untyped-def]

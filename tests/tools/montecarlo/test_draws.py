@@ -27,9 +27,10 @@ import yaml
 
 from conftest import SCENARIOS
 from sappc.montecarlo.config import campaign_config
-from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_generators, sensor_noise_draws
+from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_faults, run_generators, sensor_noise_draws
 from sappc.scenario import scenario_from_mapping
 from spacecraft_sim.core.disturbance import ConstantTorque, PaperPeriodic
+from spacecraft_sim.core.faults import SensorDropout, faults_from_list
 
 BASE = yaml.safe_load((SCENARIOS / "paper_montecarlo.yaml").read_text())
 #: Every dispersion on, per-axis sigmas distinct (an axis mix-up shows); the gains listed in the
@@ -145,3 +146,52 @@ def test_the_drawn_inputs_are_an_immutable_record() -> None:
     d = draw_inputs(cfg, SEED, [RUN])
     with pytest.raises(dataclasses.FrozenInstanceError):
         d.euler_deg = np.zeros((1, 3))  # type: ignore[misc]
+
+
+#: ``dispersions.faults`` of the fault tests: drawn after the gains, in this order, from the same
+#: generator: the choice (``integers(3)``), the start (``10 + 5 U``), the length (``0.2 + 0.8 U``).
+FAULTS = {"choices": [{"kind": "sensor_dropout"}, {"kind": "actuator_dropout"}, {"kind": "actuator_effectiveness", "effectiveness": [0.5, 0.5, 0.5]}],
+          "start_s": {"distribution": "uniform", "low": 10.0, "high": 15.0},
+          "duration_s": {"distribution": "uniform", "low": 0.2, "high": 1.0}}
+# Run 41 of seed 2026 with DISPERSIONS and FAULTS, from the recipe with numpy alone.
+GOLDEN_FAULT = (0, 10.294127039853574, 0.745639740665532)
+
+
+def test_the_fault_of_run_k_is_drawn_last_and_golden() -> None:
+    """A fault dispersion draws (choice, start, length) after every other value: run k's other
+    values are the golden ones of the campaign without it; its fault is golden."""
+    _, cfg = _config({**DISPERSIONS, "faults": FAULTS})
+    d = draw_inputs(cfg, SEED, [RUN])
+    assert (int(d.fault_choice[0]), float(d.fault_start_s[0]), float(d.fault_duration_s[0])) == GOLDEN_FAULT
+    assert d.fault_choice.dtype == np.int64 and d.fault_start_s.dtype == d.fault_duration_s.dtype == np.float64
+    assert d.euler_deg.tolist() == [GOLDEN_EULER_DEG] and d.gains["mu_rad_s"].tolist() == [GOLDEN_GAINS["mu_rad_s"]]
+
+
+def test_without_a_fault_dispersion_no_fault_is_drawn_and_every_run_has_the_scenarios() -> None:
+    """No ``dispersions.faults``: choice -1 and NaN times in the record; ``run_faults`` is None (each
+    run takes the scenario's own ``faults``)."""
+    scenario, cfg = _config(DISPERSIONS)
+    d = draw_inputs(cfg, SEED, [RUN, 3])
+    assert d.fault_choice.tolist() == [-1, -1] and np.isnan(d.fault_start_s).all() and np.isnan(d.fault_duration_s).all()
+    assert run_faults(scenario, cfg, d) is None
+
+
+def test_each_runs_faults_are_the_scenarios_then_its_drawn_one() -> None:
+    """``run_faults``: per run, the scenario's faults in order, then the drawn fault with
+    ``start_s`` and ``end_s = start_s + length``; a different run draws its own."""
+    raw_faults = [{"kind": "sensor_bias", "start_s": 5.0, "rate_bias_rad_s": [1e-4, 0.0, 0.0]}]
+    raw = copy.deepcopy(BASE)
+    raw["montecarlo"]["dispersions"] = {**copy.deepcopy(DISPERSIONS), "faults": FAULTS}
+    raw["faults"] = raw_faults
+    scenario = scenario_from_mapping(raw)
+    cfg = campaign_config(scenario)
+    d = draw_inputs(cfg, SEED, [RUN, 3])
+    per_run = run_faults(scenario, cfg, d)
+    assert per_run is not None and len(per_run) == 2
+    for k, faults in enumerate(per_run):
+        assert len(faults) == 2 and faults[0] == scenario.faults[0]
+        start = float(d.fault_start_s[k])
+        expected = {**FAULTS["choices"][int(d.fault_choice[k])], "start_s": start, "end_s": start + float(d.fault_duration_s[k])}
+        assert faults[1] == faults_from_list([expected])[0]
+    assert isinstance(per_run[0][1], SensorDropout) and per_run[0][1].start_s == GOLDEN_FAULT[1]
+    assert per_run[0][1] != per_run[1][1]
