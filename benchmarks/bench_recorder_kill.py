@@ -2,7 +2,8 @@
 
 A publisher sends the nine 100 Hz topics of a lockstep run's load (``state/rate`` messages on nine
 channels' worth of traffic: 900 messages/s, each stamped with its publish time) to
-``python -m sappc.graph.recorder`` on an isolated domain; after ``--run-s`` seconds the recorder
+``python -m sappc.graph.recorder`` (``mode:=realtime``, a wall-time bag; a lockstep one is
+flushed the same way) on an isolated domain; after ``--run-s`` seconds the recorder
 is killed with SIGKILL, ``sappc repair`` makes the bag whole, and the bag is read with rosbags.
 Loss = publish time of the kill minus the publish time of the last message recovered [s] (the
 README's bound: 1 s).  Prints JSON: every repeat and the median.
@@ -42,7 +43,7 @@ def one(run_s: float, tmp: Path) -> dict[str, float]:
     with claim_domain_id() as domain:
         env = isolated_environment(domain, tmp / "logs")
         os.environ.update(env)
-        rec = subprocess.Popen([sys.executable, "-m", "sappc.graph.recorder", "--ros-args", "-p", f"output_dir:={bag_dir}"],
+        rec = subprocess.Popen([sys.executable, "-m", "sappc.graph.recorder", "--ros-args", "-p", f"output_dir:={bag_dir}", "-p", "mode:=realtime"],
                                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
         context = rclpy.context.Context()
         rclpy.init(context=context, domain_id=domain)

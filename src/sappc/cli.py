@@ -3,7 +3,7 @@
     sappc simulate SCENARIO.yaml [--controller sappc|trappc|blfppc] [--json FILE] [--plots DIR]
     sappc simulate --from-campaign DIR --run K [--json FILE] [--plots DIR]
     sappc montecarlo SCENARIO.yaml --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
-    sappc run SCENARIO.yaml [--out DIR] [--realtime] [--controller K] [--json FILE] [--domain-id N]
+    sappc run SCENARIO.yaml [--out DIR] [--realtime] [--compose] [--controller K] [--json FILE] [--domain-id N]
     sappc params SCENARIO.yaml [--controller K]
     sappc report BAG [--json FILE] [--out DIR] [--scenario FILE]
     sappc compare BAG... [--out DIR] [--json FILE]
@@ -169,7 +169,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from sappc.graph.launch import run_graph
 
     try:
-        result = run_graph(args.scenario, out_dir=args.out, controller=args.controller, realtime=args.realtime, domain_id=args.domain_id)
+        result = run_graph(args.scenario, out_dir=args.out, controller=args.controller, realtime=args.realtime, domain_id=args.domain_id,
+                           compose=args.compose)
     except RuntimeError as exc:
         print(f"sappc run: failed: {exc}", file=sys.stderr)
         return 1
@@ -181,7 +182,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
                           fault_windows=scenario.event_windows(), run=run)
     metrics["wall_time_s"] = result.run_s
     metrics["startup_s"] = result.startup_s
-    _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph", metrics)
+    _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph{' (composed)' if args.compose else ''}", metrics)
     mismatched = result.mismatched_counts()
     node_counts: dict[str, Any] = {k: result.controller_timing[k] for k in ("refused_steps", "rejected_by_reason") if k in result.controller_timing}
     ctrl = {**run.controller_summary(), **node_counts}
@@ -197,6 +198,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "scenario": scenario.name,
             "controller": kind.value,
             "mode": "realtime" if args.realtime else "lockstep",
+            "composed": args.compose,
             "metrics": metrics,
             "bag": str(result.bag_dir),
             "published": result.published,
@@ -342,10 +344,12 @@ def _parser() -> argparse.ArgumentParser:
     mc.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
     mc.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     mc.set_defaults(func=_cmd_montecarlo)
-    run = sub.add_parser("run", help="run a scenario through the ROS 2 node graph (five processes), record an MCAP bag")
+    run = sub.add_parser("run", help="run a scenario through the ROS 2 node graph (five processes, or one with --compose), record an MCAP bag")
     run.add_argument("scenario", help="scenario YAML file, e.g. config/scenarios/paper_tracking.yaml")
     run.add_argument("--out", metavar="DIR", help="run directory: bag/, params.yaml, scenario.yaml, logs/ (default runs/<scenario>-<controller>-<time>)")
     run.add_argument("--realtime", action="store_true", help="wall-clock timers instead of lockstep (the run takes duration_s)")
+    run.add_argument("--compose", action="store_true",
+                     help="every node in one process on one executor (faster; the same topics, parameters, bag and metrics)")
     run.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
                      help="controller to run (default: the scenario's 'controller' key)")
     run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
+import struct
 from typing import Any
 
 import numpy as np
@@ -30,6 +31,7 @@ __all__ = [
     "diagnostics_from_msg",
     "diagnostics_msg",
     "ns_to_stamp",
+    "cdr_stamp_ns",
     "quaternion_from_msg",
     "quaternion_msg",
     "stamp_to_ns",
@@ -81,6 +83,39 @@ def seconds_to_ns(t_s: float) -> int:
     """The integer nanoseconds a stamp of ``t_s`` seconds carries (rounded half to even): the
     plant's stamp of sample ``k`` is ``seconds_to_ns(k * dt)`` (offline runs use the same stamps)."""
     return round(t_s * _NS_PER_S)
+
+
+#: Types whose CDR body starts with a ``builtin_interfaces/Time`` (a ``std_msgs/Header``'s stamp,
+#: or ``rosgraph_msgs/Clock``'s clock): ``int32 sec, uint32 nanosec`` after the 4-byte
+#: encapsulation header.
+_STAMP_FIRST = frozenset({"geometry_msgs/msg/QuaternionStamped", "geometry_msgs/msg/Vector3Stamped",
+                          "geometry_msgs/msg/WrenchStamped", "rosgraph_msgs/msg/Clock"})
+_DIAGNOSTICS_TYPE = "std_msgs/msg/Float64MultiArray"
+
+
+def cdr_stamp_ns(type_name: str, cdr: bytes) -> int:
+    """The time [ns] a serialized message of the contract belongs to, read without deserializing.
+
+    A stamped type's header stamp, ``/clock``'s clock; a diagnostics message's ``time_s`` (its
+    first value: ``data`` is the last field, so its :data:`DIAGNOSTICS_LAYOUT` x 3 float64 are the
+    last bytes of the message).  Byte order from the encapsulation header (CDR_BE 0, CDR_LE 1).
+
+    Raises
+    ------
+    ValueError
+        For a type outside the contract, or a diagnostics message of another size.
+    """
+    order = "<" if cdr[1] & 1 else ">"
+    if type_name in _STAMP_FIRST:
+        sec, nanosec = struct.unpack_from(order + "iI", cdr, 4)
+        return int(sec) * _NS_PER_S + int(nanosec)
+    if type_name == _DIAGNOSTICS_TYPE:
+        n = len(DIAGNOSTICS_LAYOUT) * 3
+        offset = len(cdr) - 8 * n
+        if offset < 8 or struct.unpack_from(order + "I", cdr, offset - 4)[0] != n and struct.unpack_from(order + "I", cdr, offset - 8)[0] != n:
+            raise ValueError(f"a {type_name} of {len(cdr)} bytes is not a controller diagnostics message ({n} values)")
+        return seconds_to_ns(struct.unpack_from(order + "d", cdr, offset)[0])
+    raise ValueError(f"no stamp known for type {type_name!r}")
 
 
 def ns_to_stamp(ns: int) -> Any:

@@ -44,6 +44,7 @@ __all__ = [
     "SPIN_TIMEOUT_S",
     "parse_expected",
     "run_node",
+    "run_nodes",
 ]
 
 #: Timing modes of every node (see README "The ROS 2 node graph"): the plant owns time and the
@@ -189,8 +190,21 @@ def run_node(make_node: Callable[[list[str]], ProjectNode], argv: list[str] | No
     """Initialise rclpy, build the node, spin it until it finishes or a signal arrives, finish.
 
     ``make_node(args)`` gets the arguments (ROS arguments included) and returns a node using
-    :class:`ProjectNode`.  A :class:`ConfigError` or ``ValueError`` while building it (invalid or
-    infeasible parameters) is printed as one line naming the parameter, and the exit status is 2.
+    :class:`ProjectNode`.  See :func:`run_nodes` (this is it with one node).
+    """
+    return run_nodes(lambda args: [make_node(args)], argv)
+
+
+def run_nodes(make_nodes: Callable[[list[str]], list[ProjectNode]], argv: list[str] | None = None) -> int:
+    """Initialise rclpy, build the nodes, spin them on one ``EventsExecutor`` until one of them
+    finishes or a signal arrives, then finish each in list order.
+
+    One node is how every node runs in its own process; several is the composed graph
+    (:mod:`sappc.graph.container`), listed in the order they must stop: publishers first (each
+    waits until its subscribers acknowledged what it sent), a recorder last (it drains its
+    queues, spinning the executor, before it closes the bag).  A :class:`ConfigError` or
+    ``ValueError`` while building them (invalid or infeasible parameters) is printed as one line
+    naming the parameter, and the exit status is 2.
 
     Returns
     -------
@@ -210,16 +224,17 @@ def run_node(make_node: Callable[[list[str]], ProjectNode], argv: list[str] | No
 
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    node: ProjectNode | None = None
+    nodes: list[ProjectNode] = []
     status = 0
     try:
         try:
-            node = make_node(args)
+            nodes = make_nodes(args)
         except (ConfigError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         executor = EventsExecutor()
-        executor.add_node(node)
+        for node in nodes:
+            executor.add_node(node)
         profile_dir = os.environ.get("SAPPC_PROFILE_DIR", "")  # developer aid: cProfile of the spin loop
         profiler = None
         if profile_dir:
@@ -227,19 +242,20 @@ def run_node(make_node: Callable[[list[str]], ProjectNode], argv: list[str] | No
 
             profiler = cProfile.Profile()
             profiler.enable()
-        while not stop["signal"] and not node.finished:
+        while not stop["signal"] and not any(node.finished for node in nodes):
             executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
         if profiler is not None:
             profiler.disable()
-            profiler.dump_stats(str(Path(profile_dir) / f"{node.get_name()}.prof"))
-        if hasattr(node, "drain"):  # a recorder takes what is still queued
-            node.drain(lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
-        node.finish()
+            profiler.dump_stats(str(Path(profile_dir) / f"{'+'.join(n.get_name() for n in nodes)}.prof"))
+        for node in nodes:
+            if hasattr(node, "drain"):  # a recorder takes what is still queued
+                node.drain(lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
+            node.finish()
     except TimeoutError as exc:
         print(f"error: {exc}", file=sys.stderr)
         status = 1
     finally:
-        if node is not None:
+        for node in nodes:
             node.destroy_node()
         try_shutdown()
         for s, handler in old.items():

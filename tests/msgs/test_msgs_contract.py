@@ -12,6 +12,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import (
+    cdr_stamp_ns,
     clock_msg,
     diagnostics_from_msg,
     diagnostics_msg,
@@ -150,3 +151,42 @@ def test_fault_relay_topics_keep_type_and_frame_and_stamps_copy_exactly() -> Non
     assert abs(stamp_to_ns(wall) - stamp_to_ns(exact)) < 1_000
     msg = torque_msg([0.1, 0.2, 0.3], exact, c.faulty(c.CONTROL_TORQUE))
     assert stamp_to_ns(msg.header.stamp) == 1_795_350_022_171_357_654 and msg.header.frame_id == "body"
+
+
+@pytest.mark.parametrize("t_s", [0.0, 0.01, 12.34, 59.99, 2.0**31 - 1.5])
+def test_cdr_stamp_ns_reads_the_stamp_of_every_recorded_type_without_deserializing(t_s: float) -> None:
+    """What the lockstep recorder logs a message at: the header stamp of the stamped types,
+    /clock's clock, the diagnostics' time_s, equal to what the deserialized message says;
+    little- and big-endian CDR (the encapsulation header says which)."""
+    from rclpy.serialization import deserialize_message
+
+    ns = stamp_to_ns(time_to_stamp(t_s))
+    rows = {label: [0.5, -1.0, 2.0] for label in c.DIAGNOSTICS_LAYOUT[1:]}
+    messages = {
+        c.STATE_ATTITUDE: quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.STATE_ATTITUDE),
+        c.STATE_RATE: vector3_msg([1.0, 2.0, 3.0], t_s, c.STATE_RATE),
+        c.CONTROL_TORQUE: torque_msg([0.1, 0.2, 0.3], t_s, c.CONTROL_TORQUE),
+        c.CLOCK: clock_msg(t_s),
+        c.CONTROLLER_DIAGNOSTICS: diagnostics_msg(ns / 1e9, rows),
+    }
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for topic, msg in messages.items():
+        cdr = serialize_message(msg)
+        assert cdr[:2] == b"\x00\x01"  # rclpy writes little-endian CDR
+        assert cdr_stamp_ns(topic.type_name, cdr) == ns, topic.name
+        back = deserialize_message(cdr, topic.msg_class)
+        if topic is c.CONTROLLER_DIAGNOSTICS:
+            assert stamp_to_ns(time_to_stamp(float(diagnostics_from_msg(back)["time_s"][0]))) == ns
+        else:
+            assert stamp_to_ns(back.clock if topic is c.CLOCK else back.header.stamp) == ns
+        big = store.serialize_cdr(store.deserialize_cdr(cdr, topic.type_name), topic.type_name, little_endian=False)
+        assert big[:2] == b"\x00\x00" and cdr_stamp_ns(topic.type_name, big) == ns, topic.name
+
+
+def test_cdr_stamp_ns_refuses_a_type_it_cannot_time_and_a_foreign_float_array() -> None:
+    from std_msgs.msg import Float64MultiArray
+
+    with pytest.raises(ValueError, match="no stamp known for type 'std_msgs/msg/String'"):
+        cdr_stamp_ns("std_msgs/msg/String", b"\x00\x01\x00\x00abcd")
+    with pytest.raises(ValueError, match="not a controller diagnostics message"):
+        cdr_stamp_ns("std_msgs/msg/Float64MultiArray", serialize_message(Float64MultiArray(data=[1.0, 2.0])))

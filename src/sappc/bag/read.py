@@ -65,7 +65,7 @@ class Series:
 
     stamps_ns: NDArray[np.int64]
     values: Array
-    log_time_ns: NDArray[np.int64]  # when the recorder received each message
+    log_time_ns: NDArray[np.int64]  # each message's log time: its stamp (lockstep bags) or when the recorder received it (real time)
 
 
 @dataclass

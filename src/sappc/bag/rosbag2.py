@@ -27,7 +27,7 @@ from sappc.bag.read import BagError, mcap_file
 from sappc_msgs_py.contract import QOS_DEPTH
 from sappc_msgs_py.schemas import type_hash
 
-__all__ = ["BAG_METADATA", "RepairResult", "bag_metadata", "offered_qos_v9", "repair", "write_bag_metadata"]
+__all__ = ["BAG_METADATA", "RepairResult", "bag_metadata", "offered_qos_v9", "repair", "sort_by_log_time", "write_bag_metadata"]
 
 #: Name of the rosbag2 metadata file.
 BAG_METADATA = "metadata.yaml"
@@ -137,23 +137,13 @@ def _has_footer(path: Path) -> bool:
         return f.read(len(MAGIC)) == MAGIC
 
 
-def repair(bag: str | Path) -> RepairResult:
-    """Make the bag at ``bag`` (a rosbag2 directory or an ``.mcap`` file) readable by every MCAP
-    and rosbag2 reader again; see the module docstring.
-
-    Raises
-    ------
-    BagError
-        If ``bag`` is not a bag, or not even its first records can be read.
-    """
+def _read_records(path: Path) -> tuple[dict[int, Any], dict[int, Any], list[Any], list[Any], str | None]:
+    """Every schema, channel, metadata and message record of an MCAP file that can be read, and
+    where reading stopped (``None``: the whole file)."""
     from mcap.exceptions import McapError
     from mcap.records import Channel, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
-    from mcap.writer import CompressionType, Writer
 
-    path = mcap_file(Path(bag))
-    bag_dir = path.parent if Path(bag).is_dir() else None
-    complete = _has_footer(path)
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     metadata: list[Metadata] = []
@@ -172,6 +162,65 @@ def repair(bag: str | Path) -> RepairResult:
                     metadata.append(record)
     except (McapError, EOFError, ValueError, OSError) as exc:  # the torn tail of a killed recording
         stopped_at = f"{type(exc).__name__}: {exc}"
+    return schemas, channels, metadata, messages, stopped_at
+
+
+def _write_records(path: Path, schemas: dict[int, Any], channels: dict[int, Any], metadata: list[tuple[str, dict[str, str]]],
+                   messages: list[Any], library: str, chunk_size: int | None = None) -> None:
+    """Write the records as a new MCAP file (zstd chunks), in the order given, then replace ``path`` with it."""
+    from mcap.writer import CompressionType, Writer
+
+    tmp = path.with_name(path.name + ".rewrite.tmp")
+    with tmp.open("wb") as out:
+        writer = Writer(out, compression=CompressionType.ZSTD, **({"chunk_size": chunk_size} if chunk_size else {}))
+        writer.start(profile="ros2", library=library)
+        schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in schemas.items()}
+        channel_ids = {cid: writer.register_channel(ch.topic, ch.message_encoding, schema_ids.get(ch.schema_id, 0), ch.metadata)
+                       for cid, ch in channels.items()}
+        for name, data in metadata:
+            writer.add_metadata(name, data)
+        for m in messages:
+            writer.add_message(channel_ids[m.channel_id], log_time=m.log_time, data=m.data, publish_time=m.publish_time, sequence=m.sequence)
+        writer.finish()
+        out.flush()
+        os.fsync(out.fileno())
+    tmp.replace(path)
+
+
+def sort_by_log_time(path: str | Path, *, chunk_size: int | None = None, library: str = "sappc (mcap-python)") -> int:
+    """Rewrite a complete MCAP file with its messages in (log time, channel, sequence) order.
+
+    What the lockstep recorder does when it closes a bag on simulated time: the file then depends
+    only on what was recorded, not on the order the topics' messages arrived in.  Schemas,
+    channels and metadata keep their ids and order.  Returns the number of messages.
+
+    Raises
+    ------
+    BagError
+        If the file cannot be read whole (a killed recording: ``sappc repair`` it first).
+    """
+    file = Path(path)
+    schemas, channels, metadata, messages, stopped_at = _read_records(file)
+    if stopped_at is not None:
+        raise BagError(f"{file}: cannot sort an incomplete file ({stopped_at})")
+    messages.sort(key=lambda m: (m.log_time, m.channel_id, m.sequence))
+    _write_records(file, schemas, channels, [(md.name, md.metadata) for md in metadata], messages, library, chunk_size)
+    return len(messages)
+
+
+def repair(bag: str | Path) -> RepairResult:
+    """Make the bag at ``bag`` (a rosbag2 directory or an ``.mcap`` file) readable by every MCAP
+    and rosbag2 reader again; see the module docstring.
+
+    Raises
+    ------
+    BagError
+        If ``bag`` is not a bag, or not even its first records can be read.
+    """
+    path = mcap_file(Path(bag))
+    bag_dir = path.parent if Path(bag).is_dir() else None
+    complete = _has_footer(path)
+    schemas, channels, metadata, messages, stopped_at = _read_records(path)
     if not channels:
         raise BagError(f"{path}: no channel could be read (is it an MCAP file?{' ' + stopped_at if stopped_at else ''})")
     messages = [m for m in messages if m.channel_id in channels]
@@ -185,25 +234,9 @@ def repair(bag: str | Path) -> RepairResult:
     custom = {md.name: md.name.split("/", 1)[1] for md in metadata if md.name.startswith("sappc/")}
     meta = bag_metadata(path.name, topics, counts, first_ns, last_ns, custom)
     if not complete:
-        tmp = path.with_name(path.name + ".repair.tmp")
-        with tmp.open("wb") as out:
-            writer = Writer(out, compression=CompressionType.ZSTD)
-            writer.start(profile="ros2", library="sappc repair (mcap-python)")
-            schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in schemas.items()}
-            channel_ids = {
-                cid: writer.register_channel(ch.topic, ch.message_encoding, schema_ids.get(ch.schema_id, 0), ch.metadata)
-                for cid, ch in channels.items()
-            }
-            for md in metadata:
-                writer.add_metadata(md.name, md.metadata)
-            for m in messages:
-                writer.add_message(channel_ids[m.channel_id], log_time=m.log_time, data=m.data, publish_time=m.publish_time, sequence=m.sequence)
-            if not any(md.name == "rosbag2" for md in metadata):  # what the recorder writes when it closes the bag
-                writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})
-            writer.finish()
-            out.flush()
-            os.fsync(out.fileno())
-        tmp.replace(path)
+        extra = [] if any(md.name == "rosbag2" for md in metadata) else [  # what the recorder writes when it closes the bag
+            ("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})]
+        _write_records(path, schemas, channels, [*[(md.name, md.metadata) for md in metadata], *extra], messages, "sappc repair (mcap-python)")
     if bag_dir is not None:
         write_bag_metadata(bag_dir, meta)
     return RepairResult(path=path, was_complete=complete, messages=len(messages), counts=counts, stopped_at=stopped_at,

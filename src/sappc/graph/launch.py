@@ -39,6 +39,7 @@ from sappc_msgs_py.contract import RELAYED_ACTUATOR_TOPICS, RELAYED_PATHS, fault
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
+from sappc.graph.container import NODE_CLASSES, STOP_ORDER
 from sappc.scenario import ControllerKind, Scenario, load_scenario
 
 __all__ = ["GraphResult", "claim_domain_id", "controller_params_yaml", "isolated_environment", "node_parameters", "run_graph"]
@@ -50,13 +51,6 @@ STOP_TIMEOUT_S = 15.0
 DOMAIN_IDS = range(1, 102)
 #: The nodes of a run, in start order (the plant starts last: it owns time).
 NODES = ("recorder", "controller", "reference", "injector", "plant")
-_MODULES = {
-    "recorder": "sappc.graph.recorder",
-    "controller": "sappc_controller",
-    "reference": "spacecraft_sim.reference",
-    "injector": "spacecraft_sim.disturbance",
-    "plant": "spacecraft_sim",
-}
 
 
 def fastdds_profile() -> Path:
@@ -92,6 +86,9 @@ def claim_domain_id(preferred: int | None = None) -> Iterator[int]:
 def isolated_environment(domain_id: int, log_dir: Path, base: dict[str, str] | None = None) -> dict[str, str]:
     """The environment of a node process: the parent's, plus isolation and fast discovery."""
     env = dict(os.environ if base is None else base)
+    # the nodes import the code this launcher runs, whatever their working directory
+    code = str(Path(__file__).resolve().parents[2])
+    env["PYTHONPATH"] = os.pathsep.join([code, *[p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]])
     env.update(
         ROS_DOMAIN_ID=str(domain_id),
         ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
@@ -106,7 +103,9 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     """The ROS parameters of every node of a run (``{"/node": {"ros__parameters": {...}}}``).
 
     ``paths`` holds ``scenario`` (the schedule file of the injector), ``bag`` (the recorder's
-    output) and ``counts`` (the directory of the counts files).
+    output), ``counts`` (the directory of the counts files) and ``params`` (this file, recorded
+    in the bag); ``sappc run`` gives them relative to the run directory, the nodes' working
+    directory, so the same run in another directory records the same bag, byte for byte.
     """
     mode = "realtime" if realtime else "lockstep"
     relayed = _relayed(scenario)
@@ -160,6 +159,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "counts_file": counts_file("injector"),
     }
     recorder = {
+        "mode": mode,
         "output_dir": paths["bag"],
         "metadata_files": [paths["scenario"], paths["params"]],
         "counts_file": counts_file("recorder"),
@@ -217,11 +217,11 @@ class GraphResult:
 
 
 class _Process:
-    def __init__(self, name: str, cmd: list[str], env: dict[str, str], log_path: Path) -> None:
+    def __init__(self, name: str, cmd: list[str], env: dict[str, str], log_path: Path, cwd: Path) -> None:
         self.name = name
         self.log_path = log_path
         self._log = open(log_path, "wb")  # noqa: SIM115 (closed in wait)
-        self.proc = subprocess.Popen(cmd, env=env, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
+        self.proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
 
     def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> tuple[int, bool]:
         """SIGINT, wait, SIGKILL if needed; returns (exit code, killed)."""
@@ -282,8 +282,12 @@ def run_graph(
     domain_id: int | None = None,
     timeout_s: float | None = None,
     progress: bool = True,
+    compose: bool = False,
 ) -> GraphResult:
     """Run ``scenario_path`` through the node graph; see the module docstring.
+
+    ``compose``: every node in one process on one executor (:mod:`sappc.graph.container`)
+    instead of one process per node; the same parameters, topics, bag and metrics.
 
     Raises
     ------
@@ -296,15 +300,15 @@ def run_graph(
         old_term = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
         try:
             return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
-                              timeout_s=timeout_s, progress=progress)
+                              timeout_s=timeout_s, progress=progress, compose=compose)
         finally:
             signal.signal(signal.SIGTERM, old_term)
     return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
-                      timeout_s=timeout_s, progress=progress)
+                      timeout_s=timeout_s, progress=progress, compose=compose)
 
 
 def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, controller: str | None, realtime: bool,
-               domain_id: int | None, timeout_s: float | None, progress: bool) -> GraphResult:
+               domain_id: int | None, timeout_s: float | None, progress: bool, compose: bool) -> GraphResult:
     scenario = load_scenario(scenario_path)
     kind = scenario.resolve_controller(controller)
     scenario.controller_config(kind)  # validate before any process starts
@@ -323,7 +327,8 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
     scenario_copy.write_text(Path(scenario_path).read_text())
     params_path = run_dir / "params.yaml"
     bag_dir = run_dir / "bag"
-    paths = {"scenario": str(scenario_copy.resolve()), "bag": str(bag_dir.resolve()), "counts": str((run_dir / "counts").resolve()), "params": str(params_path.resolve())}
+    # relative to the run directory, the nodes' working directory (node_parameters)
+    paths = {"scenario": scenario_copy.name, "bag": bag_dir.name, "counts": "counts", "params": params_path.name}
     params = node_parameters(scenario, kind, realtime=realtime, paths=paths)
     params_path.write_text(yaml.safe_dump(params, sort_keys=False))
     remaps = _remaps(scenario)
@@ -339,29 +344,38 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         killed_any = False
         exit_codes: dict[str, int] = {}
         start = time.monotonic()
+        node_args = {name: ["--ros-args", "-r", f"__node:={name}", "--params-file", params_path.name, *remaps[name]] for name in NODES}
+        if compose:  # one process: it ends by itself when the plant finishes, the nodes stopping in STOP_ORDER
+            composition = run_dir / "composition.json"
+            composition.write_text(json.dumps([{"name": name, "args": node_args[name]} for name in NODES], indent=1))
+            commands = {"composed": [sys.executable, "-m", "sappc.graph.container", str(composition)]}
+            lead, stop_order = "composed", ("composed",)
+        else:
+            commands = {name: [sys.executable, "-m", NODE_CLASSES[name][0], *node_args[name]] for name in NODES}
+            lead, stop_order = "plant", STOP_ORDER
         try:
-            for name in NODES:
-                cmd = [sys.executable, "-m", _MODULES[name], "--ros-args", "-r", f"__node:={name}", "--params-file", str(params_path), *remaps[name]]
+            for name, cmd in commands.items():
                 with _interrupts_deferred("starting the nodes"):  # a started process is always in procs, to be stopped
-                    procs[name] = _Process(name, cmd, env, run_dir / "logs" / f"{name}.log")
-            say(f"sappc run: {scenario.name} with {kind.value} ({'real time' if realtime else 'lockstep'}), domain {domain}, in {run_dir}")
-            plant = procs["plant"]
+                    procs[name] = _Process(name, cmd, env, run_dir / "logs" / f"{name}.log", cwd=run_dir)
+            say(f"sappc run: {scenario.name} with {kind.value} ({'real time' if realtime else 'lockstep'}"
+                f"{', composed' if compose else ''}), domain {domain}, in {run_dir}")
+            first = procs[lead]
             deadline = start + limit
-            while plant.proc.poll() is None:
+            while first.proc.poll() is None:
                 for name, p in procs.items():
-                    if p.proc.poll() is not None and name != "plant":
+                    if p.proc.poll() is not None and name != lead:
                         raise RuntimeError(f"node {name} exited early with status {p.proc.returncode}; last log lines:\n{p.tail()}")
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"the run did not finish within {limit:.0f} s (see {run_dir / 'logs'})")
                 time.sleep(0.05)
             run_end = time.monotonic()
-            if plant.proc.returncode != 0:
-                raise RuntimeError(f"the plant failed with status {plant.proc.returncode}; last log lines:\n{plant.tail()}")
+            if first.proc.returncode != 0:
+                raise RuntimeError(f"the {lead} process failed with status {first.proc.returncode}; last log lines:\n{first.tail()}")
         finally:
             # publishers first (they wait for acknowledgements), the recorder last (it drains); a
             # further Ctrl-C cannot cut this short and leave a node running
             with _interrupts_deferred("stopping the nodes cleanly"):
-                for name in ("plant", "controller", "reference", "injector", "recorder"):
+                for name in stop_order:
                     if name in procs:
                         code, killed = procs[name].stop()
                         exit_codes[name] = code

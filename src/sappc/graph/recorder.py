@@ -15,8 +15,26 @@ index) and ``metadata.yaml``.  The MCAP file is flushed every :data:`FLUSH_PERIO
 SIGKILL every flushed chunk is still readable (``metadata.yaml`` is written at start with the
 topics and rewritten with the counts at the end).
 
+Time (parameter ``mode``):
+
+``lockstep`` (default)
+    The bag is on simulated time, as ``ros2 bag record --use-sim-time`` records it: a message's
+    ``log_time`` and ``publish_time`` are the time it belongs to, its own stamp
+    (:func:`~sappc_msgs_py.convert.cdr_stamp_ns`: the header stamp, ``/clock``'s clock, the
+    diagnostics' ``time_s``), so Foxglove's timeline, seeking and 1x playback follow the
+    experiment.  While recording, messages are written as they arrive; when the bag is closed
+    the file is rewritten in the order of (stamp, topic, arrival on the topic)
+    (:func:`~sappc.bag.rosbag2.sort_by_log_time`), so it does not depend on how the middleware
+    interleaved the topics (under load the recorder takes one topic's queue up to 2 s of stamps
+    behind another's): the same run gives the same bag, byte for byte, whether its nodes ran in
+    five processes or one (``sappc run --compose``).  A bag whose recorder was killed is in
+    arrival order (readers that follow ``log_time`` are not affected).
+``realtime``
+    The bag is on wall time: ``log_time`` is when the message was taken from the queue, in that
+    order.
+
 Parameters: ``output_dir`` (required, must not exist), ``topics`` (names; default every topic of
-the contract and the fault relays' outputs), ``metadata_files``, and those of
+the contract and the fault relays' outputs), ``metadata_files``, ``mode``, and those of
 :class:`~sappc_msgs_py.runtime.ProjectNode` (``counts_file`` receives the messages recorded per topic).
 """
 
@@ -37,8 +55,9 @@ from sappc_msgs_py.contract import (
     FAULT_TOPICS,
     TOPICS,
 )
-from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, write_bag_metadata
-from sappc_msgs_py.runtime import ProjectNode, run_node
+from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, sort_by_log_time, write_bag_metadata
+from sappc_msgs_py.convert import cdr_stamp_ns
+from sappc_msgs_py.runtime import LOCKSTEP, ProjectNode, run_node
 from sappc_msgs_py.schemas import schema_text, type_hash
 from gnc_common.validation import ConfigError
 
@@ -53,6 +72,8 @@ DRAIN_MAX_S = 10.0
 #: Period of the MCAP flush [s]: what a SIGKILL can lose (with the messages still in the queues);
 #: half the README's 1 s bound, so that a recorder lagging by a few hundred ms still meets it.
 FLUSH_PERIOD_S = 0.5
+#: The ``library`` field of the bags the recorder writes.
+RECORDER_LIBRARY = "sappc recorder (mcap-python)"
 #: MCAP chunk size [bytes]: about 1.5 s of a 100 Hz run; compression per chunk (zstd).
 CHUNK_SIZE = 256 * 1024
 
@@ -85,7 +106,7 @@ class RecorderNode(ProjectNode):
         self.mcap_name = f"{self.dir.name}_0.mcap"
         self._file = open(self.dir / self.mcap_name, "wb")  # noqa: SIM115 (closed in finish)
         self.writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
-        self.writer.start(profile="ros2", library="sappc recorder (mcap-python)")
+        self.writer.start(profile="ros2", library=RECORDER_LIBRARY)
         self.custom: dict[str, str] = {}
         for f in files:
             shutil.copyfile(f, self.dir / f.name)
@@ -110,23 +131,25 @@ class RecorderNode(ProjectNode):
             self.topics.append((resolved, topic.type_name))
             self.counts[resolved] = 0
         self._resolved = {(_KNOWN.get(n.lstrip("/")) or _KNOWN[n]).name: r for n, (r, _) in zip(names, self.topics)}
+        self._types = {topic.name: topic.type_name for topic in (_KNOWN.get(n.lstrip("/")) or _KNOWN[n] for n in names)}
         self.start_ns: int | None = None
         self.end_ns = 0
         self._last_message = time.monotonic()
+        self.sim_time = self.mode_param() == LOCKSTEP
         self._write_metadata()
         self.writer.flush()
         self.create_timer(FLUSH_PERIOD_S, self.writer.flush)
-        self.get_logger().info(f"recording {len(self.topics)} topics into {self.dir}")
+        self.get_logger().info(f"recording {len(self.topics)} topics into {self.dir} on {'simulated' if self.sim_time else 'wall'} time")
 
     def _on_message(self, name: str, data: bytes) -> None:
-        now = time.time_ns()
-        if self.start_ns is None:
-            self.start_ns = now
-        self.end_ns = now
+        self._last_message = time.monotonic()
+        log_ns = cdr_stamp_ns(self._types[name], data) if self.sim_time else time.time_ns()
+        if self.start_ns is None or log_ns < self.start_ns:
+            self.start_ns = log_ns
+        self.end_ns = max(self.end_ns, log_ns)
         resolved = self._resolved[name]
         self.counts[resolved] += 1
-        self.writer.add_message(self._channels[name], log_time=now, data=data, publish_time=now, sequence=self.counts[resolved])
-        self._last_message = time.monotonic()
+        self.writer.add_message(self._channels[name], log_time=log_ns, data=data, publish_time=log_ns, sequence=self.counts[resolved])
 
     def _write_metadata(self) -> None:
         write_bag_metadata(self.dir, bag_metadata(self.mcap_name, self.topics, self.counts, self.start_ns or 0, self.end_ns, self.custom))
@@ -146,6 +169,8 @@ class RecorderNode(ProjectNode):
         self.writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})
         self.writer.finish()
         self._file.close()
+        if self.sim_time:  # the file in time order, whatever order the middleware delivered the topics in
+            sort_by_log_time(self.dir / self.mcap_name, chunk_size=CHUNK_SIZE, library=RECORDER_LIBRARY)
         self._write_metadata()
         self.get_logger().info(f"bag {self.dir} closed: {sum(self.counts.values())} messages")
         super().finish()

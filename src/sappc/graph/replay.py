@@ -4,10 +4,11 @@ Messages go out as recorded (raw CDR, no re-serialisation), in the order the rec
 them, on publishers with the contract's QoS (reliable, depth 1000), so any node can consume a
 recording as if it were live.
 
-Timing.  A lockstep bag (one with ``/clock``) replays on its *simulated* time: every message is
-due at the ``/clock`` value most recently recorded before it, so at ``--rate 1`` a 60 s
-experiment takes 60 s of wall time with ``/clock`` advancing in step, and the ``/clock``
-messages themselves are republished as recorded.  A bag without ``/clock`` (real time, or a
+Timing.  A lockstep bag (one with ``/clock``) replays on its *simulated* time: the recorder of
+``sappc run`` logs each message at its own stamp (:mod:`sappc.graph.recorder`), and the message
+is due then (in a bag recorded on wall time with ``/clock``, at the ``/clock`` value most
+recently recorded before it), so at ``--rate 1`` a 60 s experiment takes 60 s of wall time with
+``/clock`` advancing in step, and the ``/clock`` messages themselves are republished as recorded.  A bag without ``/clock`` (real time, or a
 plant that does not publish one) replays on its recording time (the recorder's receive times),
 and ``/clock`` is published from that time at :data:`CLOCK_RATE_HZ`, so nodes with
 ``use_sim_time`` follow it.  ``--rate X`` divides every interval by ``X``.  A message is never
@@ -95,15 +96,20 @@ def plan_replay(path: str | Path, topics: list[str] | None = None) -> ReplayPlan
     assert clock is not None, "/clock is one of the contract's types, which decode() always knows"
     is_clock = np.zeros(channel.size, dtype=bool)
     is_clock[on_clock[clock.index]] = True  # an undecodable /clock message is replayed, but times nothing
-    if is_clock.any():
-        # each message is due at the latest /clock recorded before it (the first clock before any)
-        clock_values = clock.stamps_ns
+    log_ns = scan.log_time_ns[sel]
+    if is_clock.any() and np.array_equal(log_ns[is_clock], clock.stamps_ns):
+        bag_time = log_ns  # recorded on simulated time (the recorder in lockstep): each message at its own time
+        clock_ns = np.zeros(0, dtype=np.int64)
+        base = "simulated (recorded on /clock time)"
+    elif is_clock.any():
+        # recorded on wall time (older bags): each message is due at the latest /clock recorded
+        # before it (the first clock before any)
         which = np.cumsum(is_clock) - 1
-        bag_time = clock_values[np.maximum(which, 0)]
+        bag_time = clock.stamps_ns[np.maximum(which, 0)]
         clock_ns = np.zeros(0, dtype=np.int64)
         base = "simulated (/clock)"
     else:
-        bag_time = scan.log_time_ns[sel]
+        bag_time = log_ns
         clock_ns = bag_time
         base = "recording"
     return ReplayPlan(

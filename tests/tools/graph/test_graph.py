@@ -80,6 +80,48 @@ def test_bag_opens_with_rosbags_and_mcap_ros2_and_counts_what_was_published(trac
     assert shm_files() <= before  # nothing left in /dev/shm
 
 
+def test_the_composed_graph_records_the_same_bag_byte_for_byte(tracking_run, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """``sappc run --compose`` (every node in one process, one executor) and the five processes:
+    the same MCAP file byte for byte (a lockstep bag is on simulated time and in stamp order;
+    the run's files are recorded with paths relative to the run directory), the same
+    metadata.yaml and counts, the same metrics; one process was started instead of five."""
+    out, report, _ = tracking_run
+    composed = tmp_path / "composed"
+    proc = subprocess.run([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--compose", "--out", str(composed), "--json", str(tmp_path / "m.json")],
+                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    composed_report = json.loads((tmp_path / "m.json").read_text())
+    assert composed_report["composed"] is True and report["composed"] is False
+    assert (composed / "bag" / "bag_0.mcap").read_bytes() == (out / "bag" / "bag_0.mcap").read_bytes()
+    assert (composed / "bag" / "metadata.yaml").read_text() == (out / "bag" / "metadata.yaml").read_text()
+    assert composed_report["published"] == report["published"] and composed_report["recorded"] == report["recorded"]
+    assert {k: v for k, v in composed_report["metrics"].items() if k not in ("wall_time_s", "startup_s")} == \
+        {k: v for k, v in report["metrics"].items() if k not in ("wall_time_s", "startup_s")}
+    logs = {p.stem for p in (composed / "logs").glob("*.log")}  # with rcl's own python_<pid>_<time>.log
+    assert "composed" in logs and not logs & {"plant", "controller", "reference", "injector", "recorder"}
+
+
+def test_a_lockstep_bag_is_on_simulated_time(tracking_run) -> None:  # type: ignore[no-untyped-def]
+    """Every message's log and publish time is its own stamp (the time it belongs to), so a
+    player's timeline is the experiment's 0 .. 60 s; the closed file is in stamp order."""
+    from mcap.reader import make_reader
+
+    from sappc_msgs_py.convert import cdr_stamp_ns
+
+    out, _, _ = tracking_run
+    with (out / "bag" / "bag_0.mcap").open("rb") as f:
+        reader = make_reader(f)
+        last = -1
+        n = 0
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            assert message.log_time == message.publish_time == cdr_stamp_ns(schema.name, message.data), channel.topic
+            assert message.log_time >= last
+            last = message.log_time
+            n += 1
+        stats = reader.get_summary().statistics
+    assert n == 54009 and stats.message_start_time == 0 and stats.message_end_time == 60 * 10**9
+
+
 def test_fault_through_the_graph_returns_into_the_band(tmp_path) -> None:
     out = tmp_path / "fault"
     proc = subprocess.run([*SAPPC, "run", str(SCENARIOS / "paper_fault.yaml"), "--out", str(out), "--json", str(tmp_path / "m.json")],
@@ -173,7 +215,11 @@ def _flushed(bag_dir: Path) -> int:
         return 0
 
 
-def test_a_sigkilled_recorder_leaves_its_flushed_messages_readable(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+@pytest.mark.parametrize("mode", ["realtime", "lockstep"])
+def test_a_sigkilled_recorder_leaves_its_flushed_messages_readable(ros_context, tmp_path, mode) -> None:  # type: ignore[no-untyped-def]
+    """In both modes (wall-time or simulated-time bags) the recorder writes each message as it
+    arrives and flushes every FLUSH_PERIOD_S of wall time: all 500 acknowledged messages become
+    readable, and a SIGKILL then loses none of them."""
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
@@ -181,8 +227,9 @@ def test_a_sigkilled_recorder_leaves_its_flushed_messages_readable(ros_context, 
     from sappc_msgs_py.convert import vector3_msg
 
     bag_dir = tmp_path / "bag"
-    rec = subprocess.Popen([sys.executable, "-m", "sappc.graph.recorder", "--ros-args", "-p", f"output_dir:={bag_dir}"],
+    rec = subprocess.Popen([sys.executable, "-m", "sappc.graph.recorder", "--ros-args", "-p", f"output_dir:={bag_dir}", "-p", f"mode:={mode}"],
                            env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+    readable = 500
     node = Node("pub", context=ros_context)
     pub = node.create_publisher(c.STATE_RATE.msg_class, c.STATE_RATE.name, c.qos_profile())
     ex = SingleThreadedExecutor(context=ros_context)
@@ -194,7 +241,7 @@ def test_a_sigkilled_recorder_leaves_its_flushed_messages_readable(ros_context, 
     for k in range(500):
         pub.publish(vector3_msg([k, 0.0, 0.0], k * 0.01, c.STATE_RATE))
     assert pub.wait_for_all_acked()
-    while _flushed(bag_dir) < 500:  # the recorder flushes every second
+    while _flushed(bag_dir) < readable:
         assert time.monotonic() < deadline, _flushed(bag_dir)
         time.sleep(0.05)
     rec.kill()
@@ -205,20 +252,20 @@ def test_a_sigkilled_recorder_leaves_its_flushed_messages_readable(ros_context, 
     bag = read_bag(bag_dir)
     assert bag.truncated is not None  # no summary, no footer
     values = bag.series["/state/rate"].values[:, 0]
-    assert values.size == 500 and np.array_equal(values, np.arange(500.0))
+    assert values.size == readable and np.array_equal(values, np.arange(float(readable)))
     # rosbags and mcap's indexed reader need the footer: `sappc repair` writes it back (ros2 bag reindex)
     proc = subprocess.run([*SAPPC, "repair", str(bag_dir), "--json", str(tmp_path / "repair.json")], capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     repaired = json.loads((tmp_path / "repair.json").read_text())
-    assert not repaired["was_complete"] and repaired["counts"]["/state/rate"] == 500
-    assert _rosbags_counts(bag_dir)["/state/rate"] == 500  # through metadata.yaml, as rosbags opens a bag
+    assert not repaired["was_complete"] and repaired["counts"]["/state/rate"] == readable
+    assert _rosbags_counts(bag_dir)["/state/rate"] == readable  # through metadata.yaml, as rosbags opens a bag
     from mcap.reader import make_reader
 
     with (bag_dir / f"{bag_dir.name}_0.mcap").open("rb") as f:
         reader = make_reader(f)
         assert reader.get_summary() is not None  # the indexed reader's view
         rates = [m for _, ch, m in reader.iter_messages() if ch.topic == "/state/rate"]
-    assert len(rates) == 500
+    assert len(rates) == readable
     assert read_bag(bag_dir).truncated is None and np.array_equal(read_bag(bag_dir).series["/state/rate"].values[:, 0], values)
 
 
