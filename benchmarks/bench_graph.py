@@ -3,13 +3,15 @@
 Runs experiment 1 (``config/scenarios/paper_tracking.yaml``, 60 s at 100 Hz) through ``sappc run``
 (five processes, recorder included) and prints one JSON document:
 
-- lockstep: the wall time from the plant's first sample to its last (``run_s``, target <= 6 s,
-  i.e. 10x faster than real time) and the start-up time (process start, imports, discovery and
-  matching; reported separately), median of ``--repeats`` runs, and the bag's message count;
+- lockstep, in paired rounds of the five processes and of ``--compose`` (one process, one
+  executor): the wall time from the plant's first sample to its last (``run_s``; targets <= 6 s
+  and <= 3 s) and the start-up time (process start, imports, discovery and matching; targets
+  <= 2 s and <= 0.5 s), median of ``--repeats`` rounds, the composed/processes ratio per round,
+  whether the two modes recorded the same bag file, and the bag's message count;
 - real time (``--realtime``): the controller timer's period error |interval - 10 ms| (p50, p99,
   max; target p99 <= 0.5 ms) and missed ticks (intervals > 15 ms; target 0) over the 60 s run.
 
-    python benchmarks/bench_graph.py [--repeats 3] [--realtime] [--no-lockstep]
+    python benchmarks/bench_graph.py [--repeats 3] [--realtime] [--no-lockstep] [--domain-id N]
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from sappc.graph.launch import run_graph  # noqa: E402
+from sappc.graph.launch import GraphResult, run_graph  # noqa: E402
 
 SCENARIO = ROOT / "config" / "scenarios" / "paper_tracking.yaml"
 
@@ -36,6 +38,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--realtime", action="store_true", help="also run once in real time (60 s)")
     parser.add_argument("--no-lockstep", action="store_true")
+    parser.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: the first free one)")
     args = parser.parse_args()
     out: dict[str, object] = {
         "machine": {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count()},
@@ -43,18 +46,30 @@ def main() -> None:
     }
     with tempfile.TemporaryDirectory() as tmp:
         if not args.no_lockstep:
-            runs = [run_graph(SCENARIO, out_dir=Path(tmp) / f"lockstep{i}", progress=False) for i in range(args.repeats)]
+            modes: dict[str, list[GraphResult]] = {"processes": [], "composed": []}
+            same_bag = []
+            for i in range(args.repeats):  # paired rounds: both modes under the same machine load
+                for mode, runs in modes.items():
+                    runs.append(run_graph(SCENARIO, out_dir=Path(tmp) / f"{mode}{i}", progress=False, domain_id=args.domain_id,
+                                          compose=mode == "composed"))
+                same_bag.append((modes["composed"][i].bag_dir / "bag_0.mcap").read_bytes() == (modes["processes"][i].bag_dir / "bag_0.mcap").read_bytes())
             out["lockstep"] = {
-                "run_s": [r.run_s for r in runs],
-                "run_s_median": statistics.median(r.run_s for r in runs),
-                "startup_s_median": statistics.median(r.startup_s for r in runs),
-                "speed_vs_real_time": 60.0 / statistics.median(r.run_s for r in runs),
-                "messages_recorded": sum(runs[0].recorded.values()),
-                "counts_match": all(r.counts_match for r in runs),
-                "target_run_s": 6.0,
+                mode: {
+                    "run_s": [r.run_s for r in runs],
+                    "run_s_median": statistics.median(r.run_s for r in runs),
+                    "startup_s": [r.startup_s for r in runs],
+                    "startup_s_median": statistics.median(r.startup_s for r in runs),
+                    "speed_vs_real_time": 60.0 / statistics.median(r.run_s for r in runs),
+                    "messages_recorded": sum(runs[0].recorded.values()),
+                    "counts_match": all(r.counts_match for r in runs),
+                    "target_run_s": 6.0 if mode == "processes" else 3.0,
+                    "target_startup_s": 2.0 if mode == "processes" else 0.5,
+                } for mode, runs in modes.items()
             }
+            out["lockstep"]["composed_over_processes_run_s"] = [c.run_s / p.run_s for c, p in zip(modes["composed"], modes["processes"])]
+            out["lockstep"]["same_bag_file"] = same_bag
         if args.realtime:
-            r = run_graph(SCENARIO, out_dir=Path(tmp) / "realtime", realtime=True, progress=False)
+            r = run_graph(SCENARIO, out_dir=Path(tmp) / "realtime", realtime=True, progress=False, domain_id=args.domain_id)
             out["realtime"] = {
                 **r.controller_timing,
                 "run_s": r.run_s,

@@ -369,5 +369,5 @@ def load_scenario(path: str | Path) -> Scenario:
         raise ConfigError(f"{p} is not valid YAML: {exc}") from None
     try:
         return scenario_from_mapping(data, source=str(p))
-    except ConfigError as exc:
-        raise type(exc)(f"{p}: {exc}") from None
+    except ConfigError as exc:  # every message names the file, once
+        raise type(exc)(str(exc) if str(exc).startswith(f"{p}: ") else f"{p}: {exc}") from None

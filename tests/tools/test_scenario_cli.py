@@ -63,6 +63,19 @@ def test_bad_scenarios_name_the_offending_key(mutate, fragment) -> None:
         scenario_from_mapping(raw)
 
 
+@pytest.mark.parametrize("mutate", [lambda r: r.update(durration_s=5), lambda r: r.pop("plant"), lambda r: r["controllers"].update(pid={})],
+                         ids=["unknown_top_key", "missing_key", "nested_key"])
+def test_an_error_in_a_scenario_file_names_the_file_once(tmp_path, mutate) -> None:
+    """The loader prefixes the file's path to the validator's message, unless it is there."""
+    raw = _raw()
+    mutate(raw)
+    path = tmp_path / "typo.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    with pytest.raises(ConfigError) as err:
+        load_scenario(path)
+    assert str(err.value).startswith(f"{path}: ") and str(err.value).count(str(path)) == 1, str(err.value)
+
+
 def test_missing_and_malformed_files_are_clear(tmp_path) -> None:
     with pytest.raises(ConfigError, match="cannot read scenario"):
         load_scenario(tmp_path / "nope.yaml")

@@ -113,19 +113,28 @@ def plot_run(
             continue
         fig, axes = _rows()
         for i, ax in enumerate(axes):
-            ax.fill_between(t[mask], h.band_lower[mask, run, i], h.band_upper[mask, run, i], color="tab:blue", alpha=0.18,
-                            lw=0, label="constraint band")
+            lower, upper = h.band_lower[mask, run, i], h.band_upper[mask, run, i]
+            view = None
+            if zoom:  # y range of q_ev and rho; the band is drawn only where it shows inside it
+                both = np.concatenate((q_ev[mask, i], h.rho[mask, run, i]))
+                both = both[np.isfinite(both)]
+                lo, hi = (both.min(), both.max()) if both.size else (-1.0, 1.0)
+                pad = 0.25 * max(hi - lo, 1e-6)
+                view = (lo - pad, hi + pad)
+            if view is not None and np.nanmax(lower) <= view[0] and np.nanmin(upper) >= view[1]:
+                # the band holds the whole view (e.g. +-0.016 around a 1e-4 error): shading it
+                # would colour the whole panel, so say where it is instead
+                ax.text(0.01, 0.04, f"constraint band [{np.nanmin(lower):.3g}, {np.nanmax(upper):.3g}]: beyond this view",
+                        transform=ax.transAxes, fontsize=7, color="tab:blue")
+            else:
+                ax.fill_between(t[mask], lower, upper, color="tab:blue", alpha=0.18, lw=0, label="constraint band")
             ax.plot(t[mask], h.rho[mask, run, i], "k--", lw=1.0, label=f"ρ{_SUB[i]}")
             ax.plot(t[mask], q_ev[mask, i], color="tab:blue", lw=1.3, label=f"q_ev{_SUB[i]}")
             _mark_faults(ax, faults, t_end)
             ax.set_ylabel(f"q_ev{_SUB[i]}")
             ax.grid(True, alpha=0.3)
-            if zoom:
-                both = np.concatenate((q_ev[mask, i], h.rho[mask, run, i]))
-                both = both[np.isfinite(both)]
-                lo, hi = (both.min(), both.max()) if both.size else (-1.0, 1.0)
-                pad = 0.25 * max(hi - lo, 1e-6)
-                ax.set_ylim(lo - pad, hi + pad)
+            if view is not None:
+                ax.set_ylim(*view)
         axes[0].legend(loc="upper right", fontsize=8)
         axes[-1].set_xlabel("time [s]")
         _finish(fig, out_dir / name, f"{title}: attitude error" + (" (zoom)" if zoom else ""), paths, margins=_ROWS_MARGINS)
