@@ -185,6 +185,30 @@ def _fmt(value: Any) -> str:
     return str(value)
 
 
+def metric_meanings() -> dict[str, str]:
+    """What each run metric means, one line of plain text per name: the definitions in
+    :mod:`sappc.evaluation.metrics`' docstring (the one place they are written), plus the two
+    timings the commands add."""
+    from sappc.evaluation import metrics
+
+    doc = (metrics.__doc__ or "").split("Definitions, per run:", 1)[-1]
+    meanings: dict[str, str] = {}
+    names: list[str] = []
+    for line in doc.splitlines():
+        if line.startswith("``"):  # a definition's head: one or more ``name``s
+            names = [n.strip().strip("`") for n in line.split(",")]
+            for n in names:
+                meanings[n] = ""
+        elif line.startswith("    ") and names:
+            for n in names:
+                meanings[n] = (meanings[n] + " " + line.strip().replace("``", "")).strip()
+    for extra in ("left_constraint_after_fault", "returned_at_s"):  # defined with returned_to_constraint
+        meanings.setdefault(extra, meanings.get("returned_to_constraint", ""))
+    meanings["wall_time_s"] = "Wall time the run took [s] (not a property of the controller)."
+    meanings["startup_s"] = "Wall time before the first sample: processes, imports, discovery [s]."
+    return meanings
+
+
 def html_table(header: list[str], rows: list[list[Any]]) -> str:
     """An HTML table; values formatted as the command line prints them."""
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
@@ -232,7 +256,8 @@ def write_report(a: BagAnalysis, out_dir: Path) -> list[Path]:
         html_list(a.problems, "problem") + html_list(a.notes, "note"),
     ]
     if a.metrics is not None:
-        blocks.append("<h2>Metrics</h2>" + html_table(["metric", "value"], [[k, v] for k, v in a.metrics.items()]))
+        meaning = metric_meanings()
+        blocks.append("<h2>Metrics</h2>" + html_table(["metric", "value", "meaning"], [[k, v, meaning.get(k, "")] for k, v in a.metrics.items()]))
     if a.fault_windows:
         blocks.append("<p>Injected disturbance events and faults are shaded red: "
                       + ", ".join(f"{s0:g} to {s1:g} s" for s0, s1 in a.fault_windows) + ".</p>")

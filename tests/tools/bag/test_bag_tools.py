@@ -273,3 +273,17 @@ def test_the_run_summary_counts_what_the_controller_did_and_sets_the_exit_status
     assert never["commanded"] == 0 and run_exit_status({}, never) == EXIT_CONTROLLER_NEVER_COMMANDED == 3
     unknown = run([0, 0], 0, diagnostics=False).controller_summary()
     assert unknown["commanded"] is None and run_exit_status({}, unknown) == 0  # a plant of one's own without diagnostics
+
+
+def test_every_metric_a_run_reports_has_a_meaning_for_the_report() -> None:
+    """The HTML report's "meaning" column comes from the metrics module's definitions: every key
+    `sappc simulate` and `sappc run` report (a faulty run has them all) has a sentence."""
+    from sappc.analysis.report import metric_meanings
+    from sappc.offline.simulate import simulate
+    from sappc.scenario import load_scenario
+
+    result = simulate(load_scenario(SCENARIOS / "paper_fault.yaml"))
+    meanings = metric_meanings()
+    keys = [*result.metrics, "startup_s"]
+    assert all(len(meanings.get(k, "")) > 20 for k in keys), [k for k in keys if len(meanings.get(k, "")) <= 20]
+    assert meanings["settling_time_s"].startswith("The first sample time after which max_i |q_ev,i| stays below settle_threshold")
