@@ -172,7 +172,7 @@ def _write_records(path: Path, schemas: dict[int, Any], channels: dict[int, Any]
 
     tmp = path.with_name(path.name + ".rewrite.tmp")
     with tmp.open("wb") as out:
-        writer = Writer(out, compression=CompressionType.ZSTD, **({"chunk_size": chunk_size} if chunk_size else {}))
+        writer = Writer(out, compression=CompressionType.ZSTD) if chunk_size is None else Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         writer.start(profile="ros2", library=library)
         schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in schemas.items()}
         channel_ids = {cid: writer.register_channel(ch.topic, ch.message_encoding, schema_ids.get(ch.schema_id, 0), ch.metadata)

@@ -349,10 +349,10 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
             composition = run_dir / "composition.json"
             composition.write_text(json.dumps([{"name": name, "args": node_args[name]} for name in NODES], indent=1))
             commands = {"composed": [sys.executable, "-m", "sappc.graph.container", str(composition)]}
-            lead, stop_order = "composed", ("composed",)
+            lead, stop_order = "composed", ["composed"]
         else:
             commands = {name: [sys.executable, "-m", NODE_CLASSES[name][0], *node_args[name]] for name in NODES}
-            lead, stop_order = "plant", STOP_ORDER
+            lead, stop_order = "plant", list(STOP_ORDER)
         try:
             for name, cmd in commands.items():
                 with _interrupts_deferred("starting the nodes"):  # a started process is always in procs, to be stopped
