@@ -415,23 +415,24 @@ NO_DATA_Q = (math.nan, math.nan, math.nan, math.nan)
 
 def test_lockstep_outage_begins_more_than_stale_timeout_s_after_the_last_valid_state(controller) -> None:  # type: ignore[no-untyped-def]
     """A sample without valid data (the injector's "no data" relay: NaN values) exactly
-    stale_timeout_s (0.05 s) after the last valid sample is answered at once with the last torque
-    held; 1 ns later it is an outage: zero torque, stale in diagnostics.  One torque per tick."""
+    stale_timeout_s (0.05 s) after the last valid sample (at 1 s) is answered at once with the
+    last torque held; 1 ns later it is an outage: zero torque, stale in diagnostics.  One torque
+    per tick."""
     node, drv = controller
-    drv.send_sample(0.0, q=Q0)
+    drv.send_sample(1.0, q=Q0)
     drv.spin_until(lambda: len(drv.torques) == 1 and len(drv.diags) == 1, "the first torque")
-    drv.send_sample(0.05, q=NO_DATA_Q)
-    drv.spin_until(lambda: len(drv.torques) == 2 and len(drv.diags) == 2, "the answer of 0.05 s")
-    assert drv.torques[1][0] == 50_000_000 and np.array_equal(drv.torques[1][1], drv.torques[0][1]) and np.any(drv.torques[1][1] != 0.0)
+    drv.send_sample(1.05, q=NO_DATA_Q)
+    drv.spin_until(lambda: len(drv.torques) == 2 and len(drv.diags) == 2, "the answer of 1.05 s")
+    assert drv.torques[1][0] == 1_050_000_000 and np.array_equal(drv.torques[1][1], drv.torques[0][1]) and np.any(drv.torques[1][1] != 0.0)
     assert drv.diags[1]["status"][2] == c.ANSWER_HELD and not node.stale
-    drv.send_sample(0.050000001, q=NO_DATA_Q)
+    drv.send_sample(1.050000001, q=NO_DATA_Q)
     drv.spin_until(lambda: len(drv.torques) == 3 and len(drv.diags) == 3, "the answer 1 ns later")
-    assert drv.torques[2][0] == 50_000_001 and drv.torques[2][1].tolist() == [0.0, 0.0, 0.0]
+    assert drv.torques[2][0] == 1_050_000_001 and drv.torques[2][1].tolist() == [0.0, 0.0, 0.0]
     assert node.stale and drv.diags[2]["status"][2] == c.ANSWER_WATCHDOG_ZERO and drv.diags[2]["status"][1] == 1.0
-    drv.pub["/clock"].publish(clock_msg(0.050000001))  # the same tick again: already answered
-    drv.send_sample(0.06, q=NO_DATA_Q)
-    drv.spin_until(lambda: any(ns == 60_000_000 for ns, _ in drv.torques), "the zero torque of 0.06 s")
-    assert [ns for ns, _ in drv.torques] == [0, 50_000_000, 50_000_001, 60_000_000]  # one torque per tick
+    drv.pub["/clock"].publish(clock_msg(1.050000001))  # the same tick again: already answered
+    drv.send_sample(1.06, q=NO_DATA_Q)
+    drv.spin_until(lambda: any(ns == 1_060_000_000 for ns, _ in drv.torques), "the zero torque of 1.06 s")
+    assert [ns for ns, _ in drv.torques] == [1_000_000_000, 1_050_000_000, 1_050_000_001, 1_060_000_000]  # one torque per tick
     assert node.rejected == 3 and node.steps == 1
 
 
