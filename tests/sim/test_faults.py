@@ -193,3 +193,26 @@ def test_the_noise_model_rotates_about_the_body_axis_of_each_draw_and_adds_the_r
     q_out, w_out = noisy_measurement(q, w, np.zeros(6), 0.1, 1e-3)  # zero draws: no rotation (angle 0 is no 0/0)
     np.testing.assert_allclose(q_out, q, rtol=0, atol=4e-16)
     np.testing.assert_array_equal(w_out, w)
+
+
+def test_actuator_dropout_holds_the_last_delivered_torque_and_faults_after_it_see_the_held_one() -> None:
+    """In its window the command is not delivered: the actuator holds the torque it last
+    delivered (after the faults listed before the dropout); outside, every command is delivered
+    and becomes the one held next.  A fault listed after the dropout does not act on the held one."""
+    s = schedule(
+        {"kind": "actuator_bias", "bias_Nm": [0.01, 0.0, 0.0], "start_s": 0.0},
+        {"kind": "actuator_dropout", "start_s": 0.02, "end_s": 0.04},
+        {"kind": "actuator_effectiveness", "effectiveness": [0.5, 0.5, 0.5], "start_s": 0.0},
+    )
+    b = np.array([0.01, 0.0, 0.0])
+    delivered = [s.actuator(t, torque(k)) for k, (t, _) in enumerate(grid(6))]
+    expected = {0: 0.5 * (torque(0) + b), 1: 0.5 * (torque(1) + b), 2: 0.5 * (torque(1) + b), 3: 0.5 * (torque(1) + b),
+                4: 0.5 * (torque(4) + b), 5: 0.5 * (torque(5) + b)}
+    for k, u in enumerate(delivered):
+        np.testing.assert_array_equal(u, expected[k], err_msg=f"sample {k}")
+
+
+def test_reference_dropout_drops_the_reference_inside_its_window_only() -> None:
+    s = schedule({"kind": "sensor_bias", "rate_bias_rad_s": [1e-3, 0.0, 0.0]}, {"kind": "reference_dropout", "start_s": 0.02, "end_s": 0.04})
+    assert [s.reference(t) for t, _ in grid(6)] == [True, True, False, False, True, True]
+    assert schedule().reference(0.0) and schedule({"kind": "sensor_dropout"}).reference(0.03)
