@@ -209,7 +209,8 @@ class PlantNode(ProjectNode):
         self.get_logger().info(f"finished at sample {self.k} after {run_s:.3f} s: {self.rejected} rejected messages, missed inputs {self.missed}")
         super().finish()
         if self.timing_file:
-            Path(self.timing_file).write_text(json.dumps({"run_s": run_s, "samples": self.k + 1, "rejected": self.rejected, "missed": self.missed}))
+            Path(self.timing_file).write_text(json.dumps({"run_s": run_s, "samples": self.k + 1, "rejected": self.rejected, "missed": self.missed,
+                                                          "first_sample_monotonic_s": self._wall_first}))
 
 
 def main(argv: list[str] | None = None) -> int:
