@@ -397,8 +397,8 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
     timing = json.loads(timing_path.read_text()) if timing_path.exists() else {}
     total = run_end - start
     run_s = float(timing.get("run_s", total))  # the plant's first sample to its last
-    first = timing.get("first_sample_monotonic_s")  # CLOCK_MONOTONIC is one clock for every process
-    startup_s = float(first) - start if first is not None else total - run_s
+    first_sample = timing.get("first_sample_monotonic_s")  # CLOCK_MONOTONIC is one clock for every process
+    startup_s = float(first_sample) - start if first_sample is not None else total - run_s
     return GraphResult(
         scenario=scenario,
         controller=kind,
