@@ -119,8 +119,8 @@ class RecorderNode(ProjectNode):
         self.counts: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         qos_text = yaml.safe_dump(offered_qos_v9(), sort_keys=False)
-        for name in names:
-            topic = _KNOWN.get(name.lstrip("/")) or _KNOWN[name]  # known: checked above
+        recorded = [_KNOWN.get(n.lstrip("/")) or _KNOWN[n] for n in names]  # known: checked above
+        for topic in recorded:
             if topic.type_name not in schemas:
                 schemas[topic.type_name] = self.writer.register_schema(topic.type_name, "ros2msg", schema_text(topic.type_name).encode())
             sub = self.create_subscription(topic.msg_class, topic.name, partial(self._on_message, topic.name), qos, raw=True)
@@ -130,8 +130,8 @@ class RecorderNode(ProjectNode):
             )
             self.topics.append((resolved, topic.type_name))
             self.counts[resolved] = 0
-        self._resolved = {(_KNOWN.get(n.lstrip("/")) or _KNOWN[n]).name: r for n, (r, _) in zip(names, self.topics)}
-        self._types = {topic.name: topic.type_name for topic in (_KNOWN.get(n.lstrip("/")) or _KNOWN[n] for n in names)}
+        self._resolved = {topic.name: r for topic, (r, _) in zip(recorded, self.topics)}
+        self._types = {topic.name: topic.type_name for topic in recorded}
         self.start_ns: int | None = None
         self.end_ns = 0
         self._last_message = time.monotonic()
