@@ -39,9 +39,12 @@ __all__ = [
     "LOCKSTEP",
     "REALTIME",
     "CountingPublisher",
+    "GridCursor",
     "MATCH_TIMEOUT_S",
     "ProjectNode",
     "SPIN_TIMEOUT_S",
+    "START_CHECK_S",
+    "START_LOG_S",
     "parse_expected",
     "run_node",
     "run_nodes",
@@ -57,6 +60,11 @@ SPIN_TIMEOUT_S = 0.05
 #: How long a publisher waits for its expected subscribers before giving up [s].  Discovery on
 #: one host takes 0.2 to 0.55 s with the project's Fast DDS profile, 2.8 s without it.
 MATCH_TIMEOUT_S = 20.0
+#: Period of the start check of :meth:`ProjectNode.start_when` [s]: a twentieth of the discovery
+#: time with the project's profile, so it adds little to the start.
+START_CHECK_S = 0.01
+#: Period of the "waiting for" message of a node whose partners are not there yet [s].
+START_LOG_S = 5.0
 #: How long a finishing node waits for subscribers to acknowledge its last messages [s].
 ACK_TIMEOUT_S = 5.0
 
@@ -86,6 +94,12 @@ class CountingPublisher:
     @property
     def resolved_name(self) -> str:
         return str(self.pub.topic_name)
+
+    def matched(self) -> bool:
+        """Whether the expected subscribers are matched (does not wait)."""
+        if not self._ready:
+            self._ready = self.pub.get_subscription_count() >= self.min_subscribers
+        return self._ready
 
     def wait_matched(self, timeout_s: float = MATCH_TIMEOUT_S) -> None:
         """Block until the expected subscribers are matched.
@@ -118,6 +132,28 @@ class CountingPublisher:
         from rclpy.duration import Duration
 
         return bool(self.pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))))
+
+
+class GridCursor:
+    """Which samples of a lockstep grid a node that publishes ahead of ``/clock`` still owes.
+
+    The reference and the injector know their samples in advance.  They publish samples 0 and 1
+    as soon as their subscribers are matched, without waiting for a ``/clock`` tick (a tick sent
+    before their ``/clock`` subscription was matched is never delivered: the plant's first tick
+    races discovery), and on each tick ``t_k`` every sample up to ``k + 1`` not yet published, so
+    a missed tick is made up at the next one.  ``through(k)`` is the samples to publish now to
+    have published ``0 .. k`` (capped at ``last``, the grid's last sample; ``None``: no end).
+    """
+
+    def __init__(self, last: int | None) -> None:
+        self.next = 0
+        self.last = last
+
+    def through(self, k: int) -> range:
+        end = k if self.last is None else min(k, self.last)
+        owed = range(self.next, max(self.next, end + 1))
+        self.next = owed.stop
+        return owed
 
 
 class ProjectNode(Node):
@@ -169,6 +205,25 @@ class ProjectNode(Node):
         pub = CountingPublisher(self, topic, self._expected.get(topic.name, default_min_subscribers), qos_profile())
         self._counting_pubs.append(pub)
         return pub
+
+    def start_when(self, missing: Callable[[], list[str]], start: Callable[[], None]) -> None:
+        """Call ``start()`` once, as soon as ``missing()`` (what the node still waits for, in
+        words) is empty; checked every :data:`START_CHECK_S` without blocking the executor, and
+        what is missing is logged every :data:`START_LOG_S` (a node started before its partners
+        waits for them, however long)."""
+        began = time.monotonic()
+        logged = [began]
+
+        def check() -> None:
+            waiting = missing()
+            if not waiting:
+                timer.cancel()
+                start()
+            elif time.monotonic() - logged[0] >= START_LOG_S:
+                logged[0] = time.monotonic()
+                self.get_logger().info(f"waiting {logged[0] - began:.0f} s for: {'; '.join(waiting)}")
+
+        timer = self.create_timer(START_CHECK_S, check)
 
     def publish_counts(self) -> dict[str, int]:
         """Messages published per resolved topic name."""

@@ -5,8 +5,10 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
 :mod:`spacecraft_sim.core.faults`):
 
 - external torques: publishes ``disturbance/torque`` for every sample, the sum of the
-  scheduled models at the sample time (``lockstep``: on each ``/clock`` tick ``t_k`` for sample
-  ``k + 1``, one ahead so that it is never on the loop's critical path;
+  scheduled models at the sample time (``lockstep``: samples 0 and 1 as soon as its subscribers
+  are matched, then on each ``/clock`` tick ``t_k`` sample ``k + 1``, one ahead so that it is
+  never on the loop's critical path, and any earlier one a missed tick left out:
+  :class:`~sappc_msgs_py.runtime.GridCursor`;
   ``realtime``: on a wall-clock timer of period ``control_period_s``, at the time elapsed since
   its first tick).  The plant adds it to the control torque (``use_disturbance_topic``).
 - faults, by relaying the contract's relayed topics
@@ -58,7 +60,7 @@ from sappc_msgs_py.convert import (
     vector3_from_msg,
     vector3_msg,
 )
-from sappc_msgs_py.runtime import LOCKSTEP, ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, GridCursor, ProjectNode, run_node
 
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
@@ -124,7 +126,9 @@ class InjectorNode(ProjectNode):
         qos = qos_profile()
         self.pub_d = self.counting_publisher(DISTURBANCE_TORQUE, 1)
         if self.mode == LOCKSTEP:
+            self._cursor = GridCursor(self.last_k)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
+            self.start_when(lambda: [] if self.pub_d.matched() else [f"a subscriber of {self.pub_d.resolved_name}"], lambda: self._publish_through(1))
         else:
             self._t0_ns: int | None = None
             self.create_timer(self.dt, self._on_timer)
@@ -146,13 +150,12 @@ class InjectorNode(ProjectNode):
         self.pub_d.publish(torque_msg(d, stamp, DISTURBANCE_TORQUE))
 
     def _on_clock(self, msg: Any) -> None:
-        k = round(stamp_to_ns(msg.clock) / 1e9 / self.dt)
-        if k == 0:
-            self._publish_disturbance(0.0, msg.clock)
-        if self.last_k is not None and k + 1 > self.last_k:
-            return
-        t_next = (k + 1) * self.dt  # one sample ahead, on the plant's grid (k dt, as sample_times)
-        self._publish_disturbance(t_next, time_to_stamp(t_next))
+        self._publish_through(round(stamp_to_ns(msg.clock) / 1e9 / self.dt) + 1)  # one sample ahead
+
+    def _publish_through(self, k: int) -> None:
+        for j in self._cursor.through(k):
+            t = j * self.dt  # on the plant's grid (k dt, as sample_times)
+            self._publish_disturbance(t, time_to_stamp(t))
 
     def _on_timer(self) -> None:
         now = self.get_clock().now()

@@ -8,7 +8,10 @@ with the plant core (:class:`~spacecraft_sim.core.dynamics.RigidBody`, RK4, zero
 Modes (parameter ``mode``):
 
 ``lockstep`` (default)
-    The plant owns time.  For sample ``k`` it publishes ``/clock`` = ``t_k = k dt``, then the
+    The plant owns time.  It publishes nothing before its partners are there: a publisher of the
+    torque (the controller) and of the disturbance when it uses one, its expected subscribers,
+    and every ``/clock`` subscriber on the graph matched, so a plant and a controller started
+    in any order by hand lose no sample to discovery.  For sample ``k`` it publishes ``/clock`` = ``t_k = k dt``, then the
     state stamped ``t_k``; it waits for the torque (and disturbance) stamped ``t_k`` (inputs that
     arrive ahead of their sample are kept until it comes), then
     integrates over ``[t_k, t_k+1]``.  This is the offline runner's timing
@@ -47,7 +50,7 @@ import numpy as np
 
 from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, qos_profile
 from sappc_msgs_py.convert import clock_msg, quaternion_msg, stamp_to_ns, time_to_stamp, torque_from_msg, vector3_msg
-from sappc_msgs_py.runtime import LOCKSTEP, REALTIME, ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, MATCH_TIMEOUT_S, REALTIME, ProjectNode, run_node
 
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
 from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
@@ -84,9 +87,9 @@ class PlantNode(ProjectNode):
         self.pub_att = self.counting_publisher(STATE_ATTITUDE, 1)
         self.pub_rate = self.counting_publisher(STATE_RATE, 1)
         self.pub_clock = self.counting_publisher(CLOCK) if self.mode == LOCKSTEP else None
-        self.create_subscription(CONTROL_TORQUE.msg_class, CONTROL_TORQUE.name, self._on_torque, qos)
+        self._inputs = {"torque": self.create_subscription(CONTROL_TORQUE.msg_class, CONTROL_TORQUE.name, self._on_torque, qos)}
         if self.use_disturbance:
-            self.create_subscription(DISTURBANCE_TORQUE.msg_class, DISTURBANCE_TORQUE.name, self._on_disturbance, qos)
+            self._inputs["disturbance"] = self.create_subscription(DISTURBANCE_TORQUE.msg_class, DISTURBANCE_TORQUE.name, self._on_disturbance, qos)
 
         self.torque = np.zeros((1, 3))
         self.disturbance = np.zeros((1, 3))
@@ -101,7 +104,8 @@ class PlantNode(ProjectNode):
         self._waiting_since = 0.0
         if self.mode == LOCKSTEP:
             self._watchdog = self.create_timer(min(0.05, self.timeout_s / 4), self._check_timeout)
-            self._start_timer = self.create_timer(0.0, self._start_lockstep)
+            self._created = time.monotonic()
+            self.start_when(self._not_ready, self._publish_sample)
         else:
             self._t0_ns: int | None = None
             self.create_timer(self.dt, self._realtime_tick)
@@ -146,9 +150,27 @@ class PlantNode(ProjectNode):
         self._advance()
 
     # ---- lockstep -------------------------------------------------------------------------
-    def _start_lockstep(self) -> None:
-        self._start_timer.cancel()
-        self._publish_sample()
+    def _not_ready(self) -> list[str]:
+        """Lockstep: what the first sample still waits for (empty: ready).
+
+        A sample published before the controller is there is lost (the topics are volatile) and
+        the loop stalls for ``lockstep_timeout_s``.  So the plant waits for a publisher of each of
+        its inputs (the controller's torque, the injector's disturbance), its expected
+        subscribers, and, for at most :data:`~sappc_msgs_py.runtime.MATCH_TIMEOUT_S`, for every
+        ``/clock`` subscriber on the graph to be matched (a node that subscribes with an
+        incompatible QoS is never matched: the plant then starts without it, and says so).
+        """
+        missing = [f"a publisher of {sub.topic_name}" for sub in self._inputs.values() if sub.get_publisher_count() < 1]
+        missing += [f"{p.min_subscribers} subscriber(s) of {p.resolved_name}" for p in (self.pub_att, self.pub_rate, self.pub_clock) if p and not p.matched()]
+        assert self.pub_clock is not None
+        on_graph, matched = self.count_subscribers(self.pub_clock.resolved_name), self.pub_clock.pub.get_subscription_count()
+        if not missing and matched < on_graph:
+            if time.monotonic() - self._created < MATCH_TIMEOUT_S:
+                missing.append(f"{on_graph - matched} of the {on_graph} {self.pub_clock.resolved_name} subscribers on the graph to match")
+            else:
+                self.get_logger().warning(f"{on_graph - matched} {self.pub_clock.resolved_name} subscriber(s) on the graph never matched "
+                                          f"(an incompatible QoS?); starting without them")
+        return missing
 
     def _publish_sample(self) -> None:
         t = self.k * self.dt  # the grid of spacecraft_sim.core.reference.sample_times

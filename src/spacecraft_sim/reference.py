@@ -5,10 +5,12 @@ Publishes ``reference/attitude``, ``reference/rate`` and ``reference/acceleratio
 sampled on the grid ``k dt``, ``k = 0 .. duration_s / dt``, exactly as the offline runner samples
 it (the attitude is integrated once over the whole grid).
 
-``lockstep``: on each ``/clock`` tick ``t_k`` of the grid it publishes sample ``k + 1`` (and, at
-``t_0``, sample 0 first), stamped ``t_k+1``: the trajectory is known in advance, so publishing
-one sample ahead takes the reference off the loop's critical path; the controller pairs it with
-the state of the same stamp.  ``realtime``: a
+``lockstep``: samples 0 and 1 as soon as its subscribers are matched, then on each ``/clock``
+tick ``t_k`` of the grid sample ``k + 1`` (and any earlier one a missed tick left out:
+:class:`~sappc_msgs_py.runtime.GridCursor`), each stamped with its grid time: the trajectory is
+known in advance, so publishing one sample ahead takes the reference off the loop's critical
+path, and the first samples do not depend on the plant's first tick reaching this node; the
+controller pairs each with the state of the same stamp.  ``realtime``: a
 wall-clock timer of period ``dt`` publishes the sample of the time elapsed since its first tick,
 stamped with the node's clock.
 
@@ -25,7 +27,7 @@ from typing import Any
 
 from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, qos_profile
 from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, vector3_msg
-from sappc_msgs_py.runtime import LOCKSTEP, ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, GridCursor, ProjectNode, run_node
 
 from spacecraft_sim.core.reference import PaperReference, sample_times
 from gnc_common.validation import check_positive
@@ -52,7 +54,9 @@ class ReferenceNode(ProjectNode):
         self._index = {stamp_to_ns(st): k for k, st in enumerate(self._stamps)}
         self.pubs = [self.counting_publisher(t, 1) for t in (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)]
         if self.mode == LOCKSTEP:
+            self._cursor = GridCursor(self.samples.t.size - 1)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile())
+            self.start_when(lambda: [f"a subscriber of {p.resolved_name}" for p in self.pubs if not p.matched()], lambda: self._publish_through(1))
         else:
             self._t0_ns: int | None = None
             self.create_timer(self.dt, self._on_timer)
@@ -69,10 +73,11 @@ class ReferenceNode(ProjectNode):
         if k is None:
             self.get_logger().warning(f"/clock {ns / 1e9:.9f} s is not on the reference grid (dt = {self.dt} s, n = {len(self._index)}); nothing published")
             return
-        if k == 0:
-            self._publish(0, msg.clock)
-        if k + 1 < self.samples.t.size:  # one sample ahead: never on the loop's critical path
-            self._publish(k + 1, self._stamps[k + 1])
+        self._publish_through(k + 1)  # one sample ahead: never on the loop's critical path
+
+    def _publish_through(self, k: int) -> None:
+        for j in self._cursor.through(k):
+            self._publish(j, self._stamps[j])
 
     def _on_timer(self) -> None:
         now = self.get_clock().now()

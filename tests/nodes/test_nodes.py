@@ -607,3 +607,83 @@ def test_each_stamp_is_answered_once_and_diagnostics_carry_the_input_stamps(cont
     assert drv.diags[1]["time_s"].tolist() == [0.01, 0.01, 0.01]
     assert drv.diags[1]["input_stamps_state_s"].tolist() == [0.01, 0.01, 0.0]
     assert drv.diags[1]["input_stamps_reference_s"].tolist() == [0.01, 0.01, 0.01]
+
+
+def test_grid_cursor_owes_each_sample_once_up_to_the_grid_end() -> None:
+    from sappc_msgs_py.runtime import GridCursor
+
+    cursor = GridCursor(last=5)
+    assert list(cursor.through(1)) == [0, 1]  # the start: samples 0 and 1, before any tick
+    assert list(cursor.through(1)) == []  # tick 0: nothing owed
+    assert list(cursor.through(4)) == [2, 3, 4]  # tick 3 after missed ticks 1 and 2: made up
+    assert list(cursor.through(2)) == []  # an old tick publishes nothing again
+    assert list(cursor.through(9)) == [5]  # capped at the grid's last sample
+    assert list(GridCursor(None).through(2)) == [0, 1, 2]
+
+
+def test_reference_publishes_its_first_samples_before_any_clock_and_makes_up_missed_ticks(ros_context) -> None:  # type: ignore[no-untyped-def]
+    """The plant's first /clock tick may be sent before the reference's subscription is matched
+    (it used to cost the first two samples 2 s each); samples 0 and 1 therefore go out as soon as
+    the controller is matched, and a later tick publishes every sample a missed tick left out."""
+    from spacecraft_sim.reference import ReferenceNode
+
+    ref = ReferenceNode(context=ros_context, parameter_overrides=[Parameter("duration_s", value=0.05)])
+    node = Node("probe", context=ros_context)
+    qos = c.qos_profile()
+    got: dict[str, list[int]] = {t.name: [] for t in (c.REFERENCE_ATTITUDE, c.REFERENCE_RATE, c.REFERENCE_ACCELERATION)}
+    for t in (c.REFERENCE_ATTITUDE, c.REFERENCE_RATE, c.REFERENCE_ACCELERATION):
+        node.create_subscription(t.msg_class, t.name, lambda m, name=t.name: got[name].append(stamp_to_ns(m.header.stamp)), qos)
+    clock = node.create_publisher(c.CLOCK.msg_class, c.CLOCK.name, qos)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(ref)
+    ex.add_node(node)
+
+    def spin_until(condition, what: str) -> None:  # type: ignore[no-untyped-def]
+        deadline = time.monotonic() + DEADLINE_S
+        while not condition():
+            assert time.monotonic() < deadline, f"timed out waiting for {what}: {got}"
+            ex.spin_once(timeout_sec=0.02)
+
+    ms = 1_000_000
+    spin_until(lambda: all(len(v) == 2 for v in got.values()), "samples 0 and 1 without a /clock")
+    assert all(v == [0, 10 * ms] for v in got.values())
+    spin_until(lambda: clock.get_subscription_count() >= 1, "the reference's /clock subscription")
+    clock.publish(clock_msg(0.03))  # ticks 0.01 and 0.02 missed: samples 2, 3 and 4 owed
+    spin_until(lambda: all(len(v) == 5 for v in got.values()), "the samples the missed ticks left out")
+    clock.publish(clock_msg(0.05))  # the last tick: sample 5, nothing beyond the grid
+    spin_until(lambda: all(len(v) == 6 for v in got.values()), "the last sample")
+    assert all(v == [k * 10 * ms for k in range(6)] for v in got.values())
+    ex.shutdown()
+    ref.destroy_node()
+    node.destroy_node()
+
+
+def test_plant_publishes_its_first_sample_only_once_a_controller_is_there(ros_context) -> None:  # type: ignore[no-untyped-def]
+    """State subscribers alone (a recorder, a viewer) do not start the lockstep loop: a sample
+    published before the controller's torque publisher exists would be answered by no one."""
+    from spacecraft_sim.plant_node import PlantNode
+
+    plant = PlantNode(context=ros_context, parameter_overrides=[Parameter("duration_s", value=0.02), Parameter("q_BN0", value=list(Q0))])
+    node = Node("viewer", context=ros_context)
+    qos = c.qos_profile()
+    states: list[int] = []
+    node.create_subscription(c.STATE_ATTITUDE.msg_class, c.STATE_ATTITUDE.name, lambda m: states.append(stamp_to_ns(m.header.stamp)), qos)
+    node.create_subscription(c.STATE_RATE.msg_class, c.STATE_RATE.name, lambda m: None, qos)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(plant)
+    ex.add_node(node)
+    deadline = time.monotonic() + DEADLINE_S
+    while not (plant.pub_att.matched() and plant.pub_rate.matched()):
+        assert time.monotonic() < deadline, "the viewer's subscriptions were not matched"
+        ex.spin_once(timeout_sec=0.02)
+    for _ in range(20):  # 20 start checks (START_CHECK_S each) with everything but a controller
+        ex.spin_once(timeout_sec=0.02)
+    assert states == [] and plant._not_ready() == ["a publisher of /control/torque"]
+    pub = node.create_publisher(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, qos)
+    while not states:
+        assert time.monotonic() < deadline, "the plant did not start once a controller was there"
+        ex.spin_once(timeout_sec=0.02)
+    assert states == [0] and pub.get_subscription_count() == 1
+    ex.shutdown()
+    plant.destroy_node()
+    node.destroy_node()
