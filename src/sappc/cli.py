@@ -3,7 +3,7 @@
     sappc simulate SCENARIO.yaml [--controller sappc|trappc|blfppc] [--json FILE] [--plots DIR]
     sappc simulate --from-campaign DIR --run K [--json FILE] [--plots DIR]
     sappc montecarlo SCENARIO.yaml --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
-    sappc run SCENARIO.yaml [--out DIR] [--realtime] [--compose] [--controller K] [--json FILE] [--domain-id N]
+    sappc run SCENARIO.yaml [--out DIR] [--realtime] [--compose] [--plant native|external] [--controller K] [--json FILE] [--domain-id N]
     sappc params SCENARIO.yaml [--controller K]
     sappc report BAG [--json FILE] [--out DIR] [--scenario FILE]
     sappc compare BAG... [--out DIR] [--json FILE]
@@ -170,7 +170,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     try:
         result = run_graph(args.scenario, out_dir=args.out, controller=args.controller, realtime=args.realtime, domain_id=args.domain_id,
-                           compose=args.compose)
+                           compose=args.compose, plant=args.plant)
     except RuntimeError as exc:
         print(f"sappc run: failed: {exc}", file=sys.stderr)
         return 1
@@ -181,7 +181,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     metrics = bag_metrics(bag, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold, t2_s=ms.t2_s,
                           fault_windows=scenario.event_windows(), run=run)
     metrics["wall_time_s"] = result.run_s
-    metrics["startup_s"] = result.startup_s
+    if result.startup_s is not None:  # from the plant's own timing: none with an external plant
+        metrics["startup_s"] = result.startup_s
     _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph{' (composed)' if args.compose else ''}", metrics)
     mismatched = result.mismatched_counts()
     node_counts: dict[str, Any] = {k: result.controller_timing[k] for k in ("refused_steps", "rejected_by_reason") if k in result.controller_timing}
@@ -352,6 +353,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="every node in one process on one executor (faster; the same topics, parameters, bag and metrics)")
     run.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
                      help="controller to run (default: the scenario's 'controller' key)")
+    run.add_argument("--plant", choices=["native", "external"], default="native",  # sappc.graph.launch.PLANTS (not imported to build the parser)
+                     help="native: the bundled rigid body; external: start everything but the plant and record a run driven by "
+                          "a plant you start yourself on the printed domain (it ends once the last sample's torque is recorded)")
     run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON")
     run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: the first free one, claimed with a lock file)")
     run.set_defaults(func=_cmd_run)

@@ -51,6 +51,12 @@ STOP_TIMEOUT_S = 15.0
 DOMAIN_IDS = range(1, 102)
 #: The nodes of a run, in start order (the plant starts last: it owns time).
 NODES = ("recorder", "controller", "reference", "injector", "plant")
+#: Plants of ``sappc run --plant``: the bundled rigid body (``python -m spacecraft_sim``), or the
+#: user's own, started separately (every node but the plant is started; the run ends once the
+#: torque of the scenario's last sample is recorded, or on Ctrl-C).
+PLANTS = ("native", "external")
+#: The file the recorder writes when an external plant's run has reached its end (in the run directory).
+END_FILE = "end_reached"
 
 
 def fastdds_profile() -> Path:
@@ -99,8 +105,13 @@ def isolated_environment(domain_id: int, log_dir: Path, base: dict[str, str] | N
     return env
 
 
-def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool, paths: dict[str, str]) -> dict[str, Any]:
+def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool, paths: dict[str, str], external_plant: bool = False) -> dict[str, Any]:
     """The ROS parameters of every node of a run (``{"/node": {"ros__parameters": {...}}}``).
+
+    ``external_plant``: the plant is the user's (:data:`PLANTS`), started separately: the
+    recorder writes ``paths["end"]`` once the torque of the last sample is recorded, and the
+    injector does not wait for a plant to subscribe to the disturbance (a plant of the user's
+    own may not apply it).
 
     ``paths`` holds ``scenario`` (the schedule file of the injector), ``bag`` (the recorder's
     output), ``counts`` (the directory of the counts files) and ``params`` (this file, recorded
@@ -155,7 +166,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "schedule_file": paths["scenario"],
         "duration_s": scenario.duration_s,
         **common,
-        "expected_subscribers": expected(disturbance__torque=2) + [f"{faulty(t).name}=2" for topics in relayed for t in topics],
+        "expected_subscribers": expected(disturbance__torque=1 if external_plant else 2) + [f"{faulty(t).name}=2" for topics in relayed for t in topics],
         "counts_file": counts_file("injector"),
     }
     recorder = {
@@ -163,6 +174,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "output_dir": paths["bag"],
         "metadata_files": [paths["scenario"], paths["params"]],
         "counts_file": counts_file("recorder"),
+        **({"end_after_s": scenario.duration_s, "end_file": paths["end"]} if external_plant else {}),
     }
     return {f"/{name}": {"ros__parameters": p} for name, p in
             (("controller", controller), ("plant", plant), ("reference", reference), ("injector", injector), ("recorder", recorder))}
@@ -201,7 +213,7 @@ class GraphResult:
     bag_dir: Path
     published: dict[str, int]
     recorded: dict[str, int]
-    startup_s: float  # from the launch to the plant's first sample [s]: processes, imports, discovery, matching
+    startup_s: float | None  # from the launch to the plant's first sample [s]: processes, imports, discovery, matching (None: an external plant)
     run_s: float
     exit_codes: dict[str, int]
     controller_timing: dict[str, Any] = field(default_factory=dict)  # the controller node's timing file
@@ -283,11 +295,14 @@ def run_graph(
     timeout_s: float | None = None,
     progress: bool = True,
     compose: bool = False,
+    plant: str = "native",
 ) -> GraphResult:
     """Run ``scenario_path`` through the node graph; see the module docstring.
 
     ``compose``: every node in one process on one executor (:mod:`sappc.graph.container`)
     instead of one process per node; the same parameters, topics, bag and metrics.
+    ``plant``: one of :data:`PLANTS`; with ``"external"`` no time limit applies unless
+    ``timeout_s`` is given (the user's plant may start whenever it is ready).
 
     Raises
     ------
@@ -300,15 +315,18 @@ def run_graph(
         old_term = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
         try:
             return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
-                              timeout_s=timeout_s, progress=progress, compose=compose)
+                              timeout_s=timeout_s, progress=progress, compose=compose, plant=plant)
         finally:
             signal.signal(signal.SIGTERM, old_term)
     return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
-                      timeout_s=timeout_s, progress=progress, compose=compose)
+                      timeout_s=timeout_s, progress=progress, compose=compose, plant=plant)
 
 
 def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, controller: str | None, realtime: bool,
-               domain_id: int | None, timeout_s: float | None, progress: bool, compose: bool) -> GraphResult:
+               domain_id: int | None, timeout_s: float | None, progress: bool, compose: bool, plant: str) -> GraphResult:
+    if plant not in PLANTS:
+        raise ConfigError(f"plant must be one of {list(PLANTS)}, got {plant!r}")
+    external = plant == "external"
     scenario = load_scenario(scenario_path)
     kind = scenario.resolve_controller(controller)
     scenario.controller_config(kind)  # validate before any process starts
@@ -328,11 +346,12 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
     params_path = run_dir / "params.yaml"
     bag_dir = run_dir / "bag"
     # relative to the run directory, the nodes' working directory (node_parameters)
-    paths = {"scenario": scenario_copy.name, "bag": bag_dir.name, "counts": "counts", "params": params_path.name}
-    params = node_parameters(scenario, kind, realtime=realtime, paths=paths)
+    paths = {"scenario": scenario_copy.name, "bag": bag_dir.name, "counts": "counts", "params": params_path.name, "end": END_FILE}
+    params = node_parameters(scenario, kind, realtime=realtime, paths=paths, external_plant=external)
     params_path.write_text(yaml.safe_dump(params, sort_keys=False))
     remaps = _remaps(scenario)
-    limit = timeout_s if timeout_s is not None else (60.0 + (2.0 if realtime else 1.0) * scenario.duration_s)
+    limit = timeout_s if timeout_s is not None else (float("inf") if external else 60.0 + (2.0 if realtime else 1.0) * scenario.duration_s)
+    nodes = [n for n in NODES if not (external and n == "plant")]
 
     def say(msg: str) -> None:
         if progress:
@@ -344,33 +363,42 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         killed_any = False
         exit_codes: dict[str, int] = {}
         start = time.monotonic()
-        node_args = {name: ["--ros-args", "-r", f"__node:={name}", "--params-file", params_path.name, *remaps[name]] for name in NODES}
+        node_args = {name: ["--ros-args", "-r", f"__node:={name}", "--params-file", params_path.name, *remaps[name]] for name in nodes}
         if compose:  # one process: it ends by itself when the plant finishes, the nodes stopping in STOP_ORDER
             composition = run_dir / "composition.json"
-            composition.write_text(json.dumps([{"name": name, "args": node_args[name]} for name in NODES], indent=1))
+            composition.write_text(json.dumps([{"name": name, "args": node_args[name]} for name in nodes], indent=1))
             commands = {"composed": [sys.executable, "-m", "sappc.graph.container", str(composition)]}
             lead, stop_order = "composed", ["composed"]
         else:
-            commands = {name: [sys.executable, "-m", NODE_CLASSES[name][0], *node_args[name]] for name in NODES}
-            lead, stop_order = "plant", list(STOP_ORDER)
+            commands = {name: [sys.executable, "-m", NODE_CLASSES[name][0], *node_args[name]] for name in nodes}
+            lead, stop_order = "plant", [n for n in STOP_ORDER if n in nodes]
+        end_file = run_dir / END_FILE
+
+        def ended() -> bool:
+            """The plant finished (it exits), or the recorder saw an external plant's last sample."""
+            return end_file.exists() if external else procs[lead].proc.poll() is not None
+
         try:
             for name, cmd in commands.items():
                 with _interrupts_deferred("starting the nodes"):  # a started process is always in procs, to be stopped
                     procs[name] = _Process(name, cmd, env, run_dir / "logs" / f"{name}.log", cwd=run_dir)
             say(f"sappc run: {scenario.name} with {kind.value} ({'real time' if realtime else 'lockstep'}"
                 f"{', composed' if compose else ''}), domain {domain}, in {run_dir}")
-            first = procs[lead]
+            if external:
+                say(f"sappc run: waiting for your plant on ROS_DOMAIN_ID={domain} (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST): it publishes "
+                    f"{'/clock, ' if not realtime else ''}state/attitude and state/rate and applies control/torque; the run ends once the "
+                    f"torque of t = {scenario.duration_s:g} s is recorded, or on Ctrl-C")
             deadline = start + limit
-            while first.proc.poll() is None:
+            while not ended():
                 for name, p in procs.items():
-                    if p.proc.poll() is not None and name != lead:
+                    if p.proc.poll() is not None and (external or name != lead):
                         raise RuntimeError(f"node {name} exited early with status {p.proc.returncode}; last log lines:\n{p.tail()}")
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"the run did not finish within {limit:.0f} s (see {run_dir / 'logs'})")
                 time.sleep(0.05)
             run_end = time.monotonic()
-            if first.proc.returncode != 0:
-                raise RuntimeError(f"the {lead} process failed with status {first.proc.returncode}; last log lines:\n{first.tail()}")
+            if not external and procs[lead].proc.returncode != 0:
+                raise RuntimeError(f"the {lead} process failed with status {procs[lead].proc.returncode}; last log lines:\n{procs[lead].tail()}")
         finally:
             # publishers first (they wait for acknowledgements), the recorder last (it drains); a
             # further Ctrl-C cannot cut this short and leave a node running
@@ -398,7 +426,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
     total = run_end - start
     run_s = float(timing.get("run_s", total))  # the plant's first sample to its last
     first_sample = timing.get("first_sample_monotonic_s")  # CLOCK_MONOTONIC is one clock for every process
-    startup_s = float(first_sample) - start if first_sample is not None else total - run_s
+    startup_s = float(first_sample) - start if first_sample is not None else (None if external else total - run_s)
     return GraphResult(
         scenario=scenario,
         controller=kind,

@@ -33,8 +33,15 @@ Time (parameter ``mode``):
     The bag is on wall time: ``log_time`` is when the message was taken from the queue, in that
     order.
 
+The end of a run driven by a plant the recorder does not know (``sappc run --plant external``):
+with ``end_after_s`` > 0, once it has recorded a ``control/torque`` stamped ``end_after_s`` or more
+after the first one (lockstep: the torque of the scenario's last sample), the recorder writes
+``end_file`` (and goes on recording until it is stopped, so what is published after it, the last
+sample's diagnostics included, is still recorded).
+
 Parameters: ``output_dir`` (required, must not exist), ``topics`` (names; default every topic of
-the contract and the fault relays' outputs), ``metadata_files``, ``mode``, and those of
+the contract and the fault relays' outputs), ``metadata_files``, ``mode``, ``end_after_s`` [s] and
+``end_file`` (see above; 0 and "": none), and those of
 :class:`~sappc_msgs_py.runtime.ProjectNode` (``counts_file`` receives the messages recorded per topic).
 """
 
@@ -52,6 +59,7 @@ from mcap.writer import CompressionType, Writer
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from sappc_msgs_py.contract import (
+    CONTROL_TORQUE,
     FAULT_TOPICS,
     TOPICS,
 )
@@ -59,7 +67,7 @@ from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, sort_by_log_time, wr
 from sappc_msgs_py.convert import cdr_stamp_ns
 from sappc_msgs_py.runtime import LOCKSTEP, ProjectNode, run_node
 from sappc_msgs_py.schemas import schema_text, type_hash
-from gnc_common.validation import ConfigError
+from gnc_common.validation import ConfigError, check_positive
 
 __all__ = ["DEFAULT_TOPICS", "RecorderNode", "main"]
 
@@ -78,6 +86,9 @@ RECORDER_LIBRARY = "sappc recorder (mcap-python)"
 CHUNK_SIZE = 256 * 1024
 
 #: Every topic of the contract and of the fault relays.
+#: Tolerance of the end check [ns]: a grid time in float seconds and its nanosecond stamp differ
+#: by less than 1 ns (rounding), and 1 us is far below any control period.
+END_TOLERANCE_NS = 1000
 DEFAULT_TOPICS = tuple(t.name for t in TOPICS + FAULT_TOPICS)
 _KNOWN = {t.name: t for t in TOPICS + FAULT_TOPICS}
 
@@ -136,6 +147,10 @@ class RecorderNode(ProjectNode):
         self.end_ns = 0
         self._last_message = time.monotonic()
         self.sim_time = self.mode_param() == LOCKSTEP
+        self._end_after_ns = int(round(check_positive("end_after_s", self.param("end_after_s", 0.0), allow_zero=True) * 1e9))
+        self._end_file = str(self.param("end_file", ""))
+        self._first_torque_ns: int | None = None
+        self.end_reached = False
         self._write_metadata()
         self.writer.flush()
         self.create_timer(FLUSH_PERIOD_S, self.writer.flush)
@@ -150,6 +165,18 @@ class RecorderNode(ProjectNode):
         resolved = self._resolved[name]
         self.counts[resolved] += 1
         self.writer.add_message(self._channels[name], log_time=log_ns, data=data, publish_time=log_ns, sequence=self.counts[resolved])
+        if self._end_after_ns and name == CONTROL_TORQUE.name and not self.end_reached:
+            self._check_end(log_ns if self.sim_time else cdr_stamp_ns(self._types[name], data))
+
+    def _check_end(self, torque_ns: int) -> None:
+        """``end_file`` once the recorded torques span ``end_after_s`` (module docstring)."""
+        if self._first_torque_ns is None:
+            self._first_torque_ns = torque_ns
+        if torque_ns - self._first_torque_ns >= self._end_after_ns - END_TOLERANCE_NS:
+            self.end_reached = True
+            if self._end_file:
+                Path(self._end_file).write_text(f"{torque_ns}\n")
+            self.get_logger().info(f"the torque of t = {torque_ns / 1e9:.3f} s is recorded: the run has reached end_after_s")
 
     def _write_metadata(self) -> None:
         write_bag_metadata(self.dir, bag_metadata(self.mcap_name, self.topics, self.counts, self.start_ns or 0, self.end_ns, self.custom))
