@@ -48,7 +48,6 @@ non-finite torque; the node then publishes zero, counts the refused step and say
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import sys
 import time
@@ -58,7 +57,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 
 from sappc_msgs_py.contract import (
     ANSWER_COMMANDED,
@@ -79,7 +78,8 @@ from sappc_msgs_py.convert import (
     torque_msg,
     vector3_from_msg,
 )
-from sappc_msgs_py.runtime import LOCKSTEP, REALTIME, ProjectNode, run_node
+from sappc_msgs_py.parameters import Param
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, ProjectNode, run_node
 from gnc_common.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 
 from sappc_controller.core.base import AttitudeController
@@ -93,11 +93,10 @@ from sappc_controller.params import (
     WATCHDOG_RANGE_S,
     check_watchdog_seconds,
     config_from_parameters,
-    config_parameter_names,
-    parameter_range,
+    config_parameters,
 )
 
-__all__ = ["ControllerNode", "main"]
+__all__ = ["ControllerNode", "PARAMETERS", "main"]
 
 #: The five inputs of one control step, by topic (paired by :mod:`sappc_controller.inputs`).
 _INPUTS = INPUT_TOPICS
@@ -115,22 +114,23 @@ _WATCHDOG_PARAMS = ("stale_timeout_s", "max_stamp_ahead_s", "lockstep_grace_s")
 _GRACE_CHECK_S = 0.05
 
 
-def _watchdog_descriptor(description: str) -> ParameterDescriptor:
-    """A descriptor with the watchdog range (shown by parameter tools, enforced by rclpy)."""
-    lo, hi = WATCHDOG_RANGE_S
-    return ParameterDescriptor(description=description, floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi, step=0.0)])
-
-
-def _config_descriptor(name: str, default: Any) -> ParameterDescriptor:
-    """A controller parameter's descriptor, with its range (:func:`~sappc_controller.params.parameter_range`:
-    shown by ``ros2 param describe`` and Foxglove, enforced by rclpy on a double or integer value)."""
-    bounds = parameter_range(name, default)
-    descriptor = ParameterDescriptor(dynamic_typing=True, description=f"controller parameter {name} (see sappc_controller.params)")
-    if bounds is not None and isinstance(bounds[0], int):
-        descriptor.integer_range = [IntegerRange(from_value=int(bounds[0]), to_value=int(bounds[1]), step=1)]
-    elif bounds is not None:
-        descriptor.floating_point_range = [FloatingPointRange(from_value=float(bounds[0]), to_value=float(bounds[1]), step=0.0)]
-    return descriptor
+#: The controller node's own parameters (``--help``; those of the law, :func:`~sappc_controller.params.config_parameters`,
+#: follow ``controller``), in the order the node declares them.
+PARAMETERS = (
+    Param("controller", "sappc", "the law: SAPPC, or one of the paper's benchmarks", choices=tuple(CONTROLLER_CLASSES)),
+    Param("control_period_s", DEFAULT_CONTROL_PERIOD_S, "control period dt: the law's step (and the real-time timer's period)", "s",
+          check="> 0"),
+    MODE,
+    Param("stale_timeout_s", DEFAULT_STALE_TIMEOUT_S, "zero torque when no valid state is newer than this at a control instant", "s",
+          range=WATCHDOG_RANGE_S, read_only=False),
+    Param("max_stamp_ahead_s", DEFAULT_MAX_STAMP_AHEAD_S, "inputs stamped further ahead of the controller's time are rejected", "s",
+          range=WATCHDOG_RANGE_S, read_only=False),
+    Param("lockstep_grace_s", DEFAULT_LOCKSTEP_GRACE_S, "lockstep: wall time a /clock tick waits for an input that never arrives "
+          "before it is answered", "s", range=WATCHDOG_RANGE_S, read_only=False),
+    Param("timing_file", "", "where to write the node's statistics when it finishes (JSON: steps, refused, rejected by reason; real "
+          "time: the timer's period error); '' for none"),
+)
+_P = {p.name: p for p in PARAMETERS}
 
 
 def _seconds_to_ns(name: str, value: Any) -> int:
@@ -145,24 +145,29 @@ _ZERO3 = np.zeros(3)
 class ControllerNode(ProjectNode):
     """See the module docstring."""
 
+    PARAMETERS = PARAMETERS
+    COMMAND = "python -m sappc_controller"
+
+    @classmethod
+    def parameter_sections(cls) -> list[tuple[str, tuple[Param, ...]]]:
+        laws = [(f"parameters of the {kind} law (controller: {kind}; runtime-changeable gains and limits are applied at the next step)",
+                 config_parameters(kind)) for kind in CONTROLLER_CLASSES]
+        return [("parameters", cls.PARAMETERS), *laws, *super().parameter_sections()[1:]]
+
     def __init__(self, node_name: str = "controller", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.kind = str(self.param("controller", "sappc", ParameterDescriptor(read_only=True)))
-        if self.kind not in CONTROLLER_CLASSES:
-            raise ConfigError(f"controller must be one of {sorted(CONTROLLER_CLASSES)}, got {self.kind!r}")
-        self._config_names = [name for name, _ in config_parameter_names(self.kind)]
-        for name, default in config_parameter_names(self.kind):
-            self.declare_parameter(name, None if default is dataclasses.MISSING else default, _config_descriptor(name, default))
+        self.kind = str(self.param(_P["controller"]))
+        declared = config_parameters(self.kind)
+        self._config_names = [p.name for p in declared]
+        for p in declared:
+            self.param(p)
         config = config_from_parameters(self.kind, self._config_values())
         self.controller: AttitudeController = CONTROLLER_CLASSES[self.kind](config)
-        self.dt = check_positive("control_period_s", self.param("control_period_s", DEFAULT_CONTROL_PERIOD_S, ParameterDescriptor(read_only=True)))
-        self.mode = self.mode_param(ParameterDescriptor(read_only=True))
-        self.stale_timeout_ns = _seconds_to_ns("stale_timeout_s", self.param("stale_timeout_s", DEFAULT_STALE_TIMEOUT_S, _watchdog_descriptor(
-            "[s] zero torque when no valid state is newer than this at a control instant")))
-        self.max_ahead_ns = _seconds_to_ns("max_stamp_ahead_s", self.param("max_stamp_ahead_s", DEFAULT_MAX_STAMP_AHEAD_S, _watchdog_descriptor(
-            "[s] inputs stamped further ahead of the controller's time are rejected")))
-        self.grace_ns = _seconds_to_ns("lockstep_grace_s", self.param("lockstep_grace_s", DEFAULT_LOCKSTEP_GRACE_S, _watchdog_descriptor(
-            "[s] lockstep: wall time a /clock tick waits for an input that never arrives before it is answered")))
+        self.dt = check_positive("control_period_s", self.param(_P["control_period_s"]))
+        self.mode = self.mode_param()
+        self.stale_timeout_ns = _seconds_to_ns("stale_timeout_s", self.param(_P["stale_timeout_s"]))
+        self.max_ahead_ns = _seconds_to_ns("max_stamp_ahead_s", self.param(_P["max_stamp_ahead_s"]))
+        self.grace_ns = _seconds_to_ns("lockstep_grace_s", self.param(_P["lockstep_grace_s"]))
 
         # load the compiled step now (cache load ~1 s), not at the first sample, which the plant
         # waits for at most lockstep_timeout_s: a step at rest, then forget it
@@ -191,7 +196,7 @@ class ControllerNode(ProjectNode):
             self.create_timer(_GRACE_CHECK_S, self._check_grace)
         else:
             self.create_timer(self.dt, self._on_timer)
-        self.timing_file = str(self.param("timing_file", ""))
+        self.timing_file = str(self.param(_P["timing_file"]))
         self._tick_wall_ns: list[int] = []  # real time: wall time of every timer tick
         self._check_unknown_overrides()  # after every declaration
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -399,7 +404,7 @@ class ControllerNode(ProjectNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the controller node until stopped."""
-    return run_node(lambda args: ControllerNode(), argv)
+    return run_node(lambda args: ControllerNode(), argv, ControllerNode)
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ import numpy as np
 import yaml
 
 from gnc_common.validation import ConfigError, check_positive, from_mapping
+from sappc_msgs_py.parameters import REQUIRED, Param, field_docs, unit_of
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.blfppc import BlfppcConfig, BlfppcController
@@ -46,6 +47,7 @@ __all__ = [
     "CONTROLLER_CLASSES",
     "config_from_parameters",
     "config_parameter_names",
+    "config_parameters",
     "controller_from_parameters_file",
     "parameters_from_config",
     "parameters_from_yaml",
@@ -113,6 +115,43 @@ def config_parameter_names(kind: str) -> list[tuple[str, Any]]:
     cls = _config_class(kind)
     names = [(n, d) for n, d in _leaves(cls, kind) if n.split(".")[1] not in _SHARED]
     return [("inertia_kg_m2", dataclasses.MISSING)] + [(f"actuator.{n}", d) for n, d in _leaves(ActuatorConfig, "")] + names
+
+
+def _leaf_docs(cls: type, prefix: str) -> dict[str, tuple[str, str]]:
+    """(description, ROS type) of every leaf field of config class ``cls``, by dotted name, from
+    the ``Attributes`` sections of the dataclasses' docstrings and their type hints."""
+    hints = typing.get_type_hints(cls)
+    docs = field_docs(cls)
+    out: dict[str, tuple[str, str]] = {}
+    for f in dataclasses.fields(cls):
+        sub = _is_dataclass_type(hints[f.name])
+        name = f"{prefix}.{f.name}" if prefix else f.name
+        if sub is not None:
+            out.update(_leaf_docs(sub, name))
+        else:
+            scalar = [h for h in typing.get_args(hints[f.name]) if h is not type(None)] or [hints[f.name]]
+            out[name] = (docs.get(f.name, ""), "integer" if scalar[0] is int else "double")
+    return out
+
+
+def config_parameters(kind: str) -> tuple[Param, ...]:
+    """The declared parameters of controller ``kind`` (:func:`config_parameter_names`), each with
+    its type, unit, range and description from the config dataclasses: what the node declares
+    and what ``python -m sappc_controller --help`` lists.  Every one is writable at run time;
+    the node applies the gains of :data:`~sappc_controller.core.base.AttitudeController.RUNTIME_GAINS`
+    and the actuator limits, and refuses a change of any other with the reason."""
+    docs = {**_leaf_docs(_config_class(kind), kind), **{f"actuator.{n}": d for n, d in _leaf_docs(ActuatorConfig, "").items()}}
+    runtime = {f"{kind}.gains.{g}" for g in AttitudeController.RUNTIME_GAINS} | {"actuator.max_torque_Nm", "actuator.min_torque_Nm"}
+    out = []
+    for name, default in config_parameter_names(kind):
+        if name == "inertia_kg_m2":
+            description, ros_type = "the known inertia J the law uses, 9 values row major (symmetric positive definite) [kg m^2]", "double[]"
+        else:
+            description, ros_type = docs[name]
+        out.append(Param(name, REQUIRED if default is dataclasses.MISSING else default, " ".join(description.split()) or name,
+                         unit_of(name, description), range=parameter_range(name, default), type=ros_type, read_only=False,
+                         dynamic_typing=True, changeable=name in runtime))
+    return tuple(out)
 
 
 def _config_class(kind: str) -> type:

@@ -30,6 +30,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from gnc_common.validation import ConfigError
+from sappc_msgs_py.parameters import REQUIRED, Param, descriptor, format_help
 
 if TYPE_CHECKING:
     from rclpy.impl.rcutils_logger import RcutilsLogger
@@ -37,7 +38,9 @@ if TYPE_CHECKING:
 __all__ = [
     "ACK_TIMEOUT_S",
     "LOCKSTEP",
+    "MODE",
     "REALTIME",
+    "COMMON_PARAMETERS",
     "CountingPublisher",
     "GridCursor",
     "MATCH_TIMEOUT_S",
@@ -134,6 +137,20 @@ class CountingPublisher:
         return bool(self.pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))))
 
 
+def _declare(node: Any, p: Param) -> Any:
+    """Declare ``p`` on rclpy node ``node`` and return its value: the given one, else the default
+    (``None`` for a :data:`REQUIRED` parameter not given)."""
+    if p.dynamic_typing or (p.default is not REQUIRED and not (isinstance(p.default, (list, tuple)) and not p.default)):
+        value = node.declare_parameter(p.name, None if p.default is REQUIRED else p.default, descriptor(p)).value
+    else:  # no default to take the type from: declared by type
+        types = {"double": Parameter.Type.DOUBLE, "integer": Parameter.Type.INTEGER, "bool": Parameter.Type.BOOL, "string": Parameter.Type.STRING,
+                 "double[]": Parameter.Type.DOUBLE_ARRAY, "integer[]": Parameter.Type.INTEGER_ARRAY, "string[]": Parameter.Type.STRING_ARRAY}
+        value = node.declare_parameter(p.name, types[p.type], descriptor(p)).value
+        if value is None and p.default is not REQUIRED:
+            value = list(p.default)
+    return value
+
+
 class GridCursor:
     """Which samples of a lockstep grid a node that publishes ahead of ``/clock`` still owes.
 
@@ -156,22 +173,51 @@ class GridCursor:
         return owed
 
 
-class ProjectNode(Node):
-    """Base of the project's nodes: publishers that count, a finished flag, a counts file.
+#: The parameters every node declares (:class:`ProjectNode`).
+COMMON_PARAMETERS = (
+    Param("expected_subscribers", [], "subscribers each publisher waits for before its first message, as 'topic=count' entries "
+          "(a topic not listed: the node's default, 1 on the topics of the control loop, else 0)", type="string[]"),
+    Param("counts_file", "", "where the node writes the messages it published per topic (JSON) when it finishes; '' for none"),
+)
+#: The timing mode of every node.
+MODE = Param("mode", LOCKSTEP, "lockstep: the plant owns time and the others follow its stamped samples; realtime: wall-clock timers",
+             choices=(LOCKSTEP, REALTIME))
 
-    Every node declares ``expected_subscribers`` (``["topic=count", ...]``: the subscribers each
-    publisher waits for before its first message; unlisted topics use the node's default) and
-    ``counts_file`` (where :meth:`finish` writes the messages published per topic).  Subclasses
+
+class ProjectNode(Node):
+    """Base of the project's nodes: declared parameters, publishers that count, a finished flag,
+    a counts file.
+
+    Every node declares :data:`COMMON_PARAMETERS` (``expected_subscribers``: the subscribers each
+    publisher waits for before its first message; ``counts_file``: where :meth:`finish` writes
+    the messages published per topic), and its own, listed in ``PARAMETERS`` and declared with
+    :meth:`param` (``python -m <COMMAND> --help`` prints them: :meth:`help_text`).  Subclasses
     create publishers with :meth:`counting_publisher` and set ``self.finished`` when their work
     is done; :func:`run_node` then finishes the node cleanly.
     """
 
+    #: The node's own parameters (after :data:`COMMON_PARAMETERS`), in the order ``--help`` lists them.
+    PARAMETERS: tuple[Param, ...] = ()
+    #: How the node is run on its own.
+    COMMAND = ""
+
     def __init__(self, node_name: str, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.finished = False
-        self._expected = parse_expected(list(self.param("expected_subscribers", Parameter.Type.STRING_ARRAY) or []))
-        self._counts_file = str(self.param("counts_file", ""))
+        self._expected = parse_expected(list(self.param(COMMON_PARAMETERS[0])))
+        self._counts_file = str(self.param(COMMON_PARAMETERS[1]))
         self._counting_pubs: list[CountingPublisher] = []
+
+    @classmethod
+    def parameter_sections(cls) -> list[tuple[str, tuple[Param, ...]]]:
+        """The parameters ``--help`` lists, by section."""
+        return [("parameters", cls.PARAMETERS), ("parameters of every node", COMMON_PARAMETERS)]
+
+    @classmethod
+    def help_text(cls) -> str:
+        """``--help``: the module's summary, then every declared parameter (:func:`~sappc_msgs_py.parameters.format_help`)."""
+        doc = sys.modules[cls.__module__].__doc__ or ""
+        return format_help(cls.COMMAND, doc.strip().split("\n\n", 1)[0], cls.parameter_sections())
 
     if TYPE_CHECKING:
         # rclpy's Node.get_logger and Node.destroy_node have no annotations, and mypy's
@@ -181,23 +227,25 @@ class ProjectNode(Node):
 
         def destroy_node(self) -> None: ...
 
-    def param(self, name: str, default: Any, descriptor: Any = None) -> Any:
-        """Declare parameter ``name`` and return its value (``default`` may be a ``Parameter.Type``:
-        no default, ``None`` when not given).  Without a ``descriptor`` the parameter is read-only:
-        it is read once at start-up, so a change at run time is refused (rclpy says why) rather
-        than accepted and never applied; a node that applies a change passes its own descriptor."""
-        if descriptor is None:
-            from rcl_interfaces.msg import ParameterDescriptor
+    def param(self, p: Param) -> Any:
+        """Declare parameter ``p`` (one of the node's ``PARAMETERS``) and return its value; a
+        :data:`~sappc_msgs_py.parameters.REQUIRED` one not given is ``None``.  A read-only
+        parameter is read once at start-up, so a change at run time is refused (rclpy says why)
+        rather than accepted and never applied.
 
-            descriptor = ParameterDescriptor(read_only=True, description="read at start-up; restart the node to change it")
-        return self.declare_parameter(name, default, descriptor).value
+        Raises
+        ------
+        ConfigError
+            For a value not among ``p.choices``.
+        """
+        value = _declare(self, p)
+        if p.choices and value not in p.choices:
+            raise ConfigError(f"{p.name} must be one of {', '.join(repr(c) for c in p.choices)}, got {value!r}")
+        return value
 
-    def mode_param(self, descriptor: Any = None) -> str:
-        """Declare ``mode`` (:data:`LOCKSTEP` by default, or :data:`REALTIME`) and return it, checked."""
-        mode = str(self.param("mode", LOCKSTEP, descriptor))
-        if mode not in (LOCKSTEP, REALTIME):
-            raise ConfigError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {mode!r}")
-        return mode
+    def mode_param(self) -> str:
+        """Declare :data:`MODE` and return it (:data:`LOCKSTEP` or :data:`REALTIME`)."""
+        return str(self.param(MODE))
 
     def counting_publisher(self, topic: Any, default_min_subscribers: int = 0) -> CountingPublisher:
         from sappc_msgs_py.contract import qos_profile
@@ -241,13 +289,20 @@ class ProjectNode(Node):
             tmp.replace(path)
 
 
-def run_node(make_node: Callable[[list[str]], ProjectNode], argv: list[str] | None = None) -> int:
+def run_node(make_node: Callable[[list[str]], ProjectNode], argv: list[str] | None = None, node_class: type[ProjectNode] | None = None) -> int:
     """Initialise rclpy, build the node, spin it until it finishes or a signal arrives, finish.
 
     ``make_node(args)`` gets the arguments (ROS arguments included) and returns a node using
-    :class:`ProjectNode`.  See :func:`run_nodes` (this is it with one node).
+    :class:`ProjectNode`; ``-h`` or ``--help`` before ``--ros-args`` prints ``node_class``'s
+    :meth:`~ProjectNode.help_text` and returns 0 without starting ROS.  See :func:`run_nodes`
+    (this is it with one node).
     """
-    return run_nodes(lambda args: [make_node(args)], argv)
+    args = list(sys.argv if argv is None else argv)
+    user_args = args[1:args.index("--ros-args")] if "--ros-args" in args else args[1:]
+    if node_class is not None and ("-h" in user_args or "--help" in user_args):
+        print(node_class.help_text())
+        return 0
+    return run_nodes(lambda a: [make_node(a)], args)
 
 
 def run_nodes(make_nodes: Callable[[list[str]], list[ProjectNode]], argv: list[str] | None = None) -> int:

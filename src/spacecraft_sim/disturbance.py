@@ -25,8 +25,7 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
   delivered torque, with the dropped command's stamp (the actuator holds it; the plant does not
   wait for a command that will never come).
 
-Parameters: ``schedule_file``, ``mode``, ``control_period_s``, ``duration_s`` (the grid's end; 0:
-none), and those of
+Parameters: :data:`PARAMETERS` (``python -m spacecraft_sim.disturbance --help``), and those of
 :class:`~sappc_msgs_py.runtime.ProjectNode`.
 """
 
@@ -60,13 +59,24 @@ from sappc_msgs_py.convert import (
     vector3_from_msg,
     vector3_msg,
 )
-from sappc_msgs_py.runtime import LOCKSTEP, GridCursor, ProjectNode, run_node
+from sappc_msgs_py.parameters import Param
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, run_node
 
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from gnc_common.validation import ConfigError, InputError, check_positive
 
-__all__ = ["InjectorNode", "load_schedule", "main"]
+__all__ = ["InjectorNode", "PARAMETERS", "load_schedule", "main"]
+
+#: The injector's parameters (``--help``), in the order the node declares them.
+PARAMETERS = (
+    Param("schedule_file", "", "YAML file with 'disturbances:' and/or 'faults:' lists (a scenario file works); '' for none: zero "
+          "disturbance, no fault"),
+    MODE,
+    Param("control_period_s", 0.01, "sample period dt of the plant's grid k dt", "s", check="> 0"),
+    Param("duration_s", 0.0, "end of the grid: no disturbance sample after duration_s (0: no end)", "s", check=">= 0"),
+)
+_P = {p.name: p for p in PARAMETERS}
 
 
 #: What a dropped measurement or reference is relayed as: a message of its stamp whose values are
@@ -113,14 +123,17 @@ def load_schedule(path: str) -> tuple[DisturbanceSum, FaultSchedule]:
 class InjectorNode(ProjectNode):
     """See the module docstring."""
 
+    PARAMETERS = PARAMETERS
+    COMMAND = "python -m spacecraft_sim.disturbance"
+
     def __init__(self, node_name: str = "injector", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.disturbance, self.faults = load_schedule(str(self.param("schedule_file", "")))
+        self.disturbance, self.faults = load_schedule(str(self.param(_P["schedule_file"])))
         self.disturbance.torque_B(np.array([0.0]), 1)  # load the compiled models now, not at the first sample
         self.faults.warm_up()  # (the plant waits lockstep_timeout_s for the first torque, a compile is longer)
         self.mode = self.mode_param()
-        self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
-        duration = check_positive("duration_s", self.param("duration_s", 0.0), allow_zero=True)
+        self.dt = check_positive("control_period_s", self.param(_P["control_period_s"]))
+        duration = check_positive("duration_s", self.param(_P["duration_s"]), allow_zero=True)
         self.last_k = int(round(duration / self.dt)) if duration > 0 else None  # the grid's last sample
         self.rejected = 0
         qos = qos_profile()
@@ -203,7 +216,7 @@ class InjectorNode(ProjectNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the injector until stopped."""
-    return run_node(lambda args: InjectorNode(), argv)
+    return run_node(lambda args: InjectorNode(), argv, InjectorNode)
 
 
 if __name__ == "__main__":

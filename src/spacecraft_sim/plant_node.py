@@ -31,10 +31,7 @@ Control torques are clipped to ``max_torque_Nm`` per axis (the actuator cannot d
 commanded); a torque message that is non-finite or in the wrong frame is rejected, counted and
 logged, and the previous value is held.
 
-Parameters: ``inertia_kg_m2`` (9 values, row major), ``q_BN0`` (x, y, z, w), ``omega_BN_B0_rad_s``,
-``control_period_s``, ``duration_s`` (0: run until stopped, real time only), ``rk4_substeps``,
-``max_torque_Nm`` (default 0.5, the paper's actuator), ``mode``, ``lockstep_timeout_s``, ``use_disturbance_topic``,
-``timing_file`` (JSON: wall time from the first sample to the end, misses), and those of
+Parameters: :data:`PARAMETERS` (``python -m spacecraft_sim --help``), and those of
 :class:`~sappc_msgs_py.runtime.ProjectNode`.
 """
 
@@ -50,35 +47,60 @@ import numpy as np
 
 from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, qos_profile
 from sappc_msgs_py.convert import clock_msg, quaternion_msg, stamp_to_ns, time_to_stamp, torque_from_msg, vector3_msg
-from sappc_msgs_py.runtime import LOCKSTEP, MATCH_TIMEOUT_S, REALTIME, ProjectNode, run_node
+from sappc_msgs_py.parameters import Param
+from sappc_msgs_py.runtime import LOCKSTEP, MATCH_TIMEOUT_S, MODE, REALTIME, ProjectNode, run_node
 
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
 from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
 
-__all__ = ["PlantNode", "main"]
+__all__ = ["PARAMETERS", "PlantNode", "main"]
+
+#: The plant node's parameters (``--help``), in the order the node declares them.
+PARAMETERS = (
+    Param("inertia_kg_m2", [4.0, 0.0, 0.0, 0.0, 4.0, 0.0, 0.0, 0.0, 4.0], "the body's inertia J about its centre of mass, in B, row major",
+          "kg m^2", check="9 values of a symmetric positive definite matrix"),
+    Param("q_BN0", [0.0, 0.0, 0.0, 1.0], "initial attitude of the body frame B relative to the inertial frame N, quaternion (x, y, z, w)",
+          check="a unit quaternion to rounding (it is normalised)"),
+    Param("omega_BN_B0_rad_s", [0.0, 0.0, 0.0], "initial body rate of B relative to N, in B", "rad/s", check="3 finite values"),
+    Param("control_period_s", 0.01, "sample period dt: a sample every dt, the torque held over it (zero-order hold)", "s", check="> 0"),
+    Param("duration_s", 60.0, "the run's length: samples k = 0 .. duration_s / dt, then the node finishes (0: until stopped, real time only)",
+          "s", check=">= 0"),
+    Param("rk4_substeps", 1, "RK4 steps per sample period", check="a positive integer"),
+    Param("max_torque_Nm", 0.5, "per-axis limit of the applied control torque (the paper's actuator); commands beyond it are clipped",
+          "N m", check="> 0"),
+    MODE,
+    Param("lockstep_timeout_s", 2.0, "lockstep: wall time a sample waits for its torque (and disturbance) before the last value is held",
+          "s", check="> 0"),
+    Param("use_disturbance_topic", False, "add the torque received on disturbance/torque (the injector's) to the control torque"),
+    Param("timing_file", "", "where to write the run's timing (JSON: wall time from the first sample, samples, misses); '' for none"),
+)
+_P = {p.name: p for p in PARAMETERS}
 
 
 
 class PlantNode(ProjectNode):
     """See the module docstring."""
 
+    PARAMETERS = PARAMETERS
+    COMMAND = "python -m spacecraft_sim"
+
     def __init__(self, node_name: str = "plant", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        J = inertia_from_row_major("inertia_kg_m2", self.param("inertia_kg_m2", [4.0, 0.0, 0.0, 0.0, 4.0, 0.0, 0.0, 0.0, 4.0]))
+        J = inertia_from_row_major("inertia_kg_m2", self.param(_P["inertia_kg_m2"]))
         self.body = RigidBody(J)  # checks J with check_spd_inertia, as the scenario loader does
-        q0 = check_initial_quaternion("q_BN0", self.param("q_BN0", [0.0, 0.0, 0.0, 1.0]))  # normalised
-        w0 = as_finite_array("omega_BN_B0_rad_s", self.param("omega_BN_B0_rad_s", [0.0, 0.0, 0.0]), shape_tail=(3,))
+        q0 = check_initial_quaternion("q_BN0", self.param(_P["q_BN0"]))  # normalised
+        w0 = as_finite_array("omega_BN_B0_rad_s", self.param(_P["omega_BN_B0_rad_s"]), shape_tail=(3,))
         self.x = initial_state(np.atleast_2d(q0), np.atleast_2d(w0))
-        self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
-        duration = check_positive("duration_s", self.param("duration_s", 60.0), allow_zero=True)
-        self.substeps = check_positive_int("rk4_substeps", self.param("rk4_substeps", 1))
-        self.max_torque = check_positive("max_torque_Nm", self.param("max_torque_Nm", 0.5))  # the paper's actuator
+        self.dt = check_positive("control_period_s", self.param(_P["control_period_s"]))
+        duration = check_positive("duration_s", self.param(_P["duration_s"]), allow_zero=True)
+        self.substeps = check_positive_int("rk4_substeps", self.param(_P["rk4_substeps"]))
+        self.max_torque = check_positive("max_torque_Nm", self.param(_P["max_torque_Nm"]))  # the paper's actuator
         self.mode = self.mode_param()
         if self.mode == LOCKSTEP and duration == 0.0:
             raise ConfigError("duration_s must be > 0 in lockstep mode")
-        self.timeout_s = check_positive("lockstep_timeout_s", self.param("lockstep_timeout_s", 2.0))
-        self.use_disturbance = bool(self.param("use_disturbance_topic", False))
-        self.timing_file = str(self.param("timing_file", ""))
+        self.timeout_s = check_positive("lockstep_timeout_s", self.param(_P["lockstep_timeout_s"]))
+        self.use_disturbance = bool(self.param(_P["use_disturbance_topic"]))
+        self.timing_file = str(self.param(_P["timing_file"]))
         self._wall_first: float | None = None
         self.n_steps = int(round(duration / self.dt))  # samples k = 0 .. n_steps, as sample_times()
 
@@ -237,7 +259,7 @@ class PlantNode(ProjectNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the plant node until its run ends or a signal arrives."""
-    return run_node(lambda args: PlantNode(), argv)
+    return run_node(lambda args: PlantNode(), argv, PlantNode)
 
 
 if __name__ == "__main__":

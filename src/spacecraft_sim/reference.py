@@ -14,9 +14,8 @@ controller pairs each with the state of the same stamp.  ``realtime``: a
 wall-clock timer of period ``dt`` publishes the sample of the time elapsed since its first tick,
 stamped with the node's clock.
 
-Parameters: ``q_RN0``, ``amplitude_deg_s``, ``periods_s`` (the scenario's ``reference``),
-``control_period_s``, ``duration_s``, ``mode``, and those of
-:class:`~sappc_msgs_py.runtime.ProjectNode`.
+Parameters: :data:`PARAMETERS` (the scenario's ``reference``, the grid and the mode;
+``python -m spacecraft_sim.reference --help``), and those of :class:`~sappc_msgs_py.runtime.ProjectNode`.
 """
 
 from __future__ import annotations
@@ -27,26 +26,42 @@ from typing import Any
 
 from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, qos_profile
 from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, vector3_msg
-from sappc_msgs_py.runtime import LOCKSTEP, GridCursor, ProjectNode, run_node
+from sappc_msgs_py.parameters import Param
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, run_node
 
 from spacecraft_sim.core.reference import PaperReference, sample_times
 from gnc_common.validation import check_positive
 
-__all__ = ["ReferenceNode", "main"]
+__all__ = ["PARAMETERS", "ReferenceNode", "main"]
+
+#: The reference node's parameters (``--help``), in the order the node declares them.
+PARAMETERS = (
+    Param("q_RN0", [0.0, 0.0, 0.0, 1.0], "initial attitude of the reference frame R relative to the inertial frame N, quaternion (x, y, z, w)",
+          check="a unit quaternion"),
+    Param("amplitude_deg_s", 0.573, "amplitude of each axis of the reference rate omega_RN_R (the paper: 0.573 deg/s = 0.01 rad/s)", "deg/s"),
+    Param("periods_s", [40.0, 30.0, 50.0], "period of each axis's sinusoid of the reference rate (x, y, z)", "s", check="3 values > 0"),
+    Param("control_period_s", 0.01, "sample period dt of the grid k dt the samples are published on", "s", check="> 0"),
+    Param("duration_s", 60.0, "end of the grid: samples k = 0 .. duration_s / dt", "s", check="> 0"),
+    MODE,
+)
+_P = {p.name: p for p in PARAMETERS}
 
 
 class ReferenceNode(ProjectNode):
     """See the module docstring."""
 
+    PARAMETERS = PARAMETERS
+    COMMAND = "python -m spacecraft_sim.reference"
+
     def __init__(self, node_name: str = "reference", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         ref = PaperReference(
-            q_RN0=tuple(self.param("q_RN0", [0.0, 0.0, 0.0, 1.0])),
-            amplitude_deg_s=float(self.param("amplitude_deg_s", 0.573)),
-            periods_s=tuple(self.param("periods_s", [40.0, 30.0, 50.0])),
+            q_RN0=tuple(self.param(_P["q_RN0"])),
+            amplitude_deg_s=float(self.param(_P["amplitude_deg_s"])),
+            periods_s=tuple(self.param(_P["periods_s"])),
         )
-        self.dt = check_positive("control_period_s", self.param("control_period_s", 0.01))
-        duration = check_positive("duration_s", self.param("duration_s", 60.0))
+        self.dt = check_positive("control_period_s", self.param(_P["control_period_s"]))
+        duration = check_positive("duration_s", self.param(_P["duration_s"]))
         self.mode = self.mode_param()
         self.samples = ref.sample(sample_times(duration, self.dt))
         # stamp (ns) of each grid sample -> index, for exact matching of /clock ticks
@@ -91,7 +106,7 @@ class ReferenceNode(ProjectNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the reference publisher until stopped."""
-    return run_node(lambda args: ReferenceNode(), argv)
+    return run_node(lambda args: ReferenceNode(), argv, ReferenceNode)
 
 
 if __name__ == "__main__":

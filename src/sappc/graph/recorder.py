@@ -39,9 +39,7 @@ after the first one (lockstep: the torque of the scenario's last sample), the re
 ``end_file`` (and goes on recording until it is stopped, so what is published after it, the last
 sample's diagnostics included, is still recorded).
 
-Parameters: ``output_dir`` (required, must not exist), ``topics`` (names; default every topic of
-the contract and the fault relays' outputs), ``metadata_files``, ``mode``, ``end_after_s`` [s] and
-``end_file`` (see above; 0 and "": none), and those of
+Parameters: :data:`PARAMETERS` (``python -m sappc.graph.recorder --help``), and those of
 :class:`~sappc_msgs_py.runtime.ProjectNode` (``counts_file`` receives the messages recorded per topic).
 """
 
@@ -65,7 +63,8 @@ from sappc_msgs_py.contract import (
 )
 from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, sort_by_log_time, write_bag_metadata
 from sappc_msgs_py.convert import cdr_stamp_ns
-from sappc_msgs_py.runtime import LOCKSTEP, ProjectNode, run_node
+from sappc_msgs_py.parameters import REQUIRED, Param
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, run_node
 from sappc_msgs_py.schemas import schema_text, type_hash
 from gnc_common.validation import ConfigError, check_positive
 
@@ -92,23 +91,39 @@ END_TOLERANCE_NS = 1000
 DEFAULT_TOPICS = tuple(t.name for t in TOPICS + FAULT_TOPICS)
 _KNOWN = {t.name: t for t in TOPICS + FAULT_TOPICS}
 
+#: The recorder's parameters (``--help``), in the order the node declares them.
+PARAMETERS = (
+    Param("output_dir", REQUIRED, "the bag directory to create (rosbag2 v9: <name>_0.mcap and metadata.yaml)", type="string",
+          check="a path that does not exist"),
+    Param("topics", list(DEFAULT_TOPICS), "the topics to record (the contract's names)", check="topics of the contract"),
+    Param("metadata_files", [""], "files copied into the bag directory and stored as MCAP metadata records (the run's scenario and "
+          "parameters)", check="existing files ('' entries are ignored)"),
+    MODE,
+    Param("end_after_s", 0.0, "with an external plant: write end_file once the recorded torques span this (0: never)", "s", check=">= 0"),
+    Param("end_file", "", "the file written when end_after_s is reached; '' for none"),
+)
+_P = {p.name: p for p in PARAMETERS}
+
 
 class RecorderNode(ProjectNode):
     """See the module docstring."""
 
+    PARAMETERS = PARAMETERS
+    COMMAND = "python -m sappc.graph.recorder"
+
     def __init__(self, node_name: str = "recorder", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        out = str(self.param("output_dir", ""))
+        out = str(self.param(_P["output_dir"]) or "")
         if not out:
             raise ConfigError("output_dir must be set (the bag directory to create)")
         self.dir = Path(out)
         if self.dir.exists():
             raise ConfigError(f"output_dir {self.dir} already exists; a recorder never overwrites a bag")
-        names = list(self.param("topics", list(DEFAULT_TOPICS)))
+        names = list(self.param(_P["topics"]))
         unknown = [n for n in names if n.lstrip("/") not in _KNOWN and n not in _KNOWN]
         if unknown:
             raise ConfigError(f"topics: {unknown[0]!r} is not a topic of the contract; known: {sorted(_KNOWN)}")
-        files = [Path(f) for f in (self.param("metadata_files", [""]) or []) if f]
+        files = [Path(f) for f in (self.param(_P["metadata_files"]) or []) if f]
         for f in files:
             if not f.is_file():
                 raise ConfigError(f"metadata_files: {f} is not a file")
@@ -147,8 +162,8 @@ class RecorderNode(ProjectNode):
         self.end_ns = 0
         self._last_message = time.monotonic()
         self.sim_time = self.mode_param() == LOCKSTEP
-        self._end_after_ns = int(round(check_positive("end_after_s", self.param("end_after_s", 0.0), allow_zero=True) * 1e9))
-        self._end_file = str(self.param("end_file", ""))
+        self._end_after_ns = int(round(check_positive("end_after_s", self.param(_P["end_after_s"]), allow_zero=True) * 1e9))
+        self._end_file = str(self.param(_P["end_file"]))
         self._first_torque_ns: int | None = None
         self.end_reached = False
         self._write_metadata()
@@ -205,7 +220,7 @@ class RecorderNode(ProjectNode):
 
 def main(argv: list[str] | None = None) -> int:
     """Record until SIGINT or SIGTERM, then finalise the bag."""
-    return run_node(lambda args: RecorderNode(), argv)
+    return run_node(lambda args: RecorderNode(), argv, RecorderNode)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,87 @@
+"""``python -m <node> --help`` lists the parameters each node declares, from the same records
+(:mod:`sappc_msgs_py.parameters`): a parameter the node declares but the help omits, or the
+reverse, fails here."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from rclpy.parameter import Parameter
+
+from conftest import ROOT
+
+#: Parameters rclpy declares on every node by itself.
+RCLPY_OWN = {"use_sim_time", "start_type_description_service"}
+#: module, class of every node run with ``python -m``.
+NODES = {
+    "sappc_controller": ("sappc_controller.node", "ControllerNode"),
+    "spacecraft_sim": ("spacecraft_sim.plant_node", "PlantNode"),
+    "spacecraft_sim.reference": ("spacecraft_sim.reference", "ReferenceNode"),
+    "spacecraft_sim.disturbance": ("spacecraft_sim.disturbance", "InjectorNode"),
+    "sappc.graph.recorder": ("sappc.graph.recorder", "RecorderNode"),
+}
+
+
+def _node_class(module: str, name: str):  # type: ignore[no-untyped-def]
+    import importlib
+
+    return getattr(importlib.import_module(module), name)
+
+
+@pytest.mark.parametrize("command", sorted(NODES))
+def test_help_lists_every_parameter_and_exits_0_without_ros(command: str) -> None:
+    proc = subprocess.run([sys.executable, "-m", command, "--help"], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    cls = _node_class(*NODES[command])
+    params = [p for _, section in cls.parameter_sections() for p in section]
+    assert len(params) >= 4
+    lines = proc.stdout.splitlines()
+    assert lines[0].startswith(f"usage: python -m {command} ")
+    for p in params:  # its line: name, type, unit, default, then the description on the next line
+        i = next(i for i, ln in enumerate(lines) if ln.startswith(f"  {p.name}  ("))
+        assert p.type in lines[i] and "default " in lines[i] and (not p.unit or f"[{p.unit}]" in lines[i]), lines[i]
+        assert lines[i + 1].strip(), f"{p.name} has no description"
+
+
+def test_the_controllers_help_states_types_units_ranges_and_what_changes_at_run_time() -> None:
+    from sappc_controller.node import ControllerNode
+
+    text = ControllerNode.help_text()
+    assert "  stale_timeout_s  (double; [s]; default 0.1; range [1e-06, 3600]; changeable at run time)" in text
+    assert "  sappc.gains.D_m_Nm  (double; [N m]; default (required); range [0, 1e+06]; changeable at run time)" in text
+    assert "  sappc.rpf.l  (double; [1/s]; default (required); range [0, 1e+06])" in text  # fixed during a run
+    assert "  blfppc.ftppf.m_odd  (integer; default 1; range [1, 99])" in text
+    assert "  controller  (string; default 'sappc'; one of sappc, trappc, blfppc)" in text
+    assert "``" not in text  # reStructuredText markup is shown as plain text
+
+
+@pytest.mark.parametrize("command", sorted(NODES))
+def test_a_node_declares_exactly_what_its_help_lists(command: str, ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    cls = _node_class(*NODES[command])
+    overrides: list[Parameter] = []
+    if command == "sappc_controller":
+        from test_nodes import _controller_overrides
+
+        overrides = _controller_overrides()
+    elif command == "sappc.graph.recorder":
+        overrides = [Parameter("output_dir", value=str(tmp_path / "bag"))]
+    node = cls(context=ros_context, parameter_overrides=overrides)
+    try:
+        declared = set(node._parameters) - RCLPY_OWN
+        sections = cls.parameter_sections()
+        if command == "sappc_controller":  # the law's section of the kind it runs, not the others'
+            sections = [(t, s) for t, s in sections if "law" not in t or "controller: sappc" in t]
+        listed = {p.name for _, section in sections for p in section}
+        assert declared == listed, (declared - listed, listed - declared)
+        for _, section in sections:  # the descriptor rclpy enforces and tools show is the record's
+            for p in section:
+                d = node.describe_parameter(p.name)
+                assert d.read_only == p.read_only, p.name
+                if p.unit:
+                    assert d.description.startswith(f"[{p.unit}] "), (p.name, d.description)
+                if p.range is not None and p.type == "double":
+                    assert (d.floating_point_range[0].from_value, d.floating_point_range[0].to_value) == p.range, p.name
+    finally:
+        node.destroy_node()
