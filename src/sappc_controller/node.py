@@ -80,6 +80,7 @@ from sappc_msgs_py.convert import (
 )
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, ProjectNode, run_node
+from gnc_common.timing import PeriodStatistics
 from gnc_common.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 
 from sappc_controller.core.base import AttitudeController
@@ -197,7 +198,7 @@ class ControllerNode(ProjectNode):
         else:
             self.create_timer(self.dt, self._on_timer)
         self.timing_file = str(self.param(_P["timing_file"]))
-        self._tick_wall_ns: list[int] = []  # real time: wall time of every timer tick
+        self.timer_stats = PeriodStatistics(self.dt)  # real time: the timer's period error, in bounded memory
         self._check_unknown_overrides()  # after every declaration
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(f"{self.kind} controller ready ({self.mode}, dt = {self.dt} s)")
@@ -323,7 +324,7 @@ class ControllerNode(ProjectNode):
         self._answer_without_inputs(t_ns)
 
     def _on_timer(self) -> None:
-        self._tick_wall_ns.append(time.monotonic_ns())
+        self.timer_stats.tick(time.monotonic_ns())
         now = self.get_clock().now().nanoseconds
         sample = self._latest.sample_at(now)
         if sample is None:
@@ -378,18 +379,8 @@ class ControllerNode(ProjectNode):
 
     def timer_statistics(self) -> dict[str, Any]:
         """Real time: the timer's period error (|interval - dt|) and missed ticks (intervals
-        longer than 1.5 dt)."""
-        ticks = np.asarray(self._tick_wall_ns, dtype=np.float64) / 1e9
-        if ticks.size < 2:
-            return {"ticks": int(ticks.size)}
-        err = np.abs(np.diff(ticks) - self.dt)
-        return {
-            "ticks": int(ticks.size),
-            "period_error_p50_ms": float(np.percentile(err, 50) * 1e3),
-            "period_error_p99_ms": float(np.percentile(err, 99) * 1e3),
-            "period_error_max_ms": float(err.max() * 1e3),
-            "missed_ticks": int(np.sum(np.diff(ticks) > 1.5 * self.dt)),
-        }
+        longer than 1.5 dt), from :class:`~gnc_common.timing.PeriodStatistics`."""
+        return dict(self.timer_stats.summary())
 
     def finish(self) -> None:
         self.get_logger().info(f"finished: {self.steps} control steps ({self.refused} refused), {self.rejected} rejected messages "
