@@ -79,7 +79,7 @@ from sappc_msgs_py.convert import (
     vector3_from_msg,
 )
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
 from gnc_common.timing import PeriodStatistics
 from gnc_common.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 
@@ -196,6 +196,7 @@ class ControllerNode(ProjectNode):
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
             self.create_timer(_GRACE_CHECK_S, self._check_grace)
         else:
+            self._gate = StartGate(self, lambda: unmatched([self.pub_torque, self.pub_diag]))  # no publish may block a tick
             self.create_timer(self.dt, self._on_timer)
         self.timing_file = str(self.param(_P["timing_file"]))
         self.timer_stats = PeriodStatistics(self.dt)  # real time: the timer's period error, in bounded memory
@@ -325,6 +326,8 @@ class ControllerNode(ProjectNode):
 
     def _on_timer(self) -> None:
         self.timer_stats.tick(time.monotonic_ns())
+        if not self._gate.open():
+            return  # the plant or the recorder not matched yet
         now = self.get_clock().now().nanoseconds
         sample = self._latest.sample_at(now)
         if sample is None:

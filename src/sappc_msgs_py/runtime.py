@@ -48,6 +48,8 @@ __all__ = [
     "SPIN_TIMEOUT_S",
     "START_CHECK_S",
     "START_LOG_S",
+    "StartGate",
+    "unmatched",
     "parse_expected",
     "run_node",
     "run_nodes",
@@ -149,6 +151,40 @@ def _declare(node: Any, p: Param) -> Any:
         if value is None and p.default is not REQUIRED:
             value = list(p.default)
     return value
+
+
+class StartGate:
+    """Whether a node's partners are there: ``open()`` is true once ``missing()`` (what the node
+    still waits for, in words) has been empty, and stays true; while it is not, what is missing
+    is logged every :data:`START_LOG_S` (a node started before its partners waits for them,
+    however long).
+
+    A node never waits inside a callback: a publish before its subscribers are matched would block
+    the executor (a real-time timer then misses the ticks of the whole discovery, 0.2 to 0.4 s),
+    so real-time timers skip their ticks until the gate is open, and lockstep starts with
+    :meth:`ProjectNode.start_when`.
+    """
+
+    def __init__(self, node: Node, missing: Callable[[], list[str]]) -> None:
+        self._node = node
+        self._missing = missing
+        self._open = False
+        self._began = self._logged = time.monotonic()
+
+    def open(self) -> bool:
+        if self._open:
+            return True
+        waiting = self._missing()
+        self._open = not waiting
+        if waiting and time.monotonic() - self._logged >= START_LOG_S:
+            self._logged = time.monotonic()
+            self._node.get_logger().info(f"waiting {self._logged - self._began:.0f} s for: {'; '.join(waiting)}")
+        return self._open
+
+
+def unmatched(publishers: list[CountingPublisher]) -> list[str]:
+    """What :class:`StartGate` waits for among ``publishers``: those without their expected subscribers."""
+    return [f"{p.min_subscribers} subscriber(s) of {p.resolved_name}" for p in publishers if not p.matched()]
 
 
 class GridCursor:
@@ -256,20 +292,14 @@ class ProjectNode(Node):
 
     def start_when(self, missing: Callable[[], list[str]], start: Callable[[], None]) -> None:
         """Call ``start()`` once, as soon as ``missing()`` (what the node still waits for, in
-        words) is empty; checked every :data:`START_CHECK_S` without blocking the executor, and
-        what is missing is logged every :data:`START_LOG_S` (a node started before its partners
-        waits for them, however long)."""
-        began = time.monotonic()
-        logged = [began]
+        words) is empty; checked every :data:`START_CHECK_S` without blocking the executor
+        (:class:`StartGate`)."""
+        gate = StartGate(self, missing)
 
         def check() -> None:
-            waiting = missing()
-            if not waiting:
+            if gate.open():
                 timer.cancel()
                 start()
-            elif time.monotonic() - logged[0] >= START_LOG_S:
-                logged[0] = time.monotonic()
-                self.get_logger().info(f"waiting {logged[0] - began:.0f} s for: {'; '.join(waiting)}")
 
         timer = self.create_timer(START_CHECK_S, check)
 

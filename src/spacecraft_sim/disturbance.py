@@ -60,7 +60,7 @@ from sappc_msgs_py.convert import (
     vector3_msg,
 )
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, StartGate, run_node, unmatched
 
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
@@ -141,9 +141,10 @@ class InjectorNode(ProjectNode):
         if self.mode == LOCKSTEP:
             self._cursor = GridCursor(self.last_k)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
-            self.start_when(lambda: [] if self.pub_d.matched() else [f"a subscriber of {self.pub_d.resolved_name}"], lambda: self._publish_through(1))
+            self.start_when(lambda: unmatched([self.pub_d]), lambda: self._publish_through(1))
         else:
             self._t0_ns: int | None = None
+            self._gate = StartGate(self, lambda: unmatched([self.pub_d]))  # no publish may block a tick
             self.create_timer(self.dt, self._on_timer)
         # the paired paths: the measurements (q_BN, omega_BN_B) and the reference, each paired by stamp
         self._paired: dict[tuple[Topic, ...], dict[int, dict[str, Any]]] = {}  # path -> stamp [ns] -> topic name -> value
@@ -171,6 +172,8 @@ class InjectorNode(ProjectNode):
             self._publish_disturbance(t, time_to_stamp(t))
 
     def _on_timer(self) -> None:
+        if not self._gate.open():
+            return
         now = self.get_clock().now()
         if self._t0_ns is None:
             self._t0_ns = now.nanoseconds

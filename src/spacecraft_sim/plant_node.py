@@ -48,7 +48,7 @@ import numpy as np
 from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, qos_profile
 from sappc_msgs_py.convert import clock_msg, quaternion_msg, stamp_to_ns, time_to_stamp, torque_from_msg, vector3_msg
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import LOCKSTEP, MATCH_TIMEOUT_S, MODE, REALTIME, ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, MATCH_TIMEOUT_S, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
 
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
 from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
@@ -130,6 +130,7 @@ class PlantNode(ProjectNode):
             self.start_when(self._not_ready, self._publish_sample)
         else:
             self._t0_ns: int | None = None
+            self._gate = StartGate(self, self._not_ready)  # no publish may block a tick
             self.create_timer(self.dt, self._realtime_tick)
 
     # ---- inputs ---------------------------------------------------------------------------
@@ -173,7 +174,7 @@ class PlantNode(ProjectNode):
 
     # ---- lockstep -------------------------------------------------------------------------
     def _not_ready(self) -> list[str]:
-        """Lockstep: what the first sample still waits for (empty: ready).
+        """What the first sample still waits for (empty: ready).
 
         A sample published before the controller is there is lost (the topics are volatile) and
         the loop stalls for ``lockstep_timeout_s``.  So the plant waits for a publisher of each of
@@ -183,8 +184,9 @@ class PlantNode(ProjectNode):
         incompatible QoS is never matched: the plant then starts without it, and says so).
         """
         missing = [f"a publisher of {sub.topic_name}" for sub in self._inputs.values() if sub.get_publisher_count() < 1]
-        missing += [f"{p.min_subscribers} subscriber(s) of {p.resolved_name}" for p in (self.pub_att, self.pub_rate, self.pub_clock) if p and not p.matched()]
-        assert self.pub_clock is not None
+        missing += unmatched([p for p in (self.pub_att, self.pub_rate, self.pub_clock) if p is not None])
+        if self.pub_clock is None:  # real time: no /clock
+            return missing
         on_graph, matched = self.count_subscribers(self.pub_clock.resolved_name), self.pub_clock.pub.get_subscription_count()
         if not missing and matched < on_graph:
             if time.monotonic() - self._created < MATCH_TIMEOUT_S:
@@ -232,6 +234,8 @@ class PlantNode(ProjectNode):
 
     # ---- real time ------------------------------------------------------------------------
     def _realtime_tick(self) -> None:
+        if not self._gate.open():
+            return
         now = self.get_clock().now()
         if self._t0_ns is not None:
             self.x = self.body.propagate(self.x, self.torque + self.disturbance, self.dt, self.substeps)

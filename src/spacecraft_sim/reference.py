@@ -27,7 +27,7 @@ from typing import Any
 from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, qos_profile
 from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, vector3_msg
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, StartGate, run_node, unmatched
 
 from spacecraft_sim.core.reference import PaperReference, sample_times
 from gnc_common.validation import check_positive
@@ -71,9 +71,10 @@ class ReferenceNode(ProjectNode):
         if self.mode == LOCKSTEP:
             self._cursor = GridCursor(self.samples.t.size - 1)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile())
-            self.start_when(lambda: [f"a subscriber of {p.resolved_name}" for p in self.pubs if not p.matched()], lambda: self._publish_through(1))
+            self.start_when(lambda: unmatched(self.pubs), lambda: self._publish_through(1))
         else:
             self._t0_ns: int | None = None
+            self._gate = StartGate(self, lambda: unmatched(self.pubs))  # no publish may block a tick
             self.create_timer(self.dt, self._on_timer)
 
     def _publish(self, k: int, stamp: Any) -> None:
@@ -95,6 +96,8 @@ class ReferenceNode(ProjectNode):
             self._publish(j, self._stamps[j])
 
     def _on_timer(self) -> None:
+        if not self._gate.open():
+            return
         now = self.get_clock().now()
         if self._t0_ns is None:
             self._t0_ns = now.nanoseconds
