@@ -10,6 +10,8 @@ from __future__ import annotations
 from enum import Enum
 from typing import Any
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -94,6 +96,12 @@ def check_unit_quaternion(name: str, value: ArrayLike, *, tol: float = QUATERNIO
     InputError
         If any quaternion is zero, non-finite, or its norm differs from 1 by more than ``tol``.
     """
+    if isinstance(value, np.ndarray) and value.shape == (4,) and value.dtype == np.float64:
+        # one quaternion (the controller node checks two every sample): the same sum in the same
+        # order as below, in Python floats; NaN or infinity fails the comparison and is reported below
+        x, y, z, w = value.tolist()
+        if abs(math.sqrt(x * x + y * y + z * z + w * w) - 1.0) <= tol:
+            return value
     q = as_finite_array(name, value, shape_tail=(4,))
     rows = q.reshape(-1, 4)
     norm = np.sqrt(np.sum(rows * rows, axis=-1))

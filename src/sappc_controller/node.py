@@ -373,12 +373,12 @@ class ControllerNode(ProjectNode):
         self._held = (np.array(torque, dtype=np.float64), np.array(torque_cmd, dtype=np.float64), np.array(saturated, dtype=np.float64))
         t = t_ns / _NS
         stamp = ns_to_stamp(t_ns)
-        self.pub_torque.publish(torque_msg(torque, stamp, CONTROL_TORQUE))
+        self.pub_torque.publish(torque_msg(torque, stamp, CONTROL_TORQUE, out=self.pub_torque.msg))
         rows: dict[str, ArrayLike] = dict(self._diag_rows)
         rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(answer != ANSWER_COMMANDED), float(answer)],
                     input_stamps_state_s=[input_ns[0] / _NS, input_ns[1] / _NS, 0.0],
                     input_stamps_reference_s=[n / _NS for n in input_ns[2:]])
-        self.pub_diag.publish(diagnostics_msg(t, rows))
+        self.pub_diag.publish(diagnostics_msg(t, rows, out=self.pub_diag.msg))
 
     def timer_statistics(self) -> dict[str, Any]:
         """Real time: the timer's period error (|interval - dt|) and missed ticks (intervals

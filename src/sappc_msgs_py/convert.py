@@ -6,10 +6,17 @@ topic and value.  Quaternions keep the ``(x, y, z, w)`` order on both sides.
 
 Time: a stamp is ``sec`` + ``nanosec``; :func:`time_to_stamp` rounds to the nearest nanosecond,
 so the 10 ms grid of the lockstep loop is represented exactly.
+
+Cost: the encoders run for every message a node publishes (nine a sample in the lockstep loop).
+Each takes ``out=``, a message of the topic's type to fill instead of building a new one (a
+``WrenchStamped`` is six Python objects; rclpy serializes a message when it is published, so a
+node may refill the same one for its next publish), and values that are already a float64 vector
+or a list of floats are checked with :func:`math.isfinite`, not through numpy.
 """
 
 from __future__ import annotations
 
+import array
 import functools
 import math
 import struct
@@ -62,21 +69,38 @@ def _finite(topic: Topic, what: str, values: list[float]) -> Array:
     return as_finite_array(f"{topic.name} {what}", values)  # raises, naming the value
 
 
-def time_to_stamp(t_s: Any) -> Any:
-    """``builtin_interfaces/Time`` for ``t_s`` seconds (>= 0), rounded to the nanosecond.
+def _encode(name: str, values: Any, n: int) -> list[float]:
+    """``n`` finite floats to encode, or :class:`InputError` naming ``name`` and the value."""
+    out: list[float]
+    if isinstance(values, np.ndarray) and values.shape == (n,) and values.dtype == np.float64:
+        out = values.tolist()
+    elif isinstance(values, (list, tuple)) and len(values) == n and all(isinstance(v, float) for v in values):
+        out = list(values)
+    else:
+        out = as_finite_array(name, values, shape_tail=(n,)).tolist()  # raises, naming the value
+    if not all(map(math.isfinite, out)):
+        as_finite_array(name, values)  # raises, naming the value
+    return out
+
+
+def time_to_stamp(t_s: Any, out: Any = None) -> Any:
+    """``builtin_interfaces/Time`` for ``t_s`` seconds (>= 0), rounded to the nanosecond (into
+    ``out``, a ``Time``, when given).
 
     ``t_s`` may also be a stamp (anything with ``sec`` and ``nanosec``, e.g. a received header's
     stamp or ``Clock.now().to_msg()``), copied exactly: wall-clock times (1.7e9 s) lose about
     0.2 us in a float of seconds, so relays and real-time nodes pass stamps, not floats.
     """
-    Time = _time_class()
+    stamp = _time_class()() if out is None else out
     if hasattr(t_s, "sec") and hasattr(t_s, "nanosec"):
-        return Time(sec=int(t_s.sec), nanosec=int(t_s.nanosec))
-    t = float(as_finite_array("t_s", t_s))
+        stamp.sec, stamp.nanosec = int(t_s.sec), int(t_s.nanosec)
+        return stamp
+    t = t_s if type(t_s) is float and math.isfinite(t_s) else float(as_finite_array("t_s", t_s))
     if t < 0.0:
         raise InputError(f"t_s must be >= 0 for a ROS stamp, got {t_s!r}")
     ns = seconds_to_ns(t)
-    return Time(sec=ns // _NS_PER_S, nanosec=ns % _NS_PER_S)
+    stamp.sec, stamp.nanosec = ns // _NS_PER_S, ns % _NS_PER_S
+    return stamp
 
 
 def seconds_to_ns(t_s: float) -> int:
@@ -134,7 +158,7 @@ def stamp_to_time(stamp: Any) -> float:
 
 
 def _header(msg: Any, t_s: float, frame_id: str | None) -> Any:
-    msg.header.stamp = time_to_stamp(t_s)
+    time_to_stamp(t_s, msg.header.stamp)
     msg.header.frame_id = frame_id or ""
     return msg
 
@@ -144,11 +168,11 @@ def _check_frame(msg: Any, topic: Topic) -> None:
         raise InputError(f"{topic.name}: frame_id must be {topic.frame_id!r}, got {msg.header.frame_id!r}")
 
 
-def quaternion_msg(q_xyzw: ArrayLike, t_s: float, topic: Topic) -> Any:
-    """A ``QuaternionStamped`` for ``topic`` (e.g. ``STATE_ATTITUDE``)."""
-    q = as_finite_array(f"{topic.name} quaternion", q_xyzw, shape_tail=(4,))
-    msg = _header(topic.msg_class(), t_s, topic.frame_id)
-    msg.quaternion.x, msg.quaternion.y, msg.quaternion.z, msg.quaternion.w = (float(v) for v in q)
+def quaternion_msg(q_xyzw: ArrayLike, t_s: float, topic: Topic, out: Any = None) -> Any:
+    """A ``QuaternionStamped`` for ``topic`` (e.g. ``STATE_ATTITUDE``), or ``out`` filled."""
+    q = _encode(f"{topic.name} quaternion", q_xyzw, 4)
+    msg = _header(topic.msg_class() if out is None else out, t_s, topic.frame_id)
+    msg.quaternion.x, msg.quaternion.y, msg.quaternion.z, msg.quaternion.w = q
     return msg
 
 
@@ -160,11 +184,11 @@ def quaternion_from_msg(msg: Any, topic: Topic) -> Array:
     return _finite(topic, "quaternion", [q.x, q.y, q.z, q.w])
 
 
-def vector3_msg(v: ArrayLike, t_s: float, topic: Topic) -> Any:
-    """A ``Vector3Stamped`` for ``topic``."""
-    a = as_finite_array(f"{topic.name} vector", v, shape_tail=(3,))
-    msg = _header(topic.msg_class(), t_s, topic.frame_id)
-    msg.vector.x, msg.vector.y, msg.vector.z = (float(x) for x in a)
+def vector3_msg(v: ArrayLike, t_s: float, topic: Topic, out: Any = None) -> Any:
+    """A ``Vector3Stamped`` for ``topic``, or ``out`` filled."""
+    a = _encode(f"{topic.name} vector", v, 3)
+    msg = _header(topic.msg_class() if out is None else out, t_s, topic.frame_id)
+    msg.vector.x, msg.vector.y, msg.vector.z = a
     return msg
 
 
@@ -175,13 +199,14 @@ def vector3_from_msg(msg: Any, topic: Topic) -> Array:
     return _finite(topic, "vector", [v.x, v.y, v.z])
 
 
-def torque_msg(torque_B: ArrayLike, t_s: float, topic: Topic = CONTROL_TORQUE) -> Any:
-    """A ``WrenchStamped`` carrying ``torque_B`` [N m] (body frame, zero force)."""
+def torque_msg(torque_B: ArrayLike, t_s: float, topic: Topic = CONTROL_TORQUE, out: Any = None) -> Any:
+    """A ``WrenchStamped`` carrying ``torque_B`` [N m] (body frame, zero force), or ``out`` filled
+    (its force is left as it is: zero when it was built by this function)."""
     if topic.type_name != CONTROL_TORQUE.type_name:
         raise ValueError(f"{topic.name} does not carry a torque")
-    a = as_finite_array(f"{topic.name} torque", torque_B, shape_tail=(3,))
-    msg = _header(topic.msg_class(), t_s, topic.frame_id)
-    msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = (float(x) for x in a)
+    a = _encode(f"{topic.name} torque", torque_B, 3)
+    msg = _header(topic.msg_class() if out is None else out, t_s, topic.frame_id)
+    msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = a
     return msg
 
 
@@ -192,8 +217,9 @@ def torque_from_msg(msg: Any, topic: Topic = CONTROL_TORQUE) -> Array:
     return _finite(topic, "torque", [tq.x, tq.y, tq.z])
 
 
-def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike]) -> Any:
-    """A ``Float64MultiArray`` with the rows of :data:`DIAGNOSTICS_LAYOUT` (3 values each).
+def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike], out: Any = None) -> Any:
+    """A ``Float64MultiArray`` with the rows of :data:`DIAGNOSTICS_LAYOUT` (3 values each), or
+    ``out`` filled.
 
     ``rows`` maps every label except ``time_s`` to 3 values; the labels go into ``layout.dim``.
     """
@@ -206,9 +232,11 @@ def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike]) -> Any:
         raise ValueError(f"diagnostics need exactly {DIAGNOSTICS_LAYOUT[1:]}, missing {missing}, extra {sorted(set(rows) - set(DIAGNOSTICS_LAYOUT))}")
     for i, label in enumerate(DIAGNOSTICS_LAYOUT[1:], start=1):
         data[i] = np.asarray(rows[label], dtype=np.float64).reshape(3)
-    msg = Float64MultiArray()
+    msg = Float64MultiArray() if out is None else out
     msg.layout = _diagnostics_layout()
-    msg.data = data.ravel().tolist()
+    values = array.array("d")
+    values.frombytes(data.tobytes())  # a float64 array.array is taken as it is (a list is checked value by value)
+    msg.data = values
     return msg
 
 
@@ -230,8 +258,11 @@ def diagnostics_from_msg(msg: Any) -> dict[str, Array]:
     return {label: data[i] for i, label in enumerate(labels)}
 
 
-def clock_msg(t_s: float) -> Any:
-    """A ``rosgraph_msgs/Clock`` for simulation time ``t_s``."""
-    from rosgraph_msgs.msg import Clock
+def clock_msg(t_s: float, out: Any = None) -> Any:
+    """A ``rosgraph_msgs/Clock`` for simulation time ``t_s``, or ``out`` filled."""
+    if out is None:
+        from rosgraph_msgs.msg import Clock
 
-    return Clock(clock=time_to_stamp(t_s))
+        out = Clock()
+    time_to_stamp(t_s, out.clock)
+    return out

@@ -87,10 +87,13 @@ def parse_expected(entries: list[str], what: str = "expected_subscribers") -> di
 
 class CountingPublisher:
     """A publisher that waits for ``min_subscribers`` matched subscribers before its first
-    message, and counts the messages it publishes."""
+    message, and counts the messages it publishes.  ``msg`` is a message of the topic's type for
+    the node to fill and publish each time (the ``out=`` of :mod:`sappc_msgs_py.convert`'s
+    encoders): rclpy serializes a message when it is published, so one object serves every publish."""
 
     def __init__(self, node: Any, topic: Any, min_subscribers: int, qos: Any) -> None:
         self.topic = topic
+        self.msg = topic.msg_class()
         self.pub = node.create_publisher(topic.msg_class, topic.name, qos)
         self.min_subscribers = min_subscribers
         self.count = 0

@@ -161,7 +161,7 @@ class InjectorNode(ProjectNode):
 
     def _publish_disturbance(self, t_s: float, stamp: Any) -> None:
         d = self.disturbance.torque_B(np.array([t_s]), 1)[0, 0]
-        self.pub_d.publish(torque_msg(d, stamp, DISTURBANCE_TORQUE))
+        self.pub_d.publish(torque_msg(d, stamp, DISTURBANCE_TORQUE, out=self.pub_d.msg))
 
     def _on_clock(self, msg: Any) -> None:
         self._publish_through(round(stamp_to_ns(msg.clock) / 1e9 / self.dt) + 1)  # one sample ahead

@@ -199,7 +199,7 @@ class PlantNode(ProjectNode):
     def _publish_sample(self) -> None:
         t = self.k * self.dt  # the grid of spacecraft_sim.core.reference.sample_times
         assert self.pub_clock is not None
-        self.pub_clock.publish(clock_msg(t))
+        self.pub_clock.publish(clock_msg(t, out=self.pub_clock.msg))
         self._publish_state(t)
         self._waiting_ns = stamp_to_ns(time_to_stamp(t))
         self._waiting_since = time.monotonic()
@@ -249,8 +249,8 @@ class PlantNode(ProjectNode):
     def _publish_state(self, t_s: Any) -> None:
         if self._wall_first is None:
             self._wall_first = time.monotonic()
-        self.pub_att.publish(quaternion_msg(self.x[0, :4], t_s, STATE_ATTITUDE))
-        self.pub_rate.publish(vector3_msg(self.x[0, 4:], t_s, STATE_RATE))
+        self.pub_att.publish(quaternion_msg(self.x[0, :4], t_s, STATE_ATTITUDE, out=self.pub_att.msg))
+        self.pub_rate.publish(vector3_msg(self.x[0, 4:], t_s, STATE_RATE, out=self.pub_rate.msg))
 
     def finish(self) -> None:
         run_s = 0.0 if self._wall_first is None else time.monotonic() - self._wall_first

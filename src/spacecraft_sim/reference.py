@@ -79,9 +79,10 @@ class ReferenceNode(ProjectNode):
 
     def _publish(self, k: int, stamp: Any) -> None:
         s = self.samples
-        self.pubs[0].publish(quaternion_msg(s.q_RN[k], stamp, REFERENCE_ATTITUDE))
-        self.pubs[1].publish(vector3_msg(s.omega_RN_R[k], stamp, REFERENCE_RATE))
-        self.pubs[2].publish(vector3_msg(s.omegadot_RN_R[k], stamp, REFERENCE_ACCELERATION))
+        att, rate, acc = self.pubs
+        att.publish(quaternion_msg(s.q_RN[k], stamp, REFERENCE_ATTITUDE, out=att.msg))
+        rate.publish(vector3_msg(s.omega_RN_R[k], stamp, REFERENCE_RATE, out=rate.msg))
+        acc.publish(vector3_msg(s.omegadot_RN_R[k], stamp, REFERENCE_ACCELERATION, out=acc.msg))
 
     def _on_clock(self, msg: Any) -> None:
         ns = stamp_to_ns(msg.clock)
