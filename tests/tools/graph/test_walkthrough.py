@@ -75,19 +75,24 @@ def test_sappc_run_records_a_run_driven_by_an_external_plant(tmp_path) -> None: 
     run = subprocess.Popen([*SAPPC, "run", str(scenario), "--plant", "external", "--out", str(out), "--json", str(summary)],
                            cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     assert run.stderr is not None
-    said = []
-    domain = None
-    for line in run.stderr:  # the user reads the domain sappc run claimed, and starts the plant on it
-        said.append(line)
-        if (m := re.search(r"waiting for your plant on ROS_DOMAIN_ID=(\d+)", line)) is not None:
-            domain = int(m.group(1))
-            break
-    assert domain is not None, "".join(said)
-    export, (_, _, plant) = _walkthrough()
-    command = _as_test(export, domain) + f" ROS_LOG_DIR={tmp_path / 'log'}; exec " \
-        + _as_test(plant, domain).replace("--duration 30", "--duration 5 --subscribers 2")
-    my_plant = subprocess.run(["bash", "-c", command], cwd=ROOT, text=True, capture_output=True, timeout=TIMEOUT_S)
-    stdout, stderr = run.communicate(timeout=TIMEOUT_S)
+    try:
+        said = []
+        domain = None
+        for line in run.stderr:  # the user reads the domain sappc run claimed, and starts the plant on it
+            said.append(line)
+            if (m := re.search(r"waiting for your plant on ROS_DOMAIN_ID=(\d+)", line)) is not None:
+                domain = int(m.group(1))
+                break
+        assert domain is not None, "".join(said)
+        export, (_, _, plant) = _walkthrough()
+        command = _as_test(export, domain) + f" ROS_LOG_DIR={tmp_path / 'log'}; exec " \
+            + _as_test(plant, domain).replace("--duration 30", "--duration 5 --subscribers 2")
+        my_plant = subprocess.run(["bash", "-c", command], cwd=ROOT, text=True, capture_output=True, timeout=TIMEOUT_S)
+        stdout, stderr = run.communicate(timeout=TIMEOUT_S)
+    finally:  # an external plant's run has no time limit: never leave it waiting
+        if run.poll() is None:
+            run.send_signal(signal.SIGINT)
+            run.communicate(timeout=60)
     assert my_plant.returncode == 0 and "my_plant: 501 samples, 0 missed" in my_plant.stdout, my_plant.stdout + my_plant.stderr
     assert run.returncode == 0, stdout + stderr
     result = json.loads(summary.read_text())
