@@ -136,6 +136,8 @@ def simulate_runs(
         "steady_mean_abs_qev_per_axis": crit["steady_mean_abs_qev_per_axis"],
         "steady_max_abs_qev": crit["steady_max_abs_qev"],
         "max_abs_torque_Nm": crit["max_abs_torque_Nm"],
+        "torque_sign_changes_per_s": crit["torque_sign_changes_per_s"],
+        "torque_reversals_per_s": crit["torque_reversals_per_s"],
         "settling_time_s": crit["settling_time_s"],
         "finite": crit["finite"],
         "fault_choice": inputs.fault_choice,

@@ -84,6 +84,10 @@ def test_results_are_identical_for_any_chunking_and_executor(tmp_path) -> None:
     assert row["rpf_error_at_t2_per_axis"][0].max() == table["rpf_error_at_t2"][9]
     assert metrics["steady_mean_abs_qev"] == table["steady_mean_abs_qev"][9]
     assert metrics["max_abs_torque_Nm"] == table["max_abs_torque_Nm"][9]
+    assert metrics["torque_sign_changes_per_s"] == table["torque_sign_changes_per_s"][9] == row["torque_sign_changes_per_s"][0]
+    assert metrics["torque_reversals_per_s"] == table["torque_reversals_per_s"][9]
+    summary = json.loads((tmp_path / "a" / "summary.json").read_text())
+    assert summary["torque_sign_changes_per_s"]["max"] == table["torque_sign_changes_per_s"].max()
 
 
 def test_local_dask_cluster_gives_the_same_results(tmp_path) -> None:
