@@ -341,9 +341,9 @@ def run_campaign(
     manifest_path.write_text(json.dumps(manifest, indent=2) + "\n")
 
     todo = [(i, r) for i, r in chunks(runs, chunk_runs) if not chunk_path(out, i).exists()]
-    bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)
     if todo and scheduler is None:
         compiled_loop.ensure_compiled(in_subprocess=workers > 1)  # compile once, here, not in every worker
+    bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)  # after compiling: the rate is the runs'
     executor = _Executor(workers, scheduler)
     global _progress_sink
     t0 = time.perf_counter()
