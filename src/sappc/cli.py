@@ -148,6 +148,9 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
           f"steady_mean_abs_qev < {summary['criteria']['steady_mean_abs_qev_max']:g})")
     print(f"  rpf_error_at_t2      p50 {summary['rpf_error_at_t2']['p50']:.3g}  p99 {summary['rpf_error_at_t2']['p99']:.3g}  max {summary['rpf_error_at_t2']['max']:.3g}")
     print(f"  steady_mean_abs_qev  p50 {summary['steady_mean_abs_qev']['p50']:.3g}  p99 {summary['steady_mean_abs_qev']['p99']:.3g}  max {summary['steady_mean_abs_qev']['max']:.3g}")
+    switching = summary["torque_sign_changes_per_s"]
+    if switching["max"] is not None:  # None: no steady window with two samples
+        print(f"  torque_sign_changes_per_s  p50 {switching['p50']:.3g}  p99 {switching['p99']:.3g}  max {switching['max']:.3g}")
     print(f"  non-finite runs {summary['non_finite_runs']}, RPF components clamped {summary['rpf_clamped_components']}, "
           f"flat {summary['rpf_flat_components']}; wall {summary['wall_time_s']:.1f} s")
     answers = summary["controller_answers"]

@@ -137,6 +137,8 @@ BOUNDED_METRICS = (
     "rpf_error_at_t2",
     "overshoot",
     "max_abs_torque_Nm",
+    "torque_sign_changes_per_s",
+    "torque_reversals_per_s",
     "saturation_fraction",
     "time_outside_constraint_s",
 )

@@ -24,6 +24,22 @@ Definitions, per run:
     error, ``max_{i,t} max(0, -sign(q_ev,i(0)) q_ev,i(t))`` (``sign(0) = +1``).
 ``max_abs_torque_Nm``
     Largest produced per-axis torque magnitude.
+``torque_sign_changes_per_s``
+    Actuator switching (chattering) over the steady window: per axis, the number of
+    changes of ``sign(u_i)`` in ``{-1, 0, +1}`` (``u`` the produced torque, after the
+    saturation and the minimum-output deadband; ``sign(0) = 0``) between consecutive samples
+    both at ``t >= steady_from_s``, divided by the window's span ``t_last - t_first`` (its
+    first and last sample); the largest over axes [1/s].  Switching on or off counts (``+``
+    to ``0``, ``0`` to ``-``: one change each), so ``+, 0, +, 0`` is three changes, and a
+    direct reversal ``+`` to ``-`` is one.  A deadband limit cycle of pulses of one sign is
+    chattering, which a count of reversals alone would miss; hence this definition.  A torque
+    constant over the window (zero included) gives ``0``; one that changes at every sample
+    gives ``1 / dt``.  ``None`` when the window holds fewer than two samples.  A failed run
+    counts its changes before its first non-finite sample (over the whole window's span).
+``torque_reversals_per_s``
+    As ``torque_sign_changes_per_s``, counting only strict reversals: a non-zero ``sign(u_i)``
+    opposite to the axis's last non-zero sign in the window, zeros skipped (``+, 0, -`` is one
+    reversal, ``+, 0, +`` none).  It tells sign chattering apart from on/off pulsing.
 ``saturation_fraction``
     Fraction of control samples at which at least one axis was saturated.
 ``time_outside_constraint_s``
@@ -109,6 +125,11 @@ class MetricsAccumulator:
         self.sign0: Array | None = None
         self.overshoot = np.zeros(n)
         self.max_torque = np.zeros(n)
+        # per axis: sign(u) of the last steady sample (NaN: none yet), the last non-zero one (0: none yet), the counts
+        self.torque_sign = np.full((n, 3), np.nan)
+        self.torque_sign_nonzero = np.zeros((n, 3))
+        self.torque_sign_changes = np.zeros((n, 3), dtype=np.int64)
+        self.torque_reversals = np.zeros((n, 3), dtype=np.int64)
         self.saturated_count = np.zeros(n, dtype=np.int64)
         self.outside_count = np.zeros(n, dtype=np.int64)
         self.outside_s = np.zeros(n)  # only on a non-uniform grid (hold_s)
@@ -119,7 +140,8 @@ class MetricsAccumulator:
 
     #: Per-run state (leading axis N), concatenated by :meth:`concatenate`.
     _PER_RUN = ("last_unsettled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
-                "saturated_count", "outside_count", "outside_s", "last_outside", "left_after_fault", "finite")
+                "torque_sign", "torque_sign_nonzero", "torque_sign_changes", "torque_reversals", "saturated_count", "outside_count",
+                "outside_s", "last_outside", "left_after_fault", "finite")
 
     @classmethod
     def concatenate(cls, parts: Sequence[MetricsAccumulator]) -> MetricsAccumulator:
@@ -167,6 +189,7 @@ class MetricsAccumulator:
             f64(band_upper), first, float(self.settle_threshold), float(self.steady_from_s), int(self.k_t2), hold, fault, self.finite,
             self.last_unsettled, self.steady_sum, self.steady_max, self.rpf_error_t2_axis, self.sign0, self.overshoot, self.max_torque,
             self.saturated_count, self.outside_count, self.outside_s, self.last_outside, self.left_after_fault,
+            self.torque_sign, self.torque_sign_nonzero, self.torque_sign_changes, self.torque_reversals,
         )
         self.samples += t.size
 
@@ -176,6 +199,21 @@ class MetricsAccumulator:
         after = np.minimum(lu + 1, self.t.size - 1)
         return np.where(lu < 0, 0.0, np.where(lu >= self.samples - 1, np.nan, self.t[after]))
 
+    def steady_span_s(self) -> float | None:
+        """The steady window's span ``t_last - t_first`` over the samples seen (``None``: fewer than
+        two samples in it): the time base of the switching rates."""
+        if self.steady_count < 2:
+            return None
+        return float(self.t[self.samples - 1] - self.t[self.samples - self.steady_count])
+
+    def switching_rates(self) -> tuple[Array, Array]:
+        """``torque_sign_changes_per_s`` and ``torque_reversals_per_s`` of every run (NaN: no span)."""
+        span = self.steady_span_s()
+        if span is None:
+            nan = np.full(self.finite.shape[0], np.nan)
+            return nan, nan.copy()
+        return self.torque_sign_changes.max(axis=1) / span, self.torque_reversals.max(axis=1) / span
+
     def run_metrics(self, run: int = 0) -> dict[str, Any]:
         """The metrics of run ``run`` (see the module docstring), JSON-ready."""
         t, last = self.t, self.samples - 1
@@ -183,6 +221,7 @@ class MetricsAccumulator:
         settling = None if np.isnan(settling_s) else settling_s
         steady = self.steady_count > 0
         lo = int(self.last_outside[run])
+        changes, reversals = self.switching_rates()
         m: dict[str, Any] = {
             "settling_time_s": settling,
             "steady_max_abs_qev": float(self.steady_max[run]) if steady else None,
@@ -190,6 +229,8 @@ class MetricsAccumulator:
             "rpf_error_at_t2": None if np.isnan(self.rpf_error_t2_axis[run, 0]) else float(self.rpf_error_t2_axis[run].max()),
             "overshoot": float(max(0.0, self.overshoot[run])),
             "max_abs_torque_Nm": float(self.max_torque[run]),
+            "torque_sign_changes_per_s": None if np.isnan(changes[run]) else float(changes[run]),
+            "torque_reversals_per_s": None if np.isnan(reversals[run]) else float(reversals[run]),
             "saturation_fraction": float(self.saturated_count[run] / max(self.samples, 1)),
             "time_outside_constraint_s": float(self.outside_count[run] * self.dt if self.hold_s is None else self.outside_s[run]),
             "returned_to_constraint": None,
@@ -209,6 +250,7 @@ class MetricsAccumulator:
     def criteria_arrays(self) -> dict[str, Array]:
         """Per-run arrays for campaign tables: the two Monte Carlo criteria per component and more."""
         steady_mean = self.steady_sum / max(self.steady_count, 1)
+        changes, reversals = self.switching_rates()
         return {
             "steady_mean_abs_qev_per_axis": steady_mean,
             "steady_mean_abs_qev": steady_mean.max(axis=1),
@@ -216,6 +258,8 @@ class MetricsAccumulator:
             "rpf_error_at_t2": self.rpf_error_t2_axis.max(axis=1),
             "steady_max_abs_qev": self.steady_max,
             "max_abs_torque_Nm": self.max_torque,
+            "torque_sign_changes_per_s": changes,
+            "torque_reversals_per_s": reversals,
             "settling_time_s": self.settling_times(),
             "finite": self.finite,
         }
@@ -230,10 +274,11 @@ def _maximum(a, b):  # type: ignore[no-untyped-def]  # a numba kernel (float64 s
 @jit("int64(int64, float64[:], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], "  # type: ignore[no-untyped-call]
      "boolean[:, :, :], float64[:, :, :], float64[:, :, :], boolean, float64, float64, int64, float64[:], float64, boolean[:], "
      "int64[:], float64[:, :], float64[:], float64[:, :], float64[:, :], float64[:], float64[:], int64[:], int64[:], float64[:], "
-     "int64[:], boolean[:])")
+     "int64[:], boolean[:], float64[:, :], float64[:, :], int64[:, :], int64[:, :])")
 def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower, band_upper, first, settle_threshold,  # type: ignore[no-untyped-def]
                    steady_from_s, k_t2, hold_s, fault_start_s, finite, last_unsettled, steady_sum, steady_max, rpf_error_t2_axis,
-                   sign0, overshoot, max_torque, saturated_count, outside_count, outside_s, last_outside, left_after_fault):
+                   sign0, overshoot, max_torque, saturated_count, outside_count, outside_s, last_outside, left_after_fault,
+                   torque_sign, torque_sign_nonzero, torque_sign_changes, torque_reversals):
     """One block of samples ``k0 .. k0 + B - 1`` (arrays (B, N, ...)) into the per-run state of a
     :class:`MetricsAccumulator` (in place), run by run, sample by sample: the definitions of the
     module docstring.  Sums run sample by sample in time order, maxima and counts are exact, so a
@@ -279,6 +324,17 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
                 s2 = s2 + (a2 if use else 0.0)
                 v = max_abs_q if use else 0.0
                 smax = v if k == 0 else _maximum(smax, v)
+                if use:
+                    for i in range(3):
+                        u = torque[k, n, i]
+                        s = 1.0 if u > 0.0 else (-1.0 if u < 0.0 else 0.0)
+                        if s != torque_sign[n, i] and torque_sign[n, i] == torque_sign[n, i]:  # NaN: the window's first sample
+                            torque_sign_changes[n, i] += 1
+                        torque_sign[n, i] = s
+                        if s != 0.0:
+                            if s == -torque_sign_nonzero[n, i]:  # 0: no non-zero sample yet
+                                torque_reversals[n, i] += 1
+                            torque_sign_nonzero[n, i] = s
             if k0 + k == k_t2:
                 rpf_error_t2_axis[n, 0] = abs(e0 - rho[k, n, 0]) if live else np.nan
                 rpf_error_t2_axis[n, 1] = abs(e1 - rho[k, n, 1]) if live else np.nan

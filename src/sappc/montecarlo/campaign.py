@@ -136,6 +136,8 @@ def simulate_runs(
         "steady_mean_abs_qev_per_axis": crit["steady_mean_abs_qev_per_axis"],
         "steady_max_abs_qev": crit["steady_max_abs_qev"],
         "max_abs_torque_Nm": crit["max_abs_torque_Nm"],
+        "torque_sign_changes_per_s": crit["torque_sign_changes_per_s"],
+        "torque_reversals_per_s": crit["torque_reversals_per_s"],
         "settling_time_s": crit["settling_time_s"],
         "finite": crit["finite"],
         "fault_choice": inputs.fault_choice,
@@ -339,9 +341,9 @@ def run_campaign(
     manifest_path.write_text(json.dumps(manifest, indent=2) + "\n")
 
     todo = [(i, r) for i, r in chunks(runs, chunk_runs) if not chunk_path(out, i).exists()]
-    bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)
     if todo and scheduler is None:
         compiled_loop.ensure_compiled(in_subprocess=workers > 1)  # compile once, here, not in every worker
+    bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)  # after compiling: the rate is the runs'
     executor = _Executor(workers, scheduler)
     global _progress_sink
     t0 = time.perf_counter()

@@ -19,8 +19,8 @@ __all__ = ["FORMAT_VERSION", "RunCriteria", "assemble", "chunk_path", "chunks", 
 
 Array = NDArray[np.float64]
 
-#: Version of the chunk/manifest format (bumped when their contents change).
-FORMAT_VERSION = 2
+#: Version of the chunk/manifest format (bumped when their contents change; 3: the switching rates).
+FORMAT_VERSION = 3
 #: Per-axis columns of the run table.
 _AXES = (1, 2, 3)
 
@@ -111,7 +111,8 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
             + ["disturbance_scale", "disturbance_phase_rad"] + gain_keys
             + [f"rpf_error_at_t2_{i}" for i in _AXES] + ["rpf_error_at_t2"]
             + [f"steady_mean_abs_qev_{i}" for i in _AXES] + ["steady_mean_abs_qev", "steady_max_abs_qev", "settling_time_s",
-                                                           "max_abs_torque_Nm", "rpf_clamped_components", "rpf_flat_components"]
+                                                           "max_abs_torque_Nm", "torque_sign_changes_per_s", "torque_reversals_per_s",
+                                                           "rpf_clamped_components", "rpf_flat_components"]
             + [f"answers_{name}" for name in ANSWER_NAMES] + (["fault_kind", "fault_start_s", "fault_end_s"] if dispersed else [])
         )
         for k in range(runs):
@@ -124,7 +125,8 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
                 + [f"{v:.17g}" for v in tab["rpf_error_at_t2_per_axis"][k]] + [f"{t2[k]:.17g}"]
                 + [f"{v:.17g}" for v in tab["steady_mean_abs_qev_per_axis"][k]]
                 + [f"{steady[k]:.17g}", f"{tab['steady_max_abs_qev'][k]:.17g}", f"{tab['settling_time_s'][k]:.17g}",
-                   f"{tab['max_abs_torque_Nm'][k]:.17g}", int(tab["rpf_clamped"][k].sum()), int(tab["rpf_flat"][k].sum())]
+                   f"{tab['max_abs_torque_Nm'][k]:.17g}", f"{tab['torque_sign_changes_per_s'][k]:.17g}",
+                   f"{tab['torque_reversals_per_s'][k]:.17g}", int(tab["rpf_clamped"][k].sum()), int(tab["rpf_flat"][k].sum())]
                 + [int(tab[f"answers_{name}"][k]) for name in ANSWER_NAMES]
                 + ([fault_kinds[int(tab["fault_choice"][k])], f"{tab['fault_start_s'][k]:.17g}",
                     f"{tab['fault_start_s'][k] + tab['fault_duration_s'][k]:.17g}"] if dispersed else [])
@@ -167,6 +169,8 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
         "steady_mean_abs_qev": _percentiles(steady),
         "settling_time_s": _percentiles(tab["settling_time_s"]),
         "max_abs_torque_Nm": _percentiles(tab["max_abs_torque_Nm"]),
+        "torque_sign_changes_per_s": _percentiles(tab["torque_sign_changes_per_s"]),
+        "torque_reversals_per_s": _percentiles(tab["torque_reversals_per_s"]),
         "wall_time_s": wall_s,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

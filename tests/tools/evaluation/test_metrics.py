@@ -53,6 +53,15 @@ def _accumulator(t: np.ndarray, n: int, **settings: Any) -> MetricsAccumulator:
     return MetricsAccumulator(t, n, **opts)
 
 
+def _switching_counts(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per axis of the torques ``u`` (K, 3) in time order: changes of ``sign(u)`` in {-1, 0, +1}
+    between consecutive samples, and reversals of the non-zero signs (zeros dropped)."""
+    s = np.sign(u)
+    changes = np.count_nonzero(np.diff(s, axis=0), axis=0)
+    reversals = np.array([np.count_nonzero(np.diff(s[s[:, i] != 0, i])) for i in range(3)])
+    return changes, reversals
+
+
 def oracle(h: History, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]]) -> list[dict[str, Any]]:
     """The module docstring's definitions, written again with numpy, run by run."""
     t = h.t
@@ -82,6 +91,8 @@ def oracle(h: History, *, steady_from_s: float, settle_threshold: float, t2_s: f
         use = live & steady
         outside = live & np.any((e < h.band_lower[:, n]) | (e > h.band_upper[:, n]), axis=1)
         sign0 = np.where(e[0] >= 0.0, 1.0, -1.0)
+        changes, reversals = _switching_counts(h.torque_B[use, n])
+        span = t[steady][-1] - t[steady][0] if steady.sum() >= 2 else None
         m: dict[str, Any] = {
             "settling_time_s": settling,
             "steady_max_abs_qev": float(np.max(np.where(use, big, 0.0))) if steady.any() else None,
@@ -89,6 +100,8 @@ def oracle(h: History, *, steady_from_s: float, settle_threshold: float, t2_s: f
             "rpf_error_at_t2": float(np.abs(e[k2] - h.rho[k2, n]).max()) if has_t2 and live[k2] else None,
             "overshoot": float(max(0.0, np.max(-sign0 * e[live]))) if live.any() else 0.0,
             "max_abs_torque_Nm": float(np.abs(h.torque_B[live, n]).max()) if live.any() else 0.0,
+            "torque_sign_changes_per_s": None if span is None else float(changes.max() / span),
+            "torque_reversals_per_s": None if span is None else float(reversals.max() / span),
             "saturation_fraction": float(np.sum(live & h.saturated[:, n].any(axis=1)) / T),
             "time_outside_constraint_s": float(outside.sum() * dt) if uniform else float(np.sum(hold[outside])),
             "returned_to_constraint": None,
@@ -125,6 +138,8 @@ def _rich_history(t: np.ndarray) -> History:
     q_ev[T // 2, 1, 2] = 0.2  # run 1 is unsettled again half-way
     q_ev[-1, 0, 1] = 0.15  # run 0 ends unsettled: it never settles
     torque = 0.1 * rng.standard_normal((T, 3, 3))
+    torque[np.abs(torque) < 0.06] = 0.0  # a minimum-output deadband: the torque switches on, off and over
+    torque[:, 1, 1] = 0.05  # one axis never switches
     torque[5, 0, 0], torque[9, 1, 2], torque[3, 2, 1] = -0.7, 0.8, 0.9  # each run's largest torque on another axis
     saturated = rng.random((T, 3, 3)) < 0.05
     # a band of its own per axis and run, not symmetric about zero
@@ -434,3 +449,117 @@ def test_each_component_is_held_to_its_own_band() -> None:
     outside = (own < lower[0, 0, axis]) | (own > upper[0, 0, axis])
     assert 0 < outside.sum() < T
     assert acc.run_metrics(0)["time_outside_constraint_s"] == outside.sum() * 0.01
+
+
+def _torque_run(t: np.ndarray, torque: list[list[float]]) -> History:
+    """One run with the produced torques ``torque`` (T rows of 3 axes) and a small constant error."""
+    u = np.asarray(torque, dtype=float)[:, None, :]
+    return _history(t, np.full((t.size, 1, 3), 0.01), torque=u)
+
+
+def _switching(h: History, **settings: Any) -> tuple[MetricsAccumulator, dict[str, Any]]:
+    acc = _accumulator(h.t, h.torque_B.shape[1], **settings)
+    acc.add_history(h)
+    return acc, acc.run_metrics(0)
+
+
+#: The window t >= 0.5 s of a 0.5 s grid: samples 1 .. 9, span 4 s. Sample 0 (outside) differs from
+#: sample 1 on every axis, so a transition across the window's start would count.
+SWITCHING_T = np.arange(10) * 0.5
+SWITCHING_U = [
+    # axis 0: on/off pulses   axis 1: constant   axis 2: direct reversals
+    [-0.2, 0.0, -0.2],  # k = 0, before the window
+    [0.2, -0.1, 0.2],
+    [0.0, -0.1, 0.2],
+    [0.2, -0.1, -0.2],
+    [-0.0, -0.1, -0.2],  # -0.0 is a zero, not a negative torque
+    [-0.2, -0.1, 0.2],
+    [0.0, -0.1, 0.2],
+    [-0.2, -0.1, -0.2],
+    [0.0, -0.1, -0.2],
+    [0.2, -0.1, -0.2],
+]
+
+
+def test_torque_sign_changes_count_every_switch_of_sign_in_the_window_per_axis() -> None:
+    """``torque_sign_changes_per_s``: changes of sign(u) in {-1, 0, +1} between consecutive samples
+    of the window (on, off and over each count one), per axis, the largest over the window's span;
+    ``torque_reversals_per_s``: non-zero signs opposite to the last non-zero one, zeros skipped.
+    Axis 0 (+ 0 + 0 - 0 - 0 +) switches 8 times and reverses twice; axis 1 never; axis 2
+    (+ + - - + + - - -) switches and reverses 3 times: the two maxima come from different axes."""
+    acc, m = _switching(_torque_run(SWITCHING_T, SWITCHING_U), steady_from_s=0.5)
+    assert acc.torque_sign_changes.tolist() == [[8, 0, 3]]
+    assert acc.torque_reversals.tolist() == [[2, 0, 3]]
+    assert m["torque_sign_changes_per_s"] == 8 / 4.0 == 2.0
+    assert m["torque_reversals_per_s"] == 3 / 4.0
+    c = acc.criteria_arrays()
+    assert c["torque_sign_changes_per_s"].tolist() == [2.0] and c["torque_reversals_per_s"].tolist() == [0.75]
+    # the window from sample 0: the transitions 0 -> 1 count too (every axis changes sign there)
+    acc, m = _switching(_torque_run(SWITCHING_T, SWITCHING_U), steady_from_s=0.0)
+    assert acc.torque_sign_changes.tolist() == [[9, 1, 4]] and acc.torque_reversals.tolist() == [[3, 0, 4]]
+    assert m["torque_sign_changes_per_s"] == 9 / 4.5 and m["torque_reversals_per_s"] == 4 / 4.5
+    # the window from sample 3 (t = 1.5 s, span 3 s): axis 0 is + 0 - 0 - 0 +, axis 2 - - + + - - -
+    acc, m = _switching(_torque_run(SWITCHING_T, SWITCHING_U), steady_from_s=1.5)
+    assert acc.torque_sign_changes.tolist() == [[6, 0, 2]] and acc.torque_reversals.tolist() == [[2, 0, 2]]
+    assert m["torque_sign_changes_per_s"] == 6 / 3.0 and m["torque_reversals_per_s"] == 2 / 3.0
+
+
+def test_a_torque_that_never_switches_gives_zero_and_one_that_switches_every_sample_one_over_dt() -> None:
+    t = np.arange(6) * 0.25
+    for u in ([0.3, -0.3, 0.0], [0.0, 0.0, 0.0], [-1e-300, 5e-324, 0.0]):  # constant (zero, and the tiniest torques, included)
+        _, m = _switching(_torque_run(t, [u] * 6), steady_from_s=0.0)
+        assert m["torque_sign_changes_per_s"] == 0.0 and m["torque_reversals_per_s"] == 0.0, u
+    alternating = [[0.1 * (-1) ** k, 0.0, 0.0] for k in range(6)]  # + - + - + -: 5 changes over 1.25 s
+    _, m = _switching(_torque_run(t, alternating), steady_from_s=0.0)
+    assert m["torque_sign_changes_per_s"] == m["torque_reversals_per_s"] == 5 / 1.25 == 1 / 0.25
+    pulses = [[0.0, 0.1 * (k % 2), 0.0] for k in range(6)]  # 0 + 0 + 0 +: on/off every sample, never reversed
+    _, m = _switching(_torque_run(t, pulses), steady_from_s=0.0)
+    assert m["torque_sign_changes_per_s"] == 4.0 and m["torque_reversals_per_s"] == 0.0
+    first = [[0.0, 0.0, -0.1]] + [[0.0, 0.0, 0.1]] * 5  # the window's first non-zero sign is negative, then positive
+    _, m = _switching(_torque_run(t, first), steady_from_s=0.0)
+    assert m["torque_sign_changes_per_s"] == m["torque_reversals_per_s"] == 1 / 1.25
+
+
+def test_the_switching_rates_need_two_samples_in_the_window() -> None:
+    """One sample in the window has no interval to switch in: None (as an empty window); two
+    samples: one change over one step."""
+    t = np.arange(4) * 0.5
+    h = _torque_run(t, [[0.1, 0.0, 0.0], [-0.1, 0.0, 0.0], [0.1, 0.0, 0.0], [-0.1, 0.0, 0.0]])
+    for steady_from_s in (t[-1], t[-1] + 2 * TIME_TOL_S):  # one sample, none
+        acc, m = _switching(h, steady_from_s=steady_from_s)
+        assert m["torque_sign_changes_per_s"] is None and m["torque_reversals_per_s"] is None, steady_from_s
+        assert np.isnan(acc.criteria_arrays()["torque_sign_changes_per_s"][0]) and np.isnan(acc.criteria_arrays()["torque_reversals_per_s"][0])
+    assert _switching(h, steady_from_s=t[-1])[0].steady_span_s() is None
+    acc, m = _switching(h, steady_from_s=t[-2])
+    assert acc.steady_span_s() == 0.5 and m["torque_sign_changes_per_s"] == 2.0 and m["torque_reversals_per_s"] == 2.0
+
+
+def test_switching_is_counted_across_blocks_runs_and_up_to_a_failure() -> None:
+    """A change between the last sample of one block and the first of the next counts once; runs
+    keep their own counts (and concatenate); a failed run counts its changes before the failure,
+    over the whole window's span."""
+    t = np.arange(10) * 0.5
+    u = np.zeros((10, 2, 3))
+    u[:, 0, :] = np.asarray(SWITCHING_U)
+    u[[2, 3, 6, 7], 1, 1] = 0.1  # run 1: 0 0 + + 0 0 + + 0 0 on axis 1: 4 changes, no reversal in [0.5, 4.5]
+    h = _history(t, np.full((10, 2, 3), 0.01), torque=u)
+    x = np.concatenate((h.q_BN, h.omega_BN_B), axis=2)
+    blocks = _accumulator(t, 2, steady_from_s=0.5)
+    for k0, k1 in ((0, 1), (1, 2), (2, 4), (4, 5), (5, 10)):  # the changes at 1 -> 2, 3 -> 4, 4 -> 5 cross blocks
+        blocks.update(k0, t[k0:k1], x[k0:k1], u[k0:k1], h.q_BR[k0:k1], h.rho[k0:k1], h.saturated[k0:k1], h.band_lower[k0:k1],
+                      h.band_upper[k0:k1])
+    assert blocks.torque_sign_changes.tolist() == [[8, 0, 3], [0, 4, 0]] and blocks.torque_reversals.tolist() == [[2, 0, 3], [0, 0, 0]]
+    assert blocks.run_metrics(1)["torque_sign_changes_per_s"] == 1.0 and blocks.run_metrics(1)["torque_reversals_per_s"] == 0.0
+    parts = []
+    for n in range(2):
+        part = _accumulator(t, 1, steady_from_s=0.5)
+        part.add_history(History(**{f: h.t if f == "t" else getattr(h, f)[:, n : n + 1] for f in History.__dataclass_fields__}))
+        parts.append(part)
+    joined = MetricsAccumulator.concatenate(parts)
+    assert joined.torque_sign_changes.tolist() == [[8, 0, 3], [0, 4, 0]] and joined.torque_reversals.tolist() == [[2, 0, 3], [0, 0, 0]]
+    assert [joined.run_metrics(n) for n in range(2)] == [blocks.run_metrics(n) for n in range(2)]
+    failed = _torque_run(t, SWITCHING_U)
+    failed.omega_BN_B[6, 0, 0] = math.nan  # fails at sample 6: the window's samples 1 .. 5 count
+    acc, m = _switching(failed, steady_from_s=0.5)
+    assert m["finite"] is False and acc.torque_sign_changes.tolist() == [[4, 0, 2]] and acc.torque_reversals.tolist() == [[1, 0, 2]]
+    assert m["torque_sign_changes_per_s"] == 4 / 4.0 and m["torque_reversals_per_s"] == 2 / 4.0

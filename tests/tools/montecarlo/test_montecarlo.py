@@ -73,17 +73,32 @@ def test_dispersion_statistics_and_per_run_reproducibility(tmp_path) -> None:
     assert not np.array_equal(draw_inputs(cfg, seed=4, runs=[1234]).euler_deg, alone.euler_deg)
 
 
-def test_results_are_identical_for_any_chunking_and_executor(tmp_path) -> None:
+def _sub_batch(monkeypatch, runs: int) -> None:  # type: ignore[no-untyped-def]
+    """Make the in-process sub-batches (the units of progress inside a chunk) ``runs`` runs long."""
+    monkeypatch.setattr(offline_simulate, "SUB_BATCH", runs)
+    monkeypatch.setattr(offline_simulate.run_scenario, "__kwdefaults__", {**offline_simulate.run_scenario.__kwdefaults__, "sub_batch": runs})
+
+
+def test_results_are_identical_for_any_chunking_and_executor(tmp_path, monkeypatch) -> None:
     a = run_campaign(_short(tmp_path, chunk_runs=5), runs=12, seed=7, out_dir=tmp_path / "a", progress=False)
     b = run_campaign(_short(tmp_path, chunk_runs=3), runs=12, seed=7, out_dir=tmp_path / "b", workers=2, progress=False)
     assert (tmp_path / "a" / "runs.csv").read_bytes() == (tmp_path / "b" / "runs.csv").read_bytes()
     assert a["passed"] == b["passed"] == 12
+    # one worker, one chunk of every run, reporting progress every 2 runs: the same bytes
+    _sub_batch(monkeypatch, 2)
+    run_campaign(_short(tmp_path, chunk_runs=12), runs=12, seed=7, out_dir=tmp_path / "c", workers=1, progress=True)
+    assert (tmp_path / "c" / "runs.csv").read_bytes() == (tmp_path / "a" / "runs.csv").read_bytes()
+    assert json.loads((tmp_path / "c" / "manifest.json").read_text())["chunk_runs"] == 12
     # a run of the campaign re-run alone gives its row exactly
     _, row, metrics, _ = load_campaign_run(tmp_path / "a", 9)
     table = np.genfromtxt(tmp_path / "a" / "runs.csv", delimiter=",", names=True)
     assert row["rpf_error_at_t2_per_axis"][0].max() == table["rpf_error_at_t2"][9]
     assert metrics["steady_mean_abs_qev"] == table["steady_mean_abs_qev"][9]
     assert metrics["max_abs_torque_Nm"] == table["max_abs_torque_Nm"][9]
+    assert metrics["torque_sign_changes_per_s"] == table["torque_sign_changes_per_s"][9] == row["torque_sign_changes_per_s"][0]
+    assert metrics["torque_reversals_per_s"] == table["torque_reversals_per_s"][9]
+    summary = json.loads((tmp_path / "a" / "summary.json").read_text())
+    assert summary["torque_sign_changes_per_s"]["max"] == table["torque_sign_changes_per_s"].max()
 
 
 def test_local_dask_cluster_gives_the_same_results(tmp_path) -> None:
@@ -240,10 +255,40 @@ def test_progress_moves_during_a_chunk(tmp_path, monkeypatch) -> None:
         real_update(self, n)
 
     monkeypatch.setattr(mc._Progress, "update", spy)
-    monkeypatch.setattr(offline_simulate, "SUB_BATCH", 4)
-    monkeypatch.setattr(offline_simulate.run_scenario, "__kwdefaults__", {**offline_simulate.run_scenario.__kwdefaults__, "sub_batch": 4})
+    _sub_batch(monkeypatch, 4)
     run_campaign(_short(tmp_path, chunk_runs=12), runs=12, seed=3, out_dir=tmp_path / "p", workers=1, progress=False)
     assert reports == [4, 4, 4]
+
+
+def test_a_one_worker_campaign_reports_progress_several_times_before_its_chunk_ends(tmp_path, monkeypatch, capsys) -> None:
+    """``--workers 1`` (in this process), the default sub-batches, one chunk of 70 runs: the progress
+    callback is called after each sub-batch of 32 runs, twice before the chunk is saved and the
+    campaign ends, and each report prints a line.  The progress clock starts after the kernels are
+    compiled (a first campaign's minute of compiling is not in its runs/s and ETA)."""
+    events: list[object] = []
+    real_init, real_update, real_save = mc._Progress.__init__, mc._Progress.update, mc.save_chunk
+
+    def init(self, *args):  # type: ignore[no-untyped-def]
+        events.append("clock")
+        real_init(self, *args)
+
+    def spy(self, n):  # type: ignore[no-untyped-def]
+        events.append(n)
+        real_update(self, n)
+
+    def save(out, index, result):  # type: ignore[no-untyped-def]
+        events.append("saved")
+        real_save(out, index, result)
+
+    monkeypatch.setattr(mc._Progress, "__init__", init)
+    monkeypatch.setattr(mc._Progress, "update", spy)
+    monkeypatch.setattr(mc, "save_chunk", save)
+    monkeypatch.setattr(mc.compiled_loop, "ensure_compiled", lambda **kw: events.append("compiled") if "in_subprocess" in kw else None)  # the campaign's call
+    monkeypatch.setattr(mc._Progress, "LOG_PERIOD_S", 0.0)  # print every report (stderr is not a terminal here)
+    run_campaign(_short(tmp_path, chunk_runs=70), runs=70, seed=3, out_dir=tmp_path / "p", workers=1, progress=True)
+    assert offline_simulate.SUB_BATCH == 32 and events == ["compiled", "clock", 32, 32, 6, "saved"]
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split()[1] for line in lines if line.startswith("runs ")] == ["32/70", "64/70", "70/70"]
 
 
 def test_a_campaign_disperses_fault_kinds_times_and_lengths_and_run_k_is_the_fault_alone(tmp_path) -> None:

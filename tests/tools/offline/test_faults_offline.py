@@ -89,6 +89,22 @@ def test_bad_requirements_name_the_key(requirements: dict, message: str) -> None
         scenario_from_mapping(raw)
 
 
+def test_a_no_chattering_requirement_bounds_the_torque_sign_changes() -> None:
+    """``torque_sign_changes_per_s_max``: experiment 1 holds the disturbance with a torque that never
+    switches over [25, 60] s (it meets a bound of 0); without the disturbance the 5 mN m deadband
+    makes it switch some 28 times a second on its busiest axis, almost never reversing."""
+    from sappc.evaluation.requirements import failed_requirements
+
+    bound = {"torque_sign_changes_per_s_max": 0.0}
+    with_disturbance = simulate(scenario_from_mapping(_scenario(60.0, metrics={**BASE["metrics"], "requirements": bound})))
+    assert with_disturbance.metrics["torque_sign_changes_per_s"] == 0.0 and with_disturbance.metrics["torque_reversals_per_s"] == 0.0
+    assert failed_requirements(with_disturbance.metrics, with_disturbance.scenario.metrics.requirements) == []
+    calm = simulate(scenario_from_mapping(_scenario(60.0, disturbances=[])))
+    rate = calm.metrics["torque_sign_changes_per_s"]
+    assert 20.0 < rate < 35.0 and calm.metrics["torque_reversals_per_s"] < 1.0
+    assert failed_requirements(calm.metrics, bound) == [f"torque_sign_changes_per_s = {rate:.6g} > 0"]
+
+
 def test_simulate_reports_what_the_controller_did_and_exits_4_on_a_broken_requirement(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """The dropout of the README through `sappc simulate`: the summary line counts the answers, and a
     requirement the run breaks (steady max |q_ev| over [25, 60] s <= 1e-4: the dropout's transient
