@@ -1,7 +1,9 @@
 """The reference publisher (``python -m spacecraft_sim.reference``): the paper's desired trajectory.
 
 Publishes ``reference/attitude``, ``reference/rate`` and ``reference/acceleration`` (see
-:mod:`sappc_msgs_py.contract`) from :class:`~spacecraft_sim.core.reference.PaperReference`,
+:mod:`sappc_msgs_py.contract`), and the reference frame in the inertial frame (``reference/tf``: a
+``TransformStamped`` with the attitude's stamp and quaternion ``q_RN``, for tf-style viewers; the
+reference node owns frame R as the plant owns B), from :class:`~spacecraft_sim.core.reference.PaperReference`,
 sampled on the grid ``k dt``, ``k = 0 .. duration_s / dt``, exactly as the offline runner samples
 it (the attitude is integrated once over the whole grid).
 
@@ -23,8 +25,8 @@ import sys
 from typing import Any
 
 
-from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, qos_profile
-from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, vector3_msg
+from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_TF, qos_profile
+from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, transform_from_attitude, transform_msg, vector3_msg
 from sappc_msgs_py.runtime import LOCKSTEP, ProjectNode, run_node
 
 from spacecraft_sim.core.reference import PaperReference, sample_times
@@ -51,6 +53,8 @@ class ReferenceNode(ProjectNode):
         self._stamps = [time_to_stamp(float(t)) for t in self.samples.t]
         self._index = {stamp_to_ns(st): k for k, st in enumerate(self._stamps)}
         self.pubs = [self.counting_publisher(t, 1) for t in (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)]
+        self.pub_tf = self.counting_publisher(REFERENCE_TF)  # waits only for expected_subscribers
+        self._tf = transform_msg(REFERENCE_TF)  # one message, re-stamped each sample
         if self.mode == LOCKSTEP:
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile())
         else:
@@ -59,9 +63,11 @@ class ReferenceNode(ProjectNode):
 
     def _publish(self, k: int, stamp: Any) -> None:
         s = self.samples
-        self.pubs[0].publish(quaternion_msg(s.q_RN[k], stamp, REFERENCE_ATTITUDE))
+        att = quaternion_msg(s.q_RN[k], stamp, REFERENCE_ATTITUDE)
+        self.pubs[0].publish(att)
         self.pubs[1].publish(vector3_msg(s.omega_RN_R[k], stamp, REFERENCE_RATE))
         self.pubs[2].publish(vector3_msg(s.omegadot_RN_R[k], stamp, REFERENCE_ACCELERATION))
+        self.pub_tf.publish(transform_from_attitude(self._tf, att))
 
     def _on_clock(self, msg: Any) -> None:
         ns = stamp_to_ns(msg.clock)
