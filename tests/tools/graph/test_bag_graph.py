@@ -304,3 +304,7 @@ def test_the_recorded_frames_decode_with_rosbags_and_equal_the_attitudes_at_each
             assert attitudes[stamp] == ("inertial", rotation), (frame_topic, stamp)  # the attitude itself, bit for bit
         assert report["published"][frame_topic] == report["recorded"][frame_topic] == len(grid)
     assert rows["/state/tf"][0][2] != rows["/reference/tf"][0][2]  # two frames, not one copied
+    from sappc.analysis.report import analyse_bag
+
+    notes = analyse_bag(out / "bag").notes  # the frames are no input of the report: nothing is said to be missing
+    assert not [n for n in notes if "absent" in n], notes
