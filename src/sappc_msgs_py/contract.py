@@ -17,7 +17,21 @@ topic                         type                            frame_id    conten
 ``disturbance/torque``        geometry_msgs/WrenchStamped     ``body``     injected external torque [N m]
 ``controller/diagnostics``    std_msgs/Float64MultiArray      (none)      see :data:`DIAGNOSTICS_LAYOUT`
 ``/clock``                    rosgraph_msgs/Clock             (none)      simulation time (lockstep mode)
+``state/tf``                  geometry_msgs/TransformStamped  ``inertial`` frame ``body`` in ``inertial``: rotation ``q_BN``
+``reference/tf``              geometry_msgs/TransformStamped  ``inertial`` frame ``reference`` in ``inertial``: ``q_RN``
 ============================  ==============================  ==========  =========================================
+
+Frames (:class:`Frame`): ``inertial`` (N, the fixed parent), ``body`` (B) and ``reference`` (R, the
+desired attitude).  The two transform topics make the attitude visible to tf-style tools (Foxglove's
+3D panel builds its frame tree from every ``TransformStamped``): parent ``inertial`` (the header
+frame), child :attr:`Topic.child_frame_id`, translation zero (attitude only), rotation the attitude
+quaternion as it is, because a transform's rotation maps child-frame coordinates to parent-frame
+coordinates, ``v_N = q_BN ⊗ v_B ⊗ q_BN*``, which is what ``q_BN`` does (``gnc_common.attitude``).
+Each is published by the node that owns the frame, once per sample with that sample's stamp (the
+plant: B with the state; the reference node: R with the reference), each on its own topic, so that
+a lockstep bag's order never depends on which of two publishers of one topic was first.  They are
+not ``/tf`` (``tf2_msgs/msg/TFMessage``): ``tf2_msgs`` is not published as a PyPI wheel for Jazzy
+(README, "Attitude you can see").
 
 When the fault injector relays a path (``python -m spacecraft_sim.disturbance``), it republishes
 the faulty samples under ``fault/`` (``fault/state/attitude``, ``fault/state/rate``,
@@ -72,9 +86,12 @@ __all__ = [
     "RELAYED_REFERENCE_TOPICS",
     "RELAYED_SENSOR_TOPICS",
     "RELAYED_TOPICS",
+    "REFERENCE_TF",
     "STATE_ATTITUDE",
     "STATE_RATE",
+    "STATE_TF",
     "TOPICS",
+    "TRANSFORM_TOPICS",
     "Topic",
     "consumed_names",
     "faulty",
@@ -109,12 +126,15 @@ class Topic:
     type_name : str
         ROS 2 type, ``pkg/msg/Type``.
     frame_id : str | None
-        Required header frame id (``None``: the type has no header).
+        Required header frame id (``None``: the type has no header); a transform's parent frame.
+    child_frame_id : str | None
+        A ``TransformStamped``'s child frame id (``None`` for every other type).
     """
 
     name: str
     type_name: str
     frame_id: str | None
+    child_frame_id: str | None = None
 
     @property
     def msg_class(self) -> type:
@@ -140,6 +160,8 @@ CONTROL_TORQUE = Topic("control/torque", "geometry_msgs/msg/WrenchStamped", Fram
 DISTURBANCE_TORQUE = Topic("disturbance/torque", "geometry_msgs/msg/WrenchStamped", Frame.BODY.value)
 CONTROLLER_DIAGNOSTICS = Topic("controller/diagnostics", "std_msgs/msg/Float64MultiArray", None)
 CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", None)
+STATE_TF = Topic("state/tf", "geometry_msgs/msg/TransformStamped", Frame.INERTIAL.value, Frame.BODY.value)
+REFERENCE_TF = Topic("reference/tf", "geometry_msgs/msg/TransformStamped", Frame.INERTIAL.value, Frame.REFERENCE.value)
 
 #: Prefix of the topics a fault relay republishes.
 FAULT_PREFIX = "fault/"
@@ -203,7 +225,13 @@ TOPICS = (
     DISTURBANCE_TORQUE,
     CONTROLLER_DIAGNOSTICS,
     CLOCK,
+    STATE_TF,
+    REFERENCE_TF,
 )
+
+#: The attitude as frames (body and reference relative to inertial), for visualisation only: no
+#: node consumes them, a fault relay never republishes them (they show the truth).
+TRANSFORM_TOPICS = (STATE_TF, REFERENCE_TF)
 
 #: Layout of ``controller/diagnostics`` (``std_msgs/Float64MultiArray``): labelled rows of 3
 #: values each (per axis or per layer), in this order.  The message's ``layout.dim`` carries the

@@ -46,6 +46,8 @@ __all__ = [
     "time_to_stamp",
     "torque_from_msg",
     "torque_msg",
+    "transform_from_attitude",
+    "transform_msg",
     "vector3_from_msg",
     "vector3_msg",
 ]
@@ -113,7 +115,7 @@ def seconds_to_ns(t_s: float) -> int:
 #: or ``rosgraph_msgs/Clock``'s clock): ``int32 sec, uint32 nanosec`` after the 4-byte
 #: encapsulation header.
 _STAMP_FIRST = frozenset({"geometry_msgs/msg/QuaternionStamped", "geometry_msgs/msg/Vector3Stamped",
-                          "geometry_msgs/msg/WrenchStamped", "rosgraph_msgs/msg/Clock"})
+                          "geometry_msgs/msg/WrenchStamped", "geometry_msgs/msg/TransformStamped", "rosgraph_msgs/msg/Clock"})
 _DIAGNOSTICS_TYPE = "std_msgs/msg/Float64MultiArray"
 
 
@@ -215,6 +217,37 @@ def torque_from_msg(msg: Any, topic: Topic = CONTROL_TORQUE) -> Array:
     _check_frame(msg, topic)
     tq = msg.wrench.torque
     return _finite(topic, "torque", [tq.x, tq.y, tq.z])
+
+
+def transform_msg(topic: Topic) -> Any:
+    """A ``TransformStamped`` for a transform topic (``STATE_TF``, ``REFERENCE_TF``): parent frame
+    ``topic.frame_id``, child frame ``topic.child_frame_id``, translation zero, identity rotation,
+    stamp zero.  A publisher builds one at start-up and fills it per sample with
+    :func:`transform_from_attitude` (two assignments: the per-sample cost stays small)."""
+    if topic.child_frame_id is None:
+        raise ValueError(f"{topic.name} does not carry a transform")
+    msg = topic.msg_class()
+    msg.header.frame_id = topic.frame_id or ""
+    msg.child_frame_id = topic.child_frame_id
+    msg.transform.rotation.w = 1.0
+    return msg
+
+
+def transform_from_attitude(msg: Any, attitude: Any) -> Any:
+    """``msg`` (from :func:`transform_msg`) with the stamp and quaternion of ``attitude``, a
+    ``QuaternionStamped`` already encoded (``state/attitude``: ``q_BN``; ``reference/attitude``:
+    ``q_RN``); returns ``msg``.
+
+    The quaternion goes in as it is: a transform's rotation maps child-frame coordinates to
+    parent-frame coordinates, and ``q_BN`` maps body coordinates to inertial ones
+    (``v_N = q_BN ⊗ v_B ⊗ q_BN*``, :mod:`gnc_common.attitude`), so the child ``body`` in the parent
+    ``inertial`` is ``q_BN``, not its conjugate.  The message shares the attitude's stamp and
+    quaternion objects (rclpy serialises at ``publish``, and the attitude is filled for the sample
+    before the transform is published).
+    """
+    msg.header.stamp = attitude.header.stamp
+    msg.transform.rotation = attitude.quaternion
+    return msg
 
 
 def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike], out: Any = None) -> Any:

@@ -1,7 +1,8 @@
 """The plant node (``python -m spacecraft_sim``): a rigid body on the ROS 2 graph.
 
 It publishes the measured attitude and body rate (``state/attitude``, ``state/rate``, see
-:mod:`sappc_msgs_py.contract`), applies the torque received on ``control/torque`` plus, when
+:mod:`sappc_msgs_py.contract`) and the body frame in the inertial frame (``state/tf``: a
+``TransformStamped`` with the same stamp and quaternion, for tf-style viewers), applies the torque received on ``control/torque`` plus, when
 ``use_disturbance_topic`` is true, the torque received on ``disturbance/torque``, and integrates
 with the plant core (:class:`~spacecraft_sim.core.dynamics.RigidBody`, RK4, zero-order hold).
 
@@ -45,8 +46,17 @@ from typing import Any
 
 import numpy as np
 
-from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, qos_profile
-from sappc_msgs_py.convert import clock_msg, quaternion_msg, stamp_to_ns, time_to_stamp, torque_from_msg, vector3_msg
+from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, STATE_TF, qos_profile
+from sappc_msgs_py.convert import (
+    clock_msg,
+    quaternion_msg,
+    stamp_to_ns,
+    time_to_stamp,
+    torque_from_msg,
+    transform_from_attitude,
+    transform_msg,
+    vector3_msg,
+)
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MATCH_TIMEOUT_S, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
 
@@ -108,6 +118,8 @@ class PlantNode(ProjectNode):
         qos = qos_profile()
         self.pub_att = self.counting_publisher(STATE_ATTITUDE, 1)
         self.pub_rate = self.counting_publisher(STATE_RATE, 1)
+        self.pub_tf = self.counting_publisher(STATE_TF)  # nobody needs it to fly: waits only for expected_subscribers
+        self._tf = transform_msg(STATE_TF)  # one message, re-stamped each sample
         self.pub_clock = self.counting_publisher(CLOCK) if self.mode == LOCKSTEP else None
         self._inputs = {"torque": self.create_subscription(CONTROL_TORQUE.msg_class, CONTROL_TORQUE.name, self._on_torque, qos)}
         if self.use_disturbance:
@@ -184,7 +196,7 @@ class PlantNode(ProjectNode):
         incompatible QoS is never matched: the plant then starts without it, and says so).
         """
         missing = [f"a publisher of {sub.topic_name}" for sub in self._inputs.values() if sub.get_publisher_count() < 1]
-        missing += unmatched([p for p in (self.pub_att, self.pub_rate, self.pub_clock) if p is not None])
+        missing += unmatched([p for p in (self.pub_att, self.pub_rate, self.pub_tf, self.pub_clock) if p is not None])
         if self.pub_clock is None:  # real time: no /clock
             return missing
         on_graph, matched = self.count_subscribers(self.pub_clock.resolved_name), self.pub_clock.pub.get_subscription_count()
@@ -249,8 +261,10 @@ class PlantNode(ProjectNode):
     def _publish_state(self, t_s: Any) -> None:
         if self._wall_first is None:
             self._wall_first = time.monotonic()
-        self.pub_att.publish(quaternion_msg(self.x[0, :4], t_s, STATE_ATTITUDE, out=self.pub_att.msg))
+        att = quaternion_msg(self.x[0, :4], t_s, STATE_ATTITUDE, out=self.pub_att.msg)
+        self.pub_att.publish(att)
         self.pub_rate.publish(vector3_msg(self.x[0, 4:], t_s, STATE_RATE, out=self.pub_rate.msg))
+        self.pub_tf.publish(transform_from_attitude(self._tf, att))  # after the state: off the loop's critical path
 
     def finish(self) -> None:
         run_s = 0.0 if self._wall_first is None else time.monotonic() - self._wall_first

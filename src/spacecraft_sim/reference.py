@@ -1,7 +1,9 @@
 """The reference publisher (``python -m spacecraft_sim.reference``): the paper's desired trajectory.
 
 Publishes ``reference/attitude``, ``reference/rate`` and ``reference/acceleration`` (see
-:mod:`sappc_msgs_py.contract`) from :class:`~spacecraft_sim.core.reference.PaperReference`,
+:mod:`sappc_msgs_py.contract`), and the reference frame in the inertial frame (``reference/tf``: a
+``TransformStamped`` with the attitude's stamp and quaternion ``q_RN``, for tf-style viewers; the
+reference node owns frame R as the plant owns B), from :class:`~spacecraft_sim.core.reference.PaperReference`,
 sampled on the grid ``k dt``, ``k = 0 .. duration_s / dt``, exactly as the offline runner samples
 it (the attitude is integrated once over the whole grid).
 
@@ -24,8 +26,8 @@ import sys
 from typing import Any
 
 
-from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, qos_profile
-from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, vector3_msg
+from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_TF, qos_profile
+from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, transform_from_attitude, transform_msg, vector3_msg
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, StartGate, run_node, unmatched
 
@@ -68,13 +70,15 @@ class ReferenceNode(ProjectNode):
         self._stamps = [time_to_stamp(float(t)) for t in self.samples.t]
         self._index = {stamp_to_ns(st): k for k, st in enumerate(self._stamps)}
         self.pubs = [self.counting_publisher(t, 1) for t in (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)]
+        self.pub_tf = self.counting_publisher(REFERENCE_TF)  # waits only for expected_subscribers
+        self._tf = transform_msg(REFERENCE_TF)  # one message, re-stamped each sample
         if self.mode == LOCKSTEP:
             self._cursor = GridCursor(self.samples.t.size - 1)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile())
-            self.start_when(lambda: unmatched(self.pubs), lambda: self._publish_through(1))
+            self.start_when(lambda: unmatched([*self.pubs, self.pub_tf]), lambda: self._publish_through(1))
         else:
             self._t0_ns: int | None = None
-            self._gate = StartGate(self, lambda: unmatched(self.pubs))  # no publish may block a tick
+            self._gate = StartGate(self, lambda: unmatched([*self.pubs, self.pub_tf]))  # no publish may block a tick
             self.create_timer(self.dt, self._on_timer)
 
     def _publish(self, k: int, stamp: Any) -> None:
@@ -83,6 +87,7 @@ class ReferenceNode(ProjectNode):
         att.publish(quaternion_msg(s.q_RN[k], stamp, REFERENCE_ATTITUDE, out=att.msg))
         rate.publish(vector3_msg(s.omega_RN_R[k], stamp, REFERENCE_RATE, out=rate.msg))
         acc.publish(vector3_msg(s.omegadot_RN_R[k], stamp, REFERENCE_ACCELERATION, out=acc.msg))
+        self.pub_tf.publish(transform_from_attitude(self._tf, att.msg))
 
     def _on_clock(self, msg: Any) -> None:
         ns = stamp_to_ns(msg.clock)

@@ -23,6 +23,8 @@ from sappc_msgs_py.convert import (
     time_to_stamp,
     torque_from_msg,
     torque_msg,
+    transform_from_attitude,
+    transform_msg,
     vector3_from_msg,
     vector3_msg,
 )
@@ -93,6 +95,8 @@ def _sample(topic: c.Topic):  # type: ignore[no-untyped-def]
         return torque_msg([0.1, -0.2, 0.3], 12.34, topic)
     if topic.type_name.endswith("Clock"):
         return clock_msg(12.34)
+    if topic.type_name.endswith("TransformStamped"):
+        return transform_from_attitude(transform_msg(topic), quaternion_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], 12.34, c.STATE_ATTITUDE))
     return diagnostics_msg(12.34, {label: [1.0, 2.0, 3.0] for label in c.DIAGNOSTICS_LAYOUT[1:]})
 
 
@@ -117,6 +121,10 @@ def test_schema_text_decodes_rclpy_bytes_with_two_independent_decoders(topic) ->
         assert decoded.vector.z == other.vector.z == msg.vector.z
     if hasattr(msg, "wrench"):
         assert decoded.wrench.torque.y == other.wrench.torque.y == msg.wrench.torque.y
+    if hasattr(msg, "transform"):
+        assert decoded.child_frame_id == other.child_frame_id == msg.child_frame_id == topic.child_frame_id
+        assert decoded.transform.rotation.z == other.transform.rotation.z == msg.transform.rotation.z == 0.3
+        assert other.transform.translation.x == other.transform.translation.y == other.transform.translation.z == 0.0
     if hasattr(msg, "data"):
         assert list(decoded.data) == list(other.data) == list(msg.data)
     # and the hash of the type as rosbags computes it from the definition equals the installed one
@@ -155,7 +163,8 @@ def test_fault_relay_topics_keep_type_and_frame_and_stamps_copy_exactly() -> Non
 
 @pytest.mark.parametrize("t_s", [0.0, 0.01, 12.34, 59.99, 2.0**31 - 1.5])
 def test_cdr_stamp_ns_reads_the_stamp_of_every_recorded_type_without_deserializing(t_s: float) -> None:
-    """What the lockstep recorder logs a message at: the header stamp of the stamped types,
+    """What the lockstep recorder logs a message at: the header stamp of the stamped types (the
+    transforms included),
     /clock's clock, the diagnostics' time_s, equal to what the deserialized message says;
     little- and big-endian CDR (the encapsulation header says which)."""
     from rclpy.serialization import deserialize_message
@@ -168,6 +177,8 @@ def test_cdr_stamp_ns_reads_the_stamp_of_every_recorded_type_without_deserializi
         c.CONTROL_TORQUE: torque_msg([0.1, 0.2, 0.3], t_s, c.CONTROL_TORQUE),
         c.CLOCK: clock_msg(t_s),
         c.CONTROLLER_DIAGNOSTICS: diagnostics_msg(ns / 1e9, rows),
+        c.STATE_TF: transform_from_attitude(transform_msg(c.STATE_TF), quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.STATE_ATTITUDE)),
+        c.REFERENCE_TF: transform_from_attitude(transform_msg(c.REFERENCE_TF), quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.REFERENCE_ATTITUDE)),
     }
     store = get_typestore(Stores.ROS2_JAZZY)
     for topic, msg in messages.items():
@@ -190,3 +201,53 @@ def test_cdr_stamp_ns_refuses_a_type_it_cannot_time_and_a_foreign_float_array() 
         cdr_stamp_ns("std_msgs/msg/String", b"\x00\x01\x00\x00abcd")
     with pytest.raises(ValueError, match="not a controller diagnostics message"):
         cdr_stamp_ns("std_msgs/msg/Float64MultiArray", serialize_message(Float64MultiArray(data=[1.0, 2.0])))
+
+
+def test_transform_topics_name_the_contract_frames_and_carry_the_attitude_as_it_is() -> None:
+    """``state/tf`` is frame ``body`` in ``inertial``, ``reference/tf`` frame ``reference`` in
+    ``inertial``; translation zero; stamp and quaternion those of the attitude message."""
+    assert c.TRANSFORM_TOPICS == (c.STATE_TF, c.REFERENCE_TF) and all(t in c.TOPICS for t in c.TRANSFORM_TOPICS)
+    assert (c.STATE_TF.frame_id, c.STATE_TF.child_frame_id) == ("inertial", "body")
+    assert (c.REFERENCE_TF.frame_id, c.REFERENCE_TF.child_frame_id) == ("inertial", "reference")
+    assert c.STATE_TF.frame_id == c.STATE_ATTITUDE.frame_id and c.REFERENCE_TF.frame_id == c.REFERENCE_ATTITUDE.frame_id
+    assert c.STATE_TF.child_frame_id == c.STATE_RATE.frame_id and c.REFERENCE_TF.child_frame_id == c.REFERENCE_RATE.frame_id
+    assert {c.Frame(t.child_frame_id) for t in c.TRANSFORM_TOPICS} == {c.Frame.BODY, c.Frame.REFERENCE}
+    q = np.array([0.3254, 0.4068, -0.3254, 0.7891]) / np.linalg.norm([0.3254, 0.4068, -0.3254, 0.7891])
+    tf = transform_msg(c.STATE_TF)
+    for k, t_s in enumerate((0.0, 0.01, 59.99)):  # one message, re-stamped sample after sample
+        att = quaternion_msg(q * (-1) ** k, t_s, c.STATE_ATTITUDE)
+        out = transform_from_attitude(tf, att)
+        assert out is tf and stamp_to_ns(out.header.stamp) == stamp_to_ns(att.header.stamp)
+        assert out.header.frame_id == "inertial" and out.child_frame_id == "body"
+        r, p = out.transform.rotation, out.transform.translation
+        assert (r.x, r.y, r.z, r.w) == tuple(q * (-1) ** k) and (p.x, p.y, p.z) == (0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="state/attitude does not carry a transform"):
+        transform_msg(c.STATE_ATTITUDE)
+
+
+def test_the_body_transform_maps_body_axes_to_inertial_axes() -> None:
+    """The direction of the rotation, on a concrete vector.  A body turned +90 deg about the
+    inertial z axis has its x axis along inertial +y.  ``state/tf``'s rotation, applied as tf
+    applies a transform's rotation (child coordinates to parent coordinates; scipy's ``apply`` is
+    the same active rotation ``q v q*``), must take the body x axis (1, 0, 0)_B to (0, 1, 0)_N;
+    the conjugate would give (0, -1, 0)_N.  Checked against the project's own direction cosine
+    matrix too (``C_BN`` maps inertial components to body ones, so ``C_BN^T`` body to inertial)."""
+    from scipy.spatial.transform import Rotation
+
+    from gnc_common.attitude import quat_to_dcm_BN
+
+    half = np.pi / 4
+    q_BN = np.array([0.0, 0.0, np.sin(half), np.cos(half)])  # +90 deg about z, scalar last
+    tf = transform_from_attitude(transform_msg(c.STATE_TF), quaternion_msg(q_BN, 1.0, c.STATE_ATTITUDE))
+    r = tf.transform.rotation
+    rotation = Rotation.from_quat([r.x, r.y, r.z, r.w])  # scipy: scalar last, like geometry_msgs
+    np.testing.assert_allclose(rotation.apply([1.0, 0.0, 0.0]), [0.0, 1.0, 0.0], atol=1e-15)  # body x -> inertial +y
+    np.testing.assert_allclose(rotation.apply([0.0, 1.0, 0.0]), [-1.0, 0.0, 0.0], atol=1e-15)  # body y -> inertial -x
+    np.testing.assert_allclose(rotation.apply([0.0, 0.0, 1.0]), [0.0, 0.0, 1.0], atol=1e-15)
+    np.testing.assert_allclose(quat_to_dcm_BN(q_BN[None])[0].T @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-15)
+    # a general attitude: the transform rotates body vectors into inertial ones as C_BN^T does
+    q = np.array([0.3254, 0.4068, -0.3254, 0.7891]) / np.linalg.norm([0.3254, 0.4068, -0.3254, 0.7891])
+    tf = transform_from_attitude(transform_msg(c.STATE_TF), quaternion_msg(q, 1.0, c.STATE_ATTITUDE))
+    r = tf.transform.rotation
+    v_B = np.array([0.2, -0.7, 0.4])
+    np.testing.assert_allclose(Rotation.from_quat([r.x, r.y, r.z, r.w]).apply(v_B), quat_to_dcm_BN(q[None])[0].T @ v_B, atol=1e-15)

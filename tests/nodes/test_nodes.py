@@ -245,7 +245,8 @@ def test_plant_lockstep_waits_for_the_torque_of_each_sample(ros_context) -> None
     from spacecraft_sim.core.dynamics import RigidBody, initial_state
     from spacecraft_sim.plant_node import PlantNode
 
-    plant = PlantNode(context=ros_context, parameter_overrides=[Parameter("duration_s", value=0.03), Parameter("q_BN0", value=list(Q0))])
+    plant = PlantNode(context=ros_context, parameter_overrides=[Parameter("duration_s", value=0.03), Parameter("q_BN0", value=list(Q0)),
+                                                                Parameter("expected_subscribers", value=["state/tf=1"])])  # as sappc run: the recorder
     # read once at start-up, so a change at run time is refused with the reason, not accepted and ignored
     refused = plant.set_parameters([Parameter("max_torque_Nm", value=0.1)])[0]
     assert not refused.successful and "read-only" in refused.reason and plant.max_torque == 0.5
@@ -255,6 +256,8 @@ def test_plant_lockstep_waits_for_the_torque_of_each_sample(ros_context) -> None
     states: list[tuple[int, np.ndarray]] = []
     node.create_subscription(c.STATE_ATTITUDE.msg_class, c.STATE_ATTITUDE.name, lambda m: states.append((stamp_to_ns(m.header.stamp), quaternion_from_msg(m, c.STATE_ATTITUDE))), qos)
     node.create_subscription(c.STATE_RATE.msg_class, c.STATE_RATE.name, lambda m: None, qos)  # the plant waits for a subscriber on both
+    frames: list[tuple[int, str, str, tuple[float, ...], tuple[float, ...]]] = []  # state/tf: stamp, parent, child, rotation, translation
+    node.create_subscription(c.STATE_TF.msg_class, c.STATE_TF.name, lambda m: frames.append(_transform_row(m)), qos)
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(plant)
     ex.add_node(node)
@@ -268,6 +271,11 @@ def test_plant_lockstep_waits_for_the_torque_of_each_sample(ros_context) -> None
             pub.publish(torque_msg(torque, states[answered][0] / 1e9))
             answered += 1
     assert [ns for ns, _ in states] == [0, 10_000_000, 20_000_000, 30_000_000]
+    while len(frames) < len(states):  # published right after each state
+        assert time.monotonic() < deadline, f"state/tf: {len(frames)} of {len(states)} messages"
+        ex.spin_once(timeout_sec=0.02)
+    # one body frame per sample, with the state's stamp and its q_BN as the rotation, bit for bit
+    assert frames == [(ns, "inertial", "body", tuple(q), (0.0, 0.0, 0.0)) for ns, q in states]
     body = RigidBody(np.diag([4.0, 4.0, 4.0]))
     x = initial_state(np.array([Q0]), np.zeros((1, 3)))
     for k in range(3):
@@ -275,6 +283,47 @@ def test_plant_lockstep_waits_for_the_torque_of_each_sample(ros_context) -> None
         np.testing.assert_array_equal(states[k + 1][1], x[0, :4])  # the plant core, bit for bit
     ex.shutdown()
     plant.destroy_node()
+    node.destroy_node()
+
+
+def _transform_row(m):  # type: ignore[no-untyped-def]
+    r, p = m.transform.rotation, m.transform.translation
+    return stamp_to_ns(m.header.stamp), m.header.frame_id, m.child_frame_id, (r.x, r.y, r.z, r.w), (p.x, p.y, p.z)
+
+
+def test_reference_publishes_its_frame_with_each_sample(ros_context) -> None:  # type: ignore[no-untyped-def]
+    """Lockstep: on /clock t_0 the reference node publishes samples 0 and 1; with each attitude
+    ``q_RN`` it publishes ``reference/tf``, frame ``reference`` in ``inertial``, same stamp, the
+    same quaternion, translation zero."""
+    from spacecraft_sim.reference import ReferenceNode
+
+    ref = ReferenceNode(context=ros_context, parameter_overrides=[Parameter("duration_s", value=0.05), Parameter("q_RN0", value=list(Q0))])
+    node = Node("listener", context=ros_context)
+    qos = c.qos_profile()
+    clock = node.create_publisher(c.CLOCK.msg_class, c.CLOCK.name, qos)
+    attitudes: list[tuple[int, tuple[float, ...]]] = []
+    frames: list[tuple[int, str, str, tuple[float, ...], tuple[float, ...]]] = []
+    node.create_subscription(c.REFERENCE_ATTITUDE.msg_class, c.REFERENCE_ATTITUDE.name,
+                             lambda m: attitudes.append((stamp_to_ns(m.header.stamp), tuple(quaternion_from_msg(m, c.REFERENCE_ATTITUDE)))), qos)
+    for t in (c.REFERENCE_RATE, c.REFERENCE_ACCELERATION):  # the reference waits for a subscriber on each
+        node.create_subscription(t.msg_class, t.name, lambda m: None, qos)
+    node.create_subscription(c.REFERENCE_TF.msg_class, c.REFERENCE_TF.name, lambda m: frames.append(_transform_row(m)), qos)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(ref)
+    ex.add_node(node)
+    deadline = time.monotonic() + DEADLINE_S
+    while clock.get_subscription_count() < 1 or ref.pub_tf.pub.get_subscription_count() < 1:
+        assert time.monotonic() < deadline, "the reference node's subscriptions"
+        ex.spin_once(timeout_sec=0.02)
+    clock.publish(clock_msg(0.0))
+    while len(frames) < 2 or len(attitudes) < 2:
+        assert time.monotonic() < deadline, f"reference/tf: {len(frames)} of 2 messages"
+        ex.spin_once(timeout_sec=0.02)
+    assert [ns for ns, _ in attitudes] == [0, 10_000_000]
+    np.testing.assert_allclose(attitudes[0][1], Q0, atol=1e-15)
+    assert frames == [(ns, "inertial", "reference", q, (0.0, 0.0, 0.0)) for ns, q in attitudes]
+    ex.shutdown()
+    ref.destroy_node()
     node.destroy_node()
 
 

@@ -9,6 +9,10 @@ from the end of the 4-byte encapsulation header):
 ``*Stamped`` (QuaternionStamped, Vector3Stamped, WrenchStamped)
     header: ``int32 sec`` @0, ``uint32 nanosec`` @4, ``string frame_id`` (``uint32`` length with
     the NUL, then the characters) @8; then the doubles (4, 3 or 6) at the next multiple of 8.
+``geometry_msgs/TransformStamped`` (the frames ``state/tf``, ``reference/tf``)
+    the header as above, then ``string child_frame_id`` at the next multiple of 4, then 7 doubles
+    (translation x y z, rotation x y z w) at the next multiple of 8; the rotation is kept (the
+    contract's transforms have zero translation), the header frame ids are reported.
 ``rosgraph_msgs/Clock``
     ``int32 sec`` @0, ``uint32 nanosec`` @4.
 ``std_msgs/Float64MultiArray``
@@ -111,6 +115,37 @@ def _decode_stamped(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDA
             chars = rows[slen == n, _BODY + 12 : _BODY + 12 + int(n) - 1]
             frames.update(bytes(r).decode("utf-8", "replace") for r in np.unique(chars, axis=0))
     return _assemble(idx, stamps, vals, width, length.size, frame_ids=tuple(sorted(frames)))
+
+
+def _decode_transform(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]) -> Decoded:
+    """``TransformStamped``: two strings of any lengths before the doubles, so each row's child
+    string offset is computed from its own frame id length (still no per-message Python)."""
+    idx: list[NDArray[np.int64]] = []
+    stamps: list[NDArray[np.int64]] = []
+    vals: list[NDArray[np.float64]] = []
+    frames: set[str] = set()
+    for pos, rows in _groups(u8, start, length):
+        L = rows.shape[1]
+        data_at = L - 8 * 7  # absolute offset of the doubles
+        if data_at < _BODY + 20:  # header (12 bytes, the NUL of frame_id) and the child string's length and NUL
+            continue
+        slen = _col(rows, _BODY + 8, _BODY + 12, "<u4")[:, 0].astype(np.int64)
+        child_at = _BODY + (12 + slen + 3) // 4 * 4  # absolute offset of the child string's length, per row
+        inside = (slen >= 1) & (child_at + 4 <= data_at)
+        clen = np.zeros(rows.shape[0], np.int64)
+        r = np.flatnonzero(inside)
+        clen[r] = np.ascontiguousarray(rows[r[:, None], child_at[r, None] + np.arange(4)]).view("<u4")[:, 0]
+        ok = _le(rows) & inside & (clen >= 1) & (_BODY + (child_at - _BODY + 4 + clen + 7) // 8 * 8 == data_at)
+        if not ok.any():
+            continue
+        rows, pos, slen = rows[ok], pos[ok], slen[ok]
+        idx.append(pos)
+        stamps.append(_stamp_ns(rows))
+        vals.append(_col(rows, data_at, L, "<f8")[:, 3:7])  # the rotation, x y z w
+        for n in np.unique(slen):
+            chars = rows[slen == n, _BODY + 12 : _BODY + 12 + int(n) - 1]
+            frames.update(bytes(c).decode("utf-8", "replace") for c in np.unique(chars, axis=0))
+    return _assemble(idx, stamps, vals, 4, length.size, frame_ids=tuple(sorted(frames)))
 
 
 def _decode_clock(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]) -> Decoded:
@@ -231,6 +266,7 @@ def _stamped_decoder(n_doubles: int, keep: slice) -> _Decoder:
 
 #: Decoder of each type name: ``f(u8, start, length) -> Decoded``.
 DECODERS: dict[str, _Decoder] = {name: _stamped_decoder(d, k) for name, (d, k) in _STAMPED.items()}
+DECODERS["geometry_msgs/msg/TransformStamped"] = _decode_transform
 DECODERS["rosgraph_msgs/msg/Clock"] = _decode_clock
 DECODERS["std_msgs/msg/Float64MultiArray"] = _decode_multiarray
 

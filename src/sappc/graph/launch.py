@@ -147,8 +147,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "max_torque_Nm": scenario.actuator.max_torque_Nm,
         "use_disturbance_topic": True,
         **common,
-        # state: the controller (or the sensor relay) and the recorder; /clock in lockstep only
-        "expected_subscribers": expected(state__attitude=2, state__rate=2) + ([f"/clock={clock_subs}"] if lockstep else []),
+        # state: the controller (or the sensor relay) and the recorder; state/tf: the recorder; /clock in lockstep only
+        "expected_subscribers": expected(state__attitude=2, state__rate=2, state__tf=1) + ([f"/clock={clock_subs}"] if lockstep else []),
         "counts_file": counts_file("plant"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "timing.json"),
     }
@@ -159,7 +159,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "periods_s": list(ref.periods_s),
         "duration_s": scenario.duration_s,
         **common,
-        "expected_subscribers": expected(reference__attitude=2, reference__rate=2, reference__acceleration=2),
+        "expected_subscribers": expected(reference__attitude=2, reference__rate=2, reference__acceleration=2, reference__tf=1),
         "counts_file": counts_file("reference"),
     }
     injector = {

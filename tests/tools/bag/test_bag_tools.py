@@ -27,8 +27,9 @@ from conftest import ROOT, SAPPC, SCENARIOS
 
 
 def _msgs_with_every_alignment(rng: np.random.Generator, n: int = 40) -> list[tuple[str, str, object, int]]:
-    """Messages of every contract type; header frame ids of length 0 to 9 (every padding)."""
-    from geometry_msgs.msg import QuaternionStamped, Vector3Stamped, WrenchStamped
+    """Messages of every contract type; header frame ids of length 0 to 9 (every padding), and the
+    transforms' child frame ids of length 0 to 10."""
+    from geometry_msgs.msg import QuaternionStamped, TransformStamped, Vector3Stamped, WrenchStamped
 
     out = []
     for k in range(n):
@@ -43,11 +44,15 @@ def _msgs_with_every_alignment(rng: np.random.Generator, n: int = 40) -> list[tu
         w = WrenchStamped()
         w.header.stamp.nanosec, w.header.frame_id = k, frame
         w.wrench.force.x, w.wrench.torque.x, w.wrench.torque.y, w.wrench.torque.z = rng.standard_normal(4).tolist()
+        tf = TransformStamped()  # two strings: header frame id and child frame id lengths vary apart
+        tf.header.stamp.sec, tf.header.stamp.nanosec, tf.header.frame_id, tf.child_frame_id = k, int(rng.integers(0, 10**9)), frame, "c" * ((3 * k) % 11)
+        r, p = tf.transform.rotation, tf.transform.translation
+        p.x, p.y, p.z, r.x, r.y, r.z, r.w = rng.standard_normal(7).tolist()
         rows = {label: rng.standard_normal(3) for label in c.DIAGNOSTICS_LAYOUT[1:]}
         log = 1_000_000 * k
         out += [("/q", c.STATE_ATTITUDE.type_name, q, log), ("/v", c.STATE_RATE.type_name, v, log + 1),
                 ("/w", c.CONTROL_TORQUE.type_name, w, log + 2), ("/clock", c.CLOCK.type_name, clock_msg(t), log + 3),
-                ("/d", c.CONTROLLER_DIAGNOSTICS.type_name, diagnostics_msg(t, rows), log + 4)]
+                ("/d", c.CONTROLLER_DIAGNOSTICS.type_name, diagnostics_msg(t, rows), log + 4), ("/t", c.STATE_TF.type_name, tf, log + 5)]
     # one Float64MultiArray of another layout and length: parsed on its own
     from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
@@ -71,6 +76,9 @@ def _expected(messages):  # type: ignore[no-untyped-def]
             s, v = m.header.stamp, [m.vector.x, m.vector.y, m.vector.z]
         elif topic == "/w":
             s, v = m.header.stamp, [m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z]
+        elif topic == "/t":
+            r = m.transform.rotation
+            s, v = m.header.stamp, [r.x, r.y, r.z, r.w]
         elif topic == "/clock":
             s, v = m.clock, [m.clock.sec + m.clock.nanosec / 1e9]
         else:
@@ -93,7 +101,7 @@ def test_decoders_equal_rclpy_for_every_alignment_and_layout(tmp_path, rng, comp
             assert np.array_equal(got, np.asarray(values)), (topic, k)  # bit for bit
             if ns is not None:
                 assert s.stamps_ns[k] == ns, (topic, k)
-    assert bag.frame_ids["/q"] == tuple(sorted({"f" * n for n in range(10)}))
+    assert bag.frame_ids["/q"] == bag.frame_ids["/t"] == tuple(sorted({"f" * n for n in range(10)}))
     assert bag.diagnostics_labels == c.DIAGNOSTICS_LAYOUT
     assert np.isnan(bag.series["/d"].values[-1, 2:]).all()  # the short layout is padded, not invented
 

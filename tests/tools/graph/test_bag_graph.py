@@ -7,7 +7,9 @@
 - the bag cut short: a partial report that says where the data ends;
 - ``sappc compare`` on SAPPC, TraPPC and BLFPPC bags of one scenario;
 - ``sappc replay``: /clock and messages as recorded, paced by the bag's time; a bag without
-  /clock gets one.
+  /clock gets one;
+- the attitude as frames: ``state/tf`` and ``reference/tf`` of a recorded run decode with
+  ``rosbags`` and equal ``state/attitude`` and ``reference/attitude`` at every stamp.
 """
 
 from __future__ import annotations
@@ -254,3 +256,59 @@ def test_replay_loop_starts_the_bag_again_until_interrupted(ros_context, tmp_pat
     assert len(wraps) >= 3 and all(clock_ns[i] == log_ns[0] for i in wraps)  # back to the start at each pass
     passes = int(re.search(r"\((\d+) pass\(es\)\)", log).group(1))  # type: ignore[union-attr]
     assert passes >= 3
+
+
+def test_the_recorded_frames_decode_with_rosbags_and_equal_the_attitudes_at_each_stamp(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A 2 s lockstep run of experiment 1: one ``state/tf`` per sample (frame ``body`` in
+    ``inertial``, rotation = ``state/attitude``'s ``q_BN`` at the same stamp, bit for bit) and one
+    ``reference/tf`` per reference sample (frame ``reference`` in ``inertial``, rotation =
+    ``reference/attitude``'s ``q_RN``), translation zero, logged at their stamps; decoded by
+    ``rosbags`` from the recorded schemas, and counted as published."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    scenario = yaml.safe_load((SCENARIOS / "paper_tracking.yaml").read_text())
+    scenario["duration_s"] = 2.0
+    path = tmp_path / "short.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    out = tmp_path / "run"
+    proc = subprocess.run([*SAPPC, "run", str(path), "--out", str(out), "--json", str(tmp_path / "m.json")],
+                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    report = json.loads((tmp_path / "m.json").read_text())
+    rows: dict[str, dict[int, tuple]] = {}  # type: ignore[type-arg]  # topic -> stamp [ns] -> what the message says
+    with AnyReader([out / "bag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        types = {conn.topic: conn.msgtype for conn in reader.connections}
+        assert types["/state/tf"] == types["/reference/tf"] == "geometry_msgs/msg/TransformStamped"
+        for conn, log_ns, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic in ("/state/tf", "/reference/tf"):
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                r, p = msg.transform.rotation, msg.transform.translation
+                row = (msg.header.frame_id, msg.child_frame_id, (r.x, r.y, r.z, r.w), (p.x, p.y, p.z))
+            elif conn.topic in ("/state/attitude", "/reference/attitude"):
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                q = msg.quaternion
+                row = (msg.header.frame_id, (q.x, q.y, q.z, q.w))
+            else:
+                continue
+            assert log_ns == stamp, conn.topic  # a lockstep bag is on simulated time
+            assert stamp not in rows.setdefault(conn.topic, {}), f"{conn.topic}: two messages stamped {stamp}"
+            rows[conn.topic][stamp] = row
+    grid = [k * 10_000_000 for k in range(201)]
+    for frame_topic, attitude_topic, child in (("/state/tf", "/state/attitude", "body"), ("/reference/tf", "/reference/attitude", "reference")):
+        frames, attitudes = rows[frame_topic], rows[attitude_topic]
+        assert sorted(frames) == sorted(attitudes) == grid, frame_topic  # one frame per sample, the same stamps
+        for stamp, (parent, child_id, rotation, translation) in frames.items():
+            assert (parent, child_id, translation) == ("inertial", child, (0.0, 0.0, 0.0)), (frame_topic, stamp)
+            assert attitudes[stamp] == ("inertial", rotation), (frame_topic, stamp)  # the attitude itself, bit for bit
+        assert report["published"][frame_topic] == report["recorded"][frame_topic] == len(grid)
+    assert rows["/state/tf"][0][2] != rows["/reference/tf"][0][2]  # two frames, not one copied
+    bag = read_bag(out / "bag")  # the project's own vectorised reader agrees
+    for frame_topic, attitude_topic in (("/state/tf", "/state/attitude"), ("/reference/tf", "/reference/attitude")):
+        assert np.array_equal(bag.series[frame_topic].stamps_ns, bag.series[attitude_topic].stamps_ns)
+        assert np.array_equal(bag.series[frame_topic].values, bag.series[attitude_topic].values) and bag.frame_ids[frame_topic] == ("inertial",)
+    from sappc.analysis.report import analyse_bag
+
+    notes = analyse_bag(out / "bag").notes  # the frames are no input of the report: nothing is said to be missing
+    assert not [n for n in notes if "absent" in n], notes

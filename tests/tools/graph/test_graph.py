@@ -119,7 +119,7 @@ def test_a_lockstep_bag_is_on_simulated_time(tracking_run) -> None:  # type: ign
             last = message.log_time
             n += 1
         stats = reader.get_summary().statistics
-    assert n == 54009 and stats.message_start_time == 0 and stats.message_end_time == 60 * 10**9
+    assert n == 66011 and stats.message_start_time == 0 and stats.message_end_time == 60 * 10**9
 
 
 def test_fault_through_the_graph_returns_into_the_band(tmp_path) -> None:
