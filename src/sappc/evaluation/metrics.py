@@ -271,6 +271,18 @@ def _maximum(a, b):  # type: ignore[no-untyped-def]  # a numba kernel (float64 s
     return a if (a >= b or a != a) else b
 
 
+@jit
+def _switch(u, sign, nonzero):  # type: ignore[no-untyped-def]  # a numba kernel (float64 scalars)
+    """One steady sample ``u`` of an axis after the signs ``sign`` (the last sample's, NaN: none) and
+    ``nonzero`` (the last non-zero one, 0: none): its sign, the new last non-zero sign, whether the
+    sign changed (0 or 1), whether it reversed (0 or 1)."""
+    s = 1.0 if u > 0.0 else (-1.0 if u < 0.0 else 0.0)
+    change = 1 if (s != sign and sign == sign) else 0  # NaN: the window's first sample
+    if s == 0.0:
+        return s, nonzero, change, 0
+    return s, s, change, (1 if s == -nonzero else 0)  # nonzero 0: no non-zero sample yet
+
+
 @jit("int64(int64, float64[:], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], "  # type: ignore[no-untyped-call]
      "boolean[:, :, :], float64[:, :, :], float64[:, :, :], boolean, float64, float64, int64, float64[:], float64, boolean[:], "
      "int64[:], float64[:, :], float64[:], float64[:, :], float64[:, :], float64[:], float64[:], int64[:], int64[:], float64[:], "
@@ -303,6 +315,9 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
         n_sat, n_out, left = 0, 0, False
         held = outside_s[n]
         g0, g1, g2 = -sign0[n, 0], -sign0[n, 1], -sign0[n, 2]
+        p0, p1, p2 = torque_sign[n, 0], torque_sign[n, 1], torque_sign[n, 2]
+        z0, z1, z2 = torque_sign_nonzero[n, 0], torque_sign_nonzero[n, 1], torque_sign_nonzero[n, 2]
+        c0, c1, c2, r0, r1, r2 = 0, 0, 0, 0, 0, 0
         for k in range(B):
             ok = True
             for i in range(4):
@@ -325,16 +340,12 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
                 v = max_abs_q if use else 0.0
                 smax = v if k == 0 else _maximum(smax, v)
                 if use:
-                    for i in range(3):
-                        u = torque[k, n, i]
-                        s = 1.0 if u > 0.0 else (-1.0 if u < 0.0 else 0.0)
-                        if s != torque_sign[n, i] and torque_sign[n, i] == torque_sign[n, i]:  # NaN: the window's first sample
-                            torque_sign_changes[n, i] += 1
-                        torque_sign[n, i] = s
-                        if s != 0.0:
-                            if s == -torque_sign_nonzero[n, i]:  # 0: no non-zero sample yet
-                                torque_reversals[n, i] += 1
-                            torque_sign_nonzero[n, i] = s
+                    p0, z0, a, b = _switch(torque[k, n, 0], p0, z0)
+                    c0, r0 = c0 + a, r0 + b
+                    p1, z1, a, b = _switch(torque[k, n, 1], p1, z1)
+                    c1, r1 = c1 + a, r1 + b
+                    p2, z2, a, b = _switch(torque[k, n, 2], p2, z2)
+                    c2, r2 = c2 + a, r2 + b
             if k0 + k == k_t2:
                 rpf_error_t2_axis[n, 0] = abs(e0 - rho[k, n, 0]) if live else np.nan
                 rpf_error_t2_axis[n, 1] = abs(e1 - rho[k, n, 1]) if live else np.nan
@@ -359,6 +370,14 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
         if n_steady > 0:
             steady_sum[n, 0], steady_sum[n, 1], steady_sum[n, 2] = s0, s1, s2
             steady_max[n] = _maximum(steady_max[n], smax)
+            torque_sign[n, 0], torque_sign[n, 1], torque_sign[n, 2] = p0, p1, p2
+            torque_sign_nonzero[n, 0], torque_sign_nonzero[n, 1], torque_sign_nonzero[n, 2] = z0, z1, z2
+            torque_sign_changes[n, 0] += c0
+            torque_sign_changes[n, 1] += c1
+            torque_sign_changes[n, 2] += c2
+            torque_reversals[n, 0] += r0
+            torque_reversals[n, 1] += r1
+            torque_reversals[n, 2] += r2
         overshoot[n] = _maximum(overshoot[n], over)
         max_torque[n] = _maximum(max_torque[n], tmax)
         saturated_count[n] += n_sat
