@@ -541,22 +541,23 @@ def test_switching_is_counted_across_blocks_runs_and_up_to_a_failure() -> None:
     t = np.arange(10) * 0.5
     u = np.zeros((10, 2, 3))
     u[:, 0, :] = np.asarray(SWITCHING_U)
-    u[[2, 3, 6, 7], 1, 1] = 0.1  # run 1: 0 0 + + 0 0 + + 0 0 on axis 1: 4 changes, no reversal in [0.5, 4.5]
+    u[[2, 3], 1, 1], u[[6, 7], 1, 1] = 0.1, -0.1  # run 1, axis 1: 0 0 + + 0 0 - - 0 0: 4 changes and 1 reversal in [0.5, 4.5]
     h = _history(t, np.full((10, 2, 3), 0.01), torque=u)
     x = np.concatenate((h.q_BN, h.omega_BN_B), axis=2)
     blocks = _accumulator(t, 2, steady_from_s=0.5)
-    for k0, k1 in ((0, 1), (1, 2), (2, 4), (4, 5), (5, 10)):  # the changes at 1 -> 2, 3 -> 4, 4 -> 5 cross blocks
+    for k0, k1 in ((0, 1), (1, 2), (2, 4), (4, 5), (5, 10)):  # the changes at 1 -> 2, 3 -> 4, 4 -> 5 cross blocks, and
+        # run 1's reversal: its + (sample 3) and its - (sample 6) lie two blocks apart
         blocks.update(k0, t[k0:k1], x[k0:k1], u[k0:k1], h.q_BR[k0:k1], h.rho[k0:k1], h.saturated[k0:k1], h.band_lower[k0:k1],
                       h.band_upper[k0:k1])
-    assert blocks.torque_sign_changes.tolist() == [[8, 0, 3], [0, 4, 0]] and blocks.torque_reversals.tolist() == [[2, 0, 3], [0, 0, 0]]
-    assert blocks.run_metrics(1)["torque_sign_changes_per_s"] == 1.0 and blocks.run_metrics(1)["torque_reversals_per_s"] == 0.0
+    assert blocks.torque_sign_changes.tolist() == [[8, 0, 3], [0, 4, 0]] and blocks.torque_reversals.tolist() == [[2, 0, 3], [0, 1, 0]]
+    assert blocks.run_metrics(1)["torque_sign_changes_per_s"] == 1.0 and blocks.run_metrics(1)["torque_reversals_per_s"] == 0.25
     parts = []
     for n in range(2):
         part = _accumulator(t, 1, steady_from_s=0.5)
         part.add_history(History(**{f: h.t if f == "t" else getattr(h, f)[:, n : n + 1] for f in History.__dataclass_fields__}))
         parts.append(part)
     joined = MetricsAccumulator.concatenate(parts)
-    assert joined.torque_sign_changes.tolist() == [[8, 0, 3], [0, 4, 0]] and joined.torque_reversals.tolist() == [[2, 0, 3], [0, 0, 0]]
+    assert joined.torque_sign_changes.tolist() == [[8, 0, 3], [0, 4, 0]] and joined.torque_reversals.tolist() == [[2, 0, 3], [0, 1, 0]]
     assert [joined.run_metrics(n) for n in range(2)] == [blocks.run_metrics(n) for n in range(2)]
     failed = _torque_run(t, SWITCHING_U)
     failed.omega_BN_B[6, 0, 0] = math.nan  # fails at sample 6: the window's samples 1 .. 5 count
