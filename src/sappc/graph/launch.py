@@ -313,11 +313,15 @@ def run_graph(
     """
     if threading.current_thread() is threading.main_thread():
         old_term = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+        # SIGINT stops a run even when the run was started with SIGINT ignored (a command started
+        # in the background by a non-interactive shell: Python then installs no handler of its own)
+        old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
         try:
             return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
                               timeout_s=timeout_s, progress=progress, compose=compose, plant=plant)
         finally:
             signal.signal(signal.SIGTERM, old_term)
+            signal.signal(signal.SIGINT, old_int)
     return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
                       timeout_s=timeout_s, progress=progress, compose=compose, plant=plant)
 
