@@ -96,18 +96,24 @@ def _is_dataclass_type(hint: Any) -> type | None:
     return next((h for h in options if isinstance(h, type) and dataclasses.is_dataclass(h)), None)
 
 
-def _leaves(cls: type, prefix: str) -> list[tuple[str, Any]]:
-    """(dotted name, default or MISSING) of every leaf field of config class ``cls``."""
+def _leaf_fields(cls: type, prefix: str) -> list[tuple[str, dataclasses.Field[Any], type, Any]]:
+    """(dotted name, field, the dataclass that declares it, its type hint) of every leaf field of
+    config class ``cls``: the one walk of the nested configs behind :func:`_leaves` and :func:`_leaf_docs`."""
     hints = typing.get_type_hints(cls)
-    out: list[tuple[str, Any]] = []
+    out: list[tuple[str, dataclasses.Field[Any], type, Any]] = []
     for f in dataclasses.fields(cls):
         sub = _is_dataclass_type(hints[f.name])
         name = f"{prefix}.{f.name}" if prefix else f.name
         if sub is not None:
-            out.extend(_leaves(sub, name))
+            out.extend(_leaf_fields(sub, name))
         else:
-            out.append((name, f.default))
+            out.append((name, f, cls, hints[f.name]))
     return out
+
+
+def _leaves(cls: type, prefix: str) -> list[tuple[str, Any]]:
+    """(dotted name, default or MISSING) of every leaf field of config class ``cls``."""
+    return [(name, f.default) for name, f, _, _ in _leaf_fields(cls, prefix)]
 
 
 def config_parameter_names(kind: str) -> list[tuple[str, Any]]:
@@ -120,17 +126,12 @@ def config_parameter_names(kind: str) -> list[tuple[str, Any]]:
 def _leaf_docs(cls: type, prefix: str) -> dict[str, tuple[str, str]]:
     """(description, ROS type) of every leaf field of config class ``cls``, by dotted name, from
     the ``Attributes`` sections of the dataclasses' docstrings and their type hints."""
-    hints = typing.get_type_hints(cls)
-    docs = field_docs(cls)
     out: dict[str, tuple[str, str]] = {}
-    for f in dataclasses.fields(cls):
-        sub = _is_dataclass_type(hints[f.name])
-        name = f"{prefix}.{f.name}" if prefix else f.name
-        if sub is not None:
-            out.update(_leaf_docs(sub, name))
-        else:
-            scalar = [h for h in typing.get_args(hints[f.name]) if h is not type(None)] or [hints[f.name]]
-            out[name] = (docs.get(f.name, ""), "integer" if scalar[0] is int else "double")
+    docs: dict[type, dict[str, str]] = {}
+    for name, f, owner, hint in _leaf_fields(cls, prefix):
+        scalar = [h for h in typing.get_args(hint) if h is not type(None)] or [hint]
+        described = docs.setdefault(owner, field_docs(owner))
+        out[name] = (described.get(f.name, ""), "integer" if scalar[0] is int else "double")
     return out
 
 
