@@ -138,3 +138,13 @@ def test_an_inertia_that_no_body_has_is_refused(moments) -> None:  # type: ignor
         scenario_from_mapping(raw)
     raw["plant"]["inertia_kg_m2"] = [[1.0, 0, 0], [0, 1.0, 0], [0, 0, 2.0]]  # a flat plate: the limit, accepted
     scenario_from_mapping(raw)
+
+
+def test_the_run_commands_plant_choices_are_the_launchers() -> None:
+    """``sappc run --plant`` lists its choices without importing the launcher (the parser is built
+    for every command); they must stay the launcher's ``PLANTS``."""
+    from sappc.cli import _parser
+    from sappc.graph.launch import PLANTS
+
+    run = next(a for a in _parser()._subparsers._group_actions[0].choices["run"]._actions if "--plant" in a.option_strings)  # type: ignore[index, union-attr]
+    assert tuple(run.choices) == PLANTS and run.default == "native"
