@@ -51,6 +51,15 @@ def _format_value(value: object) -> str:
     return "-" if value is None else str(value)
 
 
+def _realtime_summary(result: Any) -> dict[str, Any]:
+    """A real-time run's frames (:mod:`sappc_msgs_py.timeline`): the plant's ticks, missed frames
+    and frames integrated with a stale torque, and the controller's latency."""
+    plant = result.plant_timing
+    keys = ("ticks", "period_error_p50_ms", "period_error_p99_ms", "period_error_max_ms", "missed_ticks", "missed_frames", "stale_torque_frames")
+    return {"frames": max(int(plant.get("samples", 1)) - 1, 0), **{k: plant[k] for k in keys if k in plant},
+            "state_delay": plant.get("state_delay", {}), "controller_latency": result.controller_timing.get("latency", {})}
+
+
 def _print_metrics(scenario_name: str, controller: str, metrics: dict[str, object]) -> None:
     print(f"scenario {scenario_name}, controller {controller}")
     width = max(len(k) for k in metrics)
@@ -195,6 +204,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if missed:
         print(f"plant: {missed} sample(s) integrated with the last torque after lockstep_timeout_s without an answer "
               "(a message lost outside the fault injector, or a machine too loaded to answer in time): see logs/plant.log")
+    realtime = _realtime_summary(result) if args.realtime else None
+    if realtime:
+        lat = realtime["controller_latency"]
+        print(f"real time: {realtime['frames']} frames of {scenario.control_period_s * 1e3:g} ms, {realtime['missed_frames']} without a plant tick, "
+              f"{realtime['stale_torque_frames']} with a stale torque; controller latency from the state's stamp p50 "
+              f"{lat.get('latency_p50_ms', float('nan')):.2f} ms, p99 {lat.get('latency_p99_ms', float('nan')):.2f} ms, "
+              f"{lat.get('late_steps', 0)} step(s) later than a frame")
     print(f"bag {result.bag_dir}: {sum(result.recorded.values())} messages on {sum(1 for n in result.recorded.values() if n)} topics; "
           + ("every topic's count matches what was published" if not mismatched else f"COUNT MISMATCH (published, recorded): {mismatched}"))
     if args.json:
@@ -208,6 +224,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "published": result.published,
             "recorded": result.recorded,
             "controller_summary": ctrl,
+            **({"realtime": realtime} if realtime else {}),
             "failed_requirements": failed,
             "parameters": {"scenario": scenario.raw, "nodes": str(result.run_dir / "params.yaml")},
         })

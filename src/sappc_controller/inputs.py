@@ -16,10 +16,10 @@ The five inputs are :data:`~sappc_msgs_py.contract.CONTROLLER_INPUTS`, in the or
     (``valid`` false), so the controller answers it at once instead of waiting for a timeout.
     At most :data:`MAX_PENDING` incomplete stamps wait for their other inputs; beyond that the
     oldest is dropped.
-``realtime`` (:class:`LatestInputs`)
-    The step at a control instant uses the latest input of each topic; there is no sample until
-    every topic has delivered one.  Whether the inputs are too old is the caller's decision
-    (:attr:`LatestInputs.oldest_ns`).
+``realtime`` (:class:`RealtimePairing`)
+    A sample is complete when the attitude and the rate of a new stamp (a frame of
+    :mod:`sappc_msgs_py.timeline`) have arrived; the step runs at that stamp with the reference of
+    the same stamp, else the newest earlier one.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from gnc_common.validation import ConfigError, InputError
 from sappc_msgs_py.contract import CONTROLLER_INPUTS, Topic
+from sappc_msgs_py.timeline import StampedWindow
 
 from sappc_controller.core.base import AttitudeController, ControlOutput
 
@@ -41,8 +42,8 @@ __all__ = [
     "NS_PER_S",
     "STEP_ERRORS",
     "ControlSample",
-    "LatestInputs",
     "LockstepPairing",
+    "RealtimePairing",
     "step_sample",
 ]
 
@@ -65,8 +66,7 @@ class ControlSample:
     Attributes
     ----------
     t_ns : int
-        Controller time of the step [ns] (lockstep: the inputs' common stamp; real time: the
-        control instant).
+        Controller time of the step [ns]: the state's stamp (lockstep: every input's).
     input_ns : tuple of int
         Header stamps of the inputs used [ns], in :data:`INPUT_TOPICS` order.
     values : tuple of ndarray
@@ -81,6 +81,11 @@ class ControlSample:
     input_ns: tuple[int, ...]
     values: tuple[Array, ...]
     valid: bool = True
+
+    @property
+    def oldest_ns(self) -> int:
+        """Stamp [ns] of the oldest input used."""
+        return min(self.input_ns)
 
     @property
     def t_s(self) -> float:
@@ -147,45 +152,57 @@ class LockstepPairing:
         return self.add(topic_name, stamp_ns, None)
 
 
-class LatestInputs:
-    """Real-time pairing: the latest input of each topic, stepped at the control instant.
+class RealtimePairing:
+    """Real-time pairing: a step on each fresh state, with the reference of the state's stamp.
+
+    The state of frame ``f`` (attitude and rate stamped ``f dt``, :mod:`sappc_msgs_py.timeline`)
+    makes a sample as soon as both have arrived, if it is newer than the last sample; each
+    reference input is the one of the same stamp (published ahead, it is normally there), else
+    the newest one stamped before it (held).  There is no sample until every reference topic has
+    delivered one stamped at or before the state.  Whether the inputs are too old is the caller's
+    decision (:attr:`ControlSample.oldest_ns`).
 
     Parameters
     ----------
     topics : sequence of Topic
-        The inputs of a step, in step order (default :data:`INPUT_TOPICS`).
+        The inputs of a step, in step order (default :data:`INPUT_TOPICS`): the two state topics,
+        then the reference topics.
+    window : int
+        Messages kept per topic (default :data:`MAX_PENDING`): the references published ahead, and
+        state parts waiting for their other half.
     """
 
-    def __init__(self, topics: Sequence[Topic] = INPUT_TOPICS) -> None:
-        self.topics = tuple(topics)
-        self._latest: dict[str, tuple[int, Array]] = {}  # topic name -> (stamp [ns], value)
+    #: The state topics come first in :data:`INPUT_TOPICS` (attitude, rate).
+    N_STATE = 2
 
-    def add(self, topic_name: str, stamp_ns: int, value: Array) -> None:
-        """Take one (checked) input: it replaces the topic's previous one."""
-        self._latest[topic_name] = (stamp_ns, value)
+    def __init__(self, topics: Sequence[Topic] = INPUT_TOPICS, window: int = MAX_PENDING) -> None:
+        self.topics = tuple(topics)
+        self._state = LockstepPairing(self.topics[: self.N_STATE], window)
+        self._windows: dict[str, StampedWindow[Array]] = {t.name: StampedWindow(window) for t in self.topics[self.N_STATE :]}
+        self._last: dict[str, int] = {}  # topic name -> stamp [ns] of its latest message
+        self.last_sample_ns: int | None = None  # stamp of the last sample made
 
     def last_ns(self, topic_name: str) -> int | None:
         """Stamp [ns] of the topic's latest input, ``None`` before the first."""
-        latest = self._latest.get(topic_name)
-        return None if latest is None else latest[0]
+        return self._last.get(topic_name)
 
-    @property
-    def complete(self) -> bool:
-        """Every topic has delivered an input (before that there is no sample: not started)."""
-        return all(t.name in self._latest for t in self.topics)
-
-    @property
-    def oldest_ns(self) -> int:
-        """Stamp [ns] of the oldest of the latest inputs (call when :attr:`complete`)."""
-        return min(v[0] for v in self._latest.values())
-
-    def sample_at(self, t_ns: int) -> ControlSample | None:
-        """The sample of a step at controller time ``t_ns`` [ns]: the latest input of each topic
-        (``None`` until :attr:`complete`)."""
-        if not self.complete:
+    def add(self, topic_name: str, stamp_ns: int, value: Array) -> ControlSample | None:
+        """Take one (checked) input; return the sample it completes (a fresh state with a
+        reference at or before its stamp), if any."""
+        self._last[topic_name] = stamp_ns
+        window = self._windows.get(topic_name)
+        if window is not None:
+            window.add(stamp_ns, value)
             return None
-        latest = self._latest
-        return ControlSample(t_ns, tuple(latest[t.name][0] for t in self.topics), tuple(latest[t.name][1] for t in self.topics))
+        state = self._state.add(topic_name, stamp_ns, value)
+        if state is None or (self.last_sample_ns is not None and stamp_ns <= self.last_sample_ns):
+            return None
+        refs = [self._windows[t.name].at_or_before(stamp_ns) for t in self.topics[self.N_STATE :]]
+        if any(r is None for r in refs):
+            return None  # not started: no reference yet for this state
+        self.last_sample_ns = stamp_ns
+        held = [r for r in refs if r is not None]
+        return ControlSample(stamp_ns, (*state.input_ns, *(r[0] for r in held)), (*state.values, *(r[1] for r in held)))
 
 
 def step_sample(controller: AttitudeController, dt_s: float, sample: ControlSample) -> ControlOutput:

@@ -19,8 +19,13 @@ Modes (parameter ``mode``):
     The controller computes once per sample, when the two state messages and the three
     reference messages of the same stamp have arrived, and stamps the torque with it.
 ``realtime``
-    A wall-clock timer of period ``control_period_s`` computes from the latest state and
-    reference.
+    In the frames of :mod:`sappc_msgs_py.timeline`: the controller computes as soon as the state
+    of a new frame has arrived (attitude and rate of one stamp), with the reference of the same
+    stamp (the reference node publishes it ahead; else the newest earlier one is held), and stamps
+    the torque with the state's stamp, so the plant applies it over the next frame, as in
+    lockstep.  Its latency (the torque's publication minus the state's stamp) is measured, and a
+    step later than ``control_period_s`` (it missed the plant's next frame) is counted
+    (``late_steps`` in ``timing_file``).  A timer in the middle of each frame is the watchdog.
 
 Input checks: a message with a wrong frame id, a non-finite value, a zero or non-unit
 quaternion ("invalid"), a stamp in the past (lockstep: not after the last computed sample; real
@@ -31,8 +36,9 @@ controller's time ("far future") is rejected, logged and counted, in total (diag
 Answers (diagnostics ``status[2]``, :data:`~sappc_msgs_py.contract.ANSWER_NAMES`): a sample
 whose inputs are complete and valid is computed.  Without one at a control instant, the
 controller commands zero torque when no valid state is newer than ``stale_timeout_s`` (the
-watchdog; ``status[1] = 1``), else it holds its last answer (a short outage is ridden through);
-it computes again as soon as valid inputs return.
+watchdog; ``status[1] = 1``; in real time also when an input of the sample is older than that),
+else it holds its last answer (a short outage is ridden through; in real time the plant holds
+it); it computes again as soon as valid inputs return.
 
 In lockstep the control instant of sample t_k is decided by the inputs themselves, whatever
 the order in which ``/clock`` and the inputs arrive: when the five inputs of t_k have arrived,
@@ -80,11 +86,12 @@ from sappc_msgs_py.convert import (
 )
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
-from gnc_common.timing import PeriodStatistics
+from gnc_common.timing import LatencyStatistics
 from gnc_common.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 
 from sappc_controller.core.base import AttitudeController
-from sappc_controller.inputs import INPUT_TOPICS, NS_PER_S, STEP_ERRORS, ControlSample, LatestInputs, LockstepPairing, step_sample
+from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
+from sappc_controller.inputs import INPUT_TOPICS, NS_PER_S, STEP_ERRORS, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import (
     CONTROLLER_CLASSES,
     DEFAULT_CONTROL_PERIOD_S,
@@ -119,7 +126,7 @@ _GRACE_CHECK_S = 0.05
 #: follow ``controller``), in the order the node declares them.
 PARAMETERS = (
     Param("controller", "sappc", "the law: SAPPC, or one of the paper's benchmarks", choices=tuple(CONTROLLER_CLASSES)),
-    Param("control_period_s", DEFAULT_CONTROL_PERIOD_S, "control period dt: the law's step (and the real-time timer's period)", "s",
+    Param("control_period_s", DEFAULT_CONTROL_PERIOD_S, "control period dt: the law's step (and the real-time frame and deadline)", "s",
           check="> 0"),
     MODE,
     Param("stale_timeout_s", DEFAULT_STALE_TIMEOUT_S, "zero torque when no valid state is newer than this at a control instant", "s",
@@ -129,7 +136,7 @@ PARAMETERS = (
     Param("lockstep_grace_s", DEFAULT_LOCKSTEP_GRACE_S, "lockstep: wall time a /clock tick waits for an input that never arrives "
           "before it is answered", "s", range=WATCHDOG_RANGE_S, read_only=False),
     Param("timing_file", "", "where to write the node's statistics when it finishes (JSON: steps, refused, rejected by reason; real "
-          "time: the timer's period error); '' for none"),
+          "time: the steps' latency and late steps); '' for none"),
 )
 _P = {p.name: p for p in PARAMETERS}
 
@@ -189,17 +196,18 @@ class ControllerNode(ProjectNode):
         self._clock_ns: int | None = None  # lockstep: the latest /clock
         self._clock_wall_ns = 0  # lockstep: wall time [ns] the latest /clock arrived
         self._pending = LockstepPairing(_INPUTS)  # lockstep: the inputs of each stamp until complete
-        self._latest = LatestInputs(_INPUTS)  # real time: the latest input of each topic
+        self._rt = RealtimePairing(_INPUTS)  # real time: a sample per fresh state
+        self.latency = LatencyStatistics(self.dt)  # real time: the steps' latency, in bounded memory
         self._diag_rows = {k: np.zeros(3) for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
         self._held: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros(3), np.zeros(3), np.zeros(3))  # last torque, command, saturation
         if self.mode == LOCKSTEP:
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
             self.create_timer(_GRACE_CHECK_S, self._check_grace)
         else:
-            self._gate = StartGate(self, lambda: unmatched([self.pub_torque, self.pub_diag]))  # no publish may block a tick
-            self.create_timer(self.dt, self._on_timer)
+            self.dt_ns = period_ns(self.dt)
+            self._gate = StartGate(self, lambda: unmatched([self.pub_torque, self.pub_diag]))  # no publish may block a callback
+            self.create_frame_timer(self.dt, MID_FRAME_PHASE, self._on_timer)
         self.timing_file = str(self.param(_P["timing_file"]))
-        self.timer_stats = PeriodStatistics(self.dt)  # real time: the timer's period error, in bounded memory
         self._check_unknown_overrides()  # after every declaration
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(f"{self.kind} controller ready ({self.mode}, dt = {self.dt} s)")
@@ -267,7 +275,7 @@ class ControllerNode(ProjectNode):
 
     def _on_input(self, msg: Any, topic: Topic) -> None:
         ns = stamp_to_ns(msg.header.stamp)
-        last = self._last_ns if self.mode == LOCKSTEP else self._latest.last_ns(topic.name)
+        last = self._last_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
         if last is not None and ns <= last:
             what = "the last computed sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
             self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is in the past (not after {what}, {last / _NS:.9f} s)", "stamp_in_past")
@@ -283,8 +291,9 @@ class ControllerNode(ProjectNode):
             self._reject(str(exc), "invalid")
             value = None  # lockstep: it arrived, invalid (module docstring)
         if self.mode == REALTIME:
-            if value is not None:
-                self._latest.add(topic.name, ns, value)
+            fresh = None if value is None else self._rt.add(topic.name, ns, value)
+            if fresh is not None:
+                self._on_fresh_state(fresh)
             return
         sample = self._pending.add(topic.name, ns, value)
         if sample is None:
@@ -324,18 +333,25 @@ class ControllerNode(ProjectNode):
         self.get_logger().warning(f"t = {t_ns / _NS:.3f} s: an input did not arrive within {self.grace_ns / _NS} s", throttle_duration_sec=1.0)
         self._answer_without_inputs(t_ns)
 
-    def _on_timer(self) -> None:
-        self.timer_stats.tick(time.monotonic_ns())
-        if not self._gate.open():
-            return  # the plant or the recorder not matched yet
-        now = self.get_clock().now().nanoseconds
-        sample = self._latest.sample_at(now)
-        if sample is None:
-            return  # not started
-        if now - self._latest.oldest_ns > self.stale_timeout_ns:
-            self._publish_zero(now, f"inputs older than {self.stale_timeout_ns / _NS} s", ANSWER_WATCHDOG_ZERO)
+    def _on_fresh_state(self, sample: ControlSample) -> None:
+        """Real time: a step on the state of a new frame, at once; its latency measured."""
+        if not self._gate.open() or self._answered(sample.t_ns):
+            return  # the plant or the recorder not matched yet; or the watchdog answered its frame
+        if self.get_clock().now().nanoseconds - sample.oldest_ns > self.stale_timeout_ns:
+            self._publish_zero(sample.t_ns, f"inputs older than {self.stale_timeout_ns / _NS} s", ANSWER_WATCHDOG_ZERO)
             return
         self._compute(sample)
+        self.latency.add(self.get_clock().now().nanoseconds - sample.t_ns)
+
+    def _on_timer(self) -> None:
+        """Real time, in the middle of each frame: the watchdog (zero torque, stamped with the
+        current frame, when no fresh state came for ``stale_timeout_s``)."""
+        if not self._gate.open() or self._rt.last_sample_ns is None:
+            return  # not started
+        now = self.get_clock().now().nanoseconds
+        frame_ns = now // self.dt_ns * self.dt_ns
+        if now - self._rt.last_sample_ns > self.stale_timeout_ns and not self._answered(frame_ns):
+            self._publish_zero(frame_ns, f"no state newer than {self.stale_timeout_ns / _NS} s", ANSWER_WATCHDOG_ZERO)
 
     def _compute(self, sample: ControlSample) -> None:
         """One control step on a complete sample (the inputs paired by :mod:`sappc_controller.inputs`)."""
@@ -380,10 +396,10 @@ class ControllerNode(ProjectNode):
                     input_stamps_reference_s=[n / _NS for n in input_ns[2:]])
         self.pub_diag.publish(diagnostics_msg(t, rows, out=self.pub_diag.msg))
 
-    def timer_statistics(self) -> dict[str, Any]:
-        """Real time: the timer's period error (|interval - dt|) and missed ticks (intervals
-        longer than 1.5 dt), from :class:`~gnc_common.timing.PeriodStatistics`."""
-        return dict(self.timer_stats.summary())
+    def latency_statistics(self) -> dict[str, Any]:
+        """Real time: the steps' latency (torque out minus the state's stamp: p50, p99, max) and
+        the steps later than ``control_period_s``, from :class:`~gnc_common.timing.LatencyStatistics`."""
+        return dict(self.latency.summary())
 
     def finish(self) -> None:
         self.get_logger().info(f"finished: {self.steps} control steps ({self.refused} refused), {self.rejected} rejected messages "
@@ -392,7 +408,7 @@ class ControllerNode(ProjectNode):
         if self.timing_file:
             stats = {"steps": self.steps, "refused_steps": self.refused, "rejected": self.rejected,
                      "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
-                     **(self.timer_statistics() if self.mode == REALTIME else {})}
+                     **({"latency": self.latency_statistics()} if self.mode == REALTIME else {})}
             Path(self.timing_file).write_text(json.dumps(stats))
 
 

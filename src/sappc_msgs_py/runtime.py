@@ -31,6 +31,7 @@ from rclpy.parameter import Parameter
 
 from gnc_common.validation import ConfigError
 from sappc_msgs_py.parameters import REQUIRED, Param, descriptor, format_help
+from sappc_msgs_py.timeline import period_ns
 
 if TYPE_CHECKING:
     from rclpy.impl.rcutils_logger import RcutilsLogger
@@ -246,6 +247,7 @@ class ProjectNode(Node):
         self._expected = parse_expected(list(self.param(COMMON_PARAMETERS[0])))
         self._counts_file = str(self.param(COMMON_PARAMETERS[1]))
         self._counting_pubs: list[CountingPublisher] = []
+        self._frame_timers: list[Any] = []  # create_frame_timer's timers (kept referenced)
 
     @classmethod
     def parameter_sections(cls) -> list[tuple[str, tuple[Param, ...]]]:
@@ -305,6 +307,26 @@ class ProjectNode(Node):
                 start()
 
         timer = self.create_timer(START_CHECK_S, check)
+
+    def create_frame_timer(self, period_s: float, phase: float, callback: Callable[[], None]) -> None:
+        """Call ``callback`` every ``period_s`` on the real-time frame grid
+        (:mod:`sappc_msgs_py.timeline`), at ``phase`` (a fraction of the period) into each frame.
+
+        An rcl timer ticks at its creation time plus whole periods; a one-shot timer therefore
+        waits for the next tick instant of the grid, ticks, and creates the periodic timer there
+        (its ticks then trail the grid by the one-shot's dispatch, tens of microseconds).
+        """
+        dt_ns = period_ns(period_s)
+        now_ns = self.get_clock().now().nanoseconds
+        first_ns = (now_ns // dt_ns + 1) * dt_ns + round(phase * dt_ns)
+
+        def first_tick() -> None:
+            one_shot.cancel()
+            self._frame_timers.append(self.create_timer(period_s, callback))
+            callback()
+
+        one_shot = self.create_timer((first_ns - now_ns) / 1e9, first_tick)
+        self._frame_timers.append(one_shot)
 
     def publish_counts(self) -> dict[str, int]:
         """Messages published per resolved topic name."""

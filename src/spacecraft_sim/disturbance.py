@@ -9,8 +9,11 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
   are matched, then on each ``/clock`` tick ``t_k`` sample ``k + 1``, one ahead so that it is
   never on the loop's critical path, and any earlier one a missed tick left out:
   :class:`~sappc_msgs_py.runtime.GridCursor`;
-  ``realtime``: on a wall-clock timer of period ``control_period_s``, at the time elapsed since
-  its first tick).  The plant adds it to the control torque (``use_disturbance_topic``).
+  ``realtime``: in the frames of :mod:`sappc_msgs_py.timeline`, a timer in the middle of each
+  frame publishes the samples up to :data:`~sappc_msgs_py.timeline.AHEAD_FRAMES` frames ahead,
+  sample ``k`` at ``t = k dt`` stamped with frame ``f0 + k``, ``f0`` the frame after its first
+  tick; the plant applies each over its own frame; the fault windows are in the time since that
+  frame).  The plant adds it to the control torque (``use_disturbance_topic``).
 - faults, by relaying the contract's relayed topics
   (:data:`~sappc_msgs_py.contract.RELAYED_SENSOR_TOPICS`,
   :data:`~sappc_msgs_py.contract.RELAYED_REFERENCE_TOPICS`,
@@ -50,6 +53,7 @@ from sappc_msgs_py.contract import (
     qos_profile,
 )
 from sappc_msgs_py.convert import (
+    ns_to_stamp,
     quaternion_from_msg,
     quaternion_msg,
     stamp_to_ns,
@@ -61,6 +65,7 @@ from sappc_msgs_py.convert import (
 )
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, StartGate, run_node, unmatched
+from sappc_msgs_py.timeline import AHEAD_FRAMES, MID_FRAME_PHASE, frame_index, period_ns
 
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
@@ -138,14 +143,15 @@ class InjectorNode(ProjectNode):
         self.rejected = 0
         qos = qos_profile()
         self.pub_d = self.counting_publisher(DISTURBANCE_TORQUE, 1)
+        self._cursor = GridCursor(self.last_k)
         if self.mode == LOCKSTEP:
-            self._cursor = GridCursor(self.last_k)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
             self.start_when(lambda: unmatched([self.pub_d]), lambda: self._publish_through(1))
         else:
-            self._t0_ns: int | None = None
+            self.dt_ns = period_ns(self.dt)
+            self._frame0: int | None = None  # the frame of sample 0
             self._gate = StartGate(self, lambda: unmatched([self.pub_d]))  # no publish may block a tick
-            self.create_timer(self.dt, self._on_timer)
+            self.create_frame_timer(self.dt, MID_FRAME_PHASE, self._on_timer)
         # the paired paths: the measurements (q_BN, omega_BN_B) and the reference, each paired by stamp
         self._paired: dict[tuple[Topic, ...], dict[int, dict[str, Any]]] = {}  # path -> stamp [ns] -> topic name -> value
         self.pub_relay: dict[str, Any] = {}
@@ -171,13 +177,30 @@ class InjectorNode(ProjectNode):
             t = j * self.dt  # on the plant's grid (k dt, as sample_times)
             self._publish_disturbance(t, time_to_stamp(t))
 
+    def _frame_now(self) -> int:
+        """Real time: the current frame; the first call fixes sample 0's frame (the next one: never
+        stamped in the past)."""
+        f = frame_index(self.get_clock().now().nanoseconds, self.dt_ns, MID_FRAME_PHASE)
+        if self._frame0 is None:
+            self._frame0 = f + 1
+        return f
+
+    def _run_time_s(self, stamp_ns: int) -> float:
+        """The run's time [s] of a stamp, which the fault windows are in: the stamp itself in
+        lockstep (the plant's clock starts at 0), the time since sample 0's frame in real time."""
+        if self.mode == LOCKSTEP:
+            return stamp_ns / 1e9
+        self._frame_now()
+        assert self._frame0 is not None
+        return (stamp_ns - self._frame0 * self.dt_ns) / 1e9
+
     def _on_timer(self) -> None:
         if not self._gate.open():
             return
-        now = self.get_clock().now()
-        if self._t0_ns is None:
-            self._t0_ns = now.nanoseconds
-        self._publish_disturbance((now.nanoseconds - self._t0_ns) / 1e9, now.to_msg())
+        f = self._frame_now()
+        assert self._frame0 is not None
+        for k in self._cursor.through(f + AHEAD_FRAMES - self._frame0):
+            self._publish_disturbance(k * self.dt, ns_to_stamp((self._frame0 + k) * self.dt_ns))
 
     def _reject(self, exc: Exception) -> None:
         self.rejected += 1
@@ -201,8 +224,8 @@ class InjectorNode(ProjectNode):
             del pending[old]
         values: tuple[Any, ...] | None = tuple(entry[t.name] for t in path)
         if path is RELAYED_SENSOR_TOPICS:
-            values = self.faults.sensor(ns / 1e9, ns, *values)  # type: ignore[misc]  # the two state values
-        elif not self.faults.reference(ns / 1e9):
+            values = self.faults.sensor(self._run_time_s(ns), ns, *values)  # type: ignore[misc]  # the two state values
+        elif not self.faults.reference(self._run_time_s(ns)):
             values = None
         for t, value in zip(path, values or [None] * len(path)):
             self.pub_relay[t.name].publish(_relayed_msg(t, value, msg.header.stamp))
@@ -213,7 +236,7 @@ class InjectorNode(ProjectNode):
         except InputError as exc:
             self._reject(exc)
             return
-        t = stamp_to_ns(msg.header.stamp) / 1e9
+        t = self._run_time_s(stamp_to_ns(msg.header.stamp))
         self.pub_relay[topic.name].publish(torque_msg(self.faults.actuator(t, torque), msg.header.stamp, faulty(topic)))
 
 

@@ -21,8 +21,15 @@ Modes (parameter ``mode``):
     an actuator holds its last command), the miss is counted and logged, and the run goes on.
     After sample ``n = duration_s / dt`` (and its torque) the node finishes.
 ``realtime``
-    A wall-clock timer of period ``dt`` integrates with the latest torque and disturbance
-    (zero-order hold) and publishes the state stamped with the node's clock.  No ``/clock``.
+    The plant runs in the frames of :mod:`sappc_msgs_py.timeline` (frame ``f`` starts at
+    ``f dt`` on the system clock; its timer is phased to the frames' starts).  At the tick of
+    frame ``f`` it integrates every frame since the previous tick, each with the torque held
+    (zero-order hold: the latest received, as an actuator holds its last command) and the
+    disturbance of that frame (the injector publishes it ahead), then publishes the state stamped
+    ``f dt``.  The world does not wait: a late tick integrates the frames it missed, which are
+    counted (``missed_frames``), and so is every frame whose torque is not the controller's answer
+    to that frame's state (``stale_torque_frames``: the controller missed its deadline, or had
+    no state).  No ``/clock``.
 
 Every parameter is checked at start-up by the same functions the scenario loader uses
 (:mod:`gnc_common.validation`); a missing or invalid one stops the node with one line naming it
@@ -49,6 +56,7 @@ import numpy as np
 from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, STATE_TF, qos_profile
 from sappc_msgs_py.convert import (
     clock_msg,
+    ns_to_stamp,
     quaternion_msg,
     stamp_to_ns,
     time_to_stamp,
@@ -59,6 +67,8 @@ from sappc_msgs_py.convert import (
 )
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MATCH_TIMEOUT_S, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
+from sappc_msgs_py.timeline import AHEAD_FRAMES, PLANT_PHASE, StampedWindow, frame_index, period_ns
+from gnc_common.timing import LatencyStatistics, PeriodStatistics
 
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
 from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
@@ -82,7 +92,8 @@ PARAMETERS = (
     Param("lockstep_timeout_s", 2.0, "lockstep: wall time a sample waits for its torque (and disturbance) before the last value is held",
           "s", check="> 0"),
     Param("use_disturbance_topic", False, "add the torque received on disturbance/torque (the injector's) to the control torque"),
-    Param("timing_file", "", "where to write the run's timing (JSON: wall time from the first sample, samples, misses); '' for none"),
+    Param("timing_file", "", "where to write the run's timing (JSON: wall time from the first sample, samples, misses; real time: the "
+          "timer's period error, missed frames, frames with a stale torque); '' for none"),
 )
 _P = {p.name: p for p in PARAMETERS}
 
@@ -141,9 +152,17 @@ class PlantNode(ProjectNode):
             self._created = time.monotonic()
             self.start_when(self._not_ready, self._publish_sample)
         else:
-            self._t0_ns: int | None = None
+            self.dt_ns = period_ns(self.dt)
+            self._frame: int | None = None  # the frame of the last state published
+            self._frame0 = 0  # the first frame (sample 0)
+            self._torque_ns: int | None = None  # stamp of the torque held
+            self._disturbances: StampedWindow[np.ndarray] = StampedWindow(4 * AHEAD_FRAMES)  # published ahead, by stamp
+            self.missed_frames = 0  # frames without a tick of their own (integrated at the next tick)
+            self.stale_torque_frames = 0  # frames integrated with a torque that does not answer their state
+            self.tick_stats = PeriodStatistics(self.dt)  # the timer's period error, in bounded memory
+            self.tick_delay = LatencyStatistics(self.dt)  # when the state was out, after its frame's start
             self._gate = StartGate(self, self._not_ready)  # no publish may block a tick
-            self.create_timer(self.dt, self._realtime_tick)
+            self.create_frame_timer(self.dt, PLANT_PHASE, self._realtime_tick)
 
     # ---- inputs ---------------------------------------------------------------------------
     def _decode(self, msg: Any, topic: Any) -> np.ndarray | None:
@@ -167,10 +186,13 @@ class PlantNode(ProjectNode):
         value = self._decode(msg, topic)
         if value is None:
             return
-        if self.mode == REALTIME:
-            setattr(self, which, value)
-            return
         ns = stamp_to_ns(msg.header.stamp)
+        if self.mode == REALTIME:
+            if which == "torque":
+                self.torque, self._torque_ns = value, ns
+            else:
+                self._disturbances.add(ns, value)
+            return
         if self._waiting_ns is not None and ns < self._waiting_ns:
             return  # a late answer to a sample already integrated (after a timeout)
         self._inbox[which][ns] = value  # inputs may arrive ahead of their sample (the injector publishes one ahead)
@@ -248,14 +270,26 @@ class PlantNode(ProjectNode):
     def _realtime_tick(self) -> None:
         if not self._gate.open():
             return
-        now = self.get_clock().now()
-        if self._t0_ns is not None:
-            self.x = self.body.propagate(self.x, self.torque + self.disturbance, self.dt, self.substeps)
+        self.tick_stats.tick(time.monotonic_ns())
+        now_ns = self.get_clock().now().nanoseconds
+        f = frame_index(now_ns, self.dt_ns, PLANT_PHASE)
+        if self._frame is None:
+            self._frame0 = f
+        elif f <= self._frame:
+            return  # a second tick in the frame (an on-time tick right after a late one): nothing to do
         else:
-            self._t0_ns = now.nanoseconds
-        self._publish_state(now.to_msg())
-        self.k += 1
-        if self.n_steps and self.k > self.n_steps:
+            self.missed_frames += f - self._frame - 1
+            for g in range(self._frame, f):  # each frame since the last tick, with the torque held
+                stamp_ns = g * self.dt_ns
+                self.stale_torque_frames += self._torque_ns is not None and self._torque_ns < stamp_ns  # once the controller answers
+                held = self._disturbances.at_or_before(stamp_ns)
+                disturbance = held[1] if held is not None else self.disturbance
+                self.x = self.body.propagate(self.x, self.torque + disturbance, self.dt, self.substeps)
+        self._frame = f
+        self.k = f - self._frame0
+        self._publish_state(ns_to_stamp(f * self.dt_ns))
+        self.tick_delay.add(self.get_clock().now().nanoseconds - f * self.dt_ns)
+        if self.n_steps and self.k >= self.n_steps:
             self.finished = True
 
     def _publish_state(self, t_s: Any) -> None:
@@ -271,8 +305,11 @@ class PlantNode(ProjectNode):
         self.get_logger().info(f"finished at sample {self.k} after {run_s:.3f} s: {self.rejected} rejected messages, missed inputs {self.missed}")
         super().finish()
         if self.timing_file:
-            Path(self.timing_file).write_text(json.dumps({"run_s": run_s, "samples": self.k + 1, "rejected": self.rejected, "missed": self.missed,
-                                                          "first_sample_monotonic_s": self._wall_first}))
+            timing = {"run_s": run_s, "samples": self.k + 1, "rejected": self.rejected, "missed": self.missed, "first_sample_monotonic_s": self._wall_first}
+            if self.mode == REALTIME:
+                timing.update(self.tick_stats.summary(), missed_frames=self.missed_frames, stale_torque_frames=self.stale_torque_frames,
+                              state_delay={k.replace("latency", "delay"): v for k, v in self.tick_delay.summary().items()})
+            Path(self.timing_file).write_text(json.dumps(timing))
 
 
 def main(argv: list[str] | None = None) -> int:

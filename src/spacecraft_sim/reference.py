@@ -12,9 +12,11 @@ tick ``t_k`` of the grid sample ``k + 1`` (and any earlier one a missed tick lef
 :class:`~sappc_msgs_py.runtime.GridCursor`), each stamped with its grid time: the trajectory is
 known in advance, so publishing one sample ahead takes the reference off the loop's critical
 path, and the first samples do not depend on the plant's first tick reaching this node; the
-controller pairs each with the state of the same stamp.  ``realtime``: a
-wall-clock timer of period ``dt`` publishes the sample of the time elapsed since its first tick,
-stamped with the node's clock.
+controller pairs each with the state of the same stamp.  ``realtime``: in the frames of
+:mod:`sappc_msgs_py.timeline`, a timer in the middle of each frame publishes the samples up to
+:data:`~sappc_msgs_py.timeline.AHEAD_FRAMES` frames ahead, sample ``k`` stamped with frame
+``f0 + k`` (``f0``: the frame after the node's first tick), so the controller finds the
+reference of each state's stamp already there.
 
 Parameters: :data:`PARAMETERS` (the scenario's ``reference``, the grid and the mode;
 ``python -m spacecraft_sim.reference --help``), and those of :class:`~sappc_msgs_py.runtime.ProjectNode`.
@@ -27,9 +29,10 @@ from typing import Any
 
 
 from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_TF, qos_profile
-from sappc_msgs_py.convert import quaternion_msg, stamp_to_ns, time_to_stamp, transform_from_attitude, transform_msg, vector3_msg
+from sappc_msgs_py.convert import ns_to_stamp, quaternion_msg, stamp_to_ns, time_to_stamp, transform_from_attitude, transform_msg, vector3_msg
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, StartGate, run_node, unmatched
+from sappc_msgs_py.timeline import AHEAD_FRAMES, MID_FRAME_PHASE, frame_index, period_ns
 
 from spacecraft_sim.core.reference import PaperReference, sample_times
 from gnc_common.validation import check_positive
@@ -72,14 +75,15 @@ class ReferenceNode(ProjectNode):
         self.pubs = [self.counting_publisher(t, 1) for t in (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)]
         self.pub_tf = self.counting_publisher(REFERENCE_TF)  # waits only for expected_subscribers
         self._tf = transform_msg(REFERENCE_TF)  # one message, re-stamped each sample
+        self._cursor = GridCursor(self.samples.t.size - 1)
         if self.mode == LOCKSTEP:
-            self._cursor = GridCursor(self.samples.t.size - 1)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile())
             self.start_when(lambda: unmatched([*self.pubs, self.pub_tf]), lambda: self._publish_through(1))
         else:
-            self._t0_ns: int | None = None
+            self.dt_ns = period_ns(self.dt)
+            self._frame0: int | None = None  # the frame of sample 0
             self._gate = StartGate(self, lambda: unmatched([*self.pubs, self.pub_tf]))  # no publish may block a tick
-            self.create_timer(self.dt, self._on_timer)
+            self.create_frame_timer(self.dt, MID_FRAME_PHASE, self._on_timer)
 
     def _publish(self, k: int, stamp: Any) -> None:
         s = self.samples
@@ -104,13 +108,11 @@ class ReferenceNode(ProjectNode):
     def _on_timer(self) -> None:
         if not self._gate.open():
             return
-        now = self.get_clock().now()
-        if self._t0_ns is None:
-            self._t0_ns = now.nanoseconds
-        k = int((now.nanoseconds - self._t0_ns) / 1e9 / self.dt + 0.5)
-        if k >= self.samples.t.size:
-            return  # past the grid: nothing more to publish (the node stays up until stopped)
-        self._publish(k, now.to_msg())
+        f = frame_index(self.get_clock().now().nanoseconds, self.dt_ns, MID_FRAME_PHASE)
+        if self._frame0 is None:
+            self._frame0 = f + 1  # sample 0 is the next frame's: never stamped in the past
+        for k in self._cursor.through(f + AHEAD_FRAMES - self._frame0):  # past the grid's end: nothing (the node stays up until stopped)
+            self._publish(k, ns_to_stamp((self._frame0 + k) * self.dt_ns))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -35,10 +35,10 @@ def test_percentiles_bound_the_exact_ones_to_one_bin_and_memory_does_not_grow(rn
     intervals_ns = (10 * MS + rng.normal(0.0, 300_000, 20_000)).astype(np.int64)
     intervals_ns[::1000] += 150 * MS  # a few errors beyond the histogram (100 ms): the last bin
     ticks = np.concatenate(([0], np.cumsum(intervals_ns)))
-    size = stats._hist.nbytes
+    size = stats.errors._hist.nbytes
     for t in ticks:
         stats.tick(int(t))
-    assert stats._hist.nbytes == size == N_BINS * 8
+    assert stats.errors._hist.nbytes == size == N_BINS * 8
     errors = np.abs(intervals_ns - 10 * MS) / 1e9
     for q in (50, 90, 99, 99.9):
         exact = float(np.percentile(errors, q, method="inverted_cdf"))

@@ -549,12 +549,14 @@ class _FakeClock:
 
 @pytest.fixture
 def realtime(ros_context, monkeypatch):  # type: ignore[no-untyped-def]
-    """A real-time controller whose timer never fires during a test (period one hour): the test
-    calls the timer's callback itself, at the times of a clock it sets."""
+    """A real-time controller whose frame timer (the watchdog) is cancelled: the test calls the
+    timer's callback itself, at the times of a clock it sets."""
     from sappc_controller.node import ControllerNode
 
-    overrides = _controller_overrides(mode="realtime", control_period_s=3600.0, stale_timeout_s=0.05)  # type: ignore[no-untyped-call]
+    overrides = _controller_overrides(mode="realtime", control_period_s=0.01, stale_timeout_s=0.05)  # type: ignore[no-untyped-call]
     node = ControllerNode(context=ros_context, parameter_overrides=overrides)
+    for timer in node._frame_timers:
+        timer.cancel()
     clock = _FakeClock(10 * NS)
     monkeypatch.setattr(node, "get_clock", lambda: clock)
     driver = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
@@ -565,49 +567,87 @@ def realtime(ros_context, monkeypatch):  # type: ignore[no-untyped-def]
     driver.node.destroy_node()
 
 
-def _tick(node, drv, n_torques: int) -> tuple[int, np.ndarray]:  # type: ignore[no-untyped-def]
-    """One timer tick; the torque it published."""
-    node._on_timer()
-    drv.spin_until(lambda: len(drv.torques) == n_torques, f"torque {n_torques}")
-    torque: tuple[int, np.ndarray] = drv.torques[-1]
-    return torque
+_REFERENCE = (c.REFERENCE_ATTITUDE, c.REFERENCE_RATE, c.REFERENCE_ACCELERATION)
 
 
-def test_realtime_watchdog_commands_zero_torque_once_the_inputs_are_older_than_stale_timeout_s(realtime) -> None:  # type: ignore[no-untyped-def]
-    """Real time: at each tick the latest inputs are used while the oldest is at most
-    stale_timeout_s old (exactly that old included); 1 ns older, the tick commands zero torque and reports stale; with new
-    inputs the next tick computes again.  Nothing is published before every input has arrived."""
-    node, drv, clock = realtime
-    node._on_timer()  # no input yet: not started
-    stamps = [10 * NS + k for k in range(5)]  # each input its own stamp; the oldest is 10 s
-    for topic, stamp in zip((c.STATE_ATTITUDE, c.STATE_RATE, c.REFERENCE_ATTITUDE, c.REFERENCE_RATE, c.REFERENCE_ACCELERATION), stamps):
+def _publish(drv, node, topic, stamp_ns: int, value=None) -> None:  # type: ignore[no-untyped-def]
+    """Publish one input stamped ``stamp_ns`` and wait until the controller has taken it."""
+    if value is None:
         value = Q0 if topic is c.STATE_ATTITUDE else (0.0, 0.0, 0.0, 1.0) if topic is c.REFERENCE_ATTITUDE else (0.0, 0.0, 0.0)
-        msg = quaternion_msg(value, 0.0, topic) if len(value) == 4 else vector3_msg(value, 0.0, topic)
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, NS)
-        drv.pub[topic.name].publish(msg)
-    drv.spin_until(lambda: node._latest.complete, "the five inputs")
-    assert len(drv.torques) == 0
-    clock.ns = 10 * NS + 50_000_000 - 1  # the oldest input 1 ns younger than stale_timeout_s
-    ns, tq = _tick(node, drv, 1)
-    assert ns == clock.ns and np.any(tq != 0.0) and node.steps == 1 and not node.stale
-    drv.spin_until(lambda: len(drv.diags) == 1, "diagnostics")
-    assert drv.diags[0]["input_stamps_state_s"].tolist() == [stamps[0] / NS, stamps[1] / NS, 0.0]  # the inputs used
-    assert drv.diags[0]["input_stamps_reference_s"].tolist() == [s / NS for s in stamps[2:]]
-    clock.ns = 10 * NS + 50_000_000  # the oldest input exactly stale_timeout_s old: still used
-    ns, tq = _tick(node, drv, 2)
-    assert ns == clock.ns and np.any(tq != 0.0) and node.steps == 2 and not node.stale
-    clock.ns = 10 * NS + 50_000_001  # 1 ns older than stale_timeout_s
-    ns, tq = _tick(node, drv, 3)
-    assert ns == clock.ns and tq.tolist() == [0.0, 0.0, 0.0] and node.steps == 2 and node.stale
-    drv.spin_until(lambda: len(drv.diags) == 3, "diagnostics")
-    assert drv.diags[2]["status"][1] == 1.0 and drv.diags[2]["status"][2] == c.ANSWER_WATCHDOG_ZERO
-    assert drv.diags[2]["input_stamps_state_s"].tolist() == [0.0, 0.0, 0.0]  # no step: no input used
-    assert drv.diags[2]["input_stamps_reference_s"].tolist() == [0.0, 0.0, 0.0]
-    clock.ns = 10 * NS + 200_000_000
-    drv.send_sample(10.2, q=Q0, clock=False)  # valid inputs again
-    drv.spin_until(lambda: node._latest.oldest_ns == clock.ns, "the new inputs")
-    ns, tq = _tick(node, drv, 4)
-    assert ns == clock.ns and np.any(tq != 0.0) and node.steps == 3 and not node.stale and node.rejected == 0
+    msg = quaternion_msg(value, 0.0, topic) if len(value) == 4 else vector3_msg(value, 0.0, topic)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, NS)
+    drv.pub[topic.name].publish(msg)
+    drv.spin_until(lambda: node._rt.last_ns(topic.name) == stamp_ns, f"{topic.name} at {stamp_ns}")
+
+
+def test_realtime_computes_on_each_fresh_state_with_the_reference_of_its_stamp(realtime) -> None:  # type: ignore[no-untyped-def]
+    """Real time: a step as soon as the attitude and the rate of a new stamp have arrived, stamped
+    with it, with the reference of the same stamp when it is there (published ahead), else the
+    newest earlier one; a reference stamped after the state is never used; no step before a
+    reference at or before the state; the latency is measured from the state's stamp."""
+    node, drv, clock = realtime
+    t0 = 10 * NS
+    _publish(drv, node, c.STATE_ATTITUDE, t0)
+    _publish(drv, node, c.STATE_RATE, t0)
+    assert node.steps == 0  # no reference yet: not started
+    for k in (1, 2):  # the reference of frames 1 and 2, ahead of their states
+        for topic in _REFERENCE:
+            _publish(drv, node, topic, t0 + k * 10_000_000)
+    clock.ns = t0 + 10_000_000 + 700_000  # the step runs 0.7 ms after the state's stamp
+    _publish(drv, node, c.STATE_ATTITUDE, t0 + 10_000_000)
+    assert node.steps == 0  # half a state
+    _publish(drv, node, c.STATE_RATE, t0 + 10_000_000)
+    drv.spin_until(lambda: len(drv.torques) == 1 and len(drv.diags) == 1, "the torque of frame 1")
+    assert drv.torques[0][0] == t0 + 10_000_000 and np.any(drv.torques[0][1] != 0.0)
+    assert drv.diags[0]["input_stamps_reference_s"].tolist() == [(t0 + 10_000_000) / NS] * 3  # frame 2's, ahead, not used
+    assert node.latency.latency.count == 1 and node.latency.latency.max_s == 700_000 / NS and node.latency.late == 0
+    clock.ns = t0 + 30_000_000 + 10_000_001  # frame 3 answered later than one period: a late step
+    _publish(drv, node, c.STATE_ATTITUDE, t0 + 30_000_000)
+    _publish(drv, node, c.STATE_RATE, t0 + 30_000_000)  # no reference of frame 3: frame 2's is held
+    drv.spin_until(lambda: len(drv.diags) == 2, "the torque of frame 3")
+    assert drv.torques[1][0] == t0 + 30_000_000
+    assert drv.diags[1]["input_stamps_state_s"].tolist() == [(t0 + 30_000_000) / NS] * 2 + [0.0]
+    assert drv.diags[1]["input_stamps_reference_s"].tolist() == [(t0 + 20_000_000) / NS] * 3
+    assert node.steps == 2 and node.latency.late == 1 and node.stale is False
+
+
+def test_realtime_watchdog_commands_zero_torque_when_an_input_is_older_than_stale_timeout_s(realtime) -> None:  # type: ignore[no-untyped-def]
+    """Real time: a fresh state is stepped while its oldest input is at most stale_timeout_s old
+    (exactly that old included); 1 ns older, it is answered with zero torque at its stamp; and the
+    watchdog in the middle of each frame commands zero torque, stamped with the current frame, once
+    no state is newer than stale_timeout_s, once per frame; new inputs are computed again."""
+    node, drv, clock = realtime
+    t0 = 10 * NS
+    for topic in _REFERENCE:
+        _publish(drv, node, topic, t0)
+    clock.ns = t0 + 50_000_000  # the reference (held for frame 1) exactly stale_timeout_s old
+    _publish(drv, node, c.STATE_ATTITUDE, t0 + 10_000_000)
+    _publish(drv, node, c.STATE_RATE, t0 + 10_000_000)
+    drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
+    assert np.any(drv.torques[0][1] != 0.0) and node.steps == 1 and not node.stale
+    clock.ns = t0 + 50_000_001  # the reference 1 ns older than stale_timeout_s
+    _publish(drv, node, c.STATE_ATTITUDE, t0 + 20_000_000)
+    _publish(drv, node, c.STATE_RATE, t0 + 20_000_000)
+    drv.spin_until(lambda: len(drv.diags) == 2, "the second answer")
+    assert drv.torques[1][0] == t0 + 20_000_000 and drv.torques[1][1].tolist() == [0.0, 0.0, 0.0]
+    assert drv.diags[1]["status"][1] == 1.0 and drv.diags[1]["status"][2] == c.ANSWER_WATCHDOG_ZERO and node.steps == 1 and node.stale
+    assert drv.diags[1]["input_stamps_state_s"].tolist() == [0.0, 0.0, 0.0]  # no step: no input used
+    # the watchdog: the last state (frame 2, t0 + 20 ms) exactly stale_timeout_s old: nothing
+    clock.ns = t0 + 20_000_000 + 50_000_000
+    node._on_timer()
+    clock.ns += 1  # 1 ns older: zero torque stamped with the current frame (t0 + 70 ms), once
+    node._on_timer()
+    node._on_timer()
+    drv.spin_until(lambda: len(drv.torques) == 3, "the watchdog's zero torque")
+    for topic in _REFERENCE:  # valid inputs again (frame 8)
+        _publish(drv, node, topic, t0 + 80_000_000)
+    clock.ns = t0 + 80_000_000 + 1_000_000
+    _publish(drv, node, c.STATE_ATTITUDE, t0 + 80_000_000)
+    _publish(drv, node, c.STATE_RATE, t0 + 80_000_000)
+    drv.spin_until(lambda: len(drv.torques) == 4, "control again")
+    assert [ns for ns, _ in drv.torques] == [t0 + 10_000_000, t0 + 20_000_000, t0 + 70_000_000, t0 + 80_000_000]
+    assert drv.torques[2][1].tolist() == [0.0, 0.0, 0.0] and np.any(drv.torques[3][1] != 0.0)
+    assert node.steps == 2 and not node.stale and node.rejected == 0
 
 
 def test_realtime_input_checks_are_per_topic_and_relative_to_the_node_clock(realtime) -> None:  # type: ignore[no-untyped-def]
@@ -617,16 +657,16 @@ def test_realtime_input_checks_are_per_topic_and_relative_to_the_node_clock(real
     node, drv, clock = realtime
     att = c.STATE_ATTITUDE.name
     drv.send_sample(10.0, q=Q0, clock=False)
-    drv.spin_until(lambda: node._latest.complete, "the five inputs")
+    drv.spin_until(lambda: all(node._rt.last_ns(t.name) == 10 * NS for t in c.CONTROLLER_INPUTS), "the five inputs")
     drv.pub[att].publish(quaternion_msg(Q0, 10.0, c.STATE_ATTITUDE))  # the same stamp on the same topic
     drv.spin_until(lambda: node.rejected == 1, "the repeated stamp rejected")
     drv.pub[att].publish(quaternion_msg(Q0, 10.000000001, c.STATE_ATTITUDE))
-    drv.spin_until(lambda: node._latest.last_ns(att) == 10 * NS + 1, "1 ns later accepted")
+    drv.spin_until(lambda: node._rt.last_ns(att) == 10 * NS + 1, "1 ns later accepted")
     drv.pub[att].publish(quaternion_msg(Q0, 11.000000001, c.STATE_ATTITUDE))  # 1 s + 1 ns ahead of the clock
     drv.spin_until(lambda: node.rejected == 2, "the far-future stamp rejected")
     drv.pub[att].publish(quaternion_msg(Q0, 11.0, c.STATE_ATTITUDE))  # exactly 1 s ahead
-    drv.spin_until(lambda: node._latest.last_ns(att) == 11 * NS, "1 s ahead accepted")
-    assert node.rejected == 2 and node._latest.last_ns(c.STATE_RATE.name) == 10 * NS
+    drv.spin_until(lambda: node._rt.last_ns(att) == 11 * NS, "1 s ahead accepted")
+    assert node.rejected == 2 and node._rt.last_ns(c.STATE_RATE.name) == 10 * NS
 
 
 def test_watchdog_parameters_accept_the_ends_of_their_range(controller) -> None:  # type: ignore[no-untyped-def]

@@ -14,9 +14,10 @@ whose stamps the controller reported in its diagnostics (``input_stamps_state_s`
 ``input_stamps_reference_s``), so the re-run is exact in real time too.  For a bag without them
 (another controller node), the recorded inputs are fed, in the order the recorder received
 them, through the node's own input pairing (:mod:`sappc_controller.inputs`): lockstep bags
-(with ``/clock``) pair the inputs of equal stamps, and real-time bags take the latest input the
-recorder had received before the torque, which may differ from the node's view by a message in
-flight: expect small differences there, which are reported, not hidden.  Each step is the
+(with ``/clock``) pair the inputs of equal stamps, and real-time bags step each fresh state at
+its stamp with the reference of that stamp, or the newest earlier one the recorder had received
+by then, which may differ from the node's view by a message in flight: expect small differences
+there, which are reported, not hidden.  Each step is the
 node's step (:func:`~sappc_controller.inputs.step_sample`).  Runtime parameter changes made
 during the run are not in the bag and are not replayed.
 """
@@ -30,68 +31,35 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sappc_controller.inputs import INPUT_TOPICS, STEP_ERRORS, ControlSample, LatestInputs, LockstepPairing, step_sample
+from sappc_controller.inputs import INPUT_TOPICS, STEP_ERRORS, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import CONTROLLER_CLASSES, controller_from_parameters_file
 from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS, consumed_names
 from gnc_common.validation import ConfigError
 
-from sappc.bag.read import PARAMS_RECORD, Bag, BagError, Series, find_topic
+from sappc.bag.read import PARAMS_RECORD, STAMP_TOL_NS, Bag, BagError, Series, find_topic, nearest_index
 
 __all__ = ["RerunResult", "rerun_bag"]
 
 Array = NDArray[np.float64]
 
-#: Stamps carried as float seconds in the diagnostics (epoch times in real time) are exact to
-#: ~0.24 us; messages of one topic are milliseconds apart, so 1 us identifies one unambiguously.
-_STAMP_TOL_NS = 1_000
-
-
-def _nearest_index(stamps_ns: NDArray[np.int64], at_ns: NDArray[np.int64], tol_ns: int) -> NDArray[np.int64]:
-    """Index of the sample whose stamp is nearest each of ``at_ns``, or -1 when none is within ``tol_ns``."""
-    if stamps_ns.size == 0:
-        return np.full(np.shape(at_ns), -1, dtype=np.int64)
-    order = np.argsort(stamps_ns, kind="stable")
-    s = stamps_ns[order]
-    hi = np.clip(np.searchsorted(s, at_ns), 0, s.size - 1)
-    lo = np.maximum(hi - 1, 0)
-    best = np.where(np.abs(s[lo] - at_ns) <= np.abs(s[hi] - at_ns), lo, hi)
-    return np.where(np.abs(s[best] - at_ns) <= tol_ns, order[best], -1)
-
-
-def _arrival_order(inputs: list[Series], extra: NDArray[np.int64] | None = None) -> list[tuple[int, int]]:
-    """``(input, row)`` of every recorded input message in the order the recorder received them
-    (``input`` = ``len(inputs)`` for the rows of ``extra``, which come after the inputs received at
-    the same time)."""
-    logs = [s.log_time_ns for s in inputs] + ([extra] if extra is not None else [])
+def _arrival_order(inputs: list[Series]) -> list[tuple[int, int]]:
+    """``(input, row)`` of every recorded input message in the order the recorder received them."""
+    logs = [s.log_time_ns for s in inputs]
     which = np.concatenate([np.full(t.size, c, dtype=np.int64) for c, t in enumerate(logs)])
     rows = np.concatenate([np.arange(t.size, dtype=np.int64) for t in logs])
-    order = np.lexsort((which, np.concatenate(logs)))  # by time received, then inputs before `extra`
+    order = np.lexsort((which, np.concatenate(logs)))  # by time received, then input order
     return list(zip(which[order].tolist(), rows[order].tolist()))
 
 
-def _replay_lockstep(inputs: list[Series], widths: list[int]) -> dict[int, ControlSample]:
-    """The samples the node's lockstep pairing completes from the recorded inputs, by stamp [ns]."""
-    pairing = LockstepPairing(INPUT_TOPICS)
+def _replay(inputs: list[Series], widths: list[int], pairing: LockstepPairing | RealtimePairing) -> dict[int, ControlSample]:
+    """The samples the node's ``pairing`` completes from the recorded inputs fed in the order the
+    recorder received them, by stamp [ns]."""
     samples: dict[int, ControlSample] = {}
     for c, r in _arrival_order(inputs):
         s = inputs[c]
         sample = pairing.add(INPUT_TOPICS[c].name, int(s.stamps_ns[r]), s.values[r, : widths[c]])
         if sample is not None:
             samples.setdefault(sample.t_ns, sample)  # the node rejects a stamp it has computed
-    return samples
-
-
-def _replay_realtime(inputs: list[Series], widths: list[int], torque: Series) -> list[ControlSample | None]:
-    """For each torque, the node's real-time sample from the inputs the recorder had received when
-    the torque arrived (``None`` before every input has arrived)."""
-    latest = LatestInputs(INPUT_TOPICS)
-    samples: list[ControlSample | None] = [None] * torque.stamps_ns.size
-    for c, r in _arrival_order(inputs, torque.log_time_ns):
-        if c == len(inputs):
-            samples[r] = latest.sample_at(int(torque.stamps_ns[r]))
-        else:
-            s = inputs[c]
-            latest.add(INPUT_TOPICS[c].name, int(s.stamps_ns[r]), s.values[r, : widths[c]])
     return samples
 
 
@@ -181,7 +149,7 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
     if diag_topic is not None and "status" in labels:
         # the node publishes each torque with its diagnostics, stamped with the same time
         d = bag.series[diag_topic]
-        j = _nearest_index(d.stamps_ns, torque.stamps_ns, _STAMP_TOL_NS)
+        j = nearest_index(d.stamps_ns, torque.stamps_ns, STAMP_TOL_NS)
         diag = np.where((j >= 0)[:, None], d.values[np.maximum(j, 0)], np.nan)
         stale = diag[:, 3 * labels.index("status") + 1] > 0.5  # status[1]: not a control step (held or zero torque)
         keep &= ~stale
@@ -194,7 +162,7 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
         a, b = 3 * labels.index("input_stamps_state_s"), 3 * labels.index("input_stamps_reference_s")
         used = np.concatenate((diag[:, a : a + 2], diag[:, b : b + 3]), axis=1)
         used_ns = np.where(np.isfinite(used), np.round(np.nan_to_num(used) * 1e9), -1).astype(np.int64)
-        pos = np.stack([_nearest_index(s.stamps_ns, used_ns[:, c], _STAMP_TOL_NS) for c, s in enumerate(inputs)], axis=1)
+        pos = np.stack([nearest_index(s.stamps_ns, used_ns[:, c], STAMP_TOL_NS) for c, s in enumerate(inputs)], axis=1)
         samples: list[ControlSample | None] = [
             ControlSample(int(t_ns), tuple(int(s.stamps_ns[p]) for s, p in zip(inputs, row)),
                           tuple(s.values[p, :width] for s, p, width in zip(inputs, row, widths)))
@@ -202,13 +170,10 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
             for t_ns, row in zip(torque.stamps_ns, pos)
         ]
         pairing = "the input stamps the controller reported"
-    elif lockstep:  # the node's pairing: the inputs of one stamp
-        by_stamp = _replay_lockstep(inputs, widths)
+    else:  # the node's pairing, on the inputs in the order the recorder received them
+        by_stamp = _replay(inputs, widths, LockstepPairing(INPUT_TOPICS) if lockstep else RealtimePairing(INPUT_TOPICS))
         samples = [by_stamp.get(int(t_ns)) for t_ns in torque.stamps_ns]
-        pairing = "equal stamps"
-    else:  # the node's pairing on the latest input at the recorder when the torque arrived: may differ from the node's view
-        samples = _replay_realtime(inputs, widths, torque)
-        pairing = "arrival at the recorder (approximate)"
+        pairing = "equal stamps" if lockstep else "the state's stamp, the reference received by then (approximate)"
     found = np.array([s is not None for s in samples], dtype=bool)
     if (keep & ~found).any():
         skipped["an input of the sample is not in the bag"] = int((keep & ~found).sum())

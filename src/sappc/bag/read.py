@@ -44,7 +44,7 @@ from sappc.evaluation.history import History
 from sappc.bag.mcap_scan import Scan, scan_mcap
 from sappc.evaluation.metrics import MetricsAccumulator
 
-__all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "Bag", "BagError", "BagRun", "bag_metrics", "bag_run", "find_topic", "latest_index",
+__all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "Bag", "BagError", "BagRun", "bag_metrics", "bag_run", "find_topic", "latest_index", "nearest_index", "STAMP_TOL_NS",
            "read_bag", "scan_bag"]
 
 #: Metadata records that ``sappc run``'s recorder embeds in the bag: the scenario file and the
@@ -166,6 +166,24 @@ def find_topic(bag: Bag, name: str) -> str | None:
     return None
 
 
+#: Stamps carried as float seconds (the diagnostics' ``time_s`` and input stamps: epoch times in
+#: real time) are exact to ~0.24 us; messages of one topic are milliseconds apart, so 1 us
+#: identifies one unambiguously.
+STAMP_TOL_NS = 1_000
+
+
+def nearest_index(stamps_ns: NDArray[np.int64], at_ns: NDArray[np.int64], tol_ns: int = STAMP_TOL_NS) -> NDArray[np.int64]:
+    """Index of the sample whose stamp is nearest each of ``at_ns``, or -1 when none is within ``tol_ns``."""
+    if stamps_ns.size == 0:
+        return np.full(np.shape(at_ns), -1, dtype=np.int64)
+    order = np.argsort(stamps_ns, kind="stable")
+    s = stamps_ns[order]
+    hi = np.clip(np.searchsorted(s, at_ns), 0, s.size - 1)
+    lo = np.maximum(hi - 1, 0)
+    best = np.where(np.abs(s[lo] - at_ns) <= np.abs(s[hi] - at_ns), lo, hi)
+    return np.where(np.abs(s[best] - at_ns) <= tol_ns, order[best], -1)
+
+
 def latest_index(stamps: NDArray[np.int64], at: NDArray[np.int64]) -> NDArray[np.int64]:
     """Index of the latest sample at or before each of ``at`` (-1 if none)."""
     order = np.argsort(stamps, kind="stable")
@@ -253,13 +271,14 @@ def bag_run(bag: Bag) -> BagRun:
     exact = np.zeros(T, dtype=bool)  # a diagnostics message of the sample's own stamp
     if diag_topic is not None and labels and bag.series[diag_topic].values.shape[1] >= 3 * len(labels):
         d = bag.series[diag_topic]
-        i = latest_index(d.stamps_ns, common)
+        # the diagnostics of the sample's own stamp (their time_s is float seconds: exact in
+        # lockstep, within STAMP_TOL_NS for the epoch times of real time), else the latest before it
+        own = nearest_index(d.stamps_ns, common)
+        exact = own >= 0
+        i = np.where(exact, own, latest_index(d.stamps_ns, common))
         data = d.values[np.maximum(i, 0), : 3 * len(labels)].reshape(T, len(labels), 3)
         data[i < 0] = np.nan
         rows = {label: data[:, n] for n, label in enumerate(labels)}
-        exact = (i >= 0) & (d.stamps_ns[np.maximum(i, 0)] == common)
-        if not exact.any():  # real time: the controller's stamps are its own instants, not the state's
-            exact = i >= 0
     nan3 = np.full((T, 3), np.nan)
     status = rows.get("status", np.zeros((T, 3)))
     # the answer: the code of the sample's diagnostics (a bag from before the codes: stale flag ->

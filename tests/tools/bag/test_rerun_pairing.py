@@ -64,22 +64,34 @@ def test_a_lockstep_bag_pairs_equal_stamps_of_the_relayed_state_as_the_node_does
     assert result.stamps_ns.tolist() == sorted(expected) and result.identical == len(expected) == 29
 
 
-def test_a_real_time_bag_takes_the_latest_input_received_before_each_torque(tmp_path: Path) -> None:
+def test_a_real_time_bag_steps_each_state_with_the_reference_of_its_stamp_as_the_node_does(tmp_path: Path) -> None:
+    """Real time (no /clock): the reference is published two frames ahead of the state; each
+    state is stepped at its stamp with the reference of the same stamp, never a later one, and
+    with the newest earlier one when its own never came (frame 12)."""
     controller, dt = _controller()
     messages = []
-    latest: dict[str, np.ndarray] = {}
-    n = 0
+    dt_ns = round(dt * NS)
+    t0_ns = 100 * NS  # epoch-like frames
+
+    def reference(k: int) -> list[tuple[c.Topic, np.ndarray]]:
+        return [(c.REFERENCE_ATTITUDE, np.array([0.0, 0.0, 0.0, 1.0])), (c.REFERENCE_RATE, np.array([0.001 * k, 0.0, 0.0])),
+                (c.REFERENCE_ACCELERATION, np.zeros(3))]
+
+    for k in range(2):  # the reference of frames 0 and 1 before the first state
+        for topic, value in reference(k):
+            messages.append((topic.name, topic.type_name, _msg(topic, value, (t0_ns + k * dt_ns) / NS), t0_ns - dt_ns // 2))
+    expected = []
     for k in range(30):
-        t = 100.0 + k * dt  # epoch-like times
-        for i, (topic, value) in enumerate(_inputs(k, t)):
-            stamp = t + 0.001 * i  # no common stamps in real time
-            log = round(stamp * NS) + 500_000
-            messages.append((topic.name, topic.type_name, _msg(topic, value, stamp), log))
-            latest[topic.name] = value
-        t_torque = t + 0.007
-        torque = controller.step(round(t_torque * NS) / NS, dt, *(latest[tp.name] for tp, _ in _inputs(k, t))).torque_B
-        messages.append((c.CONTROL_TORQUE.name, c.CONTROL_TORQUE.type_name, torque_msg(torque, t_torque, c.CONTROL_TORQUE), round(t_torque * NS) + 500_000))
-        n += 1
+        t_ns = t0_ns + k * dt_ns
+        state = _inputs(k, t_ns / NS)[:2]
+        for i, (topic, value) in enumerate(state):
+            messages.append((topic.name, topic.type_name, _msg(topic, value, t_ns / NS), t_ns + 500_000 + i))
+        used = reference(11 if k == 12 else k)
+        expected.append(controller.step(t_ns / NS, dt, *(v for _, v in state), *(v for _, v in used)).torque_B)
+        messages.append((c.CONTROL_TORQUE.name, c.CONTROL_TORQUE.type_name, torque_msg(expected[-1], t_ns / NS, c.CONTROL_TORQUE), t_ns + 2_000_000))
+        if k + 2 != 12:  # mid-frame: the reference two frames ahead (frame 12's is lost)
+            for topic, value in reference(k + 2):
+                messages.append((topic.name, topic.type_name, _msg(topic, value, (t_ns + 2 * dt_ns) / NS), t_ns + dt_ns // 2))
     result = rerun_bag(read_bag(write_bag(tmp_path / "rt.mcap", messages)), PARAMS)
-    assert result.mode == "realtime" and result.pairing == "arrival at the recorder (approximate)"
-    assert result.skipped == {} and result.stamps_ns.size == n and result.identical == n
+    assert result.mode == "realtime" and result.pairing == "the state's stamp, the reference received by then (approximate)"
+    assert result.skipped == {} and result.stamps_ns.size == 30 and result.identical == 30

@@ -1,0 +1,148 @@
+"""The real-time frame grid (sappc_msgs_py.timeline) and the plant's frames: states stamped with
+their frame's start, every elapsed frame integrated with the torque held and its own
+disturbance, missed frames and frames with a stale torque counted.  The plant's timer is
+cancelled and its tick called at the times of a clock the test sets (no timing luck)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from gnc_common.timing import LatencyStatistics
+from gnc_common.validation import ConfigError
+from sappc_msgs_py import contract as c
+from sappc_msgs_py.convert import stamp_to_ns, torque_msg
+from sappc_msgs_py.timeline import MID_FRAME_PHASE, PLANT_PHASE, StampedWindow, frame_index, period_ns
+
+NS = 1_000_000_000
+DT_NS = 10_000_000
+DEADLINE_S = 20.0
+
+
+def test_frame_index_keeps_a_tick_in_its_frame_within_half_a_frame() -> None:
+    f = 170_000_000_000  # frames of 10 ms since the epoch
+    start = f * DT_NS
+    assert frame_index(start, DT_NS, PLANT_PHASE) == f
+    assert frame_index(start + DT_NS // 2 - 1, DT_NS, PLANT_PHASE) == f  # late by just under half a frame
+    assert frame_index(start + DT_NS // 2, DT_NS, PLANT_PHASE) == f + 1
+    assert frame_index(start - DT_NS // 2, DT_NS, PLANT_PHASE) == f  # early by half a frame
+    mid = start + DT_NS // 2
+    assert frame_index(mid, DT_NS, MID_FRAME_PHASE) == f
+    assert frame_index(mid + DT_NS // 2 - 1, DT_NS, MID_FRAME_PHASE) == f
+    assert frame_index(mid - DT_NS // 2, DT_NS, MID_FRAME_PHASE) == f
+
+
+def test_period_ns_rounds_to_the_nanosecond_and_refuses_what_is_not_a_period() -> None:
+    assert period_ns(0.01) == 10_000_000 and period_ns(1e-6) == 1_000 and period_ns(0.0123456789) == 12_345_679
+    for bad in (0.0, -0.01, 5e-7, float("inf"), float("nan")):
+        with pytest.raises(ConfigError, match="control_period_s"):
+            period_ns(bad)
+
+
+def test_stamped_window_gives_the_value_of_a_stamp_or_the_newest_earlier_one() -> None:
+    w: StampedWindow[str] = StampedWindow(3)
+    assert w.at_or_before(10) is None and w.newest_ns is None
+    for stamp in (10, 20, 30):
+        w.add(stamp, f"v{stamp}")
+    w.add(20, "again")  # not after the newest: dropped
+    assert w.at_or_before(20) == (20, "v20") and w.at_or_before(29) == (20, "v20") and w.at_or_before(9) is None
+    w.add(40, "v40")  # the oldest forgotten beyond 3
+    assert len(w) == 3 and w.at_or_before(15) is None and w.at_or_before(45) == (40, "v40") and w.newest_ns == 40
+
+
+def test_latency_statistics_count_steps_strictly_later_than_the_deadline() -> None:
+    stats = LatencyStatistics(0.01)
+    for ns in (700_000, 10_000_000, 10_000_001):
+        stats.add(ns)
+    s = stats.summary()
+    assert s["steps"] == 3 and s["late_steps"] == 1 and s["latency_max_ms"] == 10.000001
+    assert LatencyStatistics(0.01).summary() == {"steps": 0}
+
+
+class _Clock:
+    def __init__(self, ns: int) -> None:
+        self.ns = ns
+
+    def now(self) -> _Clock:
+        return self
+
+    @property
+    def nanoseconds(self) -> int:
+        return self.ns
+
+
+def test_the_plant_integrates_every_elapsed_frame_and_counts_missed_frames_and_stale_torques(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    from spacecraft_sim.plant_node import PlantNode
+
+    plant = PlantNode(context=ros_context, parameter_overrides=[
+        Parameter("mode", value="realtime"), Parameter("duration_s", value=0.0), Parameter("use_disturbance_topic", value=True),
+        Parameter("omega_BN_B0_rad_s", value=[0.01, -0.02, 0.03])])
+    for timer in plant._frame_timers:
+        timer.cancel()
+    f0 = 170_000_000_000
+    clock = _Clock(f0 * DT_NS + 300_000)  # 0.3 ms into frame f0
+    monkeypatch.setattr(plant, "get_clock", lambda: clock)
+    probe = Node("probe", context=ros_context)
+    qos = c.qos_profile()
+    pub_torque = probe.create_publisher(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, qos)
+    pub_dist = probe.create_publisher(c.DISTURBANCE_TORQUE.msg_class, c.DISTURBANCE_TORQUE.name, qos)
+    states: list[int] = []
+    probe.create_subscription(c.STATE_ATTITUDE.msg_class, c.STATE_ATTITUDE.name, lambda m: states.append(stamp_to_ns(m.header.stamp)), qos)
+    probe.create_subscription(c.STATE_RATE.msg_class, c.STATE_RATE.name, lambda m: None, qos)
+    ex = SingleThreadedExecutor(context=ros_context)
+    for n in (plant, probe):
+        ex.add_node(n)
+
+    def spin_until(condition, what: str) -> None:  # type: ignore[no-untyped-def]
+        deadline = time.monotonic() + DEADLINE_S
+        while not condition():
+            assert time.monotonic() < deadline, f"timed out waiting for {what}"
+            ex.spin_once(timeout_sec=0.02)
+
+    try:
+        spin_until(lambda: not plant._not_ready() and pub_dist.get_subscription_count() and pub_torque.get_subscription_count(), "matching")
+        disturbance = {f0 + g: np.array([1e-3 * g, -2e-3, 5e-4 * g]) for g in range(8)}
+        for frame, d in disturbance.items():  # published ahead, each stamped with its own frame
+            m = torque_msg(d, 0.0, c.DISTURBANCE_TORQUE)
+            m.header.stamp.sec, m.header.stamp.nanosec = divmod(frame * DT_NS, NS)
+            pub_dist.publish(m)
+        spin_until(lambda: plant._disturbances.newest_ns == (f0 + 7) * DT_NS, "the disturbances ahead")
+
+        def torque(frame: int, value: list[float]) -> None:
+            m = torque_msg(value, 0.0, c.CONTROL_TORQUE)
+            m.header.stamp.sec, m.header.stamp.nanosec = divmod(frame * DT_NS, NS)
+            pub_torque.publish(m)
+            spin_until(lambda: plant._torque_ns == frame * DT_NS, f"the torque of frame {frame}")
+
+        x = plant.x.copy()
+        body, dt = plant.body, plant.dt
+        plant._realtime_tick()  # frame f0: the first state, nothing integrated
+        spin_until(lambda: len(states) == 1, "the state of f0")
+        assert states == [f0 * DT_NS] and plant.stale_torque_frames == 0 and plant.missed_frames == 0
+        torque(f0, [0.1, -0.2, 0.3])  # the answer to f0, in time
+        clock.ns = (f0 + 1) * DT_NS + 200_000
+        plant._realtime_tick()
+        x = body.propagate(x, np.array([[0.1, -0.2, 0.3]]) + disturbance[f0], dt, 1)
+        plant._realtime_tick()  # a second tick in the same frame: nothing
+        clock.ns = (f0 + 2) * DT_NS + 4_900_000  # late, but within half a frame: frame f0 + 2, no answer to f0 + 1
+        plant._realtime_tick()
+        x = body.propagate(x, np.array([[0.1, -0.2, 0.3]]) + disturbance[f0 + 1], dt, 1)
+        assert plant.stale_torque_frames == 1 and plant.missed_frames == 0
+        torque(f0 + 2, [-0.05, 0.0, 0.05])
+        clock.ns = (f0 + 5) * DT_NS + 100_000  # frames f0 + 3 and f0 + 4 had no tick
+        plant._realtime_tick()
+        for g in (2, 3, 4):  # each with the torque held and its own disturbance
+            x = body.propagate(x, np.array([[-0.05, 0.0, 0.05]]) + disturbance[f0 + g], dt, 1)
+        spin_until(lambda: len(states) == 4, "the states")
+        assert states == [(f0 + g) * DT_NS for g in (0, 1, 2, 5)]
+        assert plant.missed_frames == 2 and plant.stale_torque_frames == 3  # f0 + 1, f0 + 3, f0 + 4
+        assert np.array_equal(plant.x, x) and plant.k == 5
+    finally:
+        ex.shutdown()
+        probe.destroy_node()
+        plant.destroy_node()
