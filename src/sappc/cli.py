@@ -3,6 +3,7 @@
     sappc simulate SCENARIO.yaml [--controller sappc|trappc|blfppc] [--json FILE] [--plots DIR]
     sappc simulate --from-campaign DIR --run K [--json FILE] [--plots DIR]
     sappc montecarlo SCENARIO.yaml --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
+    sappc tune SCENARIO.yaml [--controller K] [--trials N] [--runs-per-trial M] [--seed S] [--workers W | --scheduler ADDRESS] [--out DIR] [--resume]
     sappc run SCENARIO.yaml [--out DIR] [--realtime] [--compose] [--plant native|external] [--controller K] [--json FILE] [--domain-id N]
     sappc params SCENARIO.yaml [--controller K]
     sappc report BAG [--json FILE] [--out DIR] [--scenario FILE]
@@ -14,7 +15,7 @@ Errors in the input (bad scenario, infeasible parameters, bad values) print
 one line naming the problem and exit with status 2; no traceback.
 
 Exit status of ``simulate`` and ``run`` (``montecarlo``: 1 when a run fails the campaign's
-criteria): 0 the run met the scenario's requirements; 1 (``run``) a topic's recorded count differs
+criteria; ``tune``: 1 when no trial is feasible or the best gains fail their confirmation campaign): 0 the run met the scenario's requirements; 1 (``run``) a topic's recorded count differs
 from what was published; 2 invalid input; 3 the controller never commanded a torque; 4 the run
 broke a requirement of the scenario's ``metrics.requirements`` or became non-finite; 130 Ctrl-C.
 """
@@ -243,6 +244,46 @@ def run_exit_status(mismatched: dict[str, tuple[int, int]], controller: dict[str
     return 0 if not mismatched else 1
 
 
+def _fmt(value: Any) -> str:
+    return "-" if value is None else f"{value:.4g}"
+
+
+def _cmd_tune(args: argparse.Namespace) -> int:
+    from sappc.montecarlo.tuning import run_tuning
+
+    out = args.out or f"out/tune_{Path(args.scenario).stem}"
+    summary = run_tuning(args.scenario, out_dir=out, controller=args.controller, trials=args.trials, runs_per_trial=args.runs_per_trial,
+                         seed=args.seed, workers=args.workers, scheduler=args.scheduler, resume=args.resume, progress=not args.no_progress)
+    print(f"study {summary['scenario']} ({summary['controller']}): {summary['trials']} trials of {summary['runs_per_trial']} runs, "
+          f"{summary['feasible_trials']} feasible, {summary['invalid_trials']} invalid; {summary['wall_time_s']:.1f} s")
+    best = summary["best"]
+    if best is None:
+        print("no trial met every requirement: widen the ranges, relax the requirements or add trials (see history.png)")
+        print(f"results in {out}")
+        return 1
+    obj = summary["objective"]
+    print(f"best: trial {best['trial']}, p{obj['percentile']:g} {obj['metric']} {best['value']:.4g}")
+    sets = best["gain_sets"]
+    print("  " + f"{'':<28}" + "".join(f"{name:>14}" for name in sets))
+    for path in best["parameters"]:
+        print("  " + f"{path:<28}" + "".join(f"{g[path]:>14.6g}" for g in sets.values()))
+    print("  the scenario's own case (undispersed):")
+    for key in ("steady_max_abs_qev", "settling_time_s", "overshoot", "torque_sign_changes_per_s"):
+        print("  " + f"  {key:<26}" + "".join(f"{_fmt(best['nominal_run'][name][key]):>14}" for name in sets))
+    conf = summary.get("confirmation")
+    if conf:
+        print(f"  confirmation campaign ({conf['runs']} runs the study never saw):")
+        print("  " + f"  p{obj['percentile']:g} {obj['metric']}".ljust(28) + "".join(f"{conf[name]['objective']:>14.4g}" for name in sets))
+        print("  " + "  pass fraction".ljust(28) + "".join(f"{conf[name]['pass_fraction']:>14.3f}" for name in sets))
+        for name in sets:
+            if conf[name]["runs_failing"]:
+                print(f"  {name}: runs failing {conf[name]['runs_failing']}")
+    print(f"gains in {best['scenario_file']} and {best['controller_params_file']}; figures and summary.json in {out}")
+    if args.json:
+        _write_json(args.json, summary)
+    return 0 if not conf or conf["tuned"]["feasible"] else 1
+
+
 def _cmd_params(args: argparse.Namespace) -> int:
     from sappc.graph.launch import controller_params_yaml
 
@@ -365,6 +406,21 @@ def _parser() -> argparse.ArgumentParser:
     mc.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
     mc.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     mc.set_defaults(func=_cmd_montecarlo)
+    tn = sub.add_parser("tune", help="find the controller's free gains with a Monte Carlo campaign in the loop (a 'tuning' section)")
+    tn.add_argument("scenario", help="e.g. config/scenarios/paper_tracking_tune.yaml")
+    tn.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
+                    help="controller to tune (default: the scenario's 'controller' key)")
+    tn.add_argument("--trials", type=int, default=None, help="trials in the study (default: tuning.trials)")
+    tn.add_argument("--runs-per-trial", type=int, default=None, help="runs of each trial's campaign (default: tuning.runs_per_trial)")
+    tn.add_argument("--seed", type=int, default=None, help="seed of the campaign's draws and of the sampler (default: tuning.seed)")
+    tn.add_argument("--workers", type=int, default=1, help="local worker processes for each trial's campaign (default 1: this "
+                    "process, in parallel over runs on its threads)")
+    tn.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address: each trial's campaign in chunks on the cluster")
+    tn.add_argument("--out", metavar="DIR", help="study directory (default out/tune_<scenario>)")
+    tn.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
+    tn.add_argument("--json", metavar="FILE", help="also write the summary here")
+    tn.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
+    tn.set_defaults(func=_cmd_tune)
     run = sub.add_parser("run", help="run a scenario through the ROS 2 node graph (five processes, or one with --compose), record an MCAP bag")
     run.add_argument("scenario", help="scenario YAML file, e.g. config/scenarios/paper_tracking.yaml")
     run.add_argument("--out", metavar="DIR", help="run directory: bag/, params.yaml, scenario.yaml, logs/ (default runs/<scenario>-<controller>-<time>)")

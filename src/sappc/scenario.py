@@ -106,6 +106,7 @@ _TOP_KEYS = {
     "controller",
     "controllers",
     "montecarlo",  # validated by sappc.montecarlo.campaign.campaign_config
+    "tuning",  # validated by sappc.montecarlo.tuning.tuning_config (sappc tune)
     "faults",  # actuator, sensor and link faults (offline, in campaigns and on the ROS 2 graph)
     "controller_node",  # the controller node's input watchdog (both paths model it)
 }

@@ -49,7 +49,7 @@ from sappc.offline import compiled_loop
 from sappc.offline.simulate import run_scenario
 from sappc.scenario import ControllerKind, Scenario, scenario_from_mapping
 
-__all__ = ["load_campaign_run", "run_campaign", "run_chunk", "simulate_runs"]
+__all__ = ["ChunkExecutor", "load_campaign_run", "run_campaign", "run_chunk", "simulate_runs"]
 
 Array = NDArray[np.float64]
 
@@ -108,7 +108,7 @@ def simulate_runs(
                 scenario,
                 controller_config=config,
                 on_infeasible="clamp" if scenario.controller == ControllerKind.SAPPC else "raise",
-                q_BN0=inputs.q_BN0,
+                q_BN0=inputs.q_BN0 if cfg.initial_attitude is not None else np.tile(scenario.q_BN0, (n, 1)),
                 omega_BN_B0_rad_s=inputs.omega_BN_B0,
                 inertia_kg_m2=J,
                 disturbance=dispersed_disturbance(scenario, inputs),
@@ -216,7 +216,7 @@ def _call(task: tuple[int, Callable[..., Any], tuple[Any, ...]]) -> tuple[int, A
     return index, fn(*args)
 
 
-class _Executor:
+class ChunkExecutor:
     """Runs chunk tasks in this process (``workers == 1``), in a pool of local processes, or on a
     Dask cluster, yielding ``(index, result)`` as tasks complete; :meth:`abort` stops at once."""
 
@@ -344,7 +344,7 @@ def run_campaign(
     if todo and scheduler is None:
         compiled_loop.ensure_compiled(in_subprocess=workers > 1)  # compile once, here, not in every worker
     bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)  # after compiling: the rate is the runs'
-    executor = _Executor(workers, scheduler)
+    executor = ChunkExecutor(workers, scheduler)
     global _progress_sink
     t0 = time.perf_counter()
     sizes = dict(todo)

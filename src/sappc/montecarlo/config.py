@@ -232,7 +232,9 @@ class CampaignConfig:
 
     Attributes
     ----------
-    initial_attitude : InitialAttitude
+    initial_attitude : InitialAttitude or None
+        ``null``: every run starts from the scenario's ``initial_state.q_BN`` (a campaign about a
+        nominal case, e.g. ``sappc tune`` on experiment 1).
     dispersions : Dispersions
     criteria : Criteria
     chunk_runs : int
@@ -243,7 +245,7 @@ class CampaignConfig:
         Keep every ``trajectory_stride``-th sample of those trajectories.
     """
 
-    initial_attitude: InitialAttitude = InitialAttitude()
+    initial_attitude: InitialAttitude | None = InitialAttitude()
     dispersions: Dispersions = Dispersions()
     criteria: Criteria = Criteria()
     chunk_runs: int = 500

@@ -60,7 +60,7 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
     for k in runs_arr:
         rng, _ = run_generators(seed, int(k))
         ia = cfg.initial_attitude
-        euler = rng.uniform(ia.low_deg, ia.high_deg, 3)
+        euler = rng.uniform(ia.low_deg, ia.high_deg, 3) if ia is not None else np.full(3, np.nan)  # None: the scenario's own
         rate = d.initial_rate_rad_s.draw(rng, (3,)) if d.initial_rate_rad_s else np.zeros(3)
         inertia = d.inertia_relative.draw(rng, (3,)) if d.inertia_relative else np.zeros(3)
         scale = float(d.disturbance_scale.draw(rng, ())) if d.disturbance_scale else 1.0
@@ -72,7 +72,8 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
     return RunInputs(
         runs=runs_arr,
         euler_deg=euler,
-        q_BN0=euler_to_quaternion(np.radians(euler), cfg.initial_attitude.sequence).reshape(-1, 4),
+        q_BN0=(euler_to_quaternion(np.radians(euler), cfg.initial_attitude.sequence).reshape(-1, 4) if cfg.initial_attitude is not None
+               else np.full((len(rows), 4), np.nan)),  # NaN: the scenario's initial attitude (the caller's)
         omega_BN_B0=np.array([r[1] for r in rows]).reshape(-1, 3),
         inertia_relative=np.array([r[2] for r in rows]).reshape(-1, 3),
         disturbance_scale=np.array([r[3] for r in rows]),
