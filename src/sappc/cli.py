@@ -285,7 +285,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
-    from sappc.graph.launch import controller_params_yaml
+    from sappc.scenario import controller_params_yaml
 
     print(controller_params_yaml(load_scenario(args.scenario), args.controller), end="")
     return 0

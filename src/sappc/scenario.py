@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.common import ActuatorConfig
-from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES, DEFAULT_STALE_TIMEOUT_S, check_watchdog_seconds
+from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES, DEFAULT_STALE_TIMEOUT_S, check_watchdog_seconds, parameters_from_config, unflatten
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
@@ -40,7 +40,7 @@ from gnc_common.validation import (
     from_mapping,
 )
 
-__all__ = ["BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "load_scenario", "scenario_from_mapping"]
+__all__ = ["BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "load_scenario", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
 
@@ -374,3 +374,13 @@ def load_scenario(path: str | Path) -> Scenario:
         return scenario_from_mapping(data, source=str(p))
     except ConfigError as exc:  # every message names the file, once
         raise type(exc)(str(exc) if str(exc).startswith(f"{p}: ") else f"{p}: {exc}") from None
+
+
+def controller_params_yaml(scenario: Scenario, kind: ControllerKind | str | None = None, node_name: str = "controller") -> str:
+    """A ROS parameters file for ``python -m sappc_controller`` with the scenario's controller
+    parameters (``sappc params``; the files in ``config/`` are made this way)."""
+    k = scenario.resolve_controller(kind)
+    params = unflatten(parameters_from_config(k.value, scenario.controller_config(k)))
+    params["control_period_s"] = scenario.control_period_s
+    header = f"# Parameters of python -m sappc_controller ({k.value}), from scenario {scenario.name!r}.\n# Made by: sappc params <scenario> --controller {k.value}\n"
+    return header + yaml.safe_dump({f"/{node_name}": {"ros__parameters": params}}, sort_keys=False)

@@ -104,7 +104,7 @@ def _rerun_bag(tmp_path: Path, scenario_path: Path, q_first: list[float]) -> Pat
     from bagmaker import write_bag
 
     from sappc.bag.read import PARAMS_RECORD
-    from sappc.graph.launch import controller_params_yaml
+    from sappc.scenario import controller_params_yaml
     from sappc_msgs_py import contract as c
     from sappc_msgs_py.convert import clock_msg, quaternion_msg, torque_msg, vector3_msg
 

@@ -42,7 +42,7 @@ from gnc_common.validation import ConfigError
 from sappc.graph.container import NODE_CLASSES, STOP_ORDER
 from sappc.scenario import ControllerKind, Scenario, load_scenario
 
-__all__ = ["GraphResult", "claim_domain_id", "controller_params_yaml", "isolated_environment", "node_parameters", "run_graph"]
+__all__ = ["GraphResult", "claim_domain_id", "isolated_environment", "node_parameters", "run_graph"]
 
 #: How long a node may take to stop after SIGINT before it is killed [s].
 STOP_TIMEOUT_S = 15.0
@@ -178,16 +178,6 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     }
     return {f"/{name}": {"ros__parameters": p} for name, p in
             (("controller", controller), ("plant", plant), ("reference", reference), ("injector", injector), ("recorder", recorder))}
-
-
-def controller_params_yaml(scenario: Scenario, kind: ControllerKind | str | None = None, node_name: str = "controller") -> str:
-    """A ROS parameters file for ``python -m sappc_controller`` with the scenario's controller
-    parameters (``sappc params``; the files in ``config/`` are made this way)."""
-    k = scenario.resolve_controller(kind)
-    params = unflatten(parameters_from_config(k.value, scenario.controller_config(k)))
-    params["control_period_s"] = scenario.control_period_s
-    header = f"# Parameters of python -m sappc_controller ({k.value}), from scenario {scenario.name!r}.\n# Made by: sappc params <scenario> --controller {k.value}\n"
-    return header + yaml.safe_dump({f"/{node_name}": {"ros__parameters": params}}, sort_keys=False)
 
 
 def _relayed(scenario: Scenario) -> list[tuple[Any, ...]]:

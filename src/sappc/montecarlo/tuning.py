@@ -506,7 +506,7 @@ def _finish(out: Path, scenario: Scenario, cfg: TuningConfig, kind: str, study: 
     """The best gains as files, the confirmation campaign, figures and the summary."""
     import yaml
 
-    from sappc.graph.launch import controller_params_yaml
+    from sappc.scenario import controller_params_yaml
     from sappc.offline.simulate import run_scenario
 
     trials = _counted(study)

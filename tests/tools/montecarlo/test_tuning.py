@@ -162,3 +162,18 @@ def test_the_command_writes_gains_that_load_through_the_project_validation(tmp_p
     assert conf["first_run"] == CONFIRMATION_FIRST_RUN and conf["runs"] == 4  # runs the study never saw
     assert conf["tuned"]["feasible"] and conf["tuned"]["pass_fraction"] == 1.0
     assert (out / "history.png").stat().st_size > 0 and (out / "tradeoff.png").stat().st_size > 0
+
+
+def test_a_study_on_a_dask_cluster_or_local_workers_decides_as_one_in_this_process(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each trial's campaign in chunks of 2 runs on two Dask workers, or on two local worker
+    processes: the same proposals, values and constraints as in this process (a run depends only
+    on (seed, run), and the chunks are put back in run order)."""
+    from distributed import LocalCluster
+
+    path = _small(tmp_path, trials=3)
+    run_tuning(path, out_dir=tmp_path / "here", progress=False, confirm=False)
+    monkeypatch.setattr(tuning, "CHUNK_RUNS", 2)
+    run_tuning(path, out_dir=tmp_path / "workers", workers=2, progress=False, confirm=False)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        run_tuning(path, out_dir=tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False, confirm=False)
+    assert _trials(tmp_path / "dask") == _trials(tmp_path / "workers") == _trials(tmp_path / "here")
