@@ -43,7 +43,7 @@ def _controller_pid(run_dir: Path) -> int | None:
             continue
         try:
             cmdline = (entry / "cmdline").read_bytes().split(b"\0")
-            if b"sappc_controller" in cmdline and Path(os.readlink(entry / "cwd")) == run_dir.resolve():
+            if any(b"sappc_controller" in part for part in cmdline) and Path(os.readlink(entry / "cwd")) == run_dir.resolve():
                 return int(entry.name)
         except OSError:
             continue

@@ -283,6 +283,14 @@ class ChunkExecutor:
             self.client.close()
 
 
+def _dask_threads(scheduler: str) -> int:
+    """The worker threads of the Dask cluster at ``scheduler`` now (at least 1)."""
+    from distributed import Client
+
+    with Client(scheduler) as client:
+        return max(1, int(sum(client.nthreads().values())))
+
+
 def run_campaign(
     scenario_path: str | Path,
     *,
@@ -316,8 +324,11 @@ def run_campaign(
     scenario = load_scenario(scenario_path)
     cfg = campaign_config(scenario)
     out = Path(out_dir)
-    # Enough chunks to keep every worker busy; the results do not depend on the chunking.
-    chunk_runs = min(cfg.chunk_runs, -(-runs // (workers if scheduler is None else 1)))
+    # Enough chunks to keep every worker busy (on a Dask cluster two per worker thread, for the
+    # load balance and the progress line, which moves per chunk there); the results do not
+    # depend on the chunking.
+    parallel = workers if scheduler is None else 2 * _dask_threads(scheduler)
+    chunk_runs = min(cfg.chunk_runs, -(-runs // parallel))
     manifest = {
         "format": FORMAT_VERSION,
         "scenario_file": str(scenario_path),

@@ -109,6 +109,8 @@ def test_local_dask_cluster_gives_the_same_results(tmp_path) -> None:
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         run_campaign(path, runs=8, seed=11, out_dir=tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
     assert (tmp_path / "local" / "runs.csv").read_bytes() == (tmp_path / "dask" / "runs.csv").read_bytes()
+    # two chunks per worker thread (2 x 1): the campaign is spread over the cluster, not one task
+    assert len(list((tmp_path / "dask" / "chunks").glob("chunk_*.npz"))) == 4
 
 
 def test_a_run_that_goes_non_finite_is_marked_failed_and_the_campaign_continues(tmp_path, monkeypatch) -> None:
