@@ -146,3 +146,26 @@ def test_the_plant_integrates_every_elapsed_frame_and_counts_missed_frames_and_s
         ex.shutdown()
         probe.destroy_node()
         plant.destroy_node()
+
+
+def test_the_injector_places_fault_windows_in_the_runs_time_in_both_modes(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Fault windows are in the run's time: in lockstep a stamp is that time; in real time the
+    stamps are epoch times of frames, and the run's time is counted from the frame of the
+    injector's sample 0 (the frame after its first tick), so a fault at 20 s starts 20 s into the
+    run, not in 1970."""
+    from spacecraft_sim.disturbance import InjectorNode
+
+    rt = InjectorNode(context=ros_context, parameter_overrides=[Parameter("mode", value="realtime")])
+    for timer in rt._frame_timers:
+        timer.cancel()
+    f = 170_000_000_000
+    clock = _Clock(f * DT_NS + DT_NS // 2)  # mid-frame f
+    monkeypatch.setattr(rt, "get_clock", lambda: clock)
+    stamp = (f + 1 + 2000) * DT_NS  # 2000 frames after sample 0's frame (f + 1)
+    assert rt._run_time_s(stamp) == 20.0 and rt._frame0 == f + 1
+    clock.ns += 50 * DT_NS  # later calls keep the origin
+    assert rt._run_time_s(stamp) == 20.0
+    lock = InjectorNode("injector2", context=ros_context)
+    assert lock._run_time_s(20 * NS) == 20.0
+    rt.destroy_node()
+    lock.destroy_node()
