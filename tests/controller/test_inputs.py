@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sappc_controller.inputs import INPUT_TOPICS, MAX_PENDING, NS_PER_S, ControlSample, LatestInputs, LockstepPairing, step_sample
+from sappc_controller.inputs import INPUT_TOPICS, MAX_PENDING, NS_PER_S, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import CONTROLLER_CLASSES, controller_from_parameters_file
 from sappc_msgs_py.contract import CONTROLLER_INPUTS
 
@@ -44,16 +44,27 @@ def test_lockstep_drops_the_oldest_incomplete_stamp_beyond_max_pending() -> None
     assert last is not None and last.t_ns == 1
 
 
-def test_real_time_takes_the_latest_input_of_each_topic_once_all_have_arrived() -> None:
-    latest = LatestInputs()
-    for i in range(4):
-        latest.add(INPUT_TOPICS[i].name, 100 + i, VALUES[i])
-    assert latest.sample_at(1_000) is None and not latest.complete
-    latest.add(INPUT_TOPICS[4].name, 104, VALUES[4])
-    latest.add(INPUT_TOPICS[1].name, 200, 2 * VALUES[1])  # replaces the older rate
-    sample = latest.sample_at(1_000)
-    assert sample is not None and sample.t_ns == 1_000 and sample.input_ns == (100, 200, 102, 103, 104)
-    assert np.array_equal(sample.values[1], 2 * VALUES[1]) and latest.oldest_ns == 100 and latest.last_ns(INPUT_TOPICS[1].name) == 200
+def test_real_time_steps_each_fresh_state_with_the_reference_of_its_stamp_or_the_newest_earlier_one() -> None:
+    """A sample when the attitude and rate of a new stamp are both in; each reference topic gives
+    its value of that stamp (published ahead), else the newest earlier one, never a later one; no
+    sample before every reference topic has one at or before the state; a stamp not newer than
+    the last sample makes none."""
+    rt = RealtimePairing()
+    att, rate, ref_q, ref_w, ref_a = (t.name for t in INPUT_TOPICS)
+    assert rt.add(att, 100, VALUES[0]) is None and rt.add(rate, 100, VALUES[1]) is None  # no reference yet: not started
+    for stamp in (100, 110, 120):  # the reference published ahead
+        rt.add(ref_q, stamp, VALUES[2])
+        rt.add(ref_w, stamp, stamp * np.ones(3))
+    rt.add(ref_a, 90, VALUES[4])  # the acceleration only up to 90
+    assert rt.add(rate, 110, VALUES[1]) is None  # half a state
+    sample = rt.add(att, 110, VALUES[0])
+    assert sample is not None and sample.t_ns == 110 and sample.input_ns == (110, 110, 110, 110, 90)
+    assert np.array_equal(sample.values[3], 110 * np.ones(3)) and sample.oldest_ns == 90  # the rate of 110, not 120's
+    assert rt.last_sample_ns == 110 and rt.last_ns(ref_w) == 120
+    assert rt.add(att, 105, VALUES[0]) is None and rt.add(rate, 105, VALUES[1]) is None  # older than the last sample: none
+    rt.add(att, 130, VALUES[0])
+    later = rt.add(rate, 130, 2 * VALUES[1])
+    assert later is not None and later.input_ns == (130, 130, 120, 120, 90) and np.array_equal(later.values[1], 2 * VALUES[1])
 
 
 def test_a_step_on_a_sample_is_the_cores_step_at_the_sample_time() -> None:

@@ -1,0 +1,256 @@
+"""Reaction wheels: the actuator of a flight-like plant (issue 16, first part: the model).
+
+A rigid body B with ``N`` wheels, wheel ``i`` spinning about the unit axis ``g_i`` (in B) with
+spin inertia ``Js_i``.  **Convention: the scenario's inertia ``J`` is what the body presents to
+a torque**, the spacecraft's inertia with the wheels locked minus their spin inertia
+(``J = J_locked - sum Js_i g_i g_i^T``), so that with wheels at rest an ideal wheel set behaves as
+the ideal actuator does to first order.  (Basilisk's hub inertia is then ``J`` minus the wheels'
+transverse inertia; the issue's feasibility check set it to ``J + sum Js g g^T`` for the same
+effect in its own convention.)
+
+State: ``x = (q_BN, omega_BN_B, h)`` (7 + N), with ``h_i = Js_i (g_i . omega + Omega_i)`` the
+wheel's spin angular momentum about its axis (``Omega_i``: its speed relative to the body, what a
+tachometer reads and what the speed limit applies to).  With ``G = [g_1 .. g_N]`` (3, N), ``u``
+the motor torques on the wheels and ``f`` their bearing friction (opposing ``Omega``):
+
+    dh/dt = u - f(Omega)
+    J domega/dt = L_ext - G (u - f) - omega x (J omega + G h)
+    dq/dt = 1/2 q ⊗ (omega, 0)
+
+so the total angular momentum ``H = J omega + G h`` (in B) obeys ``dH/dt + omega x H = L_ext``:
+without an external torque it is constant in the inertial frame whatever the motors and the
+friction do (tested).  Friction ``f_i = c_i sat(Omega_i / Omega_c) + b_i Omega_i``: Coulomb with
+a linear region of half-width :attr:`ReactionWheels.coulomb_speed_rad_s` around zero speed (a
+discontinuous sign would make a fixed-step integrator chatter), plus viscous.
+
+The torque path (:func:`wheel_torques`), once per sample (zero-order hold, as the plant holds a
+command): the commanded body torque ``tau`` is allocated by the minimum-norm inverse,
+``u = -G^+ tau`` (``G^+ = G^T (G G^T)^-1``: the body receives ``-G u = tau``), then each motor is
+clipped to its torque limit, and a wheel at its speed limit gets no torque that would speed it up
+further.  What the wheels could not deliver is ``tau + G u``.
+
+Pure: no ROS, no clock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from gnc_common.compiled import jit, matvec3, quat_normalize
+from gnc_common.validation import ConfigError, check_spd_inertia
+
+__all__ = ["PRESETS", "ReactionWheels", "allocation_matrix", "angular_momentum_B", "propagate_wheels", "wheel_speeds", "wheel_torques"]
+
+Array = NDArray[np.float64]
+
+#: Cant angle of the four-wheel pyramid [deg]: each axis 54.74 deg from the z axis
+#: (arctan(sqrt(2))), the angle at which the pyramid's torque envelope is the same about x, y and z.
+PYRAMID_CANT_DEG = math.degrees(math.atan(math.sqrt(2.0)))
+
+
+def _pyramid() -> tuple[tuple[float, float, float], ...]:
+    s, c = math.sin(math.radians(PYRAMID_CANT_DEG)), math.cos(math.radians(PYRAMID_CANT_DEG))
+    return tuple((s * math.cos(a), s * math.sin(a), c) for a in (math.pi / 4, 3 * math.pi / 4, 5 * math.pi / 4, 7 * math.pi / 4))
+
+
+#: Spin-axis layouts by name: three orthogonal wheels along the body axes, and the four-wheel
+#: pyramid (axes at :data:`PYRAMID_CANT_DEG` from z, 90 deg apart in azimuth, starting at 45 deg).
+PRESETS: dict[str, tuple[tuple[float, float, float], ...]] = {
+    "orthogonal": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "pyramid": _pyramid(),
+}
+
+
+@dataclass(frozen=True)
+class ReactionWheels:
+    """A wheel set (module docstring).  Per-wheel values are one number for every wheel or one
+    per wheel.
+
+    Attributes
+    ----------
+    spin_axes_B : str or sequence of 3-vectors
+        A preset name (:data:`PRESETS`) or one axis per wheel, in B (normalised; they must span 3-D).
+    spin_inertia_kg_m2 : float or sequence
+        ``Js`` of each wheel about its axis.
+    max_torque_Nm : float or sequence
+        Motor torque limit of each wheel.
+    max_speed_rad_s : float or sequence
+        Speed limit of each wheel relative to the body: a wheel at it gets no torque that would speed it up.
+    coulomb_friction_Nm, viscous_friction_Nm_s : float or sequence
+        Bearing friction ``c sat(Omega / Omega_c) + b Omega`` (0: none).
+    coulomb_speed_rad_s : float
+        ``Omega_c``, the half-width of Coulomb friction's linear region around zero speed.
+    initial_speed_rad_s : float or sequence
+        ``Omega`` at the start, relative to the body.
+    """
+
+    spin_axes_B: str | tuple[tuple[float, float, float], ...] = "pyramid"
+    spin_inertia_kg_m2: float | tuple[float, ...] = 0.0
+    max_torque_Nm: float | tuple[float, ...] = 0.0
+    max_speed_rad_s: float | tuple[float, ...] = 0.0
+    coulomb_friction_Nm: float | tuple[float, ...] = 0.0
+    viscous_friction_Nm_s: float | tuple[float, ...] = 0.0
+    coulomb_speed_rad_s: float = 0.1
+    initial_speed_rad_s: float | tuple[float, ...] = 0.0
+    G: Array = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        axes = PRESETS.get(self.spin_axes_B) if isinstance(self.spin_axes_B, str) else self.spin_axes_B
+        if axes is None:
+            raise ConfigError(f"spin_axes_B must be one of {', '.join(PRESETS)} or a list of 3-vectors, got {self.spin_axes_B!r}")
+        a = np.asarray(axes, dtype=np.float64)
+        if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] < 3 or not np.all(np.isfinite(a)):
+            raise ConfigError(f"spin_axes_B must be 3 or more finite 3-vectors, got {axes!r}")
+        norms = np.linalg.norm(a, axis=1)
+        if np.any(norms < 1e-9):
+            raise ConfigError(f"spin_axes_B has a zero axis: {axes!r}")
+        G = (a / norms[:, None]).T  # (3, N)
+        if np.linalg.matrix_rank(G, tol=1e-9) < 3:
+            raise ConfigError(f"spin_axes_B must span three dimensions (a torque about every axis), got {axes!r}")
+        object.__setattr__(self, "G", G)
+        n = G.shape[1]
+        for name, positive in (("spin_inertia_kg_m2", True), ("max_torque_Nm", True), ("max_speed_rad_s", True),
+                               ("coulomb_friction_Nm", False), ("viscous_friction_Nm_s", False), ("initial_speed_rad_s", None)):
+            v = self.per_wheel(name)
+            if v.shape != (n,) or not np.all(np.isfinite(v)):
+                raise ConfigError(f"{name} must be one finite number or {n} (one per wheel), got {getattr(self, name)!r}")
+            if positive is True and not np.all(v > 0):
+                raise ConfigError(f"{name} must be > 0, got {getattr(self, name)!r}")
+            if positive is False and not np.all(v >= 0):
+                raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if not (math.isfinite(self.coulomb_speed_rad_s) and self.coulomb_speed_rad_s > 0):
+            raise ConfigError(f"coulomb_speed_rad_s must be > 0, got {self.coulomb_speed_rad_s!r}")
+        if np.any(np.abs(self.per_wheel("initial_speed_rad_s")) > self.per_wheel("max_speed_rad_s")):
+            raise ConfigError("initial_speed_rad_s must be within max_speed_rad_s")
+
+    @property
+    def n(self) -> int:
+        return int(self.G.shape[1])
+
+    def per_wheel(self, name: str) -> Array:
+        """A per-wheel attribute as an (N,) array (one number broadcast to every wheel)."""
+        v = np.asarray(getattr(self, name), dtype=np.float64)
+        n = self.G.shape[1]
+        return np.full(n, float(v)) if v.ndim == 0 else v.copy()
+
+    def params(self) -> Array:
+        """The kernels' per-wheel parameters (N, 6): ``Js, u_max, Omega_max, c, b, Omega_c``."""
+        cols = [self.per_wheel(k) for k in ("spin_inertia_kg_m2", "max_torque_Nm", "max_speed_rad_s", "coulomb_friction_Nm", "viscous_friction_Nm_s")]
+        return np.ascontiguousarray(np.stack([*cols, np.full(self.n, self.coulomb_speed_rad_s)], axis=1))
+
+    def initial_momentum(self, omega_BN_B: ArrayLike) -> Array:
+        """``h`` (N,) of wheels at their initial speeds on a body turning at ``omega_BN_B``."""
+        w = np.asarray(omega_BN_B, dtype=np.float64)
+        out: Array = self.per_wheel("spin_inertia_kg_m2") * (self.G.T @ w + self.per_wheel("initial_speed_rad_s"))
+        return out
+
+
+def allocation_matrix(G: ArrayLike) -> Array:
+    """The minimum-norm allocation ``G^+ = G^T (G G^T)^-1`` (N, 3) of spin axes ``G`` (3, N)."""
+    G = np.asarray(G, dtype=np.float64)
+    out: Array = np.ascontiguousarray(G.T @ np.linalg.inv(G @ G.T))
+    return out
+
+
+# Columns of the kernels' per-wheel parameters (ReactionWheels.params).
+_JS, _UMAX, _WMAX, _COUL, _VISC, _WC = 0, 1, 2, 3, 4, 5
+
+
+@jit(inline="always")
+def _speed(h, g0, g1, g2, Js, w0, w1, w2):
+    """``Omega`` of a wheel: ``h / Js - g . omega``."""
+    return h / Js - ((g0 * w0 + g1 * w1) + g2 * w2)
+
+
+@jit
+def wheel_torques(tau_cmd_B, G_pinv, G, prm, x, u_out):
+    """The motor torques ``u_out`` (N,) for the commanded body torque ``tau_cmd_B`` (3,) at state
+    ``x`` (7 + N): ``-G^+ tau``, clipped to each motor's limit, and zero for a wheel at its speed
+    limit that it would speed up (module docstring)."""
+    w0, w1, w2 = x[4], x[5], x[6]
+    for i in range(u_out.shape[0]):
+        u = -((G_pinv[i, 0] * tau_cmd_B[0] + G_pinv[i, 1] * tau_cmd_B[1]) + G_pinv[i, 2] * tau_cmd_B[2])
+        umax = prm[i, _UMAX]
+        u = min(max(u, -umax), umax)
+        Om = _speed(x[7 + i], G[0, i], G[1, i], G[2, i], prm[i, _JS], w0, w1, w2)
+        if (Om >= prm[i, _WMAX] and u > 0.0) or (Om <= -prm[i, _WMAX] and u < 0.0):
+            u = 0.0
+        u_out[i] = u
+
+
+@jit(inline="always")
+def _derivative(x, u, L, J, J_inv, G, prm, out, tmp):
+    """``dx/dt`` (7 + N) of the body with wheels (module docstring); ``tmp`` (3, 3) scratch."""
+    n = u.shape[0]
+    q0 = x[3]
+    w0, w1, w2 = x[4], x[5], x[6]
+    c0 = x[1] * w2 - x[2] * w1
+    c1 = x[2] * w0 - x[0] * w2
+    c2 = x[0] * w1 - x[1] * w0
+    out[0] = 0.5 * (q0 * w0 + c0)
+    out[1] = 0.5 * (q0 * w1 + c1)
+    out[2] = 0.5 * (q0 * w2 + c2)
+    out[3] = -0.5 * ((x[0] * w0 + x[1] * w1) + x[2] * w2)
+    H = tmp[0]
+    matvec3(J, x[4:7], H)  # J omega + G h, and the net wheel torque G (u - f) on the body
+    net = tmp[1]
+    net[0] = 0.0
+    net[1] = 0.0
+    net[2] = 0.0
+    for i in range(n):
+        Om = _speed(x[7 + i], G[0, i], G[1, i], G[2, i], prm[i, _JS], w0, w1, w2)
+        f = prm[i, _COUL] * min(max(Om / prm[i, _WC], -1.0), 1.0) + prm[i, _VISC] * Om
+        hdot = u[i] - f
+        out[7 + i] = hdot
+        for k in range(3):
+            H[k] += G[k, i] * x[7 + i]
+            net[k] += G[k, i] * hdot
+    rhs = tmp[2]
+    rhs[0] = L[0] - net[0] - (w1 * H[2] - w2 * H[1])
+    rhs[1] = L[1] - net[1] - (w2 * H[0] - w0 * H[2])
+    rhs[2] = L[2] - net[2] - (w0 * H[1] - w1 * H[0])
+    matvec3(J_inv, rhs, out[4:7])
+
+
+@jit
+def propagate_wheels(x, u, L, dt, substeps, J, J_inv, G, prm):
+    """Advance ``x`` (7 + N) in place by ``dt`` in ``substeps`` RK4 steps with the motor torques
+    ``u`` (N,) and the external torque ``L`` (3,) held (zero-order hold); ``q`` renormalised
+    after each step, as the rigid body's :func:`~spacecraft_sim.core.kernels.rk4_step`."""
+    m = x.shape[0]
+    k1, k2, k3, k4, xs = np.empty(m), np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    tmp = np.empty((3, 3))
+    h = dt / substeps
+    for _ in range(substeps):
+        _derivative(x, u, L, J, J_inv, G, prm, k1, tmp)
+        for i in range(m):
+            xs[i] = x[i] + 0.5 * h * k1[i]
+        _derivative(xs, u, L, J, J_inv, G, prm, k2, tmp)
+        for i in range(m):
+            xs[i] = x[i] + 0.5 * h * k2[i]
+        _derivative(xs, u, L, J, J_inv, G, prm, k3, tmp)
+        for i in range(m):
+            xs[i] = x[i] + h * k3[i]
+        _derivative(xs, u, L, J, J_inv, G, prm, k4, tmp)
+        c = h / 6.0
+        for i in range(m):
+            x[i] = x[i] + c * ((k1[i] + 2.0 * (k2[i] + k3[i])) + k4[i])
+        quat_normalize(x[:4], x[:4])
+
+
+def wheel_speeds(wheels: ReactionWheels, x: ArrayLike) -> Array:
+    """``Omega`` (N,) relative to the body, of state ``x`` (7 + N)."""
+    x = np.asarray(x, dtype=np.float64)
+    out: Array = x[7:] / wheels.per_wheel("spin_inertia_kg_m2") - wheels.G.T @ x[4:7]
+    return out
+
+
+def angular_momentum_B(J: ArrayLike, wheels: ReactionWheels, x: ArrayLike) -> Array:
+    """The total angular momentum ``J omega + G h`` (3,) in B [N m s]."""
+    x = np.asarray(x, dtype=np.float64)
+    out: Array = np.asarray(check_spd_inertia("J", J)) @ x[4:7] + wheels.G @ x[7:]
+    return out
