@@ -111,7 +111,7 @@ class ReactionWheels:
         G = (a / norms[:, None]).T  # (3, N)
         if np.linalg.matrix_rank(G, tol=1e-9) < 3:
             raise ConfigError(f"spin_axes_B must span three dimensions (a torque about every axis), got {axes!r}")
-        object.__setattr__(self, "G", G)
+        object.__setattr__(self, "G", np.ascontiguousarray(G))  # one array layout for the kernels
         n = G.shape[1]
         for name, positive in (("spin_inertia_kg_m2", True), ("max_torque_Nm", True), ("max_speed_rad_s", True),
                                ("coulomb_friction_Nm", False), ("viscous_friction_Nm_s", False), ("initial_speed_rad_s", None)):
