@@ -80,6 +80,10 @@ CONFIRMATION_FIRST_RUN = 1_000_000_000
 OBJECTIVE_METRICS = ("steady_max_abs_qev", "steady_mean_abs_qev", "rpf_error_at_t2", "settling_time_s")
 #: Name of the study in the journal.
 STUDY_NAME = "sappc-tune"
+#: Trials drawn at random (uniform or log-uniform in the ranges) before TPE models the results:
+#: Optuna's default.  A constant, not a fraction of ``--trials``: a study continued with more
+#: trials must propose what it would have proposed in one go.
+STARTUP_TRIALS = 10
 #: Runs per chunk of a trial's campaign (a task on a worker); results do not depend on it.
 CHUNK_RUNS = 64
 
@@ -466,8 +470,7 @@ def run_tuning(
     t0 = time.perf_counter()
     try:
         while done < cfg.trials:
-            sampler = TPESampler(seed=_trial_seed(cfg.seed, done), multivariate=True,
-                                 n_startup_trials=min(10, max(1, cfg.trials // 4)))
+            sampler = TPESampler(seed=_trial_seed(cfg.seed, done), multivariate=True, n_startup_trials=STARTUP_TRIALS)
             study = _study(storage, sampler)
             trial = study.ask()
             values = {path: trial.suggest_float(path, r.low, r.high, log=r.log) for path, r in cfg.parameters.items()}

@@ -47,15 +47,17 @@ def _trials(out: Path) -> list[tuple[Any, ...]]:
 
 
 def test_an_interrupted_study_resumed_ends_with_the_trials_of_an_uninterrupted_one(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    path = _small(tmp_path)
+    """14 trials: the first 10 random (tuning.STARTUP_TRIALS), then TPE on what came before; the
+    interruption falls in TPE's part, so the resumed sampler must see the same history."""
+    path = _small(tmp_path, trials=14)
     straight = run_tuning(path, out_dir=tmp_path / "straight", progress=False, confirm=False)
     expected = _trials(tmp_path / "straight")
-    assert len(expected) == 6 and straight["trials"] == 6
-    assert len({json.dumps(p, sort_keys=True) for _, p, _, _ in expected}) == 6  # six different proposals
+    assert len(expected) == 14 and straight["trials"] == 14 and tuning.STARTUP_TRIALS == 10
+    assert len({json.dumps(p, sort_keys=True) for _, p, _, _ in expected}) == 14  # all different proposals
 
-    # stopped after 2 trials, continued to 4, then Ctrl-C inside the 5th trial's campaign, then resumed
+    # stopped after 2 trials, continued to 11, then Ctrl-C inside the 12th trial's campaign, then resumed
     run_tuning(path, out_dir=tmp_path / "resumed", trials=2, progress=False, confirm=False)
-    run_tuning(path, out_dir=tmp_path / "resumed", trials=4, resume=True, progress=False, confirm=False)
+    run_tuning(path, out_dir=tmp_path / "resumed", trials=11, resume=True, progress=False, confirm=False)
     real = tuning._evaluate
 
     def interrupted(*args: Any, **kwargs: Any) -> Any:
@@ -65,7 +67,7 @@ def test_an_interrupted_study_resumed_ends_with_the_trials_of_an_uninterrupted_o
     with pytest.raises(KeyboardInterrupt):
         run_tuning(path, out_dir=tmp_path / "resumed", resume=True, progress=False, confirm=False)
     monkeypatch.setattr(tuning, "_evaluate", real)
-    assert len(_trials(tmp_path / "resumed")) == 4  # the interrupted trial is not counted
+    assert len(_trials(tmp_path / "resumed")) == 11  # the interrupted trial is not counted
     resumed = run_tuning(path, out_dir=tmp_path / "resumed", resume=True, progress=False, confirm=False)
     assert _trials(tmp_path / "resumed") == expected
     assert resumed["best"]["parameters"] == straight["best"]["parameters"] if straight["best"] else resumed["best"] is None
