@@ -29,6 +29,7 @@ from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES, DEFAULT_
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
+from spacecraft_sim.core.wheels import ReactionWheels
 from gnc_common.validation import (
     ConfigError,
     InputError,
@@ -40,7 +41,7 @@ from gnc_common.validation import (
     from_mapping,
 )
 
-__all__ = ["BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "load_scenario", "scenario_from_mapping"]
+__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "load_scenario", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
 
@@ -142,6 +143,7 @@ BOUNDED_METRICS = (
     "torque_reversals_per_s",
     "saturation_fraction",
     "time_outside_constraint_s",
+    "max_abs_wheel_speed_rad_s",  # only with reaction wheels: unknown (a failure) with the ideal actuator
 )
 
 
@@ -211,6 +213,11 @@ class Scenario:
     reference : PaperReference
     disturbance : DisturbanceSum
     actuator : ActuatorConfig
+        The controller's actuator model (per-axis saturation, minimum output).
+    wheels : ReactionWheels or None
+        The plant's actuator: ``None`` for ``actuator.kind: ideal`` (the commanded torque,
+        clipped per axis to ``actuator.max_torque_Nm``, acts on the body exactly), else the
+        reaction-wheel set of ``actuator.kind: reaction_wheels`` (``actuator.wheels``).
     metrics : MetricSettings
     controller : ControllerKind
         Default controller.
@@ -242,6 +249,7 @@ class Scenario:
     controllers: dict[str, Any] = field(repr=False)
     raw: dict[str, Any] = field(repr=False)
     controller_node: ControllerNodeSettings = ControllerNodeSettings()
+    wheels: ReactionWheels | None = None
 
     def controller_config(self, kind: ControllerKind | str | None = None) -> Any:
         """The validated config dataclass of controller ``kind`` (default: the scenario's)."""
@@ -319,7 +327,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     reference = from_mapping(PaperReference, dict(data.get("reference", {})), "reference") if data.get("reference") is not None else PaperReference()
     disturbance = disturbances_from_list(data.get("disturbances"))
     faults = faults_from_list(data.get("faults"))
-    actuator = from_mapping(ActuatorConfig, data.get("actuator", {}) or {}, "actuator")
+    actuator, wheels = _actuator_from_mapping(data.get("actuator", {}) or {})
     metrics = from_mapping(MetricSettings, data.get("metrics", {}) or {}, "metrics")
     node_settings = from_mapping(ControllerNodeSettings, data.get("controller_node", {}) or {}, "controller_node")
 
@@ -347,10 +355,45 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
         controllers=controllers,
         raw=data,
         controller_node=node_settings,
+        wheels=wheels,
     )
     for name in controllers:  # validate every controller's parameters now, not at run time
         scenario.controller_config(name)
     return scenario
+
+
+#: The plant's actuator kinds (``actuator.kind``).
+ACTUATOR_KINDS = ("ideal", "reaction_wheels")
+
+
+def _actuator_from_mapping(data: Any) -> tuple[ActuatorConfig, ReactionWheels | None]:
+    """The ``actuator`` section: the controller's limits (:class:`ActuatorConfig`) and the plant's
+    actuator, ``kind: ideal`` (default) or ``kind: reaction_wheels`` with a ``wheels`` mapping
+    (:class:`~spacecraft_sim.core.wheels.ReactionWheels`); errors name the key."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"actuator must be a mapping, got {data!r}")
+    rest = dict(data)
+    kind = rest.pop("kind", "ideal")
+    wheels_raw = rest.pop("wheels", None)
+    if kind not in ACTUATOR_KINDS:
+        raise ConfigError(f"actuator.kind must be one of {', '.join(ACTUATOR_KINDS)}, got {kind!r}")
+    actuator = from_mapping(ActuatorConfig, rest, "actuator")
+    if kind == "ideal":
+        if wheels_raw is not None:
+            raise ConfigError("actuator.wheels is only for actuator.kind: reaction_wheels")
+        return actuator, None
+    if wheels_raw is None:
+        raise ConfigError("missing key actuator.wheels (actuator.kind: reaction_wheels)")
+    if isinstance(wheels_raw, dict) and isinstance(wheels_raw.get("spin_axes_B"), list):
+        wheels_raw = {**wheels_raw, "spin_axes_B": [tuple(a) if isinstance(a, list) else a for a in wheels_raw["spin_axes_B"]]}
+    try:
+        wheels = from_mapping(ReactionWheels, wheels_raw, "actuator.wheels")
+    except ConfigError as exc:  # the model's own checks name the bare key: name it in full
+        msg = str(exc)
+        if msg.startswith("actuator.wheels: "):
+            msg = "actuator.wheels." + msg[len("actuator.wheels: "):]
+        raise ConfigError(msg) from None
+    return actuator, wheels
 
 
 def load_scenario(path: str | Path) -> Scenario:

@@ -17,7 +17,10 @@ Array = NDArray[np.float64]
 
 @dataclass
 class History:
-    """Full time histories of a run or a batch: arrays (T, N, ...) with ``t`` (T,)."""
+    """Full time histories of a run or a batch: arrays (T, N, ...) with ``t`` (T,).
+
+    With reaction wheels (W of them), ``wheel_speed_rad_s`` (T, N, W) each wheel's speed relative
+    to the body and ``wheel_torque_Nm`` (T, N, W) its motor torque; ``None`` with the ideal actuator."""
 
     t: Array
     q_BN: Array
@@ -33,6 +36,8 @@ class History:
     eps: Array
     z: Array
     V: Array
+    wheel_speed_rad_s: Array | None = None
+    wheel_torque_Nm: Array | None = None
 
     @property
     def q_ev(self) -> Array:

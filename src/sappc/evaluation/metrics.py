@@ -56,6 +56,9 @@ Definitions, per run:
 ``finite``
     ``False`` if the run's state or torque ever became non-finite (the run
     failed); the other metrics then describe the samples before that.
+``max_abs_wheel_speed_rad_s``, ``max_abs_wheel_torque_Nm``
+    Only with reaction wheels (a history with wheel records): the largest speed of any wheel
+    relative to the body, and the largest motor torque, over the finite samples.
 """
 
 from __future__ import annotations
@@ -137,11 +140,13 @@ class MetricsAccumulator:
         self.left_after_fault = np.zeros(n, dtype=bool)
         self.finite = np.ones(n, dtype=bool)
         self.samples = 0
+        self.wheel_speed_max: Array | None = None  # only with wheels
+        self.wheel_torque_max: Array | None = None
 
     #: Per-run state (leading axis N), concatenated by :meth:`concatenate`.
     _PER_RUN = ("last_unsettled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
                 "torque_sign", "torque_sign_nonzero", "torque_sign_changes", "torque_reversals", "saturated_count", "outside_count",
-                "outside_s", "last_outside", "left_after_fault", "finite")
+                "outside_s", "last_outside", "left_after_fault", "finite", "wheel_speed_max", "wheel_torque_max")
 
     @classmethod
     def concatenate(cls, parts: Sequence[MetricsAccumulator]) -> MetricsAccumulator:
@@ -159,6 +164,17 @@ class MetricsAccumulator:
     def add_history(self, h: History) -> None:
         """Observe every sample of a stored history at once (offline runs, campaign sub-batches, bags)."""
         self._update(0, h.t, h.q_BN, h.omega_BN_B, h.torque_B, h.q_BR, h.rho, h.saturated, h.band_lower, h.band_upper)
+        if h.wheel_speed_rad_s is not None and h.wheel_torque_Nm is not None:
+            self.update_wheels(h.wheel_speed_rad_s, h.wheel_torque_Nm)
+
+    def update_wheels(self, speed_rad_s: Array, torque_Nm: Array) -> None:
+        """Observe a block of wheel records (B, N, W): speeds relative to the body and motor torques."""
+        n = self.finite.shape[0]
+        for attr, block in (("wheel_speed_max", speed_rad_s), ("wheel_torque_max", torque_Nm)):
+            a = np.abs(np.asarray(block, dtype=np.float64))
+            block_max = np.where(np.isfinite(a), a, 0.0).max(axis=(0, 2)) if a.size else np.zeros(n)
+            old = getattr(self, attr)
+            setattr(self, attr, block_max if old is None else np.maximum(old, block_max))
 
     def update(self, k0: int, t: Array, x: Array, torque_B: Array, q_BR: Array, rho: Array, saturated: NDArray[np.bool_],
                band_lower: Array, band_upper: Array) -> None:
@@ -238,6 +254,9 @@ class MetricsAccumulator:
             "returned_at_s": None,
             "finite": bool(self.finite[run]),
         }
+        if self.wheel_speed_max is not None and self.wheel_torque_max is not None:
+            m["max_abs_wheel_speed_rad_s"] = float(self.wheel_speed_max[run])
+            m["max_abs_wheel_torque_Nm"] = float(self.wheel_torque_max[run])
         if self.fault_start_s is not None:
             left = bool(self.left_after_fault[run])
             returned = lo < last
@@ -251,7 +270,9 @@ class MetricsAccumulator:
         """Per-run arrays for campaign tables: the two Monte Carlo criteria per component and more."""
         steady_mean = self.steady_sum / max(self.steady_count, 1)
         changes, reversals = self.switching_rates()
-        return {
+        wheels = {} if self.wheel_speed_max is None or self.wheel_torque_max is None else {
+            "max_abs_wheel_speed_rad_s": self.wheel_speed_max, "max_abs_wheel_torque_Nm": self.wheel_torque_max}
+        return {**wheels,
             "steady_mean_abs_qev_per_axis": steady_mean,
             "steady_mean_abs_qev": steady_mean.max(axis=1),
             "rpf_error_at_t2_per_axis": self.rpf_error_t2_axis,

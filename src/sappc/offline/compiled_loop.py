@@ -35,6 +35,7 @@ from sappc_controller.core.kernels import controller_step, error_quaternions
 from sappc_controller.core.kernels import kind_of, pack_params, start_coef
 from spacecraft_sim.core.kernels import N_PLANT_WORK, disturbance_sample, disturbance_table, encode_disturbance, propagate
 from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_sensor, noisy_measurement, random_draws, reference_rate_tables
+from spacecraft_sim.core.wheels import ReactionWheels, allocation_matrix, propagate_wheels_into, wheel_speeds_into, wheel_torques
 from spacecraft_sim.core.faults import encode_faults, noise_draws
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
 from sappc_msgs_py.convert import seconds_to_ns
@@ -50,8 +51,8 @@ __all__ = ["CompiledInputs", "CompiledRun", "cache_is_warm", "ensure_compiled", 
 @jit
 def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
              kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma,
-             t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws,
-             stride, hist, x_hist, d_hist, s_hist, x_final):
+             t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm,
+             stride, hist, x_hist, d_hist, s_hist, w_hist, x_final):
     """The whole time loop of one run (module docstring); histories every ``stride`` samples
     (``stride = 0``: none), final state into ``x_final``.
 
@@ -71,14 +72,28 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
     Recorded, as a bag of the same run records it: the *true* error quaternion and state (the
     metrics describe the real attitude), the delivered torque, and the controller's rows as last
     published (a zero answer publishes zero command and saturation and keeps the previous rows; a
-    held answer repeats them)."""
+    held answer repeats them).
+
+    Actuator: with no wheels (``wprm`` (0, 6)) the ideal one, the delivered torque clipped to
+    ``u_max`` per axis.  With ``N`` reaction wheels (spin axes ``wG`` (3, N), allocation ``wGp``
+    (N, 3), parameters ``wprm`` (N, 6) as :meth:`spacecraft_sim.core.wheels.ReactionWheels.params`;
+    ``x0`` then holds their momenta, (7 + N)), the delivered torque is the wheels' command:
+    :func:`~spacecraft_sim.core.wheels.wheel_torques` (allocation, motor and speed limits) and
+    :func:`~spacecraft_sim.core.wheels.propagate_wheels_into`; ``w_hist`` (T_rec, N, 2) records
+    each wheel's speed relative to the body [rad/s] and its motor torque [N m] at every sample
+    (the torque of the last sample computed, not applied)."""
     state = np.zeros(N_STATE)
     state[S_T0] = t_grid[0]  # the first sample fixes the time origin
     work = np.zeros((N_WORK, 4))
     out = np.zeros((N_OUT, 4))
     pub = np.full((N_OUT, 4), np.nan)  # the rows last published (nothing yet)
     pwork = np.zeros((N_PLANT_WORK, 7))
-    x = x0.copy()
+    x = x0.copy()  # (7,) or, with wheels, (7 + N,)
+    nw = wprm.shape[0]
+    uw = np.zeros(nw)  # the wheels' motor torques
+    wspeed = np.zeros(nw)
+    wwork = np.zeros((5, 7 + nw))
+    wtmp = np.zeros((3, 3))
     y = np.zeros(7)  # the measured state
     noisy = noise.shape[0] > 0
     nf = fkind.shape[0]
@@ -95,7 +110,7 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
     for k in range(T):
         t = t_grid[k]
         if noisy:
-            noisy_measurement(x[:4], x[4:], noise[k], noise_sigma[0], noise_sigma[1], y[:4], y[4:])
+            noisy_measurement(x[:4], x[4:7], noise[k], noise_sigma[0], noise_sigma[1], y[:4], y[4:])
         else:
             for i in range(7):
                 y[i] = x[i]
@@ -144,6 +159,8 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
                 d[i] = d_table[k, i]
         else:
             disturbance_sample(k, t, kinds, dparams, dscale, dphase, rand_draws, rand_win, d)
+        if nw > 0:
+            wheel_torques(u_last, wGp, wG, wprm, x, uw)
         if stride > 0 and k % stride == 0:
             j = k // stride
             for r in range(N_OUT):
@@ -154,43 +171,51 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
             for i in range(3):
                 d_hist[j, i] = d[i]
             s_hist[j] = status
+            if nw > 0:
+                wheel_speeds_into(x, wG, wprm, wspeed)
+                for i in range(nw):
+                    w_hist[j, i, 0] = wspeed[i]
+                    w_hist[j, i, 1] = uw[i]
         if k < T - 1:
-            for i in range(3):  # control (clipped by the actuator) + disturbance, held over [t_k, t_k+1]
-                u[i] = min(max(u_last[i], -u_max), u_max) + d[i]
-            propagate(x, u, dt, substeps, J, J_inv, pwork)
-    for i in range(7):
+            if nw == 0:
+                for i in range(3):  # control (clipped by the actuator) + disturbance, held over [t_k, t_k+1]
+                    u[i] = min(max(u_last[i], -u_max), u_max) + d[i]
+                propagate(x, u, dt, substeps, J, J_inv, pwork)
+            else:  # the wheels' motor torques and the disturbance, held
+                propagate_wheels_into(x, uw, d, dt, substeps, J, J_inv, wG, wprm, wwork, wtmp)
+    for i in range(7 + nw):
         x_final[i] = x[i]
 
 
 @jit_parallel
 def run_batch_kernel(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
                      kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma,
-                     t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws,
-                     stride, hist, x_hist, d_hist, s_hist, x_final):
+                     t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm,
+                     stride, hist, x_hist, d_hist, s_hist, w_hist, x_final):
     """Every run of a batch, in parallel over runs (``prange``); per-run arrays have a leading axis N
-    (the faults' too: a campaign may disperse them)."""
+    (the faults' and the wheels' too: a campaign may disperse them)."""
     for n in prange(x0.shape[0]):
         _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
                  d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], noise_sigma,
-                 t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws,
-                 stride, hist[n], x_hist[n], d_hist[n], s_hist[n], x_final[n])
+                 t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws, wG[n], wGp[n], wprm[n],
+                 stride, hist[n], x_hist[n], d_hist[n], s_hist[n], w_hist[n], x_final[n])
 
 
 @jit
 def run_single_kernel(n, kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
                       kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma,
-                      t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws,
-                      stride, hist, x_hist, d_hist, s_hist, x_final):
+                      t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm,
+                      stride, hist, x_hist, d_hist, s_hist, w_hist, x_final):
     """Run ``n`` of the batch arrays alone (same argument types as in :func:`run_batch_kernel`); outputs
     (leading axis 1) at index 0."""
     _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
              d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], noise_sigma,
-             t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws,
-             stride, hist[0], x_hist[0], d_hist[0], s_hist[0], x_final[0])
+             t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws, wG[n], wGp[n], wprm[n],
+             stride, hist[0], x_hist[0], d_hist[0], s_hist[0], w_hist[0], x_final[0])
 
 
 #: Per-run fields of :class:`CompiledInputs` (leading axis N); ``rand_draws`` has it second.
-_PER_RUN = ("prm", "coef", "x0", "J", "J_inv", "dscale", "dphase", "noise", "fkind", "fwin", "fprm", "fint")
+_PER_RUN = ("prm", "coef", "x0", "J", "J_inv", "dscale", "dphase", "noise", "fkind", "fwin", "fprm", "fint", "wG", "wGp", "wprm")
 
 
 @dataclass
@@ -203,7 +228,9 @@ class CompiledInputs:
     controller's stale-input timeout [ns]; ``u_max``: the actuator's limit [N m]; ``fkind`` (N, F),
     ``fwin`` (N, F, 2), ``fprm`` (N, F, P), ``fint`` (N, F): each run's faults
     (:func:`spacecraft_sim.core.faults.encode_faults`), ``fdepth`` their delay rings' slots,
-    ``fdraws`` (T or 1, F, 6) the noise faults' draws."""
+    ``fdraws`` (T or 1, F, 6) the noise faults' draws.  Reaction wheels (none: ``W = 0``, the ideal
+    actuator): ``wG`` (N, 3, W) spin axes, ``wGp`` (N, W, 3) their minimum-norm allocation, ``wprm``
+    (N, W, 6) :meth:`~spacecraft_sim.core.wheels.ReactionWheels.params`; ``x0`` is then (N, 7 + W)."""
 
     kind: int
     prm: np.ndarray
@@ -237,6 +264,13 @@ class CompiledInputs:
     fint: np.ndarray = field(default_factory=lambda: np.zeros((1, 0), dtype=np.int64))
     fdepth: int = 1
     fdraws: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 6)))
+    wG: np.ndarray = field(default_factory=lambda: np.zeros((1, 3, 0)))
+    wGp: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 3)))
+    wprm: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 6)))
+
+    @property
+    def n_wheels(self) -> int:
+        return int(self.wprm.shape[1])
 
     @property
     def n_runs(self) -> int:
@@ -246,7 +280,7 @@ class CompiledInputs:
         return (self.kind, self.prm, self.coef, self.x0, self.J, self.J_inv, self.substeps, self.dt, self.t, self.ref_q,
                 self.ref_w, self.ref_wd, self.use_table, self.d_table, self.kinds, self.dparams, self.dscale, self.dphase,
                 self.rand_draws, self.rand_win, self.noise, self.noise_sigma, self.t_ns, self.stale_ns, self.u_max,
-                self.fkind, self.fwin, self.fprm, self.fint, self.fdepth, self.fdraws)
+                self.fkind, self.fwin, self.fprm, self.fint, self.fdepth, self.fdraws, self.wG, self.wGp, self.wprm)
 
     def subset(self, lo: int, hi: int, noise: np.ndarray | None = None) -> CompiledInputs:
         """Runs ``lo .. hi - 1`` (contiguous copies: the same argument types), with ``noise``
@@ -263,13 +297,16 @@ class CompiledInputs:
 class CompiledRun:
     """Histories of a batch (T_rec samples every ``stride``): ``out`` (N, T_rec, N_OUT, 4) rows as in
     :mod:`sappc_controller.core.kernels` (as published: see :func:`_run_one`), ``x`` (N, T_rec, 7),
-    ``d`` (N, T_rec, 3), ``status`` (N, T_rec) int8 (the contract's ``ANSWER_*`` codes), final states (N, 7)."""
+    ``d`` (N, T_rec, 3), ``status`` (N, T_rec) int8 (the contract's ``ANSWER_*`` codes), ``wheels``
+    (N, T_rec, W, 2) each wheel's speed [rad/s] and motor torque [N m] (W = 0: the ideal actuator),
+    final states (N, 7 + W)."""
 
     t: np.ndarray
     out: np.ndarray
     x: np.ndarray
     d: np.ndarray
     status: np.ndarray
+    wheels: np.ndarray
     x_final: np.ndarray
 
     def status_counts(self) -> dict[str, np.ndarray]:
@@ -285,6 +322,8 @@ class CompiledRun:
             torque_cmd_B=o[:, :, O_CMD, :3], saturated=o[:, :, O_SAT, :3] != 0.0, disturbance_B=self.d.transpose(1, 0, 2),
             rho=o[:, :, O_RHO, :3], band_lower=o[:, :, O_BL, :3], band_upper=o[:, :, O_BU, :3], eps=o[:, :, O_EPS, :3],
             z=o[:, :, O_Z, :3], V=o[:, :, O_V, :3],
+            wheel_speed_rad_s=self.wheels[..., 0].transpose(1, 0, 2) if self.wheels.shape[2] else None,
+            wheel_torque_Nm=self.wheels[..., 1].transpose(1, 0, 2) if self.wheels.shape[2] else None,
         )
 
 
@@ -296,18 +335,28 @@ def _f64(a: Any, shape: tuple[int, ...] | None = None) -> np.ndarray:
 
 def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | None = None, omega_BN_B0: np.ndarray | None = None,
             inertia_kg_m2: np.ndarray | None = None, disturbance: Any = None, config: Any = None, gains: dict[str, np.ndarray] | None = None,
-            on_infeasible: str = "raise", noise_sigma: tuple[float, float] = (0.0, 0.0), faults: list[tuple[Any, ...]] | None = None) -> CompiledInputs:
+            on_infeasible: str = "raise", noise_sigma: tuple[float, float] = (0.0, 0.0), faults: list[tuple[Any, ...]] | None = None,
+            wheels: list[ReactionWheels] | None = None) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
     Sensor-noise draws are given per batch (:meth:`CompiledInputs.subset`); none here.  ``faults``:
     one fault list per run (a campaign's dispersed faults; the same kinds in the same slots), else
-    the scenario's for every run."""
+    the scenario's for every run.  ``wheels``: one wheel set per run (the same number of wheels),
+    else the scenario's actuator (:attr:`~sappc.scenario.Scenario.wheels`; none: ideal)."""
     ensure_compiled()
     cfg = scenario.controller_config(controller) if config is None else config
     q0 = _f64(np.atleast_2d(np.asarray(scenario.q_BN0 if q_BN0 is None else q_BN0, dtype=np.float64)))
     n = q0.shape[0]
     w0 = _f64(scenario.omega_BN_B0_rad_s if omega_BN_B0 is None else omega_BN_B0, (n, 3))
-    x0 = _f64(np.concatenate((q0, w0), axis=1))
+    per_run_wheels = ([] if scenario.wheels is None else [scenario.wheels] * n) if wheels is None else list(wheels)
+    if per_run_wheels and (len(per_run_wheels) != n or any(w.n != per_run_wheels[0].n for w in per_run_wheels)):
+        raise ValueError(f"wheels must hold one wheel set per run ({n}), each with the same number of wheels")
+    h0 = np.array([w.initial_momentum(w0[k]) for k, w in enumerate(per_run_wheels)]).reshape(n, -1)
+    x0 = _f64(np.concatenate((q0, w0, h0), axis=1))
+    W = h0.shape[1]
+    wG = _f64(np.array([w.G for w in per_run_wheels]).reshape(n, 3, W))
+    wGp = _f64(np.array([allocation_matrix(w.G) for w in per_run_wheels]).reshape(n, W, 3))
+    wprm = _f64(np.array([w.params() for w in per_run_wheels]).reshape(n, W, 6))
     J = _f64(scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2, (n, 3, 3))
     J_inv = _f64(np.linalg.inv(J))
     t = _f64(sample_times(scenario.duration_s, scenario.control_period_s))
@@ -339,14 +388,14 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
                           flags, np.zeros((n, 0, 6)), _f64(noise_sigma), t_ns,
                           seconds_to_ns(scenario.controller_node.stale_timeout_s), float(scenario.actuator.max_torque_Nm),
                           fkind, _f64(np.stack([e.window for e in enc])), _f64(np.stack([e.params for e in enc])), fint,
-                          max(e.depth for e in enc), _f64(fdraws))
+                          max(e.depth for e in enc), _f64(fdraws), wG, wGp, wprm)
 
 
 def _outputs(inp: CompiledInputs, stride: int, n: int) -> tuple[np.ndarray, ...]:
     T = inp.t.size
     T_rec = 0 if stride == 0 else (T - 1) // stride + 1
     return (np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, T_rec), dtype=np.int8),
-            np.zeros((n, 7)))
+            np.zeros((n, T_rec, inp.n_wheels, 2)), np.zeros((n, 7 + inp.n_wheels)))
 
 
 def _check_noise(inp: CompiledInputs) -> None:
@@ -361,20 +410,20 @@ def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = N
     are overwritten (sub-batches of a campaign reuse one buffer: no new pages per sub-batch).
     """
     _check_noise(inp)
-    if into is not None and into.out.shape[0] == inp.n_runs and into.x.shape[1] == (0 if stride == 0 else (inp.t.size - 1) // stride + 1):
-        hist, x_hist, d_hist, s_hist, x_final = into.out, into.x, into.d, into.status, into.x_final
+    if into is not None and into.out.shape[0] == inp.n_runs and into.wheels.shape[2] == inp.n_wheels and into.x.shape[1] == (0 if stride == 0 else (inp.t.size - 1) // stride + 1):
+        hist, x_hist, d_hist, s_hist, w_hist, x_final = into.out, into.x, into.d, into.status, into.wheels, into.x_final
     else:
-        hist, x_hist, d_hist, s_hist, x_final = _outputs(inp, stride, inp.n_runs)
-    run_batch_kernel(*inp.args(), stride, hist, x_hist, d_hist, s_hist, x_final)
-    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, x_final)
+        hist, x_hist, d_hist, s_hist, w_hist, x_final = _outputs(inp, stride, inp.n_runs)
+    run_batch_kernel(*inp.args(), stride, hist, x_hist, d_hist, s_hist, w_hist, x_final)
+    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, w_hist, x_final)
 
 
 def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
     """Run ``n`` of ``inp`` alone (one thread): histories with a leading axis of length 1."""
     _check_noise(inp)
-    hist, x_hist, d_hist, s_hist, x_final = _outputs(inp, stride, 1)
-    run_single_kernel(n, *inp.args(), stride, hist, x_hist, d_hist, s_hist, x_final)
-    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, x_final)
+    hist, x_hist, d_hist, s_hist, w_hist, x_final = _outputs(inp, stride, 1)
+    run_single_kernel(n, *inp.args(), stride, hist, x_hist, d_hist, s_hist, w_hist, x_final)
+    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, w_hist, x_final)
 
 
 def simulate_compiled(scenario: Scenario, controller: Any = None) -> CompiledRun:

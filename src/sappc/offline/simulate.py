@@ -73,7 +73,7 @@ class ScenarioRun:
 
     ``flags``: the RPF's ``flat`` and ``clamped`` components (N, 3); ``history``: every sample of
     every run (``keep_history``), else ``None``; ``trajectory``: ``(t, q_ev, rho)`` of the first
-    runs every ``stride`` samples (float32 (T_s, n, 3)), else ``None``; ``x_final`` (N, 7);
+    runs every ``stride`` samples (float32 (T_s, n, 3)), else ``None``; ``x_final`` (N, 7 + W) (W wheel momenta);
     ``status``: per run (N,), the samples the controller answered in each way
     (:data:`~sappc_msgs_py.contract.ANSWER_NAMES`)."""
 
@@ -142,7 +142,7 @@ def run_scenario(
     parts: list[MetricsAccumulator] = []
     histories: list[History] = []
     traj: list[tuple[np.ndarray, np.ndarray]] = []
-    x_final = np.empty((n, 7))
+    x_final = np.empty((n, 7 + inp.n_wheels))
     status = {name: np.zeros(n, dtype=np.int64) for name in ANSWER_NAMES}
     buffer: compiled_loop.CompiledRun | None = None
     for lo in range(0, n, step):

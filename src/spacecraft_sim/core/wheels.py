@@ -43,7 +43,8 @@ from numpy.typing import ArrayLike, NDArray
 from gnc_common.compiled import jit, matvec3, quat_normalize
 from gnc_common.validation import ConfigError, check_spd_inertia
 
-__all__ = ["PRESETS", "ReactionWheels", "allocation_matrix", "angular_momentum_B", "propagate_wheels", "wheel_speeds", "wheel_torques"]
+__all__ = ["PRESETS", "ReactionWheels", "allocation_matrix", "angular_momentum_B", "propagate_wheels", "propagate_wheels_into", "wheel_speeds", "wheel_speeds_into",
+           "wheel_torques"]
 
 Array = NDArray[np.float64]
 
@@ -217,13 +218,13 @@ def _derivative(x, u, L, J, J_inv, G, prm, out, tmp):
 
 
 @jit
-def propagate_wheels(x, u, L, dt, substeps, J, J_inv, G, prm):
+def propagate_wheels_into(x, u, L, dt, substeps, J, J_inv, G, prm, work, tmp):
     """Advance ``x`` (7 + N) in place by ``dt`` in ``substeps`` RK4 steps with the motor torques
     ``u`` (N,) and the external torque ``L`` (3,) held (zero-order hold); ``q`` renormalised
-    after each step, as the rigid body's :func:`~spacecraft_sim.core.kernels.rk4_step`."""
+    after each step, as the rigid body's :func:`~spacecraft_sim.core.kernels.rk4_step`.
+    Scratch: ``work`` (5, 7 + N), ``tmp`` (3, 3) (the compiled loop reuses them every step)."""
     m = x.shape[0]
-    k1, k2, k3, k4, xs = np.empty(m), np.empty(m), np.empty(m), np.empty(m), np.empty(m)
-    tmp = np.empty((3, 3))
+    k1, k2, k3, k4, xs = work[0], work[1], work[2], work[3], work[4]
     h = dt / substeps
     for _ in range(substeps):
         _derivative(x, u, L, J, J_inv, G, prm, k1, tmp)
@@ -240,6 +241,19 @@ def propagate_wheels(x, u, L, dt, substeps, J, J_inv, G, prm):
         for i in range(m):
             x[i] = x[i] + c * ((k1[i] + 2.0 * (k2[i] + k3[i])) + k4[i])
         quat_normalize(x[:4], x[:4])
+
+
+@jit
+def propagate_wheels(x, u, L, dt, substeps, J, J_inv, G, prm):
+    """:func:`propagate_wheels_into` with its own scratch arrays."""
+    propagate_wheels_into(x, u, L, dt, substeps, J, J_inv, G, prm, np.empty((5, x.shape[0])), np.empty((3, 3)))
+
+
+@jit
+def wheel_speeds_into(x, G, prm, out):
+    """``Omega`` (N,) of state ``x`` (7 + N) into ``out`` (the compiled loop's record)."""
+    for i in range(out.shape[0]):
+        out[i] = _speed(x[7 + i], G[0, i], G[1, i], G[2, i], prm[i, _JS], x[4], x[5], x[6])
 
 
 def wheel_speeds(wheels: ReactionWheels, x: ArrayLike) -> Array:
