@@ -29,6 +29,7 @@ from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES, DEFAULT_
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
+from spacecraft_sim.core.sensors import Sensors
 from spacecraft_sim.core.wheels import ReactionWheels
 from gnc_common.validation import (
     ConfigError,
@@ -110,6 +111,7 @@ _TOP_KEYS = {
     "tuning",  # validated by sappc.montecarlo.tuning.tuning_config (sappc tune)
     "faults",  # actuator, sensor and link faults (offline, in campaigns and on the ROS 2 graph)
     "controller_node",  # the controller node's input watchdog (both paths model it)
+    "sensors",  # the plant's star tracker and gyro (spacecraft_sim.core.sensors); none: exact measurements
 }
 
 
@@ -218,6 +220,9 @@ class Scenario:
         The plant's actuator: ``None`` for ``actuator.kind: ideal`` (the commanded torque,
         clipped per axis to ``actuator.max_torque_Nm``, acts on the body exactly), else the
         reaction-wheel set of ``actuator.kind: reaction_wheels`` (``actuator.wheels``).
+    sensors : Sensors or None
+        The plant's star tracker and gyro (the controller sees their measurements, the metrics
+        the true state); ``None``: the state is measured exactly.
     metrics : MetricSettings
     controller : ControllerKind
         Default controller.
@@ -250,6 +255,7 @@ class Scenario:
     raw: dict[str, Any] = field(repr=False)
     controller_node: ControllerNodeSettings = ControllerNodeSettings()
     wheels: ReactionWheels | None = None
+    sensors: Sensors | None = None
 
     def controller_config(self, kind: ControllerKind | str | None = None) -> Any:
         """The validated config dataclass of controller ``kind`` (default: the scenario's)."""
@@ -328,6 +334,12 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     disturbance = disturbances_from_list(data.get("disturbances"))
     faults = faults_from_list(data.get("faults"))
     actuator, wheels = _actuator_from_mapping(data.get("actuator", {}) or {})
+    sensors = None if data.get("sensors") is None else _sensors_from_mapping(data["sensors"])
+    if sensors is not None and sensors.star_tracker is not None:
+        try:
+            sensors.star_tracker.stride(dt)
+        except ConfigError as exc:
+            raise ConfigError(f"sensors.star_tracker.{exc}") from None
     metrics = from_mapping(MetricSettings, data.get("metrics", {}) or {}, "metrics")
     node_settings = from_mapping(ControllerNodeSettings, data.get("controller_node", {}) or {}, "controller_node")
 
@@ -356,6 +368,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
         raw=data,
         controller_node=node_settings,
         wheels=wheels,
+        sensors=sensors,
     )
     for name in controllers:  # validate every controller's parameters now, not at run time
         scenario.controller_config(name)
@@ -394,6 +407,23 @@ def _actuator_from_mapping(data: Any) -> tuple[ActuatorConfig, ReactionWheels | 
             msg = "actuator.wheels." + msg[len("actuator.wheels: "):]
         raise ConfigError(msg) from None
     return actuator, wheels
+
+
+def _sensors_from_mapping(data: Any) -> Sensors:
+    """The ``sensors`` section (:class:`~spacecraft_sim.core.sensors.Sensors`); errors name the key."""
+    if isinstance(data, dict) and isinstance(data.get("star_tracker"), dict) and isinstance(data["star_tracker"].get("outages_s"), list):
+        tracker = data["star_tracker"]
+        data = {**data, "star_tracker": {**tracker, "outages_s": [tuple(w) if isinstance(w, list) else w for w in tracker["outages_s"]]}}
+    try:
+        sensors: Sensors = from_mapping(Sensors, data, "sensors")
+    except ConfigError as exc:  # the models' own checks name the bare key: name it in full
+        msg = str(exc)
+        for part in ("sensors.star_tracker", "sensors.gyro", "sensors"):
+            if msg.startswith(f"{part}: "):
+                msg = f"{part}.{msg[len(part) + 2:]}"
+                break
+        raise ConfigError(msg) from None
+    return sensors
 
 
 def load_scenario(path: str | Path) -> Scenario:

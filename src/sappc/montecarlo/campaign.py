@@ -43,6 +43,8 @@ from numpy.typing import NDArray
 from gnc_common.validation import ConfigError
 from gnc_common.validation import InputError
 from sappc.montecarlo.config import campaign_config
+from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, white_noise_params
+from sappc.montecarlo.results import WHEEL_COLUMNS
 from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_faults, sensor_noise_draws
 from sappc.montecarlo.results import FORMAT_VERSION, assemble, chunk_path, chunks, save_chunk
 from sappc.offline import compiled_loop
@@ -99,8 +101,18 @@ def simulate_runs(
     noise = cfg.dispersions.sensor_noise
     n_samples = int(round(scenario.duration_s / scenario.control_period_s)) + 1
 
+    if noise.enabled and scenario.sensors is not None:
+        raise ConfigError("montecarlo.dispersions.sensor_noise and the scenario's sensors section are two sensor models: keep one")
+    width = 6 if noise.enabled else N_SENSOR_DRAWS
+
     def noise_draws(lo: int, hi: int) -> NDArray[np.float64]:
-        return sensor_noise_draws(seed, inputs.runs[lo:hi], n_samples)
+        return sensor_noise_draws(seed, inputs.runs[lo:hi], n_samples, width)
+
+    sensors = None
+    if noise.enabled:
+        sensors = (white_noise_params(noise.attitude_sigma_rad, noise.rate_sigma_rad_s), noise_draws)
+    elif scenario.sensors is not None:  # each run draws its sensors' noise from its own stream
+        sensors = (scenario.sensors.params(scenario.control_period_s), noise_draws)
 
     with np.errstate(all="ignore"):  # a diverging run is reported, not raised
         try:
@@ -114,7 +126,7 @@ def simulate_runs(
                 disturbance=dispersed_disturbance(scenario, inputs),
                 gains=inputs.gains or None,
                 faults=run_faults(scenario, cfg, inputs),
-                sensor_noise=(noise.attitude_sigma_rad, noise.rate_sigma_rad_s, noise_draws) if noise.enabled else None,
+                sensors=sensors,
                 keep_history=with_history,
                 trajectory=(min(keep_trajectories, n), cfg.trajectory_stride) if keep_trajectories > 0 else None,
                 progress=progress,
@@ -140,6 +152,7 @@ def simulate_runs(
         "torque_reversals_per_s": crit["torque_reversals_per_s"],
         "settling_time_s": crit["settling_time_s"],
         "finite": crit["finite"],
+        **{k: crit[k] for k in WHEEL_COLUMNS if k in crit},  # with reaction wheels
         "fault_choice": inputs.fault_choice,
         "fault_start_s": inputs.fault_start_s,
         "fault_duration_s": inputs.fault_duration_s,

@@ -95,18 +95,20 @@ def run_faults(scenario: Scenario, cfg: CampaignConfig, inputs: RunInputs) -> li
             for c, s, d in zip(inputs.fault_choice, inputs.fault_start_s, inputs.fault_duration_s)]
 
 
-def sensor_noise_draws(seed: int, runs: Iterable[int], n_samples: int) -> Array:
-    """Standard normals (n, n_samples, 6) of the sensor noise of ``runs``: each run's from its own
+def sensor_noise_draws(seed: int, runs: Iterable[int], n_samples: int, width: int = 6) -> Array:
+    """Standard normals (n, n_samples, width) of the sensors of ``runs``: each run's from its own
     second generator, drawn in blocks of :data:`NOISE_BLOCK` samples as the campaign has always
-    drawn them, sample ``k`` of the run in row ``k`` (the compiled loop applies
-    :func:`spacecraft_sim.core.kernels.noisy_measurement` with it)."""
+    drawn them, sample ``k`` of the run in row ``k`` (the compiled loop's
+    :func:`spacecraft_sim.core.sensors.measure` reads them).  ``width`` 6: the white-noise model
+    (``dispersions.sensor_noise``), as earlier campaigns drew it; 9: the scenario's sensors (the
+    gyro's bias walk too)."""
     runs_list = [int(k) for k in runs]
     n_blocks = -(-n_samples // NOISE_BLOCK)
-    out = np.empty((len(runs_list), n_blocks * NOISE_BLOCK, 6))
+    out = np.empty((len(runs_list), n_blocks * NOISE_BLOCK, width))
     for i, k in enumerate(runs_list):
         _, rng = run_generators(seed, k)
         for b in range(n_blocks):
-            out[i, b * NOISE_BLOCK : (b + 1) * NOISE_BLOCK] = rng.standard_normal((NOISE_BLOCK, 6))
+            out[i, b * NOISE_BLOCK : (b + 1) * NOISE_BLOCK] = rng.standard_normal((NOISE_BLOCK, width))
     return out[:, :n_samples]
 
 

@@ -80,6 +80,10 @@ class RunCriteria:
     passed: NDArray[np.bool_]
 
 
+#: The per-run columns of a campaign with reaction wheels (metrics of :mod:`sappc.evaluation.metrics`).
+WHEEL_COLUMNS = ("max_abs_wheel_speed_rad_s", "max_abs_wheel_torque_Nm")
+
+
 def run_criteria(table: dict[str, Any], criteria: Criteria) -> RunCriteria:
     """The pass criteria of the runs in ``table`` (a chunk's or the campaign's per-run arrays):
     the one place that defines what passing means, for the campaign table and for
@@ -101,6 +105,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
     t2, steady, finite, ok_t2, ok_steady, passed = rc.rpf_error_at_t2, rc.steady_mean_abs_qev, rc.finite, rc.ok_t2, rc.ok_steady, rc.passed
 
     gain_keys = [k for k in tab if k.startswith("gain_")]
+    wheel_keys = [k for k in WHEEL_COLUMNS if k in tab]
     dispersed = cfg.dispersions.faults is not None
     fault_kinds = [str(c["kind"]) for c in cfg.dispersions.faults.choices] if cfg.dispersions.faults is not None else []
     with (out / "runs.csv").open("w", newline="") as f:
@@ -113,7 +118,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
             + [f"steady_mean_abs_qev_{i}" for i in _AXES] + ["steady_mean_abs_qev", "steady_max_abs_qev", "settling_time_s",
                                                            "max_abs_torque_Nm", "torque_sign_changes_per_s", "torque_reversals_per_s",
                                                            "rpf_clamped_components", "rpf_flat_components"]
-            + [f"answers_{name}" for name in ANSWER_NAMES] + (["fault_kind", "fault_start_s", "fault_end_s"] if dispersed else [])
+            + [f"answers_{name}" for name in ANSWER_NAMES] + wheel_keys + (["fault_kind", "fault_start_s", "fault_end_s"] if dispersed else [])
         )
         for k in range(runs):
             w.writerow(
@@ -127,7 +132,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
                 + [f"{steady[k]:.17g}", f"{tab['steady_max_abs_qev'][k]:.17g}", f"{tab['settling_time_s'][k]:.17g}",
                    f"{tab['max_abs_torque_Nm'][k]:.17g}", f"{tab['torque_sign_changes_per_s'][k]:.17g}",
                    f"{tab['torque_reversals_per_s'][k]:.17g}", int(tab["rpf_clamped"][k].sum()), int(tab["rpf_flat"][k].sum())]
-                + [int(tab[f"answers_{name}"][k]) for name in ANSWER_NAMES]
+                + [int(tab[f"answers_{name}"][k]) for name in ANSWER_NAMES] + [f"{tab[w][k]:.17g}" for w in wheel_keys]
                 + ([fault_kinds[int(tab["fault_choice"][k])], f"{tab['fault_start_s'][k]:.17g}",
                     f"{tab['fault_start_s'][k] + tab['fault_duration_s'][k]:.17g}"] if dispersed else [])
             )

@@ -34,7 +34,8 @@ from sappc_controller.core.kernels import N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_
 from sappc_controller.core.kernels import controller_step, error_quaternions
 from sappc_controller.core.kernels import kind_of, pack_params, start_coef
 from spacecraft_sim.core.kernels import N_PLANT_WORK, disturbance_sample, disturbance_table, encode_disturbance, propagate
-from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_sensor, noisy_measurement, random_draws, reference_rate_tables
+from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_sensor, random_draws, reference_rate_tables
+from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, N_SENSOR_PARAMS, S_BIAS0, measure, white_noise_params
 from spacecraft_sim.core.wheels import ReactionWheels, allocation_matrix, propagate_wheels_into, wheel_speeds_into, wheel_torques
 from spacecraft_sim.core.faults import encode_faults, noise_draws
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
@@ -50,15 +51,16 @@ __all__ = ["CompiledInputs", "CompiledRun", "cache_is_warm", "ensure_compiled", 
 
 @jit
 def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-             kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma,
+             kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, sprm, souts,
              t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm,
              stride, hist, x_hist, d_hist, s_hist, w_hist, x_final):
     """The whole time loop of one run (module docstring); histories every ``stride`` samples
     (``stride = 0``: none), final state into ``x_final``.
 
-    Sensor noise: with rows in ``noise`` (T, 6) (standard normals) the controller sees
-    :func:`spacecraft_sim.core.kernels.noisy_measurement` of the true state with the sigmas
-    ``noise_sigma`` (attitude [rad], rate [rad/s]).
+    Sensors: with rows in ``noise`` (T, 6 or 9) (standard normals) the controller sees the star
+    tracker's and the gyro's measurement of the true state,
+    :func:`spacecraft_sim.core.sensors.measure` with the parameters ``sprm``
+    (:data:`~spacecraft_sim.core.sensors.N_SENSOR_PARAMS`,) and the tracker's outages ``souts`` (K, 2).
 
     Faults (``fkind`` (F,) ... as :func:`spacecraft_sim.core.faults.encode_faults`, ``fdraws``
     (T or 1, F, 6) the noise faults' draws): the measurement and the reference go through
@@ -96,6 +98,8 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
     wtmp = np.zeros((3, 3))
     y = np.zeros(7)  # the measured state
     noisy = noise.shape[0] > 0
+    held_q = np.zeros(4)  # the star tracker's last quaternion
+    bias = sprm[S_BIAS0:S_BIAS0 + 3].copy()  # the gyro's bias
     nf = fkind.shape[0]
     fcount = np.zeros(nf, dtype=np.int64)
     fbuf = np.zeros((nf, fdepth, 7))
@@ -110,7 +114,7 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
     for k in range(T):
         t = t_grid[k]
         if noisy:
-            noisy_measurement(x[:4], x[4:7], noise[k], noise_sigma[0], noise_sigma[1], y[:4], y[4:])
+            measure(k, t, x[:4], x[4:7], noise[k], sprm, souts, held_q, bias, y)
         else:
             for i in range(7):
                 y[i] = x[i]
@@ -189,41 +193,42 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
 
 @jit_parallel
 def run_batch_kernel(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-                     kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma,
+                     kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, sprm, souts,
                      t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm,
                      stride, hist, x_hist, d_hist, s_hist, w_hist, x_final):
     """Every run of a batch, in parallel over runs (``prange``); per-run arrays have a leading axis N
     (the faults' and the wheels' too: a campaign may disperse them)."""
     for n in prange(x0.shape[0]):
         _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
-                 d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], noise_sigma,
+                 d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], sprm[n], souts,
                  t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws, wG[n], wGp[n], wprm[n],
                  stride, hist[n], x_hist[n], d_hist[n], s_hist[n], w_hist[n], x_final[n])
 
 
 @jit
 def run_single_kernel(n, kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-                      kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, noise_sigma,
+                      kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, sprm, souts,
                       t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm,
                       stride, hist, x_hist, d_hist, s_hist, w_hist, x_final):
     """Run ``n`` of the batch arrays alone (same argument types as in :func:`run_batch_kernel`); outputs
     (leading axis 1) at index 0."""
     _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
-             d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], noise_sigma,
+             d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], sprm[n], souts,
              t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws, wG[n], wGp[n], wprm[n],
              stride, hist[0], x_hist[0], d_hist[0], s_hist[0], w_hist[0], x_final[0])
 
 
 #: Per-run fields of :class:`CompiledInputs` (leading axis N); ``rand_draws`` has it second.
-_PER_RUN = ("prm", "coef", "x0", "J", "J_inv", "dscale", "dphase", "noise", "fkind", "fwin", "fprm", "fint", "wG", "wGp", "wprm")
+_PER_RUN = ("prm", "coef", "x0", "J", "J_inv", "dscale", "dphase", "noise", "sprm", "fkind", "fwin", "fprm", "fint", "wG", "wGp", "wprm")
 
 
 @dataclass
 class CompiledInputs:
     """Everything a compiled batch needs, as arrays (see :func:`prepare`).
 
-    ``noise`` (N, T or 0, 6): each run's sensor-noise draws (standard normals; no rows: no noise),
-    ``noise_sigma`` (2,): attitude [rad] and rate [rad/s] sigmas.  ``flags``: the RPF's ``flat`` and
+    ``noise`` (N, T or 0, 6 or 9): each run's sensor draws (standard normals; no rows: the state
+    is measured exactly), ``sprm`` (N, :data:`~spacecraft_sim.core.sensors.N_SENSOR_PARAMS`) each
+    run's sensor parameters, ``souts`` (K, 2) the star tracker's outages [s].  ``flags``: the RPF's ``flat`` and
     ``clamped`` components (N, 3).  ``t_ns`` (T,): the samples' stamps [ns]; ``stale_ns``: the
     controller's stale-input timeout [ns]; ``u_max``: the actuator's limit [N m]; ``fkind`` (N, F),
     ``fwin`` (N, F, 2), ``fprm`` (N, F, P), ``fint`` (N, F): each run's faults
@@ -254,7 +259,8 @@ class CompiledInputs:
     rand_win: np.ndarray
     flags: dict[str, np.ndarray]
     noise: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 6)))
-    noise_sigma: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    sprm: np.ndarray = field(default_factory=lambda: np.zeros((1, N_SENSOR_PARAMS)))
+    souts: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     t_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     stale_ns: int = 0
     u_max: float = np.inf
@@ -279,12 +285,12 @@ class CompiledInputs:
     def args(self) -> tuple[Any, ...]:
         return (self.kind, self.prm, self.coef, self.x0, self.J, self.J_inv, self.substeps, self.dt, self.t, self.ref_q,
                 self.ref_w, self.ref_wd, self.use_table, self.d_table, self.kinds, self.dparams, self.dscale, self.dphase,
-                self.rand_draws, self.rand_win, self.noise, self.noise_sigma, self.t_ns, self.stale_ns, self.u_max,
+                self.rand_draws, self.rand_win, self.noise, self.sprm, self.souts, self.t_ns, self.stale_ns, self.u_max,
                 self.fkind, self.fwin, self.fprm, self.fint, self.fdepth, self.fdraws, self.wG, self.wGp, self.wprm)
 
     def subset(self, lo: int, hi: int, noise: np.ndarray | None = None) -> CompiledInputs:
         """Runs ``lo .. hi - 1`` (contiguous copies: the same argument types), with ``noise``
-        (hi - lo, T, 6) as their sensor-noise draws when given."""
+        (hi - lo, T, 6 or 9) as their sensor draws when given."""
         per_run: dict[str, Any] = {name: np.ascontiguousarray(getattr(self, name)[lo:hi]) for name in _PER_RUN if name != "noise"}
         per_run["noise"] = np.ascontiguousarray(self.noise[lo:hi])
         if noise is not None:
@@ -335,11 +341,14 @@ def _f64(a: Any, shape: tuple[int, ...] | None = None) -> np.ndarray:
 
 def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | None = None, omega_BN_B0: np.ndarray | None = None,
             inertia_kg_m2: np.ndarray | None = None, disturbance: Any = None, config: Any = None, gains: dict[str, np.ndarray] | None = None,
-            on_infeasible: str = "raise", noise_sigma: tuple[float, float] = (0.0, 0.0), faults: list[tuple[Any, ...]] | None = None,
+            on_infeasible: str = "raise", sensor_params: np.ndarray | None = None, faults: list[tuple[Any, ...]] | None = None,
             wheels: list[ReactionWheels] | None = None) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
-    Sensor-noise draws are given per batch (:meth:`CompiledInputs.subset`); none here.  ``faults``:
+    ``sensor_params``: the sensors' parameters ((13,) or one row per run), their draws then given
+    per batch (:meth:`CompiledInputs.subset`); else the scenario's
+    (:attr:`~sappc.scenario.Scenario.sensors`; none: exact measurements), every run with the draws
+    of its ``seed``.  ``faults``:
     one fault list per run (a campaign's dispersed faults; the same kinds in the same slots), else
     the scenario's for every run.  ``wheels``: one wheel set per run (the same number of wheels),
     else the scenario's actuator (:attr:`~sappc.scenario.Scenario.wheels`; none: ideal)."""
@@ -372,6 +381,10 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     use_table = rand_draws.shape[0] == 0 and bool(np.all(dscale == dscale[:1]) and np.all(dphase == dphase[:1]))
     d_table = (disturbance_table(t, kinds, dparams, dscale[0], dphase[0], rand_draws[:, 0], rand_win) if use_table
                else np.zeros((0, 3)))
+    sensors = scenario.sensors
+    sprm = (np.zeros(N_SENSOR_PARAMS) if sensors is None else sensors.params(scenario.control_period_s)) if sensor_params is None else sensor_params
+    souts = np.zeros((0, 2)) if sensors is None else sensors.outages()
+    noise = np.zeros((n, 0, 6)) if sensors is None or sensor_params is not None else _f64(sensors.draws(t.size), (n, t.size, N_SENSOR_DRAWS))
     t_ns = np.array([seconds_to_ns(float(tk)) for tk in t], dtype=np.int64)  # the plant's stamps
     per_run_faults = [scenario.faults] * n if faults is None else list(faults)
     if len(per_run_faults) != n:
@@ -385,7 +398,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     return CompiledInputs(kind_of(cfg), prm, _f64(coef), x0, J, J_inv, int(scenario.rk4_substeps), float(scenario.control_period_s), t,
                           ref_q, _f64(ref_w), _f64(ref_wd), use_table, _f64(d_table), np.ascontiguousarray(kinds, dtype=np.int64),
                           _f64(dparams), _f64(dscale), _f64(dphase), _f64(rand_draws), np.ascontiguousarray(rand_win, dtype=np.int64),
-                          flags, np.zeros((n, 0, 6)), _f64(noise_sigma), t_ns,
+                          flags, noise, _f64(sprm, (n, N_SENSOR_PARAMS)), _f64(souts), t_ns,
                           seconds_to_ns(scenario.controller_node.stale_timeout_s), float(scenario.actuator.max_torque_Nm),
                           fkind, _f64(np.stack([e.window for e in enc])), _f64(np.stack([e.params for e in enc])), fint,
                           max(e.depth for e in enc), _f64(fdraws), wG, wGp, wprm)
@@ -400,7 +413,7 @@ def _outputs(inp: CompiledInputs, stride: int, n: int) -> tuple[np.ndarray, ...]
 
 def _check_noise(inp: CompiledInputs) -> None:
     if inp.noise.shape[0] != inp.n_runs or inp.noise.shape[1] not in (0, inp.t.size):
-        raise ValueError(f"noise must be (N, 0 or T, 6) = ({inp.n_runs}, 0 or {inp.t.size}, 6), got {inp.noise.shape}")
+        raise ValueError(f"noise must be (N, 0 or T, 6 or 9) = ({inp.n_runs}, 0 or {inp.t.size}, 6 or 9), got {inp.noise.shape}")
 
 
 def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = None) -> CompiledRun:
@@ -498,7 +511,7 @@ def warm_up() -> None:
         },
     }
     scenario = scenario_from_mapping(raw)
-    inp = prepare(scenario, on_infeasible="clamp", noise_sigma=(1e-7, 1e-7))
+    inp = prepare(scenario, on_infeasible="clamp", sensor_params=white_noise_params(1e-7, 1e-7))
     noisy = inp.subset(0, 1, noise=np.zeros((1, inp.t.size, 6)))
     for case in (inp, noisy):
         run_single(case, 0, 1)

@@ -102,7 +102,7 @@ def run_scenario(
     disturbance: DisturbanceModel | None = None,
     gains: dict[str, np.ndarray] | None = None,
     faults: list[tuple[Any, ...]] | None = None,
-    sensor_noise: tuple[float, float, Callable[[int, int], np.ndarray]] | None = None,
+    sensors: tuple[np.ndarray, Callable[[int, int], np.ndarray]] | None = None,
     keep_history: bool = False,
     trajectory: tuple[int, int] | None = None,
     sub_batch: int = SUB_BATCH,
@@ -118,8 +118,11 @@ def run_scenario(
 
     The runs go through the compiled loop ``sub_batch`` at a time (in parallel over runs); each
     sub-batch's full history feeds the metrics in one block and is dropped unless
-    ``keep_history``.  ``sensor_noise = (attitude_sigma_rad, rate_sigma_rad_s, draws)`` with
-    ``draws(lo, hi)`` the standard normals (hi - lo, T, 6) of runs ``lo .. hi - 1``.
+    ``keep_history``.  ``sensors = (params, draws)``: the sensors' parameters
+    (:meth:`spacecraft_sim.core.sensors.Sensors.params`, (13,) or one row per run) and
+    ``draws(lo, hi)`` the standard normals (hi - lo, T, 6 or 9) of runs ``lo .. hi - 1``; by
+    default the scenario's ``sensors``, every run with the draws of its ``seed``
+    (:func:`~sappc.offline.compiled_loop.prepare`).
     ``trajectory = (n, stride)`` keeps q_ev and rho of the first ``n`` runs every ``stride``
     samples.  ``progress(n)`` is called after each sub-batch with its number of runs.
 
@@ -134,8 +137,10 @@ def run_scenario(
     inp = compiled_loop.prepare(
         scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
         disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
-        noise_sigma=(0.0, 0.0) if sensor_noise is None else (sensor_noise[0], sensor_noise[1]), faults=faults,
+        sensor_params=None if sensors is None else sensors[0], faults=faults,
     )
+    draws = None if sensors is None else sensors[1]
+
     n = inp.n_runs
     step = n if keep_history else max(1, min(sub_batch, n))
     n_traj, traj_stride = trajectory if trajectory is not None else (0, 1)
@@ -147,7 +152,7 @@ def run_scenario(
     buffer: compiled_loop.CompiledRun | None = None
     for lo in range(0, n, step):
         hi = min(lo + step, n)
-        sub = inp.subset(lo, hi, None if sensor_noise is None else sensor_noise[2](lo, hi)) if step < n or sensor_noise else inp
+        sub = inp.subset(lo, hi, None if draws is None else draws(lo, hi)) if step < n or draws is not None else inp
         buffer = compiled_loop.run_batch(sub, 1, into=buffer)
         h = buffer.history()
         acc = metrics_accumulator(scenario, inp.t, hi - lo)

@@ -247,6 +247,30 @@ def test_sensor_noise_moves_the_torque_not_the_recorded_true_error(tmp_path) -> 
     np.testing.assert_allclose(history.q_BR[:, 0], error_quaternion(q_RN, history.q_BN[:, 0]), rtol=0, atol=1e-15)
 
 
+def test_a_campaign_with_the_scenarios_sensors_and_wheels_draws_each_runs_sensors_and_matches_the_run_alone(tmp_path) -> None:
+    """Scenario sensors (tracker, gyro with bias walk) and reaction wheels in a campaign: each run
+    draws its sensor noise from its own stream (runs differ beyond their dispersions), run k re-run
+    alone equals its row bit for bit, and the white-noise dispersion cannot be added on top."""
+    raw = yaml.safe_load(open(_short(tmp_path, chunk_runs=2, initial_rate_rad_s={"distribution": "normal", "mean": 0.0,
+                                                                                   "sigma": [1e-3, 1e-3, 1e-3]})).read())
+    wheels = yaml.safe_load((SCENARIOS / "paper_tracking_wheels.yaml").read_text())["actuator"]
+    raw["actuator"] = {**wheels, "max_torque_Nm": raw["actuator"]["max_torque_Nm"]}
+    raw["sensors"] = {"star_tracker": {"noise_rad": [5e-6, 5e-6, 3e-5], "rate_hz": 10.0},
+                      "gyro": {"angle_random_walk_rad_sqrt_s": 1.5e-6, "bias_random_walk_rad_s_sqrt_s": 1e-9}, "seed": 3}
+    path = tmp_path / "sensors.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    run_campaign(str(path), runs=3, seed=2, out_dir=tmp_path / "s", progress=False)
+    table = np.genfromtxt(tmp_path / "s" / "runs.csv", delimiter=",", names=True)
+    assert "max_abs_wheel_speed_rad_s" in table.dtype.names and np.all(table["max_abs_wheel_speed_rad_s"] > 0)
+    _, row, metrics, _ = load_campaign_run(tmp_path / "s", 1)
+    assert metrics["steady_mean_abs_qev"] == table["steady_mean_abs_qev"][1]
+    assert metrics["max_abs_wheel_speed_rad_s"] == table["max_abs_wheel_speed_rad_s"][1]
+    raw["montecarlo"]["dispersions"]["sensor_noise"] = {"attitude_sigma_rad": 1e-7, "rate_sigma_rad_s": 1e-7}
+    path.write_text(yaml.safe_dump(raw))
+    with pytest.raises(ConfigError, match="sensor_noise and the scenario's sensors"):
+        run_campaign(str(path), runs=2, seed=2, out_dir=tmp_path / "t", progress=False)
+
+
 def test_progress_moves_during_a_chunk(tmp_path, monkeypatch) -> None:
     """One worker, one chunk: the progress line reports sub-batches as they finish, not only the chunk."""
     reports: list[int] = []

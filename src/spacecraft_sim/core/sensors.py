@@ -1,0 +1,204 @@
+"""Attitude sensors of a flight-like plant (issue 16): a star tracker and a rate gyro.
+
+The controller sees their measurements; the metrics use the true state.
+
+**Star tracker.**  At each update the measured attitude is the true one rotated in the body frame
+by the rotation vector ``(sigma_x n_x, sigma_y n_y, sigma_z n_z)`` (``n`` standard normals;
+per-axis sigmas: a tracker is typically several times less accurate about its boresight than
+across it).  It updates every ``control_period / rate`` samples (the rate must divide the
+control rate: a tracker at 10 Hz beside a 100 Hz loop updates every 10th sample) and holds its
+last value in between, as flight software holds the last star-tracker quaternion.  During an
+outage (sun or earth in the field of view, lost-in-space) it does not update: the last
+value is held.  Its first update is at ``t = 0``; an outage may not cover it.
+
+**Rate gyro** (the usual continuous model, sampled once per control period ``dt``): the measured
+rate is the true one plus the bias plus white noise of standard deviation ``N / sqrt(dt)``, with
+``N`` the angle random walk [rad/sqrt(s)]; the bias starts at ``b0`` and walks, ``b_{k+1} = b_k
++ K sqrt(dt) n``, with ``K`` the bias (rate) random walk [rad/s/sqrt(s)].
+
+The kernel :func:`measure` takes 9 standard normals a sample (3 for the tracker, 3 for the gyro's
+white noise, 3 for its bias walk; their source is the caller's, one stream per run) and per-sample
+parameters (:meth:`Sensors.params`), so the white-noise model of earlier campaigns
+(``dispersions.sensor_noise``: a tracker at every sample, isotropic, and a gyro without bias) is
+the special case it computes bit for bit.
+
+Pure: no ROS, no clock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnc_common.compiled import jit, quat_multiply, quat_normalize
+from gnc_common.validation import ConfigError
+
+__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "Gyro", "Sensors", "StarTracker", "measure", "white_noise_params"]
+
+Array = NDArray[np.float64]
+
+#: Standard normals a sample: tracker (3), gyro white noise (3), gyro bias walk (3).
+N_SENSOR_DRAWS = 9
+#: Columns of :meth:`Sensors.params`: tracker sigmas (3), tracker stride [samples] (1), gyro noise
+#: sigma per sample (3), bias step sigma per sample (3), initial bias (3).
+N_SENSOR_PARAMS = 13
+_ST_SIGMA, _ST_STRIDE, _G_SIGMA, _G_WALK, _G_BIAS0 = 0, 3, 4, 7, 10
+#: Column of the gyro's initial bias in :meth:`Sensors.params` (the loop starts its bias there).
+S_BIAS0 = _G_BIAS0
+#: Rounding allowed when the tracker's period is checked to be a whole number of control periods.
+_STRIDE_TOL = 1e-9
+
+
+def _three(name: str, value: float | tuple[float, ...]) -> tuple[float, float, float]:
+    v = np.asarray(value, dtype=np.float64)
+    v = np.full(3, float(v)) if v.ndim == 0 else v
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ConfigError(f"{name} must be one finite number or 3 (x, y, z), got {value!r}")
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+@dataclass(frozen=True)
+class StarTracker:
+    """A star tracker (module docstring).
+
+    Attributes
+    ----------
+    noise_rad : float or 3 floats
+        1-sigma attitude error about each body axis [rad] (one number: the same about all three).
+    rate_hz : float
+        Update rate [Hz]; the control rate must be a whole multiple of it.
+    outages_s : list of (start_s, end_s)
+        Windows without updates (the last value is held); ``start_s > 0``.
+    """
+
+    noise_rad: float | tuple[float, float, float] = 0.0
+    rate_hz: float = 10.0
+    outages_s: tuple[tuple[float, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        sig = _three("noise_rad", self.noise_rad)
+        if min(sig) < 0:
+            raise ConfigError(f"noise_rad must be >= 0, got {self.noise_rad!r}")
+        if not (isinstance(self.rate_hz, (int, float)) and math.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ConfigError(f"rate_hz must be > 0, got {self.rate_hz!r}")
+        for w in self.outages_s:
+            if len(w) != 2 or not all(math.isfinite(float(v)) for v in w) or not 0.0 < float(w[0]) < float(w[1]):
+                raise ConfigError(f"outages_s must be windows [start_s, end_s] with 0 < start_s < end_s, got {list(w)!r}")
+
+    def stride(self, control_period_s: float) -> int:
+        """Control samples per update; raises naming ``rate_hz`` when the rates do not divide."""
+        ratio = 1.0 / (self.rate_hz * control_period_s)
+        k = round(ratio)
+        if k < 1 or abs(ratio - k) > _STRIDE_TOL * max(1.0, ratio):
+            raise ConfigError(f"rate_hz = {self.rate_hz!r} must divide the control rate {1.0 / control_period_s:g} Hz "
+                              f"(an update every whole number of control periods)")
+        return int(k)
+
+
+@dataclass(frozen=True)
+class Gyro:
+    """A rate-integrating gyro sampled once per control period (module docstring).
+
+    Attributes
+    ----------
+    angle_random_walk_rad_sqrt_s : float or 3 floats
+        ``N`` [rad/sqrt(s)] (a data sheet's deg/sqrt(h) times pi/180/60).
+    bias_random_walk_rad_s_sqrt_s : float or 3 floats
+        ``K`` [rad/s/sqrt(s)], the bias's random walk (rate random walk).
+    initial_bias_rad_s : float or 3 floats
+        ``b0`` [rad/s].
+    """
+
+    angle_random_walk_rad_sqrt_s: float | tuple[float, float, float] = 0.0
+    bias_random_walk_rad_s_sqrt_s: float | tuple[float, float, float] = 0.0
+    initial_bias_rad_s: float | tuple[float, float, float] = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("angle_random_walk_rad_sqrt_s", "bias_random_walk_rad_s_sqrt_s"):
+            if min(_three(name, getattr(self, name))) < 0:
+                raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        _three("initial_bias_rad_s", self.initial_bias_rad_s)
+
+
+@dataclass(frozen=True)
+class Sensors:
+    """The plant's sensors (a scenario's ``sensors`` section): a star tracker, a gyro (either may be
+    absent: that quantity is measured exactly), and the seed of a single run's draws (a campaign
+    draws each run's from its own stream)."""
+
+    star_tracker: StarTracker | None = None
+    gyro: Gyro | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError(f"seed must be an integer >= 0, got {self.seed!r}")
+
+    def params(self, control_period_s: float) -> Array:
+        """The kernel's per-sample parameters (:data:`N_SENSOR_PARAMS`,)."""
+        p = np.zeros(N_SENSOR_PARAMS)  # stride 0: no tracker, the attitude measured exactly
+        if self.star_tracker is not None:
+            p[_ST_SIGMA:_ST_SIGMA + 3] = _three("noise_rad", self.star_tracker.noise_rad)
+            p[_ST_STRIDE] = self.star_tracker.stride(control_period_s)
+        if self.gyro is not None:
+            root_dt = math.sqrt(control_period_s)
+            p[_G_SIGMA:_G_SIGMA + 3] = np.asarray(_three("arw", self.gyro.angle_random_walk_rad_sqrt_s)) / root_dt
+            p[_G_WALK:_G_WALK + 3] = np.asarray(_three("brw", self.gyro.bias_random_walk_rad_s_sqrt_s)) * root_dt
+            p[_G_BIAS0:_G_BIAS0 + 3] = _three("initial_bias_rad_s", self.gyro.initial_bias_rad_s)
+        return p
+
+    def outages(self) -> Array:
+        """The tracker's outage windows (K, 2) [s]."""
+        w = () if self.star_tracker is None else self.star_tracker.outages_s
+        return np.array(w, dtype=np.float64).reshape(-1, 2)
+
+    def draws(self, n_samples: int) -> Array:
+        """A single run's standard normals (n_samples, :data:`N_SENSOR_DRAWS`), from ``seed``."""
+        out: Array = np.random.default_rng(self.seed).standard_normal((n_samples, N_SENSOR_DRAWS))
+        return out
+
+
+def white_noise_params(attitude_sigma_rad: float, rate_sigma_rad_s: float) -> Array:
+    """The parameters of the white-noise model (a tracker at every sample with the same sigma about
+    every axis, a gyro of per-sample sigma ``rate_sigma_rad_s`` without bias)."""
+    p = np.zeros(N_SENSOR_PARAMS)
+    p[_ST_SIGMA:_ST_SIGMA + 3] = attitude_sigma_rad
+    p[_ST_STRIDE] = 1.0
+    p[_G_SIGMA:_G_SIGMA + 3] = rate_sigma_rad_s
+    return p
+
+
+@jit
+def measure(k, t, q_BN, omega_BN_B, n, prm, outages, held_q, bias, y):
+    """The measurement of sample ``k`` at time ``t`` [s] (module docstring) into ``y`` (7,):
+    ``y[:4]`` the tracker's quaternion (updated into ``held_q`` (4,) on its samples outside the
+    ``outages`` (K, 2), held otherwise), ``y[4:]`` the gyro's rate with the bias ``bias`` (3,),
+    which then walks one period.  Stride 0 in ``prm``: no tracker, the attitude is exact.  ``n``: the sample's standard normals (6 or more; the bias walk
+    reads ``n[6:9]`` only when it is non-zero), ``prm`` (:data:`N_SENSOR_PARAMS`,)."""
+    stride = int(prm[_ST_STRIDE])
+    if stride == 0:  # no star tracker: the true attitude
+        for i in range(4):
+            held_q[i] = q_BN[i]
+    update = stride > 0 and k % stride == 0
+    for w in range(outages.shape[0]):
+        if outages[w, 0] <= t < outages[w, 1]:
+            update = False
+    if update:
+        rx, ry, rz = prm[_ST_SIGMA] * n[0], prm[_ST_SIGMA + 1] * n[1], prm[_ST_SIGMA + 2] * n[2]
+        angle = np.sqrt((rx * rx + ry * ry) + rz * rz)
+        s = np.sin(angle / 2.0) / angle if angle > 0.0 else 0.0
+        dq = np.empty(4)
+        dq[0], dq[1], dq[2], dq[3] = rx * s, ry * s, rz * s, np.cos(angle / 2.0)
+        quat_multiply(q_BN, dq, held_q)
+        quat_normalize(held_q, held_q)
+    for i in range(4):
+        y[i] = held_q[i]
+    for i in range(3):
+        y[4 + i] = (omega_BN_B[i] + bias[i]) + prm[_G_SIGMA + i] * n[3 + i]
+    for i in range(3):
+        step = prm[_G_WALK + i]
+        if step != 0.0:
+            bias[i] = bias[i] + step * n[6 + i]
