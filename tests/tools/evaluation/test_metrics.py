@@ -176,6 +176,10 @@ def test_blocks_of_any_size_give_the_same_metrics_as_the_whole_history() -> None
     bit for bit; the runs' accumulators concatenated equal one accumulator of all runs."""
     t = np.asarray(np.arange(41) * 0.05, dtype=np.float64)
     h = _rich_history(t)
+    rng = np.random.default_rng(7)
+    h.wheel_speed_rad_s = 300.0 * rng.standard_normal((t.size, 3, 4))  # reaction wheels: 4 per run
+    h.wheel_torque_Nm = 0.1 * rng.standard_normal((t.size, 3, 4))
+    h.wheel_speed_rad_s[30, 2, 1] = np.nan  # a failed run's non-finite record is left out
     whole = _accumulator(t, 3, **SETTINGS)
     whole.add_history(h)
     blocks = _accumulator(t, 3, **SETTINGS)
@@ -184,6 +188,10 @@ def test_blocks_of_any_size_give_the_same_metrics_as_the_whole_history() -> None
     for k0, k1 in ((0, 1), (1, 7), (7, 8), (8, 24), (24, 25), (25, 41)):
         blocks.update(k0, t[k0:k1], x[k0:k1], h.torque_B[k0:k1], h.q_BR[k0:k1], h.rho[k0:k1], h.saturated[k0:k1],
                       h.band_lower[k0:k1], h.band_upper[k0:k1])
+        blocks.update_wheels(h.wheel_speed_rad_s[k0:k1], h.wheel_torque_Nm[k0:k1])
+    for n in range(3):
+        assert whole.run_metrics(n)["max_abs_wheel_speed_rad_s"] == np.nanmax(np.abs(h.wheel_speed_rad_s[:, n]))
+        assert whole.run_metrics(n)["max_abs_wheel_torque_Nm"] == np.max(np.abs(h.wheel_torque_Nm[:, n]))
     parts = []
     for n in range(3):
         part = _accumulator(t, 1, **SETTINGS)
@@ -554,7 +562,8 @@ def test_switching_is_counted_across_blocks_runs_and_up_to_a_failure() -> None:
     parts = []
     for n in range(2):
         part = _accumulator(t, 1, steady_from_s=0.5)
-        part.add_history(History(**{f: h.t if f == "t" else getattr(h, f)[:, n : n + 1] for f in History.__dataclass_fields__}))
+        part.add_history(History(**{f: h.t if f == "t" else None if getattr(h, f) is None else getattr(h, f)[:, n : n + 1]
+                                    for f in History.__dataclass_fields__}))
         parts.append(part)
     joined = MetricsAccumulator.concatenate(parts)
     assert joined.torque_sign_changes.tolist() == [[8, 0, 3], [0, 4, 0]] and joined.torque_reversals.tolist() == [[2, 0, 3], [0, 1, 0]]
