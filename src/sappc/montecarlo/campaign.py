@@ -45,7 +45,7 @@ from gnc_common.validation import InputError
 from sappc.montecarlo.config import campaign_config
 from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, white_noise_params
 from sappc.montecarlo.results import WHEEL_COLUMNS
-from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_faults, sensor_noise_draws
+from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_faults, run_hardware, sensor_noise_draws
 from sappc.montecarlo.results import FORMAT_VERSION, assemble, chunk_path, chunks, save_chunk
 from sappc.offline import compiled_loop
 from sappc.offline.simulate import run_scenario
@@ -108,11 +108,12 @@ def simulate_runs(
     def noise_draws(lo: int, hi: int) -> NDArray[np.float64]:
         return sensor_noise_draws(seed, inputs.runs[lo:hi], n_samples, width)
 
+    run_wheels, run_sensor_params = run_hardware(scenario, inputs)
     sensors = None
     if noise.enabled:
         sensors = (white_noise_params(noise.attitude_sigma_rad, noise.rate_sigma_rad_s), noise_draws)
     elif scenario.sensors is not None:  # each run draws its sensors' noise from its own stream
-        sensors = (scenario.sensors.params(scenario.control_period_s), noise_draws)
+        sensors = (scenario.sensors.params(scenario.control_period_s) if run_sensor_params is None else run_sensor_params, noise_draws)
 
     with np.errstate(all="ignore"):  # a diverging run is reported, not raised
         try:
@@ -127,6 +128,7 @@ def simulate_runs(
                 gains=inputs.gains or None,
                 faults=run_faults(scenario, cfg, inputs),
                 sensors=sensors,
+                wheels=run_wheels,
                 keep_history=with_history,
                 trajectory=(min(keep_trajectories, n), cfg.trajectory_stride) if keep_trajectories > 0 else None,
                 progress=progress,
@@ -156,6 +158,7 @@ def simulate_runs(
         "fault_choice": inputs.fault_choice,
         "fault_start_s": inputs.fault_start_s,
         "fault_duration_s": inputs.fault_duration_s,
+        **{f"hw_{name}": values for name, values in inputs.hardware.items()},
         **{f"answers_{name}": count for name, count in run.status.items()},
         "rpf_clamped": run.flags["clamped"],
         "rpf_flat": run.flags["flat"],

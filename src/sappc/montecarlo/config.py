@@ -5,6 +5,7 @@ Everything is validated when the section is parsed (:func:`campaign_config`), be
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from enum import Enum
 from typing import Any
@@ -17,7 +18,7 @@ from sappc.scenario import Scenario
 from spacecraft_sim.core.faults import faults_from_list
 
 __all__ = ["CampaignConfig", "Criteria", "Dispersions", "Distribution", "DistributionKind", "FaultDispersion", "GainDispersions",
-           "InitialAttitude", "SensorNoise", "campaign_config"]
+           "HardwareDispersions", "InitialAttitude", "SensorNoise", "campaign_config"]
 
 Array = NDArray[np.float64]
 
@@ -189,6 +190,58 @@ class FaultDispersion:
 
 
 @dataclass(frozen=True)
+class HardwareDispersions:
+    """Per-run draws of the scenario's reaction wheels and sensors (each needs the section it
+    disperses: ``actuator.kind: reaction_wheels``, ``sensors.star_tracker``, ``sensors.gyro``).
+    Scalar distributions, drawn independently per wheel or per axis; a ``*_relative`` draw ``u``
+    multiplies the nominal value by ``1 + u`` (``u > -1`` for an inertia, a torque limit or a
+    sigma: uniform with ``low > -1``, or normal, whose rare draws below -1 stop the run's set-up).
+
+    Attributes
+    ----------
+    wheel_spin_inertia_relative, wheel_max_torque_relative, wheel_friction_relative : Distribution
+        Per wheel: ``Js``, the motor torque limit, and both friction coefficients.
+    wheel_initial_speed_rad_s : Distribution
+        Per wheel, added to the initial speed [rad/s].
+    star_tracker_noise_relative : Distribution
+        Per axis, the tracker's sigma.
+    gyro_initial_bias_rad_s : Distribution
+        Per axis, added to the gyro's initial bias [rad/s].
+    """
+
+    wheel_spin_inertia_relative: Distribution | None = None
+    wheel_max_torque_relative: Distribution | None = None
+    wheel_friction_relative: Distribution | None = None
+    wheel_initial_speed_rad_s: Distribution | None = None
+    star_tracker_noise_relative: Distribution | None = None
+    gyro_initial_bias_rad_s: Distribution | None = None
+    #: Wheels of the scenario (set by :func:`campaign_config`): how many per-wheel values a run draws.
+    n_wheels: int = dataclasses.field(default=0, init=False)
+
+    def __post_init__(self) -> None:
+        for name, dist in self.items():
+            dist.check_shape(f"dispersions.hardware.{name}", ())
+
+    def items(self) -> list[tuple[str, Distribution]]:
+        return [(f.name, getattr(self, f.name)) for f in dataclasses.fields(self) if f.init and getattr(self, f.name) is not None]
+
+    def check_against(self, scenario: Scenario) -> None:
+        """Each dispersion needs the section it disperses; records the scenario's wheel count."""
+        for name, _ in self.items():
+            missing = (("actuator.kind: reaction_wheels" if name.startswith("wheel_") and scenario.wheels is None else None)
+                       or ("sensors.star_tracker" if name.startswith("star_tracker_") and (scenario.sensors is None or scenario.sensors.star_tracker is None)
+                           else None)
+                       or ("sensors.gyro" if name.startswith("gyro_") and (scenario.sensors is None or scenario.sensors.gyro is None) else None))
+            if missing:
+                raise ConfigError(f"montecarlo.dispersions.hardware.{name} needs the scenario's {missing}")
+        object.__setattr__(self, "n_wheels", 0 if scenario.wheels is None else scenario.wheels.n)
+
+    def draw(self, rng: np.random.Generator) -> dict[str, Array]:
+        """One run's draws: (n_wheels,) per wheel, (3,) per axis, in the order of the fields."""
+        return {name: dist.draw(rng, (self.n_wheels,) if name.startswith("wheel_") else (3,)) for name, dist in self.items()}
+
+
+@dataclass(frozen=True)
 class Dispersions:
     """What varies from run to run besides the initial attitude (all optional).
 
@@ -207,6 +260,8 @@ class Dispersions:
         Per-run controller gains (``K_q``, ``K_omega``, ``D_m_Nm``, ``mu_rad_s``).
     faults : FaultDispersion
         One drawn fault per run (kind, start, duration), added to the scenario's faults.
+    hardware : HardwareDispersions
+        The scenario's reaction wheels and sensors, per run.
     """
 
     initial_rate_rad_s: Distribution | None = None
@@ -216,6 +271,7 @@ class Dispersions:
     sensor_noise: SensorNoise = SensorNoise()
     gains: GainDispersions = GainDispersions()
     faults: FaultDispersion | None = None
+    hardware: HardwareDispersions = HardwareDispersions()
 
 
 @dataclass(frozen=True)
@@ -283,4 +339,5 @@ def campaign_config(scenario: Scenario) -> CampaignConfig:
     if section is None:
         raise ConfigError(f"scenario {scenario.name!r} has no 'montecarlo' section")
     config: CampaignConfig = from_mapping(CampaignConfig, section, "montecarlo")
+    config.dispersions.hardware.check_against(scenario)
     return config

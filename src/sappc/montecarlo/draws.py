@@ -17,11 +17,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.attitude import euler_to_quaternion
+from gnc_common.validation import ConfigError
 from spacecraft_sim.core.disturbance import DisturbanceSum, PaperPeriodic
+from spacecraft_sim.core.sensors import S_BIAS0, ST_SIGMA
+from spacecraft_sim.core.wheels import ReactionWheels
 from sappc.montecarlo.config import CampaignConfig
 from sappc.scenario import Scenario
 
-__all__ = ["NOISE_BLOCK", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_faults", "run_generators", "sensor_noise_draws"]
+__all__ = ["NOISE_BLOCK", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_faults", "run_generators", "run_hardware", "sensor_noise_draws"]
 
 #: Samples of sensor noise drawn per call of the run's noise generator (``standard_normal((NOISE_BLOCK, 6))``,
 #: block after block): the sequence campaigns have always used.
@@ -45,6 +48,7 @@ class RunInputs:
     fault_choice: NDArray[np.int64]  # index into dispersions.faults.choices (-1: no fault dispersion)
     fault_start_s: Array
     fault_duration_s: Array  # inf: to the end
+    hardware: dict[str, Array] = dataclasses.field(default_factory=dict)  # per name (n, W or 3): HardwareDispersions
 
 
 def run_generators(seed: int, run: int) -> tuple[np.random.Generator, np.random.Generator]:
@@ -66,8 +70,9 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
         scale = float(d.disturbance_scale.draw(rng, ())) if d.disturbance_scale else 1.0
         phase = float(d.disturbance_phase_rad.draw(rng, ())) if d.disturbance_phase_rad else 0.0
         gains = {name: float(dist.draw(rng, ())) for name, dist in d.gains.items()}
-        fault = d.faults.draw(rng) if d.faults is not None else (-1, np.nan, np.nan)  # drawn last: older campaigns keep their draws
-        rows.append((euler, rate, inertia, scale, phase, gains, fault))
+        fault = d.faults.draw(rng) if d.faults is not None else (-1, np.nan, np.nan)  # after the older ones: older campaigns keep their draws
+        hardware = d.hardware.draw(rng)  # (none unless dispersed: no draw taken)
+        rows.append((euler, rate, inertia, scale, phase, gains, fault, hardware))
     euler = np.array([r[0] for r in rows]).reshape(-1, 3)
     return RunInputs(
         runs=runs_arr,
@@ -82,7 +87,44 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
         fault_choice=np.array([r[6][0] for r in rows], dtype=np.int64),
         fault_start_s=np.array([r[6][1] for r in rows], dtype=np.float64),
         fault_duration_s=np.array([r[6][2] for r in rows], dtype=np.float64),
+        hardware={name: np.array([r[7][name] for r in rows]).reshape(len(rows), -1) for name, _ in d.hardware.items()},
     )
+
+
+def run_hardware(scenario: Scenario, inputs: RunInputs) -> tuple[list[ReactionWheels] | None, Array | None]:
+    """Each run's wheel set and sensor parameters (``Sensors.params`` rows) with its hardware
+    dispersions applied; ``None`` where nothing of that kind is dispersed (the scenario's)."""
+    hw, n = inputs.hardware, inputs.runs.size
+    wheels = None
+    if scenario.wheels is not None and any(k.startswith("wheel_") for k in hw):
+        w0 = scenario.wheels
+        one = np.ones((n, w0.n))
+
+        def scaled(attr: str, key: str) -> Array:
+            return w0.per_wheel(attr)[None] * (1.0 + hw[key] if key in hw else one)
+
+        speed = w0.per_wheel("initial_speed_rad_s")[None] + hw.get("wheel_initial_speed_rad_s", 0.0 * one)
+        cols = {"spin_inertia_kg_m2": scaled("spin_inertia_kg_m2", "wheel_spin_inertia_relative"),
+                "max_torque_Nm": scaled("max_torque_Nm", "wheel_max_torque_relative"),
+                "coulomb_friction_Nm": scaled("coulomb_friction_Nm", "wheel_friction_relative"),
+                "viscous_friction_Nm_s": scaled("viscous_friction_Nm_s", "wheel_friction_relative"), "initial_speed_rad_s": speed}
+        wheels = []
+        for k in range(n):
+            try:
+                changes: dict[str, Any] = {a: tuple(float(v) for v in c[k]) for a, c in cols.items()}
+                wheels.append(dataclasses.replace(w0, **changes))
+            except ConfigError as exc:
+                raise ConfigError(f"montecarlo.dispersions.hardware: run {int(inputs.runs[k])} drew an invalid wheel set: {exc}") from None
+    sensors = None
+    if scenario.sensors is not None and ("star_tracker_noise_relative" in hw or "gyro_initial_bias_rad_s" in hw):
+        sensors = np.tile(scenario.sensors.params(scenario.control_period_s), (n, 1))
+        if "star_tracker_noise_relative" in hw:
+            if np.any(hw["star_tracker_noise_relative"] < -1.0):
+                raise ConfigError("montecarlo.dispersions.hardware.star_tracker_noise_relative drew a value below -1 (a negative sigma)")
+            sensors[:, ST_SIGMA:ST_SIGMA + 3] *= 1.0 + hw["star_tracker_noise_relative"]
+        if "gyro_initial_bias_rad_s" in hw:
+            sensors[:, S_BIAS0:S_BIAS0 + 3] += hw["gyro_initial_bias_rad_s"]
+    return wheels, sensors
 
 
 def run_faults(scenario: Scenario, cfg: CampaignConfig, inputs: RunInputs) -> list[tuple[Any, ...]] | None:

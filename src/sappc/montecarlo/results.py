@@ -106,6 +106,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
 
     gain_keys = [k for k in tab if k.startswith("gain_")]
     wheel_keys = [k for k in WHEEL_COLUMNS if k in tab]
+    hw_cols = [(k, i) for k in tab if k.startswith("hw_") for i in range(np.asarray(tab[k]).reshape(runs, -1).shape[1])]
     dispersed = cfg.dispersions.faults is not None
     fault_kinds = [str(c["kind"]) for c in cfg.dispersions.faults.choices] if cfg.dispersions.faults is not None else []
     with (out / "runs.csv").open("w", newline="") as f:
@@ -118,7 +119,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
             + [f"steady_mean_abs_qev_{i}" for i in _AXES] + ["steady_mean_abs_qev", "steady_max_abs_qev", "settling_time_s",
                                                            "max_abs_torque_Nm", "torque_sign_changes_per_s", "torque_reversals_per_s",
                                                            "rpf_clamped_components", "rpf_flat_components"]
-            + [f"answers_{name}" for name in ANSWER_NAMES] + wheel_keys + (["fault_kind", "fault_start_s", "fault_end_s"] if dispersed else [])
+            + [f"answers_{name}" for name in ANSWER_NAMES] + wheel_keys + [f"{k[3:]}_{i + 1}" for k, i in hw_cols] + (["fault_kind", "fault_start_s", "fault_end_s"] if dispersed else [])
         )
         for k in range(runs):
             w.writerow(
@@ -133,6 +134,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
                    f"{tab['max_abs_torque_Nm'][k]:.17g}", f"{tab['torque_sign_changes_per_s'][k]:.17g}",
                    f"{tab['torque_reversals_per_s'][k]:.17g}", int(tab["rpf_clamped"][k].sum()), int(tab["rpf_flat"][k].sum())]
                 + [int(tab[f"answers_{name}"][k]) for name in ANSWER_NAMES] + [f"{tab[w][k]:.17g}" for w in wheel_keys]
+                + [f"{np.asarray(tab[h]).reshape(runs, -1)[k, i]:.17g}" for h, i in hw_cols]
                 + ([fault_kinds[int(tab["fault_choice"][k])], f"{tab['fault_start_s'][k]:.17g}",
                     f"{tab['fault_start_s'][k] + tab['fault_duration_s'][k]:.17g}"] if dispersed else [])
             )

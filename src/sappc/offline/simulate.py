@@ -103,6 +103,7 @@ def run_scenario(
     gains: dict[str, np.ndarray] | None = None,
     faults: list[tuple[Any, ...]] | None = None,
     sensors: tuple[np.ndarray, Callable[[int, int], np.ndarray]] | None = None,
+    wheels: list[Any] | None = None,
     keep_history: bool = False,
     trajectory: tuple[int, int] | None = None,
     sub_batch: int = SUB_BATCH,
@@ -122,7 +123,8 @@ def run_scenario(
     (:meth:`spacecraft_sim.core.sensors.Sensors.params`, (13,) or one row per run) and
     ``draws(lo, hi)`` the standard normals (hi - lo, T, 6 or 9) of runs ``lo .. hi - 1``; by
     default the scenario's ``sensors``, every run with the draws of its ``seed``
-    (:func:`~sappc.offline.compiled_loop.prepare`).
+    (:func:`~sappc.offline.compiled_loop.prepare`).  ``wheels``: one
+    :class:`~spacecraft_sim.core.wheels.ReactionWheels` per run (dispersed), else the scenario's.
     ``trajectory = (n, stride)`` keeps q_ev and rho of the first ``n`` runs every ``stride``
     samples.  ``progress(n)`` is called after each sub-batch with its number of runs.
 
@@ -137,7 +139,7 @@ def run_scenario(
     inp = compiled_loop.prepare(
         scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
         disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
-        sensor_params=None if sensors is None else sensors[0], faults=faults,
+        sensor_params=None if sensors is None else sensors[0], faults=faults, wheels=wheels,
     )
     draws = None if sensors is None else sensors[1]
 

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from gnc_common.compiled import jit, quat_multiply, quat_normalize
 from gnc_common.validation import ConfigError
 
-__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "Gyro", "Sensors", "StarTracker", "measure", "white_noise_params"]
+__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "Sensors", "StarTracker", "measure", "white_noise_params"]
 
 Array = NDArray[np.float64]
 
@@ -46,8 +46,10 @@ N_SENSOR_DRAWS = 9
 #: sigma per sample (3), bias step sigma per sample (3), initial bias (3).
 N_SENSOR_PARAMS = 13
 _ST_SIGMA, _ST_STRIDE, _G_SIGMA, _G_WALK, _G_BIAS0 = 0, 3, 4, 7, 10
-#: Column of the gyro's initial bias in :meth:`Sensors.params` (the loop starts its bias there).
+#: Columns of :meth:`Sensors.params`: the gyro's initial bias (the loop starts its bias there) and
+#: the tracker's sigmas (campaigns scale them per run).
 S_BIAS0 = _G_BIAS0
+ST_SIGMA = _ST_SIGMA
 #: Rounding allowed when the tracker's period is checked to be a whole number of control periods.
 _STRIDE_TOL = 1e-9
 

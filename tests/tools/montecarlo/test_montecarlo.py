@@ -257,14 +257,25 @@ def test_a_campaign_with_the_scenarios_sensors_and_wheels_draws_each_runs_sensor
     raw["actuator"] = {**wheels, "max_torque_Nm": raw["actuator"]["max_torque_Nm"]}
     raw["sensors"] = {"star_tracker": {"noise_rad": [5e-6, 5e-6, 3e-5], "rate_hz": 10.0},
                       "gyro": {"angle_random_walk_rad_sqrt_s": 1.5e-6, "bias_random_walk_rad_s_sqrt_s": 1e-9}, "seed": 3}
+    uniform = {"distribution": "uniform", "low": -0.1, "high": 0.1}
+    raw["montecarlo"]["dispersions"]["hardware"] = {
+        "wheel_spin_inertia_relative": uniform, "wheel_max_torque_relative": uniform, "wheel_friction_relative": uniform,
+        "wheel_initial_speed_rad_s": {"distribution": "normal", "mean": 0.0, "sigma": 5.0}, "star_tracker_noise_relative": uniform,
+        "gyro_initial_bias_rad_s": {"distribution": "normal", "mean": 0.0, "sigma": 2e-6}}
     path = tmp_path / "sensors.yaml"
     path.write_text(yaml.safe_dump(raw))
     run_campaign(str(path), runs=3, seed=2, out_dir=tmp_path / "s", progress=False)
     table = np.genfromtxt(tmp_path / "s" / "runs.csv", delimiter=",", names=True)
     assert "max_abs_wheel_speed_rad_s" in table.dtype.names and np.all(table["max_abs_wheel_speed_rad_s"] > 0)
+    assert {"wheel_spin_inertia_relative_4", "gyro_initial_bias_rad_s_3"} <= set(table.dtype.names)  # the draws, per wheel and axis
+    assert len(set(table["wheel_initial_speed_rad_s_1"])) == 3 and np.all(np.abs(table["wheel_friction_relative_2"]) <= 0.1)
     _, row, metrics, _ = load_campaign_run(tmp_path / "s", 1)
     assert metrics["steady_mean_abs_qev"] == table["steady_mean_abs_qev"][1]
     assert metrics["max_abs_wheel_speed_rad_s"] == table["max_abs_wheel_speed_rad_s"][1]
+    no_wheels = copy.deepcopy(raw)
+    no_wheels["actuator"] = {"max_torque_Nm": 0.5, "min_torque_Nm": 0.005}
+    with pytest.raises(ConfigError, match="hardware.wheel_spin_inertia_relative needs the scenario's actuator.kind: reaction_wheels"):
+        campaign_config(scenario_from_mapping(no_wheels))
     raw["montecarlo"]["dispersions"]["sensor_noise"] = {"attitude_sigma_rad": 1e-7, "rate_sigma_rad_s": 1e-7}
     path.write_text(yaml.safe_dump(raw))
     with pytest.raises(ConfigError, match="sensor_noise and the scenario's sensors"):
