@@ -30,7 +30,7 @@ from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_li
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
 from spacecraft_sim.core.sensors import Sensors
-from spacecraft_sim.core.wheels import ReactionWheels
+from spacecraft_sim.core.wheels import ReactionWheels, wheels_from_mapping
 from gnc_common.validation import (
     ConfigError,
     InputError,
@@ -397,15 +397,7 @@ def _actuator_from_mapping(data: Any) -> tuple[ActuatorConfig, ReactionWheels | 
         return actuator, None
     if wheels_raw is None:
         raise ConfigError("missing key actuator.wheels (actuator.kind: reaction_wheels)")
-    if isinstance(wheels_raw, dict) and isinstance(wheels_raw.get("spin_axes_B"), list):
-        wheels_raw = {**wheels_raw, "spin_axes_B": [tuple(a) if isinstance(a, list) else a for a in wheels_raw["spin_axes_B"]]}
-    try:
-        wheels = from_mapping(ReactionWheels, wheels_raw, "actuator.wheels")
-    except ConfigError as exc:  # the model's own checks name the bare key: name it in full
-        msg = str(exc)
-        if msg.startswith("actuator.wheels: "):
-            msg = "actuator.wheels." + msg[len("actuator.wheels: "):]
-        raise ConfigError(msg) from None
+    wheels = wheels_from_mapping(wheels_raw, "actuator.wheels")
     return actuator, wheels
 
 

@@ -19,7 +19,15 @@ topic                         type                            frame_id    conten
 ``/clock``                    rosgraph_msgs/Clock             (none)      simulation time (lockstep mode)
 ``state/tf``                  geometry_msgs/TransformStamped  ``inertial`` frame ``body`` in ``inertial``: rotation ``q_BN``
 ``reference/tf``              geometry_msgs/TransformStamped  ``inertial`` frame ``reference`` in ``inertial``: ``q_RN``
+``joint_states``              sensor_msgs/JointState          ``body``     reaction wheels (a plant with wheels only)
 ============================  ==============================  ==========  =========================================
+
+``joint_states`` follows the ROS convention of one joint per wheel: ``name`` ``wheel_1`` ..
+``wheel_N``, ``velocity`` each wheel's speed relative to the body [rad/s], ``effort`` its motor
+torque [N m] (what the allocation and the motor and speed limits made of the commanded body
+torque), ``position`` empty (wheel angles are not modelled).  Stamped with the sample's stamp
+``t_k``: the speed at ``t_k`` and the torque applied over ``[t_k, t_k+1]`` (the offline loop
+records the same).  The controller does not consume it.
 
 Frames (:class:`Frame`): ``inertial`` (N, the fixed parent), ``body`` (B) and ``reference`` (R, the
 desired attitude).  The two transform topics make the attitude visible to tf-style tools (Foxglove's
@@ -93,6 +101,7 @@ __all__ = [
     "TOPICS",
     "TRANSFORM_TOPICS",
     "Topic",
+    "WHEEL_STATES",
     "consumed_names",
     "faulty",
     "qos_profile",
@@ -162,6 +171,7 @@ CONTROLLER_DIAGNOSTICS = Topic("controller/diagnostics", "std_msgs/msg/Float64Mu
 CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", None)
 STATE_TF = Topic("state/tf", "geometry_msgs/msg/TransformStamped", Frame.INERTIAL.value, Frame.BODY.value)
 REFERENCE_TF = Topic("reference/tf", "geometry_msgs/msg/TransformStamped", Frame.INERTIAL.value, Frame.REFERENCE.value)
+WHEEL_STATES = Topic("joint_states", "sensor_msgs/msg/JointState", Frame.BODY.value)
 
 #: Prefix of the topics a fault relay republishes.
 FAULT_PREFIX = "fault/"
@@ -227,6 +237,7 @@ TOPICS = (
     CLOCK,
     STATE_TF,
     REFERENCE_TF,
+    WHEEL_STATES,
 )
 
 #: The attitude as frames (body and reference relative to inertial), for visualisation only: no

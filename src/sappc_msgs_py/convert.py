@@ -30,6 +30,7 @@ from gnc_common.validation import InputError, as_finite_array
 from sappc_msgs_py.contract import (
     CONTROL_TORQUE,
     DIAGNOSTICS_LAYOUT,
+    WHEEL_STATES,
     Topic,
 )
 
@@ -37,6 +38,7 @@ __all__ = [
     "clock_msg",
     "diagnostics_from_msg",
     "diagnostics_msg",
+    "joint_state_msg",
     "ns_to_stamp",
     "cdr_stamp_ns",
     "quaternion_from_msg",
@@ -50,6 +52,7 @@ __all__ = [
     "transform_msg",
     "vector3_from_msg",
     "vector3_msg",
+    "wheel_names",
 ]
 
 Array = NDArray[np.float64]
@@ -115,7 +118,8 @@ def seconds_to_ns(t_s: float) -> int:
 #: or ``rosgraph_msgs/Clock``'s clock): ``int32 sec, uint32 nanosec`` after the 4-byte
 #: encapsulation header.
 _STAMP_FIRST = frozenset({"geometry_msgs/msg/QuaternionStamped", "geometry_msgs/msg/Vector3Stamped",
-                          "geometry_msgs/msg/WrenchStamped", "geometry_msgs/msg/TransformStamped", "rosgraph_msgs/msg/Clock"})
+                          "geometry_msgs/msg/WrenchStamped", "geometry_msgs/msg/TransformStamped", "rosgraph_msgs/msg/Clock",
+                          "sensor_msgs/msg/JointState"})
 _DIAGNOSTICS_TYPE = "std_msgs/msg/Float64MultiArray"
 
 
@@ -217,6 +221,26 @@ def torque_from_msg(msg: Any, topic: Topic = CONTROL_TORQUE) -> Array:
     _check_frame(msg, topic)
     tq = msg.wrench.torque
     return _finite(topic, "torque", [tq.x, tq.y, tq.z])
+
+
+def wheel_names(n: int) -> list[str]:
+    """The joint names of ``n`` wheels on ``joint_states``: ``wheel_1`` .. ``wheel_n``."""
+    return [f"wheel_{i + 1}" for i in range(n)]
+
+
+def joint_state_msg(speed_rad_s: ArrayLike, torque_Nm: ArrayLike, t_s: float, out: Any = None) -> Any:
+    """A ``JointState`` of the wheels (``WHEEL_STATES``): ``velocity`` the speeds relative to the
+    body [rad/s], ``effort`` the motor torques [N m], ``position`` empty; or ``out`` filled (its
+    names are set once, when it is built here or has none)."""
+    speed, torque = np.asarray(speed_rad_s, dtype=np.float64), np.asarray(torque_Nm, dtype=np.float64)
+    n = speed.shape[0] if speed.ndim == 1 else -1
+    v = _encode(f"{WHEEL_STATES.name} velocity", speed, n)
+    e = _encode(f"{WHEEL_STATES.name} effort", torque, n)
+    msg = _header(WHEEL_STATES.msg_class() if out is None else out, t_s, WHEEL_STATES.frame_id)
+    if len(msg.name) != n:
+        msg.name = wheel_names(n)
+    msg.velocity, msg.effort = v, e
+    return msg
 
 
 def transform_msg(topic: Topic) -> Any:

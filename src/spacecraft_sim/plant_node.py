@@ -39,6 +39,13 @@ Control torques are clipped to ``max_torque_Nm`` per axis (the actuator cannot d
 commanded); a torque message that is non-finite or in the wrong frame is rejected, counted and
 logged, and the previous value is held.
 
+Reaction wheels (parameter ``wheels``, the scenario's ``actuator.wheels`` mapping as JSON): the
+held body-torque command goes through the wheels (:mod:`spacecraft_sim.core.wheels`: allocation,
+motor and speed limits, their momentum in the dynamics) instead of the per-axis clip, and each
+sample's wheel speeds and motor torques are published on ``joint_states``
+(``sensor_msgs/JointState``, stamped with the sample), before the plant integrates over it: the
+offline loop's order and kernels, so a lockstep bag equals the offline run.
+
 Parameters: :data:`PARAMETERS` (``python -m spacecraft_sim --help``), and those of
 :class:`~sappc_msgs_py.runtime.ProjectNode`.
 """
@@ -53,9 +60,10 @@ from typing import Any
 
 import numpy as np
 
-from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, STATE_TF, qos_profile
+from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, STATE_TF, WHEEL_STATES, qos_profile
 from sappc_msgs_py.convert import (
     clock_msg,
+    joint_state_msg,
     ns_to_stamp,
     quaternion_msg,
     stamp_to_ns,
@@ -71,6 +79,7 @@ from sappc_msgs_py.timeline import AHEAD_FRAMES, PLANT_PHASE, StampedWindow, fra
 from gnc_common.timing import LatencyStatistics, PeriodStatistics
 
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
+from spacecraft_sim.core.wheels import ReactionWheels, allocation_matrix, propagate_wheels_into, wheel_speeds_into, wheel_torques, wheels_from_mapping
 from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
 
 __all__ = ["PARAMETERS", "PlantNode", "main"]
@@ -91,6 +100,8 @@ PARAMETERS = (
     MODE,
     Param("lockstep_timeout_s", 2.0, "lockstep: wall time a sample waits for its torque (and disturbance) before the last value is held",
           "s", check="> 0"),
+    Param("wheels", "", "reaction wheels: the scenario's actuator.wheels mapping as JSON (spin_axes_B, spin_inertia_kg_m2, "
+          "max_torque_Nm, max_speed_rad_s, ...); '' for the ideal actuator", check="a JSON mapping of ReactionWheels, or ''"),
     Param("use_disturbance_topic", False, "add the torque received on disturbance/torque (the injector's) to the control torque"),
     Param("timing_file", "", "where to write the run's timing (JSON: wall time from the first sample, samples, misses; real time: the "
           "timer's period error, missed frames, frames with a stale torque); '' for none"),
@@ -124,6 +135,16 @@ class PlantNode(ProjectNode):
         self.timing_file = str(self.param(_P["timing_file"]))
         self._wall_first: float | None = None
         self.n_steps = int(round(duration / self.dt))  # samples k = 0 .. n_steps, as sample_times()
+        self.wheels = _wheels_param(str(self.param(_P["wheels"])))
+        if self.wheels is not None:  # state (q, omega, h), scratch and the allocation, once
+            w = self.wheels
+            self.xw = np.concatenate((self.x[0], w.initial_momentum(self.x[0, 4:])))
+            self._G, self._Gp, self._wprm = w.G, allocation_matrix(w.G), w.params()
+            self._J, self._J_inv = np.ascontiguousarray(self.body.J), np.ascontiguousarray(np.linalg.inv(self.body.J))
+            self._u_wheels, self._speeds = np.zeros(w.n), np.zeros(w.n)
+            self._wwork, self._wtmp = np.zeros((5, 7 + w.n)), np.zeros((3, 3))
+            self.pub_wheels = self.counting_publisher(WHEEL_STATES)
+            self._step_wheels(np.zeros(3), np.zeros(3), None)  # load the compiled kernels now, not at the first sample (state kept)
 
         self.body.propagate(self.x, np.zeros((1, 3)), self.dt, self.substeps)  # load the compiled plant now, not at the first sample
         qos = qos_profile()
@@ -168,7 +189,7 @@ class PlantNode(ProjectNode):
     def _decode(self, msg: Any, topic: Any) -> np.ndarray | None:
         try:
             torque = torque_from_msg(msg, topic).reshape(1, 3)
-            if topic is CONTROL_TORQUE:  # the actuator's limit; an external disturbance has none
+            if topic is CONTROL_TORQUE and self.wheels is None:  # the ideal actuator's limit; the wheels have their own
                 torque = np.minimum(np.maximum(torque, -self.max_torque), self.max_torque)
             return torque
         except InputError as exc:
@@ -245,9 +266,14 @@ class PlantNode(ProjectNode):
                 del box[old]
         self._waiting_ns = None
         if self.k >= self.n_steps:  # the last sample's torque is received (and recorded), not applied
+            if self.wheels is not None:
+                self._wheel_command(self.torque[0], self.k * self.dt)
             self.finished = True
             return
-        self.x = self.body.propagate(self.x, self.torque + self.disturbance, self.dt, self.substeps)
+        if self.wheels is not None:
+            self._step_wheels(self.torque[0], self.disturbance[0], self.k * self.dt)
+        else:
+            self.x = self.body.propagate(self.x, self.torque + self.disturbance, self.dt, self.substeps)
         self.k += 1
         self._publish_sample()
 
@@ -284,13 +310,36 @@ class PlantNode(ProjectNode):
                 self.stale_torque_frames += self._torque_ns is not None and self._torque_ns < stamp_ns  # once the controller answers
                 held = self._disturbances.at_or_before(stamp_ns)
                 disturbance = held[1] if held is not None else self.disturbance
-                self.x = self.body.propagate(self.x, self.torque + disturbance, self.dt, self.substeps)
+                if self.wheels is not None:
+                    self._step_wheels(self.torque[0], disturbance[0], ns_to_stamp(stamp_ns))
+                else:
+                    self.x = self.body.propagate(self.x, self.torque + disturbance, self.dt, self.substeps)
         self._frame = f
         self.k = f - self._frame0
         self._publish_state(ns_to_stamp(f * self.dt_ns))
         self.tick_delay.add(self.get_clock().now().nanoseconds - f * self.dt_ns)
         if self.n_steps and self.k >= self.n_steps:
             self.finished = True
+
+    # ---- reaction wheels -------------------------------------------------------------------
+    def _wheel_command(self, torque_B: np.ndarray, t_s: Any) -> None:
+        """The motor torques for the held command at the current state, published with the speeds
+        on ``joint_states`` stamped ``t_s`` (``None``: not published)."""
+        wheel_torques(np.ascontiguousarray(torque_B, dtype=np.float64), self._Gp, self._G, self._wprm, self.xw, self._u_wheels)
+        if t_s is not None:
+            wheel_speeds_into(self.xw, self._G, self._wprm, self._speeds)
+            self.pub_wheels.publish(joint_state_msg(self._speeds, self._u_wheels, t_s, out=self.pub_wheels.msg))
+
+    def _step_wheels(self, torque_B: np.ndarray, disturbance_B: np.ndarray, t_s: Any) -> None:
+        """One sample period with the wheels: the command (published at ``t_s``), then the
+        integration with the motor torques and the disturbance held (``t_s`` ``None``: warm-up, the
+        state is left as it was)."""
+        self._wheel_command(torque_B, t_s)
+        x = self.xw if t_s is not None else self.xw.copy()
+        propagate_wheels_into(x, self._u_wheels, np.ascontiguousarray(disturbance_B, dtype=np.float64), self.dt, self.substeps,
+                              self._J, self._J_inv, self._G, self._wprm, self._wwork, self._wtmp)
+        if t_s is not None:
+            self.x = x[None, :7].copy()
 
     def _publish_state(self, t_s: Any) -> None:
         if self._wall_first is None:
@@ -310,6 +359,17 @@ class PlantNode(ProjectNode):
                 timing.update(self.tick_stats.summary(), missed_frames=self.missed_frames, stale_torque_frames=self.stale_torque_frames,
                               state_delay={k.replace("latency", "delay"): v for k, v in self.tick_delay.summary().items()})
             Path(self.timing_file).write_text(json.dumps(timing))
+
+
+def _wheels_param(text: str) -> ReactionWheels | None:
+    """The ``wheels`` parameter: ``''`` (the ideal actuator) or a JSON mapping; errors name ``wheels.<key>``."""
+    if not text.strip():
+        return None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"wheels must be a JSON mapping of the wheel set or '', got {text!r} ({exc.msg})") from None
+    return wheels_from_mapping(data, "wheels")
 
 
 def main(argv: list[str] | None = None) -> int:

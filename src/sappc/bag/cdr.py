@@ -15,6 +15,11 @@ from the end of the 4-byte encapsulation header):
     contract's transforms have zero translation), the header frame ids are reported.
 ``rosgraph_msgs/Clock``
     ``int32 sec`` @0, ``uint32 nanosec`` @4.
+``sensor_msgs/JointState`` (``joint_states``: the wheels)
+    the header, ``sequence<string> name`` (at the next multiple of 4), then ``sequence<float64>``
+    position (empty in the contract), velocity and effort (each count at a multiple of 4, its
+    doubles at the next multiple of 8).  Parsed in Python for the first message of a group, the
+    others checked to carry the same frame id, names and counts (as for the multiarray below).
 ``std_msgs/Float64MultiArray``
     ``sequence<MultiArrayDimension{string label, uint32 size, uint32 stride}> dim``,
     ``uint32 data_offset``, ``sequence<float64> data`` (the doubles aligned to 8).  Parsed in
@@ -242,6 +247,92 @@ def _decode_multiarray(u8: NDArray[np.uint8], start: NDArray[np.int64], length: 
     return out
 
 
+#: Bytes allowed after a ``JointState``'s last double (see :func:`_parse_joint_state`).
+_TRAILING = 8
+
+
+def _parse_joint_state(payload: bytes) -> tuple[list[str], str, int, int, int, NDArray[np.bool_]]:
+    """(joint names, frame id, absolute offsets of the velocities and of the efforts, number of
+    joints, meaningful bytes) of one ``sensor_msgs/JointState`` with no positions and as many velocities and efforts
+    as names (the contract's ``joint_states``).  Up to :data:`_TRAILING` bytes after the last
+    double are allowed (rclpy's serializer was seen to leave 8 there).  The meaningful bytes are those the parse reads
+    except the stamp (which differs from message to message): the encapsulation kind, the frame
+    id, the names and the counts.  Raises ``ValueError`` (or ``struct.error``) otherwise."""
+    if tuple(payload[:2]) != _CDR_LE:
+        raise ValueError("not little-endian CDR")
+    body = memoryview(payload)[_BODY:]
+    read = [(0, 2)]
+    (flen,) = struct.unpack_from("<I", body, 8)
+    frame = bytes(body[12 : 12 + flen - 1]).decode("utf-8") if flen else ""
+    read.append((_BODY + 8, _BODY + 12 + flen))
+    off = (12 + flen + 3) // 4 * 4
+    (n,) = struct.unpack_from("<I", body, off)
+    read.append((_BODY + off, _BODY + off + 4))
+    off += 4
+    names = []
+    for _ in range(n):
+        (m,) = struct.unpack_from("<I", body, off)
+        names.append(bytes(body[off + 4 : off + 4 + m - 1]).decode("utf-8") if m else "")
+        read.append((_BODY + off, _BODY + off + 4 + m))
+        off = (off + 4 + m + 3) // 4 * 4
+    (npos,) = struct.unpack_from("<I", body, off)
+    read.append((_BODY + off, _BODY + off + 4))
+    if npos != 0:
+        raise ValueError("joint positions are not part of the contract's joint_states")
+    off += 4
+    (nvel,) = struct.unpack_from("<I", body, off)
+    read.append((_BODY + off, _BODY + off + 4))
+    vel_at = (off + 4 + 7) // 8 * 8 if nvel else off + 4
+    off = vel_at + 8 * nvel
+    (neff,) = struct.unpack_from("<I", body, off)
+    read.append((_BODY + off, _BODY + off + 4))
+    eff_at = (off + 4 + 7) // 8 * 8 if neff else off + 4
+    if nvel != n or neff != n or not 0 <= len(body) - (eff_at + 8 * neff) <= _TRAILING:
+        raise ValueError(f"{n} joints, {nvel} velocities, {neff} efforts do not fill the message")
+    meaningful = np.zeros(_BODY + eff_at, dtype=bool)
+    for begin, end in read:
+        meaningful[begin:end] = True
+    return names, frame, _BODY + vel_at, _BODY + eff_at, n, meaningful
+
+
+def _decode_joint_state(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]) -> Decoded:
+    """``sensor_msgs/JointState`` (the wheels): values (velocities, then efforts), labels the joint names."""
+    parts: list[tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], list[str]]] = []
+    frames: set[str] = set()
+    slow = 0
+    for pos, rows in _groups(u8, start, length):
+        try:
+            names, frame, vel_at, eff_at, n, meaningful = _parse_joint_state(bytes(rows[0]))
+        except (ValueError, struct.error):
+            names, frame, vel_at, eff_at, n, meaningful = [], "", -1, -1, 0, np.zeros(0, bool)
+        same = np.zeros(rows.shape[0], bool)
+        if vel_at > 0:
+            cols = np.flatnonzero(meaningful)
+            same = (rows[:, cols] == rows[0, cols]).all(axis=1)
+        if same.any():
+            r = rows[same]
+            parts.append((pos[same], _stamp_ns(r), np.hstack((_col(r, vel_at, vel_at + 8 * n, "<f8"), _col(r, eff_at, eff_at + 8 * n, "<f8"))), names))
+            frames.add(frame)
+        for k in np.flatnonzero(~same):  # another layout in a message of the same length
+            try:
+                names_k, frame_k, at, eff, nk, _ = _parse_joint_state(bytes(rows[k]))
+            except (ValueError, struct.error):
+                continue
+            slow += 1
+            raw = bytes(rows[k])
+            vals = np.concatenate((np.frombuffer(raw[at : at + 8 * nk], "<f8"), np.frombuffer(raw[eff : eff + 8 * nk], "<f8")))[None, :]
+            parts.append((pos[k : k + 1], _stamp_ns(rows[k : k + 1]), vals, names_k))
+            frames.add(frame_k)
+    width = max([v.shape[1] for _, _, v, _ in parts] + [0])
+    out = _assemble([p for p, _, _, _ in parts], [s for _, s, _, _ in parts],
+                    [np.pad(v, ((0, 0), (0, width - v.shape[1])), constant_values=np.nan) for _, _, v, _ in parts], width, length.size,
+                    frame_ids=tuple(sorted(frames)))
+    if parts:
+        out.labels = tuple(max(parts, key=lambda part: part[0].size)[3])
+    out.slow_path = slow
+    return out
+
+
 def _assemble(idx: list[NDArray[np.int64]], stamps: list[NDArray[np.int64]], vals: list[NDArray[np.float64]], width: int, total: int,
               frame_ids: tuple[str, ...] = ()) -> Decoded:
     if not idx:
@@ -269,6 +360,7 @@ DECODERS: dict[str, _Decoder] = {name: _stamped_decoder(d, k) for name, (d, k) i
 DECODERS["geometry_msgs/msg/TransformStamped"] = _decode_transform
 DECODERS["rosgraph_msgs/msg/Clock"] = _decode_clock
 DECODERS["std_msgs/msg/Float64MultiArray"] = _decode_multiarray
+DECODERS["sensor_msgs/msg/JointState"] = _decode_joint_state
 
 
 def decode(type_name: str, buffer: bytes, start: NDArray[np.int64], length: NDArray[np.int64]) -> Decoded | None:

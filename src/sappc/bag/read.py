@@ -34,6 +34,7 @@ from sappc_msgs_py.contract import (
     REFERENCE_ATTITUDE,
     STATE_ATTITUDE,
     STATE_RATE,
+    WHEEL_STATES,
     consumed_names,
 )
 from gnc_common.attitude import error_quaternion, quat_normalize
@@ -142,7 +143,8 @@ def read_bag(path: str | Path) -> Bag:
         if d is None:
             continue
         series[channel.topic] = Series(d.stamps_ns, d.values, log_time[d.index])
-        labels = labels or d.labels
+        if channel.schema_name == CONTROLLER_DIAGNOSTICS.type_name:  # (joint_states' labels are its joint names)
+            labels = labels or d.labels
         frame_ids[channel.topic] = d.frame_ids
         if d.undecodable:
             undecodable[channel.topic] = d.undecodable
@@ -305,6 +307,7 @@ def bag_run(bag: Bag) -> BagRun:
         eps=one(rows.get("eps", nan3)),
         z=one(rows.get("z", nan3)),
         V=one(rows.get("lyapunov_V", nan3)),
+        **_wheel_records(bag, common),
     )
     finite_status = status[np.isfinite(status[:, 0])]
     return BagRun(
@@ -315,6 +318,20 @@ def bag_run(bag: Bag) -> BagRun:
         torque_topic=torque_topic,
         has_diagnostics=bool(rows),
     )
+
+
+def _wheel_records(bag: Bag, stamps_ns: NDArray[np.int64]) -> dict[str, Array]:
+    """``wheel_speed_rad_s`` and ``wheel_torque_Nm`` (T, 1, W) from ``joint_states`` at the state
+    stamps (the message of the same stamp, else the latest before it: NaN before the first);
+    nothing when the bag has no wheels."""
+    topic = find_topic(bag, WHEEL_STATES.name)
+    if topic is None or bag.series[topic].values.shape[1] < 2:
+        return {}
+    s = bag.series[topic]
+    w = s.values.shape[1] // 2
+    i = latest_index(s.stamps_ns, stamps_ns)
+    v = np.where((i >= 0)[:, None], s.values[np.maximum(i, 0)], np.nan)
+    return {"wheel_speed_rad_s": v[:, None, :w], "wheel_torque_Nm": v[:, None, w : 2 * w]}
 
 
 def bag_metrics(bag: Bag, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]],

@@ -145,10 +145,13 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "duration_s": scenario.duration_s,
         "rk4_substeps": scenario.rk4_substeps,
         "max_torque_Nm": scenario.actuator.max_torque_Nm,
+        # the wheel set as the scenario wrote it ('': the ideal actuator)
+        "wheels": json.dumps(scenario.raw["actuator"]["wheels"]) if scenario.wheels is not None else "",
         "use_disturbance_topic": True,
         **common,
-        # state: the controller (or the sensor relay) and the recorder; state/tf: the recorder; /clock in lockstep only
-        "expected_subscribers": expected(state__attitude=2, state__rate=2, state__tf=1) + ([f"/clock={clock_subs}"] if lockstep else []),
+        # state: the controller (or the sensor relay) and the recorder; state/tf, joint_states: the recorder; /clock in lockstep only
+        "expected_subscribers": expected(state__attitude=2, state__rate=2, state__tf=1) + (["joint_states=1"] if scenario.wheels is not None else [])
+        + ([f"/clock={clock_subs}"] if lockstep else []),
         "counts_file": counts_file("plant"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "timing.json"),
     }

@@ -36,15 +36,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gnc_common.compiled import jit, matvec3, quat_normalize
-from gnc_common.validation import ConfigError, check_spd_inertia
+from gnc_common.validation import ConfigError, check_spd_inertia, from_mapping
 
 __all__ = ["PRESETS", "ReactionWheels", "allocation_matrix", "angular_momentum_B", "propagate_wheels", "propagate_wheels_into", "wheel_speeds", "wheel_speeds_into",
-           "wheel_torques"]
+           "wheel_torques", "wheels_from_mapping"]
 
 Array = NDArray[np.float64]
 
@@ -148,6 +149,21 @@ class ReactionWheels:
         w = np.asarray(omega_BN_B, dtype=np.float64)
         out: Array = self.per_wheel("spin_inertia_kg_m2") * (self.G.T @ w + self.per_wheel("initial_speed_rad_s"))
         return out
+
+
+def wheels_from_mapping(data: Any, prefix: str) -> ReactionWheels:
+    """A wheel set from a parsed mapping (a scenario's ``actuator.wheels``, the plant node's
+    ``wheels`` parameter), strictly; every error names ``<prefix>.<key>``."""
+    if isinstance(data, dict) and isinstance(data.get("spin_axes_B"), list):
+        data = {**data, "spin_axes_B": [tuple(a) if isinstance(a, list) else a for a in data["spin_axes_B"]]}
+    try:
+        wheels: ReactionWheels = from_mapping(ReactionWheels, data, prefix)
+    except ConfigError as exc:  # the model's own checks name the bare key: name it in full
+        msg = str(exc)
+        if msg.startswith(f"{prefix}: "):
+            msg = f"{prefix}.{msg[len(prefix) + 2:]}"
+        raise ConfigError(msg) from None
+    return wheels
 
 
 def allocation_matrix(G: ArrayLike) -> Array:
