@@ -4,7 +4,7 @@
     sappc simulate --from-campaign DIR --run K [--json FILE] [--plots DIR]
     sappc montecarlo SCENARIO.yaml --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
     sappc tune SCENARIO.yaml [--controller K] [--trials N] [--runs-per-trial M] [--seed S] [--workers W | --scheduler ADDRESS] [--out DIR] [--resume]
-    sappc run SCENARIO.yaml [--out DIR] [--realtime] [--compose] [--plant native|external] [--controller K] [--json FILE] [--domain-id N]
+    sappc run SCENARIO.yaml [--out DIR] [--realtime] [--compose] [--plant native|basilisk|external] [--controller K] [--json FILE] [--domain-id N]
     sappc params SCENARIO.yaml [--controller K]
     sappc report BAG [--json FILE] [--out DIR] [--scenario FILE]
     sappc compare BAG... [--out DIR] [--json FILE]
@@ -94,7 +94,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         _write_json(args.json, {**result.report(), "failed_requirements": failed})
     if args.plots:
         for p in plot_run(result.history, Path(args.plots), title=f"{scenario.name} ({result.controller.value})",
-                          fault_windows=scenario.event_windows()):
+                          fault_windows=scenario.event_windows(), wheels=scenario.wheels):
             print(f"wrote {p}")
     return run_exit_status({}, result.controller_summary, failed)
 
@@ -429,8 +429,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="every node in one process on one executor (faster; the same topics, parameters, bag and metrics)")
     run.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
                      help="controller to run (default: the scenario's 'controller' key)")
-    run.add_argument("--plant", choices=["native", "external"], default="native",  # sappc.graph.launch.PLANTS (not imported to build the parser)
-                     help="native: the bundled rigid body; external: start everything but the plant and record a run driven by "
+    run.add_argument("--plant", choices=["native", "basilisk", "external"], default="native",  # sappc.graph.launch.PLANTS (not imported to build the parser)
+                     help="native: the bundled plant; basilisk: the plant node on Basilisk's dynamics (pip install '.[basilisk]'); "
+                          "external: start everything but the plant and record a run driven by "
                           "a plant you start yourself on the printed domain (it ends once the last sample's torque is recorded)")
     run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON")
     run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: the first free one, claimed with a lock file)")

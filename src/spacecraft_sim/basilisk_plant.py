@@ -145,6 +145,12 @@ class BasiliskPlant:
         self.sim.InitializeSimulation()
         self.k = 0
 
+    def motor_command(self, torque_B: ArrayLike) -> Array:
+        """The wheels' motor torques (N,) for the commanded body torque at the current state
+        (:func:`~spacecraft_sim.core.wheels.wheel_torques`), into :attr:`motor_torques`."""
+        wheel_torques(np.ascontiguousarray(torque_B, dtype=np.float64), self._Gp, self._G, self._prm, self.state(), self.motor_torques)
+        return self.motor_torques
+
     def step(self, torque_B: ArrayLike, disturbance_B: ArrayLike) -> None:
         """Advance one control period with the commanded body torque and the disturbance held."""
         tau = np.asarray(torque_B, dtype=np.float64)
@@ -152,7 +158,7 @@ class BasiliskPlant:
         if self.rw is None:
             ext = np.minimum(np.maximum(tau, -self.max_torque), self.max_torque) + d
         else:
-            wheel_torques(np.ascontiguousarray(tau), self._Gp, self._G, self._prm, self.state(), self.motor_torques)
+            self.motor_command(tau)
             cmd = [0.0] * len(self._cmd.motorTorque)
             cmd[: self.motor_torques.size] = self.motor_torques.tolist()
             self._cmd.motorTorque = cmd

@@ -39,6 +39,11 @@ Control torques are clipped to ``max_torque_Nm`` per axis (the actuator cannot d
 commanded); a torque message that is non-finite or in the wrong frame is rejected, counted and
 logged, and the previous value is held.
 
+Backends (parameter ``backend``; ``python -m spacecraft_sim --backend basilisk`` sets it): ``native``,
+the project's compiled plant, or ``basilisk``, Basilisk's spacecraft hub and reaction-wheel
+effector (:mod:`spacecraft_sim.basilisk_plant`, the ``[basilisk]`` extra) stepped one period at a
+time on the same inputs: the same topics either way.
+
 Reaction wheels (parameter ``wheels``, the scenario's ``actuator.wheels`` mapping as JSON): the
 held body-torque command goes through the wheels (:mod:`spacecraft_sim.core.wheels`: allocation,
 motor and speed limits, their momentum in the dynamics) instead of the per-axis clip, and each
@@ -78,11 +83,15 @@ from sappc_msgs_py.runtime import LOCKSTEP, MATCH_TIMEOUT_S, MODE, REALTIME, Pro
 from sappc_msgs_py.timeline import AHEAD_FRAMES, PLANT_PHASE, StampedWindow, frame_index, period_ns
 from gnc_common.timing import LatencyStatistics, PeriodStatistics
 
+from spacecraft_sim.basilisk_plant import BasiliskPlant
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
 from spacecraft_sim.core.wheels import ReactionWheels, allocation_matrix, propagate_wheels_into, wheel_speeds_into, wheel_torques, wheels_from_mapping
 from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
 
-__all__ = ["PARAMETERS", "PlantNode", "main"]
+__all__ = ["BACKENDS", "PARAMETERS", "PlantNode", "main"]
+
+#: The plant's dynamics (parameter ``backend``).
+BACKENDS = ("native", "basilisk")
 
 #: The plant node's parameters (``--help``), in the order the node declares them.
 PARAMETERS = (
@@ -102,6 +111,8 @@ PARAMETERS = (
           "s", check="> 0"),
     Param("wheels", "", "reaction wheels: the scenario's actuator.wheels mapping as JSON (spin_axes_B, spin_inertia_kg_m2, "
           "max_torque_Nm, max_speed_rad_s, ...); '' for the ideal actuator", check="a JSON mapping of ReactionWheels, or ''"),
+    Param("backend", "native", "the dynamics: 'native' (the project's compiled plant) or 'basilisk' (Basilisk's spacecraft hub and "
+          "reaction-wheel effector, the [basilisk] extra)", check="'native' or 'basilisk'"),
     Param("use_disturbance_topic", False, "add the torque received on disturbance/torque (the injector's) to the control torque"),
     Param("timing_file", "", "where to write the run's timing (JSON: wall time from the first sample, samples, misses; real time: the "
           "timer's period error, missed frames, frames with a stale torque); '' for none"),
@@ -136,6 +147,12 @@ class PlantNode(ProjectNode):
         self._wall_first: float | None = None
         self.n_steps = int(round(duration / self.dt))  # samples k = 0 .. n_steps, as sample_times()
         self.wheels = _wheels_param(str(self.param(_P["wheels"])))
+        backend = str(self.param(_P["backend"]))
+        if backend not in BACKENDS:
+            raise ConfigError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+        self.bsk: BasiliskPlant | None = None
+        if backend == "basilisk":  # the torque arrives clipped (ideal actuator) or goes through the wheels
+            self.bsk = BasiliskPlant(self.body.J, q0, w0, self.dt, self.substeps, wheels=self.wheels)
         if self.wheels is not None:  # state (q, omega, h), scratch and the allocation, once
             w = self.wheels
             self.xw = np.concatenate((self.x[0], w.initial_momentum(self.x[0, 4:])))
@@ -144,7 +161,8 @@ class PlantNode(ProjectNode):
             self._u_wheels, self._speeds = np.zeros(w.n), np.zeros(w.n)
             self._wwork, self._wtmp = np.zeros((5, 7 + w.n)), np.zeros((3, 3))
             self.pub_wheels = self.counting_publisher(WHEEL_STATES)
-            self._step_wheels(np.zeros(3), np.zeros(3), None)  # load the compiled kernels now, not at the first sample (state kept)
+            if self.bsk is None:
+                self._step_wheels(np.zeros(3), np.zeros(3), None)  # load the compiled kernels now, not at the first sample (state kept)
 
         self.body.propagate(self.x, np.zeros((1, 3)), self.dt, self.substeps)  # load the compiled plant now, not at the first sample
         qos = qos_profile()
@@ -270,10 +288,7 @@ class PlantNode(ProjectNode):
                 self._wheel_command(self.torque[0], self.k * self.dt)
             self.finished = True
             return
-        if self.wheels is not None:
-            self._step_wheels(self.torque[0], self.disturbance[0], self.k * self.dt)
-        else:
-            self.x = self.body.propagate(self.x, self.torque + self.disturbance, self.dt, self.substeps)
+        self._integrate(self.torque[0], self.disturbance[0], self.k * self.dt)
         self.k += 1
         self._publish_sample()
 
@@ -310,10 +325,7 @@ class PlantNode(ProjectNode):
                 self.stale_torque_frames += self._torque_ns is not None and self._torque_ns < stamp_ns  # once the controller answers
                 held = self._disturbances.at_or_before(stamp_ns)
                 disturbance = held[1] if held is not None else self.disturbance
-                if self.wheels is not None:
-                    self._step_wheels(self.torque[0], disturbance[0], ns_to_stamp(stamp_ns))
-                else:
-                    self.x = self.body.propagate(self.x, self.torque + disturbance, self.dt, self.substeps)
+                self._integrate(self.torque[0], disturbance[0], ns_to_stamp(stamp_ns))
         self._frame = f
         self.k = f - self._frame0
         self._publish_state(ns_to_stamp(f * self.dt_ns))
@@ -321,13 +333,31 @@ class PlantNode(ProjectNode):
         if self.n_steps and self.k >= self.n_steps:
             self.finished = True
 
+    # ---- the dynamics ----------------------------------------------------------------------
+    def _integrate(self, torque_B: np.ndarray, disturbance_B: np.ndarray, t_s: Any) -> None:
+        """One sample period from the sample stamped ``t_s``, the command and the disturbance held:
+        the native rigid body, the native wheels (publishing ``joint_states``) or Basilisk."""
+        if self.bsk is not None:
+            if self.wheels is not None:
+                self._wheel_command(torque_B, t_s)
+            self.bsk.step(torque_B, disturbance_B)
+            self.x = self.bsk.state()[None, :7]
+        elif self.wheels is not None:
+            self._step_wheels(torque_B, disturbance_B, t_s)
+        else:
+            self.x = self.body.propagate(self.x, torque_B[None] + disturbance_B[None], self.dt, self.substeps)
+
     # ---- reaction wheels -------------------------------------------------------------------
     def _wheel_command(self, torque_B: np.ndarray, t_s: Any) -> None:
         """The motor torques for the held command at the current state, published with the speeds
         on ``joint_states`` stamped ``t_s`` (``None``: not published)."""
-        wheel_torques(np.ascontiguousarray(torque_B, dtype=np.float64), self._Gp, self._G, self._wprm, self.xw, self._u_wheels)
-        if t_s is not None:
+        if self.bsk is not None:
+            self._u_wheels[:] = self.bsk.motor_command(torque_B)
+            self._speeds[:] = self.bsk.wheel_speeds_rad_s()
+        else:
+            wheel_torques(np.ascontiguousarray(torque_B, dtype=np.float64), self._Gp, self._G, self._wprm, self.xw, self._u_wheels)
             wheel_speeds_into(self.xw, self._G, self._wprm, self._speeds)
+        if t_s is not None:
             self.pub_wheels.publish(joint_state_msg(self._speeds, self._u_wheels, t_s, out=self.pub_wheels.msg))
 
     def _step_wheels(self, torque_B: np.ndarray, disturbance_B: np.ndarray, t_s: Any) -> None:
@@ -373,8 +403,18 @@ def _wheels_param(text: str) -> ReactionWheels | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the plant node until its run ends or a signal arrives."""
-    return run_node(lambda args: PlantNode(), argv, PlantNode)
+    """Run the plant node until its run ends or a signal arrives.  ``--backend NAME`` before any
+    ``--ros-args`` sets the ``backend`` parameter (``-p backend:=NAME``)."""
+    args = list(sys.argv if argv is None else argv)
+    if "--backend" in args[: args.index("--ros-args") if "--ros-args" in args else len(args)]:
+        i = args.index("--backend")
+        if i + 1 >= len(args) or args[i + 1].startswith("-"):
+            print("python -m spacecraft_sim: --backend needs a value: native or basilisk", file=sys.stderr)
+            return 2
+        backend = args[i + 1]
+        del args[i : i + 2]
+        args += (["-p"] if "--ros-args" in args else ["--ros-args", "-p"]) + [f"backend:={backend}"]
+    return run_node(lambda a: PlantNode(), args, PlantNode)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
 """Paper-style figures: of a run (each q_ev component with its performance function and
 constraint band, whole run and steady-state zoom; the actuator torques; the transformed error
-and Lyapunov values), of several runs overlaid, of a torque re-run, of a Monte Carlo campaign."""
+and Lyapunov values; the reaction wheels' speeds and motor torques against their limits), of
+several runs overlaid, of a torque re-run, of a Monte Carlo campaign."""
 
 from __future__ import annotations
 
@@ -18,7 +19,9 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with thi
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-__all__ = ["plot_campaign", "plot_compare", "plot_run", "plot_torque_rerun"]
+    from spacecraft_sim.core.wheels import ReactionWheels
+
+__all__ = ["plot_campaign", "plot_compare", "plot_run", "plot_torque_rerun", "plot_wheels"]
 
 Array = NDArray[np.float64]
 
@@ -95,9 +98,12 @@ def plot_run(
     fault_windows: Sequence[tuple[float, float]] = (),
     zoom_from_s: float = 15.0,
     run: int = 0,
+    wheels: ReactionWheels | None = None,
 ) -> list[Path]:
     """Write ``qev.png``, ``qev_zoom.png``, ``qev_log.png``, ``torque.png`` and
-    ``eps_lyapunov.png`` to ``out_dir``; return their paths.  Injected faults are shaded red."""
+    ``eps_lyapunov.png`` to ``out_dir``, and ``wheels.png`` when the history has wheel records
+    (:func:`plot_wheels`; the limits drawn are ``wheels``', when given); return their paths.
+    Injected faults are shaded red."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -175,6 +181,48 @@ def plot_run(
     axes[1].set_ylabel("Lyapunov values")
     axes[-1].set_xlabel("time [s]")
     _finish(fig, out_dir / "eps_lyapunov.png", f"{title}: transformed error and Lyapunov values", paths, margins=_ROWS_MARGINS)
+    if h.wheel_speed_rad_s is not None and h.wheel_torque_Nm is not None:
+        limits = None  # the wheel set's, unless it is not the one recorded (another number of wheels)
+        if wheels is not None and wheels.n == h.wheel_speed_rad_s.shape[2]:
+            limits = (wheels.per_wheel("max_speed_rad_s"), wheels.per_wheel("max_torque_Nm"))
+        paths += plot_wheels(h.t, h.wheel_speed_rad_s[:, run], h.wheel_torque_Nm[:, run], out_dir, title=title, limits=limits,
+                             fault_windows=faults)
+    return paths
+
+
+def plot_wheels(t: Array, speed_rad_s: Array, torque_Nm: Array, out_dir: Path, *, title: str,
+                limits: tuple[Array, Array] | None = None, fault_windows: Sequence[tuple[float, float]] = ()) -> list[Path]:
+    """``wheels.png``: each reaction wheel's speed relative to the body (``speed_rad_s`` (T, W))
+    and its motor torque (``torque_Nm`` (T, W)), one colour per wheel, with ``limits`` = (speed
+    limits (W,), motor torque limits (W,)) dashed at plus and minus (one pair of black lines when
+    every wheel has the same limit, else each wheel's in its colour); no limit lines without them."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths: list[Path] = []
+    t_end = float(t[-1])
+    fig, axes = _rows(2, height=6.0)
+    colors = [f"C{i % 10}" for i in range(speed_rad_s.shape[1])]
+    for ax, values, lim, label in ((axes[0], speed_rad_s, None if limits is None else limits[0], "speed [rad/s]"),
+                                   (axes[1], torque_Nm, None if limits is None else limits[1], "motor torque [N m]")):
+        for i in range(values.shape[1]):
+            ax.plot(t, values[:, i], color=colors[i], lw=1.0, label=f"wheel {i + 1}")
+        if lim is not None and np.all(lim == lim[0]):
+            for sign in (1.0, -1.0):
+                ax.axhline(sign * float(lim[0]), color="k", ls="--", lw=0.9, label="limit" if sign > 0 else None)
+        elif lim is not None:
+            for i, value in enumerate(lim):
+                for sign in (1.0, -1.0):
+                    ax.axhline(sign * float(value), color=colors[i], ls="--", lw=0.8)
+        _mark_faults(ax, fault_windows, t_end)
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8, ncol=2)
+    axes[-1].set_xlabel("time [s]")
+    what = "dashed: their limits" if limits is not None else "limits unknown: no scenario"
+    _finish(fig, out_dir / "wheels.png", f"{title}: reaction wheels ({what})", paths, margins=_ROWS_MARGINS)
     return paths
 
 

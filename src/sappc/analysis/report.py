@@ -244,7 +244,8 @@ def write_report(a: BagAnalysis, out_dir: Path) -> list[Path]:
     from sappc.analysis.plots import plot_run
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    figures = plot_run(a.run.history, out_dir, title=_run_title(a), fault_windows=a.fault_windows) if a.run is not None else []
+    figures = plot_run(a.run.history, out_dir, title=_run_title(a), fault_windows=a.fault_windows,
+                       wheels=a.scenario.wheels if a.scenario else None) if a.run is not None else []
     s = a.summary()
     info = [
         ["bag", s["bag"]],

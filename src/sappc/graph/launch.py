@@ -54,7 +54,7 @@ NODES = ("recorder", "controller", "reference", "injector", "plant")
 #: Plants of ``sappc run --plant``: the bundled rigid body (``python -m spacecraft_sim``), or the
 #: user's own, started separately (every node but the plant is started; the run ends once the
 #: torque of the scenario's last sample is recorded, or on Ctrl-C).
-PLANTS = ("native", "external")
+PLANTS = ("native", "basilisk", "external")
 #: The file the recorder writes when an external plant's run has reached its end (in the run directory).
 END_FILE = "end_reached"
 
@@ -105,7 +105,8 @@ def isolated_environment(domain_id: int, log_dir: Path, base: dict[str, str] | N
     return env
 
 
-def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool, paths: dict[str, str], external_plant: bool = False) -> dict[str, Any]:
+def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool, paths: dict[str, str], external_plant: bool = False,
+                    backend: str = "native") -> dict[str, Any]:
     """The ROS parameters of every node of a run (``{"/node": {"ros__parameters": {...}}}``).
 
     ``external_plant``: the plant is the user's (:data:`PLANTS`), started separately: the
@@ -147,6 +148,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "max_torque_Nm": scenario.actuator.max_torque_Nm,
         # the wheel set as the scenario wrote it ('': the ideal actuator)
         "wheels": json.dumps(scenario.raw["actuator"]["wheels"]) if scenario.wheels is not None else "",
+        "backend": backend,  # the plant's dynamics: native or basilisk
         "use_disturbance_topic": True,
         **common,
         # state: the controller (or the sensor relay) and the recorder; state/tf, joint_states: the recorder; /clock in lockstep only
@@ -294,7 +296,8 @@ def run_graph(
 
     ``compose``: every node in one process on one executor (:mod:`sappc.graph.container`)
     instead of one process per node; the same parameters, topics, bag and metrics.
-    ``plant``: one of :data:`PLANTS`; with ``"external"`` no time limit applies unless
+    ``plant``: one of :data:`PLANTS` (``"basilisk"``: the plant node on Basilisk's dynamics, the
+    ``[basilisk]`` extra); with ``"external"`` no time limit applies unless
     ``timeout_s`` is given (the user's plant may start whenever it is ready).
 
     Raises
@@ -344,7 +347,8 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
     bag_dir = run_dir / "bag"
     # relative to the run directory, the nodes' working directory (node_parameters)
     paths = {"scenario": scenario_copy.name, "bag": bag_dir.name, "counts": "counts", "params": params_path.name, "end": END_FILE}
-    params = node_parameters(scenario, kind, realtime=realtime, paths=paths, external_plant=external)
+    params = node_parameters(scenario, kind, realtime=realtime, paths=paths, external_plant=external,
+                             backend="basilisk" if plant == "basilisk" else "native")
     params_path.write_text(yaml.safe_dump(params, sort_keys=False))
     remaps = _remaps(scenario)
     limit = timeout_s if timeout_s is not None else (float("inf") if external else 60.0 + (2.0 if realtime else 1.0) * scenario.duration_s)
