@@ -29,7 +29,7 @@ from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES, DEFAULT_
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
-from spacecraft_sim.core.sensors import Sensors
+from spacecraft_sim.core.sensors import Sensors, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, wheels_from_mapping
 from gnc_common.validation import (
     ConfigError,
@@ -334,12 +334,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     disturbance = disturbances_from_list(data.get("disturbances"))
     faults = faults_from_list(data.get("faults"))
     actuator, wheels = _actuator_from_mapping(data.get("actuator", {}) or {})
-    sensors = None if data.get("sensors") is None else _sensors_from_mapping(data["sensors"])
-    if sensors is not None and sensors.star_tracker is not None:
-        try:
-            sensors.star_tracker.stride(dt)
-        except ConfigError as exc:
-            raise ConfigError(f"sensors.star_tracker.{exc}") from None
+    sensors = None if data.get("sensors") is None else sensors_from_mapping(data["sensors"], "sensors", dt)
     metrics = from_mapping(MetricSettings, data.get("metrics", {}) or {}, "metrics")
     node_settings = from_mapping(ControllerNodeSettings, data.get("controller_node", {}) or {}, "controller_node")
 
@@ -399,23 +394,6 @@ def _actuator_from_mapping(data: Any) -> tuple[ActuatorConfig, ReactionWheels | 
         raise ConfigError("missing key actuator.wheels (actuator.kind: reaction_wheels)")
     wheels = wheels_from_mapping(wheels_raw, "actuator.wheels")
     return actuator, wheels
-
-
-def _sensors_from_mapping(data: Any) -> Sensors:
-    """The ``sensors`` section (:class:`~spacecraft_sim.core.sensors.Sensors`); errors name the key."""
-    if isinstance(data, dict) and isinstance(data.get("star_tracker"), dict) and isinstance(data["star_tracker"].get("outages_s"), list):
-        tracker = data["star_tracker"]
-        data = {**data, "star_tracker": {**tracker, "outages_s": [tuple(w) if isinstance(w, list) else w for w in tracker["outages_s"]]}}
-    try:
-        sensors: Sensors = from_mapping(Sensors, data, "sensors")
-    except ConfigError as exc:  # the models' own checks name the bare key: name it in full
-        msg = str(exc)
-        for part in ("sensors.star_tracker", "sensors.gyro", "sensors"):
-            if msg.startswith(f"{part}: "):
-                msg = f"{part}.{msg[len(part) + 2:]}"
-                break
-        raise ConfigError(msg) from None
-    return sensors
 
 
 def load_scenario(path: str | Path) -> Scenario:

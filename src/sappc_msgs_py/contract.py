@@ -20,7 +20,14 @@ topic                         type                            frame_id    conten
 ``state/tf``                  geometry_msgs/TransformStamped  ``inertial`` frame ``body`` in ``inertial``: rotation ``q_BN``
 ``reference/tf``              geometry_msgs/TransformStamped  ``inertial`` frame ``reference`` in ``inertial``: ``q_RN``
 ``joint_states``              sensor_msgs/JointState          ``body``     reaction wheels (a plant with wheels only)
+``truth/attitude``            geometry_msgs/QuaternionStamped ``inertial`` true ``q_BN`` (a plant with sensor models only)
+``truth/rate``                geometry_msgs/Vector3Stamped    ``body``     true ``omega_BN_B`` [rad/s] (idem)
 ============================  ==============================  ==========  =========================================
+
+With sensor models (a star tracker, a gyro: :mod:`spacecraft_sim.core.sensors`) ``state/*`` carry
+what the sensors measure, as the contract says, and the plant adds the true state on
+``truth/attitude`` and ``truth/rate``, same stamps: for the record and the metrics, never for
+the controller.  Without sensor models ``state/*`` are the truth and ``truth/*`` are not published.
 
 ``joint_states`` follows the ROS convention of one joint per wheel: ``name`` ``wheel_1`` ..
 ``wheel_N``, ``velocity`` each wheel's speed relative to the body [rad/s], ``effort`` its motor
@@ -99,7 +106,10 @@ __all__ = [
     "STATE_RATE",
     "STATE_TF",
     "TOPICS",
+    "OPTIONAL_TOPICS",
     "TRANSFORM_TOPICS",
+    "TRUTH_ATTITUDE",
+    "TRUTH_RATE",
     "Topic",
     "WHEEL_STATES",
     "consumed_names",
@@ -172,6 +182,8 @@ CLOCK = Topic("/clock", "rosgraph_msgs/msg/Clock", None)
 STATE_TF = Topic("state/tf", "geometry_msgs/msg/TransformStamped", Frame.INERTIAL.value, Frame.BODY.value)
 REFERENCE_TF = Topic("reference/tf", "geometry_msgs/msg/TransformStamped", Frame.INERTIAL.value, Frame.REFERENCE.value)
 WHEEL_STATES = Topic("joint_states", "sensor_msgs/msg/JointState", Frame.BODY.value)
+TRUTH_ATTITUDE = Topic("truth/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)
+TRUTH_RATE = Topic("truth/rate", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
 
 #: Prefix of the topics a fault relay republishes.
 FAULT_PREFIX = "fault/"
@@ -238,7 +250,13 @@ TOPICS = (
     STATE_TF,
     REFERENCE_TF,
     WHEEL_STATES,
+    TRUTH_ATTITUDE,
+    TRUTH_RATE,
 )
+
+#: Topics only some plants publish (reaction wheels, sensor models): absent from a bag of a plant
+#: without them, which is no fault.
+OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE)
 
 #: The attitude as frames (body and reference relative to inertial), for visualisation only: no
 #: node consumes them, a fault relay never republishes them (they show the truth).

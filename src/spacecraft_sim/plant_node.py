@@ -44,6 +44,12 @@ the project's compiled plant, or ``basilisk``, Basilisk's spacecraft hub and rea
 effector (:mod:`spacecraft_sim.basilisk_plant`, the ``[basilisk]`` extra) stepped one period at a
 time on the same inputs: the same topics either way.
 
+Sensor models (parameter ``sensors``, the scenario's ``sensors`` mapping as JSON): ``state/*``
+carry the star tracker's and the gyro's measurement of each sample
+(:func:`spacecraft_sim.core.sensors.measure`, sample ``k`` drawing the ``k``-th row of the seed's
+stream, as the offline loop does) and ``truth/attitude``, ``truth/rate`` the true state; in real
+time a frame without a tick is not measured (its draws are not taken).
+
 Reaction wheels (parameter ``wheels``, the scenario's ``actuator.wheels`` mapping as JSON): the
 held body-torque command goes through the wheels (:mod:`spacecraft_sim.core.wheels`: allocation,
 motor and speed limits, their momentum in the dynamics) instead of the per-axis clip, and each
@@ -65,7 +71,8 @@ from typing import Any
 
 import numpy as np
 
-from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, STATE_TF, WHEEL_STATES, qos_profile
+from sappc_msgs_py.contract import (CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, STATE_TF, TRUTH_ATTITUDE, TRUTH_RATE,
+                                   WHEEL_STATES, qos_profile)
 from sappc_msgs_py.convert import (
     clock_msg,
     joint_state_msg,
@@ -85,6 +92,7 @@ from gnc_common.timing import LatencyStatistics, PeriodStatistics
 
 from spacecraft_sim.basilisk_plant import BasiliskPlant
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
+from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, S_BIAS0, Sensors, measure, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, allocation_matrix, propagate_wheels_into, wheel_speeds_into, wheel_torques, wheels_from_mapping
 from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
 
@@ -111,6 +119,8 @@ PARAMETERS = (
           "s", check="> 0"),
     Param("wheels", "", "reaction wheels: the scenario's actuator.wheels mapping as JSON (spin_axes_B, spin_inertia_kg_m2, "
           "max_torque_Nm, max_speed_rad_s, ...); '' for the ideal actuator", check="a JSON mapping of ReactionWheels, or ''"),
+    Param("sensors", "", "sensor models: the scenario's sensors mapping as JSON (star_tracker, gyro, seed): state/* then carry "
+          "the measurements and truth/* the true state; '' for exact measurements", check="a JSON mapping of Sensors, or ''"),
     Param("backend", "native", "the dynamics: 'native' (the project's compiled plant) or 'basilisk' (Basilisk's spacecraft hub and "
           "reaction-wheel effector, the [basilisk] extra)", check="'native' or 'basilisk'"),
     Param("use_disturbance_topic", False, "add the torque received on disturbance/torque (the injector's) to the control torque"),
@@ -147,6 +157,15 @@ class PlantNode(ProjectNode):
         self._wall_first: float | None = None
         self.n_steps = int(round(duration / self.dt))  # samples k = 0 .. n_steps, as sample_times()
         self.wheels = _wheels_param(str(self.param(_P["wheels"])))
+        self.sensors = _sensors_param(str(self.param(_P["sensors"])), self.dt)
+        if self.sensors is not None:  # the measurement's state, and sample k's draws from the seed's stream
+            self._sensor_prm, self._outages = self.sensors.params(self.dt), self.sensors.outages()
+            self._sensor_rng = np.random.default_rng(self.sensors.seed)
+            self._held_q, self._bias, self._y = np.zeros(4), self._sensor_prm[S_BIAS0:S_BIAS0 + 3].copy(), np.zeros(7)
+            self.pub_truth_att = self.counting_publisher(TRUTH_ATTITUDE)
+            self.pub_truth_rate = self.counting_publisher(TRUTH_RATE)
+            measure(0, 0.0, self.x[0, :4], self.x[0, 4:], np.zeros(N_SENSOR_DRAWS), self._sensor_prm, self._outages, np.zeros(4),
+                    self._bias.copy(), np.zeros(7))  # load the compiled kernel now
         backend = str(self.param(_P["backend"]))
         if backend not in BACKENDS:
             raise ConfigError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
@@ -374,10 +393,21 @@ class PlantNode(ProjectNode):
     def _publish_state(self, t_s: Any) -> None:
         if self._wall_first is None:
             self._wall_first = time.monotonic()
-        att = quaternion_msg(self.x[0, :4], t_s, STATE_ATTITUDE, out=self.pub_att.msg)
-        self.pub_att.publish(att)
-        self.pub_rate.publish(vector3_msg(self.x[0, 4:], t_s, STATE_RATE, out=self.pub_rate.msg))
-        self.pub_tf.publish(transform_from_attitude(self._tf, att))  # after the state: off the loop's critical path
+        if self.sensors is None:
+            att = quaternion_msg(self.x[0, :4], t_s, STATE_ATTITUDE, out=self.pub_att.msg)
+            self.pub_att.publish(att)
+            self.pub_rate.publish(vector3_msg(self.x[0, 4:], t_s, STATE_RATE, out=self.pub_rate.msg))
+            self.pub_tf.publish(transform_from_attitude(self._tf, att))  # after the state: off the loop's critical path
+            return
+        # the sensors' measurement of sample k (the offline loop's kernel and draws), then the truth
+        measure(self.k, self.k * self.dt, self.x[0, :4], self.x[0, 4:], self._sensor_rng.standard_normal(N_SENSOR_DRAWS), self._sensor_prm,
+                self._outages, self._held_q, self._bias, self._y)
+        self.pub_att.publish(quaternion_msg(self._y[:4], t_s, STATE_ATTITUDE, out=self.pub_att.msg))
+        self.pub_rate.publish(vector3_msg(self._y[4:], t_s, STATE_RATE, out=self.pub_rate.msg))
+        true_att = quaternion_msg(self.x[0, :4], t_s, TRUTH_ATTITUDE, out=self.pub_truth_att.msg)
+        self.pub_truth_att.publish(true_att)
+        self.pub_truth_rate.publish(vector3_msg(self.x[0, 4:], t_s, TRUTH_RATE, out=self.pub_truth_rate.msg))
+        self.pub_tf.publish(transform_from_attitude(self._tf, true_att))  # the body as it is
 
     def finish(self) -> None:
         run_s = 0.0 if self._wall_first is None else time.monotonic() - self._wall_first
@@ -389,6 +419,17 @@ class PlantNode(ProjectNode):
                 timing.update(self.tick_stats.summary(), missed_frames=self.missed_frames, stale_torque_frames=self.stale_torque_frames,
                               state_delay={k.replace("latency", "delay"): v for k, v in self.tick_delay.summary().items()})
             Path(self.timing_file).write_text(json.dumps(timing))
+
+
+def _sensors_param(text: str, dt: float) -> Sensors | None:
+    """The ``sensors`` parameter: ``''`` (exact measurements) or a JSON mapping; errors name ``sensors.<key>``."""
+    if not text.strip():
+        return None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"sensors must be a JSON mapping of the sensor models or '', got {text!r} ({exc.msg})") from None
+    return sensors_from_mapping(data, "sensors", dt)
 
 
 def _wheels_param(text: str) -> ReactionWheels | None:

@@ -7,7 +7,8 @@ chunk) yields every message before the tear and says where it ends, and decoded 
 (:mod:`sappc.bag.cdr`).
 
 Samples are aligned on the plant's state stamps (``state/attitude`` and ``state/rate``, the
-truth even when a fault relay feeds the controller): the reference is interpolated at each stamp
+truth even when a fault relay feeds the controller; ``truth/attitude`` and ``truth/rate`` when the
+plant has sensor models and ``state/*`` are its measurements): the reference is interpolated at each stamp
 (exact when the stamps coincide, as in lockstep), torques, disturbances and diagnostics are the
 latest at or before it (zero-order hold, as the plant applies them).
 """
@@ -34,6 +35,8 @@ from sappc_msgs_py.contract import (
     REFERENCE_ATTITUDE,
     STATE_ATTITUDE,
     STATE_RATE,
+    TRUTH_ATTITUDE,
+    TRUTH_RATE,
     WHEEL_STATES,
     consumed_names,
 )
@@ -227,9 +230,11 @@ def bag_run(bag: Bag) -> BagRun:
     BagError
         If the bag lacks the state or the reference, or they never overlap.
     """
+    # the truth: truth/* from a plant with sensor models (its state/* are measurements), else state/*
+    truth = find_topic(bag, TRUTH_ATTITUDE.name) is not None and find_topic(bag, TRUTH_RATE.name) is not None
     names = {
-        "att": STATE_ATTITUDE.name,
-        "rate": STATE_RATE.name,
+        "att": TRUTH_ATTITUDE.name if truth else STATE_ATTITUDE.name,
+        "rate": TRUTH_RATE.name if truth else STATE_RATE.name,
         "ref": REFERENCE_ATTITUDE.name,
     }
     found = {k: find_topic(bag, v) for k, v in names.items()}

@@ -149,10 +149,13 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         # the wheel set as the scenario wrote it ('': the ideal actuator)
         "wheels": json.dumps(scenario.raw["actuator"]["wheels"]) if scenario.wheels is not None else "",
         "backend": backend,  # the plant's dynamics: native or basilisk
+        # the sensor models as the scenario wrote them ('': exact measurements)
+        "sensors": json.dumps(scenario.raw["sensors"]) if scenario.sensors is not None else "",
         "use_disturbance_topic": True,
         **common,
         # state: the controller (or the sensor relay) and the recorder; state/tf, joint_states: the recorder; /clock in lockstep only
         "expected_subscribers": expected(state__attitude=2, state__rate=2, state__tf=1) + (["joint_states=1"] if scenario.wheels is not None else [])
+        + (["truth/attitude=1", "truth/rate=1"] if scenario.sensors is not None else [])
         + ([f"/clock={clock_subs}"] if lockstep else []),
         "counts_file": counts_file("plant"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "timing.json"),

@@ -29,14 +29,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.compiled import jit, quat_multiply, quat_normalize
-from gnc_common.validation import ConfigError
+from gnc_common.validation import ConfigError, from_mapping
 
-__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "Sensors", "StarTracker", "measure", "white_noise_params"]
+__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "Sensors", "StarTracker", "measure", "sensors_from_mapping",
+           "white_noise_params"]
 
 Array = NDArray[np.float64]
 
@@ -161,6 +163,30 @@ class Sensors:
         """A single run's standard normals (n_samples, :data:`N_SENSOR_DRAWS`), from ``seed``."""
         out: Array = np.random.default_rng(self.seed).standard_normal((n_samples, N_SENSOR_DRAWS))
         return out
+
+
+def sensors_from_mapping(data: Any, prefix: str, control_period_s: float) -> Sensors:
+    """The sensors of a parsed mapping (a scenario's ``sensors``, the plant node's ``sensors``
+    parameter), strictly, the tracker's rate checked against the control period; every error
+    names ``<prefix>.<key>``."""
+    if isinstance(data, dict) and isinstance(data.get("star_tracker"), dict) and isinstance(data["star_tracker"].get("outages_s"), list):
+        tracker = data["star_tracker"]
+        data = {**data, "star_tracker": {**tracker, "outages_s": [tuple(w) if isinstance(w, list) else w for w in tracker["outages_s"]]}}
+    try:
+        sensors: Sensors = from_mapping(Sensors, data, prefix)
+    except ConfigError as exc:  # the models' own checks name the bare key: name it in full
+        msg = str(exc)
+        for part in (f"{prefix}.star_tracker", f"{prefix}.gyro", prefix):
+            if msg.startswith(f"{part}: "):
+                msg = f"{part}.{msg[len(part) + 2:]}"
+                break
+        raise ConfigError(msg) from None
+    if sensors.star_tracker is not None:
+        try:
+            sensors.star_tracker.stride(control_period_s)
+        except ConfigError as exc:
+            raise ConfigError(f"{prefix}.star_tracker.{exc}") from None
+    return sensors
 
 
 def white_noise_params(attitude_sigma_rad: float, rate_sigma_rad_s: float) -> Array:
