@@ -38,6 +38,7 @@ import numpy as np
 
 from gnc_common.compiled import jit, matvec3, quat_multiply, quat_normalize
 from gnc_common.validation import ConfigError
+from spacecraft_sim.core.sensors import rotate_by_vector
 
 if TYPE_CHECKING:  # the model modules import this one (their one implementation): no import cycle at run time
     from spacecraft_sim.core.disturbance import DisturbanceSum
@@ -353,21 +354,17 @@ def random_draws(model: DisturbanceSum, t: np.ndarray, n_runs: int = 1) -> tuple
 
 @jit(inline="always")
 def noisy_measurement(q_BN, omega_BN_B, n, attitude_std_rad, rate_std_rad_s, q_out, omega_out):
-    """The sensor-noise model of one sample (the one implementation: the fault injector through
-    :func:`spacecraft_sim.core.faults.noisy_measurement`, offline runs and campaigns).
+    """The white-noise model of one sample: the fault injector's ``sensor_noise`` fault (through
+    :func:`spacecraft_sim.core.faults.noisy_measurement`); the sensors' kernel
+    :func:`spacecraft_sim.core.sensors.measure` computes the same with its white-noise parameters
+    (one rotation, :func:`~spacecraft_sim.core.sensors.rotate_by_vector`).
 
     The measured attitude is the true one rotated in the body frame by the rotation vector
     ``attitude_std_rad * n[:3]``; the measured rate is the true one plus ``rate_std_rad_s * n[3:]``.
     ``n`` (6,) holds standard normal draws (their source is the caller's); results in ``q_out`` (4,)
     and ``omega_out`` (3,), which may alias the inputs.
     """
-    rx, ry, rz = attitude_std_rad * n[0], attitude_std_rad * n[1], attitude_std_rad * n[2]
-    angle = np.sqrt((rx * rx + ry * ry) + rz * rz)
-    s = np.sin(angle / 2.0) / angle if angle > 0.0 else 0.0
-    dq = np.empty(4)
-    dq[0], dq[1], dq[2], dq[3] = rx * s, ry * s, rz * s, np.cos(angle / 2.0)
-    quat_multiply(q_BN, dq, q_out)
-    quat_normalize(q_out, q_out)
+    rotate_by_vector(q_BN, attitude_std_rad * n[0], attitude_std_rad * n[1], attitude_std_rad * n[2], q_out)
     for i in range(3):
         omega_out[i] = omega_BN_B[i] + rate_std_rad_s * n[3 + i]
 

@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 from gnc_common.compiled import jit, quat_multiply, quat_normalize
 from gnc_common.validation import ConfigError, from_mapping
 
-__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "Sensors", "StarTracker", "measure", "sensors_from_mapping",
+__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "Sensors", "StarTracker", "measure", "rotate_by_vector", "sensors_from_mapping",
            "white_noise_params"]
 
 Array = NDArray[np.float64]
@@ -199,6 +199,18 @@ def white_noise_params(attitude_sigma_rad: float, rate_sigma_rad_s: float) -> Ar
     return p
 
 
+@jit(inline="always")
+def rotate_by_vector(q_BN, rx, ry, rz, q_out):
+    """``q_BN`` rotated in the body frame by the rotation vector ``(rx, ry, rz)`` [rad],
+    normalised, into ``q_out`` (4,) (a star tracker's error; the white-noise fault's too)."""
+    angle = np.sqrt((rx * rx + ry * ry) + rz * rz)
+    s = np.sin(angle / 2.0) / angle if angle > 0.0 else 0.0
+    dq = np.empty(4)
+    dq[0], dq[1], dq[2], dq[3] = rx * s, ry * s, rz * s, np.cos(angle / 2.0)
+    quat_multiply(q_BN, dq, q_out)
+    quat_normalize(q_out, q_out)
+
+
 @jit
 def measure(k, t, q_BN, omega_BN_B, n, prm, outages, held_q, bias, y):
     """The measurement of sample ``k`` at time ``t`` [s] (module docstring) into ``y`` (7,):
@@ -215,13 +227,7 @@ def measure(k, t, q_BN, omega_BN_B, n, prm, outages, held_q, bias, y):
         if outages[w, 0] <= t < outages[w, 1]:
             update = False
     if update:
-        rx, ry, rz = prm[_ST_SIGMA] * n[0], prm[_ST_SIGMA + 1] * n[1], prm[_ST_SIGMA + 2] * n[2]
-        angle = np.sqrt((rx * rx + ry * ry) + rz * rz)
-        s = np.sin(angle / 2.0) / angle if angle > 0.0 else 0.0
-        dq = np.empty(4)
-        dq[0], dq[1], dq[2], dq[3] = rx * s, ry * s, rz * s, np.cos(angle / 2.0)
-        quat_multiply(q_BN, dq, held_q)
-        quat_normalize(held_q, held_q)
+        rotate_by_vector(q_BN, prm[_ST_SIGMA] * n[0], prm[_ST_SIGMA + 1] * n[1], prm[_ST_SIGMA + 2] * n[2], held_q)
     for i in range(4):
         y[i] = held_q[i]
     for i in range(3):
