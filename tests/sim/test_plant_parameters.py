@@ -53,6 +53,11 @@ def test_the_loader_and_the_node_say_the_same_about_a_bad_initial_quaternion() -
 @pytest.mark.parametrize(("param", "words"), [
     ("rk4_substeps:=0", "error: rk4_substeps must be a positive integer, got 0"),
     ("inertia_kg_m2:=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]", "error: inertia_kg_m2 must have 9 values (row major 3x3), got 8"),
+    # the wheel set (JSON, quoted as a YAML string) goes through the scenario's own checks, each key named in full
+    ("""wheels:='{"spin_inertia_kg_m2": -1, "max_torque_Nm": 0.2, "max_speed_rad_s": 600}'""",
+     "error: wheels.spin_inertia_kg_m2 must be > 0, got -1"),
+    ("""wheels:='{"spin_axes_B": [[1, 0, 0], [0, 1, 0], [1, 1, 0]], "spin_inertia_kg_m2": 0.1, "max_torque_Nm": 0.2, "max_speed_rad_s": 600}'""",
+     "error: wheels.spin_axes_B must span three dimensions (a torque about every axis), got ((1, 0, 0), (0, 1, 0), (1, 1, 0))"),
 ])
 def test_a_bad_plant_parameter_stops_the_node_with_one_line_naming_it(param: str, words: str) -> None:
     proc = subprocess.run([sys.executable, "-m", "spacecraft_sim", "--ros-args", "-p", param], capture_output=True, text=True, timeout=60, cwd=ROOT)
