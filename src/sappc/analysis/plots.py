@@ -183,19 +183,25 @@ def plot_run(
     _finish(fig, out_dir / "eps_lyapunov.png", f"{title}: transformed error and Lyapunov values", paths, margins=_ROWS_MARGINS)
     if h.wheel_speed_rad_s is not None and h.wheel_torque_Nm is not None:
         limits = None  # the wheel set's, unless it is not the one recorded (another number of wheels)
+        undelivered = None
         if wheels is not None and wheels.n == h.wheel_speed_rad_s.shape[2]:
             limits = (wheels.per_wheel("max_speed_rad_s"), wheels.per_wheel("max_torque_Nm"))
+            # what the wheels' motors did not make of the command: tau + G u (friction aside)
+            undelivered = h.torque_B[:, run] + h.wheel_torque_Nm[:, run] @ wheels.G.T
         paths += plot_wheels(h.t, h.wheel_speed_rad_s[:, run], h.wheel_torque_Nm[:, run], out_dir, title=title, limits=limits,
-                             fault_windows=faults)
+                             fault_windows=faults, undelivered_Nm=undelivered)
     return paths
 
 
 def plot_wheels(t: Array, speed_rad_s: Array, torque_Nm: Array, out_dir: Path, *, title: str,
-                limits: tuple[Array, Array] | None = None, fault_windows: Sequence[tuple[float, float]] = ()) -> list[Path]:
+                limits: tuple[Array, Array] | None = None, fault_windows: Sequence[tuple[float, float]] = (),
+                undelivered_Nm: Array | None = None) -> list[Path]:
     """``wheels.png``: each reaction wheel's speed relative to the body (``speed_rad_s`` (T, W))
     and its motor torque (``torque_Nm`` (T, W)), one colour per wheel, with ``limits`` = (speed
     limits (W,), motor torque limits (W,)) dashed at plus and minus (one pair of black lines when
-    every wheel has the same limit, else each wheel's in its colour); no limit lines without them."""
+    every wheel has the same limit, else each wheel's in its colour); no limit lines without them.
+    ``undelivered_Nm`` (T, 3): the commanded body torque the motors did not make (``tau + G u``),
+    in a third panel, when given."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -203,8 +209,15 @@ def plot_wheels(t: Array, speed_rad_s: Array, torque_Nm: Array, out_dir: Path, *
     out_dir.mkdir(parents=True, exist_ok=True)
     paths: list[Path] = []
     t_end = float(t[-1])
-    fig, axes = _rows(2, height=6.0)
+    fig, axes = _rows(2 if undelivered_Nm is None else 3, height=6.0 if undelivered_Nm is None else 8.0)
     colors = [f"C{i % 10}" for i in range(speed_rad_s.shape[1])]
+    if undelivered_Nm is not None:
+        for i in range(3):
+            axes[2].plot(t, undelivered_Nm[:, i], lw=1.0, label="xyz"[i])
+        _mark_faults(axes[2], fault_windows, float(t[-1]))
+        axes[2].set_ylabel("not delivered [N m]")
+        axes[2].grid(True, alpha=0.3)
+        axes[2].legend(loc="upper right", fontsize=8, ncol=3)
     for ax, values, lim, label in ((axes[0], speed_rad_s, None if limits is None else limits[0], "speed [rad/s]"),
                                    (axes[1], torque_Nm, None if limits is None else limits[1], "motor torque [N m]")):
         for i in range(values.shape[1]):

@@ -137,6 +137,12 @@ def test_the_motor_and_speed_limits_hold_in_the_loop_and_the_metrics_report_them
     assert np.count_nonzero(speed >= 3.0 - one_step) > 100  # held at the limit, not crossed once
     assert result.metrics["max_abs_wheel_speed_rad_s"] == pytest.approx(speed.max(), rel=0, abs=0)
     assert result.metrics["max_abs_wheel_torque_Nm"] == torque.max()
+    # what the motors did not make of the command (wheels.png's third panel): zero while no motor is
+    # at its limit and no wheel at its speed limit, not zero when one is
+    assert s.wheels is not None
+    undelivered = np.abs(result.history.torque_B[:, 0] + result.history.wheel_torque_Nm[:, 0] @ s.wheels.G.T).max(axis=1)
+    free = (torque.max(axis=1) < 0.02) & (speed.max(axis=1) < 3.0)
+    assert np.all(undelivered[free] < 1e-15) and np.any(undelivered[~free] > 1e-3)
 
 
 def test_an_ideal_run_has_no_wheel_metrics_and_a_wheel_requirement_fails_it() -> None:
