@@ -62,7 +62,7 @@ Quaternions are ``geometry_msgs/Quaternion`` ``(x, y, z, w)``, the project's own
 order (``gnc_common.attitude``): no reordering happens anywhere.  The two state topics
 of one sample carry the same stamp; the controller pairs them by stamp.
 
-QoS: every topic RELIABLE, VOLATILE, KEEP_LAST with depth :data:`QOS_DEPTH` = 1000 (depth 1
+QoS: every topic RELIABLE, VOLATILE, KEEP_LAST with depth :data:`QOS_DEPTH` = 10,000 (depth 1
 would do for the loop; a best-effort publisher and a reliable subscriber never match).
 """
 
@@ -121,9 +121,12 @@ __all__ = [
 #: History depth of every topic.  A reliable writer can only repair what is still in its history:
 #: a subscriber whose side of the match completes after the writer's (measured: a recorder
 #: matched during a burst of 500 messages received only the last 10 with depth 10), or one that
-#: falls behind, loses nothing as long as it is less than 1000 samples late (10 s at 100 Hz).
-#: Costs ~100 kB per topic at most.
-QOS_DEPTH = 1000
+#: falls behind, loses nothing as long as it is less than this many samples late.  10,000: more
+#: than a whole 60 s run at 100 Hz.  (It was 1000 until lockstep ran at ~1500 samples/s: a
+#: recorder that started spinning or was scheduled 0.7 s late then lost blocks of samples, seen
+#: 2026-11-25 in CI's fault-matrix runs, which record ~14 topics.)  Costs ~1.5 MB per topic at
+#: most, only while a subscriber lags.
+QOS_DEPTH = 10_000
 
 
 class Frame(str, Enum):

@@ -157,7 +157,7 @@ def test_every_topic_has_a_message_class_and_the_shared_qos() -> None:
     for topic in c.TOPICS:
         assert topic.msg_class.__name__ == topic.type_name.split("/")[-1]
     qos = c.qos_profile()
-    assert qos.reliability == ReliabilityPolicy.RELIABLE and qos.durability == DurabilityPolicy.VOLATILE and qos.depth == c.QOS_DEPTH == 1000
+    assert qos.reliability == ReliabilityPolicy.RELIABLE and qos.durability == DurabilityPolicy.VOLATILE and qos.depth == c.QOS_DEPTH == 10_000
 
 
 def test_fault_relay_topics_keep_type_and_frame_and_stamps_copy_exactly() -> None:

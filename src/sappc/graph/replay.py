@@ -1,7 +1,7 @@
 """``sappc replay``: republish a bag on the ROS 2 graph with its timing, ``/clock`` included.
 
 Messages go out as recorded (raw CDR, no re-serialisation), in the order the recorder wrote
-them, on publishers with the contract's QoS (reliable, depth 1000), so any node can consume a
+them, on publishers with the contract's QoS (reliable, depth ``QOS_DEPTH``), so any node can consume a
 recording as if it were live.
 
 Timing.  A lockstep bag (one with ``/clock``) replays on its *simulated* time: the recorder of
