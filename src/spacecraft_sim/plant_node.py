@@ -421,26 +421,27 @@ class PlantNode(ProjectNode):
             Path(self.timing_file).write_text(json.dumps(timing))
 
 
-def _sensors_param(text: str, dt: float) -> Sensors | None:
-    """The ``sensors`` parameter: ``''`` (exact measurements) or a JSON mapping; errors name ``sensors.<key>``."""
+def _json_param(name: str, text: str, what: str) -> Any:
+    """A JSON-mapping parameter (``wheels``, ``sensors``: the scenario's section as JSON), or
+    ``None`` for ``''``; a malformed one stops with an error naming the parameter."""
     if not text.strip():
         return None
     try:
-        data = json.loads(text)
+        return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ConfigError(f"sensors must be a JSON mapping of the sensor models or '', got {text!r} ({exc.msg})") from None
-    return sensors_from_mapping(data, "sensors", dt)
+        raise ConfigError(f"{name} must be a JSON mapping of {what} or '', got {text!r} ({exc.msg})") from None
+
+
+def _sensors_param(text: str, dt: float) -> Sensors | None:
+    """The ``sensors`` parameter (``''``: exact measurements); errors name ``sensors.<key>``."""
+    data = _json_param("sensors", text, "the sensor models")
+    return None if data is None else sensors_from_mapping(data, "sensors", dt)
 
 
 def _wheels_param(text: str) -> ReactionWheels | None:
-    """The ``wheels`` parameter: ``''`` (the ideal actuator) or a JSON mapping; errors name ``wheels.<key>``."""
-    if not text.strip():
-        return None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f"wheels must be a JSON mapping of the wheel set or '', got {text!r} ({exc.msg})") from None
-    return wheels_from_mapping(data, "wheels")
+    """The ``wheels`` parameter (``''``: the ideal actuator); errors name ``wheels.<key>``."""
+    data = _json_param("wheels", text, "the wheel set")
+    return None if data is None else wheels_from_mapping(data, "wheels")
 
 
 def main(argv: list[str] | None = None) -> int:

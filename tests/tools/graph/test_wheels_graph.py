@@ -50,20 +50,28 @@ def test_joint_states_decode_as_rclpy_deserialises_them(n_wheels: int) -> None:
     assert d.labels == tuple(f"wheel_{i + 1}" for i in range(n_wheels)) and d.frame_ids == ("body",)
 
 
+def _short_run(tmp_path: Path, scenario_file: str, *extra: str, **sensors_changes: object) -> tuple[dict, Path]:  # type: ignore[type-arg]
+    """``scenario_file`` cut to 4 s (steady window from 2 s; ``sensors_changes`` into its star
+    tracker), run through ``sappc run`` with ``extra`` arguments: (the scenario mapping, the run directory)."""
+    raw = yaml.safe_load((SCENARIOS / scenario_file).read_text())
+    raw["duration_s"] = 4.0
+    raw["metrics"]["steady_from_s"] = 2.0
+    raw.get("sensors", {}).get("star_tracker", {}).update(sensors_changes)
+    path = tmp_path / "scenario.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "run"
+    proc = subprocess.run([*SAPPC, "run", str(path), "--out", str(out), "--json", str(tmp_path / "m.json"), *extra], capture_output=True,
+                          text=True, timeout=600, cwd=ROOT)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return raw, out
+
+
 @pytest.mark.slow
 def test_the_wheel_scenario_through_the_graph_equals_the_offline_run(tmp_path: Path) -> None:
     """Lockstep, 4 s: the bag's wheel speeds and motor torques and its attitude equal the offline
     run's bit for bit (the plant node calls the offline loop's wheel kernels in the same order),
     and the report's metrics carry the wheel metrics."""
-    raw = yaml.safe_load((SCENARIOS / "paper_tracking_wheels.yaml").read_text())
-    raw["duration_s"] = 4.0
-    raw["metrics"]["steady_from_s"] = 2.0
-    path = tmp_path / "wheels.yaml"
-    path.write_text(yaml.safe_dump(raw))
-    out = tmp_path / "run"
-    proc = subprocess.run([*SAPPC, "run", str(path), "--out", str(out), "--json", str(tmp_path / "m.json")], capture_output=True, text=True,
-                          timeout=600, cwd=ROOT)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+    raw, out = _short_run(tmp_path, "paper_tracking_wheels.yaml")
     offline = compiled_loop.simulate_compiled(scenario_from_mapping(raw))
     run = bag_run(read_bag(out / "bag"))
     h = run.history
@@ -114,15 +122,7 @@ def test_the_wheel_scenario_on_the_basilisk_plant_agrees_with_the_offline_run(tm
     """With reaction wheels (Basilisk's wheel effector fed the project's torque path), 4 s: the
     wheel speeds and the attitude within 1e-9 of the offline run."""
     pytest.importorskip("Basilisk")
-    raw = yaml.safe_load((SCENARIOS / "paper_tracking_wheels.yaml").read_text())
-    raw["duration_s"] = 4.0
-    raw["metrics"]["steady_from_s"] = 2.0
-    path = tmp_path / "wheels.yaml"
-    path.write_text(yaml.safe_dump(raw))
-    out = tmp_path / "run"
-    proc = subprocess.run([*SAPPC, "run", str(path), "--plant", "basilisk", "--out", str(out)], capture_output=True, text=True, timeout=600,
-                          cwd=ROOT)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+    raw, out = _short_run(tmp_path, "paper_tracking_wheels.yaml", "--plant", "basilisk")
     offline = compiled_loop.simulate_compiled(scenario_from_mapping(raw))
     h = bag_run(read_bag(out / "bag")).history
     assert h.wheel_speed_rad_s is not None and h.wheel_torque_Nm is not None
@@ -137,16 +137,7 @@ def test_the_flight_scenario_through_the_graph_equals_the_offline_run(tmp_path: 
     in lockstep, 4 s: the controller's torques, the true state on truth/* and the wheel records
     equal the offline run's bit for bit (the plant measures sample k with the k-th row of the
     seed's stream, as the offline loop), and state/* carry the measurements, not the truth."""
-    raw = yaml.safe_load((SCENARIOS / "paper_tracking_flight.yaml").read_text())
-    raw["duration_s"] = 4.0
-    raw["metrics"]["steady_from_s"] = 2.0
-    raw["sensors"]["star_tracker"]["outages_s"] = [[1.0, 1.5]]
-    path = tmp_path / "flight.yaml"
-    path.write_text(yaml.safe_dump(raw))
-    out = tmp_path / "run"
-    proc = subprocess.run([*SAPPC, "run", str(path), "--out", str(out), "--json", str(tmp_path / "m.json")], capture_output=True, text=True,
-                          timeout=600, cwd=ROOT)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+    raw, out = _short_run(tmp_path, "paper_tracking_flight.yaml", outages_s=[[1.0, 1.5]])
     offline = compiled_loop.simulate_compiled(scenario_from_mapping(raw))
     bag = read_bag(out / "bag")
     h = bag_run(bag).history
