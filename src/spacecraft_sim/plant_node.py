@@ -172,15 +172,15 @@ class PlantNode(ProjectNode):
         self.bsk: BasiliskPlant | None = None
         if backend == "basilisk":  # the torque arrives clipped (ideal actuator) or goes through the wheels
             self.bsk = BasiliskPlant(self.body.J, q0, w0, self.dt, self.substeps, wheels=self.wheels)
-        if self.wheels is not None:  # state (q, omega, h), scratch and the allocation, once
+        if self.wheels is not None:
             w = self.wheels
-            self.xw = np.concatenate((self.x[0], w.initial_momentum(self.x[0, 4:])))
-            self._G, self._Gp, self._wprm = w.G, allocation_matrix(w.G), w.params()
-            self._J, self._J_inv = np.ascontiguousarray(self.body.J), np.ascontiguousarray(np.linalg.inv(self.body.J))
-            self._u_wheels, self._speeds = np.zeros(w.n), np.zeros(w.n)
-            self._wwork, self._wtmp = np.zeros((5, 7 + w.n)), np.zeros((3, 3))
+            self._u_wheels, self._speeds = np.zeros(w.n), np.zeros(w.n)  # what joint_states publishes
             self.pub_wheels = self.counting_publisher(WHEEL_STATES)
-            if self.bsk is None:
+            if self.bsk is None:  # the native wheels: state (q, omega, h), the allocation and scratch, once
+                self.xw = np.concatenate((self.x[0], w.initial_momentum(self.x[0, 4:])))
+                self._G, self._Gp, self._wprm = w.G, allocation_matrix(w.G), w.params()
+                self._J, self._J_inv = np.ascontiguousarray(self.body.J), np.ascontiguousarray(self.body.J_inv)
+                self._wwork, self._wtmp = np.zeros((5, 7 + w.n)), np.zeros((3, 3))
                 self._step_wheels(np.zeros(3), np.zeros(3), None)  # load the compiled kernels now, not at the first sample (state kept)
 
         self.body.propagate(self.x, np.zeros((1, 3)), self.dt, self.substeps)  # load the compiled plant now, not at the first sample
