@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import rclpy
+import rclpy.duration
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import clock_msg, quaternion_msg, stamp_to_ns, torque_from_msg, vector3_msg
 
@@ -42,5 +43,7 @@ for k in range(round(args.duration / DT) + 1):
     x = x + DT / 6 * (k1 + 2 * k2 + 2 * k3 + f(x + DT * k3, u))
     x[:4] /= np.linalg.norm(x[:4])
 print(f"my_plant: {k + 1} samples, {missed} missed (held the last torque)")
+for pub in pubs:  # leave only once every subscriber (a recorder that lags) has what was sent: the rest would be lost
+    pub.wait_for_all_acked(rclpy.duration.Duration(seconds=10))
 node.destroy_node()
 rclpy.try_shutdown()

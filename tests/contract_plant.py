@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -67,6 +68,8 @@ def run_contract_plant(context, q0: np.ndarray, steps: int, deadline_s: float = 
         k4 = _f(x + DT * k3, tau)
         x = x + DT / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         x[:4] /= np.linalg.norm(x[:4])
+    for pub in pubs.values():  # a recorder that lags gets everything before the publishers leave
+        pub.wait_for_all_acked(Duration(seconds=10))
     ex.shutdown()
     node.destroy_node()
     return np.array(q_hist), np.array(tq_hist)
