@@ -58,6 +58,8 @@ __all__ = [
     "dot3",
     "error_quaternion",
     "gamma_inverse_times",
+    "inverse3",
+    "inverse3_stack",
     "jit",
     "jit_parallel",
     "matvec3",
@@ -171,6 +173,50 @@ def matvec3_flat(m, offset, v, out):
     for i in range(3):
         r = offset + 3 * i
         out[i] = (m[r] * v0 + m[r + 1] * v1) + m[r + 2] * v2
+
+
+@jit
+def inverse3(M, out):
+    """``out = M^-1`` of a non-singular (3, 3) matrix by its adjugate over its determinant.
+
+    Written out (no LAPACK call): the bits are the same on every host, whereas
+    ``numpy.linalg.inv`` goes through OpenBLAS/LAPACK kernels chosen at run time by the CPU
+    (docs/parity.md).  The rounding error is of the order of ``cond(M) eps``, as LU's.  ``out``
+    may not alias ``M``."""
+    a, b, c = M[0, 0], M[0, 1], M[0, 2]
+    d, e, f = M[1, 0], M[1, 1], M[1, 2]
+    g, h, i = M[2, 0], M[2, 1], M[2, 2]
+    c00 = e * i - f * h
+    c01 = f * g - d * i
+    c02 = d * h - e * g
+    det = (a * c00 + b * c01) + c * c02
+    out[0, 0] = c00 / det
+    out[1, 0] = c01 / det
+    out[2, 0] = c02 / det
+    out[0, 1] = (c * h - b * i) / det
+    out[1, 1] = (a * i - c * g) / det
+    out[2, 1] = (b * g - a * h) / det
+    out[0, 2] = (b * f - c * e) / det
+    out[1, 2] = (c * d - a * f) / det
+    out[2, 2] = (a * e - b * d) / det
+
+
+@jit
+def _inverse3_all(M, out):
+    for n in range(M.shape[0]):
+        inverse3(M[n], out[n])
+
+
+def inverse3_stack(M: Any) -> np.ndarray:
+    """:func:`inverse3` of a (3, 3) matrix or of each of a stack (..., 3, 3); a new float64 array
+    of the same shape (e.g. ``J^-1`` of one inertia or of a campaign's per-run inertias)."""
+    a = np.asarray(M, dtype=np.float64)
+    if a.shape[-2:] != (3, 3):
+        raise ValueError(f"inverse3_stack needs (..., 3, 3) matrices, got shape {a.shape}")
+    flat = np.ascontiguousarray(a.reshape(-1, 3, 3))
+    out = np.empty_like(flat)
+    _inverse3_all(flat, out)
+    return out.reshape(a.shape)
 
 
 # ----------------------------------------------------------------------------- quaternions

@@ -102,3 +102,26 @@ def random_torque(t: np.ndarray, sigma_Nm: tuple[float, float, float], hold_s: f
         for n, s in enumerate(seeds):
             out[i, n] = np.random.default_rng([s, k]).standard_normal(3) * np.asarray(sigma_Nm)
     return out
+
+
+# ----------------------------------------------------------------------------- reference
+
+
+def reference_quaternions_dop853(t: np.ndarray, q0: np.ndarray, amplitude_deg_s: float, periods_s: tuple[float, float, float],
+                                 rtol: float = 1e-12, atol: float = 1e-14) -> np.ndarray:
+    """``q_RN`` (T, 4) on ``t`` by scipy's adaptive DOP853, normalised at the samples.
+
+    With the default tolerances this is the reference the numpy core used when the golden data
+    of ``tests/data/`` were recorded (``solve_ivp(..., method="DOP853", t_eval=t, rtol=1e-12,
+    atol=1e-14)``); with tighter ones, an accurate solution to measure the product's integrator
+    against.  scipy's steps go through BLAS (``np.dot``), so its last bits depend on the OpenBLAS
+    kernel the host picks (docs/parity.md): an oracle, not a product path."""
+    from scipy.integrate import solve_ivp
+
+    def rhs(tt: float, q: np.ndarray) -> np.ndarray:
+        w = reference_rates(np.array([tt]), amplitude_deg_s, periods_s)[0][0]
+        return 0.5 * quat_times_vector(q[None], w[None])[0]
+
+    sol = solve_ivp(rhs, (0.0, float(t[-1])), np.asarray(q0, dtype=np.float64), method="DOP853", t_eval=t, rtol=rtol, atol=atol)
+    q = sol.y.T
+    return np.asarray(q / np.linalg.norm(q, axis=1, keepdims=True))

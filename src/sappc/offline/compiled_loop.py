@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numba import prange
 
-from gnc_common.compiled import error_quaternion, jit, jit_parallel
+from gnc_common.compiled import error_quaternion, inverse3_stack, jit, jit_parallel
 from sappc_controller.core.kernels import N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
 from sappc_controller.core.kernels import controller_step, error_quaternions
 from sappc_controller.core.kernels import kind_of, pack_params, start_coef
@@ -367,7 +367,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     wGp = _f64(np.array([allocation_matrix(w.G) for w in per_run_wheels]).reshape(n, W, 3))
     wprm = _f64(np.array([w.params() for w in per_run_wheels]).reshape(n, W, 6))
     J = _f64(scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2, (n, 3, 3))
-    J_inv = _f64(np.linalg.inv(J))
+    J_inv = inverse3_stack(J)  # written out, not LAPACK: the same bits on every host (docs/parity.md)
     t = _f64(sample_times(scenario.duration_s, scenario.control_period_s))
     ref = scenario.reference.sample(t)
     ref_w, ref_wd = reference_rate_tables(scenario.reference, t)

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gnc_common.attitude import dot, matvec
+from gnc_common.compiled import inverse3_stack
 from gnc_common.validation import InputError, check_spd_inertia
 from spacecraft_sim.core import kernels
 
@@ -57,7 +58,7 @@ class RigidBody:
 
     def __init__(self, inertia_kg_m2: ArrayLike) -> None:
         self.J: Array = check_spd_inertia("inertia_kg_m2", inertia_kg_m2)
-        self.J_inv: Array = np.asarray(np.linalg.inv(self.J), dtype=np.float64)
+        self.J_inv: Array = inverse3_stack(self.J)  # written out: the same bits on every host (docs/parity.md)
         # (NJ, 3, 3), C order, NJ = 1 (shared) or N: the kernels' layout, made once
         self._J3: Array = np.ascontiguousarray(self.J.reshape(-1, 3, 3), dtype=np.float64)
         self._J_inv3: Array = np.ascontiguousarray(self.J_inv.reshape(-1, 3, 3), dtype=np.float64)

@@ -61,6 +61,7 @@ __all__ = [
     "propagate_runs",
     "random_draws",
     "rate_tables",
+    "reference_quaternions",
     "reference_rate_tables",
     "reference_rates",
     "rk4_step",
@@ -203,12 +204,60 @@ def rate_tables(t, a_rad_s, periods):
     return w, wd
 
 
-def reference_rate_tables(reference: PaperReference, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``omega_RN_R`` and ``omegadot_RN_R`` (T, 3) of a :class:`.reference.PaperReference` on ``t``.
+@jit(inline="always")
+def _reference_qdot(q, t, a_rad_s, periods, w, wd, out):
+    """``dq_RN/dt = 1/2 q_RN ⊗ (omega_RN_R(t), 0)`` (scalar last; as :func:`gnc_common.attitude.quat_kinematics`)."""
+    reference_rates(t, a_rad_s, periods, w, wd)
+    q0 = q[3]
+    c0 = q[1] * w[2] - q[2] * w[1]
+    c1 = q[2] * w[0] - q[0] * w[2]
+    c2 = q[0] * w[1] - q[1] * w[0]
+    out[0] = 0.5 * (q0 * w[0] + c0)
+    out[1] = 0.5 * (q0 * w[1] + c1)
+    out[2] = 0.5 * (q0 * w[2] + c2)
+    out[3] = -0.5 * ((q[0] * w[0] + q[1] * w[1]) + q[2] * w[2])
 
-    ``q_RN`` comes from :meth:`.reference.PaperReference.sample` (DOP853, once per scenario):
-    an adaptive high-order integration is set-up work, not per-step work.
-    """
+
+@jit
+def reference_quaternions(t, q0, a_rad_s, periods, max_step_s, out):
+    """``q_RN`` (T, 4) at the increasing times ``t`` (T,) >= 0 [s] into ``out``, from ``q0`` at
+    ``t = 0``: classical RK4 on the kinematics, each interval between samples (and ``[0, t_0]``)
+    in ``ceil(length / max_step_s)`` equal steps; the integrated quaternion is kept as it is and
+    each sample is its normalised copy.  Fixed steps from the sample times alone: the same
+    samples give the same bits on every path and, with no BLAS call, on every host
+    (docs/parity.md); see :class:`.reference.PaperReference` for the accuracy."""
+    q = q0.copy()
+    qs = np.empty(4)
+    k1, k2, k3, k4 = np.empty(4), np.empty(4), np.empty(4), np.empty(4)
+    w, wd = np.empty(3), np.empty(3)
+    t_prev = 0.0
+    for j in range(t.shape[0]):
+        span = t[j] - t_prev
+        n = int(np.ceil(span / max_step_s)) if span > 0.0 else 0
+        if n > 0:
+            h = span / n
+            for s in range(n):
+                ts = t_prev + s * h
+                _reference_qdot(q, ts, a_rad_s, periods, w, wd, k1)
+                for i in range(4):
+                    qs[i] = q[i] + 0.5 * h * k1[i]
+                _reference_qdot(qs, ts + 0.5 * h, a_rad_s, periods, w, wd, k2)
+                for i in range(4):
+                    qs[i] = q[i] + 0.5 * h * k2[i]
+                _reference_qdot(qs, ts + 0.5 * h, a_rad_s, periods, w, wd, k3)
+                for i in range(4):
+                    qs[i] = q[i] + h * k3[i]
+                _reference_qdot(qs, ts + h, a_rad_s, periods, w, wd, k4)
+                c = h / 6.0
+                for i in range(4):
+                    q[i] = q[i] + c * ((k1[i] + 2.0 * (k2[i] + k3[i])) + k4[i])
+        quat_normalize(q, out[j])
+        t_prev = t[j]
+
+
+def reference_rate_tables(reference: PaperReference, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``omega_RN_R`` and ``omegadot_RN_R`` (T, 3) of a :class:`.reference.PaperReference` on ``t``
+    (``q_RN``: :meth:`.reference.PaperReference.sample`, :func:`reference_quaternions`)."""
     tables: tuple[np.ndarray, np.ndarray] = rate_tables(np.ascontiguousarray(t, dtype=np.float64).reshape(-1),
                                                         float(np.radians(reference.amplitude_deg_s)),
                                                         np.asarray(reference.periods_s, dtype=np.float64))

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gnc_common.compiled import jit, matvec3, quat_normalize
+from gnc_common.compiled import inverse3, jit, matvec3, quat_normalize
 from gnc_common.validation import ConfigError, check_spd_inertia, from_mapping
 
 __all__ = ["PRESETS", "ReactionWheels", "allocation_matrix", "angular_momentum_B", "propagate_wheels", "propagate_wheels_into", "wheel_speeds", "wheel_speeds_into",
@@ -107,7 +107,7 @@ class ReactionWheels:
         a = np.asarray(axes, dtype=np.float64)
         if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] < 3 or not np.all(np.isfinite(a)):
             raise ConfigError(f"spin_axes_B must be 3 or more finite 3-vectors, got {axes!r}")
-        norms = np.linalg.norm(a, axis=1)
+        norms = np.sqrt((a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1]) + a[:, 2] * a[:, 2])  # written out (docs/parity.md)
         if np.any(norms < 1e-9):
             raise ConfigError(f"spin_axes_B has a zero axis: {axes!r}")
         G = (a / norms[:, None]).T  # (3, N)
@@ -147,7 +147,9 @@ class ReactionWheels:
     def initial_momentum(self, omega_BN_B: ArrayLike) -> Array:
         """``h`` (N,) of wheels at their initial speeds on a body turning at ``omega_BN_B``."""
         w = np.asarray(omega_BN_B, dtype=np.float64)
-        out: Array = self.per_wheel("spin_inertia_kg_m2") * (self.G.T @ w + self.per_wheel("initial_speed_rad_s"))
+        G = self.G
+        g_dot_w = (G[0] * w[0] + G[1] * w[1]) + G[2] * w[2]  # G^T omega, written out (docs/parity.md)
+        out: Array = self.per_wheel("spin_inertia_kg_m2") * (g_dot_w + self.per_wheel("initial_speed_rad_s"))
         return out
 
 
@@ -166,10 +168,30 @@ def wheels_from_mapping(data: Any, prefix: str) -> ReactionWheels:
     return wheels
 
 
+@jit
+def _allocation_into(G, GGt, GGt_inv, out):
+    n = G.shape[1]
+    for r in range(3):
+        for c in range(3):
+            acc = 0.0
+            for i in range(n):
+                acc += G[r, i] * G[c, i]
+            GGt[r, c] = acc
+    inverse3(GGt, GGt_inv)
+    for i in range(n):
+        for c in range(3):
+            out[i, c] = (G[0, i] * GGt_inv[0, c] + G[1, i] * GGt_inv[1, c]) + G[2, i] * GGt_inv[2, c]
+
+
 def allocation_matrix(G: ArrayLike) -> Array:
-    """The minimum-norm allocation ``G^+ = G^T (G G^T)^-1`` (N, 3) of spin axes ``G`` (3, N)."""
-    G = np.asarray(G, dtype=np.float64)
-    out: Array = np.ascontiguousarray(G.T @ np.linalg.inv(G @ G.T))
+    """The minimum-norm allocation ``G^+ = G^T (G G^T)^-1`` (N, 3) of spin axes ``G`` (3, N).
+
+    Sums written out in a fixed order and the 3 x 3 inverse by its adjugate
+    (:func:`gnc_common.compiled.inverse3`): no BLAS/LAPACK call, whose kernels (chosen by the CPU
+    at run time) give other last bits on another host (docs/parity.md)."""
+    Ga = np.ascontiguousarray(G, dtype=np.float64)
+    out: Array = np.empty((Ga.shape[1], 3))
+    _allocation_into(Ga, np.empty((3, 3)), np.empty((3, 3)), out)
     return out
 
 
@@ -274,13 +296,18 @@ def wheel_speeds_into(x, G, prm, out):
 
 def wheel_speeds(wheels: ReactionWheels, x: ArrayLike) -> Array:
     """``Omega`` (N,) relative to the body, of state ``x`` (7 + N)."""
-    x = np.asarray(x, dtype=np.float64)
-    out: Array = x[7:] / wheels.per_wheel("spin_inertia_kg_m2") - wheels.G.T @ x[4:7]
+    out: Array = np.empty(wheels.n)
+    wheel_speeds_into(np.ascontiguousarray(x, dtype=np.float64), wheels.G, wheels.params(), out)  # the loop's kernel
     return out
 
 
 def angular_momentum_B(J: ArrayLike, wheels: ReactionWheels, x: ArrayLike) -> Array:
     """The total angular momentum ``J omega + G h`` (3,) in B [N m s]."""
     x = np.asarray(x, dtype=np.float64)
-    out: Array = np.asarray(check_spd_inertia("J", J)) @ x[4:7] + wheels.G @ x[7:]
+    Jm = np.asarray(check_spd_inertia("J", J))
+    w, h, G = x[4:7], x[7:], wheels.G
+    # written out in a fixed order (docs/parity.md): J omega, then the wheels' momenta one by one
+    out: Array = (Jm[:, 0] * w[0] + Jm[:, 1] * w[1]) + Jm[:, 2] * w[2]
+    for i in range(wheels.n):
+        out = out + G[:, i] * h[i]
     return out

@@ -200,20 +200,66 @@ def test_cli_end_to_end(tmp_path) -> None:
     assert bad.returncode == 2 and "--run must be in [0, 3]" in bad.stderr
 
 
-def test_the_numpy_cores_24_run_table_is_reproduced(tmp_path) -> None:
-    """``paper_montecarlo.yaml --runs 24 --seed 7``: every numeric column of the table equals the
-    numpy core's (recorded before it left src/) to 1e-12 relative; flags and counts exactly."""
+#: Bounds of the 24-run table against the numpy core's (docs/parity.md, "bounded": another code
+#: path).  The histories behind it agree to 1e-12 in q_ev and 1e-12 N m in torque
+#: (``test_compiled_run_reproduces_numpy_golden``, where the bound is derived).  Each metric of a
+#: unit-quaternion component (a max, a time-mean or a difference with the same ``rho``) moves by at
+#: most what its samples move (Lipschitz constant 1), so it inherits 1e-12 *absolute*: a relative
+#: bound would be conditioning-blind, since a component of 1e-6 carries the absolute rounding of
+#: the O(1) numbers it is computed from (``rpf_error_at_t2_1`` of run 0, 7.9e-7, differs by 1.4e-17
+#: on an AVX-512 host: 1.8e-11 relative).
+TABLE_QUATERNION_ATOL = 1e-12
+TABLE_TORQUE_ATOL_NM = 1e-12
+#: Columns drawn from the seed (PCG64 bits and float64 arithmetic): exact on every host.
+TABLE_EXACT_PREFIXES = ("run", "seed", "euler_deg", "omega0", "inertia_relative", "disturbance", "rpf_clamped", "rpf_flat", "finite")
+
+
+def test_the_numpy_cores_24_run_table_is_reproduced(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """``paper_montecarlo.yaml --runs 24 --seed 7`` against the table the numpy core wrote, with the
+    reference it was recorded with (scipy's DOP853, rebuilt by the oracle: see
+    ``test_compiled_run_reproduces_numpy_golden``): draws exactly, quaternion metrics to
+    :data:`TABLE_QUATERNION_ATOL`, torque to :data:`TABLE_TORQUE_ATOL_NM`.  The discrete results
+    (settling time, pass flag) are equal wherever their margin to the threshold exceeds that bound
+    (checked on each run's history); within it they may move by one sample."""
+    from sim import oracle as sim_oracle
+    from spacecraft_sim.core.reference import PaperReference, ReferenceSamples
+
+    def recorded_reference(self: PaperReference, t: np.ndarray) -> ReferenceSamples:
+        times = np.asarray(t, dtype=np.float64).reshape(-1)
+        q = sim_oracle.reference_quaternions_dop853(times, np.array(self.q_RN0), self.amplitude_deg_s, self.periods_s)
+        return ReferenceSamples(times, q, *self.rates(times))
+
+    monkeypatch.setattr(PaperReference, "sample", recorded_reference)
     run_campaign(SCENARIOS / "paper_montecarlo.yaml", runs=24, seed=7, out_dir=tmp_path / "mc", progress=False)
     new = np.genfromtxt(tmp_path / "mc" / "runs.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
     old = np.genfromtxt(GOLDEN_TABLE, delimiter=",", names=True, dtype=None, encoding="utf-8")
     assert set(old.dtype.names) <= set(new.dtype.names) and new.shape == old.shape == (24,)  # columns added since: answers_*
+    scenario = scenario_from_mapping(BASE)
+    threshold, dt = scenario.metrics.settle_threshold, scenario.control_period_s
     for name in old.dtype.names:
-        if old[name].dtype.kind in "biU":
+        if name.startswith(TABLE_EXACT_PREFIXES):
             assert np.array_equal(new[name], old[name]), name
-            continue
-        a, b = new[name].astype(float), old[name].astype(float)
-        rel = np.abs(a - b) / np.maximum(np.abs(b), 1e-300)
-        assert np.all(rel <= 1e-12), (name, float(rel.max()))
+        elif name.startswith(("rpf_error_at_t2", "steady_")):
+            assert np.max(np.abs(new[name] - old[name])) <= TABLE_QUATERNION_ATOL, name
+        elif name == "max_abs_torque_Nm":
+            assert np.max(np.abs(new[name] - old[name])) <= TABLE_TORQUE_ATOL_NM, name
+        else:
+            assert name in ("settling_time_s", "passed"), f"{name}: a column this test does not know how to compare"
+    # the pass flag: the criteria (1e-4 and 5e-5) are far from every run's values, beyond the bound
+    limits = {"rpf_error_at_t2": 1e-4, "steady_mean_abs_qev": 5e-5}
+    assert all(np.min(np.abs(old[m] - lim)) > TABLE_QUATERNION_ATOL for m, lim in limits.items())
+    assert np.array_equal(new["passed"], old["passed"])
+    # the settling time: equal where the crossing's margin exceeds the bound (else one sample at most)
+    for k in range(24):
+        _, _, _, history = load_campaign_run(tmp_path / "mc", k, with_history=True)
+        err = np.max(np.abs(history.q_BR[:, 0, :3]), axis=1)
+        i = int(round(float(new["settling_time_s"][k]) / dt))
+        margin = min(float(err[i - 1]) - threshold if i > 0 else np.inf, float(threshold - np.max(err[i:])))
+        assert margin > 0.0
+        if margin > TABLE_QUATERNION_ATOL:
+            assert new["settling_time_s"][k] == old["settling_time_s"][k], k
+        else:
+            assert abs(new["settling_time_s"][k] - old["settling_time_s"][k]) <= dt * (1 + 1e-9), k
 
 
 def test_sensor_noise_draws_are_the_campaigns_block_sequence() -> None:
