@@ -1,0 +1,148 @@
+"""The estimator's settings: a frozen, validated dataclass, and its packing for the kernel.
+
+:class:`MekfConfig` holds every number the filter needs, stated as the sensors' data-sheet
+quantities (star-tracker noise, gyro angle and bias random walks), so that a user who states the
+hardware gets a consistent filter without hand tuning: ``R = tracker_noise_rad^2``,
+``sigma_v = angle random walk``, ``sigma_u = bias random walk`` (:mod:`.mekf`).  A scenario's
+``estimator`` section fills what it does not state from its ``sensors`` section
+(:func:`sappc.scenario`); the estimator node takes them as parameters.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnc_common.validation import ConfigError, check_unit_quaternion
+from sappc_estimator.core import mekf
+
+__all__ = ["DEFAULT_GATE_FALSE_ALARM", "DEFAULT_INITIAL_BIAS_SIGMA_RAD_S", "DEFAULT_MAX_CONSECUTIVE_REJECTIONS", "MekfConfig", "chi2_3dof_isf"]
+
+Array = NDArray[np.float64]
+
+#: Probability that the innovation gate rejects a good tracker sample (chi-square, 3 degrees of
+#: freedom): 1e-4 gives the threshold 21.1; a 10 Hz tracker then loses one good sample in about
+#: 17 minutes, while an outlier of 5 sigma or more is rejected.
+DEFAULT_GATE_FALSE_ALARM = 1e-4
+#: Consecutive rejected tracker samples after which the filter re-initialises its attitude from
+#: the tracker: 20 (2 s at 10 Hz), far longer than an outlier burst and far shorter than a run.
+DEFAULT_MAX_CONSECUTIVE_REJECTIONS = 20
+#: 1-sigma of the gyro bias before the first estimate [rad/s] when the user gives none: 1e-5 rad/s
+#: (about 2 deg/h), the order of a fibre-optic or good MEMS gyro's turn-on bias before
+#: calibration; the filter converges from it within seconds at 10 Hz tracker updates.
+DEFAULT_INITIAL_BIAS_SIGMA_RAD_S = 1e-5
+
+
+def chi2_3dof_isf(p: float) -> float:
+    """The ``x`` with ``P(chi2_3 > x) = p`` (chi-square with 3 degrees of freedom), ``0 < p < 1``."""
+    from scipy.stats import chi2  # set-up only
+
+    return float(chi2.isf(p, 3))
+
+
+def _three(name: str, value: object, *, bound: str = "any") -> tuple[float, float, float]:
+    """One number or three (x, y, z) as a 3-tuple, finite, with ``bound`` ``"any"``, ``">= 0"`` or ``"> 0"``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, tuple, list)):
+        raise ConfigError(f"{name} must be one number or 3 (x, y, z), got {value!r}")
+    if isinstance(value, (tuple, list)) and any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value):
+        raise ConfigError(f"{name} must be one number or 3 (x, y, z), got {value!r}")
+    v = np.asarray(value, dtype=np.float64)
+    v = np.full(3, float(v)) if v.ndim == 0 else v
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ConfigError(f"{name} must be one finite number or 3 (x, y, z), got {value!r}")
+    if (bound == "> 0" and not np.all(v > 0)) or (bound == ">= 0" and not np.all(v >= 0)):
+        raise ConfigError(f"{name} must be {bound}, got {value!r}")
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+@dataclass(frozen=True)
+class MekfConfig:
+    """Settings of the multiplicative EKF (:mod:`.mekf`, ``docs/estimator.md``).
+
+    Attributes
+    ----------
+    tracker_noise_rad : float or 3 floats
+        1-sigma star-tracker error about each body axis [rad] (``R``); > 0.
+    gyro_angle_random_walk_rad_sqrt_s : float or 3 floats
+        The gyro's angle random walk ``sigma_v`` [rad/sqrt(s)].
+    gyro_bias_random_walk_rad_s_sqrt_s : float or 3 floats
+        The gyro's bias (rate) random walk ``sigma_u`` [rad/s/sqrt(s)].
+    initial_bias_rad_s : float or 3 floats
+        The bias estimate before the first update [rad/s] (a calibration's value; 0 without one).
+    initial_bias_sigma_rad_s : float or 3 floats
+        Its 1-sigma [rad/s]; :data:`DEFAULT_INITIAL_BIAS_SIGMA_RAD_S`.
+    initial_q_BN : 4 floats or None
+        ``None``: the filter starts at the first star-tracker sample, with the tracker's noise as
+        its attitude uncertainty.  A unit quaternion (scalar last): a prior (e.g. a coarse
+        sensor's attitude), corrected by the first tracker sample; needs
+        ``initial_attitude_sigma_rad``.
+    initial_attitude_sigma_rad : float, 3 floats or None
+        The prior's 1-sigma about each axis [rad] (``None``: the tracker's noise).
+    gate_false_alarm : float
+        Probability that the innovation gate rejects a good tracker sample, in ``[0, 1)``; 0 turns
+        the gate off (:data:`DEFAULT_GATE_FALSE_ALARM`).
+    max_consecutive_rejections : int
+        Rejections in a row after which the attitude is re-initialised from the tracker, >= 1
+        (:data:`DEFAULT_MAX_CONSECUTIVE_REJECTIONS`).
+    """
+
+    tracker_noise_rad: float | tuple[float, float, float]
+    gyro_angle_random_walk_rad_sqrt_s: float | tuple[float, float, float] = 0.0
+    gyro_bias_random_walk_rad_s_sqrt_s: float | tuple[float, float, float] = 0.0
+    initial_bias_rad_s: float | tuple[float, float, float] = 0.0
+    initial_bias_sigma_rad_s: float | tuple[float, float, float] = DEFAULT_INITIAL_BIAS_SIGMA_RAD_S
+    initial_q_BN: tuple[float, float, float, float] | None = None
+    initial_attitude_sigma_rad: float | tuple[float, float, float] | None = None
+    gate_false_alarm: float = DEFAULT_GATE_FALSE_ALARM
+    max_consecutive_rejections: int = DEFAULT_MAX_CONSECUTIVE_REJECTIONS
+
+    def __post_init__(self) -> None:
+        _three("tracker_noise_rad", self.tracker_noise_rad, bound="> 0")
+        _three("gyro_angle_random_walk_rad_sqrt_s", self.gyro_angle_random_walk_rad_sqrt_s, bound=">= 0")
+        _three("gyro_bias_random_walk_rad_s_sqrt_s", self.gyro_bias_random_walk_rad_s_sqrt_s, bound=">= 0")
+        _three("initial_bias_rad_s", self.initial_bias_rad_s)
+        _three("initial_bias_sigma_rad_s", self.initial_bias_sigma_rad_s, bound="> 0")
+        if self.initial_q_BN is not None:
+            check_unit_quaternion("initial_q_BN", self.initial_q_BN)
+            if self.initial_attitude_sigma_rad is None:
+                raise ConfigError("initial_attitude_sigma_rad must be given with initial_q_BN (the prior's uncertainty)")
+        if self.initial_attitude_sigma_rad is not None:
+            _three("initial_attitude_sigma_rad", self.initial_attitude_sigma_rad, bound="> 0")
+        g = self.gate_false_alarm
+        if isinstance(g, bool) or not isinstance(g, (int, float)) or not (math.isfinite(g) and 0.0 <= g < 1.0):
+            raise ConfigError(f"gate_false_alarm must be in [0, 1) (0: no gate), got {g!r}")
+        m = self.max_consecutive_rejections
+        if isinstance(m, bool) or not isinstance(m, int) or m < 1:
+            raise ConfigError(f"max_consecutive_rejections must be an integer >= 1, got {m!r}")
+
+    @property
+    def gate_chi2(self) -> float:
+        """The gate's threshold on the NIS (``inf``: no gate)."""
+        return math.inf if self.gate_false_alarm == 0.0 else chi2_3dof_isf(self.gate_false_alarm)
+
+    def params(self) -> Array:
+        """The kernel's parameter array (:data:`.mekf.N_EST_PARAMS`,)."""
+        p = np.zeros(mekf.N_EST_PARAMS)
+        noise = np.asarray(_three("tracker_noise_rad", self.tracker_noise_rad))
+        p[mekf.EP_R:mekf.EP_R + 3] = noise * noise
+        arw = np.asarray(_three("arw", self.gyro_angle_random_walk_rad_sqrt_s))
+        p[mekf.EP_SV2:mekf.EP_SV2 + 3] = arw * arw
+        brw = np.asarray(_three("brw", self.gyro_bias_random_walk_rad_s_sqrt_s))
+        p[mekf.EP_SU2:mekf.EP_SU2 + 3] = brw * brw
+        att = noise if self.initial_attitude_sigma_rad is None else np.asarray(_three("sigma", self.initial_attitude_sigma_rad))
+        p[mekf.EP_P0A:mekf.EP_P0A + 3] = att * att
+        bs = np.asarray(_three("initial_bias_sigma_rad_s", self.initial_bias_sigma_rad_s))
+        p[mekf.EP_P0B:mekf.EP_P0B + 3] = bs * bs
+        p[mekf.EP_B0:mekf.EP_B0 + 3] = _three("initial_bias_rad_s", self.initial_bias_rad_s)
+        p[mekf.EP_GATE] = self.gate_chi2
+        p[mekf.EP_MAXREJ] = float(self.max_consecutive_rejections)
+        if self.initial_q_BN is None:
+            p[mekf.EP_INIT] = mekf.INIT_FROM_TRACKER
+        else:
+            q = np.asarray(self.initial_q_BN, dtype=np.float64)
+            p[mekf.EP_INIT] = mekf.INIT_FROM_PRIOR
+            p[mekf.EP_Q0:mekf.EP_Q0 + 4] = q / np.sqrt(((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3])
+        return p

@@ -1,0 +1,387 @@
+"""The attitude estimator, compiled: a multiplicative extended Kalman filter (MEKF) on the attitude
+error and the gyro bias, one run's step as a numba kernel.
+
+This module is **the** implementation of the filter: the estimator node
+(``python -m sappc_estimator``), the offline whole-run loop and Monte Carlo all call
+:func:`mekf_step`.  It imports no configuration class: :mod:`.config` packs the settings into the
+parameter array below (the kernels are leaves of the room).
+
+References: Lefferts, Markley and Shuster, "Kalman filtering for spacecraft attitude estimation",
+J. Guidance 5(5), 1982; Markley and Crassidis, *Fundamentals of Spacecraft Attitude Determination
+and Control*, Springer 2014, ch. 6 (cited as "M&C" with their equation numbers).
+The filter is specified line by line in ``docs/estimator.md``; ``tests/estimator/oracle.py`` is an
+independent numpy transcription of that page.
+
+Model (quaternions scalar last, Hamilton product, ``q_BN``: body relative to inertial)
+---------------------------------------------------------------------------------------
+Truth ``q = q_hat ⊗ dq(a)``: the attitude error ``a`` is a rotation vector in the *body* frame
+(M&C 6.2.1's local error).  The gyro measures ``omega_meas = omega + b + eta_v``, the bias walks
+``db/dt = eta_u``; ``eta_v`` and ``eta_u`` are white with per-axis spectral densities
+``sigma_v^2`` (angle random walk squared, rad^2/s) and ``sigma_u^2`` (bias random walk squared,
+rad^2/s^3).  The star tracker measures ``q_meas = q ⊗ dq(nu)``, ``nu`` (body frame) with per-axis
+variances ``R`` [rad^2].  Error state ``x = (a, db)`` (6), ``db = b - b_hat``; covariance ``P``
+(6, 6).
+
+One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (q_meas, omega_meas)``:
+
+1. **A new tracker sample** is one whose quaternion differs, in any bit, from the quaternion of
+   the previous step's measurement: a star tracker holds its last quaternion between updates
+   and during outages (``spacecraft_sim.core.sensors``), so a held value is not a new measurement.
+   The first step's sample is new.
+2. **Initialisation.**  ``from_tracker`` (default): nothing is estimated until the first new
+   tracker sample, which becomes ``q_hat``, with ``b_hat = b0`` and ``P = diag(P0_a, P0_b)``.
+   ``from_prior``: at the first step ``q_hat = q_prior``, same ``b_hat`` and ``P``, and that step's
+   tracker sample is then processed as an update (a prior far from the truth, e.g. a coarse
+   sensor's attitude 10 deg off, is corrected by the first tracker sample).
+3. **Propagation** from the previous step's time ``t_prev`` over ``h = t - t_prev`` with the mean
+   of the two gyro samples, bias removed: ``w = (omega_prev + omega_meas) / 2 - b_hat``
+   (trapezoid: the rate between two samples, not the older one held).
+   ``q_hat <- normalise(q_hat ⊗ dq(w h))`` (the exact rotation for a constant rate);
+   ``P <- Phi P Phi^T + Qd``, ``Phi`` the transition of ``F = [[-[w x], -I], [0, 0]]`` in closed
+   form (M&C 6.83: ``Phi11 = I - [w x] s + [w x]^2 c``, ``Phi12 = [w x] c - I h - [w x]^2 d``,
+   ``s = sin(x)/|w|``, ``c = (1 - cos x)/|w|^2``, ``d = (x - sin x)/|w|^3``, ``x = |w| h``), and
+   ``Qd`` M&C 6.93 per axis: ``[[sv^2 h + su^2 h^3 / 3, -su^2 h^2 / 2], [-su^2 h^2 / 2, su^2 h]]``.
+   ``1 - cos x`` is evaluated as ``2 sin^2(x/2)`` and ``x - sin x`` by its series below
+   :data:`SERIES_BELOW` (no cancellation).  ``P`` is symmetrised.
+4. **Update** (a new tracker sample, once initialised): residual ``r = rotvec(q_hat^* ⊗ q_meas)``
+   (shortest rotation, ``r = 2 atan2(|v|, s) v / |v|`` with ``s >= 0``); ``S = P_aa + diag(R)``;
+   the squared Mahalanobis distance ``d2 = r^T S^-1 r`` (the normalised innovation squared, NIS,
+   chi-square with 3 degrees of freedom for a consistent filter).
+   *Gate*: ``d2 > gate`` rejects the sample (counted); after ``max_rejections`` consecutive
+   rejections the filter re-initialises its attitude from the tracker (``q_hat = q_meas``,
+   ``P_aa = P0_a``, ``P_ab = 0``; the bias and its covariance kept): a filter that has lost its
+   attitude must not reject the truth forever.
+   *Accepted*: ``K = P H^T S^-1`` with ``H = [I 0]``, ``dx = K r``, the Joseph form
+   ``P <- (I - K H) P (I - K H)^T + K R K^T`` (symmetric and positive definite whatever the
+   rounding, M&C 6.25), symmetrised; the multiplicative reset ``q_hat <- normalise(q_hat ⊗
+   dq(dx_a))``, ``b_hat <- b_hat + dx_b`` (M&C 6.2.3; ``P`` is not transformed by the reset).
+5. **Outputs**: ``q_hat``, ``omega_hat = omega_meas - b_hat`` (the current sample), ``b_hat``, the
+   1-sigma of each error state ``sqrt(diag P)``, the last NIS and the step's status.
+
+Arrays (float64, the caller's; no allocation per step)
+------------------------------------------------------
+``prm`` (:data:`N_EST_PARAMS`,)
+    Columns ``EP_*``: ``R`` (3), ``sigma_v^2`` (3), ``sigma_u^2`` (3), ``P0_a`` (3), ``P0_b`` (3),
+    ``b0`` (3), ``gate`` (inf: none), ``max_rejections`` (0: never re-initialise), the
+    initialisation mode (``INIT_*``) and ``q_prior`` (4).
+``st`` (:data:`N_EST_STATE`,)
+    Columns ``ES_*``: initialised flag, ``q_hat`` (4), ``b_hat`` (3), the previous measurement's
+    quaternion (4) and rate (3), ``t_prev``, counters (updates, rejections, consecutive rejections,
+    re-initialisations), the last NIS.  :func:`new_state` gives a fresh one.
+``P`` (6, 6) the covariance; ``work`` (:data:`N_EST_WORK`, 6) scratch.
+``out`` (:data:`N_EST_OUT`,)
+    Columns ``EO_*``: ``q_hat`` (4), ``omega_hat`` (3), ``b_hat`` (3), ``sigma`` (6: attitude [rad],
+    bias [rad/s]), the last NIS, the status (``STATUS_*``).  Before initialisation everything but
+    the status is NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gnc_common.compiled import inverse3, jit, quat_multiply, quat_normalize
+
+__all__ = [
+    "EO_B", "EO_NIS", "EO_OMEGA", "EO_Q", "EO_SIGMA", "EO_STATUS",
+    "EP_B0", "EP_GATE", "EP_INIT", "EP_MAXREJ", "EP_P0A", "EP_P0B", "EP_Q0", "EP_R", "EP_SU2", "EP_SV2",
+    "ES_B", "ES_INIT", "ES_LASTQ", "ES_LASTW", "ES_NIS", "ES_N_CONSEC", "ES_N_REINIT", "ES_N_REJ", "ES_N_UPD", "ES_Q", "ES_TPREV",
+    "INIT_FROM_PRIOR", "INIT_FROM_TRACKER",
+    "N_EST_OUT", "N_EST_PARAMS", "N_EST_STATE", "N_EST_WORK",
+    "SERIES_BELOW",
+    "STATUS_INITIALISED", "STATUS_NAMES", "STATUS_NONE", "STATUS_PROPAGATED", "STATUS_REINITIALISED", "STATUS_REJECTED", "STATUS_UPDATED",
+    "mekf_step", "new_state", "rotation_quaternion", "rotation_vector",
+]
+
+# ----------------------------------------------------------------------------- layouts
+
+#: Parameter columns (module docstring).
+EP_R, EP_SV2, EP_SU2, EP_P0A, EP_P0B, EP_B0, EP_GATE, EP_MAXREJ, EP_INIT, EP_Q0 = 0, 3, 6, 9, 12, 15, 18, 19, 20, 21
+N_EST_PARAMS = 25
+#: Initialisation modes (``prm[EP_INIT]``).
+INIT_FROM_TRACKER, INIT_FROM_PRIOR = 0, 1
+
+#: State columns.
+ES_INIT, ES_Q, ES_B, ES_LASTQ, ES_LASTW, ES_TPREV = 0, 1, 5, 8, 12, 15
+ES_N_UPD, ES_N_REJ, ES_N_CONSEC, ES_N_REINIT, ES_NIS, ES_SEEN = 16, 17, 18, 19, 20, 21
+N_EST_STATE = 22
+
+#: Output columns.
+EO_Q, EO_OMEGA, EO_B, EO_SIGMA, EO_NIS, EO_STATUS = 0, 4, 7, 10, 16, 17
+N_EST_OUT = 18
+
+#: What a step did (``out[EO_STATUS]``), in :data:`STATUS_NAMES` order.
+STATUS_NONE, STATUS_INITIALISED, STATUS_PROPAGATED, STATUS_UPDATED, STATUS_REJECTED, STATUS_REINITIALISED = 0, 1, 2, 3, 4, 5
+STATUS_NAMES = ("none", "initialised", "propagated", "updated", "rejected", "reinitialised")
+
+#: Rows of the scratch array: Phi (6), the product Phi P (6), K (6, as 6 x 3 in the first 3
+#: columns), I - K H (6), a 3 x 3 block pair (2 rows: S and S^-1 packed), vectors.
+N_EST_WORK = 32
+_W_PHI, _W_TMP, _W_K, _W_IKH, _W_S, _W_V = 0, 6, 12, 18, 24, 30
+
+#: Below this ``x = |w| h`` [rad], ``x - sin x`` is its series ``x^3/6 - x^5/120 + x^7/5040``
+#: (truncation below 1e-17 relative there); above it the closed form has no harmful cancellation
+#: (relative error about ``6 eps / x^2`` < 2e-11 of a term itself ~x^2/6 of ``Phi12``).
+SERIES_BELOW = 1e-2
+
+
+def new_state() -> np.ndarray:
+    """A fresh filter state (not initialised)."""
+    st = np.zeros(N_EST_STATE)
+    st[ES_NIS] = np.nan
+    return st
+
+
+# ----------------------------------------------------------------------------- rotations
+
+
+@jit(inline="always")
+def rotation_quaternion(rx, ry, rz, out):
+    """``dq(r)``: the unit quaternion of the rotation vector ``(rx, ry, rz)`` [rad] (scalar last)."""
+    angle = np.sqrt((rx * rx + ry * ry) + rz * rz)
+    if angle > 0.0:
+        s = np.sin(0.5 * angle) / angle
+        out[0] = rx * s
+        out[1] = ry * s
+        out[2] = rz * s
+        out[3] = np.cos(0.5 * angle)
+    else:
+        out[0] = 0.0
+        out[1] = 0.0
+        out[2] = 0.0
+        out[3] = 1.0
+
+
+@jit(inline="always")
+def rotation_vector(q, out):
+    """The rotation vector (3,) of the shortest rotation of the unit quaternion ``q`` (scalar
+    last): ``2 atan2(|v|, |s|) v / |v|`` with the sign of ``s`` folded into ``v``."""
+    sign = 1.0 if q[3] >= 0.0 else -1.0
+    vx, vy, vz, s = sign * q[0], sign * q[1], sign * q[2], sign * q[3]
+    nv = np.sqrt((vx * vx + vy * vy) + vz * vz)
+    f = 2.0 * np.arctan2(nv, s) / nv if nv > 0.0 else 2.0 / s
+    out[0] = f * vx
+    out[1] = f * vy
+    out[2] = f * vz
+
+
+# ----------------------------------------------------------------------------- steps
+
+
+@jit(inline="always")
+def _initialise(prm, q, st, P):
+    for i in range(4):
+        st[ES_Q + i] = q[i]
+    for i in range(3):
+        st[ES_B + i] = prm[EP_B0 + i]
+    for r in range(6):
+        for c in range(6):
+            P[r, c] = 0.0
+    for i in range(3):
+        P[i, i] = prm[EP_P0A + i]
+        P[3 + i, 3 + i] = prm[EP_P0B + i]
+    st[ES_INIT] = 1.0
+
+
+@jit(inline="always")
+def _symmetrise(P):
+    for r in range(6):
+        for c in range(r + 1, 6):
+            m = 0.5 * (P[r, c] + P[c, r])
+            P[r, c] = m
+            P[c, r] = m
+
+
+@jit(inline="always")
+def _propagate(prm, st, P, w0, w1, w2, h, work):
+    """Step 3 of the module docstring: ``q_hat`` and ``P`` over ``h`` at the rate ``w`` (bias removed)."""
+    # attitude: q_hat <- normalise(q_hat ⊗ dq(w h))
+    dq = work[_W_V]
+    rotation_quaternion(w0 * h, w1 * h, w2 * h, dq)
+    q = st[ES_Q:ES_Q + 4]
+    quat_multiply(q, dq, q)
+    quat_normalize(q, q)
+    # transition (M&C 6.83), with W = [w x]
+    wn2 = (w0 * w0 + w1 * w1) + w2 * w2
+    wn = np.sqrt(wn2)
+    x = wn * h
+    if wn > 0.0:
+        s = np.sin(x) / wn
+        half = np.sin(0.5 * x)
+        c = 2.0 * half * half / wn2
+        if x < SERIES_BELOW:
+            x2 = x * x
+            d = h * h * h * ((1.0 / 6.0 - x2 / 120.0) + x2 * x2 / 5040.0)
+        else:
+            d = (x - np.sin(x)) / (wn2 * wn)
+    else:
+        s, c, d = h, 0.5 * h * h, h * h * h / 6.0
+    Phi = work[_W_PHI:_W_PHI + 6]
+    for r in range(6):
+        for col in range(6):
+            Phi[r, col] = 0.0
+    # W and W^2 written out: W = [[0, -w2, w1], [w2, 0, -w0], [-w1, w0, 0]], W^2 = w w^T - |w|^2 I
+    Wm = ((0.0, -w2, w1), (w2, 0.0, -w0), (-w1, w0, 0.0))
+    wv = (w0, w1, w2)
+    for r in range(3):
+        for col in range(3):
+            w_rc = Wm[r][col]
+            w2_rc = wv[r] * wv[col] - (wn2 if r == col else 0.0)
+            eye = 1.0 if r == col else 0.0
+            Phi[r, col] = (eye - w_rc * s) + w2_rc * c
+            Phi[r, 3 + col] = (w_rc * c - eye * h) - w2_rc * d
+        Phi[3 + r, 3 + r] = 1.0
+    # P <- Phi P Phi^T + Qd
+    T = work[_W_TMP:_W_TMP + 6]
+    for r in range(6):
+        for col in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += Phi[r, k] * P[k, col]
+            T[r, col] = acc
+    for r in range(6):
+        for col in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += T[r, k] * Phi[col, k]
+            P[r, col] = acc
+    h2 = h * h
+    for i in range(3):
+        sv2, su2 = prm[EP_SV2 + i], prm[EP_SU2 + i]
+        P[i, i] += sv2 * h + su2 * h2 * h / 3.0  # M&C 6.93
+        P[i, 3 + i] += -0.5 * su2 * h2
+        P[3 + i, i] += -0.5 * su2 * h2
+        P[3 + i, 3 + i] += su2 * h
+    _symmetrise(P)
+
+
+@jit(inline="always")
+def _update(prm, st, P, q_meas, work):
+    """Step 4 of the module docstring; returns the status (updated, rejected or re-initialised)."""
+    q = st[ES_Q:ES_Q + 4]
+    # residual r = rotvec(q_hat^* ⊗ q_meas)
+    dq = work[_W_V]
+    qc0, qc1, qc2, qc3 = -q[0], -q[1], -q[2], q[3]
+    conj = work[_W_V + 1]
+    conj[0], conj[1], conj[2], conj[3] = qc0, qc1, qc2, qc3
+    quat_multiply(conj, q_meas, dq)
+    r = work[_W_V + 1]
+    rotation_vector(dq, r)
+    r0, r1, r2 = r[0], r[1], r[2]
+    # S = P_aa + R and its inverse
+    S = work[_W_S:_W_S + 3, 0:3]
+    Si = work[_W_S:_W_S + 3, 3:6]
+    for a in range(3):
+        for b in range(3):
+            S[a, b] = P[a, b] + (prm[EP_R + a] if a == b else 0.0)
+    inverse3(S, Si)
+    # NIS d2 = r^T S^-1 r
+    d2 = 0.0
+    rv = (r0, r1, r2)
+    for a in range(3):
+        row = (Si[a, 0] * r0 + Si[a, 1] * r1) + Si[a, 2] * r2
+        d2 += rv[a] * row
+    st[ES_NIS] = d2
+    if d2 > prm[EP_GATE]:
+        st[ES_N_REJ] += 1.0
+        st[ES_N_CONSEC] += 1.0
+        if prm[EP_MAXREJ] > 0.0 and st[ES_N_CONSEC] >= prm[EP_MAXREJ]:
+            for i in range(4):
+                q[i] = q_meas[i]
+            for a in range(3):
+                for b in range(6):
+                    P[a, b] = 0.0
+                    P[b, a] = 0.0
+                P[a, a] = prm[EP_P0A + a]
+            st[ES_N_CONSEC] = 0.0
+            st[ES_N_REINIT] += 1.0
+            return STATUS_REINITIALISED
+        return STATUS_REJECTED
+    # K = P[:, 0:3] S^-1 (6 x 3)
+    K = work[_W_K:_W_K + 6, 0:3]
+    for i in range(6):
+        for b in range(3):
+            K[i, b] = (P[i, 0] * Si[0, b] + P[i, 1] * Si[1, b]) + P[i, 2] * Si[2, b]
+    # Joseph form: P <- (I - K H) P (I - K H)^T + K R K^T
+    A = work[_W_IKH:_W_IKH + 6]
+    for i in range(6):
+        for j in range(6):
+            A[i, j] = (1.0 if i == j else 0.0) - (K[i, j] if j < 3 else 0.0)
+    T = work[_W_TMP:_W_TMP + 6]
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += A[i, k] * P[k, j]
+            T[i, j] = acc
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += T[i, k] * A[j, k]
+            krk = 0.0
+            for b in range(3):
+                krk += K[i, b] * prm[EP_R + b] * K[j, b]
+            P[i, j] = acc + krk
+    _symmetrise(P)
+    # dx = K r, multiplicative reset
+    dx = work[_W_V + 1]
+    for i in range(3):
+        dx[i] = (K[i, 0] * r0 + K[i, 1] * r1) + K[i, 2] * r2
+    for i in range(3):
+        st[ES_B + i] += (K[3 + i, 0] * r0 + K[3 + i, 1] * r1) + K[3 + i, 2] * r2
+    rotation_quaternion(dx[0], dx[1], dx[2], dq)
+    quat_multiply(q, dq, q)
+    quat_normalize(q, q)
+    st[ES_N_UPD] += 1.0
+    st[ES_N_CONSEC] = 0.0
+    return STATUS_UPDATED
+
+
+@jit
+def mekf_step(prm, t, y, st, P, work, out):
+    """One step of the filter at time ``t`` [s] with the measurement ``y`` (7,) ``(q_meas (4),
+    omega_meas (3))`` (module docstring); writes ``out`` and returns the status (``STATUS_*``)."""
+    new = st[ES_SEEN] == 0.0
+    for i in range(4):
+        if y[i] != st[ES_LASTQ + i]:
+            new = True
+    status = STATUS_NONE
+    if st[ES_INIT] == 0.0:
+        if prm[EP_INIT] == INIT_FROM_PRIOR:
+            _initialise(prm, prm[EP_Q0:EP_Q0 + 4], st, P)
+            status = STATUS_INITIALISED
+            if new:
+                status = _update(prm, st, P, y[0:4], work)
+        elif new:
+            _initialise(prm, y[0:4], st, P)
+            status = STATUS_INITIALISED
+    else:
+        h = t - st[ES_TPREV]
+        b = st[ES_B:ES_B + 3]
+        w0 = 0.5 * (st[ES_LASTW] + y[4]) - b[0]
+        w1 = 0.5 * (st[ES_LASTW + 1] + y[5]) - b[1]
+        w2 = 0.5 * (st[ES_LASTW + 2] + y[6]) - b[2]
+        _propagate(prm, st, P, w0, w1, w2, h, work)
+        status = STATUS_PROPAGATED
+        if new:
+            status = _update(prm, st, P, y[0:4], work)
+    for i in range(4):
+        st[ES_LASTQ + i] = y[i]
+    for i in range(3):
+        st[ES_LASTW + i] = y[4 + i]
+    st[ES_TPREV] = t
+    st[ES_SEEN] = 1.0
+    if st[ES_INIT] == 0.0:
+        for i in range(N_EST_OUT):
+            out[i] = np.nan
+    else:
+        for i in range(4):
+            out[EO_Q + i] = st[ES_Q + i]
+        for i in range(3):
+            out[EO_B + i] = st[ES_B + i]
+            out[EO_OMEGA + i] = y[4 + i] - st[ES_B + i]
+        for i in range(6):
+            out[EO_SIGMA + i] = np.sqrt(P[i, i])
+        out[EO_NIS] = st[ES_NIS]
+    out[EO_STATUS] = status
+    return status
