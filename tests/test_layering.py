@@ -24,15 +24,17 @@ import pytest
 from conftest import ROOT
 
 SRC = ROOT / "src"
-PROJECT = ("gnc_common", "sappc_controller", "spacecraft_sim", "sappc_msgs_py", "sappc")
+PROJECT = ("gnc_common", "sappc_controller", "sappc_estimator", "spacecraft_sim", "sappc_msgs_py", "sappc")
 
 #: Room (a module prefix; the longest match wins) -> floor.
 FLOORS: dict[str, int] = {
     "gnc_common": 0,
     "sappc_controller.core": 1,
+    "sappc_estimator.core": 1,
     "spacecraft_sim.core": 1,
     "sappc_msgs_py": 1,
     "sappc_controller": 2,
+    "sappc_estimator": 2,
     "spacecraft_sim": 2,
     "sappc.scenario": 3,
     "sappc.evaluation": 4,
@@ -46,11 +48,15 @@ FLOORS: dict[str, int] = {
     "sappc": 9,
 }
 #: Pairs of packages that must never meet, whatever their floors.
-NEVER = {("sappc_controller", "spacecraft_sim"), ("spacecraft_sim", "sappc_controller"), ("sappc_msgs_py", "spacecraft_sim")}
+#: The flight software (controller, estimator) never meets the simulator, nor the controller the
+#: estimator (each takes the contract's topics only).
+NEVER = {("sappc_controller", "spacecraft_sim"), ("spacecraft_sim", "sappc_controller"), ("sappc_msgs_py", "spacecraft_sim"),
+         ("sappc_estimator", "spacecraft_sim"), ("spacecraft_sim", "sappc_estimator"), ("sappc_estimator", "sappc_controller"),
+         ("sappc_controller", "sappc_estimator")}
 #: The modules that may import rclpy: nodes, the contract's node runtime (and its QoS), the graph tools.
-ROS_MODULES = ("sappc_msgs_py.runtime", "sappc_msgs_py.contract", "sappc_controller.node", "spacecraft_sim.plant_node",
+ROS_MODULES = ("sappc_msgs_py.runtime", "sappc_msgs_py.contract", "sappc_controller.node", "sappc_estimator.node", "spacecraft_sim.plant_node",
                "spacecraft_sim.reference", "spacecraft_sim.disturbance", "sappc.graph")
-PURE_ROOMS = ("gnc_common", "sappc_controller.core", "spacecraft_sim.core")
+PURE_ROOMS = ("gnc_common", "sappc_controller.core", "sappc_estimator.core", "spacecraft_sim.core")
 CLOCK_MODULES = {"time", "datetime"}
 
 
