@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.common import ActuatorConfig
+from sappc_estimator.core.config import MekfConfig
 from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES, DEFAULT_STALE_TIMEOUT_S, check_watchdog_seconds, parameters_from_config, unflatten
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
@@ -112,6 +113,7 @@ _TOP_KEYS = {
     "faults",  # actuator, sensor and link faults (offline, in campaigns and on the ROS 2 graph)
     "controller_node",  # the controller node's input watchdog (both paths model it)
     "sensors",  # the plant's star tracker and gyro (spacecraft_sim.core.sensors); none: exact measurements
+    "estimator",  # attitude determination between the sensors and the controller (sappc_estimator); none: the measurements
 }
 
 
@@ -223,6 +225,10 @@ class Scenario:
     sensors : Sensors or None
         The plant's star tracker and gyro (the controller sees their measurements, the metrics
         the true state); ``None``: the state is measured exactly.
+    estimator : MekfConfig or None
+        The attitude estimator between the sensors and the controller (``estimator: {kind:
+        mekf}``; settings not given come from ``sensors``); ``None``: the controller is fed the
+        measurements.
     metrics : MetricSettings
     controller : ControllerKind
         Default controller.
@@ -256,6 +262,7 @@ class Scenario:
     controller_node: ControllerNodeSettings = ControllerNodeSettings()
     wheels: ReactionWheels | None = None
     sensors: Sensors | None = None
+    estimator: MekfConfig | None = None
 
     def controller_config(self, kind: ControllerKind | str | None = None) -> Any:
         """The validated config dataclass of controller ``kind`` (default: the scenario's)."""
@@ -335,6 +342,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     faults = faults_from_list(data.get("faults"))
     actuator, wheels = _actuator_from_mapping(data.get("actuator", {}) or {})
     sensors = None if data.get("sensors") is None else sensors_from_mapping(data["sensors"], "sensors", dt)
+    estimator = _estimator_from_mapping(data.get("estimator"), sensors)
     metrics = from_mapping(MetricSettings, data.get("metrics", {}) or {}, "metrics")
     node_settings = from_mapping(ControllerNodeSettings, data.get("controller_node", {}) or {}, "controller_node")
 
@@ -364,6 +372,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
         controller_node=node_settings,
         wheels=wheels,
         sensors=sensors,
+        estimator=estimator,
     )
     for name in controllers:  # validate every controller's parameters now, not at run time
         scenario.controller_config(name)
@@ -394,6 +403,44 @@ def _actuator_from_mapping(data: Any) -> tuple[ActuatorConfig, ReactionWheels | 
         raise ConfigError("missing key actuator.wheels (actuator.kind: reaction_wheels)")
     wheels = wheels_from_mapping(wheels_raw, "actuator.wheels")
     return actuator, wheels
+
+
+#: The estimator kinds (``estimator.kind``): none (the controller is fed the sensors' measurements)
+#: or the multiplicative EKF (:mod:`sappc_estimator.core.mekf`).
+ESTIMATOR_KINDS = ("none", "mekf")
+
+
+def _estimator_from_mapping(data: Any, sensors: Sensors | None) -> MekfConfig | None:
+    """The ``estimator`` section: ``kind: none`` (default) or ``kind: mekf`` with optional
+    :class:`~sappc_estimator.core.config.MekfConfig` keys; the filter's noise figures default to
+    the ``sensors`` section's data sheet (docs/estimator.md).  Errors name the key."""
+    if data is None:
+        return None
+    if not isinstance(data, dict):
+        raise ConfigError(f"estimator must be a mapping, got {data!r}")
+    rest = dict(data)
+    kind = rest.pop("kind", "none")
+    if kind not in ESTIMATOR_KINDS:
+        raise ConfigError(f"estimator.kind must be one of {', '.join(ESTIMATOR_KINDS)}, got {kind!r}")
+    if kind == "none":
+        if rest:
+            raise ConfigError(f"estimator.{sorted(rest)[0]} is only for estimator.kind: mekf")
+        return None
+    tracker = None if sensors is None else sensors.star_tracker
+    if tracker is None and "tracker_noise_rad" not in rest:
+        raise ConfigError("estimator.kind: mekf needs sensors.star_tracker (its measurement) or estimator.tracker_noise_rad")
+    gyro = None if sensors is None else sensors.gyro
+    spec: dict[str, Any] = {} if tracker is None else {"tracker_noise_rad": tracker.noise_rad}
+    if gyro is not None:
+        spec.update(gyro_angle_random_walk_rad_sqrt_s=gyro.angle_random_walk_rad_sqrt_s,
+                    gyro_bias_random_walk_rad_s_sqrt_s=gyro.bias_random_walk_rad_s_sqrt_s)
+    merged = {k: (list(v) if isinstance(v, tuple) else v) for k, v in {**spec, **rest}.items()}
+    try:
+        config: MekfConfig = from_mapping(MekfConfig, merged, "estimator")
+    except ConfigError as exc:  # the config's own checks name the bare key: name it in full
+        msg = str(exc)
+        raise ConfigError(f"estimator.{msg[len('estimator: '):]}" if msg.startswith("estimator: ") else msg) from None
+    return config
 
 
 def load_scenario(path: str | Path) -> Scenario:
