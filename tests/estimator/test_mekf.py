@@ -320,3 +320,194 @@ def test_kernel_equals_oracle(name: str) -> None:
     assert dP_rel <= PARITY_REL_P
     assert dsig_rel <= PARITY_REL_P
     assert nis_ratio <= 1.0
+
+
+# ----------------------------------------------------------------------------- (b) behaviour
+
+
+def p0_diag(prm: np.ndarray) -> np.ndarray:
+    """``diag(P0_a, P0_b)`` of a parameter array (6,)."""
+    return np.concatenate((prm[mekf.EP_P0A:mekf.EP_P0A + 3], prm[mekf.EP_P0B:mekf.EP_P0B + 3]))
+
+
+@pytest.mark.parametrize("k0, rate_scale_rad_s", [(0, 0.01), (3, 0.0)], ids=["at_the_tracker_sample", "mid_hold_inertial"])
+def test_initialises_at_the_first_tracker_sample(k0: int, rate_scale_rad_s: float) -> None:
+    """``from_tracker``: the first step's sample (new by definition, even a held copy when the filter
+    starts mid-hold) becomes ``q_hat`` bit for bit, without propagation; ``b_hat = b0``,
+    ``P = diag(P0_a, P0_b)``, ``omega_hat = ω̃ - b0``, no NIS yet, no counter moved.  Afterwards the
+    filter updates exactly at the tracker's new samples and only propagates on the held ones.
+    (Mid-hold, the body is inertial: a held sample is stale by up to 90 ms, which a tumbling body
+    turns into ~1e-4 rad >> the tracker's noise; see the report on the specification.)"""
+    run = simulate(3.0, 21, rate_scale_rad_s=rate_scale_rad_s)
+    b0 = (3e-6, -2e-6, 1e-6)
+    prm = mekf_config(initial_bias_rad_s=b0).params()
+    kr = run_kernel(prm, run.t_s[k0:], run.y[k0:])
+    assert kr.status[0] == mekf.STATUS_INITIALISED
+    np.testing.assert_array_equal(kr.q_hat[0], run.y[k0, :4])
+    np.testing.assert_array_equal(kr.b_hat[0], b0)
+    np.testing.assert_array_equal(kr.P[0], np.diag(p0_diag(prm)))
+    np.testing.assert_array_equal(kr.sigma[0], np.sqrt(p0_diag(prm)))
+    np.testing.assert_array_equal(kr.out[0, mekf.EO_OMEGA:mekf.EO_OMEGA + 3], run.y[k0, 4:] - np.array(b0))
+    assert np.isnan(kr.nis[0])
+    np.testing.assert_array_equal(kr.counters[0], [0, 0, 0, 0])
+    new = tracker_samples(run)
+    new = new[new > k0] - k0
+    expected = np.full(len(kr.status), mekf.STATUS_PROPAGATED)
+    expected[0] = mekf.STATUS_INITIALISED
+    expected[new] = mekf.STATUS_UPDATED
+    np.testing.assert_array_equal(kr.status, expected)
+    assert kr.counters[-1, 0] == len(new) == 29
+
+
+def test_outage_propagates_only_then_reacquires() -> None:
+    """An inertially pointing body (truth rate 0), the tracker out for 20 s.  During the outage
+    every step only propagates (no counter moves) and the attitude covariance follows the
+    continuous model's exact solution for a non-rotating frame from the last update's ``P``
+    (``T`` since it): ``P_aa(T) = P_aa - T (P_ab + P_abᵀ) + T² P_bb + diag(σv² T + σu² T³/3)``.
+    The filter's frame turns only by the gyro noise and the bias residual, by
+    ``θ ≲ 3 (σv √T + σb T) ≈ 3e-5`` rad over 20 s, which mixes the axes' variances by
+    ``≲ θ (P_zz - P_xx) / sqrt(P_xx P_zz) ≈ 5e-5`` of the diagonal scale: bound 1e-4 relative to
+    ``sqrt(P_ii P_jj)`` (dropping the ARW's ``σv² h`` or flipping ``Φ12`` costs O(1)).  The attitude error stays within 3 sigma throughout; the first sample
+    after the outage is accepted (not gated), shrinks sigma, and the error is then within 3 sigma
+    again; 15 s later sigma is back within 10% of its value before the outage."""
+    run = simulate(100.0, 22, outages_s=((60.0, 80.0),), rate_scale_rad_s=0.0)
+    prm = mekf_config().params()
+    kr = run_kernel(prm, run.t_s, run.y)
+    new = tracker_samples(run)
+    gap = np.argmax(np.diff(new))
+    k_last, k_re = new[gap], new[gap + 1]
+    assert 59.8 < run.t_s[k_last] < 60.0 and 80.0 <= run.t_s[k_re] < 80.1
+    assert kr.status[k_last] == mekf.STATUS_UPDATED
+    assert np.all(kr.status[k_last + 1:k_re] == mekf.STATUS_PROPAGATED)
+    assert np.all(kr.counters[k_last + 1:k_re] == kr.counters[k_last])
+    P0 = kr.P[k_last]
+    sv2, su2 = prm[mekf.EP_SV2:mekf.EP_SV2 + 3], prm[mekf.EP_SU2:mekf.EP_SU2 + 3]
+    worst = 0.0
+    for k in range(k_last + 1, k_re):
+        T = run.t_s[k] - run.t_s[k_last]
+        pred = P0[:3, :3] - T * (P0[:3, 3:] + P0[3:, :3]) + T * T * P0[3:, 3:] + np.diag(sv2 * T + su2 * T**3 / 3.0)
+        d = np.sqrt(np.diag(pred))
+        worst = max(worst, float(np.max(np.abs(kr.P[k, :3, :3] - pred) / np.outer(d, d))))
+    sig = kr.sigma[:, :3]
+    growth = sig[k_re - 1] / sig[k_last]
+    err = attitude_errors(kr.q_hat, run.q_true)
+    print(f"\noutage: P_aa vs the continuous model {worst:.1e} of sqrt(P_ii P_jj); sigma_a grew x{np.round(growth, 2)} "
+          f"to {sig[k_re - 1]} rad; |error|/sigma max {np.max(np.abs(err[k_last:k_re]) / sig[k_last:k_re]):.2f}")
+    assert worst <= 1e-4
+    assert np.all(growth[:2] > 2.0)  # across the boresight the ARW dominates: the test sees it
+    assert np.all(np.abs(err[k_last:k_re]) <= 3.0 * sig[k_last:k_re])
+    assert kr.status[k_re] == mekf.STATUS_UPDATED
+    assert kr.nis[k_re] < prm[mekf.EP_GATE]
+    assert np.all(np.abs(err[k_re]) <= 3.0 * sig[k_re])
+    after = slice(k_re, k_re + 1000)
+    assert np.all(np.abs(err[after]) <= 3.0 * sig[after])
+    assert np.all(sig[k_re] < sig[k_re - 1])
+    assert np.all(sig[k_re + 1500] < 1.1 * sig[k_last])  # the boresight averages ~150 samples of 7.3e-5 rad
+
+
+def test_gate_rejects_an_outlier_without_a_trace() -> None:
+    """A 1-deg outlier (NIS ~1e7 >> the gate 21.1) is rejected and counted; the filter is then bit for
+    bit the filter that never saw that sample (the same run with it held instead), except for the
+    counters and the last NIS (which holds the outlier's NIS until the next update)."""
+    run = simulate(12.0, 23)
+    k = 500
+    bad = with_outliers(run, [k], ONE_DEG, np.array([1.0, 2.0, 3.0]))
+    control_y = run.y.copy()
+    control_y[k:k + STRIDE, :4] = run.y[k - 1, :4]
+    prm = mekf_config().params()
+    kb = run_kernel(prm, run.t_s, bad.y)
+    kc = run_kernel(prm, run.t_s, control_y)
+    assert kb.status[k] == mekf.STATUS_REJECTED and kc.status[k] == mekf.STATUS_PROPAGATED
+    others = np.arange(len(run.t_s)) != k
+    np.testing.assert_array_equal(kb.status[others], kc.status[others])
+    assert kb.nis[k] > prm[mekf.EP_GATE]
+    np.testing.assert_array_equal(kb.nis[k:k + STRIDE], kb.nis[k])  # the last NIS, held
+    np.testing.assert_array_equal(kb.nis[k + STRIDE:], kc.nis[k + STRIDE:])
+    for field in (slice(mekf.EO_Q, mekf.EO_Q + 4), slice(mekf.EO_OMEGA, mekf.EO_OMEGA + 3), slice(mekf.EO_B, mekf.EO_B + 3),
+                  slice(mekf.EO_SIGMA, mekf.EO_SIGMA + 6)):
+        np.testing.assert_array_equal(kb.out[:, field], kc.out[:, field])
+    np.testing.assert_array_equal(kb.P, kc.P)
+    # counters: (updates, rejections, consecutive, re-initialisations)
+    np.testing.assert_array_equal(kb.counters[k], kc.counters[k] + [0, 1, 1, 0])
+    np.testing.assert_array_equal(kb.counters[k + STRIDE], kc.counters[k + STRIDE] + [0, 1, 0, 0])
+    np.testing.assert_array_equal(kb.counters[-1], kc.counters[-1] + [0, 1, 0, 0])
+
+
+def test_burst_reinitialises_from_the_tracker() -> None:
+    """25 tracker samples in a row 1 deg off: the first 19 are rejected; the 20th
+    (``max_consecutive_rejections``) re-initialises: ``q_hat`` = that sample bit for bit,
+    ``P_aa = diag(P0_a)``, ``P_ab = 0``, ``P_bb`` and ``b_hat`` kept (``P_bb`` = the previous step's
+    plus ``σu² h``, to rounding); the next 5 (consistent with it) are accepted; the truth then
+    returns 1 deg away and is rejected 19 times and re-initialises at the 20th; 1 s later the
+    attitude error is within 3 sigma again.  The two isolated outliers before are rejected."""
+    run = outlier_run(40.0, 13)
+    prm = mekf_config().params()
+    max_rej = int(prm[mekf.EP_MAXREJ])
+    assert max_rej == 20
+    kr = run_kernel(prm, run.t_s, run.y)
+    for k in OUTLIER_STEPS:
+        assert kr.status[k] == mekf.STATUS_REJECTED
+        assert kr.status[k + STRIDE] == mekf.STATUS_UPDATED and kr.counters[k + STRIDE, 2] == 0
+    burst = BURST_START_STEP + STRIDE * np.arange(BURST_SAMPLES)
+    after = burst[-1] + STRIDE + STRIDE * np.arange(max_rej)
+    expected = np.array([mekf.STATUS_REJECTED] * (max_rej - 1) + [mekf.STATUS_REINITIALISED] + [mekf.STATUS_UPDATED] * (BURST_SAMPLES - max_rej)
+                        + [mekf.STATUS_REJECTED] * (max_rej - 1) + [mekf.STATUS_REINITIALISED])
+    samples = np.concatenate((burst, after))
+    np.testing.assert_array_equal(kr.status[samples], expected)
+    np.testing.assert_array_equal(kr.counters[samples[max_rej - 2]], [kr.counters[BURST_START_STEP - 1, 0], 2 + max_rej - 1, max_rej - 1, 0])
+    for i, k in enumerate((burst[max_rej - 1], after[-1])):
+        np.testing.assert_array_equal(kr.counters[k, 1:], [2 + max_rej * (i + 1), 0, i + 1])
+        np.testing.assert_array_equal(kr.q_hat[k], run.y[k, :4])
+        np.testing.assert_array_equal(kr.P[k, :3, :3], np.diag(prm[mekf.EP_P0A:mekf.EP_P0A + 3]))
+        np.testing.assert_array_equal(kr.P[k, :3, 3:], 0.0)
+        np.testing.assert_array_equal(kr.P[k, 3:, :3], 0.0)
+        np.testing.assert_array_equal(kr.b_hat[k], kr.b_hat[k - 1])
+        Pbb = kr.P[k - 1, 3:, 3:] + np.diag(prm[mekf.EP_SU2:mekf.EP_SU2 + 3] * (run.t_s[k] - run.t_s[k - 1]))
+        np.testing.assert_allclose(kr.P[k, 3:, 3:], Pbb, rtol=4 * np.finfo(float).eps, atol=0.0)
+    err = attitude_errors(kr.q_hat, run.q_true)
+    k1 = after[-1] + 100
+    assert np.all(np.abs(err[k1:]) <= 3.0 * kr.sigma[k1:, :3])
+    assert kr.counters[-1, 1:].tolist() == [2 + 2 * max_rej, 0, 2]
+
+
+def test_multiplicative_reset() -> None:
+    """``from_prior`` at its first step: ``q_hat = q_prior``, ``P = diag(P0)`` (no cross terms, so the
+    bias gain is 0), then the update with ``q̃ = q_prior ⊗ dq(r)``, r ~ 8 deg.  The gain is
+    ``K_a = P0_a / (P0_a + R)`` per axis, so the estimate is ``q_prior ⊗ dq(K_a r)`` (the correction
+    on the right, in the body frame, by the exact rotation: a small-angle or additive reset would
+    be ~1e-4 rad off, a left one ~1e-1), unit norm, ``b_hat = b0``, ``P_aa = P0_a R / (P0_a + R)``.
+    The error state is then reset: the next step's sample ``q̂ ⊗ dq(r2)`` gives the NIS of ``r2``
+    alone with ``S = P_aa + σv² h + h² P0_b + σu² h³/3 + R`` (rate 0: ``Φ = [[I, -I h], [0, I]]``).
+    Bounds: a few ulps of the unit quaternion (1e-14) and of the variances (1e-13 relative); the
+    NIS of r2 ~ 1e-4 rad from unit quaternions to 1e-9 relative (an ulp of q is ~1e-12 of r2)."""
+    q_prior = np.array([0.3254, 0.4068, -0.3254, 0.7891])
+    q_prior = q_prior / np.linalg.norm(q_prior)
+    sigma0 = 0.1
+    prm = mekf_config(initial_q_BN=tuple(q_prior), initial_attitude_sigma_rad=sigma0).params()
+    q_prior = prm[mekf.EP_Q0:mekf.EP_Q0 + 4]
+    R = np.square(TRACKER_NOISE_RAD)
+    r = np.array([0.12, -0.08, 0.05])
+    y = np.zeros((2, 7))
+    y[0, :4] = quat_multiply(q_prior, dq(r))
+    st = mekf.new_state()
+    P = np.zeros((6, 6))
+    work = np.zeros((mekf.N_EST_WORK, 6))
+    out = np.zeros(mekf.N_EST_OUT)
+    assert mekf.mekf_step(prm, 0.0, y[0], st, P, work, out) == mekf.STATUS_UPDATED
+    K = sigma0**2 / (sigma0**2 + R)
+    q_expected = quat_multiply(q_prior, dq(K * r))
+    q1 = out[mekf.EO_Q:mekf.EO_Q + 4].copy()
+    assert np.max(np.abs(q1 - q_expected)) <= 1e-14
+    assert abs(np.linalg.norm(q1) - 1.0) <= 4 * np.finfo(float).eps
+    np.testing.assert_array_equal(out[mekf.EO_B:mekf.EO_B + 3], 0.0)
+    np.testing.assert_allclose(np.diag(P)[:3], sigma0**2 * R / (sigma0**2 + R), rtol=1e-13)
+    np.testing.assert_array_equal(P[:3, 3:], 0.0)
+    h = 0.01
+    r2 = np.array([1e-5, -2e-5, 5e-5])
+    y[1, :4] = quat_multiply(q1, dq(r2))
+    Paa = P[:3, :3].copy()
+    assert mekf.mekf_step(prm, h, y[1], st, P, work, out) == mekf.STATUS_UPDATED
+    p0b = prm[mekf.EP_P0B:mekf.EP_P0B + 3]
+    S = Paa + np.diag(ARW_RAD_SQRT_S**2 * h + h * h * p0b + BRW_RAD_S_SQRT_S**2 * h**3 / 3.0 + R)
+    nis = r2 @ np.linalg.solve(S, r2)
+    np.testing.assert_allclose(out[mekf.EO_NIS], nis, rtol=1e-9)
