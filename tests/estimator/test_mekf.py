@@ -45,15 +45,20 @@ BRW_RAD_S_SQRT_S = 8.1e-10
 BIAS0_RAD_S = (2.4e-6, -1.5e-6, 1e-6)
 
 #: Kernel-oracle bounds.  Both evaluate the same page in float64; they differ by the route (the
-#: closed-form Φ with its series against ``scipy.linalg.expm``, which agree to ~1e-16 relative of
-#: ``|F h| ~ 1e-2``; ``inv``/``solve`` against the kernel's own 3x3 algebra; the order of the sums)
-#: so each step adds a few ulps, and the filter's updates pull both onto the same measurements,
-#: which keeps the differences from accumulating (they are measured ~1e-15 after thousands of steps).
+#: closed-form Φ with its series against a Taylor ``expm``, which agree to ~1e-16 relative of
+#: ``|F h| ~ 1e-2``; the kernel's adjugate 3x3 inverse against LAPACK; the order of the sums), so
+#: each step adds a few ulps.  The updates pull both onto the same measurements, so the attitude
+#: and bias differences do not accumulate (measured <= 1e-15 absolute); ``P`` during an outage
+#: has no such pull and accumulates ~1 ulp a step (1.9e-13 relative after 2000 steps): 1e-12
+#: covers ~5000 steps of pure propagation.
 #: * quaternion components (unit vectors, O(1)): absolute, ``PARITY_ABS``;
-#: * attitude-like and bias quantities compare in the filter's own units, relative to their
-#:   sigma (see :func:`_compare`), because their values are 1e-6..1e-5 rad or rad/s and an
-#:   absolute 1e-12 on them would be a bound that cannot fail;
-#: * ``P`` relative to its diagonal scale ``sqrt(P_ii P_jj)`` (entries span 1e-19..1e-9).
+#: * ``b_hat``, ``omega_hat`` [rad/s]: the attitude they integrate to over the sequence,
+#:   ``|Δb| T`` <= ``PARITY_ABS`` rad (their values are ~1e-6 rad/s: relative to sigma an ulp of the
+#:   attitude is already ~1e-10, and a bare 1e-12 rad/s would be 1e-6 of the value);
+#: * ``P`` relative to its diagonal scale ``sqrt(P_ii P_jj)`` (entries span 1e-19..1e-9), sigma
+#:   relative, both ``PARITY_REL_P``;
+#: * the NIS (a ratio of ~1e-10 rad² numbers): the bound an attitude difference of ``PARITY_ABS``
+#:   implies (:func:`test_kernel_equals_oracle`).
 PARITY_ABS = 1e-12
 PARITY_REL_P = 1e-12
 
@@ -400,8 +405,10 @@ def test_initialises_at_the_first_tracker_sample(k0: int, rate_scale_rad_s: floa
     starts mid-hold) becomes ``q_hat`` bit for bit, without propagation; ``b_hat = b0``,
     ``P = diag(P0_a, P0_b)``, ``omega_hat = ω̃ - b0``, no NIS yet, no counter moved.  Afterwards the
     filter updates exactly at the tracker's new samples and only propagates on the held ones.
-    (Mid-hold, the body is inertial: a held sample is stale by up to 90 ms, which a tumbling body
-    turns into ~1e-4 rad >> the tracker's noise; see the report on the specification.)"""
+    (Mid-hold, the body is inertial: the page takes the first step's held sample as new and
+    current though it is up to 90 ms old; a body tumbling at 0.01 rad/s is then ~1e-4 rad from it,
+    >> the tracker's 1e-5, and the filter gates out the next 19 samples and re-initialises at the
+    20th, 2 s without an update: a property of the specification, not tested as desired.)"""
     run = simulate(3.0, 21, rate_scale_rad_s=rate_scale_rad_s)
     b0 = (3e-6, -2e-6, 1e-6)
     prm = mekf_config(initial_bias_rad_s=b0).params()
@@ -431,7 +438,8 @@ def test_outage_propagates_only_then_reacquires() -> None:
     The filter's frame turns only by the gyro noise and the bias residual, by
     ``θ ≲ 3 (σv √T + σb T) ≈ 3e-5`` rad over 20 s, which mixes the axes' variances by
     ``≲ θ (P_zz - P_xx) / sqrt(P_xx P_zz) ≈ 5e-5`` of the diagonal scale: bound 1e-4 relative to
-    ``sqrt(P_ii P_jj)`` (dropping the ARW's ``σv² h`` or flipping ``Φ12`` costs O(1)).  The attitude error stays within 3 sigma throughout; the first sample
+    ``sqrt(P_ii P_jj)`` (dropping the ARW's ``σv² h`` or flipping ``Φ12`` costs O(1)).  The
+    attitude error stays within 3 sigma throughout; the first sample
     after the outage is accepted (not gated), shrinks sigma, and the error is then within 3 sigma
     again; 15 s later sigma is back within 10% of its value before the outage."""
     run = simulate(100.0, 22, outages_s=((60.0, 80.0),), rate_scale_rad_s=0.0)
@@ -514,11 +522,13 @@ def test_burst_reinitialises_from_the_tracker() -> None:
         assert kr.status[k + STRIDE] == mekf.STATUS_UPDATED and kr.counters[k + STRIDE, 2] == 0
     burst = BURST_START_STEP + STRIDE * np.arange(BURST_SAMPLES)
     after = burst[-1] + STRIDE + STRIDE * np.arange(max_rej)
-    expected = np.array([mekf.STATUS_REJECTED] * (max_rej - 1) + [mekf.STATUS_REINITIALISED] + [mekf.STATUS_UPDATED] * (BURST_SAMPLES - max_rej)
+    expected = np.array([mekf.STATUS_REJECTED] * (max_rej - 1) + [mekf.STATUS_REINITIALISED]
+                        + [mekf.STATUS_UPDATED] * (BURST_SAMPLES - max_rej)
                         + [mekf.STATUS_REJECTED] * (max_rej - 1) + [mekf.STATUS_REINITIALISED])
     samples = np.concatenate((burst, after))
     np.testing.assert_array_equal(kr.status[samples], expected)
-    np.testing.assert_array_equal(kr.counters[samples[max_rej - 2]], [kr.counters[BURST_START_STEP - 1, 0], 2 + max_rej - 1, max_rej - 1, 0])
+    np.testing.assert_array_equal(kr.counters[samples[max_rej - 2]],
+                                  [kr.counters[BURST_START_STEP - 1, 0], 2 + max_rej - 1, max_rej - 1, 0])
     for i, k in enumerate((burst[max_rej - 1], after[-1])):
         np.testing.assert_array_equal(kr.counters[k, 1:], [2 + max_rej * (i + 1), 0, i + 1])
         np.testing.assert_array_equal(kr.q_hat[k], run.y[k, :4])
@@ -641,7 +651,8 @@ def test_covariance_stays_symmetric_positive_definite_over_3_hours() -> None:
     err = attitude_errors(out[None, :4], q_true[-1:])[0]
     b_err = bias - out[mekf.EO_B:mekf.EO_B + 3]  # the bias walked once more after the last sample: 8e-12 rad/s
     sig = out[mekf.EO_SIGMA:mekf.EO_SIGMA + 6]
-    print(f"\nsoak 3 h: asymmetric entries {asym}, min eigenvalue {min_eig:.3e} (smallest variance at the end {np.min(sig**2):.3e}), "
+    print(f"\nsoak 3 h: asymmetric entries {asym}, min eigenvalue {min_eig:.3e} "
+          f"(smallest variance at the end {np.min(sig**2):.3e}), "
           f"max ||q|-1| {worst_norm:.1e}; final error/sigma {err / sig[:3]}, {b_err / sig[3:]}; "
           f"counters {st[[mekf.ES_N_UPD, mekf.ES_N_REJ, mekf.ES_N_CONSEC, mekf.ES_N_REINIT]]}")
     assert asym == 0
