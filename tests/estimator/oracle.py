@@ -178,6 +178,7 @@ class MekfOracle:
     omega_prev: np.ndarray | None = None
     t_prev: float | None = None
     seen: bool = False
+    provisional: bool = False
     n_updates: int = 0
     n_rejections: int = 0
     n_consecutive: int = 0
@@ -213,6 +214,13 @@ class MekfOracle:
         self.P = np.diag(np.concatenate((self.P0a_rad2, self.P0b_rad2_s2)))
         self.initialised = True
 
+    def _reinitialise_attitude(self, q_meas: np.ndarray) -> None:
+        """The page's "re-initialising the attitude": q_hat = the sample, P_aa = R, P_ab = 0."""
+        self.q_hat = np.array(q_meas, dtype=np.float64)
+        self.P[:3, :] = 0.0
+        self.P[:, :3] = 0.0
+        self.P[:3, :3] = np.diag(self.R_rad2)
+
     def _propagate(self, h: float, omega_meas: np.ndarray) -> None:
         assert self.omega_prev is not None
         w = (self.omega_prev + omega_meas) / 2.0 - self.b_hat
@@ -226,14 +234,11 @@ class MekfOracle:
         R = np.diag(self.R_rad2)
         S = self.P[:3, :3] + R
         self.nis = float(r @ np.linalg.solve(S, r))
-        if self.nis > self.gate:
+        if not self.nis <= self.gate:
             self.n_rejections += 1
             self.n_consecutive += 1
             if self.max_rejections >= 1 and self.n_consecutive >= self.max_rejections:
-                self.q_hat = np.array(q_meas, dtype=np.float64)
-                self.P[:3, :] = 0.0
-                self.P[:, :3] = 0.0
-                self.P[:3, :3] = np.diag(self.P0a_rad2)
+                self._reinitialise_attitude(q_meas)
                 self.n_consecutive = 0
                 self.n_reinit += 1
                 return "reinitialised"
@@ -255,29 +260,32 @@ class MekfOracle:
         rate ``omega_meas`` (3,) [rad/s]; returns the outputs (page, step 6)."""
         q_meas = np.asarray(q_meas, dtype=np.float64)
         omega_meas = np.asarray(omega_meas, dtype=np.float64)
+        # 0. no measurement: nothing changes, no output
+        if not (np.all(np.isfinite(q_meas)) and np.all(np.isfinite(omega_meas))):
+            return Output("none")
         # 1. a new tracker sample: the first step's, or one differing in any component
         assert self.q_prev is not None or not self.seen
         new = (not self.seen) or bool(np.any(q_meas != self.q_prev))
         if not self.initialised:
             # 2. initialisation
+            status = "initialised"
             if self.init == "from_tracker":
-                if new:
-                    self._initialise(q_meas)
-                    status = "initialised"
-                else:
-                    status = "none"
+                self._initialise(q_meas)
+                self.provisional = True
             else:
                 assert self.q_prior is not None
                 self._initialise(self.q_prior)
-                status = "initialised"
-                if new:
-                    status = self._update(q_meas)
+                status = self._update(q_meas)
         else:
-            # 3. propagation, then 4. the update with a new sample
+            # 3. propagation, then the provisional attitude replaced or 4. the update with a new sample
             assert self.t_prev is not None
             self._propagate(t_s - self.t_prev, omega_meas)
             status = "propagated"
-            if new:
+            if new and self.provisional:
+                self._reinitialise_attitude(q_meas)
+                self.provisional = False
+                status = "initialised"
+            elif new:
                 status = self._update(q_meas)
         # 5. remember
         self.q_prev = q_meas.copy()

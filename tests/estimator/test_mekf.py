@@ -399,16 +399,18 @@ def p0_diag(prm: np.ndarray) -> np.ndarray:
     return np.concatenate((prm[mekf.EP_P0A:mekf.EP_P0A + 3], prm[mekf.EP_P0B:mekf.EP_P0B + 3]))
 
 
-@pytest.mark.parametrize("k0, rate_scale_rad_s", [(0, 0.01), (3, 0.0)], ids=["at_the_tracker_sample", "mid_hold_inertial"])
+@pytest.mark.parametrize("k0, rate_scale_rad_s", [(0, 0.01), (3, 0.0), (3, 0.01)],
+                         ids=["at_the_tracker_sample", "mid_hold_inertial", "mid_hold_tumbling"])
 def test_initialises_at_the_first_tracker_sample(k0: int, rate_scale_rad_s: float) -> None:
     """``from_tracker``: the first step's sample (new by definition, even a held copy when the filter
-    starts mid-hold) becomes ``q_hat`` bit for bit, without propagation; ``b_hat = b0``,
-    ``P = diag(P0_a, P0_b)``, ``omega_hat = ω̃ - b0``, no NIS yet, no counter moved.  Afterwards the
-    filter updates exactly at the tracker's new samples and only propagates on the held ones.
-    (Mid-hold, the body is inertial: the page takes the first step's held sample as new and
-    current though it is up to 90 ms old; a body tumbling at 0.01 rad/s is then ~1e-4 rad from it,
-    >> the tracker's 1e-5, and the filter gates out the next 19 samples and re-initialises at the
-    20th, 2 s without an update: a property of the specification, not tested as desired.)"""
+    starts mid-hold) becomes ``q_hat`` bit for bit, without propagation, provisionally; ``b_hat =
+    b0``, ``P = diag(P0_a, P0_b)``, ``omega_hat = ω̃ - b0``, no NIS yet, no counter moved.  The first
+    later new sample (certainly fresh) re-initialises the attitude: ``q_hat`` is that sample bit for
+    bit, ``P_aa = R``, ``P_ab = 0``.  Afterwards the filter updates exactly at the tracker's new
+    samples and only propagates on the held ones.  Mid-hold on a body tumbling at 0.01 rad/s the
+    first sample is ~1e-4 rad stale (>> the tracker's 1e-5): without the provisional attitude the
+    filter gated out the next 19 samples and re-initialised only at the 20th (2 s without an
+    update); with it, every later new sample is accepted."""
     run = simulate(3.0, 21, rate_scale_rad_s=rate_scale_rad_s)
     b0 = (3e-6, -2e-6, 1e-6)
     prm = mekf_config(initial_bias_rad_s=b0).params()
@@ -423,11 +425,30 @@ def test_initialises_at_the_first_tracker_sample(k0: int, rate_scale_rad_s: floa
     np.testing.assert_array_equal(kr.counters[0], [0, 0, 0, 0])
     new = tracker_samples(run)
     new = new[new > k0] - k0
+    first = new[0]
+    np.testing.assert_array_equal(kr.q_hat[first], run.y[k0 + first, :4])
+    np.testing.assert_array_equal(kr.P[first][:3, :3], np.diag(prm[mekf.EP_R:mekf.EP_R + 3]))
+    np.testing.assert_array_equal(kr.P[first][:3, 3:], np.zeros((3, 3)))
     expected = np.full(len(kr.status), mekf.STATUS_PROPAGATED)
     expected[0] = mekf.STATUS_INITIALISED
-    expected[new] = mekf.STATUS_UPDATED
+    expected[first] = mekf.STATUS_INITIALISED
+    expected[new[1:]] = mekf.STATUS_UPDATED
     np.testing.assert_array_equal(kr.status, expected)
-    assert kr.counters[-1, 0] == len(new) == 29
+    assert kr.counters[-1, 0] == len(new) - 1 == 28 and kr.counters[-1, 1] == 0
+
+
+def test_a_sample_that_is_not_finite_changes_nothing_and_gives_no_estimate() -> None:
+    """Step 0 of the page: a dropped sample (non-finite) leaves the filter exactly as it was (the
+    next valid sample propagates over the whole gap) and gives the no-data output."""
+    run = simulate(2.0, 23, rate_scale_rad_s=0.01)
+    prm = mekf_config().params()
+    y = run.y.copy()
+    y[50:57, 5] = np.nan  # a dropout of the rate over 7 samples
+    kr = run_kernel(prm, run.t_s, y)
+    assert np.all(kr.status[50:57] == mekf.STATUS_NONE) and np.all(np.isnan(kr.out[50:57, :mekf.EO_STATUS]))
+    skipped = run_kernel(prm, np.delete(run.t_s, range(50, 57)), np.delete(y, range(50, 57), axis=0))
+    np.testing.assert_array_equal(kr.q_hat[57:], skipped.q_hat[50:])
+    np.testing.assert_array_equal(kr.P[57:], skipped.P[50:])
 
 
 def test_outage_propagates_only_then_reacquires() -> None:

@@ -24,15 +24,20 @@ variances ``R`` [rad^2].  Error state ``x = (a, db)`` (6), ``db = b - b_hat``; c
 
 One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (q_meas, omega_meas)``:
 
-1. **A new tracker sample** is one whose quaternion differs, in any bit, from the quaternion of
-   the previous step's measurement: a star tracker holds its last quaternion between updates
+0. **No measurement.**  A measurement with a non-finite component (a dropped sample, the
+   injector's "no data") changes nothing and gives no estimate (status *none*, outputs NaN).
+1. **A new tracker sample** is one whose quaternion differs (exact comparison) from the quaternion
+   of the previous step's measurement: a star tracker holds its last quaternion between updates
    and during outages (``spacecraft_sim.core.sensors``), so a held value is not a new measurement.
    The first step's sample is new.
-2. **Initialisation.**  ``from_tracker`` (default): nothing is estimated until the first new
-   tracker sample, which becomes ``q_hat``, with ``b_hat = b0`` and ``P = diag(P0_a, P0_b)``.
-   ``from_prior``: at the first step ``q_hat = q_prior``, same ``b_hat`` and ``P``, and that step's
-   tracker sample is then processed as an update (a prior far from the truth, e.g. a coarse
-   sensor's attitude 10 deg off, is corrected by the first tracker sample).
+2. **Initialisation.**  ``from_tracker`` (default): the first step's sample becomes ``q_hat``,
+   with ``b_hat = b0`` and ``P = diag(P0_a, P0_b)``, *provisionally*: a held quaternion may be up
+   to one tracker period old (a filter started between two updates), so the first sample that
+   changes, certainly fresh, re-initialises the attitude (``q_hat = q_meas``, ``P_aa = R``,
+   ``P_ab = 0``; status *initialised*) instead of updating it.  ``from_prior``: at the first step
+   ``q_hat = q_prior``, same ``b_hat`` and ``P``, and that step's tracker sample is then
+   processed as an update (a prior far from the truth, e.g. a coarse sensor's attitude 10 deg
+   off, is corrected by the first tracker sample).
 3. **Propagation** from the previous step's time ``t_prev`` over ``h = t - t_prev`` with the mean
    of the two gyro samples, bias removed: ``w = (omega_prev + omega_meas) / 2 - b_hat``
    (trapezoid: the rate between two samples, not the older one held).
@@ -47,10 +52,10 @@ One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (
    (shortest rotation, ``r = 2 atan2(|v|, s) v / |v|`` with ``s >= 0``); ``S = P_aa + diag(R)``;
    the squared Mahalanobis distance ``d2 = r^T S^-1 r`` (the normalised innovation squared, NIS,
    chi-square with 3 degrees of freedom for a consistent filter).
-   *Gate*: ``d2 > gate`` rejects the sample (counted); after ``max_rejections`` consecutive
-   rejections the filter re-initialises its attitude from the tracker (``q_hat = q_meas``,
-   ``P_aa = P0_a``, ``P_ab = 0``; the bias and its covariance kept): a filter that has lost its
-   attitude must not reject the truth forever.
+   *Gate*: unless ``d2 <= gate`` the sample is rejected (counted); after ``max_rejections``
+   consecutive rejections the filter re-initialises its attitude from the tracker
+   (``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; the bias and its covariance kept): a filter
+   that has lost its attitude must not reject the truth forever.
    *Accepted*: ``K = P H^T S^-1`` with ``H = [I 0]``, ``dx = K r``, the Joseph form
    ``P <- (I - K H) P (I - K H)^T + K R K^T`` (symmetric and positive definite whatever the
    rounding, M&C 6.25), symmetrised; the multiplicative reset ``q_hat <- normalise(q_hat ⊗
@@ -62,12 +67,14 @@ Arrays (float64, the caller's; no allocation per step)
 ------------------------------------------------------
 ``prm`` (:data:`N_EST_PARAMS`,)
     Columns ``EP_*``: ``R`` (3), ``sigma_v^2`` (3), ``sigma_u^2`` (3), ``P0_a`` (3), ``P0_b`` (3),
-    ``b0`` (3), ``gate`` (inf: none), ``max_rejections`` (0: never re-initialise), the
-    initialisation mode (``INIT_*``) and ``q_prior`` (4).
+    ``b0`` (3), ``gate`` (inf: none), ``max_rejections`` (>= 1), the initialisation mode
+    (``INIT_*``) and ``q_prior`` (4).
 ``st`` (:data:`N_EST_STATE`,)
     Columns ``ES_*``: initialised flag, ``q_hat`` (4), ``b_hat`` (3), the previous measurement's
     quaternion (4) and rate (3), ``t_prev``, counters (updates, rejections, consecutive rejections,
-    re-initialisations), the last NIS.  :func:`new_state` gives a fresh one.
+    re-initialisations), the last NIS (NaN before the first update), whether a step was seen, and
+    whether the attitude is still provisional.  :func:`new_state` gives a fresh one.  The caller
+    gives increasing times (the node rejects a stamp in the past).
 ``P`` (6, 6) the covariance; ``work`` (:data:`N_EST_WORK`, 6) scratch.
 ``out`` (:data:`N_EST_OUT`,)
     Columns ``EO_*``: ``q_hat`` (4), ``omega_hat`` (3), ``b_hat`` (3), ``sigma`` (6: attitude [rad],
@@ -102,8 +109,8 @@ INIT_FROM_TRACKER, INIT_FROM_PRIOR = 0, 1
 
 #: State columns.
 ES_INIT, ES_Q, ES_B, ES_LASTQ, ES_LASTW, ES_TPREV = 0, 1, 5, 8, 12, 15
-ES_N_UPD, ES_N_REJ, ES_N_CONSEC, ES_N_REINIT, ES_NIS, ES_SEEN = 16, 17, 18, 19, 20, 21
-N_EST_STATE = 22
+ES_N_UPD, ES_N_REJ, ES_N_CONSEC, ES_N_REINIT, ES_NIS, ES_SEEN, ES_PROVISIONAL = 16, 17, 18, 19, 20, 21, 22
+N_EST_STATE = 23
 
 #: Output columns.
 EO_Q, EO_OMEGA, EO_B, EO_SIGMA, EO_NIS, EO_STATUS = 0, 4, 7, 10, 16, 17
@@ -114,7 +121,7 @@ STATUS_NONE, STATUS_INITIALISED, STATUS_PROPAGATED, STATUS_UPDATED, STATUS_REJEC
 STATUS_NAMES = ("none", "initialised", "propagated", "updated", "rejected", "reinitialised")
 
 #: Rows of the scratch array: Phi (6), the product Phi P (6), K (6, as 6 x 3 in the first 3
-#: columns), I - K H (6), a 3 x 3 block pair (2 rows: S and S^-1 packed), vectors.
+#: columns), I - K H (6), S and S^-1 side by side (3 rows), two vectors.
 N_EST_WORK = 32
 _W_PHI, _W_TMP, _W_K, _W_IKH, _W_S, _W_V = 0, 6, 12, 18, 24, 30
 
@@ -180,6 +187,18 @@ def _initialise(prm, q, st, P):
         P[i, i] = prm[EP_P0A + i]
         P[3 + i, 3 + i] = prm[EP_P0B + i]
     st[ES_INIT] = 1.0
+
+
+@jit(inline="always")
+def _reinitialise_attitude(prm, st, P, q_meas):
+    """``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; the bias and its covariance kept."""
+    for i in range(4):
+        st[ES_Q + i] = q_meas[i]
+    for a in range(3):
+        for b in range(6):
+            P[a, b] = 0.0
+            P[b, a] = 0.0
+        P[a, a] = prm[EP_R + a]
 
 
 @jit(inline="always")
@@ -281,17 +300,11 @@ def _update(prm, st, P, q_meas, work):
         row = (Si[a, 0] * r0 + Si[a, 1] * r1) + Si[a, 2] * r2
         d2 += rv[a] * row
     st[ES_NIS] = d2
-    if d2 > prm[EP_GATE]:
+    if not d2 <= prm[EP_GATE]:  # a NaN distance is rejected too
         st[ES_N_REJ] += 1.0
         st[ES_N_CONSEC] += 1.0
-        if prm[EP_MAXREJ] > 0.0 and st[ES_N_CONSEC] >= prm[EP_MAXREJ]:
-            for i in range(4):
-                q[i] = q_meas[i]
-            for a in range(3):
-                for b in range(6):
-                    P[a, b] = 0.0
-                    P[b, a] = 0.0
-                P[a, a] = prm[EP_P0A + a]
+        if st[ES_N_CONSEC] >= prm[EP_MAXREJ]:
+            _reinitialise_attitude(prm, st, P, q_meas)
             st[ES_N_CONSEC] = 0.0
             st[ES_N_REINIT] += 1.0
             return STATUS_REINITIALISED
@@ -341,20 +354,24 @@ def _update(prm, st, P, q_meas, work):
 def mekf_step(prm, t, y, st, P, work, out):
     """One step of the filter at time ``t`` [s] with the measurement ``y`` (7,) ``(q_meas (4),
     omega_meas (3))`` (module docstring); writes ``out`` and returns the status (``STATUS_*``)."""
+    for i in range(7):
+        if not np.isfinite(y[i]):  # no measurement: nothing changes, no estimate
+            for j in range(N_EST_OUT):
+                out[j] = np.nan
+            out[EO_STATUS] = STATUS_NONE
+            return STATUS_NONE
     new = st[ES_SEEN] == 0.0
     for i in range(4):
         if y[i] != st[ES_LASTQ + i]:
             new = True
     status = STATUS_NONE
     if st[ES_INIT] == 0.0:
+        _initialise(prm, prm[EP_Q0:EP_Q0 + 4] if prm[EP_INIT] == INIT_FROM_PRIOR else y[0:4], st, P)
+        status = STATUS_INITIALISED
         if prm[EP_INIT] == INIT_FROM_PRIOR:
-            _initialise(prm, prm[EP_Q0:EP_Q0 + 4], st, P)
-            status = STATUS_INITIALISED
-            if new:
-                status = _update(prm, st, P, y[0:4], work)
-        elif new:
-            _initialise(prm, y[0:4], st, P)
-            status = STATUS_INITIALISED
+            status = _update(prm, st, P, y[0:4], work)
+        else:
+            st[ES_PROVISIONAL] = 1.0
     else:
         h = t - st[ES_TPREV]
         b = st[ES_B:ES_B + 3]
@@ -363,7 +380,11 @@ def mekf_step(prm, t, y, st, P, work, out):
         w2 = 0.5 * (st[ES_LASTW + 2] + y[6]) - b[2]
         _propagate(prm, st, P, w0, w1, w2, h, work)
         status = STATUS_PROPAGATED
-        if new:
+        if new and st[ES_PROVISIONAL] != 0.0:  # the first fresh sample replaces the provisional attitude
+            _reinitialise_attitude(prm, st, P, y[0:4])
+            st[ES_PROVISIONAL] = 0.0
+            status = STATUS_INITIALISED
+        elif new:
             status = _update(prm, st, P, y[0:4], work)
     for i in range(4):
         st[ES_LASTQ + i] = y[i]
