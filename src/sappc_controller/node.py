@@ -220,13 +220,9 @@ class ControllerNode(ProjectNode):
         return values
 
     def _check_unknown_overrides(self) -> None:
-        """Reject overrides this node does not know (a typo would otherwise be ignored)."""
-        overrides = getattr(self, "_parameter_overrides", {})
-        known = set(self._parameters)
-        other_kinds = tuple(f"{k}." for k in CONTROLLER_CLASSES if k != self.kind)
-        for name in sorted(overrides):
-            if name not in known and not name.startswith(other_kinds):
-                raise ConfigError(f"unknown parameter {name!r} for the {self.kind} controller node")
+        """Reject overrides this node does not know (a typo would otherwise be ignored); the other
+        laws' parameters may be given (one parameters file for every kind)."""
+        self.check_unknown_overrides(tuple(f"{k}." for k in CONTROLLER_CLASSES if k != self.kind))
 
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
         changes = {p.name: p.value for p in params}
