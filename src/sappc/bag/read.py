@@ -33,6 +33,7 @@ from sappc_msgs_py.contract import (
     ESTIMATOR_BIAS_SIGMA,
     ESTIMATOR_COVARIANCE,
     ESTIMATOR_DIAGNOSTICS,
+    ESTIMATOR_DIAGNOSTICS_LAYOUT,
     ESTIMATOR_GYRO_BIAS,
     DISTURBANCE_TORQUE,
     ANSWER_NAMES,
@@ -156,7 +157,8 @@ def read_bag(path: str | Path) -> Bag:
         if d is None:
             continue
         series[channel.topic] = Series(d.stamps_ns, d.values, log_time[d.index])
-        if ("/" + channel.topic.lstrip("/")).endswith("/" + CONTROLLER_DIAGNOSTICS.name):  # (not the estimator's float arrays)
+        # the controller's diagnostics: time_s first, not the estimator's (joint_states' labels are its joint names)
+        if channel.schema_name == CONTROLLER_DIAGNOSTICS.type_name and d.labels[:1] == ("time_s",) and d.labels != ESTIMATOR_DIAGNOSTICS_LAYOUT:
             labels = labels or d.labels
         frame_ids[channel.topic] = d.frame_ids
         if channel.schema_name == ESTIMATOR_DIAGNOSTICS.type_name:
