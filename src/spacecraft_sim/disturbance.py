@@ -85,16 +85,13 @@ PARAMETERS = (
 _P = {p.name: p for p in PARAMETERS}
 
 
-#: What a dropped measurement or reference is relayed as: the contract's "no data" sample
-#: (:func:`~sappc_msgs_py.convert.no_data_msg`: a message of its stamp whose values are all NaN,
-#: the convention of REP 117 for invalid ranges).  The controller rejects it as invalid but knows
-#: the sample is complete, so it answers at once (held torque, or zero once stale) rather than
-#: after a timeout, and lockstep stays deterministic.
-
-
 def _relayed_msg(topic: Topic, value: Any, stamp: Any) -> Any:
     """The relay's message for ``topic`` (its :func:`faulty` twin) carrying ``value``, or "no data"
-    when ``value`` is ``None``."""
+    when ``value`` is ``None``: a dropped measurement or reference is relayed as the contract's "no
+    data" sample (:func:`~sappc_msgs_py.convert.no_data_msg`: a message of its stamp whose values
+    are all NaN, the convention of REP 117 for invalid ranges).  The controller rejects it as
+    invalid but knows the sample is complete, so it answers at once (held torque, or zero once
+    stale) rather than after a timeout, and lockstep stays deterministic."""
     out = faulty(topic)
     if value is None:
         return no_data_msg(out, stamp)
