@@ -23,7 +23,7 @@ from sappc.bag.read import bag_estimate, read_bag
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import clock_msg, ns_to_stamp, quaternion_msg, stamp_to_ns, vector3_msg
 
-from conftest import ROOT, shm_files
+from conftest import ROOT, abandoned_shm, shm_files
 from test_estimator_node import DT_NS, measurements
 
 pytestmark = pytest.mark.slow
@@ -114,27 +114,5 @@ def test_the_estimator_process_answers_every_sample_records_and_stops_cleanly(ro
         np.testing.assert_array_equal(estimate.covariance[k], got[c.ESTIMATOR_COVARIANCE.name][ns])
     assert estimate.diagnostics["status"][DROPPED] == c.ESTIMATOR_NO_INPUT and estimate.diagnostics["updates"][-1] == 3
     assert np.all(np.isfinite(estimate.attitude_sigma_rad[estimate.diagnostics["status"] != c.ESTIMATOR_NO_INPUT]))
-    assert _abandoned(shm_files() - before) == []
+    assert abandoned_shm(shm_files() - before) == []  # (/dev/shm is the machine's: other runs' live segments are not this test's)
 
-
-def _abandoned(names: set[str]) -> list[str]:
-    """The Fast DDS shared-memory segments among ``names`` that no live process holds: a process
-    that stops cleanly removes its segments, one that dies leaves them with their lock file
-    (``<segment>_el``) free.  (/dev/shm is the machine's: segments of other runs, still held by
-    their processes, are not this test's to judge.)"""
-    import fcntl
-
-    out = []
-    for name in sorted(n for n in names if n.endswith("_el")):
-        try:
-            fd = os.open(f"/dev/shm/{name}", os.O_RDWR)
-        except FileNotFoundError:
-            continue  # removed meanwhile
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            out.append(name)
-        except OSError:
-            pass  # held by a live process
-        finally:
-            os.close(fd)
-    return out
