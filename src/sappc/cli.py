@@ -5,7 +5,7 @@
     sappc montecarlo SCENARIO.yaml --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
     sappc tune SCENARIO.yaml [--controller K] [--trials N] [--runs-per-trial M] [--seed S] [--workers W | --scheduler ADDRESS] [--out DIR] [--resume]
     sappc run SCENARIO.yaml [--out DIR] [--realtime] [--compose] [--plant native|basilisk|external] [--controller K] [--json FILE] [--domain-id N]
-    sappc params SCENARIO.yaml [--controller K]
+    sappc params SCENARIO.yaml [--controller K | --estimator]
     sappc report BAG [--json FILE] [--out DIR] [--scenario FILE]
     sappc compare BAG... [--out DIR] [--json FILE]
     sappc rerun BAG [--params FILE] [--json FILE] [--out DIR]
@@ -285,9 +285,10 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
-    from sappc.scenario import controller_params_yaml
+    from sappc.scenario import controller_params_yaml, estimator_params_yaml
 
-    print(controller_params_yaml(load_scenario(args.scenario), args.controller), end="")
+    scenario = load_scenario(args.scenario)
+    print(estimator_params_yaml(scenario) if args.estimator else controller_params_yaml(scenario, args.controller), end="")
     return 0
 
 
@@ -436,9 +437,11 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON")
     run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: the first free one, claimed with a lock file)")
     run.set_defaults(func=_cmd_run)
-    par = sub.add_parser("params", help="print the ROS parameters file of python -m sappc_controller for a scenario")
+    par = sub.add_parser("params", help="print the ROS parameters file of python -m sappc_controller (or, --estimator, of python -m sappc_estimator) for a scenario")
     par.add_argument("scenario")
     par.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None)
+    par.add_argument("--estimator", action="store_true",
+                     help="the file of python -m sappc_estimator instead: the scenario's estimator section, else the MEKF of its sensors")
     par.set_defaults(func=_cmd_params)
     rep = sub.add_parser("report", help="metrics, figures and an HTML page from a recorded bag")
     rep.add_argument("bag", help="a rosbag2 directory (e.g. runs/<run>/bag) or an .mcap file")

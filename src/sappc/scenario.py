@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.common import ActuatorConfig
 from sappc_estimator.core.config import MekfConfig
+from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
 from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES, DEFAULT_STALE_TIMEOUT_S, check_watchdog_seconds, parameters_from_config, unflatten
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
@@ -43,7 +44,7 @@ from gnc_common.validation import (
     from_mapping,
 )
 
-__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "load_scenario", "scenario_from_mapping"]
+__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
 
@@ -474,3 +475,55 @@ def controller_params_yaml(scenario: Scenario, kind: ControllerKind | str | None
     params["control_period_s"] = scenario.control_period_s
     header = f"# Parameters of python -m sappc_controller ({k.value}), from scenario {scenario.name!r}.\n# Made by: sappc params <scenario> --controller {k.value}\n"
     return header + yaml.safe_dump({f"/{node_name}": {"ros__parameters": params}}, sort_keys=False)
+
+
+#: Where ``estimator_params_yaml`` says a filter setting comes from when the scenario's
+#: ``estimator`` section does not state it: the sensors' data sheet (docs/estimator.md).
+_ESTIMATOR_SOURCES = {
+    "tracker_noise_rad": "sensors.star_tracker.noise_rad (R = its square)",
+    "gyro_angle_random_walk_rad_sqrt_s": "sensors.gyro.angle_random_walk_rad_sqrt_s",
+    "gyro_bias_random_walk_rad_s_sqrt_s": "sensors.gyro.bias_random_walk_rad_s_sqrt_s",
+    "initial_bias_rad_s": "default: no calibration (sensors.gyro.initial_bias_rad_s is the truth the filter estimates)",
+    "initial_q_BN": "default: [] = start at the first tracker sample",
+    "initial_attitude_sigma_rad": "default: [] = the tracker's noise",
+}
+
+
+def estimator_params_yaml(scenario: Scenario, node_name: str = "estimator") -> str:
+    """A ROS parameters file for ``python -m sappc_estimator`` (``sappc params --estimator``): the
+    scenario's ``estimator`` section, else the MEKF its ``sensors`` section gives
+    (``estimator: {kind: mekf}``), each value commented with its source.
+
+    Raises
+    ------
+    ConfigError
+        When the scenario has neither (no star tracker to take the filter's noise from).
+    """
+    config = scenario.estimator
+    stated: dict[str, Any] = {}
+    if config is None:
+        try:
+            config = _estimator_from_mapping({"kind": "mekf"}, scenario.sensors)
+        except ConfigError as exc:
+            raise ConfigError(f"scenario {scenario.name!r} has no estimator section, and no MEKF from its sensors: {exc}") from None
+    else:
+        stated = dict(scenario.raw.get("estimator") or {})
+    assert config is not None  # kind: mekf gives a config or raises
+    values = estimator_parameters_from_config(config)
+    values["control_period_s"] = scenario.control_period_s
+    lines = [f"# Parameters of python -m sappc_estimator (the MEKF, docs/estimator.md), from scenario {scenario.name!r}.",
+             "# Made by: sappc params <scenario> --estimator",
+             "# Use: python -m sappc_estimator --ros-args --params-file <this file>; docs/estimator.md, \"The node\"",
+             f"/{node_name}:", "  ros__parameters:"]
+    for name, value in values.items():
+        if name == "control_period_s":
+            source = "control_period_s (real time: a step later than this is counted late)"
+        elif name in stated:
+            source = f"estimator.{name}"
+        elif name.startswith("gyro_") and (scenario.sensors is None or scenario.sensors.gyro is None):
+            source = "default: 0 (the scenario's sensors have no gyro model)"
+        else:
+            source = _ESTIMATOR_SOURCES.get(name, "default (docs/estimator.md)")
+        flow = yaml.safe_dump(value, default_flow_style=True, width=1000).split("\n")[0]
+        lines.append(f"    {name}: {flow}  # {source}")
+    return "\n".join(lines) + "\n"

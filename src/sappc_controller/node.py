@@ -79,15 +79,15 @@ from sappc_msgs_py.contract import (
 from sappc_msgs_py.convert import (
     diagnostics_msg,
     ns_to_stamp,
-    quaternion_from_msg,
     stamp_to_ns,
     torque_msg,
-    vector3_from_msg,
 )
+from sappc_msgs_py.inputs import REJECT_REASONS as INPUT_REJECT_REASONS
+from sappc_msgs_py.inputs import decode_input, stamp_rejection
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
 from gnc_common.timing import LatencyStatistics
-from gnc_common.validation import ConfigError, InputError, check_positive, check_unit_quaternion
+from gnc_common.validation import ConfigError, InputError, check_positive
 
 from sappc_controller.core.base import AttitudeController
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
@@ -113,8 +113,9 @@ _NS = NS_PER_S
 
 #: Why an input is rejected (``rejected_by_reason`` keys): a wrong frame id, a non-finite value or a
 #: zero or non-unit quaternion; a stamp not after the last computed sample (lockstep) or the topic's
-#: previous message (real time); a stamp more than ``max_stamp_ahead_s`` ahead.
-REJECT_REASONS = ("invalid", "stamp_in_past", "stamp_too_far_ahead")
+#: previous message (real time); a stamp more than ``max_stamp_ahead_s`` ahead
+#: (:data:`sappc_msgs_py.inputs.REJECT_REASONS`, the checks every consumer of the samples shares).
+REJECT_REASONS = INPUT_REJECT_REASONS
 
 #: Watchdog parameters: changeable at run time, applied at once, each within WATCHDOG_RANGE_S.
 _WATCHDOG_PARAMS = ("stale_timeout_s", "max_stamp_ahead_s", "lockstep_grace_s")
@@ -219,13 +220,9 @@ class ControllerNode(ProjectNode):
         return values
 
     def _check_unknown_overrides(self) -> None:
-        """Reject overrides this node does not know (a typo would otherwise be ignored)."""
-        overrides = getattr(self, "_parameter_overrides", {})
-        known = set(self._parameters)
-        other_kinds = tuple(f"{k}." for k in CONTROLLER_CLASSES if k != self.kind)
-        for name in sorted(overrides):
-            if name not in known and not name.startswith(other_kinds):
-                raise ConfigError(f"unknown parameter {name!r} for the {self.kind} controller node")
+        """Reject overrides this node does not know (a typo would otherwise be ignored); the other
+        laws' parameters may be given (one parameters file for every kind)."""
+        self.check_unknown_overrides(tuple(f"{k}." for k in CONTROLLER_CLASSES if k != self.kind))
 
     def _on_set_parameters(self, params: list[Any]) -> SetParametersResult:
         changes = {p.name: p.value for p in params}
@@ -268,25 +265,17 @@ class ControllerNode(ProjectNode):
         """The controller's time: the latest /clock in lockstep, the node clock in real time."""
         return self._clock_ns if self.mode == LOCKSTEP else self.get_clock().now().nanoseconds
 
-    def _decode(self, msg: Any, topic: Topic) -> np.ndarray:
-        if topic.type_name.endswith("QuaternionStamped"):
-            return check_unit_quaternion(f"{topic.name} quaternion", quaternion_from_msg(msg, topic))
-        return vector3_from_msg(msg, topic)
-
     def _on_input(self, msg: Any, topic: Topic) -> None:
         ns = stamp_to_ns(msg.header.stamp)
         last = self._last_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
-        if last is not None and ns <= last:
-            what = "the last computed sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
-            self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is in the past (not after {what}, {last / _NS:.9f} s)", "stamp_in_past")
-            return
-        now = self._now_ns()
-        if now is not None and ns > now + self.max_ahead_ns:
-            self._reject(f"{topic.name}: stamp {ns / _NS:.9f} s is more than {self.max_ahead_ns / _NS} s ahead of the controller's time {now / _NS:.9f} s", "stamp_too_far_ahead")
+        what = "the last computed sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
+        rejection = stamp_rejection(topic.name, ns, last, self._now_ns(), self.max_ahead_ns, what)
+        if rejection is not None:
+            self._reject(rejection[1], rejection[0])
             return
         value: np.ndarray | None
         try:
-            value = self._decode(msg, topic)
+            value = decode_input(msg, topic)
         except InputError as exc:
             self._reject(str(exc), "invalid")
             value = None  # lockstep: it arrived, invalid (module docstring)

@@ -28,6 +28,7 @@ import yaml
 
 from gnc_common.validation import ConfigError, check_positive, from_mapping
 from sappc_msgs_py.parameters import REQUIRED, Param, field_docs, unit_of
+from sappc_msgs_py.inputs import DEFAULT_MAX_STAMP_AHEAD_S, WATCHDOG_RANGE_S, check_watchdog_seconds
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.blfppc import BlfppcConfig, BlfppcController
@@ -66,26 +67,13 @@ DEFAULT_CONTROL_PERIOD_S = 0.01
 #: Default ``stale_timeout_s`` [s]: zero torque when no valid state is newer than this at a
 #: control instant (ten samples at the default period: a short outage is ridden through).
 DEFAULT_STALE_TIMEOUT_S = 0.1
-#: Default ``max_stamp_ahead_s`` [s]: inputs stamped further ahead of the controller's time are
-#: rejected (a clock jump or a wrong stamp, not a late sample).
-DEFAULT_MAX_STAMP_AHEAD_S = 1.0
 #: Default ``lockstep_grace_s`` [s]: how long a lockstep tick waits for an input that never arrives
 #: (a message lost on the network) before it is answered; half the plant's default
 #: ``lockstep_timeout_s`` (2 s), so the controller answers first, and 100 times a control period,
 #: so a loaded machine's latency is not taken for a loss.
 DEFAULT_LOCKSTEP_GRACE_S = 1.0
-#: Range of the watchdog parameters [s]: from one microsecond (below it the nanosecond stamps
-#: cannot resolve the timeout) to an hour (an input older than an hour is never "fresh").
-WATCHDOG_RANGE_S = (1e-6, 3600.0)
-
-
-def check_watchdog_seconds(name: str, value: Any) -> float:
-    """A watchdog time [s] checked: finite, within :data:`WATCHDOG_RANGE_S` (error names ``name``)."""
-    seconds = float(check_positive(name, value))
-    lo, hi = WATCHDOG_RANGE_S
-    if not lo <= seconds <= hi:
-        raise ConfigError(f"{name} must be within [{lo:g}, {hi:g}] s, got {value!r}")
-    return seconds
+# DEFAULT_MAX_STAMP_AHEAD_S, WATCHDOG_RANGE_S and check_watchdog_seconds: the input checks every
+# consumer of the loop's samples shares (sappc_msgs_py.inputs), re-exported here.
 
 #: Config fields that are plant-level parameters, not under the controller's name.
 _SHARED = ("inertia_kg_m2", "actuator")

@@ -22,7 +22,30 @@ topic                         type                            frame_id    conten
 ``joint_states``              sensor_msgs/JointState          ``body``     reaction wheels (a plant with wheels only)
 ``truth/attitude``            geometry_msgs/QuaternionStamped ``inertial`` true ``q_BN`` (a plant with sensor models only)
 ``truth/rate``                geometry_msgs/Vector3Stamped    ``body``     true ``omega_BN_B`` [rad/s] (idem)
+``estimate/attitude``         geometry_msgs/QuaternionStamped ``inertial`` estimated ``q_BN`` (an estimator only)
+``estimate/rate``             geometry_msgs/Vector3Stamped    ``body``     estimated ``omega_BN_B`` [rad/s] (idem)
+``estimator/gyro_bias``       geometry_msgs/Vector3Stamped    ``body``     estimated gyro bias [rad/s] (idem)
+``estimator/attitude_sigma``  geometry_msgs/Vector3Stamped    ``body``     1-sigma attitude error per body axis [rad]
+``estimator/bias_sigma``      geometry_msgs/Vector3Stamped    ``body``     1-sigma gyro bias error per axis [rad/s]
+``estimator/covariance``      std_msgs/Float64MultiArray      (none)      see :data:`COVARIANCE_DIMS`
+``estimator/diagnostics``     std_msgs/Float64MultiArray      (none)      see :data:`ESTIMATOR_DIAGNOSTICS_LAYOUT`
 ============================  ==============================  ==========  =========================================
+
+An attitude estimator (``python -m sappc_estimator``: a multiplicative EKF, ``docs/estimator.md``)
+takes the measured ``state/attitude`` and ``state/rate`` and publishes its estimate on
+``estimate/attitude`` and ``estimate/rate``, with the same types, frames and stamps as ``state/*``,
+so that the controller takes it by a remap (``-r state/attitude:=estimate/attitude -r
+state/rate:=estimate/rate``); ``estimator/*`` carry what plotting tools show beside it (bias,
+1-sigma bounds, covariance, diagnostics), same stamps (:data:`ESTIMATOR_TOPICS`, all optional: only
+a run with an estimator has them).  A sample without an estimate (its inputs arrived invalid, e.g.
+the injector's "no data" for a dropped measurement; or the filter is not initialised yet) is
+published as "no data" (:func:`~sappc_msgs_py.convert.no_data_msg`): NaN in every value of every
+estimate topic, the sample's stamp, so that the controller counts the sample as arrived and
+answers it as it answers its own dropped input; the diagnostics stay finite (but for ``nis``, NaN
+until the first tracker sample was compared).
+
+Every ``std_msgs/Float64MultiArray`` of the contract carries the time it belongs to [s] in
+``data[0]`` (:func:`float_array_carries_time`), so a recorder on simulated time can stamp it.
 
 With sensor models (a star tracker, a gyro: :mod:`spacecraft_sim.core.sensors`) ``state/*`` carry
 what the sensors measure, as the contract says, and the plant adds the true state on
@@ -113,7 +136,22 @@ __all__ = [
     "Topic",
     "WHEEL_STATES",
     "consumed_names",
+    "COVARIANCE_DIMS",
+    "ERROR_STATE",
+    "ESTIMATE_ATTITUDE",
+    "ESTIMATE_RATE",
+    "ESTIMATOR_ATTITUDE_SIGMA",
+    "ESTIMATOR_BIAS_SIGMA",
+    "ESTIMATOR_COVARIANCE",
+    "ESTIMATOR_DIAGNOSTICS",
+    "ESTIMATOR_DIAGNOSTICS_LAYOUT",
+    "ESTIMATOR_GYRO_BIAS",
+    "ESTIMATOR_INPUTS",
+    "ESTIMATOR_NO_INPUT",
+    "ESTIMATOR_STATUS_NAMES",
+    "ESTIMATOR_TOPICS",
     "faulty",
+    "float_array_carries_time",
     "qos_profile",
     "relay_remaps",
 ]
@@ -187,6 +225,13 @@ REFERENCE_TF = Topic("reference/tf", "geometry_msgs/msg/TransformStamped", Frame
 WHEEL_STATES = Topic("joint_states", "sensor_msgs/msg/JointState", Frame.BODY.value)
 TRUTH_ATTITUDE = Topic("truth/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)
 TRUTH_RATE = Topic("truth/rate", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
+ESTIMATE_ATTITUDE = Topic("estimate/attitude", STATE_ATTITUDE.type_name, STATE_ATTITUDE.frame_id)
+ESTIMATE_RATE = Topic("estimate/rate", STATE_RATE.type_name, STATE_RATE.frame_id)
+ESTIMATOR_GYRO_BIAS = Topic("estimator/gyro_bias", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
+ESTIMATOR_ATTITUDE_SIGMA = Topic("estimator/attitude_sigma", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
+ESTIMATOR_BIAS_SIGMA = Topic("estimator/bias_sigma", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
+ESTIMATOR_COVARIANCE = Topic("estimator/covariance", "std_msgs/msg/Float64MultiArray", None)
+ESTIMATOR_DIAGNOSTICS = Topic("estimator/diagnostics", "std_msgs/msg/Float64MultiArray", None)
 
 #: Prefix of the topics a fault relay republishes.
 FAULT_PREFIX = "fault/"
@@ -239,6 +284,13 @@ def consumed_names(topic: Topic) -> tuple[str, ...]:
 #: The controller's five inputs, in the order of ``AttitudeController.step(t, dt, q, w, q_d, w_d, wdot_d)``.
 CONTROLLER_INPUTS = (STATE_ATTITUDE, STATE_RATE, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
 
+#: The estimator's two inputs, in the order of its measurement ``y = (q_meas, omega_meas)``.
+ESTIMATOR_INPUTS = (STATE_ATTITUDE, STATE_RATE)
+#: What an estimator publishes per sample, in the order it publishes them: the estimate the
+#: controller takes (remapped from ``state/*``) first.
+ESTIMATOR_TOPICS = (ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_GYRO_BIAS, ESTIMATOR_ATTITUDE_SIGMA, ESTIMATOR_BIAS_SIGMA,
+                    ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS)
+
 #: Every topic of the contract.
 TOPICS = (
     STATE_ATTITUDE,
@@ -255,11 +307,12 @@ TOPICS = (
     WHEEL_STATES,
     TRUTH_ATTITUDE,
     TRUTH_RATE,
+    *ESTIMATOR_TOPICS,
 )
 
-#: Topics only some plants publish (reaction wheels, sensor models): absent from a bag of a plant
-#: without them, which is no fault.
-OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE)
+#: Topics only some runs have (a plant with reaction wheels or sensor models, an estimator):
+#: absent from a bag of a run without them, which is no fault.
+OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE, *ESTIMATOR_TOPICS)
 
 #: The attitude as frames (body and reference relative to inertial), for visualisation only: no
 #: node consumes them, a fault relay never republishes them (they show the truth).
@@ -284,6 +337,47 @@ DIAGNOSTICS_LAYOUT = (
     "input_stamps_state_s",  # header stamps of the state/attitude and state/rate used, 0.0 (0 when no step)
     "input_stamps_reference_s",  # header stamps of the reference attitude, rate, acceleration used
 )
+
+
+#: Components of the estimator's error state, in the order of the rows and columns of its
+#: covariance ``P``: the attitude error ``a`` (a rotation vector in the body frame, true =
+#: estimate ⊗ dq(a)) [rad], then the gyro bias error ``b`` (true minus estimated) [rad/s].
+ERROR_STATE = ("a_x", "a_y", "a_z", "b_x", "b_y", "b_z")
+#: Layout of ``estimator/covariance`` (``std_msgs/Float64MultiArray``): ``data[0]`` is the time of
+#: the sample [s] (``layout.data_offset`` = 1: the element before the array), then the 6 x 6
+#: covariance ``P`` of :data:`ERROR_STATE` row major, ``P[i, j] = data[1 + 6 i + j]`` (units rad^2,
+#: rad^2/s, (rad/s)^2 by block).  ``layout.dim`` carries these two labels (rows, then columns;
+#: size 6, strides 36 and 6), so a reader never has to guess.
+COVARIANCE_DIMS = ("row:" + ",".join(ERROR_STATE), "column:" + ",".join(ERROR_STATE))
+
+#: Layout of ``estimator/diagnostics`` (``std_msgs/Float64MultiArray``): one value per label, in
+#: this order; ``layout.dim[0]`` carries the labels joined by commas.  The counts are totals since
+#: the node started.
+ESTIMATOR_DIAGNOSTICS_LAYOUT = (
+    "time_s",  # time of the sample (its stamp) [s]
+    "nis",  # the last normalised innovation squared (chi-square, 3 dof; NaN until a tracker sample was compared)
+    "status",  # what the sample did: an ESTIMATOR_STATUS_NAMES code
+    "updates",  # tracker samples accepted by the filter
+    "gate_rejections",  # tracker samples rejected by its innovation gate
+    "reinitialisations",  # attitude re-initialisations after consecutive rejections
+    "no_data_samples",  # samples published as "no data"
+    "rejected_messages",  # input messages rejected by the node's checks (frame, non-finite, stamp)
+)
+#: What a sample did (``estimator/diagnostics`` ``status``), by code: the filter's step statuses
+#: (``sappc_estimator.core.mekf.STATUS_NAMES``, codes 0 to 5: not initialised yet, initialised,
+#: propagated only, updated, tracker sample rejected by the gate, attitude re-initialised), then
+#: :data:`ESTIMATOR_NO_INPUT`.
+ESTIMATOR_STATUS_NAMES = ("none", "initialised", "propagated", "updated", "rejected", "reinitialised", "no_input")
+#: The status of a sample whose inputs arrived invalid: no filter step ("no data" published).
+ESTIMATOR_NO_INPUT = 6
+
+
+def float_array_carries_time(first_label: str) -> bool:
+    """Whether a ``std_msgs/Float64MultiArray`` whose ``layout.dim[0].label`` is ``first_label`` is
+    one of the contract's, which carry the time they belong to [s] in ``data[0]``: the controller's
+    and the estimator's diagnostics (their first label is ``time_s``) and the covariance
+    (:data:`COVARIANCE_DIMS`)."""
+    return first_label.split(",", 1)[0] == "time_s" or first_label == COVARIANCE_DIMS[0]
 
 
 #: How the controller answered a sample (``controller/diagnostics`` ``status[2]``; the offline loop

@@ -29,13 +29,22 @@ from gnc_common.validation import InputError, as_finite_array
 
 from sappc_msgs_py.contract import (
     CONTROL_TORQUE,
+    COVARIANCE_DIMS,
     DIAGNOSTICS_LAYOUT,
+    ERROR_STATE,
+    ESTIMATOR_DIAGNOSTICS_LAYOUT,
     WHEEL_STATES,
     Topic,
+    float_array_carries_time,
 )
 
 __all__ = [
     "clock_msg",
+    "covariance_from_msg",
+    "covariance_msg",
+    "estimator_diagnostics_from_msg",
+    "estimator_diagnostics_msg",
+    "no_data_msg",
     "diagnostics_from_msg",
     "diagnostics_msg",
     "joint_state_msg",
@@ -120,32 +129,58 @@ def seconds_to_ns(t_s: float) -> int:
 _STAMP_FIRST = frozenset({"geometry_msgs/msg/QuaternionStamped", "geometry_msgs/msg/Vector3Stamped",
                           "geometry_msgs/msg/WrenchStamped", "geometry_msgs/msg/TransformStamped", "rosgraph_msgs/msg/Clock",
                           "sensor_msgs/msg/JointState"})
-_DIAGNOSTICS_TYPE = "std_msgs/msg/Float64MultiArray"
+_FLOAT_ARRAY_TYPE = "std_msgs/msg/Float64MultiArray"
 
 
 def cdr_stamp_ns(type_name: str, cdr: bytes) -> int:
     """The time [ns] a serialized message of the contract belongs to, read without deserializing.
 
-    A stamped type's header stamp, ``/clock``'s clock; a diagnostics message's ``time_s`` (its
-    first value: ``data`` is the last field, so its :data:`DIAGNOSTICS_LAYOUT` x 3 float64 are the
-    last bytes of the message).  Byte order from the encapsulation header (CDR_BE 0, CDR_LE 1).
+    A stamped type's header stamp, ``/clock``'s clock; a ``Float64MultiArray`` of the contract
+    (the controller's and the estimator's diagnostics, the estimator's covariance:
+    :func:`~sappc_msgs_py.contract.float_array_carries_time`) its ``data[0]``, the time in
+    seconds.  Byte order from the encapsulation header (CDR_BE 0, CDR_LE 1); alignment counted
+    from the end of that 4-byte header.
 
     Raises
     ------
     ValueError
-        For a type outside the contract, or a diagnostics message of another size.
+        For a type outside the contract, or a float array that is not one of the contract's.
     """
     order = "<" if cdr[1] & 1 else ">"
     if type_name in _STAMP_FIRST:
         sec, nanosec = struct.unpack_from(order + "iI", cdr, 4)
         return int(sec) * _NS_PER_S + int(nanosec)
-    if type_name == _DIAGNOSTICS_TYPE:
-        n = len(DIAGNOSTICS_LAYOUT) * 3
-        offset = len(cdr) - 8 * n
-        if offset < 8 or struct.unpack_from(order + "I", cdr, offset - 4)[0] != n and struct.unpack_from(order + "I", cdr, offset - 8)[0] != n:
-            raise ValueError(f"a {type_name} of {len(cdr)} bytes is not a controller diagnostics message ({n} values)")
-        return seconds_to_ns(struct.unpack_from(order + "d", cdr, offset)[0])
+    if type_name == _FLOAT_ARRAY_TYPE:
+        first = _float_array_time(order, cdr)
+        if first is None:
+            raise ValueError(f"a {type_name} of {len(cdr)} bytes is not one of the contract's float arrays "
+                             "(controller or estimator diagnostics, estimator covariance)")
+        return seconds_to_ns(first)
     raise ValueError(f"no stamp known for type {type_name!r}")
+
+
+def _float_array_time(order: str, cdr: bytes) -> float | None:
+    """``data[0]`` of a serialized ``Float64MultiArray`` whose first dimension's label says it is
+    one of the contract's (``None`` otherwise, or when the bytes do not fit the type): layout
+    ``sequence<{string label, uint32 size, uint32 stride}> dim``, ``uint32 data_offset``,
+    ``sequence<float64> data`` (the doubles aligned to 8)."""
+    body = 4  # after the encapsulation header: the alignment origin
+    try:
+        (ndim,) = struct.unpack_from(order + "I", cdr, body)
+        off, first = 4, ""
+        for i in range(ndim):
+            (n,) = struct.unpack_from(order + "I", cdr, body + off)
+            if i == 0:
+                first = bytes(cdr[body + off + 4 : body + off + 3 + n]).decode("utf-8", "replace") if n else ""
+            off = (off + 4 + n + 3) // 4 * 4 + 8  # the label, its padding, size and stride
+        (count,) = struct.unpack_from(order + "I", cdr, body + off + 4)  # after data_offset
+        off = (off + 8 + 7) // 8 * 8
+        if ndim == 0 or count == 0 or not float_array_carries_time(first):
+            return None
+        (t,) = struct.unpack_from(order + "d", cdr, body + off)
+    except struct.error:
+        return None
+    return float(t)
 
 
 def ns_to_stamp(ns: int) -> Any:
@@ -280,8 +315,6 @@ def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike], out: Any = None) -> 
 
     ``rows`` maps every label except ``time_s`` to 3 values; the labels go into ``layout.dim``.
     """
-    from std_msgs.msg import Float64MultiArray
-
     data = np.empty((len(DIAGNOSTICS_LAYOUT), 3))
     data[0] = t_s
     missing = [k for k in DIAGNOSTICS_LAYOUT[1:] if k not in rows]
@@ -289,12 +322,7 @@ def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike], out: Any = None) -> 
         raise ValueError(f"diagnostics need exactly {DIAGNOSTICS_LAYOUT[1:]}, missing {missing}, extra {sorted(set(rows) - set(DIAGNOSTICS_LAYOUT))}")
     for i, label in enumerate(DIAGNOSTICS_LAYOUT[1:], start=1):
         data[i] = np.asarray(rows[label], dtype=np.float64).reshape(3)
-    msg = Float64MultiArray() if out is None else out
-    msg.layout = _diagnostics_layout()
-    values = array.array("d")
-    values.frombytes(data.tobytes())  # a float64 array.array is taken as it is (a list is checked value by value)
-    msg.data = values
-    return msg
+    return _float_array(data, _diagnostics_layout(), out)
 
 
 @functools.cache
@@ -313,6 +341,102 @@ def diagnostics_from_msg(msg: Any) -> dict[str, Array]:
     labels = msg.layout.dim[0].label.split(",")
     data = np.asarray(msg.data, dtype=np.float64).reshape(len(labels), 3)
     return {label: data[i] for i, label in enumerate(labels)}
+
+
+#: A value of the "no data" sample (the convention of REP 117 for invalid ranges).
+_NO_DATA = float("nan")
+
+
+def no_data_msg(topic: Topic, t_s: Any, out: Any = None) -> Any:
+    """The contract's "no data" sample of ``topic`` (a ``QuaternionStamped`` or ``Vector3Stamped``
+    topic): the header of time ``t_s`` (seconds or a stamp, :func:`time_to_stamp`) and NaN in every
+    value, what a relay sends for a dropped measurement and an estimator for a sample without an
+    estimate; a consumer rejects it as invalid but knows its sample arrived.  Into ``out`` when given."""
+    msg = _header(topic.msg_class() if out is None else out, t_s, topic.frame_id)
+    if topic.type_name.endswith("QuaternionStamped"):
+        msg.quaternion.x = msg.quaternion.y = msg.quaternion.z = msg.quaternion.w = _NO_DATA
+    elif topic.type_name.endswith("Vector3Stamped"):
+        msg.vector.x = msg.vector.y = msg.vector.z = _NO_DATA
+    else:
+        raise ValueError(f"{topic.name} has no 'no data' sample (a QuaternionStamped or Vector3Stamped topic has)")
+    return msg
+
+
+def _float_array(values: NDArray[np.float64], layout: Any, out: Any) -> Any:
+    from std_msgs.msg import Float64MultiArray
+
+    msg = Float64MultiArray() if out is None else out
+    msg.layout = layout
+    data = array.array("d")
+    data.frombytes(np.ascontiguousarray(values, dtype=np.float64).tobytes())  # taken as it is (a list is checked value by value)
+    msg.data = data
+    return msg
+
+
+def covariance_msg(t_s: float, P: ArrayLike | None, out: Any = None) -> Any:
+    """An ``estimator/covariance`` message: ``data[0] = t_s`` [s], then the 6 x 6 covariance ``P``
+    of :data:`~sappc_msgs_py.contract.ERROR_STATE` row major (:data:`~sappc_msgs_py.contract.COVARIANCE_DIMS`);
+    ``P`` ``None`` gives the "no data" sample (NaN covariance).  Into ``out`` when given.
+
+    Raises
+    ------
+    InputError
+        When ``P`` is not a finite (6, 6) array.
+    """
+    n = len(ERROR_STATE)
+    data = np.empty(1 + n * n)
+    data[0] = t_s
+    data[1:] = _NO_DATA if P is None else as_finite_array("estimator/covariance P", P, shape_tail=(n, n)).reshape(n * n)
+    return _float_array(data, _covariance_layout(), out)
+
+
+@functools.cache
+def _covariance_layout() -> Any:
+    from std_msgs.msg import MultiArrayDimension, MultiArrayLayout
+
+    n = len(ERROR_STATE)
+    return MultiArrayLayout(dim=[MultiArrayDimension(label=COVARIANCE_DIMS[0], size=n, stride=n * n),
+                                 MultiArrayDimension(label=COVARIANCE_DIMS[1], size=n, stride=n)], data_offset=1)
+
+
+def covariance_from_msg(msg: Any) -> tuple[float, Array]:
+    """``(t_s, P)`` of an ``estimator/covariance`` message (:func:`covariance_msg`).
+
+    Raises
+    ------
+    InputError
+        When the message's layout is not :data:`~sappc_msgs_py.contract.COVARIANCE_DIMS`.
+    """
+    n = len(ERROR_STATE)
+    labels = tuple(d.label for d in msg.layout.dim)
+    if labels != COVARIANCE_DIMS or msg.layout.data_offset != 1 or len(msg.data) != 1 + n * n:
+        raise InputError(f"not an estimator covariance message (dims {labels}, data_offset {msg.layout.data_offset}, {len(msg.data)} values)")
+    data = np.asarray(msg.data, dtype=np.float64)
+    return float(data[0]), data[1:].reshape(n, n)
+
+
+def estimator_diagnostics_msg(values: ArrayLike, out: Any = None) -> Any:
+    """An ``estimator/diagnostics`` message: ``values`` in the order of
+    :data:`~sappc_msgs_py.contract.ESTIMATOR_DIAGNOSTICS_LAYOUT` (``time_s`` first), labelled.
+    Into ``out`` when given."""
+    data = np.asarray(values, dtype=np.float64)
+    if data.shape != (len(ESTIMATOR_DIAGNOSTICS_LAYOUT),):
+        raise ValueError(f"estimator diagnostics need {len(ESTIMATOR_DIAGNOSTICS_LAYOUT)} values {ESTIMATOR_DIAGNOSTICS_LAYOUT}, got shape {data.shape}")
+    return _float_array(data, _estimator_diagnostics_layout(), out)
+
+
+@functools.cache
+def _estimator_diagnostics_layout() -> Any:
+    from std_msgs.msg import MultiArrayDimension, MultiArrayLayout
+
+    n = len(ESTIMATOR_DIAGNOSTICS_LAYOUT)
+    return MultiArrayLayout(dim=[MultiArrayDimension(label=",".join(ESTIMATOR_DIAGNOSTICS_LAYOUT), size=n, stride=n)])
+
+
+def estimator_diagnostics_from_msg(msg: Any) -> dict[str, float]:
+    """The labelled values of an ``estimator/diagnostics`` message (labels read from its layout)."""
+    labels = msg.layout.dim[0].label.split(",")
+    return {label: float(v) for label, v in zip(labels, msg.data, strict=True)}
 
 
 def clock_msg(t_s: float, out: Any = None) -> Any:

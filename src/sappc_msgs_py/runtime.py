@@ -277,12 +277,33 @@ class ProjectNode(Node):
         Raises
         ------
         ConfigError
-            For a value not among ``p.choices``.
+            For a value not among ``p.choices``, or one rclpy refuses (of another type than
+            declared, outside the descriptor's range): one line naming the parameter and value.
         """
-        value = _declare(self, p)
+        from rclpy.exceptions import ParameterException
+
+        try:
+            value = _declare(self, p)
+        except ParameterException as exc:  # rclpy's words name the parameter and the value; not a traceback
+            raise ConfigError(" ".join(str(exc).split())) from None
         if p.choices and value not in p.choices:
             raise ConfigError(f"{p.name} must be one of {', '.join(repr(c) for c in p.choices)}, got {value!r}")
         return value
+
+    def check_unknown_overrides(self, ignore_prefixes: tuple[str, ...] = ()) -> None:
+        """Refuse a given parameter (``-p``, ``--params-file``) the node did not declare: a typo
+        would otherwise be ignored.  Call it after every declaration.
+
+        Raises
+        ------
+        ConfigError
+            Naming the first unknown parameter (those starting with one of ``ignore_prefixes`` are let pass).
+        """
+        overrides = getattr(self, "_parameter_overrides", {})
+        for name in sorted(overrides):
+            if name not in self._parameters and not name.startswith(ignore_prefixes):
+                listed = f" ({self.COMMAND} --help lists them)" if self.COMMAND else ""
+                raise ConfigError(f"unknown parameter {name!r} for the {self.get_name()} node{listed}")
 
     def mode_param(self) -> str:
         """Declare :data:`MODE` and return it (:data:`LOCKSTEP` or :data:`REALTIME`)."""

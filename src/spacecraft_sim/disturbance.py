@@ -53,6 +53,7 @@ from sappc_msgs_py.contract import (
     qos_profile,
 )
 from sappc_msgs_py.convert import (
+    no_data_msg,
     ns_to_stamp,
     quaternion_from_msg,
     quaternion_msg,
@@ -84,26 +85,17 @@ PARAMETERS = (
 _P = {p.name: p for p in PARAMETERS}
 
 
-#: What a dropped measurement or reference is relayed as: a message of its stamp whose values are
-#: all NaN, a sensor's "no data" (the convention of REP 117 for invalid ranges).  The controller
-#: rejects it as invalid but knows the sample is complete, so it answers at once (held torque, or
-#: zero once stale) rather than after a timeout, and lockstep stays deterministic.
-_NO_DATA = float("nan")
-
-
 def _relayed_msg(topic: Topic, value: Any, stamp: Any) -> Any:
     """The relay's message for ``topic`` (its :func:`faulty` twin) carrying ``value``, or "no data"
-    (:data:`_NO_DATA` in every field) when ``value`` is ``None``."""
+    when ``value`` is ``None``: a dropped measurement or reference is relayed as the contract's "no
+    data" sample (:func:`~sappc_msgs_py.convert.no_data_msg`: a message of its stamp whose values
+    are all NaN, the convention of REP 117 for invalid ranges).  The controller rejects it as
+    invalid but knows the sample is complete, so it answers at once (held torque, or zero once
+    stale) rather than after a timeout, and lockstep stays deterministic."""
     out = faulty(topic)
-    if _is_quaternion(topic):
-        msg = quaternion_msg(np.array([0.0, 0.0, 0.0, 1.0]) if value is None else value, stamp, out)
-        if value is None:
-            msg.quaternion.x = msg.quaternion.y = msg.quaternion.z = msg.quaternion.w = _NO_DATA
-        return msg
-    msg = vector3_msg(np.zeros(3) if value is None else value, stamp, out)
     if value is None:
-        msg.vector.x = msg.vector.y = msg.vector.z = _NO_DATA
-    return msg
+        return no_data_msg(out, stamp)
+    return quaternion_msg(value, stamp, out) if _is_quaternion(topic) else vector3_msg(value, stamp, out)
 
 
 def _is_quaternion(topic: Topic) -> bool:

@@ -14,6 +14,11 @@ from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import (
     cdr_stamp_ns,
     clock_msg,
+    covariance_from_msg,
+    covariance_msg,
+    estimator_diagnostics_from_msg,
+    estimator_diagnostics_msg,
+    no_data_msg,
     diagnostics_from_msg,
     diagnostics_msg,
     joint_state_msg,
@@ -88,6 +93,10 @@ def test_diagnostics_are_labelled() -> None:
 
 
 def _sample(topic: c.Topic):  # type: ignore[no-untyped-def]
+    if topic is c.ESTIMATOR_COVARIANCE:
+        return covariance_msg(12.34, np.arange(36.0).reshape(6, 6) * 1e-9)
+    if topic is c.ESTIMATOR_DIAGNOSTICS:
+        return estimator_diagnostics_msg([12.34, 2.5, 3.0, 120.0, 1.0, 0.0, 0.0, 2.0])
     if topic.type_name.endswith("QuaternionStamped"):
         return quaternion_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], 12.34, topic)
     if topic.type_name.endswith("Vector3Stamped"):
@@ -187,6 +196,9 @@ def test_cdr_stamp_ns_reads_the_stamp_of_every_recorded_type_without_deserializi
         c.CONTROL_TORQUE: torque_msg([0.1, 0.2, 0.3], t_s, c.CONTROL_TORQUE),
         c.CLOCK: clock_msg(t_s),
         c.CONTROLLER_DIAGNOSTICS: diagnostics_msg(ns / 1e9, rows),
+        c.ESTIMATOR_DIAGNOSTICS: estimator_diagnostics_msg([ns / 1e9, np.nan, 3.0, 7.0, 1.0, 0.0, 2.0, 4.0]),
+        c.ESTIMATOR_COVARIANCE: covariance_msg(ns / 1e9, np.diag(np.arange(1.0, 7.0))),
+        c.ESTIMATE_ATTITUDE: no_data_msg(c.ESTIMATE_ATTITUDE, t_s),
         c.STATE_TF: transform_from_attitude(transform_msg(c.STATE_TF), quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.STATE_ATTITUDE)),
         c.REFERENCE_TF: transform_from_attitude(transform_msg(c.REFERENCE_TF), quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.REFERENCE_ATTITUDE)),
     }
@@ -198,6 +210,8 @@ def test_cdr_stamp_ns_reads_the_stamp_of_every_recorded_type_without_deserializi
         back = deserialize_message(cdr, topic.msg_class)
         if topic is c.CONTROLLER_DIAGNOSTICS:
             assert stamp_to_ns(time_to_stamp(float(diagnostics_from_msg(back)["time_s"][0]))) == ns
+        elif topic.msg_class.__name__ == "Float64MultiArray":  # the estimator's: time_s in data[0]
+            assert stamp_to_ns(time_to_stamp(float(back.data[0]))) == ns
         else:
             assert stamp_to_ns(back.clock if topic is c.CLOCK else back.header.stamp) == ns
         big = store.serialize_cdr(store.deserialize_cdr(cdr, topic.type_name), topic.type_name, little_endian=False)
@@ -205,12 +219,18 @@ def test_cdr_stamp_ns_reads_the_stamp_of_every_recorded_type_without_deserializi
 
 
 def test_cdr_stamp_ns_refuses_a_type_it_cannot_time_and_a_foreign_float_array() -> None:
-    from std_msgs.msg import Float64MultiArray
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
     with pytest.raises(ValueError, match="no stamp known for type 'std_msgs/msg/String'"):
         cdr_stamp_ns("std_msgs/msg/String", b"\x00\x01\x00\x00abcd")
-    with pytest.raises(ValueError, match="not a controller diagnostics message"):
+    with pytest.raises(ValueError, match="not one of the contract's float arrays"):
         cdr_stamp_ns("std_msgs/msg/Float64MultiArray", serialize_message(Float64MultiArray(data=[1.0, 2.0])))
+    labelled = Float64MultiArray(data=[1.0, 2.0])
+    labelled.layout.dim = [MultiArrayDimension(label="speed,torque", size=2, stride=2)]  # labelled, but not time first
+    with pytest.raises(ValueError, match="not one of the contract's float arrays"):
+        cdr_stamp_ns("std_msgs/msg/Float64MultiArray", serialize_message(labelled))
+    with pytest.raises(ValueError, match="not one of the contract's float arrays"):  # cut short
+        cdr_stamp_ns("std_msgs/msg/Float64MultiArray", serialize_message(covariance_msg(1.0, np.eye(6)))[:40])
 
 
 def test_transform_topics_name_the_contract_frames_and_carry_the_attitude_as_it_is() -> None:
@@ -261,3 +281,70 @@ def test_the_body_transform_maps_body_axes_to_inertial_axes() -> None:
     r = tf.transform.rotation
     v_B = np.array([0.2, -0.7, 0.4])
     np.testing.assert_allclose(Rotation.from_quat([r.x, r.y, r.z, r.w]).apply(v_B), quat_to_dcm_BN(q[None])[0].T @ v_B, atol=1e-15)
+
+
+# ---- the estimator's topics (issue 26) -----------------------------------------------------------
+
+
+def test_the_estimate_has_the_types_and_frames_of_the_state_it_replaces() -> None:
+    """``estimate/*`` are what the controller takes by a remap of ``state/*``: same types, same
+    frames; the estimator's other topics are body-frame vectors and labelled float arrays; all
+    are optional contract topics (recorded by default, absent from a run without an estimator)."""
+    assert (c.ESTIMATE_ATTITUDE.type_name, c.ESTIMATE_ATTITUDE.frame_id) == (c.STATE_ATTITUDE.type_name, "inertial")
+    assert (c.ESTIMATE_RATE.type_name, c.ESTIMATE_RATE.frame_id) == (c.STATE_RATE.type_name, "body")
+    for topic in (c.ESTIMATOR_GYRO_BIAS, c.ESTIMATOR_ATTITUDE_SIGMA, c.ESTIMATOR_BIAS_SIGMA):
+        assert topic.type_name == "geometry_msgs/msg/Vector3Stamped" and topic.frame_id == "body"
+    assert c.ESTIMATOR_INPUTS == (c.STATE_ATTITUDE, c.STATE_RATE)
+    assert all(t in c.TOPICS and t in c.OPTIONAL_TOPICS for t in c.ESTIMATOR_TOPICS) and len(c.ESTIMATOR_TOPICS) == 7
+    assert len({t.name for t in c.TOPICS}) == len(c.TOPICS)
+    for topic in c.ESTIMATOR_TOPICS:
+        assert f"``{topic.name}``" in (c.__doc__ or ""), topic.name  # in the contract's table
+
+
+def test_the_estimator_status_codes_are_the_kernels_then_no_input() -> None:
+    from sappc_estimator.core import mekf
+
+    assert c.ESTIMATOR_STATUS_NAMES[: len(mekf.STATUS_NAMES)] == mekf.STATUS_NAMES
+    assert c.ESTIMATOR_STATUS_NAMES[c.ESTIMATOR_NO_INPUT] == "no_input" and len(c.ESTIMATOR_STATUS_NAMES) == c.ESTIMATOR_NO_INPUT + 1
+
+
+def test_the_covariance_round_trips_row_major_with_labelled_dimensions() -> None:
+    rng = np.random.default_rng(5)
+    A = rng.standard_normal((6, 6))
+    P = A @ A.T * 1e-8
+    msg = covariance_msg(12.5, P)
+    assert [d.label for d in msg.layout.dim] == ["row:a_x,a_y,a_z,b_x,b_y,b_z", "column:a_x,a_y,a_z,b_x,b_y,b_z"]
+    assert [(d.size, d.stride) for d in msg.layout.dim] == [(6, 36), (6, 6)] and msg.layout.data_offset == 1
+    assert msg.data[0] == 12.5 and msg.data[1 + 6 * 2 + 4] == P[2, 4]  # P[i, j] = data[1 + 6 i + j]
+    t, back = covariance_from_msg(msg)
+    assert t == 12.5 and np.array_equal(back, P)
+    t, none = covariance_from_msg(covariance_msg(3.0, None))  # "no data"
+    assert t == 3.0 and none.shape == (6, 6) and np.all(np.isnan(none))
+    with pytest.raises(InputError, match="estimator/covariance P contains a non-finite value"):
+        covariance_msg(1.0, np.full((6, 6), np.nan))
+    with pytest.raises(InputError, match="trailing shape"):
+        covariance_msg(1.0, np.eye(3))
+    with pytest.raises(InputError, match="not an estimator covariance message"):
+        covariance_from_msg(diagnostics_msg(0.0, {label: [0.0] * 3 for label in c.DIAGNOSTICS_LAYOUT[1:]}))
+
+
+def test_the_estimator_diagnostics_round_trip_labelled() -> None:
+    values = [4.25, 1.5, float(c.ESTIMATOR_NO_INPUT), 40.0, 2.0, 1.0, 3.0, 5.0]
+    back = estimator_diagnostics_from_msg(estimator_diagnostics_msg(values))
+    assert list(back) == list(c.ESTIMATOR_DIAGNOSTICS_LAYOUT) and list(back.values()) == values
+    with pytest.raises(ValueError, match="estimator diagnostics need 8 values"):
+        estimator_diagnostics_msg(values[:-1])
+
+
+@pytest.mark.parametrize("topic", [c.ESTIMATE_ATTITUDE, c.ESTIMATE_RATE, c.ESTIMATOR_GYRO_BIAS, c.faulty(c.STATE_ATTITUDE)], ids=lambda t: t.name)
+def test_the_no_data_sample_is_nan_in_every_value_with_its_stamp_and_frame(topic) -> None:  # type: ignore[no-untyped-def]
+    msg = no_data_msg(topic, 2.5)
+    assert stamp_to_ns(msg.header.stamp) == 2_500_000_000 and msg.header.frame_id == topic.frame_id
+    values = [msg.quaternion.x, msg.quaternion.y, msg.quaternion.z, msg.quaternion.w] if hasattr(msg, "quaternion") else [msg.vector.x, msg.vector.y, msg.vector.z]
+    assert all(np.isnan(values))
+    with pytest.raises(InputError, match="non-finite"):  # what a consumer makes of it: invalid, counted as arrived
+        (quaternion_from_msg if hasattr(msg, "quaternion") else vector3_from_msg)(msg, topic)
+    again = no_data_msg(topic, 3.0, out=msg)
+    assert again is msg and stamp_to_ns(msg.header.stamp) == 3_000_000_000
+    with pytest.raises(ValueError, match="control/torque has no 'no data' sample"):
+        no_data_msg(c.CONTROL_TORQUE, 0.0)

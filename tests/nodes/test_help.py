@@ -17,6 +17,7 @@ RCLPY_OWN = {"use_sim_time", "start_type_description_service"}
 #: module, class of every node run with ``python -m``.
 NODES = {
     "sappc_controller": ("sappc_controller.node", "ControllerNode"),
+    "sappc_estimator": ("sappc_estimator.node", "EstimatorNode"),
     "spacecraft_sim": ("spacecraft_sim.plant_node", "PlantNode"),
     "spacecraft_sim.reference": ("spacecraft_sim.reference", "ReferenceNode"),
     "spacecraft_sim.disturbance": ("spacecraft_sim.disturbance", "InjectorNode"),
@@ -45,6 +46,22 @@ def test_help_lists_every_parameter_and_exits_0_without_ros(command: str) -> Non
         assert lines[i + 1].strip(), f"{p.name} has no description"
 
 
+def test_the_estimators_help_lists_the_filters_parameters_from_its_config() -> None:
+    """Every field of MekfConfig is a parameter, with its unit, its rule and the config's own description."""
+    import dataclasses
+
+    from sappc_estimator.core.config import MekfConfig
+    from sappc_estimator.node import EstimatorNode
+
+    text = EstimatorNode.help_text()
+    assert [p.name for p in EstimatorNode.parameter_sections()[1][1]] == [f.name for f in dataclasses.fields(MekfConfig)]
+    assert "  tracker_noise_rad  (double[]; [rad]; default (required); must be > 0 per axis)" in text
+    assert "  initial_q_BN  (double[]; default []; must be [] or a unit quaternion (x, y, z, w))" in text
+    assert "  max_consecutive_rejections  (integer; default 20; must be an integer >= 1)" in text
+    assert "  max_stamp_ahead_s  (double; [s]; default 1; range [1e-06, 3600])" in text
+    assert "``" not in text and "changeable at run time" not in text  # read at start-up
+
+
 def test_the_controllers_help_states_types_units_ranges_and_what_changes_at_run_time() -> None:
     from sappc_controller.node import ControllerNode
 
@@ -65,6 +82,10 @@ def test_a_node_declares_exactly_what_its_help_lists(command: str, ros_context, 
         from test_nodes import _controller_overrides
 
         overrides = _controller_overrides()
+    elif command == "sappc_estimator":
+        from test_estimator_node import overrides as estimator_overrides
+
+        overrides = estimator_overrides()
     elif command == "sappc.graph.recorder":
         overrides = [Parameter("output_dir", value=str(tmp_path / "bag"))]
     node = cls(context=ros_context, parameter_overrides=overrides)

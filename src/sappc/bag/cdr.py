@@ -44,6 +44,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sappc_msgs_py.contract import float_array_carries_time
+
 __all__ = ["DECODERS", "Decoded", "decode"]
 
 #: Encapsulation header of little-endian plain CDR, the only one ROS 2 writes on this platform.
@@ -203,8 +205,9 @@ def _parse_multiarray(payload: bytes) -> tuple[list[str], int, int, NDArray[np.b
 
 
 def _multiarray_stamps(values: NDArray[np.float64], labels: list[str]) -> NDArray[np.int64]:
-    """The stamp of diagnostics rows: their ``time_s`` row (the project's layout), else zero."""
-    if labels and labels[0].split(",")[0] == "time_s" and values.shape[1]:
+    """The stamp of the contract's float arrays (diagnostics, the estimator's covariance): their
+    ``data[0]`` (:func:`~sappc_msgs_py.contract.float_array_carries_time`), else zero."""
+    if labels and float_array_carries_time(labels[0]) and values.shape[1]:
         return np.round(values[:, 0] * 1e9).astype(np.int64)
     return np.zeros(values.shape[0], np.int64)
 

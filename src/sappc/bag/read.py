@@ -26,6 +26,15 @@ from numpy.typing import NDArray
 from sappc_msgs_py.contract import (
     CONTROL_TORQUE,
     CONTROLLER_DIAGNOSTICS,
+    ERROR_STATE,
+    ESTIMATE_ATTITUDE,
+    ESTIMATE_RATE,
+    ESTIMATOR_ATTITUDE_SIGMA,
+    ESTIMATOR_BIAS_SIGMA,
+    ESTIMATOR_COVARIANCE,
+    ESTIMATOR_DIAGNOSTICS,
+    ESTIMATOR_DIAGNOSTICS_LAYOUT,
+    ESTIMATOR_GYRO_BIAS,
     DISTURBANCE_TORQUE,
     ANSWER_NAMES,
     ANSWER_HELD,
@@ -48,7 +57,7 @@ from sappc.evaluation.history import History
 from sappc.bag.mcap_scan import Scan, scan_mcap
 from sappc.evaluation.metrics import MetricsAccumulator
 
-__all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "Bag", "BagError", "BagRun", "bag_metrics", "bag_run", "find_topic", "latest_index", "nearest_index", "STAMP_TOL_NS",
+__all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "Bag", "BagError", "BagEstimate", "BagRun", "bag_estimate", "bag_metrics", "bag_run", "find_topic", "latest_index", "nearest_index", "STAMP_TOL_NS",
            "read_bag", "scan_bag"]
 
 #: Metadata records that ``sappc run``'s recorder embeds in the bag: the scenario file and the
@@ -83,6 +92,7 @@ class Bag:
     diagnostics_labels: tuple[str, ...] = ()
     undecodable: dict[str, int] = field(default_factory=dict)  # topic -> messages not fitting its type
     frame_ids: dict[str, tuple[str, ...]] = field(default_factory=dict)  # topic -> header frame ids seen
+    array_labels: dict[str, tuple[str, ...]] = field(default_factory=dict)  # Float64MultiArray topic -> its first dimension's labels
 
     @property
     def counts(self) -> dict[str, int]:
@@ -138,6 +148,7 @@ def read_bag(path: str | Path) -> Bag:
     labels: tuple[str, ...] = ()
     undecodable: dict[str, int] = {}
     frame_ids: dict[str, tuple[str, ...]] = {}
+    array_labels: dict[str, tuple[str, ...]] = {}
     for cid, channel in scan.channels.items():
         start, length, log_time = scan.payloads(cid)
         if channel.message_encoding != "cdr" or start.size == 0:
@@ -146,15 +157,18 @@ def read_bag(path: str | Path) -> Bag:
         if d is None:
             continue
         series[channel.topic] = Series(d.stamps_ns, d.values, log_time[d.index])
-        if channel.schema_name == CONTROLLER_DIAGNOSTICS.type_name:  # (joint_states' labels are its joint names)
+        # the controller's diagnostics: time_s first, not the estimator's (joint_states' labels are its joint names)
+        if channel.schema_name == CONTROLLER_DIAGNOSTICS.type_name and d.labels[:1] == ("time_s",) and d.labels != ESTIMATOR_DIAGNOSTICS_LAYOUT:
             labels = labels or d.labels
         frame_ids[channel.topic] = d.frame_ids
+        if channel.schema_name == ESTIMATOR_DIAGNOSTICS.type_name:
+            array_labels[channel.topic] = d.labels
         if d.undecodable:
             undecodable[channel.topic] = d.undecodable
     if not any(s.stamps_ns.size for s in series.values()):
         raise BagError(f"{p}: the bag holds no messages of the topic contract" + (f" (reading stopped: {scan.truncated})" if scan.truncated else ""))
     return Bag(path=p, series=series, metadata=scan.metadata, truncated=scan.truncated, diagnostics_labels=labels,
-               undecodable=undecodable, frame_ids=frame_ids)
+               undecodable=undecodable, frame_ids=frame_ids, array_labels=array_labels)
 
 
 def find_topic(bag: Bag, name: str) -> str | None:
@@ -337,6 +351,60 @@ def _wheel_records(bag: Bag, stamps_ns: NDArray[np.int64]) -> dict[str, Array]:
     i = latest_index(s.stamps_ns, stamps_ns)
     v = np.where((i >= 0)[:, None], s.values[np.maximum(i, 0)], np.nan)
     return {"wheel_speed_rad_s": v[:, None, :w], "wheel_torque_Nm": v[:, None, w : 2 * w]}
+
+
+@dataclass
+class BagEstimate:
+    """An estimator's topics in a bag, on the stamps of ``estimate/attitude`` (see :func:`bag_estimate`).
+
+    Every array has one row per stamp; a row of NaN is a "no data" sample (the filter had no
+    estimate at that stamp), or a topic's message missing at that stamp.
+    """
+
+    stamps_ns: NDArray[np.int64]  # (T,) header stamps of estimate/attitude [ns]
+    q_BN: Array  # (T, 4) estimated attitude (x, y, z, w)
+    omega_BN_B: Array  # (T, 3) estimated body rate [rad/s]
+    gyro_bias_rad_s: Array  # (T, 3) estimated gyro bias [rad/s]
+    attitude_sigma_rad: Array  # (T, 3) 1-sigma attitude error per body axis [rad]
+    bias_sigma_rad_s: Array  # (T, 3) 1-sigma bias error per axis [rad/s]
+    covariance: Array  # (T, 6, 6) P of contract.ERROR_STATE
+    diagnostics: dict[str, Array]  # label of contract.ESTIMATOR_DIAGNOSTICS_LAYOUT -> (T,)
+
+
+def bag_estimate(bag: Bag) -> BagEstimate | None:
+    """The estimator's topics of ``bag`` as arrays, each topic's message of the same stamp as
+    ``estimate/attitude`` (``None`` when the bag has no ``estimate/attitude``: a run without an
+    estimator)."""
+    att = find_topic(bag, ESTIMATE_ATTITUDE.name)
+    if att is None:
+        return None
+    stamps = bag.series[att].stamps_ns
+    T = stamps.size
+
+    def at_stamps(name: str, width: int, first: int = 0) -> Array:
+        topic = find_topic(bag, name)
+        out = np.full((T, width), np.nan)
+        if topic is None or bag.series[topic].values.shape[1] < first + width:
+            return out
+        s = bag.series[topic]
+        i = nearest_index(s.stamps_ns, stamps)  # the same stamp (float-second times: within STAMP_TOL_NS)
+        out[i >= 0] = s.values[i[i >= 0], first : first + width]
+        return out
+
+    n = len(ERROR_STATE)
+    diag_topic = find_topic(bag, ESTIMATOR_DIAGNOSTICS.name)
+    labels = bag.array_labels.get(diag_topic, ()) if diag_topic else ()
+    diag = at_stamps(ESTIMATOR_DIAGNOSTICS.name, len(labels)) if labels else np.zeros((T, 0))
+    return BagEstimate(
+        stamps_ns=stamps,
+        q_BN=bag.series[att].values[:, :4],
+        omega_BN_B=at_stamps(ESTIMATE_RATE.name, 3),
+        gyro_bias_rad_s=at_stamps(ESTIMATOR_GYRO_BIAS.name, 3),
+        attitude_sigma_rad=at_stamps(ESTIMATOR_ATTITUDE_SIGMA.name, 3),
+        bias_sigma_rad_s=at_stamps(ESTIMATOR_BIAS_SIGMA.name, 3),
+        covariance=at_stamps(ESTIMATOR_COVARIANCE.name, n * n, first=1).reshape(T, n, n),  # data[0] is the time
+        diagnostics={label: diag[:, k] for k, label in enumerate(labels)},
+    )
 
 
 def bag_metrics(bag: Bag, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]],

@@ -73,7 +73,7 @@ class MekfConfig:
     initial_bias_rad_s : float or 3 floats
         The bias estimate before the first update [rad/s] (a calibration's value; 0 without one).
     initial_bias_sigma_rad_s : float or 3 floats
-        Its 1-sigma [rad/s]; :data:`DEFAULT_INITIAL_BIAS_SIGMA_RAD_S`.
+        The 1-sigma of ``initial_bias_rad_s`` [rad/s]; :data:`DEFAULT_INITIAL_BIAS_SIGMA_RAD_S`.
     initial_q_BN : 4 floats or None
         ``None``: the filter starts at the first star-tracker sample, with the tracker's noise as
         its attitude uncertainty.  A unit quaternion (scalar last): a prior (e.g. a coarse

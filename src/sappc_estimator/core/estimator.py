@@ -1,0 +1,129 @@
+"""One attitude estimator as an object: the MEKF's state and buffers around the compiled kernel.
+
+The kernel (:func:`~sappc_estimator.core.mekf.mekf_step`) works on the caller's arrays; :class:`Mekf`
+owns one filter's arrays (parameters from a validated :class:`~sappc_estimator.core.config.MekfConfig`,
+state, covariance, scratch, output) and steps them sample by sample, which is what the estimator
+node needs.  It adds nothing to the filter: a step is one call of the kernel, bit for bit.
+Pure: no ROS, no clock (the caller passes the time).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sappc_estimator.core import mekf
+from sappc_estimator.core.config import MekfConfig
+
+__all__ = ["Mekf"]
+
+Array = NDArray[np.float64]
+
+#: The measurement of the warm-up step: identity attitude, at rest.
+_AT_REST = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+
+
+class Mekf:
+    """A multiplicative EKF (``docs/estimator.md``), stepped one sample at a time.
+
+    Parameters
+    ----------
+    config : MekfConfig
+        The validated settings.
+
+    Attributes
+    ----------
+    config : MekfConfig
+        The settings.
+    prm : ndarray (:data:`~sappc_estimator.core.mekf.N_EST_PARAMS`,)
+        The kernel's parameters (``config.params()``).
+    st : ndarray (:data:`~sappc_estimator.core.mekf.N_EST_STATE`,)
+        The filter state between steps.
+    P : ndarray (6, 6)
+        The covariance of the error state (attitude error [rad], bias error [rad/s]).
+    out : ndarray (:data:`~sappc_estimator.core.mekf.N_EST_OUT`,)
+        The last step's outputs (NaN before initialisation but the status).
+    """
+
+    def __init__(self, config: MekfConfig) -> None:
+        self.config = config
+        self.prm: Array = config.params()
+        self.st: Array = mekf.new_state()
+        self.P: Array = np.zeros((6, 6))
+        self.work: Array = np.zeros((mekf.N_EST_WORK, 6))
+        self.y: Array = np.zeros(7)
+        self.out: Array = np.full(mekf.N_EST_OUT, np.nan)
+
+    def warm_up(self) -> None:
+        """One step on throwaway arrays: loads the compiled kernel now (the numba cache, about a
+        second), not at the first sample; this filter's state is not touched."""
+        mekf.mekf_step(self.prm, 0.0, _AT_REST.copy(), mekf.new_state(), np.zeros((6, 6)), np.zeros_like(self.work), np.empty(mekf.N_EST_OUT))
+
+    def reset(self) -> None:
+        """Start afresh: not initialised (the next tracker sample initialises the filter, or the
+        prior at the next step), the covariance and outputs cleared; the counts of updates,
+        rejections and re-initialisations are kept (they count the filter's whole life)."""
+        counts = self.st[mekf.ES_N_UPD : mekf.ES_N_REINIT + 1].copy()
+        self.st[:] = mekf.new_state()
+        self.st[mekf.ES_N_UPD : mekf.ES_N_REINIT + 1] = counts
+        self.st[mekf.ES_N_CONSEC] = 0.0
+        self.P[:] = 0.0
+        self.out[:] = np.nan
+
+    def step(self, t_s: float, q_meas: ArrayLike, omega_meas: ArrayLike) -> int:
+        """One filter step at time ``t_s`` [s] with the tracker's ``q_meas`` (x, y, z, w) and the
+        gyro's ``omega_meas`` [rad/s]; returns the step's status (``mekf.STATUS_*``), outputs in
+        :attr:`out` and the properties below."""
+        self.y[:4] = q_meas
+        self.y[4:] = omega_meas
+        return int(mekf.mekf_step(self.prm, t_s, self.y, self.st, self.P, self.work, self.out))
+
+    @property
+    def initialised(self) -> bool:
+        """Whether the filter has an estimate."""
+        return bool(self.st[mekf.ES_INIT] != 0.0)
+
+    @property
+    def q_BN(self) -> Array:
+        """The last step's attitude estimate (x, y, z, w); a view of :attr:`out`."""
+        return self.out[mekf.EO_Q : mekf.EO_Q + 4]
+
+    @property
+    def omega_BN_B(self) -> Array:
+        """The last step's rate estimate [rad/s] (the measured rate less the bias); a view."""
+        return self.out[mekf.EO_OMEGA : mekf.EO_OMEGA + 3]
+
+    @property
+    def gyro_bias_rad_s(self) -> Array:
+        """The bias estimate [rad/s]; a view."""
+        return self.out[mekf.EO_B : mekf.EO_B + 3]
+
+    @property
+    def attitude_sigma_rad(self) -> Array:
+        """1-sigma of the attitude error per body axis [rad]; a view."""
+        return self.out[mekf.EO_SIGMA : mekf.EO_SIGMA + 3]
+
+    @property
+    def bias_sigma_rad_s(self) -> Array:
+        """1-sigma of the bias error per axis [rad/s]; a view."""
+        return self.out[mekf.EO_SIGMA + 3 : mekf.EO_SIGMA + 6]
+
+    @property
+    def nis(self) -> float:
+        """The last normalised innovation squared (NaN before the first tracker sample was compared)."""
+        return float(self.st[mekf.ES_NIS])
+
+    @property
+    def updates(self) -> int:
+        """Tracker samples accepted."""
+        return int(self.st[mekf.ES_N_UPD])
+
+    @property
+    def rejections(self) -> int:
+        """Tracker samples rejected by the innovation gate."""
+        return int(self.st[mekf.ES_N_REJ])
+
+    @property
+    def reinitialisations(self) -> int:
+        """Attitude re-initialisations after consecutive rejections."""
+        return int(self.st[mekf.ES_N_REINIT])

@@ -1,0 +1,283 @@
+"""The estimator node (``python -m sappc_estimator``): the multiplicative EKF between the sensors and the controller.
+
+Subscribes to the measured state (``state/attitude``: the star tracker's ``q_BN``, ``state/rate``:
+the gyro's ``omega_BN_B``) and publishes, per sample and with the sample's stamp, the estimate on
+``estimate/attitude`` and ``estimate/rate`` (the types and frames of ``state/*``, so the
+controller takes it by a remap: ``python -m sappc_controller --ros-args -r
+state/attitude:=estimate/attitude -r state/rate:=estimate/rate``), and beside it, in standard
+messages that Foxglove and PlotJuggler plot, ``estimator/gyro_bias``, ``estimator/attitude_sigma``,
+``estimator/bias_sigma``, ``estimator/covariance`` and ``estimator/diagnostics``
+(:mod:`sappc_msgs_py.contract`).  The filter is :mod:`sappc_estimator.core.mekf` (``docs/estimator.md``),
+one compiled kernel for the node and the offline loop; its settings are the parameters of
+:data:`~sappc_estimator.params.FILTER_PARAMETERS` (a ROS YAML file: ``--ros-args --params-file
+config/estimator_mekf.yaml``), validated at start-up by the config's own checks: a missing,
+unknown or invalid parameter stops the node with one line naming it (exit status 2).  Every
+parameter is read once, at start-up.
+
+Modes (parameter ``mode``):
+
+``lockstep`` (default)
+    One filter step per sample, when the attitude and the rate of one stamp have arrived, at the
+    stamp's time (``t = stamp`` in seconds), the outputs stamped with it.  A sample whose input
+    arrived invalid (non-finite, e.g. the fault injector's "no data" for a dropped measurement; a
+    zero or non-unit quaternion; a wrong frame id) is not stepped (the filter skips it: the next
+    valid sample propagates over the whole elapsed time) and is answered at once with the "no
+    data" estimate (NaN, :func:`~sappc_msgs_py.convert.no_data_msg`), so the controller counts its
+    sample as arrived and answers it as it answers its own dropped input (held torque, or zero
+    once stale).  So is a step before the filter has an estimate (before its first tracker sample).
+``realtime``
+    One filter step per fresh state (attitude and rate of one new stamp: a frame of
+    :mod:`sappc_msgs_py.timeline`), as soon as both have arrived, published with the state's
+    stamp; its latency (publication minus the state's stamp) is measured, and a step later than
+    ``control_period_s`` is counted (``late_steps`` in ``timing_file``).  An invalid input is
+    rejected and makes no sample (the controller's own watchdog covers the frame); the filter's
+    time is counted from the first sample's stamp (a float of epoch seconds would lose 0.2 us).
+
+Input checks (:mod:`sappc_msgs_py.inputs`, the controller's): a message with a wrong frame id, a
+non-finite value, a zero or non-unit quaternion ("invalid"), a stamp in the past (lockstep: not
+after the last answered sample; real time: not after the topic's previous message) or more than
+``max_stamp_ahead_s`` ahead of the node's time (lockstep: the latest ``/clock``; real time: the
+node's clock) is rejected, logged and counted, in total (``estimator/diagnostics``
+``rejected_messages``) and by reason (:data:`~sappc_msgs_py.inputs.REJECT_REASONS`).  A finite
+input that drives the filter non-finite (a rate of 1e300 rad/s) resets it: "no data" until the
+next tracker sample initialises it again (counted, ``filter_resets``).
+
+The closing line and ``timing_file`` count the samples answered, the filter steps, its updates,
+gate rejections and re-initialisations, the "no data" samples, the resets and the rejected messages.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gnc_common.timing import LatencyStatistics
+from gnc_common.validation import InputError, check_positive
+from sappc_msgs_py.contract import (
+    CLOCK,
+    ESTIMATE_ATTITUDE,
+    ESTIMATE_RATE,
+    ESTIMATOR_ATTITUDE_SIGMA,
+    ESTIMATOR_BIAS_SIGMA,
+    ESTIMATOR_COVARIANCE,
+    ESTIMATOR_DIAGNOSTICS,
+    ESTIMATOR_DIAGNOSTICS_LAYOUT,
+    ESTIMATOR_GYRO_BIAS,
+    ESTIMATOR_INPUTS,
+    ESTIMATOR_NO_INPUT,
+    ESTIMATOR_TOPICS,
+    Topic,
+    qos_profile,
+)
+from sappc_msgs_py.convert import (
+    covariance_msg,
+    estimator_diagnostics_msg,
+    no_data_msg,
+    ns_to_stamp,
+    quaternion_msg,
+    stamp_to_ns,
+    vector3_msg,
+)
+from sappc_msgs_py.inputs import (
+    DEFAULT_MAX_STAMP_AHEAD_S,
+    NS_PER_S,
+    REJECT_REASONS,
+    WATCHDOG_RANGE_S,
+    ControlSample,
+    LockstepPairing,
+    RealtimePairing,
+    check_watchdog_seconds,
+    decode_input,
+    stamp_rejection,
+)
+from sappc_msgs_py.parameters import Param
+from sappc_msgs_py.runtime import COMMON_PARAMETERS, LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
+
+from sappc_estimator.core import mekf
+from sappc_estimator.core.estimator import Mekf
+from sappc_estimator.params import DEFAULT_CONTROL_PERIOD_S, FILTER_PARAMETERS, config_from_parameters
+
+__all__ = ["EstimatorNode", "PARAMETERS", "main"]
+
+#: The node's own parameters (``--help``; the filter's, :data:`~sappc_estimator.params.FILTER_PARAMETERS`,
+#: follow), in the order the node declares them.
+PARAMETERS = (
+    MODE,
+    Param("max_stamp_ahead_s", DEFAULT_MAX_STAMP_AHEAD_S, "inputs stamped further ahead of the node's time (lockstep: the latest "
+          "/clock; real time: its clock) are rejected", "s", range=WATCHDOG_RANGE_S),
+    Param("control_period_s", DEFAULT_CONTROL_PERIOD_S, "real time: a step published later than this after its state's stamp is "
+          "counted late (the control period: the controller needs the estimate within its frame)", "s", check="> 0"),
+    Param("timing_file", "", "where to write the node's statistics when it finishes (JSON: samples, filter steps, updates, gate "
+          "rejections, re-initialisations, no-data samples, resets, rejected messages by reason; real time: the steps' latency "
+          "and late steps); '' for none"),
+)
+_P = {p.name: p for p in PARAMETERS}
+
+#: The estimate the controller takes: each publisher waits for one subscriber (the controller)
+#: before its first message; the other topics wait for none unless ``expected_subscribers`` says so.
+_LOOP_OUTPUTS = (ESTIMATE_ATTITUDE, ESTIMATE_RATE)
+#: The filter's outputs that must be finite for an estimate (all but the NIS and the status).
+_ESTIMATE = slice(mekf.EO_Q, mekf.EO_NIS)
+
+
+class EstimatorNode(ProjectNode):
+    """See the module docstring."""
+
+    PARAMETERS = PARAMETERS
+    COMMAND = "python -m sappc_estimator"
+
+    @classmethod
+    def parameter_sections(cls) -> list[tuple[str, tuple[Param, ...]]]:
+        return [("parameters", cls.PARAMETERS),
+                ("parameters of the filter (docs/estimator.md; per-axis values are [x, y, z], one number for all three)", FILTER_PARAMETERS),
+                ("parameters of every node", COMMON_PARAMETERS)]
+
+    def __init__(self, node_name: str = "estimator", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.mode = self.mode_param()
+        self.max_ahead_ns = round(check_watchdog_seconds("max_stamp_ahead_s", self.param(_P["max_stamp_ahead_s"])) * NS_PER_S)
+        self.dt = check_positive("control_period_s", self.param(_P["control_period_s"]))
+        self.timing_file = str(self.param(_P["timing_file"]))
+        self.config = config_from_parameters({p.name: self.param(p) for p in FILTER_PARAMETERS})
+        self.check_unknown_overrides()  # after every declaration
+        self.filter = Mekf(self.config)
+        self.filter.warm_up()  # the compiled kernel loaded now (cache load ~1 s), not at the first sample
+
+        self.pub = {t.name: self.counting_publisher(t, 1 if t in _LOOP_OUTPUTS else 0) for t in ESTIMATOR_TOPICS}
+        qos = qos_profile()
+        for topic in ESTIMATOR_INPUTS:
+            self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos)
+        self.samples = 0  # samples answered (an estimate or "no data")
+        self.steps = 0  # filter steps (valid samples)
+        self.no_data = 0  # samples answered with "no data"
+        self.resets = 0  # filter steps that went non-finite (the filter started afresh)
+        self.rejected = 0
+        self.rejected_by_reason: dict[str, int] = {}
+        self._answered_ns: int | None = None  # lockstep: the latest stamp answered
+        self._clock_ns: int | None = None  # lockstep: the latest /clock
+        self._origin_ns: int | None = 0 if self.mode == LOCKSTEP else None  # real time: the first sample's stamp
+        self._pending = LockstepPairing(ESTIMATOR_INPUTS)  # lockstep: the inputs of each stamp until complete
+        self._rt = RealtimePairing(ESTIMATOR_INPUTS)  # real time: a sample per fresh state
+        self.latency = LatencyStatistics(self.dt)  # real time: the steps' latency, in bounded memory
+        self._diag = np.zeros(len(ESTIMATOR_DIAGNOSTICS_LAYOUT))
+        if self.mode == LOCKSTEP:
+            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
+        else:  # no publish may block a callback: samples before the controller is matched are skipped
+            self._gate = StartGate(self, lambda: unmatched(list(self.pub.values())))
+        self.get_logger().info(f"MEKF estimator ready ({self.mode}; gate at NIS {self.config.gate_chi2:.4g}, "
+                               f"{'prior attitude' if self.config.initial_q_BN is not None else 'starts at the first tracker sample'})")
+
+    # ---- inputs ---------------------------------------------------------------------------
+    def _reject(self, reason: str, kind: str) -> None:
+        """Count (in total and by ``kind``: one of :data:`~sappc_msgs_py.inputs.REJECT_REASONS`) and log a rejected input."""
+        self.rejected += 1
+        self.rejected_by_reason[kind] = self.rejected_by_reason.get(kind, 0) + 1
+        self.get_logger().warning(f"rejected a message ({self.rejected} so far): {reason}", throttle_duration_sec=1.0)
+
+    def _on_clock(self, msg: Any) -> None:
+        self._clock_ns = stamp_to_ns(msg.clock)
+
+    def _now_ns(self) -> int | None:
+        """The node's time: the latest /clock in lockstep, the node clock in real time."""
+        return self._clock_ns if self.mode == LOCKSTEP else self.get_clock().now().nanoseconds
+
+    def _on_input(self, msg: Any, topic: Topic) -> None:
+        ns = stamp_to_ns(msg.header.stamp)
+        last = self._answered_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
+        what = "the last answered sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
+        rejection = stamp_rejection(topic.name, ns, last, self._now_ns(), self.max_ahead_ns, what)
+        if rejection is not None:
+            self._reject(rejection[1], rejection[0])
+            return
+        value: np.ndarray | None
+        try:
+            value = decode_input(msg, topic)
+        except InputError as exc:
+            self._reject(str(exc), "invalid")
+            value = None  # lockstep: it arrived, invalid (module docstring)
+        if self.mode == REALTIME:
+            fresh = None if value is None else self._rt.add(topic.name, ns, value)
+            if fresh is not None and self._gate.open():
+                self._answer(fresh)
+                self.latency.add(self.get_clock().now().nanoseconds - fresh.t_ns)
+            return
+        sample = self._pending.add(topic.name, ns, value)
+        if sample is not None:
+            self._answer(sample)
+
+    # ---- samples --------------------------------------------------------------------------
+    def _answer(self, sample: ControlSample) -> None:
+        """One sample: a filter step on valid inputs, then its estimate (or "no data") published."""
+        t_ns = sample.t_ns
+        self._answered_ns = t_ns
+        self.samples += 1
+        if not sample.valid:
+            self._publish(t_ns, ESTIMATOR_NO_INPUT, estimate=False)
+            return
+        if self._origin_ns is None:
+            self._origin_ns = t_ns
+        q_meas, omega_meas = sample.values
+        status = self.filter.step((t_ns - self._origin_ns) / NS_PER_S, q_meas, omega_meas)
+        self.steps += 1
+        if self.filter.initialised and not (np.all(np.isfinite(self.filter.out[_ESTIMATE])) and np.all(np.isfinite(self.filter.P))):
+            self.resets += 1
+            self.get_logger().error(f"t = {t_ns / NS_PER_S:.9f} s: the filter went non-finite (rate {omega_meas.tolist()} rad/s); "
+                                    "it starts afresh at the next tracker sample")
+            self.filter.reset()
+            self._publish(t_ns, mekf.STATUS_NONE, estimate=False)
+            return
+        self._publish(t_ns, status, estimate=self.filter.initialised)
+
+    def _publish(self, t_ns: int, status: int, *, estimate: bool) -> None:
+        """The sample's outputs, stamped ``t_ns``: the filter's estimate, or "no data" (NaN) in every
+        estimate topic; the diagnostics in both cases."""
+        stamp = ns_to_stamp(t_ns)
+        p = self.pub
+        f = self.filter
+        if estimate:
+            p[ESTIMATE_ATTITUDE.name].publish(quaternion_msg(f.q_BN, stamp, ESTIMATE_ATTITUDE, out=p[ESTIMATE_ATTITUDE.name].msg))
+            p[ESTIMATE_RATE.name].publish(vector3_msg(f.omega_BN_B, stamp, ESTIMATE_RATE, out=p[ESTIMATE_RATE.name].msg))
+            for topic, value in ((ESTIMATOR_GYRO_BIAS, f.gyro_bias_rad_s), (ESTIMATOR_ATTITUDE_SIGMA, f.attitude_sigma_rad),
+                                 (ESTIMATOR_BIAS_SIGMA, f.bias_sigma_rad_s)):
+                p[topic.name].publish(vector3_msg(value, stamp, topic, out=p[topic.name].msg))
+        else:
+            self.no_data += 1
+            for topic in (ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_GYRO_BIAS, ESTIMATOR_ATTITUDE_SIGMA, ESTIMATOR_BIAS_SIGMA):
+                p[topic.name].publish(no_data_msg(topic, stamp, out=p[topic.name].msg))
+        t_s = t_ns / NS_PER_S
+        p[ESTIMATOR_COVARIANCE.name].publish(covariance_msg(t_s, f.P if estimate else None, out=p[ESTIMATOR_COVARIANCE.name].msg))
+        d = self._diag
+        d[:] = (t_s, f.nis, status, f.updates, f.rejections, f.reinitialisations, self.no_data, self.rejected)
+        p[ESTIMATOR_DIAGNOSTICS.name].publish(estimator_diagnostics_msg(d, out=p[ESTIMATOR_DIAGNOSTICS.name].msg))
+
+    # ---- the end --------------------------------------------------------------------------
+    def statistics(self) -> dict[str, Any]:
+        """What the node did: the counts of the closing line, the rejected messages by reason and
+        (real time) the steps' latency (:class:`~gnc_common.timing.LatencyStatistics`)."""
+        return {"samples": self.samples, "steps": self.steps, "updates": self.filter.updates, "gate_rejections": self.filter.rejections,
+                "reinitialisations": self.filter.reinitialisations, "no_data_samples": self.no_data, "filter_resets": self.resets,
+                "rejected": self.rejected, "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
+                **({"latency": dict(self.latency.summary())} if self.mode == REALTIME else {})}
+
+    def finish(self) -> None:
+        s = self.statistics()
+        self.get_logger().info(f"finished: {s['samples']} samples, {s['steps']} filter steps ({s['updates']} updates, {s['gate_rejections']} "
+                               f"gate rejections, {s['reinitialisations']} re-initialisations), {s['no_data_samples']} no-data samples, "
+                               f"{s['filter_resets']} resets, {s['rejected']} rejected messages {self.rejected_by_reason or ''}")
+        super().finish()
+        if self.timing_file:
+            Path(self.timing_file).write_text(json.dumps(s))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the estimator node until stopped."""
+    return run_node(lambda args: EstimatorNode(), argv, EstimatorNode)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

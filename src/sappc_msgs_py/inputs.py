@@ -1,0 +1,279 @@
+"""How a node that consumes the contract's stamped samples checks its inputs and pairs them.
+
+One rule for every consumer of the loop's samples: the controller (:mod:`sappc_controller.node`,
+five inputs: the state and the reference) and the estimator (:mod:`sappc_estimator.node`, two:
+the measured state), and ``sappc rerun``, which re-pairs recorded inputs exactly as the node
+paired them when they arrived.  Pure: no ROS, no clock (the callers pass stamps and times as
+integer nanoseconds; values are numpy arrays already decoded).
+
+Input checks (:func:`stamp_rejection`, :func:`decode_input`): a message with a wrong frame id, a
+non-finite value or a zero or non-unit quaternion is ``"invalid"``; a stamp not after the last one
+the node accepted (lockstep: the last sample it answered or computed; real time: the topic's
+previous message) is ``"stamp_in_past"``; a stamp more than ``max_stamp_ahead_s`` ahead of the
+node's time (lockstep: the latest ``/clock``; real time: the node's clock) is
+``"stamp_too_far_ahead"`` (:data:`REJECT_REASONS`).
+
+``lockstep`` (:class:`LockstepPairing`)
+    A sample is complete when every input of one stamp has arrived; the step runs at that
+    stamp.  An input that arrived but is invalid (a sensor's "no data": non-finite values, as
+    REP 117 has for invalid ranges; a wrong frame or a non-unit quaternion) still counts as
+    arrived (:meth:`LockstepPairing.add_invalid`): the sample completes without a step
+    (``valid`` false), so the node answers it at once instead of waiting for a timeout.
+    At most :data:`MAX_PENDING` incomplete stamps wait for their other inputs; beyond that the
+    oldest is dropped.
+``realtime`` (:class:`RealtimePairing`)
+    A sample is complete when the attitude and the rate of a new stamp (a frame of
+    :mod:`sappc_msgs_py.timeline`) have arrived; the step runs at that stamp with each further
+    input (the controller's reference) of the same stamp, else the newest earlier one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnc_common.validation import ConfigError, check_positive, check_unit_quaternion
+from sappc_msgs_py.contract import CONTROLLER_INPUTS, Topic
+from sappc_msgs_py.convert import quaternion_from_msg, vector3_from_msg
+from sappc_msgs_py.timeline import StampedWindow
+
+__all__ = [
+    "DEFAULT_MAX_STAMP_AHEAD_S",
+    "MAX_PENDING",
+    "NS_PER_S",
+    "REJECT_REASONS",
+    "WATCHDOG_RANGE_S",
+    "ControlSample",
+    "LockstepPairing",
+    "RealtimePairing",
+    "check_watchdog_seconds",
+    "decode_input",
+    "stamp_rejection",
+]
+
+Array = NDArray[np.float64]
+
+#: Nanoseconds per second: stamps are integer nanoseconds, the cores' time is float seconds.
+NS_PER_S = 1_000_000_000
+#: Largest number of stamps waiting for their other inputs (lockstep); older ones are dropped.
+MAX_PENDING = 64
+#: Why an input is rejected (``rejected_by_reason`` keys of the nodes): a wrong frame id, a
+#: non-finite value or a zero or non-unit quaternion; a stamp not after the last accepted one; a
+#: stamp more than ``max_stamp_ahead_s`` ahead of the node's time.
+REJECT_REASONS = ("invalid", "stamp_in_past", "stamp_too_far_ahead")
+#: Default ``max_stamp_ahead_s`` [s]: inputs stamped further ahead of the node's time are
+#: rejected (a clock jump or a wrong stamp, not a late sample).
+DEFAULT_MAX_STAMP_AHEAD_S = 1.0
+#: Range of the nodes' watchdog times [s]: from one microsecond (below it the nanosecond stamps
+#: cannot resolve the timeout) to an hour (an input older than an hour is never "fresh").
+WATCHDOG_RANGE_S = (1e-6, 3600.0)
+
+
+def check_watchdog_seconds(name: str, value: Any) -> float:
+    """A watchdog time [s] checked: finite, within :data:`WATCHDOG_RANGE_S` (error names ``name``)."""
+    seconds = float(check_positive(name, value))
+    lo, hi = WATCHDOG_RANGE_S
+    if not lo <= seconds <= hi:
+        raise ConfigError(f"{name} must be within [{lo:g}, {hi:g}] s, got {value!r}")
+    return seconds
+
+
+def stamp_rejection(topic_name: str, stamp_ns: int, last_ns: int | None, now_ns: int | None, max_ahead_ns: int,
+                    last_what: str) -> tuple[str, str] | None:
+    """Why an input stamped ``stamp_ns`` is rejected, or ``None`` when its stamp is acceptable.
+
+    Parameters
+    ----------
+    topic_name : str
+        The input's topic (for the message).
+    stamp_ns : int
+        Its header stamp [ns].
+    last_ns : int or None
+        The stamp it must be after [ns] (``None``: none yet).
+    now_ns : int or None
+        The node's time [ns] (``None``: unknown yet, no "far ahead" check).
+    max_ahead_ns : int
+        Largest accepted ``stamp_ns - now_ns`` [ns].
+    last_what : str
+        What ``last_ns`` is, in words ("the last computed sample").
+
+    Returns
+    -------
+    tuple of str or None
+        ``(reason, message)``: ``reason`` one of :data:`REJECT_REASONS`.
+    """
+    if last_ns is not None and stamp_ns <= last_ns:
+        return "stamp_in_past", (f"{topic_name}: stamp {stamp_ns / NS_PER_S:.9f} s is in the past (not after {last_what}, "
+                                 f"{last_ns / NS_PER_S:.9f} s)")
+    if now_ns is not None and stamp_ns > now_ns + max_ahead_ns:
+        return "stamp_too_far_ahead", (f"{topic_name}: stamp {stamp_ns / NS_PER_S:.9f} s is more than {max_ahead_ns / NS_PER_S} s "
+                                       f"ahead of the node's time {now_ns / NS_PER_S:.9f} s")
+    return None
+
+
+def decode_input(msg: Any, topic: Topic) -> Array:
+    """The value of an input message of ``topic``: a ``QuaternionStamped``'s unit quaternion
+    ``(x, y, z, w)``, a ``Vector3Stamped``'s vector.
+
+    Raises
+    ------
+    InputError
+        For a wrong frame id, a non-finite value, a zero or non-unit quaternion ("invalid").
+    """
+    if topic.type_name.endswith("QuaternionStamped"):
+        return check_unit_quaternion(f"{topic.name} quaternion", quaternion_from_msg(msg, topic))
+    return vector3_from_msg(msg, topic)
+
+
+@dataclass(frozen=True)
+class ControlSample:
+    """One complete set of a node's inputs and the time of the step they feed (a sample of the
+    control loop).
+
+    Attributes
+    ----------
+    t_ns : int
+        Time of the step [ns]: the state's stamp (lockstep: every input's).
+    input_ns : tuple of int
+        Header stamps of the inputs used [ns], in the pairing's topic order.
+    values : tuple of ndarray
+        The inputs in the pairing's topic order (the controller's:
+        :data:`~sappc_msgs_py.contract.CONTROLLER_INPUTS`, ``q_BN`` (x, y, z, w), ``omega_BN_B``
+        [rad/s], ``q_RN``, ``omega_RN_R`` [rad/s], ``omegadot_RN_R`` [rad/s^2]).  Empty when the
+        sample is not ``valid``.
+    valid : bool
+        Every input arrived valid (lockstep: ``False`` when one arrived invalid).
+    """
+
+    t_ns: int
+    input_ns: tuple[int, ...]
+    values: tuple[Array, ...]
+    valid: bool = True
+
+    @property
+    def oldest_ns(self) -> int:
+        """Stamp [ns] of the oldest input used."""
+        return min(self.input_ns)
+
+    @property
+    def t_s(self) -> float:
+        """Time of the step [s], as the cores receive it (``t_ns / 1e9``)."""
+        return self.t_ns / NS_PER_S
+
+
+class LockstepPairing:
+    """Lockstep pairing: the inputs of one stamp, gathered until all have arrived.
+
+    Parameters
+    ----------
+    topics : sequence of Topic
+        The inputs of a step, in step order (default the controller's,
+        :data:`~sappc_msgs_py.contract.CONTROLLER_INPUTS`).
+    max_pending : int
+        Largest number of incomplete stamps kept (default :data:`MAX_PENDING`).
+    """
+
+    def __init__(self, topics: Sequence[Topic] = CONTROLLER_INPUTS, max_pending: int = MAX_PENDING) -> None:
+        self.topics = tuple(topics)
+        self.max_pending = max_pending
+        self._pending: dict[int, dict[str, Array | None]] = {}  # stamp [ns] -> topic name -> value (None: invalid)
+
+    @property
+    def pending(self) -> int:
+        """Number of stamps waiting for their other inputs."""
+        return len(self._pending)
+
+    def add(self, topic_name: str, stamp_ns: int, value: Array | None) -> ControlSample | None:
+        """Take one (checked) input, ``None`` when it arrived invalid; return the sample it completes, if any.
+
+        Parameters
+        ----------
+        topic_name : str
+            The input's topic (a name of :attr:`topics`).
+        stamp_ns : int
+            Its header stamp [ns].
+        value : ndarray
+            Its decoded value.
+
+        Returns
+        -------
+        ControlSample or None
+            Every input of ``stamp_ns``, stepped at ``stamp_ns``, when this input was the last one
+            missing; else ``None`` (and the oldest incomplete stamp is dropped when more than
+            :attr:`max_pending` wait).
+        """
+        entry = self._pending.setdefault(stamp_ns, {})
+        entry[topic_name] = value
+        if len(entry) == len(self.topics):
+            del self._pending[stamp_ns]
+            values = [entry[t.name] for t in self.topics]
+            valid = [v for v in values if v is not None]
+            if len(valid) < len(values):
+                return ControlSample(stamp_ns, (stamp_ns,) * len(self.topics), (), valid=False)
+            return ControlSample(stamp_ns, (stamp_ns,) * len(self.topics), tuple(valid))
+        if len(self._pending) > self.max_pending:
+            del self._pending[min(self._pending)]
+        return None
+
+    def add_invalid(self, topic_name: str, stamp_ns: int) -> ControlSample | None:
+        """Take an input that arrived invalid; return the sample it completes (``valid`` false), if
+        any (see :meth:`add`)."""
+        return self.add(topic_name, stamp_ns, None)
+
+
+class RealtimePairing:
+    """Real-time pairing: a step on each fresh state, with the further inputs of the state's stamp.
+
+    The state of frame ``f`` (attitude and rate stamped ``f dt``, :mod:`sappc_msgs_py.timeline`)
+    makes a sample as soon as both have arrived, if it is newer than the last sample; each
+    further input (the controller's reference) is the one of the same stamp (published ahead, it
+    is normally there), else the newest one stamped before it (held).  There is no sample until
+    every further topic has delivered one stamped at or before the state.  Whether the inputs are
+    too old is the caller's decision (:attr:`ControlSample.oldest_ns`).
+
+    Parameters
+    ----------
+    topics : sequence of Topic
+        The inputs of a step, in step order (default the controller's,
+        :data:`~sappc_msgs_py.contract.CONTROLLER_INPUTS`): the two state topics first, then any
+        further ones (none for the estimator).
+    window : int
+        Messages kept per topic (default :data:`MAX_PENDING`): the references published ahead, and
+        state parts waiting for their other half.
+    """
+
+    #: The state topics come first in ``topics`` (attitude, rate).
+    N_STATE = 2
+
+    def __init__(self, topics: Sequence[Topic] = CONTROLLER_INPUTS, window: int = MAX_PENDING) -> None:
+        self.topics = tuple(topics)
+        self._state = LockstepPairing(self.topics[: self.N_STATE], window)
+        self._windows: dict[str, StampedWindow[Array]] = {t.name: StampedWindow(window) for t in self.topics[self.N_STATE :]}
+        self._last: dict[str, int] = {}  # topic name -> stamp [ns] of its latest message
+        self.last_sample_ns: int | None = None  # stamp of the last sample made
+
+    def last_ns(self, topic_name: str) -> int | None:
+        """Stamp [ns] of the topic's latest input, ``None`` before the first."""
+        return self._last.get(topic_name)
+
+    def add(self, topic_name: str, stamp_ns: int, value: Array) -> ControlSample | None:
+        """Take one (checked) input; return the sample it completes (a fresh state with the
+        further inputs at or before its stamp), if any."""
+        self._last[topic_name] = stamp_ns
+        window = self._windows.get(topic_name)
+        if window is not None:
+            window.add(stamp_ns, value)
+            return None
+        state = self._state.add(topic_name, stamp_ns, value)
+        if state is None or (self.last_sample_ns is not None and stamp_ns <= self.last_sample_ns):
+            return None
+        refs = [self._windows[t.name].at_or_before(stamp_ns) for t in self.topics[self.N_STATE :]]
+        if any(r is None for r in refs):
+            return None  # not started: no reference yet for this state
+        self.last_sample_ns = stamp_ns
+        held = [r for r in refs if r is not None]
+        return ControlSample(stamp_ns, (*state.input_ns, *(r[0] for r in held)), (*state.values, *(r[1] for r in held)))
