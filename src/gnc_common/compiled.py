@@ -74,7 +74,8 @@ __all__ = [
 #: survive an edit of that kernel; the cache directory is therefore named by a digest of all of
 #: them (``tests/test_layering.py`` checks that every module using :func:`jit` is listed).
 KERNEL_MODULES = ("gnc_common.compiled", "sappc_controller.core.kernels", "spacecraft_sim.core.kernels", "sappc.offline.compiled_loop",
-                  "sappc.evaluation.metrics", "spacecraft_sim.core.wheels", "spacecraft_sim.core.sensors")
+                  "sappc.evaluation.metrics", "spacecraft_sim.core.wheels", "spacecraft_sim.core.sensors",
+                  "sappc_controller.core.input_check")
 #: Characters of the sources' SHA-256 digest in the cache directory's name.
 _DIGEST_CHARS = 16
 
