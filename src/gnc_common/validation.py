@@ -8,9 +8,11 @@ error names the offending quantity and value.
 from __future__ import annotations
 
 from enum import Enum
+from pathlib import Path
 from typing import Any
 
 import math
+import os
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,6 +32,7 @@ __all__ = [
     "from_kind_list",
     "inertia_from_row_major",
     "from_mapping",
+    "read_text_file",
 ]
 
 #: Largest accepted | ||q|| - 1 | for a quaternion given as input.  Measured
@@ -50,6 +53,34 @@ class InputError(ValueError):
 
 class ConfigError(ValueError):
     """A configuration value is missing, unknown, out of range or inconsistent."""
+
+
+def read_text_file(path: str | os.PathLike[str], what: str) -> str:
+    """The text of a configuration file (a scenario, a parameters file), UTF-8 as YAML requires.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+    what : str
+        What the file is, for the message (``"scenario"``, ``"parameters"``).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file: it cannot be read, or it is not UTF-8 text (naming the first
+        byte that is not, and where).
+    """
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"cannot read {what} {path}: {exc.strerror}") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(f"{path} is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}, line {line}): "
+                          f"save the {what} as UTF-8") from None
 
 
 def _describe(value: Any) -> str:

@@ -41,6 +41,7 @@ from gnc_common.validation import (
     check_positive_int,
     check_spd_inertia,
     from_mapping,
+    read_text_file,
 )
 
 __all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "load_scenario", "scenario_from_mapping"]
@@ -418,13 +419,11 @@ def load_scenario(path: str | Path) -> Scenario:
     Raises
     ------
     ConfigError
-        If the file is missing, is not YAML, or any value is invalid (the message names the key).
+        If the file is missing, is not UTF-8 text, is not YAML, or any value is invalid (the
+        message names the key).
     """
     p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as exc:
-        raise ConfigError(f"cannot read scenario {p}: {exc.strerror}") from None
+    text = read_text_file(p, "scenario")
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:

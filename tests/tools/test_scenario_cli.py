@@ -9,7 +9,7 @@ import sys
 import pytest
 import yaml
 
-from conftest import ROOT, SCENARIOS
+from conftest import ROOT, SAPPC, SCENARIOS
 from sappc.cli import main
 from sappc.scenario import load_scenario, scenario_from_mapping
 from gnc_common.validation import ConfigError
@@ -82,6 +82,20 @@ def test_missing_and_malformed_files_are_clear(tmp_path) -> None:
     (tmp_path / "bad.yaml").write_text("name: [unclosed\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_scenario(tmp_path / "bad.yaml")
+
+
+@pytest.mark.parametrize("command", [["simulate"], ["params"], ["run", "--out", "RUN"]])
+def test_a_file_that_is_not_utf8_is_one_line_naming_it_and_the_config_error_status(tmp_path, command) -> None:  # type: ignore[no-untyped-def]
+    """A scenario saved in Latin-1 (issue 25, 2.3: an 18-line UnicodeDecodeError traceback, exit 1):
+    one line naming the file and the byte, exit status 2, in every command that reads a scenario."""
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes(yaml.safe_dump(_raw("paper_tracking.yaml")).encode() + "# réglage\n".encode("latin-1"))
+    argv = [str(tmp_path / "run") if a == "RUN" else a for a in command]
+    proc = subprocess.run([*SAPPC, argv[0], str(path), *argv[1:]], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(path) in lines[0] and "UTF-8" in lines[0] and "0xe9" in lines[0], proc.stderr
+    assert not (tmp_path / "run").exists()
 
 
 def test_simulate_writes_json_and_plots(tmp_path) -> None:
