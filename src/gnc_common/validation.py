@@ -32,6 +32,7 @@ __all__ = [
     "from_kind_list",
     "inertia_from_row_major",
     "from_mapping",
+    "holds_bool",
     "read_text_file",
 ]
 
@@ -83,6 +84,21 @@ def read_text_file(path: str | os.PathLike[str], what: str) -> str:
                           f"save the {what} as UTF-8") from None
 
 
+def holds_bool(value: Any) -> bool:
+    """Whether ``value`` is a ``bool`` or holds one (in a list, tuple or mapping, at any depth, or
+    a numpy boolean array): YAML reads ``true`` as a boolean, and ``bool`` is an ``int`` in Python,
+    so a number check alone would take ``true`` for 1."""
+    if isinstance(value, (bool, np.bool_)):
+        return True
+    if isinstance(value, np.ndarray):
+        return value.dtype == np.bool_
+    if isinstance(value, (list, tuple)):
+        return any(holds_bool(v) for v in value)
+    if isinstance(value, dict):
+        return any(holds_bool(v) for v in value.values())
+    return False
+
+
 def _describe(value: Any) -> str:
     arr = np.asarray(value)
     if arr.size <= 12:
@@ -105,8 +121,11 @@ def as_finite_array(name: str, value: ArrayLike, *, shape_tail: tuple[int, ...] 
     Raises
     ------
     InputError
-        If the trailing shape is wrong or any element is NaN or infinite.
+        If the trailing shape is wrong, any element is NaN or infinite, or a boolean is given.
     """
+    if not isinstance(value, np.ndarray) or value.dtype == np.bool_:  # (a float array, the run-time case, holds no bool)
+        if holds_bool(value):
+            raise InputError(f"{name} must be numeric, got {value!r} (a boolean is not a number)")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -148,7 +167,9 @@ def check_unit_quaternion(name: str, value: ArrayLike, *, tol: float = QUATERNIO
 
 def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> Any:
     """Check that ``value`` is finite and positive; return it as a float, or as a float array when
-    it holds one value per run (Monte Carlo dispersions of a batch)."""
+    it holds one value per run (Monte Carlo dispersions of a batch); a boolean is not a number."""
+    if holds_bool(value):
+        raise ConfigError(f"{name} must be a number, got {value!r} (a boolean is not a number)")
     try:
         x = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -221,6 +242,8 @@ def check_spd_inertia(name: str, value: ArrayLike) -> NDArray[np.float64]:
     ConfigError
         Naming the matrix and its eigenvalues when the check fails.
     """
+    if holds_bool(value):
+        raise ConfigError(f"{name} must be a 3x3 numeric matrix, got {value!r} (a boolean is not a number)")
     try:
         J = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -272,6 +295,8 @@ def inertia_from_row_major(name: str, value: Any) -> NDArray[np.float64]:
     ConfigError
         If it is not 9 numbers.
     """
+    if holds_bool(value):
+        raise ConfigError(f"{name} must be 9 numbers (row major 3x3), got {value!r} (a boolean is not a number)")
     try:
         flat = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -300,7 +325,8 @@ def from_mapping(cls: type, data: Any, prefix: str) -> Any:
     Raises
     ------
     ConfigError
-        For a non-mapping, an unknown key (naming it and the accepted keys) or a missing required key.
+        For a non-mapping, an unknown key (naming it and the accepted keys), a missing required
+        key, or a boolean (``true``) given where the field's type expects numbers (naming the key).
     """
     import dataclasses
     import typing
@@ -320,6 +346,8 @@ def from_mapping(cls: type, data: Any, prefix: str) -> Any:
             continue
         value = data[name]
         hint = hints[name]
+        if _expects_number(hint) and holds_bool(value):
+            raise ConfigError(f"{prefix}.{name} must be a number, got {value!r} (a boolean is not a number)")
         # a dataclass field, or an optional one (``SomeDataclass | None``)
         options = [h for h in typing.get_args(hint) if h is not type(None)] if typing.get_args(hint) else [hint]
         nested = options[0] if len(options) == 1 and isinstance(options[0], type) and dataclasses.is_dataclass(options[0]) else None
@@ -341,6 +369,27 @@ def from_mapping(cls: type, data: Any, prefix: str) -> Any:
         raise ConfigError(msg if msg.startswith(prefix) else f"{prefix}: {msg}") from None
     except TypeError as exc:
         raise ConfigError(f"{prefix}: {exc}") from None
+
+
+def _leaf_types(hint: Any) -> set[Any]:
+    """The types a field's hint allows at its leaves (``tuple[float, ...] | None`` -> {float, None})."""
+    import typing
+
+    args = typing.get_args(hint)
+    if not args:
+        return {hint}
+    out: set[Any] = set()
+    for a in args:
+        if a is not Ellipsis:
+            out |= _leaf_types(a)
+    return out
+
+
+def _expects_number(hint: Any) -> bool:
+    """Whether a field typed ``hint`` holds numbers and never a boolean (a ``bool`` field, or an
+    ``Any`` one, may hold ``true``)."""
+    leaves = _leaf_types(hint)
+    return bool(leaves & {int, float}) and not leaves & {bool, Any, object}
 
 
 def _freeze(value: Any) -> Any:
