@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -10,6 +11,7 @@ import pytest
 import yaml
 
 from conftest import ROOT, SAPPC, SCENARIOS
+from figure_checks import NO_EMPTY_LOG_AXES, assert_every_axes_shows_data, capture_figures
 from sappc.cli import main
 from sappc.scenario import load_scenario, scenario_from_mapping
 from gnc_common.validation import ConfigError
@@ -106,7 +108,7 @@ def test_simulate_writes_json_and_plots(tmp_path) -> None:
     path.write_text(yaml.safe_dump(raw))
     out = subprocess.run(
         [sys.executable, "-m", "sappc", "simulate", str(path), "--controller", "blfppc", "--json", str(tmp_path / "m.json"), "--plots", str(tmp_path / "fig")],
-        capture_output=True, text=True, cwd=ROOT, check=True,
+        capture_output=True, text=True, cwd=ROOT, check=True, env={**os.environ, "PYTHONWARNINGS": "error:Data has no positive values"},
     )
     assert "controller blfppc" in out.stdout
     report = json.loads((tmp_path / "m.json").read_text())
@@ -119,6 +121,24 @@ def test_simulate_writes_json_and_plots(tmp_path) -> None:
     assert report["parameters"]["scenario"]["duration_s"] == 52.0
     for name in ("qev.png", "qev_zoom.png", "qev_log.png", "torque.png"):
         assert (tmp_path / "fig" / name).stat().st_size > 10_000
+
+
+@NO_EMPTY_LOG_AXES
+def test_the_run_figures_show_what_they_draw(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Every panel of a run's figures has data in view, a run whose controller starts at 0.5 s (no
+    performance function before: NaN rows) and one with a sudden fault included."""
+    from sappc.analysis.plots import plot_run
+    from sappc.offline.simulate import simulate
+
+    figures = capture_figures(monkeypatch)
+    for name, faults in (("paper_tracking.yaml", [{"kind": "sensor_dropout", "start_s": 0.0, "end_s": 0.5}]), ("paper_fault.yaml", [])):
+        raw = _raw(name)
+        raw["duration_s"], raw["faults"] = 52.0, faults
+        scenario = scenario_from_mapping(raw)
+        result = simulate(scenario)
+        plot_run(result.history, tmp_path / name, title=name, fault_windows=scenario.event_windows())
+    assert len(figures) == 10
+    assert_every_axes_shows_data(figures, at_least=100)
 
 
 def test_a_run_too_long_for_this_machine_stops_before_anything_is_allocated(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
