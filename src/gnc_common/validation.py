@@ -91,7 +91,7 @@ def holds_bool(value: Any) -> bool:
     if isinstance(value, (bool, np.bool_)):
         return True
     if isinstance(value, np.ndarray):
-        return value.dtype == np.bool_
+        return bool(value.dtype == np.bool_)
     if isinstance(value, (list, tuple)):
         return any(holds_bool(v) for v in value)
     if isinstance(value, dict):

@@ -137,8 +137,8 @@ class InputBounds:
         return name, float(getattr(self, name)), "rad/s^2" if slot == SLOT_REFERENCE_ACCELERATION else "rad/s"
 
 
-@jit(inline="always")
-def quaternion_verdict(q, max_norm_error):
+@jit(inline="always")  # type: ignore[no-untyped-call]
+def quaternion_verdict(q, max_norm_error):  # type: ignore[no-untyped-def]  # a numba kernel (float64 arrays and scalars)
     """:data:`INPUT_OK` for a quaternion (4,) whose norm is within ``max_norm_error`` of 1, else
     :data:`INPUT_INVALID` (a non-finite component fails the comparison).  The norm is summed as
     :func:`gnc_common.validation.check_unit_quaternion` sums it."""
@@ -146,8 +146,8 @@ def quaternion_verdict(q, max_norm_error):
     return INPUT_OK if abs(norm - 1.0) <= max_norm_error else INPUT_INVALID
 
 
-@jit(inline="always")
-def vector_verdict(v, max_norm):
+@jit(inline="always")  # type: ignore[no-untyped-call]
+def vector_verdict(v, max_norm):  # type: ignore[no-untyped-def]  # a numba kernel
     """:data:`INPUT_INVALID` for a 3-vector with a non-finite component, :data:`INPUT_IMPLAUSIBLE`
     when its magnitude (computed scaled by the largest component, so that a finite vector never
     overflows) exceeds ``max_norm``, else :data:`INPUT_OK`."""
@@ -162,7 +162,7 @@ def vector_verdict(v, max_norm):
 
 
 @jit
-def input_verdict(slot, value, bounds):
+def input_verdict(slot, value, bounds):  # type: ignore[no-untyped-def]  # a numba kernel
     """The verdict on one input of ``slot`` (``SLOT_*``): a quaternion (4,) or a vector (3,);
     ``bounds`` (:data:`N_BOUNDS`,) from :meth:`InputBounds.packed` (the node's check of a message)."""
     if slot == SLOT_ATTITUDE or slot == SLOT_REFERENCE_ATTITUDE:
@@ -174,8 +174,8 @@ def input_verdict(slot, value, bounds):
     return vector_verdict(value, bounds[B_REFERENCE_ACCELERATION])
 
 
-@jit(inline="always")
-def sample_verdicts(state_delivered, reference_delivered, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, bounds, rejected):
+@jit(inline="always")  # type: ignore[no-untyped-call]
+def sample_verdicts(state_delivered, reference_delivered, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, bounds, rejected):  # type: ignore[no-untyped-def]  # a numba kernel
     """Whether one sample's five inputs are all accepted (the offline loop), counting each rejected
     input into ``rejected`` (2,) int64: ``[invalid, implausible]``.
 
