@@ -75,8 +75,9 @@ __all__ = [
 #: on its own source file only, so a cached function that calls a kernel of another module would
 #: survive an edit of that kernel; the cache directory is therefore named by a digest of all of
 #: them (``tests/test_layering.py`` checks that every module using :func:`jit` is listed).
-KERNEL_MODULES = ("gnc_common.compiled", "sappc_controller.core.kernels", "sappc_estimator.core.mekf", "spacecraft_sim.core.kernels",
-                  "sappc.offline.compiled_loop", "sappc.evaluation.metrics", "spacecraft_sim.core.wheels", "spacecraft_sim.core.sensors")
+KERNEL_MODULES = ("gnc_common.compiled", "sappc_controller.core.kernels", "sappc_controller.core.input_check", "sappc_estimator.core.mekf",
+                  "spacecraft_sim.core.kernels", "sappc.offline.compiled_loop", "sappc.evaluation.metrics", "spacecraft_sim.core.wheels",
+                  "spacecraft_sim.core.sensors")
 #: Characters of the sources' SHA-256 digest in the cache directory's name.
 _DIGEST_CHARS = 16
 

@@ -8,9 +8,11 @@ error names the offending quantity and value.
 from __future__ import annotations
 
 from enum import Enum
+from pathlib import Path
 from typing import Any
 
 import math
+import os
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,6 +32,8 @@ __all__ = [
     "from_kind_list",
     "inertia_from_row_major",
     "from_mapping",
+    "holds_bool",
+    "read_text_file",
 ]
 
 #: Largest accepted | ||q|| - 1 | for a quaternion given as input.  Measured
@@ -50,6 +54,49 @@ class InputError(ValueError):
 
 class ConfigError(ValueError):
     """A configuration value is missing, unknown, out of range or inconsistent."""
+
+
+def read_text_file(path: str | os.PathLike[str], what: str) -> str:
+    """The text of a configuration file (a scenario, a parameters file), UTF-8 as YAML requires.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+    what : str
+        What the file is, for the message (``"scenario"``, ``"parameters"``).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file: it cannot be read, or it is not UTF-8 text (naming the first
+        byte that is not, and where).
+    """
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"cannot read {what} {path}: {exc.strerror}") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(f"{path} is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}, line {line}): "
+                          f"save the {what} as UTF-8") from None
+
+
+def holds_bool(value: Any) -> bool:
+    """Whether ``value`` is a ``bool`` or holds one (in a list, tuple or mapping, at any depth, or
+    a numpy boolean array): YAML reads ``true`` as a boolean, and ``bool`` is an ``int`` in Python,
+    so a number check alone would take ``true`` for 1."""
+    if isinstance(value, (bool, np.bool_)):
+        return True
+    if isinstance(value, np.ndarray):
+        return bool(value.dtype == np.bool_)
+    if isinstance(value, (list, tuple)):
+        return any(holds_bool(v) for v in value)
+    if isinstance(value, dict):
+        return any(holds_bool(v) for v in value.values())
+    return False
 
 
 def _describe(value: Any) -> str:
@@ -74,8 +121,11 @@ def as_finite_array(name: str, value: ArrayLike, *, shape_tail: tuple[int, ...] 
     Raises
     ------
     InputError
-        If the trailing shape is wrong or any element is NaN or infinite.
+        If the trailing shape is wrong, any element is NaN or infinite, or a boolean is given.
     """
+    if not isinstance(value, np.ndarray) or value.dtype == np.bool_:  # (a float array, the run-time case, holds no bool)
+        if holds_bool(value):
+            raise InputError(f"{name} must be numeric, got {value!r} (a boolean is not a number)")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -117,7 +167,9 @@ def check_unit_quaternion(name: str, value: ArrayLike, *, tol: float = QUATERNIO
 
 def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> Any:
     """Check that ``value`` is finite and positive; return it as a float, or as a float array when
-    it holds one value per run (Monte Carlo dispersions of a batch)."""
+    it holds one value per run (Monte Carlo dispersions of a batch); a boolean is not a number."""
+    if holds_bool(value):
+        raise ConfigError(f"{name} must be a number, got {value!r} (a boolean is not a number)")
     try:
         x = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -190,6 +242,8 @@ def check_spd_inertia(name: str, value: ArrayLike) -> NDArray[np.float64]:
     ConfigError
         Naming the matrix and its eigenvalues when the check fails.
     """
+    if holds_bool(value):
+        raise ConfigError(f"{name} must be a 3x3 numeric matrix, got {value!r} (a boolean is not a number)")
     try:
         J = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -241,6 +295,8 @@ def inertia_from_row_major(name: str, value: Any) -> NDArray[np.float64]:
     ConfigError
         If it is not 9 numbers.
     """
+    if holds_bool(value):
+        raise ConfigError(f"{name} must be 9 numbers (row major 3x3), got {value!r} (a boolean is not a number)")
     try:
         flat = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -269,7 +325,8 @@ def from_mapping(cls: type, data: Any, prefix: str) -> Any:
     Raises
     ------
     ConfigError
-        For a non-mapping, an unknown key (naming it and the accepted keys) or a missing required key.
+        For a non-mapping, an unknown key (naming it and the accepted keys), a missing required
+        key, or a boolean (``true``) given where the field's type expects numbers (naming the key).
     """
     import dataclasses
     import typing
@@ -289,6 +346,8 @@ def from_mapping(cls: type, data: Any, prefix: str) -> Any:
             continue
         value = data[name]
         hint = hints[name]
+        if _expects_number(hint) and holds_bool(value):
+            raise ConfigError(f"{prefix}.{name} must be a number, got {value!r} (a boolean is not a number)")
         # a dataclass field, or an optional one (``SomeDataclass | None``)
         options = [h for h in typing.get_args(hint) if h is not type(None)] if typing.get_args(hint) else [hint]
         nested = options[0] if len(options) == 1 and isinstance(options[0], type) and dataclasses.is_dataclass(options[0]) else None
@@ -310,6 +369,27 @@ def from_mapping(cls: type, data: Any, prefix: str) -> Any:
         raise ConfigError(msg if msg.startswith(prefix) else f"{prefix}: {msg}") from None
     except TypeError as exc:
         raise ConfigError(f"{prefix}: {exc}") from None
+
+
+def _leaf_types(hint: Any) -> set[Any]:
+    """The types a field's hint allows at its leaves (``tuple[float, ...] | None`` -> {float, None})."""
+    import typing
+
+    args = typing.get_args(hint)
+    if not args:
+        return {hint}
+    out: set[Any] = set()
+    for a in args:
+        if a is not Ellipsis:
+            out |= _leaf_types(a)
+    return out
+
+
+def _expects_number(hint: Any) -> bool:
+    """Whether a field typed ``hint`` holds numbers and never a boolean (a ``bool`` field, or an
+    ``Any`` one, may hold ``true``)."""
+    leaves = _leaf_types(hint)
+    return bool(leaves & {int, float}) and not leaves & {bool, Any, object}
 
 
 def _freeze(value: Any) -> Any:

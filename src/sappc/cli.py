@@ -259,7 +259,15 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     best = summary["best"]
     if best is None:
         print("no trial met every requirement: widen the ranges, relax the requirements or add trials (see history.png)")
+        for name, b in summary["blocking"].items():
+            if not b["trials_blocked"]:
+                continue
+            closest = "no run measured it" if b["best_value"] is None else \
+                f"closest: trial {b['best_trial']}, worst run {b['best_value']:.4g} against the bound {b['bound']:.4g}"
+            print(f"  {name} blocked {b['trials_blocked']} of {b['trials']} trials; {closest}")
         print(f"results in {out}")
+        if args.json:
+            _write_json(args.json, summary)
         return 1
     obj = summary["objective"]
     print(f"best: trial {best['trial']}, p{obj['percentile']:g} {obj['metric']} {best['value']:.4g}")

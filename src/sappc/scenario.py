@@ -27,6 +27,7 @@ from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.common import ActuatorConfig
 from sappc_estimator.core.config import MekfConfig
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
+from sappc_controller.core.input_check import InputBounds
 from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES, DEFAULT_STALE_TIMEOUT_S, check_watchdog_seconds, parameters_from_config, unflatten
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
@@ -42,6 +43,7 @@ from gnc_common.validation import (
     check_positive_int,
     check_spd_inertia,
     from_mapping,
+    read_text_file,
 )
 
 __all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "scenario_from_mapping"]
@@ -120,20 +122,35 @@ _TOP_KEYS = {
 
 @dataclass(frozen=True)
 class ControllerNodeSettings:
-    """How the controller answers when its inputs stop (:mod:`sappc_controller.node`), modelled by
-    the offline loop too.
+    """How the controller checks its inputs and answers when they stop (:mod:`sappc_controller.node`,
+    the node parameters of the same names), modelled by the offline loop too.
 
     Attributes
     ----------
     stale_timeout_s : float
         Zero torque when no valid state is newer than this at a control instant [s]; within
         :data:`~sappc_controller.params.WATCHDOG_RANGE_S` (the node parameter's range).
+    max_attitude_norm_error, max_body_rate_rad_s, max_reference_rate_rad_s, max_reference_acceleration_rad_s2 : float
+        The plausibility bounds on the inputs (:class:`~sappc_controller.core.input_check.InputBounds`,
+        whose defaults and reasons they take): an input beyond one is rejected.
     """
 
     stale_timeout_s: float = DEFAULT_STALE_TIMEOUT_S
+    max_attitude_norm_error: float = InputBounds.max_attitude_norm_error
+    max_body_rate_rad_s: float = InputBounds.max_body_rate_rad_s
+    max_reference_rate_rad_s: float = InputBounds.max_reference_rate_rad_s
+    max_reference_acceleration_rad_s2: float = InputBounds.max_reference_acceleration_rad_s2
 
     def __post_init__(self) -> None:
         check_watchdog_seconds("controller_node.stale_timeout_s", self.stale_timeout_s)
+        try:
+            self.input_bounds()
+        except ConfigError as exc:
+            raise ConfigError(f"controller_node.{exc}") from None
+
+    def input_bounds(self) -> InputBounds:
+        """The plausibility bounds of the controller's inputs."""
+        return InputBounds(**{f.name: getattr(self, f.name) for f in dataclasses.fields(InputBounds)})
 
 
 #: Metrics a requirement may bound from above (``<name>_max``).
@@ -450,13 +467,11 @@ def load_scenario(path: str | Path) -> Scenario:
     Raises
     ------
     ConfigError
-        If the file is missing, is not YAML, or any value is invalid (the message names the key).
+        If the file is missing, is not UTF-8 text, is not YAML, or any value is invalid (the
+        message names the key).
     """
     p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as exc:
-        raise ConfigError(f"cannot read scenario {p}: {exc.strerror}") from None
+    text = read_text_file(p, "scenario")
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:

@@ -28,7 +28,9 @@ Modes (parameter ``mode``):
     (``late_steps`` in ``timing_file``).  A timer in the middle of each frame is the watchdog.
 
 Input checks: a message with a wrong frame id, a non-finite value, a zero or non-unit
-quaternion ("invalid"), a stamp in the past (lockstep: not after the last computed sample; real
+quaternion ("invalid"), a body rate, reference rate or reference acceleration beyond its
+plausibility bound (``max_body_rate_rad_s``, ...: "implausible"; the check is
+:mod:`sappc_controller.core.input_check`, the offline loop's too), a stamp in the past (lockstep: not after the last computed sample; real
 time: not after the topic's previous message) or more than ``max_stamp_ahead_s`` ahead of the
 controller's time ("far future") is rejected, logged and counted, in total (diagnostics
 ``status[0]``) and by reason (:data:`REJECT_REASONS`); it never reaches the law.
@@ -37,8 +39,15 @@ Answers (diagnostics ``status[2]``, :data:`~sappc_msgs_py.contract.ANSWER_NAMES`
 whose inputs are complete and valid is computed.  Without one at a control instant, the
 controller commands zero torque when no valid state is newer than ``stale_timeout_s`` (the
 watchdog; ``status[1] = 1``; in real time also when an input of the sample is older than that),
-else it holds its last answer (a short outage is ridden through; in real time the plant holds
-it); it computes again as soon as valid inputs return.
+before its first valid sample included (there is no answer to hold), else it holds its last
+answer (a short outage is ridden through; in real time the plant holds it); it computes again as
+soon as valid inputs return.
+
+The run starts at the first valid sample (:class:`~sappc_controller.core.base.AttitudeController`'s
+first step): its time is the performance function's time origin and its error gives the
+performance function's start (sign, and ``rpf.rho_e0`` when that is left to the initial error).
+Until then the diagnostics' rho, band, eps, z and V rows are NaN: there is no performance
+function yet (the offline loop records the same).
 
 In lockstep the control instant of sample t_k is decided by the inputs themselves, whatever
 the order in which ``/clock`` and the inputs arrive: when the five inputs of t_k have arrived,
@@ -79,17 +88,20 @@ from sappc_msgs_py.contract import (
 from sappc_msgs_py.convert import (
     diagnostics_msg,
     ns_to_stamp,
+    quaternion_from_msg,
     stamp_to_ns,
     torque_msg,
+    vector3_from_msg,
 )
-from sappc_msgs_py.inputs import REJECT_REASONS as INPUT_REJECT_REASONS
-from sappc_msgs_py.inputs import decode_input, stamp_rejection
+from sappc_msgs_py.inputs import stamp_rejection
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
 from gnc_common.timing import LatencyStatistics
 from gnc_common.validation import ConfigError, InputError, check_positive
 
 from sappc_controller.core.base import AttitudeController
+from sappc_controller.core.input_check import REJECT_REASONS as INPUT_REJECT_REASONS
+from sappc_controller.core.input_check import ImplausibleInputError, InputBounds, check_input
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
 from sappc_controller.inputs import INPUT_TOPICS, NS_PER_S, STEP_ERRORS, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import (
@@ -108,15 +120,17 @@ __all__ = ["ControllerNode", "PARAMETERS", "main"]
 
 #: The five inputs of one control step, by topic (paired by :mod:`sappc_controller.inputs`).
 _INPUTS = INPUT_TOPICS
+#: Each input topic's slot in the input check (:mod:`sappc_controller.core.input_check`: the step's order).
+_SLOTS = {topic.name: slot for slot, topic in enumerate(_INPUTS)}
 _NS = NS_PER_S
 
 
-#: Why an input is rejected (``rejected_by_reason`` keys): a wrong frame id, a non-finite value or a
-#: zero or non-unit quaternion; a stamp not after the last computed sample (lockstep) or the topic's
-#: previous message (real time); a stamp more than ``max_stamp_ahead_s`` ahead
-#: (:data:`sappc_msgs_py.inputs.REJECT_REASONS`, the checks every consumer of the samples shares).
+#: Why an input is rejected (``rejected_by_reason`` keys): :data:`sappc_controller.core.input_check.REJECT_REASONS`
+#: (the offline loop counts the same).
 REJECT_REASONS = INPUT_REJECT_REASONS
 
+#: The plausibility bounds on the inputs (:class:`~sappc_controller.core.input_check.InputBounds`), read at start-up.
+_BOUND_PARAMS = ("max_attitude_norm_error", "max_body_rate_rad_s", "max_reference_rate_rad_s", "max_reference_acceleration_rad_s2")
 #: Watchdog parameters: changeable at run time, applied at once, each within WATCHDOG_RANGE_S.
 _WATCHDOG_PARAMS = ("stale_timeout_s", "max_stamp_ahead_s", "lockstep_grace_s")
 #: Period of the lockstep grace check [s]: the grace is honoured to within this.
@@ -136,6 +150,14 @@ PARAMETERS = (
           range=WATCHDOG_RANGE_S, read_only=False),
     Param("lockstep_grace_s", DEFAULT_LOCKSTEP_GRACE_S, "lockstep: wall time a /clock tick waits for an input that never arrives "
           "before it is answered", "s", range=WATCHDOG_RANGE_S, read_only=False),
+    Param("max_attitude_norm_error", InputBounds.max_attitude_norm_error, "attitudes (measured, reference) whose norm differs from 1 by "
+          "more than this are rejected as invalid (at most the law's own 1e-6)", check="in (0, 1e-6]"),
+    Param("max_body_rate_rad_s", InputBounds.max_body_rate_rad_s, "a measured body rate of larger magnitude is rejected as implausible "
+          "(beyond any spacecraft gyro's range)", "rad/s", check="> 0"),
+    Param("max_reference_rate_rad_s", InputBounds.max_reference_rate_rad_s, "a reference rate of larger magnitude is rejected as "
+          "implausible", "rad/s", check="> 0"),
+    Param("max_reference_acceleration_rad_s2", InputBounds.max_reference_acceleration_rad_s2, "a reference acceleration of larger "
+          "magnitude is rejected as implausible (ten times the most agile spacecraft's)", "rad/s^2", check="> 0"),
     Param("timing_file", "", "where to write the node's statistics when it finishes (JSON: steps, refused, rejected by reason; real "
           "time: the steps' latency and late steps); '' for none"),
 )
@@ -177,6 +199,8 @@ class ControllerNode(ProjectNode):
         self.stale_timeout_ns = _seconds_to_ns("stale_timeout_s", self.param(_P["stale_timeout_s"]))
         self.max_ahead_ns = _seconds_to_ns("max_stamp_ahead_s", self.param(_P["max_stamp_ahead_s"]))
         self.grace_ns = _seconds_to_ns("lockstep_grace_s", self.param(_P["lockstep_grace_s"]))
+        self.input_bounds = InputBounds(**{name: self.param(_P[name]) for name in _BOUND_PARAMS})
+        self._bounds = self.input_bounds.packed()
 
         # load the compiled step now (cache load ~1 s), not at the first sample, which the plant
         # waits for at most lockstep_timeout_s: a step at rest, then forget it
@@ -199,7 +223,8 @@ class ControllerNode(ProjectNode):
         self._pending = LockstepPairing(_INPUTS)  # lockstep: the inputs of each stamp until complete
         self._rt = RealtimePairing(_INPUTS)  # real time: a sample per fresh state
         self.latency = LatencyStatistics(self.dt)  # real time: the steps' latency, in bounded memory
-        self._diag_rows = {k: np.zeros(3) for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
+        # before the first computed sample the controller has no performance function: NaN rows (as the offline loop records)
+        self._diag_rows = {k: np.full(3, np.nan) for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
         self._held: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros(3), np.zeros(3), np.zeros(3))  # last torque, command, saturation
         if self.mode == LOCKSTEP:
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
@@ -265,6 +290,17 @@ class ControllerNode(ProjectNode):
         """The controller's time: the latest /clock in lockstep, the node clock in real time."""
         return self._clock_ns if self.mode == LOCKSTEP else self.get_clock().now().nanoseconds
 
+    def _decode(self, msg: Any, topic: Topic) -> np.ndarray:
+        """The message's value, checked by :func:`~sappc_controller.core.input_check.check_input`
+        (the offline loop's check): raises ``InputError`` (invalid) or ``ImplausibleInputError``."""
+        if topic.type_name.endswith("QuaternionStamped"):
+            value = quaternion_from_msg(msg, topic)
+            check_input(_SLOTS[topic.name], f"{topic.name} quaternion", value, self.input_bounds, self._bounds)
+            return value
+        value = vector3_from_msg(msg, topic)
+        check_input(_SLOTS[topic.name], topic.name, value, self.input_bounds, self._bounds)
+        return value
+
     def _on_input(self, msg: Any, topic: Topic) -> None:
         ns = stamp_to_ns(msg.header.stamp)
         last = self._last_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
@@ -275,9 +311,9 @@ class ControllerNode(ProjectNode):
             return
         value: np.ndarray | None
         try:
-            value = decode_input(msg, topic)
+            value = self._decode(msg, topic)
         except InputError as exc:
-            self._reject(str(exc), "invalid")
+            self._reject(str(exc), "implausible" if isinstance(exc, ImplausibleInputError) else "invalid")
             value = None  # lockstep: it arrived, invalid (module docstring)
         if self.mode == REALTIME:
             fresh = None if value is None else self._rt.add(topic.name, ns, value)
@@ -294,8 +330,9 @@ class ControllerNode(ProjectNode):
 
     # ---- control instants -----------------------------------------------------------------
     def _outage_at(self, t_ns: int) -> bool:
-        """Lockstep: whether the last valid sample (its state included) is more than ``stale_timeout_s`` before ``t_ns``."""
-        return self._last_ns is not None and t_ns - self._last_ns > self.stale_timeout_ns
+        """Lockstep: whether no valid sample (its state included) has been computed yet, or the last one is more than
+        ``stale_timeout_s`` before ``t_ns``: then there is no answer to hold."""
+        return self._last_ns is None or t_ns - self._last_ns > self.stale_timeout_ns
 
     def _answered(self, t_ns: int) -> bool:
         return self._answered_ns is not None and t_ns <= self._answered_ns

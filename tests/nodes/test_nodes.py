@@ -150,6 +150,46 @@ def test_bad_inputs_are_rejected_counted_and_never_reach_the_torque(controller, 
     assert node.rejected_by_reason == {"invalid": node.rejected}
 
 
+@pytest.mark.parametrize(("field", "value", "param"), [
+    ("w", (1.0e12, 0.0, 0.0), "max_body_rate_rad_s = 10"),  # the issue's 1e12 rad/s, else commanded as a saturated torque
+    ("w", (0.0, 6.0, 8.1), "max_body_rate_rad_s = 10"),  # a magnitude just above the bound (|w| = 10.06)
+])
+def test_an_implausible_input_is_rejected_as_such_counted_and_never_reaches_the_torque(controller, field, value, param) -> None:  # type: ignore[no-untyped-def]
+    """A finite rate beyond ``max_body_rate_rad_s`` (default 10 rad/s) is rejected by reason
+    ``implausible``, logged naming the value and the bound, and its sample is answered without the
+    law (held: the last state is recent), as the offline loop answers it."""
+    node, drv = controller
+    drv.send_sample(0.0, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
+    messages: list[str] = []
+    original = node._reject
+    node._reject = lambda reason, kind: (messages.append(reason), original(reason, kind))  # type: ignore[method-assign]
+    drv.send_sample(0.01, q=Q0, **{field: value})
+    drv.spin_until(lambda: len(drv.torques) == 2 and len(drv.diags) == 2, "the implausible sample's answer")
+    assert drv.diags[1]["status"][2] == c.ANSWER_HELD and node.steps == 1 and node.refused == 0
+    assert node.rejected_by_reason == {"implausible": 1} and node.rejected == 1
+    assert len(messages) == 1 and param in messages[0] and "implausible" in messages[0], messages
+    drv.send_sample(0.02, q=Q0, w=(0.0, 6.0, 7.9))  # |w| = 9.94 rad/s: within the bound, computed
+    drv.spin_until(lambda: len(drv.torques) == 3, "the next torque")
+    assert node.steps == 2 and node.rejected == 1
+
+
+def test_before_its_first_valid_sample_the_controller_answers_zero_and_has_no_performance_function(controller) -> None:  # type: ignore[no-untyped-def]
+    """No valid state yet (an invalid sample at t = 0): nothing to hold, so the watchdog answers with
+    zero torque, and the diagnostics' performance-function rows are NaN (there is none yet); the
+    first valid sample (0.01 s) starts the run: the RPF's time origin, rho = rho_e0 = 0.4."""
+    node, drv = controller
+    drv.send_sample(0.0, q=(math.nan, 0.0, 0.0, 1.0))
+    drv.spin_until(lambda: len(drv.torques) == 1 and len(drv.diags) == 1, "the answer of the invalid first sample")
+    assert drv.diags[0]["status"][2] == c.ANSWER_WATCHDOG_ZERO and np.all(drv.torques[0][1] == 0.0)
+    for row in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V"):
+        assert np.isnan(drv.diags[0][row]).all(), row
+    drv.send_sample(0.01, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 2 and len(drv.diags) == 2, "the first computed sample")
+    assert drv.diags[1]["status"][2] == c.ANSWER_COMMANDED and node.controller.t0 == 0.01
+    assert drv.diags[1]["rho"][1] == pytest.approx(0.4, abs=1e-12)
+
+
 def test_stamps_in_the_past_or_far_future_are_rejected(controller) -> None:  # type: ignore[no-untyped-def]
     node, drv = controller
     drv.send_sample(1.0, q=Q0)
@@ -162,10 +202,25 @@ def test_stamps_in_the_past_or_far_future_are_rejected(controller) -> None:  # t
     assert node.rejected_by_reason == {"stamp_in_past": 5, "stamp_too_far_ahead": 1}  # counted by reason
 
 
-def test_a_finite_input_that_gives_a_non_finite_torque_is_refused_and_counted(controller) -> None:  # type: ignore[no-untyped-def]
-    """A rate of 1e300 rad/s is finite, so the input checks pass, but the law's torque is not:
-    the core refuses it, the node publishes zero, counts the refused step and codes the answer."""
-    node, drv = controller
+@pytest.fixture
+def controller_without_rate_bound(ros_context):  # type: ignore[no-untyped-def]
+    """The controller with the body-rate plausibility bound at the largest double (no bound)."""
+    from sappc_controller.node import ControllerNode
+
+    node = ControllerNode(context=ros_context, parameter_overrides=_controller_overrides(stale_timeout_s=0.05, max_body_rate_rad_s=1.7e308))
+    driver = Driver(ros_context, [node])
+    driver.matched()
+    yield node, driver
+    driver.executor.shutdown()
+    node.destroy_node()
+    driver.node.destroy_node()
+
+
+def test_a_finite_input_that_gives_a_non_finite_torque_is_refused_and_counted(controller_without_rate_bound) -> None:  # type: ignore[no-untyped-def]
+    """With the plausibility bound lifted, a rate of 1e300 rad/s passes the input checks, but the
+    law's torque is not finite: the core refuses it, the node publishes zero, counts the refused
+    step and codes the answer."""
+    node, drv = controller_without_rate_bound
     drv.send_sample(0.0, q=Q0)
     drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
     drv.send_sample(0.01, q=Q0, w=(1e300, 0.0, 0.0))

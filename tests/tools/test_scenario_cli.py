@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
 import pytest
 import yaml
 
-from conftest import ROOT, SCENARIOS
+from conftest import ROOT, SAPPC, SCENARIOS
+from figure_checks import NO_EMPTY_LOG_AXES, assert_every_axes_shows_data, capture_figures
 from sappc.cli import main
 from sappc.scenario import load_scenario, scenario_from_mapping
 from gnc_common.validation import ConfigError
@@ -84,6 +86,20 @@ def test_missing_and_malformed_files_are_clear(tmp_path) -> None:
         load_scenario(tmp_path / "bad.yaml")
 
 
+@pytest.mark.parametrize("command", [["simulate"], ["params"], ["run", "--out", "RUN"]])
+def test_a_file_that_is_not_utf8_is_one_line_naming_it_and_the_config_error_status(tmp_path, command) -> None:  # type: ignore[no-untyped-def]
+    """A scenario saved in Latin-1 (issue 25, 2.3: an 18-line UnicodeDecodeError traceback, exit 1):
+    one line naming the file and the byte, exit status 2, in every command that reads a scenario."""
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes(yaml.safe_dump(_raw("paper_tracking.yaml")).encode() + "# réglage\n".encode("latin-1"))
+    argv = [str(tmp_path / "run") if a == "RUN" else a for a in command]
+    proc = subprocess.run([*SAPPC, argv[0], str(path), *argv[1:]], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(path) in lines[0] and "UTF-8" in lines[0] and "0xe9" in lines[0], proc.stderr
+    assert not (tmp_path / "run").exists()
+
+
 def test_simulate_writes_json_and_plots(tmp_path) -> None:
     raw = _raw("paper_fault.yaml")
     raw["duration_s"] = 52.0
@@ -92,7 +108,7 @@ def test_simulate_writes_json_and_plots(tmp_path) -> None:
     path.write_text(yaml.safe_dump(raw))
     out = subprocess.run(
         [sys.executable, "-m", "sappc", "simulate", str(path), "--controller", "blfppc", "--json", str(tmp_path / "m.json"), "--plots", str(tmp_path / "fig")],
-        capture_output=True, text=True, cwd=ROOT, check=True,
+        capture_output=True, text=True, cwd=ROOT, check=True, env={**os.environ, "PYTHONWARNINGS": "error:Data has no positive values"},
     )
     assert "controller blfppc" in out.stdout
     report = json.loads((tmp_path / "m.json").read_text())
@@ -105,6 +121,24 @@ def test_simulate_writes_json_and_plots(tmp_path) -> None:
     assert report["parameters"]["scenario"]["duration_s"] == 52.0
     for name in ("qev.png", "qev_zoom.png", "qev_log.png", "torque.png"):
         assert (tmp_path / "fig" / name).stat().st_size > 10_000
+
+
+@NO_EMPTY_LOG_AXES
+def test_the_run_figures_show_what_they_draw(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Every panel of a run's figures has data in view, a run whose controller starts at 0.5 s (no
+    performance function before: NaN rows) and one with a sudden fault included."""
+    from sappc.analysis.plots import plot_run
+    from sappc.offline.simulate import simulate
+
+    figures = capture_figures(monkeypatch)
+    for name, faults in (("paper_tracking.yaml", [{"kind": "sensor_dropout", "start_s": 0.0, "end_s": 0.5}]), ("paper_fault.yaml", [])):
+        raw = _raw(name)
+        raw["duration_s"], raw["faults"] = 52.0, faults
+        scenario = scenario_from_mapping(raw)
+        result = simulate(scenario)
+        plot_run(result.history, tmp_path / name, title=name, fault_windows=scenario.event_windows())
+    assert len(figures) == 10
+    assert_every_axes_shows_data(figures, at_least=100)
 
 
 def test_a_run_too_long_for_this_machine_stops_before_anything_is_allocated(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]

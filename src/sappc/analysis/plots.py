@@ -31,12 +31,42 @@ Array = NDArray[np.float64]
 _SUB = ("₁", "₂", "₃")
 
 
-def _log_axis(ax: Axes) -> None:
-    """Log scale on y with decade labels written 10⁻⁵ in Unicode (the default formatter uses mathtext)."""
+def _y_data(ax: Axes) -> list[Array]:
+    """The y values of ``ax``'s lines and line collections in data coordinates (not the reference
+    lines such as ``axhline``, whose x is in axes coordinates)."""
+    from matplotlib.collections import LineCollection
+
+    blocks = [np.asarray(line.get_ydata(), dtype=np.float64) for line in ax.get_lines() if line.get_transform() == ax.transData]
+    blocks += [np.asarray(seg, dtype=np.float64).reshape(-1, 2)[:, 1] for c in ax.collections if isinstance(c, LineCollection)
+               for seg in c.get_segments()]
+    return blocks
+
+
+def _positive_data(ax: Axes) -> bool:
+    """Whether ``ax``'s data (:func:`_y_data`) hold a finite value > 0."""
+    return any(bool(np.any(np.isfinite(b) & (b > 0.0))) for b in _y_data(ax))
+
+
+def _finite_data(ax: Axes) -> bool:
+    """Whether ``ax``'s data (:func:`_y_data`) hold a finite value."""
+    return any(bool(np.any(np.isfinite(b))) for b in _y_data(ax))
+
+
+def _log_axis(ax: Axes) -> bool:
+    """Log scale on y with decade labels written 10⁻⁵ in Unicode (the default formatter uses mathtext),
+    once the axes' data are drawn; return whether it is log.  Data without a positive value (an
+    error that is exactly zero, a performance function the controller never had) stay on a linear
+    axis with a note: a log axis would be empty ("Data has no positive values")."""
     from matplotlib.ticker import FuncFormatter
 
+    if not _positive_data(ax):
+        if _finite_data(ax):
+            ax.text(0.01, 0.04, "no positive value to draw on a log scale: linear scale", transform=ax.transAxes, fontsize=7,
+                    color="tab:red")
+        return False
     ax.set_yscale("log")
     ax.yaxis.set_major_formatter(FuncFormatter(_decade_label))
+    return True
 
 
 def _decade_label(value: float, _pos: int) -> str:
@@ -61,6 +91,10 @@ def _finish(fig: Figure, path: Path, title: str, paths: list[Path], *, margins: 
     import matplotlib.pyplot as plt
 
     fig.suptitle(title)
+    for ax in fig.axes:
+        if not _finite_data(ax):  # e.g. a bag without the controller's diagnostics: say so, not an empty frame
+            ax.text(0.5, 0.5, "nothing to draw: no finite value", transform=ax.transAxes, ha="center", va="center", fontsize=8,
+                    color="tab:red")
     if margins is None:
         fig.tight_layout()
     else:
@@ -307,6 +341,31 @@ def plot_torque_rerun(t: Array, recorded: Array, recomputed: Array, out_dir: Pat
     return paths
 
 
+#: Margin of a log axis's view around its data, as a factor (a tenth of a decade each side).
+_LOG_MARGIN = 10.0**0.1
+#: Margin of a linear axis's view around its data, as a fraction of the data's span.
+_LINEAR_MARGIN = 0.05
+
+
+def _view_of(ax: Axes, x: Array, ys: Sequence[NDArray[Any]], *, log: bool) -> None:
+    """Set ``ax``'s view to the data of its collections: ``x`` (T,) and the finite values of ``ys``
+    (positive ones on a log axis).  ``autoscale_view`` cannot be used: a collection added to a log
+    axis leaves its data limits unset, and matplotlib then draws an empty panel with "Data has no
+    positive values" (issue 25, 2.5).  No such value: the view is left as it is."""
+    values = np.concatenate([np.asarray(y, dtype=np.float64).ravel() for y in ys])
+    values = values[np.isfinite(values) & (values > 0.0 if log else True)]
+    if x.size:
+        ax.set_xlim(float(x.min()), float(x.max()) if x.max() > x.min() else float(x.min()) + 1.0)
+    if not values.size:
+        return
+    lo, hi = float(values.min()), float(values.max())
+    if log:
+        ax.set_ylim(lo / _LOG_MARGIN, hi * _LOG_MARGIN)
+    else:
+        pad = _LINEAR_MARGIN * (hi - lo) if hi > lo else max(abs(hi), 1.0) * _LINEAR_MARGIN
+        ax.set_ylim(lo - pad, hi + pad)
+
+
 def plot_campaign(tab: dict[str, NDArray[Any]], out_dir: Path, *, criteria: tuple[float, float], title: str) -> list[Path]:
     """The paper's Monte Carlo figures: t2 tracking error and steady-state error per component
     (one point per run, criterion dashed), and the kept trajectories overlaid with their RPFs."""
@@ -345,12 +404,11 @@ def plot_campaign(tab: dict[str, NDArray[Any]], out_dir: Path, *, criteria: tupl
                 y, r = q[mask, :, i], rho[mask, :, i]
                 if logy:
                     y, r = np.abs(y), np.abs(r)
-                    _log_axis(ax)
                 # one collection per family: hundreds of Line2D objects take seconds to draw
                 tm = np.broadcast_to(t[mask][:, None], y.shape)
                 ax.add_collection(LineCollection(np.stack((tm, y), axis=-1).transpose(1, 0, 2), colors="tab:blue", linewidths=0.4, alpha=0.25))
                 ax.add_collection(LineCollection(np.stack((tm, r), axis=-1).transpose(1, 0, 2), colors="k", linewidths=0.4, alpha=0.25, linestyles="--"))
-                ax.autoscale_view()
+                _view_of(ax, t[mask], (y, r), log=logy and _log_axis(ax))
                 ax.set_ylabel(f"|q_ev{_SUB[i]}|" if logy else f"q_ev{_SUB[i]}")
                 ax.grid(True, alpha=0.3)
             axes[-1].set_xlabel("time [s]")

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from sappc_controller.inputs import INPUT_TOPICS, STEP_ERRORS, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import CONTROLLER_CLASSES, controller_from_parameters_file
 from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS, consumed_names
-from gnc_common.validation import ConfigError
+from gnc_common.validation import read_text_file
 
 from sappc.bag.read import PARAMS_RECORD, STAMP_TOL_NS, Bag, BagError, Series, find_topic, nearest_index
 
@@ -125,10 +125,7 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
     """
     if params is not None:
         source = str(params)
-        try:
-            text = Path(params).read_text()
-        except OSError as exc:
-            raise ConfigError(f"cannot read parameters {params}: {exc.strerror}") from None
+        text = read_text_file(params, "parameters")
     else:
         record = bag.metadata.get(PARAMS_RECORD)
         if not record or "text" not in record:

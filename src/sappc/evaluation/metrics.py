@@ -16,7 +16,7 @@ Definitions, per run:
     ``i`` of the time-mean of ``|q_ev,i|`` (the paper's Monte Carlo criterion).
 ``rpf_error_at_t2``
     ``max_i |q_ev,i - rho_i|`` at the sample nearest ``t2_s`` (``None`` when the run ends
-    before ``t2_s``), with ``rho`` the
+    before ``t2_s``, or the controller had no performance function yet), with ``rho`` the
     controller's own performance function (the RPF for SAPPC): the paper's
     other Monte Carlo criterion.
 ``overshoot``
@@ -47,6 +47,10 @@ Definitions, per run:
     (zero-order hold): the number of such samples times ``dt`` on a uniform grid (every
     interval within 1e-9 s of the first), else the sum of their intervals ``t[k+1] - t[k]``
     (a real-time bag's jittered stamps), the last sample holding for the median interval.
+    A component is inside when ``band_lower <= q_ev,i <= band_upper``; a sample without a band
+    (NaN: the controller had not started, it computes its performance function from its first
+    valid sample on) is outside: no constraint holds there.  So a run whose controller never
+    commanded is outside for its whole length and never returns.
 ``returned_to_constraint``
     Only with faults: ``True`` when every component is inside its band at the
     end of the run, i.e. from the sample after the last one outside the band
@@ -242,7 +246,7 @@ class MetricsAccumulator:
             "settling_time_s": settling,
             "steady_max_abs_qev": float(self.steady_max[run]) if steady else None,
             "steady_mean_abs_qev": float((self.steady_sum[run] / self.steady_count).max()) if steady else None,
-            "rpf_error_at_t2": None if np.isnan(self.rpf_error_t2_axis[run, 0]) else float(self.rpf_error_t2_axis[run].max()),
+            "rpf_error_at_t2": None if np.isnan(self.rpf_error_t2_axis[run]).any() else float(self.rpf_error_t2_axis[run].max()),
             "overshoot": float(max(0.0, self.overshoot[run])),
             "max_abs_torque_Nm": float(self.max_torque[run]),
             "torque_sign_changes_per_s": None if np.isnan(changes[run]) else float(changes[run]),
@@ -377,8 +381,10 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
             tmax = v if k == 0 else _maximum(tmax, v)
             if live and (saturated[k, n, 0] or saturated[k, n, 1] or saturated[k, n, 2]):
                 n_sat += 1
-            outside = live and ((e0 < band_lower[k, n, 0] or e0 > band_upper[k, n, 0]) or (e1 < band_lower[k, n, 1] or e1 > band_upper[k, n, 1])
-                                or (e2 < band_lower[k, n, 2] or e2 > band_upper[k, n, 2]))
+            # inside: within every component's band; a NaN band (none yet) fails the comparison
+            inside = ((e0 >= band_lower[k, n, 0] and e0 <= band_upper[k, n, 0]) and (e1 >= band_lower[k, n, 1] and e1 <= band_upper[k, n, 1])
+                      and (e2 >= band_lower[k, n, 2] and e2 <= band_upper[k, n, 2]))
+            outside = live and not inside
             if outside:
                 n_out += 1
                 lo = k0 + k

@@ -27,7 +27,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -135,6 +135,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         **unflatten(parameters_from_config(kind.value, scenario.controller_config(kind))),
         **common,
         "stale_timeout_s": scenario.controller_node.stale_timeout_s,
+        **asdict(scenario.controller_node.input_bounds()),  # the input plausibility bounds (offline too)
         "expected_subscribers": expected(control__torque=2, controller__diagnostics=1),
         "counts_file": counts_file("controller"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "controller_timing.json"),

@@ -19,6 +19,7 @@ The ``tuning`` section of a scenario (:class:`TuningConfig`, validated before an
         overshoot_max: 1.0e-4                 # the metrics' overshoot (excursion past zero)
         steady_max_abs_qev_max: 5.0e-5        # max |q_ev,i| over the steady window
         torque_sign_changes_per_s_max: 1.0    # no chattering
+        max_abs_wheel_speed_rad_s_max: 500.0  # with reaction wheels: the fastest wheel's speed [rad/s]
       objective: {metric: steady_max_abs_qev, percentile: 99}   # minimised over the campaign
       baselines:                  # named gain sets confirmed beside the result (e.g. the flight gains)
         hand_tuned: {B0: 0.016, gains.K_q: 0.3}
@@ -122,12 +123,22 @@ class Requirements:
         Largest ``|q_ev,i|`` over the steady window (``metrics.steady_from_s`` on).
     torque_sign_changes_per_s_max : float or None [1/s]
         Chattering: the metrics' ``torque_sign_changes_per_s`` over the steady window.
+    max_abs_wheel_speed_rad_s_max : float or None [rad/s]
+        The metrics' ``max_abs_wheel_speed_rad_s`` (the fastest reaction wheel's speed relative to
+        the body over the run); only for a scenario with reaction wheels.
     """
 
     settle_by_t2: bool = True
     overshoot_max: float | None = None
     steady_max_abs_qev_max: float | None = None
     torque_sign_changes_per_s_max: float | None = None
+    max_abs_wheel_speed_rad_s_max: float | None = None
+
+
+#: Each bounded requirement of :class:`Requirements` and the metric it bounds (a campaign's per-run column).
+BOUNDED_REQUIREMENTS = {"overshoot_max": "overshoot", "steady_max_abs_qev_max": "steady_max_abs_qev",
+                        "torque_sign_changes_per_s_max": "torque_sign_changes_per_s",
+                        "max_abs_wheel_speed_rad_s_max": "max_abs_wheel_speed_rad_s"}
 
 
 @dataclass(frozen=True)
@@ -246,7 +257,8 @@ def _check_requirements(req: Requirements, scenario: Scenario) -> None:
                           f"(duration_s {scenario.duration_s})")
     bounds = {"overshoot_max": (req.overshoot_max, 0.0, "an overshoot is never negative"),
               "steady_max_abs_qev_max": (req.steady_max_abs_qev_max, None, "no error is below 0"),
-              "torque_sign_changes_per_s_max": (req.torque_sign_changes_per_s_max, 0.0, "a rate of sign changes is never negative")}
+              "torque_sign_changes_per_s_max": (req.torque_sign_changes_per_s_max, 0.0, "a rate of sign changes is never negative"),
+              "max_abs_wheel_speed_rad_s_max": (req.max_abs_wheel_speed_rad_s_max, 0.0, "a wheel speed's magnitude is never negative")}
     for name, (value, lowest, why) in bounds.items():
         if value is None:
             continue
@@ -255,6 +267,9 @@ def _check_requirements(req: Requirements, scenario: Scenario) -> None:
             raise ConfigError(f"{key} must be a finite number, got {value!r}")
         if (value < lowest) if lowest is not None else (value <= 0.0):
             raise ConfigError(f"{key} = {value!r} is infeasible: {why}")
+    if req.max_abs_wheel_speed_rad_s_max is not None and scenario.wheels is None:
+        raise ConfigError("tuning.requirements.max_abs_wheel_speed_rad_s_max needs reaction wheels (actuator.kind: reaction_wheels): "
+                          "the scenario's ideal actuator has no wheel speed to bound")
     if (req.steady_max_abs_qev_max is not None or req.torque_sign_changes_per_s_max is not None) and ms.steady_from_s >= scenario.duration_s:
         raise ConfigError(f"tuning.requirements: the steady requirements are infeasible: metrics.steady_from_s ({ms.steady_from_s}) "
                           f"is not before duration_s ({scenario.duration_s})")
@@ -277,7 +292,10 @@ def evaluate_runs(scenario_raw: dict[str, Any], seed: int, runs: list[int]) -> d
     """The requirement and objective metrics of ``runs`` of the campaign (a worker task)."""
     table, metrics, _ = simulate_runs(scenario_raw, seed, runs, 0)
     crit = metrics.criteria_arrays()
+    wheels = {"max_abs_wheel_speed_rad_s": np.asarray(crit["max_abs_wheel_speed_rad_s"], dtype=np.float64)} \
+        if "max_abs_wheel_speed_rad_s" in crit else {}
     return {
+        **wheels,
         "run": np.asarray(table["run"]),
         "finite": np.asarray(crit["finite"], dtype=bool),
         "settling_time_s": np.asarray(crit["settling_time_s"], dtype=np.float64),
@@ -303,12 +321,14 @@ def _evaluate(executor: ChunkExecutor, raw: dict[str, Any], seed: int, runs: lis
 @dataclass
 class Score:
     """A campaign against the requirements: the objective, one constraint value per requirement
-    (<= 0: every run meets it; else the worst run's relative violation), and why runs failed."""
+    (<= 0: every run meets it; else the worst run's relative violation), why runs failed, and each
+    requirement's worst run (its value and the bound: how close the campaign came)."""
 
     value: float
     constraints: dict[str, float]
-    failures: dict[str, dict[str, Any]]  # requirement -> {"runs": how many failed, "first": (run, value)}
+    failures: dict[str, dict[str, Any]]  # requirement -> {"runs": how many failed, "first": (run, value), "bound"}
     failed_runs: NDArray[np.bool_]  # (runs,) a run that broke any requirement
+    worst: dict[str, dict[str, float | None]] = field(default_factory=dict)  # requirement -> {"value": worst run's (None: none), "bound"}
 
     @property
     def feasible(self) -> bool:
@@ -322,12 +342,12 @@ def score(table: dict[str, NDArray[Any]], cfg: TuningConfig, scenario: Scenario)
     checks: dict[str, tuple[Array, float]] = {}  # requirement -> (per-run values, bound)
     if req.settle_by_t2:
         checks["settle_by_t2"] = (np.where(np.isfinite(table["settling_time_s"]), table["settling_time_s"], np.inf), ms.t2_s)
-    for name, metric in (("overshoot_max", "overshoot"), ("steady_max_abs_qev_max", "steady_max_abs_qev"),
-                         ("torque_sign_changes_per_s_max", "torque_sign_changes_per_s")):
+    for name, metric in BOUNDED_REQUIREMENTS.items():
         bound = getattr(req, name)
         if bound is not None:
             checks[name] = (np.where(np.isfinite(table[metric]), table[metric], np.inf), float(bound))
     constraints = {"finite": float(np.count_nonzero(~finite))}
+    worst_runs: dict[str, dict[str, float | None]] = {"finite": {"value": float(np.count_nonzero(~finite)), "bound": 0.0}}
     failures: dict[str, dict[str, Any]] = {}
     any_failed = ~finite
     if (~finite).any():
@@ -339,6 +359,8 @@ def score(table: dict[str, NDArray[Any]], cfg: TuningConfig, scenario: Scenario)
         worst = float(np.max(np.where(finite, margin, np.inf)))
         constraints[name] = min(worst, 1e6) if math.isfinite(worst) else 1e6
         failed = (values > bound) | ~finite
+        w = float(np.max(np.where(finite, values, np.inf)))
+        worst_runs[name] = {"value": w if math.isfinite(w) else None, "bound": bound}  # None: a run never settled, or diverged
         any_failed = any_failed | failed
         if failed.any():
             k = int(np.argmax(failed))
@@ -346,7 +368,7 @@ def score(table: dict[str, NDArray[Any]], cfg: TuningConfig, scenario: Scenario)
     metric = cfg.objective.metric
     worst_value = scenario.duration_s if metric == "settling_time_s" else 2.0  # |q_ev - rho| <= 2
     values = np.where(np.isfinite(table[metric]) & finite, table[metric], worst_value)
-    return Score(float(np.percentile(values, cfg.objective.percentile)), constraints, failures, any_failed)
+    return Score(float(np.percentile(values, cfg.objective.percentile)), constraints, failures, any_failed, worst_runs)
 
 
 def _trial_seed(seed: int, i: int) -> int:
@@ -490,6 +512,7 @@ def run_tuning(
                 for name, value in s.constraints.items():  # TPE reads them (Trial.set_constraint, Optuna 5)
                     trial.set_constraint(name, value)
                 trial.set_user_attr("failures", s.failures)
+                trial.set_user_attr("worst", s.worst)
                 study.tell(trial, s.value)
             done += 1
             bar.update(done, _best(study), sum(1 for t in _counted(study) if t.state == TrialState.COMPLETE
@@ -520,6 +543,7 @@ def _finish(out: Path, scenario: Scenario, cfg: TuningConfig, kind: str, study: 
         "parameters": {p: asdict(r) for p, r in cfg.parameters.items()}, "wall_time_s": wall_s,
         "feasible_trials": sum(1 for t in trials if _feasible(t)),
         "invalid_trials": sum(1 for t in trials if "invalid" in t.user_attrs),
+        "blocking": blocking(trials),
         "best": None,
     }
     _figures(out, study, cfg)
@@ -556,6 +580,28 @@ def _finish(out: Path, scenario: Scenario, cfg: TuningConfig, kind: str, study: 
         summary["confirmation"] = {"runs": len(runs), "first_run": runs[0], **confirmation}
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     return summary
+
+
+def blocking(trials: list[Any]) -> dict[str, dict[str, Any]]:
+    """Per requirement, over the complete trials: how many it blocked (its constraint > 0: a run
+    of the trial's campaign broke it), the closest any trial came (the smallest worst-run value,
+    and that trial) and the bound: what stops a study that finds no feasible trial."""
+    from optuna.trial import TrialState
+
+    out: dict[str, dict[str, Any]] = {}
+    complete = [t for t in trials if t.state == TrialState.COMPLETE and t.constraints]
+    for t in complete:
+        for name, c in t.constraints.items():
+            entry = out.setdefault(name, {"trials_blocked": 0, "trials": 0, "best_value": None, "best_trial": None, "bound": None})
+            entry["trials"] += 1
+            entry["trials_blocked"] += int(c > 0.0)
+            w = t.user_attrs.get("worst", {}).get(name)
+            if w is None:
+                continue
+            entry["bound"] = w["bound"]
+            if w["value"] is not None and (entry["best_value"] is None or w["value"] < entry["best_value"]):
+                entry["best_value"], entry["best_trial"] = w["value"], t.number
+    return out
 
 
 def _lookup(node: Any, path: str) -> Any:

@@ -30,9 +30,11 @@ import numpy as np
 from numba import prange
 
 from gnc_common.compiled import error_quaternion, inverse3_stack, jit, jit_parallel
-from sappc_controller.core.kernels import N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
-from sappc_controller.core.kernels import controller_step, error_quaternions
+from sappc_controller.core.kernels import N_COEF, N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
+from sappc_controller.core.kernels import controller_step
 from sappc_controller.core.kernels import kind_of, pack_params, start_coef
+from sappc_controller.core.base import SingularStartError
+from sappc_controller.core.input_check import REJECT_REASONS, InputBounds, sample_verdicts
 from spacecraft_sim.core.kernels import N_PLANT_WORK, disturbance_sample, disturbance_table, encode_disturbance, propagate
 from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_sensor, random_draws, reference_rate_tables
 from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, N_SENSOR_PARAMS, S_BIAS0, measure, white_noise_params
@@ -52,8 +54,8 @@ __all__ = ["CompiledInputs", "CompiledRun", "cache_is_warm", "ensure_compiled", 
 @jit
 def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
              kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, sprm, souts,
-             t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm,
-             stride, hist, x_hist, d_hist, s_hist, w_hist, x_final):
+             t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm, ibounds,
+             probe, start, stride, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final):
     """The whole time loop of one run (module docstring); histories every ``stride`` samples
     (``stride = 0``: none), final state into ``x_final``.
 
@@ -66,15 +68,29 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
     (T or 1, F, 6) the noise faults' draws): the measurement and the reference go through
     :func:`~spacecraft_sim.core.kernels.fault_sensor` and ``fault_reference``, the answer through
     ``fault_actuator``, and the controller answers as the node does in lockstep (the ``ANSWER_*``
-    codes of :mod:`sappc_msgs_py.contract`, into ``s_hist``): a complete valid sample is computed; without one, zero torque when
-    the last valid state is more than ``stale_ns`` [ns] older than the sample (stamps ``t_ns``),
-    else its last answer again (held).  The plant applies the delivered torque clipped to
-    ``u_max`` per axis.
+    codes of :mod:`sappc_msgs_py.contract`, into ``s_hist``).  A sample is valid when its five
+    inputs arrived (a dropout delivers none of the state's two or the reference's three) and pass
+    the node's input check (:func:`sappc_controller.core.input_check.sample_verdicts` with the
+    bounds ``ibounds``; each rejected input counted into ``rejected`` (2,): invalid, implausible).
+    A valid sample is computed; without one, zero torque (the watchdog) when no valid state
+    has been computed yet or the last one is more than ``stale_ns`` [ns] older than the sample
+    (stamps ``t_ns``), else its last answer again (held).  The plant applies the delivered torque
+    clipped to ``u_max`` per axis.
+
+    The run's start (README, "What the controller answers"): the controller starts at its
+    **first valid sample**, whose time is the performance function's time origin (``S_T0``) and
+    whose error fixed ``coef`` (:func:`sappc_controller.core.kernels.start_coef`, in Python: the
+    RPF's coefficients need scipy).  Everything before that sample is independent of ``coef``, so
+    a first pass with ``probe`` true finds it: it returns at the first valid sample with
+    ``start`` (6,) = (its index, its time, its error quaternion ``q_BR`` of the measured attitude
+    against the reference, by the kernels' own formula), ``start[0] = -1`` when the run has none;
+    :func:`_started` then computes ``coef``, and the second pass (``probe`` false) runs the loop.
 
     Recorded, as a bag of the same run records it: the *true* error quaternion and state (the
     metrics describe the real attitude), the delivered torque, and the controller's rows as last
     published (a zero answer publishes zero command and saturation and keeps the previous rows; a
-    held answer repeats them).
+    held answer repeats them; before the first computed sample the performance function, band,
+    ``eps``, ``z`` and ``V`` rows are NaN: the controller has none yet, as the node publishes).
 
     Actuator: with no wheels (``wprm`` (0, 6)) the ideal one, the delivered torque clipped to
     ``u_max`` per axis.  With ``N`` reaction wheels (spin axes ``wG`` (3, N), allocation ``wGp``
@@ -85,10 +101,14 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
     each wheel's speed relative to the body [rad/s] and its motor torque [N m] at every sample
     (the torque of the last sample computed, not applied)."""
     state = np.zeros(N_STATE)
-    state[S_T0] = t_grid[0]  # the first sample fixes the time origin
+    started = False  # the first valid sample fixes the time origin (S_T0)
     work = np.zeros((N_WORK, 4))
     out = np.zeros((N_OUT, 4))
-    pub = np.full((N_OUT, 4), np.nan)  # the rows last published (nothing yet)
+    pub = np.full((N_OUT, 4), np.nan)  # the rows last published: no performance function yet
+    for r in (O_TORQUE, O_CMD, O_SAT):
+        for c in range(4):
+            pub[r, c] = 0.0  # nothing commanded
+    start[0] = -1.0  # no valid sample (yet)
     pwork = np.zeros((N_PLANT_WORK, 7))
     x = x0.copy()  # (7,) or, with wheels, (7 + N,)
     nw = wprm.shape[0]
@@ -118,12 +138,21 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
         else:
             for i in range(7):
                 y[i] = x[i]
-        delivered = True
+        state_in, reference_in = True, True
         if nf > 0:
-            delivered = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, fdraws[min(k, fdraws.shape[0] - 1)], y)
-            delivered = fault_reference(t, fkind, fwin) and delivered
+            state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, fdraws[min(k, fdraws.shape[0] - 1)], y)
+            reference_in = fault_reference(t, fkind, fwin)
+        valid = sample_verdicts(state_in, reference_in, y[:4], y[4:], ref_q[k], ref_w[k], ref_wd[k], ibounds, rejected)
+        if valid and not started:
+            if probe:  # the first valid sample: what starts the controller (docstring)
+                start[0] = k
+                start[1] = t
+                error_quaternion(ref_q[k], y[:4], start[2:6])
+                return
+            state[S_T0] = t
+            started = True
         status = ANSWER_COMMANDED
-        if delivered:
+        if valid:
             controller_step(kind, t, dt, y[:4], y[4:], ref_q[k], ref_w[k], ref_wd[k], prm, coef, state, work, out)
             if not (np.isfinite(out[O_TORQUE, 0] + out[O_TORQUE, 1] + out[O_TORQUE, 2])
                     and np.isfinite(out[O_CMD, 0] + out[O_CMD, 1] + out[O_CMD, 2])):
@@ -131,7 +160,7 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
             else:
                 has_last = True
                 last_state_ns = t_ns[k]
-        elif has_last and t_ns[k] - last_state_ns > stale_ns:
+        elif not has_last or t_ns[k] - last_state_ns > stale_ns:  # no valid state yet, or too old
             status = ANSWER_WATCHDOG_ZERO
         else:
             status = ANSWER_HELD
@@ -156,7 +185,7 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
                 u_last[i] = u_cmd[i]
         for i in range(3):
             pub[O_TORQUE, i] = u_last[i]
-        if noisy or nf > 0:
+        if noisy or nf > 0 or status != ANSWER_COMMANDED:
             error_quaternion(ref_q[k], x[:4], pub[O_QBR])  # the true error (metrics)
         if use_table:
             for i in range(3):
@@ -194,28 +223,29 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
 @jit_parallel
 def run_batch_kernel(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
                      kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, sprm, souts,
-                     t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm,
-                     stride, hist, x_hist, d_hist, s_hist, w_hist, x_final):
+                     t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm, ibounds,
+                     probe, start, stride, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final):
     """Every run of a batch, in parallel over runs (``prange``); per-run arrays have a leading axis N
-    (the faults' and the wheels' too: a campaign may disperse them)."""
+    (the faults' and the wheels' too: a campaign may disperse them); ``probe``: the first pass of
+    :func:`_run_one` (each run's first valid sample into ``start`` (N, 6))."""
     for n in prange(x0.shape[0]):
         _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
                  d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], sprm[n], souts,
-                 t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws, wG[n], wGp[n], wprm[n],
-                 stride, hist[n], x_hist[n], d_hist[n], s_hist[n], w_hist[n], x_final[n])
+                 t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws, wG[n], wGp[n], wprm[n], ibounds,
+                 probe, start[n], stride, hist[n], x_hist[n], d_hist[n], s_hist[n], w_hist[n], rejected[n], x_final[n])
 
 
 @jit
 def run_single_kernel(n, kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
                       kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, sprm, souts,
-                      t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm,
-                      stride, hist, x_hist, d_hist, s_hist, w_hist, x_final):
+                      t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm, ibounds,
+                      probe, start, stride, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final):
     """Run ``n`` of the batch arrays alone (same argument types as in :func:`run_batch_kernel`); outputs
     (leading axis 1) at index 0."""
     _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
              d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], sprm[n], souts,
-             t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws, wG[n], wGp[n], wprm[n],
-             stride, hist[0], x_hist[0], d_hist[0], s_hist[0], w_hist[0], x_final[0])
+             t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws, wG[n], wGp[n], wprm[n], ibounds,
+             probe, start[0], stride, hist[0], x_hist[0], d_hist[0], s_hist[0], w_hist[0], rejected[0], x_final[0])
 
 
 #: Per-run fields of :class:`CompiledInputs` (leading axis N); ``rand_draws`` has it second.
@@ -235,7 +265,10 @@ class CompiledInputs:
     (:func:`spacecraft_sim.core.faults.encode_faults`), ``fdepth`` their delay rings' slots,
     ``fdraws`` (T or 1, F, 6) the noise faults' draws.  Reaction wheels (none: ``W = 0``, the ideal
     actuator): ``wG`` (N, 3, W) spin axes, ``wGp`` (N, W, 3) their minimum-norm allocation, ``wprm``
-    (N, W, 6) :meth:`~spacecraft_sim.core.wheels.ReactionWheels.params`; ``x0`` is then (N, 7 + W)."""
+    (N, W, 6) :meth:`~spacecraft_sim.core.wheels.ReactionWheels.params`; ``x0`` is then (N, 7 + W).
+    ``ibounds``: the controller's input bounds (:meth:`~sappc_controller.core.input_check.InputBounds.packed`).
+    ``coef`` and ``flags`` are each run's start (:func:`_started`) for the controller ``config`` with
+    the RPF policy ``on_infeasible``; :meth:`subset` with new sensor draws computes them again."""
 
     kind: int
     prm: np.ndarray
@@ -273,6 +306,9 @@ class CompiledInputs:
     wG: np.ndarray = field(default_factory=lambda: np.zeros((1, 3, 0)))
     wGp: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 3)))
     wprm: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 6)))
+    ibounds: np.ndarray = field(default_factory=lambda: InputBounds().packed())
+    config: Any = None
+    on_infeasible: str = "raise"
 
     @property
     def n_wheels(self) -> int:
@@ -286,7 +322,7 @@ class CompiledInputs:
         return (self.kind, self.prm, self.coef, self.x0, self.J, self.J_inv, self.substeps, self.dt, self.t, self.ref_q,
                 self.ref_w, self.ref_wd, self.use_table, self.d_table, self.kinds, self.dparams, self.dscale, self.dphase,
                 self.rand_draws, self.rand_win, self.noise, self.sprm, self.souts, self.t_ns, self.stale_ns, self.u_max,
-                self.fkind, self.fwin, self.fprm, self.fint, self.fdepth, self.fdraws, self.wG, self.wGp, self.wprm)
+                self.fkind, self.fwin, self.fprm, self.fint, self.fdepth, self.fdraws, self.wG, self.wGp, self.wprm, self.ibounds)
 
     def subset(self, lo: int, hi: int, noise: np.ndarray | None = None) -> CompiledInputs:
         """Runs ``lo .. hi - 1`` (contiguous copies: the same argument types), with ``noise``
@@ -295,8 +331,14 @@ class CompiledInputs:
         per_run["noise"] = np.ascontiguousarray(self.noise[lo:hi])
         if noise is not None:
             per_run["noise"] = np.ascontiguousarray(noise, dtype=np.float64)
-        return dataclasses.replace(self, **per_run, rand_draws=np.ascontiguousarray(self.rand_draws[:, lo:hi]),
-                                   flags={k: v[lo:hi] for k, v in self.flags.items()})
+        sub = dataclasses.replace(self, **per_run, rand_draws=np.ascontiguousarray(self.rand_draws[:, lo:hi]),
+                                  flags={k: v[lo:hi] for k, v in self.flags.items()})
+        if noise is None:
+            return sub
+        try:  # new measurements: each run's first valid sample, and so its start, may differ
+            return _started(sub)
+        except SingularStartError as exc:  # name the run in the whole batch
+            raise SingularStartError(exc.q_e0, exc.run + lo) from None
 
 
 @dataclass
@@ -305,7 +347,8 @@ class CompiledRun:
     :mod:`sappc_controller.core.kernels` (as published: see :func:`_run_one`), ``x`` (N, T_rec, 7),
     ``d`` (N, T_rec, 3), ``status`` (N, T_rec) int8 (the contract's ``ANSWER_*`` codes), ``wheels``
     (N, T_rec, W, 2) each wheel's speed [rad/s] and motor torque [N m] (W = 0: the ideal actuator),
-    final states (N, 7 + W)."""
+    final states (N, 7 + W), ``rejected`` (N, 2) int64 the inputs the controller rejected, by reason
+    (``invalid``, ``implausible``: :data:`~sappc_controller.core.input_check.REJECT_REASONS`)."""
 
     t: np.ndarray
     out: np.ndarray
@@ -314,10 +357,19 @@ class CompiledRun:
     status: np.ndarray
     wheels: np.ndarray
     x_final: np.ndarray
+    rejected: np.ndarray
 
     def status_counts(self) -> dict[str, np.ndarray]:
         """Samples of each status per run (N,), by :data:`ANSWER_NAMES`."""
         return {name: np.count_nonzero(self.status == code, axis=1) for code, name in enumerate(ANSWER_NAMES)}
+
+    def rejected_by_reason(self) -> dict[str, np.ndarray]:
+        """Inputs rejected per run (N,), by every reason of
+        :data:`~sappc_controller.core.input_check.REJECT_REASONS` (the node's summary keys; the
+        stamp checks never reject anything offline)."""
+        n = self.rejected.shape[0]
+        return {reason: (self.rejected[:, i] if i < self.rejected.shape[1] else np.zeros(n, dtype=np.int64))
+                for i, reason in enumerate(REJECT_REASONS)}
 
     def history(self) -> History:
         """The runs as a :class:`~sappc.evaluation.history.History` (arrays (T, N, ...): views, no copy)."""
@@ -372,8 +424,6 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     ref = scenario.reference.sample(t)
     ref_w, ref_wd = reference_rate_tables(scenario.reference, t)
     ref_q = _f64(ref.q_RN)
-    q_BR0 = error_quaternions(ref_q[0], q0)
-    coef, flags = start_coef(cfg, q_BR0, on_infeasible=on_infeasible)
     prm = _f64(pack_params(cfg, n, gains))
     model = scenario.disturbance if disturbance is None else disturbance
     kinds, dparams, dscale, dphase = encode_disturbance(model, n)
@@ -395,20 +445,53 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     fkind = np.ascontiguousarray(np.stack([e.kind for e in enc]), dtype=np.int64)
     fint = np.ascontiguousarray(np.stack([e.samples for e in enc]), dtype=np.int64)
     fdraws = noise_draws(tuple(per_run_faults[0]), t_ns) if any(e.has_noise for e in enc) else np.zeros((1, enc[0].n, 6))
-    return CompiledInputs(kind_of(cfg), prm, _f64(coef), x0, J, J_inv, int(scenario.rk4_substeps), float(scenario.control_period_s), t,
+    inp = CompiledInputs(kind_of(cfg), prm, np.zeros((n, N_COEF, 3)), x0, J, J_inv, int(scenario.rk4_substeps), float(scenario.control_period_s), t,
                           ref_q, _f64(ref_w), _f64(ref_wd), use_table, _f64(d_table), np.ascontiguousarray(kinds, dtype=np.int64),
                           _f64(dparams), _f64(dscale), _f64(dphase), _f64(rand_draws), np.ascontiguousarray(rand_win, dtype=np.int64),
-                          flags, noise, _f64(sprm, (n, N_SENSOR_PARAMS)), _f64(souts), t_ns,
+                          {}, noise, _f64(sprm, (n, N_SENSOR_PARAMS)), _f64(souts), t_ns,
                           seconds_to_ns(scenario.controller_node.stale_timeout_s), float(scenario.actuator.max_torque_Nm),
                           fkind, _f64(np.stack([e.window for e in enc])), _f64(np.stack([e.params for e in enc])), fint,
-                          max(e.depth for e in enc), _f64(fdraws), wG, wGp, wprm)
+                          max(e.depth for e in enc), _f64(fdraws), wG, wGp, wprm, _f64(scenario.controller_node.input_bounds().packed()),
+                          cfg, on_infeasible)
+    return _started(inp)
+
+
+def _started(inp: CompiledInputs) -> CompiledInputs:
+    """``inp`` with each run's start (:func:`_run_one`'s docstring): the first pass of the loop
+    (``probe``) finds each run's first valid sample and its error quaternion, from which
+    :func:`~sappc_controller.core.kernels.start_coef` (the node's own start: the 180 deg check, the
+    funnels, the RPF with ``inp.on_infeasible``) gives ``coef`` and ``flags``.  A run without a valid
+    sample never starts (zero ``coef``, no flags set).
+
+    Raises
+    ------
+    SingularStartError, ConfigError
+        As the node's first step would, naming the run's index in ``inp``.
+    """
+    n = inp.n_runs
+    start = np.zeros((n, 6))
+    hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final = _outputs(inp, 0, n)
+    run_batch_kernel(*inp.args(), True, start, 0, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final)
+    ok = start[:, 0] >= 0.0
+    coef = np.zeros((n, N_COEF, 3))
+    flags = {"flat": np.zeros((n, 3), bool), "clamped": np.zeros((n, 3), bool)}
+    if ok.any():
+        rows = np.flatnonzero(ok)
+        try:
+            c, f = start_coef(inp.config, start[rows, 2:6], on_infeasible=inp.on_infeasible)
+        except SingularStartError as exc:  # its index among the runs that started: the run's in the batch
+            raise SingularStartError(exc.q_e0, int(rows[exc.run])) from None
+        coef[rows] = c
+        for key in flags:
+            flags[key][rows] = f[key]
+    return dataclasses.replace(inp, coef=_f64(coef), flags=flags)
 
 
 def _outputs(inp: CompiledInputs, stride: int, n: int) -> tuple[np.ndarray, ...]:
     T = inp.t.size
     T_rec = 0 if stride == 0 else (T - 1) // stride + 1
     return (np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, T_rec), dtype=np.int8),
-            np.zeros((n, T_rec, inp.n_wheels, 2)), np.zeros((n, 7 + inp.n_wheels)))
+            np.zeros((n, T_rec, inp.n_wheels, 2)), np.zeros((n, 2), dtype=np.int64), np.zeros((n, 7 + inp.n_wheels)))
 
 
 def _check_noise(inp: CompiledInputs) -> None:
@@ -424,19 +507,20 @@ def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = N
     """
     _check_noise(inp)
     if into is not None and into.out.shape[0] == inp.n_runs and into.wheels.shape[2] == inp.n_wheels and into.x.shape[1] == (0 if stride == 0 else (inp.t.size - 1) // stride + 1):
-        hist, x_hist, d_hist, s_hist, w_hist, x_final = into.out, into.x, into.d, into.status, into.wheels, into.x_final
+        hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final = into.out, into.x, into.d, into.status, into.wheels, into.rejected, into.x_final
+        rejected[...] = 0  # counts: start again
     else:
-        hist, x_hist, d_hist, s_hist, w_hist, x_final = _outputs(inp, stride, inp.n_runs)
-    run_batch_kernel(*inp.args(), stride, hist, x_hist, d_hist, s_hist, w_hist, x_final)
-    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, w_hist, x_final)
+        hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final = _outputs(inp, stride, inp.n_runs)
+    run_batch_kernel(*inp.args(), False, np.zeros((inp.n_runs, 6)), stride, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final)
+    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, w_hist, x_final, rejected)
 
 
 def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
     """Run ``n`` of ``inp`` alone (one thread): histories with a leading axis of length 1."""
     _check_noise(inp)
-    hist, x_hist, d_hist, s_hist, w_hist, x_final = _outputs(inp, stride, 1)
-    run_single_kernel(n, *inp.args(), stride, hist, x_hist, d_hist, s_hist, w_hist, x_final)
-    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, w_hist, x_final)
+    hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final = _outputs(inp, stride, 1)
+    run_single_kernel(n, *inp.args(), False, np.zeros((1, 6)), stride, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final)
+    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, w_hist, x_final, rejected)
 
 
 def simulate_compiled(scenario: Scenario, controller: Any = None) -> CompiledRun:

@@ -21,6 +21,7 @@ from sappc.evaluation.history import History
 from sappc.evaluation.metrics import MetricsAccumulator
 from sappc.offline import compiled_loop
 from sappc_msgs_py.contract import ANSWER_NAMES
+from sappc_controller.core.input_check import REJECT_REASONS
 from sappc.scenario import ControllerKind, Scenario
 
 __all__ = ["ScenarioRun", "SimulationResult", "metrics_accumulator", "run_scenario", "simulate"]
@@ -38,7 +39,7 @@ class SimulationResult:
     controller: ControllerKind
     history: History
     metrics: dict[str, Any]
-    controller_summary: dict[str, int] = dataclasses.field(default_factory=dict)
+    controller_summary: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     def report(self) -> dict[str, Any]:
         """JSON-ready summary: metrics, controller, and every parameter used."""
@@ -75,19 +76,23 @@ class ScenarioRun:
     every run (``keep_history``), else ``None``; ``trajectory``: ``(t, q_ev, rho)`` of the first
     runs every ``stride`` samples (float32 (T_s, n, 3)), else ``None``; ``x_final`` (N, 7 + W) (W wheel momenta);
     ``status``: per run (N,), the samples the controller answered in each way
-    (:data:`~sappc_msgs_py.contract.ANSWER_NAMES`)."""
+    (:data:`~sappc_msgs_py.contract.ANSWER_NAMES`); ``rejected``: per run (N,), the inputs it
+    rejected, by reason (:data:`~sappc_controller.core.input_check.REJECT_REASONS`)."""
 
     flags: dict[str, np.ndarray]
     history: History | None
     trajectory: tuple[np.ndarray, np.ndarray, np.ndarray] | None
     x_final: np.ndarray
     status: dict[str, np.ndarray]
+    rejected: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
-    def controller_summary(self, k: int = 0) -> dict[str, int]:
+    def controller_summary(self, k: int = 0) -> dict[str, Any]:
         """What the controller did in run ``k``: samples answered in each way (``commanded``,
-        ``watchdog_zero``, ``held``, ``refused``) and ``samples``."""
+        ``watchdog_zero``, ``held``, ``refused``), ``samples``, and the input messages it rejected
+        (``rejected_inputs``, and ``rejected_by_reason``), as ``sappc run`` reports them."""
         counts = {name: int(v[k]) for name, v in self.status.items()}
-        return {"samples": sum(counts.values()), **counts}
+        by_reason = {reason: int(v[k]) for reason, v in self.rejected.items()}
+        return {"samples": sum(counts.values()), **counts, "rejected_inputs": sum(by_reason.values()), "rejected_by_reason": by_reason}
 
 
 def run_scenario(
@@ -115,7 +120,9 @@ def run_scenario(
     (shape (N, 4)) or 1.  Used by :func:`simulate` (one run, the scenario as written) and by
     Monte Carlo campaigns (dispersed initial states, inertias, disturbances, ``gains`` (N,) per
     name, sensor noise).  The start checks (180 deg singularity, funnel, RPF feasibility with
-    ``on_infeasible``) are made for every run before any runs.
+    ``on_infeasible``) are made for every run before any runs, on each run's first valid sample
+    (:func:`~sappc.offline.compiled_loop.prepare`); with ``sensors`` draws given per sub-batch,
+    again on that sub-batch's measurements before it runs.
 
     The runs go through the compiled loop ``sub_batch`` at a time (in parallel over runs); each
     sub-batch's full history feeds the metrics in one block and is dropped unless
@@ -151,6 +158,8 @@ def run_scenario(
     traj: list[tuple[np.ndarray, np.ndarray]] = []
     x_final = np.empty((n, 7 + inp.n_wheels))
     status = {name: np.zeros(n, dtype=np.int64) for name in ANSWER_NAMES}
+    rejected = {reason: np.zeros(n, dtype=np.int64) for reason in REJECT_REASONS}
+    flags = {k: np.zeros_like(v) for k, v in inp.flags.items()}
     buffer: compiled_loop.CompiledRun | None = None
     for lo in range(0, n, step):
         hi = min(lo + step, n)
@@ -163,6 +172,10 @@ def run_scenario(
         x_final[lo:hi] = buffer.x_final
         for name, count in buffer.status_counts().items():
             status[name][lo:hi] = count
+        for reason, count in buffer.rejected_by_reason().items():
+            rejected[reason][lo:hi] = count
+        for key, value in sub.flags.items():  # each run's start (computed again with its sensor draws)
+            flags[key][lo:hi] = value
         if keep_history:
             histories.append(h)
         if lo < n_traj:
@@ -174,7 +187,7 @@ def run_scenario(
     trajectories = None
     if traj:
         trajectories = (inp.t[::traj_stride].copy(), np.concatenate([q for q, _ in traj], axis=1), np.concatenate([r for _, r in traj], axis=1))
-    return metrics, ScenarioRun(inp.flags, histories[0] if keep_history else None, trajectories, x_final, status)
+    return metrics, ScenarioRun(flags, histories[0] if keep_history else None, trajectories, x_final, status, rejected)
 
 
 def simulate(scenario: Scenario, controller: ControllerKind | str | None = None) -> SimulationResult:

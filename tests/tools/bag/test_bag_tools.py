@@ -279,6 +279,7 @@ def test_the_run_summary_counts_what_the_controller_did_and_sets_the_exit_status
     assert run_exit_status({}, s, ["steady_max_abs_qev = 2e-4 > 1e-4"]) == EXIT_REQUIREMENT_FAILED == 4
     never = run([1, 1, 3], 0).controller_summary()
     assert never["commanded"] == 0 and run_exit_status({}, never) == EXIT_CONTROLLER_NEVER_COMMANDED == 3
+    assert run_exit_status({}, never, ["time_outside_constraint_s = 0.03 > 0"]) == 3  # never commanded says more than a requirement
     unknown = run([0, 0], 0, diagnostics=False).controller_summary()
     assert unknown["commanded"] is None and run_exit_status({}, unknown) == 0  # a plant of one's own without diagnostics
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 from bagmaker import write_bag
 
@@ -17,6 +18,9 @@ from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import joint_state_msg, quaternion_msg, torque_msg, vector3_msg
 
 from conftest import SCENARIOS
+from figure_checks import NO_EMPTY_LOG_AXES, assert_every_axes_shows_data, capture_figures
+
+pytestmark = NO_EMPTY_LOG_AXES  # the report draws its figures in this process
 
 
 def _bag(path: Path, scenario: str, speeds: np.ndarray | None, torques: np.ndarray | None, first_wheels: int = 0) -> Path:
@@ -36,7 +40,11 @@ def _bag(path: Path, scenario: str, speeds: np.ndarray | None, torques: np.ndarr
     return write_bag(path, messages, metadata={SCENARIO_RECORD: {"text": scenario}})
 
 
-def test_a_bag_with_wheels_reports_their_records_metrics_and_figure(tmp_path: Path) -> None:
+def test_a_bag_with_wheels_reports_their_records_metrics_and_figure(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """(The body rests on the reference: |q_ev| is exactly zero, and the bag has no performance
+    function, so the log figure has nothing positive to draw: it stays linear and says so, rather
+    than an empty log axes, issue 25, 2.5.)"""
+    figures = capture_figures(monkeypatch)
     text = (SCENARIOS / "paper_tracking_wheels.yaml").read_text()
     rng = np.random.default_rng(16)
     speeds, torques = 600.0 * rng.uniform(-1, 1, (100, 4)), 0.2 * rng.uniform(-1, 1, (100, 4))
@@ -51,6 +59,10 @@ def test_a_bag_with_wheels_reports_their_records_metrics_and_figure(tmp_path: Pa
     assert not any("joint_states" in n for n in a.notes), a.notes
     written = write_report(a, tmp_path / "report")
     assert tmp_path / "report" / "wheels.png" in written and (tmp_path / "report" / "wheels.png").stat().st_size > 10_000
+    # the bag has no controller diagnostics: no transformed error nor Lyapunov values to draw
+    assert_every_axes_shows_data(figures, empty_ok=lambda title, ax: "Lyapunov" in title)
+    log = next(f for f in figures if "magnitude" in f._suptitle.get_text())
+    assert all(ax.get_yscale() == "linear" and "no positive value" in ax.texts[0].get_text() for ax in log.axes)
 
 
 def test_a_bag_of_the_ideal_actuator_has_no_wheels(tmp_path: Path) -> None:

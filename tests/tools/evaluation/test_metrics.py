@@ -89,7 +89,7 @@ def oracle(h: History, *, steady_from_s: float, settle_threshold: float, t2_s: f
         else:
             settling = float(t[unsettled[-1] + 1])
         use = live & steady
-        outside = live & np.any((e < h.band_lower[:, n]) | (e > h.band_upper[:, n]), axis=1)
+        outside = live & ~np.all((e >= h.band_lower[:, n]) & (e <= h.band_upper[:, n]), axis=1)  # a NaN band: outside
         sign0 = np.where(e[0] >= 0.0, 1.0, -1.0)
         changes, reversals = _switching_counts(h.torque_B[use, n])
         span = t[steady][-1] - t[steady][0] if steady.sum() >= 2 else None
@@ -97,7 +97,7 @@ def oracle(h: History, *, steady_from_s: float, settle_threshold: float, t2_s: f
             "settling_time_s": settling,
             "steady_max_abs_qev": float(np.max(np.where(use, big, 0.0))) if steady.any() else None,
             "steady_mean_abs_qev": float((np.sum(np.abs(e[use]), axis=0) / steady.sum()).max()) if steady.any() else None,
-            "rpf_error_at_t2": float(np.abs(e[k2] - h.rho[k2, n]).max()) if has_t2 and live[k2] else None,
+            "rpf_error_at_t2": float(np.abs(e[k2] - h.rho[k2, n]).max()) if has_t2 and live[k2] and np.isfinite(h.rho[k2, n]).all() else None,
             "overshoot": float(max(0.0, np.max(-sign0 * e[live]))) if live.any() else 0.0,
             "max_abs_torque_Nm": float(np.abs(h.torque_B[live, n]).max()) if live.any() else 0.0,
             "torque_sign_changes_per_s": None if span is None else float(changes.max() / span),
@@ -360,6 +360,32 @@ def test_band_exits_saturation_and_return_after_a_fault() -> None:
     none = _accumulator(t, 2)  # no faults: the fault metrics are null
     none.add_history(h)
     assert none.run_metrics(0)["returned_to_constraint"] is None and none.run_metrics(0)["left_constraint_after_fault"] is None
+
+
+def test_a_sample_without_a_band_is_outside_the_constraint_and_without_rho_there_is_no_rpf_error() -> None:
+    """Before its first valid sample the controller has no performance function (NaN rows): the
+    error is not within a constraint there, so such a sample counts as outside; a run that never
+    had one is outside for its whole length and never returns; no rho at t2: ``rpf_error_at_t2``
+    is None.  (Issue 25, 2.2: offline counted NaN bands as inside, a never-commanded run 0 s.)"""
+    t = np.arange(10) * 0.1
+    q_ev = np.full((10, 2, 3), 0.01)
+    lower, upper = np.full((10, 2, 3), -0.1), np.full((10, 2, 3), 0.1)
+    rho = np.full((10, 2, 3), 0.02)
+    lower[:4, 0], upper[:4, 0], rho[:4, 0] = np.nan, np.nan, np.nan  # run 0 starts at 0.4 s
+    lower[:, 1], upper[:, 1], rho[:, 1] = np.nan, np.nan, np.nan  # run 1 never starts
+    upper[2, 0, 1] = 0.1  # one bound alone is no band either
+    h = _history(t, q_ev, rho=rho, band=(lower, upper))
+    acc = _accumulator(t, 2, t2_s=0.2, fault_windows=[(0.0, 1.0)])
+    acc.add_history(h)
+    m0, m1 = acc.run_metrics(0), acc.run_metrics(1)
+    assert m0["time_outside_constraint_s"] == 4 * 0.1 and m0["returned_to_constraint"] is True and m0["returned_at_s"] == t[4]
+    assert m1["time_outside_constraint_s"] == 10 * 0.1 and m1["returned_to_constraint"] is False and m1["returned_at_s"] is None
+    assert m0["rpf_error_at_t2"] is None and m1["rpf_error_at_t2"] is None
+    late = _accumulator(t, 2, t2_s=0.5)
+    late.add_history(h)
+    assert late.run_metrics(0)["rpf_error_at_t2"] == pytest.approx(0.01, abs=1e-17) and late.run_metrics(1)["rpf_error_at_t2"] is None
+    for got, want in zip((m0, m1), oracle(h, steady_from_s=1.0, settle_threshold=0.1, t2_s=0.2, fault_windows=[(0.0, 1.0)])):
+        _check(got, want)
 
 
 def test_a_failed_run_is_described_by_its_samples_before_the_failure() -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import subprocess
 import sys
 
@@ -14,6 +15,7 @@ import pytest
 import yaml
 
 from conftest import ROOT, SCENARIOS
+from figure_checks import NO_EMPTY_LOG_AXES, assert_every_axes_shows_data, capture_figures, points_in_view
 from sappc.montecarlo import campaign as mc
 from sappc.montecarlo.campaign import load_campaign_run, run_campaign
 from sappc.montecarlo.config import campaign_config
@@ -25,6 +27,8 @@ from gnc_common.validation import ConfigError
 from spacecraft_sim.core.faults import faults_from_list
 
 GOLDEN_TABLE = ROOT / "tests" / "data" / "golden_numpy_core_mc24_seed7.csv"
+
+pytestmark = NO_EMPTY_LOG_AXES  # campaigns draw their figures in-process
 
 BASE = yaml.safe_load((SCENARIOS / "paper_montecarlo.yaml").read_text())
 
@@ -177,20 +181,41 @@ def test_bad_dispersions_are_rejected_before_any_run(tmp_path, dispersions, frag
     assert not (tmp_path / "x").exists()
 
 
+def test_the_campaign_figures_show_every_run_and_trajectory(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The four campaign figures, each axes with data in view; the steady-state trajectories (log
+    axes from 15 s) show every positive point of every kept run's |q_ev| and |rho| (issue 25, 2.5:
+    three empty log axes and "Data has no positive values", which this module makes an error)."""
+    figures = capture_figures(monkeypatch)
+    run_campaign(_short(tmp_path, chunk_runs=4), runs=4, seed=2, out_dir=tmp_path / "c", progress=False)
+    names = {f._suptitle.get_text(): f for f in figures}
+    assert len(figures) == 4, list(names)
+    assert_every_axes_shows_data(figures)
+    steady = next(f for title, f in names.items() if title.endswith("steady state"))
+    for i, ax in enumerate(steady.axes):
+        assert ax.get_yscale() == "log"
+        segments = [seg for c in ax.collections for seg in c.get_segments()]
+        assert len(segments) == 2 * 4  # each kept run's |q_ev| and its |rho|
+        drawn = sum(int(np.count_nonzero(np.isfinite(seg[:, 1]) & (seg[:, 1] > 0))) for seg in segments)
+        assert drawn > 0 and points_in_view(ax) == drawn, (i, drawn, points_in_view(ax))  # all of it in view
+        assert min(seg[:, 0].min() for seg in segments) >= 15.0 - 1e-9
+
+
 def test_cli_end_to_end(tmp_path) -> None:
+    env = {**os.environ, "PYTHONWARNINGS": "error:Data has no positive values"}  # an empty log axis fails the command
     out = subprocess.run(
         [sys.executable, "-m", "sappc", "montecarlo", _short(tmp_path, chunk_runs=3), "--runs", "4", "--seed", "2",
          "--out", str(tmp_path / "cli"), "--json", str(tmp_path / "s.json"), "--no-progress"],
-        capture_output=True, text=True, cwd=ROOT,
+        capture_output=True, text=True, cwd=ROOT, env=env,
     )
     assert out.returncode == 0, out.stderr
     assert "4/4 runs pass" in out.stdout
     summary = json.loads((tmp_path / "s.json").read_text())
     assert summary["runs"] == 4 and summary["pass_fraction"] == 1.0
-    for name in ("runs.csv", "summary.json", "montecarlo_t2_error.png", "montecarlo_steady_error.png", "montecarlo_trajectories.png"):
+    for name in ("runs.csv", "summary.json", "montecarlo_t2_error.png", "montecarlo_steady_error.png", "montecarlo_trajectories.png",
+                 "montecarlo_trajectories_steady.png"):
         assert (tmp_path / "cli" / name).exists()
     rerun = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "cli"), "--run", "3",
-                            "--plots", str(tmp_path / "run3")], capture_output=True, text=True, cwd=ROOT)
+                            "--plots", str(tmp_path / "run3")], capture_output=True, text=True, cwd=ROOT, env=env)
     assert rerun.returncode == 0 and "run 3" in rerun.stdout and (tmp_path / "run3" / "qev.png").exists()
     nodir = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "nope"), "--run", "0", "--plots", str(tmp_path / "p")],
                            capture_output=True, text=True, cwd=ROOT)

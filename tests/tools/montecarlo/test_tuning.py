@@ -5,6 +5,7 @@ campaign against the requirements; the command's files load through the project'
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,11 @@ from sappc.montecarlo.tuning import CONFIRMATION_FIRST_RUN, run_tuning, score, t
 from sappc.scenario import load_scenario, scenario_from_mapping
 
 from conftest import ROOT, SAPPC, SCENARIOS
+from figure_checks import NO_EMPTY_LOG_AXES
+
+pytestmark = NO_EMPTY_LOG_AXES  # studies draw their figures in-process
+#: ``PYTHONWARNINGS`` of a command that draws figures: an empty log axis fails it.
+EMPTY_LOG_AXES_ERROR = "error:Data has no positive values"
 
 TUNE = SCENARIOS / "paper_tracking_tune.yaml"
 
@@ -150,7 +156,7 @@ def test_the_command_writes_gains_that_load_through_the_project_validation(tmp_p
     path = _small(tmp_path, requirements={"settle_by_t2": False})  # every proposal feasible: a best exists
     out = tmp_path / "study"
     proc = subprocess.run([*SAPPC, "tune", str(path), "--out", str(out), "--json", str(tmp_path / "t.json"), "--no-progress"],
-                          capture_output=True, text=True, cwd=ROOT, timeout=600)
+                          capture_output=True, text=True, cwd=ROOT, timeout=600, env={**os.environ, "PYTHONWARNINGS": EMPTY_LOG_AXES_ERROR})
     assert proc.returncode == 0, proc.stdout + proc.stderr
     summary = json.loads((tmp_path / "t.json").read_text())
     best = summary["best"]
@@ -179,3 +185,63 @@ def test_a_study_on_a_dask_cluster_or_local_workers_decides_as_one_in_this_proce
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         run_tuning(path, out_dir=tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False, confirm=False)
     assert _trials(tmp_path / "dask") == _trials(tmp_path / "workers") == _trials(tmp_path / "here")
+
+
+def test_a_study_without_a_feasible_trial_says_which_requirement_blocked_and_how_close(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 25, 2.8: a bound no gains can meet (steady max |q_ev| <= 1e-9) blocks every trial; the
+    command says so per requirement (trials blocked, the closest trial's worst run against the
+    bound), in its output and in summary.json, and exits 1.  The closest value is checked against
+    each trial's campaign evaluated again here; the requirements every trial met are not listed."""
+    path = _small(tmp_path, trials=3, requirements={"settle_by_t2": False, "steady_max_abs_qev_max": 1e-9})
+    out = tmp_path / "study"
+    proc = subprocess.run([*SAPPC, "tune", str(path), "--out", str(out), "--json", str(tmp_path / "t.json"), "--no-progress"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=600, env={**os.environ, "PYTHONWARNINGS": EMPTY_LOG_AXES_ERROR})
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    summary = json.loads((tmp_path / "t.json").read_text())
+    assert summary["best"] is None and summary["feasible_trials"] == 0
+    raw = yaml.safe_load(path.read_text())
+    worst = [float(tuning.evaluate_runs(tuning.candidate_mapping(raw, "sappc", params), 0, [0, 1, 2])["steady_max_abs_qev"].max())
+             for _, params, _, _ in _trials(out)]
+    b = summary["blocking"]["steady_max_abs_qev_max"]
+    assert b["trials_blocked"] == b["trials"] == 3 and b["bound"] == 1e-9
+    assert b["best_value"] == min(worst) and b["best_trial"] == int(np.argmin(worst))
+    line = f"steady_max_abs_qev_max blocked 3 of 3 trials; closest: trial {b['best_trial']}, worst run {min(worst):.4g} against the bound 1e-09"
+    assert line in proc.stdout, proc.stdout
+    assert summary["blocking"]["finite"]["trials_blocked"] == 0 and "finite blocked" not in proc.stdout
+
+
+def _wheel_tuning(requirement: float | None) -> dict[str, Any]:
+    """The wheel scenario (12 s) with the tuning scenario's campaign and tuning sections."""
+    raw = yaml.safe_load((SCENARIOS / "paper_tracking_wheels.yaml").read_text())
+    tune = yaml.safe_load(TUNE.read_text())
+    raw["duration_s"] = 12.0
+    raw["metrics"].update(steady_from_s=8.0, t2_s=10.0)
+    raw["montecarlo"], raw["tuning"] = tune["montecarlo"], tune["tuning"]
+    raw["tuning"]["requirements"] = {"settle_by_t2": False, **({"max_abs_wheel_speed_rad_s_max": requirement} if requirement else {})}
+    return raw
+
+
+def test_the_wheel_speed_requirement_is_usable_in_tuning() -> None:
+    """Issue 25, 2.8: the README's ``max_abs_wheel_speed_rad_s_max`` in a tuning section is accepted
+    with reaction wheels (refused, naming it, with the ideal actuator), each trial's campaign
+    measures it, and a run whose fastest wheel exceeds it breaks the requirement."""
+    raw = _wheel_tuning(5.0)
+    scenario = scenario_from_mapping(raw)
+    cfg, _ = tuning_config(scenario)
+    assert cfg.requirements.max_abs_wheel_speed_rad_s_max == 5.0
+    table = tuning.evaluate_runs(raw, 0, [0, 1])
+    speeds = table["max_abs_wheel_speed_rad_s"]
+    assert speeds.shape == (2,) and np.all(speeds > 5.0)  # the slew spins the wheels past 5 rad/s
+    s = score(table, cfg, scenario)
+    assert not s.feasible and s.failures["max_abs_wheel_speed_rad_s_max"]["runs"] == 2
+    assert s.constraints["max_abs_wheel_speed_rad_s_max"] == pytest.approx((speeds.max() - 5.0) / 5.0)
+    assert s.worst["max_abs_wheel_speed_rad_s_max"] == {"value": speeds.max(), "bound": 5.0}
+    loose = score(table, tuning_config(scenario_from_mapping(_wheel_tuning(float(speeds.max()))))[0], scenario)
+    assert loose.feasible  # at the bound: met
+    ideal = yaml.safe_load(TUNE.read_text())
+    ideal["tuning"]["requirements"]["max_abs_wheel_speed_rad_s_max"] = 500.0
+    with pytest.raises(ConfigError, match="tuning.requirements.max_abs_wheel_speed_rad_s_max needs reaction wheels"):
+        tuning_config(scenario_from_mapping(ideal))
+    negative = _wheel_tuning(-1.0)
+    with pytest.raises(ConfigError, match="tuning.requirements.max_abs_wheel_speed_rad_s_max = -1.0 is infeasible"):
+        tuning_config(scenario_from_mapping(negative))
