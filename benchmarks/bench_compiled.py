@@ -80,10 +80,10 @@ def bench_step(repeats: int) -> dict[str, object]:
     x = np.ascontiguousarray(run.x[0])
     n = inp.t.size
     # the node's samples: decoded messages are fresh float64 arrays (sappc_msgs_py.convert)
-    samples = [ControlSample(k * 10_000_000, (k * 10_000_000,) * 5, (x[k, :4].copy(), x[k, 4:].copy(), inp.ref_q[k].copy(),
-                                                                      inp.ref_w[k].copy(), inp.ref_wd[k].copy())) for k in range(n)]
+    samples = [ControlSample(k * 10_000_000, (k * 10_000_000,) * 5, (x[k, :4].copy(), x[k, 4:].copy(), inp.grid.ref_q[k].copy(),
+                                                                      inp.grid.ref_w[k].copy(), inp.grid.ref_wd[k].copy())) for k in range(n)]
     ctrl = sc.build_controller("sappc")
-    dt = inp.dt
+    dt = inp.grid.dt
 
     def node_step() -> float:
         ctrl.reset()
@@ -96,9 +96,9 @@ def bench_step(repeats: int) -> dict[str, object]:
     node_step()
     node = statistics.median(node_step() for _ in range(repeats))
 
-    prm, coef = inp.prm[0], inp.coef[0]
+    prm, coef = inp.controller.prm[0], inp.controller.coef[0]
     work, out = np.zeros((K.N_WORK, 4)), np.zeros((K.N_OUT, 4))
-    q_d, w_d, wd_d, t = inp.ref_q, inp.ref_w, inp.ref_wd, inp.t
+    q_d, w_d, wd_d, t = inp.grid.ref_q, inp.grid.ref_w, inp.grid.ref_wd, inp.t
 
     def python_call() -> None:
         state = K.new_state(1)[0]

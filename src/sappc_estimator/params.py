@@ -44,6 +44,8 @@ _FIELDS: dict[str, tuple[str, str]] = {
     "initial_attitude_sigma_rad": ("rad", "double[]"),
     "gate_false_alarm": ("", "double"),
     "max_consecutive_rejections": ("", "integer"),
+    "max_body_rate_rad_s": ("rad/s", "double"),
+    "max_attitude_norm_error": ("", "double"),
 }
 #: The config's optional fields whose ``None`` is an empty array parameter.
 _EMPTY_IS_NONE = ("initial_q_BN", "initial_attitude_sigma_rad")
@@ -57,6 +59,8 @@ _CHECKS = {
     "initial_attitude_sigma_rad": "[] or > 0 per axis; given with initial_q_BN",
     "gate_false_alarm": "in [0, 1)",
     "max_consecutive_rejections": "an integer >= 1",
+    "max_body_rate_rad_s": "> 0",
+    "max_attitude_norm_error": "in (0, 1e-6]",
 }
 
 

@@ -14,6 +14,7 @@ from conftest import SCENARIOS, random_unit_quaternions
 from controller.oracle import constraint_bound, rpf_evaluate
 from sappc.scenario import load_scenario
 from sappc_controller.core import kernels as K
+from sappc_controller.core import packing as KP
 from sappc_controller.core.common import ActuatorConfig
 from sappc_controller.core.rpf import ReferencePerformanceFunction
 from gnc_common.attitude import euler_to_quaternion, quat_multiply
@@ -146,7 +147,7 @@ def test_one_run_alone_equals_the_same_run_inside_a_batch_bit_for_bit(kind) -> N
 def _sappc_transform(cfg, rpf: ReferencePerformanceFunction):  # type: ignore[no-untyped-def]
     """The compiled SMETF transformation (``kernels.sappc_transform``) of one run, cold (no warm
     start): ``(q_ev, tau) -> (eps, psi, eta, d eps / d delta)``."""
-    prm, coef = K.pack_params(cfg)[0], K.rpf_coef(rpf)[0]
+    prm, coef = KP.pack_params(cfg)[0], KP.rpf_coef(rpf)[0]
     work, out = np.zeros((K.N_WORK, 4)), np.zeros((K.N_OUT, 4))
 
     def transform(q_ev: np.ndarray, tau: float) -> tuple[np.ndarray, ...]:
@@ -353,7 +354,7 @@ def test_reconfigure_changes_the_packed_gains_from_the_next_step() -> None:
     b = fresh.step(0.0, 0.01, q, [0.01, 0, 0], Q_D, W_D, WDOT_D).copy()
     assert not np.array_equal(a.torque_cmd_B, b.torque_cmd_B)
     changed.reconfigure(new)
-    np.testing.assert_array_equal(changed._prm, K.pack_params(new))
+    np.testing.assert_array_equal(changed._prm, KP.pack_params(new))
     changed._state[...] = fresh._state  # same filter and warm start: only the gains can differ
     a = changed.step(0.01, 0.01, q, [0.02, 0, 0], Q_D, W_D, WDOT_D).copy()
     b = fresh.step(0.01, 0.01, q, [0.02, 0, 0], Q_D, W_D, WDOT_D).copy()
@@ -361,7 +362,7 @@ def test_reconfigure_changes_the_packed_gains_from_the_next_step() -> None:
     np.testing.assert_array_equal(a.torque_B, b.torque_B)
     with pytest.raises(ConfigError, match="gains.T3_s cannot change"):
         changed.reconfigure(dataclasses.replace(new, gains=dataclasses.replace(new.gains, T3_s=1.0)))
-    np.testing.assert_array_equal(changed._prm, K.pack_params(new))  # all or nothing
+    np.testing.assert_array_equal(changed._prm, KP.pack_params(new))  # all or nothing
 
 
 def test_outputs_are_views_valid_until_the_next_step_and_copy_keeps_them() -> None:

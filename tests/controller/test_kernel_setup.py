@@ -5,7 +5,7 @@ whose gains coincide (``T1_s = T2_s``, BLFPPC's ``m = 1/2``) and whose runs stay
 reference: a kernel reading one parameter for another, or ``Gamma^-1``'s ``q_e0`` floor, would
 pass it.  Here the same comparison (1e-12 relative, the parity test's bound: libm against numpy's
 transcendental functions) with every gain distinct and errors beyond 150 deg, and the Python-side
-set-up (:func:`~sappc_controller.core.kernels.pack_params`, ``start_coef``, ``new_state``) against
+set-up (:func:`~sappc_controller.core.packing.pack_params`, ``start_coef``, ``new_state``) against
 what their docstrings state.
 """
 
@@ -21,6 +21,7 @@ from controller.oracle import OracleController
 from gnc_common.attitude import quat_multiply
 from sappc.scenario import load_scenario
 from sappc_controller.core import kernels as K
+from sappc_controller.core import packing as KP
 
 #: The parity test's bound (test_kernels_parity._close): libm vs numpy's SIMD functions, ~1e-16 per call.
 RTOL = 1e-12
@@ -80,12 +81,12 @@ def test_pack_params_takes_per_run_gains() -> None:
     dispersions); the others stay the config's."""
     cfg = _distinct("sappc")
     gains = {"K_q": np.array([0.2, 0.4]), "K_omega": np.array([0.5, 0.6]), "D_m_Nm": np.array([0.01, 0.02]), "mu_rad_s": np.array([1e-4, 2e-4])}
-    prm = K.pack_params(cfg, 2, gains)
+    prm = KP.pack_params(cfg, 2, gains)
     assert prm.shape == (2, K.N_PARAMS)
     for name, col in (("K_q", K.P_KQ), ("K_omega", K.P_KW), ("D_m_Nm", K.P_DM), ("mu_rad_s", K.P_MU)):
         assert prm[:, col].tolist() == gains[name].tolist(), name
     assert prm[:, K.P_T1].tolist() == [3.3, 3.3] and prm[:, K.P_T2].tolist() == [2.7, 2.7] and prm[:, K.P_Q0FLOOR].tolist() == [2e-3] * 2
-    np.testing.assert_array_equal(K.pack_params(cfg, 2), K.pack_params(cfg, 1).repeat(2, axis=0))
+    np.testing.assert_array_equal(KP.pack_params(cfg, 2), KP.pack_params(cfg, 1).repeat(2, axis=0))
 
 
 def test_start_coef_flags_and_options() -> None:
@@ -94,11 +95,11 @@ def test_start_coef_flags_and_options() -> None:
     has sign +1."""
     q_BR0 = np.array([[0.0, -0.1, 0.2, 0.97467943448]])
     for name in ("trappc", "blfppc"):
-        coef, flags = K.start_coef(_distinct(name), q_BR0)
+        coef, flags = KP.start_coef(_distinct(name), q_BR0)
         assert coef[0, K.C_SIGN].tolist() == [1.0, -1.0, 1.0]
         assert {k: (v.shape, bool(v.any())) for k, v in flags.items()} == {"flat": ((1, 3), False), "clamped": ((1, 3), False)}
     with pytest.raises(TypeError):
-        K.start_coef(_distinct("sappc"), q_BR0, "raise")  # type: ignore[call-arg]
+        KP.start_coef(_distinct("sappc"), q_BR0, "raise")  # type: ignore[call-arg]
 
 
 @pytest.mark.parametrize("name", ["trappc", "blfppc"])
@@ -110,8 +111,8 @@ def test_a_benchmark_refuses_an_initial_error_on_its_funnel(name: str) -> None:
     cfg = _distinct(name)
     assert (cfg.pf.rho_0 if name == "trappc" else cfg.ftppf.rho_initial) == 0.5
     with pytest.raises(ConfigError, match="must start inside its funnel"):
-        K.start_coef(cfg, np.array([[0.5, 0.0, 0.0, np.sqrt(0.75)]]))
-    K.start_coef(cfg, np.array([[np.nextafter(0.5, 0.0), 0.0, 0.0, np.sqrt(0.75)]]))
+        KP.start_coef(cfg, np.array([[0.5, 0.0, 0.0, np.sqrt(0.75)]]))
+    KP.start_coef(cfg, np.array([[np.nextafter(0.5, 0.0), 0.0, 0.0, np.sqrt(0.75)]]))
 
 
 def test_new_state_starts_empty_at_its_time_origin() -> None:

@@ -30,7 +30,7 @@ from sappc_controller.core import kernels as K
 from sappc_controller.inputs import ControlSample, step_sample
 from sappc_controller.params import CONTROLLER_CLASSES, config_from_parameters, parameters_from_config
 from spacecraft_sim.core import kernels as PK
-from spacecraft_sim.core.disturbance import disturbances_from_list
+from spacecraft_sim.core.disturbance import disturbances_from_list, encode_disturbance, random_draws
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
 
 GOLDEN = ROOT / "tests" / "data" / "golden_numpy_core.npz"
@@ -106,8 +106,8 @@ def test_the_node_step_gives_the_offline_run_bit_for_bit(name: str) -> None:
     saturated = np.empty((inp.t.size, 3), dtype=bool)
     for k in range(inp.t.size):
         x = run.x[0, k]
-        sample = Sample(k, (k,) * 5, (x[:4].copy(), x[4:].copy(), inp.ref_q[k], inp.ref_w[k], inp.ref_wd[k]))
-        out = step_sample(ctrl, inp.dt, sample)
+        sample = Sample(k, (k,) * 5, (x[:4].copy(), x[4:].copy(), inp.grid.ref_q[k], inp.grid.ref_w[k], inp.grid.ref_wd[k]))
+        out = step_sample(ctrl, inp.grid.dt, sample)
         for f in ROWS:
             outs[f][k] = getattr(out, f)
         saturated[k] = out.saturated
@@ -138,7 +138,7 @@ def test_compiled_run_reproduces_numpy_golden(scenario: str, controller: str, go
     quaternion's components carry the same absolute error whatever their size."""
     sc = load_scenario(SCENARIOS / f"{scenario}.yaml")
     inp = prepare(sc, controller)
-    inp.ref_q[:] = sim_oracle.reference_quaternions_dop853(inp.t, np.array(sc.reference.q_RN0), sc.reference.amplitude_deg_s,
+    inp.grid.ref_q[:] = sim_oracle.reference_quaternions_dop853(inp.t, np.array(sc.reference.q_RN0), sc.reference.amplitude_deg_s,
                                                           sc.reference.periods_s)
     run = run_single(inp, 0, stride=1)
     torque = run.out[0, :, K.O_TORQUE, :3]
@@ -179,7 +179,7 @@ def _dispersed_batch(n: int = 5, duration: float = 3.0):  # type: ignore[no-unty
 
 def test_batch_run_equals_run_alone_bit_for_bit() -> None:
     inp = _dispersed_batch()
-    assert not inp.use_table
+    assert not inp.disturbance.use_table
     batch = run_batch(inp, stride=1)
     for n in range(inp.n_runs):
         alone = run_single(inp, n, stride=1)
@@ -203,8 +203,8 @@ def test_every_disturbance_kind_equals_numpy_model() -> None:
     ])
     t = np.arange(301) * 0.01
     ref = model.torque_B(t, 2)  # (T, 2, 3)
-    kinds, dparams, dscale, dphase = PK.encode_disturbance(model, 2)
-    draws, win = PK.random_draws(model, t, 2)
+    kinds, dparams, dscale, dphase = encode_disturbance(model, 2)
+    draws, win = random_draws(model, t, 2)
     for n in range(2):
         d = PK.disturbance_table(t, kinds, dparams, dscale[n], dphase[n], draws[:, n], win)
         assert np.max(np.abs(d - ref[:, n])) <= 1e-15
@@ -228,7 +228,7 @@ def test_plant_and_reference_kernels_equal_numpy() -> None:
         assert np.max(np.abs(x - ref[n])) <= 1e-15
     sc = load_scenario(SCENARIOS / "paper_tracking.yaml")
     t = np.arange(6001) * 0.01
-    w_k, wd_k = PK.reference_rate_tables(sc.reference, t)
+    w_k, wd_k = sc.reference.rates(t)
     assert _close(w_k, sc.reference.omega_RN_R(t)) <= 1e-13
     assert _close(wd_k, sc.reference.omegadot_RN_R(t)) <= 1e-13
 

@@ -1,6 +1,6 @@
 """RPF (eq. RPF, docs/paper_notes.md, errors 1 and 2) and the time-varying constraint (eq. delta_i):
 the set-up (coefficients by Lambert W, feasibility) in Python, the evaluation compiled
-(``kernels.rpf_evaluate``, fed by ``kernels.rpf_coef``), as the law uses them."""
+(``kernels.rpf_evaluate``, fed by ``packing.rpf_coef``), as the law uses them."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from controller.oracle import constraint_bound
 from sappc_controller.core import kernels as K
+from sappc_controller.core import packing as KP
 from sappc_controller.core.rpf import (
     InfeasibleRPFError,
     ReferencePerformanceFunction,
@@ -26,9 +27,9 @@ E0_EXP1 = [0.3254, 0.4068, -0.3254]
 
 def _evaluate(r: ReferencePerformanceFunction, t: float) -> tuple[np.ndarray, np.ndarray]:
     """``rho``, ``rho_dot`` (N, 3) of the compiled ``kernels.rpf_evaluate`` with the run constants of
-    ``kernels.rpf_coef`` and the parameters packed from a SAPPC config holding ``r.params``."""
+    ``packing.rpf_coef`` and the parameters packed from a SAPPC config holding ``r.params``."""
     cfg = SappcConfig(((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), r.params, B0=0.01, gains=BacksteppingGains(1.0, 1.0, 0.0, 1.0))
-    prm, coef = K.pack_params(cfg)[0], K.rpf_coef(r)
+    prm, coef = KP.pack_params(cfg)[0], KP.rpf_coef(r)
     rho, rho_dot = np.empty(r.sign.shape), np.empty(r.sign.shape)
     for n in range(coef.shape[0]):
         for i in range(3):
@@ -202,7 +203,7 @@ def test_the_compiled_law_uses_the_tube_of_half_width_B0() -> None:
     ``rho -+ B0``, and ``z = q_ev / rho``."""
     r = ReferencePerformanceFunction(RPFParameters(l=0.49, **TABLE1), E0_EXP1)
     cfg = SappcConfig(((4.0, 0.0, 0.0), (0.0, 4.0, 0.0), (0.0, 0.0, 4.0)), r.params, B0=0.016, gains=BacksteppingGains(0.3, 1.0, 0.0, 1.0))
-    prm, coef = K.pack_params(cfg)[0], K.rpf_coef(r)[0]
+    prm, coef = KP.pack_params(cfg)[0], KP.rpf_coef(r)[0]
     work, out = np.zeros((K.N_WORK, 4)), np.zeros((K.N_OUT, 4))
     for t in (0.0, 3.0, 18.0, 25.0):
         work[K.W_QBR, :3] = [0.3, 0.2, -0.1]

@@ -154,6 +154,7 @@ class MekfOracle:
     gate : threshold on the NIS (``inf``: no gate).
     max_rejections : consecutive rejections that re-initialise the attitude (>= 1).
     init : ``"from_tracker"`` or ``"from_prior"``; q_prior : (4,) used with ``"from_prior"``.
+    max_norm_error, max_rate : the plausibility bounds of step 0 (norm error, rate [rad/s]).
     nis_initial : the "last NIS" before any update (the page does not state it; the caller
         passes the kernel's ``new_state()`` value, see the test module).
     """
@@ -168,6 +169,8 @@ class MekfOracle:
     max_rejections: int
     init: str = "from_tracker"
     q_prior: np.ndarray | None = None
+    max_norm_error: float = 1e-6
+    max_rate: float = 10.0
     nis_initial: float = float("nan")
     # filter state between steps
     initialised: bool = False
@@ -204,7 +207,8 @@ class MekfOracle:
         return cls(R_rad2=three(mekf.EP_R), sv2_rad2_s=three(mekf.EP_SV2), su2_rad2_s3=three(mekf.EP_SU2),
                    P0a_rad2=three(mekf.EP_P0A), P0b_rad2_s2=three(mekf.EP_P0B), b0_rad_s=three(mekf.EP_B0),
                    gate=float(prm[mekf.EP_GATE]), max_rejections=int(prm[mekf.EP_MAXREJ]), init=init,
-                   q_prior=np.array(prm[mekf.EP_Q0:mekf.EP_Q0 + 4], dtype=np.float64), nis_initial=nis_initial)
+                   q_prior=np.array(prm[mekf.EP_Q0:mekf.EP_Q0 + 4], dtype=np.float64), nis_initial=nis_initial,
+                   max_norm_error=float(prm[mekf.EP_MAX_NORM_ERR]), max_rate=float(prm[mekf.EP_MAX_RATE]))
 
     # -- the page's steps ------------------------------------------------------------------
 
@@ -261,8 +265,8 @@ class MekfOracle:
         q_meas = np.asarray(q_meas, dtype=np.float64)
         omega_meas = np.asarray(omega_meas, dtype=np.float64)
         # 0. no measurement: nothing changes, no output
-        if not (np.all(np.isfinite(q_meas)) and np.all(np.isfinite(omega_meas))):
-            return Output("none")
+        if not (abs(np.linalg.norm(q_meas) - 1.0) <= self.max_norm_error and np.linalg.norm(omega_meas) <= self.max_rate):
+            return Output("none")  # a NaN fails the comparisons too
         # 1. a new tracker sample: the first step's, or one differing in any component
         assert self.q_prev is not None or not self.seen
         new = (not self.seen) or bool(np.any(q_meas != self.q_prev))

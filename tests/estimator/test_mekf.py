@@ -727,3 +727,20 @@ def test_nees_consistency_monte_carlo() -> None:
           f"over {len(nis_all)} updates in {nis_band.round(4)}")
     assert band[0] <= anees <= band[1]
     assert nis_band[0] <= nis_all.mean() <= nis_band[1]
+
+
+def test_an_implausible_sample_is_no_measurement() -> None:
+    """Step 0's plausibility bounds: a rate beyond ``max_body_rate_rad_s`` or a quaternion off unit
+    norm by more than ``max_attitude_norm_error`` changes nothing and gives no estimate, as a
+    dropped sample does (a sensor or link fault must not corrupt the filter for the rest of the run)."""
+    run = simulate(2.0, 24, rate_scale_rad_s=0.01)
+    prm = mekf_config().params()
+    y = run.y.copy()
+    y[40, 4] = 11.0  # beyond the 10 rad/s bound
+    y[41, :4] *= 1.0 + 2e-6  # norm off by 2e-6 > 1e-6
+    kr = run_kernel(prm, run.t_s, y)
+    assert kr.status[40] == kr.status[41] == mekf.STATUS_NONE and np.all(np.isnan(kr.out[40:42, :mekf.EO_STATUS]))
+    skipped = run_kernel(prm, np.delete(run.t_s, [40, 41]), np.delete(y, [40, 41], axis=0))
+    np.testing.assert_array_equal(kr.q_hat[42:], skipped.q_hat[40:])
+    y[40, 4] = 9.0  # within the bounds: a measurement
+    assert run_kernel(prm, run.t_s[:41], y[:41]).status[40] != mekf.STATUS_NONE

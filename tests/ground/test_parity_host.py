@@ -24,7 +24,7 @@ from sappc.offline.compiled_loop import prepare
 h = hashlib.sha256()
 for name in ("paper_tracking", "paper_tracking_wheels", "paper_tracking_flight"):
     inp = prepare(load_scenario(f"config/scenarios/{name}.yaml"))
-    for a in (inp.ref_q, inp.ref_w, inp.ref_wd, inp.J_inv, inp.wGp, inp.wG, inp.x0, inp.coef, inp.prm, inp.d_table):
+    for a in (inp.grid.ref_q, inp.grid.ref_w, inp.grid.ref_wd, inp.plant.J_inv, inp.actuator.G_pinv, inp.actuator.G, inp.plant.x0, inp.controller.coef, inp.controller.prm, inp.disturbance.table):
         h.update(np.ascontiguousarray(a).tobytes())
 print(h.hexdigest())
 """

@@ -16,7 +16,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from sappc.scenario import load_scenario
-from sappc_controller.core.kernels import pack_params
+from sappc_controller.core.packing import pack_params
 from sappc_controller.params import PARAMETER_MAX, parameters_from_config
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import (

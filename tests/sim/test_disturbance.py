@@ -16,6 +16,8 @@ from spacecraft_sim.core.disturbance import (
     RandomTorque,
     StepTorque,
     disturbances_from_list,
+    encode_disturbance,
+    random_draws,
 )
 from spacecraft_sim.core.reference import sample_times
 from gnc_common.validation import ConfigError
@@ -131,18 +133,18 @@ def test_bad_models_are_rejected_by_name(build, fragment) -> None:
 
 
 def test_random_draws_default_to_one_run_of_the_models_seed() -> None:
-    """The compiled random disturbance's draw tables (``kernels.random_draws``): one run by default,
+    """The compiled random disturbance's draw tables (``random_draws``): one run by default,
     run n drawing with ``seed + n``, one draw per hold window of the grid."""
     from spacecraft_sim.core import kernels as PK
 
     model = DisturbanceSum((RandomTorque((1e-3, 2e-3, 3e-3), 0.5, seed=4),))
     t = np.arange(5) * 0.25  # windows 0, 0, 1, 1, 2
-    draws, win = PK.random_draws(model, t)
+    draws, win = random_draws(model, t)
     assert draws.shape == (1, 1, 3, 3) and win.tolist() == [[0, 0, 1, 1, 2]]
     np.testing.assert_array_equal(draws[0, 0, 2], np.random.default_rng([4, 2]).standard_normal(3))
-    kinds, dparams, dscale, dphase = PK.encode_disturbance(model)  # its encoding: one run by default too
+    kinds, dparams, dscale, dphase = encode_disturbance(model)  # its encoding: one run by default too
     assert kinds.tolist() == [PK.D_RANDOM] and dscale.shape == dphase.shape == (1, 1) and dparams[0, :3].tolist() == [1e-3, 2e-3, 3e-3]
-    two, _ = PK.random_draws(model, t, 2)
+    two, _ = random_draws(model, t, 2)
     np.testing.assert_array_equal(two[0, 0], draws[0, 0])
     np.testing.assert_array_equal(two[0, 1, 1], np.random.default_rng([5, 1]).standard_normal(3))
 

@@ -339,7 +339,7 @@ def bag_run(bag: Bag) -> BagRun:
     )
 
 
-def _wheel_records(bag: Bag, stamps_ns: NDArray[np.int64]) -> dict[str, Array]:
+def _wheel_records(bag: Bag, stamps_ns: NDArray[np.int64]) -> dict[str, Any]:
     """``wheel_speed_rad_s`` and ``wheel_torque_Nm`` (T, 1, W) from ``joint_states`` at the state
     stamps (the message of the same stamp, else the latest before it: NaN before the first);
     nothing when the bag has no wheels."""

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from sappc.evaluation.estimation import EstimateHistory
+
 __all__ = ["History"]
 
 Array = NDArray[np.float64]
@@ -20,7 +22,9 @@ class History:
     """Full time histories of a run or a batch: arrays (T, N, ...) with ``t`` (T,).
 
     With reaction wheels (W of them), ``wheel_speed_rad_s`` (T, N, W) each wheel's speed relative
-    to the body and ``wheel_torque_Nm`` (T, N, W) its motor torque; ``None`` with the ideal actuator."""
+    to the body and ``wheel_torque_Nm`` (T, N, W) its motor torque; ``None`` with the ideal actuator.
+    With an estimator, ``estimate`` what it gave (:class:`~sappc.evaluation.estimation.EstimateHistory`);
+    ``None`` without."""
 
     t: Array
     q_BN: Array
@@ -38,6 +42,7 @@ class History:
     V: Array
     wheel_speed_rad_s: Array | None = None
     wheel_torque_Nm: Array | None = None
+    estimate: EstimateHistory | None = None
 
     @property
     def q_ev(self) -> Array:

@@ -1,89 +1,161 @@
 """The offline closed loop in compiled code: whole runs, one at a time or many in parallel.
 
-Timing (the same as :mod:`sappc.offline.closed_loop` and the lockstep ROS 2 graph): at
-``t_k = k dt`` the plant's state is sampled, the controller computes the torque from it and the
-reference at ``t_k``, the disturbance is sampled at ``t_k``, and the plant integrates over
-``[t_k, t_k+1]`` with both held (zero-order hold).  Samples ``k = 0 .. n_steps``; the torque of
-the last sample is recorded but not applied.
+Timing (the same as the lockstep ROS 2 graph): at ``t_k = k dt`` the plant's state is sampled
+(the sensors measure it, the estimator filters the measurement), the controller computes the torque
+from it and the reference at ``t_k``, the disturbance is sampled at ``t_k``, and the plant
+integrates over ``[t_k, t_k+1]`` with both held (zero-order hold).  Samples ``k = 0 .. n_steps``;
+the torque of the last sample is recorded but not applied.
 
-One code path: :func:`_run_one` is the whole time loop of one run (controller kernel
-:func:`sappc_controller.core.kernels.controller_step`, plant kernel
-:func:`spacecraft_sim.core.kernels.propagate`, reference tables, disturbance kernel).
-:func:`run_batch_kernel` calls it for every run in a ``prange`` (runs are independent: each has
-its own parameters, state and scratch arrays), :func:`run_single_kernel` for one run, with the
-same argument types, so run ``k`` of a batch is the run alone, bit for bit.
+The models of the loop, each packing its own compiled arrays
+-------------------------------------------------------------
+Every model hands the loop one ``NamedTuple`` of arrays, made by its own ``pack_*`` function in its
+own room, and the kernels that use it; per-run arrays carry the batch's run axis (the tuple's
+``run_axes`` says which axis), the others are shared by every run:
 
-What every run shares (reference, and the disturbance when no run changes it) is computed
-once before the loop: the reference quaternion is integrated by
-:meth:`spacecraft_sim.core.reference.PaperReference.sample` (DOP853) and its rates by the rate
-kernel; a shared disturbance becomes a (T, 3) table.
+===================  ==========================================================  =========================================
+model                arrays (packed by)                                          kernels the loop calls
+===================  ==========================================================  =========================================
+grid and reference   :class:`LoopGrid` (:func:`prepare`)                         the reference tables
+controller           ``ControllerArrays`` (:func:`sappc_controller.core.packing.pack_controller`)  ``controller_step``; the input check
+plant (rigid body)   ``PlantArrays`` (:func:`spacecraft_sim.core.dynamics.pack_plant`)              ``propagate``
+actuator             ``ActuatorArrays`` (:func:`spacecraft_sim.core.wheels.pack_actuator`)          ``wheel_torques``, ``propagate_wheels_into``
+sensors              ``SensorArrays`` (:func:`spacecraft_sim.core.sensors.pack_sensors`)            ``measure_run``
+estimator            ``EstimatorArrays`` (:func:`sappc_estimator.core.config.pack_estimator`)       ``mekf_step``
+disturbance          ``DisturbanceArrays`` (:func:`spacecraft_sim.core.disturbance.pack_disturbance`)  ``disturbance_at``
+faults               ``FaultArrays`` (:func:`spacecraft_sim.core.faults.pack_faults`)               ``fault_sensor``, ``fault_reference``, ``fault_actuator``
+===================  ==========================================================  =========================================
+
+Adding a model is its room (its arrays, its ``pack_*``, its kernels) and one registration here: a
+field of :class:`CompiledInputs`, its ``pack_*`` call in :func:`prepare` and its kernels' call at
+their place in :func:`_run_one` (the closed loop's order is the one thing the loop knows).
+
+One code path: :func:`_run_one` is the whole time loop of one run; :func:`run_batch_kernel` calls
+it for every run in a ``prange`` (runs are independent: each has its own parameters, state and
+scratch arrays), :func:`run_single_kernel` for one run, with the same argument types, so run ``k``
+of a batch is the run alone, bit for bit.
+
+What every run shares (reference, and the disturbance when no run changes it) is computed once
+before the loop: the reference quaternion by the compiled RK4 of
+:meth:`spacecraft_sim.core.reference.PaperReference.sample`, its rates by the rate kernel; a shared
+disturbance becomes a (T, 3) table.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import sys
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import prange
 
-from gnc_common.compiled import error_quaternion, inverse3_stack, jit, jit_parallel
-from sappc_controller.core.kernels import N_COEF, N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
-from sappc_controller.core.kernels import controller_step
-from sappc_controller.core.kernels import kind_of, pack_params, start_coef
+from gnc_common.compiled import error_quaternion, jit, jit_parallel
 from sappc_controller.core.base import SingularStartError
-from sappc_controller.core.input_check import REJECT_REASONS, InputBounds, sample_verdicts
-from spacecraft_sim.core.kernels import N_PLANT_WORK, disturbance_sample, disturbance_table, encode_disturbance, propagate
-from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_sensor, random_draws, reference_rate_tables
-from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, N_SENSOR_PARAMS, S_BIAS0, measure, white_noise_params
-from spacecraft_sim.core.wheels import ReactionWheels, allocation_matrix, propagate_wheels_into, wheel_speeds_into, wheel_torques
-from spacecraft_sim.core.faults import encode_faults, noise_draws
+from sappc_controller.core.input_check import REJECT_REASONS, sample_verdicts
+from sappc_controller.core.kernels import N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
+from sappc_controller.core.kernels import ControllerArrays, controller_step
+from sappc_controller.core.packing import pack_controller, start_coef
+from sappc_estimator.core.config import pack_estimator
+from sappc_estimator.core.mekf import EO_B, EO_NIS, EO_OMEGA, EO_Q, ES_NIS, N_EST_OUT, N_EST_STATE, N_EST_WORK, STATUS_NONE
+from sappc_estimator.core.mekf import EstimatorArrays, mekf_step
+from spacecraft_sim.core.disturbance import pack_disturbance
+from spacecraft_sim.core.dynamics import pack_plant
+from spacecraft_sim.core.faults import pack_faults
+from spacecraft_sim.core.kernels import N_PLANT_WORK, DisturbanceArrays, FaultArrays, PlantArrays, disturbance_at, propagate
+from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_sensor
+from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
+from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, pack_actuator, propagate_wheels_into, wheel_speeds_into, wheel_torques
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
 from sappc_msgs_py.convert import seconds_to_ns
 from spacecraft_sim.core.reference import sample_times
 
+from sappc.evaluation.estimation import EstimateHistory
 from sappc.evaluation.history import History
 from sappc.scenario import Scenario
 
-__all__ = ["CompiledInputs", "CompiledRun", "cache_is_warm", "ensure_compiled", "prepare", "run_batch", "run_single",
-           "simulate_compiled", "warm_up"]
+__all__ = ["CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "cache_is_warm", "ensure_compiled", "prepare", "run_batch",
+           "run_single", "simulate_compiled", "warm_up"]
+
+#: Nanoseconds per second: the estimator's time is each sample's stamp in seconds, as the node
+#: computes it from the same integer stamps.
+_NS_PER_S = 1_000_000_000
+#: Columns of the estimator's record (:attr:`LoopRecord.estimate`): the attitude estimate (4), the
+#: rate estimate (3), the bias estimate (3), the covariance (36, row major), the last NIS, the
+#: step's status, the gyro's true bias (3); NaN where the filter gave no estimate (the node's
+#: "no data"), the true bias always.
+R_Q, R_OMEGA, R_B, R_P, R_NIS, R_STATUS, R_BTRUE = 0, 4, 7, 10, 46, 47, 48
+N_EST_RECORD = 51
+
+
+class LoopGrid(NamedTuple):
+    """The samples and the reference every run of a batch shares: ``t`` (T,) [s], ``t_ns`` (T,) the
+    plant's stamps [ns], ``dt`` [s], ``ref_q`` (T, 4), ``ref_w`` and ``ref_wd`` (T, 3)."""
+
+    t: np.ndarray
+    t_ns: np.ndarray
+    dt: float
+    ref_q: np.ndarray
+    ref_w: np.ndarray
+    ref_wd: np.ndarray
+
+    @staticmethod
+    def run_axes() -> dict[str, int]:
+        """The axis of runs of each per-run field (the others are shared by every run)."""
+        return {}
+
+
+class LoopRecord(NamedTuple):
+    """What the loop writes, every ``stride`` samples (T_rec of them) of each run: ``out`` (N, T_rec,
+    N_OUT, 4) the controller's rows as published, ``x`` (N, T_rec, 7) the true state, ``d`` (N,
+    T_rec, 3) the disturbance, ``status`` (N, T_rec) int8 the answers (``ANSWER_*``), ``wheels`` (N,
+    T_rec, W, 2) each wheel's speed [rad/s] and motor torque [N m], ``estimate`` (N, T_rec,
+    :data:`N_EST_RECORD` or 0) the estimator's record (``R_*``); per run: ``rejected`` (N, 2) the
+    inputs the controller rejected (invalid, implausible), ``x_final`` (N, 7 + W), ``start`` (N, 6)
+    the first valid sample (:func:`_run_one`)."""
+
+    out: np.ndarray
+    x: np.ndarray
+    d: np.ndarray
+    status: np.ndarray
+    wheels: np.ndarray
+    estimate: np.ndarray
+    rejected: np.ndarray
+    x_final: np.ndarray
+    start: np.ndarray
 
 
 @jit
-def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-             kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, sprm, souts,
-             t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm, ibounds,
-             probe, start, stride, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final):
-    """The whole time loop of one run (module docstring); histories every ``stride`` samples
-    (``stride = 0``: none), final state into ``x_final``.
+def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
+    """The whole time loop of run ``n`` of the models' arrays (module docstring), written at index
+    ``r`` of ``rec`` (:class:`LoopRecord`), every ``stride`` samples (``stride = 0``: no histories).
 
-    Sensors: with rows in ``noise`` (T, 6 or 9) (standard normals) the controller sees the star
-    tracker's and the gyro's measurement of the true state,
-    :func:`spacecraft_sim.core.sensors.measure` with the parameters ``sprm``
-    (:data:`~spacecraft_sim.core.sensors.N_SENSOR_PARAMS`,) and the tracker's outages ``souts`` (K, 2).
+    Sensors (:func:`~spacecraft_sim.core.sensors.measure_run`): with draws, the controller's input
+    is the star tracker's and the gyro's measurement of the true state, else the true state.
+    Faults (:class:`~spacecraft_sim.core.kernels.FaultArrays`): the measurement and the reference go
+    through :func:`~spacecraft_sim.core.kernels.fault_sensor` and ``fault_reference``, the answer
+    through ``fault_actuator``.  Estimator (:class:`~sappc_estimator.core.mekf.EstimatorArrays` with
+    parameters): a delivered measurement goes through
+    :func:`~sappc_estimator.core.mekf.mekf_step` at the sample's stamp in seconds, and the
+    controller's input is the estimate; a sample the filter gives no estimate for (no measurement,
+    not initialised) reaches the controller as "no data", as the estimator node publishes it.
 
-    Faults (``fkind`` (F,) ... as :func:`spacecraft_sim.core.faults.encode_faults`, ``fdraws``
-    (T or 1, F, 6) the noise faults' draws): the measurement and the reference go through
-    :func:`~spacecraft_sim.core.kernels.fault_sensor` and ``fault_reference``, the answer through
-    ``fault_actuator``, and the controller answers as the node does in lockstep (the ``ANSWER_*``
-    codes of :mod:`sappc_msgs_py.contract`, into ``s_hist``).  A sample is valid when its five
-    inputs arrived (a dropout delivers none of the state's two or the reference's three) and pass
-    the node's input check (:func:`sappc_controller.core.input_check.sample_verdicts` with the
-    bounds ``ibounds``; each rejected input counted into ``rejected`` (2,): invalid, implausible).
-    A valid sample is computed; without one, zero torque (the watchdog) when no valid state
-    has been computed yet or the last one is more than ``stale_ns`` [ns] older than the sample
-    (stamps ``t_ns``), else its last answer again (held).  The plant applies the delivered torque
-    clipped to ``u_max`` per axis.
+    The controller answers as the node does in lockstep (the ``ANSWER_*`` codes of
+    :mod:`sappc_msgs_py.contract`).  A sample is valid when its five inputs arrived (a dropout
+    delivers none of the state's two or the reference's three) and pass the node's input check
+    (:func:`sappc_controller.core.input_check.sample_verdicts` with ``ctrl.bounds``; each rejected
+    input counted into ``rec.rejected``: invalid, implausible).  A valid sample is computed;
+    without one, zero torque (the watchdog) when no valid state has been computed yet or the last
+    one is more than ``ctrl.stale_ns`` older than the sample (stamps ``grid.t_ns``), else its last
+    answer again (held).  The plant applies the delivered torque clipped to the actuator's limit.
 
-    The run's start (README, "What the controller answers"): the controller starts at its
-    **first valid sample**, whose time is the performance function's time origin (``S_T0``) and
-    whose error fixed ``coef`` (:func:`sappc_controller.core.kernels.start_coef`, in Python: the
-    RPF's coefficients need scipy).  Everything before that sample is independent of ``coef``, so
-    a first pass with ``probe`` true finds it: it returns at the first valid sample with
-    ``start`` (6,) = (its index, its time, its error quaternion ``q_BR`` of the measured attitude
-    against the reference, by the kernels' own formula), ``start[0] = -1`` when the run has none;
+    The run's start (README, "What the controller answers"): the controller starts at its **first
+    valid sample**, whose time is the performance function's time origin (``S_T0``) and whose error
+    fixes ``ctrl.coef`` (:func:`sappc_controller.core.packing.start_coef`, in Python: the RPF's
+    coefficients need scipy).  Everything before that sample is independent of ``coef``, so a first
+    pass with ``probe`` true finds it: it returns at the first valid sample with ``rec.start[r]`` =
+    (its index, its time, its error quaternion ``q_BR`` of the controller's input attitude against
+    the reference, by the kernels' own formula), ``start[0] = -1`` when the run has none;
     :func:`_started` then computes ``coef``, and the second pass (``probe`` false) runs the loop.
 
     Recorded, as a bag of the same run records it: the *true* error quaternion and state (the
@@ -92,82 +164,108 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
     held answer repeats them; before the first computed sample the performance function, band,
     ``eps``, ``z`` and ``V`` rows are NaN: the controller has none yet, as the node publishes).
 
-    Actuator: with no wheels (``wprm`` (0, 6)) the ideal one, the delivered torque clipped to
-    ``u_max`` per axis.  With ``N`` reaction wheels (spin axes ``wG`` (3, N), allocation ``wGp``
-    (N, 3), parameters ``wprm`` (N, 6) as :meth:`spacecraft_sim.core.wheels.ReactionWheels.params`;
-    ``x0`` then holds their momenta, (7 + N)), the delivered torque is the wheels' command:
+    Actuator (:class:`~spacecraft_sim.core.wheels.ActuatorArrays`): with no wheels the ideal one, the
+    delivered torque clipped to ``act.max_torque_Nm`` per axis; with wheels (``x0`` then holds
+    their momenta), the delivered torque is the wheels' command:
     :func:`~spacecraft_sim.core.wheels.wheel_torques` (allocation, motor and speed limits) and
-    :func:`~spacecraft_sim.core.wheels.propagate_wheels_into`; ``w_hist`` (T_rec, N, 2) records
-    each wheel's speed relative to the body [rad/s] and its motor torque [N m] at every sample
-    (the torque of the last sample computed, not applied)."""
+    :func:`~spacecraft_sim.core.wheels.propagate_wheels_into`; ``rec.wheels`` records each wheel's
+    speed relative to the body and its motor torque at every sample (the torque of the last sample
+    computed, not applied)."""
+    # the controller
+    kind, prm, coef = ctrl.kind, ctrl.prm[n], ctrl.coef[n]
     state = np.zeros(N_STATE)
     started = False  # the first valid sample fixes the time origin (S_T0)
     work = np.zeros((N_WORK, 4))
     out = np.zeros((N_OUT, 4))
     pub = np.full((N_OUT, 4), np.nan)  # the rows last published: no performance function yet
-    for r in (O_TORQUE, O_CMD, O_SAT):
+    for row in (O_TORQUE, O_CMD, O_SAT):
         for c in range(4):
-            pub[r, c] = 0.0  # nothing commanded
+            pub[row, c] = 0.0  # nothing commanded
+    start = rec.start[r]
     start[0] = -1.0  # no valid sample (yet)
+    rejected = rec.rejected[r]
+    has_last = False
+    last_state_ns = 0
+    cmd = np.zeros(3)  # the controller's last answer (what a held sample repeats)
+    u_cmd = np.zeros(3)
+    u_last = np.zeros(3)  # the last delivered torque (what the plant holds)
+    # the plant and its actuator
+    x = plant.x0[n].copy()  # (7,) or, with wheels, (7 + W,)
+    J, J_inv = plant.J[n], plant.J_inv[n]
     pwork = np.zeros((N_PLANT_WORK, 7))
-    x = x0.copy()  # (7,) or, with wheels, (7 + N,)
+    G, G_pinv, wprm = act.G[n], act.G_pinv[n], act.params[n]
     nw = wprm.shape[0]
     uw = np.zeros(nw)  # the wheels' motor torques
     wspeed = np.zeros(nw)
     wwork = np.zeros((5, 7 + nw))
     wtmp = np.zeros((3, 3))
+    u = np.zeros(3)
+    d = np.zeros(3)
+    # the sensors
     y = np.zeros(7)  # the measured state
-    noisy = noise.shape[0] > 0
     held_q = np.zeros(4)  # the star tracker's last quaternion
-    bias = sprm[S_BIAS0:S_BIAS0 + 3].copy()  # the gyro's bias
+    bias = sens.params[n, S_BIAS0:S_BIAS0 + 3].copy()  # the gyro's bias
+    # the estimator
+    estimating = est.prm.shape[1] > 0
+    eprm = est.prm[n]
+    est_st = np.zeros(N_EST_STATE)
+    est_st[ES_NIS] = np.nan
+    P = np.zeros((6, 6))
+    ework = np.zeros((N_EST_WORK, 6))
+    eout = np.zeros(N_EST_OUT)
+    yc = np.zeros(7)  # the controller's input: the measurement, or the estimate
+    # the faults
+    fkind, fwin, fprm, fint = faults.kind[n], faults.window[n], faults.params[n], faults.samples[n]
     nf = fkind.shape[0]
     fcount = np.zeros(nf, dtype=np.int64)
-    fbuf = np.zeros((nf, fdepth, 7))
-    u_last = np.zeros(3)  # the last delivered torque (what the plant holds)
-    has_last = False
-    last_state_ns = 0
-    d = np.zeros(3)
-    u = np.zeros(3)
-    cmd = np.zeros(3)  # the controller's last answer (what a held sample repeats)
-    u_cmd = np.zeros(3)
-    T = t_grid.shape[0]
+    fbuf = np.zeros((nf, faults.depth, 7))
+    dt = grid.dt
+    T = grid.t.shape[0]
     for k in range(T):
-        t = t_grid[k]
-        if noisy:
-            measure(k, t, x[:4], x[4:7], noise[k], sprm, souts, held_q, bias, y)
-        else:
-            for i in range(7):
-                y[i] = x[i]
+        t = grid.t[k]
+        measure_run(sens, n, k, t, x, held_q, bias, y)
         state_in, reference_in = True, True
         if nf > 0:
-            state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, fdraws[min(k, fdraws.shape[0] - 1)], y)
+            state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, faults.draws[min(k, faults.draws.shape[0] - 1)], y)
             reference_in = fault_reference(t, fkind, fwin)
-        valid = sample_verdicts(state_in, reference_in, y[:4], y[4:], ref_q[k], ref_w[k], ref_wd[k], ibounds, rejected)
+        if estimating:
+            est_status = STATUS_NONE
+            if state_in:
+                est_status = mekf_step(eprm, grid.t_ns[k] / _NS_PER_S, y, est_st, P, ework, eout)
+            state_in = est_status != STATUS_NONE
+            for i in range(4):
+                yc[i] = eout[EO_Q + i]
+            for i in range(3):
+                yc[4 + i] = eout[EO_OMEGA + i]
+        else:
+            for i in range(7):
+                yc[i] = y[i]
+        valid = sample_verdicts(state_in, reference_in, yc[:4], yc[4:], grid.ref_q[k], grid.ref_w[k], grid.ref_wd[k], ctrl.bounds, rejected)
         if valid and not started:
             if probe:  # the first valid sample: what starts the controller (docstring)
                 start[0] = k
                 start[1] = t
-                error_quaternion(ref_q[k], y[:4], start[2:6])
+                error_quaternion(grid.ref_q[k], yc[:4], start[2:6])
                 return
             state[S_T0] = t
             started = True
         status = ANSWER_COMMANDED
         if valid:
-            controller_step(kind, t, dt, y[:4], y[4:], ref_q[k], ref_w[k], ref_wd[k], prm, coef, state, work, out)
+            controller_step(kind, t, dt, yc[:4], yc[4:], grid.ref_q[k], grid.ref_w[k], grid.ref_wd[k], prm, coef, state, work, out)
             if not (np.isfinite(out[O_TORQUE, 0] + out[O_TORQUE, 1] + out[O_TORQUE, 2])
                     and np.isfinite(out[O_CMD, 0] + out[O_CMD, 1] + out[O_CMD, 2])):
                 status = ANSWER_REFUSED
             else:
                 has_last = True
-                last_state_ns = t_ns[k]
-        elif not has_last or t_ns[k] - last_state_ns > stale_ns:  # no valid state yet, or too old
+                last_state_ns = grid.t_ns[k]
+        elif not has_last or grid.t_ns[k] - last_state_ns > ctrl.stale_ns:  # no valid state yet, or too old
             status = ANSWER_WATCHDOG_ZERO
         else:
             status = ANSWER_HELD
         if status == ANSWER_COMMANDED:
-            for r in range(N_OUT):
+            for row in range(N_OUT):
                 for c in range(4):
-                    pub[r, c] = out[r, c]
+                    pub[row, c] = out[row, c]
             for i in range(3):
                 cmd[i] = out[O_TORQUE, i]
         elif status != ANSWER_HELD:  # a zero answer: zero command and saturation, earlier rows
@@ -185,157 +283,132 @@ def _run_one(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, 
                 u_last[i] = u_cmd[i]
         for i in range(3):
             pub[O_TORQUE, i] = u_last[i]
-        if noisy or nf > 0 or status != ANSWER_COMMANDED:
-            error_quaternion(ref_q[k], x[:4], pub[O_QBR])  # the true error (metrics)
-        if use_table:
-            for i in range(3):
-                d[i] = d_table[k, i]
-        else:
-            disturbance_sample(k, t, kinds, dparams, dscale, dphase, rand_draws, rand_win, d)
+        if sens.draws.shape[1] > 0 or nf > 0 or estimating or status != ANSWER_COMMANDED:
+            error_quaternion(grid.ref_q[k], x[:4], pub[O_QBR])  # the true error (metrics)
+        disturbance_at(dist, n, k, t, d)
         if nw > 0:
-            wheel_torques(u_last, wGp, wG, wprm, x, uw)
+            wheel_torques(u_last, G_pinv, G, wprm, x, uw)
         if stride > 0 and k % stride == 0:
             j = k // stride
-            for r in range(N_OUT):
+            for row in range(N_OUT):
                 for c in range(4):
-                    hist[j, r, c] = pub[r, c]
+                    rec.out[r, j, row, c] = pub[row, c]
             for i in range(7):
-                x_hist[j, i] = x[i]
+                rec.x[r, j, i] = x[i]
             for i in range(3):
-                d_hist[j, i] = d[i]
-            s_hist[j] = status
+                rec.d[r, j, i] = d[i]
+            rec.status[r, j] = status
             if nw > 0:
-                wheel_speeds_into(x, wG, wprm, wspeed)
+                wheel_speeds_into(x, G, wprm, wspeed)
                 for i in range(nw):
-                    w_hist[j, i, 0] = wspeed[i]
-                    w_hist[j, i, 1] = uw[i]
+                    rec.wheels[r, j, i, 0] = wspeed[i]
+                    rec.wheels[r, j, i, 1] = uw[i]
+            if estimating:
+                e = rec.estimate[r, j]
+                for i in range(N_EST_RECORD):
+                    e[i] = np.nan
+                if state_in:  # an estimate (else the node's "no data")
+                    for i in range(4):
+                        e[R_Q + i] = eout[EO_Q + i]
+                    for i in range(3):
+                        e[R_OMEGA + i] = eout[EO_OMEGA + i]
+                        e[R_B + i] = eout[EO_B + i]
+                    for a in range(6):
+                        for b in range(6):
+                            e[R_P + 6 * a + b] = P[a, b]
+                    e[R_NIS] = eout[EO_NIS]
+                e[R_STATUS] = est_status
+                for i in range(3):
+                    e[R_BTRUE + i] = bias[i]
         if k < T - 1:
             if nw == 0:
                 for i in range(3):  # control (clipped by the actuator) + disturbance, held over [t_k, t_k+1]
-                    u[i] = min(max(u_last[i], -u_max), u_max) + d[i]
-                propagate(x, u, dt, substeps, J, J_inv, pwork)
+                    u[i] = min(max(u_last[i], -act.max_torque_Nm), act.max_torque_Nm) + d[i]
+                propagate(x, u, dt, plant.substeps, J, J_inv, pwork)
             else:  # the wheels' motor torques and the disturbance, held
-                propagate_wheels_into(x, uw, d, dt, substeps, J, J_inv, wG, wprm, wwork, wtmp)
+                propagate_wheels_into(x, uw, d, dt, plant.substeps, J, J_inv, G, wprm, wwork, wtmp)
     for i in range(7 + nw):
-        x_final[i] = x[i]
+        rec.x_final[r, i] = x[i]
 
 
 @jit_parallel
-def run_batch_kernel(kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-                     kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, sprm, souts,
-                     t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm, ibounds,
-                     probe, start, stride, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final):
-    """Every run of a batch, in parallel over runs (``prange``); per-run arrays have a leading axis N
-    (the faults' and the wheels' too: a campaign may disperse them); ``probe``: the first pass of
-    :func:`_run_one` (each run's first valid sample into ``start`` (N, 6))."""
-    for n in prange(x0.shape[0]):
-        _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
-                 d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], sprm[n], souts,
-                 t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws, wG[n], wGp[n], wprm[n], ibounds,
-                 probe, start[n], stride, hist[n], x_hist[n], d_hist[n], s_hist[n], w_hist[n], rejected[n], x_final[n])
+def run_batch_kernel(probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
+    """Every run of a batch, in parallel over runs (``prange``); ``probe``: the first pass of
+    :func:`_run_one` (each run's first valid sample into ``rec.start``)."""
+    for n in prange(plant.x0.shape[0]):
+        _run_one(n, n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec)
 
 
 @jit
-def run_single_kernel(n, kind, prm, coef, x0, J, J_inv, substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table, d_table,
-                      kinds, dparams, dscale, dphase, rand_draws, rand_win, noise, sprm, souts,
-                      t_ns, stale_ns, u_max, fkind, fwin, fprm, fint, fdepth, fdraws, wG, wGp, wprm, ibounds,
-                      probe, start, stride, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final):
-    """Run ``n`` of the batch arrays alone (same argument types as in :func:`run_batch_kernel`); outputs
-    (leading axis 1) at index 0."""
-    _run_one(kind, prm[n], coef[n], x0[n], J[n], J_inv[n], substeps, dt, t_grid, ref_q, ref_w, ref_wd, use_table,
-             d_table, kinds, dparams, dscale[n], dphase[n], rand_draws[:, n], rand_win, noise[n], sprm[n], souts,
-             t_ns, stale_ns, u_max, fkind[n], fwin[n], fprm[n], fint[n], fdepth, fdraws, wG[n], wGp[n], wprm[n], ibounds,
-             probe, start[0], stride, hist[0], x_hist[0], d_hist[0], s_hist[0], w_hist[0], rejected[0], x_final[0])
+def run_single_kernel(n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
+    """Run ``n`` of the batch's arrays alone (same argument types as in :func:`run_batch_kernel`);
+    the record (leading axis 1) at index 0."""
+    _run_one(n, 0, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec)
 
 
-#: Per-run fields of :class:`CompiledInputs` (leading axis N); ``rand_draws`` has it second.
-_PER_RUN = ("prm", "coef", "x0", "J", "J_inv", "dscale", "dphase", "noise", "sprm", "fkind", "fwin", "fprm", "fint", "wG", "wGp", "wprm")
+def _runs(arrays: Any, lo: int, hi: int) -> Any:
+    """A model's arrays for runs ``lo .. hi - 1``: each per-run field (``run_axes``) sliced along its
+    run axis into a contiguous copy (the same argument types), the shared ones as they are."""
+    axes: dict[str, int] = arrays.run_axes()
+    return arrays._replace(**{name: np.ascontiguousarray(np.take(getattr(arrays, name), np.arange(lo, hi), axis=axis))
+                              for name, axis in axes.items()})
 
 
 @dataclass
 class CompiledInputs:
-    """Everything a compiled batch needs, as arrays (see :func:`prepare`).
+    """Everything a compiled batch needs: the shared grid and each model's arrays (module
+    docstring), the controller's ``config`` and RPF policy ``on_infeasible`` (each run's start is
+    computed from them: :func:`_started`), and the RPF's ``flat`` and ``clamped`` components
+    (N, 3) in ``flags``."""
 
-    ``noise`` (N, T or 0, 6 or 9): each run's sensor draws (standard normals; no rows: the state
-    is measured exactly), ``sprm`` (N, :data:`~spacecraft_sim.core.sensors.N_SENSOR_PARAMS`) each
-    run's sensor parameters, ``souts`` (K, 2) the star tracker's outages [s].  ``flags``: the RPF's ``flat`` and
-    ``clamped`` components (N, 3).  ``t_ns`` (T,): the samples' stamps [ns]; ``stale_ns``: the
-    controller's stale-input timeout [ns]; ``u_max``: the actuator's limit [N m]; ``fkind`` (N, F),
-    ``fwin`` (N, F, 2), ``fprm`` (N, F, P), ``fint`` (N, F): each run's faults
-    (:func:`spacecraft_sim.core.faults.encode_faults`), ``fdepth`` their delay rings' slots,
-    ``fdraws`` (T or 1, F, 6) the noise faults' draws.  Reaction wheels (none: ``W = 0``, the ideal
-    actuator): ``wG`` (N, 3, W) spin axes, ``wGp`` (N, W, 3) their minimum-norm allocation, ``wprm``
-    (N, W, 6) :meth:`~spacecraft_sim.core.wheels.ReactionWheels.params`; ``x0`` is then (N, 7 + W).
-    ``ibounds``: the controller's input bounds (:meth:`~sappc_controller.core.input_check.InputBounds.packed`).
-    ``coef`` and ``flags`` are each run's start (:func:`_started`) for the controller ``config`` with
-    the RPF policy ``on_infeasible``; :meth:`subset` with new sensor draws computes them again."""
-
-    kind: int
-    prm: np.ndarray
-    coef: np.ndarray
-    x0: np.ndarray
-    J: np.ndarray
-    J_inv: np.ndarray
-    substeps: int
-    dt: float
-    t: np.ndarray
-    ref_q: np.ndarray
-    ref_w: np.ndarray
-    ref_wd: np.ndarray
-    use_table: bool
-    d_table: np.ndarray
-    kinds: np.ndarray
-    dparams: np.ndarray
-    dscale: np.ndarray
-    dphase: np.ndarray
-    rand_draws: np.ndarray
-    rand_win: np.ndarray
-    flags: dict[str, np.ndarray]
-    noise: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 6)))
-    sprm: np.ndarray = field(default_factory=lambda: np.zeros((1, N_SENSOR_PARAMS)))
-    souts: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    t_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    stale_ns: int = 0
-    u_max: float = np.inf
-    fkind: np.ndarray = field(default_factory=lambda: np.zeros((1, 0), dtype=np.int64))
-    fwin: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 2)))
-    fprm: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 7)))
-    fint: np.ndarray = field(default_factory=lambda: np.zeros((1, 0), dtype=np.int64))
-    fdepth: int = 1
-    fdraws: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 6)))
-    wG: np.ndarray = field(default_factory=lambda: np.zeros((1, 3, 0)))
-    wGp: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 3)))
-    wprm: np.ndarray = field(default_factory=lambda: np.zeros((1, 0, 6)))
-    ibounds: np.ndarray = field(default_factory=lambda: InputBounds().packed())
+    grid: LoopGrid
+    controller: ControllerArrays
+    plant: PlantArrays
+    actuator: ActuatorArrays
+    sensors: SensorArrays
+    estimator: EstimatorArrays
+    disturbance: DisturbanceArrays
+    faults: FaultArrays
     config: Any = None
     on_infeasible: str = "raise"
+    flags: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+
+    #: The models, in the kernels' argument order.
+    MODELS = ("controller", "plant", "actuator", "sensors", "estimator", "disturbance", "faults")
+
+    @property
+    def t(self) -> np.ndarray:
+        """The sample times (T,) [s]."""
+        return self.grid.t
 
     @property
     def n_wheels(self) -> int:
-        return int(self.wprm.shape[1])
+        return int(self.actuator.params.shape[1])
 
     @property
     def n_runs(self) -> int:
-        return int(self.x0.shape[0])
+        return int(self.plant.x0.shape[0])
+
+    @property
+    def estimating(self) -> bool:
+        """Whether an estimator sits between the sensors and the controller."""
+        return bool(self.estimator.prm.shape[1] > 0)
 
     def args(self) -> tuple[Any, ...]:
-        return (self.kind, self.prm, self.coef, self.x0, self.J, self.J_inv, self.substeps, self.dt, self.t, self.ref_q,
-                self.ref_w, self.ref_wd, self.use_table, self.d_table, self.kinds, self.dparams, self.dscale, self.dphase,
-                self.rand_draws, self.rand_win, self.noise, self.sprm, self.souts, self.t_ns, self.stale_ns, self.u_max,
-                self.fkind, self.fwin, self.fprm, self.fint, self.fdepth, self.fdraws, self.wG, self.wGp, self.wprm, self.ibounds)
+        """The kernels' arguments after ``probe`` and ``stride``."""
+        return (self.grid, *(getattr(self, m) for m in self.MODELS))
 
     def subset(self, lo: int, hi: int, noise: np.ndarray | None = None) -> CompiledInputs:
         """Runs ``lo .. hi - 1`` (contiguous copies: the same argument types), with ``noise``
-        (hi - lo, T, 6 or 9) as their sensor draws when given."""
-        per_run: dict[str, Any] = {name: np.ascontiguousarray(getattr(self, name)[lo:hi]) for name in _PER_RUN if name != "noise"}
-        per_run["noise"] = np.ascontiguousarray(self.noise[lo:hi])
+        (hi - lo, T, 6 or 9) as their sensor draws when given (their starts then computed again:
+        new measurements may start a run elsewhere)."""
+        models = {m: _runs(getattr(self, m), lo, hi) for m in self.MODELS}
         if noise is not None:
-            per_run["noise"] = np.ascontiguousarray(noise, dtype=np.float64)
-        sub = dataclasses.replace(self, **per_run, rand_draws=np.ascontiguousarray(self.rand_draws[:, lo:hi]),
-                                  flags={k: v[lo:hi] for k, v in self.flags.items()})
+            models["sensors"] = models["sensors"]._replace(draws=np.ascontiguousarray(noise, dtype=np.float64))
+        sub = dataclasses.replace(self, **models, flags={k: v[lo:hi] for k, v in self.flags.items()})
         if noise is None:
             return sub
-        try:  # new measurements: each run's first valid sample, and so its start, may differ
+        try:
             return _started(sub)
         except SingularStartError as exc:  # name the run in the whole batch
             raise SingularStartError(exc.q_e0, exc.run + lo) from None
@@ -343,21 +416,46 @@ class CompiledInputs:
 
 @dataclass
 class CompiledRun:
-    """Histories of a batch (T_rec samples every ``stride``): ``out`` (N, T_rec, N_OUT, 4) rows as in
-    :mod:`sappc_controller.core.kernels` (as published: see :func:`_run_one`), ``x`` (N, T_rec, 7),
-    ``d`` (N, T_rec, 3), ``status`` (N, T_rec) int8 (the contract's ``ANSWER_*`` codes), ``wheels``
-    (N, T_rec, W, 2) each wheel's speed [rad/s] and motor torque [N m] (W = 0: the ideal actuator),
-    final states (N, 7 + W), ``rejected`` (N, 2) int64 the inputs the controller rejected, by reason
-    (``invalid``, ``implausible``: :data:`~sappc_controller.core.input_check.REJECT_REASONS`)."""
+    """Histories of a batch (T_rec samples every ``stride``, ``t`` their times): the loop's
+    :class:`LoopRecord`, read through the properties below and :meth:`history`."""
 
     t: np.ndarray
-    out: np.ndarray
-    x: np.ndarray
-    d: np.ndarray
-    status: np.ndarray
-    wheels: np.ndarray
-    x_final: np.ndarray
-    rejected: np.ndarray
+    record: LoopRecord
+
+    @property
+    def out(self) -> np.ndarray:
+        """(N, T_rec, N_OUT, 4) the controller's rows as published (:mod:`sappc_controller.core.kernels`)."""
+        return self.record.out
+
+    @property
+    def x(self) -> np.ndarray:
+        """(N, T_rec, 7) the true state."""
+        return self.record.x
+
+    @property
+    def d(self) -> np.ndarray:
+        """(N, T_rec, 3) the disturbance [N m]."""
+        return self.record.d
+
+    @property
+    def status(self) -> np.ndarray:
+        """(N, T_rec) int8 the contract's ``ANSWER_*`` codes."""
+        return self.record.status
+
+    @property
+    def wheels(self) -> np.ndarray:
+        """(N, T_rec, W, 2) each wheel's speed [rad/s] and motor torque [N m] (W = 0: ideal actuator)."""
+        return self.record.wheels
+
+    @property
+    def x_final(self) -> np.ndarray:
+        """(N, 7 + W) the final states."""
+        return self.record.x_final
+
+    @property
+    def rejected(self) -> np.ndarray:
+        """(N, 2) int64 the inputs the controller rejected, by reason (``invalid``, ``implausible``)."""
+        return self.record.rejected
 
     def status_counts(self) -> dict[str, np.ndarray]:
         """Samples of each status per run (N,), by :data:`ANSWER_NAMES`."""
@@ -371,6 +469,17 @@ class CompiledRun:
         return {reason: (self.rejected[:, i] if i < self.rejected.shape[1] else np.zeros(n, dtype=np.int64))
                 for i, reason in enumerate(REJECT_REASONS)}
 
+    def estimates(self) -> EstimateHistory | None:
+        """The estimator's record as an :class:`~sappc.evaluation.estimation.EstimateHistory`
+        (arrays (T, N, ...)), ``None`` without an estimator."""
+        e = self.record.estimate
+        if e.shape[2] == 0:
+            return None
+        e = e.transpose(1, 0, 2)
+        return EstimateHistory(q_BN=e[..., R_Q:R_Q + 4], omega_BN_B=e[..., R_OMEGA:R_OMEGA + 3], gyro_bias=e[..., R_B:R_B + 3],
+                               covariance=e[..., R_P:R_P + 36].reshape(e.shape[:2] + (6, 6)), nis=e[..., R_NIS],
+                               status=np.nan_to_num(e[..., R_STATUS]).astype(np.int8), gyro_bias_true=e[..., R_BTRUE:R_BTRUE + 3])
+
     def history(self) -> History:
         """The runs as a :class:`~sappc.evaluation.history.History` (arrays (T, N, ...): views, no copy)."""
         o = self.out.transpose(1, 0, 2, 3)  # (T, N, N_OUT, 4)
@@ -382,6 +491,7 @@ class CompiledRun:
             z=o[:, :, O_Z, :3], V=o[:, :, O_V, :3],
             wheel_speed_rad_s=self.wheels[..., 0].transpose(1, 0, 2) if self.wheels.shape[2] else None,
             wheel_torque_Nm=self.wheels[..., 1].transpose(1, 0, 2) if self.wheels.shape[2] else None,
+            estimate=self.estimates(),
         )
 
 
@@ -394,72 +504,55 @@ def _f64(a: Any, shape: tuple[int, ...] | None = None) -> np.ndarray:
 def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | None = None, omega_BN_B0: np.ndarray | None = None,
             inertia_kg_m2: np.ndarray | None = None, disturbance: Any = None, config: Any = None, gains: dict[str, np.ndarray] | None = None,
             on_infeasible: str = "raise", sensor_params: np.ndarray | None = None, faults: list[tuple[Any, ...]] | None = None,
-            wheels: list[ReactionWheels] | None = None) -> CompiledInputs:
+            wheels: list[ReactionWheels] | None = None, estimator_params: np.ndarray | None = None) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
     ``sensor_params``: the sensors' parameters ((13,) or one row per run), their draws then given
     per batch (:meth:`CompiledInputs.subset`); else the scenario's
     (:attr:`~sappc.scenario.Scenario.sensors`; none: exact measurements), every run with the draws
-    of its ``seed``.  ``faults``:
-    one fault list per run (a campaign's dispersed faults; the same kinds in the same slots), else
-    the scenario's for every run.  ``wheels``: one wheel set per run (the same number of wheels),
-    else the scenario's actuator (:attr:`~sappc.scenario.Scenario.wheels`; none: ideal)."""
+    of its ``seed``.  ``faults``: one fault list per run (a campaign's dispersed faults; the same
+    kinds in the same slots), else the scenario's for every run.  ``wheels``: one wheel set per run
+    (the same number of wheels), else the scenario's actuator (:attr:`~sappc.scenario.Scenario.wheels`;
+    none: ideal).  ``estimator_params``: one row per run of the estimator's parameters (a campaign
+    whose runs have dispersed sensors), else the scenario's estimator for every run (none: the
+    controller is fed the measurements)."""
     ensure_compiled()
     cfg = scenario.controller_config(controller) if config is None else config
     q0 = _f64(np.atleast_2d(np.asarray(scenario.q_BN0 if q_BN0 is None else q_BN0, dtype=np.float64)))
     n = q0.shape[0]
     w0 = _f64(scenario.omega_BN_B0_rad_s if omega_BN_B0 is None else omega_BN_B0, (n, 3))
     per_run_wheels = ([] if scenario.wheels is None else [scenario.wheels] * n) if wheels is None else list(wheels)
-    if per_run_wheels and (len(per_run_wheels) != n or any(w.n != per_run_wheels[0].n for w in per_run_wheels)):
-        raise ValueError(f"wheels must hold one wheel set per run ({n}), each with the same number of wheels")
+    actuator = pack_actuator(scenario.actuator.max_torque_Nm, per_run_wheels, n)
     h0 = np.array([w.initial_momentum(w0[k]) for k, w in enumerate(per_run_wheels)]).reshape(n, -1)
-    x0 = _f64(np.concatenate((q0, w0, h0), axis=1))
-    W = h0.shape[1]
-    wG = _f64(np.array([w.G for w in per_run_wheels]).reshape(n, 3, W))
-    wGp = _f64(np.array([allocation_matrix(w.G) for w in per_run_wheels]).reshape(n, W, 3))
-    wprm = _f64(np.array([w.params() for w in per_run_wheels]).reshape(n, W, 6))
-    J = _f64(scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2, (n, 3, 3))
-    J_inv = inverse3_stack(J)  # written out, not LAPACK: the same bits on every host (docs/parity.md)
+    plant = pack_plant(np.concatenate((q0, w0, h0), axis=1), scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2,
+                       scenario.rk4_substeps)
     t = _f64(sample_times(scenario.duration_s, scenario.control_period_s))
-    ref = scenario.reference.sample(t)
-    ref_w, ref_wd = reference_rate_tables(scenario.reference, t)
-    ref_q = _f64(ref.q_RN)
-    prm = _f64(pack_params(cfg, n, gains))
-    model = scenario.disturbance if disturbance is None else disturbance
-    kinds, dparams, dscale, dphase = encode_disturbance(model, n)
-    rand_draws, rand_win = random_draws(model, t, n)
-    use_table = rand_draws.shape[0] == 0 and bool(np.all(dscale == dscale[:1]) and np.all(dphase == dphase[:1]))
-    d_table = (disturbance_table(t, kinds, dparams, dscale[0], dphase[0], rand_draws[:, 0], rand_win) if use_table
-               else np.zeros((0, 3)))
-    sensors = scenario.sensors
-    sprm = (np.zeros(N_SENSOR_PARAMS) if sensors is None else sensors.params(scenario.control_period_s)) if sensor_params is None else sensor_params
-    souts = np.zeros((0, 2)) if sensors is None else sensors.outages()
-    noise = np.zeros((n, 0, 6)) if sensors is None or sensor_params is not None else _f64(sensors.draws(t.size), (n, t.size, N_SENSOR_DRAWS))
     t_ns = np.array([seconds_to_ns(float(tk)) for tk in t], dtype=np.int64)  # the plant's stamps
+    ref = scenario.reference.sample(t)
+    grid = LoopGrid(t, t_ns, float(scenario.control_period_s), _f64(ref.q_RN), _f64(ref.omega_RN_R), _f64(ref.omegadot_RN_R))
     per_run_faults = [scenario.faults] * n if faults is None else list(faults)
     if len(per_run_faults) != n:
         raise ValueError(f"faults must hold one list per run ({n}), got {len(per_run_faults)}")
-    enc = [encode_faults(tuple(f)) for f in per_run_faults]
-    if any(e.kind.shape != enc[0].kind.shape for e in enc):
-        raise ValueError("every run's faults must have the same number of entries")
-    fkind = np.ascontiguousarray(np.stack([e.kind for e in enc]), dtype=np.int64)
-    fint = np.ascontiguousarray(np.stack([e.samples for e in enc]), dtype=np.int64)
-    fdraws = noise_draws(tuple(per_run_faults[0]), t_ns) if any(e.has_noise for e in enc) else np.zeros((1, enc[0].n, 6))
-    inp = CompiledInputs(kind_of(cfg), prm, np.zeros((n, N_COEF, 3)), x0, J, J_inv, int(scenario.rk4_substeps), float(scenario.control_period_s), t,
-                          ref_q, _f64(ref_w), _f64(ref_wd), use_table, _f64(d_table), np.ascontiguousarray(kinds, dtype=np.int64),
-                          _f64(dparams), _f64(dscale), _f64(dphase), _f64(rand_draws), np.ascontiguousarray(rand_win, dtype=np.int64),
-                          {}, noise, _f64(sprm, (n, N_SENSOR_PARAMS)), _f64(souts), t_ns,
-                          seconds_to_ns(scenario.controller_node.stale_timeout_s), float(scenario.actuator.max_torque_Nm),
-                          fkind, _f64(np.stack([e.window for e in enc])), _f64(np.stack([e.params for e in enc])), fint,
-                          max(e.depth for e in enc), _f64(fdraws), wG, wGp, wprm, _f64(scenario.controller_node.input_bounds().packed()),
-                          cfg, on_infeasible)
+    inp = CompiledInputs(
+        grid=grid,
+        controller=pack_controller(cfg, n, stale_timeout_ns=seconds_to_ns(scenario.controller_node.stale_timeout_s),
+                                   input_bounds=scenario.controller_node.input_bounds().packed(), gains=gains),
+        plant=plant,
+        actuator=actuator,
+        sensors=pack_sensors(scenario.sensors, n, t.size, scenario.control_period_s, sensor_params),
+        estimator=pack_estimator(scenario.estimator, n, estimator_params),
+        disturbance=pack_disturbance(scenario.disturbance if disturbance is None else disturbance, t, n),
+        faults=pack_faults(per_run_faults, t_ns),
+        config=cfg,
+        on_infeasible=on_infeasible,
+    )
     return _started(inp)
 
 
 def _started(inp: CompiledInputs) -> CompiledInputs:
     """``inp`` with each run's start (:func:`_run_one`'s docstring): the first pass of the loop
     (``probe``) finds each run's first valid sample and its error quaternion, from which
-    :func:`~sappc_controller.core.kernels.start_coef` (the node's own start: the 180 deg check, the
+    :func:`~sappc_controller.core.packing.start_coef` (the node's own start: the 180 deg check, the
     funnels, the RPF with ``inp.on_infeasible``) gives ``coef`` and ``flags``.  A run without a valid
     sample never starts (zero ``coef``, no flags set).
 
@@ -469,11 +562,11 @@ def _started(inp: CompiledInputs) -> CompiledInputs:
         As the node's first step would, naming the run's index in ``inp``.
     """
     n = inp.n_runs
-    start = np.zeros((n, 6))
-    hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final = _outputs(inp, 0, n)
-    run_batch_kernel(*inp.args(), True, start, 0, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final)
+    rec = _record(inp, 0, n)
+    run_batch_kernel(True, 0, *inp.args(), rec)
+    start = rec.start
     ok = start[:, 0] >= 0.0
-    coef = np.zeros((n, N_COEF, 3))
+    coef = np.zeros_like(inp.controller.coef)
     flags = {"flat": np.zeros((n, 3), bool), "clamped": np.zeros((n, 3), bool)}
     if ok.any():
         rows = np.flatnonzero(ok)
@@ -484,19 +577,22 @@ def _started(inp: CompiledInputs) -> CompiledInputs:
         coef[rows] = c
         for key in flags:
             flags[key][rows] = f[key]
-    return dataclasses.replace(inp, coef=_f64(coef), flags=flags)
+    return dataclasses.replace(inp, controller=inp.controller._replace(coef=_f64(coef)), flags=flags)
 
 
-def _outputs(inp: CompiledInputs, stride: int, n: int) -> tuple[np.ndarray, ...]:
+def _record(inp: CompiledInputs, stride: int, n: int) -> LoopRecord:
     T = inp.t.size
     T_rec = 0 if stride == 0 else (T - 1) // stride + 1
-    return (np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, T_rec), dtype=np.int8),
-            np.zeros((n, T_rec, inp.n_wheels, 2)), np.zeros((n, 2), dtype=np.int64), np.zeros((n, 7 + inp.n_wheels)))
+    W = inp.n_wheels
+    return LoopRecord(np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, T_rec), dtype=np.int8),
+                      np.zeros((n, T_rec, W, 2)), np.zeros((n, T_rec, N_EST_RECORD if inp.estimating else 0)), np.zeros((n, 2), dtype=np.int64),
+                      np.zeros((n, 7 + W)), np.zeros((n, 6)))
 
 
 def _check_noise(inp: CompiledInputs) -> None:
-    if inp.noise.shape[0] != inp.n_runs or inp.noise.shape[1] not in (0, inp.t.size):
-        raise ValueError(f"noise must be (N, 0 or T, 6 or 9) = ({inp.n_runs}, 0 or {inp.t.size}, 6 or 9), got {inp.noise.shape}")
+    noise = inp.sensors.draws
+    if noise.shape[0] != inp.n_runs or noise.shape[1] not in (0, inp.t.size):
+        raise ValueError(f"noise must be (N, 0 or T, 6 or 9) = ({inp.n_runs}, 0 or {inp.t.size}, 6 or 9), got {noise.shape}")
 
 
 def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = None) -> CompiledRun:
@@ -506,21 +602,23 @@ def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = N
     are overwritten (sub-batches of a campaign reuse one buffer: no new pages per sub-batch).
     """
     _check_noise(inp)
-    if into is not None and into.out.shape[0] == inp.n_runs and into.wheels.shape[2] == inp.n_wheels and into.x.shape[1] == (0 if stride == 0 else (inp.t.size - 1) // stride + 1):
-        hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final = into.out, into.x, into.d, into.status, into.wheels, into.rejected, into.x_final
-        rejected[...] = 0  # counts: start again
+    fresh = _record(inp, stride, 0)  # shapes only
+    if into is not None and into.record.out.shape[0] == inp.n_runs and all(
+            a.shape[1:] == b.shape[1:] for a, b in zip(into.record, fresh)):
+        rec = into.record
+        rec.rejected[...] = 0  # counts: start again
     else:
-        hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final = _outputs(inp, stride, inp.n_runs)
-    run_batch_kernel(*inp.args(), False, np.zeros((inp.n_runs, 6)), stride, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final)
-    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, w_hist, x_final, rejected)
+        rec = _record(inp, stride, inp.n_runs)
+    run_batch_kernel(False, stride, *inp.args(), rec)
+    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], rec)
 
 
 def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
     """Run ``n`` of ``inp`` alone (one thread): histories with a leading axis of length 1."""
     _check_noise(inp)
-    hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final = _outputs(inp, stride, 1)
-    run_single_kernel(n, *inp.args(), False, np.zeros((1, 6)), stride, hist, x_hist, d_hist, s_hist, w_hist, rejected, x_final)
-    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], hist, x_hist, d_hist, s_hist, w_hist, x_final, rejected)
+    rec = _record(inp, stride, 1)
+    run_single_kernel(n, False, stride, *inp.args(), rec)
+    return CompiledRun(inp.t[::stride] if stride else inp.t[:0], rec)
 
 
 def simulate_compiled(scenario: Scenario, controller: Any = None) -> CompiledRun:
@@ -604,10 +702,18 @@ def warm_up() -> None:
     noisy_measurement(np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(6), 1e-7, 1e-7)
     # the entry points the nodes and `sappc rerun` call from Python: the controller step (one run and
     # a batch), the plant, the disturbances, the reference
-    from spacecraft_sim.core import kernels as plant_kernels
+    from spacecraft_sim.core.disturbance import ConstantTorque, DisturbanceSum, PaperPeriodic, PulseTorque, RandomTorque, StepTorque
+    from spacecraft_sim.core.dynamics import RigidBody, initial_state
     from spacecraft_sim.core.faults import FAULT_KINDS, FaultSchedule, faults_from_list
 
-    plant_kernels.warm_up()
+    x = initial_state([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    for J in (np.eye(3), np.stack((np.eye(3), np.eye(3)))):  # the plant node's calls, shared and per-run inertia
+        body = RigidBody(J)
+        body.propagate(x, np.zeros((1, 3)), 0.01)
+        body.derivative(x, np.zeros((1, 3)))
+    t2 = np.array([0.0, 0.01])  # every disturbance kind's torque_B (the injector node)
+    DisturbanceSum((PaperPeriodic(), ConstantTorque((0.0, 0.0, 0.0)), StepTorque(0.0, (0.0, 0.0, 0.0)),
+                    PulseTorque(0.0, 1.0, (0.0, 0.0, 0.0)), RandomTorque((0.0, 0.0, 0.0), 1.0))).torque_B(t2, 1)
     # the injector's per-message fault kernels (one schedule holding every kind)
     every_kind = [{"kind": k, **({"path": "sensor", "samples": 1} if k == "delay" else {}),
                    **({"effectiveness": [1.0, 1.0, 1.0]} if k == "actuator_effectiveness" else {}),

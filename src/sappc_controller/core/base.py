@@ -145,7 +145,7 @@ class AttitudeController:
     Parameters
     ----------
     config : SappcConfig, TrappcConfig or BlfppcConfig
-        The validated config; its type selects the law (:func:`.kernels.kind_of`).
+        The validated config; its type selects the law (:func:`.packing.kind_of`).
     on_infeasible : {"raise", "clamp"}
         SAPPC's policy for an infeasible RPF component (:class:`.rpf.ReferencePerformanceFunction`);
         the other laws have no RPF.
@@ -160,11 +160,12 @@ class AttitudeController:
     RUNTIME_GAINS = ("K_q", "K_omega", "K1", "K2", "K3", "D_m_Nm", "mu_rad_s", "q0_floor")
 
     def __init__(self, config: Any, *, on_infeasible: str = "raise") -> None:
-        from sappc_controller.core import kernels  # see the module docstring
+        from sappc_controller.core import kernels, packing  # see the module docstring
 
         self._K = kernels
+        self._pack = packing
         self.config = config
-        self.kind: int = kernels.kind_of(config)
+        self.kind: int = packing.kind_of(config)
         self.on_infeasible = on_infeasible
         self.t0: float | None = None
         self.n_runs: int | None = None
@@ -203,7 +204,7 @@ class AttitudeController:
         for f in fields(current.gains):
             if f.name not in self.RUNTIME_GAINS and getattr(config.gains, f.name) != getattr(current.gains, f.name):
                 raise ConfigError(f"gains.{f.name} cannot change during a run (it is part of the filter's state); restart the controller")
-        prm = self._K.pack_params(config, self.n_runs) if self.n_runs is not None else None  # may raise: nothing changed yet
+        prm = self._pack.pack_params(config, self.n_runs) if self.n_runs is not None else None  # may raise: nothing changed yet
         self.config = config
         if prm is not None:
             self._prm[...] = prm
@@ -329,7 +330,7 @@ class AttitudeController:
         """:meth:`step` for a batch whose inputs are checked, with the batch axis in the result.
 
         A run starts here or in :meth:`step`'s fast path, both through :meth:`_start`, so that every
-        caller refuses the same starts with the same error (:func:`.kernels.start_coef`:
+        caller refuses the same starts with the same error (:func:`.packing.start_coef`:
         :func:`check_start`, the funnels, the RPF).
 
         Raises
@@ -357,15 +358,15 @@ class AttitudeController:
 
     def _start(self, t: float, q_BN: Array, q_RN: Array) -> None:
         """Start a run of ``q_BN.shape[0]`` runs at time ``t``: start checks and run constants
-        (:func:`.kernels.start_coef`), packed parameters, a fresh state and the output buffers."""
+        (:func:`.packing.start_coef`), packed parameters, a fresh state and the output buffers."""
         K = self._K
         n = q_BN.shape[0]
         if q_RN.shape[0] == 1:
             q_BR0 = K.error_quaternions(q_RN[0], q_BN)
         else:
             q_BR0 = np.concatenate([K.error_quaternions(q_RN[k], q_BN[k : k + 1]) for k in range(n)])
-        coef, flags = K.start_coef(self.config, q_BR0, on_infeasible=self.on_infeasible)  # raises before anything changes
-        self._prm = K.pack_params(self.config, n)
+        coef, flags = self._pack.start_coef(self.config, q_BR0, on_infeasible=self.on_infeasible)  # raises before anything changes
+        self._prm = self._pack.pack_params(self.config, n)
         self._coef = np.ascontiguousarray(coef)
         self._state = K.new_state(n, t0=t)
         if self._out.shape[0] != n:

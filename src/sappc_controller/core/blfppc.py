@@ -45,12 +45,10 @@ from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.kernels import BARRIER_MARGIN
 
 __all__ = ["BARRIER_MARGIN", "BlfppcConfig", "BlfppcController", "BlfppcGains", "FiniteTimePF"]
 
-#: Smallest |1 - eps^2| used in D_rho (see module docstring): on the boundary the
-#: barrier term is then 1e9 / (rho_u - rho_l) times its gain, saturating the actuator.
-BARRIER_MARGIN = 1e-9
 
 
 @dataclass(frozen=True)

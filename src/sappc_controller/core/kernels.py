@@ -65,18 +65,17 @@ the denominator ``1 + k R_z``); ``eps d eps/d delta <= 0``, the sign claim of eq
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+from numpy.typing import NDArray
 
 from gnc_common.compiled import dcm_BR_times, dot3, error_quaternion, gamma_inverse_times, jit, matvec3_flat
-from gnc_common.validation import ConfigError
-
-from sappc_controller.core.base import check_start
-from sappc_controller.core.blfppc import BARRIER_MARGIN, BlfppcConfig
-from sappc_controller.core.rpf import ReferencePerformanceFunction
-from sappc_controller.core.sappc import SappcConfig
-from sappc_controller.core.trappc import DOMAIN_MARGIN, TrappcConfig
 
 __all__ = [
+    "ControllerArrays",
+    "BARRIER_MARGIN",
+    "DOMAIN_MARGIN",
     "KIND_BLFPPC",
     "KIND_SAPPC",
     "KIND_TRAPPC",
@@ -88,15 +87,17 @@ __all__ = [
     "controller_step",
     "controller_step_batch",
     "controller_step_one",
-    "kind_of",
     "new_state",
-    "pack_params",
-    "rpf_coef",
-    "start_coef",
 ]
 
 #: Controller kinds (the ``kind`` argument of :func:`controller_step`).
 KIND_SAPPC, KIND_TRAPPC, KIND_BLFPPC = 0, 1, 2
+#: TraPPC: distance in z kept from the transformation's asymptotes (module :mod:`.trappc`):
+#: ln(1/1e-9) = 20.7 bounds |eps|, a finite "at the wall" value.
+DOMAIN_MARGIN = 1e-9
+#: BLFPPC: smallest |1 - eps^2| used in D_rho (module :mod:`.blfppc`): on the boundary the barrier
+#: term is then 1e9 / (rho_u - rho_l) times its gain, saturating the actuator.
+BARRIER_MARGIN = 1e-9
 
 # --- prm layout -------------------------------------------------------------------------------
 P_P, P_T1, P_T2, P_T3, P_VFLOOR, P_Q0FLOOR = 0, 1, 2, 3, 4, 5
@@ -533,54 +534,7 @@ def controller_step_batch(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omega
             saturated[n, i] = out[n, O_SAT, i] != 0.0
 
 
-# ============================================================================= Python side (start)
-
-
-def kind_of(config: object) -> int:
-    """The kernel kind of a controller config."""
-    if isinstance(config, SappcConfig):
-        return KIND_SAPPC
-    if isinstance(config, TrappcConfig):
-        return KIND_TRAPPC
-    if isinstance(config, BlfppcConfig):
-        return KIND_BLFPPC
-    raise ConfigError(f"no compiled kernel for {type(config).__name__}")
-
-
-def pack_params(config: object, n_runs: int = 1, gains: dict[str, np.ndarray] | None = None) -> np.ndarray:
-    """``prm`` rows for ``n_runs`` runs, shape (n_runs, N_PARAMS), from a validated config.
-
-    ``gains`` optionally gives per-run values (N,) of ``K_q``, ``K_omega``, ``D_m_Nm``, ``mu_rad_s``
-    (Monte Carlo gain dispersions; the config's gains may also hold such arrays).
-    """
-    prm = np.zeros((n_runs, N_PARAMS))
-    g = config.gains  # type: ignore[attr-defined]
-    J = np.asarray(config.inertia_kg_m2, dtype=np.float64)  # type: ignore[attr-defined]
-    prm[:, P_P], prm[:, P_T3], prm[:, P_VFLOOR], prm[:, P_Q0FLOOR] = g.p, g.T3_s, g.V_floor, g.q0_floor
-    prm[:, P_DM], prm[:, P_MU] = g.D_m_Nm, g.mu_rad_s
-    prm[:, P_UMAX] = config.actuator.max_torque_Nm  # type: ignore[attr-defined]
-    prm[:, P_UMIN] = config.actuator.min_torque_Nm  # type: ignore[attr-defined]
-    prm[:, P_J : P_J + 9] = J.reshape(-1)
-    if isinstance(config, BlfppcConfig):
-        prm[:, P_K1], prm[:, P_K2], prm[:, P_K3] = g.K1, g.K2, g.K3
-        pf = config.ftppf
-        prm[:, P_FT_RHO0], prm[:, P_FT_RHOTF], prm[:, P_FT_TF] = pf.rho_initial, pf.rho_Tf, pf.T_f_s
-        prm[:, P_FT_INVM] = pf.m_even / pf.m_odd
-    else:
-        prm[:, P_T1], prm[:, P_T2], prm[:, P_KQ], prm[:, P_KW] = g.T1_s, g.T2_s, g.K_q, g.K_omega
-        if isinstance(config, SappcConfig):
-            prm[:, P_B0] = config.B0
-            prm[:, P_TANTH] = float(np.tan(np.radians(config.theta_deg)))
-            prm[:, P_RHO_EINF], prm[:, P_GINF], prm[:, P_RPF_T2] = config.rpf.rho_einf, config.rpf.g_inf, config.rpf.t2_s
-        elif isinstance(config, TrappcConfig):
-            prm[:, P_KFUN] = config.K
-            prm[:, P_PF_RHO0], prm[:, P_PF_RHOINF], prm[:, P_PF_L] = config.pf.rho_0, config.pf.rho_inf, config.pf.l
-        else:
-            raise ConfigError(f"no compiled kernel for {type(config).__name__}")
-    for name, col in (("K_q", P_KQ), ("K_omega", P_KW), ("D_m_Nm", P_DM), ("mu_rad_s", P_MU)):
-        if gains and name in gains:
-            prm[:, col] = np.asarray(gains[name], dtype=np.float64)
-    return prm
+# ============================================================================= run arrays
 
 
 @jit
@@ -592,44 +546,27 @@ def error_quaternions(q_RN, q_BN):
     return out
 
 
-def rpf_coef(rpf: ReferencePerformanceFunction) -> np.ndarray:
-    """``coef`` rows (N, N_COEF, 3) of an RPF set up for N runs: sign, ``t1``, ``a1``, ``l``, ``A``."""
-    coef = np.zeros((rpf.sign.shape[0], N_COEF, 3))
-    coef[:, C_SIGN], coef[:, C_T1], coef[:, C_A1], coef[:, C_L], coef[:, C_A] = rpf.sign, rpf.t1, rpf.a1, rpf.l, rpf.A
-    return coef
-
-
-def start_coef(config: object, q_BR0: np.ndarray, *, on_infeasible: str = "raise") -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Run constants ``coef`` (N, N_COEF, 3) from the first error quaternions ``q_BR0`` (N, 4), after
-    the start checks: the 180 deg singularity (:func:`.base.check_start`, raising
-    :class:`.base.SingularStartError`), the funnel containing the initial error (TraPPC, BLFPPC:
-    ``ConfigError``), the RPF feasibility (SAPPC; ``on_infeasible`` as in
-    :class:`.rpf.ReferencePerformanceFunction`).  Also returns the RPF's ``flat`` and ``clamped`` flags.
-    """
-    q_BR0 = np.atleast_2d(np.asarray(q_BR0, dtype=np.float64))
-    check_start(q_BR0)
-    q_ev0 = q_BR0[:, :3]
-    n = q_ev0.shape[0]
-    flags = {"flat": np.zeros((n, 3), bool), "clamped": np.zeros((n, 3), bool)}
-    if isinstance(config, SappcConfig):
-        rpf = ReferencePerformanceFunction(config.rpf, q_ev0, on_infeasible=on_infeasible)
-        return rpf_coef(rpf), {"flat": rpf.flat, "clamped": rpf.clamped}
-    if isinstance(config, TrappcConfig):
-        rho0, name, who = config.pf.rho_0, "pf.rho_0", "TraPPC"
-    elif isinstance(config, BlfppcConfig):
-        rho0, name, who = config.ftppf.rho_initial, "ftppf.rho_initial", "BLFPPC"
-    else:
-        raise ConfigError(f"no compiled kernel for {type(config).__name__}")
-    worst = float(np.max(np.abs(q_ev0)))
-    if worst >= rho0:
-        raise ConfigError(f"{name} = {rho0!r} must exceed the largest initial error |q_ev,i(0)| = {worst:.6g}: {who} must start inside its funnel")
-    coef = np.zeros((n, N_COEF, 3))
-    coef[:, C_SIGN] = np.where(q_ev0 >= 0.0, 1.0, -1.0)  # sign of e(0); BLFPPC: the side of its funnel
-    return coef, flags
-
-
 def new_state(n_runs: int = 1, t0: float | np.ndarray = 0.0) -> np.ndarray:
     """Fresh per-run states (n_runs, N_STATE): empty filter, no warm start, time origin ``t0``."""
     state = np.zeros((n_runs, N_STATE))
     state[:, S_T0] = t0
     return state
+
+
+class ControllerArrays(NamedTuple):
+    """The controller of a batch, as the whole-run loop takes it (:mod:`sappc.offline.compiled_loop`):
+    ``kind`` (``KIND_*``), ``prm`` (N, N_PARAMS) and ``coef`` (N, N_COEF, 3) each run's parameters
+    and start constants, and the node's answer rules: ``stale_ns`` the watchdog's timeout [ns] and
+    ``bounds`` the input check's bounds (:meth:`.input_check.InputBounds.packed`).  Packed by
+    :func:`.packing.pack_controller`; ``coef`` is filled at each run's first valid sample."""
+
+    kind: int
+    prm: NDArray[np.float64]
+    coef: NDArray[np.float64]
+    stale_ns: int
+    bounds: NDArray[np.float64]
+
+    @staticmethod
+    def run_axes() -> dict[str, int]:
+        """The axis of runs of each per-run field (the others are shared by every run)."""
+        return {"prm": 0, "coef": 0}

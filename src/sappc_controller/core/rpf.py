@@ -1,7 +1,7 @@
 """Reference performance function (RPF, eq. RPF): parameters, feasibility and coefficients.
 
 This module sets a run up (once, in Python, with scipy's Lambert W); the RPF is evaluated at every
-sample by the compiled law (:func:`.kernels.rpf_evaluate`, fed by :func:`.kernels.rpf_coef`), with
+sample by the compiled law (:func:`.kernels.rpf_evaluate`, fed by :func:`.packing.rpf_coef`), with
 the time-varying constraint ``delta = B0 / |rho|`` of eq. (delta_i) (a tube of half-width ``B0``
 around the RPF: ``1 - delta < q_ev / rho < 1 + delta`` is ``|q_ev - rho| < B0``).
 

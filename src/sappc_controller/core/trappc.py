@@ -31,13 +31,11 @@ from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.kernels import DOMAIN_MARGIN
 from sappc_controller.core.sappc import BacksteppingGains
 
 __all__ = ["DOMAIN_MARGIN", "ExponentialPF", "TrappcConfig", "TrappcController"]
 
-#: Distance in z kept from the transformation's asymptotes (see module
-#: docstring): ln(1/1e-9) = 20.7 bounds |eps|, a finite "at the wall" value.
-DOMAIN_MARGIN = 1e-9
 
 
 @dataclass(frozen=True)

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gnc_common.validation import ConfigError, check_unit_quaternion
+from gnc_common.validation import QUATERNION_NORM_TOL, ConfigError, check_positive, check_unit_quaternion
 from sappc_estimator.core import mekf
 
-__all__ = ["DEFAULT_GATE_FALSE_ALARM", "DEFAULT_INITIAL_BIAS_SIGMA_RAD_S", "DEFAULT_MAX_CONSECUTIVE_REJECTIONS", "MekfConfig", "chi2_3dof_isf"]
+__all__ = ["pack_estimator", "DEFAULT_GATE_FALSE_ALARM", "DEFAULT_MAX_BODY_RATE_RAD_S", "DEFAULT_INITIAL_BIAS_SIGMA_RAD_S", "DEFAULT_MAX_CONSECUTIVE_REJECTIONS", "MekfConfig", "chi2_3dof_isf"]
 
 Array = NDArray[np.float64]
 
@@ -30,6 +30,11 @@ DEFAULT_GATE_FALSE_ALARM = 1e-4
 #: Consecutive rejected tracker samples after which the filter re-initialises its attitude from
 #: the tracker: 20 (2 s at 10 Hz), far longer than an outlier burst and far shorter than a run.
 DEFAULT_MAX_CONSECUTIVE_REJECTIONS = 20
+#: Default ``max_body_rate_rad_s`` [rad/s] (573 deg/s): above the full-scale range of spacecraft
+#: rate gyros (navigation-grade fibre-optic gyros measure up to 10 to 20 deg/s, MEMS gyros up to
+#: about 7 rad/s), so a larger measured rate is a sensor or link fault, not a state (the
+#: controller's input check takes the same default for the same reason).
+DEFAULT_MAX_BODY_RATE_RAD_S = 10.0
 #: 1-sigma of the gyro bias before the first estimate [rad/s] when the user gives none: 1e-5 rad/s
 #: (about 2 deg/h), the order of a fibre-optic or good MEMS gyro's turn-on bias before
 #: calibration; the filter converges from it within seconds at 10 Hz tracker updates.
@@ -87,6 +92,11 @@ class MekfConfig:
     max_consecutive_rejections : int
         Rejections in a row after which the attitude is re-initialised from the tracker, >= 1
         (:data:`DEFAULT_MAX_CONSECUTIVE_REJECTIONS`).
+    max_body_rate_rad_s : float
+        A measured rate beyond this [rad/s] is no measurement (:data:`DEFAULT_MAX_BODY_RATE_RAD_S`).
+    max_attitude_norm_error : float
+        A measured quaternion whose norm differs from 1 by more is no measurement, in
+        ``(0, QUATERNION_NORM_TOL]`` (:data:`~gnc_common.validation.QUATERNION_NORM_TOL`).
     """
 
     tracker_noise_rad: float | tuple[float, float, float]
@@ -98,6 +108,8 @@ class MekfConfig:
     initial_attitude_sigma_rad: float | tuple[float, float, float] | None = None
     gate_false_alarm: float = DEFAULT_GATE_FALSE_ALARM
     max_consecutive_rejections: int = DEFAULT_MAX_CONSECUTIVE_REJECTIONS
+    max_body_rate_rad_s: float = DEFAULT_MAX_BODY_RATE_RAD_S
+    max_attitude_norm_error: float = QUATERNION_NORM_TOL
 
     def __post_init__(self) -> None:
         _three("tracker_noise_rad", self.tracker_noise_rad, bound="> 0")
@@ -117,6 +129,12 @@ class MekfConfig:
         m = self.max_consecutive_rejections
         if isinstance(m, bool) or not isinstance(m, int) or m < 1:
             raise ConfigError(f"max_consecutive_rejections must be an integer >= 1, got {m!r}")
+        for name in ("max_body_rate_rad_s", "max_attitude_norm_error"):
+            if isinstance(getattr(self, name), bool):
+                raise ConfigError(f"{name} must be a number, got {getattr(self, name)!r}")
+            check_positive(name, getattr(self, name))
+        if self.max_attitude_norm_error > QUATERNION_NORM_TOL:
+            raise ConfigError(f"max_attitude_norm_error must be in (0, {QUATERNION_NORM_TOL:g}], got {self.max_attitude_norm_error!r}")
 
     @property
     def gate_chi2(self) -> float:
@@ -139,6 +157,8 @@ class MekfConfig:
         p[mekf.EP_B0:mekf.EP_B0 + 3] = _three("initial_bias_rad_s", self.initial_bias_rad_s)
         p[mekf.EP_GATE] = self.gate_chi2
         p[mekf.EP_MAXREJ] = float(self.max_consecutive_rejections)
+        p[mekf.EP_MAX_NORM_ERR] = self.max_attitude_norm_error
+        p[mekf.EP_MAX_RATE] = self.max_body_rate_rad_s
         if self.initial_q_BN is None:
             p[mekf.EP_INIT] = mekf.INIT_FROM_TRACKER
         else:
@@ -146,3 +166,18 @@ class MekfConfig:
             p[mekf.EP_INIT] = mekf.INIT_FROM_PRIOR
             p[mekf.EP_Q0:mekf.EP_Q0 + 4] = q / np.sqrt(((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3])
         return p
+
+
+def pack_estimator(config: MekfConfig | None, n_runs: int, params: Array | None = None) -> mekf.EstimatorArrays:
+    """A batch's estimator for the whole-run loop: ``config``'s parameters for every run, or
+    ``params`` (n_runs, :data:`.mekf.N_EST_PARAMS`) one row per run (a campaign's dispersed
+    sensors give each run its own filter), or none (``config`` ``None``)."""
+    if params is not None:
+        prm = np.array(params, dtype=np.float64, order="C")
+        if prm.shape != (n_runs, mekf.N_EST_PARAMS):
+            raise ValueError(f"estimator params must be ({n_runs}, {mekf.N_EST_PARAMS}), got {prm.shape}")
+    elif config is None:
+        prm = np.zeros((n_runs, 0))
+    else:
+        prm = np.array(np.broadcast_to(config.params(), (n_runs, mekf.N_EST_PARAMS)), dtype=np.float64, order="C")
+    return mekf.EstimatorArrays(prm)

@@ -25,7 +25,9 @@ variances ``R`` [rad^2].  Error state ``x = (a, db)`` (6), ``db = b - b_hat``; c
 One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (q_meas, omega_meas)``:
 
 0. **No measurement.**  A measurement with a non-finite component (a dropped sample, the
-   injector's "no data") changes nothing and gives no estimate (status *none*, outputs NaN).
+   injector's "no data"), a quaternion whose norm differs from 1 by more than
+   ``max_norm_error`` or a rate beyond ``max_rate`` [rad/s] (a sensor or link fault, not a
+   state) changes nothing and gives no estimate (status *none*, outputs NaN).
 1. **A new tracker sample** is one whose quaternion differs (exact comparison) from the quaternion
    of the previous step's measurement: a star tracker holds its last quaternion between updates
    and during outages (``spacecraft_sim.core.sensors``), so a held value is not a new measurement.
@@ -68,7 +70,8 @@ Arrays (float64, the caller's; no allocation per step)
 ``prm`` (:data:`N_EST_PARAMS`,)
     Columns ``EP_*``: ``R`` (3), ``sigma_v^2`` (3), ``sigma_u^2`` (3), ``P0_a`` (3), ``P0_b`` (3),
     ``b0`` (3), ``gate`` (inf: none), ``max_rejections`` (>= 1), the initialisation mode
-    (``INIT_*``) and ``q_prior`` (4).
+    (``INIT_*``), ``q_prior`` (4), and the plausibility bounds ``max_norm_error`` and
+    ``max_rate`` [rad/s].
 ``st`` (:data:`N_EST_STATE`,)
     Columns ``ES_*``: initialised flag, ``q_hat`` (4), ``b_hat`` (3), the previous measurement's
     quaternion (4) and rate (3), ``t_prev``, counters (updates, rejections, consecutive rejections,
@@ -84,13 +87,17 @@ Arrays (float64, the caller's; no allocation per step)
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+from numpy.typing import NDArray
 
 from gnc_common.compiled import inverse3, jit, quat_multiply, quat_normalize
 
 __all__ = [
+    "EstimatorArrays",
     "EO_B", "EO_NIS", "EO_OMEGA", "EO_Q", "EO_SIGMA", "EO_STATUS",
-    "EP_B0", "EP_GATE", "EP_INIT", "EP_MAXREJ", "EP_P0A", "EP_P0B", "EP_Q0", "EP_R", "EP_SU2", "EP_SV2",
+    "EP_B0", "EP_GATE", "EP_INIT", "EP_MAXREJ", "EP_MAX_NORM_ERR", "EP_MAX_RATE", "EP_P0A", "EP_P0B", "EP_Q0", "EP_R", "EP_SU2", "EP_SV2",
     "ES_B", "ES_INIT", "ES_LASTQ", "ES_LASTW", "ES_NIS", "ES_N_CONSEC", "ES_N_REINIT", "ES_N_REJ", "ES_N_UPD", "ES_Q", "ES_TPREV",
     "INIT_FROM_PRIOR", "INIT_FROM_TRACKER",
     "N_EST_OUT", "N_EST_PARAMS", "N_EST_STATE", "N_EST_WORK",
@@ -103,7 +110,8 @@ __all__ = [
 
 #: Parameter columns (module docstring).
 EP_R, EP_SV2, EP_SU2, EP_P0A, EP_P0B, EP_B0, EP_GATE, EP_MAXREJ, EP_INIT, EP_Q0 = 0, 3, 6, 9, 12, 15, 18, 19, 20, 21
-N_EST_PARAMS = 25
+EP_MAX_NORM_ERR, EP_MAX_RATE = 25, 26
+N_EST_PARAMS = 27
 #: Initialisation modes (``prm[EP_INIT]``).
 INIT_FROM_TRACKER, INIT_FROM_PRIOR = 0, 1
 
@@ -354,12 +362,13 @@ def _update(prm, st, P, q_meas, work):
 def mekf_step(prm, t, y, st, P, work, out):
     """One step of the filter at time ``t`` [s] with the measurement ``y`` (7,) ``(q_meas (4),
     omega_meas (3))`` (module docstring); writes ``out`` and returns the status (``STATUS_*``)."""
-    for i in range(7):
-        if not np.isfinite(y[i]):  # no measurement: nothing changes, no estimate
-            for j in range(N_EST_OUT):
-                out[j] = np.nan
-            out[EO_STATUS] = STATUS_NONE
-            return STATUS_NONE
+    norm = np.sqrt(((y[0] * y[0] + y[1] * y[1]) + y[2] * y[2]) + y[3] * y[3])
+    rate = np.sqrt((y[4] * y[4] + y[5] * y[5]) + y[6] * y[6])
+    if not (abs(norm - 1.0) <= prm[EP_MAX_NORM_ERR] and rate <= prm[EP_MAX_RATE]):  # no measurement (a NaN fails too)
+        for j in range(N_EST_OUT):
+            out[j] = np.nan
+        out[EO_STATUS] = STATUS_NONE
+        return STATUS_NONE
     new = st[ES_SEEN] == 0.0
     for i in range(4):
         if y[i] != st[ES_LASTQ + i]:
@@ -406,3 +415,16 @@ def mekf_step(prm, t, y, st, P, work, out):
         out[EO_NIS] = st[ES_NIS]
     out[EO_STATUS] = status
     return status
+
+
+class EstimatorArrays(NamedTuple):
+    """The estimator of a batch, as the whole-run loop takes it: ``prm`` (N, :data:`N_EST_PARAMS`)
+    each run's filter parameters, or (N, 0) for none (the controller is fed the measurements).
+    Packed by :func:`.config.pack_estimator`."""
+
+    prm: NDArray[np.float64]
+
+    @staticmethod
+    def run_axes() -> dict[str, int]:
+        """The axis of runs of each per-run field (the others are shared by every run)."""
+        return {"prm": 0}

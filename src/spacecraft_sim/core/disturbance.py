@@ -17,9 +17,9 @@ Time windows (pulse, step) are compared with a tolerance of
 The formulas are computed by the compiled kernels (:mod:`spacecraft_sim.core.kernels`,
 :func:`~spacecraft_sim.core.kernels.disturbance_sample`, the one implementation used by the
 injector node, the offline run and a campaign): a model is encoded once
-(:func:`~spacecraft_sim.core.kernels.encode_disturbance`, cached on the frozen dataclass) and each
+(:func:`encode_disturbance`, cached on the frozen dataclass) and each
 ``torque_B`` call evaluates the block in compiled code.  The random kind's draws are made in
-Python before (:func:`~spacecraft_sim.core.kernels.random_draws`, the same
+Python before (:func:`random_draws`, the same
 ``default_rng([seed, window])`` calls).
 """
 
@@ -37,6 +37,9 @@ from spacecraft_sim.core import kernels
 from spacecraft_sim.core.kernels import TIME_TOLERANCE_S
 
 __all__ = [
+    "pack_disturbance",
+    "encode_disturbance",
+    "random_draws",
     "ConstantTorque",
     "DisturbanceModel",
     "DisturbanceSum",
@@ -76,7 +79,7 @@ class _Compiled:
     @cached_property
     def _plan(self) -> tuple[bool, bool, dict[int, tuple[Array, Array, Array, Array, Array]]]:
         """Whether each run has its own torque, whether there is a random model, and the encodings
-        made so far: n -> (kinds, dparams, dscale, dphase, no_draws) (:func:`kernels.encode_disturbance`)."""
+        made so far: n -> (kinds, dparams, dscale, dphase, no_draws) (:func:`encode_disturbance`)."""
         models = self._kernel_sum.models
         return any(_per_run(m) for m in models), any(isinstance(m, RandomTorque) for m in models), {}
 
@@ -87,12 +90,12 @@ class _Compiled:
         n = n_runs if per_run else 1
         enc = encodings.get(n)
         if enc is None:  # once per model and batch size
-            enc = (*kernels.encode_disturbance(self._kernel_sum, n), np.zeros((0, n, 1, 3)))
+            enc = (*encode_disturbance(self._kernel_sum, n), np.zeros((0, n, 1, 3)))
             encodings[n] = enc
         kinds, dparams, dscale, dphase, no_draws = enc
         tt = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
         if has_random:
-            draws, win = kernels.random_draws(self._kernel_sum, tt, n)
+            draws, win = random_draws(self._kernel_sum, tt, n)
         else:
             draws, win = no_draws, np.zeros((0, tt.size), dtype=np.int64)
         total: Array = kernels.disturbance_tables(tt, kinds, dparams, dscale, dphase, draws, win)
@@ -232,3 +235,83 @@ def disturbances_from_list(entries: object, prefix: str = "disturbances") -> Dis
     """Build the sum of the models listed as ``[{kind: ..., <fields>}, ...]`` (a scenario's
     ``disturbances:`` section), raising :class:`ConfigError` naming the entry and key."""
     return DisturbanceSum(from_kind_list(entries, DISTURBANCE_KINDS, prefix))
+
+
+# ============================================================================= the compiled kernels' arrays
+
+
+def encode_disturbance(model: DisturbanceSum, n_runs: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``kinds``, ``dparams``, ``dscale`` (n_runs, M), ``dphase`` (n_runs, M) of a disturbance sum.
+
+    A periodic model's ``scale`` and ``phase_rad`` may be per-run tuples (length ``n_runs``).
+    """
+    models = model.models
+    M = len(models)
+    kinds = np.zeros(M, dtype=np.int64)
+    dparams = np.zeros((M, kernels.N_DPARAMS))
+    dscale = np.ones((n_runs, M))
+    dphase = np.zeros((n_runs, M))
+    r = 0
+    for m, mod in enumerate(models):
+        if isinstance(mod, PaperPeriodic):
+            kinds[m] = kernels.D_PERIODIC
+            dparams[m, 0] = mod.omega_p_rad_s
+            dscale[:, m] = np.broadcast_to(np.asarray(mod.scale, dtype=np.float64), (n_runs,))
+            dphase[:, m] = np.broadcast_to(np.asarray(mod.phase_rad, dtype=np.float64), (n_runs,))
+        elif isinstance(mod, ConstantTorque):
+            kinds[m] = kernels.D_CONSTANT
+            dparams[m, :3] = mod.torque_Nm
+        elif isinstance(mod, StepTorque):
+            kinds[m] = kernels.D_STEP
+            dparams[m, :3], dparams[m, 3] = mod.torque_Nm, mod.start_s
+        elif isinstance(mod, PulseTorque):
+            kinds[m] = kernels.D_PULSE
+            dparams[m, :3], dparams[m, 3], dparams[m, 4] = mod.torque_Nm, mod.start_s, mod.duration_s
+        elif isinstance(mod, RandomTorque):
+            kinds[m] = kernels.D_RANDOM
+            dparams[m, :3], dparams[m, 3], dparams[m, 4] = mod.sigma_Nm, mod.hold_s, r
+            r += 1
+        else:
+            raise TypeError(f"no compiled kernel for disturbance model {type(mod).__name__}")
+    return kinds, dparams, dscale, dphase
+
+
+def random_draws(model: DisturbanceSum, t: np.ndarray, n_runs: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """``rand_draws`` (R, n_runs, W, 3) and ``rand_win`` (R, T) of the random models of ``model``
+    on the grid ``t``: the draws ``default_rng([seed, window]).standard_normal(3)`` that
+    :meth:`.disturbance.RandomTorque.torque_B` makes, one per run and window (:mod:`.kernels`' docstring)."""
+    randoms = [m for m in model.models if isinstance(m, RandomTorque)]
+    t = np.asarray(t, dtype=np.float64).reshape(-1)
+    if not randoms:
+        return np.zeros((0, n_runs, 1, 3)), np.zeros((0, t.size), dtype=np.int64)
+    wins, invs = [], []
+    for m in randoms:
+        windows = np.floor(t / m.hold_s + TIME_TOLERANCE_S / m.hold_s).astype(np.int64)
+        uniq, inv = np.unique(windows, return_inverse=True)
+        wins.append(uniq)
+        invs.append(inv.reshape(-1))
+    W = max(u.size for u in wins)
+    draws = np.zeros((len(randoms), n_runs, W, 3))
+    for r, m in enumerate(randoms):
+        seeds = m.seeds if m.seeds else tuple(m.seed + i for i in range(n_runs))
+        if len(seeds) != n_runs:
+            raise ConfigError(f"seeds lists {len(seeds)} runs, the batch has {n_runs}")
+        for n, s in enumerate(seeds):
+            for j, k in enumerate(wins[r]):
+                draws[r, n, j] = np.random.default_rng([int(s), int(k)]).standard_normal(3)
+    return draws, np.stack(invs).astype(np.int64)
+
+
+def pack_disturbance(model: DisturbanceSum, t: ArrayLike, n_runs: int) -> kernels.DisturbanceArrays:
+    """The disturbance of a batch for the whole-run loop (:class:`~.kernels.DisturbanceArrays`):
+    the encoding, the random models' draws on the grid ``t`` (T,), and, when every run has the same
+    torques (no random model, one scale and phase), their table, computed once."""
+    tt = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+    kinds, dparams, dscale, dphase = encode_disturbance(model, n_runs)
+    draws, windows = random_draws(model, tt, n_runs)
+    use_table = draws.shape[0] == 0 and bool(np.all(dscale == dscale[:1]) and np.all(dphase == dphase[:1]))
+    table = (kernels.disturbance_table(tt, kinds, dparams, dscale[0], dphase[0], draws[:, 0], windows) if use_table else np.zeros((0, 3)))
+    f64 = np.ascontiguousarray
+    return kernels.DisturbanceArrays(use_table, f64(table, dtype=np.float64), f64(kinds, dtype=np.int64), f64(dparams, dtype=np.float64),
+                                     f64(dscale, dtype=np.float64), f64(dphase, dtype=np.float64), f64(draws, dtype=np.float64),
+                                     f64(windows, dtype=np.int64))

@@ -34,7 +34,7 @@ from gnc_common.compiled import inverse3_stack
 from gnc_common.validation import InputError, check_spd_inertia
 from spacecraft_sim.core import kernels
 
-__all__ = ["RigidBody", "STATE_SIZE", "initial_state", "kinetic_energy_J"]
+__all__ = ["RigidBody", "STATE_SIZE", "initial_state", "kinetic_energy_J", "pack_plant"]
 
 Array = NDArray[np.float64]
 
@@ -136,3 +136,12 @@ def initial_state(q_BN: ArrayLike, omega_BN_B: ArrayLike) -> Array:
 def kinetic_energy_J(J: Array, omega_BN_B: Array) -> Array:
     """Rotational kinetic energy ``omega^T J omega / 2`` [J], shape (N,)."""
     return 0.5 * dot(omega_BN_B, matvec(J, omega_BN_B))
+
+
+def pack_plant(x0: ArrayLike, inertia_kg_m2: ArrayLike, substeps: int) -> kernels.PlantArrays:
+    """The rigid body of a batch for the whole-run loop: ``x0`` (N, 7 + W) the runs' initial states,
+    ``inertia_kg_m2`` (3, 3) shared or (N, 3, 3) per run; ``J^-1`` by the closed-form inverse
+    (:func:`gnc_common.compiled.inverse3_stack`: the same bits on every host, docs/parity.md)."""
+    x = np.array(x0, dtype=np.float64, order="C", copy=True)
+    J = np.array(np.broadcast_to(check_spd_inertia("inertia_kg_m2", inertia_kg_m2), (x.shape[0], 3, 3)), dtype=np.float64, order="C")
+    return kernels.PlantArrays(x, J, inverse3_stack(J), int(substeps))

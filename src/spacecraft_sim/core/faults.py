@@ -49,7 +49,7 @@ from spacecraft_sim.core import kernels
 from spacecraft_sim.core.disturbance import TIME_TOLERANCE_S
 from gnc_common.validation import ConfigError, as_finite_array, check_positive, from_kind_list
 
-__all__ = ["FAULT_KINDS", "EncodedFaults", "FaultPath", "FaultSchedule", "encode_faults", "faults_from_list", "noise_draws", "noisy_measurement"]
+__all__ = ["FAULT_KINDS", "EncodedFaults", "FaultPath", "FaultSchedule", "encode_faults", "faults_from_list", "noise_draws", "noisy_measurement", "pack_faults"]
 
 Array = NDArray[np.float64]
 
@@ -293,6 +293,22 @@ def noise_draws(faults: tuple[Any, ...], stamps_ns: NDArray[np.int64]) -> Array:
             for k, ns in enumerate(stamps_ns.tolist()):
                 out[k, i] = np.random.default_rng([int(f.seed), int(ns)]).standard_normal(6)
     return out
+
+
+def pack_faults(per_run: list[tuple[Any, ...]], stamps_ns: NDArray[np.int64]) -> kernels.FaultArrays:
+    """A batch's faults for the whole-run loop (:class:`~.kernels.FaultArrays`): one fault list per
+    run (a campaign's dispersed faults: the same kinds in the same slots), the noise faults' draws
+    at the samples' stamps (those of the first run's list: the draws depend on the seed and the
+    stamp only)."""
+    enc = [encode_faults(tuple(f)) for f in per_run]
+    if any(e.kind.shape != enc[0].kind.shape for e in enc):
+        raise ValueError("every run's faults must have the same number of entries")
+    draws = noise_draws(tuple(per_run[0]), stamps_ns) if any(e.has_noise for e in enc) else np.zeros((1, enc[0].n, 6))
+    return kernels.FaultArrays(np.ascontiguousarray(np.stack([e.kind for e in enc]), dtype=np.int64),
+                               np.ascontiguousarray(np.stack([e.window for e in enc]), dtype=np.float64),
+                               np.ascontiguousarray(np.stack([e.params for e in enc]), dtype=np.float64),
+                               np.ascontiguousarray(np.stack([e.samples for e in enc]), dtype=np.int64),
+                               max(e.depth for e in enc), np.ascontiguousarray(draws, dtype=np.float64))
 
 
 class FaultSchedule:

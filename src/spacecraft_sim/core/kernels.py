@@ -32,19 +32,21 @@ A :class:`~.disturbance.DisturbanceSum` is encoded by :func:`encode_disturbance`
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
 from gnc_common.compiled import jit, matvec3, quat_multiply, quat_normalize
 from gnc_common.validation import ConfigError
 from spacecraft_sim.core.sensors import rotate_by_vector
 
-if TYPE_CHECKING:  # the model modules import this one (their one implementation): no import cycle at run time
-    from spacecraft_sim.core.disturbance import DisturbanceSum
-    from spacecraft_sim.core.reference import PaperReference
 
 __all__ = [
+    "DisturbanceArrays",
+    "FaultArrays",
+    "PlantArrays",
+    "disturbance_at",
     "D_CONSTANT",
     "D_PERIODIC",
     "D_PULSE",
@@ -55,17 +57,13 @@ __all__ = [
     "disturbance_sample",
     "disturbance_table",
     "disturbance_tables",
-    "encode_disturbance",
     "noisy_measurement",
     "propagate",
     "propagate_runs",
-    "random_draws",
     "rate_tables",
     "reference_quaternions",
-    "reference_rate_tables",
     "reference_rates",
     "rk4_step",
-    "warm_up",
 ]
 
 D_PERIODIC, D_CONSTANT, D_STEP, D_PULSE, D_RANDOM = 0, 1, 2, 3, 4
@@ -255,15 +253,6 @@ def reference_quaternions(t, q0, a_rad_s, periods, max_step_s, out):
         t_prev = t[j]
 
 
-def reference_rate_tables(reference: PaperReference, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``omega_RN_R`` and ``omegadot_RN_R`` (T, 3) of a :class:`.reference.PaperReference` on ``t``
-    (``q_RN``: :meth:`.reference.PaperReference.sample`, :func:`reference_quaternions`)."""
-    tables: tuple[np.ndarray, np.ndarray] = rate_tables(np.ascontiguousarray(t, dtype=np.float64).reshape(-1),
-                                                        float(np.radians(reference.amplitude_deg_s)),
-                                                        np.asarray(reference.periods_s, dtype=np.float64))
-    return tables
-
-
 # ============================================================================= disturbances
 
 
@@ -330,72 +319,6 @@ def disturbance_tables(t, kinds, dparams, dscale, dphase, rand_draws, rand_win):
         for k in range(t.shape[0]):
             disturbance_sample(k, t[k], kinds, dparams, dscale[n], dphase[n], draws, rand_win, d[k, n])
     return d
-
-
-def encode_disturbance(model: DisturbanceSum, n_runs: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``kinds``, ``dparams``, ``dscale`` (n_runs, M), ``dphase`` (n_runs, M) of a disturbance sum.
-
-    A periodic model's ``scale`` and ``phase_rad`` may be per-run tuples (length ``n_runs``).
-    """
-    from spacecraft_sim.core.disturbance import ConstantTorque, PaperPeriodic, PulseTorque, RandomTorque, StepTorque
-
-    models = model.models
-    M = len(models)
-    kinds = np.zeros(M, dtype=np.int64)
-    dparams = np.zeros((M, N_DPARAMS))
-    dscale = np.ones((n_runs, M))
-    dphase = np.zeros((n_runs, M))
-    r = 0
-    for m, mod in enumerate(models):
-        if isinstance(mod, PaperPeriodic):
-            kinds[m] = D_PERIODIC
-            dparams[m, 0] = mod.omega_p_rad_s
-            dscale[:, m] = np.broadcast_to(np.asarray(mod.scale, dtype=np.float64), (n_runs,))
-            dphase[:, m] = np.broadcast_to(np.asarray(mod.phase_rad, dtype=np.float64), (n_runs,))
-        elif isinstance(mod, ConstantTorque):
-            kinds[m] = D_CONSTANT
-            dparams[m, :3] = mod.torque_Nm
-        elif isinstance(mod, StepTorque):
-            kinds[m] = D_STEP
-            dparams[m, :3], dparams[m, 3] = mod.torque_Nm, mod.start_s
-        elif isinstance(mod, PulseTorque):
-            kinds[m] = D_PULSE
-            dparams[m, :3], dparams[m, 3], dparams[m, 4] = mod.torque_Nm, mod.start_s, mod.duration_s
-        elif isinstance(mod, RandomTorque):
-            kinds[m] = D_RANDOM
-            dparams[m, :3], dparams[m, 3], dparams[m, 4] = mod.sigma_Nm, mod.hold_s, r
-            r += 1
-        else:
-            raise TypeError(f"no compiled kernel for disturbance model {type(mod).__name__}")
-    return kinds, dparams, dscale, dphase
-
-
-def random_draws(model: DisturbanceSum, t: np.ndarray, n_runs: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """``rand_draws`` (R, n_runs, W, 3) and ``rand_win`` (R, T) of the random models of ``model``
-    on the grid ``t``: the draws ``default_rng([seed, window]).standard_normal(3)`` that
-    :meth:`.disturbance.RandomTorque.torque_B` makes, one per run and window (module docstring)."""
-    from spacecraft_sim.core.disturbance import RandomTorque
-
-    randoms = [m for m in model.models if isinstance(m, RandomTorque)]
-    t = np.asarray(t, dtype=np.float64).reshape(-1)
-    if not randoms:
-        return np.zeros((0, n_runs, 1, 3)), np.zeros((0, t.size), dtype=np.int64)
-    wins, invs = [], []
-    for m in randoms:
-        windows = np.floor(t / m.hold_s + TIME_TOLERANCE_S / m.hold_s).astype(np.int64)
-        uniq, inv = np.unique(windows, return_inverse=True)
-        wins.append(uniq)
-        invs.append(inv.reshape(-1))
-    W = max(u.size for u in wins)
-    draws = np.zeros((len(randoms), n_runs, W, 3))
-    for r, m in enumerate(randoms):
-        seeds = m.seeds if m.seeds else tuple(m.seed + i for i in range(n_runs))
-        if len(seeds) != n_runs:
-            raise ConfigError(f"seeds lists {len(seeds)} runs, the batch has {n_runs}")
-        for n, s in enumerate(seeds):
-            for j, k in enumerate(wins[r]):
-                draws[r, n, j] = np.random.default_rng([int(s), int(k)]).standard_normal(3)
-    return draws, np.stack(invs).astype(np.int64)
 
 
 # ============================================================================= sensors
@@ -551,26 +474,73 @@ def fault_reference_one(t, fkind, fwin):
     return fault_reference(t, fkind, fwin)
 
 
-# ============================================================================= cache
+# ============================================================================= a batch's arrays (the offline loop)
 
 
-def warm_up() -> None:
-    """Compile (or load from numba's cache) the entry points the plant cores call from Python, with
-    the argument types they pass: :meth:`.dynamics.RigidBody.propagate` and ``derivative`` (shared
-    and per-run inertia), ``torque_B`` of every disturbance kind, :class:`.reference.PaperReference`
-    rates and sample.  For ``sappcw`` (through :func:`sappc.offline.compiled_loop.warm_up`), so that
-    a node's first sample does not compile."""
-    from spacecraft_sim.core.disturbance import ConstantTorque, DisturbanceSum, PaperPeriodic, PulseTorque, RandomTorque, StepTorque
-    from spacecraft_sim.core.dynamics import RigidBody, initial_state
-    from spacecraft_sim.core.reference import PaperReference
+class PlantArrays(NamedTuple):
+    """The rigid body of a batch, as the whole-run loop takes it (:mod:`sappc.offline.compiled_loop`):
+    ``x0`` (N, 7 + W) each run's initial state (with W wheel momenta), ``J`` and ``J_inv`` (N, 3, 3)
+    each run's inertia and its inverse, ``substeps`` RK4 steps per control period.  Packed by
+    :func:`spacecraft_sim.core.dynamics.pack_plant`."""
 
-    x = initial_state([0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
-    for J in (np.eye(3), np.stack((np.eye(3), np.eye(3)))):
-        body = RigidBody(J)
-        body.propagate(x, np.zeros((1, 3)), 0.01)
-        body.derivative(x, np.zeros((1, 3)))
-    t = np.array([0.0, 0.01])
-    DisturbanceSum((PaperPeriodic(), ConstantTorque((0.0, 0.0, 0.0)), StepTorque(0.0, (0.0, 0.0, 0.0)),
-                    PulseTorque(0.0, 1.0, (0.0, 0.0, 0.0)), RandomTorque((0.0, 0.0, 0.0), 1.0))).torque_B(t, 1)
-    PaperPeriodic().torque_B(t, 1)
-    PaperReference().sample(t)
+    x0: NDArray[np.float64]
+    J: NDArray[np.float64]
+    J_inv: NDArray[np.float64]
+    substeps: int
+
+    @staticmethod
+    def run_axes() -> dict[str, int]:
+        """The axis of runs of each per-run field (the others are shared by every run)."""
+        return {"x0": 0, "J": 0, "J_inv": 0}
+
+
+class DisturbanceArrays(NamedTuple):
+    """The external torques of a batch (module docstring, "Disturbances"): ``kinds`` (M,) and
+    ``params`` (M, N_DPARAMS) the models, ``scale`` and ``phase`` (N, M) each run's, ``draws``
+    (R, N, W, 3) and ``windows`` (R, T) the random models' draws; ``use_table``: every run has the
+    same torques, tabulated once in ``table`` (T, 3) (else (0, 3)).  Packed by
+    :func:`spacecraft_sim.core.disturbance.pack_disturbance`."""
+
+    use_table: bool
+    table: NDArray[np.float64]
+    kinds: NDArray[np.int64]
+    params: NDArray[np.float64]
+    scale: NDArray[np.float64]
+    phase: NDArray[np.float64]
+    draws: NDArray[np.float64]
+    windows: NDArray[np.int64]
+
+    @staticmethod
+    def run_axes() -> dict[str, int]:
+        """The axis of runs of each per-run field (the others are shared by every run)."""
+        return {"scale": 0, "phase": 0, "draws": 1}
+
+
+class FaultArrays(NamedTuple):
+    """A batch's faults (:func:`spacecraft_sim.core.faults.encode_faults` per run): ``kind`` (N, F),
+    ``window`` (N, F, 2), ``params`` (N, F, N_FPARAMS), ``samples`` (N, F), ``depth`` the delay
+    rings' slots, ``draws`` (T or 1, F, 6) the noise faults' draws (shared).  Packed by
+    :func:`spacecraft_sim.core.faults.pack_faults`."""
+
+    kind: NDArray[np.int64]
+    window: NDArray[np.float64]
+    params: NDArray[np.float64]
+    samples: NDArray[np.int64]
+    depth: int
+    draws: NDArray[np.float64]
+
+    @staticmethod
+    def run_axes() -> dict[str, int]:
+        """The axis of runs of each per-run field (the others are shared by every run)."""
+        return {"kind": 0, "window": 0, "params": 0, "samples": 0}
+
+
+@jit(inline="always")
+def disturbance_at(d, n, k, t, out):
+    """The external torque of run ``n`` at sample ``k`` (time ``t`` [s]) into ``out`` (3,), from
+    :class:`DisturbanceArrays` ``d``: the shared table, or :func:`disturbance_sample`."""
+    if d.use_table:
+        for i in range(3):
+            out[i] = d.table[k, i]
+    else:
+        disturbance_sample(k, t, d.kinds, d.params, d.scale[n], d.phase[n], d.draws[:, n], d.windows, out)

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 from gnc_common.compiled import jit, quat_multiply, quat_normalize
 from gnc_common.validation import ConfigError, from_mapping
 
-__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "Sensors", "StarTracker", "measure", "rotate_by_vector", "sensors_from_mapping",
+__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "SensorArrays", "Sensors", "measure_run", "pack_sensors", "StarTracker", "measure", "rotate_by_vector", "sensors_from_mapping",
            "white_noise_params"]
 
 Array = NDArray[np.float64]
@@ -236,3 +236,50 @@ def measure(k, t, q_BN, omega_BN_B, n, prm, outages, held_q, bias, y):
         step = prm[_G_WALK + i]
         if step != 0.0:
             bias[i] = bias[i] + step * n[6 + i]
+
+
+# ============================================================================= a batch's arrays (the offline loop)
+
+
+class SensorArrays(NamedTuple):
+    """The sensors of a batch, as the whole-run loop takes them: ``draws`` (N, T or 0,
+    :data:`N_SENSOR_DRAWS` or 6) each run's standard normals (no rows: the state is measured
+    exactly), ``params`` (N, :data:`N_SENSOR_PARAMS`) each run's :meth:`Sensors.params`,
+    ``outages`` (K, 2) [s] the tracker's outages (shared).  Packed by :func:`pack_sensors`."""
+
+    draws: NDArray[np.float64]
+    params: NDArray[np.float64]
+    outages: NDArray[np.float64]
+
+    @staticmethod
+    def run_axes() -> dict[str, int]:
+        """The axis of runs of each per-run field (the others are shared by every run)."""
+        return {"draws": 0, "params": 0}
+
+
+def pack_sensors(sensors: Sensors | None, n_runs: int, n_samples: int, control_period_s: float,
+                 params: NDArray[np.float64] | None = None) -> SensorArrays:
+    """A batch's sensors: the scenario's (every run with the draws of its ``seed``; ``None``: exact
+    measurements), or ``params`` ((13,) or one row per run: a campaign's dispersed sensors) whose
+    draws a campaign gives per sub-batch (no rows here)."""
+    if params is None:
+        prm = np.zeros(N_SENSOR_PARAMS) if sensors is None else sensors.params(control_period_s)
+        draws = (np.zeros((n_runs, 0, 6)) if sensors is None
+                 else np.array(np.broadcast_to(sensors.draws(n_samples), (n_runs, n_samples, N_SENSOR_DRAWS)), dtype=np.float64))
+    else:
+        prm, draws = params, np.zeros((n_runs, 0, 6))
+    outages = np.zeros((0, 2)) if sensors is None else sensors.outages()
+    return SensorArrays(np.ascontiguousarray(draws, dtype=np.float64),
+                        np.array(np.broadcast_to(prm, (n_runs, N_SENSOR_PARAMS)), dtype=np.float64, order="C"),
+                        np.ascontiguousarray(outages, dtype=np.float64))
+
+
+@jit(inline="always")
+def measure_run(s, n, k, t, x, held_q, bias, y):
+    """Run ``n``'s measurement of sample ``k`` (:func:`measure` with :class:`SensorArrays` ``s``), or
+    the true state when the batch has no sensor draws."""
+    if s.draws.shape[1] > 0:
+        measure(k, t, x[:4], x[4:7], s.draws[n, k], s.params[n], s.outages, held_q, bias, y)
+    else:
+        for i in range(7):
+            y[i] = x[i]

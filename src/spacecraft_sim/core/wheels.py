@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 from gnc_common.compiled import inverse3, jit, matvec3, quat_normalize
 from gnc_common.validation import ConfigError, check_spd_inertia, from_mapping
 
-__all__ = ["PRESETS", "ReactionWheels", "allocation_matrix", "angular_momentum_B", "propagate_wheels", "propagate_wheels_into", "wheel_speeds", "wheel_speeds_into",
+__all__ = ["PRESETS", "ActuatorArrays", "ReactionWheels", "pack_actuator", "allocation_matrix", "angular_momentum_B", "propagate_wheels", "propagate_wheels_into", "wheel_speeds", "wheel_speeds_into",
            "wheel_torques", "wheels_from_mapping"]
 
 Array = NDArray[np.float64]
@@ -311,3 +311,36 @@ def angular_momentum_B(J: ArrayLike, wheels: ReactionWheels, x: ArrayLike) -> Ar
     for i in range(wheels.n):
         out = out + G[:, i] * h[i]
     return out
+
+
+# ============================================================================= a batch's arrays (the offline loop)
+
+
+class ActuatorArrays(NamedTuple):
+    """The actuator of a batch, as the whole-run loop takes it: ``max_torque_Nm`` the ideal
+    actuator's per-axis limit [N m]; with W reaction wheels, ``G`` (N, 3, W) their spin axes,
+    ``G_pinv`` (N, W, 3) the minimum-norm allocation, ``params`` (N, W, 6)
+    (:meth:`ReactionWheels.params`) for each run (W = 0: the ideal actuator).  Packed by
+    :func:`pack_actuator`."""
+
+    max_torque_Nm: float
+    G: NDArray[np.float64]
+    G_pinv: NDArray[np.float64]
+    params: NDArray[np.float64]
+
+    @staticmethod
+    def run_axes() -> dict[str, int]:
+        """The axis of runs of each per-run field (the others are shared by every run)."""
+        return {"G": 0, "G_pinv": 0, "params": 0}
+
+
+def pack_actuator(max_torque_Nm: float, wheel_sets: list[ReactionWheels], n_runs: int) -> ActuatorArrays:
+    """A batch's actuator: the ideal one clipped at ``max_torque_Nm`` (``wheel_sets`` empty), or one
+    wheel set per run (the same number of wheels)."""
+    if wheel_sets and (len(wheel_sets) != n_runs or any(w.n != wheel_sets[0].n for w in wheel_sets)):
+        raise ValueError(f"wheels must hold one wheel set per run ({n_runs}), each with the same number of wheels")
+    W = wheel_sets[0].n if wheel_sets else 0
+    G = np.array([w.G for w in wheel_sets], dtype=np.float64).reshape(n_runs, 3, W)
+    G_pinv = np.array([allocation_matrix(w.G) for w in wheel_sets], dtype=np.float64).reshape(n_runs, W, 3)
+    prm = np.array([w.params() for w in wheel_sets], dtype=np.float64).reshape(n_runs, W, 6)
+    return ActuatorArrays(float(max_torque_Nm), np.ascontiguousarray(G), np.ascontiguousarray(G_pinv), np.ascontiguousarray(prm))

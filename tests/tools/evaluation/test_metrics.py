@@ -195,7 +195,8 @@ def test_blocks_of_any_size_give_the_same_metrics_as_the_whole_history() -> None
     parts = []
     for n in range(3):
         part = _accumulator(t, 1, **SETTINGS)
-        fields: dict[str, Any] = {f: h.t if f == "t" else getattr(h, f)[:, n : n + 1] for f in History.__dataclass_fields__}
+        fields: dict[str, Any] = {f: h.t if f == "t" else None if getattr(h, f) is None else getattr(h, f)[:, n : n + 1]
+                                  for f in History.__dataclass_fields__}
         part.add_history(History(**fields))
         parts.append(part)
     joined = MetricsAccumulator.concatenate(parts)

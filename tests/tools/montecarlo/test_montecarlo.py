@@ -125,7 +125,7 @@ def test_a_run_that_goes_non_finite_is_marked_failed_and_the_campaign_continues(
         inp = real(*args, **kwargs)
         calls["n"] += 1
         if calls["n"] == 1:  # run 2 of the first chunk: an infinite initial rate
-            inp.x0[2, 4] = np.inf
+            inp.plant.x0[2, 4] = np.inf
         return inp
 
     monkeypatch.setattr(offline_simulate.compiled_loop, "prepare", poisoned)

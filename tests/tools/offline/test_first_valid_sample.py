@@ -74,7 +74,7 @@ def test_the_controller_starts_at_its_first_valid_sample_as_the_core_driven_like
     # the true state; the rate bias's window is closed from the first valid sample on)
     ctrl = scenario.build_controller()
     for k in range(FIRST_VALID, inp.t.size):
-        got = ctrl.step(float(inp.t[k]), inp.dt, x[k, :4], x[k, 4:], inp.ref_q[k], inp.ref_w[k], inp.ref_wd[k])
+        got = ctrl.step(float(inp.t[k]), inp.grid.dt, x[k, :4], x[k, 4:], inp.grid.ref_q[k], inp.grid.ref_w[k], inp.grid.ref_wd[k])
         assert np.array_equal(got.torque_cmd_B, out[k, O_CMD, :3]) and np.array_equal(got.rho, out[k, O_RHO, :3]), k
         assert np.array_equal(got.band_lower, out[k, O_BL, :3]) and np.array_equal(got.eps, out[k, O_EPS, :3]), k
     assert ctrl.t0 == inp.t[FIRST_VALID]

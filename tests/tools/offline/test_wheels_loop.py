@@ -58,20 +58,20 @@ def _step_by_step(raw: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarr
     wheels = s.wheels
     assert wheels is not None
     ctrl = s.build_controller()
-    G, Gp, prm = inp.wG[0], inp.wGp[0], inp.wprm[0]
-    x = inp.x0[0].copy()
+    G, Gp, prm = inp.actuator.G[0], inp.actuator.G_pinv[0], inp.actuator.params[0]
+    x = inp.plant.x0[0].copy()
     T = inp.t.size
     torques, speeds, states = np.zeros((T, 3)), np.zeros((T, wheels.n)), np.zeros((T, x.size))
-    d = inp.d_table
+    d = inp.disturbance.table
     for k in range(T):
         states[k] = x
-        tau = np.asarray(ctrl.step(inp.t[k], inp.dt, x[:4], x[4:7], inp.ref_q[k], inp.ref_w[k], inp.ref_wd[k]).torque_B, dtype=np.float64)
+        tau = np.asarray(ctrl.step(inp.t[k], inp.grid.dt, x[:4], x[4:7], inp.grid.ref_q[k], inp.grid.ref_w[k], inp.grid.ref_wd[k]).torque_B, dtype=np.float64)
         torques[k] = tau
         u = np.zeros(wheels.n)
         wheel_torques(tau, Gp, G, prm, x, u)
         speeds[k] = wheel_speeds(wheels, x)
         if k < T - 1:
-            propagate_wheels(x, u, d[k].copy(), inp.dt, inp.substeps, inp.J[0], inp.J_inv[0], G, prm)
+            propagate_wheels(x, u, d[k].copy(), inp.grid.dt, inp.plant.substeps, inp.plant.J[0], inp.plant.J_inv[0], G, prm)
     return torques, speeds, states
 
 
@@ -112,7 +112,7 @@ def test_total_angular_momentum_is_conserved_through_the_closed_loop_without_dis
     assert s.wheels is not None
     run = compiled_loop.simulate_compiled(s)
     inp = compiled_loop.prepare(s)
-    H_N0 = quat_to_dcm_BN(inp.x0[0, :4]).T @ angular_momentum_B(s.inertia_kg_m2, s.wheels, inp.x0[0])
+    H_N0 = quat_to_dcm_BN(inp.plant.x0[0, :4]).T @ angular_momentum_B(s.inertia_kg_m2, s.wheels, inp.plant.x0[0])
     x_end = run.x_final[0]
     H_N1 = quat_to_dcm_BN(x_end[:4]).T @ angular_momentum_B(s.inertia_kg_m2, s.wheels, x_end)
     assert np.max(np.abs(run.wheels[0, :, :, 1])) > 0.05  # the controller did work the wheels
