@@ -434,7 +434,8 @@ def _parser() -> argparse.ArgumentParser:
                           "external: start everything but the plant and record a run driven by "
                           "a plant you start yourself on the printed domain (it ends once the last sample's torque is recorded)")
     run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON")
-    run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: the first free one, claimed with a lock file)")
+    run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: ROS_DOMAIN_ID from the environment, else the first free one of "
+                     "SAPPC_DOMAIN_IDS, default 1-101); claimed with a lock file")
     run.set_defaults(func=_cmd_run)
     par = sub.add_parser("params", help="print the ROS parameters file of python -m sappc_controller for a scenario")
     par.add_argument("scenario")

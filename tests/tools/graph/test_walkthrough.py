@@ -11,7 +11,8 @@ import signal
 import subprocess
 import sys
 
-from conftest import ROOT, SAPPC, SCENARIOS, shm_files
+from conftest import ROOT, SAPPC, SCENARIOS
+from shm_watch import ShmWatch
 
 #: Longest a walkthrough command may take [s] (30 s of simulation run in about 10 s here).
 TIMEOUT_S = 300
@@ -39,13 +40,14 @@ def test_the_controller_alone_walkthrough_runs_verbatim(tmp_path) -> None:  # ty
     from sappc.graph.launch import claim_domain_id
 
     export, (controller, reference, plant) = _walkthrough()
-    before = shm_files()
-    with claim_domain_id() as domain:
+    with claim_domain_id() as domain, ShmWatch() as watch:
         env_line = _as_test(export, domain) + f" ROS_LOG_DIR={tmp_path / 'log'}"
 
         def start(command: str) -> subprocess.Popen[str]:
-            return subprocess.Popen(["bash", "-c", f"{env_line}; exec {_as_test(command, domain)}"], cwd=ROOT, text=True,
+            proc = subprocess.Popen(["bash", "-c", f"{env_line}; exec {_as_test(command, domain)}"], cwd=ROOT, text=True,
                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+            watch.add(proc.pid)
+            return proc
 
         # the plant first: it must wait for the controller, whatever the order
         my_plant = start(plant)
@@ -64,16 +66,17 @@ def test_the_controller_alone_walkthrough_runs_verbatim(tmp_path) -> None:  # ty
     assert [p.returncode for p in nodes] == [0, 0], logs
     assert "finished: 3001 control steps (0 refused), 0 rejected messages" in logs[0], logs[0]
     assert "did not arrive" not in logs[0], logs[0]  # no tick answered by the grace: nothing was lost
-    assert shm_files() <= before
+    watch.assert_clean()
 
 
 def test_sappc_run_records_a_run_driven_by_an_external_plant(tmp_path) -> None:  # type: ignore[no-untyped-def]
     scenario = tmp_path / "short.yaml"
     scenario.write_text(re.sub(r"(?m)^duration_s:.*$", "duration_s: 5.0", (SCENARIOS / "paper_tracking.yaml").read_text()))
     out, summary = tmp_path / "run", tmp_path / "run.json"
-    before = shm_files()
+    watch = ShmWatch().__enter__()
     run = subprocess.Popen([*SAPPC, "run", str(scenario), "--plant", "external", "--out", str(out), "--json", str(summary)],
                            cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    watch.add(run.pid)
     assert run.stderr is not None
     try:
         said = []
@@ -87,17 +90,20 @@ def test_sappc_run_records_a_run_driven_by_an_external_plant(tmp_path) -> None: 
         export, (_, _, plant) = _walkthrough()
         command = _as_test(export, domain) + f" ROS_LOG_DIR={tmp_path / 'log'}; exec " \
             + _as_test(plant, domain).replace("--duration 30", "--duration 5 --subscribers 2")
-        my_plant = subprocess.run(["bash", "-c", command], cwd=ROOT, text=True, capture_output=True, timeout=TIMEOUT_S)
+        plant_proc = subprocess.Popen(["bash", "-c", command], cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        watch.add(plant_proc.pid)
+        plant_out, plant_err = plant_proc.communicate(timeout=TIMEOUT_S)
         stdout, stderr = run.communicate(timeout=TIMEOUT_S)
     finally:  # an external plant's run has no time limit: never leave it waiting
         if run.poll() is None:
             run.send_signal(signal.SIGINT)
             run.communicate(timeout=60)
-    assert my_plant.returncode == 0 and "my_plant: 501 samples, 0 missed" in my_plant.stdout, my_plant.stdout + my_plant.stderr
+        watch.__exit__(None, None, None)
+    assert plant_proc.returncode == 0 and "my_plant: 501 samples, 0 missed" in plant_out, plant_out + plant_err
     assert run.returncode == 0, stdout + stderr
     result = json.loads(summary.read_text())
     assert result["controller_summary"]["commanded"] == 501, result["controller_summary"]
     assert result["recorded"]["/state/attitude"] == 501 and result["recorded"]["/control/torque"] == 501
     assert result["recorded"]["/controller/diagnostics"] == result["published"]["/controller/diagnostics"] == 501
     assert "startup_s" not in result["metrics"]  # the plant's start is the user's
-    assert shm_files() <= before
+    watch.assert_clean()
