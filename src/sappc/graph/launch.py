@@ -339,7 +339,8 @@ class _Process:
 @contextlib.contextmanager
 def _interrupts_deferred(what: str) -> Iterator[None]:
     """Hold SIGINT while ``what`` runs (node start-up or shutdown must not be cut in half), then
-    raise the :class:`KeyboardInterrupt` it would have raised, once."""
+    raise the :class:`KeyboardInterrupt` it would have raised, once, with the line it printed as
+    its argument (the command's entry, :mod:`sappc.__main__`, then prints no other)."""
     caught: list[int] = []
 
     def hold(signum: int, _frame: object) -> None:
@@ -354,7 +355,7 @@ def _interrupts_deferred(what: str) -> Iterator[None]:
         for sig, handler in old.items():
             signal.signal(sig, handler)
     if caught:
-        raise KeyboardInterrupt
+        raise KeyboardInterrupt(f"interrupted while {what}")
 
 
 def _terminate_as_interrupt(_signum: int, _frame: object) -> None:
