@@ -42,7 +42,7 @@ for k in range(round(args.duration / DT) + 1):
     k3 = f(x + DT / 2 * k2, u)
     x = x + DT / 6 * (k1 + 2 * k2 + 2 * k3 + f(x + DT * k3, u))
     x[:4] /= np.linalg.norm(x[:4])
-print(f"my_plant: {k + 1} samples, {missed} missed (held the last torque)")
+print(f"my_plant: {k + 1} samples, {missed} missed (held the last torque); q_BN at t = {t + DT:g} s: {x[:4].tolist()}")
 for pub in pubs:  # leave only once every subscriber (a recorder that lags) has what was sent: the rest would be lost
     pub.wait_for_all_acked(rclpy.duration.Duration(seconds=10))
 node.destroy_node()

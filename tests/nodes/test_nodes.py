@@ -49,8 +49,10 @@ class Driver:
         self.pub = {t.name: self.node.create_publisher(t.msg_class, t.name, qos) for t in (c.STATE_ATTITUDE, c.STATE_RATE, c.REFERENCE_ATTITUDE, c.REFERENCE_RATE, c.REFERENCE_ACCELERATION, c.CLOCK)}
         self.torques: list[tuple[int, np.ndarray]] = []
         self.diags: list[dict[str, np.ndarray]] = []
-        self.node.create_subscription(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, lambda m: self.torques.append((stamp_to_ns(m.header.stamp), torque_from_msg(m))), qos)
-        self.node.create_subscription(c.CONTROLLER_DIAGNOSTICS.msg_class, c.CONTROLLER_DIAGNOSTICS.name, lambda m: self.diags.append(diagnostics_from_msg(m)), qos)
+        self.outputs = [
+            self.node.create_subscription(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, lambda m: self.torques.append((stamp_to_ns(m.header.stamp), torque_from_msg(m))), qos),
+            self.node.create_subscription(c.CONTROLLER_DIAGNOSTICS.msg_class, c.CONTROLLER_DIAGNOSTICS.name, lambda m: self.diags.append(diagnostics_from_msg(m)), qos),
+        ]
         self.executor = SingleThreadedExecutor(context=context)
         for n in (self.node, *nodes):
             self.executor.add_node(n)
@@ -62,7 +64,9 @@ class Driver:
             self.executor.spin_once(timeout_sec=0.02)
 
     def matched(self) -> None:
+        """The controller's subscriptions matched, and its outputs offered (once every input has a publisher) and matched."""
         self.spin_until(lambda: all(p.get_subscription_count() >= 1 for n, p in self.pub.items() if n != "/clock"), "the controller's subscriptions")
+        self.spin_until(lambda: all(sub.get_publisher_count() >= 1 for sub in self.outputs), "the controller's outputs")
 
     def send_sample(self, t: float, q=Q0, w=(0.0, 0.0, 0.0), q_d=(0.0, 0.0, 0.0, 1.0), frame=None, clock=True) -> None:  # type: ignore[no-untyped-def]
         att = quaternion_msg(Q0, t, c.STATE_ATTITUDE)  # then the raw fields: the encoder refuses bad values
