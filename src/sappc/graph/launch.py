@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+from collections import Counter
 import json
 import os
 import signal
@@ -35,8 +36,9 @@ from typing import Any
 
 import yaml
 
+from sappc_msgs_py.runtime import parse_expected
 from sappc_controller.params import parameters_from_config, unflatten
-from sappc_msgs_py.contract import RELAYED_ACTUATOR_TOPICS, RELAYED_PATHS, faulty, relay_remaps
+from sappc_msgs_py.contract import CLOCK, RELAYED_ACTUATOR_TOPICS, RELAYED_PATHS, faulty, relay_remaps
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
@@ -262,12 +264,17 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "expected_subscribers": expected(disturbance__torque=1 if external_plant else 2) + [f"{faulty(t).name}=2" for topics in relayed for t in topics],
         "counts_file": counts_file("injector"),
     }
+    # lockstep with the bundled plant: the recorder subscribes to /clock, which the plant's start
+    # waits for, only once it has matched every publisher of what it records (each topic listed
+    # in a node's expected_subscribers is published by that node)
+    publishers = Counter(t for node in (controller, plant, reference, injector) for t in parse_expected(node["expected_subscribers"]) if t != CLOCK.name)
     recorder = {
         "mode": mode,
         "output_dir": paths["bag"],
         "metadata_files": [paths["scenario"], paths["params"]],
         "counts_file": counts_file("recorder"),
         **({"end_after_s": scenario.duration_s, "end_file": paths["end"]} if external_plant else {}),
+        **({"expected_publishers": [f"{t}={n}" for t, n in publishers.items()]} if lockstep and not external_plant else {}),
     }
     return {f"/{name}": {"ros__parameters": p} for name, p in
             (("controller", controller), ("plant", plant), ("reference", reference), ("injector", injector), ("recorder", recorder))}
