@@ -32,7 +32,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import yaml
 
@@ -267,7 +267,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     # lockstep with the bundled plant: the recorder subscribes to /clock, which the plant's start
     # waits for, only once it has matched every publisher of what it records (each topic listed
     # in a node's expected_subscribers is published by that node)
-    publishers = Counter(t for node in (controller, plant, reference, injector) for t in parse_expected(node["expected_subscribers"]) if t != CLOCK.name)
+    publishers = Counter(t for node in (controller, plant, reference, injector)
+                         for t in parse_expected(cast("list[str]", node["expected_subscribers"])) if t != CLOCK.name)
     recorder = {
         "mode": mode,
         "output_dir": paths["bag"],
