@@ -30,7 +30,7 @@ from sappc_msgs_py.convert import (
     vector3_msg,
 )
 
-from conftest import SCENARIOS
+from conftest import ROOT, SCENARIOS
 
 #: The paper's initial attitude, normalised.
 Q0 = tuple(np.array([0.3254, 0.4068, -0.3254, 0.7891]) / np.linalg.norm([0.3254, 0.4068, -0.3254, 0.7891]))
@@ -243,6 +243,35 @@ def test_runtime_gain_changes_are_validated_and_applied_whole(controller) -> Non
     assert not huge.successful and node.controller.config.gains.K_omega != 1e300
     (described,) = node.describe_parameters(["sappc.gains.K_omega"])
     assert described.floating_point_range[0].from_value == 0.0 and described.floating_point_range[0].to_value == PARAMETER_MAX
+
+
+def test_a_request_mixing_a_valid_and_an_invalid_gain_is_applied_as_the_readme_says(controller) -> None:  # type: ignore[no-untyped-def]
+    """Through the parameter services, as ``ros2 param`` or Foxglove send them (issue 25, defect 9):
+    ``set_parameters`` is ROS's per-parameter request (each parameter is validated and applied on
+    its own: the valid one is applied, the invalid one refused with its reason), while
+    ``set_parameters_atomically`` applies all or nothing.  The README says exactly that."""
+    from rclpy.parameter_client import AsyncParameterClient
+
+    node, drv = controller
+    client = AsyncParameterClient(drv.node, node.get_name())
+    drv.spin_until(lambda: client.services_are_ready(), "the controller's parameter services")
+    mixed = [Parameter("sappc.gains.K_q", value=0.5), Parameter("sappc.gains.K_omega", value=-1.0)]
+
+    atomic = client.set_parameters_atomically(mixed)
+    drv.spin_until(atomic.done, "set_parameters_atomically")
+    result = atomic.result().result  # type: ignore[union-attr]
+    assert not result.successful and "K_omega" in result.reason
+    assert node.controller.config.gains.K_q == 0.3 and node.controller.config.gains.K_omega != -1.0  # nothing applied
+
+    each = client.set_parameters(mixed)
+    drv.spin_until(each.done, "set_parameters")
+    ok_q, bad_omega = each.result().results  # type: ignore[union-attr]
+    assert ok_q.successful and not bad_omega.successful and "K_omega" in bad_omega.reason
+    assert node.controller.config.gains.K_q == 0.5 and node.controller.config.gains.K_omega != -1.0  # the valid one applied
+
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    said = readme.split("At run time the gains", 1)[1].split("the rest is read-only during a run", 1)[0]
+    assert "nothing half-applied" not in said and "set_parameters_atomically" in said and "each parameter" in said, said
 
 
 def test_plant_lockstep_waits_for_the_torque_of_each_sample(ros_context) -> None:  # type: ignore[no-untyped-def]
