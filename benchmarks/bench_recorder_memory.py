@@ -5,10 +5,11 @@ Issue 25's "done means": a 10-minute lockstep run records with the recorder's pe
 temporary copy of ``config/scenarios/paper_tracking.yaml`` with ``duration_s`` = ``--duration-s``
 (600 by default: 60,001 samples, about 660,000 messages), then:
 
-- the recorder's peak resident memory, two ways: its own figure, ``getrusage`` ``ru_maxrss``
-  after it closed the bag (the closing sort included), from its log's closing line; and the
-  largest ``VmHWM`` (the kernel's high-water mark of its resident set) read from
-  ``/proc/<pid>/status`` every :data:`POLL_S` while it ran;
+- the recorder's peak resident memory, two ways: its own figure, the kernel's high-water mark of
+  its resident set (``VmHWM`` of ``/proc/self/status``) read once it closed the bag (the closing
+  sort included), from its log's closing line; and the largest ``VmHWM`` read from
+  ``/proc/<pid>/status`` every :data:`POLL_S` while it ran (a cross-check that misses the last
+  half second);
 - the messages each node published, those the recorder counted, and those ``rosbags``
   (``AnyReader``, every message deserialised) reads from the bag directory;
 - how far the recorder's writer thread fell behind its taking thread (messages), from the same
@@ -110,6 +111,7 @@ def main() -> int:
         wall_s = time.monotonic() - start
         if run.returncode != 0:
             print(output, file=sys.stderr)
+            print(json.dumps({"failed": run.returncode, "recorder_vmhwm_mib_polled": round(hwm_kib / 1024, 1), "wall_s": round(wall_s, 1)}))
             return run.returncode
         result = json.loads(summary.read_text())
         log = (out / "logs" / "recorder.log").read_text()
@@ -124,8 +126,8 @@ def main() -> int:
             "messages_recorded": sum(result["recorded"].values()),
             "messages_read_by_rosbags": sum(read.values()),
             "rosbags_reads_every_message": read == {t: n for t, n in result["recorded"].items() if n},
-            "recorder_peak_rss_mib_getrusage": peak_mib,
-            "recorder_peak_rss_mb_getrusage": round(peak_mib * 1.048576, 1),
+            "recorder_peak_rss_mib": peak_mib,
+            "recorder_peak_rss_mb": round(peak_mib * 1.048576, 1),
             "recorder_vmhwm_mib_polled": round(hwm_kib / 1024, 1),
             "bound_mb": BOUND_MB,
             "within_bound": peak_mib * 1.048576 <= BOUND_MB,

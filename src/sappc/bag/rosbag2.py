@@ -27,7 +27,7 @@ from typing import Any, NamedTuple
 
 import yaml
 
-from sappc.bag.read import BagError, mcap_file
+from sappc.bag.errors import BagError
 from sappc_msgs_py.contract import QOS_DEPTH
 from sappc_msgs_py.schemas import type_hash
 
@@ -307,6 +307,8 @@ def repair(bag: str | Path) -> RepairResult:
     BagError
         If ``bag`` is not a bag, or not even its first records can be read.
     """
+    from sappc.bag.read import mcap_file  # the readers, only here: the recorder imports this module
+
     path = mcap_file(Path(bag))
     bag_dir = path.parent if Path(bag).is_dir() else None
     complete = _has_footer(path)

@@ -28,7 +28,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -48,8 +48,12 @@ from sappc.scenario import ControllerKind, Scenario, load_scenario
 __all__ = ["DOMAIN_IDS_ENV", "GraphResult", "claim_domain_id", "domain_ids", "format_domain_ids", "isolated_environment", "node_parameters",
            "requested_domain_id", "run_graph"]
 
-#: How long a node may take to stop after SIGINT before it is killed [s].
+#: How long a node may take to stop after SIGINT before it is killed [s]; for the recorder (and the
+#: composed process, which holds it), how long it may go without writing to its bag: closing a
+#: long run's bag (writing what it took, then the sort) takes longer than this, and is progress.
 STOP_TIMEOUT_S = 15.0
+#: Period of the stop's check for progress [s].
+STOP_CHECK_S = 1.0
 #: The environment variable that sets the domain ids ``sappc run`` and the test suite claim from
 #: (:func:`domain_ids`): comma-separated ids and inclusive ranges, e.g. ``1-41,43-101``.
 DOMAIN_IDS_ENV = "SAPPC_DOMAIN_IDS"
@@ -326,17 +330,26 @@ class _Process:
         self._log = open(log_path, "wb")  # noqa: SIM115 (closed in wait)
         self.proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
 
-    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> tuple[int, bool]:
-        """SIGINT, wait, SIGKILL if needed; returns (exit code, killed)."""
+    def stop(self, timeout_s: float = STOP_TIMEOUT_S, progress: Callable[[], object] | None = None) -> tuple[int, bool]:
+        """SIGINT, wait, SIGKILL once it has not exited within ``timeout_s``, counted from the
+        last change of ``progress()`` when given (a node that is still working, such as a recorder
+        closing a long bag, is not killed); returns (exit code, killed)."""
         killed = False
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-                killed = True
+            seen = progress() if progress is not None else None
+            deadline = time.monotonic() + timeout_s
+            while self.proc.poll() is None:
+                try:
+                    self.proc.wait(max(0.0, min(STOP_CHECK_S, deadline - time.monotonic())))
+                except subprocess.TimeoutExpired:
+                    now = progress() if progress is not None else None
+                    if now != seen:
+                        seen, deadline = now, time.monotonic() + timeout_s
+                    elif time.monotonic() >= deadline:
+                        os.killpg(self.proc.pid, signal.SIGKILL)
+                        self.proc.wait()
+                        killed = True
         self._log.close()
         return self.proc.returncode, killed
 
@@ -369,6 +382,16 @@ def _interrupts_deferred(what: str) -> Iterator[None]:
 def _terminate_as_interrupt(_signum: int, _frame: object) -> None:
     """SIGTERM (``kill``, a CI runner's stop) stops a run as Ctrl-C does: every node stopped cleanly."""
     raise KeyboardInterrupt
+
+
+def _bytes_under(directory: Path) -> int:
+    """The size of every file under ``directory`` [bytes]: it grows while a recorder writes its bag
+    (what it took, the sort's runs, the sorted file)."""
+    total = 0
+    for path in directory.rglob("*"):
+        with contextlib.suppress(OSError):  # a sort's temporary file removed meanwhile
+            total += path.stat().st_size if path.is_file() else 0
+    return total
 
 
 def _fastdds_shm_clean() -> None:
@@ -509,7 +532,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
             with _interrupts_deferred("stopping the nodes cleanly"):
                 for name in stop_order:
                     if name in procs:
-                        code, killed = procs[name].stop()
+                        code, killed = procs[name].stop(progress=(lambda: _bytes_under(bag_dir)) if name in ("recorder", "composed") else None)
                         exit_codes[name] = code
                         killed_any |= killed
                 if killed_any:

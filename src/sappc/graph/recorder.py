@@ -291,10 +291,26 @@ class RecorderNode(ProjectNode):
         if self.sim_time:  # the file in time order, whatever order the middleware delivered the topics in
             sort_by_log_time(self.dir / self.mcap_name, chunk_size=CHUNK_SIZE, library=RECORDER_LIBRARY)
         self._write_metadata()
-        peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
+        peak_mib = _peak_rss_mib()
         self.get_logger().info(f"bag {self.dir} closed: {sum(self.counts.values())} messages; the writer thread was at most "
                                f"{self.max_backlog} messages behind; peak memory {peak_mib:.1f} MiB")
         super().finish()
+
+
+def _peak_rss_mib() -> float:
+    """The most resident memory this process has had [MiB]: the kernel's ``VmHWM`` of its own image.
+
+    Not ``getrusage``'s ``ru_maxrss``: Linux carries it across ``execve``, so a node started by
+    ``sappc run`` (a fork of the launcher, numba and scipy loaded, then exec) would report the
+    launcher's 190 MiB.  ``ru_maxrss`` only where ``/proc`` is missing.
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024  # kB
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # kB on Linux
 
 
 def main(argv: list[str] | None = None) -> int:
