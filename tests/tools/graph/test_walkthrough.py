@@ -113,12 +113,14 @@ def start_in_order(tmp_path_factory) -> Iterator[Callable[[Any], dict[str, str]]
     commands = [c.replace("--duration 30", "--duration 5") for c in commands]
     tmp = tmp_path_factory.mktemp("orders")
     runs: dict[Any, dict[str, str]] = {}
-    with claim_domain_id() as domain, pytest.MonkeyPatch.context() as mp:
-        for key, value in isolated_environment(domain, tmp / "probe_log", base={}).items():
-            mp.setenv(key, value)
-        context = rclpy.context.Context()
-        rclpy.init(context=context, domain_id=domain)
-        probe = Node("walkthrough_probe", context=context)
+    with claim_domain_id() as domain:
+        with pytest.MonkeyPatch.context() as mp:  # the probe's participant reads them once, when created
+            for key, value in isolated_environment(domain, tmp / "probe_log", base={}).items():
+                mp.setenv(key, value)
+            context = rclpy.context.Context()
+            rclpy.init(context=context, domain_id=domain)
+            probe = Node("walkthrough_probe", context=context)
+        # undone: the tests that follow (sappc run claims its own domain, or ROS_DOMAIN_ID's) see no ROS_DOMAIN_ID
 
         def on_graph(name: str) -> None:
             deadline = time.monotonic() + TIMEOUT_S
@@ -186,7 +188,7 @@ def test_sappc_run_records_a_run_driven_by_an_external_plant(tmp_path) -> None: 
         assert domain is not None, "".join(said)
         export, (_, _, plant) = _walkthrough()
         command = _as_test(export, domain) + f" ROS_LOG_DIR={tmp_path / 'log'}; exec " \
-            + _as_test(plant, domain).replace("--duration 30", "--duration 5 --subscribers 2")
+            + _as_test(plant, domain).replace("--duration 30", "--duration 5 --subscribers 2 --clock-subscribers 4")
         plant_proc = subprocess.Popen(["bash", "-c", command], cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         watch.add(plant_proc.pid)
         plant_out, plant_err = plant_proc.communicate(timeout=TIMEOUT_S)
