@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from collections.abc import MutableMapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+
+from shm_watch import ShmWatch
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ROOT / "config" / "scenarios"
@@ -16,9 +21,19 @@ SCENARIOS = ROOT / "config" / "scenarios"
 SAPPC = [sys.executable, "-m", "sappc"]
 
 
-def shm_files() -> set[str]:
-    """Fast DDS shared-memory files in /dev/shm (a finished run must leave none of its own)."""
-    return {p.name for p in Path("/dev/shm").glob("fastrtps_*")} | {p.name for p in Path("/dev/shm").glob("fast_datasharing*")}
+def run_watched(cmd: list[str], *, timeout_s: float = 600, **kwargs: Any) -> tuple[subprocess.CompletedProcess[str], ShmWatch]:
+    """``subprocess.run(cmd)`` (text output captured, in the repository root) with a
+    :class:`~shm_watch.ShmWatch` on the process and its descendants: (the finished process, the watch)."""
+    with ShmWatch() as watch:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=kwargs.pop("cwd", ROOT), **kwargs)
+        watch.add(proc.pid)
+        try:
+            stdout, stderr = proc.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            stdout, stderr = proc.communicate()
+            raise
+    return subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr), watch
 
 
 def abandoned_shm(names: set[str]) -> list[str]:
@@ -47,13 +62,12 @@ def abandoned_shm(names: set[str]) -> list[str]:
 
 @pytest.fixture(scope="session")
 def tracking_run(tmp_path_factory):  # type: ignore[no-untyped-def]
-    """Experiment 1 through ``sappc run`` (60 s lockstep, recorded): (run dir, its JSON, /dev/shm before)."""
+    """Experiment 1 through ``sappc run`` (60 s lockstep, recorded): (run dir, its JSON, the
+    shared-memory watch of its processes)."""
     out = tmp_path_factory.mktemp("graph") / "run"
-    before = shm_files()
-    proc = subprocess.run([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--out", str(out), "--json", str(out.parent / "m.json")],
-                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    proc, watch = run_watched([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--out", str(out), "--json", str(out.parent / "m.json")])
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    return out, json.loads((out.parent / "m.json").read_text()), before
+    return out, json.loads((out.parent / "m.json").read_text()), watch
 
 
 def random_unit_quaternions(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -84,6 +98,34 @@ def ros_context(tmp_path, monkeypatch):  # type: ignore[no-untyped-def]
             yield context
         finally:
             rclpy.try_shutdown(context=context)
+
+
+def keep_off_the_users_domain(environ: MutableMapping[str, str]) -> int | None:
+    """Make the suite's ROS work keep off the domain of the user's other ROS work.
+
+    ``ROS_DOMAIN_ID`` in the environment is the user's (a robot, a simulator running beside the
+    tests): it is removed from ``environ``, so the ``sappc run`` and nodes the tests start claim a
+    domain of their own instead of joining it, and it is taken out of the ids they claim from
+    (:data:`~sappc.graph.launch.DOMAIN_IDS_ENV`, inherited by every process the tests start).
+    Returns the user's domain (``None`` when none was set).
+    """
+    from sappc.graph.launch import DOMAIN_IDS_ENV, domain_ids, format_domain_ids, requested_domain_id
+
+    text = environ.pop("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return None
+    user = requested_domain_id(None, {"ROS_DOMAIN_ID": text})[0]
+    assert user is not None
+    ids = [i for i in domain_ids(environ) if i != user]
+    if not ids:
+        raise pytest.UsageError(f"{DOMAIN_IDS_ENV} leaves the suite no domain id but ROS_DOMAIN_ID={user}, which is yours")
+    environ[DOMAIN_IDS_ENV] = format_domain_ids(ids)
+    return user
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Before any test: keep the suite off the user's ROS domain (:func:`keep_off_the_users_domain`)."""
+    keep_off_the_users_domain(os.environ)
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

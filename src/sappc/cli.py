@@ -17,7 +17,9 @@ one line naming the problem and exit with status 2; no traceback.
 Exit status of ``simulate`` and ``run`` (``montecarlo``: 1 when a run fails the campaign's
 criteria; ``tune``: 1 when no trial is feasible or the best gains fail their confirmation campaign): 0 the run met the scenario's requirements; 1 (``run``) a topic's recorded count differs
 from what was published; 2 invalid input; 3 the controller never commanded a torque; 4 the run
-broke a requirement of the scenario's ``metrics.requirements`` or became non-finite; 130 Ctrl-C.
+broke a requirement of the scenario's ``metrics.requirements`` or became non-finite; 130 Ctrl-C
+(:mod:`sappc.__main__`, the command's entry: one line, also during the imports and when started
+with SIGINT ignored).
 """
 
 from __future__ import annotations
@@ -42,8 +44,6 @@ EXIT_INVALID_INPUT = 2
 EXIT_CONTROLLER_NEVER_COMMANDED = 3
 #: Exit status of ``sappc run`` / ``simulate`` when the run broke a requirement of the scenario.
 EXIT_REQUIREMENT_FAILED = 4
-#: Exit status after Ctrl-C (128 + SIGINT), as shells report it.
-EXIT_INTERRUPTED = 130
 
 
 def _format_value(value: object) -> str:
@@ -443,7 +443,8 @@ def _parser() -> argparse.ArgumentParser:
                           "external: start everything but the plant and record a run driven by "
                           "a plant you start yourself on the printed domain (it ends once the last sample's torque is recorded)")
     run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON")
-    run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: the first free one, claimed with a lock file)")
+    run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: ROS_DOMAIN_ID from the environment, else the first free one of "
+                     "SAPPC_DOMAIN_IDS, default 1-101); claimed with a lock file")
     run.set_defaults(func=_cmd_run)
     par = sub.add_parser("params", help="print the ROS parameters file of python -m sappc_controller (or, --estimator, of python -m sappc_estimator) for a scenario")
     par.add_argument("scenario")
@@ -487,15 +488,14 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``sappc`` command."""
+    """The ``sappc`` command's work; Ctrl-C propagates as :class:`KeyboardInterrupt`, which the
+    command's entry (:mod:`sappc.__main__`) turns into one line and exit status 130."""
     args = _parser().parse_args(argv)
     try:
         return int(args.func(args))
     except (ConfigError, InputError) as exc:
         print(f"sappc: error: {exc}", file=sys.stderr)
         return EXIT_INVALID_INPUT
-    except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
     except BrokenPipeError:  # output piped into `head` and the like: stop quietly (Python docs' recipe)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1

@@ -13,6 +13,15 @@ be changed (``ros2 param set`` or any parameter client); a change is validated a
 applied at the next step, or rejected with the reason, never half-applied.  Everything else is
 read-only during a run.
 
+Start: ``control/torque`` and ``controller/diagnostics`` are offered (their publishers created)
+once each of the five inputs has a publisher.  A plant waits for a publisher of
+``control/torque`` before its first sample (README, "Writing your own plant"), so the loop starts
+only when the controller can compute its first sample, whatever order the plant, the reference
+and the controller were started in: no sample is answered without the law for want of a partner
+that had not started yet.  The closing log line counts the samples answered in each way
+(:data:`~sappc_msgs_py.contract.ANSWER_NAMES`: commanded, held, watchdog zero, refused), as
+``sappc run`` does from the bag.
+
 Modes (parameter ``mode``):
 
 ``lockstep`` (default)
@@ -77,6 +86,7 @@ from rcl_interfaces.msg import SetParametersResult
 from sappc_msgs_py.contract import (
     ANSWER_COMMANDED,
     ANSWER_HELD,
+    ANSWER_NAMES,
     ANSWER_REFUSED,
     ANSWER_WATCHDOG_ZERO,
     CLOCK,
@@ -95,7 +105,7 @@ from sappc_msgs_py.convert import (
 )
 from sappc_msgs_py.inputs import stamp_rejection
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, CountingPublisher, ProjectNode, StartGate, run_node, unmatched
 from gnc_common.timing import LatencyStatistics
 from gnc_common.validation import ConfigError, InputError, check_positive
 
@@ -206,12 +216,14 @@ class ControllerNode(ProjectNode):
         # waits for at most lockstep_timeout_s: a step at rest, then forget it
         self.controller.step(0.0, self.dt, _AT_REST_Q, _ZERO3, _AT_REST_Q, _ZERO3, _ZERO3)
         self.controller.reset()
-        self.pub_torque = self.counting_publisher(CONTROL_TORQUE, 1)
-        self.pub_diag = self.counting_publisher(CONTROLLER_DIAGNOSTICS)
+        # the outputs are offered once every input has a publisher (_offer_outputs): a plant waits
+        # for a publisher of control/torque, so it cannot start before the reference is there
+        self.pub_torque: CountingPublisher | None = None
+        self.pub_diag: CountingPublisher | None = None
         qos = qos_profile()
-        for topic in _INPUTS:
-            self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos)
+        self._input_subs = [self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos) for topic in _INPUTS]
         self.rejected = 0
+        self.answers = dict.fromkeys(ANSWER_NAMES, 0)  # samples answered, by answer (diagnostics status[2])
         self.rejected_by_reason: dict[str, int] = {}
         self.refused = 0  # control steps whose torque the core refused (non-finite)
         self.stale = False
@@ -226,17 +238,43 @@ class ControllerNode(ProjectNode):
         # before the first computed sample the controller has no performance function: NaN rows (as the offline loop records)
         self._diag_rows = {k: np.full(3, np.nan) for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
         self._held: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros(3), np.zeros(3), np.zeros(3))  # last torque, command, saturation
+        self.start_when(self._inputs_missing, self._offer_outputs)
         if self.mode == LOCKSTEP:
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
             self.create_timer(_GRACE_CHECK_S, self._check_grace)
         else:
             self.dt_ns = period_ns(self.dt)
-            self._gate = StartGate(self, lambda: unmatched([self.pub_torque, self.pub_diag]))  # no publish may block a callback
+            self._gate = StartGate(self, self._outputs_unmatched)  # no publish may block a callback
             self.create_frame_timer(self.dt, MID_FRAME_PHASE, self._on_timer)
         self.timing_file = str(self.param(_P["timing_file"]))
         self._check_unknown_overrides()  # after every declaration
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(f"{self.kind} controller ready ({self.mode}, dt = {self.dt} s)")
+
+    # ---- start ----------------------------------------------------------------------------
+    def _inputs_missing(self) -> list[str]:
+        """The inputs without a publisher yet, in words (empty: the controller can compute)."""
+        return [f"a publisher of {sub.topic_name}" for sub in self._input_subs if sub.get_publisher_count() < 1]
+
+    def _offer_outputs(self) -> None:
+        """Create ``control/torque`` and ``controller/diagnostics`` (once).
+
+        Called when every input has a publisher, or at the first complete sample if that comes
+        first (a plant that did not wait).  A plant waits for a publisher of ``control/torque``
+        before its first sample, so the loop starts only once the controller can answer it with
+        the law: whatever order the plant, the reference and the controller start in, the first
+        sample is computed and no tick is answered by ``lockstep_grace_s`` (issue 25, defect 6).
+        """
+        if self.pub_torque is None:
+            self.pub_torque = self.counting_publisher(CONTROL_TORQUE, 1)
+            self.pub_diag = self.counting_publisher(CONTROLLER_DIAGNOSTICS)
+            self.get_logger().info("every input has a publisher: control/torque is offered")
+
+    def _outputs_unmatched(self) -> list[str]:
+        """Real time: what the first step still waits for (the outputs offered and matched)."""
+        if self.pub_torque is None or self.pub_diag is None:
+            return ["control/torque to be offered (every input with a publisher)"]
+        return unmatched([self.pub_torque, self.pub_diag])
 
     # ---- parameters -----------------------------------------------------------------------
     def _config_values(self, changes: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -411,7 +449,10 @@ class ControllerNode(ProjectNode):
         self._publish(t_ns, zero, zero, zero, [0] * len(_INPUTS), answer)
 
     def _publish(self, t_ns: int, torque: np.ndarray, torque_cmd: np.ndarray, saturated: np.ndarray, input_ns: list[int], answer: int) -> None:
+        self._offer_outputs()  # a sample completed before the offer (its inputs' publishers not yet seen)
+        assert self.pub_torque is not None and self.pub_diag is not None
         self._answered_ns = t_ns if self._answered_ns is None else max(self._answered_ns, t_ns)
+        self.answers[ANSWER_NAMES[answer]] += 1
         self._held = (np.array(torque, dtype=np.float64), np.array(torque_cmd, dtype=np.float64), np.array(saturated, dtype=np.float64))
         t = t_ns / _NS
         stamp = ns_to_stamp(t_ns)
@@ -427,12 +468,19 @@ class ControllerNode(ProjectNode):
         the steps later than ``control_period_s``, from :class:`~gnc_common.timing.LatencyStatistics`."""
         return dict(self.latency.summary())
 
+    def closing_line(self) -> str:
+        """What the node did, for its last log line: the samples answered, by answer (what it did
+        not compute included, as ``sappc run`` reports it from the bag), and the inputs rejected."""
+        a = self.answers
+        reasons = f" {self.rejected_by_reason}" if self.rejected_by_reason else ""
+        return (f"finished: answered {sum(a.values())} samples: {a['commanded']} commanded, {a['held']} held, {a['watchdog_zero']} watchdog zero, "
+                f"{a['refused']} refused ({self.steps} control steps computed); {self.rejected} input messages rejected{reasons}")
+
     def finish(self) -> None:
-        self.get_logger().info(f"finished: {self.steps} control steps ({self.refused} refused), {self.rejected} rejected messages "
-                               f"{self.rejected_by_reason or ''}")
+        self.get_logger().info(self.closing_line())
         super().finish()
         if self.timing_file:
-            stats = {"steps": self.steps, "refused_steps": self.refused, "rejected": self.rejected,
+            stats = {"steps": self.steps, "refused_steps": self.refused, "answers": dict(self.answers), "rejected": self.rejected,
                      "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
                      **({"latency": self.latency_statistics()} if self.mode == REALTIME else {})}
             Path(self.timing_file).write_text(json.dumps(stats))

@@ -156,14 +156,16 @@ __all__ = [
     "relay_remaps",
 ]
 
-#: History depth of every topic.  A reliable writer can only repair what is still in its history:
-#: a subscriber whose side of the match completes after the writer's (measured: a recorder
-#: matched during a burst of 500 messages received only the last 10 with depth 10), or one that
-#: falls behind, loses nothing as long as it is less than this many samples late.  10,000: more
-#: than a whole 60 s run at 100 Hz.  (It was 1000 until lockstep ran at ~1500 samples/s: a
-#: recorder that started spinning or was scheduled 0.7 s late then lost blocks of samples, seen
-#: 2026-11-25 in CI's fault-matrix runs, which record ~14 topics.)  Costs ~1.5 MB per topic at
-#: most, only while a subscriber lags.
+#: History depth of every topic.  A reliable writer can only repair what is still in its history,
+#: so the depth is how far behind a subscriber may fall without losing anything.  What is left
+#: for it to cover since issue 25: the recorder takes every message on the executor's thread and
+#: writes on another (a slow write no longer leaves samples in the middleware's queues), and in
+#: ``sappc run`` it subscribes to ``/clock``, which the plant's start waits for, only once it has
+#: matched every publisher on its own side (a writer no longer relies on its history for the
+#: recorder's late side of a match; only ``/clock``'s own match remains).  What remains is a
+#: subscriber process that is not scheduled at all: 10,000 samples are 6.7 s at lockstep's
+#: ~1500 samples/s here, ten times the 0.7 s stall that overflowed depth 1000 in CI on 2026-11-25
+#: (fault-matrix runs, ~14 topics).  Costs ~1.5 MB per topic at most, only while a subscriber lags.
 QOS_DEPTH = 10_000
 
 

@@ -408,11 +408,13 @@ def run_nodes(make_nodes: Callable[[list[str]], list[ProjectNode]], argv: list[s
     def on_signal(signum: int, _frame: Any) -> None:
         stop["signal"] = signum
 
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    # before rclpy.init: from here on a signal only sets the flag, so the node finishes cleanly
+    # (a KeyboardInterrupt once the participant exists would leave its shared memory behind)
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     nodes: list[ProjectNode] = []
     status = 0
     try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         try:
             nodes = make_nodes(args)
         except (ConfigError, ValueError) as exc:

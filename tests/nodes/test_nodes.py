@@ -30,7 +30,7 @@ from sappc_msgs_py.convert import (
     vector3_msg,
 )
 
-from conftest import SCENARIOS
+from conftest import ROOT, SCENARIOS
 
 #: The paper's initial attitude, normalised.
 Q0 = tuple(np.array([0.3254, 0.4068, -0.3254, 0.7891]) / np.linalg.norm([0.3254, 0.4068, -0.3254, 0.7891]))
@@ -49,8 +49,10 @@ class Driver:
         self.pub = {t.name: self.node.create_publisher(t.msg_class, t.name, qos) for t in (c.STATE_ATTITUDE, c.STATE_RATE, c.REFERENCE_ATTITUDE, c.REFERENCE_RATE, c.REFERENCE_ACCELERATION, c.CLOCK)}
         self.torques: list[tuple[int, np.ndarray]] = []
         self.diags: list[dict[str, np.ndarray]] = []
-        self.node.create_subscription(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, lambda m: self.torques.append((stamp_to_ns(m.header.stamp), torque_from_msg(m))), qos)
-        self.node.create_subscription(c.CONTROLLER_DIAGNOSTICS.msg_class, c.CONTROLLER_DIAGNOSTICS.name, lambda m: self.diags.append(diagnostics_from_msg(m)), qos)
+        self.outputs = [
+            self.node.create_subscription(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, lambda m: self.torques.append((stamp_to_ns(m.header.stamp), torque_from_msg(m))), qos),
+            self.node.create_subscription(c.CONTROLLER_DIAGNOSTICS.msg_class, c.CONTROLLER_DIAGNOSTICS.name, lambda m: self.diags.append(diagnostics_from_msg(m)), qos),
+        ]
         self.executor = SingleThreadedExecutor(context=context)
         for n in (self.node, *nodes):
             self.executor.add_node(n)
@@ -62,7 +64,9 @@ class Driver:
             self.executor.spin_once(timeout_sec=0.02)
 
     def matched(self) -> None:
+        """The controller's subscriptions matched, and its outputs offered (once every input has a publisher) and matched."""
         self.spin_until(lambda: all(p.get_subscription_count() >= 1 for n, p in self.pub.items() if n != "/clock"), "the controller's subscriptions")
+        self.spin_until(lambda: all(sub.get_publisher_count() >= 1 for sub in self.outputs), "the controller's outputs")
 
     def send_sample(self, t: float, q=Q0, w=(0.0, 0.0, 0.0), q_d=(0.0, 0.0, 0.0, 1.0), frame=None, clock=True) -> None:  # type: ignore[no-untyped-def]
         att = quaternion_msg(Q0, t, c.STATE_ATTITUDE)  # then the raw fields: the encoder refuses bad values
@@ -294,6 +298,35 @@ def test_runtime_gain_changes_are_validated_and_applied_whole(controller) -> Non
     assert not huge.successful and node.controller.config.gains.K_omega != 1e300
     (described,) = node.describe_parameters(["sappc.gains.K_omega"])
     assert described.floating_point_range[0].from_value == 0.0 and described.floating_point_range[0].to_value == PARAMETER_MAX
+
+
+def test_a_request_mixing_a_valid_and_an_invalid_gain_is_applied_as_the_readme_says(controller) -> None:  # type: ignore[no-untyped-def]
+    """Through the parameter services, as ``ros2 param`` or Foxglove send them (issue 25, defect 9):
+    ``set_parameters`` is ROS's per-parameter request (each parameter is validated and applied on
+    its own: the valid one is applied, the invalid one refused with its reason), while
+    ``set_parameters_atomically`` applies all or nothing.  The README says exactly that."""
+    from rclpy.parameter_client import AsyncParameterClient
+
+    node, drv = controller
+    client = AsyncParameterClient(drv.node, node.get_name())
+    drv.spin_until(lambda: client.services_are_ready(), "the controller's parameter services")
+    mixed = [Parameter("sappc.gains.K_q", value=0.5), Parameter("sappc.gains.K_omega", value=-1.0)]
+
+    atomic = client.set_parameters_atomically(mixed)
+    drv.spin_until(atomic.done, "set_parameters_atomically")
+    result = atomic.result().result  # type: ignore[union-attr]
+    assert not result.successful and "K_omega" in result.reason
+    assert node.controller.config.gains.K_q == 0.3 and node.controller.config.gains.K_omega != -1.0  # nothing applied
+
+    each = client.set_parameters(mixed)
+    drv.spin_until(each.done, "set_parameters")
+    ok_q, bad_omega = each.result().results  # type: ignore[union-attr]
+    assert ok_q.successful and not bad_omega.successful and "K_omega" in bad_omega.reason
+    assert node.controller.config.gains.K_q == 0.5 and node.controller.config.gains.K_omega != -1.0  # the valid one applied
+
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    said = readme.split("At run time the gains", 1)[1].split("the rest is read-only during a run", 1)[0]
+    assert "nothing half-applied" not in said and "set_parameters_atomically" in said and "each parameter" in said, said
 
 
 def test_plant_lockstep_waits_for_the_torque_of_each_sample(ros_context) -> None:  # type: ignore[no-untyped-def]

@@ -50,9 +50,9 @@ from sappc_msgs_py.contract import (
     consumed_names,
 )
 from gnc_common.attitude import error_quaternion, quat_normalize
-from gnc_common.validation import ConfigError
 
 from sappc.bag.cdr import decode
+from sappc.bag.errors import BagError
 from sappc.evaluation.history import History
 from sappc.bag.mcap_scan import Scan, scan_mcap
 from sappc.evaluation.metrics import MetricsAccumulator
@@ -66,10 +66,6 @@ SCENARIO_RECORD = "sappc/scenario.yaml"
 PARAMS_RECORD = "sappc/params.yaml"
 
 Array = NDArray[np.float64]
-
-
-class BagError(ConfigError):
-    """The path is not a readable bag, or lacks what is asked of it."""
 
 
 @dataclass

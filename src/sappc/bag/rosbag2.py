@@ -16,21 +16,48 @@ original file is replaced only once the new one is complete (write, fsync, renam
 
 from __future__ import annotations
 
+import heapq
 import os
+import struct
+import tempfile
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import yaml
 
-from sappc.bag.read import BagError, mcap_file
+from sappc.bag.errors import BagError
 from sappc_msgs_py.contract import QOS_DEPTH
 from sappc_msgs_py.schemas import type_hash
 
-__all__ = ["BAG_METADATA", "RepairResult", "bag_metadata", "offered_qos_v9", "repair", "sort_by_log_time", "write_bag_metadata"]
+__all__ = ["BAG_METADATA", "MESSAGE_OVERHEAD_BYTES", "SORT_MEMORY_BYTES", "RepairResult", "bag_metadata", "offered_qos_v9", "repair", "sort_by_log_time", "write_bag_metadata"]
 
 #: Name of the rosbag2 metadata file.
 BAG_METADATA = "metadata.yaml"
+#: Memory the closing sort holds in messages at once [bytes] (:func:`sort_by_log_time`): 32 MiB,
+#: a sixth of the recorder's 200 MB budget (issue 25), about 5 min of experiment 1's 1,100
+#: messages per simulated second; a 10-min run is sorted in a few runs.
+SORT_MEMORY_BYTES = 32 * 1024 * 1024
+#: What a message held for the sort costs beyond its data [bytes]: on CPython 3.11 (sys.getsizeof)
+#: the 5-field record tuple 80, two 64-bit times 32 each, the sequence 28, the bytes object's
+#: header 33 and the list's pointer 8, 213 in all, rounded up.
+MESSAGE_OVERHEAD_BYTES = 256
+#: A run file's record header: log time, channel id, sequence, publish time, data length (the MCAP
+#: message record's field widths).
+_RUN_HEADER = struct.Struct("<QHIQI")
+#: Read buffer of each run file during the merge [bytes]: the merge holds one per run.
+_RUN_READ_BUFFER_BYTES = 64 * 1024
+
+
+class _Record(NamedTuple):
+    """A message of the sort: the MCAP message record's fields."""
+
+    log_time: int
+    channel_id: int
+    sequence: int
+    publish_time: int
+    data: bytes
 
 
 def offered_qos_v9() -> list[dict[str, Any]]:
@@ -166,7 +193,7 @@ def _read_records(path: Path) -> tuple[dict[int, Any], dict[int, Any], list[Any]
 
 
 def _write_records(path: Path, schemas: dict[int, Any], channels: dict[int, Any], metadata: list[tuple[str, dict[str, str]]],
-                   messages: list[Any], library: str, chunk_size: int | None = None) -> None:
+                   messages: Iterable[Any], library: str, chunk_size: int | None = None) -> None:
     """Write the records as a new MCAP file (zstd chunks), in the order given, then replace ``path`` with it."""
     from mcap.writer import CompressionType, Writer
 
@@ -187,25 +214,88 @@ def _write_records(path: Path, schemas: dict[int, Any], channels: dict[int, Any]
     tmp.replace(path)
 
 
-def sort_by_log_time(path: str | Path, *, chunk_size: int | None = None, library: str = "sappc (mcap-python)") -> int:
+def _order(m: _Record) -> tuple[int, int, int]:
+    """The sort key of a message: (log time, channel id, sequence)."""
+    return m.log_time, m.channel_id, m.sequence
+
+
+def _spill(run: list[_Record], directory: Path, index: int) -> Path:
+    """Sort ``run`` and write it to a run file in ``directory``; the file's path."""
+    run.sort(key=_order)  # stable: equal keys keep the file's order
+    path = directory / f"run{index:05d}"
+    with path.open("wb") as f:
+        for m in run:
+            f.write(_RUN_HEADER.pack(m.log_time, m.channel_id, m.sequence, m.publish_time, len(m.data)))
+            f.write(m.data)
+    return path
+
+
+def _read_run(path: Path) -> Iterator[_Record]:
+    """The messages of a run file, in its (sorted) order."""
+    with path.open("rb", buffering=_RUN_READ_BUFFER_BYTES) as f:
+        while header := f.read(_RUN_HEADER.size):
+            log_time, channel_id, sequence, publish_time, size = _RUN_HEADER.unpack(header)
+            yield _Record(log_time, channel_id, sequence, publish_time, f.read(size))
+
+
+def sort_by_log_time(path: str | Path, *, chunk_size: int | None = None, library: str = "sappc (mcap-python)",
+                     memory_bytes: int = SORT_MEMORY_BYTES) -> int:
     """Rewrite a complete MCAP file with its messages in (log time, channel, sequence) order.
 
     What the lockstep recorder does when it closes a bag on simulated time: the file then depends
     only on what was recorded, not on the order the topics' messages arrived in.  Schemas,
     channels and metadata keep their ids and order.  Returns the number of messages.
 
+    Memory is bounded, whatever the bag's length: an external merge sort.  The file is read once,
+    its messages cut into runs of about ``memory_bytes`` (data plus
+    :data:`MESSAGE_OVERHEAD_BYTES` each), each run sorted and written to a temporary file beside
+    the bag, then the runs are merged (:func:`heapq.merge`, stable) straight into the new file.
+    The result is the same file, byte for byte, as sorting every message in memory (equal keys
+    keep the order they had in the file in both).
+
     Raises
     ------
     BagError
         If the file cannot be read whole (a killed recording: ``sappc repair`` it first).
     """
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+
+    if memory_bytes <= 0:
+        raise ValueError(f"memory_bytes must be > 0, got {memory_bytes!r}")
     file = Path(path)
-    schemas, channels, metadata, messages, stopped_at = _read_records(file)
-    if stopped_at is not None:
-        raise BagError(f"{file}: cannot sort an incomplete file ({stopped_at})")
-    messages.sort(key=lambda m: (m.log_time, m.channel_id, m.sequence))
-    _write_records(file, schemas, channels, [(md.name, md.metadata) for md in metadata], messages, library, chunk_size)
-    return len(messages)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    metadata: list[tuple[str, dict[str, str]]] = []
+    count = 0
+    with tempfile.TemporaryDirectory(dir=file.parent, prefix=f".{file.name}.sort-") as tmp:
+        runs: list[Path] = []
+        run: list[_Record] = []
+        held = 0
+        try:
+            with file.open("rb") as f:
+                for record in StreamReader(f, validate_crcs=True).records:
+                    if isinstance(record, Message):
+                        run.append(_Record(record.log_time, record.channel_id, record.sequence, record.publish_time, record.data))
+                        held += len(record.data) + MESSAGE_OVERHEAD_BYTES
+                        count += 1
+                        if held >= memory_bytes:
+                            runs.append(_spill(run, Path(tmp), len(runs)))
+                            run, held = [], 0
+                    elif isinstance(record, Schema):
+                        schemas[record.id] = record
+                    elif isinstance(record, Channel):
+                        channels[record.id] = record
+                    elif isinstance(record, Metadata):
+                        metadata.append((record.name, record.metadata))
+        except (McapError, EOFError, ValueError, OSError) as exc:
+            raise BagError(f"{file}: cannot sort an incomplete file ({type(exc).__name__}: {exc})") from None
+        if run:
+            runs.append(_spill(run, Path(tmp), len(runs)))
+        del run
+        _write_records(file, schemas, channels, metadata, heapq.merge(*(_read_run(r) for r in runs), key=_order), library, chunk_size)
+    return count
 
 
 def repair(bag: str | Path) -> RepairResult:
@@ -217,6 +307,8 @@ def repair(bag: str | Path) -> RepairResult:
     BagError
         If ``bag`` is not a bag, or not even its first records can be read.
     """
+    from sappc.bag.read import mcap_file  # the readers, only here: the recorder imports this module
+
     path = mcap_file(Path(bag))
     bag_dir = path.parent if Path(bag).is_dir() else None
     complete = _has_footer(path)

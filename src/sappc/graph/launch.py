@@ -7,8 +7,9 @@ an order that loses no message (publishers first, they wait for acknowledgements
 last, it drains its queues), checks that the bag holds exactly what was published, and computes
 the same metrics as ``sappc simulate`` from the bag.
 
-Isolation (docs/ros2_notes.md): a ``ROS_DOMAIN_ID`` claimed with a lock file (two runs at once never
-share a domain), ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, the project's Fast DDS profile for
+Isolation (docs/ros2_notes.md, docs/domains.md): a ``ROS_DOMAIN_ID`` (``--domain-id``, else the
+environment's ``ROS_DOMAIN_ID``, else the first free id of :data:`DOMAIN_IDS_ENV`) claimed with a
+lock file (two runs at once never share a domain), ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, the project's Fast DDS profile for
 fast discovery, ``ROS_LOG_DIR`` inside the run directory.  No process outlives the run: every
 child is waited for, killed after :data:`STOP_TIMEOUT_S` if it must be, and stale Fast DDS
 shared-memory segments are cleaned when one had to be killed.
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+from collections import Counter
 import json
 import os
 import signal
@@ -26,29 +28,41 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import yaml
 
+from sappc_msgs_py.runtime import parse_expected
 from sappc_controller.params import parameters_from_config, unflatten
-from sappc_msgs_py.contract import RELAYED_ACTUATOR_TOPICS, RELAYED_PATHS, faulty, relay_remaps
+from sappc_msgs_py.contract import CLOCK, RELAYED_ACTUATOR_TOPICS, RELAYED_PATHS, faulty, relay_remaps
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
 from sappc.graph.container import NODE_CLASSES, STOP_ORDER
 from sappc.scenario import ControllerKind, Scenario, load_scenario
 
-__all__ = ["GraphResult", "claim_domain_id", "isolated_environment", "node_parameters", "run_graph"]
+__all__ = ["DOMAIN_IDS_ENV", "GraphResult", "claim_domain_id", "domain_ids", "format_domain_ids", "isolated_environment", "node_parameters",
+           "requested_domain_id", "run_graph"]
 
-#: How long a node may take to stop after SIGINT before it is killed [s].
+#: How long a node may take to stop after SIGINT before it is killed [s]; for the recorder (and the
+#: composed process, which holds it), how long it may go without writing to its bag: closing a
+#: long run's bag (writing what it took, then the sort) takes longer than this, and is progress.
 STOP_TIMEOUT_S = 15.0
-#: Domain ids tried by :func:`claim_domain_id` (0 is everyone's default; ids above 101 collide
-#: with ephemeral ports on Linux).
+#: Period of the stop's check for progress [s].
+STOP_CHECK_S = 1.0
+#: The environment variable that sets the domain ids ``sappc run`` and the test suite claim from
+#: (:func:`domain_ids`): comma-separated ids and inclusive ranges, e.g. ``1-41,43-101``.
+DOMAIN_IDS_ENV = "SAPPC_DOMAIN_IDS"
+#: The domain ids claimed when :data:`DOMAIN_IDS_ENV` is not set (0 is everyone's default; ids
+#: above 101 collide with ephemeral ports on Linux, ROS 2's "choosing a domain ID" page).
 DOMAIN_IDS = range(1, 102)
+#: The largest domain id ROS 2 accepts with Fast DDS (its port formula, 7400 + 250 id + offsets,
+#: must stay below 65536); ids above 101 are accepted but may collide with ephemeral ports.
+MAX_DOMAIN_ID = 232
 #: The nodes of a run, in start order (the plant starts last: it owns time).
 NODES = ("recorder", "controller", "reference", "injector", "plant")
 #: Plants of ``sappc run --plant``: the bundled rigid body (``python -m spacecraft_sim``), or the
@@ -64,14 +78,87 @@ def fastdds_profile() -> Path:
     return Path(str(resources.files("sappc.graph") / "fastdds_profile.xml"))
 
 
+def _domain_id(text: str, source: str) -> int:
+    """One domain id from ``source`` (a setting's name, for the error)."""
+    try:
+        value = int(text.strip())
+    except ValueError:
+        raise ConfigError(f"{source}: {text.strip()!r} is not a ROS domain id (an integer 0 to {MAX_DOMAIN_ID})") from None
+    if not 0 <= value <= MAX_DOMAIN_ID:
+        raise ConfigError(f"{source}: domain id {value} is outside 0 to {MAX_DOMAIN_ID}")
+    return value
+
+
+def domain_ids(environ: Mapping[str, str] | None = None) -> list[int]:
+    """The domain ids to claim from: :data:`DOMAIN_IDS_ENV` (``"1-41,43-101"``: ids and inclusive
+    ranges, in the order given) or, when it is unset or empty, :data:`DOMAIN_IDS`.
+
+    Raises
+    ------
+    ConfigError
+        Naming the setting and the offending entry (not an integer, outside 0 to
+        :data:`MAX_DOMAIN_ID`, a reversed range, no id at all).
+    """
+    text = (os.environ if environ is None else environ).get(DOMAIN_IDS_ENV, "").strip()
+    if not text:
+        return list(DOMAIN_IDS)
+    ids: list[int] = []
+    for entry in text.split(","):
+        low, sep, high = entry.partition("-")
+        if not sep:
+            ids.append(_domain_id(entry, DOMAIN_IDS_ENV))
+            continue
+        first, last = _domain_id(low, DOMAIN_IDS_ENV), _domain_id(high, DOMAIN_IDS_ENV)
+        if last < first:
+            raise ConfigError(f"{DOMAIN_IDS_ENV}: range {entry.strip()!r} ends before it starts")
+        ids.extend(range(first, last + 1))
+    return list(dict.fromkeys(ids))
+
+
+def format_domain_ids(ids: Iterable[int]) -> str:
+    """``ids`` as a :data:`DOMAIN_IDS_ENV` value (sorted, runs as ranges): ``[1, 2, 3, 5]`` -> ``"1-3,5"``."""
+    runs: list[list[int]] = []
+    for i in sorted(set(ids)):
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ",".join(f"{a}" if a == b else f"{a}-{b}" for a, b in runs)
+
+
+def requested_domain_id(domain_id: int | None, environ: Mapping[str, str] | None = None) -> tuple[int | None, str]:
+    """The domain a run was asked to use, and who asked: ``domain_id`` (``--domain-id``), else
+    ``ROS_DOMAIN_ID`` from ``environ`` (the ROS convention), else ``(None, ...)``: claim a free
+    one among :func:`domain_ids`.
+
+    Raises
+    ------
+    ConfigError
+        For an id (from either source) that is not an integer 0 to :data:`MAX_DOMAIN_ID`.
+    """
+    if domain_id is not None:
+        return _domain_id(str(domain_id), "--domain-id"), "--domain-id"
+    env = os.environ if environ is None else environ
+    if env.get("ROS_DOMAIN_ID", "").strip():
+        return _domain_id(env["ROS_DOMAIN_ID"], "ROS_DOMAIN_ID"), "ROS_DOMAIN_ID"
+    return None, f"the first free one of {DOMAIN_IDS_ENV}"
+
+
 @contextlib.contextmanager
-def claim_domain_id(preferred: int | None = None) -> Iterator[int]:
-    """Hold a ROS domain id no other ``sappc`` run or test on this machine uses meanwhile.
+def claim_domain_id(preferred: int | None = None, *, source: str = "the domain id") -> Iterator[int]:
+    """Hold a ROS domain id no other ``sappc`` run or test on this machine uses meanwhile:
+    ``preferred``, or the first free one of :func:`domain_ids`.
 
     The claim is an exclusive ``flock`` on ``$TMPDIR/sappc-domain-<id>.lock``, released when the
-    context ends (or the process dies).
+    context ends (or the process dies).  ``source`` names where ``preferred`` came from, for the
+    error.
+
+    Raises
+    ------
+    ConfigError
+        When ``preferred`` is held by another run, or every id of :func:`domain_ids` is.
     """
-    candidates = [preferred] if preferred is not None else list(DOMAIN_IDS)
+    candidates = [preferred] if preferred is not None else domain_ids()
     for domain in candidates:
         path = Path(tempfile.gettempdir()) / f"sappc-domain-{domain}.lock"
         fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o600)
@@ -86,7 +173,11 @@ def claim_domain_id(preferred: int | None = None) -> Iterator[int]:
             fcntl.flock(fd, fcntl.LOCK_UN)
             os.close(fd)
         return
-    raise RuntimeError(f"no free ROS domain id among {candidates[0]}..{candidates[-1]}")
+    if preferred is not None:
+        raise ConfigError(f"{source}: ROS domain {preferred} is in use by another sappc run or test on this machine "
+                          f"(lock {Path(tempfile.gettempdir()) / f'sappc-domain-{preferred}.lock'}); choose another")
+    raise ConfigError(f"no free ROS domain id among {DOMAIN_IDS_ENV}={format_domain_ids(candidates)}: every one is claimed by a "
+                      f"sappc run or test on this machine")
 
 
 def isolated_environment(domain_id: int, log_dir: Path, base: dict[str, str] | None = None) -> dict[str, str]:
@@ -178,12 +269,18 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "expected_subscribers": expected(disturbance__torque=1 if external_plant else 2) + [f"{faulty(t).name}=2" for topics in relayed for t in topics],
         "counts_file": counts_file("injector"),
     }
+    # lockstep with the bundled plant: the recorder subscribes to /clock, which the plant's start
+    # waits for, only once it has matched every publisher of what it records (each topic listed
+    # in a node's expected_subscribers is published by that node)
+    publishers = Counter(t for node in (controller, plant, reference, injector)
+                         for t in parse_expected(cast("list[str]", node["expected_subscribers"])) if t != CLOCK.name)
     recorder = {
         "mode": mode,
         "output_dir": paths["bag"],
         "metadata_files": [paths["scenario"], paths["params"]],
         "counts_file": counts_file("recorder"),
         **({"end_after_s": scenario.duration_s, "end_file": paths["end"]} if external_plant else {}),
+        **({"expected_publishers": [f"{t}={n}" for t, n in publishers.items()]} if lockstep and not external_plant else {}),
     }
     return {f"/{name}": {"ros__parameters": p} for name, p in
             (("controller", controller), ("plant", plant), ("reference", reference), ("injector", injector), ("recorder", recorder))}
@@ -234,17 +331,26 @@ class _Process:
         self._log = open(log_path, "wb")  # noqa: SIM115 (closed in wait)
         self.proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
 
-    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> tuple[int, bool]:
-        """SIGINT, wait, SIGKILL if needed; returns (exit code, killed)."""
+    def stop(self, timeout_s: float = STOP_TIMEOUT_S, progress: Callable[[], object] | None = None) -> tuple[int, bool]:
+        """SIGINT, wait, SIGKILL once it has not exited within ``timeout_s``, counted from the
+        last change of ``progress()`` when given (a node that is still working, such as a recorder
+        closing a long bag, is not killed); returns (exit code, killed)."""
         killed = False
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout_s)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-                killed = True
+            seen = progress() if progress is not None else None
+            deadline = time.monotonic() + timeout_s
+            while self.proc.poll() is None:
+                try:
+                    self.proc.wait(max(0.0, min(STOP_CHECK_S, deadline - time.monotonic())))
+                except subprocess.TimeoutExpired:
+                    now = progress() if progress is not None else None
+                    if now != seen:
+                        seen, deadline = now, time.monotonic() + timeout_s
+                    elif time.monotonic() >= deadline:
+                        os.killpg(self.proc.pid, signal.SIGKILL)
+                        self.proc.wait()
+                        killed = True
         self._log.close()
         return self.proc.returncode, killed
 
@@ -255,7 +361,8 @@ class _Process:
 @contextlib.contextmanager
 def _interrupts_deferred(what: str) -> Iterator[None]:
     """Hold SIGINT while ``what`` runs (node start-up or shutdown must not be cut in half), then
-    raise the :class:`KeyboardInterrupt` it would have raised, once."""
+    raise the :class:`KeyboardInterrupt` it would have raised, once, with the line it printed as
+    its argument (the command's entry, :mod:`sappc.__main__`, then prints no other)."""
     caught: list[int] = []
 
     def hold(signum: int, _frame: object) -> None:
@@ -270,12 +377,22 @@ def _interrupts_deferred(what: str) -> Iterator[None]:
         for sig, handler in old.items():
             signal.signal(sig, handler)
     if caught:
-        raise KeyboardInterrupt
+        raise KeyboardInterrupt(f"interrupted while {what}")
 
 
 def _terminate_as_interrupt(_signum: int, _frame: object) -> None:
     """SIGTERM (``kill``, a CI runner's stop) stops a run as Ctrl-C does: every node stopped cleanly."""
     raise KeyboardInterrupt
+
+
+def _bytes_under(directory: Path) -> int:
+    """The size of every file under ``directory`` [bytes]: it grows while a recorder writes its bag
+    (what it took, the sort's runs, the sorted file)."""
+    total = 0
+    for path in directory.rglob("*"):
+        with contextlib.suppress(OSError):  # a sort's temporary file removed meanwhile
+            total += path.stat().st_size if path.is_file() else 0
+    return total
 
 
 def _fastdds_shm_clean() -> None:
@@ -303,6 +420,10 @@ def run_graph(
     ``plant``: one of :data:`PLANTS` (``"basilisk"``: the plant node on Basilisk's dynamics, the
     ``[basilisk]`` extra); with ``"external"`` no time limit applies unless
     ``timeout_s`` is given (the user's plant may start whenever it is ready).
+    ``domain_id``: the ROS domain of the run; ``None``: ``ROS_DOMAIN_ID`` when the environment
+    sets it (the ROS convention), else the first free id of :func:`domain_ids`
+    (:func:`requested_domain_id`); either way it is claimed with a lock file, so two ``sappc``
+    runs never share it.
 
     Raises
     ------
@@ -330,39 +451,41 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                domain_id: int | None, timeout_s: float | None, progress: bool, compose: bool, plant: str) -> GraphResult:
     if plant not in PLANTS:
         raise ConfigError(f"plant must be one of {list(PLANTS)}, got {plant!r}")
-    external = plant == "external"
-    scenario = load_scenario(scenario_path)
-    kind = scenario.resolve_controller(controller)
-    scenario.controller_config(kind)  # validate before any process starts
-    # the controller's first step, as the node will compute it: a start the core refuses (the
-    # 180 deg singularity) stops here with the core's error, before any process starts
-    ref0 = scenario.reference.sample([0.0])
-    scenario.build_controller(kind).step(0.0, scenario.control_period_s, scenario.q_BN0, scenario.omega_BN_B0_rad_s,
-                                         ref0.q_RN[0], ref0.omega_RN_R[0], ref0.omegadot_RN_R[0])
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    run_dir = Path(out_dir) if out_dir is not None else Path("runs") / f"{scenario.name}-{kind.value}-{stamp}"
-    if run_dir.exists() and any(run_dir.iterdir()):
-        raise ConfigError(f"--out {run_dir} exists and is not empty; choose a new directory")
-    for sub in ("logs", "counts"):
-        (run_dir / sub).mkdir(parents=True, exist_ok=True)
-    scenario_copy = run_dir / "scenario.yaml"
-    scenario_copy.write_text(Path(scenario_path).read_text())
-    params_path = run_dir / "params.yaml"
-    bag_dir = run_dir / "bag"
-    # relative to the run directory, the nodes' working directory (node_parameters)
-    paths = {"scenario": scenario_copy.name, "bag": bag_dir.name, "counts": "counts", "params": params_path.name, "end": END_FILE}
-    params = node_parameters(scenario, kind, realtime=realtime, paths=paths, external_plant=external,
-                             backend="basilisk" if plant == "basilisk" else "native")
-    params_path.write_text(yaml.safe_dump(params, sort_keys=False))
-    remaps = _remaps(scenario)
-    limit = timeout_s if timeout_s is not None else (float("inf") if external else 60.0 + (2.0 if realtime else 1.0) * scenario.duration_s)
-    nodes = [n for n in NODES if not (external and n == "plant")]
+    preferred_domain, domain_source = requested_domain_id(domain_id)
+    # claimed first: a domain in use stops the run before anything is written or started
+    with claim_domain_id(preferred_domain, source=domain_source) as domain:
+        external = plant == "external"
+        scenario = load_scenario(scenario_path)
+        kind = scenario.resolve_controller(controller)
+        scenario.controller_config(kind)  # validate before any process starts
+        # the controller's first step, as the node will compute it: a start the core refuses (the
+        # 180 deg singularity) stops here with the core's error, before any process starts
+        ref0 = scenario.reference.sample([0.0])
+        scenario.build_controller(kind).step(0.0, scenario.control_period_s, scenario.q_BN0, scenario.omega_BN_B0_rad_s,
+                                             ref0.q_RN[0], ref0.omega_RN_R[0], ref0.omegadot_RN_R[0])
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        run_dir = Path(out_dir) if out_dir is not None else Path("runs") / f"{scenario.name}-{kind.value}-{stamp}"
+        if run_dir.exists() and any(run_dir.iterdir()):
+            raise ConfigError(f"--out {run_dir} exists and is not empty; choose a new directory")
+        for sub in ("logs", "counts"):
+            (run_dir / sub).mkdir(parents=True, exist_ok=True)
+        scenario_copy = run_dir / "scenario.yaml"
+        scenario_copy.write_text(Path(scenario_path).read_text())
+        params_path = run_dir / "params.yaml"
+        bag_dir = run_dir / "bag"
+        # relative to the run directory, the nodes' working directory (node_parameters)
+        paths = {"scenario": scenario_copy.name, "bag": bag_dir.name, "counts": "counts", "params": params_path.name, "end": END_FILE}
+        params = node_parameters(scenario, kind, realtime=realtime, paths=paths, external_plant=external,
+                                 backend="basilisk" if plant == "basilisk" else "native")
+        params_path.write_text(yaml.safe_dump(params, sort_keys=False))
+        remaps = _remaps(scenario)
+        limit = timeout_s if timeout_s is not None else (float("inf") if external else 60.0 + (2.0 if realtime else 1.0) * scenario.duration_s)
+        nodes = [n for n in NODES if not (external and n == "plant")]
 
-    def say(msg: str) -> None:
-        if progress:
-            print(msg, file=sys.stderr, flush=True)
+        def say(msg: str) -> None:
+            if progress:
+                print(msg, file=sys.stderr, flush=True)
 
-    with claim_domain_id(domain_id) as domain:
         env = isolated_environment(domain, (run_dir / "logs").resolve())
         procs: dict[str, _Process] = {}
         killed_any = False
@@ -388,7 +511,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                 with _interrupts_deferred("starting the nodes"):  # a started process is always in procs, to be stopped
                     procs[name] = _Process(name, cmd, env, run_dir / "logs" / f"{name}.log", cwd=run_dir)
             say(f"sappc run: {scenario.name} with {kind.value} ({'real time' if realtime else 'lockstep'}"
-                f"{', composed' if compose else ''}), domain {domain}, in {run_dir}")
+                f"{', composed' if compose else ''}), domain {domain} ({domain_source}), in {run_dir}")
             if external:
                 say(f"sappc run: waiting for your plant on ROS_DOMAIN_ID={domain} (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST): it publishes "
                     f"{'/clock, ' if not realtime else ''}state/attitude and state/rate and applies control/torque; the run ends once the "
@@ -410,7 +533,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
             with _interrupts_deferred("stopping the nodes cleanly"):
                 for name in stop_order:
                     if name in procs:
-                        code, killed = procs[name].stop()
+                        code, killed = procs[name].stop(progress=(lambda: _bytes_under(bag_dir)) if name in ("recorder", "composed") else None)
                         exit_codes[name] = code
                         killed_any |= killed
                 if killed_any:

@@ -6,14 +6,29 @@ and ``topic_type_hash`` as rosbag2 writes them) and ``metadata.yaml``, plus copi
 listed in ``metadata_files`` (the scenario and parameters of the run), which are also stored in
 the MCAP file as metadata records named ``sappc/<file name>``.
 
+Two threads, as rosbag2's recorder has: the executor's thread only *takes* each message (its raw
+CDR bytes, and in real time the wall time it was taken) and hands it to a queue; a writer thread
+does everything else (the stamp, the counts, the MCAP record, compression, the flush every
+:data:`FLUSH_PERIOD_S`).  The middleware's queues are so emptied at the pace messages arrive,
+whatever compressing a chunk costs: a recorder that fell behind used to leave the samples in the
+publishers' histories, which overflowed when it was late enough (issue 25).
+
 Reliability: each subscription is RELIABLE with KEEP_ALL history, so Fast DDS acknowledges a
 sample once it is in the recorder's queue, independently of how fast Python writes it; the
 project's publishers wait for every acknowledgement before they exit
 (:meth:`~sappc_msgs_py.runtime.ProjectNode.finish`).  On SIGINT or SIGTERM the recorder drains
-its queues until they stay empty for :data:`DRAIN_QUIET_S`, then finalises the file (summary,
-index) and ``metadata.yaml``.  The MCAP file is flushed every :data:`FLUSH_PERIOD_S`: after a
-SIGKILL every flushed chunk is still readable (``metadata.yaml`` is written at start with the
-topics and rewritten with the counts at the end).
+its queues until they stay empty for :data:`DRAIN_QUIET_S`, lets the writer thread write what
+it was handed, then finalises the file (summary, index) and ``metadata.yaml``.  The MCAP file is
+flushed every :data:`FLUSH_PERIOD_S`: after a SIGKILL every flushed chunk is still readable
+(``metadata.yaml`` is written at start with the topics and rewritten with the counts at the end).
+
+Start (parameter ``expected_publishers``, set by ``sappc run`` for a lockstep run of its own
+plant): the recorder subscribes to ``/clock`` only once each listed topic's subscription has
+matched that many publishers, on the recorder's side of the match.  The plant starts the run only
+once its ``/clock`` subscribers are matched, so the run starts when the recorder is matched with
+every publisher, not a wall-clock while later: a publisher matched with the recorder on its own
+side only (which lets it publish) no longer relies on its history to keep what it sends before
+the recorder's side completes.
 
 Time (parameter ``mode``):
 
@@ -45,8 +60,11 @@ Parameters: :data:`PARAMETERS` (``python -m sappc.graph.recorder --help``), and 
 
 from __future__ import annotations
 
+import queue
+import resource
 import shutil
 import sys
+import threading
 import time
 from functools import partial
 from pathlib import Path
@@ -57,6 +75,7 @@ from mcap.writer import CompressionType, Writer
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from sappc_msgs_py.contract import (
+    CLOCK,
     CONTROL_TORQUE,
     FAULT_TOPICS,
     TOPICS,
@@ -64,7 +83,7 @@ from sappc_msgs_py.contract import (
 from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, sort_by_log_time, write_bag_metadata
 from sappc_msgs_py.convert import cdr_stamp_ns
 from sappc_msgs_py.parameters import REQUIRED, Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, parse_expected, run_node
 from sappc_msgs_py.schemas import schema_text, type_hash
 from gnc_common.validation import ConfigError, check_positive
 
@@ -101,6 +120,9 @@ PARAMETERS = (
     MODE,
     Param("end_after_s", 0.0, "with an external plant: write end_file once the recorded torques span this (0: never)", "s", check=">= 0"),
     Param("end_file", "", "the file written when end_after_s is reached; '' for none"),
+    Param("expected_publishers", [], "subscribe to /clock only once each listed topic has matched this many publishers on the "
+          "recorder's side, as 'topic=count' entries (sappc run: the plant starts when its /clock subscribers are matched); "
+          "none: /clock at once", type="string[]", check="topics the recorder records, other than /clock"),
 )
 _P = {p.name: p for p in PARAMETERS}
 
@@ -123,6 +145,13 @@ class RecorderNode(ProjectNode):
         unknown = [n for n in names if n.lstrip("/") not in _KNOWN and n not in _KNOWN]
         if unknown:
             raise ConfigError(f"topics: {unknown[0]!r} is not a topic of the contract; known: {sorted(_KNOWN)}")
+        recorded = [_KNOWN.get(n.lstrip("/")) or _KNOWN[n] for n in names]  # known: checked above
+        names_recorded = {t.name for t in recorded}
+        self._expected = parse_expected(list(self.param(_P["expected_publishers"])), "expected_publishers")
+        wrong = [t for t in self._expected if t == CLOCK.name or t not in names_recorded]
+        if wrong:
+            raise ConfigError(f"expected_publishers: {wrong[0]!r} must be a recorded topic other than {CLOCK.name} "
+                              f"(recorded: {sorted(names_recorded)})")
         files = [Path(f) for f in (self.param(_P["metadata_files"]) or []) if f]
         for f in files:
             if not f.is_file():
@@ -139,18 +168,21 @@ class RecorderNode(ProjectNode):
             self.writer.add_metadata(f"sappc/{f.name}", {"text": f.read_text()})
             self.custom[f"sappc/{f.name}"] = f.name
 
-        qos = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_ALL)
+        self._qos = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_ALL)
         schemas: dict[str, int] = {}
         self.topics: list[tuple[str, str]] = []
         self.counts: dict[str, int] = {}
         self._channels: dict[str, int] = {}
+        self._recorded_subs: dict[str, Any] = {}
         qos_text = yaml.safe_dump(offered_qos_v9(), sort_keys=False)
-        recorded = [_KNOWN.get(n.lstrip("/")) or _KNOWN[n] for n in names]  # known: checked above
-        for topic in recorded:
+        for topic in recorded:  # every channel now, in the topics' order: the bag does not depend on when /clock is subscribed
             if topic.type_name not in schemas:
                 schemas[topic.type_name] = self.writer.register_schema(topic.type_name, "ros2msg", schema_text(topic.type_name).encode())
-            sub = self.create_subscription(topic.msg_class, topic.name, partial(self._on_message, topic.name), qos, raw=True)
-            resolved = str(sub.topic_name)
+            if topic is CLOCK and self._expected:
+                resolved = self.resolve_topic_name(topic.name)  # subscribed once the others are matched (module docstring)
+            else:
+                self._subscribe(topic)
+                resolved = str(self._recorded_subs[topic.name].topic_name)
             self._channels[topic.name] = self.writer.register_channel(
                 resolved, "cdr", schemas[topic.type_name], {"offered_qos_profiles": qos_text, "topic_type_hash": type_hash(topic.type_name)}
             )
@@ -168,12 +200,53 @@ class RecorderNode(ProjectNode):
         self.end_reached = False
         self._write_metadata()
         self.writer.flush()
-        self.create_timer(FLUSH_PERIOD_S, self.writer.flush)
+        if self._expected and CLOCK.name in names_recorded:
+            self.start_when(self._publishers_missing, lambda: self._subscribe(CLOCK))
+        # the hand-over from the taking thread (the executor's) to the writer thread: (topic, raw CDR, wall time taken [ns])
+        self._handover: queue.SimpleQueue[tuple[str, bytes, int] | None] = queue.SimpleQueue()
+        self._writer_error: BaseException | None = None
+        self.max_backlog = 0  # the most messages taken but not yet written, seen by the writer thread
+        self._writer_thread = threading.Thread(target=self._write_loop, name="recorder-writer", daemon=True)
+        self._writer_thread.start()
         self.get_logger().info(f"recording {len(self.topics)} topics into {self.dir} on {'simulated' if self.sim_time else 'wall'} time")
 
+    def _subscribe(self, topic: Any) -> None:
+        self._recorded_subs[topic.name] = self.create_subscription(topic.msg_class, topic.name, partial(self._on_message, topic.name),
+                                                                   self._qos, raw=True)
+
+    def _publishers_missing(self) -> list[str]:
+        """The ``expected_publishers`` not yet matched on the recorder's side, in words (empty: subscribe to /clock)."""
+        return [f"{n - self._recorded_subs[t].get_publisher_count()} publisher(s) of {t}" for t, n in self._expected.items()
+                if self._recorded_subs[t].get_publisher_count() < n]
+
     def _on_message(self, name: str, data: bytes) -> None:
+        """The executor's thread: take the message and hand it to the writer thread, nothing more."""
         self._last_message = time.monotonic()
-        log_ns = cdr_stamp_ns(self._types[name], data) if self.sim_time else time.time_ns()
+        self._handover.put((name, data, 0 if self.sim_time else time.time_ns()))
+
+    def _write_loop(self) -> None:
+        """The writer thread: write what is handed over, flush every :data:`FLUSH_PERIOD_S`, until ``None``."""
+        try:
+            next_flush = time.monotonic() + FLUSH_PERIOD_S
+            while True:
+                try:
+                    item = self._handover.get(timeout=max(0.0, next_flush - time.monotonic()))
+                except queue.Empty:
+                    pass  # no message before the next flush
+                else:
+                    if item is None:
+                        return
+                    self.max_backlog = max(self.max_backlog, self._handover.qsize() + 1)
+                    self._write(*item)
+                if time.monotonic() >= next_flush:
+                    self.writer.flush()
+                    next_flush = time.monotonic() + FLUSH_PERIOD_S
+        except BaseException as exc:  # noqa: BLE001 (reported by finish, and logged now)
+            self._writer_error = exc
+            self.get_logger().error(f"the bag writer stopped: {type(exc).__name__}: {exc}")
+
+    def _write(self, name: str, data: bytes, taken_ns: int) -> None:
+        log_ns = cdr_stamp_ns(self._types[name], data) if self.sim_time else taken_ns
         if self.start_ns is None or log_ns < self.start_ns:
             self.start_ns = log_ns
         self.end_ns = max(self.end_ns, log_ns)
@@ -207,6 +280,10 @@ class RecorderNode(ProjectNode):
         return dict(self.counts)
 
     def finish(self) -> None:
+        self._handover.put(None)  # after every message taken: the writer thread writes them all, then stops
+        self._writer_thread.join()
+        if self._writer_error is not None:
+            raise RuntimeError(f"{self.dir}: the bag writer failed: {self._writer_error}") from self._writer_error
         meta = bag_metadata(self.mcap_name, self.topics, self.counts, self.start_ns or 0, self.end_ns, self.custom)
         self.writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})
         self.writer.finish()
@@ -214,8 +291,26 @@ class RecorderNode(ProjectNode):
         if self.sim_time:  # the file in time order, whatever order the middleware delivered the topics in
             sort_by_log_time(self.dir / self.mcap_name, chunk_size=CHUNK_SIZE, library=RECORDER_LIBRARY)
         self._write_metadata()
-        self.get_logger().info(f"bag {self.dir} closed: {sum(self.counts.values())} messages")
+        peak_mib = _peak_rss_mib()
+        self.get_logger().info(f"bag {self.dir} closed: {sum(self.counts.values())} messages; the writer thread was at most "
+                               f"{self.max_backlog} messages behind; peak memory {peak_mib:.1f} MiB")
         super().finish()
+
+
+def _peak_rss_mib() -> float:
+    """The most resident memory this process has had [MiB]: the kernel's ``VmHWM`` of its own image.
+
+    Not ``getrusage``'s ``ru_maxrss``: Linux carries it across ``execve``, so a node started by
+    ``sappc run`` (a fork of the launcher, numba and scipy loaded, then exec) would report the
+    launcher's 190 MiB.  ``ru_maxrss`` only where ``/proc`` is missing.
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024  # kB
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # kB on Linux
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -5,7 +5,8 @@
   exactly what was published;
 - the sudden fault through the graph: SAPPC returns into its band;
 - a plant written only against the contract drives ``python -m sappc_controller``;
-- SIGINT to ``sappc run`` finalises the bag, leaves no process and no shared memory behind;
+- SIGINT to ``sappc run`` finalises the bag, leaves no process and no shared memory of its own behind
+  (:class:`shm_watch.ShmWatch`: what the run's processes used, not the whole machine's /dev/shm);
 - a SIGKILLed recorder leaves a bag whose flushed part is readable.
 """
 
@@ -26,7 +27,8 @@ from sappc.bag.read import BagError, bag_run, read_bag
 from sappc.scenario import load_scenario
 from sappc.offline.simulate import simulate
 
-from conftest import ROOT, SAPPC, SCENARIOS, shm_files
+from conftest import ROOT, SAPPC, SCENARIOS
+from shm_watch import ShmWatch
 
 pytestmark = pytest.mark.slow
 
@@ -66,7 +68,7 @@ def test_lockstep_graph_equals_the_offline_runner(tracking_run) -> None:  # type
 
 
 def test_bag_opens_with_rosbags_and_mcap_ros2_and_counts_what_was_published(tracking_run) -> None:  # type: ignore[no-untyped-def]
-    out, report, before = tracking_run
+    out, report, watch = tracking_run
     published = report["published"]
     assert published["/state/attitude"] == 6001 and published["/control/torque"] == 6001
     assert _rosbags_counts(out / "bag") == {t: n for t, n in published.items() if n}
@@ -77,7 +79,7 @@ def test_bag_opens_with_rosbags_and_mcap_ros2_and_counts_what_was_published(trac
     meta = (out / "bag" / "metadata.yaml").read_text()
     assert "version: 9" in meta and "RIHS01_" in meta
     assert (out / "bag" / "scenario.yaml").exists() and (out / "bag" / "params.yaml").exists()
-    assert shm_files() <= before  # nothing left in /dev/shm
+    watch.assert_clean()  # no process of the run alive, none of its shared memory left in /dev/shm
 
 
 def test_the_composed_graph_records_the_same_bag_byte_for_byte(tracking_run, tmp_path) -> None:  # type: ignore[no-untyped-def]
@@ -186,31 +188,30 @@ def test_sigint_finalises_the_bag_and_leaves_nothing_behind(tmp_path, stop, seco
     path = tmp_path / "long.yaml"
     path.write_text(yaml.safe_dump(scenario))
     out = tmp_path / "int"
-    before = shm_files()
-    proc = subprocess.Popen([*SAPPC, "run", str(path), "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
-    deadline = time.monotonic() + 120
-    # wait until the run is under way (the recorder has flushed messages), then interrupt
-    while time.monotonic() < deadline:
-        mcaps = list((out / "bag").glob("*.mcap"))
-        if mcaps and mcaps[0].stat().st_size > 200_000:
-            break
-        time.sleep(0.1)
-    children = _children_of(proc.pid)
-    assert len(children) == 5
-    proc.send_signal(stop)
-    if second_sigint_after_s is not None:
-        time.sleep(second_sigint_after_s)
-        proc.send_signal(signal.SIGINT)
-    log = proc.communicate(timeout=120)[0].decode()
+    with ShmWatch() as watch:
+        proc = subprocess.Popen([*SAPPC, "run", str(path), "--out", str(out)],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+        watch.add(proc.pid)
+        deadline = time.monotonic() + 120
+        # wait until the run is under way (the recorder has flushed messages), then interrupt
+        while time.monotonic() < deadline:
+            mcaps = list((out / "bag").glob("*.mcap"))
+            if mcaps and mcaps[0].stat().st_size > 200_000:
+                break
+            time.sleep(0.1)
+        children = _children_of(proc.pid)
+        assert len(children) == 5
+        proc.send_signal(stop)
+        if second_sigint_after_s is not None:
+            time.sleep(second_sigint_after_s)
+            proc.send_signal(signal.SIGINT)
+        log = proc.communicate(timeout=120)[0].decode()
     assert proc.returncode == 130, log
-    for pid in children:
-        assert not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2]
+    watch.assert_clean()  # the five nodes and the launcher exited; no shared memory of theirs left
     counts = _rosbags_counts(out / "bag")  # finalised: rosbags opens it through metadata.yaml
     bag = read_bag(out / "bag")
     assert bag.truncated is None and counts == {t: n for t, n in bag.counts.items()}
     assert 0 < counts["/state/attitude"] < 60001
-    assert shm_files() <= before
 
 
 def _flushed(bag_dir: Path) -> int:
