@@ -36,30 +36,6 @@ def run_watched(cmd: list[str], *, timeout_s: float = 600, **kwargs: Any) -> tup
     return subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr), watch
 
 
-def abandoned_shm(names: set[str]) -> list[str]:
-    """The Fast DDS shared-memory segments among ``names`` (from :func:`shm_files`) that no live
-    process holds: a process that stops cleanly removes its segments, one that dies leaves them
-    with their lock file (``<segment>_el``) free.  Unlike comparing :func:`shm_files` before and
-    after, this does not depend on what other runs on the machine (other sessions' tests) hold."""
-    import fcntl
-    import os
-
-    out = []
-    for name in sorted(n for n in names if n.endswith("_el")):
-        try:
-            fd = os.open(f"/dev/shm/{name}", os.O_RDWR)
-        except FileNotFoundError:
-            continue  # removed meanwhile
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            out.append(name)
-        except OSError:
-            pass  # held by a live process
-        finally:
-            os.close(fd)
-    return out
-
-
 @pytest.fixture(scope="session")
 def tracking_run(tmp_path_factory):  # type: ignore[no-untyped-def]
     """Experiment 1 through ``sappc run`` (60 s lockstep, recorded): (run dir, its JSON, the

@@ -39,11 +39,12 @@ after the last answered sample; real time: not after the topic's previous messag
 ``max_stamp_ahead_s`` ahead of the node's time (lockstep: the latest ``/clock``; real time: the
 node's clock) is rejected, logged and counted, in total (``estimator/diagnostics``
 ``rejected_messages``) and by reason (:data:`~sappc_msgs_py.inputs.REJECT_REASONS`).  A finite
-input that drives the filter non-finite (a rate of 1e300 rad/s) resets it: "no data" until the
-next tracker sample initialises it again (counted, ``filter_resets``).
+but implausible measurement (a rate beyond ``max_body_rate_rad_s``) is no measurement for the
+filter (docs/estimator.md, step 0): the filter is unchanged and the sample is "no data", as the
+offline loop answers it.
 
 The closing line and ``timing_file`` count the samples answered, the filter steps, its updates,
-gate rejections and re-initialisations, the "no data" samples, the resets and the rejected messages.
+gate rejections and re-initialisations, the "no data" samples and the rejected messages.
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ PARAMETERS = (
     Param("control_period_s", DEFAULT_CONTROL_PERIOD_S, "real time: a step published later than this after its state's stamp is "
           "counted late (the control period: the controller needs the estimate within its frame)", "s", check="> 0"),
     Param("timing_file", "", "where to write the node's statistics when it finishes (JSON: samples, filter steps, updates, gate "
-          "rejections, re-initialisations, no-data samples, resets, rejected messages by reason; real time: the steps' latency "
+          "rejections, re-initialisations, no-data samples, rejected messages by reason; real time: the steps' latency "
           "and late steps); '' for none"),
 )
 _P = {p.name: p for p in PARAMETERS}
@@ -122,7 +123,6 @@ _P = {p.name: p for p in PARAMETERS}
 #: before its first message; the other topics wait for none unless ``expected_subscribers`` says so.
 _LOOP_OUTPUTS = (ESTIMATE_ATTITUDE, ESTIMATE_RATE)
 #: The filter's outputs that must be finite for an estimate (all but the NIS and the status).
-_ESTIMATE = slice(mekf.EO_Q, mekf.EO_NIS)
 
 
 class EstimatorNode(ProjectNode):
@@ -155,7 +155,6 @@ class EstimatorNode(ProjectNode):
         self.samples = 0  # samples answered (an estimate or "no data")
         self.steps = 0  # filter steps (valid samples)
         self.no_data = 0  # samples answered with "no data"
-        self.resets = 0  # filter steps that went non-finite (the filter started afresh)
         self.rejected = 0
         self.rejected_by_reason: dict[str, int] = {}
         self._answered_ns: int | None = None  # lockstep: the latest stamp answered
@@ -224,14 +223,9 @@ class EstimatorNode(ProjectNode):
         q_meas, omega_meas = sample.values
         status = self.filter.step((t_ns - self._origin_ns) / NS_PER_S, q_meas, omega_meas)
         self.steps += 1
-        if self.filter.initialised and not (np.all(np.isfinite(self.filter.out[_ESTIMATE])) and np.all(np.isfinite(self.filter.P))):
-            self.resets += 1
-            self.get_logger().error(f"t = {t_ns / NS_PER_S:.9f} s: the filter went non-finite (rate {omega_meas.tolist()} rad/s); "
-                                    "it starts afresh at the next tracker sample")
-            self.filter.reset()
-            self._publish(t_ns, mekf.STATUS_NONE, estimate=False)
-            return
-        self._publish(t_ns, status, estimate=self.filter.initialised)
+        # an implausible measurement (a rate beyond max_body_rate_rad_s ...) is no measurement: the
+        # filter is unchanged and the sample is "no data", as the offline loop answers it
+        self._publish(t_ns, status, estimate=status != mekf.STATUS_NONE and self.filter.initialised)
 
     def _publish(self, t_ns: int, status: int, *, estimate: bool) -> None:
         """The sample's outputs, stamped ``t_ns``: the filter's estimate, or "no data" (NaN) in every
@@ -260,7 +254,7 @@ class EstimatorNode(ProjectNode):
         """What the node did: the counts of the closing line, the rejected messages by reason and
         (real time) the steps' latency (:class:`~gnc_common.timing.LatencyStatistics`)."""
         return {"samples": self.samples, "steps": self.steps, "updates": self.filter.updates, "gate_rejections": self.filter.rejections,
-                "reinitialisations": self.filter.reinitialisations, "no_data_samples": self.no_data, "filter_resets": self.resets,
+                "reinitialisations": self.filter.reinitialisations, "no_data_samples": self.no_data,
                 "rejected": self.rejected, "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
                 **({"latency": dict(self.latency.summary())} if self.mode == REALTIME else {})}
 
@@ -268,7 +262,7 @@ class EstimatorNode(ProjectNode):
         s = self.statistics()
         self.get_logger().info(f"finished: {s['samples']} samples, {s['steps']} filter steps ({s['updates']} updates, {s['gate_rejections']} "
                                f"gate rejections, {s['reinitialisations']} re-initialisations), {s['no_data_samples']} no-data samples, "
-                               f"{s['filter_resets']} resets, {s['rejected']} rejected messages {self.rejected_by_reason or ''}")
+                               f"{s['rejected']} rejected messages {self.rejected_by_reason or ''}")
         super().finish()
         if self.timing_file:
             Path(self.timing_file).write_text(json.dumps(s))

@@ -23,7 +23,8 @@ from sappc.bag.read import bag_estimate, read_bag
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import clock_msg, ns_to_stamp, quaternion_msg, stamp_to_ns, vector3_msg
 
-from conftest import ROOT, abandoned_shm, shm_files
+from conftest import ROOT
+from shm_watch import ShmWatch
 from test_estimator_node import DT_NS, measurements
 
 pytestmark = pytest.mark.slow
@@ -35,15 +36,17 @@ START_S, SAMPLE_S = 120.0, 30.0
 
 
 def test_the_estimator_process_answers_every_sample_records_and_stops_cleanly(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
-    before = shm_files()
+    watch = ShmWatch().__enter__()  # the two processes' own shared memory (tests/shm_watch.py)
     env = dict(os.environ)  # the fixture set the domain, discovery range, Fast DDS profile and log directory
     bag_dir, timing, counts = tmp_path / "bag", tmp_path / "timing.json", tmp_path / "counts.json"
     rec = subprocess.Popen([sys.executable, "-m", "sappc.graph.recorder", "--ros-args", "-p", f"output_dir:={bag_dir}"],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+    watch.add(rec.pid)
     expected = json.dumps([f"{t.name}=2" for t in c.ESTIMATOR_TOPICS])  # this test and the recorder
     est = subprocess.Popen([sys.executable, "-m", "sappc_estimator", "--ros-args", "--params-file", str(ROOT / "config" / "estimator_mekf.yaml"),
                             "-p", f"timing_file:={timing}", "-p", f"counts_file:={counts}", "-p", f"expected_subscribers:={expected}"],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+    watch.add(est.pid)
     node = Node("state_publisher", context=ros_context)
     qos = c.qos_profile()
     pubs = {t.name: node.create_publisher(t.msg_class, t.name, qos) for t in (c.CLOCK, *c.ESTIMATOR_INPUTS)}
@@ -86,6 +89,8 @@ def test_the_estimator_process_answers_every_sample_records_and_stops_cleanly(ro
         rec_log = rec.communicate(timeout=60)[0].decode()
         ex.shutdown()
         node.destroy_node()
+        watch.__exit__(None, None, None)
+    watch.assert_clean()  # both exited; no shared memory of theirs left behind
     assert est.returncode == 0, log
     assert rec.returncode == 0, rec_log
     assert f"finished: {N_SAMPLES} samples, {N_SAMPLES - 1} filter steps (2 updates, 0 gate rejections, 0 re-initialisations), 1 no-data samples" in log, log  # tracker at 0 (provisional), 10 (re-initialises), 20, 30
@@ -114,5 +119,4 @@ def test_the_estimator_process_answers_every_sample_records_and_stops_cleanly(ro
         np.testing.assert_array_equal(estimate.covariance[k], got[c.ESTIMATOR_COVARIANCE.name][ns])
     assert estimate.diagnostics["status"][DROPPED] == c.ESTIMATOR_NO_INPUT and estimate.diagnostics["updates"][-1] == 2
     assert np.all(np.isfinite(estimate.attitude_sigma_rad[estimate.diagnostics["status"] != c.ESTIMATOR_NO_INPUT]))
-    assert abandoned_shm(shm_files() - before) == []  # (/dev/shm is the machine's: other runs' live segments are not this test's)
 

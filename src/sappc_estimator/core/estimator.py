@@ -59,17 +59,6 @@ class Mekf:
         second), not at the first sample; this filter's state is not touched."""
         mekf.mekf_step(self.prm, 0.0, _AT_REST.copy(), mekf.new_state(), np.zeros((6, 6)), np.zeros_like(self.work), np.empty(mekf.N_EST_OUT))
 
-    def reset(self) -> None:
-        """Start afresh: not initialised (the next tracker sample initialises the filter, or the
-        prior at the next step), the covariance and outputs cleared; the counts of updates,
-        rejections and re-initialisations are kept (they count the filter's whole life)."""
-        counts = self.st[mekf.ES_N_UPD : mekf.ES_N_REINIT + 1].copy()
-        self.st[:] = mekf.new_state()
-        self.st[mekf.ES_N_UPD : mekf.ES_N_REINIT + 1] = counts
-        self.st[mekf.ES_N_CONSEC] = 0.0
-        self.P[:] = 0.0
-        self.out[:] = np.nan
-
     def step(self, t_s: float, q_meas: ArrayLike, omega_meas: ArrayLike) -> int:
         """One filter step at time ``t_s`` [s] with the tracker's ``q_meas`` (x, y, z, w) and the
         gyro's ``omega_meas`` [rad/s]; returns the step's status (``mekf.STATUS_*``), outputs in
