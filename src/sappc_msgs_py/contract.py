@@ -22,6 +22,7 @@ topic                         type                            frame_id    conten
 ``joint_states``              sensor_msgs/JointState          ``body``     reaction wheels (a plant with wheels only)
 ``truth/attitude``            geometry_msgs/QuaternionStamped ``inertial`` true ``q_BN`` (a plant with sensor models only)
 ``truth/rate``                geometry_msgs/Vector3Stamped    ``body``     true ``omega_BN_B`` [rad/s] (idem)
+``truth/gyro_bias``           geometry_msgs/Vector3Stamped    ``body``     the gyro's true bias in this sample's rate [rad/s] (idem)
 ``estimate/attitude``         geometry_msgs/QuaternionStamped ``inertial`` estimated ``q_BN`` (an estimator only)
 ``estimate/rate``             geometry_msgs/Vector3Stamped    ``body``     estimated ``omega_BN_B`` [rad/s] (idem)
 ``estimator/gyro_bias``       geometry_msgs/Vector3Stamped    ``body``     estimated gyro bias [rad/s] (idem)
@@ -49,8 +50,9 @@ Every ``std_msgs/Float64MultiArray`` of the contract carries the time it belongs
 
 With sensor models (a star tracker, a gyro: :mod:`spacecraft_sim.core.sensors`) ``state/*`` carry
 what the sensors measure, as the contract says, and the plant adds the true state on
-``truth/attitude`` and ``truth/rate``, same stamps: for the record and the metrics, never for
-the controller.  Without sensor models ``state/*`` are the truth and ``truth/*`` are not published.
+``truth/attitude`` and ``truth/rate``, and the gyro's true bias in the sample's rate
+(``truth/gyro_bias``: what an estimator's bias estimate is judged against), same stamps: for the
+record and the metrics, never for the controller.  Without sensor models ``state/*`` are the truth and ``truth/*`` are not published.
 
 ``joint_states`` follows the ROS convention of one joint per wheel: ``name`` ``wheel_1`` ..
 ``wheel_N``, ``velocity`` each wheel's speed relative to the body [rad/s], ``effort`` its motor
@@ -132,6 +134,7 @@ __all__ = [
     "OPTIONAL_TOPICS",
     "TRANSFORM_TOPICS",
     "TRUTH_ATTITUDE",
+    "TRUTH_GYRO_BIAS",
     "TRUTH_RATE",
     "Topic",
     "WHEEL_STATES",
@@ -227,6 +230,7 @@ REFERENCE_TF = Topic("reference/tf", "geometry_msgs/msg/TransformStamped", Frame
 WHEEL_STATES = Topic("joint_states", "sensor_msgs/msg/JointState", Frame.BODY.value)
 TRUTH_ATTITUDE = Topic("truth/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)
 TRUTH_RATE = Topic("truth/rate", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
+TRUTH_GYRO_BIAS = Topic("truth/gyro_bias", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
 ESTIMATE_ATTITUDE = Topic("estimate/attitude", STATE_ATTITUDE.type_name, STATE_ATTITUDE.frame_id)
 ESTIMATE_RATE = Topic("estimate/rate", STATE_RATE.type_name, STATE_RATE.frame_id)
 ESTIMATOR_GYRO_BIAS = Topic("estimator/gyro_bias", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
@@ -309,12 +313,13 @@ TOPICS = (
     WHEEL_STATES,
     TRUTH_ATTITUDE,
     TRUTH_RATE,
+    TRUTH_GYRO_BIAS,
     *ESTIMATOR_TOPICS,
 )
 
 #: Topics only some runs have (a plant with reaction wheels or sensor models, an estimator):
 #: absent from a bag of a run without them, which is no fault.
-OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE, *ESTIMATOR_TOPICS)
+OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE, TRUTH_GYRO_BIAS, *ESTIMATOR_TOPICS)
 
 #: The attitude as frames (body and reference relative to inertial), for visualisation only: no
 #: node consumes them, a fault relay never republishes them (they show the truth).

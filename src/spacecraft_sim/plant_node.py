@@ -71,7 +71,7 @@ from typing import Any
 
 import numpy as np
 
-from sappc_msgs_py.contract import (CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, STATE_TF, TRUTH_ATTITUDE, TRUTH_RATE,
+from sappc_msgs_py.contract import (CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, STATE_TF, TRUTH_ATTITUDE, TRUTH_GYRO_BIAS, TRUTH_RATE,
                                    WHEEL_STATES, qos_profile)
 from sappc_msgs_py.convert import (
     clock_msg,
@@ -164,6 +164,8 @@ class PlantNode(ProjectNode):
             self._held_q, self._bias, self._y = np.zeros(4), self._sensor_prm[S_BIAS0:S_BIAS0 + 3].copy(), np.zeros(7)
             self.pub_truth_att = self.counting_publisher(TRUTH_ATTITUDE)
             self.pub_truth_rate = self.counting_publisher(TRUTH_RATE)
+            self.pub_truth_bias = self.counting_publisher(TRUTH_GYRO_BIAS)
+            self._bias_k = np.zeros(3)  # the bias in sample k's rate (measure walks _bias on to k + 1)
             measure(0, 0.0, self.x[0, :4], self.x[0, 4:], np.zeros(N_SENSOR_DRAWS), self._sensor_prm, self._outages, np.zeros(4),
                     self._bias.copy(), np.zeros(7))  # load the compiled kernel now
         backend = str(self.param(_P["backend"]))
@@ -400,6 +402,7 @@ class PlantNode(ProjectNode):
             self.pub_tf.publish(transform_from_attitude(self._tf, att))  # after the state: off the loop's critical path
             return
         # the sensors' measurement of sample k (the offline loop's kernel and draws), then the truth
+        self._bias_k[:] = self._bias
         measure(self.k, self.k * self.dt, self.x[0, :4], self.x[0, 4:], self._sensor_rng.standard_normal(N_SENSOR_DRAWS), self._sensor_prm,
                 self._outages, self._held_q, self._bias, self._y)
         self.pub_att.publish(quaternion_msg(self._y[:4], t_s, STATE_ATTITUDE, out=self.pub_att.msg))
@@ -407,6 +410,7 @@ class PlantNode(ProjectNode):
         true_att = quaternion_msg(self.x[0, :4], t_s, TRUTH_ATTITUDE, out=self.pub_truth_att.msg)
         self.pub_truth_att.publish(true_att)
         self.pub_truth_rate.publish(vector3_msg(self.x[0, 4:], t_s, TRUTH_RATE, out=self.pub_truth_rate.msg))
+        self.pub_truth_bias.publish(vector3_msg(self._bias_k, t_s, TRUTH_GYRO_BIAS, out=self.pub_truth_bias.msg))
         self.pub_tf.publish(transform_from_attitude(self._tf, true_att))  # the body as it is
 
     def finish(self) -> None:

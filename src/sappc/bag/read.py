@@ -24,6 +24,8 @@ import yaml
 from numpy.typing import NDArray
 
 from sappc_msgs_py.contract import (
+    ESTIMATOR_NO_INPUT,
+    TRUTH_GYRO_BIAS,
     CONTROL_TORQUE,
     CONTROLLER_DIAGNOSTICS,
     ERROR_STATE,
@@ -53,6 +55,7 @@ from gnc_common.attitude import error_quaternion, quat_normalize
 
 from sappc.bag.cdr import decode
 from sappc.bag.errors import BagError
+from sappc.evaluation.estimation import EstimateHistory
 from sappc.evaluation.history import History
 from sappc.bag.mcap_scan import Scan, scan_mcap
 from sappc.evaluation.metrics import MetricsAccumulator
@@ -323,6 +326,7 @@ def bag_run(bag: Bag) -> BagRun:
         z=one(rows.get("z", nan3)),
         V=one(rows.get("lyapunov_V", nan3)),
         **_wheel_records(bag, common),
+        estimate=_estimate_record(bag, common),
     )
     finite_status = status[np.isfinite(status[:, 0])]
     return BagRun(
@@ -333,6 +337,39 @@ def bag_run(bag: Bag) -> BagRun:
         torque_topic=torque_topic,
         has_diagnostics=bool(rows),
     )
+
+
+def _estimate_record(bag: Bag, stamps_ns: NDArray[np.int64]) -> EstimateHistory | None:
+    """The estimator's record (T, 1, ...) at the state stamps, as the offline loop records it: each
+    estimator topic's message of the same stamp (NaN where there is none: "no data"), the status
+    from ``estimator/diagnostics``, the gyro's true bias from ``truth/gyro_bias``; ``None`` when
+    the bag has no estimator."""
+    est = bag_estimate(bag)
+    if est is None:
+        return None
+    T = stamps_ns.size
+    i = nearest_index(est.stamps_ns, stamps_ns)
+    got = i >= 0
+
+    def at(a: Array) -> Array:
+        out = np.full((T,) + a.shape[1:], np.nan)
+        out[got] = a[i[got]]
+        return out[:, None]
+
+    status = at(est.diagnostics.get("status", np.full(est.stamps_ns.size, np.nan)))
+    nis = at(est.diagnostics.get("nis", np.full(est.stamps_ns.size, np.nan)))
+    truth = find_topic(bag, TRUTH_GYRO_BIAS.name)
+    bias_true = None
+    if truth is not None:
+        s = bag.series[truth]
+        j = nearest_index(s.stamps_ns, stamps_ns)
+        bias_true = np.full((T, 3), np.nan)
+        bias_true[j >= 0] = s.values[j[j >= 0], :3]
+        bias_true = bias_true[:, None]
+    no_estimate = ~np.all(np.isfinite(at(est.q_BN)), axis=-1)
+    return EstimateHistory(q_BN=at(est.q_BN), omega_BN_B=at(est.omega_BN_B), gyro_bias=at(est.gyro_bias_rad_s),
+                           covariance=at(est.covariance), nis=np.where(no_estimate, np.nan, nis),
+                           status=np.nan_to_num(status, nan=float(ESTIMATOR_NO_INPUT)).astype(np.int8), gyro_bias_true=bias_true)
 
 
 def _wheel_records(bag: Bag, stamps_ns: NDArray[np.int64]) -> dict[str, Any]:

@@ -60,6 +60,18 @@ Definitions, per run:
 ``finite``
     ``False`` if the run's state or torque ever became non-finite (the run
     failed); the other metrics then describe the samples before that.
+``steady_max_abs_attitude_estimation_error_rad``, ``steady_rms_attitude_estimation_error_rad``
+    Only with an estimator (a history with its record): over ``t >= steady_from_s``, the largest
+    ``|a_i|`` and the largest over axes of the root mean square of ``a_i``, with ``a`` the true
+    attitude relative to the estimate (:func:`sappc.evaluation.estimation.attitude_errors`, the
+    filter's error convention) [rad].  Samples without an estimate are left out.
+``final_abs_bias_estimation_error_rad_s``
+    The largest ``|b_true,i - b_hat,i|`` at the last sample with an estimate [rad/s].
+``mean_nees``
+    The time-mean over ``t >= NEES_FROM_S`` of the normalised estimation error squared
+    (:func:`sappc.evaluation.estimation.nees`, 6 degrees of freedom): 6 for a consistent filter.
+``estimator_updates``, ``estimator_gate_rejections``, ``estimator_reinitialisations``
+    The filter's steps of each status (:data:`sappc_estimator.core.mekf.STATUS_NAMES`).
 ``max_abs_wheel_speed_rad_s``, ``max_abs_wheel_torque_Nm``
     Only with reaction wheels (a history with wheel records): the largest speed of any wheel
     relative to the body, and the largest motor torque, over the finite samples.
@@ -75,7 +87,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.compiled import jit
+from sappc.evaluation.estimation import EstimateHistory, attitude_errors, nees
 from sappc.evaluation.history import History
+from sappc_estimator.core.mekf import STATUS_NAMES
 
 __all__ = ["MetricsAccumulator"]
 
@@ -83,6 +97,10 @@ Array = NDArray[np.float64]
 
 #: Time comparisons on the sampling grid allow this much rounding in k * dt [s].
 _TIME_TOL_S = 1e-9
+#: Start of the NEES statistics [s]: the filter's transient from its initial covariance is over
+#: (the bias's 1e-5 rad/s prior is resolved within about 2 s at 10 Hz tracker updates; 5 s is the
+#: issue's consistency window).
+NEES_FROM_S = 5.0
 #: ``hold_s`` of a uniform grid, for the compiled update (no per-sample hold intervals).
 _NO_HOLD = np.zeros(0)
 
@@ -146,11 +164,26 @@ class MetricsAccumulator:
         self.samples = 0
         self.wheel_speed_max: Array | None = None  # only with wheels
         self.wheel_torque_max: Array | None = None
+        # only with an estimator: per run, steady max |a_i| and sum of a_i^2 (and their samples),
+        # the last bias error, the NEES sum and count from NEES_FROM_S, the statuses' counts; per
+        # sample of the grid, the NEES summed over the runs that have it and their number
+        self.est_att_max: Array | None = None
+        self.est_att_sq: Array | None = None
+        self.est_att_n: Array | None = None
+        self.est_bias_last: Array | None = None
+        self.est_nees_sum: Array | None = None
+        self.est_nees_n: Array | None = None
+        self.est_status_counts: Array | None = None
+        self.nees_sum_t = np.zeros(self.t.size)
+        self.nees_runs_t = np.zeros(self.t.size, dtype=np.int64)
 
     #: Per-run state (leading axis N), concatenated by :meth:`concatenate`.
     _PER_RUN = ("last_unsettled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
                 "torque_sign", "torque_sign_nonzero", "torque_sign_changes", "torque_reversals", "saturated_count", "outside_count",
-                "outside_s", "last_outside", "left_after_fault", "finite", "wheel_speed_max", "wheel_torque_max")
+                "outside_s", "last_outside", "left_after_fault", "finite", "wheel_speed_max", "wheel_torque_max", "est_att_max",
+                "est_att_sq", "est_att_n", "est_bias_last", "est_nees_sum", "est_nees_n", "est_status_counts")
+    #: Per-sample sums over runs, added by :meth:`concatenate`.
+    _SUMMED = ("nees_sum_t", "nees_runs_t")
 
     @classmethod
     def concatenate(cls, parts: Sequence[MetricsAccumulator]) -> MetricsAccumulator:
@@ -163,6 +196,8 @@ class MetricsAccumulator:
         for name in cls._PER_RUN:
             values = [getattr(p, name) for p in parts]
             setattr(merged, name, None if any(v is None for v in values) else np.concatenate(values))
+        for name in cls._SUMMED:
+            setattr(merged, name, sum(getattr(p, name) for p in parts))
         return merged
 
     def add_history(self, h: History) -> None:
@@ -170,6 +205,51 @@ class MetricsAccumulator:
         self._update(0, h.t, h.q_BN, h.omega_BN_B, h.torque_B, h.q_BR, h.rho, h.saturated, h.band_lower, h.band_upper)
         if h.wheel_speed_rad_s is not None and h.wheel_torque_Nm is not None:
             self.update_wheels(h.wheel_speed_rad_s, h.wheel_torque_Nm)
+        if h.estimate is not None:
+            self.update_estimate(self.samples - h.t.size, h.t, h.q_BN, h.estimate)
+
+    def update_estimate(self, k0: int, t: Array, q_BN: Array, est: EstimateHistory) -> None:
+        """Observe a block of samples ``k0 ..`` (``t`` (B,), arrays (B, N, ...)) of the estimator's
+        record against the true attitude ``q_BN``: the estimation metrics (module docstring)."""
+        n = self.finite.shape[0]
+        if self.est_att_max is None:
+            self.est_att_max, self.est_att_sq = np.zeros((n, 3)), np.zeros((n, 3))
+            self.est_att_n, self.est_nees_n = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+            self.est_bias_last, self.est_nees_sum = np.full((n, 3), np.nan), np.zeros(n)
+            self.est_status_counts = np.zeros((n, len(STATUS_NAMES)), dtype=np.int64)
+        att_max, att_sq, att_n, bias_last = self.est_att_max, self.est_att_sq, self.est_att_n, self.est_bias_last
+        nees_sum, nees_n, status_counts = self.est_nees_sum, self.est_nees_n, self.est_status_counts
+        assert att_sq is not None and att_n is not None and bias_last is not None and nees_sum is not None and nees_n is not None
+        assert status_counts is not None
+        a = attitude_errors(np.asarray(est.q_BN, dtype=np.float64), np.asarray(q_BN, dtype=np.float64))  # (B, N, 3), NaN: no estimate
+        has = np.all(np.isfinite(a), axis=-1)
+        steady = (np.asarray(t) >= self.steady_from_s - _TIME_TOL_S)[:, None] & has
+        self.est_att_max = np.maximum(att_max, np.where(steady[..., None], np.abs(a), 0.0).max(axis=0))
+        att_sq += np.where(steady[..., None], a * a, 0.0).sum(axis=0)
+        att_n += steady.sum(axis=0)
+        if est.gyro_bias_true is not None:
+            db = np.asarray(est.gyro_bias_true, dtype=np.float64) - np.asarray(est.gyro_bias, dtype=np.float64)
+            last = np.where(has.any(axis=0), has.shape[0] - 1 - np.argmax(has[::-1], axis=0), -1)  # per run, the block's last estimate
+            got = last >= 0
+            bias_last[got] = db[last[got], np.flatnonzero(got)]
+            e = nees(np.concatenate((a, db), axis=-1), np.asarray(est.covariance, dtype=np.float64))  # (B, N)
+            counted = (np.asarray(t) >= NEES_FROM_S - _TIME_TOL_S)[:, None] & np.isfinite(e)
+            nees_sum += np.where(counted, e, 0.0).sum(axis=0)
+            nees_n += counted.sum(axis=0)
+            rows = slice(k0, k0 + t.size)
+            self.nees_sum_t[rows] += np.where(counted, e, 0.0).sum(axis=1)
+            self.nees_runs_t[rows] += counted.sum(axis=1)
+        status = np.asarray(est.status)
+        for code in range(len(STATUS_NAMES)):
+            status_counts[:, code] += np.count_nonzero(status == code, axis=0)
+
+    def mean_nees_over_runs(self) -> tuple[Array, Array]:
+        """The NEES averaged over the runs at every sample from :data:`NEES_FROM_S` (NaN where no
+        run has one) and the number of runs averaged, (T,) each: the consistency test of a
+        campaign (:func:`sappc.evaluation.estimation.nees_band`)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.where(self.nees_runs_t > 0, self.nees_sum_t / np.maximum(self.nees_runs_t, 1), np.nan)
+        return mean, self.nees_runs_t.copy()
 
     def update_wheels(self, speed_rad_s: Array, torque_Nm: Array) -> None:
         """Observe a block of wheel records (B, N, W): speeds relative to the body and motor torques."""
@@ -261,6 +341,8 @@ class MetricsAccumulator:
         if self.wheel_speed_max is not None and self.wheel_torque_max is not None:
             m["max_abs_wheel_speed_rad_s"] = float(self.wheel_speed_max[run])
             m["max_abs_wheel_torque_Nm"] = float(self.wheel_torque_max[run])
+        if self.est_att_max is not None:
+            m.update(self._estimation_metrics(run))
         if self.fault_start_s is not None:
             left = bool(self.left_after_fault[run])
             returned = lo < last
@@ -270,12 +352,33 @@ class MetricsAccumulator:
                 m["returned_at_s"] = float(t[lo + 1])
         return m
 
+    def _estimation_metrics(self, run: int) -> dict[str, Any]:
+        assert self.est_att_max is not None and self.est_att_sq is not None and self.est_att_n is not None
+        assert self.est_bias_last is not None and self.est_nees_sum is not None and self.est_nees_n is not None
+        assert self.est_status_counts is not None
+        n_att, n_nees = int(self.est_att_n[run]), int(self.est_nees_n[run])
+        bias = self.est_bias_last[run]
+        counts = self.est_status_counts[run]
+        return {
+            "steady_max_abs_attitude_estimation_error_rad": float(self.est_att_max[run].max()) if n_att else None,
+            "steady_rms_attitude_estimation_error_rad": float(np.sqrt(self.est_att_sq[run] / n_att).max()) if n_att else None,
+            "final_abs_bias_estimation_error_rad_s": float(np.abs(bias).max()) if np.all(np.isfinite(bias)) else None,
+            "mean_nees": float(self.est_nees_sum[run] / n_nees) if n_nees else None,
+            "estimator_updates": int(counts[STATUS_NAMES.index("updated")]),
+            "estimator_gate_rejections": int(counts[STATUS_NAMES.index("rejected")]),
+            "estimator_reinitialisations": int(counts[STATUS_NAMES.index("reinitialised")]),
+        }
+
     def criteria_arrays(self) -> dict[str, Array]:
         """Per-run arrays for campaign tables: the two Monte Carlo criteria per component and more."""
         steady_mean = self.steady_sum / max(self.steady_count, 1)
         changes, reversals = self.switching_rates()
         wheels = {} if self.wheel_speed_max is None or self.wheel_torque_max is None else {
             "max_abs_wheel_speed_rad_s": self.wheel_speed_max, "max_abs_wheel_torque_Nm": self.wheel_torque_max}
+        if self.est_att_max is not None:
+            per_run = [self._estimation_metrics(k) for k in range(self.finite.shape[0])]
+            wheels.update({key: np.array([np.nan if m[key] is None else m[key] for m in per_run], dtype=np.float64)
+                           for key in ("steady_max_abs_attitude_estimation_error_rad", "final_abs_bias_estimation_error_rad_s", "mean_nees")})
         return {**wheels,
             "steady_mean_abs_qev_per_axis": steady_mean,
             "steady_mean_abs_qev": steady_mean.max(axis=1),

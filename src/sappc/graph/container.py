@@ -32,6 +32,7 @@ __all__ = ["NODE_CLASSES", "STOP_ORDER", "build_nodes", "main"]
 #: own process (what ``sappc run`` does without ``--compose``).
 NODE_CLASSES: dict[str, tuple[str, str]] = {
     "recorder": ("sappc.graph.recorder", "RecorderNode"),
+    "estimator": ("sappc_estimator.node", "EstimatorNode"),
     "controller": ("sappc_controller.node", "ControllerNode"),
     "reference": ("spacecraft_sim.reference", "ReferenceNode"),
     "injector": ("spacecraft_sim.disturbance", "InjectorNode"),
@@ -39,7 +40,7 @@ NODE_CLASSES: dict[str, tuple[str, str]] = {
 }
 #: Stop order: publishers first (each waits for its subscribers' acknowledgements), the recorder
 #: last (it drains its queues); the same order in which ``sappc run`` signals the five processes.
-STOP_ORDER = ("plant", "controller", "reference", "injector", "recorder")
+STOP_ORDER = ("plant", "estimator", "controller", "reference", "injector", "recorder")
 
 
 def build_nodes(composition: list[dict[str, Any]]) -> list[ProjectNode]:

@@ -38,7 +38,9 @@ import yaml
 
 from sappc_msgs_py.runtime import parse_expected
 from sappc_controller.params import parameters_from_config, unflatten
-from sappc_msgs_py.contract import CLOCK, RELAYED_ACTUATOR_TOPICS, RELAYED_PATHS, faulty, relay_remaps
+from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
+from sappc_msgs_py.contract import (CLOCK, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_TOPICS, RELAYED_ACTUATOR_TOPICS, RELAYED_PATHS,
+                                    RELAYED_SENSOR_TOPICS, STATE_ATTITUDE, STATE_RATE, faulty, relay_remaps)
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
@@ -64,7 +66,7 @@ DOMAIN_IDS = range(1, 102)
 #: must stay below 65536); ids above 101 are accepted but may collide with ephemeral ports.
 MAX_DOMAIN_ID = 232
 #: The nodes of a run, in start order (the plant starts last: it owns time).
-NODES = ("recorder", "controller", "reference", "injector", "plant")
+NODES = ("recorder", "estimator", "controller", "reference", "injector", "plant")
 #: Plants of ``sappc run --plant``: the bundled rigid body (``python -m spacecraft_sim``), or the
 #: user's own, started separately (every node but the plant is started; the run ends once the
 #: torque of the scenario's last sample is recorded, or on Ctrl-C).
@@ -221,7 +223,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     def counts_file(node: str) -> str:
         return str(Path(paths["counts"]) / f"{node}.json")
 
-    clock_subs = 4  # controller (stale watchdog), reference, injector, recorder
+    estimating = scenario.estimator is not None
+    clock_subs = 5 if estimating else 4  # controller (stale watchdog), reference, injector, recorder (and the estimator: its far-ahead check)
     controller = {
         **unflatten(parameters_from_config(kind.value, scenario.controller_config(kind))),
         **common,
@@ -246,8 +249,9 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "use_disturbance_topic": True,
         **common,
         # state: the controller (or the sensor relay) and the recorder; state/tf, joint_states: the recorder; /clock in lockstep only
+        # (the estimator takes the controller's place on state/* when there is one)
         "expected_subscribers": expected(state__attitude=2, state__rate=2, state__tf=1) + (["joint_states=1"] if scenario.wheels is not None else [])
-        + (["truth/attitude=1", "truth/rate=1"] if scenario.sensors is not None else [])
+        + (["truth/attitude=1", "truth/rate=1", "truth/gyro_bias=1"] if scenario.sensors is not None else [])
         + ([f"/clock={clock_subs}"] if lockstep else []),
         "counts_file": counts_file("plant"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "timing.json"),
@@ -269,10 +273,19 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "expected_subscribers": expected(disturbance__torque=1 if external_plant else 2) + [f"{faulty(t).name}=2" for topics in relayed for t in topics],
         "counts_file": counts_file("injector"),
     }
+    # the estimator (a scenario with one): between the plant's measurements and the controller,
+    # which reads estimate/* through a remap (_remaps); its outputs go to the controller and the recorder
+    estimator = {
+        **estimator_parameters_from_config(scenario.estimator),
+        **common,
+        "expected_subscribers": expected(estimate__attitude=2, estimate__rate=2) + [f"{t.name}=1" for t in ESTIMATOR_TOPICS[2:]],
+        "counts_file": counts_file("estimator"),
+        "timing_file": str(Path(paths["counts"]).parent / "logs" / "estimator_timing.json"),
+    } if scenario.estimator is not None else None
     # lockstep with the bundled plant: the recorder subscribes to /clock, which the plant's start
     # waits for, only once it has matched every publisher of what it records (each topic listed
     # in a node's expected_subscribers is published by that node)
-    publishers = Counter(t for node in (controller, plant, reference, injector)
+    publishers = Counter(t for node in (controller, plant, reference, injector, *([estimator] if estimator else []))
                          for t in parse_expected(cast("list[str]", node["expected_subscribers"])) if t != CLOCK.name)
     recorder = {
         "mode": mode,
@@ -283,7 +296,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         **({"expected_publishers": [f"{t}={n}" for t, n in publishers.items()]} if lockstep and not external_plant else {}),
     }
     return {f"/{name}": {"ros__parameters": p} for name, p in
-            (("controller", controller), ("plant", plant), ("reference", reference), ("injector", injector), ("recorder", recorder))}
+            (("controller", controller), ("plant", plant), ("reference", reference), ("injector", injector), ("recorder", recorder),
+             ("estimator", estimator)) if p is not None}
 
 
 def _relayed(scenario: Scenario) -> list[tuple[Any, ...]]:
@@ -293,9 +307,17 @@ def _relayed(scenario: Scenario) -> list[tuple[Any, ...]]:
 
 
 def _remaps(scenario: Scenario) -> dict[str, list[str]]:
+    """Each node's remaps: with an estimator the controller reads its estimate as its state, and the
+    estimator is the consumer of the measurements; the consumer of each relayed path reads the
+    relay's output."""
     remaps: dict[str, list[str]] = {n: [] for n in NODES}
-    for topics in _relayed(scenario):  # the consumer of each relayed path reads the relay's output
-        remaps["plant" if topics is RELAYED_ACTUATOR_TOPICS else "controller"] += relay_remaps(topics)
+    estimating = scenario.estimator is not None
+    if estimating:
+        remaps["controller"] += ["-r", f"{STATE_ATTITUDE.name}:={ESTIMATE_ATTITUDE.name}", "-r", f"{STATE_RATE.name}:={ESTIMATE_RATE.name}"]
+    for topics in _relayed(scenario):
+        consumer = ("plant" if topics is RELAYED_ACTUATOR_TOPICS else "estimator" if estimating and topics is RELAYED_SENSOR_TOPICS
+                    else "controller")
+        remaps[consumer] += relay_remaps(topics)
     return remaps
 
 
@@ -480,7 +502,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         params_path.write_text(yaml.safe_dump(params, sort_keys=False))
         remaps = _remaps(scenario)
         limit = timeout_s if timeout_s is not None else (float("inf") if external else 60.0 + (2.0 if realtime else 1.0) * scenario.duration_s)
-        nodes = [n for n in NODES if not (external and n == "plant")]
+        nodes = [n for n in NODES if not (external and n == "plant") and not (n == "estimator" and scenario.estimator is None)]
 
         def say(msg: str) -> None:
             if progress:

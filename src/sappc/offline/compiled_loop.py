@@ -66,7 +66,7 @@ from spacecraft_sim.core.kernels import N_PLANT_WORK, DisturbanceArrays, FaultAr
 from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_sensor
 from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
 from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, pack_actuator, propagate_wheels_into, wheel_speeds_into, wheel_torques
-from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
+from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO, ESTIMATOR_NO_INPUT
 from sappc_msgs_py.convert import seconds_to_ns
 from spacecraft_sim.core.reference import sample_times
 
@@ -77,13 +77,15 @@ from sappc.scenario import Scenario
 __all__ = ["CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "cache_is_warm", "ensure_compiled", "prepare", "run_batch",
            "run_single", "simulate_compiled", "warm_up"]
 
-#: Nanoseconds per second: the estimator's time is each sample's stamp in seconds, as the node
-#: computes it from the same integer stamps.
+#: Nanoseconds per second: the controller's and the estimator's time is each sample's stamp in
+#: seconds, as their nodes compute it from the same integer stamps (``k dt`` and
+#: ``round(k dt 1e9) / 1e9`` differ in the last bit at 1 sample in 7; the plant, the sensors, the
+#: faults and the disturbance use ``k dt``, as their nodes do).
 _NS_PER_S = 1_000_000_000
 #: Columns of the estimator's record (:attr:`LoopRecord.estimate`): the attitude estimate (4), the
 #: rate estimate (3), the bias estimate (3), the covariance (36, row major), the last NIS, the
-#: step's status, the gyro's true bias (3); NaN where the filter gave no estimate (the node's
-#: "no data"), the true bias always.
+#: step's status, the gyro's true bias in the sample's rate (3); NaN where the filter gave no
+#: estimate (the node's "no data"), the true bias always.
 R_Q, R_OMEGA, R_B, R_P, R_NIS, R_STATUS, R_BTRUE = 0, 4, 7, 10, 46, 47, 48
 N_EST_RECORD = 51
 
@@ -214,6 +216,7 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     ework = np.zeros((N_EST_WORK, 6))
     eout = np.zeros(N_EST_OUT)
     yc = np.zeros(7)  # the controller's input: the measurement, or the estimate
+    bias_k = np.zeros(3)  # the gyro's bias in sample k's rate (measure walks it on to k + 1)
     # the faults
     fkind, fwin, fprm, fint = faults.kind[n], faults.window[n], faults.params[n], faults.samples[n]
     nf = fkind.shape[0]
@@ -223,16 +226,19 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     T = grid.t.shape[0]
     for k in range(T):
         t = grid.t[k]
+        if estimating:
+            for i in range(3):
+                bias_k[i] = bias[i]
         measure_run(sens, n, k, t, x, held_q, bias, y)
         state_in, reference_in = True, True
         if nf > 0:
             state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, faults.draws[min(k, faults.draws.shape[0] - 1)], y)
             reference_in = fault_reference(t, fkind, fwin)
         if estimating:
-            est_status = STATUS_NONE
+            est_status = ESTIMATOR_NO_INPUT  # no measurement delivered: no filter step (the node's code)
             if state_in:
                 est_status = mekf_step(eprm, grid.t_ns[k] / _NS_PER_S, y, est_st, P, ework, eout)
-            state_in = est_status != STATUS_NONE
+            state_in = est_status != STATUS_NONE and est_status != ESTIMATOR_NO_INPUT
             for i in range(4):
                 yc[i] = eout[EO_Q + i]
             for i in range(3):
@@ -241,17 +247,18 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
             for i in range(7):
                 yc[i] = y[i]
         valid = sample_verdicts(state_in, reference_in, yc[:4], yc[4:], grid.ref_q[k], grid.ref_w[k], grid.ref_wd[k], ctrl.bounds, rejected)
+        t_stamp = grid.t_ns[k] / _NS_PER_S  # the controller's time: its input's stamp in seconds, as the node computes it
         if valid and not started:
             if probe:  # the first valid sample: what starts the controller (docstring)
                 start[0] = k
-                start[1] = t
+                start[1] = t_stamp
                 error_quaternion(grid.ref_q[k], yc[:4], start[2:6])
                 return
-            state[S_T0] = t
+            state[S_T0] = t_stamp
             started = True
         status = ANSWER_COMMANDED
         if valid:
-            controller_step(kind, t, dt, yc[:4], yc[4:], grid.ref_q[k], grid.ref_w[k], grid.ref_wd[k], prm, coef, state, work, out)
+            controller_step(kind, t_stamp, dt, yc[:4], yc[4:], grid.ref_q[k], grid.ref_w[k], grid.ref_wd[k], prm, coef, state, work, out)
             if not (np.isfinite(out[O_TORQUE, 0] + out[O_TORQUE, 1] + out[O_TORQUE, 2])
                     and np.isfinite(out[O_CMD, 0] + out[O_CMD, 1] + out[O_CMD, 2])):
                 status = ANSWER_REFUSED
@@ -319,7 +326,7 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
                     e[R_NIS] = eout[EO_NIS]
                 e[R_STATUS] = est_status
                 for i in range(3):
-                    e[R_BTRUE + i] = bias[i]
+                    e[R_BTRUE + i] = bias_k[i]
         if k < T - 1:
             if nw == 0:
                 for i in range(3):  # control (clipped by the actuator) + disturbance, held over [t_k, t_k+1]

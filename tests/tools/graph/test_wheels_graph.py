@@ -133,9 +133,9 @@ def test_the_wheel_scenario_on_the_basilisk_plant_agrees_with_the_offline_run(tm
 
 @pytest.mark.slow
 def test_the_flight_scenario_through_the_graph_equals_the_offline_run(tmp_path: Path) -> None:
-    """Reaction wheels and sensor models (10 Hz star tracker with an outage, gyro with bias walk)
-    in lockstep, 4 s: the controller's torques, the true state on truth/* and the wheel records
-    equal the offline run's bit for bit (the plant measures sample k with the k-th row of the
+    """Reaction wheels, sensor models (10 Hz star tracker with an outage, gyro with bias walk) and
+    the MEKF in lockstep, 4 s: the controller's torques, the true state on truth/*, the wheel
+    records and the estimator's record equal the offline run's bit for bit (the plant measures sample k with the k-th row of the
     seed's stream, as the offline loop), and state/* carry the measurements, not the truth."""
     raw, out = _short_run(tmp_path, "paper_tracking_flight.yaml", outages_s=[[1.0, 1.5]])
     offline = compiled_loop.simulate_compiled(scenario_from_mapping(raw))
@@ -144,7 +144,16 @@ def test_the_flight_scenario_through_the_graph_equals_the_offline_run(tmp_path: 
     assert np.array_equal(h.q_BN[:, 0], offline.x[0, :, :4]) and np.array_equal(h.omega_BN_B[:, 0], offline.x[0, :, 4:])
     assert np.array_equal(h.torque_B[:, 0], offline.out[0, :, compiled_loop.O_TORQUE, :3])
     assert h.wheel_speed_rad_s is not None and np.array_equal(h.wheel_speed_rad_s[:, 0], offline.wheels[0, :, :, 0])
+    # the estimator between the sensors and the controller (paper_tracking_flight.yaml's MEKF): its
+    # estimate, rate, bias, covariance, NIS and status equal the offline loop's record bit for bit
+    est, off = h.estimate, offline.estimates()
+    assert est is not None and off is not None and est.gyro_bias_true is not None
+    for name in ("q_BN", "omega_BN_B", "gyro_bias", "covariance", "nis", "gyro_bias_true"):
+        assert np.array_equal(getattr(est, name)[:, 0], getattr(off, name)[:, 0], equal_nan=True), name
+    assert np.array_equal(est.status[:, 0], off.status[:, 0])
+    assert np.count_nonzero(est.status[:, 0] == 3) > 20  # the tracker updated the filter (10 Hz, less the outage)
     measured = bag.series["/state/attitude"].values
     assert not np.array_equal(measured, h.q_BN[:, 0])  # the controller saw the tracker, not the truth
+    assert not np.array_equal(measured, est.q_BN[:, 0])  # ... through the estimator
     held = np.flatnonzero(np.all(np.diff(measured, axis=0) == 0.0, axis=1)) + 1
     assert {100 + i for i in range(1, 50)} <= set(held.tolist())  # held through the outage [1.0, 1.5) s and between updates

@@ -74,10 +74,10 @@ def test_the_controller_starts_at_its_first_valid_sample_as_the_core_driven_like
     # the true state; the rate bias's window is closed from the first valid sample on)
     ctrl = scenario.build_controller()
     for k in range(FIRST_VALID, inp.t.size):
-        got = ctrl.step(float(inp.t[k]), inp.grid.dt, x[k, :4], x[k, 4:], inp.grid.ref_q[k], inp.grid.ref_w[k], inp.grid.ref_wd[k])
+        got = ctrl.step(int(inp.grid.t_ns[k]) / 1e9, inp.grid.dt, x[k, :4], x[k, 4:], inp.grid.ref_q[k], inp.grid.ref_w[k], inp.grid.ref_wd[k])
         assert np.array_equal(got.torque_cmd_B, out[k, O_CMD, :3]) and np.array_equal(got.rho, out[k, O_RHO, :3]), k
         assert np.array_equal(got.band_lower, out[k, O_BL, :3]) and np.array_equal(got.eps, out[k, O_EPS, :3]), k
-    assert ctrl.t0 == inp.t[FIRST_VALID]
+    assert ctrl.t0 == int(inp.grid.t_ns[FIRST_VALID]) / 1e9  # the stamp's seconds, as the node
     # the RPF starts at its first sample: rho_e0 (given, or the first error's magnitude) on each axis
     q_ev = out[FIRST_VALID, O_QBR, :3]  # the true error, here what the controller saw
     want = np.abs(q_ev) if rho_e0 is None else np.full(3, rho_e0)

@@ -65,7 +65,7 @@ def _step_by_step(raw: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarr
     d = inp.disturbance.table
     for k in range(T):
         states[k] = x
-        tau = np.asarray(ctrl.step(inp.t[k], inp.grid.dt, x[:4], x[4:7], inp.grid.ref_q[k], inp.grid.ref_w[k], inp.grid.ref_wd[k]).torque_B, dtype=np.float64)
+        tau = np.asarray(ctrl.step(int(inp.grid.t_ns[k]) / 1e9, inp.grid.dt, x[:4], x[4:7], inp.grid.ref_q[k], inp.grid.ref_w[k], inp.grid.ref_wd[k]).torque_B, dtype=np.float64)
         torques[k] = tau
         u = np.zeros(wheels.n)
         wheel_torques(tau, Gp, G, prm, x, u)
