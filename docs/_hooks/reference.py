@@ -7,6 +7,7 @@ A page asks for a generated part with a marker line of its own::
     <!-- generate: scenario -->       every scenario key, from the dataclasses that validate it
     <!-- generate: topics -->         the topic contract, from :mod:`sappc_msgs_py.contract`
     <!-- generate: api PACKAGE -->    one mkdocstrings ``:::`` block per module of ``src/PACKAGE``
+    <!-- generate: fault-matrix -->   benchmarks/results_fault_matrix.json, tabulated by its benchmark
 
 The text comes from the objects the programs themselves use (the parser ``sappc`` parses with,
 the ``Param`` records a node declares, the dataclass fields ``from_mapping`` accepts, the
@@ -463,7 +464,20 @@ def gen_api(package: str | None) -> str:
     return "\n".join(f"::: {m}\n" for m in modules_of(package))
 
 
+def gen_fault_matrix(_: str | None = None) -> str:
+    """The fault matrix as recorded in ``benchmarks/results_fault_matrix.json``, tabulated by the
+    benchmark's own ``--table`` (``python benchmarks/bench_fault_matrix.py --table FILE``)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bench_fault_matrix", ROOT / "benchmarks" / "bench_fault_matrix.py")
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return str(bench.table(str(ROOT / "benchmarks" / "results_fault_matrix.json"))) + "\n"
+
+
 GENERATORS: dict[str, Callable[[str | None], str]] = {
+    "fault-matrix": gen_fault_matrix,
     "cli": gen_cli,
     "nodes": gen_nodes,
     "scenario": gen_scenario,
