@@ -158,6 +158,14 @@ def test_the_readme_is_short() -> None:
     assert size <= README_MAX_BYTES, f"README.md is {size} bytes; move detail into docs/ (budget {README_MAX_BYTES})"
 
 
+def test_the_readmes_links_lead_somewhere() -> None:
+    """README.md is read on the forge, outside the site: its relative links must name files."""
+    text = (ROOT / "README.md").read_text()
+    links = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+    missing = [link for link in links if "://" not in link and not (ROOT / link).exists()]
+    assert links and not missing, missing
+
+
 def test_every_directive_is_known_and_every_skip_says_why() -> None:
     skips = []
     for page in PAGES:
