@@ -8,7 +8,7 @@ Prints one JSON document (median of ``--repeats``, machine noted):
   untimed, then the mean over the other samples; median of ``--repeats``; target <= 20 us); for the
   profile of where the time goes, the compiled step alone called from Python with ready arrays
   (``kernel_python_call_us``) and inside a compiled loop (``kernel_alone_us``).  The numpy core
-  left ``src/`` (issue 13); its figure, 143-403 us, is the README's, measured before.
+  left ``src/`` (issue 13); its figure, 143-403 us, is in docs/design/performance-history.md, measured before.
 * ``experiment1_s``: experiment 1 (60 s at 100 Hz, SAPPC, full histories) in-process with a warm
   cache: the compiled loop alone, with the set-up (reference by DOP853, RPF by Lambert W,
   tables), and ``simulate`` (loop, History and metrics); ratios against the numpy core's figures
@@ -117,7 +117,7 @@ def bench_step(repeats: int) -> dict[str, object]:
         "meets_target": node * 1e6 <= 20.0,
         "kernel_python_call_us": _median(python_call, repeats) / n * 1e6,
         "kernel_alone_us": _median(kernel_alone, repeats) / n * 1e6,
-        "numpy_core_checked_step_us_before": "143-403 (README; the numpy core left src/)",
+        "numpy_core_checked_step_us_before": "143-403 (docs/design/performance-history.md; the numpy core left src/)",
     }
 
 

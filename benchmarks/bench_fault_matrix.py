@@ -11,7 +11,7 @@ or the sudden torque pulse of experiment 3 at the same time.  For every case it 
   largest difference of any metric from the offline run (the issue's bound: 1e-9).
 
     python benchmarks/bench_fault_matrix.py [--graph] [--controllers sappc,trappc,blfppc] [--kinds K,...] > matrix.json
-    python benchmarks/bench_fault_matrix.py --table matrix.json     # the README's table (markdown)
+    python benchmarks/bench_fault_matrix.py --table matrix.json     # the table of docs/how-to/faults.md (markdown)
 
 The graph half takes ~15 s a case plus 2 s of wall time per sample the controller does not
 answer (the plant's ``lockstep_timeout_s``: 10 per dropout at the default ``stale_timeout_s``).

@@ -6,7 +6,7 @@ channels' worth of traffic: 900 messages/s, each stamped with its publish time) 
 flushed the same way) on an isolated domain; after ``--run-s`` seconds the recorder
 is killed with SIGKILL, ``sappc repair`` makes the bag whole, and the bag is read with rosbags.
 Loss = publish time of the kill minus the publish time of the last message recovered [s] (the
-README's bound: 1 s).  Prints JSON: every repeat and the median.
+the documented bound, docs/how-to/bags.md: 1 s).  Prints JSON: every repeat and the median.
 
     python benchmarks/bench_recorder_kill.py [--repeats 5] [--run-s 5]
 """

@@ -1,4 +1,4 @@
-"""A plant written only against the README's topic contract (``sappc_msgs_py``), rclpy and
+"""A plant written only against the topic contract (docs/reference/topics.md) (``sappc_msgs_py``), rclpy and
 numpy: no ``spacecraft_sim``.  It integrates a rigid body with its own RK4, publishes /clock, the
 state and a constant reference (the identity) each 10 ms step, waits for the torque of the step
 (lockstep), and holds the attitude error history."""

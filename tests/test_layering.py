@@ -1,4 +1,4 @@
-"""The layering of the house (README "Architecture"), enforced on every import in ``src/``.
+"""The layering of the house (docs/architecture.md), enforced on every import in ``src/``.
 
 Rooms stand on floors; a module may import its own room and rooms on lower floors only, never a
 room beside it or above it.  On top of that:

@@ -1,5 +1,5 @@
 """The type check of ``src/``: ``mypy --strict`` with the configuration in ``pyproject.toml``
-(``[tool.mypy]``), run by the README's test command and so in CI.  Zero errors.
+(``[tool.mypy]``), run by the README's test command (./sappcw test -q) and so in CI.  Zero errors.
 
 mypy comes with the ``test`` extra (pinned there); the test is never skipped: without mypy it
 fails.  The incremental cache is mypy's default ``.mypy_cache`` in the repository root (ignored by

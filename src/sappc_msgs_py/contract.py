@@ -71,7 +71,7 @@ Each is published by the node that owns the frame, once per sample with that sam
 plant: B with the state; the reference node: R with the reference), each on its own topic, so that
 a lockstep bag's order never depends on which of two publishers of one topic was first.  They are
 not ``/tf`` (``tf2_msgs/msg/TFMessage``): ``tf2_msgs`` is not published as a PyPI wheel for Jazzy
-(README, "Attitude you can see").
+(docs/design/frames.md).
 
 When the fault injector relays a path (``python -m spacecraft_sim.disturbance``), it republishes
 the faulty samples under ``fault/`` (``fault/state/attitude``, ``fault/state/rate``,

@@ -56,7 +56,7 @@ __all__ = [
     "run_nodes",
 ]
 
-#: Timing modes of every node (see README "The ROS 2 node graph"): the plant owns time and the
+#: Timing modes of every node (see docs/how-to/realtime.md): the plant owns time and the
 #: others follow its stamped samples, or every node runs on wall-clock timers.
 LOCKSTEP = "lockstep"
 REALTIME = "realtime"

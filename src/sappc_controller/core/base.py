@@ -150,6 +150,8 @@ class AttitudeController:
         SAPPC's policy for an infeasible RPF component (:class:`.rpf.ReferencePerformanceFunction`);
         the other laws have no RPF.
 
+    Notes
+    -----
     State: the packed parameters, per-run constants, filter and SMETF warm start are arrays
     (:mod:`.kernels`), created at the first step of a run (which fixes the time origin ``t0`` and
     the number of runs), forgotten by :meth:`reset`.

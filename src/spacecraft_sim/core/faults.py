@@ -1,7 +1,7 @@
 """Actuator, sensor and link faults, applied to samples travelling between plant and controller.
 
 One implementation, two callers: the injector node relays the plant's state, the reference and
-the controller's torque through :class:`FaultSchedule` one message at a time (README, "Faults"),
+the controller's torque through :class:`FaultSchedule` one message at a time (docs/how-to/faults.md),
 and the offline loop (:mod:`sappc.offline.compiled_loop`) applies the same compiled kernels
 (:func:`spacecraft_sim.core.kernels.fault_sensor`, ``fault_reference``, ``fault_actuator``) to
 its arrays, so a fault scenario gives the same run offline, in a campaign and through the

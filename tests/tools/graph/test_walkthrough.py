@@ -1,4 +1,4 @@
-"""The README's "controller alone beside your plant" walkthrough, run as written: the controller,
+"""The "controller alone beside your plant" walkthrough (docs/tutorials/your-plant.md), run as written: the controller,
 the reference and ``examples/external_plant.py`` started by hand, and the same plant driving
 ``sappc run --plant external``.  No sample may be missed: the nodes wait for one another, so
 the start order and discovery time do not matter.
@@ -27,6 +27,8 @@ import pytest
 from conftest import ROOT, SAPPC, SCENARIOS
 from shm_watch import ShmWatch
 
+#: The page whose walkthrough block the tests run.
+WALKTHROUGH_PAGE = ROOT / "docs" / "tutorials" / "your-plant.md"
 #: Longest a walkthrough command may take [s] (30 s of simulation run in about 10 s here).
 TIMEOUT_S = 300
 #: Wait between one process being on the graph and the start of the next [s]: above the
@@ -43,8 +45,8 @@ ALL_COMPUTED = "finished: answered {n} samples: {n} commanded, 0 held, 0 watchdo
 
 
 def _walkthrough() -> tuple[str, list[str]]:
-    """(the ``export`` line, the commands of terminals 1 to 3) of the README's walkthrough block."""
-    text = (ROOT / "README.md").read_text()
+    """(the ``export`` line, the commands of terminals 1 to 3) of the tutorial's walkthrough block."""
+    text = WALKTHROUGH_PAGE.read_text()
     block = text.split("<!-- walkthrough: controller-alone", 1)[1].split("```bash\n", 1)[1].split("```", 1)[0]
     lines = [ln for ln in block.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     exports = [ln for ln in lines if ln.startswith("export ")]
@@ -54,7 +56,7 @@ def _walkthrough() -> tuple[str, list[str]]:
 
 
 def _as_test(line: str, domain: int) -> str:
-    """The README line with the two substitutions the test makes: its own domain id (two runs must
+    """The walkthrough's line with the two substitutions the test makes: its own domain id (two runs must
     never share one) and the Python running the tests (``.venv/bin/python`` under ``./sappcw``)."""
     assert "ROS_DOMAIN_ID=42" in line or ".venv/bin/python" in line, line
     return line.replace("ROS_DOMAIN_ID=42", f"ROS_DOMAIN_ID={domain}").replace(".venv/bin/python", sys.executable)

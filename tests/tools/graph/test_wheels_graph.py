@@ -94,7 +94,7 @@ def test_the_wheel_scenario_through_the_graph_equals_the_offline_run(tmp_path: P
 def test_experiment_1_on_the_basilisk_plant_reproduces_the_native_metrics_to_1e_9(tmp_path: Path) -> None:
     """``sappc run --plant basilisk``: the plant node on Basilisk's dynamics, the whole 60 s of
     experiment 1 in lockstep; every metric equals the native (offline, which lockstep equals)
-    run's to 1e-9 and the attitude too (measured: see README)."""
+    run's to 1e-9 and the attitude too (measured: see docs/tutorials/basilisk.md)."""
     pytest.importorskip("Basilisk")
     from sappc.offline.simulate import simulate
     from sappc.scenario import load_scenario

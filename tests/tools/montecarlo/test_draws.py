@@ -1,7 +1,7 @@
 """The per-run seeding of a campaign (:mod:`sappc.montecarlo.draws`), pinned by golden values.
 
 The recipe that ``summary.json`` and ``runs.csv`` document (``seed_sequence: {entropy: S,
-spawn_key: [k]}``, README "Reproducible"): every random input of run ``k`` of seed ``S`` comes
+spawn_key: [k]}``, docs/tutorials/monte-carlo.md, "Reproducible at any scale"): every random input of run ``k`` of seed ``S`` comes
 from ``SeedSequence(S, spawn_key=(k,)).spawn(2)``; the first child's ``default_rng`` draws, in
 this order, the three Euler angles (``uniform(low_deg, high_deg, 3)``), the initial rate, the
 relative inertia (3 each), the disturbance scale, the disturbance phase, then the dispersed gains

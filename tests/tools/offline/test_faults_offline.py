@@ -106,7 +106,7 @@ def test_a_no_chattering_requirement_bounds_the_torque_sign_changes() -> None:
 
 
 def test_simulate_reports_what_the_controller_did_and_exits_4_on_a_broken_requirement(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """The dropout of the README through `sappc simulate`: the summary line counts the answers, and a
+    """The dropout of docs/how-to/faults.md through `sappc simulate`: the summary line counts the answers, and a
     requirement the run breaks (steady max |q_ev| over [25, 60] s <= 1e-4: the dropout's transient
     reaches 2.7e-4) gives exit status 4 naming it; without the requirement the run exits 0."""
     raw = copy.deepcopy(BASE)

@@ -2,7 +2,7 @@
 
 Each check is a claim of the paper (docs/paper_notes.md, "what reproduced means"), evaluated on this
 implementation with the gains of config/scenarios/*.yaml.  Where a benchmark does not behave as
-the paper reports, the test pins what it does and README.md says so.
+the paper reports, the test pins what it does and docs/tutorials/paper-experiments.md says so.
 """
 
 from __future__ import annotations
