@@ -366,9 +366,12 @@ def _view_of(ax: Axes, x: Array, ys: Sequence[NDArray[Any]], *, log: bool) -> No
         ax.set_ylim(lo - pad, hi + pad)
 
 
-def plot_campaign(tab: dict[str, NDArray[Any]], out_dir: Path, *, criteria: tuple[float, float], title: str) -> list[Path]:
+def plot_campaign(tab: dict[str, NDArray[Any]], out_dir: Path, *, criteria: tuple[float, float], title: str,
+                  nees: dict[str, Any] | None = None) -> list[Path]:
     """The paper's Monte Carlo figures: t2 tracking error and steady-state error per component
-    (one point per run, criterion dashed), and the kept trajectories overlaid with their RPFs."""
+    (one point per run, criterion dashed), and the kept trajectories overlaid with their RPFs; with
+    an estimator (``nees``: :func:`sappc.montecarlo.results.nees_consistency`), its consistency:
+    the NEES averaged over the runs against its 95 % band (``montecarlo_nees.png``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -414,4 +417,18 @@ def plot_campaign(tab: dict[str, NDArray[Any]], out_dir: Path, *, criteria: tupl
             axes[-1].set_xlabel("time [s]")
             _finish(fig, out_dir / name, f"{title}: {q.shape[1]} trajectories (solid) and their RPFs (dashed)" + (", steady state" if logy else ""),
                     paths, margins=dict(left=0.11, right=0.97, bottom=0.07, top=0.94, hspace=0.12))
+    if nees is not None and nees.get("mean") is not None:
+        t_s, mean = np.asarray(nees["t_s"]), np.asarray(nees["mean"])
+        lo, hi = nees["band_95"]
+        fig, ax = plt.subplots(figsize=(9, 3.6))
+        ax.plot(t_s, mean, lw=0.8, color="tab:blue", label=f"NEES averaged over {nees['runs']} runs")
+        ax.axhspan(lo, hi, color="tab:green", alpha=0.2, label="95 % chi-square band")
+        ax.axhline(6.0, color="tab:green", lw=0.8, ls="--", label="6 (consistent)")
+        inside = nees.get("fraction_inside")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("NEES (6 error states)")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right")
+        _finish(fig, out_dir / "montecarlo_nees.png",
+                f"{title}: estimator consistency" + (f" ({inside:.1%} of samples inside the band)" if inside is not None else ""), paths)
     return paths

@@ -11,7 +11,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sappc.evaluation.estimation import nees_band
+from sappc.evaluation.metrics import NEES_FROM_S
 from sappc.montecarlo.config import CampaignConfig, Criteria
+from spacecraft_sim.core.reference import sample_times
 from sappc_msgs_py.contract import ANSWER_NAMES
 from sappc.scenario import Scenario
 
@@ -42,8 +45,10 @@ def save_chunk(out: Path, index: int, result: dict[str, NDArray[Any]]) -> None:
 
 def _load_chunks(out: Path, n_chunks: int) -> dict[str, Any]:
     parts = [dict(np.load(chunk_path(out, i), allow_pickle=False)) for i in range(n_chunks)]
-    keys = [k for k in parts[0] if not k.startswith("traj_")]
+    keys = [k for k in parts[0] if not k.startswith(("traj_", "tsum_"))]
     table = {k: np.concatenate([p[k] for p in parts]) for k in keys}
+    for k in (k for k in parts[0] if k.startswith("tsum_")):  # per-sample sums over runs: summed over chunks
+        table[k] = np.sum([p[k] for p in parts], axis=0)
     traj = [p for p in parts if p["traj_q_ev"].size]
     table["traj_t"] = traj[0]["traj_t"] if traj else np.zeros(0)
     table["traj_q_ev"] = np.concatenate([p["traj_q_ev"] for p in traj], axis=1) if traj else np.zeros((0, 0, 3))
@@ -82,6 +87,8 @@ class RunCriteria:
 
 #: The per-run columns of a campaign with reaction wheels (metrics of :mod:`sappc.evaluation.metrics`).
 WHEEL_COLUMNS = ("max_abs_wheel_speed_rad_s", "max_abs_wheel_torque_Nm")
+#: Per-run columns of a campaign with an estimator (:mod:`sappc.evaluation.metrics`).
+ESTIMATOR_COLUMNS = ("steady_max_abs_attitude_estimation_error_rad", "final_abs_bias_estimation_error_rad_s", "mean_nees")
 
 
 def run_criteria(table: dict[str, Any], criteria: Criteria) -> RunCriteria:
@@ -97,6 +104,37 @@ def run_criteria(table: dict[str, Any], criteria: Criteria) -> RunCriteria:
     return RunCriteria(t2, steady, finite, ok_t2, ok_steady, ok_t2 & ok_steady)
 
 
+def nees_consistency(tab: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
+    """The filter's consistency over a campaign: the NEES averaged over the runs at every sample
+    from :data:`~sappc.evaluation.metrics.NEES_FROM_S`, against the two-sided 95 % chi-square band
+    of that average (:func:`~sappc.evaluation.estimation.nees_band`, 6 degrees of freedom per run).
+    For a consistent filter each sample's average falls outside its band with probability 5 %, so
+    the fraction of samples inside it is about 0.95 (neighbouring samples are correlated: it
+    fluctuates from campaign to campaign); ``t_s``, ``mean`` and the band are the figure's."""
+    t = sample_times(scenario.duration_s, scenario.control_period_s)
+    counted = tab["tsum_nees_runs"]
+    n_runs = int(counted.max()) if counted.size else 0
+    full = counted == n_runs  # samples where every run has an estimate (from NEES_FROM_S)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(counted > 0, tab["tsum_nees"] / np.maximum(counted, 1), np.nan)
+    lo, hi = nees_band(max(n_runs, 1))
+    inside = (mean >= lo) & (mean <= hi)
+    outside_t = t[full & ~inside]
+    return {"from_s": NEES_FROM_S, "runs": n_runs, "band_95": [lo, hi], "samples": int(full.sum()),
+            "fraction_inside": float(inside[full].mean()) if full.any() else None,
+            "mean_over_time": float(np.mean(mean[full])) if full.any() else None,
+            "min": float(np.min(mean[full])) if full.any() else None, "max": float(np.max(mean[full])) if full.any() else None,
+            "first_times_outside_s": [float(x) for x in outside_t[:20]],
+            "t_s": t, "mean": mean}
+
+
+def _estimator_summary(tab: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
+    """The estimator's part of ``summary.json``: its per-run metrics' percentiles and the NEES
+    consistency test (:func:`nees_consistency`)."""
+    nees = {k: v for k, v in nees_consistency(tab, scenario).items() if k not in ("t_s", "mean")}
+    return {**{k: _percentiles(np.asarray(tab[k], dtype=np.float64)) for k in ESTIMATOR_COLUMNS}, "nees_consistency": nees}
+
+
 def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[str, Any], *, wall_s: float) -> dict[str, Any]:
     runs, seed = manifest["runs"], manifest["seed"]
     tab = _load_chunks(out, len(chunks(runs, manifest["chunk_runs"])))
@@ -105,7 +143,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
     t2, steady, finite, ok_t2, ok_steady, passed = rc.rpf_error_at_t2, rc.steady_mean_abs_qev, rc.finite, rc.ok_t2, rc.ok_steady, rc.passed
 
     gain_keys = [k for k in tab if k.startswith("gain_")]
-    wheel_keys = [k for k in WHEEL_COLUMNS if k in tab]
+    wheel_keys = [k for k in WHEEL_COLUMNS if k in tab] + [k for k in ESTIMATOR_COLUMNS if k in tab]
     hw_cols = [(k, i) for k in tab if k.startswith("hw_") for i in range(np.asarray(tab[k]).reshape(runs, -1).shape[1])]
     dispersed = cfg.dispersions.faults is not None
     fault_kinds = [str(c["kind"]) for c in cfg.dispersions.faults.choices] if cfg.dispersions.faults is not None else []
@@ -178,10 +216,12 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
         "max_abs_torque_Nm": _percentiles(tab["max_abs_torque_Nm"]),
         "torque_sign_changes_per_s": _percentiles(tab["torque_sign_changes_per_s"]),
         "torque_reversals_per_s": _percentiles(tab["torque_reversals_per_s"]),
+        **({"estimator": _estimator_summary(tab, scenario)} if "tsum_nees" in tab else {}),
         "wall_time_s": wall_s,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     from sappc.analysis.plots import plot_campaign
 
-    plot_campaign(tab, out, criteria=(crit.rpf_error_at_t2_max, crit.steady_mean_abs_qev_max), title=scenario.name)
+    plot_campaign(tab, out, criteria=(crit.rpf_error_at_t2_max, crit.steady_mean_abs_qev_max), title=scenario.name,
+                  nees=nees_consistency(tab, scenario) if "tsum_nees" in tab else None)
     return summary
