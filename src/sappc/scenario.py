@@ -46,7 +46,7 @@ from gnc_common.validation import (
     read_text_file,
 )
 
-__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "scenario_from_mapping"]
+__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "read_scenario_mapping", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
 
@@ -461,8 +461,52 @@ def _estimator_from_mapping(data: Any, sensors: Sensors | None) -> MekfConfig | 
     return config
 
 
+#: The key of a scenario file that names the file it extends (its own keys override the base's).
+EXTENDS_KEY = "extends"
+
+
+def _merged(base: Any, over: Any) -> Any:
+    """``over`` laid on ``base``: mappings merged key by key (recursively), anything else replaced."""
+    if isinstance(base, dict) and isinstance(over, dict):
+        return {**base, **{k: _merged(base[k], v) if k in base else v for k, v in over.items()}}
+    return over
+
+
+def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """The mapping of a scenario file, with ``extends: <file>`` resolved: the named file (relative
+    to this one's directory) is read the same way and this file's keys are laid over it (mappings
+    merged key by key, lists and values replaced), so a variant of a scenario states only what it
+    changes.
+
+    Raises
+    ------
+    ConfigError
+        If a file is missing, is not UTF-8 text or YAML, is not a mapping, or the chain of
+        ``extends`` comes back to a file already in it.
+    """
+    p = Path(path)
+    text = read_text_file(p, "scenario")
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{p} is not valid YAML: {exc}") from None
+    if not isinstance(data, dict) or EXTENDS_KEY not in data:
+        return data  # type: ignore[no-any-return]  # scenario_from_mapping names a non-mapping
+    base_name = data.pop(EXTENDS_KEY)
+    if not isinstance(base_name, str) or not base_name:
+        raise ConfigError(f"{p}: {EXTENDS_KEY} must name a scenario file, got {base_name!r}")
+    base_path = (p.parent / base_name).resolve()
+    if base_path in _seen or base_path == p.resolve():
+        raise ConfigError(f"{p}: {EXTENDS_KEY}: {base_name} comes back to a file already extended ({base_path})")
+    base = read_scenario_mapping(base_path, (*_seen, p.resolve()))
+    if not isinstance(base, dict):
+        raise ConfigError(f"{base_path}: a scenario must be a mapping at the top level")
+    merged: dict[str, Any] = _merged(base, data)
+    return merged
+
+
 def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario YAML file.
+    """Read and validate a scenario YAML file (``extends`` resolved: :func:`read_scenario_mapping`).
 
     Raises
     ------
@@ -471,11 +515,7 @@ def load_scenario(path: str | Path) -> Scenario:
         message names the key).
     """
     p = Path(path)
-    text = read_text_file(p, "scenario")
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{p} is not valid YAML: {exc}") from None
+    data = read_scenario_mapping(p)
     try:
         return scenario_from_mapping(data, source=str(p))
     except ConfigError as exc:  # every message names the file, once

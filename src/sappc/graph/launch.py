@@ -45,7 +45,7 @@ from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
 from sappc.graph.container import NODE_CLASSES, STOP_ORDER
-from sappc.scenario import ControllerKind, Scenario, load_scenario
+from sappc.scenario import EXTENDS_KEY, ControllerKind, Scenario, load_scenario
 
 __all__ = ["DOMAIN_IDS_ENV", "GraphResult", "claim_domain_id", "domain_ids", "format_domain_ids", "isolated_environment", "node_parameters",
            "requested_domain_id", "run_graph"]
@@ -492,7 +492,10 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         for sub in ("logs", "counts"):
             (run_dir / sub).mkdir(parents=True, exist_ok=True)
         scenario_copy = run_dir / "scenario.yaml"
-        scenario_copy.write_text(Path(scenario_path).read_text())
+        text = Path(scenario_path).read_text()
+        # the file as written (its comments kept), or, for one that extends another, the whole
+        # scenario it resolves to: the injector reads it, the bag records it, both without the base
+        scenario_copy.write_text(yaml.safe_dump(scenario.raw, sort_keys=False) if EXTENDS_KEY in (yaml.safe_load(text) or {}) else text)
         params_path = run_dir / "params.yaml"
         bag_dir = run_dir / "bag"
         # relative to the run directory, the nodes' working directory (node_parameters)
