@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with thi
 
     from spacecraft_sim.core.wheels import ReactionWheels
 
-__all__ = ["plot_campaign", "plot_compare", "plot_run", "plot_torque_rerun", "plot_wheels"]
+__all__ = ["plot_campaign", "plot_compare", "plot_estimator", "plot_run", "plot_torque_rerun", "plot_wheels"]
 
 Array = NDArray[np.float64]
 
@@ -224,7 +224,75 @@ def plot_run(
             undelivered = h.torque_B[:, run] + h.wheel_torque_Nm[:, run] @ wheels.G.T
         paths += plot_wheels(h.t, h.wheel_speed_rad_s[:, run], h.wheel_torque_Nm[:, run], out_dir, title=title, limits=limits,
                              fault_windows=faults, undelivered_Nm=undelivered)
+    if h.estimate is not None:
+        paths += plot_estimator(h, out_dir, title=title, run=run, fault_windows=faults)
     return paths
+
+
+def plot_estimator(h: History, out_dir: Path, *, title: str, run: int = 0, fault_windows: Sequence[tuple[float, float]] = ()) -> list[Path]:
+    """``estimator.png``: the estimate against the truth with the filter's own 3-sigma bounds: per
+    axis, the attitude error (:func:`sappc.evaluation.estimation.attitude_errors`, the true
+    attitude relative to the estimate) [rad] and, when the truth of the gyro bias was recorded, the
+    bias error [rad/s], each inside +-3 sqrt(P_ii) shaded; ``estimator_nis.png``: the normalised
+    innovation squared of each tracker update against its 99 % chi-square line (3 dof)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from sappc.evaluation.estimation import attitude_errors
+
+    est = h.estimate
+    assert est is not None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths: list[Path] = []
+    t, t_end = h.t, float(h.t[-1])
+    a = attitude_errors(est.q_BN[:, run], h.q_BN[:, run])
+    sigma = np.sqrt(np.abs(np.diagonal(est.covariance[:, run], axis1=1, axis2=2)))
+    rows = [("attitude error [rad]", a, sigma[:, :3])]
+    if est.gyro_bias_true is not None:
+        rows.append(("bias error [rad/s]", est.gyro_bias_true[:, run] - est.gyro_bias[:, run], sigma[:, 3:]))
+    fig, axes = _rows(3 * len(rows), height=3.0 * 3 * len(rows) / 2)
+    for r, (label, err, sig) in enumerate(rows):
+        for i in range(3):
+            ax = axes[3 * r + i]
+            ax.fill_between(t, -3.0 * sig[:, i], 3.0 * sig[:, i], color="tab:green", alpha=0.25, lw=0, label="±3σ (the filter's)")
+            ax.plot(t, err[:, i], lw=0.8, color="tab:blue", label="true − estimated" if r == 0 else None)
+            _mark_faults(ax, fault_windows, t_end)
+            ax.set_ylabel(f"{label.split(' [')[0]} {'xyz'[i]}\n[{label.split('[')[1]}")
+            ax.grid(True, alpha=0.3)
+            finite = np.isfinite(err[:, i]) & np.isfinite(sig[:, i])
+            if finite.any():  # the error and its bound after the start, not the prior's first sample
+                late = finite & (t >= t[finite][0] + 1.0) if np.any(finite & (t >= t[finite][0] + 1.0)) else finite
+                top = float(np.max(np.maximum(np.abs(err[late, i]), 3.0 * sig[late, i])))
+                if top > 0.0:
+                    ax.set_ylim(-1.2 * top, 1.2 * top)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    _finish(fig, out_dir / "estimator.png", f"{title}: estimation errors and the filter's 3σ", paths, margins=_ROWS_MARGINS)
+    nis = est.nis[:, run]
+    updates = np.isfinite(nis) & np.concatenate(([True], np.diff(nis) != 0.0))  # a new value: a tracker sample compared
+    if updates.any():
+        from scipy.stats import chi2
+
+        fig, ax = plt_subplots()
+        ax.plot(t[updates], nis[updates], ".", ms=2, color="tab:blue", label="NIS of each tracker sample")
+        ax.axhline(3.0, color="tab:green", lw=0.8, ls="--", label="3 (its mean when consistent)")
+        ax.axhline(float(chi2.ppf(0.99, 3)), color="tab:red", lw=0.8, ls="--", label="99 % (chi-square, 3 dof)")
+        _log_axis(ax)
+        _mark_faults(ax, fault_windows, t_end)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("NIS")
+        ax.grid(True, alpha=0.3, which="both")
+        ax.legend(loc="upper right", fontsize=8)
+        _finish(fig, out_dir / "estimator_nis.png", f"{title}: normalised innovation squared", paths)
+    return paths
+
+
+def plt_subplots() -> tuple[Figure, Axes]:
+    """One axes, the size of the single-panel figures."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 3.6))
+    return fig, ax
 
 
 def plot_wheels(t: Array, speed_rad_s: Array, torque_Nm: Array, out_dir: Path, *, title: str,
@@ -314,6 +382,28 @@ def plot_compare(runs: list[tuple[str, History]], out_dir: Path, *, title: str,
     axes[0].legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("time [s]")
     _finish(fig, out_dir / "compare_torque.png", f"{title}: actuator torque", paths, margins=_ROWS_MARGINS)
+    estimating = [(label, h) for label, h in runs if h.estimate is not None]
+    if estimating:  # the attitude estimation error of each run with an estimator, its 3 sigma dashed
+        from sappc.evaluation.estimation import attitude_errors
+
+        fig, axes = _rows()
+        for i, ax in enumerate(axes):
+            for n, (label, h) in enumerate(runs):
+                if h.estimate is None:
+                    continue
+                c = _RUN_COLORS[n % len(_RUN_COLORS)]
+                err = attitude_errors(h.estimate.q_BN[:, 0], h.q_BN[:, 0])[:, i]
+                three_sigma = 3.0 * np.sqrt(np.abs(h.estimate.covariance[:, 0, i, i]))
+                ax.plot(h.t, three_sigma, "--", color=c, lw=0.8)
+                ax.plot(h.t, -three_sigma, "--", color=c, lw=0.8)
+                ax.plot(h.t, err, color=c, lw=0.9, label=label)
+            _mark_faults(ax, faults, t_end)
+            ax.set_ylabel(f"attitude error {'xyz'[i]} [rad]")
+            ax.grid(True, alpha=0.3)
+        axes[0].legend(loc="upper right", fontsize=8)
+        axes[-1].set_xlabel("time [s]")
+        _finish(fig, out_dir / "compare_estimator.png", f"{title}: attitude estimation error (dashed: each run's ±3σ)", paths,
+                margins=_ROWS_MARGINS)
     return paths
 
 

@@ -116,3 +116,21 @@ def test_a_start_10_deg_off_is_corrected_by_the_first_tracker_sample(runs: dict[
     assert r.metrics["steady_max_abs_qev"] == pytest.approx(nominal.metrics["steady_max_abs_qev"], rel=0.05)
     assert STATUS_INITIALISED not in e.status[1:, 0]
     _meets_the_paper(r)
+
+
+def test_the_estimator_figures_show_the_estimate_against_the_truth_with_3_sigma(runs: dict[str, SimulationResult], tmp_path,
+                                                                               monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """``estimator.png`` (attitude and bias errors with the filter's +-3 sigma), ``estimator_nis.png``
+    and, comparing two runs, ``compare_estimator.png``: every axes draws data in its view."""
+    from figure_checks import assert_every_axes_shows_data, capture_figures
+
+    from sappc.analysis.plots import plot_compare, plot_estimator
+
+    saved = capture_figures(monkeypatch)
+    r = runs["flight_tracker_outliers"]
+    paths = plot_estimator(r.history, tmp_path, title="outliers", fault_windows=[(30.0, 31.0)])
+    assert [p.name for p in paths] == ["estimator.png", "estimator_nis.png"]
+    compared = plot_compare([("nominal", runs["paper_tracking_flight"].history), ("outliers", r.history)], tmp_path, title="flight")
+    assert "compare_estimator.png" in [p.name for p in compared]
+    assert_every_axes_shows_data(saved)
+    assert len(saved[0].axes) == 6  # attitude and bias errors, three axes each
