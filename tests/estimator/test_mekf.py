@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+
+from gnc_common.validation import ConfigError
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2, poisson
 
@@ -744,3 +746,16 @@ def test_an_implausible_sample_is_no_measurement() -> None:
     np.testing.assert_array_equal(kr.q_hat[42:], skipped.q_hat[40:])
     y[40, 4] = 9.0  # within the bounds: a measurement
     assert run_kernel(prm, run.t_s[:41], y[:41]).status[40] != mekf.STATUS_NONE
+
+
+def test_the_gate_threshold_is_the_chi_square_quantile() -> None:
+    """``chi2_3dof_isf`` (closed form + Newton, no scipy.stats at start-up) against scipy's quantile,
+    within 1e-12 relative over the probabilities a gate uses (and far beyond)."""
+    from scipy.stats import chi2
+
+    from sappc_estimator.core.config import chi2_3dof_isf
+
+    for p in (1e-100, 1e-20, 1e-8, 1e-4, 1e-3, 0.01, 0.05, 0.5, 0.9, 0.999):
+        assert chi2_3dof_isf(p) == pytest.approx(chi2.isf(p, 3), rel=1e-12), p
+    with pytest.raises(ConfigError, match="false-alarm"):
+        chi2_3dof_isf(1.0)
