@@ -225,7 +225,7 @@ class MetricsAccumulator:
         has = np.all(np.isfinite(a), axis=-1)
         steady = (np.asarray(t) >= self.steady_from_s - _TIME_TOL_S)[:, None] & has
         self.est_att_max = np.maximum(att_max, np.where(steady[..., None], np.abs(a), 0.0).max(axis=0))
-        att_sq += np.where(steady[..., None], a * a, 0.0).sum(axis=0)
+        att_sq[...] = _summed_onto(att_sq, np.where(steady[..., None], a * a, 0.0))
         att_n += steady.sum(axis=0)
         if est.gyro_bias_true is not None:
             db = np.asarray(est.gyro_bias_true, dtype=np.float64) - np.asarray(est.gyro_bias, dtype=np.float64)
@@ -234,9 +234,10 @@ class MetricsAccumulator:
             bias_last[got] = db[last[got], np.flatnonzero(got)]
             e = nees(np.concatenate((a, db), axis=-1), np.asarray(est.covariance, dtype=np.float64))  # (B, N)
             counted = (np.asarray(t) >= NEES_FROM_S - _TIME_TOL_S)[:, None] & np.isfinite(e)
-            nees_sum += np.where(counted, e, 0.0).sum(axis=0)
+            nees_sum[...] = _summed_onto(nees_sum, np.where(counted, e, 0.0))
             nees_n += counted.sum(axis=0)
             rows = slice(k0, k0 + t.size)
+            # (the sum over runs, then over chunks: its last bits depend on how a campaign is chunked)
             self.nees_sum_t[rows] += np.where(counted, e, 0.0).sum(axis=1)
             self.nees_runs_t[rows] += counted.sum(axis=1)
         status = np.asarray(est.status)
@@ -391,6 +392,14 @@ class MetricsAccumulator:
             "settling_time_s": self.settling_times(),
             "finite": self.finite,
         }
+
+
+def _summed_onto(total: Array, x: Array) -> Array:
+    """``total`` plus the samples of ``x`` (B, ...) one after the other in time order: the same bits
+    for a run alone as in any batch and for any split into blocks, as the compiled kernel's sums
+    (numpy's pairwise ``sum`` orders its terms by the array's layout)."""
+    out: Array = np.cumsum(np.concatenate((total[None], x), axis=0), axis=0)[-1]
+    return out
 
 
 @jit

@@ -191,8 +191,11 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
         if finite[k] and not ok_steady[k]:
             why.append(f"steady_mean_abs_qev {steady[k]:.3g} >= {crit.steady_mean_abs_qev_max:g}")
         reasons.append({**run_ref(int(k)), "why": "; ".join(why)})
-    worst_t2 = int(np.nanargmax(np.where(finite, t2, -np.inf)))
-    worst_steady = int(np.nanargmax(np.where(finite, steady, -np.inf)))
+    def worst(values: Array) -> dict[str, Any] | None:
+        """The finite run with the largest value, or None when no run has one (a campaign shorter than t2)."""
+        ranked = np.where(finite & np.isfinite(values), values, -np.inf)
+        return run_ref(int(np.argmax(ranked))) if np.isfinite(ranked).any() else None
+
     summary: dict[str, Any] = {
         "scenario": scenario.name,
         "runs": runs,
@@ -208,8 +211,8 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
         "runs_never_commanded": int((tab["answers_commanded"] == 0).sum()),
         "rpf_clamped_components": int(tab["rpf_clamped"].sum()),
         "rpf_flat_components": int(tab["rpf_flat"].sum()),
-        "worst_rpf_error_at_t2": run_ref(worst_t2),
-        "worst_steady_mean_abs_qev": run_ref(worst_steady),
+        "worst_rpf_error_at_t2": worst(t2),
+        "worst_steady_mean_abs_qev": worst(steady),
         "rpf_error_at_t2": _percentiles(t2),
         "steady_mean_abs_qev": _percentiles(steady),
         "settling_time_s": _percentiles(tab["settling_time_s"]),

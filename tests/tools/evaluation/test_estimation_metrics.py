@@ -43,3 +43,38 @@ def test_the_nees_band_is_the_chi_square_quantiles_over_runs() -> None:
     assert abs(lo - 1.2373442) < 1e-6 and abs(hi - 14.449375) < 1e-5  # chi2_6 2.5 % and 97.5 % (tables)
     lo, hi = nees_band(500)
     assert 5.6 < lo < 6.0 < hi < 6.4  # narrows around the dof as runs are added
+
+
+def test_the_estimation_metrics_are_the_same_for_any_blocks_and_any_batch() -> None:
+    """Fed in blocks of any size, or as one run of a batch, the estimation metrics have the same bits
+    (their sums run sample after sample, as the compiled metrics')."""
+    from sappc.evaluation.estimation import EstimateHistory
+    from sappc.evaluation.metrics import MetricsAccumulator
+
+    rng = np.random.default_rng(9)
+    T, N = 700, 3
+    t = np.arange(T) * 0.01
+    q_true = random_unit_quaternions(rng, T * N).reshape(T, N, 4)
+    q_est = q_true + 1e-6 * rng.standard_normal((T, N, 4))
+    q_est /= np.linalg.norm(q_est, axis=-1, keepdims=True)
+    A = rng.standard_normal((T, N, 6, 6))
+    P = 1e-12 * (A @ np.swapaxes(A, -1, -2) + np.eye(6))
+    b = 1e-6 * rng.standard_normal((T, N, 3))
+    est = EstimateHistory(q_BN=q_est, omega_BN_B=np.zeros((T, N, 3)), gyro_bias=b, covariance=P, nis=np.zeros((T, N)),
+                          status=np.full((T, N), 3, dtype=np.int8), gyro_bias_true=b + 1e-7 * rng.standard_normal((T, N, 3)))
+
+    def acc(n: int) -> MetricsAccumulator:
+        return MetricsAccumulator(t, n, steady_from_s=2.0, settle_threshold=1e-3, t2_s=3.0, fault_windows=[])
+
+    whole = acc(N)
+    whole.update_estimate(0, t, q_true, est)
+    blocks = acc(N)
+    for k0, k1 in ((0, 1), (1, 333), (333, 334), (334, 700)):
+        part = EstimateHistory(*(None if v is None else v[k0:k1] for v in (est.q_BN, est.omega_BN_B, est.gyro_bias, est.covariance,
+                                                                           est.nis, est.status, est.gyro_bias_true)))
+        blocks.update_estimate(k0, t[k0:k1], q_true[k0:k1], part)
+    alone = acc(1)
+    alone.update_estimate(0, t, q_true[:, 1:2], EstimateHistory(*(None if v is None else v[:, 1:2] for v in (
+        est.q_BN, est.omega_BN_B, est.gyro_bias, est.covariance, est.nis, est.status, est.gyro_bias_true))))
+    assert whole._estimation_metrics(1) == blocks._estimation_metrics(1) == alone._estimation_metrics(0)
+    assert whole._estimation_metrics(1)["mean_nees"] is not None

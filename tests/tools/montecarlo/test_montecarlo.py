@@ -432,3 +432,42 @@ def test_a_campaign_disperses_fault_kinds_times_and_lengths_and_run_k_is_the_fau
     for key in ("steady_max_abs_qev", "max_abs_torque_Nm", "answers_watchdog_zero", "answers_held"):
         np.testing.assert_array_equal(again[key], same[key], err_msg=key)
     assert int(table["answers_watchdog_zero"][k]) == int(same["answers_watchdog_zero"][0])
+
+
+@NO_EMPTY_LOG_AXES
+def test_a_campaign_with_the_estimator_reports_its_errors_and_its_consistency(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """``paper_tracking_flight.yaml`` (the MEKF between sensors and controller), 6 runs of 8 s: each
+    run's estimation metrics are columns of runs.csv equal to the run alone, summary.json holds the
+    NEES averaged over the runs against its chi-square band, and montecarlo_nees.png draws it."""
+    from sappc.scenario import read_scenario_mapping
+
+    raw = read_scenario_mapping(SCENARIOS / "paper_tracking_flight.yaml")
+    raw["duration_s"] = 8.0
+    raw["metrics"]["steady_from_s"] = 6.0
+    raw["montecarlo"]["chunk_runs"] = 4  # two chunks: the per-sample NEES sums add up across them
+    path = tmp_path / "flight.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    saved = capture_figures(monkeypatch)
+    summary = run_campaign(path, runs=6, seed=3, out_dir=tmp_path / "f", progress=False)
+    nees = summary["estimator"]["nees_consistency"]
+    assert nees["runs"] == 6 and nees["from_s"] == 5.0 and nees["samples"] == 301  # [5, 8] s at 100 Hz
+    lo, hi = nees["band_95"]
+    assert lo < 6.0 < hi and nees["min"] <= nees["mean_over_time"] <= nees["max"]
+    table = np.genfromtxt(tmp_path / "f" / "runs.csv", delimiter=",", names=True)
+    for k in (1, 4):  # one from each chunk
+        _, _, metrics, _ = load_campaign_run(tmp_path / "f", k)
+        for name in ("steady_max_abs_attitude_estimation_error_rad", "final_abs_bias_estimation_error_rad_s", "mean_nees"):
+            assert metrics[name] == table[name][k], name
+    # the campaign's per-sample mean NEES is the mean of the runs' NEES, recomputed from their histories
+    from sappc.evaluation.estimation import attitude_errors, nees as nees_of
+
+    per_run = []
+    for k in range(6):
+        _, _, _, h = load_campaign_run(tmp_path / "f", k, with_history=True)
+        e = h.estimate
+        err = np.concatenate((attitude_errors(e.q_BN[:, 0], h.q_BN[:, 0]), e.gyro_bias_true[:, 0] - e.gyro_bias[:, 0]), axis=1)
+        per_run.append(nees_of(err, e.covariance[:, 0]))
+    mean = np.mean(per_run, axis=0)[h.t >= 5.0 - 1e-9]
+    assert nees["min"] == pytest.approx(mean.min(), rel=1e-12) and nees["max"] == pytest.approx(mean.max(), rel=1e-12)
+    figure = next(f for f in saved if "consistency" in f.texts[0].get_text())
+    assert_every_axes_shows_data([figure])
