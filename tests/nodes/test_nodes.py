@@ -300,11 +300,11 @@ def test_runtime_gain_changes_are_validated_and_applied_whole(controller) -> Non
     assert described.floating_point_range[0].from_value == 0.0 and described.floating_point_range[0].to_value == PARAMETER_MAX
 
 
-def test_a_request_mixing_a_valid_and_an_invalid_gain_is_applied_as_the_readme_says(controller) -> None:  # type: ignore[no-untyped-def]
+def test_a_request_mixing_a_valid_and_an_invalid_gain_is_applied_as_the_docs_say(controller) -> None:  # type: ignore[no-untyped-def]
     """Through the parameter services, as ``ros2 param`` or Foxglove send them (issue 25, defect 9):
     ``set_parameters`` is ROS's per-parameter request (each parameter is validated and applied on
     its own: the valid one is applied, the invalid one refused with its reason), while
-    ``set_parameters_atomically`` applies all or nothing.  The README says exactly that."""
+    ``set_parameters_atomically`` applies all or nothing.  docs/how-to/nodes.md says exactly that."""
     from rclpy.parameter_client import AsyncParameterClient
 
     node, drv = controller
@@ -324,8 +324,8 @@ def test_a_request_mixing_a_valid_and_an_invalid_gain_is_applied_as_the_readme_s
     assert ok_q.successful and not bad_omega.successful and "K_omega" in bad_omega.reason
     assert node.controller.config.gains.K_q == 0.5 and node.controller.config.gains.K_omega != -1.0  # the valid one applied
 
-    readme = " ".join((ROOT / "README.md").read_text().split())
-    said = readme.split("At run time the gains", 1)[1].split("the rest is read-only during a run", 1)[0]
+    page = " ".join((ROOT / "docs" / "how-to" / "nodes.md").read_text().split())
+    said = page.split("At run time the gains", 1)[1].split("the rest is read-only during a run", 1)[0]
     assert "nothing half-applied" not in said and "set_parameters_atomically" in said and "each parameter" in said, said
 
 
