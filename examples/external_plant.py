@@ -1,6 +1,6 @@
 """A plant of your own beside ``python -m sappc_controller``: a rigid body (J = 4 I kg m^2, RK4) that
-speaks the topic contract in lockstep; no code of the project but the contract (README "The
-controller alone beside your plant").  Usage: python examples/external_plant.py [--duration S] [--subscribers N]"""
+speaks the topic contract in lockstep; no code of the project but the contract (docs/tutorials/your-plant.md,
+the controller alone beside your plant).  Usage: python examples/external_plant.py [--duration S] [--subscribers N]"""
 import argparse
 import time
 

@@ -15,7 +15,7 @@ read-only during a run.
 
 Start: ``control/torque`` and ``controller/diagnostics`` are offered (their publishers created)
 once each of the five inputs has a publisher.  A plant waits for a publisher of
-``control/torque`` before its first sample (README, "Writing your own plant"), so the loop starts
+``control/torque`` before its first sample (docs/tutorials/your-plant.md), so the loop starts
 only when the controller can compute its first sample, whatever order the plant, the reference
 and the controller were started in: no sample is answered without the law for want of a partner
 that had not started yet.  The closing log line counts the samples answered in each way

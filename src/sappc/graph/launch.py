@@ -520,7 +520,8 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         if compose:  # one process: it ends by itself when the plant finishes, the nodes stopping in STOP_ORDER
             composition = run_dir / "composition.json"
             composition.write_text(json.dumps([{"name": name, "args": node_args[name]} for name in nodes], indent=1))
-            commands = {"composed": [sys.executable, "-m", "sappc.graph.container", str(composition)]}
+            # relative to the run directory, the process's working directory, as every other path it is given
+            commands = {"composed": [sys.executable, "-m", "sappc.graph.container", composition.name]}
             lead, stop_order = "composed", ["composed"]
         else:
             commands = {name: [sys.executable, "-m", NODE_CLASSES[name][0], *node_args[name]] for name in nodes}

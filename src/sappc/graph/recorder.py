@@ -96,7 +96,7 @@ DRAIN_QUIET_S = 0.3
 #: Longest drain [s], in case a publisher keeps publishing after the signal.
 DRAIN_MAX_S = 10.0
 #: Period of the MCAP flush [s]: what a SIGKILL can lose (with the messages still in the queues);
-#: half the README's 1 s bound, so that a recorder lagging by a few hundred ms still meets it.
+#: half the documented 1 s bound (docs/recorder.md), so that a recorder lagging by a few hundred ms still meets it.
 FLUSH_PERIOD_S = 0.5
 #: The ``library`` field of the bags the recorder writes.
 RECORDER_LIBRARY = "sappc recorder (mcap-python)"

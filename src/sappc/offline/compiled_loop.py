@@ -151,7 +151,7 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     one is more than ``ctrl.stale_ns`` older than the sample (stamps ``grid.t_ns``), else its last
     answer again (held).  The plant applies the delivered torque clipped to the actuator's limit.
 
-    The run's start (README, "What the controller answers"): the controller starts at its **first
+    The run's start (docs/how-to/faults.md, "A run starts at the first valid sample"): the controller starts at its **first
     valid sample**, whose time is the performance function's time origin (``S_T0``) and whose error
     fixes ``ctrl.coef`` (:func:`sappc_controller.core.packing.start_coef`, in Python: the RPF's
     coefficients need scipy).  Everything before that sample is independent of ``coef``, so a first

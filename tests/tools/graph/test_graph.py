@@ -88,9 +88,9 @@ def test_the_composed_graph_records_the_same_bag_byte_for_byte(tracking_run, tmp
     the run's files are recorded with paths relative to the run directory), the same
     metadata.yaml and counts, the same metrics; one process was started instead of five."""
     out, report, _ = tracking_run
-    composed = tmp_path / "composed"
-    proc = subprocess.run([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--compose", "--out", str(composed), "--json", str(tmp_path / "m.json")],
-                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    composed = tmp_path / "composed"  # given relative to the working directory (a composed run once failed with one)
+    proc = subprocess.run([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--compose", "--out", "composed", "--json", "m.json"],
+                          capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     composed_report = json.loads((tmp_path / "m.json").read_text())
     assert composed_report["composed"] is True and report["composed"] is False

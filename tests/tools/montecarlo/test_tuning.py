@@ -222,7 +222,7 @@ def _wheel_tuning(requirement: float | None) -> dict[str, Any]:
 
 
 def test_the_wheel_speed_requirement_is_usable_in_tuning() -> None:
-    """Issue 25, 2.8: the README's ``max_abs_wheel_speed_rad_s_max`` in a tuning section is accepted
+    """Issue 25, 2.8: the documented ``max_abs_wheel_speed_rad_s_max`` (docs/tutorials/tuning.md) in a tuning section is accepted
     with reaction wheels (refused, naming it, with the ideal actuator), each trial's campaign
     measures it, and a run whose fastest wheel exceeds it breaks the requirement."""
     raw = _wheel_tuning(5.0)

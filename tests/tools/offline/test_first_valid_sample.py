@@ -1,6 +1,6 @@
 """A run whose first valid input arrives after t = 0 (issue 25, 2.1 and 2.2), offline.
 
-The rule (README, "What the controller answers"; :mod:`sappc.offline.compiled_loop`): a controller
+The rule (docs/how-to/faults.md, "A run starts at the first valid sample"; :mod:`sappc.offline.compiled_loop`): a controller
 cannot know the initial error before it has a state, so its run starts at its **first valid
 sample**: the performance function's time origin is that sample's time, and its start constants
 (each component's sign and, with ``rpf.rho_e0`` left out, its initial magnitude) come from that
