@@ -376,7 +376,10 @@ def run_node(make_node: Callable[[list[str]], ProjectNode], argv: list[str] | No
     args = list(sys.argv if argv is None else argv)
     user_args = args[1:args.index("--ros-args")] if "--ros-args" in args else args[1:]
     if node_class is not None and ("-h" in user_args or "--help" in user_args):
-        print(node_class.help_text())
+        try:
+            print(node_class.help_text(), flush=True)
+        except BrokenPipeError:  # `--help | head`: the reader has what it wanted
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error when Python flushes at exit
         return 0
     return run_nodes(lambda a: [make_node(a)], args)
 

@@ -106,3 +106,21 @@ def test_a_node_declares_exactly_what_its_help_lists(command: str, ros_context, 
                     assert (d.floating_point_range[0].from_value, d.floating_point_range[0].to_value) == p.range, p.name
     finally:
         node.destroy_node()
+
+
+def test_help_into_a_closed_pipe_is_no_error() -> None:
+    """``python -m sappc_controller --help | head -1``: the reader has gone before the help is
+    written (here for certain: the pipe's read end is closed before the node starts); the help ends
+    quietly with status 0, not a BrokenPipeError traceback."""
+    import os
+    import subprocess
+    import sys
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # every write to the pipe now fails with EPIPE
+    try:
+        proc = subprocess.run([sys.executable, "-m", "sappc_controller", "--help"], stdout=write_end, stderr=subprocess.PIPE,
+                              text=True, timeout=120)
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr and "BrokenPipeError" not in proc.stderr, proc.stderr
