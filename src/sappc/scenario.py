@@ -491,7 +491,7 @@ def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dic
     except yaml.YAMLError as exc:
         raise ConfigError(f"{p} is not valid YAML: {exc}") from None
     if not isinstance(data, dict) or EXTENDS_KEY not in data:
-        return data  # type: ignore[no-any-return]  # scenario_from_mapping names a non-mapping
+        return data  # scenario_from_mapping names a non-mapping
     base_name = data.pop(EXTENDS_KEY)
     if not isinstance(base_name, str) or not base_name:
         raise ConfigError(f"{p}: {EXTENDS_KEY} must name a scenario file, got {base_name!r}")

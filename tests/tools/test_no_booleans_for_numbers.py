@@ -21,7 +21,7 @@ import yaml
 from gnc_common.validation import ConfigError
 from sappc.montecarlo.config import campaign_config
 from sappc.montecarlo.tuning import tuning_config
-from sappc.scenario import scenario_from_mapping
+from sappc.scenario import read_scenario_mapping, scenario_from_mapping
 
 from conftest import SCENARIOS
 
@@ -44,7 +44,10 @@ _EXTRA["faults"] = [
 ]
 _EXTRA["controller_node"] = {"stale_timeout_s": 0.2, "max_attitude_norm_error": 1e-7, "max_body_rate_rad_s": 5.0,
                              "max_reference_rate_rad_s": 5.0, "max_reference_acceleration_rad_s2": 5.0}
-RAWS = {f.stem: yaml.safe_load(f.read_text()) for f in FILES} | {"every_fault": _EXTRA}
+#: Each file's own numbers (a file that ``extends`` another states only what it changes: the base's
+#: numbers are the base file's cases), and the whole scenario it resolves to, which is validated.
+OWN = {f.stem: yaml.safe_load(f.read_text()) for f in FILES} | {"every_fault": _EXTRA}
+RAWS = {f.stem: read_scenario_mapping(f) for f in FILES} | {"every_fault": _EXTRA}
 
 
 def _numbers(node: Any, path: tuple[Any, ...] = ()) -> Iterator[tuple[Any, ...]]:
@@ -74,7 +77,7 @@ def _set(raw: dict[str, Any], path: tuple[Any, ...], value: Any) -> None:
     node[path[-1]] = value
 
 
-CASES = [(name, p) for name, raw in RAWS.items() for p in _numbers(raw)]
+CASES = [(name, p) for name, raw in OWN.items() for p in _numbers(raw)]
 
 
 def test_every_file_validates_as_written_and_has_numbers_in_every_section() -> None:

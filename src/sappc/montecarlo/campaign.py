@@ -108,12 +108,13 @@ def simulate_runs(
     def noise_draws(lo: int, hi: int) -> NDArray[np.float64]:
         return sensor_noise_draws(seed, inputs.runs[lo:hi], n_samples, width)
 
-    run_wheels, run_sensor_params = run_hardware(scenario, inputs)
-    sensors = None
+    run_wheels, run_sensor_params, run_outages = run_hardware(scenario, inputs)
+    sensors: tuple[NDArray[np.float64], Callable[[int, int], NDArray[np.float64]], NDArray[np.float64] | None] | None = None
     if noise.enabled:
-        sensors = (white_noise_params(noise.attitude_sigma_rad, noise.rate_sigma_rad_s), noise_draws)
+        sensors = (white_noise_params(noise.attitude_sigma_rad, noise.rate_sigma_rad_s), noise_draws, None)
     elif scenario.sensors is not None:  # each run draws its sensors' noise from its own stream
-        sensors = (scenario.sensors.params(scenario.control_period_s) if run_sensor_params is None else run_sensor_params, noise_draws)
+        sensors = (scenario.sensors.params(scenario.control_period_s) if run_sensor_params is None else run_sensor_params, noise_draws,
+                   run_outages)
 
     with np.errstate(all="ignore"):  # a diverging run is reported, not raised
         try:

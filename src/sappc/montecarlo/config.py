@@ -207,6 +207,9 @@ class HardwareDispersions:
         Per axis, the tracker's sigma.
     gyro_initial_bias_rad_s : Distribution
         Per axis, added to the gyro's initial bias [rad/s].
+    star_tracker_outage_start_s, star_tracker_outage_duration_s : Distribution
+        One tracker outage per run (added to the scenario's): its start [s] (a draw below 0 starts
+        at 0) and its duration [s] (uniform with ``low > 0``); given together.
     """
 
     wheel_spin_inertia_relative: Distribution | None = None
@@ -215,12 +218,21 @@ class HardwareDispersions:
     wheel_initial_speed_rad_s: Distribution | None = None
     star_tracker_noise_relative: Distribution | None = None
     gyro_initial_bias_rad_s: Distribution | None = None
+    star_tracker_outage_start_s: Distribution | None = None
+    star_tracker_outage_duration_s: Distribution | None = None
     #: Wheels of the scenario (set by :func:`campaign_config`): how many per-wheel values a run draws.
     n_wheels: int = dataclasses.field(default=0, init=False)
 
     def __post_init__(self) -> None:
         for name, dist in self.items():
             dist.check_shape(f"dispersions.hardware.{name}", ())
+        start, duration = self.star_tracker_outage_start_s, self.star_tracker_outage_duration_s
+        if (start is None) != (duration is None):
+            raise ConfigError("dispersions.hardware.star_tracker_outage_start_s and star_tracker_outage_duration_s go together")
+        if duration is not None and (duration.distribution is not DistributionKind.UNIFORM
+                                     or not np.min(np.asarray(duration.low, dtype=float)) > 0.0):
+            raise ConfigError(f"dispersions.hardware.star_tracker_outage_duration_s must be a uniform distribution with low > 0, "
+                              f"got {duration!r}")
 
     def items(self) -> list[tuple[str, Distribution]]:
         return [(f.name, getattr(self, f.name)) for f in dataclasses.fields(self) if f.init and getattr(self, f.name) is not None]
@@ -237,8 +249,9 @@ class HardwareDispersions:
         object.__setattr__(self, "n_wheels", 0 if scenario.wheels is None else scenario.wheels.n)
 
     def draw(self, rng: np.random.Generator) -> dict[str, Array]:
-        """One run's draws: (n_wheels,) per wheel, (3,) per axis, in the order of the fields."""
-        return {name: dist.draw(rng, (self.n_wheels,) if name.startswith("wheel_") else (3,)) for name, dist in self.items()}
+        """One run's draws: (n_wheels,) per wheel, (3,) per axis, (1,) per outage, in the order of the fields."""
+        return {name: dist.draw(rng, (self.n_wheels,) if name.startswith("wheel_") else (1,) if "outage" in name else (3,))
+                for name, dist in self.items()}
 
 
 @dataclass(frozen=True)

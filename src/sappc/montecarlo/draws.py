@@ -91,9 +91,10 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
     )
 
 
-def run_hardware(scenario: Scenario, inputs: RunInputs) -> tuple[list[ReactionWheels] | None, Array | None]:
-    """Each run's wheel set and sensor parameters (``Sensors.params`` rows) with its hardware
-    dispersions applied; ``None`` where nothing of that kind is dispersed (the scenario's)."""
+def run_hardware(scenario: Scenario, inputs: RunInputs) -> tuple[list[ReactionWheels] | None, Array | None, Array | None]:
+    """Each run's wheel set, sensor parameters (``Sensors.params`` rows) and tracker outages (n, K,
+    2) [s] with its hardware dispersions applied; ``None`` where nothing of that kind is dispersed
+    (the scenario's)."""
     hw, n = inputs.hardware, inputs.runs.size
     wheels = None
     if scenario.wheels is not None and any(k.startswith("wheel_") for k in hw):
@@ -124,7 +125,13 @@ def run_hardware(scenario: Scenario, inputs: RunInputs) -> tuple[list[ReactionWh
             sensors[:, ST_SIGMA:ST_SIGMA + 3] *= 1.0 + hw["star_tracker_noise_relative"]
         if "gyro_initial_bias_rad_s" in hw:
             sensors[:, S_BIAS0:S_BIAS0 + 3] += hw["gyro_initial_bias_rad_s"]
-    return wheels, sensors
+    outages = None
+    if scenario.sensors is not None and "star_tracker_outage_start_s" in hw:
+        start = np.maximum(hw["star_tracker_outage_start_s"][:, 0], 0.0)
+        drawn = np.stack((start, start + hw["star_tracker_outage_duration_s"][:, 0]), axis=1)[:, None, :]  # (n, 1, 2)
+        own = np.broadcast_to(scenario.sensors.outages()[None], (n, scenario.sensors.outages().shape[0], 2))
+        outages = np.ascontiguousarray(np.concatenate((own, drawn), axis=1))
+    return wheels, sensors, outages
 
 
 def run_faults(scenario: Scenario, cfg: CampaignConfig, inputs: RunInputs) -> list[tuple[Any, ...]] | None:

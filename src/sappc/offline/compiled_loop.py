@@ -510,14 +510,16 @@ def _f64(a: Any, shape: tuple[int, ...] | None = None) -> np.ndarray:
 
 def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | None = None, omega_BN_B0: np.ndarray | None = None,
             inertia_kg_m2: np.ndarray | None = None, disturbance: Any = None, config: Any = None, gains: dict[str, np.ndarray] | None = None,
-            on_infeasible: str = "raise", sensor_params: np.ndarray | None = None, faults: list[tuple[Any, ...]] | None = None,
-            wheels: list[ReactionWheels] | None = None, estimator_params: np.ndarray | None = None) -> CompiledInputs:
+            on_infeasible: str = "raise", sensor_params: np.ndarray | None = None, sensor_outages: np.ndarray | None = None,
+            faults: list[tuple[Any, ...]] | None = None, wheels: list[ReactionWheels] | None = None,
+            estimator_params: np.ndarray | None = None) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
     ``sensor_params``: the sensors' parameters ((13,) or one row per run), their draws then given
     per batch (:meth:`CompiledInputs.subset`); else the scenario's
     (:attr:`~sappc.scenario.Scenario.sensors`; none: exact measurements), every run with the draws
-    of its ``seed``.  ``faults``: one fault list per run (a campaign's dispersed faults; the same
+    of its ``seed``; ``sensor_outages`` (N, K, 2) [s]: each run's star-tracker outages (a
+    campaign's dispersed ones), else the scenario's.  ``faults``: one fault list per run (a campaign's dispersed faults; the same
     kinds in the same slots), else the scenario's for every run.  ``wheels``: one wheel set per run
     (the same number of wheels), else the scenario's actuator (:attr:`~sappc.scenario.Scenario.wheels`;
     none: ideal).  ``estimator_params``: one row per run of the estimator's parameters (a campaign
@@ -546,7 +548,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
                                    input_bounds=scenario.controller_node.input_bounds().packed(), gains=gains),
         plant=plant,
         actuator=actuator,
-        sensors=pack_sensors(scenario.sensors, n, t.size, scenario.control_period_s, sensor_params),
+        sensors=pack_sensors(scenario.sensors, n, t.size, scenario.control_period_s, sensor_params, sensor_outages),
         estimator=pack_estimator(scenario.estimator, n, estimator_params),
         disturbance=pack_disturbance(scenario.disturbance if disturbance is None else disturbance, t, n),
         faults=pack_faults(per_run_faults, t_ns),

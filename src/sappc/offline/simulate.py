@@ -107,7 +107,7 @@ def run_scenario(
     disturbance: DisturbanceModel | None = None,
     gains: dict[str, np.ndarray] | None = None,
     faults: list[tuple[Any, ...]] | None = None,
-    sensors: tuple[np.ndarray, Callable[[int, int], np.ndarray]] | None = None,
+    sensors: tuple[np.ndarray, Callable[[int, int], np.ndarray], np.ndarray | None] | None = None,
     wheels: list[Any] | None = None,
     keep_history: bool = False,
     trajectory: tuple[int, int] | None = None,
@@ -126,9 +126,10 @@ def run_scenario(
 
     The runs go through the compiled loop ``sub_batch`` at a time (in parallel over runs); each
     sub-batch's full history feeds the metrics in one block and is dropped unless
-    ``keep_history``.  ``sensors = (params, draws)``: the sensors' parameters
-    (:meth:`spacecraft_sim.core.sensors.Sensors.params`, (13,) or one row per run) and
-    ``draws(lo, hi)`` the standard normals (hi - lo, T, 6 or 9) of runs ``lo .. hi - 1``; by
+    ``keep_history``.  ``sensors = (params, draws, outages)``: the sensors' parameters
+    (:meth:`spacecraft_sim.core.sensors.Sensors.params`, (13,) or one row per run),
+    ``draws(lo, hi)`` the standard normals (hi - lo, T, 6 or 9) of runs ``lo .. hi - 1`` and the
+    tracker's outages (N, K, 2) [s] per run (``None``: the scenario's for every run); by
     default the scenario's ``sensors``, every run with the draws of its ``seed``
     (:func:`~sappc.offline.compiled_loop.prepare`).  ``wheels``: one
     :class:`~spacecraft_sim.core.wheels.ReactionWheels` per run (dispersed), else the scenario's.
@@ -146,7 +147,8 @@ def run_scenario(
     inp = compiled_loop.prepare(
         scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
         disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
-        sensor_params=None if sensors is None else sensors[0], faults=faults, wheels=wheels,
+        sensor_params=None if sensors is None else sensors[0], sensor_outages=None if sensors is None else sensors[2],
+        faults=faults, wheels=wheels,
     )
     draws = None if sensors is None else sensors[1]
 

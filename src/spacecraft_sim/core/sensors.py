@@ -245,7 +245,7 @@ class SensorArrays(NamedTuple):
     """The sensors of a batch, as the whole-run loop takes them: ``draws`` (N, T or 0,
     :data:`N_SENSOR_DRAWS` or 6) each run's standard normals (no rows: the state is measured
     exactly), ``params`` (N, :data:`N_SENSOR_PARAMS`) each run's :meth:`Sensors.params`,
-    ``outages`` (K, 2) [s] the tracker's outages (shared).  Packed by :func:`pack_sensors`."""
+    ``outages`` (N, K, 2) [s] each run's tracker outages.  Packed by :func:`pack_sensors`."""
 
     draws: NDArray[np.float64]
     params: NDArray[np.float64]
@@ -254,24 +254,29 @@ class SensorArrays(NamedTuple):
     @staticmethod
     def run_axes() -> dict[str, int]:
         """The axis of runs of each per-run field (the others are shared by every run)."""
-        return {"draws": 0, "params": 0}
+        return {"draws": 0, "params": 0, "outages": 0}
 
 
 def pack_sensors(sensors: Sensors | None, n_runs: int, n_samples: int, control_period_s: float,
-                 params: NDArray[np.float64] | None = None) -> SensorArrays:
+                 params: NDArray[np.float64] | None = None, outages: NDArray[np.float64] | None = None) -> SensorArrays:
     """A batch's sensors: the scenario's (every run with the draws of its ``seed``; ``None``: exact
     measurements), or ``params`` ((13,) or one row per run: a campaign's dispersed sensors) whose
-    draws a campaign gives per sub-batch (no rows here)."""
+    draws a campaign gives per sub-batch (no rows here); ``outages`` (n_runs, K, 2) [s]: each
+    run's tracker outages, else the scenario's for every run."""
     if params is None:
         prm = np.zeros(N_SENSOR_PARAMS) if sensors is None else sensors.params(control_period_s)
         draws = (np.zeros((n_runs, 0, 6)) if sensors is None
                  else np.array(np.broadcast_to(sensors.draws(n_samples), (n_runs, n_samples, N_SENSOR_DRAWS)), dtype=np.float64))
     else:
         prm, draws = params, np.zeros((n_runs, 0, 6))
-    outages = np.zeros((0, 2)) if sensors is None else sensors.outages()
+    if outages is None:
+        own = np.zeros((0, 2)) if sensors is None else sensors.outages()
+        outages = np.broadcast_to(own[None], (n_runs,) + own.shape)
+    if outages.shape[0] != n_runs or outages.shape[2:] != (2,):
+        raise ValueError(f"outages must be ({n_runs}, K, 2), got {outages.shape}")
     return SensorArrays(np.ascontiguousarray(draws, dtype=np.float64),
                         np.array(np.broadcast_to(prm, (n_runs, N_SENSOR_PARAMS)), dtype=np.float64, order="C"),
-                        np.ascontiguousarray(outages, dtype=np.float64))
+                        np.array(outages, dtype=np.float64, order="C"))
 
 
 @jit(inline="always")
@@ -279,7 +284,7 @@ def measure_run(s, n, k, t, x, held_q, bias, y):
     """Run ``n``'s measurement of sample ``k`` (:func:`measure` with :class:`SensorArrays` ``s``), or
     the true state when the batch has no sensor draws."""
     if s.draws.shape[1] > 0:
-        measure(k, t, x[:4], x[4:7], s.draws[n, k], s.params[n], s.outages, held_q, bias, y)
+        measure(k, t, x[:4], x[4:7], s.draws[n, k], s.params[n], s.outages[n], held_q, bias, y)
     else:
         for i in range(7):
             y[i] = x[i]

@@ -471,3 +471,31 @@ def test_a_campaign_with_the_estimator_reports_its_errors_and_its_consistency(tm
     assert nees["min"] == pytest.approx(mean.min(), rel=1e-12) and nees["max"] == pytest.approx(mean.max(), rel=1e-12)
     figure = next(f for f in saved if "consistency" in f.texts[0].get_text())
     assert_every_axes_shows_data([figure])
+
+
+def test_dispersed_tracker_outages_are_each_runs_own_and_in_its_row(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """``dispersions.hardware.star_tracker_outage_start_s`` / ``_duration_s``: one outage per run,
+    added to the scenario's; the draws are columns of runs.csv, run k alone equals its row, and in
+    each run the estimator only propagates (no tracker update) inside its own outage."""
+    from sappc.scenario import read_scenario_mapping
+    from sappc_estimator.core.mekf import STATUS_UPDATED
+
+    raw = read_scenario_mapping(SCENARIOS / "paper_tracking_flight.yaml")
+    raw["duration_s"] = 8.0
+    raw["metrics"]["steady_from_s"] = 6.0
+    raw["montecarlo"]["dispersions"]["hardware"].update(
+        star_tracker_outage_start_s={"distribution": "uniform", "low": 2.0, "high": 4.0},
+        star_tracker_outage_duration_s={"distribution": "uniform", "low": 1.0, "high": 2.0})
+    path = tmp_path / "flight.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    run_campaign(path, runs=3, seed=5, out_dir=tmp_path / "o", progress=False)
+    table = np.genfromtxt(tmp_path / "o" / "runs.csv", delimiter=",", names=True)
+    starts, durations = table["star_tracker_outage_start_s_1"], table["star_tracker_outage_duration_s_1"]
+    assert np.all((starts >= 2.0) & (starts <= 4.0)) and np.all((durations >= 1.0) & (durations <= 2.0))
+    assert len(set(starts.tolist())) == 3
+    for k in range(3):
+        _, _, metrics, h = load_campaign_run(tmp_path / "o", k, with_history=True)
+        assert metrics["mean_nees"] == table["mean_nees"][k]
+        updated = h.t[h.estimate.status[:, 0] == STATUS_UPDATED]
+        inside = (updated >= starts[k] + 0.01) & (updated < starts[k] + durations[k])
+        assert not inside.any() and np.any(updated > starts[k] + durations[k])  # none in its outage, some after
