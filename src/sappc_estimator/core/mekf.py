@@ -219,6 +219,23 @@ def _symmetrise(P):
 
 
 @jit(inline="always")
+def _congruence(A, P, T):
+    """``P <- A P A^T`` for (6, 6) matrices, sums in index order; ``T`` (6, 6) scratch."""
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += A[i, k] * P[k, j]
+            T[i, j] = acc
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += T[i, k] * A[j, k]
+            P[i, j] = acc
+
+
+@jit(inline="always")
 def _propagate(prm, st, P, w0, w1, w2, h, work):
     """Step 3 of the module docstring: ``q_hat`` and ``P`` over ``h`` at the rate ``w`` (bias removed)."""
     # attitude: q_hat <- normalise(q_hat ⊗ dq(w h))
@@ -258,19 +275,7 @@ def _propagate(prm, st, P, w0, w1, w2, h, work):
             Phi[r, 3 + col] = (w_rc * c - eye * h) - w2_rc * d
         Phi[3 + r, 3 + r] = 1.0
     # P <- Phi P Phi^T + Qd
-    T = work[_W_TMP:_W_TMP + 6]
-    for r in range(6):
-        for col in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += Phi[r, k] * P[k, col]
-            T[r, col] = acc
-    for r in range(6):
-        for col in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += T[r, k] * Phi[col, k]
-            P[r, col] = acc
+    _congruence(Phi, P, work[_W_TMP:_W_TMP + 6])
     h2 = h * h
     for i in range(3):
         sv2, su2 = prm[EP_SV2 + i], prm[EP_SU2 + i]
@@ -327,22 +332,13 @@ def _update(prm, st, P, q_meas, work):
     for i in range(6):
         for j in range(6):
             A[i, j] = (1.0 if i == j else 0.0) - (K[i, j] if j < 3 else 0.0)
-    T = work[_W_TMP:_W_TMP + 6]
+    _congruence(A, P, work[_W_TMP:_W_TMP + 6])
     for i in range(6):
         for j in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += A[i, k] * P[k, j]
-            T[i, j] = acc
-    for i in range(6):
-        for j in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += T[i, k] * A[j, k]
             krk = 0.0
             for b in range(3):
                 krk += K[i, b] * prm[EP_R + b] * K[j, b]
-            P[i, j] = acc + krk
+            P[i, j] += krk
     _symmetrise(P)
     # dx = K r, multiplicative reset
     dx = work[_W_V + 1]
