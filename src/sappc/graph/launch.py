@@ -44,6 +44,7 @@ from sappc_msgs_py.contract import (CLOCK, ESTIMATE_ATTITUDE, ESTIMATE_RATE, EST
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
+from sappc.files import default_output_dir, scenario_path as bundled_scenario_path
 from sappc.graph.container import NODE_CLASSES, STOP_ORDER
 from sappc.scenario import EXTENDS_KEY, ControllerKind, Scenario, load_scenario
 
@@ -477,6 +478,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
     # claimed first: a domain in use stops the run before anything is written or started
     with claim_domain_id(preferred_domain, source=domain_source) as domain:
         external = plant == "external"
+        scenario_path = bundled_scenario_path(scenario_path)  # a file, or a bundled scenario's name
         scenario = load_scenario(scenario_path)
         kind = scenario.resolve_controller(controller)
         scenario.controller_config(kind)  # validate before any process starts
@@ -486,7 +488,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         scenario.build_controller(kind).step(0.0, scenario.control_period_s, scenario.q_BN0, scenario.omega_BN_B0_rad_s,
                                              ref0.q_RN[0], ref0.omega_RN_R[0], ref0.omegadot_RN_R[0])
         stamp = time.strftime("%Y%m%d-%H%M%S")
-        run_dir = Path(out_dir) if out_dir is not None else Path("runs") / f"{scenario.name}-{kind.value}-{stamp}"
+        run_dir = Path(out_dir) if out_dir is not None else default_output_dir("run", f"{scenario.name}-{kind.value}-{stamp}")
         if run_dir.exists() and any(run_dir.iterdir()):
             raise ConfigError(f"--out {run_dir} exists and is not empty; choose a new directory")
         for sub in ("logs", "counts"):
