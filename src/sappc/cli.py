@@ -97,17 +97,19 @@ _json_stdout: TextIO | None = None
 
 @contextlib.contextmanager
 def _stdout_to_stderr() -> Iterator[TextIO]:
-    """For ``--json -``: file descriptor 1 points at stderr while the command runs (its tables,
-    progress and the output of the processes it starts), and the JSON is written to a duplicate
-    of the original stdout, which is yielded; restored afterwards."""
+    """For ``--json -``: while the command runs, ``sys.stdout`` is ``sys.stderr`` and file
+    descriptor 1 points where 2 does (its tables, progress and the output of the processes it
+    starts all go to stderr); the JSON is written to a duplicate of the original descriptor 1,
+    which is yielded.  Both are restored afterwards."""
     sys.stdout.flush()
     saved = os.dup(1)
     os.dup2(2, 1)
     out = os.fdopen(os.dup(saved), "w", encoding="utf-8")
     try:
-        yield out
+        with contextlib.redirect_stdout(sys.stderr):
+            yield out
     finally:
-        sys.stdout.flush()
+        sys.stderr.flush()
         os.dup2(saved, 1)
         os.close(saved)
         out.close()
@@ -230,8 +232,8 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
     print(f"campaign {summary['scenario']}: {summary['passed']}/{summary['runs']} runs pass "
           f"(rpf_error_at_t2 < {summary['criteria']['rpf_error_at_t2_max']:g}, "
           f"steady_mean_abs_qev < {summary['criteria']['steady_mean_abs_qev_max']:g})")
-    print(f"  rpf_error_at_t2      p50 {summary['rpf_error_at_t2']['p50']:.3g}  p99 {summary['rpf_error_at_t2']['p99']:.3g}  max {summary['rpf_error_at_t2']['max']:.3g}")
-    print(f"  steady_mean_abs_qev  p50 {summary['steady_mean_abs_qev']['p50']:.3g}  p99 {summary['steady_mean_abs_qev']['p99']:.3g}  max {summary['steady_mean_abs_qev']['max']:.3g}")
+    for key in ("rpf_error_at_t2", "steady_mean_abs_qev"):  # None: no run measured it (e.g. runs shorter than t2)
+        print(f"  {key:<19}  " + "  ".join(f"{q} {_fmt(summary[key][q], '.3g')}" for q in ("p50", "p99", "max")))
     switching = summary["torque_sign_changes_per_s"]
     if switching["max"] is not None:  # None: no steady window with two samples
         print(f"  torque_sign_changes_per_s  p50 {switching['p50']:.3g}  p99 {switching['p99']:.3g}  max {switching['max']:.3g}")
@@ -318,8 +320,9 @@ def run_exit_status(mismatched: dict[str, tuple[int, int]], controller: dict[str
     return 0 if not mismatched else 1
 
 
-def _fmt(value: Any) -> str:
-    return "-" if value is None else f"{value:.4g}"
+def _fmt(value: Any, spec: str = ".4g") -> str:
+    """A number as the tables print it; ``-`` for ``None`` (a metric no run measured)."""
+    return "-" if value is None else format(value, spec)
 
 
 def _cmd_tune(args: argparse.Namespace) -> int:

@@ -39,8 +39,8 @@ import yaml
 from sappc_msgs_py.runtime import parse_expected
 from sappc_controller.params import parameters_from_config, unflatten
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
-from sappc_msgs_py.contract import (CLOCK, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_TOPICS, RELAYED_ACTUATOR_TOPICS, RELAYED_PATHS,
-                                    RELAYED_SENSOR_TOPICS, STATE_ATTITUDE, STATE_RATE, faulty, relay_remaps)
+from sappc_msgs_py.contract import (CLOCK, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
+                                    RELAYED_PATHS, RELAYED_SENSOR_TOPICS, STATE_ATTITUDE, STATE_RATE, TOPICS, faulty, relay_remaps)
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
@@ -286,11 +286,15 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     # lockstep with the bundled plant: the recorder subscribes to /clock, which the plant's start
     # waits for, only once it has matched every publisher of what it records (each topic listed
     # in a node's expected_subscribers is published by that node)
-    publishers = Counter(t for node in (controller, plant, reference, injector, *([estimator] if estimator else []))
-                         for t in parse_expected(cast("list[str]", node["expected_subscribers"])) if t != CLOCK.name)
+    published = [t for node in (controller, plant, reference, injector, *([estimator] if estimator else []))
+                 for t in parse_expected(cast("list[str]", node["expected_subscribers"]))]
+    publishers = Counter(t for t in published if t != CLOCK.name)
     recorder = {
         "mode": mode,
         "output_dir": paths["bag"],
+        # exactly the topics this run publishes (an external plant: those the bundled plant would), in the
+        # contract's order: no empty channel for a fault relay, wheels, sensors or an estimator the run has not
+        "topics": [t.name for t in TOPICS + FAULT_TOPICS if t.name in published],
         "metadata_files": [paths["scenario"], paths["params"]],
         "counts_file": counts_file("recorder"),
         **({"end_after_s": scenario.duration_s, "end_file": paths["end"]} if external_plant else {}),
