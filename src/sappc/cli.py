@@ -17,8 +17,8 @@ scenarios`` lists them). A command given no output directory writes into ``runs/
 ``--json -`` writes the JSON to stdout, and everything else the command prints to stderr.
 
 Errors in the input (bad scenario, infeasible parameters, bad values) print one line naming the
-problem and exit with status 2; no traceback. Each command's exit statuses are in its ``--help``
-(:data:`EXIT_STATUSES`); Ctrl-C ends any command with one line and status 130
+problem and exit with status 2; no traceback. Each command's ``--help`` lists its exit statuses;
+Ctrl-C ends any command with one line and status 130
 (:mod:`sappc.__main__`, the command's entry: also during the imports and when started with
 SIGINT ignored).
 """
@@ -593,6 +593,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="the file of python -m sappc_estimator instead: the scenario's estimator section, else the MEKF of its sensors")
     par.set_defaults(func=_cmd_params)
     scn = command("scenarios", "list the bundled scenarios, or copy one out to edit (scenarios copy NAME [DEST])")
+    scn.usage = "sappc scenarios [-h] [copy NAME [DEST] [--force]]"
     scn.set_defaults(func=_cmd_scenarios, action=None)
     scn_sub = scn.add_subparsers(dest="action", metavar="ACTION")
     cp = scn_sub.add_parser("copy", help="copy a bundled scenario, with the files it extends, into DEST",
