@@ -228,8 +228,13 @@ def test_the_references_cover_every_command_node_key_and_topic() -> None:
     import sappc_msgs_py.contract as contract
 
     cli = ref.gen_cli()
-    for name, _, _ in ref._subcommands(sappc.cli._parser()):
+    for name, _, sub in ref._subcommands(sappc.cli._parser()):
         assert f"## sappc {name}" in cli
+        section = cli.split(f"## sappc {name}\n", 1)[1].split("\n## ", 1)[0]
+        for status, _ in sappc.cli.EXIT_STATUSES[name]:  # each command's exit statuses, under its heading
+            assert f"| `{status}` |" in section.split("Exit status:", 1)[1], (name, status)
+        for nested, _, _ in ref._subcommands(sub):
+            assert f"`sappc {name} {nested}`" in section, (name, nested)
     commands = {cls.COMMAND for cls in ref.node_classes()}
     assert {"python -m sappc_controller", "python -m spacecraft_sim", "python -m spacecraft_sim.reference",
             "python -m spacecraft_sim.disturbance", "python -m sappc.graph.recorder"} <= commands

@@ -36,6 +36,7 @@ FLOORS: dict[str, int] = {
     "sappc_controller": 2,
     "sappc_estimator": 2,
     "spacecraft_sim": 2,
+    "sappc.files": 2,  # the bundled data files and the default output directories: the scenario loader finds its files there
     "sappc.scenario": 3,
     "sappc.evaluation": 4,
     "sappc.offline": 5,

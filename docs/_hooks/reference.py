@@ -136,11 +136,22 @@ def gen_cli(_: str | None = None) -> str:
     out += [md(p) + "\n" for p in prose]
     commands = _subcommands(parser)
     out.append(table(["command", "what it does"], [[f"[`sappc {n}`](#sappc-{n})", md(h)] for n, h, _ in commands]))
-    for name, help_text, sub in commands:
+    out += ["", "`sappc --version` prints the installed version. Every command exits with 2 on invalid input (one line names "
+            "it) and 130 on Ctrl-C; each command's own statuses are listed with it."]
+
+    def usage_of(sub: argparse.ArgumentParser) -> str:
         usage = " ".join(sub.format_usage().split())
-        usage = usage[len("usage: "):] if usage.startswith("usage: ") else usage
-        out += ["", f"## sappc {name}", "", md(_sentence(help_text)), "", "```text", usage, "```", ""]
-        out.append(table(["argument", "meaning", "default"], _argument_rows(sub)))
+        return usage[len("usage: "):] if usage.startswith("usage: ") else usage
+
+    for name, help_text, sub in commands:
+        out += ["", f"## sappc {name}", "", md(_sentence(help_text)), "", "```text", usage_of(sub), "```", ""]
+        if _argument_rows(sub):
+            out.append(table(["argument", "meaning", "default"], _argument_rows(sub)))
+        for sub_name, sub_help, nested in _subcommands(sub):  # e.g. sappc scenarios copy
+            out += ["", f"`sappc {name} {sub_name}`: {md(_sentence(sub_help))}", "", "```text", usage_of(nested), "```", ""]
+            out.append(table(["argument", "meaning", "default"], _argument_rows(nested)))
+        out += ["", "Exit status:", ""]
+        out.append(table(["status", "meaning"], [[code(c), md(_sentence(m))] for c, m in sorted(cli.EXIT_STATUSES[name])]))
     return "\n".join(out) + "\n"
 
 

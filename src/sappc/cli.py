@@ -1,42 +1,46 @@
 """The ``sappc`` command line.
 
-    sappc simulate SCENARIO.yaml [--controller sappc|trappc|blfppc] [--json FILE] [--plots DIR]
-    sappc simulate --from-campaign DIR --run K [--json FILE] [--plots DIR]
-    sappc montecarlo SCENARIO.yaml --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
-    sappc tune SCENARIO.yaml [--controller K] [--trials N] [--runs-per-trial M] [--seed S] [--workers W | --scheduler ADDRESS] [--out DIR] [--resume]
-    sappc run SCENARIO.yaml [--out DIR] [--realtime] [--compose] [--plant native|basilisk|external] [--controller K] [--json FILE] [--domain-id N]
-    sappc params SCENARIO.yaml [--controller K | --estimator]
+    sappc simulate SCENARIO [--controller sappc|trappc|blfppc] [--json FILE] [--out DIR]
+    sappc simulate --from-campaign DIR --run K [--json FILE] [--out DIR]
+    sappc montecarlo SCENARIO --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
+    sappc tune SCENARIO [--controller K] [--trials N] [--runs-per-trial M] [--seed S] [--workers W | --scheduler ADDRESS] [--out DIR] [--resume]
+    sappc run SCENARIO [--out DIR] [--realtime] [--compose] [--plant native|basilisk|external] [--controller K] [--json FILE] [--domain-id N]
+    sappc params SCENARIO [--controller K | --estimator]
+    sappc scenarios [copy NAME [DEST] [--force]]
     sappc report BAG [--json FILE] [--out DIR] [--scenario FILE]
     sappc compare BAG... [--out DIR] [--json FILE]
     sappc rerun BAG [--params FILE] [--json FILE] [--out DIR]
     sappc replay BAG [--rate X] [--topics T...] [--loop] [--wait-subscribers N] [--start-delay S] [--domain-id N]
 
-Errors in the input (bad scenario, infeasible parameters, bad values) print
-one line naming the problem and exit with status 2; no traceback.
+A SCENARIO is a scenario file or the name of a bundled one (``paper_tracking``; ``sappc
+scenarios`` lists them). A command given no output directory writes into ``runs/<command>/<name>``.
+``--json -`` writes the JSON to stdout, and everything else the command prints to stderr.
 
-Exit status of ``simulate`` and ``run`` (``montecarlo``: 1 when a run fails the campaign's
-criteria; ``tune``: 1 when no trial is feasible or the best gains fail their confirmation campaign): 0 the run met the scenario's requirements; 1 (``run``) a topic's recorded count differs
-from what was published; 2 invalid input; 3 the controller never commanded a torque; 4 the run
-broke a requirement of the scenario's ``metrics.requirements`` or became non-finite; 130 Ctrl-C
-(:mod:`sappc.__main__`, the command's entry: one line, also during the imports and when started
-with SIGINT ignored).
+Errors in the input (bad scenario, infeasible parameters, bad values) print one line naming the
+problem and exit with status 2; no traceback. Each command's ``--help`` lists its exit statuses;
+Ctrl-C ends any command with one line and status 130
+(:mod:`sappc.__main__`, the command's entry: also during the imports and when started with
+SIGINT ignored).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
-from typing import Any
+import textwrap
+from typing import Any, TextIO
 from pathlib import Path
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 from gnc_common.validation import ConfigError, InputError
 
+from sappc.files import bag_run_name, default_output_dir
 from sappc.scenario import ControllerKind, load_scenario
 
-__all__ = ["main"]
+__all__ = ["EXIT_STATUSES", "main"]
 
 #: Exit status for invalid input (argparse uses the same).
 EXIT_INVALID_INPUT = 2
@@ -44,6 +48,71 @@ EXIT_INVALID_INPUT = 2
 EXIT_CONTROLLER_NEVER_COMMANDED = 3
 #: Exit status of ``sappc run`` / ``simulate`` when the run broke a requirement of the scenario.
 EXIT_REQUIREMENT_FAILED = 4
+#: Exit status after Ctrl-C (128 + SIGINT; :data:`sappc.__main__.EXIT_INTERRUPTED`, not imported:
+#: that module is the command's entry, above this one).
+EXIT_INTERRUPTED = 130
+
+#: The meaning of 2 and 130, which every command shares.
+_SHARED_EXITS = ((EXIT_INVALID_INPUT, "invalid input: a bad scenario, option, file or value (one line names it)"),
+                 (EXIT_INTERRUPTED, "interrupted by Ctrl-C (one line; sappc run stops its nodes and closes the bag first)"))
+_RUN_EXITS = ((EXIT_CONTROLLER_NEVER_COMMANDED, "the controller never commanded a torque"),
+              (EXIT_REQUIREMENT_FAILED, "the run broke a requirement of the scenario's metrics.requirements, or became non-finite"))
+#: Each command's exit statuses and what they mean (every ``--help`` lists its own, and the
+#: reference page all of them).
+EXIT_STATUSES: dict[str, tuple[tuple[int, str], ...]] = {
+    "simulate": ((0, "the run met the scenario's requirements (--from-campaign: the run was re-run)"), *_RUN_EXITS, *_SHARED_EXITS),
+    "montecarlo": ((0, "every run passed the campaign's criteria"), (1, "a run failed the campaign's criteria"), *_SHARED_EXITS),
+    "tune": ((0, "a best trial was found and its confirmation campaign passed"),
+             (1, "no trial met every requirement, or the best gains failed their confirmation campaign"), *_SHARED_EXITS),
+    "run": ((0, "the run met the scenario's requirements and every topic's recorded count matches what was published"),
+            (1, "a node failed or the run timed out (the line names it), or a topic's recorded count differs from what was published"),
+            *_RUN_EXITS, *_SHARED_EXITS),
+    "params": ((0, "the parameters file was printed"), *_SHARED_EXITS),
+    "scenarios": ((0, "listed, or copied"), *_SHARED_EXITS),
+    "report": ((0, "the bag gave metrics, figures and the page"),
+               (1, "the bag holds no run to compute metrics from (no state or reference): a partial report was written"),
+               *_SHARED_EXITS),
+    "compare": ((0, "the comparison was written"), *_SHARED_EXITS),
+    "rerun": ((0, "compared (with the bag's own parameters: every recomputed torque equals the recorded one)"),
+              (1, "with the bag's own parameters, a recomputed torque differs from the recorded one"), *_SHARED_EXITS),
+    "repair": ((0, "the bag was rewritten readable"), *_SHARED_EXITS),
+    "replay": ((0, "the bag was replayed to its end, or stopped by Ctrl-C or SIGTERM once replaying (--loop ends that way)"),
+               (1, "a publisher timed out waiting for its subscribers' acknowledgements"), (EXIT_INVALID_INPUT, _SHARED_EXITS[0][1]),
+               (EXIT_INTERRUPTED, "interrupted by Ctrl-C before the replay started")),
+}
+
+
+def exit_status_text(command: str | None = None) -> str:
+    """The ``exit status`` section of a ``--help``: ``command``'s statuses, or (``None``) those
+    every command shares."""
+    rows = EXIT_STATUSES[command] if command is not None else _SHARED_EXITS
+    head = "exit status:" if command is not None else "exit status (each command's --help lists its own):"
+    return head + "\n" + "\n".join(f"  {code:<4} {meaning}" for code, meaning in sorted(rows))
+
+
+#: Where ``--json -`` writes the JSON: the process's stdout, while everything else a command prints
+#: goes to stderr (:func:`_stdout_to_stderr`); ``None``: ``-`` is not in use.
+_json_stdout: TextIO | None = None
+
+
+@contextlib.contextmanager
+def _stdout_to_stderr() -> Iterator[TextIO]:
+    """For ``--json -``: while the command runs, ``sys.stdout`` is ``sys.stderr`` and file
+    descriptor 1 points where 2 does (its tables, progress and the output of the processes it
+    starts all go to stderr); the JSON is written to a duplicate of the original descriptor 1,
+    which is yielded.  Both are restored afterwards."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    out = os.fdopen(os.dup(saved), "w", encoding="utf-8")
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            yield out
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+        out.close()
 
 
 def _format_value(value: object) -> str:
@@ -69,9 +138,16 @@ def _print_metrics(scenario_name: str, controller: str, metrics: dict[str, objec
 
 
 def _write_json(path_str: str, data: object) -> None:
+    """``data`` as JSON into the file ``path_str``, or to stdout for ``-`` (:func:`_stdout_to_stderr`)."""
+    text = json.dumps(data, indent=2) + "\n"
+    if path_str == "-":
+        out = _json_stdout if _json_stdout is not None else sys.stdout
+        out.write(text)
+        out.flush()
+        return
     path = Path(path_str)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2) + "\n")
+    path.write_text(text)
     print(f"wrote {path}")
 
 
@@ -90,12 +166,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     result = simulate(scenario, args.controller)
     _print_metrics(scenario.name, result.controller.value, result.metrics)
     failed = _print_outcome(scenario, result.metrics, result.controller_summary)
-    if args.json:
-        _write_json(args.json, {**result.report(), "failed_requirements": failed})
-    if args.plots:
-        for p in plot_run(result.history, Path(args.plots), title=f"{scenario.name} ({result.controller.value})",
+    if args.out:
+        for p in plot_run(result.history, Path(args.out), title=f"{scenario.name} ({result.controller.value})",
                           fault_windows=scenario.event_windows(), wheels=scenario.wheels):
             print(f"wrote {p}")
+    if args.json:
+        _write_json(args.json, {**result.report(), "failed_requirements": failed})
     return run_exit_status({}, result.controller_summary, failed)
 
 
@@ -127,7 +203,7 @@ def _simulate_from_campaign(args: argparse.Namespace) -> int:
         raise ConfigError("--from-campaign takes the scenario and controller from the campaign; give neither")
     if args.run is None:
         raise ConfigError("--from-campaign needs --run K")
-    scenario, row, metrics, history = load_campaign_run(args.from_campaign, args.run, with_history=bool(args.plots))
+    scenario, row, metrics, history = load_campaign_run(args.from_campaign, args.run, with_history=bool(args.out))
     crit = run_criteria(row, campaign_config(scenario).criteria)
     campaign_row = {
         "run": int(row["run"][0]),
@@ -138,26 +214,26 @@ def _simulate_from_campaign(args: argparse.Namespace) -> int:
         "max_abs_torque_Nm": float(row["max_abs_torque_Nm"][0]),
     }
     _print_metrics(f"{scenario.name} run {args.run} (from {args.from_campaign})", scenario.controller.value, metrics)
-    if args.json:
-        _write_json(args.json, {"scenario": scenario.name, "run": args.run, "metrics": metrics, "campaign_row": campaign_row})
     if history is not None:
-        for p in plot_run(history, Path(args.plots), title=f"{scenario.name} run {args.run}",
+        for p in plot_run(history, Path(args.out), title=f"{scenario.name} run {args.run}",
                           fault_windows=scenario.event_windows()):
             print(f"wrote {p}")
+    if args.json:
+        _write_json(args.json, {"scenario": scenario.name, "run": args.run, "metrics": metrics, "campaign_row": campaign_row})
     return 0
 
 
 def _cmd_montecarlo(args: argparse.Namespace) -> int:
     from sappc.montecarlo.campaign import run_campaign
 
-    out = args.out or f"out/montecarlo_{Path(args.scenario).stem}_seed{args.seed}"
+    out = args.out or str(default_output_dir("montecarlo", f"{Path(args.scenario).stem}-seed{args.seed}"))
     summary = run_campaign(args.scenario, runs=args.runs, seed=args.seed, out_dir=out, workers=args.workers,
                            scheduler=args.scheduler, resume=args.resume, progress=not args.no_progress)
     print(f"campaign {summary['scenario']}: {summary['passed']}/{summary['runs']} runs pass "
           f"(rpf_error_at_t2 < {summary['criteria']['rpf_error_at_t2_max']:g}, "
           f"steady_mean_abs_qev < {summary['criteria']['steady_mean_abs_qev_max']:g})")
-    print(f"  rpf_error_at_t2      p50 {summary['rpf_error_at_t2']['p50']:.3g}  p99 {summary['rpf_error_at_t2']['p99']:.3g}  max {summary['rpf_error_at_t2']['max']:.3g}")
-    print(f"  steady_mean_abs_qev  p50 {summary['steady_mean_abs_qev']['p50']:.3g}  p99 {summary['steady_mean_abs_qev']['p99']:.3g}  max {summary['steady_mean_abs_qev']['max']:.3g}")
+    for key in ("rpf_error_at_t2", "steady_mean_abs_qev"):  # None: no run measured it (e.g. runs shorter than t2)
+        print(f"  {key:<19}  " + "  ".join(f"{q} {_fmt(summary[key][q], '.3g')}" for q in ("p50", "p99", "max")))
     switching = summary["torque_sign_changes_per_s"]
     if switching["max"] is not None:  # None: no steady window with two samples
         print(f"  torque_sign_changes_per_s  p50 {switching['p50']:.3g}  p99 {switching['p99']:.3g}  max {switching['max']:.3g}")
@@ -244,14 +320,15 @@ def run_exit_status(mismatched: dict[str, tuple[int, int]], controller: dict[str
     return 0 if not mismatched else 1
 
 
-def _fmt(value: Any) -> str:
-    return "-" if value is None else f"{value:.4g}"
+def _fmt(value: Any, spec: str = ".4g") -> str:
+    """A number as the tables print it; ``-`` for ``None`` (a metric no run measured)."""
+    return "-" if value is None else format(value, spec)
 
 
 def _cmd_tune(args: argparse.Namespace) -> int:
     from sappc.montecarlo.tuning import run_tuning
 
-    out = args.out or f"out/tune_{Path(args.scenario).stem}"
+    out = args.out or str(default_output_dir("tune", Path(args.scenario).stem))
     summary = run_tuning(args.scenario, out_dir=out, controller=args.controller, trials=args.trials, runs_per_trial=args.runs_per_trial,
                          seed=args.seed, workers=args.workers, scheduler=args.scheduler, resume=args.resume, progress=not args.no_progress)
     print(f"study {summary['scenario']} ({summary['controller']}): {summary['trials']} trials of {summary['runs_per_trial']} runs, "
@@ -300,10 +377,25 @@ def _cmd_params(args: argparse.Namespace) -> int:
     return 0
 
 
-def _default_out(bag: str, suffix: str) -> Path:
-    """``<bag>_<suffix>`` next to the bag (``runs/x/bag`` -> ``runs/x/bag_report``)."""
-    p = Path(bag.rstrip("/"))
-    return p.with_name(f"{p.stem if p.is_file() else p.name}_{suffix}")
+#: The width of ``sappc scenarios``' lines (a description is shortened to fit).
+_LIST_COLUMNS = 110
+
+
+def _cmd_scenarios(args: argparse.Namespace) -> int:
+    from sappc.files import DATA_DIR, bundled_scenarios, copy_scenario
+
+    if args.action == "copy":
+        for path in copy_scenario(args.name, args.dest, force=args.force):
+            print(f"wrote {path}")
+        return 0
+    scenarios = bundled_scenarios()
+    width = max(len(s.name) for s in scenarios)
+    for s in scenarios:
+        text = (f"[extends {s.extends}] " if s.extends else "") + s.description
+        print(f"{s.name:<{width}}  {textwrap.shorten(text, _LIST_COLUMNS - width - 2, placeholder=' ...')}")
+    print(f"\nrun one by name (sappc simulate paper_tracking), or copy it out to edit: sappc scenarios copy NAME [DEST]\n"
+          f"the nodes' parameter files and the Foxglove layout are in {DATA_DIR}", file=sys.stderr)
+    return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
@@ -318,7 +410,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         print(f"  note: {line}")
     if a.metrics is not None:
         _print_metrics(a.scenario.name if a.scenario else a.path.name, a.label, a.metrics)
-    out = Path(args.out) if args.out else _default_out(args.bag, "report")
+    out = Path(args.out) if args.out else default_output_dir("report", bag_run_name(args.bag))
     paths = write_report(a, out)
     print(f"wrote {paths[-1]} and {len(paths) - 1} figure(s) in {out}")
     if args.json:
@@ -326,11 +418,23 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0 if a.metrics is not None else 1
 
 
+#: The most run names a comparison's default directory is named by (then ``+N``).
+_COMPARISON_NAMES = 3
+
+
+def _comparison_name(bags: Sequence[str]) -> str:
+    """The default directory name of a comparison: its runs' names joined by ``_vs_`` (the first
+    :data:`_COMPARISON_NAMES`, then how many more)."""
+    names = [bag_run_name(b) for b in bags]
+    shown = "_vs_".join(names[:_COMPARISON_NAMES])
+    return shown + (f"+{len(names) - _COMPARISON_NAMES}" if len(names) > _COMPARISON_NAMES else "")
+
+
 def _cmd_compare(args: argparse.Namespace) -> int:
     from sappc.analysis.report import analyse_bag, compare_bags
 
     analyses = [analyse_bag(b) for b in args.bags]
-    out = Path(args.out) if args.out else Path("compare")
+    out = Path(args.out) if args.out else default_output_dir("compare", _comparison_name(args.bags))
     header, rows, paths = compare_bags(analyses, out)
     cells = [[_format_value(v) for v in row] for row in [header] + rows]
     widths = [max(len(row[c]) for row in cells) for c in range(len(header))]
@@ -391,32 +495,67 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                   domain_id=args.domain_id, start_delay_s=args.start_delay)
 
 
+class _DeprecatedAlias(argparse.Action):
+    """An old spelling of an option: stores into the new one's ``dest`` and prints one warning."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, *, new: str, **kwargs: Any) -> None:
+        self.new = new
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: str | None = None) -> None:
+        print(f"sappc: warning: {option_string} is deprecated, use {self.new} (it does the same)", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("sappc")
+    except PackageNotFoundError:  # the sources on sys.path without an install
+        return "unknown (not installed)"
+
+
+#: What ``sappc`` alone prints after the usage.
+NO_COMMAND_HINT = "sappc: give a command; `sappc --help` describes them, `sappc COMMAND --help` one of them"
+#: An argument that names a scenario (``help`` of each command's positional argument).
+_SCENARIO_HELP = "a scenario file, or the name of a bundled scenario (`sappc scenarios` lists them), e.g. {}"
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.")
-    sub = parser.add_subparsers(dest="command", required=True)
-    sim = sub.add_parser("simulate", help="run a scenario offline (no ROS) and print its metrics")
-    sim.add_argument("scenario", nargs="?", help="scenario YAML file, e.g. config/scenarios/paper_tracking.yaml")
+    parser = argparse.ArgumentParser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.",
+                                     epilog=exit_status_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def command(name: str, help_text: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=help_text, description=help_text[0].upper() + help_text[1:] + ".",
+                              epilog=exit_status_text(name), formatter_class=argparse.RawDescriptionHelpFormatter)
+
+    sim = command("simulate", "run a scenario offline (no ROS) and print its metrics")
+    sim.add_argument("scenario", nargs="?", help=_SCENARIO_HELP.format("paper_tracking"))
     sim.add_argument("--from-campaign", metavar="DIR", help="re-run one run of a Monte Carlo campaign (with --run)")
     sim.add_argument("--run", type=int, metavar="K", help="the run to re-run with --from-campaign")
     sim.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
                      help="controller to run (default: the scenario's 'controller' key)")
-    sim.add_argument("--json", metavar="FILE", help="write metrics and all parameters used as JSON")
-    sim.add_argument("--plots", metavar="DIR", help="write paper-style PNG figures to DIR")
+    sim.add_argument("--json", metavar="FILE", help="write metrics and all parameters used as JSON ('-': to stdout)")
+    sim.add_argument("--out", metavar="DIR", help="write paper-style PNG figures to DIR (default: no figures)")
+    sim.add_argument("--plots", metavar="DIR", dest="out", action=_DeprecatedAlias, new="--out", help=argparse.SUPPRESS)
     sim.set_defaults(func=_cmd_simulate)
-    mc = sub.add_parser("montecarlo", help="run a Monte Carlo campaign (scenario with a 'montecarlo' section)")
-    mc.add_argument("scenario", help="e.g. config/scenarios/paper_montecarlo.yaml")
+    mc = command("montecarlo", "run a Monte Carlo campaign (scenario with a 'montecarlo' section)")
+    mc.add_argument("scenario", help=_SCENARIO_HELP.format("paper_montecarlo"))
     mc.add_argument("--runs", type=int, required=True, help="number of runs")
     mc.add_argument("--seed", type=int, default=0, help="root seed (default 0); run k uses SeedSequence(seed, spawn_key=(k,))")
     mc.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                     help="local worker processes (default: the number of CPUs); results do not depend on it")
     mc.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://10.0.0.5:8786")
-    mc.add_argument("--out", metavar="DIR", help="results directory (default out/montecarlo_<scenario>_seed<S>)")
-    mc.add_argument("--json", metavar="FILE", help="also write the summary here")
+    mc.add_argument("--out", metavar="DIR", help="results directory (default runs/montecarlo/<scenario>-seed<S>)")
+    mc.add_argument("--json", metavar="FILE", help="also write the summary here ('-': to stdout)")
     mc.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
     mc.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     mc.set_defaults(func=_cmd_montecarlo)
-    tn = sub.add_parser("tune", help="find the controller's free gains with a Monte Carlo campaign in the loop (a 'tuning' section)")
-    tn.add_argument("scenario", help="e.g. config/scenarios/paper_tracking_tune.yaml")
+    tn = command("tune", "find the controller's free gains with a Monte Carlo campaign in the loop (a 'tuning' section)")
+    tn.add_argument("scenario", help=_SCENARIO_HELP.format("paper_tracking_tune"))
     tn.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
                     help="controller to tune (default: the scenario's 'controller' key)")
     tn.add_argument("--trials", type=int, default=None, help="trials in the study (default: tuning.trials)")
@@ -425,14 +564,15 @@ def _parser() -> argparse.ArgumentParser:
     tn.add_argument("--workers", type=int, default=1, help="local worker processes for each trial's campaign (default 1: this "
                     "process, in parallel over runs on its threads)")
     tn.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address: each trial's campaign in chunks on the cluster")
-    tn.add_argument("--out", metavar="DIR", help="study directory (default out/tune_<scenario>)")
+    tn.add_argument("--out", metavar="DIR", help="study directory (default runs/tune/<scenario>)")
     tn.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
-    tn.add_argument("--json", metavar="FILE", help="also write the summary here")
+    tn.add_argument("--json", metavar="FILE", help="also write the summary here ('-': to stdout)")
     tn.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     tn.set_defaults(func=_cmd_tune)
-    run = sub.add_parser("run", help="run a scenario through the ROS 2 node graph (five processes, or one with --compose), record an MCAP bag")
-    run.add_argument("scenario", help="scenario YAML file, e.g. config/scenarios/paper_tracking.yaml")
-    run.add_argument("--out", metavar="DIR", help="run directory: bag/, params.yaml, scenario.yaml, logs/ (default runs/<scenario>-<controller>-<time>)")
+    run = command("run", "run a scenario through the ROS 2 node graph (five processes, or one with --compose), record an MCAP bag")
+    run.add_argument("scenario", help=_SCENARIO_HELP.format("paper_tracking"))
+    run.add_argument("--out", metavar="DIR", help="run directory: bag/, params.yaml, scenario.yaml, logs/ "
+                     "(default runs/run/<scenario>-<controller>-<time>)")
     run.add_argument("--realtime", action="store_true", help="wall-clock timers instead of lockstep (the run takes duration_s)")
     run.add_argument("--compose", action="store_true",
                      help="every node in one process on one executor (faster; the same topics, parameters, bag and metrics)")
@@ -442,38 +582,48 @@ def _parser() -> argparse.ArgumentParser:
                      help="native: the bundled plant; basilisk: the plant node on Basilisk's dynamics (pip install '.[basilisk]'); "
                           "external: start everything but the plant and record a run driven by "
                           "a plant you start yourself on the printed domain (it ends once the last sample's torque is recorded)")
-    run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON")
+    run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON ('-': to stdout)")
     run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: ROS_DOMAIN_ID from the environment, else the first free one of "
                      "SAPPC_DOMAIN_IDS, default 1-101); claimed with a lock file")
     run.set_defaults(func=_cmd_run)
-    par = sub.add_parser("params", help="print the ROS parameters file of python -m sappc_controller (or, --estimator, of python -m sappc_estimator) for a scenario")
-    par.add_argument("scenario")
+    par = command("params", "print the ROS parameters file of python -m sappc_controller (or, --estimator, of python -m sappc_estimator) for a scenario")
+    par.add_argument("scenario", help=_SCENARIO_HELP.format("paper_tracking"))
     par.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None)
     par.add_argument("--estimator", action="store_true",
                      help="the file of python -m sappc_estimator instead: the scenario's estimator section, else the MEKF of its sensors")
     par.set_defaults(func=_cmd_params)
-    rep = sub.add_parser("report", help="metrics, figures and an HTML page from a recorded bag")
-    rep.add_argument("bag", help="a rosbag2 directory (e.g. runs/<run>/bag) or an .mcap file")
-    rep.add_argument("--out", metavar="DIR", help="figures and report.html (default <BAG>_report next to the bag)")
-    rep.add_argument("--json", metavar="FILE", help="write the metrics and what the bag holds as JSON")
+    scn = command("scenarios", "list the bundled scenarios, or copy one out to edit (scenarios copy NAME [DEST])")
+    scn.usage = "sappc scenarios [-h] [copy NAME [DEST] [--force]]"
+    scn.set_defaults(func=_cmd_scenarios, action=None)
+    scn_sub = scn.add_subparsers(dest="action", metavar="ACTION")
+    cp = scn_sub.add_parser("copy", help="copy a bundled scenario, with the files it extends, into DEST",
+                            description="Copy a bundled scenario, with the files it extends, into DEST.",
+                            epilog=exit_status_text("scenarios"), formatter_class=argparse.RawDescriptionHelpFormatter)
+    cp.add_argument("name", metavar="NAME", help="a bundled scenario, e.g. paper_tracking")
+    cp.add_argument("dest", metavar="DEST", nargs="?", default=".", help="the directory to copy into (created if missing; default: here)")
+    cp.add_argument("--force", action="store_true", help="overwrite files of the same name")
+    rep = command("report", "metrics, figures and an HTML page from a recorded bag")
+    rep.add_argument("bag", help="a rosbag2 directory (e.g. runs/run/<run>/bag) or an .mcap file")
+    rep.add_argument("--out", metavar="DIR", help="figures and report.html (default runs/report/<run>)")
+    rep.add_argument("--json", metavar="FILE", help="write the metrics and what the bag holds as JSON ('-': to stdout)")
     rep.add_argument("--scenario", metavar="FILE", help="metric settings and events from this scenario (default: the one in the bag)")
     rep.set_defaults(func=_cmd_report)
-    cmp = sub.add_parser("compare", help="overlaid figures and one metrics table for several bags")
+    cmp = command("compare", "overlaid figures and one metrics table for several bags")
     cmp.add_argument("bags", nargs="+", metavar="BAG")
-    cmp.add_argument("--out", metavar="DIR", help="figures and compare.html (default ./compare)")
-    cmp.add_argument("--json", metavar="FILE", help="write every bag's metrics as JSON")
+    cmp.add_argument("--out", metavar="DIR", help="figures and compare.html (default runs/compare/<run>_vs_<run>...)")
+    cmp.add_argument("--json", metavar="FILE", help="write every bag's metrics as JSON ('-': to stdout)")
     cmp.set_defaults(func=_cmd_compare)
-    rr = sub.add_parser("rerun", help="feed a bag's recorded inputs to the controller core and compare the torques")
+    rr = command("rerun", "feed a bag's recorded inputs to the controller core and compare the torques")
     rr.add_argument("bag")
     rr.add_argument("--params", metavar="FILE", help="ROS parameters file of the controller (default: the bag's own; exit 1 unless every torque matches)")
-    rr.add_argument("--json", metavar="FILE", help="write the comparison as JSON")
-    rr.add_argument("--out", metavar="DIR", help="write rerun_torque.png (recorded and recomputed) and rerun.html")
+    rr.add_argument("--json", metavar="FILE", help="write the comparison as JSON ('-': to stdout)")
+    rr.add_argument("--out", metavar="DIR", help="write rerun_torque.png (recorded and recomputed) and rerun.html (default: none)")
     rr.set_defaults(func=_cmd_rerun)
-    rpr = sub.add_parser("repair", help="make a bag whose recorder was killed readable by every MCAP/rosbag2 reader (as ros2 bag reindex)")
+    rpr = command("repair", "make a bag whose recorder was killed readable by every MCAP/rosbag2 reader (as ros2 bag reindex)")
     rpr.add_argument("bag")
-    rpr.add_argument("--json", metavar="FILE", help="write what was recovered as JSON")
+    rpr.add_argument("--json", metavar="FILE", help="write what was recovered as JSON ('-': to stdout)")
     rpr.set_defaults(func=_cmd_repair)
-    rp = sub.add_parser("replay", help="republish a bag on the ROS 2 graph with its timing and /clock")
+    rp = command("replay", "republish a bag on the ROS 2 graph with its timing and /clock")
     rp.add_argument("bag")
     rp.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: the recorded timing)")
     rp.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all; /clock is always published)")
@@ -490,15 +640,26 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """The ``sappc`` command's work; Ctrl-C propagates as :class:`KeyboardInterrupt`, which the
     command's entry (:mod:`sappc.__main__`) turns into one line and exit status 130."""
-    args = _parser().parse_args(argv)
+    global _json_stdout
+    parser = _parser()
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    if not args_list:  # `sappc` alone: what to type, not an error message
+        print(parser.format_usage().rstrip() + "\n" + NO_COMMAND_HINT, file=sys.stderr)
+        return EXIT_INVALID_INPUT
+    args = parser.parse_args(args_list)
+    to_stdout = getattr(args, "json", None) == "-"
     try:
-        return int(args.func(args))
+        with _stdout_to_stderr() if to_stdout else contextlib.nullcontext(None) as json_out:
+            _json_stdout = json_out
+            return int(args.func(args))
     except (ConfigError, InputError) as exc:
         print(f"sappc: error: {exc}", file=sys.stderr)
         return EXIT_INVALID_INPUT
     except BrokenPipeError:  # output piped into `head` and the like: stop quietly (Python docs' recipe)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
+    finally:
+        _json_stdout = None
 
 
 if __name__ == "__main__":

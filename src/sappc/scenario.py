@@ -4,8 +4,8 @@ A scenario names the plant, the initial state, the reference, the
 disturbances and faults, the actuator, the metric settings, and the
 parameters of each controller it can be run with.  Loading is strict: unknown
 keys, missing keys and invalid values raise :class:`ConfigError` naming the
-dotted key.  See ``config/scenarios/paper_tracking.yaml`` for the annotated
-format.
+dotted key.  See ``config/scenarios/paper_tracking.yaml`` (bundled as ``paper_tracking``:
+:mod:`sappc.files`) for the annotated format.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
 from spacecraft_sim.core.sensors import Sensors, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, wheels_from_mapping
+from sappc.files import scenario_path
 from gnc_common.validation import (
     ConfigError,
     InputError,
@@ -506,15 +507,16 @@ def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dic
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario YAML file (``extends`` resolved: :func:`read_scenario_mapping`).
+    """Read and validate a scenario YAML file (``extends`` resolved: :func:`read_scenario_mapping`),
+    or the bundled scenario of that name (``"paper_tracking"``: :func:`sappc.files.scenario_path`).
 
     Raises
     ------
     ConfigError
-        If the file is missing, is not UTF-8 text, is not YAML, or any value is invalid (the
-        message names the key).
+        If the file is missing (and no bundled scenario has that name), is not UTF-8 text, is not
+        YAML, or any value is invalid (the message names the key).
     """
-    p = Path(path)
+    p = scenario_path(path)
     data = read_scenario_mapping(p)
     try:
         return scenario_from_mapping(data, source=str(p))

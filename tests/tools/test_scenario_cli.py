@@ -107,7 +107,7 @@ def test_simulate_writes_json_and_plots(tmp_path) -> None:
     path = tmp_path / "short.yaml"
     path.write_text(yaml.safe_dump(raw))
     out = subprocess.run(
-        [sys.executable, "-m", "sappc", "simulate", str(path), "--controller", "blfppc", "--json", str(tmp_path / "m.json"), "--plots", str(tmp_path / "fig")],
+        [sys.executable, "-m", "sappc", "simulate", str(path), "--controller", "blfppc", "--json", str(tmp_path / "m.json"), "--out", str(tmp_path / "fig")],
         capture_output=True, text=True, cwd=ROOT, check=True, env={**os.environ, "PYTHONWARNINGS": "error:Data has no positive values"},
     )
     assert "controller blfppc" in out.stdout

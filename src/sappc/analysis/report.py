@@ -27,7 +27,8 @@ from gnc_common.validation import ConfigError
 from sappc.bag.read import PARAMS_RECORD, SCENARIO_RECORD, Bag, BagError, BagRun, bag_metrics, bag_run, find_topic, read_bag
 from sappc.scenario import MetricSettings, Scenario, load_scenario, scenario_from_mapping
 
-__all__ = ["BagAnalysis", "analyse_bag", "compare_bags", "html_page", "write_report", "write_rerun_report"]
+__all__ = ["METRIC_SENTENCES", "NOT_APPLICABLE", "BagAnalysis", "analyse_bag", "compare_bags", "html_page", "metric_meanings", "parameters_block",
+           "write_report", "write_rerun_report"]
 
 #: Every topic the contract names, the fault relays' included, by name.
 _CONTRACT: dict[str, Topic] = {t.name.lstrip("/"): t for t in TOPICS + FAULT_TOPICS}
@@ -189,28 +190,50 @@ def _fmt(value: Any) -> str:
     return str(value)
 
 
-def metric_meanings() -> dict[str, str]:
-    """What each run metric means, one line of plain text per name: the definitions in
-    :mod:`sappc.evaluation.metrics`' docstring (the one place they are written), plus the two
-    timings the commands add."""
-    from sappc.evaluation import metrics
+#: One sentence per run metric, as the report page shows it beside the value (the full definitions,
+#: with their formulas, are in :mod:`sappc.evaluation.metrics`' docstring; a test keeps the two
+#: lists of names equal).  A value shown as ``-`` does not apply to the run (:data:`NOT_APPLICABLE`).
+METRIC_SENTENCES: dict[str, str] = {
+    "settling_time_s": "When the largest attitude-error component |q_ev,i| fell below the scenario's settle_threshold for good [s].",
+    "steady_max_abs_qev": "The largest attitude-error component |q_ev,i| in the steady window (t >= steady_from_s).",
+    "steady_mean_abs_qev": "The time-mean of |q_ev,i| over the steady window, on the worst axis (the paper's Monte Carlo criterion).",
+    "rpf_error_at_t2": "How far the attitude error is from the controller's performance function at t2, max_i |q_ev,i - rho_i| "
+                       "(the paper's other Monte Carlo criterion).",
+    "overshoot": "The largest excursion of any error component to the side opposite its initial error (0: none).",
+    "max_abs_torque_Nm": "The largest torque the actuator produced on any axis [N m].",
+    "torque_sign_changes_per_s": "How often a torque component changed sign or switched on or off in the steady window, "
+                                 "on the worst axis [1/s].",
+    "torque_reversals_per_s": "How often a torque component reversed from one sign to the other in the steady window, "
+                              "on the worst axis (on/off pulses not counted) [1/s].",
+    "saturation_fraction": "The fraction of control samples with at least one axis at the actuator's torque limit.",
+    "time_outside_constraint_s": "How long any error component was outside its constraint band [s].",
+    "returned_to_constraint": "Whether every error component was back inside its constraint band at the end of the run "
+                              "(a run with faults).",
+    "left_constraint_after_fault": "Whether the error left its constraint band at or after the start of the first fault "
+                                   "(a run with faults).",
+    "returned_at_s": "When the error re-entered its constraint band for good after a fault made it leave [s].",
+    "finite": "Whether the state and the torque stayed finite (no: the run failed, and the other metrics describe it up to then).",
+    "steady_max_abs_attitude_estimation_error_rad": "The largest error of the estimated attitude on any axis in the steady window [rad].",
+    "steady_rms_attitude_estimation_error_rad": "The root mean square of the estimated attitude's error in the steady window, "
+                                                "on the worst axis [rad].",
+    "final_abs_bias_estimation_error_rad_s": "The largest error of the estimated gyro bias on any axis at the last estimate [rad/s].",
+    "mean_nees": "The time-mean of the filter's normalised estimation error squared: 6 for a consistent filter.",
+    "estimator_updates": "How many steps the filter corrected with a star-tracker measurement.",
+    "estimator_gate_rejections": "How many star-tracker measurements the filter's gate rejected as outliers.",
+    "estimator_reinitialisations": "How many times the filter started again from a measurement.",
+    "max_abs_wheel_speed_rad_s": "The largest speed of any reaction wheel relative to the body [rad/s].",
+    "max_abs_wheel_torque_Nm": "The largest motor torque of any reaction wheel [N m].",
+    "wall_time_s": "The wall-clock time the run took [s]: a property of the machine, not of the controller.",
+    "startup_s": "The wall-clock time before the first sample: processes, imports and discovery [s].",
+}
+#: What a ``-`` in a table of metrics means.
+NOT_APPLICABLE = ("A - marks a metric that does not apply to this run: the returned_* metrics without a fault, "
+                  "the settling time of a run that never settles, the error at t2 of a run that ends before t2.")
 
-    doc = (metrics.__doc__ or "").split("Definitions, per run:", 1)[-1]
-    meanings: dict[str, str] = {}
-    names: list[str] = []
-    for line in doc.splitlines():
-        if line.startswith("``"):  # a definition's head: one or more ``name``s
-            names = [n.strip().strip("`") for n in line.split(",")]
-            for n in names:
-                meanings[n] = ""
-        elif line.startswith("    ") and names:
-            for n in names:
-                meanings[n] = (meanings[n] + " " + line.strip().replace("``", "")).strip()
-    for extra in ("left_constraint_after_fault", "returned_at_s"):  # defined with returned_to_constraint
-        meanings.setdefault(extra, meanings.get("returned_to_constraint", ""))
-    meanings["wall_time_s"] = "Wall time the run took [s] (not a property of the controller)."
-    meanings["startup_s"] = "Wall time before the first sample: processes, imports, discovery [s]."
-    return meanings
+
+def metric_meanings() -> dict[str, str]:
+    """What each run metric means: :data:`METRIC_SENTENCES`."""
+    return dict(METRIC_SENTENCES)
 
 
 def html_table(header: list[str], rows: list[list[Any]]) -> str:
@@ -234,6 +257,46 @@ def html_figure(path: Path) -> str:
 
 def html_list(items: list[str], css: str) -> str:
     return "<ul>" + "".join(f'<li class="{css}">{html.escape(i)}</li>' for i in items) + "</ul>" if items else ""
+
+
+#: Parameters of a node that say where its files go and whom it waits for, not how it behaves.
+_PLUMBING = ("counts_file", "timing_file", "expected_subscribers", "expected_publishers")
+
+
+def _flat(mapping: dict[str, Any], prefix: str = "") -> list[list[Any]]:
+    """``[[dotted key, value], ...]`` of a nested mapping; lists shown as written."""
+    rows: list[list[Any]] = []
+    for key, value in mapping.items():
+        if isinstance(value, dict):
+            rows += _flat(value, f"{prefix}{key}.")
+        elif f"{prefix}{key}" not in _PLUMBING:
+            rows.append([f"{prefix}{key}", value if not isinstance(value, list) else ", ".join(map(_fmt, value))])
+    return rows
+
+
+def parameters_block(bag: Bag) -> str:
+    """The run's parameters as the bag records them (``sappc run``'s :data:`~sappc.bag.read.PARAMS_RECORD`
+    and :data:`~sappc.bag.read.SCENARIO_RECORD` metadata records): the controller's in a table,
+    then both files as recorded, folded; a sentence when the bag has neither."""
+    import yaml
+
+    texts = {name: str(bag.metadata.get(name, {}).get("text", "")) for name in (PARAMS_RECORD, SCENARIO_RECORD)}
+    if not any(texts.values()):
+        return (f"<h2>Parameters</h2><p>The bag records no parameters (no {PARAMS_RECORD} or {SCENARIO_RECORD} metadata "
+                "record: it was not recorded by sappc run).</p>")
+    parts = ["<h2>Parameters</h2>"]
+    try:
+        nodes = yaml.safe_load(texts[PARAMS_RECORD]) or {}
+    except yaml.YAMLError:
+        nodes = {}
+    node = nodes.get("/controller") if isinstance(nodes, dict) else None
+    controller = node.get("ros__parameters") if isinstance(node, dict) else None
+    if isinstance(controller, dict):
+        parts.append("<p>The controller node's parameters:</p>" + html_table(["parameter", "value"], _flat(controller)))
+    for name, text in texts.items():
+        if text:
+            parts.append(f"<details><summary>{html.escape(name)} as recorded</summary><pre>{html.escape(text)}</pre></details>")
+    return "".join(parts)
 
 
 def _run_title(a: BagAnalysis) -> str:
@@ -261,8 +324,9 @@ def write_report(a: BagAnalysis, out_dir: Path) -> list[Path]:
         html_list(a.problems, "problem") + html_list(a.notes, "note"),
     ]
     if a.metrics is not None:
-        meaning = metric_meanings()
-        blocks.append("<h2>Metrics</h2>" + html_table(["metric", "value", "meaning"], [[k, v, meaning.get(k, "")] for k, v in a.metrics.items()]))
+        blocks.append("<h2>Metrics</h2>" + html_table(["metric", "value", "meaning"], [[k, v, METRIC_SENTENCES.get(k, "")] for k, v in a.metrics.items()])
+                      + f"<p>{html.escape(NOT_APPLICABLE)}</p>")
+    blocks.append(parameters_block(a.bag))
     if a.fault_windows:
         blocks.append("<p>Injected disturbance events and faults are shaded red: "
                       + ", ".join(f"{s0:g} to {s1:g} s" for s0, s1 in a.fault_windows) + ".</p>")
@@ -306,7 +370,7 @@ def compare_bags(analyses: list[BagAnalysis], out_dir: Path) -> tuple[list[str],
                                      [[lab, str(a.path), a.scenario.name if a.scenario else None, run.history.t.size]
                                       for lab, a, run in zip(labels, analyses, runs)]),
         html_list(notes, "note"),
-        "<h2>Metrics</h2>" + html_table(header, rows),
+        "<h2>Metrics</h2>" + html_table(header, rows) + f"<p>{html.escape(NOT_APPLICABLE)}</p>",
         "<h2>Figures</h2>",
     ] + [html_figure(p) for p in figures]
     page = out_dir / "compare.html"

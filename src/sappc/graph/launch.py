@@ -39,11 +39,12 @@ import yaml
 from sappc_msgs_py.runtime import parse_expected
 from sappc_controller.params import parameters_from_config, unflatten
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
-from sappc_msgs_py.contract import (CLOCK, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_TOPICS, RELAYED_ACTUATOR_TOPICS, RELAYED_PATHS,
-                                    RELAYED_SENSOR_TOPICS, STATE_ATTITUDE, STATE_RATE, faulty, relay_remaps)
+from sappc_msgs_py.contract import (CLOCK, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
+                                    RELAYED_PATHS, RELAYED_SENSOR_TOPICS, STATE_ATTITUDE, STATE_RATE, TOPICS, faulty, relay_remaps)
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
+from sappc.files import default_output_dir, scenario_path as bundled_scenario_path
 from sappc.graph.container import NODE_CLASSES, STOP_ORDER
 from sappc.scenario import EXTENDS_KEY, ControllerKind, Scenario, load_scenario
 
@@ -285,11 +286,15 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     # lockstep with the bundled plant: the recorder subscribes to /clock, which the plant's start
     # waits for, only once it has matched every publisher of what it records (each topic listed
     # in a node's expected_subscribers is published by that node)
-    publishers = Counter(t for node in (controller, plant, reference, injector, *([estimator] if estimator else []))
-                         for t in parse_expected(cast("list[str]", node["expected_subscribers"])) if t != CLOCK.name)
+    published = [t for node in (controller, plant, reference, injector, *([estimator] if estimator else []))
+                 for t in parse_expected(cast("list[str]", node["expected_subscribers"]))]
+    publishers = Counter(t for t in published if t != CLOCK.name)
     recorder = {
         "mode": mode,
         "output_dir": paths["bag"],
+        # exactly the topics this run publishes (an external plant: those the bundled plant would), in the
+        # contract's order: no empty channel for a fault relay, wheels, sensors or an estimator the run has not
+        "topics": [t.name for t in TOPICS + FAULT_TOPICS if t.name in published],
         "metadata_files": [paths["scenario"], paths["params"]],
         "counts_file": counts_file("recorder"),
         **({"end_after_s": scenario.duration_s, "end_file": paths["end"]} if external_plant else {}),
@@ -477,6 +482,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
     # claimed first: a domain in use stops the run before anything is written or started
     with claim_domain_id(preferred_domain, source=domain_source) as domain:
         external = plant == "external"
+        scenario_path = bundled_scenario_path(scenario_path)  # a file, or a bundled scenario's name
         scenario = load_scenario(scenario_path)
         kind = scenario.resolve_controller(controller)
         scenario.controller_config(kind)  # validate before any process starts
@@ -486,7 +492,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         scenario.build_controller(kind).step(0.0, scenario.control_period_s, scenario.q_BN0, scenario.omega_BN_B0_rad_s,
                                              ref0.q_RN[0], ref0.omega_RN_R[0], ref0.omegadot_RN_R[0])
         stamp = time.strftime("%Y%m%d-%H%M%S")
-        run_dir = Path(out_dir) if out_dir is not None else Path("runs") / f"{scenario.name}-{kind.value}-{stamp}"
+        run_dir = Path(out_dir) if out_dir is not None else default_output_dir("run", f"{scenario.name}-{kind.value}-{stamp}")
         if run_dir.exists() and any(run_dir.iterdir()):
             raise ConfigError(f"--out {run_dir} exists and is not empty; choose a new directory")
         for sub in ("logs", "counts"):

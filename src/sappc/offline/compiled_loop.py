@@ -681,7 +681,14 @@ def warm_up() -> None:
     set-up kernels.  ``sappcw`` calls it once after building the venv."""
     global _checked
     _checked = True
+    import time
+
     from sappc.scenario import scenario_from_mapping
+
+    started = time.monotonic()
+
+    def compiled(group: str) -> None:  # progress: numba prints nothing while it compiles (a minute or more in all)
+        print(f"sappc: numerical core: {group} ready ({time.monotonic() - started:.0f} s)", file=sys.stderr, flush=True)
 
     from spacecraft_sim.core.faults import noisy_measurement
 
@@ -704,10 +711,12 @@ def warm_up() -> None:
     scenario = scenario_from_mapping(raw)
     inp = prepare(scenario, on_infeasible="clamp", sensor_params=white_noise_params(1e-7, 1e-7))
     noisy = inp.subset(0, 1, noise=np.zeros((1, inp.t.size, 6)))
+    compiled("the set-up kernels")
     for case in (inp, noisy):
         run_single(case, 0, 1)
         run_batch(case, 1)
         run_batch(case, 0)
+        compiled("the offline loops (one run, and batches)" + (" with sensor noise" if case is noisy else ""))
     noisy_measurement(np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(6), 1e-7, 1e-7)
     # the entry points the nodes and `sappc rerun` call from Python: the controller step (one run and
     # a batch), the plant, the disturbances, the reference
@@ -728,8 +737,9 @@ def warm_up() -> None:
                    **({"effectiveness": [1.0, 1.0, 1.0]} if k == "actuator_effectiveness" else {}),
                    **({"bias_Nm": [0.0, 0.0, 0.0]} if k == "actuator_bias" else {})} for k in FAULT_KINDS]
     FaultSchedule(faults_from_list(every_kind)).warm_up()
+    compiled("the nodes' plant, disturbance and fault kernels")
     ctrl = scenario.build_controller()
     for q in (scenario.q_BN0, np.stack((scenario.q_BN0, scenario.q_BN0))):
         ctrl.reset()
         ctrl.step(0.0, 0.01, q, np.zeros(q.shape[:-1] + (3,)), np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(3))
-
+    compiled("the controller's step")

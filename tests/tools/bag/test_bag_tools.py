@@ -284,15 +284,26 @@ def test_the_run_summary_counts_what_the_controller_did_and_sets_the_exit_status
     assert unknown["commanded"] is None and run_exit_status({}, unknown) == 0  # a plant of one's own without diagnostics
 
 
-def test_every_metric_a_run_reports_has_a_meaning_for_the_report() -> None:
-    """The HTML report's "meaning" column comes from the metrics module's definitions: every key
-    `sappc simulate` and `sappc run` report (a faulty run has them all) has a sentence."""
-    from sappc.analysis.report import metric_meanings
+def test_every_metric_a_run_reports_has_one_clear_sentence_for_the_report() -> None:
+    """The HTML report's "meaning" column: every key `sappc simulate` and `sappc run` report (a
+    faulty run has the common ones; the estimator's and the wheels' are named in the metrics
+    module's definitions) has a sentence of its own: one sentence, no two alike, none saying
+    "None" where the table shows "-"."""
+    import re
+
+    from sappc.analysis.report import METRIC_SENTENCES, metric_meanings
+    from sappc.evaluation import metrics
     from sappc.offline.simulate import simulate
     from sappc.scenario import load_scenario
 
     result = simulate(load_scenario(SCENARIOS / "paper_fault.yaml"))
-    meanings = metric_meanings()
-    keys = [*result.metrics, "startup_s"]
-    assert all(len(meanings.get(k, "")) > 20 for k in keys), [k for k in keys if len(meanings.get(k, "")) <= 20]
-    assert meanings["settling_time_s"].startswith("The first sample time after which max_i |q_ev,i| stays below settle_threshold")
+    defined = {n.strip().strip("`") for line in (metrics.__doc__ or "").split("Definitions, per run:", 1)[1].splitlines()
+               if line.startswith("``") for n in line.split(",")}
+    defined |= {"left_constraint_after_fault", "returned_at_s"}  # defined in returned_to_constraint's paragraph
+    assert set(METRIC_SENTENCES) == defined | {"wall_time_s", "startup_s"} and set(result.metrics) <= set(METRIC_SENTENCES)
+    assert metric_meanings() == METRIC_SENTENCES
+    sentences = list(METRIC_SENTENCES.values())
+    assert len(set(sentences)) == len(sentences)
+    for name, text in METRIC_SENTENCES.items():
+        assert text[0].isupper() and text.endswith(".") and "None" not in text, name
+        assert len(re.findall(r"[.:] [A-Z]", text)) == 0 and len(text) > 30, name  # one sentence

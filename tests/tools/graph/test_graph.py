@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from sappc.bag.read import BagError, bag_run, read_bag
 from sappc.scenario import load_scenario
@@ -78,6 +79,9 @@ def test_bag_opens_with_rosbags_and_mcap_ros2_and_counts_what_was_published(trac
     assert first.ros_msg.header.frame_id == "inertial"
     meta = (out / "bag" / "metadata.yaml").read_text()
     assert "version: 9" in meta and "RIHS01_" in meta
+    channels = {t["topic_metadata"]["name"]: t["message_count"]
+                for t in yaml.safe_load(meta)["rosbag2_bagfile_information"]["topics_with_message_count"]}
+    assert channels == {t: n for t, n in published.items() if n} and len(channels) == 11  # no empty channel
     assert (out / "bag" / "scenario.yaml").exists() and (out / "bag" / "params.yaml").exists()
     watch.assert_clean()  # no process of the run alive, none of its shared memory left in /dev/shm
 
@@ -86,13 +90,15 @@ def test_the_composed_graph_records_the_same_bag_byte_for_byte(tracking_run, tmp
     """``sappc run --compose`` (every node in one process, one executor) and the five processes:
     the same MCAP file byte for byte (a lockstep bag is on simulated time and in stamp order;
     the run's files are recorded with paths relative to the run directory), the same
-    metadata.yaml and counts, the same metrics; one process was started instead of five."""
+    metadata.yaml and counts, the same metrics; one process was started instead of five.
+    ``--json -``: the summary is all that comes out on stdout."""
     out, report, _ = tracking_run
     composed = tmp_path / "composed"  # given relative to the working directory (a composed run once failed with one)
-    proc = subprocess.run([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--compose", "--out", "composed", "--json", "m.json"],
+    proc = subprocess.run([*SAPPC, "run", str(SCENARIOS / "paper_tracking.yaml"), "--compose", "--out", "composed", "--json", "-"],
                           capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    composed_report = json.loads((tmp_path / "m.json").read_text())
+    composed_report = json.loads(proc.stdout)  # --json -: the JSON alone on stdout, the table and the nodes' output on stderr
+    assert "through the ROS 2 graph (composed)" in proc.stderr and not (tmp_path / "-").exists()
     assert composed_report["composed"] is True and report["composed"] is False
     assert (composed / "bag" / "bag_0.mcap").read_bytes() == (out / "bag" / "bag_0.mcap").read_bytes()
     assert (composed / "bag" / "metadata.yaml").read_text() == (out / "bag" / "metadata.yaml").read_text()

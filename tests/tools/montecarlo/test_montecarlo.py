@@ -215,9 +215,9 @@ def test_cli_end_to_end(tmp_path) -> None:
                  "montecarlo_trajectories_steady.png"):
         assert (tmp_path / "cli" / name).exists()
     rerun = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "cli"), "--run", "3",
-                            "--plots", str(tmp_path / "run3")], capture_output=True, text=True, cwd=ROOT, env=env)
+                            "--out", str(tmp_path / "run3")], capture_output=True, text=True, cwd=ROOT, env=env)
     assert rerun.returncode == 0 and "run 3" in rerun.stdout and (tmp_path / "run3" / "qev.png").exists()
-    nodir = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "nope"), "--run", "0", "--plots", str(tmp_path / "p")],
+    nodir = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "nope"), "--run", "0", "--out", str(tmp_path / "p")],
                            capture_output=True, text=True, cwd=ROOT)
     assert nodir.returncode == 2 and "is not a campaign directory" in nodir.stderr and "Traceback" not in nodir.stderr
     bad = subprocess.run([sys.executable, "-m", "sappc", "simulate", "--from-campaign", str(tmp_path / "cli"), "--run", "9"],
