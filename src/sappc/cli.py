@@ -19,7 +19,9 @@ criteria; ``tune``: 1 when no trial is feasible or the best gains fail their con
 from what was published; 2 invalid input; 3 the controller never commanded a torque; 4 the run
 broke a requirement of the scenario's ``metrics.requirements`` or became non-finite; 130 Ctrl-C
 (:mod:`sappc.__main__`, the command's entry: one line, also during the imports and when started
-with SIGINT ignored).
+with SIGINT ignored).  When several apply to one run, the first of 3, 4, 1 in this order: a
+controller that never commanded says more than a broken requirement, which says more than a count
+mismatch.
 """
 
 from __future__ import annotations
