@@ -737,6 +737,19 @@ def _git(*args: str) -> str:
     return proc.stdout.strip() if proc.returncode == 0 else ""
 
 
+def _measuring_args(argv: list[str]) -> list[str]:
+    """The arguments that decide what is measured (``--keep`` and ``--results`` only say where things go)."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a in ("--keep", "--results"):
+            skip = True
+        elif not a.startswith(("--keep=", "--results=")):
+            out.append(a)
+    return out
+
+
 def merge_results(path: Path, report: dict[str, Any]) -> None:
     """Merge ``report``'s modules into the results file ``path`` (``--results``): each module's
     entry replaced, with how it was measured (date, commit, command, machine, tool); the other
@@ -748,7 +761,7 @@ def merge_results(path: Path, report: dict[str, Any]) -> None:
     modules = results.setdefault("modules", {})
     dirty = _git("status", "--porcelain", "--", *COPIED, "benchmarks/bench_mutation.py")
     measured = {"date": report["date"], "commit": _git("rev-parse", "--short=12", "HEAD") or None, "tree_clean": not dirty,
-                "command": shlex.join(["python", "benchmarks/bench_mutation.py", *sys.argv[1:]]),
+                "command": shlex.join(["python", "benchmarks/bench_mutation.py", *_measuring_args(sys.argv[1:])]),
                 "machine": report["machine"], "tool": f"{report['tool']} {report['tool_version']}",
                 "numba_disable_jit": report["numba_disable_jit"], "wall_s_all_modules_of_the_command": report["wall_s"]}
     for name, entry in report["modules"].items():
