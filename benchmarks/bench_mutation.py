@@ -90,8 +90,8 @@ ROOT = Path(__file__).resolve().parents[1]
 TOOL, TOOL_VERSION = "cosmic-ray", "8.7.0"
 INSTALL_HINT = ".venv/bin/pip install -e '.[mutation]'"
 
-#: What each copy of the tree holds: the sources, the tests and what they read.
-COPIED = ("src", "tests", "config", "pyproject.toml")
+#: What each copy of the tree holds: the sources, the tests and what they read (the README and the docs: tests check their claims).
+COPIED = ("src", "tests", "config", "pyproject.toml", "README.md", "docs", "examples")
 
 #: The node's input checks and watchdogs (methods of ``ControllerNode`` and the module's helpers).
 NODE_FUNCTIONS = ("_seconds_to_ns", "_apply_watchdog", "_reject", "_now_ns", "_decode", "_on_input", "_outage_at", "_answered",
