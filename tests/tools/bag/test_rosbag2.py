@@ -63,12 +63,12 @@ class Recording:
     their stamps as log and publish times and their arrival count on the topic as sequence, chunks
     flushed by :meth:`flush`."""
 
-    def __init__(self, bag_dir: Path) -> None:
+    def __init__(self, bag_dir: Path, compression: CompressionType = CompressionType.ZSTD) -> None:
         bag_dir.mkdir()
         self.dir = bag_dir
         self.path = bag_dir / f"{bag_dir.name}_0.mcap"
         self._file = self.path.open("wb")
-        self.writer = Writer(self._file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        self.writer = Writer(self._file, chunk_size=CHUNK_BYTES, compression=compression)
         self.writer.start(profile="ros2", library="tests/test_rosbag2")
         self.channels: dict[str, int] = {}
         for topic in TOPICS:
@@ -80,6 +80,7 @@ class Recording:
         self.topics = [(f"/{t.name}", t.type_name) for t in TOPICS]
         write_bag_metadata(bag_dir, bag_metadata(self.path.name, self.topics, {n: 0 for n, _ in self.topics}, 0, 0,
                                                  {"sappc/scenario.yaml": "scenario.yaml"}))
+        self.metadata_at_start = (bag_dir / BAG_METADATA).read_text()
         self.sent: list[Sent] = []
         self._arrivals: dict[str, int] = {}
         self.flush()  # as the recorder does once its channels are registered (mcap writes no chunk without a message)
@@ -111,8 +112,8 @@ class Recording:
 
     def finish(self) -> list[Sent]:
         """Closed as the recorder closes a bag (with its ``rosbag2`` metadata record)."""
-        meta = bag_metadata(self.path.name, self.topics, self.counts(), min(m.log_time for m in self.sent),
-                            max(m.log_time for m in self.sent), {"sappc/scenario.yaml": "scenario.yaml"})
+        meta = bag_metadata(self.path.name, self.topics, self.counts(), min((m.log_time for m in self.sent), default=0),
+                            max((m.log_time for m in self.sent), default=0), {"sappc/scenario.yaml": "scenario.yaml"})
         self.writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})
         self.writer.finish()
         self._file.close()
@@ -230,6 +231,72 @@ def test_repair_of_a_complete_bag_leaves_its_file_and_writes_its_metadata(tmp_pa
     assert _info(rec.dir)["message_count"] == 2 and _in_file(rec.path) == sent
 
 
+@pytest.mark.parametrize("stamps", [[], [3 * NS, 1 * NS, 2 * NS]], ids=["nothing recorded", "three messages"])
+def test_repair_of_a_complete_bag_writes_the_metadata_the_recorder_wrote(tmp_path: Path, stamps: list[int]) -> None:
+    """Killed after the MCAP file was closed but before ``metadata.yaml`` was rewritten (it still
+    holds the counts of the start): repair writes it as the recorder would have, also for a run
+    that recorded nothing (the channels are in the summary)."""
+    rec = Recording(tmp_path / "bag")
+    for stamp in stamps:
+        rec.add(c.STATE_RATE, stamp)
+    rec.finish()
+    written = (rec.dir / BAG_METADATA).read_text()
+    (rec.dir / BAG_METADATA).write_text(rec.metadata_at_start)
+    r = repair(rec.dir)
+    assert r.was_complete and r.messages == len(stamps)
+    assert (rec.dir / BAG_METADATA).read_text() == written
+
+
+def test_repair_stops_at_a_chunk_whose_checksum_fails(tmp_path: Path) -> None:
+    """A byte of the second chunk's data flipped (uncompressed chunks, where nothing but the
+    checksum tells): the first chunk is kept, the corrupted one is not, and the sort refuses it."""
+    rec = Recording(tmp_path / "bag", compression=CompressionType.NONE)
+    first = rec.add(c.STATE_RATE, 1 * NS)
+    rec.flush()
+    second = rec.add(c.STATE_RATE, 2 * NS)
+    kept = rec.killed(torn_tail=[])
+    assert kept == [first, second]
+    data = bytearray(rec.path.read_bytes())
+    at = data.rindex(second.data)
+    data[at + len(second.data) - 1] ^= 0xFF  # the message's last byte, inside the chunk
+    rec.path.write_bytes(bytes(data))
+    r = repair(rec.dir)
+    assert r.messages == 1 and _in_file(rec.path) == [first] and "crc" in (r.stopped_at or "").lower()
+    whole = Recording(tmp_path / "whole", compression=CompressionType.NONE)
+    whole.add(c.STATE_RATE, 1 * NS)
+    last = whole.add(c.STATE_RATE, 2 * NS)
+    whole.finish()
+    data = bytearray(whole.path.read_bytes())
+    data[data.rindex(last.data) + len(last.data) - 1] ^= 0xFF
+    whole.path.write_bytes(bytes(data))
+    with pytest.raises(BagError, match="cannot sort an incomplete file"):
+        sort_by_log_time(whole.path)
+    assert whole.path.read_bytes() == data
+
+
+def test_repair_keeps_a_channel_without_a_schema_without_one(tmp_path: Path) -> None:
+    """MCAP allows a channel without a schema (schema id 0; not the recorder's, but a bag from
+    elsewhere): repaired, it still has none, and the schema of the other channel stays its own."""
+    path = tmp_path / "foreign.mcap"
+    with path.open("wb") as f:
+        w = Writer(f, chunk_size=CHUNK_BYTES)
+        w.start(profile="", library="elsewhere")
+        sid = w.register_schema(c.STATE_RATE.type_name, "ros2msg", schema_text(c.STATE_RATE.type_name).encode())
+        typed = w.register_channel("/typed", "cdr", sid)
+        raw = w.register_channel("/raw", "json", 0)
+        w.add_message(typed, log_time=1, data=_data(c.STATE_RATE, 1), publish_time=1)
+        w.add_message(raw, log_time=2, data=b"{}", publish_time=2)
+        w.flush()
+        f.flush()
+    r = repair(path)
+    assert r.messages == 2
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    by_topic = {ch.topic: ch.schema_id for ch in summary.channels.values()}
+    assert by_topic["/raw"] == 0 and summary.schemas[by_topic["/typed"]].name == c.STATE_RATE.type_name
+
+
 def test_repair_of_a_file_cut_after_its_rosbag2_record_keeps_one(tmp_path: Path) -> None:
     """Killed while writing the summary: the closing ``rosbag2`` record is in the file already."""
     rec = Recording(tmp_path / "bag")
@@ -263,7 +330,7 @@ def test_a_recording_killed_before_its_first_chunk_is_refused_as_it_holds_nothin
     assert rec.path.read_bytes() == data and (rec.dir / BAG_METADATA).read_text() == meta
 
 
-@pytest.mark.parametrize("content", [b"", b"\x89MCAP0\r\n", b"not a bag at all, just some text" * 3])
+@pytest.mark.parametrize("content", [b"", b"\x89MC", b"\x89MCAP0\r\n", b"not a bag at all, just some text" * 3])
 def test_repair_refuses_what_is_not_an_mcap_file(tmp_path: Path, content: bytes) -> None:
     path = tmp_path / "x.mcap"
     path.write_bytes(content)
@@ -339,3 +406,23 @@ def test_the_sort_orders_by_stamp_then_topic_then_arrival_on_the_topic(tmp_path:
         assert again.read_bytes() == reference  # one run or one per message: the same bytes
         with again.open("rb") as f:
             assert make_reader(f).get_header().library == "tests/test_rosbag2"
+
+
+def test_the_default_sort_of_a_long_bag_stays_within_the_recorders_memory_budget(tmp_path: Path) -> None:
+    """The closing sort's default budget (issue 25: the recorder within 200 MB): a bag of 6,000
+    messages (a minute of one topic at 100 Hz) is sorted holding a small fraction of it, whatever
+    its length would be; the sort cannot trade memory for temporary files without bound."""
+    import tracemalloc
+
+    rec = Recording(tmp_path / "bag")
+    for k in range(6000):
+        rec.add(c.STATE_RATE, (6000 - k) * NS // 100)  # arrived in reverse stamp order
+    rec.finish()
+    tracemalloc.start()
+    try:
+        assert sort_by_log_time(rec.path) == 6000
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 200 * 1024 * 1024 // 4, peak
+    assert [m.log_time for m in _in_file(rec.path)] == [k * NS // 100 for k in range(1, 6001)]
