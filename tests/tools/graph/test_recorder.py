@@ -192,6 +192,10 @@ def test_a_lockstep_bag_comes_out_sorted_by_stamp_then_topic_then_arrival(ros_co
     sequence its arrival count on its topic; ``/clock`` is recorded once per message."""
     bag = tmp_path / "bag"
     d = Driver(ros_context, bag, [c.STATE_RATE, c.STATE_ATTITUDE, c.CLOCK])
+    start = time.monotonic()
+    while time.monotonic() - start < 0.3:  # 30 start-check periods: no second /clock subscription comes
+        d.ex.spin_once(timeout_sec=0.01)
+    assert d.rec.count_subscribers(c.CLOCK.name) == 1
     for stamp_cs, x in ((30, 0.0), (10, 1.0), (20, 0.0), (10, 3.0)):
         d.publish(c.STATE_RATE, stamp_cs * NS // 100, x)
     for stamp_cs in (10, 30):
@@ -253,6 +257,16 @@ def test_end_file_is_written_once_the_recorded_torques_span_end_after_s(ros_cont
     assert end.read_text() == f"{first + NS - 1000}\n" and d.rec.counts["/control/torque"] == 4
 
 
+def test_without_end_after_s_the_recorder_never_ends_a_run(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """``end_after_s`` 0 (the default, the recorder of ``sappc run``'s own plant): torques over a
+    minute mark no end."""
+    d = Driver(ros_context, tmp_path / "bag", [c.CONTROL_TORQUE], end_file=str(tmp_path / "end"))
+    for k in range(7):
+        d.publish(c.CONTROL_TORQUE, k * 10 * NS)
+    d.close()
+    assert not d.rec.end_reached and not (tmp_path / "end").exists()
+
+
 def test_end_after_s_without_an_end_file_only_marks_the_end(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
     d = Driver(ros_context, tmp_path / "bag", [c.CONTROL_TORQUE], end_after_s=0.5)
     d.publish(c.CONTROL_TORQUE, 1 * NS)
@@ -283,6 +297,9 @@ def test_the_runs_files_are_copied_into_the_bag_and_stored_in_it(ros_context, tm
     info = _info(bag)
     assert info["custom_data"] == {"sappc/scenario.yaml": "scenario.yaml"}
     assert info["message_count"] == 0 and info["duration"] == {"nanoseconds": 0} and info["starting_time"] == {"nanoseconds_since_epoch": 0}
+    import yaml
+
+    assert yaml.safe_load(records["rosbag2"]["serialized_metadata"]) == info  # the closing record says the same
 
 
 def test_topics_are_given_with_or_without_their_leading_slash(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
@@ -326,6 +343,19 @@ def test_the_drain_takes_every_acknowledged_message(ros_context, tmp_path) -> No
     d.rec.destroy_node()
     d.node.destroy_node()
     assert read_bag(tmp_path / "bag").series["/state/rate"].values[:, 0].tolist() == [float(k) for k in range(200)]
+
+
+def test_the_bag_is_compressed(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The recorder compresses its chunks (zstd): 2,000 samples of a rate take less room on disk
+    than their raw CDR data, the index of every message and the schemas included."""
+    from rclpy.serialization import serialize_message
+
+    d = Driver(ros_context, tmp_path / "bag", [c.STATE_RATE])
+    for k in range(2000):
+        d.publish(c.STATE_RATE, k * NS // 100, 1e-3 * k)
+    d.close()
+    raw = 2000 * len(serialize_message(_stamped(c.STATE_RATE, 0)))
+    assert next((tmp_path / "bag").glob("*.mcap")).stat().st_size < raw
 
 
 def test_a_failing_writer_fails_the_close_naming_the_bag(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
