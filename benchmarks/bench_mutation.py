@@ -66,6 +66,7 @@ from __future__ import annotations
 import argparse
 import ast
 import concurrent.futures
+import hashlib
 import json
 import os
 import platform
@@ -89,12 +90,15 @@ ROOT = Path(__file__).resolve().parents[1]
 TOOL, TOOL_VERSION = "cosmic-ray", "8.7.0"
 INSTALL_HINT = ".venv/bin/pip install -e '.[mutation]'"
 
-#: What each copy of the tree holds: the sources, the tests and what they read.
-COPIED = ("src", "tests", "config", "pyproject.toml")
+#: What each copy of the tree holds: the sources, the tests and what they read (the README and the docs: tests check their claims).
+COPIED = ("src", "tests", "config", "pyproject.toml", "README.md", "docs", "examples")
 
 #: The node's input checks and watchdogs (methods of ``ControllerNode`` and the module's helpers).
 NODE_FUNCTIONS = ("_seconds_to_ns", "_apply_watchdog", "_reject", "_now_ns", "_decode", "_on_input", "_outage_at", "_answered",
                   "_answer_without_inputs", "_on_clock", "_check_grace", "_on_timer", "_compute", "_publish_zero", "_publish")
+
+#: The CLI's exit statuses: the constants and the functions that map a command's outcome to its status.
+CLI_EXIT_STATUS = ("EXIT_INVALID_INPUT", "EXIT_CONTROLLER_NEVER_COMMANDED", "EXIT_REQUIREMENT_FAILED", "run_exit_status", "main")
 
 #: cosmic-ray operators run (a regular expression on the operator name); every other one is filtered out.
 KEPT_OPERATORS = (
@@ -120,11 +124,12 @@ class Target:
     quick: tuple[str, ...]
     more: tuple[str, ...] = ()
     functions: tuple[str, ...] | None = None
-    #: Functions left out of scope (named in the module docstring with the reason).
+    #: Functions (or classes) left out of scope, each with its reason beside the target.
     skip_functions: tuple[str, ...] = ()
 
 
 _PARITY = "tests/controller/test_kernels_parity.py::"
+_TUNING = "tests/tools/montecarlo/test_tuning.py::"
 _START = "tests/controller/test_start_check.py::"
 
 TARGETS: dict[str, Target] = {
@@ -160,6 +165,38 @@ TARGETS: dict[str, Target] = {
          f"{_START}test_the_offline_runner_refuses_a_start_at_the_singularity", f"{_START}test_the_batch_path_names_the_singular_run",
          f"{_START}test_a_campaign_chunk_names_the_campaign_run_number"),
     ),
+    "sappc.bag.rosbag2": Target(  # the bag writer's metadata, repair and the closing sort
+        "src/sappc/bag/rosbag2.py",
+        ("tests/tools/bag/test_rosbag2.py",),
+        ("tests/tools/bag/test_sort.py",),
+    ),
+    "sappc.graph.recorder": Target(  # the node's callbacks in-process on an isolated domain
+        "src/sappc/graph/recorder.py",
+        ("tests/tools/graph/test_recorder.py",),
+        # main: the process entry (run_node), run only by the graph tests (slow); _peak_rss_mib: its value goes only into
+        # the closing log line (log calls are out of scope)
+        skip_functions=("main", "_peak_rss_mib"),
+    ),
+    "sappc.cli": Target(  # the exit statuses only
+        "src/sappc/cli.py",
+        ("tests/tools/test_exit_status.py",),
+        functions=CLI_EXIT_STATUS,
+    ),
+    "sappc_msgs_py.timeline": Target(
+        "src/sappc_msgs_py/timeline.py",
+        ("tests/nodes/test_realtime_frames.py",),
+    ),
+    "sappc.montecarlo.tuning": Target(  # the study on a stand-in campaign, then a study on real campaigns; not the `sappc tune`
+        # processes nor the 14- and 27-s studies of test_tuning.py (a minute a mutant on this machine)
+        "src/sappc/montecarlo/tuning.py",
+        (f"{_TUNING}test_a_bad_tuning_section_stops_with_an_error_naming_the_key", f"{_TUNING}test_requirements_the_run_cannot_measure_are_infeasible",
+         f"{_TUNING}test_score_is_the_percentile_of_the_objective_and_each_requirements_worst_relative_margin",
+         f"{_TUNING}test_the_wheel_speed_requirement_is_usable_in_tuning", "tests/tools/montecarlo/test_tuning_study.py"),
+        (f"{_TUNING}test_the_output_directory_refuses_another_study_and_a_resume_of_nothing",),
+        # presentation, as log calls are: _figures draws history.png and tradeoff.png (their content is checked by the command
+        # tests' empty-axes check), _Progress the progress line on stderr
+        skip_functions=("_figures", "_Progress"),
+    ),
 }
 
 
@@ -171,8 +208,9 @@ def _span(node: ast.AST) -> range:
 
 
 def mutable_lines(source: str, functions: tuple[str, ...] | None, skip_functions: tuple[str, ...] = ()) -> set[int]:
-    """Lines of ``source`` in scope (module docstring): the named functions' (or all), less
-    ``skip_functions``, docstrings, imports, ``__all__``, log calls, f-strings and ``@jit`` decorators."""
+    """Lines of ``source`` in scope (module docstring): the named functions' and module constants' (or all), less
+    ``skip_functions``, docstrings, imports, ``__all__``, log calls, f-strings, ``@jit`` decorators and the
+    ``if __name__ == "__main__":`` entry."""
     tree = ast.parse(source)
     n_lines = len(source.splitlines())
     if functions is None:
@@ -184,12 +222,18 @@ def mutable_lines(source: str, functions: tuple[str, ...] | None, skip_functions
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name in functions:
                 keep.update(_span(node))
                 found.add(node.name)
+        for node in tree.body:  # module constants named in ``functions`` (e.g. the exit statuses)
+            if isinstance(node, ast.Assign):
+                names = {t.id for t in node.targets if isinstance(t, ast.Name)} & set(functions)
+                if names:
+                    keep.update(_span(node))
+                    found.update(names)
         missing = set(functions) - found
         if missing:
             raise SystemExit(f"bench_mutation: functions not found: {sorted(missing)}")
     drop: set[int] = set()
     for node in ast.walk(tree):
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name in skip_functions:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node.name in skip_functions:
             drop.update(range(min([node.lineno, *(d.lineno for d in node.decorator_list)]), (node.end_lineno or node.lineno) + 1))
         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
             body = node.body
@@ -204,6 +248,10 @@ def mutable_lines(source: str, functions: tuple[str, ...] | None, skip_functions
         if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets):
             drop.update(_span(node))
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in _LOG_METHODS:
+            drop.update(_span(node))
+    for node in tree.body:  # the script entry (``if __name__ == "__main__":``): only a process started as a script runs it
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Compare) and isinstance(node.test.left, ast.Name) \
+                and node.test.left.id == "__name__":
             drop.update(_span(node))
     return keep - drop
 
@@ -510,6 +558,8 @@ def main() -> int:
     ap.add_argument("--tool-python", default=sys.executable, help=f"the Python with {TOOL} {TOOL_VERSION} installed (default: this one)")
     ap.add_argument("--dry-run", action="store_true", help="count the mutants in scope, test none")
     ap.add_argument("--keep", default="", help="keep the sessions and copies in this directory")
+    ap.add_argument("--results", default="", help="also merge the modules measured into this results file (e.g. "
+                    "benchmarks/results_mutation.json: the other modules' entries are kept; docs/mutation.md is generated from it)")
     args = ap.parse_args()
     names = [n.strip() for n in args.modules.split(",") if n.strip()] or list(TARGETS)
     unknown = [n for n in names if n not in TARGETS]
@@ -630,9 +680,11 @@ def _campaign(args: argparse.Namespace, names: list[str], version: str, work: Pa
                 counts[outcome] += 1
                 if outcome in ("survived", "error"):
                     diff = result.get("diff") or ""
-                    survivors.append({"module": name, "outcome": outcome, "line": _line_of(diff) or m["start_pos"][0],
-                                      "operator": m["operator_name"].removeprefix("core/"), "occurrence": m["occurrence"],
-                                      "diff": [d for d in diff.splitlines() if d[:1] in "+-" and not d.startswith(("+++", "---"))],
+                    changed = [d for d in diff.splitlines() if d[:1] in "+-" and not d.startswith(("+++", "---"))]
+                    operator = m["operator_name"].removeprefix("core/")
+                    survivors.append({"module": name, "id": mutant_id(name, operator, changed), "outcome": outcome,
+                                      "line": _line_of(diff) or m["start_pos"][0], "operator": operator, "occurrence": m["occurrence"],
+                                      "diff": changed,
                                       **({"output": (result.get("output") or "")[-3000:]} if outcome == "error" else {})})
                 done = sum(counts.values())
                 if done % 50 == 0 or done == len(pending):
@@ -649,7 +701,10 @@ def _campaign(args: argparse.Namespace, names: list[str], version: str, work: Pa
         modules[name] = {**counts, "total": total,
                          "score": round((counts["killed"] + counts["timeout"]) / total, 4) if total else None,
                          "killed_by_stage": {"quick": kills_by_stage.get(1, 0), "more": kills_by_stage.get(2, 0)},
-                         "tests_unmutated_s": round(baseline_s, 1), "wall_s": round(time.perf_counter() - t_mod, 1)}
+                         "tests_unmutated_s": round(baseline_s, 1), "wall_s": round(time.perf_counter() - t_mod, 1),
+                         "path": target.path, "scope": scope_text(target), "lines_in_scope": len(lines),
+                         "tests": {"quick": list(target.quick), "more": list(target.more)},
+                         "source_sha256": hashlib.sha256(pristine).hexdigest()}
 
     report: dict[str, Any] = {
         "tool": TOOL, "tool_version": version, "pinned_version": TOOL_VERSION,
@@ -668,7 +723,64 @@ def _campaign(args: argparse.Namespace, names: list[str], version: str, work: Pa
         report["survivors"] = sorted(survivors, key=lambda s: (s["module"], s["line"], s["operator"], s["occurrence"]))
     report["wall_s"] = round(time.perf_counter() - t_start, 1)
     print(json.dumps(report, indent=1))
+    if args.results and not args.dry_run:
+        merge_results(Path(args.results), report)
     return 0
+
+
+def mutant_id(module: str, operator: str, diff: list[str]) -> str:
+    """A survivor's identity across runs: its module, operator and changed lines (not its line
+    number, which moves with edits elsewhere in the file); the key of its classification."""
+    text = "\n".join([module, operator, *(d.rstrip() for d in diff)])
+    return hashlib.sha1(text.encode()).hexdigest()[:10]
+
+
+def scope_text(target: Target) -> str:
+    """What of the module is mutated, in words (the results file and the generated page)."""
+    if target.functions is not None:
+        return f"only {', '.join(f'`{f}`' for f in target.functions)}"
+    return "whole module" + (f" but {', '.join(f'`{f}`' for f in target.skip_functions)}" if target.skip_functions else "")
+
+
+def _git(*args: str) -> str:
+    proc = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True)
+    return proc.stdout.strip() if proc.returncode == 0 else ""
+
+
+def _measuring_args(argv: list[str]) -> list[str]:
+    """The arguments that decide what is measured (``--keep`` and ``--results`` only say where things go)."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a in ("--keep", "--results"):
+            skip = True
+        elif not a.startswith(("--keep=", "--results=")):
+            out.append(a)
+    return out
+
+
+def merge_results(path: Path, report: dict[str, Any]) -> None:
+    """Merge ``report``'s modules into the results file ``path`` (``--results``): each module's
+    entry replaced, with how it was measured (date, commit, command, machine, tool); the other
+    modules' entries kept as they were measured."""
+    results: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
+    results.setdefault("about", "mutation testing results, one entry per module as last measured (benchmarks/bench_mutation.py "
+                                "--results); docs/mutation.md is generated from this file and benchmarks/mutation_survivors.yaml "
+                                "(python benchmarks/mutation_table.py --write)")
+    modules = results.setdefault("modules", {})
+    dirty = _git("status", "--porcelain", "--", *COPIED, "benchmarks/bench_mutation.py")
+    measured = {"date": report["date"], "commit": _git("rev-parse", "--short=12", "HEAD") or None, "tree_clean": not dirty,
+                "command": shlex.join(["python", "benchmarks/bench_mutation.py", *_measuring_args(sys.argv[1:])]),
+                "machine": report["machine"], "tool": f"{report['tool']} {report['tool_version']}",
+                "numba_disable_jit": report["numba_disable_jit"], "wall_s_all_modules_of_the_command": report["wall_s"]}
+    for name, entry in report["modules"].items():
+        modules[name] = {**entry, "measured": measured,
+                         "survivors": [{k: v for k, v in s.items() if k != "module"} for s in report["survivors"] if s["module"] == name]}
+    order = {n: i for i, n in enumerate(TARGETS)}
+    results["modules"] = dict(sorted(modules.items(), key=lambda kv: (order.get(kv[0], len(order)), kv[0])))
+    path.write_text(json.dumps(results, indent=1) + "\n")
+    print(f"bench_mutation: merged {', '.join(report['modules'])} into {path}", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -20,7 +20,9 @@ Errors in the input (bad scenario, infeasible parameters, bad values) print one 
 problem and exit with status 2; no traceback. Each command's ``--help`` lists its exit statuses;
 Ctrl-C ends any command with one line and status 130
 (:mod:`sappc.__main__`, the command's entry: also during the imports and when started with
-SIGINT ignored).
+SIGINT ignored). When several statuses apply to one run of ``simulate`` or ``run``, the first of
+3, 4, 1 in this order: a controller that never commanded says more than a broken requirement,
+which says more than a count mismatch.
 """
 
 from __future__ import annotations
@@ -57,6 +59,9 @@ _SHARED_EXITS = ((EXIT_INVALID_INPUT, "invalid input: a bad scenario, option, fi
                  (EXIT_INTERRUPTED, "interrupted by Ctrl-C (one line; sappc run stops its nodes and closes the bag first)"))
 _RUN_EXITS = ((EXIT_CONTROLLER_NEVER_COMMANDED, "the controller never commanded a torque"),
               (EXIT_REQUIREMENT_FAILED, "the run broke a requirement of the scenario's metrics.requirements, or became non-finite"))
+#: When several statuses apply to one run, the first of these is the one returned (a controller
+#: that never commanded says more than a broken requirement, which says more than a count mismatch).
+_PRECEDENCE = (EXIT_CONTROLLER_NEVER_COMMANDED, EXIT_REQUIREMENT_FAILED, 1)
 #: Each command's exit statuses and what they mean (every ``--help`` lists its own, and the
 #: reference page all of them).
 EXIT_STATUSES: dict[str, tuple[tuple[int, str], ...]] = {
@@ -87,7 +92,10 @@ def exit_status_text(command: str | None = None) -> str:
     every command shares."""
     rows = EXIT_STATUSES[command] if command is not None else _SHARED_EXITS
     head = "exit status:" if command is not None else "exit status (each command's --help lists its own):"
-    return head + "\n" + "\n".join(f"  {code:<4} {meaning}" for code, meaning in sorted(rows))
+    text = head + "\n" + "\n".join(f"  {code:<4} {meaning}" for code, meaning in sorted(rows))
+    if command in ("simulate", "run"):
+        text += "\n  (several at once: the first of " + ", ".join(str(c) for c in _PRECEDENCE if c in dict(rows)) + ")"
+    return text
 
 
 #: Where ``--json -`` writes the JSON: the process's stdout, while everything else a command prints

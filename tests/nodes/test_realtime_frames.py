@@ -39,6 +39,7 @@ def test_frame_index_keeps_a_tick_in_its_frame_within_half_a_frame() -> None:
 
 def test_period_ns_rounds_to_the_nanosecond_and_refuses_what_is_not_a_period() -> None:
     assert period_ns(0.01) == 10_000_000 and period_ns(1e-6) == 1_000 and period_ns(0.0123456789) == 12_345_679
+    assert period_ns(2.5) == 2_500_000_000 and period_ns(60) == 60 * NS  # long periods to the nanosecond too
     for bad in (0.0, -0.01, 5e-7, float("inf"), float("nan")):
         with pytest.raises(ConfigError, match="control_period_s"):
             period_ns(bad)
@@ -53,6 +54,17 @@ def test_stamped_window_gives_the_value_of_a_stamp_or_the_newest_earlier_one() -
     assert w.at_or_before(20) == (20, "v20") and w.at_or_before(29) == (20, "v20") and w.at_or_before(9) is None
     w.add(40, "v40")  # the oldest forgotten beyond 3
     assert len(w) == 3 and w.at_or_before(15) is None and w.at_or_before(45) == (40, "v40") and w.newest_ns == 40
+    w.add(40, "again")  # the newest stamp again: the first value of a stamp is kept
+    assert w.at_or_before(40) == (40, "v40") and len(w) == 3
+
+
+def test_a_window_of_one_holds_the_newest_value_and_a_window_of_none_is_refused() -> None:
+    one: StampedWindow[str] = StampedWindow(1)
+    one.add(10, "a")
+    one.add(20, "b")
+    assert len(one) == 1 and one.at_or_before(25) == (20, "b") and one.at_or_before(15) is None
+    with pytest.raises(ValueError, match="size must be >= 1, got 0"):
+        StampedWindow(0)
 
 
 def test_latency_statistics_count_steps_strictly_later_than_the_deadline() -> None:

@@ -20,6 +20,7 @@ import heapq
 import os
 import struct
 import tempfile
+from struct import error as StructError  # a record cut inside its fields
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -187,7 +188,7 @@ def _read_records(path: Path) -> tuple[dict[int, Any], dict[int, Any], list[Any]
                     channels[record.id] = record
                 elif isinstance(record, Metadata):
                     metadata.append(record)
-    except (McapError, EOFError, ValueError, OSError) as exc:  # the torn tail of a killed recording
+    except (McapError, EOFError, ValueError, OSError, StructError) as exc:  # the torn tail of a killed recording
         stopped_at = f"{type(exc).__name__}: {exc}"
     return schemas, channels, metadata, messages, stopped_at
 
@@ -289,7 +290,7 @@ def sort_by_log_time(path: str | Path, *, chunk_size: int | None = None, library
                         channels[record.id] = record
                     elif isinstance(record, Metadata):
                         metadata.append((record.name, record.metadata))
-        except (McapError, EOFError, ValueError, OSError) as exc:
+        except (McapError, EOFError, ValueError, OSError, StructError) as exc:
             raise BagError(f"{file}: cannot sort an incomplete file ({type(exc).__name__}: {exc})") from None
         if run:
             runs.append(_spill(run, Path(tmp), len(runs)))

@@ -1,0 +1,95 @@
+"""The exit statuses of ``sappc simulate`` and ``sappc run`` (:mod:`sappc.cli`), when several
+outcomes of a run apply at once (issue 25, section 3).
+
+The documented order (the module docstring of :mod:`sappc.cli`, ``docs/how-to/faults.md``): a
+controller that never commanded a torque (3) says more than a requirement the run broke (4), which
+says more than a topic recorded with another count than was published (1); 0 only when none
+applies.  A run whose controller reported nothing (``commanded`` unknown: a plant of one's own
+without the controller's diagnostics) is not a run that never commanded."""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import subprocess
+
+import pytest
+import yaml
+
+from conftest import ROOT, SAPPC, SCENARIOS
+from sappc.cli import EXIT_CONTROLLER_NEVER_COMMANDED, EXIT_INVALID_INPUT, EXIT_REQUIREMENT_FAILED, main, run_exit_status
+
+#: The documented numbers (the command's users compare against them, not against the names).
+DOCUMENTED = {"invalid input": 2, "never commanded": 3, "requirement failed": 4}
+
+
+def test_the_exit_status_constants_are_the_documented_numbers() -> None:
+    assert (EXIT_INVALID_INPUT, EXIT_CONTROLLER_NEVER_COMMANDED, EXIT_REQUIREMENT_FAILED) == tuple(DOCUMENTED.values())
+
+
+@pytest.mark.parametrize(("mismatch", "commanded", "failed"), list(itertools.product([False, True], [None, 0, 1, 250], [False, True])))
+def test_every_combination_of_outcomes_gives_the_documented_status(mismatch: bool, commanded: int | None, failed: bool) -> None:
+    """All 16 combinations: a count mismatch or not; the controller's commanded samples unknown,
+    none, one or many; a requirement broken or not."""
+    mismatched = {"/state/rate": (6001, 6000)} if mismatch else {}
+    controller = {"samples": 6001, "commanded": commanded}
+    broken = ["steady_max_abs_qev = 2.7e-4 > 1e-4"] if failed else []
+    if commanded == 0:
+        expected = 3
+    elif failed:
+        expected = 4
+    elif mismatch:
+        expected = 1
+    else:
+        expected = 0
+    assert run_exit_status(mismatched, controller, broken) == expected
+    assert run_exit_status(mismatched, controller, tuple(broken)) == expected  # any sequence of failed requirements
+
+
+def _never_commanding(tmp_path, requirements: dict[str, float]):  # type: ignore[no-untyped-def]
+    """Experiment 1, 2 s long, its state lost from 0 s to the end: the controller never has a
+    valid state, so the watchdog answers every sample with zero torque."""
+    raw = copy.deepcopy(yaml.safe_load((SCENARIOS / "paper_tracking.yaml").read_text()))
+    raw["duration_s"] = 2.0
+    raw["faults"] = [{"kind": "sensor_dropout", "start_s": 0.0}]
+    raw["metrics"] = {**raw["metrics"], "requirements": requirements}
+    path = tmp_path / "never.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def test_simulate_of_a_run_that_never_commands_and_breaks_a_requirement_exits_3(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """Both outcomes at once, through the command: it prints both (the controller's answers and the
+    broken requirement) and exits with the status of "never commanded"."""
+    path = _never_commanding(tmp_path, {"time_outside_constraint_s_max": 0.0})
+    assert main(["simulate", str(path)]) == DOCUMENTED["never commanded"]
+    out = capsys.readouterr().out
+    assert "computed the torque of 0 of 201 samples; not commanded: watchdog zero 201" in out
+    assert "FAILED the scenario's requirements: time_outside_constraint_s = 2.01 > 0" in out
+
+
+def test_simulate_of_a_run_that_never_commands_and_meets_its_requirements_exits_3(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """A requirement the zero torque meets (no torque at all) does not hide that the controller never commanded."""
+    path = _never_commanding(tmp_path, {"max_abs_torque_Nm_max": 0.0})
+    assert main(["simulate", str(path)]) == DOCUMENTED["never commanded"]
+    assert "met every requirement of the scenario (max_abs_torque_Nm_max 0)" in capsys.readouterr().out
+
+
+def test_invalid_input_exits_2_with_one_line(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    path = tmp_path / "bad.yaml"
+    path.write_text("duration_s: true\n")
+    assert main(["simulate", str(path)]) == DOCUMENTED["invalid input"]
+    err = capsys.readouterr().err
+    assert err.startswith("sappc: error: ") and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_output_into_a_closed_pipe_stops_quietly_with_status_1() -> None:
+    """``sappc params ... | head -c 0``: the reader is gone before the command writes; it stops
+    with status 1 and no traceback (Python's recipe for SIGPIPE)."""
+    proc = subprocess.Popen([*SAPPC, "params", str(SCENARIOS / "paper_tracking.yaml")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            cwd=ROOT)
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # the reader goes away before the first write
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 1, err
+    assert "Traceback" not in err and "BrokenPipeError" not in err, err
