@@ -94,7 +94,7 @@ def exit_status_text(command: str | None = None) -> str:
     head = "exit status:" if command is not None else "exit status (each command's --help lists its own):"
     text = head + "\n" + "\n".join(f"  {code:<4} {meaning}" for code, meaning in sorted(rows))
     if command in ("simulate", "run"):
-        text += "\n  (several at once: the first of " + ", ".join(str(c) for c in _PRECEDENCE if c in dict(rows)) + ")"
+        text += "\nseveral statuses at once: the first of " + ", ".join(str(c) for c in _PRECEDENCE if c in dict(rows))
     return text
 
 
