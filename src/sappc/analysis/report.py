@@ -22,7 +22,7 @@ from typing import Any
 
 from sappc_msgs_py.contract import CLOCK, ESTIMATOR_TOPICS, FAULT_TOPICS, OPTIONAL_TOPICS, TOPICS, TRANSFORM_TOPICS, WHEEL_STATES, Topic
 from sappc_controller.params import parameters_from_yaml
-from gnc_common.validation import ConfigError
+from gnc_common.validation import ConfigError, safe_load_yaml
 
 from sappc.bag.read import PARAMS_RECORD, SCENARIO_RECORD, Bag, BagError, BagRun, bag_metrics, bag_run, find_topic, read_bag
 from sappc.scenario import MetricSettings, Scenario, load_scenario, scenario_from_mapping
@@ -75,7 +75,7 @@ def _embedded_scenario(bag: Bag) -> Scenario | None:
 
     source = f"{bag.path} ({SCENARIO_RECORD})"
     try:
-        data = yaml.safe_load(record["text"])
+        data = safe_load_yaml(record["text"])
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source} is not valid YAML: {exc}") from None
     return scenario_from_mapping(data, source=source)
