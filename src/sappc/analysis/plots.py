@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with thi
 
     from spacecraft_sim.core.wheels import ReactionWheels
 
-__all__ = ["plot_campaign", "plot_compare", "plot_estimator", "plot_run", "plot_torque_rerun", "plot_wheels"]
+__all__ = ["FigureWorker", "draw_jobs", "plot_campaign", "plot_compare", "plot_estimator", "plot_run", "plot_torque_rerun", "plot_wheels"]
 
 Array = NDArray[np.float64]
 
@@ -140,14 +140,33 @@ def plot_run(
     run: int = 0,
     wheels: ReactionWheels | None = None,
     parallel: bool | None = None,
+    worker: FigureWorker | None = None,
 ) -> list[Path]:
     """Write ``qev.png``, ``qev_zoom.png``, ``qev_log.png``, ``torque.png`` and
     ``eps_lyapunov.png`` to ``out_dir``, and ``wheels.png`` when the history has wheel records
     (:func:`plot_wheels`; the limits drawn are ``wheels``', when given); return their paths.
     Injected faults are shaded red.
 
-    ``parallel``: draw the figures in two processes (:func:`draw_jobs`); ``None``: when that is safe
-    (see there), as for ``sappc report``."""
+    ``worker``: a :class:`FigureWorker` started earlier draws four of the figures while this
+    process draws the others; else ``parallel``: draw them in two processes (:func:`draw_jobs`;
+    ``None``: when that is safe).  The files are the same either way."""
+    kwargs = dict(h=h, out_dir=out_dir, title=title, fault_windows=list(fault_windows), zoom_from_s=zoom_from_s, run=run, wheels=wheels)
+    if worker is not None and worker.alive:
+        return worker.draw(_run_jobs, kwargs, theirs=(1, 2, 3, 4))
+    return draw_jobs(_run_jobs(**kwargs), parallel=parallel)  # type: ignore[arg-type]
+
+
+def _run_jobs(
+    h: History,
+    out_dir: Path,
+    *,
+    title: str,
+    fault_windows: Sequence[tuple[float, float]],
+    zoom_from_s: float,
+    run: int,
+    wheels: ReactionWheels | None,
+) -> list[Any]:
+    """:func:`plot_run`'s figures, one job (a callable returning the paths it wrote) each, in order."""
     out_dir.mkdir(parents=True, exist_ok=True)
     t = h.t
     t_end = float(t[-1])
@@ -250,7 +269,7 @@ def plot_run(
 
     jobs = [lambda: qev("qev.png", np.ones_like(t, dtype=bool), False), lambda: qev("qev_zoom.png", t >= zoom_from_s, True),
             qev_log, torque, eps_lyapunov, wheel_figures, estimator_figures]
-    return draw_jobs(jobs, parallel=parallel)
+    return jobs
 
 
 def _fork_is_safe() -> bool:
@@ -310,6 +329,129 @@ def draw_jobs(jobs: Sequence[Any], *, parallel: bool | None = None) -> list[Path
         theirs_drawn = [job() for job in theirs]
     order = [drawn[i // 2] if i % 2 == 0 else theirs_drawn[i // 2] for i in range(len(jobs))]
     return [p for paths in order for p in paths]
+
+
+class FigureWorker:
+    """A child process forked now, which imports matplotlib while this process goes on (``sappc
+    report`` reads the bag meanwhile), then draws the figures it is sent (:meth:`draw`).
+
+    Started only where forking is safe (:func:`_fork_is_safe`; else :attr:`alive` is false and
+    the figures are drawn here).  Use it as a context manager: leaving it ends the child; a child
+    whose parent ended without a word reads the end of its pipe and leaves."""
+
+    def __init__(self) -> None:
+        import os
+        import sys
+
+        self.pid = 0
+        self._send = self._receive = -1
+        if not _fork_is_safe():
+            return
+        sys.stdout.flush()
+        sys.stderr.flush()
+        task_r, task_w = os.pipe()
+        done_r, done_w = os.pipe()
+        pid = os.fork()
+        if pid == 0:
+            os.close(task_w)
+            os.close(done_r)
+            self._serve(task_r, done_w)  # never returns
+        os.close(task_r)
+        os.close(done_w)
+        self.pid, self._send, self._receive = pid, task_w, done_r
+
+    @staticmethod
+    def _serve(task_r: int, done_w: int) -> None:
+        import json
+        import os
+        import pickle
+        import traceback
+
+        code = 1
+        try:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot  # noqa: F401  (the import is the point: it overlaps the parent's work)
+
+            with os.fdopen(task_r, "rb") as f:
+                try:
+                    task = pickle.load(f)
+                except EOFError:  # the parent closed without a task
+                    task = None
+            if task is not None:
+                make_jobs, kwargs, theirs = task
+                jobs = make_jobs(**kwargs)
+                done = [[str(p) for p in jobs[i]()] for i in theirs]
+                with os.fdopen(done_w, "w") as f:
+                    json.dump(done, f)
+            code = 0
+        except BaseException:  # noqa: BLE001  (the parent draws the figures itself)
+            traceback.print_exc()
+        finally:
+            os._exit(code)
+
+    @property
+    def alive(self) -> bool:
+        """Whether the child was started and has not been used or closed."""
+        return self.pid > 0 and self._send >= 0
+
+    def draw(self, make_jobs: Any, kwargs: dict[str, Any], theirs: Sequence[int]) -> list[Path]:
+        """Have the child draw jobs ``theirs`` of ``make_jobs(**kwargs)`` (a module-level function:
+        it is sent by name), draw the others here, and return every path in the jobs' order.  A
+        child that failed has its jobs drawn again here."""
+        import json
+        import os
+        import pickle
+
+        jobs = make_jobs(**kwargs)
+        theirs = [i for i in theirs if i < len(jobs)]
+        import threading
+
+        def send(fd: int) -> None:  # in a thread: the pipe holds 64 kB, the child reads once matplotlib is imported
+            try:
+                with os.fdopen(fd, "wb") as f:
+                    pickle.dump((make_jobs, kwargs, theirs), f, protocol=pickle.HIGHEST_PROTOCOL)
+            except Exception:  # noqa: BLE001  (the child is gone, or a value would not pickle: its jobs are drawn here below)
+                pass
+
+        sender = threading.Thread(target=send, args=(self._send,), daemon=True)
+        self._send = -1
+        sender.start()
+        mine = {i: jobs[i]() for i in range(len(jobs)) if i not in theirs}
+        sender.join()
+        with os.fdopen(self._receive, "r") as f:
+            self._receive = -1
+            text = f.read()
+        status = self._wait()
+        got = json.loads(text) if status == 0 and text else None
+        drawn = {i: [Path(p) for p in paths] for i, paths in zip(theirs, got)} if got is not None else {i: jobs[i]() for i in theirs}
+        return [p for i in range(len(jobs)) for p in (mine[i] if i in mine else drawn[i])]
+
+    def _wait(self) -> int:
+        import os
+
+        if self.pid <= 0:
+            return -1
+        _, status = os.waitpid(self.pid, 0)
+        self.pid = 0
+        return status
+
+    def close(self) -> None:
+        """End the child (if it was not used: it reads the end of its pipe and leaves)."""
+        import os
+
+        for fd in (self._send, self._receive):
+            if fd >= 0:
+                os.close(fd)
+        self._send = self._receive = -1
+        self._wait()
+
+    def __enter__(self) -> FigureWorker:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def plot_estimator(h: History, out_dir: Path, *, title: str, run: int = 0, fault_windows: Sequence[tuple[float, float]] = ()) -> list[Path]:

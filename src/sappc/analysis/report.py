@@ -240,13 +240,14 @@ def _run_title(a: BagAnalysis) -> str:
     return f"{a.scenario.name if a.scenario else a.path.name} ({a.label})"
 
 
-def write_report(a: BagAnalysis, out_dir: Path) -> list[Path]:
-    """The figures of the run and ``report.html`` in ``out_dir``; return their paths."""
+def write_report(a: BagAnalysis, out_dir: Path, *, worker: Any = None) -> list[Path]:
+    """The figures of the run and ``report.html`` in ``out_dir``; return their paths.  ``worker``: a
+    :class:`sappc.analysis.plots.FigureWorker` that draws some of the figures."""
     from sappc.analysis.plots import plot_run
 
     out_dir.mkdir(parents=True, exist_ok=True)
     figures = plot_run(a.run.history, out_dir, title=_run_title(a), fault_windows=a.fault_windows,
-                       wheels=a.scenario.wheels if a.scenario else None) if a.run is not None else []
+                       wheels=a.scenario.wheels if a.scenario else None, worker=worker) if a.run is not None else []
     s = a.summary()
     info = [
         ["bag", s["bag"]],
