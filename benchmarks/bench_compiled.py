@@ -42,7 +42,7 @@ sys.path.insert(0, str(ROOT / "src"))
 t_import = time.perf_counter()
 import numba  # noqa: E402
 
-from sappc.offline.compiled_loop import prepare, run_batch, run_single  # noqa: E402
+from sappc.offline.compiled_loop import loop_threads, prepare, run_batch, run_single, set_loop_threads  # noqa: E402
 from sappc_controller.core import kernels as K  # noqa: E402
 
 t_import = time.perf_counter() - t_import
@@ -150,14 +150,14 @@ def bench_montecarlo(repeats: int, n_runs: int = 3000) -> dict[str, object]:
     t_prep = time.perf_counter()
     inp = prepare(sc, "sappc", q_BN0=inputs.q_BN0, on_infeasible="clamp")
     t_prep = time.perf_counter() - t_prep
-    threads = numba.get_num_threads()
+    threads = loop_threads()
     run_batch(inp)  # warm
     all_threads = _median(lambda: run_batch(inp), repeats)
-    numba.set_num_threads(1)
+    set_loop_threads(1)
     try:
         one_thread = _median(lambda: run_batch(inp), repeats)
     finally:
-        numba.set_num_threads(threads)
+        set_loop_threads(None)
     steps = inp.t.size
     finite = bool(np.all(np.isfinite(run_batch(inp).x_final)))
 

@@ -115,26 +115,80 @@ def _choose_cache_dir() -> str:
 #: The numba cache directory used by this process (and inherited by its children).
 CACHE_DIR: str = _choose_cache_dir()
 
-_numba_was_imported = "numba" in sys.modules
-import numba  # noqa: E402  (after the cache directory is chosen)
-
-if _numba_was_imported:
-    numba.core.config.reload_config()
-
 _OPTIONS: dict[str, Any] = {"cache": True, "fastmath": False, "error_model": "numpy", "nogil": True}
 
 
+#: Whether numba was imported before :data:`CACHE_DIR` was exported (its configuration is then re-read).
+_NUMBA_IMPORTED_BEFORE = "numba" in sys.modules
+
+
+def numba_module() -> Any:
+    """``numba``, imported on first use, after :data:`CACHE_DIR` is exported (numba reads it).
+
+    Importing a kernel module does not import numba (about 0.4 s, with the scipy linear algebra
+    that numba loads): a command that calls no kernel (``sappc report``, ``--help``) never pays it."""
+    global _NUMBA_IMPORTED_BEFORE
+    import numba
+
+    if _NUMBA_IMPORTED_BEFORE:
+        _NUMBA_IMPORTED_BEFORE = False
+        numba.core.config.reload_config()
+    return numba
+
+
+class LazyKernel:
+    """A compiled function made on first use: the numba dispatcher of ``py_func`` with ``options``
+    is created (numba imported, the machine code loaded from the cache or compiled) when the
+    kernel is first called or asked for a dispatcher's attribute; every attribute then is the
+    dispatcher's.  numba types it as that dispatcher (``_numba_type_``) where another kernel calls
+    it, and inlines it (``targetoptions``, ``py_func``) as it would the dispatcher.  The results are
+    the dispatcher's: it is the same compiled code."""
+
+
+    def __init__(self, py_func: Any, options: dict[str, Any], signature: Any = None) -> None:
+        self._dispatcher: Any = None  # first: __getattr__ reads it
+        self.py_func = py_func
+        self.options = (options, signature)
+        self.__name__ = py_func.__name__
+        self.__qualname__ = py_func.__qualname__
+        self.__module__ = py_func.__module__
+        self.__doc__ = py_func.__doc__
+        self.__wrapped__ = py_func
+
+    @property
+    def dispatcher(self) -> Any:
+        """The numba dispatcher (made now if it was not yet)."""
+        d = self._dispatcher
+        if d is None:
+            options, signature = self.options
+            njit = numba_module().njit
+            d = self._dispatcher = njit(signature, **options)(self.py_func) if signature is not None else njit(**options)(self.py_func)
+        return d
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        d = self._dispatcher
+        return (d if d is not None else self.dispatcher)(*args, **kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.dispatcher, name)
+
+    def __repr__(self) -> str:
+        return f"<LazyKernel {self.__module__}.{self.__qualname__}>"
+
+
 def jit(*args, **kwargs):
-    """``numba.njit`` with the project's options (module docstring); usable bare or with options."""
+    """``numba.njit`` with the project's options (module docstring); usable bare, with options or
+    with an explicit signature.  The dispatcher is made on first use (:class:`LazyKernel`)."""
     options = {**_OPTIONS, **kwargs}
     if args and callable(args[0]) and len(args) == 1:
-        return numba.njit(**options)(args[0])
-    return numba.njit(*args, **options)
+        return LazyKernel(args[0], options)
+    signature = args[0] if args else None
+    return lambda func: LazyKernel(func, options, signature)
 
 
 def jit_parallel(func):
     """:func:`jit` with ``parallel=True`` for batch entry points (``prange`` over runs)."""
-    return numba.njit(parallel=True, **_OPTIONS)(func)
+    return LazyKernel(func, {**_OPTIONS, "parallel": True})
 
 
 # ----------------------------------------------------------------------------- vectors

@@ -407,8 +407,14 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    from sappc.analysis.plots import FigureWorker
     from sappc.analysis.report import analyse_bag, write_report
 
+    with FigureWorker() as worker:  # imports matplotlib while the bag is read, then draws figures
+        return _report(args, analyse_bag, write_report, worker)
+
+
+def _report(args: argparse.Namespace, analyse_bag: Any, write_report: Any, worker: Any) -> int:
     a = analyse_bag(args.bag, scenario=args.scenario)
     print(f"bag {a.path}: {sum(a.bag.counts.values())} messages on {len(a.bag.counts)} topics"
           + (f", data to t = {a.run.history.t[-1]:.3f} s" if a.run is not None else ""))
@@ -419,7 +425,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if a.metrics is not None:
         _print_metrics(a.scenario.name if a.scenario else a.path.name, a.label, a.metrics)
     out = Path(args.out) if args.out else default_output_dir("report", bag_run_name(args.bag))
-    paths = write_report(a, out)
+    paths = write_report(a, out, worker=worker)
     print(f"wrote {paths[-1]} and {len(paths) - 1} figure(s) in {out}")
     if args.json:
         _write_json(args.json, a.summary())

@@ -36,6 +36,7 @@ from spacecraft_sim.core.sensors import Sensors, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, wheels_from_mapping
 from sappc.files import scenario_path
 from gnc_common.validation import (
+    safe_load_yaml,
     ConfigError,
     InputError,
     as_finite_array,
@@ -488,7 +489,7 @@ def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dic
     p = Path(path)
     text = read_text_file(p, "scenario")
     try:
-        data = yaml.safe_load(text)
+        data = safe_load_yaml(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{p} is not valid YAML: {exc}") from None
     if not isinstance(data, dict) or EXTENDS_KEY not in data:

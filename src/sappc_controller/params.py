@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from gnc_common.validation import ConfigError, check_positive, from_mapping
+from gnc_common.validation import ConfigError, check_positive, from_mapping, safe_load_yaml
 from sappc_msgs_py.parameters import REQUIRED, Param, field_docs, unit_of
 from sappc_msgs_py.inputs import DEFAULT_MAX_STAMP_AHEAD_S, WATCHDOG_RANGE_S, check_watchdog_seconds
 
@@ -171,7 +171,7 @@ def parameters_from_yaml(text: str, node: str = "controller", *, source: str = "
         If the text is not YAML or has no ``ros__parameters`` for the node.
     """
     try:
-        data = yaml.safe_load(text)
+        data = safe_load_yaml(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source} is not valid YAML: {exc}") from None
     if not isinstance(data, dict):

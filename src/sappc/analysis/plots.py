@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with thi
 
     from spacecraft_sim.core.wheels import ReactionWheels
 
-__all__ = ["plot_campaign", "plot_compare", "plot_estimator", "plot_run", "plot_torque_rerun", "plot_wheels"]
+__all__ = ["FigureWorker", "draw_jobs", "plot_campaign", "plot_compare", "plot_estimator", "plot_run", "plot_torque_rerun", "plot_wheels"]
 
 Array = NDArray[np.float64]
 
@@ -57,7 +57,7 @@ def _log_axis(ax: Axes) -> bool:
     once the axes' data are drawn; return whether it is log.  Data without a positive value (an
     error that is exactly zero, a performance function the controller never had) stay on a linear
     axis with a note: a log axis would be empty ("Data has no positive values")."""
-    from matplotlib.ticker import FuncFormatter
+    from matplotlib.ticker import FuncFormatter, NullLocator
 
     if not _positive_data(ax):
         if _finite_data(ax):
@@ -66,6 +66,9 @@ def _log_axis(ax: Axes) -> bool:
         return False
     ax.set_yscale("log")
     ax.yaxis.set_major_formatter(FuncFormatter(_decade_label))
+    # no minor ticks: over the 6 to 10 decades of an error's log plot, matplotlib makes 8 unlabelled
+    # ticks a decade, each an object with its own line and text; creating them was a third of a report
+    ax.yaxis.set_minor_locator(NullLocator())
     return True
 
 
@@ -119,6 +122,9 @@ _RUN_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "
 
 def _rows(n: int = 3, height: float = 7.5) -> tuple[Figure, NDArray[np.object_]]:
     """A figure of ``n`` (at least 2) rows sharing the time axis, and its array of Axes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt.subplots(n, 1, figsize=(8, height), sharex=True)
@@ -133,24 +139,44 @@ def plot_run(
     zoom_from_s: float = 15.0,
     run: int = 0,
     wheels: ReactionWheels | None = None,
+    parallel: bool | None = None,
+    worker: FigureWorker | None = None,
 ) -> list[Path]:
     """Write ``qev.png``, ``qev_zoom.png``, ``qev_log.png``, ``torque.png`` and
     ``eps_lyapunov.png`` to ``out_dir``, and ``wheels.png`` when the history has wheel records
     (:func:`plot_wheels`; the limits drawn are ``wheels``', when given); return their paths.
-    Injected faults are shaded red."""
-    import matplotlib
+    Injected faults are shaded red.
 
-    matplotlib.use("Agg")
+    ``worker``: a :class:`FigureWorker` started earlier draws four of the figures while this
+    process draws the others; else ``parallel``: draw them in two processes (:func:`draw_jobs`;
+    ``None``: when that is safe).  The files are the same either way."""
+    kwargs = dict(h=h, out_dir=out_dir, title=title, fault_windows=list(fault_windows), zoom_from_s=zoom_from_s, run=run, wheels=wheels)
+    if worker is not None and worker.alive:
+        return worker.draw(_run_jobs, kwargs, theirs=(1, 2, 3, 4))
+    return draw_jobs(_run_jobs(**kwargs), parallel=parallel)  # type: ignore[arg-type]
 
+
+def _run_jobs(
+    h: History,
+    out_dir: Path,
+    *,
+    title: str,
+    fault_windows: Sequence[tuple[float, float]],
+    zoom_from_s: float,
+    run: int,
+    wheels: ReactionWheels | None,
+) -> list[Any]:
+    """:func:`plot_run`'s figures, one job (a callable returning the paths it wrote) each, in order."""
     out_dir.mkdir(parents=True, exist_ok=True)
     t = h.t
     t_end = float(t[-1])
     faults = list(fault_windows)
     q_ev = h.q_ev[:, run]
-    paths: list[Path] = []
-    for name, mask, zoom in (("qev.png", np.ones_like(t, dtype=bool), False), ("qev_zoom.png", t >= zoom_from_s, True)):
+
+    def qev(name: str, mask: NDArray[np.bool_], zoom: bool) -> list[Path]:
+        paths: list[Path] = []
         if not mask.any():
-            continue
+            return paths
         fig, axes = _rows()
         for i, ax in enumerate(axes):
             lower, upper = h.band_lower[mask, run, i], h.band_upper[mask, run, i]
@@ -178,55 +204,254 @@ def plot_run(
         axes[0].legend(loc="upper right", fontsize=8)
         axes[-1].set_xlabel("time [s]")
         _finish(fig, out_dir / name, f"{title}: attitude error" + (" (zoom)" if zoom else ""), paths, margins=_ROWS_MARGINS)
+        return paths
 
-    # |q_ev| on a log scale: the steady state (1e-5) is invisible on the linear plots
-    fig, axes = _rows()
-    for i, ax in enumerate(axes):
-        ax.plot(t, np.abs(h.rho[:, run, i]), "k--", lw=1.0, label=f"|ρ{_SUB[i]}|")
-        ax.plot(t, np.abs(q_ev[:, i]), color="tab:blue", lw=1.2, label=f"|q_ev{_SUB[i]}|")
-        _log_axis(ax)
-        _mark_faults(ax, faults, t_end)
-        ax.set_ylabel(f"|q_ev{_SUB[i]}|")
-        ax.grid(True, alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("time [s]")
-    _finish(fig, out_dir / "qev_log.png", f"{title}: attitude error magnitude", paths, margins=_ROWS_MARGINS)
+    def qev_log() -> list[Path]:
+        # |q_ev| on a log scale: the steady state (1e-5) is invisible on the linear plots
+        paths: list[Path] = []
+        fig, axes = _rows()
+        for i, ax in enumerate(axes):
+            ax.plot(t, np.abs(h.rho[:, run, i]), "k--", lw=1.0, label=f"|ρ{_SUB[i]}|")
+            ax.plot(t, np.abs(q_ev[:, i]), color="tab:blue", lw=1.2, label=f"|q_ev{_SUB[i]}|")
+            _log_axis(ax)
+            _mark_faults(ax, faults, t_end)
+            ax.set_ylabel(f"|q_ev{_SUB[i]}|")
+            ax.grid(True, alpha=0.3)
+        axes[0].legend(loc="upper right", fontsize=8)
+        axes[-1].set_xlabel("time [s]")
+        _finish(fig, out_dir / "qev_log.png", f"{title}: attitude error magnitude", paths, margins=_ROWS_MARGINS)
+        return paths
 
-    fig, axes = _rows(height=6.5)
-    for i, ax in enumerate(axes):
-        ax.plot(t, h.torque_B[:, run, i], lw=1.0, color="tab:green", label=f"u{_SUB[i]}")
-        _mark_faults(ax, faults, t_end)
-        ax.set_ylabel(f"u{_SUB[i]} [N m]")
-        ax.grid(True, alpha=0.3)
-    axes[-1].set_xlabel("time [s]")
-    _finish(fig, out_dir / "torque.png", f"{title}: actuator torque", paths, margins=_ROWS_MARGINS)
+    def torque() -> list[Path]:
+        paths: list[Path] = []
+        fig, axes = _rows(height=6.5)
+        for i, ax in enumerate(axes):
+            ax.plot(t, h.torque_B[:, run, i], lw=1.0, color="tab:green", label=f"u{_SUB[i]}")
+            _mark_faults(ax, faults, t_end)
+            ax.set_ylabel(f"u{_SUB[i]} [N m]")
+            ax.grid(True, alpha=0.3)
+        axes[-1].set_xlabel("time [s]")
+        _finish(fig, out_dir / "torque.png", f"{title}: actuator torque", paths, margins=_ROWS_MARGINS)
+        return paths
 
-    # the transformed error and the backstepping Lyapunov values
-    fig, axes = _rows(2, height=6.0)
-    for i in range(3):
-        axes[0].plot(t, h.eps[:, run, i], lw=1.0, label=f"ε{_SUB[i]}")
-        axes[1].plot(t, np.abs(h.V[:, run, i]), lw=1.0, label=f"V{_SUB[i]}")
-    _log_axis(axes[1])
-    for ax in axes:
-        _mark_faults(ax, faults, t_end)
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
-    axes[0].set_ylabel("ε (transformed error)")
-    axes[1].set_ylabel("Lyapunov values")
-    axes[-1].set_xlabel("time [s]")
-    _finish(fig, out_dir / "eps_lyapunov.png", f"{title}: transformed error and Lyapunov values", paths, margins=_ROWS_MARGINS)
-    if h.wheel_speed_rad_s is not None and h.wheel_torque_Nm is not None:
+    def eps_lyapunov() -> list[Path]:
+        # the transformed error and the backstepping Lyapunov values
+        paths: list[Path] = []
+        fig, axes = _rows(2, height=6.0)
+        for i in range(3):
+            axes[0].plot(t, h.eps[:, run, i], lw=1.0, label=f"ε{_SUB[i]}")
+            axes[1].plot(t, np.abs(h.V[:, run, i]), lw=1.0, label=f"V{_SUB[i]}")
+        _log_axis(axes[1])
+        for ax in axes:
+            _mark_faults(ax, faults, t_end)
+            ax.grid(True, alpha=0.3)
+            ax.legend(loc="upper right", fontsize=8)
+        axes[0].set_ylabel("ε (transformed error)")
+        axes[1].set_ylabel("Lyapunov values")
+        axes[-1].set_xlabel("time [s]")
+        _finish(fig, out_dir / "eps_lyapunov.png", f"{title}: transformed error and Lyapunov values", paths, margins=_ROWS_MARGINS)
+        return paths
+
+    def wheel_figures() -> list[Path]:
+        if h.wheel_speed_rad_s is None or h.wheel_torque_Nm is None:
+            return []
         limits = None  # the wheel set's, unless it is not the one recorded (another number of wheels)
         undelivered = None
         if wheels is not None and wheels.n == h.wheel_speed_rad_s.shape[2]:
             limits = (wheels.per_wheel("max_speed_rad_s"), wheels.per_wheel("max_torque_Nm"))
             # what the wheels' motors did not make of the command: tau + G u (friction aside)
             undelivered = h.torque_B[:, run] + h.wheel_torque_Nm[:, run] @ wheels.G.T
-        paths += plot_wheels(h.t, h.wheel_speed_rad_s[:, run], h.wheel_torque_Nm[:, run], out_dir, title=title, limits=limits,
-                             fault_windows=faults, undelivered_Nm=undelivered)
-    if h.estimate is not None:
-        paths += plot_estimator(h, out_dir, title=title, run=run, fault_windows=faults)
-    return paths
+        return plot_wheels(h.t, h.wheel_speed_rad_s[:, run], h.wheel_torque_Nm[:, run], out_dir, title=title, limits=limits,
+                           fault_windows=faults, undelivered_Nm=undelivered)
+
+    def estimator_figures() -> list[Path]:
+        return plot_estimator(h, out_dir, title=title, run=run, fault_windows=faults) if h.estimate is not None else []
+
+    jobs = [lambda: qev("qev.png", np.ones_like(t, dtype=bool), False), lambda: qev("qev_zoom.png", t >= zoom_from_s, True),
+            qev_log, torque, eps_lyapunov, wheel_figures, estimator_figures]
+    return jobs
+
+
+def _fork_is_safe() -> bool:
+    """Whether this process may fork a child that draws figures: POSIX, two CPUs or more, one
+    thread, and neither numba (its thread pool) nor rclpy (its executor's threads) loaded."""
+    import os
+    import sys
+    import threading
+
+    return (hasattr(os, "fork") and (os.cpu_count() or 1) > 1 and threading.active_count() == 1
+            and not any(m in sys.modules for m in ("numba", "rclpy")))
+
+
+def draw_jobs(jobs: Sequence[Any], *, parallel: bool | None = None) -> list[Path]:
+    """Run figure jobs (callables that draw and save figures and return their paths); return every
+    path in the jobs' order.
+
+    With ``parallel`` (``None``: when :func:`_fork_is_safe`), a forked child draws every other job
+    while this process draws the rest (two CPUs: about half the time, matplotlib's import
+    included, as the child imports it on its own); the files are the same as one process's.  A
+    child that fails has its jobs drawn again here."""
+    import os
+
+    jobs = list(jobs)
+    if parallel is None:
+        parallel = _fork_is_safe()
+    if not parallel or len(jobs) < 2:
+        return [p for job in jobs for p in job()]
+    import json
+    import sys
+
+    mine, theirs = jobs[0::2], jobs[1::2]
+    sys.stdout.flush()
+    sys.stderr.flush()
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: draw, send the paths, leave without the parent's exit handlers
+        code = 1
+        try:
+            os.close(read_end)
+            done = [[str(p) for p in job()] for job in theirs]
+            with os.fdopen(write_end, "w") as f:
+                json.dump(done, f)
+            code = 0
+        finally:
+            os._exit(code)
+    os.close(write_end)
+    try:
+        drawn = [job() for job in mine]
+    finally:
+        with os.fdopen(read_end) as f:
+            text = f.read()
+        _, status = os.waitpid(pid, 0)
+    if status == 0 and text:
+        theirs_drawn = [[Path(p) for p in paths] for paths in json.loads(text)]
+    else:
+        theirs_drawn = [job() for job in theirs]
+    order = [drawn[i // 2] if i % 2 == 0 else theirs_drawn[i // 2] for i in range(len(jobs))]
+    return [p for paths in order for p in paths]
+
+
+class FigureWorker:
+    """A child process forked now, which imports matplotlib while this process goes on (``sappc
+    report`` reads the bag meanwhile), then draws the figures it is sent (:meth:`draw`).
+
+    Started only where forking is safe (:func:`_fork_is_safe`; else :attr:`alive` is false and
+    the figures are drawn here).  Use it as a context manager: leaving it ends the child; a child
+    whose parent ended without a word reads the end of its pipe and leaves."""
+
+    def __init__(self) -> None:
+        import os
+        import sys
+
+        self.pid = 0
+        self._send = self._receive = -1
+        if not _fork_is_safe():
+            return
+        sys.stdout.flush()
+        sys.stderr.flush()
+        task_r, task_w = os.pipe()
+        done_r, done_w = os.pipe()
+        pid = os.fork()
+        if pid == 0:
+            os.close(task_w)
+            os.close(done_r)
+            self._serve(task_r, done_w)  # never returns
+        os.close(task_r)
+        os.close(done_w)
+        self.pid, self._send, self._receive = pid, task_w, done_r
+
+    @staticmethod
+    def _serve(task_r: int, done_w: int) -> None:
+        import json
+        import os
+        import pickle
+        import traceback
+
+        code = 1
+        try:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot  # noqa: F401  (the import is the point: it overlaps the parent's work)
+
+            with os.fdopen(task_r, "rb") as f:
+                try:
+                    task = pickle.load(f)
+                except EOFError:  # the parent closed without a task
+                    task = None
+            if task is not None:
+                make_jobs, kwargs, theirs = task
+                jobs = make_jobs(**kwargs)
+                done = [[str(p) for p in jobs[i]()] for i in theirs]
+                with os.fdopen(done_w, "w") as f:
+                    json.dump(done, f)
+            code = 0
+        except BaseException:  # noqa: BLE001  (the parent draws the figures itself)
+            traceback.print_exc()
+        finally:
+            os._exit(code)
+
+    @property
+    def alive(self) -> bool:
+        """Whether the child was started and has not been used or closed."""
+        return self.pid > 0 and self._send >= 0
+
+    def draw(self, make_jobs: Any, kwargs: dict[str, Any], theirs: Sequence[int]) -> list[Path]:
+        """Have the child draw jobs ``theirs`` of ``make_jobs(**kwargs)`` (a module-level function:
+        it is sent by name), draw the others here, and return every path in the jobs' order.  A
+        child that failed has its jobs drawn again here."""
+        import json
+        import os
+        import pickle
+
+        jobs = make_jobs(**kwargs)
+        theirs = [i for i in theirs if i < len(jobs)]
+        import threading
+
+        def send(fd: int) -> None:  # in a thread: the pipe holds 64 kB, the child reads once matplotlib is imported
+            try:
+                with os.fdopen(fd, "wb") as f:
+                    pickle.dump((make_jobs, kwargs, theirs), f, protocol=pickle.HIGHEST_PROTOCOL)
+            except Exception:  # noqa: BLE001  (the child is gone, or a value would not pickle: its jobs are drawn here below)
+                pass
+
+        sender = threading.Thread(target=send, args=(self._send,), daemon=True)
+        self._send = -1
+        sender.start()
+        mine = {i: jobs[i]() for i in range(len(jobs)) if i not in theirs}
+        sender.join()
+        with os.fdopen(self._receive, "r") as f:
+            self._receive = -1
+            text = f.read()
+        status = self._wait()
+        got = json.loads(text) if status == 0 and text else None
+        drawn = {i: [Path(p) for p in paths] for i, paths in zip(theirs, got)} if got is not None else {i: jobs[i]() for i in theirs}
+        return [p for i in range(len(jobs)) for p in (mine[i] if i in mine else drawn[i])]
+
+    def _wait(self) -> int:
+        import os
+
+        if self.pid <= 0:
+            return -1
+        _, status = os.waitpid(self.pid, 0)
+        self.pid = 0
+        return status
+
+    def close(self) -> None:
+        """End the child (if it was not used: it reads the end of its pipe and leaves)."""
+        import os
+
+        for fd in (self._send, self._receive):
+            if fd >= 0:
+                os.close(fd)
+        self._send = self._receive = -1
+        self._wait()
+
+    def __enter__(self) -> FigureWorker:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def plot_estimator(h: History, out_dir: Path, *, title: str, run: int = 0, fault_windows: Sequence[tuple[float, float]] = ()) -> list[Path]:

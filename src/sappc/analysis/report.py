@@ -22,7 +22,7 @@ from typing import Any
 
 from sappc_msgs_py.contract import CLOCK, ESTIMATOR_TOPICS, FAULT_TOPICS, OPTIONAL_TOPICS, TOPICS, TRANSFORM_TOPICS, WHEEL_STATES, Topic
 from sappc_controller.params import parameters_from_yaml
-from gnc_common.validation import ConfigError
+from gnc_common.validation import ConfigError, safe_load_yaml
 
 from sappc.bag.read import PARAMS_RECORD, SCENARIO_RECORD, Bag, BagError, BagRun, bag_metrics, bag_run, find_topic, read_bag
 from sappc.scenario import MetricSettings, Scenario, load_scenario, scenario_from_mapping
@@ -76,7 +76,7 @@ def _embedded_scenario(bag: Bag) -> Scenario | None:
 
     source = f"{bag.path} ({SCENARIO_RECORD})"
     try:
-        data = yaml.safe_load(record["text"])
+        data = safe_load_yaml(record["text"])
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source} is not valid YAML: {exc}") from None
     return scenario_from_mapping(data, source=source)
@@ -303,13 +303,14 @@ def _run_title(a: BagAnalysis) -> str:
     return f"{a.scenario.name if a.scenario else a.path.name} ({a.label})"
 
 
-def write_report(a: BagAnalysis, out_dir: Path) -> list[Path]:
-    """The figures of the run and ``report.html`` in ``out_dir``; return their paths."""
+def write_report(a: BagAnalysis, out_dir: Path, *, worker: Any = None) -> list[Path]:
+    """The figures of the run and ``report.html`` in ``out_dir``; return their paths.  ``worker``: a
+    :class:`sappc.analysis.plots.FigureWorker` that draws some of the figures."""
     from sappc.analysis.plots import plot_run
 
     out_dir.mkdir(parents=True, exist_ok=True)
     figures = plot_run(a.run.history, out_dir, title=_run_title(a), fault_windows=a.fault_windows,
-                       wheels=a.scenario.wheels if a.scenario else None) if a.run is not None else []
+                       wheels=a.scenario.wheels if a.scenario else None, worker=worker) if a.run is not None else []
     s = a.summary()
     info = [
         ["bag", s["bag"]],

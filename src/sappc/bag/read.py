@@ -52,6 +52,7 @@ from sappc_msgs_py.contract import (
     consumed_names,
 )
 from gnc_common.attitude import error_quaternion, quat_normalize
+from gnc_common.validation import safe_load_yaml
 
 from sappc.bag.cdr import decode
 from sappc.bag.errors import BagError
@@ -108,7 +109,7 @@ def mcap_file(path: Path) -> Path:
     meta = path / "metadata.yaml"
     if meta.exists():
         try:
-            info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+            info = safe_load_yaml(meta.read_text())["rosbag2_bagfile_information"]
             files: list[Path] = [path / f for f in info["relative_file_paths"]]
         except (yaml.YAMLError, KeyError, TypeError) as exc:
             raise BagError(f"{meta}: not a rosbag2 metadata file ({exc})") from None

@@ -212,11 +212,9 @@ def _init_worker(threads: int, progress_queue: Any) -> None:
     sub-batches report to ``progress_queue``."""
     import signal
 
-    import numba
-
     global _progress_sink
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    numba.set_num_threads(max(1, min(threads, int(getattr(numba.config, "NUMBA_NUM_THREADS")))))
+    compiled_loop.set_loop_threads(max(1, min(threads, compiled_loop.loop_threads())))
     _progress_sink = progress_queue
 
 

@@ -600,3 +600,47 @@ def test_switching_is_counted_across_blocks_runs_and_up_to_a_failure() -> None:
     acc, m = _switching(failed, steady_from_s=0.5)
     assert m["finite"] is False and acc.torque_sign_changes.tolist() == [[4, 0, 2]] and acc.torque_reversals.tolist() == [[1, 0, 2]]
     assert m["torque_sign_changes_per_s"] == 4 / 4.0 and m["torque_reversals_per_s"] == 2 / 4.0
+
+
+def _state_of(acc: MetricsAccumulator) -> dict[str, Any]:
+    return {name: getattr(acc, name) for name in MetricsAccumulator._PER_RUN + MetricsAccumulator._SUMMED + ("steady_count", "samples")}
+
+
+def _same_bits(a: Any, b: Any) -> bool:
+    if a is None or b is None:
+        return a is b
+    a, b = np.asarray(a), np.asarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("grid", ["uniform", "jittered"])
+def test_the_interpreted_kernel_gives_the_compiled_kernels_bits(grid: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``sappc report`` runs the metrics kernel's source in the interpreter when numba is not loaded
+    (a small block): every per-run array is the compiled kernel's, bit for bit, on histories with
+    faults, a failed run, band exits, switching torques, blocks fed one after another, and on a
+    closed-loop run of experiment 1's scenario."""
+    from sappc.evaluation import metrics
+    from sappc.offline.compiled_loop import simulate_compiled
+    from sappc.scenario import load_scenario
+
+    t = 2.0 + np.arange(41) * 0.05
+    if grid == "jittered":
+        t = t + np.random.default_rng(3).uniform(-0.004, 0.004, t.size) * (np.arange(t.size) > 0)
+    h = _rich_history(t)
+    settings = {"steady_from_s": 3.2, "settle_threshold": 0.03, "t2_s": 2.75, "fault_windows": [(3.0, 3.1), (2.9, 4.0)]}
+    x = np.asarray(np.concatenate((h.q_BN, h.omega_BN_B), axis=2), dtype=np.float64)
+    closed = simulate_compiled(load_scenario("config/scenarios/paper_tracking.yaml")).history()
+    states = []
+    for kernel in (metrics.interpreted_update_kernel(), metrics._update_kernel):
+        monkeypatch.setattr(metrics, "_update_function", lambda samples, k=kernel: k)
+        acc = _accumulator(t, 3, **settings)
+        for k0, k1 in ((0, 7), (7, 24), (24, 41)):
+            acc.update(k0, t[k0:k1], x[k0:k1], h.torque_B[k0:k1], h.q_BR[k0:k1], h.rho[k0:k1], h.saturated[k0:k1],
+                       h.band_lower[k0:k1], h.band_upper[k0:k1])
+        run = MetricsAccumulator(closed.t, 1, steady_from_s=20.0, settle_threshold=1e-3, t2_s=20.0, fault_windows=[(10.0, 12.0)])
+        run.add_history(closed)
+        states.append((_state_of(acc), _state_of(run)))
+    for interpreted, compiled in zip(*states):
+        for name, value in compiled.items():
+            assert _same_bits(interpreted[name], value), name
+    assert metrics.interpreted_update_kernel() is not metrics._update_kernel.py_func  # its helpers are the Python ones

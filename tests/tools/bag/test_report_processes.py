@@ -1,0 +1,47 @@
+"""``sappc report`` in its own process: it loads neither numba nor scipy (the metrics kernel's
+source runs in the interpreter for one bag; ``tests/tools/evaluation/test_metrics.py`` checks the
+bits), and the figures that its forked :class:`~sappc.analysis.plots.FigureWorker` draws are the
+files that one process draws."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from test_wheels_report import _bag
+
+from sappc.analysis.plots import FigureWorker, _run_jobs, draw_jobs
+from sappc.analysis.report import analyse_bag, write_report
+
+from conftest import SCENARIOS
+
+ROOT = Path(__file__).resolve().parents[3]
+
+_RUN_REPORT = """
+import sys
+from sappc.cli import main
+code = main(["report", sys.argv[1], "--out", sys.argv[2]])
+print(sorted(m for m in ("numba", "scipy", "rclpy") if m in sys.modules))
+sys.exit(code)
+"""
+
+
+def test_the_report_command_loads_no_compiler_and_its_two_processes_draw_the_same_files(tmp_path: Path) -> None:
+    bag = _bag(tmp_path / "bag", (SCENARIOS / "paper_tracking.yaml").read_text(), None, None)
+    out = subprocess.run([sys.executable, "-c", _RUN_REPORT, str(bag), str(tmp_path / "two")], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout
+    one = write_report(analyse_bag(bag), tmp_path / "one")  # this process has rclpy loaded: no fork, one process
+    for path in one:
+        assert (tmp_path / "two" / path.name).read_bytes() == path.read_bytes(), path.name
+
+
+def test_a_worker_that_was_not_used_or_could_not_start_leaves_the_figures_to_this_process(tmp_path: Path) -> None:
+    with FigureWorker() as unused:  # rclpy is loaded here: forking is not safe, no child
+        assert not unused.alive
+    a = analyse_bag(_bag(tmp_path / "bag", (SCENARIOS / "paper_tracking.yaml").read_text(), None, None))
+    assert a.run is not None
+    kwargs = dict(h=a.run.history, out_dir=tmp_path / "figs", title="t", fault_windows=[], zoom_from_s=0.5, run=0, wheels=None)
+    paths = draw_jobs(_run_jobs(**kwargs), parallel=False)  # type: ignore[arg-type]
+    assert [p.name for p in paths] == ["qev.png", "qev_zoom.png", "qev_log.png", "torque.png", "eps_lyapunov.png"]
