@@ -187,7 +187,8 @@ def _run_jobs(
                 lo, hi = (both.min(), both.max()) if both.size else (-1.0, 1.0)
                 pad = 0.25 * max(hi - lo, 1e-6)
                 view = (lo - pad, hi + pad)
-            if view is not None and np.nanmax(lower) <= view[0] and np.nanmin(upper) >= view[1]:
+            banded = bool(np.isfinite(lower).any() and np.isfinite(upper).any())  # no band where the law never ran
+            if view is not None and banded and np.nanmax(lower) <= view[0] and np.nanmin(upper) >= view[1]:
                 # the band holds the whole view (e.g. +-0.016 around a 1e-4 error): shading it
                 # would colour the whole panel, so say where it is instead
                 ax.text(0.01, 0.04, f"constraint band [{np.nanmin(lower):.3g}, {np.nanmax(upper):.3g}]: beyond this view",
