@@ -52,6 +52,9 @@ INITIAL_QUATERNION_NORM_TOL = 1e-3
 class InputError(ValueError):
     """A numeric input (state, reference, step) is non-finite or malformed."""
 
+    #: The rejection reason a node counts it under (:data:`sappc_msgs_py.inputs.REJECT_REASONS`).
+    reason = "invalid"
+
 
 class ConfigError(ValueError):
     """A configuration value is missing, unknown, out of range or inconsistent."""

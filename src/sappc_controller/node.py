@@ -103,7 +103,7 @@ from sappc_msgs_py.convert import (
     torque_msg,
     vector3_from_msg,
 )
-from sappc_msgs_py.inputs import stamp_rejection
+from sappc_msgs_py.inputs import screen_input
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, CountingPublisher, ProjectNode, StartGate, run_node, unmatched
 from gnc_common.timing import LatencyStatistics
@@ -111,7 +111,7 @@ from gnc_common.validation import ConfigError, InputError, check_positive
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.input_check import REJECT_REASONS as INPUT_REJECT_REASONS
-from sappc_controller.core.input_check import ImplausibleInputError, InputBounds, check_input
+from sappc_controller.core.input_check import InputBounds, check_input
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
 from sappc_controller.inputs import INPUT_TOPICS, NS_PER_S, STEP_ERRORS, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import (
@@ -340,19 +340,12 @@ class ControllerNode(ProjectNode):
         return value
 
     def _on_input(self, msg: Any, topic: Topic) -> None:
-        ns = stamp_to_ns(msg.header.stamp)
         last = self._last_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
         what = "the last computed sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
-        rejection = stamp_rejection(topic.name, ns, last, self._now_ns(), self.max_ahead_ns, what)
-        if rejection is not None:
-            self._reject(rejection[1], rejection[0])
+        screened = screen_input(msg, topic, last, self._now_ns(), self.max_ahead_ns, what, self._decode, self._reject)
+        if screened is None:
             return
-        value: np.ndarray | None
-        try:
-            value = self._decode(msg, topic)
-        except InputError as exc:
-            self._reject(str(exc), "implausible" if isinstance(exc, ImplausibleInputError) else "invalid")
-            value = None  # lockstep: it arrived, invalid (module docstring)
+        ns, value = screened  # value None: arrived, invalid (module docstring)
         if self.mode == REALTIME:
             fresh = None if value is None else self._rt.add(topic.name, ns, value)
             if fresh is not None:

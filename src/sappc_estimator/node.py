@@ -58,7 +58,7 @@ from typing import Any
 import numpy as np
 
 from gnc_common.timing import LatencyStatistics
-from gnc_common.validation import InputError, check_positive
+from gnc_common.validation import check_positive
 from sappc_msgs_py.contract import (
     CLOCK,
     ESTIMATE_ATTITUDE,
@@ -94,7 +94,7 @@ from sappc_msgs_py.inputs import (
     RealtimePairing,
     check_watchdog_seconds,
     decode_input,
-    stamp_rejection,
+    screen_input,
 )
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import COMMON_PARAMETERS, LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
@@ -186,19 +186,12 @@ class EstimatorNode(ProjectNode):
         return self._clock_ns if self.mode == LOCKSTEP else self.get_clock().now().nanoseconds
 
     def _on_input(self, msg: Any, topic: Topic) -> None:
-        ns = stamp_to_ns(msg.header.stamp)
         last = self._answered_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
         what = "the last answered sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
-        rejection = stamp_rejection(topic.name, ns, last, self._now_ns(), self.max_ahead_ns, what)
-        if rejection is not None:
-            self._reject(rejection[1], rejection[0])
+        screened = screen_input(msg, topic, last, self._now_ns(), self.max_ahead_ns, what, decode_input, self._reject)
+        if screened is None:
             return
-        value: np.ndarray | None
-        try:
-            value = decode_input(msg, topic)
-        except InputError as exc:
-            self._reject(str(exc), "invalid")
-            value = None  # lockstep: it arrived, invalid (module docstring)
+        ns, value = screened  # value None: arrived, invalid (module docstring)
         if self.mode == REALTIME:
             fresh = None if value is None else self._rt.add(topic.name, ns, value)
             if fresh is not None and self._gate.open():

@@ -6,7 +6,8 @@ the measured state), and ``sappc rerun``, which re-pairs recorded inputs exactly
 paired them when they arrived.  Pure: no ROS, no clock (the callers pass stamps and times as
 integer nanoseconds; values are numpy arrays already decoded).
 
-Input checks (:func:`stamp_rejection`, :func:`decode_input`): a message with a wrong frame id, a
+Input checks (:func:`screen_input`: :func:`stamp_rejection`, then the node's decode, e.g.
+:func:`decode_input`): a message with a wrong frame id, a
 non-finite value or a zero or non-unit quaternion is ``"invalid"``; a stamp not after the last one
 the node accepted (lockstep: the last sample it answered or computed; real time: the topic's
 previous message) is ``"stamp_in_past"``; a stamp more than ``max_stamp_ahead_s`` ahead of the
@@ -29,16 +30,16 @@ node's time (lockstep: the latest ``/clock``; real time: the node's clock) is
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from gnc_common.validation import ConfigError, check_positive, check_unit_quaternion
+from gnc_common.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 from sappc_msgs_py.contract import CONTROLLER_INPUTS, Topic
-from sappc_msgs_py.convert import quaternion_from_msg, vector3_from_msg
+from sappc_msgs_py.convert import quaternion_from_msg, stamp_to_ns, vector3_from_msg
 from sappc_msgs_py.timeline import StampedWindow
 
 __all__ = [
@@ -113,6 +114,31 @@ def stamp_rejection(topic_name: str, stamp_ns: int, last_ns: int | None, now_ns:
         return "stamp_too_far_ahead", (f"{topic_name}: stamp {stamp_ns / NS_PER_S:.9f} s is more than {max_ahead_ns / NS_PER_S} s "
                                        f"ahead of the node's time {now_ns / NS_PER_S:.9f} s")
     return None
+
+
+def screen_input(msg: Any, topic: Topic, last_ns: int | None, now_ns: int | None, max_ahead_ns: int, last_what: str,
+                 decode: Callable[[Any, Topic], Array], reject: Callable[[str, str], None]) -> tuple[int, Array | None] | None:
+    """The checks every consumer makes of one input message, in this order: its stamp
+    (:func:`stamp_rejection`; a rejected stamp drops the message: ``None``), then its value
+    (``decode(msg, topic)``, e.g. :func:`decode_input`; an :class:`~gnc_common.validation.InputError`
+    is rejected under its ``reason`` and the value is ``None``: in lockstep the input arrived,
+    invalid).  ``reject(message, reason)`` is called for each rejection.
+
+    Returns
+    -------
+    tuple or None
+        ``(stamp_ns, value or None)``, or ``None`` for a dropped message.
+    """
+    stamp_ns = stamp_to_ns(msg.header.stamp)
+    rejection = stamp_rejection(topic.name, stamp_ns, last_ns, now_ns, max_ahead_ns, last_what)
+    if rejection is not None:
+        reject(rejection[1], rejection[0])
+        return None
+    try:
+        return stamp_ns, decode(msg, topic)
+    except InputError as exc:
+        reject(str(exc), exc.reason)
+        return stamp_ns, None
 
 
 def decode_input(msg: Any, topic: Topic) -> Array:

@@ -84,6 +84,8 @@ N_BOUNDS = 4
 class ImplausibleInputError(InputError):
     """A finite input whose magnitude exceeds its plausibility bound (:class:`InputBounds`)."""
 
+    reason = "implausible"
+
 
 @dataclass(frozen=True)
 class InputBounds:
