@@ -41,6 +41,7 @@ from sappc_msgs_py.convert import (
 from spacecraft_sim.core.sensors import S_BIAS0, Gyro, Sensors, StarTracker, measure
 
 from conftest import ROOT, SCENARIOS
+from fake_clock import FakeClock
 from test_nodes import DEADLINE_S, Q0, _controller_overrides
 
 #: The control period of the sequences [ns] (100 Hz); the tracker updates every 10th sample.
@@ -287,19 +288,6 @@ def test_an_implausible_rate_is_no_data_and_leaves_the_filter_as_it_was(estimato
     assert node.filter.updates == 1
 
 
-class _FakeClock:
-    """The node's clock in real time, set by the test (``get_clock().now().nanoseconds``)."""
-
-    def __init__(self, ns: int) -> None:
-        self.ns = ns
-
-    def now(self) -> _FakeClock:
-        return self
-
-    @property
-    def nanoseconds(self) -> int:
-        return self.ns
-
 
 def test_realtime_steps_once_per_fresh_state_pair_with_its_stamp(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """Real time: a step as soon as the attitude and the rate of a new stamp have arrived (either
@@ -309,7 +297,7 @@ def test_realtime_steps_once_per_fresh_state_pair_with_its_stamp(ros_context, mo
 
     node = EstimatorNode(context=ros_context, parameter_overrides=overrides(mode="realtime"))
     t0 = 1_795_000_000 * 1_000_000_000  # epoch stamps, as on a real-time graph
-    clock = _FakeClock(t0)
+    clock = FakeClock(t0)
     monkeypatch.setattr(node, "get_clock", lambda: clock)
     drv = Driver(ros_context, [node])
     try:

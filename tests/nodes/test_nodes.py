@@ -31,6 +31,7 @@ from sappc_msgs_py.convert import (
 )
 
 from conftest import ROOT, SCENARIOS
+from fake_clock import FakeClock
 
 #: The paper's initial attitude, normalised.
 Q0 = tuple(np.array([0.3254, 0.4068, -0.3254, 0.7891]) / np.linalg.norm([0.3254, 0.4068, -0.3254, 0.7891]))
@@ -621,19 +622,6 @@ def test_lockstep_grace_answers_a_tick_whose_inputs_never_arrive_once_lockstep_g
     assert published == [(0, c.ANSWER_COMMANDED), (10_000_000, c.ANSWER_HELD)] and len(drv.torques) == 2
 
 
-class _FakeClock:
-    """The node's clock in real time, set by the test (``get_clock().now().nanoseconds``)."""
-
-    def __init__(self, ns: int) -> None:
-        self.ns = ns
-
-    def now(self) -> _FakeClock:
-        return self
-
-    @property
-    def nanoseconds(self) -> int:
-        return self.ns
-
 
 @pytest.fixture
 def realtime(ros_context, monkeypatch):  # type: ignore[no-untyped-def]
@@ -645,7 +633,7 @@ def realtime(ros_context, monkeypatch):  # type: ignore[no-untyped-def]
     node = ControllerNode(context=ros_context, parameter_overrides=overrides)
     for timer in node._frame_timers:
         timer.cancel()
-    clock = _FakeClock(10 * NS)
+    clock = FakeClock(10 * NS)
     monkeypatch.setattr(node, "get_clock", lambda: clock)
     driver = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
     driver.matched()
