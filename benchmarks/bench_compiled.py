@@ -15,7 +15,7 @@ Prints one JSON document (median of ``--repeats``, machine noted):
   of issue 13 (the numpy runner has left src/).
 * ``montecarlo_3000x50s_s``: 3000 runs of 50 s with the paper's dispersion of initial attitudes
   (paper_montecarlo.yaml, seed 0, SAPPC, RPF clamped where infeasible, no histories): the
-  compiled ``prange`` batch on all threads and on one thread; the numpy batch figure of issue 13.
+  compiled batch (threads over runs) on all threads and on one thread; the numpy batch figure of issue 13.
   Whole commands (campaign with figures, 100,000 runs, peak memory): ``bench_montecarlo.py``.
 
 The compile cost is not measured here (the cache is warmed first); ``compile_or_load_s`` is the

@@ -3,7 +3,7 @@
 A campaign is a scenario file with a ``montecarlo`` section (see
 ``config/scenarios/paper_montecarlo.yaml``).  Runs are simulated in chunks (one task each, on a
 local process or a Dask worker); inside a chunk, :func:`sappc.offline.simulate.run_scenario`
-runs sub-batches of runs in parallel (``prange``) through the same compiled loop and metrics
+runs sub-batches of runs in parallel (threads over runs) through the same compiled loop and metrics
 as `sappc simulate`, each sub-batch reporting its progress.
 
 Reproducibility
