@@ -15,7 +15,7 @@ Prints one JSON document (median of ``--repeats``, machine noted):
   of issue 13 (the numpy runner has left src/).
 * ``montecarlo_3000x50s_s``: 3000 runs of 50 s with the paper's dispersion of initial attitudes
   (paper_montecarlo.yaml, seed 0, SAPPC, RPF clamped where infeasible, no histories): the
-  compiled batch (threads over runs) on all threads and on one thread; the numpy batch figure of issue 13.
+  compiled ``prange`` batch on all threads and on one thread; the numpy batch figure of issue 13.
   Whole commands (campaign with figures, 100,000 runs, peak memory): ``bench_montecarlo.py``.
 
 The compile cost is not measured here (the cache is warmed first); ``compile_or_load_s`` is the
@@ -42,7 +42,7 @@ sys.path.insert(0, str(ROOT / "src"))
 t_import = time.perf_counter()
 import numba  # noqa: E402
 
-from sappc.offline.compiled_loop import loop_threads, prepare, run_batch, run_single, set_loop_threads  # noqa: E402
+from sappc.offline.compiled_loop import prepare, run_batch, run_single  # noqa: E402
 from sappc_controller.core import kernels as K  # noqa: E402
 
 t_import = time.perf_counter() - t_import
@@ -150,14 +150,14 @@ def bench_montecarlo(repeats: int, n_runs: int = 3000) -> dict[str, object]:
     t_prep = time.perf_counter()
     inp = prepare(sc, "sappc", q_BN0=inputs.q_BN0, on_infeasible="clamp")
     t_prep = time.perf_counter() - t_prep
-    threads = loop_threads()
+    threads = numba.get_num_threads()
     run_batch(inp)  # warm
     all_threads = _median(lambda: run_batch(inp), repeats)
-    set_loop_threads(1)
+    numba.set_num_threads(1)
     try:
         one_thread = _median(lambda: run_batch(inp), repeats)
     finally:
-        set_loop_threads(None)
+        numba.set_num_threads(threads)
     steps = inp.t.size
     finite = bool(np.all(np.isfinite(run_batch(inp).x_final)))
 

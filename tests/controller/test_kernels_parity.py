@@ -5,7 +5,7 @@ oracle (``tests/controller/oracle.py``) on random valid inputs, sample after sam
 SMETF warm start carried), to 1e-12 relative;
 (b) the whole-run compiled loop reproduces the numpy core's experiment 1-3 histories
 (``tests/data/golden_numpy_core.npz``, recorded before the numpy core was removed) to 1e-12 N m;
-(c) run k of a batch (its runs split among threads) is the same run alone, bit for bit;
+(c) run k of a ``prange`` batch is the same run alone, bit for bit;
 (d) the node's path (``AttitudeController.step``, sample by sample) gives the offline compiled
 run's outputs bit for bit;
 plus the plant kernels (RK4, reference rates, every disturbance kind) against the numpy models.

@@ -3,7 +3,7 @@
 A campaign is a scenario file with a ``montecarlo`` section (see
 ``config/scenarios/paper_montecarlo.yaml``).  Runs are simulated in chunks (one task each, on a
 local process or a Dask worker); inside a chunk, :func:`sappc.offline.simulate.run_scenario`
-runs sub-batches of runs in parallel (threads over runs) through the same compiled loop and metrics
+runs sub-batches of runs in parallel (``prange``) through the same compiled loop and metrics
 as `sappc simulate`, each sub-batch reporting its progress.
 
 Reproducibility
@@ -212,9 +212,11 @@ def _init_worker(threads: int, progress_queue: Any) -> None:
     sub-batches report to ``progress_queue``."""
     import signal
 
+    import numba
+
     global _progress_sink
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    compiled_loop.set_loop_threads(max(1, min(threads, compiled_loop.loop_threads())))
+    numba.set_num_threads(max(1, min(threads, int(getattr(numba.config, "NUMBA_NUM_THREADS")))))
     _progress_sink = progress_queue
 
 

@@ -29,13 +29,10 @@ Adding a model is its room (its arrays, its ``pack_*``, its kernels) and one reg
 field of :class:`CompiledInputs`, its ``pack_*`` call in :func:`prepare` and its kernels' call at
 their place in :func:`_run_one` (the closed loop's order is the one thing the loop knows).
 
-One code path: :func:`_run_one` is the whole time loop of one run; :func:`run_range_kernel`, the
-loop's one entry kernel, calls it for each run of a range (runs are independent: each has its own
-parameters, state and scratch arrays); a batch is its runs taken a few at a time by threads (the
-kernel releases the GIL), a run alone is a range of one, so run ``k`` of a batch is the run alone,
-bit for bit: the same machine code on the same inputs.  (One entry kernel, not a ``prange`` batch
-kernel beside a single-run one: each entry kernel is the whole loop optimised once more by LLVM,
-about half a minute of the first compile each.)
+One code path: :func:`_run_one` is the whole time loop of one run; :func:`run_batch_kernel` calls
+it for every run in a ``prange`` (runs are independent: each has its own parameters, state and
+scratch arrays), :func:`run_single_kernel` for one run, with the same argument types, so run ``k``
+of a batch is the run alone, bit for bit.
 
 What every run shares (reference, and the disturbance when no run changes it) is computed once
 before the loop: the reference quaternion by the compiled RK4 of
@@ -46,15 +43,14 @@ disturbance becomes a (T, 3) table.
 from __future__ import annotations
 
 import dataclasses
-import itertools
-import os
 import sys
-import threading
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
-from gnc_common.compiled import error_quaternion, jit
+from numba import prange
+
+from gnc_common.compiled import error_quaternion, jit, jit_parallel
 from sappc_controller.core.base import SingularStartError
 from sappc_controller.core.input_check import REJECT_REASONS, sample_verdicts
 from sappc_controller.core.kernels import N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
@@ -342,71 +338,19 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
         rec.x_final[r, i] = x[i]
 
 
+@jit_parallel
+def run_batch_kernel(probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
+    """Every run of a batch, in parallel over runs (``prange``); ``probe``: the first pass of
+    :func:`_run_one` (each run's first valid sample into ``rec.start``)."""
+    for n in prange(plant.x0.shape[0]):
+        _run_one(n, n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec)
+
+
 @jit
-def run_range_kernel(lo, hi, r0, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
-    """Runs ``lo .. hi - 1`` of the batch's arrays, one after another, run ``n`` written at index
-    ``n - r0`` of ``rec``; ``probe``: the first pass of :func:`_run_one` (each run's first valid
-    sample into ``rec.start``).  The one entry kernel of the loop: a batch is its runs split among
-    threads (:func:`_run_runs`, the GIL released), a run alone is ``lo = r0 = n, hi = n + 1``, so
-    run ``k`` of a batch is the run alone, bit for bit: the same machine code on the same inputs."""
-    for n in range(lo, hi):
-        _run_one(n, n - r0, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec)
-
-
-#: Threads a batch runs on (:func:`set_loop_threads`); ``None``: the CPUs this process may use.
-_loop_threads: int | None = None
-
-
-def set_loop_threads(threads: int | None) -> None:
-    """Run batches on ``threads`` threads (``None``: the CPUs this process may use; campaign
-    workers share the CPUs among them)."""
-    global _loop_threads
-    _loop_threads = None if threads is None else max(1, int(threads))
-
-
-def loop_threads() -> int:
-    """The threads a batch runs on: :func:`set_loop_threads`'s, else ``$NUMBA_NUM_THREADS``, else
-    the CPUs this process may use."""
-    if _loop_threads is not None:
-        return _loop_threads
-    env = os.environ.get("NUMBA_NUM_THREADS", "").strip()
-    if env.isdigit() and int(env) > 0:
-        return int(env)
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return max(1, os.cpu_count() or 1)
-
-
-def _run_runs(n_runs: int, probe: bool, stride: int, args: tuple[Any, ...], rec: LoopRecord) -> None:
-    """Every run ``0 .. n_runs - 1`` of ``args`` into ``rec`` (index ``n``): :func:`run_range_kernel`
-    on a few runs at a time, taken in turn by :func:`loop_threads` threads (the kernel releases the
-    GIL).  Runs are independent, so the split does not change any result."""
-    threads = min(loop_threads(), n_runs)
-    if threads <= 1:
-        run_range_kernel(0, n_runs, 0, probe, stride, *args, rec)
-        return
-    grain = max(1, min(8, n_runs // (4 * threads)))  # small enough to balance the threads' loads
-    starts = itertools.count(0, grain)  # next() is atomic under the GIL: each start is taken once
-    errors: list[BaseException] = []
-
-    def work() -> None:
-        try:
-            for lo in starts:
-                if lo >= n_runs or errors:
-                    return
-                run_range_kernel(lo, min(lo + grain, n_runs), 0, probe, stride, *args, rec)
-        except BaseException as exc:  # noqa: BLE001  (raised again in the calling thread)
-            errors.append(exc)
-
-    helpers = [threading.Thread(target=work, daemon=True) for _ in range(threads - 1)]
-    for t in helpers:
-        t.start()
-    work()
-    for t in helpers:
-        t.join()
-    if errors:
-        raise errors[0]
+def run_single_kernel(n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
+    """Run ``n`` of the batch's arrays alone (same argument types as in :func:`run_batch_kernel`);
+    the record (leading axis 1) at index 0."""
+    _run_one(n, 0, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec)
 
 
 def _runs(arrays: Any, lo: int, hi: int) -> Any:
@@ -628,7 +572,7 @@ def _started(inp: CompiledInputs) -> CompiledInputs:
     """
     n = inp.n_runs
     rec = _record(inp, 0, n)
-    _run_runs(n, True, 0, inp.args(), rec)
+    run_batch_kernel(True, 0, *inp.args(), rec)
     start = rec.start
     ok = start[:, 0] >= 0.0
     coef = np.zeros_like(inp.controller.coef)
@@ -661,7 +605,7 @@ def _check_noise(inp: CompiledInputs) -> None:
 
 
 def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = None) -> CompiledRun:
-    """Every run of ``inp``, in parallel over runs (:func:`loop_threads` threads).
+    """Every run of ``inp`` in one compiled call, in parallel over runs.
 
     ``into``: the result of an earlier call with the same number of runs and stride, whose arrays
     are overwritten (sub-batches of a campaign reuse one buffer: no new pages per sub-batch).
@@ -674,7 +618,7 @@ def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = N
         rec.rejected[...] = 0  # counts: start again
     else:
         rec = _record(inp, stride, inp.n_runs)
-    _run_runs(inp.n_runs, False, stride, inp.args(), rec)
+    run_batch_kernel(False, stride, *inp.args(), rec)
     return CompiledRun(inp.t[::stride] if stride else inp.t[:0], rec)
 
 
@@ -682,7 +626,7 @@ def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
     """Run ``n`` of ``inp`` alone (one thread): histories with a leading axis of length 1."""
     _check_noise(inp)
     rec = _record(inp, stride, 1)
-    run_range_kernel(n, n + 1, n, False, stride, *inp.args(), rec)
+    run_single_kernel(n, False, stride, *inp.args(), rec)
     return CompiledRun(inp.t[::stride] if stride else inp.t[:0], rec)
 
 
@@ -694,7 +638,7 @@ def simulate_compiled(scenario: Scenario, controller: Any = None) -> CompiledRun
 # ============================================================================= compile once
 
 #: The kernels whose cache decides whether a process must compile (the entry points).
-_ENTRY_KERNELS = (run_range_kernel,)
+_ENTRY_KERNELS = (run_single_kernel, run_batch_kernel)
 _checked = False
 
 

@@ -7,7 +7,7 @@ through :func:`controller_step`:
   :meth:`.base.AttitudeController.step` (inputs checked there, in Python, once; it calls
   :func:`controller_step_batch` for one run or a batch);
 * the offline whole-run loop and Monte Carlo (:mod:`sappc.offline.compiled_loop`), inside compiled
-  code, one run per loop iteration, runs split among threads.
+  code, one run per loop iteration or in a ``prange`` over runs.
 
 The config dataclasses, their validation and the run set-up that needs scipy (the RPF's
 coefficients by Lambert W, :mod:`.rpf`) stay in Python; :func:`start_coef` turns them into arrays.
