@@ -194,7 +194,8 @@ TARGETS: dict[str, Target] = {
         "src/sappc/montecarlo/tuning.py",
         (f"{_TUNING}test_a_bad_tuning_section_stops_with_an_error_naming_the_key", f"{_TUNING}test_requirements_the_run_cannot_measure_are_infeasible",
          f"{_TUNING}test_score_is_the_percentile_of_the_objective_and_each_requirements_worst_relative_margin",
-         f"{_TUNING}test_the_wheel_speed_requirement_is_usable_in_tuning", "tests/tools/montecarlo/test_tuning_study.py"),
+         f"{_TUNING}test_the_wheel_speed_requirement_is_usable_in_tuning", "tests/tools/montecarlo/test_tuning_config.py",
+         "tests/tools/montecarlo/test_tuning_study.py"),
         (f"{_TUNING}test_the_output_directory_refuses_another_study_and_a_resume_of_nothing",),
         # presentation, as log calls are: _figures draws history.png and tradeoff.png (their content is checked by the command
         # tests' empty-axes check), _Progress the progress line on stderr
