@@ -195,6 +195,7 @@ def test_repair_of_a_killed_recording_keeps_every_flushed_message_and_every_read
     assert records[0] == ("sappc/scenario.yaml", {"text": SCENARIO_TEXT})
     assert [n for n, _ in records] == ["sappc/scenario.yaml", "rosbag2"]  # and the record the recorder writes when it closes a bag
     assert yaml.safe_load(records[1][1]["serialized_metadata"]) == info
+    assert records[1][1]["serialized_metadata"] == yaml.safe_dump(info, sort_keys=False)  # one document: metadata.yaml's words and order
 
 
 def test_a_recording_killed_after_its_last_flush_is_repaired_to_the_bag_its_close_writes(tmp_path: Path) -> None:
