@@ -65,6 +65,7 @@ _NO_SECTION = object()
     (_tune(seed=True), None, "tuning.seed must be a number, got True (a boolean is not a number)"),
     (_tune(objective={"percentile": 100.5}), None, "tuning.objective.percentile must be in (0, 100], got 100.5"),
     (_tune(objective={"percentile": -5}), None, "tuning.objective.percentile must be in (0, 100], got -5"),
+    (_tune(objective={"percentile": "99"}), None, "tuning.objective.percentile must be in (0, 100], got '99'"),
     (_tune({"steady_from_s": 60.0}, **_NOT_SETTLED), None,
      "tuning.objective.metric: steady_max_abs_qev needs a steady window, but metrics.steady_from_s (60.0) is not before duration_s (60.0)"),
     (_tune({"t2_s": 60.5}, objective={"metric": "rpf_error_at_t2"}, **_NOT_SETTLED), None,

@@ -212,6 +212,10 @@ def test_blocking_counts_only_complete_trials_and_keeps_the_closest_measured_val
               trial(3, TrialState.COMPLETE, 0.2, 12.0), trial(4, TrialState.COMPLETE, 0.0, 10.0), trial(5, TrialState.COMPLETE, 0.0, 10.0)]
     # the closest value, and the first trial that came that close
     assert tuning.blocking(trials) == {"settle_by_t2": {"trials_blocked": 3, "trials": 5, "best_value": 10.0, "best_trial": 4, "bound": 10.0}}
+    both = SimpleNamespace(number=6, state=TrialState.COMPLETE, constraints={"settle_by_t2": 1e6, "overshoot_max": -0.5},
+                           user_attrs={"worst": {"overshoot_max": {"value": 5e-5, "bound": 1e-4}}})
+    # a requirement with no worst run recorded for a trial does not hide the trial's other requirements
+    assert tuning.blocking([both])["overshoot_max"] == {"trials_blocked": 0, "trials": 1, "best_value": 5e-5, "best_trial": 6, "bound": 1e-4}
 
 
 def test_an_interrupted_study_resumed_decides_as_one_run_straight_through(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -310,9 +314,27 @@ def test_a_bound_of_zero_is_met_at_zero_and_broken_by_the_excess_itself() -> Non
              "steady_max_abs_qev": np.full(n, 1e-5), "steady_mean_abs_qev": np.zeros(n), "rpf_error_at_t2": np.zeros(n),
              "torque_sign_changes_per_s": np.zeros(n)}
     met = tuning.score(table, cfg, scenario)
-    assert met.constraints["overshoot_max"] == 0.0 and met.feasible
+    assert met.constraints["overshoot_max"] == 0.0 and met.feasible and met.failures == {}  # a run at the bound meets it
+    assert met.worst == {"finite": {"value": 0.0, "bound": 0.0}, "overshoot_max": {"value": 0.0, "bound": 0.0}}
     broken = tuning.score({**table, "overshoot": np.array([0.0, 3e-5, 1e-5])}, cfg, scenario)
     assert broken.constraints["overshoot_max"] == 3e-5 and not broken.feasible and broken.failures["overshoot_max"]["runs"] == 2
+    assert broken.failed_runs.tolist() == [False, True, True]
+
+
+def test_a_finite_margin_is_capped_at_a_million() -> None:
+    """A requirement broken by more than a million times its bound counts as 1e6, as a run that never
+    settled does (one scale for the sampler)."""
+    raw = yaml.safe_load(TUNE.read_text())
+    raw["tuning"]["requirements"] = {"settle_by_t2": False, "steady_max_abs_qev_max": 1e-6}
+    scenario = tuning.scenario_from_mapping(raw)
+    cfg, _ = tuning.tuning_config(scenario)
+    table = {"run": np.arange(2), "finite": np.ones(2, dtype=bool), "settling_time_s": np.full(2, 5.0), "overshoot": np.zeros(2),
+             "steady_max_abs_qev": np.array([1e-7, 1.5]), "steady_mean_abs_qev": np.zeros(2), "rpf_error_at_t2": np.zeros(2),
+             "torque_sign_changes_per_s": np.zeros(2)}
+    s = tuning.score(table, cfg, scenario)
+    assert s.constraints["steady_max_abs_qev_max"] == 1e6 and s.worst["steady_max_abs_qev_max"] == {"value": 1.5, "bound": 1e-6}
+    table["steady_max_abs_qev"] = np.array([1e-7, 0.5])  # (0.5 - 1e-6) / 1e-6: under the cap
+    assert tuning.score(table, cfg, scenario).constraints["steady_max_abs_qev_max"] == pytest.approx(499_999.0)
 
 
 def test_the_progress_line_counts_trials_and_feasible_ones(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
@@ -320,7 +342,7 @@ def test_the_progress_line_counts_trials_and_feasible_ones(tmp_path: Path, monke
     trials were feasible so far (the last line: the summary's count)."""
     Campaigns(monkeypatch)
     summary = run_tuning(_small(tmp_path, requirements={"settle_by_t2": False, "overshoot_max": OVERSHOOT_MAX}), out_dir=tmp_path / "study",
-                         trials=6, progress=True, confirm=False)
+                         trials=6, confirm=False)  # progress by default
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("trials ")]
     assert [line.split()[1] for line in lines] == [f"{i}/6" for i in range(1, 7)]
     feasible = [int(line.rsplit("feasible ", 1)[1]) for line in lines]
