@@ -374,3 +374,22 @@ def test_a_candidate_is_the_scenario_with_the_trials_gains_and_controller() -> N
     assert isinstance(cand["controllers"]["sappc"]["gains"]["K_q"], float)
     before = json.dumps(raw, sort_keys=True)
     assert json.dumps(raw, sort_keys=True) == before  # the scenario itself untouched
+
+
+def test_the_first_ten_trials_are_random_draws_then_tpe_proposes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/tutorials/tuning.md: TPE starts with 10 random trials, and trial i's sampler is seeded
+    from (seed, i): trials 0-9 are exactly what a random sampler seeded so draws in the ranges;
+    trial 10 is not (TPE proposes it from the first ten)."""
+    import optuna
+    from optuna.samplers import RandomSampler
+
+    Campaigns(monkeypatch)
+    path = _small(tmp_path, trials=11)
+    run_tuning(path, out_dir=tmp_path / "study", progress=False, confirm=False)
+    cfg, _ = tuning.tuning_config(load_scenario(path))
+    trials = _study(tmp_path / "study")
+    assert [t.number for t in trials] == list(range(11))
+    for t in trials:
+        trial = optuna.create_study(sampler=RandomSampler(seed=tuning._trial_seed(0, t.number))).ask()
+        drawn = {p: trial.suggest_float(p, r.low, r.high, log=r.log) for p, r in cfg.parameters.items()}
+        assert (t.params == drawn) == (t.number < 10), t.number
