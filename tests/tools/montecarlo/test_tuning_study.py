@@ -337,12 +337,16 @@ def test_a_finite_margin_is_capped_at_a_million() -> None:
     assert tuning.score(table, cfg, scenario).constraints["steady_max_abs_qev_max"] == pytest.approx(499_999.0)
 
 
-def test_the_progress_line_counts_trials_and_feasible_ones(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+def test_the_progress_line_counts_trials_and_feasible_ones_and_the_summary_the_studys_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """Not on a terminal: one line a trial on stderr, ``trials i/N``, the best so far and how many
     trials were feasible so far (the last line: the summary's count)."""
+    import time
+
     Campaigns(monkeypatch)
+    t0 = time.perf_counter()
     summary = run_tuning(_small(tmp_path, requirements={"settle_by_t2": False, "overshoot_max": OVERSHOOT_MAX}), out_dir=tmp_path / "study",
                          trials=6, confirm=False)  # progress by default
+    assert 0.0 < summary["wall_time_s"] <= time.perf_counter() - t0  # the study's own time, as the command prints it
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("trials ")]
     assert [line.split()[1] for line in lines] == [f"{i}/6" for i in range(1, 7)]
     feasible = [int(line.rsplit("feasible ", 1)[1]) for line in lines]
