@@ -164,10 +164,10 @@ def test_the_confirmation_campaign_runs_runs_the_study_never_saw(tmp_path: Path,
     raw = yaml.safe_load(path.read_text())
     campaigns = Campaigns(monkeypatch)
     summary = run_tuning(path, out_dir=tmp_path / "study", progress=False)
-    confirmation_runs = list(range(CONFIRMATION_FIRST_RUN, CONFIRMATION_FIRST_RUN + 7))
+    confirmation_runs = list(range(10**9, 10**9 + 7))  # docs/tutorials/tuning.md: runs 1e9 .. of the same seed
     assert [runs for _, runs in campaigns.calls[12:]] == [confirmation_runs] * 3
     conf = summary["confirmation"]
-    assert conf["runs"] == 7 and conf["first_run"] == CONFIRMATION_FIRST_RUN
+    assert conf["runs"] == 7 and conf["first_run"] == CONFIRMATION_FIRST_RUN == 10**9
     for name, gains in summary["best"]["gain_sets"].items():
         t = stand_in(tuning.candidate_mapping(raw, "sappc", gains), 0, confirmation_runs)
         failing = {"settle_by_t2": int(np.sum(~(t["settling_time_s"] <= T2_S))), "overshoot_max": int(np.sum(t["overshoot"] > OVERSHOOT_MAX)),
