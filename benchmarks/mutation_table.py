@@ -76,9 +76,12 @@ def classify(results: dict[str, Any], classified: dict[str, Any]) -> dict[str, l
     out: dict[str, list[dict[str, Any]]] = {}
     for name, module in results["modules"].items():
         entries = {str(e["id"]): e for e in (classified.get(name) or [])}
+        used: set[str] = set()
         rows = []
         for s in module.get("survivors", []):
-            e = entries.pop(s["id"], None)
+            # the same change of the same text in two places has one id: one entry classifies both
+            e = entries.get(s["id"])
+            used.add(s["id"])
             if e is None:
                 problems.append(f"{name}: survivor {s['id']} (line {s['line']}, {s['operator']}: {_mutant_text(s)}) is not classified")
                 continue
@@ -94,7 +97,7 @@ def classify(results: dict[str, Any], classified: dict[str, Any]) -> dict[str, l
             if "mutant" in e and " ".join(str(e["mutant"]).split()) != _mutant_text(s):
                 problems.append(f"{name}: {s['id']}: the mutant noted ({e['mutant']!r}) is not the measured one ({_mutant_text(s)!r})")
             rows.append({**s, "class": cls, "reason": " ".join(reason.split())})
-        problems += [f"{name}: classification {i} names no surviving mutant of the results" for i in entries]
+        problems += [f"{name}: classification {i} names no surviving mutant of the results" for i in entries if i not in used]
         out[name] = rows
     problems += [f"{m}: classified, but not in the results" for m in classified if m != "reasons" and m not in results["modules"]]
     if problems:
