@@ -137,7 +137,10 @@ TARGETS: dict[str, Target] = {
         "src/sappc/montecarlo/draws.py",
         ("tests/tools/montecarlo/test_draws.py",),
         ("tests/tools/montecarlo/test_montecarlo.py::test_dispersion_statistics_and_per_run_reproducibility",
-         "tests/tools/montecarlo/test_montecarlo.py::test_sensor_noise_draws_are_the_campaigns_block_sequence"),
+         "tests/tools/montecarlo/test_montecarlo.py::test_sensor_noise_draws_are_the_campaigns_block_sequence",
+         "tests/tools/montecarlo/test_montecarlo.py::test_bad_dispersions_are_rejected_before_any_run",  # the hardware and fault draws (issue 26)
+         "tests/tools/montecarlo/test_montecarlo.py::test_a_campaign_with_the_scenarios_sensors_and_wheels_draws_each_runs_sensors_and_matches_the_run_alone",
+         "tests/tools/montecarlo/test_montecarlo.py::test_a_campaign_disperses_fault_kinds_times_and_lengths_and_run_k_is_the_fault_alone"),
     ),
     "sappc_controller.inputs": Target(
         "src/sappc_controller/inputs.py",
@@ -148,7 +151,7 @@ TARGETS: dict[str, Target] = {
     ),
     "sappc.evaluation.metrics": Target(
         "src/sappc/evaluation/metrics.py",
-        ("tests/tools/evaluation/test_metrics.py",),
+        ("tests/tools/evaluation/test_metrics.py", "tests/tools/evaluation/test_estimation_metrics.py"),  # the estimation metrics (issue 26)
         ("tests/tools/bag/test_bag_tools.py::test_time_outside_the_band_on_a_jittered_grid_sums_the_hold_intervals",),
     ),
     "spacecraft_sim.core.kernels": Target(
@@ -191,7 +194,8 @@ TARGETS: dict[str, Target] = {
         "src/sappc/montecarlo/tuning.py",
         (f"{_TUNING}test_a_bad_tuning_section_stops_with_an_error_naming_the_key", f"{_TUNING}test_requirements_the_run_cannot_measure_are_infeasible",
          f"{_TUNING}test_score_is_the_percentile_of_the_objective_and_each_requirements_worst_relative_margin",
-         f"{_TUNING}test_the_wheel_speed_requirement_is_usable_in_tuning", "tests/tools/montecarlo/test_tuning_study.py"),
+         f"{_TUNING}test_the_wheel_speed_requirement_is_usable_in_tuning", "tests/tools/montecarlo/test_tuning_config.py",
+         "tests/tools/montecarlo/test_tuning_study.py"),
         (f"{_TUNING}test_the_output_directory_refuses_another_study_and_a_resume_of_nothing",),
         # presentation, as log calls are: _figures draws history.png and tradeoff.png (their content is checked by the command
         # tests' empty-axes check), _Progress the progress line on stderr
@@ -573,6 +577,9 @@ def main() -> int:
     if version != TOOL_VERSION:
         print(f"bench_mutation: warning: {TOOL} {version} found, {TOOL_VERSION} pinned ({INSTALL_HINT})", file=sys.stderr)
     t_start = time.perf_counter()
+    # what is measured: the commit, and whether the measured paths differ from it (read now, before the copies)
+    args.commit = _git("rev-parse", "--short=12", "HEAD") or None
+    args.tree_clean = not _git("status", "--porcelain", "--", *COPIED, "benchmarks/bench_mutation.py")
     work = Path(args.keep).resolve() if args.keep else Path(tempfile.mkdtemp(prefix="sappc-mutation-"))
     work.mkdir(parents=True, exist_ok=True)
     children: list[subprocess.Popen[Any]] = []
@@ -724,7 +731,7 @@ def _campaign(args: argparse.Namespace, names: list[str], version: str, work: Pa
     report["wall_s"] = round(time.perf_counter() - t_start, 1)
     print(json.dumps(report, indent=1))
     if args.results and not args.dry_run:
-        merge_results(Path(args.results), report)
+        merge_results(Path(args.results), report, args.commit, args.tree_clean)
     return 0
 
 
@@ -760,17 +767,17 @@ def _measuring_args(argv: list[str]) -> list[str]:
     return out
 
 
-def merge_results(path: Path, report: dict[str, Any]) -> None:
+def merge_results(path: Path, report: dict[str, Any], commit: str | None, tree_clean: bool) -> None:
     """Merge ``report``'s modules into the results file ``path`` (``--results``): each module's
-    entry replaced, with how it was measured (date, commit, command, machine, tool); the other
-    modules' entries kept as they were measured."""
+    entry replaced, with how it was measured (date, the commit and whether the measured tree
+    differed from it when the run started, command, machine, tool); the other modules' entries
+    kept as they were measured."""
     results: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
     results.setdefault("about", "mutation testing results, one entry per module as last measured (benchmarks/bench_mutation.py "
                                 "--results); docs/mutation.md is generated from this file and benchmarks/mutation_survivors.yaml "
                                 "(python benchmarks/mutation_table.py --write)")
     modules = results.setdefault("modules", {})
-    dirty = _git("status", "--porcelain", "--", *COPIED, "benchmarks/bench_mutation.py")
-    measured = {"date": report["date"], "commit": _git("rev-parse", "--short=12", "HEAD") or None, "tree_clean": not dirty,
+    measured = {"date": report["date"], "commit": commit, "tree_clean": tree_clean,
                 "command": shlex.join(["python", "benchmarks/bench_mutation.py", *_measuring_args(sys.argv[1:])]),
                 "machine": report["machine"], "tool": f"{report['tool']} {report['tool_version']}",
                 "numba_disable_jit": report["numba_disable_jit"], "wall_s_all_modules_of_the_command": report["wall_s"]}

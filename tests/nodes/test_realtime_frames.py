@@ -181,3 +181,31 @@ def test_the_injector_places_fault_windows_in_the_runs_time_in_both_modes(ros_co
     assert lock._run_time_s(20 * NS) == 20.0
     rt.destroy_node()
     lock.destroy_node()
+
+
+def test_the_reference_publishes_each_frames_sample_a_frame_and_a_half_ahead(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The module's timing (sappc_msgs_py.timeline): a publisher ahead ticks mid-frame and sends the
+    samples through two frames ahead, so the sample of frame g is out at the middle of frame g - 2,
+    a frame and a half before the plant's state of g; each stamped with its own frame, none twice."""
+    from spacecraft_sim.reference import ReferenceNode
+
+    ref = ReferenceNode(context=ros_context, parameter_overrides=[Parameter("mode", value="realtime")])
+    try:
+        for timer in ref._frame_timers:
+            timer.cancel()
+        f = 170_000_000_000
+        clock = _Clock(f * DT_NS + DT_NS // 2)  # mid-frame f
+        monkeypatch.setattr(ref, "get_clock", lambda: clock)
+        monkeypatch.setattr(ref._gate, "open", lambda: True)  # matched: this test has no subscribers
+        sent: list[tuple[int, int]] = []
+        monkeypatch.setattr(ref, "_publish", lambda k, stamp: sent.append((k, stamp_to_ns(stamp))))
+        ref._on_timer()  # sample 0 is frame f + 1's; through frame f + 2
+        assert sent == [(0, (f + 1) * DT_NS), (1, (f + 2) * DT_NS)]
+        clock.ns += DT_NS  # mid-frame f + 1: frame f + 3's sample only
+        ref._on_timer()
+        assert sent[2:] == [(2, (f + 3) * DT_NS)]
+        clock.ns += 3 * DT_NS  # two ticks missed: made up, through frame f + 6
+        ref._on_timer()
+        assert sent[3:] == [(k, (f + 1 + k) * DT_NS) for k in (3, 4, 5)]
+    finally:
+        ref.destroy_node()

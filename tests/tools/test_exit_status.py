@@ -83,6 +83,17 @@ def test_invalid_input_exits_2_with_one_line(tmp_path, capsys) -> None:  # type:
     assert err.startswith("sappc: error: ") and err.count("\n") == 1 and "Traceback" not in err
 
 
+def test_sappc_alone_exits_2_with_the_usage_and_a_hint(capsys) -> None:  # type: ignore[no-untyped-def]
+    """In-process twin of test_cli_conventions' check of the process: no command is invalid input
+    (status 2), answered with the usage line and the hint, nothing on stdout."""
+    from sappc.cli import NO_COMMAND_HINT
+
+    assert main([]) == DOCUMENTED["invalid input"]
+    out, err = capsys.readouterr()
+    lines = err.splitlines()
+    assert out == "" and len(lines) == 2 and lines[0].startswith("usage: sappc ") and lines[1] == NO_COMMAND_HINT, err
+
+
 def test_output_into_a_closed_pipe_stops_quietly_with_status_1() -> None:
     """``sappc params ... | head -c 0``: the reader is gone before the command writes; it stops
     with status 1 and no traceback (Python's recipe for SIGPIPE)."""

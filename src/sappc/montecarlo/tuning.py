@@ -585,7 +585,7 @@ def _finish(out: Path, scenario: Scenario, cfg: TuningConfig, kind: str, study: 
 def blocking(trials: list[Any]) -> dict[str, dict[str, Any]]:
     """Per requirement, over the complete trials: how many it blocked (its constraint > 0: a run
     of the trial's campaign broke it), the closest any trial came (the smallest worst-run value,
-    and that trial) and the bound: what stops a study that finds no feasible trial."""
+    and the first trial that came that close) and the bound: what stops a study that finds no feasible trial."""
     from optuna.trial import TrialState
 
     out: dict[str, dict[str, Any]] = {}

@@ -195,6 +195,29 @@ def test_repair_of_a_killed_recording_keeps_every_flushed_message_and_every_read
     assert records[0] == ("sappc/scenario.yaml", {"text": SCENARIO_TEXT})
     assert [n for n, _ in records] == ["sappc/scenario.yaml", "rosbag2"]  # and the record the recorder writes when it closes a bag
     assert yaml.safe_load(records[1][1]["serialized_metadata"]) == info
+    assert records[1][1]["serialized_metadata"] == yaml.safe_dump(info, sort_keys=False)  # one document: metadata.yaml's words and order
+
+
+def test_a_recording_killed_after_its_last_flush_is_repaired_to_the_bag_its_close_writes(tmp_path: Path) -> None:
+    """Killed once every message was flushed: the repaired file holds the messages and the metadata
+    records of the same recording closed normally, the closing rosbag2 record's text byte for byte,
+    and the same metadata.yaml."""
+    bags = []
+    for name in ("closed", "killed"):
+        (tmp_path / name).mkdir()
+        rec = Recording(tmp_path / name / "bag")
+        for stamp in (3, 1, 2):
+            rec.add(c.STATE_RATE, stamp * NS)
+        rec.add(c.STATE_ATTITUDE, 2 * NS)
+        bags.append(rec)
+    closed, killed = bags
+    closed.finish()
+    killed.killed(torn_tail=[])
+    r = repair(killed.dir)
+    assert not r.was_complete and r.messages == 4
+    assert _in_file(killed.path) == _in_file(closed.path)
+    assert _metadata_records(killed.path) == _metadata_records(closed.path)
+    assert (killed.dir / BAG_METADATA).read_text() == (closed.dir / BAG_METADATA).read_text()
 
 
 def test_a_killed_recording_cut_anywhere_is_repaired_to_what_was_flushed_before_the_cut(tmp_path: Path) -> None:

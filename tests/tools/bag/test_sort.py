@@ -98,3 +98,51 @@ def test_the_sort_refuses_an_incomplete_file_and_a_budget_of_nothing(tmp_path) -
     assert torn.read_bytes() == bag.read_bytes()[: bag.stat().st_size // 2]  # left as it was
     with pytest.raises(ValueError, match="memory_bytes must be > 0, got 0"):
         sort_by_log_time(bag, memory_bytes=0)
+
+
+#: What a held message costs beyond its data, as docs/recorder.md states it [bytes].
+_OVERHEAD_BYTES = 256
+
+
+def _bag_of_sizes(path: Path, sizes: list[int]) -> Path:
+    """An MCAP file of one channel whose messages hold ``sizes`` bytes of data, in reverse stamp order."""
+    with path.open("wb") as f:
+        w = Writer(f, chunk_size=_CHUNK_BYTES, compression=CompressionType.NONE)
+        w.start(profile="ros2", library="tests/test_sort")
+        cid = w.register_channel("/t", "cdr", w.register_schema("std_msgs/msg/UInt8MultiArray", "ros2msg", b"uint8[] data"))
+        for k, size in enumerate(sizes):
+            stamp = (len(sizes) - k) * 1_000_000
+            w.add_message(cid, log_time=stamp, publish_time=stamp, sequence=k, data=bytes([k % 251]) * size)
+        w.finish()
+    return path
+
+
+def _runs_of_sort(path: Path, monkeypatch: pytest.MonkeyPatch, **kwargs: int) -> list[int]:
+    """Sort ``path``; the number of messages of each run the sort cut, in order."""
+    runs: list[int] = []
+    spill = rosbag2._spill
+    monkeypatch.setattr(rosbag2, "_spill", lambda run, directory, index: (runs.append(len(run)), spill(run, directory, index))[1])
+    assert sort_by_log_time(path, chunk_size=_CHUNK_BYTES, library="tests/test_sort", **kwargs) == sum(runs)
+    return runs
+
+
+def test_a_run_is_cut_as_soon_as_the_messages_held_reach_the_budget(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The memory rule (docs/recorder.md): each held message counts its data plus 256 bytes, and a
+    run is cut when the count reaches the budget, not before (one byte short holds one message more)
+    and not after; every run starts from nothing."""
+    budget = 10_000
+    short = budget - 1 - 2 * _OVERHEAD_BYTES  # two messages one byte short of the budget
+    exact = budget - 2 * _OVERHEAD_BYTES  # two messages that reach it exactly
+    sizes = [short // 2, short - short // 2, 100, exact // 2, exact - exact // 2, short // 2, short - short // 2, 100]
+    bag = _bag_of_sizes(tmp_path / "bag.mcap", sizes)
+    reference = shutil.copyfile(bag, tmp_path / "in_memory.mcap")
+    _sorted_in_memory(reference)
+    assert _runs_of_sort(bag, monkeypatch, memory_bytes=budget) == [3, 2, 3]
+    assert bag.read_bytes() == reference.read_bytes()
+
+
+def test_the_default_budget_is_32_mib(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The recorder's closing sort holds 32 MiB of messages (docs/recorder.md): two messages that
+    reach it exactly make a run of their own."""
+    half = 16 * 1024 * 1024 - _OVERHEAD_BYTES
+    assert _runs_of_sort(_bag_of_sizes(tmp_path / "bag.mcap", [half, half, 10]), monkeypatch) == [2, 1]

@@ -55,9 +55,10 @@ def test_a_stalled_write_does_not_stop_the_executor(ros_context, tmp_path) -> No
     ex.add_node(other)
     try:
         _spin_until(ex, lambda: pub.get_subscription_count() >= 1, "the recorder's subscription")
-        for k in range(3):
+        pub.publish(vector3_msg([0.0, 0.0, 0.0], 0.0, c.STATE_RATE))
+        _spin_until(ex, stalled.is_set, "the first write")  # stalled with nothing behind it
+        for k in (1, 2):
             pub.publish(vector3_msg([float(k), 0.0, 0.0], k * 0.01, c.STATE_RATE))
-        _spin_until(ex, stalled.is_set, "the first write")
         n = len(ticks)
         # the writer is stalled in the middle of a message: the executor still runs every callback
         _spin_until(ex, lambda: len(ticks) >= n + TICKS_WHILE_STALLED and rec._handover.qsize() == 2, "timer ticks while the write stalls")
@@ -70,7 +71,8 @@ def test_a_stalled_write_does_not_stop_the_executor(ros_context, tmp_path) -> No
     rec.destroy_node()
     other.destroy_node()
     bag = read_bag(tmp_path / "bag")
-    assert bag.series["/state/rate"].values[:, 0].tolist() == [0.0, 1.0, 2.0] and rec.max_backlog >= 2  # two waited behind the stall
+    # the writer took the second message with the third behind it: two messages taken and not yet written
+    assert bag.series["/state/rate"].values[:, 0].tolist() == [0.0, 1.0, 2.0] and rec.max_backlog == 2
 
 
 def test_the_recorder_subscribes_to_clock_once_its_expected_publishers_are_matched(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
@@ -300,6 +302,8 @@ def test_the_runs_files_are_copied_into_the_bag_and_stored_in_it(ros_context, tm
     import yaml
 
     assert yaml.safe_load(records["rosbag2"]["serialized_metadata"]) == info  # the closing record says the same
+    assert records["rosbag2"]["serialized_metadata"] == yaml.safe_dump(info, sort_keys=False)  # in metadata.yaml's words and order
+    assert rec.max_backlog == 0  # no message ever waited
 
 
 def test_topics_are_given_with_or_without_their_leading_slash(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
@@ -436,7 +440,46 @@ def test_every_message_is_flushed_to_the_file_within_a_second_of_being_written(r
     rec._write_loop()
     monkeypatch.undo()
     assert rec._writer_error is None and len(writes) == 301
+    assert rec.max_backlog == 1  # each message written before the next arrived
     assert all(any(w <= f <= w + 1.0 for f in flushes) for w in writes), (writes, flushes)
     rec._handover, rec.writer = real_handover, real_writer
     rec.finish()
     rec.destroy_node()
+
+
+class _DrainClock:
+    """``time`` for :meth:`RecorderNode.drain`: each pass of the executor takes its whole timeout,
+    and a message arrives in it while ``publishing``."""
+
+    def __init__(self) -> None:
+        self.now, self.passes = 500.0, []  # type: ignore[var-annotated]
+
+    def monotonic(self) -> float:
+        return self.now
+
+
+@pytest.mark.parametrize("publishing", [False, True], ids=["quiet", "a publisher that never stops"])
+def test_the_drain_ends_after_a_quiet_time_or_at_its_limit(monkeypatch, publishing: bool) -> None:  # type: ignore[no-untyped-def]
+    """The drain after a signal (module constants, on a clock the test moves): it takes the queues
+    in passes of a third of the quiet time (0.1 s), and ends once 0.3 s pass without a message; a
+    publisher that keeps publishing is cut off after 10 s."""
+    import types
+
+    import sappc.graph.recorder as recorder
+
+    clock = _DrainClock()
+    rec = types.SimpleNamespace()
+    monkeypatch.setattr(recorder, "time", clock)
+
+    def spin_once(timeout_s: float) -> None:
+        clock.passes.append(timeout_s)
+        clock.now += timeout_s
+        if publishing:
+            rec._last_message = clock.now
+
+    recorder.RecorderNode.drain(rec, spin_once)  # type: ignore[arg-type]
+    assert all(t == pytest.approx(0.1) for t in clock.passes)
+    if publishing:
+        assert 10.0 <= clock.now - 500.0 < 10.1 + 1e-9, clock.now
+    else:
+        assert len(clock.passes) == 3 and clock.now - 500.0 == pytest.approx(0.3)

@@ -230,6 +230,11 @@ def test_the_wheel_speed_requirement_is_usable_in_tuning() -> None:
     cfg, _ = tuning_config(scenario)
     assert cfg.requirements.max_abs_wheel_speed_rad_s_max == 5.0
     table = tuning.evaluate_runs(raw, 0, [0, 1])
+    from sappc.montecarlo.campaign import simulate_runs
+
+    _, metrics, _ = simulate_runs(raw, 0, [0, 1], 0)  # the campaign's own metrics of the same runs
+    overshoot = np.asarray(metrics.overshoot, dtype=np.float64)
+    assert np.array_equal(table["overshoot"], np.where(overshoot > 0.0, overshoot, 0.0))  # an excursion past zero, or none
     speeds = table["max_abs_wheel_speed_rad_s"]
     assert speeds.shape == (2,) and np.all(speeds > 5.0)  # the slew spins the wheels past 5 rad/s
     s = score(table, cfg, scenario)

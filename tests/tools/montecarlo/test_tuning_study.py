@@ -164,10 +164,10 @@ def test_the_confirmation_campaign_runs_runs_the_study_never_saw(tmp_path: Path,
     raw = yaml.safe_load(path.read_text())
     campaigns = Campaigns(monkeypatch)
     summary = run_tuning(path, out_dir=tmp_path / "study", progress=False)
-    confirmation_runs = list(range(CONFIRMATION_FIRST_RUN, CONFIRMATION_FIRST_RUN + 7))
+    confirmation_runs = list(range(10**9, 10**9 + 7))  # docs/tutorials/tuning.md: runs 1e9 .. of the same seed
     assert [runs for _, runs in campaigns.calls[12:]] == [confirmation_runs] * 3
     conf = summary["confirmation"]
-    assert conf["runs"] == 7 and conf["first_run"] == CONFIRMATION_FIRST_RUN
+    assert conf["runs"] == 7 and conf["first_run"] == CONFIRMATION_FIRST_RUN == 10**9
     for name, gains in summary["best"]["gain_sets"].items():
         t = stand_in(tuning.candidate_mapping(raw, "sappc", gains), 0, confirmation_runs)
         failing = {"settle_by_t2": int(np.sum(~(t["settling_time_s"] <= T2_S))), "overshoot_max": int(np.sum(t["overshoot"] > OVERSHOOT_MAX)),
@@ -209,8 +209,13 @@ def test_blocking_counts_only_complete_trials_and_keeps_the_closest_measured_val
                                user_attrs={"worst": {"settle_by_t2": {"value": worst, "bound": 10.0}}})
 
     trials = [trial(0, TrialState.COMPLETE, 0.5, 15.0), trial(1, TrialState.COMPLETE, 1e6, None), trial(2, TrialState.FAIL, 0.1, 11.0),
-              trial(3, TrialState.COMPLETE, 0.2, 12.0), trial(4, TrialState.COMPLETE, 0.0, 10.0)]
-    assert tuning.blocking(trials) == {"settle_by_t2": {"trials_blocked": 3, "trials": 4, "best_value": 10.0, "best_trial": 4, "bound": 10.0}}
+              trial(3, TrialState.COMPLETE, 0.2, 12.0), trial(4, TrialState.COMPLETE, 0.0, 10.0), trial(5, TrialState.COMPLETE, 0.0, 10.0)]
+    # the closest value, and the first trial that came that close
+    assert tuning.blocking(trials) == {"settle_by_t2": {"trials_blocked": 3, "trials": 5, "best_value": 10.0, "best_trial": 4, "bound": 10.0}}
+    both = SimpleNamespace(number=6, state=TrialState.COMPLETE, constraints={"settle_by_t2": 1e6, "overshoot_max": -0.5},
+                           user_attrs={"worst": {"overshoot_max": {"value": 5e-5, "bound": 1e-4}}})
+    # a requirement with no worst run recorded for a trial does not hide the trial's other requirements
+    assert tuning.blocking([both])["overshoot_max"] == {"trials_blocked": 0, "trials": 1, "best_value": 5e-5, "best_trial": 6, "bound": 1e-4}
 
 
 def test_an_interrupted_study_resumed_decides_as_one_run_straight_through(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -255,6 +260,97 @@ def test_overrides_replace_the_sections_trials_runs_and_seed(tmp_path: Path, mon
     summary = run_tuning(_small(tmp_path), out_dir=tmp_path / "t", trials=3, runs_per_trial=2, progress=False, confirm=False)
     assert summary["trials"] == 3 and summary["runs_per_trial"] == 2 and campaigns.calls[-1][1] == [0, 1]
     assert json.loads((tmp_path / "t" / "tune.json").read_text())["runs_per_trial"] == 2
+    nested = tmp_path / "runs" / "tune" / "small"  # the command's default --out is nested: made with its parents
+    summary = run_tuning(_small(tmp_path, seed=5), out_dir=nested, trials=1, runs_per_trial=1, seed=0, progress=False, confirm=False)
+    assert summary["seed"] == 0 and json.loads((nested / "tune.json").read_text())["seed"] == 0  # seed 0 is a seed
+
+
+def test_a_trial_left_running_by_a_killed_study_is_failed_on_resume_and_not_counted(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A study killed hard (SIGKILL: no KeyboardInterrupt) leaves its trial RUNNING in the journal;
+    resumed, that trial is marked failed and interrupted, and the study still ends with the
+    section's number of counted trials."""
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    Campaigns(monkeypatch)
+    path, out = _small(tmp_path, trials=3), tmp_path / "study"
+    run_tuning(path, out_dir=out, trials=2, progress=False, confirm=False)
+    storage = JournalStorage(JournalFileBackend(str(out / "study.journal")))
+    optuna.load_study(study_name=tuning.STUDY_NAME, storage=storage).ask()  # the killed study's trial, never told
+    assert [t.state.name for t in _study(out)] == ["COMPLETE", "COMPLETE", "RUNNING"]
+    summary = run_tuning(path, out_dir=out, resume=True, progress=False, confirm=False)
+    trials = _study(out)
+    assert [t.state.name for t in trials] == ["COMPLETE", "COMPLETE", "FAIL", "COMPLETE"]
+    assert trials[2].user_attrs.get("interrupted") is True and summary["trials"] == 3
+
+
+def test_a_run_without_the_objectives_value_counts_as_the_worst_one() -> None:
+    """The objective of a run that never settled, or diverged, is the worst it can be: the run's
+    length for settling_time_s, 2 (the largest |q_ev - rho|) for an error."""
+    raw = yaml.safe_load(TUNE.read_text())
+    raw["tuning"]["requirements"] = {"settle_by_t2": False}
+    n = 3
+    table = {"run": np.arange(n), "finite": np.array([True, True, False]), "settling_time_s": np.array([5.0, np.nan, 4.0]),
+             "overshoot": np.zeros(n), "steady_max_abs_qev": np.array([1e-5, 2e-5, 1e-5]), "steady_mean_abs_qev": np.zeros(n),
+             "rpf_error_at_t2": np.zeros(n), "torque_sign_changes_per_s": np.zeros(n)}
+    duration = float(raw["duration_s"])
+    for metric, values in (("settling_time_s", [5.0, duration, duration]), ("steady_max_abs_qev", [1e-5, 2e-5, 2.0])):
+        raw["tuning"]["objective"] = {"metric": metric, "percentile": 100}
+        scenario = tuning.scenario_from_mapping(raw)
+        cfg, _ = tuning.tuning_config(scenario)
+        assert tuning.score(table, cfg, scenario).value == max(values), metric
+
+
+def test_a_bound_of_zero_is_met_at_zero_and_broken_by_the_excess_itself() -> None:
+    """A requirement bounded by 0 (no overshoot at all) has no scale: its margin is the worst run's
+    excess itself, 0 when every run is at 0 (feasible)."""
+    raw = yaml.safe_load(TUNE.read_text())
+    raw["tuning"]["requirements"] = {"settle_by_t2": False, "overshoot_max": 0.0}
+    scenario = tuning.scenario_from_mapping(raw)
+    cfg, _ = tuning.tuning_config(scenario)
+    n = 3
+    table = {"run": np.arange(n), "finite": np.ones(n, dtype=bool), "settling_time_s": np.full(n, 5.0), "overshoot": np.zeros(n),
+             "steady_max_abs_qev": np.full(n, 1e-5), "steady_mean_abs_qev": np.zeros(n), "rpf_error_at_t2": np.zeros(n),
+             "torque_sign_changes_per_s": np.zeros(n)}
+    met = tuning.score(table, cfg, scenario)
+    assert met.constraints["overshoot_max"] == 0.0 and met.feasible and met.failures == {}  # a run at the bound meets it
+    assert met.worst == {"finite": {"value": 0.0, "bound": 0.0}, "overshoot_max": {"value": 0.0, "bound": 0.0}}
+    broken = tuning.score({**table, "overshoot": np.array([0.0, 3e-5, 1e-5])}, cfg, scenario)
+    assert broken.constraints["overshoot_max"] == 3e-5 and not broken.feasible and broken.failures["overshoot_max"]["runs"] == 2
+    assert broken.failed_runs.tolist() == [False, True, True]
+
+
+def test_a_finite_margin_is_capped_at_a_million() -> None:
+    """A requirement broken by more than a million times its bound counts as 1e6, as a run that never
+    settled does (one scale for the sampler)."""
+    raw = yaml.safe_load(TUNE.read_text())
+    raw["tuning"]["requirements"] = {"settle_by_t2": False, "steady_max_abs_qev_max": 1e-6}
+    scenario = tuning.scenario_from_mapping(raw)
+    cfg, _ = tuning.tuning_config(scenario)
+    table = {"run": np.arange(2), "finite": np.ones(2, dtype=bool), "settling_time_s": np.full(2, 5.0), "overshoot": np.zeros(2),
+             "steady_max_abs_qev": np.array([1e-7, 1.5]), "steady_mean_abs_qev": np.zeros(2), "rpf_error_at_t2": np.zeros(2),
+             "torque_sign_changes_per_s": np.zeros(2)}
+    s = tuning.score(table, cfg, scenario)
+    assert s.constraints["steady_max_abs_qev_max"] == 1e6 and s.worst["steady_max_abs_qev_max"] == {"value": 1.5, "bound": 1e-6}
+    table["steady_max_abs_qev"] = np.array([1e-7, 0.5])  # (0.5 - 1e-6) / 1e-6: under the cap
+    assert tuning.score(table, cfg, scenario).constraints["steady_max_abs_qev_max"] == pytest.approx(499_999.0)
+
+
+def test_the_progress_line_counts_trials_and_feasible_ones_and_the_summary_the_studys_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """Not on a terminal: one line a trial on stderr, ``trials i/N``, the best so far and how many
+    trials were feasible so far (the last line: the summary's count)."""
+    import time
+
+    Campaigns(monkeypatch)
+    t0 = time.perf_counter()
+    summary = run_tuning(_small(tmp_path, requirements={"settle_by_t2": False, "overshoot_max": OVERSHOOT_MAX}), out_dir=tmp_path / "study",
+                         trials=6, confirm=False)  # progress by default
+    assert 0.0 < summary["wall_time_s"] <= time.perf_counter() - t0  # the study's own time, as the command prints it
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("trials ")]
+    assert [line.split()[1] for line in lines] == [f"{i}/6" for i in range(1, 7)]
+    feasible = [int(line.rsplit("feasible ", 1)[1]) for line in lines]
+    assert feasible == sorted(feasible) and feasible[-1] == summary["feasible_trials"] and 0 < summary["feasible_trials"] < 6, lines
 
 
 def test_a_trials_campaign_is_put_back_in_run_order_whatever_order_its_chunks_complete(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -282,3 +378,22 @@ def test_a_candidate_is_the_scenario_with_the_trials_gains_and_controller() -> N
     assert isinstance(cand["controllers"]["sappc"]["gains"]["K_q"], float)
     before = json.dumps(raw, sort_keys=True)
     assert json.dumps(raw, sort_keys=True) == before  # the scenario itself untouched
+
+
+def test_the_first_ten_trials_are_random_draws_then_tpe_proposes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """docs/tutorials/tuning.md: TPE starts with 10 random trials, and trial i's sampler is seeded
+    from (seed, i): trials 0-9 are exactly what a random sampler seeded so draws in the ranges;
+    trial 10 is not (TPE proposes it from the first ten)."""
+    import optuna
+    from optuna.samplers import RandomSampler
+
+    Campaigns(monkeypatch)
+    path = _small(tmp_path, trials=11)
+    run_tuning(path, out_dir=tmp_path / "study", progress=False, confirm=False)
+    cfg, _ = tuning.tuning_config(load_scenario(path))
+    trials = _study(tmp_path / "study")
+    assert [t.number for t in trials] == list(range(11))
+    for t in trials:
+        trial = optuna.create_study(sampler=RandomSampler(seed=tuning._trial_seed(0, t.number))).ask()
+        drawn = {p: trial.suggest_float(p, r.low, r.high, log=r.log) for p, r in cfg.parameters.items()}
+        assert (t.params == drawn) == (t.number < 10), t.number
