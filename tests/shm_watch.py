@@ -155,13 +155,24 @@ class ShmWatch:
         procs = _processes()
         return sorted(pid for pid, started in self.processes if procs.get(pid, (0, -1))[1] == started)
 
-    def left_behind(self) -> set[str]:
-        """The files the run used that it left: still there, new since the watch started, used by no live process."""
+    def left_behind(self, ignore: set[tuple[int, int]] | None = None) -> set[str]:
+        """The files the run used that it left: still there, new since the watch started, used by no
+        live process (but those of ``ignore``, (pid, start time) pairs)."""
         candidates = set().union(*(_related(n) for n in self.used))
         remaining = (candidates & fastdds_files()) - self.before
         if not remaining:
             return set()
-        return remaining - set().union(set(), *(_related(n) for n in files_in_use(exclude=self.processes)))
+        return remaining - set().union(set(), *(_related(n) for n in files_in_use(exclude=self.processes | (ignore or set()))))
+
+    def remove_left_behind(self) -> set[str]:
+        """Delete what :meth:`left_behind` names, this process's mappings of them aside (a process
+        of the run killed on purpose cannot clean up, and a node of this process that talked to it
+        still maps its segment): only the run's own files, never another process's; returns them."""
+        me = os.getpid()
+        left = self.left_behind(ignore={(me, _processes()[me][1])})  # this process maps a dead peer's segment to write to it
+        for name in left:
+            (SHM_DIR / name).unlink(missing_ok=True)
+        return left
 
     def assert_clean(self) -> None:
         """Every process of the run has exited; it used shared memory and left none of it behind."""

@@ -18,6 +18,7 @@ from gnc_common.validation import ConfigError
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import stamp_to_ns, torque_msg
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, PLANT_PHASE, StampedWindow, frame_index, period_ns
+from fake_clock import FakeClock
 
 NS = 1_000_000_000
 DT_NS = 10_000_000
@@ -76,17 +77,6 @@ def test_latency_statistics_count_steps_strictly_later_than_the_deadline() -> No
     assert LatencyStatistics(0.01).summary() == {"steps": 0}
 
 
-class _Clock:
-    def __init__(self, ns: int) -> None:
-        self.ns = ns
-
-    def now(self) -> _Clock:
-        return self
-
-    @property
-    def nanoseconds(self) -> int:
-        return self.ns
-
 
 def test_the_plant_integrates_every_elapsed_frame_and_counts_missed_frames_and_stale_torques(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     from spacecraft_sim.plant_node import PlantNode
@@ -97,7 +87,7 @@ def test_the_plant_integrates_every_elapsed_frame_and_counts_missed_frames_and_s
     for timer in plant._frame_timers:
         timer.cancel()
     f0 = 170_000_000_000
-    clock = _Clock(f0 * DT_NS + 300_000)  # 0.3 ms into frame f0
+    clock = FakeClock(f0 * DT_NS + 300_000)  # 0.3 ms into frame f0
     monkeypatch.setattr(plant, "get_clock", lambda: clock)
     probe = Node("probe", context=ros_context)
     qos = c.qos_profile()
@@ -171,7 +161,7 @@ def test_the_injector_places_fault_windows_in_the_runs_time_in_both_modes(ros_co
     for timer in rt._frame_timers:
         timer.cancel()
     f = 170_000_000_000
-    clock = _Clock(f * DT_NS + DT_NS // 2)  # mid-frame f
+    clock = FakeClock(f * DT_NS + DT_NS // 2)  # mid-frame f
     monkeypatch.setattr(rt, "get_clock", lambda: clock)
     stamp = (f + 1 + 2000) * DT_NS  # 2000 frames after sample 0's frame (f + 1)
     assert rt._run_time_s(stamp) == 20.0 and rt._frame0 == f + 1
@@ -194,7 +184,7 @@ def test_the_reference_publishes_each_frames_sample_a_frame_and_a_half_ahead(ros
         for timer in ref._frame_timers:
             timer.cancel()
         f = 170_000_000_000
-        clock = _Clock(f * DT_NS + DT_NS // 2)  # mid-frame f
+        clock = FakeClock(f * DT_NS + DT_NS // 2)  # mid-frame f
         monkeypatch.setattr(ref, "get_clock", lambda: clock)
         monkeypatch.setattr(ref._gate, "open", lambda: True)  # matched: this test has no subscribers
         sent: list[tuple[int, int]] = []

@@ -240,8 +240,10 @@ def test_a_sigkilled_recorder_leaves_its_flushed_messages_readable(ros_context, 
     from sappc_msgs_py.convert import vector3_msg
 
     bag_dir = tmp_path / "bag"
+    watch = ShmWatch().__enter__()  # the killed recorder's shared memory, removed below (only its own)
     rec = subprocess.Popen([sys.executable, "-m", "sappc.graph.recorder", "--ros-args", "-p", f"output_dir:={bag_dir}", "-p", f"mode:={mode}"],
                            env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=ROOT)
+    watch.add(rec.pid)
     readable = 500
     node = Node("pub", context=ros_context)
     pub = node.create_publisher(c.STATE_RATE.msg_class, c.STATE_RATE.name, c.qos_profile())
@@ -259,9 +261,11 @@ def test_a_sigkilled_recorder_leaves_its_flushed_messages_readable(ros_context, 
         time.sleep(0.05)
     rec.kill()
     rec.wait()
-    subprocess.run([str(Path(sys.executable).parent / "fastdds"), "shm", "clean"], capture_output=True)
+    watch.__exit__(None, None, None)
+    assert watch.used, "the recorder used no shared memory: nothing to clean up was checked"
     ex.shutdown()
     node.destroy_node()
+    watch.remove_left_behind()  # a SIGKILLed process cannot remove its own files; never the whole host's
     bag = read_bag(bag_dir)
     assert bag.truncated is not None  # no summary, no footer
     values = bag.series["/state/rate"].values[:, 0]
