@@ -342,7 +342,8 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
 def run_batch_kernel(probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
     """Every run of a batch, in parallel over runs (``prange``); ``probe``: the first pass of
     :func:`_run_one` (each run's first valid sample into ``rec.start``)."""
-    for n in prange(plant.x0.shape[0]):
+    for i in prange(plant.x0.shape[0]):
+        n = np.int64(i)  # prange's index is unsigned: one signature of _run_one for every entry (one compile)
         _run_one(n, n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec)
 
 
@@ -350,7 +351,7 @@ def run_batch_kernel(probe, stride, grid, ctrl, plant, act, sens, est, dist, fau
 def run_single_kernel(n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
     """Run ``n`` of the batch's arrays alone (same argument types as in :func:`run_batch_kernel`);
     the record (leading axis 1) at index 0."""
-    _run_one(n, 0, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec)
+    _run_one(n, np.int64(0), probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec)  # int64, not a literal: run_batch_kernel's signature
 
 
 def _runs(arrays: Any, lo: int, hi: int) -> Any:
