@@ -108,6 +108,6 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     """Compile the numerical core once before any test when the cache is cold (after an edit of a
     kernel; ``./sappcw`` compiles it when it builds the venv): no test then sees the one-line
     compile notice or pays the compile inside its own time limits."""
-    from sappc.offline.compiled_loop import ensure_compiled
+    from sappc.offline.compiled_loop import WARM_UP_GROUPS, ensure_compiled
 
-    ensure_compiled()
+    ensure_compiled(groups=WARM_UP_GROUPS, in_subprocess=True)  # the nodes' kernels too (ROS tests' time limits); in parallel

@@ -43,6 +43,7 @@ disturbance becomes a (T, 3) table.
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -638,14 +639,27 @@ def simulate_compiled(scenario: Scenario, controller: Any = None) -> CompiledRun
 
 # ============================================================================= compile once
 
-#: The kernels whose cache decides whether a process must compile (the entry points).
-_ENTRY_KERNELS = (run_single_kernel, run_batch_kernel)
+#: The groups of :func:`warm_up`, each compilable in its own process: the offline loops (``simulate``,
+#: campaigns, tuning) and the kernels the nodes and ``sappc rerun`` call from Python.
+WARM_UP_GROUPS = ("loops", "nodes")
 _checked = False
 
 
-def cache_is_warm() -> bool:
-    """Whether numba's on-disk cache holds the entry kernels for the current sources (no compile needed)."""
-    for kernel in _ENTRY_KERNELS:
+def _entry_kernels(group: str) -> tuple[Any, ...]:
+    """The kernels whose cache decides whether ``group`` must compile (its entry points, the last
+    compiled of each group among them)."""
+    if group == "loops":
+        return (run_single_kernel, run_batch_kernel)
+    from sappc_controller.core.kernels import controller_step_batch, controller_step_one
+    from spacecraft_sim.core.kernels import fault_actuator_one, fault_sensor_one, propagate_runs
+
+    return (controller_step_one, controller_step_batch, propagate_runs, fault_sensor_one, fault_actuator_one)
+
+
+def cache_is_warm(groups: tuple[str, ...] = ("loops",)) -> bool:
+    """Whether numba's on-disk cache holds the entry kernels of ``groups`` (:data:`WARM_UP_GROUPS`)
+    for the current sources (no compile needed)."""
+    for kernel in (k for g in groups for k in _entry_kernels(g)):
         try:
             if not kernel._cache._cache_file._load_index():  # empty when absent or stale (source stamp)
                 return False
@@ -654,44 +668,78 @@ def cache_is_warm() -> bool:
     return True
 
 
-def ensure_compiled(*, in_subprocess: bool = False) -> None:
-    """Once per process, before the first kernel call: when the cache is cold (first use after an
-    install or a change of the sources), say so in one line on stderr and compile every kernel
-    now (:func:`warm_up`), so that later processes (campaign workers included) only load them.
+def ensure_compiled(*, in_subprocess: bool = False, groups: tuple[str, ...] = ("loops",)) -> None:
+    """Once per process, before the first kernel call: when the cache is cold for ``groups`` (first
+    use after an install or a change of the sources), say so in one line on stderr and compile
+    them now (:func:`warm_up`; by default the offline loops, what the offline commands call: a node
+    compiles its own kernels at its start), so that later processes (campaign workers included)
+    only load them.
 
-    ``in_subprocess``: compile in a child process (a parent about to fork workers keeps numba's
-    thread pool unstarted)."""
+    ``in_subprocess``: compile in child processes (a parent about to fork workers keeps numba's
+    thread pool unstarted); several groups then compile at once when there are several CPUs."""
     global _checked
     if _checked:
         return
     _checked = True
-    if cache_is_warm():
+    cold = tuple(g for g in groups if not cache_is_warm((g,)))
+    if not cold:
         return
-    print("sappc: compiling the numerical core once (~1 min; later runs load it from the cache)...", file=sys.stderr, flush=True)
+    print(f"sappc: compiling the numerical core's {' and '.join(cold)} once (~40 s; later runs load them from the cache)...",
+          file=sys.stderr, flush=True)
     if in_subprocess:
         import subprocess
 
-        subprocess.run([sys.executable, "-c", "from sappc.offline.compiled_loop import warm_up; warm_up()"], check=True)
+        if len(cold) > 1 and (os.cpu_count() or 1) > 1:
+            subprocess.run([sys.executable, "-c", f"from sappc.offline.compiled_loop import warm_up; warm_up({cold!r}, parallel=True)"], check=True)
+        else:
+            subprocess.run([sys.executable, "-c", f"from sappc.offline.compiled_loop import warm_up; warm_up({cold!r})"], check=True)
     else:
-        warm_up()
+        warm_up(cold)
 
 
-def warm_up() -> None:
-    """Compile (or load) every kernel the offline runs and campaigns call, on a tiny scenario: the
-    single-run and batch loops (every controller kind, every disturbance kind, sensor noise), and the
-    set-up kernels.  ``sappcw`` calls it once after building the venv."""
+def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = False) -> None:
+    """Compile (or load) every kernel the offline runs, the campaigns and the nodes call, on a tiny
+    scenario: the single-run and batch loops (every controller kind, every disturbance kind, sensor
+    noise), the set-up kernels, and the nodes' kernels.  ``sappcw`` calls it once after building the
+    venv.
+
+    ``groups``: which of :data:`WARM_UP_GROUPS` (one name, or several).  ``parallel``: each group in
+    its own child process, at the same time (numba compiles on one thread; the two groups share no
+    entry point, and each child writes its kernels into the same cache): on two idle cores the
+    compile takes the longer group's time instead of the sum."""
     global _checked
     _checked = True
-    import time
+    names = (groups,) if isinstance(groups, str) else tuple(groups)
+    unknown = [g for g in names if g not in WARM_UP_GROUPS]
+    if unknown:
+        raise ValueError(f"warm_up groups must be among {WARM_UP_GROUPS}, got {unknown}")
+    if parallel and len(names) > 1:
+        import subprocess
 
-    from sappc.scenario import scenario_from_mapping
+        children = [subprocess.Popen([sys.executable, "-c", f"from sappc.offline.compiled_loop import warm_up; warm_up({g!r})"])
+                    for g in names]
+        codes = [child.wait() for child in children]
+        failed = [g for g, code in zip(names, codes) if code != 0]
+        if failed:
+            raise RuntimeError(f"warm_up: compiling the group(s) {failed} failed (exit statuses {codes}); the output above says why")
+        return
+    import time
 
     started = time.monotonic()
 
     def compiled(group: str) -> None:  # progress: numba prints nothing while it compiles (a minute or more in all)
         print(f"sappc: numerical core: {group} ready ({time.monotonic() - started:.0f} s)", file=sys.stderr, flush=True)
 
-    from spacecraft_sim.core.faults import noisy_measurement
+    scenario = _warm_up_scenario()
+    if "loops" in names:
+        _warm_up_loops(scenario, compiled)
+    if "nodes" in names:
+        _warm_up_nodes(scenario, compiled)
+
+
+def _warm_up_scenario() -> Scenario:
+    """The tiny scenario :func:`warm_up` runs (every controller kind's config, two disturbance kinds)."""
+    from sappc.scenario import scenario_from_mapping
 
     raw = {
         "name": "warm_up", "duration_s": 0.05, "control_period_s": 0.01,
@@ -709,7 +757,13 @@ def warm_up() -> None:
                                 "T3_s": 2.0, "V_floor": 1e-12, "q0_floor": 1e-3}},
         },
     }
-    scenario = scenario_from_mapping(raw)
+    return scenario_from_mapping(raw)
+
+
+def _warm_up_loops(scenario: Scenario, compiled: Any) -> None:
+    """The offline loops: one run and batches, with and without sensor noise, and the set-up kernels."""
+    from spacecraft_sim.core.faults import noisy_measurement
+
     inp = prepare(scenario, on_infeasible="clamp", sensor_params=white_noise_params(1e-7, 1e-7))
     noisy = inp.subset(0, 1, noise=np.zeros((1, inp.t.size, 6)))
     compiled("the set-up kernels")
@@ -719,8 +773,11 @@ def warm_up() -> None:
         run_batch(case, 0)
         compiled("the offline loops (one run, and batches)" + (" with sensor noise" if case is noisy else ""))
     noisy_measurement(np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(6), 1e-7, 1e-7)
-    # the entry points the nodes and `sappc rerun` call from Python: the controller step (one run and
-    # a batch), the plant, the disturbances, the reference
+
+
+def _warm_up_nodes(scenario: Scenario, compiled: Any) -> None:
+    """The entry points the nodes and ``sappc rerun`` call from Python: the controller step (one run
+    and a batch), the plant, the disturbances, the reference, the injector's fault kernels."""
     from spacecraft_sim.core.disturbance import ConstantTorque, DisturbanceSum, PaperPeriodic, PulseTorque, RandomTorque, StepTorque
     from spacecraft_sim.core.dynamics import RigidBody, initial_state
     from spacecraft_sim.core.faults import FAULT_KINDS, FaultSchedule, faults_from_list

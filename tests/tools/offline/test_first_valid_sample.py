@@ -112,3 +112,18 @@ def test_a_run_whose_controller_never_commands_has_the_metrics_of_an_error_never
     assert m["time_outside_constraint_s"] == samples * BASE["control_period_s"]
     assert m["returned_to_constraint"] is False and m["left_constraint_after_fault"] is True and m["returned_at_s"] is None
     assert m["rpf_error_at_t2"] is None and m["settling_time_s"] is None
+
+
+def test_warm_up_names_an_unknown_group_and_a_warm_cache_compiles_nothing(monkeypatch, capsys) -> None:
+    """``warm_up`` refuses a group it does not have, naming it and the groups it has; with every
+    group's entry kernels in the cache (the suite's set-up compiled them), ``ensure_compiled``
+    neither prints nor compiles."""
+    from sappc.offline import compiled_loop
+
+    with pytest.raises(ValueError, match=r"among \('loops', 'nodes'\), got \['bogus'\]"):
+        compiled_loop.warm_up("bogus")
+    assert compiled_loop.cache_is_warm(compiled_loop.WARM_UP_GROUPS)
+    monkeypatch.setattr(compiled_loop, "_checked", False)
+    monkeypatch.setattr(compiled_loop, "warm_up", lambda *a, **k: pytest.fail("compiled on a warm cache"))
+    compiled_loop.ensure_compiled(groups=compiled_loop.WARM_UP_GROUPS)
+    assert capsys.readouterr().err == ""
