@@ -132,14 +132,13 @@ def test_in_the_loop_the_controller_sees_the_measurement_and_the_record_the_trut
     draws = s.sensors.draws(inp.t.size)
     prm, outages = s.sensors.params(s.control_period_s), s.sensors.outages()
     held, bias, y = np.zeros(4), prm[10:13].copy(), np.zeros(7)
-    work = np.zeros((kernels.N_PLANT_WORK, 7))
     for k in range(inp.t.size):
         assert np.array_equal(h.q_BN[k, 0], x[:4]) and np.array_equal(h.omega_BN_B[k, 0], x[4:])  # the truth is recorded
         measure(k, inp.t[k], x[:4], x[4:7], draws[k], prm, outages, held, bias, y)
         tau = np.asarray(ctrl.step(int(inp.grid.t_ns[k]) / 1e9, inp.grid.dt, y[:4], y[4:], inp.grid.ref_q[k], inp.grid.ref_w[k], inp.grid.ref_wd[k]).torque_B, dtype=np.float64)
         assert np.array_equal(h.torque_B[k, 0], tau), k
         if k < inp.t.size - 1:
-            kernels.propagate(x, np.minimum(np.maximum(tau, -0.5), 0.5) + inp.disturbance.table[k], inp.grid.dt, inp.plant.substeps, inp.plant.J[0], inp.plant.J_inv[0], work)
+            kernels.propagate(x, np.minimum(np.maximum(tau, -0.5), 0.5) + inp.disturbance.table[k], inp.grid.dt, inp.plant.substeps, inp.plant.J[0], inp.plant.J_inv[0])
     other = copy.deepcopy(raw)
     other["sensors"]["seed"] = 12
     a = compiled_loop.simulate_compiled(s)

@@ -140,25 +140,26 @@ class InputBounds:
 
 
 @jit(inline="always")  # type: ignore[no-untyped-call]
-def quaternion_verdict(q, max_norm_error):  # type: ignore[no-untyped-def]  # a numba kernel (float64 arrays and scalars)
-    """:data:`INPUT_OK` for a quaternion (4,) whose norm is within ``max_norm_error`` of 1, else
-    :data:`INPUT_INVALID` (a non-finite component fails the comparison).  The norm is summed as
-    :func:`gnc_common.validation.check_unit_quaternion` sums it."""
-    norm = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+def quaternion_verdict(q0, q1, q2, q3, max_norm_error):  # type: ignore[no-untyped-def]  # a numba kernel (float64 scalars)
+    """:data:`INPUT_OK` for a quaternion ``(q0, q1, q2, q3)`` whose norm is within
+    ``max_norm_error`` of 1, else :data:`INPUT_INVALID` (a non-finite component fails the
+    comparison).  The norm is summed as :func:`gnc_common.validation.check_unit_quaternion` sums
+    it.  Scalars, not an array: no reference count per call in the loop that inlines it."""
+    norm = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
     return INPUT_OK if abs(norm - 1.0) <= max_norm_error else INPUT_INVALID
 
 
 @jit(inline="always")  # type: ignore[no-untyped-call]
-def vector_verdict(v, max_norm):  # type: ignore[no-untyped-def]  # a numba kernel
-    """:data:`INPUT_INVALID` for a 3-vector with a non-finite component, :data:`INPUT_IMPLAUSIBLE`
-    when its magnitude (computed scaled by the largest component, so that a finite vector never
-    overflows) exceeds ``max_norm``, else :data:`INPUT_OK`."""
-    if not (np.isfinite(v[0]) and np.isfinite(v[1]) and np.isfinite(v[2])):
+def vector_verdict(v0, v1, v2, max_norm):  # type: ignore[no-untyped-def]  # a numba kernel (float64 scalars)
+    """:data:`INPUT_INVALID` for a 3-vector ``(v0, v1, v2)`` with a non-finite component,
+    :data:`INPUT_IMPLAUSIBLE` when its magnitude (computed scaled by the largest component, so
+    that a finite vector never overflows) exceeds ``max_norm``, else :data:`INPUT_OK`."""
+    if not (np.isfinite(v0) and np.isfinite(v1) and np.isfinite(v2)):
         return INPUT_INVALID
-    scale = max(abs(v[0]), abs(v[1]), abs(v[2]))  # the magnitude scaled: no overflow for a finite vector
+    scale = max(abs(v0), abs(v1), abs(v2))  # the magnitude scaled: no overflow for a finite vector
     if scale == 0.0:
         return INPUT_OK
-    a, b, c = v[0] / scale, v[1] / scale, v[2] / scale
+    a, b, c = v0 / scale, v1 / scale, v2 / scale
     norm = scale * np.sqrt((a * a + b * b) + c * c)
     return INPUT_IMPLAUSIBLE if norm > max_norm else INPUT_OK
 
@@ -168,12 +169,12 @@ def input_verdict(slot, value, bounds):  # type: ignore[no-untyped-def]  # a num
     """The verdict on one input of ``slot`` (``SLOT_*``): a quaternion (4,) or a vector (3,);
     ``bounds`` (:data:`N_BOUNDS`,) from :meth:`InputBounds.packed` (the node's check of a message)."""
     if slot == SLOT_ATTITUDE or slot == SLOT_REFERENCE_ATTITUDE:
-        return quaternion_verdict(value, bounds[B_NORM])
+        return quaternion_verdict(value[0], value[1], value[2], value[3], bounds[B_NORM])
     if slot == SLOT_RATE:
-        return vector_verdict(value, bounds[B_RATE])
+        return vector_verdict(value[0], value[1], value[2], bounds[B_RATE])
     if slot == SLOT_REFERENCE_RATE:
-        return vector_verdict(value, bounds[B_REFERENCE_RATE])
-    return vector_verdict(value, bounds[B_REFERENCE_ACCELERATION])
+        return vector_verdict(value[0], value[1], value[2], bounds[B_REFERENCE_RATE])
+    return vector_verdict(value[0], value[1], value[2], bounds[B_REFERENCE_ACCELERATION])
 
 
 @jit(inline="always")  # type: ignore[no-untyped-call]
@@ -184,28 +185,27 @@ def sample_verdicts(state_delivered, reference_delivered, q_BN, omega_BN_B, q_RN
     ``state_delivered`` / ``reference_delivered`` false: those inputs arrived as "no data" (a
     dropout: the injector relays non-finite values, which the node rejects as invalid), so the
     state's two inputs, or the reference's three, count as invalid without being looked at."""
-    ok = True
+    n_invalid = 0
+    n_implausible = 0
     if state_delivered:
-        v0 = quaternion_verdict(q_BN, bounds[B_NORM])
-        v1 = vector_verdict(omega_BN_B, bounds[B_RATE])
-        for v in (v0, v1):
-            if v != INPUT_OK:
-                rejected[v - 1] += 1
-                ok = False
+        v0 = quaternion_verdict(q_BN[0], q_BN[1], q_BN[2], q_BN[3], bounds[B_NORM])
+        v1 = vector_verdict(omega_BN_B[0], omega_BN_B[1], omega_BN_B[2], bounds[B_RATE])
+        n_invalid += int(v0 == INPUT_INVALID) + int(v1 == INPUT_INVALID)
+        n_implausible += int(v0 == INPUT_IMPLAUSIBLE) + int(v1 == INPUT_IMPLAUSIBLE)
     else:
-        rejected[INPUT_INVALID - 1] += 2
-        ok = False
+        n_invalid += 2
     if reference_delivered:
-        v2 = quaternion_verdict(q_RN, bounds[B_NORM])
-        v3 = vector_verdict(omega_RN_R, bounds[B_REFERENCE_RATE])
-        v4 = vector_verdict(omegadot_RN_R, bounds[B_REFERENCE_ACCELERATION])
-        for v in (v2, v3, v4):
-            if v != INPUT_OK:
-                rejected[v - 1] += 1
-                ok = False
+        v2 = quaternion_verdict(q_RN[0], q_RN[1], q_RN[2], q_RN[3], bounds[B_NORM])
+        v3 = vector_verdict(omega_RN_R[0], omega_RN_R[1], omega_RN_R[2], bounds[B_REFERENCE_RATE])
+        v4 = vector_verdict(omegadot_RN_R[0], omegadot_RN_R[1], omegadot_RN_R[2], bounds[B_REFERENCE_ACCELERATION])
+        n_invalid += (int(v2 == INPUT_INVALID) + int(v3 == INPUT_INVALID)) + int(v4 == INPUT_INVALID)
+        n_implausible += (int(v2 == INPUT_IMPLAUSIBLE) + int(v3 == INPUT_IMPLAUSIBLE)) + int(v4 == INPUT_IMPLAUSIBLE)
     else:
-        rejected[INPUT_INVALID - 1] += 3
-        ok = False
+        n_invalid += 3
+    ok = n_invalid == 0 and n_implausible == 0
+    if not ok:
+        rejected[INPUT_INVALID - 1] += n_invalid
+        rejected[INPUT_IMPLAUSIBLE - 1] += n_implausible
     return ok
 
 

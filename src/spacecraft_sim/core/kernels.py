@@ -68,8 +68,6 @@ __all__ = [
 
 D_PERIODIC, D_CONSTANT, D_STEP, D_PULSE, D_RANDOM = 0, 1, 2, 3, 4
 N_DPARAMS = 8
-#: Rows of the plant's scratch array (:func:`propagate`).
-N_PLANT_WORK = 8
 #: Tolerance of time-window comparisons [s] (step and pulse disturbances, fault windows): far
 #: below any control period (>= 1e-4 s), far above the rounding of k * dt over hours (1e-12 s).
 #: Re-exported by :mod:`.disturbance`.
@@ -81,64 +79,74 @@ _TOL = TIME_TOLERANCE_S
 
 
 @jit(inline="always")
-def derivative(x, accel_ext, J, J_inv, work, out):
-    """``dx/dt`` of ``x = (q_BN, omega_BN_B)`` (7,) given ``J^-1 torque`` (3,) (module dynamics):
-    ``dq/dt = 1/2 q ⊗ (omega, 0)``, ``domega/dt = J^-1 torque - J^-1 (omega × J omega)``."""
-    q0 = x[3]
-    w0, w1, w2 = x[4], x[5], x[6]
-    c0 = x[1] * w2 - x[2] * w1
-    c1 = x[2] * w0 - x[0] * w2
-    c2 = x[0] * w1 - x[1] * w0
-    out[0] = 0.5 * (q0 * w0 + c0)
-    out[1] = 0.5 * (q0 * w1 + c1)
-    out[2] = 0.5 * (q0 * w2 + c2)
-    out[3] = -0.5 * ((x[0] * w0 + x[1] * w1) + x[2] * w2)
-    Jw = work[0]
-    matvec3(J, x[4:7], Jw)  # J omega
-    cr = work[1]
-    cr[0] = w1 * Jw[2] - w2 * Jw[1]  # omega × J omega
-    cr[1] = w2 * Jw[0] - w0 * Jw[2]
-    cr[2] = w0 * Jw[1] - w1 * Jw[0]
-    Jic = work[2]
-    matvec3(J_inv, cr, Jic)
-    out[4] = accel_ext[0] - Jic[0]
-    out[5] = accel_ext[1] - Jic[1]
-    out[6] = accel_ext[2] - Jic[2]
+def _rates(s, a0, a1, a2, J, J_inv):
+    """``dx/dt`` of the state ``s`` = (q_BN, omega_BN_B), a 7-tuple, given ``J^-1 torque`` =
+    (a0, a1, a2) (module dynamics): ``dq/dt = 1/2 q ⊗ (omega, 0)``,
+    ``domega/dt = J^-1 torque - J^-1 (omega × J omega)``; a 7-tuple.  Scalars only: no array view,
+    so no reference count per call in the loops that inline it; ``J v`` summed as
+    :func:`gnc_common.compiled.matvec3` sums it, ``(J_i0 v0 + J_i1 v1) + J_i2 v2``."""
+    q3 = s[3]
+    w0, w1, w2 = s[4], s[5], s[6]
+    c0 = s[1] * w2 - s[2] * w1
+    c1 = s[2] * w0 - s[0] * w2
+    c2 = s[0] * w1 - s[1] * w0
+    Jw0 = (J[0, 0] * w0 + J[0, 1] * w1) + J[0, 2] * w2  # J omega
+    Jw1 = (J[1, 0] * w0 + J[1, 1] * w1) + J[1, 2] * w2
+    Jw2 = (J[2, 0] * w0 + J[2, 1] * w1) + J[2, 2] * w2
+    cr0 = w1 * Jw2 - w2 * Jw1  # omega × J omega
+    cr1 = w2 * Jw0 - w0 * Jw2
+    cr2 = w0 * Jw1 - w1 * Jw0
+    return (0.5 * (q3 * w0 + c0), 0.5 * (q3 * w1 + c1), 0.5 * (q3 * w2 + c2), -0.5 * ((s[0] * w0 + s[1] * w1) + s[2] * w2),
+            a0 - ((J_inv[0, 0] * cr0 + J_inv[0, 1] * cr1) + J_inv[0, 2] * cr2),
+            a1 - ((J_inv[1, 0] * cr0 + J_inv[1, 1] * cr1) + J_inv[1, 2] * cr2),
+            a2 - ((J_inv[2, 0] * cr0 + J_inv[2, 1] * cr1) + J_inv[2, 2] * cr2))
 
 
 @jit(inline="always")
-def rk4_step(x, accel_ext, dt, J, J_inv, work):
-    """One classical RK4 step of ``dt`` in place, input held (ZOH), then ``q`` renormalised
-    (:meth:`.dynamics.RigidBody.rk4_step`).  ``work`` (N_PLANT_WORK, 7)."""
-    k1, k2, k3, k4, xs = work[3], work[4], work[5], work[6], work[7]
+def _stage(s, h, k):
+    """``s + h k`` for 7-tuples (an RK4 stage's state)."""
+    return (s[0] + h * k[0], s[1] + h * k[1], s[2] + h * k[2], s[3] + h * k[3], s[4] + h * k[4], s[5] + h * k[5], s[6] + h * k[6])
+
+
+@jit(inline="always")
+def derivative(x, accel_ext, J, J_inv, out):
+    """``dx/dt`` of ``x = (q_BN, omega_BN_B)`` (7,) given ``J^-1 torque`` (3,) into ``out`` (7,)
+    (:func:`_rates`)."""
+    d = _rates((x[0], x[1], x[2], x[3], x[4], x[5], x[6]), accel_ext[0], accel_ext[1], accel_ext[2], J, J_inv)
+    for i in range(7):
+        out[i] = d[i]
+
+
+@jit(inline="always")
+def rk4_step(x, a0, a1, a2, dt, J, J_inv):
+    """One classical RK4 step of ``dt`` in place, ``J^-1 torque`` = (a0, a1, a2) held (ZOH), then
+    ``q`` renormalised (:meth:`.dynamics.RigidBody.rk4_step`).  The stages are scalars
+    (:func:`_rates`): no scratch array."""
     h2 = 0.5 * dt
-    derivative(x, accel_ext, J, J_inv, work, k1)
-    for i in range(7):
-        xs[i] = x[i] + h2 * k1[i]
-    derivative(xs, accel_ext, J, J_inv, work, k2)
-    for i in range(7):
-        xs[i] = x[i] + h2 * k2[i]
-    derivative(xs, accel_ext, J, J_inv, work, k3)
-    for i in range(7):
-        xs[i] = x[i] + dt * k3[i]
-    derivative(xs, accel_ext, J, J_inv, work, k4)
+    s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6])
+    k1 = _rates(s, a0, a1, a2, J, J_inv)
+    k2 = _rates(_stage(s, h2, k1), a0, a1, a2, J, J_inv)
+    k3 = _rates(_stage(s, h2, k2), a0, a1, a2, J, J_inv)
+    k4 = _rates(_stage(s, dt, k3), a0, a1, a2, J, J_inv)
     c = dt / 6.0
     for i in range(7):
-        x[i] = x[i] + c * ((k1[i] + 2.0 * (k2[i] + k3[i])) + k4[i])
+        x[i] = s[i] + c * ((k1[i] + 2.0 * (k2[i] + k3[i])) + k4[i])
     n = np.sqrt(((x[0] * x[0] + x[1] * x[1]) + x[2] * x[2]) + x[3] * x[3])
     for i in range(4):
         x[i] = x[i] / n
 
 
 @jit(inline="always")
-def propagate(x, torque_B, dt, substeps, J, J_inv, work):
+def propagate(x, torque_B, dt, substeps, J, J_inv):
     """Advance ``x`` (7,) in place by ``dt`` in ``substeps`` RK4 steps with ``torque_B`` held
     (zero-order hold, :meth:`.dynamics.RigidBody.propagate`; inputs checked by the caller)."""
-    accel = work[0, 4:7]  # row 0 columns 4..6 are free (derivative uses columns 0..2)
-    matvec3(J_inv, torque_B, accel)
+    t0, t1, t2 = torque_B[0], torque_B[1], torque_B[2]
+    a0 = (J_inv[0, 0] * t0 + J_inv[0, 1] * t1) + J_inv[0, 2] * t2  # J^-1 torque
+    a1 = (J_inv[1, 0] * t0 + J_inv[1, 1] * t1) + J_inv[1, 2] * t2
+    a2 = (J_inv[2, 0] * t0 + J_inv[2, 1] * t1) + J_inv[2, 2] * t2
     h = dt / substeps
     for _ in range(substeps):
-        rk4_step(x, accel, h, J, J_inv, work)
+        rk4_step(x, a0, a1, a2, h, J, J_inv)
 
 
 @jit
@@ -147,7 +155,6 @@ def propagate_runs(x, torque_B, dt, substeps, J, J_inv, out):
     (Nu, 3) and ``J``, ``J_inv`` (NJ, 3, 3); each of Nx, Nu, NJ is 1 (shared by every run) or N.
     ``x`` is not changed (``out`` may not alias it); inputs checked by the caller
     (:meth:`.dynamics.RigidBody.propagate`)."""
-    work = np.empty((N_PLANT_WORK, 7))
     xs = np.empty(7)
     u = np.empty(3)
     for n in range(out.shape[0]):
@@ -158,7 +165,7 @@ def propagate_runs(x, torque_B, dt, substeps, J, J_inv, out):
             xs[i] = x[nx, i]
         for i in range(3):
             u[i] = torque_B[nu, i]
-        propagate(xs, u, dt, substeps, J[nj], J_inv[nj], work)
+        propagate(xs, u, dt, substeps, J[nj], J_inv[nj])
         for i in range(7):
             out[n, i] = xs[i]
 
@@ -166,14 +173,13 @@ def propagate_runs(x, torque_B, dt, substeps, J, J_inv, out):
 @jit
 def derivative_runs(x, torque_B, J, J_inv, out):
     """:func:`derivative` of each run, ``J^-1 torque`` formed first (shapes of :func:`propagate_runs`)."""
-    work = np.empty((N_PLANT_WORK, 7))
     accel = np.empty(3)
     for n in range(out.shape[0]):
         nx = n if x.shape[0] > 1 else 0
         nu = n if torque_B.shape[0] > 1 else 0
         nj = n if J.shape[0] > 1 else 0
         matvec3(J_inv[nj], torque_B[nu], accel)
-        derivative(x[nx], accel, J[nj], J_inv[nj], work, out[n])
+        derivative(x[nx], accel, J[nj], J_inv[nj], out[n])
 
 
 # ============================================================================= reference

@@ -281,10 +281,7 @@ def pack_sensors(sensors: Sensors | None, n_runs: int, n_samples: int, control_p
 
 @jit(inline="always")
 def measure_run(s, n, k, t, x, held_q, bias, y):
-    """Run ``n``'s measurement of sample ``k`` (:func:`measure` with :class:`SensorArrays` ``s``), or
-    the true state when the batch has no sensor draws."""
-    if s.draws.shape[1] > 0:
-        measure(k, t, x[:4], x[4:7], s.draws[n, k], s.params[n], s.outages[n], held_q, bias, y)
-    else:
-        for i in range(7):
-            y[i] = x[i]
+    """Run ``n``'s measurement of sample ``k`` (:func:`measure` with :class:`SensorArrays` ``s``, whose
+    batch has draws; without draws the loop's input is the true state, which the loop copies itself:
+    this call's seven arrays would cost seven reference counts per sample)."""
+    measure(k, t, x[:4], x[4:7], s.draws[n, k], s.params[n], s.outages[n], held_q, bias, y)
