@@ -55,8 +55,11 @@ __all__ = [
     "kernel_sources_digest",
     "cross3",
     "dcm_BR_times",
+    "dcm_BR_times_of",
     "dot3",
     "error_quaternion",
+    "error_quaternion_of",
+    "gamma_inverse_of",
     "gamma_inverse_times",
     "inverse3",
     "inverse3_stack",
@@ -64,6 +67,7 @@ __all__ = [
     "jit_parallel",
     "matvec3",
     "matvec3_flat",
+    "matvec3_flat_of",
     "quat_conjugate",
     "quat_multiply",
     "quat_normalize",
@@ -221,13 +225,22 @@ def matvec3(M, v, out):
 
 
 @jit
-def matvec3_flat(m, offset, v, out):
+def matvec3_flat_of(m, offset, v0, v1, v2):
     """:func:`matvec3` of the (3, 3) matrix stored row major in ``m[offset : offset + 9]`` (a packed
-    parameter row: no reshape, which costs a helper call per use in compiled code); same sums."""
-    v0, v1, v2 = v[0], v[1], v[2]
+    parameter row: no reshape, which costs a helper call per use in compiled code) and the vector
+    ``(v0, v1, v2)``, as a 3-tuple; same sums.  Scalars in and out: a caller that keeps its vectors
+    in rows of a scratch array makes no array view (a reference count each) to call it."""
+    r0, r1, r2 = offset, offset + 3, offset + 6
+    return ((m[r0] * v0 + m[r0 + 1] * v1) + m[r0 + 2] * v2, (m[r1] * v0 + m[r1 + 1] * v1) + m[r1 + 2] * v2,
+            (m[r2] * v0 + m[r2 + 1] * v1) + m[r2 + 2] * v2)
+
+
+@jit
+def matvec3_flat(m, offset, v, out):
+    """:func:`matvec3_flat_of` of the vector ``v`` (3,) into ``out`` (3,)."""
+    o = matvec3_flat_of(m, offset, v[0], v[1], v[2])
     for i in range(3):
-        r = offset + 3 * i
-        out[i] = (m[r] * v0 + m[r + 1] * v1) + m[r + 2] * v2
+        out[i] = o[i]
 
 
 @jit
@@ -312,8 +325,9 @@ def quat_normalize(q, out):
 
 
 @jit
-def error_quaternion(q_RN, q_BN, out):
-    """``out = q_BR = q_RN^* ⊗ q_BN`` with ``q_0 >= 0`` (see :func:`gnc_common.attitude.error_quaternion`)."""
+def error_quaternion_of(q_RN, q_BN):
+    """``q_BR = q_RN^* ⊗ q_BN`` with ``q_0 >= 0`` (see :func:`gnc_common.attitude.error_quaternion`),
+    as a 4-tuple (x, y, z, w)."""
     # conjugate folded in: p = (-r_v, r_0)
     p0 = q_RN[3]
     px, py, pz = -q_RN[0], -q_RN[1], -q_RN[2]
@@ -326,30 +340,38 @@ def error_quaternion(q_RN, q_BN, out):
     z = (p0 * q_BN[2] + q_BN[3] * pz) + c2
     if w < 0.0:
         x, y, z, w = -x, -y, -z, -w
-    out[0] = x
-    out[1] = y
-    out[2] = z
-    out[3] = w
+    return x, y, z, w
+
+
+@jit
+def error_quaternion(q_RN, q_BN, out):
+    """:func:`error_quaternion_of` into ``out`` (4,)."""
+    q = error_quaternion_of(q_RN, q_BN)
+    for i in range(4):
+        out[i] = q[i]
+
+
+@jit
+def dcm_BR_times_of(x, y, z, q0, v0, v1, v2):
+    """``C_e v`` with ``C_e = (q0² - q_v·q_v) I + 2 q_v q_v^T - 2 q0 q_v^x`` (eq. errorsystem), for
+    ``q_BR = (x, y, z, q0)`` and ``v = (v0, v1, v2)``, as a 3-tuple."""
+    qq = (x * x + y * y) + z * z
+    qv_v = (x * v0 + y * v1) + z * v2
+    s = q0 * q0 - qq
+    two_d = 2.0 * qv_v
+    two_q0 = 2.0 * q0
+    c0 = y * v2 - z * v1
+    c1 = z * v0 - x * v2
+    c2 = x * v1 - y * v0
+    return (s * v0 + two_d * x) - two_q0 * c0, (s * v1 + two_d * y) - two_q0 * c1, (s * v2 + two_d * z) - two_q0 * c2
 
 
 @jit
 def dcm_BR_times(q_BR, v_R, out):
-    """``out = C_e v`` with ``C_e = (q0² - q_v·q_v) I + 2 q_v q_v^T - 2 q0 q_v^x`` (eq. errorsystem)."""
-    q0 = q_BR[3]
-    qq = (q_BR[0] * q_BR[0] + q_BR[1] * q_BR[1]) + q_BR[2] * q_BR[2]
-    qv_v = (q_BR[0] * v_R[0] + q_BR[1] * v_R[1]) + q_BR[2] * v_R[2]
-    s = q0 * q0 - qq
-    two_d = 2.0 * qv_v
-    two_q0 = 2.0 * q0
-    c0 = q_BR[1] * v_R[2] - q_BR[2] * v_R[1]
-    c1 = q_BR[2] * v_R[0] - q_BR[0] * v_R[2]
-    c2 = q_BR[0] * v_R[1] - q_BR[1] * v_R[0]
-    o0 = (s * v_R[0] + two_d * q_BR[0]) - two_q0 * c0
-    o1 = (s * v_R[1] + two_d * q_BR[1]) - two_q0 * c1
-    o2 = (s * v_R[2] + two_d * q_BR[2]) - two_q0 * c2
-    out[0] = o0
-    out[1] = o1
-    out[2] = o2
+    """:func:`dcm_BR_times_of` of ``q_BR`` (4,) and ``v_R`` (3,) into ``out`` (3,)."""
+    o = dcm_BR_times_of(q_BR[0], q_BR[1], q_BR[2], q_BR[3], v_R[0], v_R[1], v_R[2])
+    for i in range(3):
+        out[i] = o[i]
 
 
 @jit
@@ -369,19 +391,23 @@ def quat_rotate(q_BN, v_B, out):
 
 
 @jit
+def gamma_inverse_of(q1, q2, q3, q0_raw, x0, x1, x2, q0_floor):
+    """``Gamma(q_e)^-1 x = 2 (q0 x - q_v × x + q_v (q_v·x) / q0)`` for ``q_e = (q1, q2, q3, q0_raw)``
+    and ``x = (x0, x1, x2)``, ``q0`` floored at ``q0_floor`` (docs/paper_notes.md, error 5): finite
+    and bounded by ``2 (1 + 1/q0_floor) |x|`` at 180 deg; a 3-tuple.  Closed form of
+    ``(q0 I + q_v^x)^-1 = q0 I - q_v^x + q_v q_v^T / q0`` for a unit quaternion."""
+    q0 = max(q0_raw, q0_floor)
+    d = ((q1 * x0 + q2 * x1) + q3 * x2) / q0
+    c0 = q2 * x2 - q3 * x1
+    c1 = q3 * x0 - q1 * x2
+    c2 = q1 * x1 - q2 * x0
+    return 2.0 * ((q0 * x0 - c0) + d * q1), 2.0 * ((q0 * x1 - c1) + d * q2), 2.0 * ((q0 * x2 - c2) + d * q3)
+
+
+@jit
 def gamma_inverse_times(q_BR, x, q0_floor, out):
-    """``out = Gamma(q_e)^-1 x = 2 (q0 x - q_v × x + q_v (q_v·x) / q0)``, ``q0`` floored at
-    ``q0_floor`` (docs/paper_notes.md, error 5): finite and bounded by ``2 (1 + 1/q0_floor) |x|`` at
-    180 deg.  Closed form of ``(q0 I + q_v^x)^-1 = q0 I - q_v^x + q_v q_v^T / q0`` for a unit quaternion."""
-    q0 = max(q_BR[3], q0_floor)
-    d = ((q_BR[0] * x[0] + q_BR[1] * x[1]) + q_BR[2] * x[2]) / q0
-    c0 = q_BR[1] * x[2] - q_BR[2] * x[1]
-    c1 = q_BR[2] * x[0] - q_BR[0] * x[2]
-    c2 = q_BR[0] * x[1] - q_BR[1] * x[0]
-    o0 = 2.0 * ((q0 * x[0] - c0) + d * q_BR[0])
-    o1 = 2.0 * ((q0 * x[1] - c1) + d * q_BR[1])
-    o2 = 2.0 * ((q0 * x[2] - c2) + d * q_BR[2])
-    out[0] = o0
-    out[1] = o1
-    out[2] = o2
+    """:func:`gamma_inverse_of` of ``q_BR`` (4,) and ``x`` (3,) into ``out`` (3,)."""
+    o = gamma_inverse_of(q_BR[0], q_BR[1], q_BR[2], q_BR[3], x[0], x[1], x[2], q0_floor)
+    for i in range(3):
+        out[i] = o[i]
 

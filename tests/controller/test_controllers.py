@@ -196,11 +196,11 @@ def _filter(V_floor: float):  # type: ignore[no-untyped-def]
     ``(alpha, dt) -> (S_d, S_d_dot, V3)``, and its state."""
     prm, state = np.zeros(K.N_PARAMS), K.new_state(1)[0]
     prm[K.P_P], prm[K.P_T3], prm[K.P_VFLOOR] = 0.1, 2.0, V_floor
-    S_d, S_d_dot = np.zeros(3), np.zeros(3)
 
     def update(alpha: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, float]:
-        V3 = K.filter_update(prm, state, dt, np.asarray(alpha, dtype=float), S_d, S_d_dot)
-        return S_d.copy(), S_d_dot.copy(), V3
+        a = np.asarray(alpha, dtype=float)
+        V3, S_d, S_d_dot = K.filter_update(prm, state, dt, a[0], a[1], a[2])
+        return np.array(S_d), np.array(S_d_dot), V3
 
     return update, state
 

@@ -70,7 +70,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from gnc_common.compiled import dcm_BR_times, dot3, error_quaternion, gamma_inverse_times, jit, matvec3_flat
+from gnc_common.compiled import dcm_BR_times_of, dot3, error_quaternion, error_quaternion_of, gamma_inverse_of, gamma_inverse_times, jit, matvec3_flat
+from gnc_common.compiled import matvec3_flat_of
 
 __all__ = [
     "ControllerArrays",
@@ -175,18 +176,27 @@ def predefined_time_gain(V, p, T, V_floor):
 def error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work):
     """Error state of eq. (errorsystem) into ``work`` rows ``W_QBR .. W_CWDD``:
     ``q_e = q_d^* ⊗ q_s`` (``q_e0 >= 0``), ``omega_e = omega_s - C_e omega_d``, ``C_e omega_d``,
-    ``C_e omegadot_d`` and ``omega_s``."""
-    error_quaternion(q_RN, q_BN, work[W_QBR])
-    dcm_BR_times(work[W_QBR], omega_RN_R, work[W_CWD])  # C_e omega_d
-    dcm_BR_times(work[W_QBR], omegadot_RN_R, work[W_CWDD])  # C_e omegadot_d
+    ``C_e omegadot_d`` and ``omega_s``.  (The laws' helpers pass vectors as scalars and write rows of
+    ``work`` element by element: an array view of a row costs a reference count in the loop.)"""
+    x, y, z, q0 = error_quaternion_of(q_RN, q_BN)
+    work[W_QBR, 0] = x
+    work[W_QBR, 1] = y
+    work[W_QBR, 2] = z
+    work[W_QBR, 3] = q0
+    cwd = dcm_BR_times_of(x, y, z, q0, omega_RN_R[0], omega_RN_R[1], omega_RN_R[2])  # C_e omega_d
+    cwdd = dcm_BR_times_of(x, y, z, q0, omegadot_RN_R[0], omegadot_RN_R[1], omegadot_RN_R[2])  # C_e omegadot_d
+    for i in range(3):
+        work[W_CWD, i] = cwd[i]
+        work[W_CWDD, i] = cwdd[i]
     for i in range(3):
         work[W_WBN, i] = omega_BN_B[i]
         work[W_WBR, i] = omega_BN_B[i] - work[W_CWD, i]  # omega_e = omega_s - C_e omega_d
 
 
 @jit(inline="always")
-def filter_update(prm, state, dt, alpha, S_d_out, S_d_dot_out):
-    """Dynamic-surface filter of the virtual control (eq. dSd), stable for any gain.
+def filter_update(prm, state, dt, a0, a1, a2):
+    """Dynamic-surface filter of the virtual control ``alpha = (a0, a1, a2)`` (eq. dSd), stable for
+    any gain.
 
     Eq. (dSd) is ``dS_d/dt = -M3 H_d`` with ``H_d = S_d - alpha``, ``M3 = exp(V3^p) V3^(-p) / (2 p T3)``
     and ``V3 = |H_d|^2 / 2``.  Forward Euler is unstable once ``M3 dt > 2``, which happens as
@@ -195,44 +205,44 @@ def filter_update(prm, state, dt, alpha, S_d_out, S_d_dot_out):
     for every ``M3 >= 0`` and ``dt > 0``.  The derivative fed to the law is the secant of that
     update, ``dS_d/dt = -(1 - exp(-M3 dt)) / dt H_d``, whose gain is bounded by ``1 / dt`` and tends
     to eq. (dSd) as ``dt -> 0``.  The filter starts at the first virtual control (``H_d(0) = 0``).
-    Writes the output before the update and its derivative; returns ``V3``."""
+    Returns ``V3``, the output before the update ``S_d`` and its derivative (3-tuples)."""
     if state[S_FILTER_ON] == 0.0:
-        for i in range(3):
-            state[S_SD + i] = alpha[i]
+        state[S_SD] = a0
+        state[S_SD + 1] = a1
+        state[S_SD + 2] = a2
         state[S_FILTER_ON] = 1.0
-    h0 = state[S_SD] - alpha[0]  # H_d = S_d - alpha
-    h1 = state[S_SD + 1] - alpha[1]
-    h2 = state[S_SD + 2] - alpha[2]
+    s0, s1, s2 = state[S_SD], state[S_SD + 1], state[S_SD + 2]
+    h0 = s0 - a0  # H_d = S_d - alpha
+    h1 = s1 - a1
+    h2 = s2 - a2
     V3 = 0.5 * ((h0 * h0 + h1 * h1) + h2 * h2)
     M3 = predefined_time_gain(V3, prm[P_P], prm[P_T3], prm[P_VFLOOR])  # eq. (dSd)
     neg_rate = -(-np.expm1(-M3 * dt) / dt)  # exact exponential update (docs/paper_notes.md, error 4)
-    S_d_dot_out[0] = neg_rate * h0
-    S_d_dot_out[1] = neg_rate * h1
-    S_d_dot_out[2] = neg_rate * h2
-    for i in range(3):
-        S_d_out[i] = state[S_SD + i]
-        state[S_SD + i] = state[S_SD + i] + dt * S_d_dot_out[i]
-    return V3
+    d0 = neg_rate * h0
+    d1 = neg_rate * h1
+    d2 = neg_rate * h2
+    state[S_SD] = s0 + dt * d0
+    state[S_SD + 1] = s1 + dt * d1
+    state[S_SD + 2] = s2 + dt * d2
+    return V3, (s0, s1, s2), (d0, d1, d2)
 
 
 @jit(inline="always")
-def w0_plus(prm, work, out):
-    """``out = -W0``, ``W0 = J omega_e^x C_e omega_d - J C_e omegadot_d - omega_s^x J omega_s`` (after eq. U)."""
-    a, b = work[W_WBR], work[W_CWD]
-    t = work[W_T1]
-    t[0] = (a[1] * b[2] - a[2] * b[1]) - work[W_CWDD, 0]
-    t[1] = (a[2] * b[0] - a[0] * b[2]) - work[W_CWDD, 1]
-    t[2] = (a[0] * b[1] - a[1] * b[0]) - work[W_CWDD, 2]
-    Jt = work[W_T2]
-    matvec3_flat(prm, P_J, t, Jt)  # J (omega_e^x C_e omega_d - C_e omegadot_d)
-    w = work[W_WBN]
-    matvec3_flat(prm, P_J, w, t)  # J omega_s
-    c0 = w[1] * t[2] - w[2] * t[1]
-    c1 = w[2] * t[0] - w[0] * t[2]
-    c2 = w[0] * t[1] - w[1] * t[0]
-    out[0] = -(Jt[0] - c0)
-    out[1] = -(Jt[1] - c1)
-    out[2] = -(Jt[2] - c2)
+def w0_plus(prm, work):
+    """``-W0``, ``W0 = J omega_e^x C_e omega_d - J C_e omegadot_d - omega_s^x J omega_s`` (after eq. U),
+    a 3-tuple."""
+    a0, a1, a2 = work[W_WBR, 0], work[W_WBR, 1], work[W_WBR, 2]
+    b0, b1, b2 = work[W_CWD, 0], work[W_CWD, 1], work[W_CWD, 2]
+    t0 = (a1 * b2 - a2 * b1) - work[W_CWDD, 0]
+    t1 = (a2 * b0 - a0 * b2) - work[W_CWDD, 1]
+    t2 = (a0 * b1 - a1 * b0) - work[W_CWDD, 2]
+    Jt = matvec3_flat_of(prm, P_J, t0, t1, t2)  # J (omega_e^x C_e omega_d - C_e omegadot_d)
+    w0, w1, w2 = work[W_WBN, 0], work[W_WBN, 1], work[W_WBN, 2]
+    Jw = matvec3_flat_of(prm, P_J, w0, w1, w2)  # J omega_s
+    c0 = w1 * Jw[2] - w2 * Jw[1]
+    c1 = w2 * Jw[0] - w0 * Jw[2]
+    c2 = w0 * Jw[1] - w1 * Jw[0]
+    return -(Jt[0] - c0), -(Jt[1] - c1), -(Jt[2] - c2)
 
 
 @jit(inline="always")
@@ -383,31 +393,31 @@ def backstepping_law(prm, state, dt, work, out):
 
     docs/paper_notes.md, observation 7: ``dV1/dt`` contains ``eps^T psi Gamma (z2 + H_d)``, which the
     paper's analysis drops and the published law does not cancel; this is the published law."""
-    eps = work[W_EPS]
-    V1 = 0.5 * dot3(eps, eps)  # V1 = z1^T z1 / 2, z1 = eps_q
+    e0, e1, e2 = work[W_EPS, 0], work[W_EPS, 1], work[W_EPS, 2]
+    V1 = 0.5 * ((e0 * e0 + e1 * e1) + e2 * e2)  # V1 = z1^T z1 / 2, z1 = eps_q
     M_q = predefined_time_gain(V1, prm[P_P], prm[P_T1], prm[P_VFLOOR])
     neg_kq_mq = -(prm[P_KQ] * M_q)
-    x = work[W_X]
-    for i in range(3):  # eq. (virtualcontrol): alpha = Gamma^-1 [-psi^-1 M_q K_q eps - eta q_ev]
-        x[i] = neg_kq_mq * eps[i] / work[W_PSI, i] - work[W_ETA, i] * work[W_QBR, i]
-    alpha = work[W_ALPHA]
-    gamma_inverse_times(work[W_QBR], x, prm[P_Q0FLOOR], alpha)  # q_e0 floored: docs/paper_notes.md, error 5
-    S_d, S_d_dot = work[W_SD], work[W_SDDOT]
-    V3 = filter_update(prm, state, dt, alpha, S_d, S_d_dot)  # eq. (dSd), exact exponential update
-    z2, Jz2 = work[W_Z2], work[W_JZ2]
-    for i in range(3):
-        z2[i] = work[W_WBR, i] - S_d[i]  # z2 = omega_e - S_d
-    matvec3_flat(prm, P_J, z2, Jz2)
-    V2 = 0.5 * dot3(z2, Jz2)  # V2 = z2^T J z2 / 2
+    # eq. (virtualcontrol): alpha = Gamma^-1 [-psi^-1 M_q K_q eps - eta q_ev]
+    x0 = neg_kq_mq * e0 / work[W_PSI, 0] - work[W_ETA, 0] * work[W_QBR, 0]
+    x1 = neg_kq_mq * e1 / work[W_PSI, 1] - work[W_ETA, 1] * work[W_QBR, 1]
+    x2 = neg_kq_mq * e2 / work[W_PSI, 2] - work[W_ETA, 2] * work[W_QBR, 2]
+    alpha = gamma_inverse_of(work[W_QBR, 0], work[W_QBR, 1], work[W_QBR, 2], work[W_QBR, 3], x0, x1, x2,
+                             prm[P_Q0FLOOR])  # q_e0 floored: docs/paper_notes.md, error 5
+    V3, S_d, S_d_dot = filter_update(prm, state, dt, alpha[0], alpha[1], alpha[2])  # eq. (dSd), exact exponential update
+    z0 = work[W_WBR, 0] - S_d[0]  # z2 = omega_e - S_d
+    z1 = work[W_WBR, 1] - S_d[1]
+    z2 = work[W_WBR, 2] - S_d[2]
+    Jz2 = matvec3_flat_of(prm, P_J, z0, z1, z2)
+    V2 = 0.5 * ((z0 * Jz2[0] + z1 * Jz2[1]) + z2 * Jz2[2])  # V2 = z2^T J z2 / 2
     M_w = predefined_time_gain(V2, prm[P_P], prm[P_T2], prm[P_VFLOOR])
     kw_mw = prm[P_KW] * M_w
-    minus_w0 = work[W_X]  # x is no longer needed
-    w0_plus(prm, work, minus_w0)
-    JSdd = work[W_ALPHA]  # alpha is no longer needed
-    matvec3_flat(prm, P_J, S_d_dot, JSdd)
+    minus_w0 = w0_plus(prm, work)
+    JSdd = matvec3_flat_of(prm, P_J, S_d_dot[0], S_d_dot[1], S_d_dot[2])
     D_m, mu = prm[P_DM], prm[P_MU]
-    for i in range(3):  # eq. (U): u = -W0 + J dS_d/dt - D_m tanh(z2/mu) - M_omega K_omega J z2
-        out[O_CMD, i] = ((minus_w0[i] + JSdd[i]) - D_m * np.tanh(z2[i] / mu)) - kw_mw * Jz2[i]
+    # eq. (U): u = -W0 + J dS_d/dt - D_m tanh(z2/mu) - M_omega K_omega J z2
+    out[O_CMD, 0] = ((minus_w0[0] + JSdd[0]) - D_m * np.tanh(z0 / mu)) - kw_mw * Jz2[0]
+    out[O_CMD, 1] = ((minus_w0[1] + JSdd[1]) - D_m * np.tanh(z1 / mu)) - kw_mw * Jz2[1]
+    out[O_CMD, 2] = ((minus_w0[2] + JSdd[2]) - D_m * np.tanh(z2 / mu)) - kw_mw * Jz2[2]
     out[O_V, 0] = V1
     out[O_V, 1] = V2
     out[O_V, 2] = V3
@@ -455,7 +465,10 @@ def blfppc_law(prm, coef, state, tau, dt, work, out):
     alpha = work[W_ALPHA]
     gamma_inverse_times(work[W_QBR], x, prm[P_Q0FLOOR], alpha)  # alpha = Gamma^-1 [...]
     S_d, S_d_dot = work[W_SD], work[W_SDDOT]
-    V3 = filter_update(prm, state, dt, alpha, S_d, S_d_dot)  # eq. (dSd)
+    V3, sd, sdd = filter_update(prm, state, dt, alpha[0], alpha[1], alpha[2])  # eq. (dSd)
+    for i in range(3):
+        S_d[i] = sd[i]
+        S_d_dot[i] = sdd[i]
     z2, Jz2 = work[W_Z2], work[W_JZ2]
     D_rho_eps = work[W_ETA]
     for i in range(3):
@@ -468,8 +481,7 @@ def blfppc_law(prm, coef, state, tau, dt, work, out):
     matvec3_flat(prm, P_J, z2, Jz2)
     coupling = work[W_X]
     gamma_inverse_times(work[W_QBR], D_rho_eps, prm[P_Q0FLOOR], coupling)
-    minus_w0 = work[W_ALPHA]  # alpha is no longer needed
-    w0_plus(prm, work, minus_w0)
+    minus_w0 = w0_plus(prm, work)
     JSdd = work[W_PSI]  # width no longer needed
     matvec3_flat(prm, P_J, S_d_dot, JSdd)
     K2, two_K3, D_m, mu = prm[P_K2], 2.0 * prm[P_K3], prm[P_DM], prm[P_MU]
