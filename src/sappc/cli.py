@@ -407,11 +407,20 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    import gc
+
     from sappc.analysis.plots import FigureWorker
     from sappc.analysis.report import analyse_bag, write_report
 
-    with FigureWorker() as worker:  # imports matplotlib while the bag is read, then draws figures
-        return _report(args, analyse_bag, write_report, worker)
+    # No cyclic garbage collection in this short command (nor in its figure process, forked with
+    # it off): its passes over matplotlib's many young objects cost 0.1-0.2 s of a report's ~1 s,
+    # while the cycles left (closed figures) are a few MB (peak memory measured unchanged, 95 MB).
+    gc.disable()
+    try:
+        with FigureWorker() as worker:  # imports matplotlib while the bag is read, then draws figures
+            return _report(args, analyse_bag, write_report, worker)
+    finally:
+        gc.enable()
 
 
 def _report(args: argparse.Namespace, analyse_bag: Any, write_report: Any, worker: Any) -> int:
