@@ -126,3 +126,24 @@ def test_bad_bounds_in_a_scenario_name_the_key(key: str, value: object, fragment
     raw["controller_node"] = {key: value}
     with pytest.raises(ConfigError, match=fragment):
         scenario_from_mapping(raw)
+
+
+def test_the_nodes_interpreted_verdict_is_the_compiled_one() -> None:
+    """The node's :func:`input_verdict` runs the verdict kernels' source interpreted; the offline
+    loop runs them compiled.  Same operations on the same doubles, so the same verdict on every
+    value, including values one unit in the last place either side of each bound and non-finite
+    ones (the compiled kernels called directly here)."""
+    from sappc_controller.core import input_check as ic
+
+    rng = np.random.default_rng(11)
+    tol, rate = PACKED[ic.B_NORM], PACKED[ic.B_RATE]
+    quats = [rng.standard_normal(4) for _ in range(200)] + [q / np.linalg.norm(q) for q in rng.standard_normal((200, 4))]
+    quats += [np.array([0.0, 0.0, 0.0, s]) for s in (1.0 + tol, np.nextafter(1.0 + tol, 2.0), 1.0 - tol, np.nextafter(1.0 - tol, 0.0),
+                                                    math.nan, math.inf, 0.0)]
+    for q in quats:
+        assert input_verdict(ATT, q, PACKED) == ic.quaternion_verdict(q[0], q[1], q[2], q[3], tol), q
+    vecs = [rng.standard_normal(3) * s for s in (1e-3, 1.0, 10.0, 1e300) for _ in range(50)]
+    vecs += [np.array([b, 0.0, 0.0]) for b in (rate, np.nextafter(rate, 0.0), np.nextafter(rate, 1e9), math.nan, -math.inf, 0.0)]
+    vecs += [np.array([rate, rate, rate]) / math.sqrt(3.0)]
+    for v in vecs:
+        assert input_verdict(RATE, v, PACKED) == ic.vector_verdict(v[0], v[1], v[2], rate), v
