@@ -93,13 +93,14 @@ def _stats(xs: Sequence[float]) -> dict[str, float]:
     return {"median": statistics.median(xs), "min": min(xs), "max": max(xs)}
 
 
-def paired(command: Command, baseline: Path, candidate: Path, repeats: int, timeout_s: float) -> dict[str, object]:
-    """Both sides ``repeats`` times, alternately, after one warm-up each."""
+def paired(command: Command, baseline: Path, candidate: Path, repeats: int, timeout_s: float, warm_up: bool = True) -> dict[str, object]:
+    """Both sides ``repeats`` times, alternately, after one warm-up each (``warm_up``)."""
     walls: dict[str, list[float]] = {"baseline": [], "candidate": []}
     peaks: dict[str, list[float]] = {"baseline": [], "candidate": []}
     roots = {"baseline": baseline, "candidate": candidate}
+    first = 0 if warm_up else 1
     with tempfile.TemporaryDirectory(prefix="sappc-paired-") as tmp:
-        for i in range(repeats + 1):
+        for i in range(first, repeats + 1):
             order = ("baseline", "candidate") if i % 2 == 0 else ("candidate", "baseline")
             for side in order:
                 scratch = Path(tmp) / f"{side}{i}"
@@ -123,12 +124,14 @@ def main(row: str, doc: str, command: Command, *, target: str, timeout_s: float 
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--baseline", type=Path, required=True, help="a checkout of the baseline commit with its .venv set up")
     parser.add_argument("--repeats", type=int, default=repeats, help=f"counted runs of each side (default {repeats}; >= 3)")
+    parser.add_argument("--no-warm-up", action="store_true",
+                        help="no uncounted first run of each side (for commands of minutes, where a warm page cache is below the noise)")
     args = parser.parse_args()
     baseline = args.baseline.resolve()
     for root in (baseline, ROOT):
         python_of(root)  # both set up, or a clear error now
     load_before = os.getloadavg()[0]
-    result = paired(command, baseline, ROOT, max(1, args.repeats), timeout_s)
+    result = paired(command, baseline, ROOT, max(1, args.repeats), timeout_s, warm_up=not args.no_warm_up)
     print(json.dumps({
         "row": row,
         "target": target,
@@ -138,5 +141,6 @@ def main(row: str, doc: str, command: Command, *, target: str, timeout_s: float 
         "baseline": {"root": str(baseline), "commit": commit(baseline)},
         "candidate": {"root": str(ROOT), "commit": commit(ROOT)},
         "repeats": args.repeats,
+        "warm_up": not args.no_warm_up,
         **result,
     }, indent=2))
