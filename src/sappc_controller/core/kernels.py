@@ -137,8 +137,8 @@ N_STATE = 21
 # --- work rows --------------------------------------------------------------------------------
 W_QBR, W_WBR, W_WBN, W_CWD, W_CWDD = 0, 1, 2, 3, 4  # error state (eq. errorsystem)
 W_EPS, W_PSI, W_ETA, W_QEV = 5, 6, 7, 8
-W_X, W_ALPHA, W_SD, W_SDDOT, W_Z2, W_JZ2, W_T1, W_T2 = 9, 10, 11, 12, 13, 14, 15, 16
-N_WORK = 17
+W_X, W_ALPHA, W_SD, W_SDDOT, W_Z2, W_JZ2 = 9, 10, 11, 12, 13, 14  # BLFPPC's (SAPPC and TraPPC keep these in registers)
+N_WORK = 15
 
 # --- out rows ---------------------------------------------------------------------------------
 O_TORQUE, O_CMD, O_SAT, O_QBR, O_RHO, O_BL, O_BU, O_EPS, O_Z, O_V = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
