@@ -220,7 +220,8 @@ def euler_to_quaternion(angles_rad: ArrayLike, sequence: str) -> Array:
     for e in elementary[1:]:
         q = _compose(q, e) if seq.isupper() else _compose(e, q)
     q = q.reshape(angles.shape[:-1] + (4,))
-    return np.where(q[..., 3:] < 0.0, -q, q)
+    out: Array = np.where(q[..., 3:] < 0.0, -q, q)
+    return out
 
 
 def _compose(p: Array, q: Array) -> Array:
