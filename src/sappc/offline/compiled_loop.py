@@ -735,7 +735,7 @@ def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = 
 
     started = time.monotonic()
 
-    def compiled(group: str) -> None:  # progress: numba prints nothing while it compiles (a minute or more in all)
+    def compiled(group: str) -> None:  # progress: numba prints nothing while it compiles (about 40 s in all)
         print(f"sappc: numerical core: {group} ready ({time.monotonic() - started:.0f} s)", file=sys.stderr, flush=True)
 
     scenario = _warm_up_scenario()
