@@ -297,7 +297,7 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
             pub[O_TORQUE, i] = u_last[i]
         if sens.draws.shape[1] > 0 or nf > 0 or estimating or status != ANSWER_COMMANDED:
             error_quaternion(grid.ref_q[k], x[:4], pub[O_QBR])  # the true error (metrics)
-        if dist.use_table:  # the shared table, read here: passing the tuple's 7 arrays on costs 8 reference counts per sample
+        if dist.use_table:  # shared by every run: its table (disturbance_at: each run's own)
             for i in range(3):
                 d[i] = dist.table[k, i]
         else:

@@ -544,9 +544,8 @@ class FaultArrays(NamedTuple):
 @jit(inline="always")
 def disturbance_at(d, n, k, t, out):
     """The external torque of run ``n`` at sample ``k`` (time ``t`` [s]) into ``out`` (3,), from
-    :class:`DisturbanceArrays` ``d``: the shared table, or :func:`disturbance_sample`."""
-    if d.use_table:
-        for i in range(3):
-            out[i] = d.table[k, i]
-    else:
-        disturbance_sample(k, t, d.kinds, d.params, d.scale[n], d.phase[n], d.draws[:, n], d.windows, out)
+    :class:`DisturbanceArrays` ``d`` whose runs have disturbances of their own
+    (:func:`disturbance_sample`).  A shared disturbance (``d.use_table``) is the row ``k`` of
+    ``d.table``, which the loop reads itself: passing the tuple's seven arrays here would cost eight
+    reference counts per sample."""
+    disturbance_sample(k, t, d.kinds, d.params, d.scale[n], d.phase[n], d.draws[:, n], d.windows, out)
