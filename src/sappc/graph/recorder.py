@@ -101,8 +101,9 @@ FLUSH_PERIOD_S = 0.5
 #: Period of the writer thread's passes [s]: it writes everything handed over, then waits this long
 #: before the next pass.  Woken for each message instead (11,000 a second in a lockstep run), it
 #: cost a thread switch and a hand-over of the interpreter lock per message, which the executor's
-#: thread waited for: 2.5 s of a 6 s composed run.  A pass per 20 ms holds at most ~220 messages
-#: (~40 kB) in the hand-over queue, far inside the flush period.
+#: thread waited for: 2.5 s of a 6 s composed run.  The hand-over queue then holds a few hundred
+#: messages at most (a pass's 20 ms is ~220 of them; 578 seen in a composed run of experiment 1,
+#: ~100 kB), written well inside the flush period.
 WRITE_PASS_PERIOD_S = 0.02
 #: The ``library`` field of the bags the recorder writes.
 RECORDER_LIBRARY = "sappc recorder (mcap-python)"
