@@ -66,6 +66,7 @@ __all__ = [
     "jit",
     "jit_parallel",
     "matvec3",
+    "matvec3_of",
     "matvec3_flat",
     "matvec3_flat_of",
     "quat_conjugate",
@@ -216,12 +217,20 @@ def cross3(a, b, out):
 
 
 @jit
+def matvec3_of(M, v0, v1, v2):
+    """``M v`` for a (3, 3) matrix and ``v = (v0, v1, v2)``, summed ``(M_i0 v0 + M_i1 v1) + M_i2 v2``
+    (as :func:`gnc_common.attitude.matvec`; for a diagonal ``M`` the zero terms are exact), as a
+    3-tuple (scalars: no array view, so no reference count, in the loops that call it)."""
+    return ((M[0, 0] * v0 + M[0, 1] * v1) + M[0, 2] * v2, (M[1, 0] * v0 + M[1, 1] * v1) + M[1, 2] * v2,
+            (M[2, 0] * v0 + M[2, 1] * v1) + M[2, 2] * v2)
+
+
+@jit
 def matvec3(M, v, out):
-    """``out = M v`` for a (3, 3) matrix, summed ``(M_i0 v0 + M_i1 v1) + M_i2 v2``
-    (as :func:`gnc_common.attitude.matvec`; for a diagonal ``M`` the zero terms are exact)."""
-    v0, v1, v2 = v[0], v[1], v[2]
+    """:func:`matvec3_of` of ``v`` (3,) into ``out`` (3,)."""
+    o = matvec3_of(M, v[0], v[1], v[2])
     for i in range(3):
-        out[i] = (M[i, 0] * v0 + M[i, 1] * v1) + M[i, 2] * v2
+        out[i] = o[i]
 
 
 @jit

@@ -37,7 +37,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from gnc_common.compiled import jit, matvec3, quat_multiply, quat_normalize
+from gnc_common.compiled import jit, matvec3, matvec3_of, quat_multiply, quat_normalize
 from gnc_common.validation import ConfigError
 from spacecraft_sim.core.sensors import rotate_by_vector
 
@@ -82,24 +82,21 @@ _TOL = TIME_TOLERANCE_S
 def _rates(s, a0, a1, a2, J, J_inv):
     """``dx/dt`` of the state ``s`` = (q_BN, omega_BN_B), a 7-tuple, given ``J^-1 torque`` =
     (a0, a1, a2) (module dynamics): ``dq/dt = 1/2 q ⊗ (omega, 0)``,
-    ``domega/dt = J^-1 torque - J^-1 (omega × J omega)``; a 7-tuple.  Scalars only: no array view,
-    so no reference count per call in the loops that inline it; ``J v`` summed as
-    :func:`gnc_common.compiled.matvec3` sums it, ``(J_i0 v0 + J_i1 v1) + J_i2 v2``."""
+    ``domega/dt = J^-1 torque - J^-1 (omega × J omega)``; a 7-tuple.  Scalars only (the matrix
+    products by :func:`gnc_common.compiled.matvec3_of`): no array view, so no reference count per
+    call in the loops that inline it."""
     q3 = s[3]
     w0, w1, w2 = s[4], s[5], s[6]
     c0 = s[1] * w2 - s[2] * w1
     c1 = s[2] * w0 - s[0] * w2
     c2 = s[0] * w1 - s[1] * w0
-    Jw0 = (J[0, 0] * w0 + J[0, 1] * w1) + J[0, 2] * w2  # J omega
-    Jw1 = (J[1, 0] * w0 + J[1, 1] * w1) + J[1, 2] * w2
-    Jw2 = (J[2, 0] * w0 + J[2, 1] * w1) + J[2, 2] * w2
-    cr0 = w1 * Jw2 - w2 * Jw1  # omega × J omega
-    cr1 = w2 * Jw0 - w0 * Jw2
-    cr2 = w0 * Jw1 - w1 * Jw0
+    Jw = matvec3_of(J, w0, w1, w2)  # J omega
+    cr0 = w1 * Jw[2] - w2 * Jw[1]  # omega × J omega
+    cr1 = w2 * Jw[0] - w0 * Jw[2]
+    cr2 = w0 * Jw[1] - w1 * Jw[0]
+    Jic = matvec3_of(J_inv, cr0, cr1, cr2)
     return (0.5 * (q3 * w0 + c0), 0.5 * (q3 * w1 + c1), 0.5 * (q3 * w2 + c2), -0.5 * ((s[0] * w0 + s[1] * w1) + s[2] * w2),
-            a0 - ((J_inv[0, 0] * cr0 + J_inv[0, 1] * cr1) + J_inv[0, 2] * cr2),
-            a1 - ((J_inv[1, 0] * cr0 + J_inv[1, 1] * cr1) + J_inv[1, 2] * cr2),
-            a2 - ((J_inv[2, 0] * cr0 + J_inv[2, 1] * cr1) + J_inv[2, 2] * cr2))
+            a0 - Jic[0], a1 - Jic[1], a2 - Jic[2])
 
 
 @jit(inline="always")
@@ -140,10 +137,7 @@ def rk4_step(x, a0, a1, a2, dt, J, J_inv):
 def propagate(x, torque_B, dt, substeps, J, J_inv):
     """Advance ``x`` (7,) in place by ``dt`` in ``substeps`` RK4 steps with ``torque_B`` held
     (zero-order hold, :meth:`.dynamics.RigidBody.propagate`; inputs checked by the caller)."""
-    t0, t1, t2 = torque_B[0], torque_B[1], torque_B[2]
-    a0 = (J_inv[0, 0] * t0 + J_inv[0, 1] * t1) + J_inv[0, 2] * t2  # J^-1 torque
-    a1 = (J_inv[1, 0] * t0 + J_inv[1, 1] * t1) + J_inv[1, 2] * t2
-    a2 = (J_inv[2, 0] * t0 + J_inv[2, 1] * t1) + J_inv[2, 2] * t2
+    a0, a1, a2 = matvec3_of(J_inv, torque_B[0], torque_B[1], torque_B[2])  # J^-1 torque
     h = dt / substeps
     for _ in range(substeps):
         rk4_step(x, a0, a1, a2, h, J, J_inv)
