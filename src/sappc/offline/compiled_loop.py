@@ -697,10 +697,9 @@ def ensure_compiled(*, in_subprocess: bool = False, groups: tuple[str, ...] = ("
     if in_subprocess:
         import subprocess
 
-        if len(cold) > 1 and (os.cpu_count() or 1) > 1:
-            subprocess.run([sys.executable, "-c", f"from sappc.offline.compiled_loop import warm_up; warm_up({cold!r}, parallel=True)"], check=True)
-        else:
-            subprocess.run([sys.executable, "-c", f"from sappc.offline.compiled_loop import warm_up; warm_up({cold!r})"], check=True)
+        parallel = (os.cpu_count() or 1) > 1  # warm_up runs one group in place
+        subprocess.run([sys.executable, "-c", f"from sappc.offline.compiled_loop import warm_up; warm_up({cold!r}, parallel={parallel})"],
+                       check=True)
     else:
         warm_up(cold)
 
