@@ -129,12 +129,17 @@ def _format_value(value: object) -> str:
     return "-" if value is None else str(value)
 
 
-def _realtime_summary(result: Any) -> dict[str, Any]:
+def _realtime_summary(result: Any, lacking: dict[str, int]) -> dict[str, Any]:
     """A real-time run's frames (:mod:`sappc_msgs_py.timeline`): the plant's ticks, missed frames
-    and frames integrated with a stale torque, and the controller's latency."""
+    and frames integrated with a stale torque or disturbance, the controller's latency and held
+    references, and ``lacking``: the frames without an input of their own stamp in the bag
+    (:func:`~sappc.bag.read.frames_lacking_inputs`)."""
     plant = result.plant_timing
-    keys = ("ticks", "period_error_p50_ms", "period_error_p99_ms", "period_error_max_ms", "missed_ticks", "missed_frames", "stale_torque_frames")
-    return {"frames": max(int(plant.get("samples", 1)) - 1, 0), **{k: plant[k] for k in keys if k in plant},
+    keys = ("ticks", "period_error_p50_ms", "period_error_p99_ms", "period_error_max_ms", "missed_ticks", "missed_frames", "stale_torque_frames",
+            "stale_disturbance_frames", "first_deviating_sample")
+    return {"frames": lacking["frames"], **{k: plant[k] for k in keys if k in plant},
+            "frames_lacking_own_stamp": {k: v for k, v in lacking.items() if k != "frames"},
+            "held_reference_steps": result.controller_timing.get("held_reference_steps", 0),
             "state_delay": plant.get("state_delay", {}), "controller_latency": result.controller_timing.get("latency", {})}
 
 
@@ -262,7 +267,7 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from sappc.bag.read import bag_metrics, bag_run, read_bag
+    from sappc.bag.read import bag_metrics, bag_run, frames_lacking_inputs, read_bag
     from sappc.graph.launch import run_graph
 
     try:
@@ -273,7 +278,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return 1
     scenario, kind = result.scenario, result.controller
     bag = read_bag(result.bag_dir)
-    run = bag_run(bag)
+    run = bag_run(bag, duration_s=scenario.duration_s)  # the run's span, [0, duration_s]: no sample after it
     ms = scenario.metrics
     metrics = bag_metrics(bag, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold, t2_s=ms.t2_s,
                           fault_windows=scenario.event_windows(), run=run)
@@ -289,11 +294,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if missed:
         print(f"plant: {missed} sample(s) integrated with the last torque after lockstep_timeout_s without an answer "
               "(a message lost outside the fault injector, or a machine too loaded to answer in time): see logs/plant.log")
-    realtime = _realtime_summary(result) if args.realtime else None
+    realtime = _realtime_summary(result, frames_lacking_inputs(bag, run, scenario.control_period_s, scenario.duration_s)) if args.realtime else None
     if realtime:
         lat = realtime["controller_latency"]
+        lacking = realtime["frames_lacking_own_stamp"]
         print(f"real time: {realtime['frames']} frames of {scenario.control_period_s * 1e3:g} ms, {realtime['missed_frames']} without a plant tick, "
-              f"{realtime['stale_torque_frames']} with a stale torque; controller latency from the state's stamp p50 "
+              f"{realtime['stale_torque_frames']} with a stale torque; frames without an input of their own stamp: state {lacking['state']}, "
+              f"reference {lacking['reference']}, torque {lacking['torque']}; controller latency from the state's stamp p50 "
               f"{lat.get('latency_p50_ms', float('nan')):.2f} ms, p99 {lat.get('latency_p99_ms', float('nan')):.2f} ms, "
               f"{lat.get('late_steps', 0)} step(s) later than a frame")
     print(f"bag {result.bag_dir}: {sum(result.recorded.values())} messages on {sum(1 for n in result.recorded.values() if n)} topics; "

@@ -29,12 +29,19 @@ Modes (parameter ``mode``):
     reference messages of the same stamp have arrived, and stamps the torque with it.
 ``realtime``
     In the frames of :mod:`sappc_msgs_py.timeline`: the controller computes as soon as the state
-    of a new frame has arrived (attitude and rate of one stamp), with the reference of the same
-    stamp (the reference node publishes it ahead; else the newest earlier one is held), and stamps
+    of a new frame (attitude and rate of one stamp) and the reference of the same stamp have
+    arrived (the reference node publishes it ahead, so it is normally there first), and stamps
     the torque with the state's stamp, so the plant applies it over the next frame, as in
-    lockstep.  Its latency (the torque's publication minus the state's stamp) is measured, and a
+    lockstep.  A reference of that stamp that arrived invalid, or has not arrived by the middle of
+    the state's frame, is replaced by the newest earlier one (held; counted:
+    ``held_reference_steps`` in ``timing_file``).  The law's time is counted from the first step's
+    stamp, so a step on the same inputs as a lockstep step gives the same torque, bit for bit.
+    Its latency (the torque's publication minus the state's stamp) is measured, and a
     step later than ``control_period_s`` (it missed the plant's next frame) is counted
     (``late_steps`` in ``timing_file``).  A timer in the middle of each frame is the watchdog.
+    With ``duration_s`` (``sappc run`` sets the scenario's), the state of the frame
+    ``duration_s`` after the first is the last one answered: the watchdog then stops (the plant
+    has finished), so no torque is published past the run's end.
 
 Input checks: a message with a wrong frame id, a non-finite value, a zero or non-unit
 quaternion ("invalid"), a body rate, reference rate or reference acceleration beyond its
@@ -170,6 +177,8 @@ PARAMETERS = (
           "magnitude is rejected as implausible (ten times the most agile spacecraft's)", "rad/s^2", check="> 0"),
     Param("timing_file", "", "where to write the node's statistics when it finishes (JSON: steps, refused, rejected by reason; real "
           "time: the steps' latency and late steps); '' for none"),
+    Param("duration_s", 0.0, "real time: the run's length from the first state; after answering the state of its last frame the "
+          "controller answers nothing more (its watchdog stops: the plant has finished); 0: no end", "s", check=">= 0"),
 )
 _P = {p.name: p for p in PARAMETERS}
 
@@ -235,6 +244,10 @@ class ControllerNode(ProjectNode):
         self._pending = LockstepPairing(_INPUTS)  # lockstep: the inputs of each stamp until complete
         self._rt = RealtimePairing(_INPUTS)  # real time: a sample per fresh state
         self.latency = LatencyStatistics(self.dt)  # real time: the steps' latency, in bounded memory
+        self.held_reference_steps = 0  # real time: steps on a reference not of the state's own stamp (held)
+        self._origin_ns: int | None = 0 if self.mode == LOCKSTEP else None  # the run's time origin: real time, the first step's stamp
+        self._end_ns: int | None = None  # real time: the stamp of the run's last frame (duration_s after the first state)
+        self._ended = False  # real time: the last frame is answered
         # before the first computed sample the controller has no performance function: NaN rows (as the offline loop records)
         self._diag_rows = {k: np.full(3, np.nan) for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
         self._held: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros(3), np.zeros(3), np.zeros(3))  # last torque, command, saturation
@@ -247,6 +260,8 @@ class ControllerNode(ProjectNode):
             self._gate = StartGate(self, self._outputs_unmatched)  # no publish may block a callback
             self.create_frame_timer(self.dt, MID_FRAME_PHASE, self._on_timer)
         self.timing_file = str(self.param(_P["timing_file"]))
+        duration = check_positive("duration_s", self.param(_P["duration_s"]), allow_zero=True)
+        self._n_frames = int(round(duration / self.dt))  # frames after the first (0: no end)
         self._check_unknown_overrides()  # after every declaration
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(f"{self.kind} controller ready ({self.mode}, dt = {self.dt} s)")
@@ -347,7 +362,12 @@ class ControllerNode(ProjectNode):
             return
         ns, value = screened  # value None: arrived, invalid (module docstring)
         if self.mode == REALTIME:
-            fresh = None if value is None else self._rt.add(topic.name, ns, value)
+            if self._ended:
+                return  # the run's last frame is answered
+            fresh = self._rt.add(topic.name, ns, value)
+            start = fresh.t_ns if fresh is not None else self._rt.waiting_ns
+            if self._end_ns is None and self._n_frames and start is not None:  # the first state: the run's last frame follows
+                self._end_ns = start + self._n_frames * self.dt_ns
             if fresh is not None:
                 self._on_fresh_state(fresh)
             return
@@ -401,11 +421,20 @@ class ControllerNode(ProjectNode):
         self.latency.add(self.get_clock().now().nanoseconds - sample.t_ns)
 
     def _on_timer(self) -> None:
-        """Real time, in the middle of each frame: the watchdog (zero torque, stamped with the
-        current frame, when no fresh state came for ``stale_timeout_s``)."""
-        if not self._gate.open() or self._rt.last_sample_ns is None:
-            return  # not started
+        """Real time, in the middle of each frame: a state still waiting for its reference since
+        its frame's middle is stepped with the reference held (:meth:`RealtimePairing.take_held`,
+        counted), then the watchdog (zero torque, stamped with the current frame, when no fresh
+        state came for ``stale_timeout_s``)."""
+        if self._ended:
+            return
         now = self.get_clock().now().nanoseconds
+        waiting = self._rt.waiting_ns
+        if waiting is not None and now >= waiting + round(MID_FRAME_PHASE * self.dt_ns):
+            held = self._rt.take_held()
+            if held is not None:
+                self._on_fresh_state(held)
+        if self._ended or not self._gate.open() or self._rt.last_sample_ns is None:
+            return  # the last frame answered; not started
         frame_ns = now // self.dt_ns * self.dt_ns
         if now - self._rt.last_sample_ns > self.stale_timeout_ns and not self._answered(frame_ns):
             self._publish_zero(frame_ns, f"no state newer than {self.stale_timeout_ns / _NS} s", ANSWER_WATCHDOG_ZERO)
@@ -414,8 +443,11 @@ class ControllerNode(ProjectNode):
         """One control step on a complete sample (the inputs paired by :mod:`sappc_controller.inputs`)."""
         t_ns, input_ns = sample.t_ns, list(sample.input_ns)
         late = self.mode == LOCKSTEP and self._answered(t_ns)  # its tick already answered (after the grace)
+        if self._origin_ns is None:  # real time: the first step's stamp is the run's time 0
+            self._origin_ns = t_ns
+        self.held_reference_steps += self.mode == REALTIME and any(ns != t_ns for ns in input_ns[2:])
         try:
-            out = step_sample(self.controller, self.dt, sample)
+            out = step_sample(self.controller, self.dt, sample, self._origin_ns)
         except STEP_ERRORS as exc:
             self.get_logger().error(f"control step at {t_ns / _NS:.9f} s failed: {exc}; commanding zero torque")
             self.refused += 1
@@ -445,6 +477,7 @@ class ControllerNode(ProjectNode):
         self._offer_outputs()  # a sample completed before the offer (its inputs' publishers not yet seen)
         assert self.pub_torque is not None and self.pub_diag is not None
         self._answered_ns = t_ns if self._answered_ns is None else max(self._answered_ns, t_ns)
+        self._ended = self._end_ns is not None and t_ns >= self._end_ns  # real time: nothing is answered past the last frame
         self.answers[ANSWER_NAMES[answer]] += 1
         self._held = (np.array(torque, dtype=np.float64), np.array(torque_cmd, dtype=np.float64), np.array(saturated, dtype=np.float64))
         t = t_ns / _NS
@@ -475,7 +508,7 @@ class ControllerNode(ProjectNode):
         if self.timing_file:
             stats = {"steps": self.steps, "refused_steps": self.refused, "answers": dict(self.answers), "rejected": self.rejected,
                      "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
-                     **({"latency": self.latency_statistics()} if self.mode == REALTIME else {})}
+                     **({"latency": self.latency_statistics(), "held_reference_steps": self.held_reference_steps} if self.mode == REALTIME else {})}
             Path(self.timing_file).write_text(json.dumps(stats))
 
 

@@ -24,8 +24,9 @@ node's time (lockstep: the latest ``/clock``; real time: the node's clock) is
     oldest is dropped.
 ``realtime`` (:class:`RealtimePairing`)
     A sample is complete when the attitude and the rate of a new stamp (a frame of
-    :mod:`sappc_msgs_py.timeline`) have arrived; the step runs at that stamp with each further
-    input (the controller's reference) of the same stamp, else the newest earlier one.
+    :mod:`sappc_msgs_py.timeline`) have arrived and each further input (the controller's
+    reference) of the same stamp; a further input of that stamp that arrived invalid, or has not
+    arrived by the caller's deadline, is replaced by the newest earlier one (held).
 """
 
 from __future__ import annotations
@@ -252,14 +253,19 @@ class LockstepPairing:
 
 
 class RealtimePairing:
-    """Real-time pairing: a step on each fresh state, with the further inputs of the state's stamp.
+    """Real-time pairing: a step on each fresh state, with the further inputs of the state's own stamp.
 
     The state of frame ``f`` (attitude and rate stamped ``f dt``, :mod:`sappc_msgs_py.timeline`)
-    makes a sample as soon as both have arrived, if it is newer than the last sample; each
-    further input (the controller's reference) is the one of the same stamp (published ahead, it
-    is normally there), else the newest one stamped before it (held).  There is no sample until
-    every further topic has delivered one stamped at or before the state.  Whether the inputs are
-    too old is the caller's decision (:attr:`ControlSample.oldest_ns`).
+    is fresh once both have arrived, if it is newer than the last sample.  It makes a sample as
+    soon as each further input (the controller's reference, published ahead, normally there
+    already) has delivered the message of the same stamp, as in lockstep.  A further input whose
+    message of that stamp arrived invalid (a dropped reference's "no data") is answered at once
+    with the newest valid earlier one, held; one that has not arrived by the caller's deadline is
+    held likewise (:meth:`take_held`: the controller calls it in the middle of the state's frame,
+    so its torque still reaches the plant's next tick).  A newer fresh state replaces one still
+    waiting.  There is no sample until every further topic has delivered one stamped at or before
+    the state.  Whether the inputs are too old is the caller's decision
+    (:attr:`ControlSample.oldest_ns`); which inputs were held, the sample's ``input_ns`` says.
 
     Parameters
     ----------
@@ -279,27 +285,57 @@ class RealtimePairing:
         self.topics = tuple(topics)
         self._state = LockstepPairing(self.topics[: self.N_STATE], window)
         self._windows: dict[str, StampedWindow[Array]] = {t.name: StampedWindow(window) for t in self.topics[self.N_STATE :]}
+        self._invalid: dict[str, int] = {}  # further topic name -> stamp [ns] of its latest message that arrived invalid
         self._last: dict[str, int] = {}  # topic name -> stamp [ns] of its latest message
+        self._waiting: ControlSample | None = None  # the fresh state waiting for a further input of its stamp
         self.last_sample_ns: int | None = None  # stamp of the last sample made
 
     def last_ns(self, topic_name: str) -> int | None:
         """Stamp [ns] of the topic's latest input, ``None`` before the first."""
         return self._last.get(topic_name)
 
-    def add(self, topic_name: str, stamp_ns: int, value: Array) -> ControlSample | None:
-        """Take one (checked) input; return the sample it completes (a fresh state with the
-        further inputs at or before its stamp), if any."""
+    @property
+    def waiting_ns(self) -> int | None:
+        """Stamp [ns] of the fresh state waiting for a further input of its stamp, ``None`` when none waits."""
+        return None if self._waiting is None else self._waiting.t_ns
+
+    def add(self, topic_name: str, stamp_ns: int, value: Array | None) -> ControlSample | None:
+        """Take one checked input (``value`` ``None``: it arrived invalid); return the sample it
+        completes, if any (see the class docstring)."""
         self._last[topic_name] = stamp_ns
         window = self._windows.get(topic_name)
         if window is not None:
-            window.add(stamp_ns, value)
-            return None
+            if value is None:
+                self._invalid[topic_name] = stamp_ns
+            else:
+                window.add(stamp_ns, value)
+            return self._complete(hold=False)
+        if value is None:
+            return None  # a state part that arrived invalid makes no sample (the caller's watchdog covers its frame)
         state = self._state.add(topic_name, stamp_ns, value)
         if state is None or (self.last_sample_ns is not None and stamp_ns <= self.last_sample_ns):
             return None
-        refs = [self._windows[t.name].at_or_before(stamp_ns) for t in self.topics[self.N_STATE :]]
-        if any(r is None for r in refs):
-            return None  # not started: no reference yet for this state
-        self.last_sample_ns = stamp_ns
-        held = [r for r in refs if r is not None]
-        return ControlSample(stamp_ns, (*state.input_ns, *(r[0] for r in held)), (*state.values, *(r[1] for r in held)))
+        self._waiting = state
+        return self._complete(hold=False)
+
+    def take_held(self) -> ControlSample | None:
+        """The waiting state's sample, each further input missing its stamp held (the newest one
+        before it); ``None`` when no state waits, or a further topic has delivered nothing at or
+        before its stamp yet (it keeps waiting)."""
+        return self._complete(hold=True)
+
+    def _complete(self, hold: bool) -> ControlSample | None:
+        state = self._waiting
+        if state is None:
+            return None
+        further: list[tuple[int, Array]] = []
+        for t in self.topics[self.N_STATE :]:
+            found = self._windows[t.name].at_or_before(state.t_ns)
+            if found is None:
+                return None  # not started: no further input at or before this state yet
+            if found[0] != state.t_ns and not hold and self._invalid.get(t.name) != state.t_ns:
+                return None  # its own stamp may still come
+            further.append(found)
+        self._waiting = None
+        self.last_sample_ns = state.t_ns
+        return ControlSample(state.t_ns, (*state.input_ns, *(f[0] for f in further)), (*state.values, *(f[1] for f in further)))

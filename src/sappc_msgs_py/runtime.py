@@ -31,7 +31,7 @@ from rclpy.parameter import Parameter
 
 from gnc_common.validation import ConfigError
 from sappc_msgs_py.parameters import REQUIRED, Param, descriptor, format_help
-from sappc_msgs_py.timeline import period_ns
+from sappc_msgs_py.timeline import AHEAD_FRAMES, MID_FRAME_PHASE, PLANT_PHASE, frame_index, period_ns
 
 if TYPE_CHECKING:
     from rclpy.impl.rcutils_logger import RcutilsLogger
@@ -43,6 +43,7 @@ __all__ = [
     "REALTIME",
     "COMMON_PARAMETERS",
     "CountingPublisher",
+    "FramesAhead",
     "GridCursor",
     "MATCH_TIMEOUT_S",
     "ProjectNode",
@@ -213,6 +214,71 @@ class GridCursor:
         return owed
 
 
+class FramesAhead:
+    """Real time: the samples a node that knows them in advance (the reference, the disturbance)
+    publishes, on the frames of :mod:`sappc_msgs_py.timeline`, in step with the plant's run.
+
+    The run's sample ``k`` is frame ``f0 + k``, where ``f0`` is the frame of the first state the
+    plant publishes (``state/attitude``, stamped with its frame's start): every node of the run
+    then stamps sample ``k`` alike, whenever it started, and the reference and the disturbance
+    end on the plant's last frame.  (A node that picked its own ``f0`` at its first tick ran a
+    few frames ahead of or behind the plant: the last frames of a run then found no reference
+    of their stamp.)  The plant waits for this subscription to be matched before its first state
+    (``expected_subscribers``), so the first state is never missed.
+
+    On the first state the samples of frames ``f0 .. f0 + AHEAD_FRAMES`` are published at once;
+    from then on a timer in the middle of each frame publishes up to
+    :data:`~sappc_msgs_py.timeline.AHEAD_FRAMES` frames ahead (a missed tick is made up at the
+    next: :class:`GridCursor`), never past the grid's ``last`` sample.  Nothing is published
+    before ``ready()`` (the node's publishers matched: a publish must not block a callback).
+
+    ``publish(k, stamp_ns)`` publishes sample ``k`` stamped ``stamp_ns``.
+    """
+
+    def __init__(self, node: ProjectNode, dt_s: float, last: int | None, ready: Callable[[], bool],
+                 publish: Callable[[int, int], None]) -> None:
+        from sappc_msgs_py.contract import STATE_ATTITUDE, qos_profile
+
+        self.dt_ns = period_ns(dt_s)
+        self.frame0: int | None = None  # the frame of sample 0: the plant's first state
+        self._cursor = GridCursor(last)
+        self._node = node
+        self._ready = ready
+        self._publish = publish
+        node.create_subscription(STATE_ATTITUDE.msg_class, STATE_ATTITUDE.name, self._on_state, qos_profile())
+        node.create_frame_timer(dt_s, MID_FRAME_PHASE, self._on_timer)
+
+    def start_at(self, stamp_ns: int) -> None:
+        """The run starts at the frame of ``stamp_ns`` (the plant's first state), unless it has
+        started already; the first samples are published at once."""
+        if self.frame0 is not None:
+            return
+        self.frame0 = frame_index(stamp_ns, self.dt_ns, PLANT_PHASE)
+        self._publish_due(self.frame0)
+
+    def run_time_s(self, stamp_ns: int) -> float | None:
+        """The run's time [s] of a stamp (since sample 0's frame); ``None`` before the run started."""
+        return None if self.frame0 is None else (stamp_ns - self.frame0 * self.dt_ns) / 1e9
+
+    def _on_state(self, msg: Any) -> None:
+        if self.frame0 is None:
+            from sappc_msgs_py.convert import stamp_to_ns
+
+            self.start_at(stamp_to_ns(msg.header.stamp))
+
+    def _on_timer(self) -> None:
+        if self.frame0 is not None:  # before f0 (the plant publishes sample 0 ahead), as at f0
+            self._publish_due(max(frame_index(self._node.get_clock().now().nanoseconds, self.dt_ns, MID_FRAME_PHASE), self.frame0))
+
+    def _publish_due(self, frame: int) -> None:
+        """Publish every sample owed through ``frame + AHEAD_FRAMES``, once ``ready()``."""
+        assert self.frame0 is not None
+        if not self._ready():
+            return
+        for k in self._cursor.through(frame + AHEAD_FRAMES - self.frame0):
+            self._publish(k, (self.frame0 + k) * self.dt_ns)
+
+
 #: The parameters every node declares (:class:`ProjectNode`).
 COMMON_PARAMETERS = (
     Param("expected_subscribers", [], "subscribers each publisher waits for before its first message, as 'topic=count' entries "
@@ -353,6 +419,13 @@ class ProjectNode(Node):
         """Messages published per resolved topic name."""
         return {p.resolved_name: p.count for p in self._counting_pubs}
 
+    def end_run(self) -> None:
+        """Stop every timer of the node: the run has ended, and nothing it would publish belongs
+        to it (in a composed run the executor spins on while the recorder drains; a timer would
+        publish samples past the run's end)."""
+        for timer in list(self.timers):
+            timer.cancel()
+
     def finish(self) -> None:
         """Wait for every subscriber to acknowledge, then write the counts file (if asked)."""
         for pub in self._counting_pubs:
@@ -390,8 +463,10 @@ def run_nodes(make_nodes: Callable[[list[str]], list[ProjectNode]], argv: list[s
 
     One node is how every node runs in its own process; several is the composed graph
     (:mod:`sappc.graph.container`), listed in the order they must stop: publishers first (each
-    waits until its subscribers acknowledged what it sent), a recorder last (it drains its
-    queues, spinning the executor, before it closes the bag).  A :class:`ConfigError` or
+    waits until its subscribers acknowledged what it sent), a recorder last.  At the end every
+    node's timers stop (:meth:`ProjectNode.end_run`), a recorder drains its queues (spinning the
+    executor: what another node of the process still answers is published and counted), and
+    then the nodes finish in that order.  A :class:`ConfigError` or
     ``ValueError`` while building them (invalid or infeasible parameters) is printed as one line
     naming the parameter, and the exit status is 2.
 
@@ -438,9 +513,15 @@ def run_nodes(make_nodes: Callable[[list[str]], list[ProjectNode]], argv: list[s
         if profiler is not None:
             profiler.disable()
             profiler.dump_stats(str(Path(profile_dir) / f"{'+'.join(n.get_name() for n in nodes)}.prof"))
+        # the run's end: every timer stops; a recorder takes what is still queued (spinning the
+        # executor, so a callback of another node of the process still runs and is counted by
+        # that node's finish, which comes after); then each node finishes, in list order
         for node in nodes:
-            if hasattr(node, "drain"):  # a recorder takes what is still queued
+            node.end_run()
+        for node in nodes:
+            if hasattr(node, "drain"):
                 node.drain(lambda timeout_s: executor.spin_once(timeout_sec=timeout_s))
+        for node in nodes:
             node.finish()
     except TimeoutError as exc:
         print(f"error: {exc}", file=sys.stderr)

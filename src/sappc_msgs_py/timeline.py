@@ -30,7 +30,7 @@ from typing import Generic, TypeVar
 
 from gnc_common.validation import ConfigError
 
-__all__ = ["AHEAD_FRAMES", "MID_FRAME_PHASE", "PLANT_PHASE", "StampedWindow", "frame_index", "period_ns"]
+__all__ = ["AHEAD_FRAMES", "MID_FRAME_PHASE", "PLANT_PHASE", "START_LEAD_FRAMES", "StampedWindow", "frame_index", "period_ns"]
 
 T = TypeVar("T")
 
@@ -41,9 +41,21 @@ PLANT_PHASE = 0.0
 #: controller's watchdog: half a frame from the plant's ticks, the farthest from them.
 MID_FRAME_PHASE = 0.5
 #: Frames the reference and the disturbance are published ahead of the current frame: the
-#: sample of frame ``f`` is out a frame and a half before the plant's state of ``f`` (one missed
-#: tick of the publisher is made up before it is needed).
-AHEAD_FRAMES = 2
+#: sample of frame ``f`` is out ``AHEAD_FRAMES - 1/2`` frames before the plant's state of ``f``,
+#: and the controller waits for the reference of a state's own stamp until the middle of the
+#: state's frame, so a reference publisher's timer may stall for ``AHEAD_FRAMES`` frames (100 ms at
+#: the paper's 100 Hz: the controller's stale-input timeout; Python timers on a loaded 2-vCPU VM
+#: wake up to 20 ms late, docs/performance.md) before a step holds an older reference.  The
+#: windows that keep them (the controller's, :data:`~sappc_msgs_py.inputs.MAX_PENDING` = 64, and
+#: the plant's) hold more.
+AHEAD_FRAMES = 10
+#: Frames before its own frame ``f0`` that the plant publishes sample 0 (the initial state, which
+#: holds until ``f0``): the reference and the injector learn ``f0`` from it and publish its inputs
+#: ahead, and the controller answers it, all before the plant's first integration at ``f0 + 1``.
+#: Without it the first frame's torque had one frame for three processes to wake in turn
+#: (plant, reference, controller) and came late on a loaded machine.  The same margin as
+#: :data:`AHEAD_FRAMES`.
+START_LEAD_FRAMES = AHEAD_FRAMES
 
 
 def period_ns(dt_s: float) -> int:

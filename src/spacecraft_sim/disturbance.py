@@ -9,11 +9,12 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
   are matched, then on each ``/clock`` tick ``t_k`` sample ``k + 1``, one ahead so that it is
   never on the loop's critical path, and any earlier one a missed tick left out:
   :class:`~sappc_msgs_py.runtime.GridCursor`;
-  ``realtime``: in the frames of :mod:`sappc_msgs_py.timeline`, a timer in the middle of each
-  frame publishes the samples up to :data:`~sappc_msgs_py.timeline.AHEAD_FRAMES` frames ahead,
-  sample ``k`` at ``t = k dt`` stamped with frame ``f0 + k``, ``f0`` the frame after its first
-  tick; the plant applies each over its own frame; the fault windows are in the time since that
-  frame).  The plant adds it to the control torque (``use_disturbance_topic``).
+  ``realtime``: in the frames of :mod:`sappc_msgs_py.timeline`, sample ``k`` at ``t = k dt``
+  stamped with frame ``f0 + k``, ``f0`` the frame of the plant's first ``state/attitude``
+  (:class:`~sappc_msgs_py.runtime.FramesAhead`: published on that state up to
+  :data:`~sappc_msgs_py.timeline.AHEAD_FRAMES` frames ahead, then by a timer in the middle of
+  each frame); the plant applies each over its own frame; the fault windows are in the time
+  since ``f0``).  The plant adds it to the control torque (``use_disturbance_topic``).
 - faults, by relaying the contract's relayed topics
   (:data:`~sappc_msgs_py.contract.RELAYED_SENSOR_TOPICS`,
   :data:`~sappc_msgs_py.contract.RELAYED_REFERENCE_TOPICS`,
@@ -65,8 +66,7 @@ from sappc_msgs_py.convert import (
     vector3_msg,
 )
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, StartGate, run_node, unmatched
-from sappc_msgs_py.timeline import AHEAD_FRAMES, MID_FRAME_PHASE, frame_index, period_ns
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, FramesAhead, GridCursor, ProjectNode, StartGate, run_node, unmatched
 
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
@@ -135,15 +135,15 @@ class InjectorNode(ProjectNode):
         self.rejected = 0
         qos = qos_profile()
         self.pub_d = self.counting_publisher(DISTURBANCE_TORQUE, 1)
-        self._cursor = GridCursor(self.last_k)
+        self.frames: FramesAhead | None = None
         if self.mode == LOCKSTEP:
+            self._cursor = GridCursor(self.last_k)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
             self.start_when(lambda: unmatched([self.pub_d]), lambda: self._publish_through(1))
-        else:
-            self.dt_ns = period_ns(self.dt)
-            self._frame0: int | None = None  # the frame of sample 0
-            self._gate = StartGate(self, lambda: unmatched([self.pub_d]))  # no publish may block a tick
-            self.create_frame_timer(self.dt, MID_FRAME_PHASE, self._on_timer)
+        else:  # sample k on the plant's frame f0 + k, f0 its first state's (FramesAhead)
+            gate = StartGate(self, lambda: unmatched([self.pub_d]))  # no publish may block a callback
+            self.frames = FramesAhead(self, self.dt, self.last_k, gate.open,
+                                      lambda k, ns: self._publish_disturbance(k * self.dt, ns_to_stamp(ns)))
         # the paired paths: the measurements (q_BN, omega_BN_B) and the reference, each paired by stamp
         self._paired: dict[tuple[Topic, ...], dict[int, dict[str, Any]]] = {}  # path -> stamp [ns] -> topic name -> value
         self.pub_relay: dict[str, Any] = {}
@@ -169,30 +169,18 @@ class InjectorNode(ProjectNode):
             t = j * self.dt  # on the plant's grid (k dt, as sample_times)
             self._publish_disturbance(t, time_to_stamp(t))
 
-    def _frame_now(self) -> int:
-        """Real time: the current frame; the first call fixes sample 0's frame (the next one: never
-        stamped in the past)."""
-        f = frame_index(self.get_clock().now().nanoseconds, self.dt_ns, MID_FRAME_PHASE)
-        if self._frame0 is None:
-            self._frame0 = f + 1
-        return f
-
     def _run_time_s(self, stamp_ns: int) -> float:
         """The run's time [s] of a stamp, which the fault windows are in: the stamp itself in
-        lockstep (the plant's clock starts at 0), the time since sample 0's frame in real time."""
-        if self.mode == LOCKSTEP:
+        lockstep (the plant's clock starts at 0), the time since sample 0's frame in real time.
+        Every relayed stream starts at the plant's first frame (the plant waits for this node's
+        subscriptions), so the first relayed message the node sees also starts the run, should
+        it come before the plant's first state reaches :attr:`frames`."""
+        if self.frames is None:
             return stamp_ns / 1e9
-        self._frame_now()
-        assert self._frame0 is not None
-        return (stamp_ns - self._frame0 * self.dt_ns) / 1e9
-
-    def _on_timer(self) -> None:
-        if not self._gate.open():
-            return
-        f = self._frame_now()
-        assert self._frame0 is not None
-        for k in self._cursor.through(f + AHEAD_FRAMES - self._frame0):
-            self._publish_disturbance(k * self.dt, ns_to_stamp((self._frame0 + k) * self.dt_ns))
+        self.frames.start_at(stamp_ns)
+        t = self.frames.run_time_s(stamp_ns)
+        assert t is not None  # started above
+        return t
 
     def _reject(self, exc: Exception) -> None:
         self.rejected += 1

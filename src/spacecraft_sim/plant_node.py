@@ -26,10 +26,23 @@ Modes (parameter ``mode``):
     frame ``f`` it integrates every frame since the previous tick, each with the torque held
     (zero-order hold: the latest received, as an actuator holds its last command) and the
     disturbance of that frame (the injector publishes it ahead), then publishes the state stamped
-    ``f dt``.  The world does not wait: a late tick integrates the frames it missed, which are
-    counted (``missed_frames``), and so is every frame whose torque is not the controller's answer
+    ``f dt``.  Sample 0, the initial state, is published
+    :data:`~sappc_msgs_py.timeline.START_LEAD_FRAMES` frames before its frame ``f0`` (the state
+    holds until then), so that its reference, disturbance and torque are there before the first
+    integration.  The world does not wait: a late tick integrates the frames it missed, and
+    publishes their states too, late (the sensors skip no sample; each frame is measured with its
+    own draws, as offline), which are counted (``missed_frames``), and so is every frame whose
+    torque is not the controller's answer
     to that frame's state (``stale_torque_frames``: the controller missed its deadline, or had
-    no state).  No ``/clock``.
+    no state), and every frame integrated without the disturbance of its own stamp
+    (``stale_disturbance_frames``).  No ``/clock``.  Sample ``k`` is frame ``f0 + k``, ``f0`` the
+    frame ``START_LEAD_FRAMES`` after the first tick once the partners are matched (the reference and the injector take
+    ``f0`` from that first state: :class:`~sappc_msgs_py.runtime.FramesAhead`, so the plant also
+    waits for their ``state/attitude`` subscriptions).  After the state of the last frame
+    (``n = duration_s / dt``; a late tick that skipped it still publishes it) the node finishes
+    at the next tick: the controller has that frame to answer the last state, whose torque is
+    received and recorded, not applied, as in lockstep; nothing is published past the last
+    frame.
 
 Every parameter is checked at start-up by the same functions the scenario loader uses
 (:mod:`gnc_common.validation`); a missing or invalid one stops the node with one line naming it
@@ -48,7 +61,7 @@ Sensor models (parameter ``sensors``, the scenario's ``sensors`` mapping as JSON
 carry the star tracker's and the gyro's measurement of each sample
 (:func:`spacecraft_sim.core.sensors.measure`, sample ``k`` drawing the ``k``-th row of the seed's
 stream, as the offline loop does) and ``truth/attitude``, ``truth/rate`` the true state; in real
-time a frame without a tick is not measured (its draws are not taken).
+time the state of a frame whose tick was missed is measured and published late, at the next tick.
 
 Reaction wheels (parameter ``wheels``, the scenario's ``actuator.wheels`` mapping as JSON): the
 held body-torque command goes through the wheels (:mod:`spacecraft_sim.core.wheels`: allocation,
@@ -87,7 +100,7 @@ from sappc_msgs_py.convert import (
 )
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MATCH_TIMEOUT_S, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
-from sappc_msgs_py.timeline import AHEAD_FRAMES, PLANT_PHASE, StampedWindow, frame_index, period_ns
+from sappc_msgs_py.timeline import AHEAD_FRAMES, PLANT_PHASE, START_LEAD_FRAMES, StampedWindow, frame_index, period_ns
 from gnc_common.timing import LatencyStatistics, PeriodStatistics
 
 from spacecraft_sim.basilisk_plant import BasiliskPlant
@@ -219,6 +232,8 @@ class PlantNode(ProjectNode):
             self._disturbances: StampedWindow[np.ndarray] = StampedWindow(4 * AHEAD_FRAMES)  # published ahead, by stamp
             self.missed_frames = 0  # frames without a tick of their own (integrated at the next tick)
             self.stale_torque_frames = 0  # frames integrated with a torque that does not answer their state
+            self.stale_disturbance_frames = 0  # frames integrated without the disturbance of their own stamp (the one before held)
+            self.first_deviating_sample: int | None = None  # the first sample that did not run as in lockstep (_note_deviation)
             self.tick_stats = PeriodStatistics(self.dt)  # the timer's period error, in bounded memory
             self.tick_delay = LatencyStatistics(self.dt)  # when the state was out, after its frame's start
             self._gate = StartGate(self, self._not_ready)  # no publish may block a tick
@@ -335,24 +350,66 @@ class PlantNode(ProjectNode):
         self.tick_stats.tick(time.monotonic_ns())
         now_ns = self.get_clock().now().nanoseconds
         f = frame_index(now_ns, self.dt_ns, PLANT_PHASE)
-        if self._frame is None:
-            self._frame0 = f
+        if self._frame is None:  # sample 0, the initial state, published START_LEAD_FRAMES ahead of its frame
+            f = self._frame0 = f + START_LEAD_FRAMES
         elif f <= self._frame:
             return  # a second tick in the frame (an on-time tick right after a late one): nothing to do
+        elif self.n_steps and self._frame == self._frame0 + self.n_steps:
+            self._end_realtime()  # the first tick after the last frame's state
+            return
         else:
+            if self.n_steps:  # never past the last frame: a late tick that skipped it publishes it, late
+                f = min(f, self._frame0 + self.n_steps)
             self.missed_frames += f - self._frame - 1
+            if f - self._frame > 1:
+                self._note_deviation(self._frame + 1)
             for g in range(self._frame, f):  # each frame since the last tick, with the torque held
                 stamp_ns = g * self.dt_ns
-                self.stale_torque_frames += self._torque_ns is not None and self._torque_ns < stamp_ns  # once the controller answers
+                self._count_stale_torque(stamp_ns)
                 held = self._disturbances.at_or_before(stamp_ns)
+                if self.use_disturbance and (held is None or held[0] != stamp_ns):
+                    self.stale_disturbance_frames += 1
+                    self._note_deviation(g)
                 disturbance = held[1] if held is not None else self.disturbance
                 self._integrate(self.torque[0], disturbance[0], ns_to_stamp(stamp_ns))
+                if g + 1 < f:  # a frame whose tick was missed: its state is published too, late (the sensors skip no sample)
+                    self.k = g + 1 - self._frame0
+                    self._publish_state(ns_to_stamp((g + 1) * self.dt_ns))
         self._frame = f
         self.k = f - self._frame0
         self._publish_state(ns_to_stamp(f * self.dt_ns))
-        self.tick_delay.add(self.get_clock().now().nanoseconds - f * self.dt_ns)
-        if self.n_steps and self.k >= self.n_steps:
-            self.finished = True
+        if self.k == 0:
+            assert self._wall_first is not None  # set by the publish
+            self._wall_first += START_LEAD_FRAMES * self.dt  # the run starts at its first frame
+        else:
+            self.tick_delay.add(self.get_clock().now().nanoseconds - f * self.dt_ns)
+
+    def _count_stale_torque(self, stamp_ns: int) -> None:
+        """Count frame ``stamp_ns`` when the torque held over it does not answer its state."""
+        if self._torque_ns is None or self._torque_ns < stamp_ns:
+            self.stale_torque_frames += 1
+            self._note_deviation(stamp_ns // self.dt_ns)
+
+    def _note_deviation(self, frame: int) -> None:
+        """Frame ``frame`` did not run as in lockstep (a missed tick, a stale torque or
+        disturbance): the first such sample is in ``timing_file`` (``first_deviating_sample``);
+        before it, the run is the lockstep run."""
+        k = frame - self._frame0
+        if self.first_deviating_sample is None or k < self.first_deviating_sample:
+            self.first_deviating_sample = k
+
+    def _end_realtime(self) -> None:
+        """The run's end, at the tick after its last frame (``n = duration_s / dt``): the
+        controller had that frame to answer the last state; its torque is received (and recorded),
+        not applied, as in lockstep, and counted stale if it has not come.  No sample is published
+        past the last frame, and the node's timers stop (in a composed run the executor spins on
+        while the recorder drains)."""
+        stamp_ns = self._frame * self.dt_ns  # the last frame's (frame f0 + n)
+        self._count_stale_torque(stamp_ns)
+        if self.wheels is not None:  # the last sample's wheel command, as lockstep publishes it
+            self._wheel_command(self.torque[0], ns_to_stamp(stamp_ns))
+        self.end_run()
+        self.finished = True
 
     # ---- the dynamics ----------------------------------------------------------------------
     def _integrate(self, torque_B: np.ndarray, disturbance_B: np.ndarray, t_s: Any) -> None:
@@ -421,6 +478,7 @@ class PlantNode(ProjectNode):
             timing = {"run_s": run_s, "samples": self.k + 1, "rejected": self.rejected, "missed": self.missed, "first_sample_monotonic_s": self._wall_first}
             if self.mode == REALTIME:
                 timing.update(self.tick_stats.summary(), missed_frames=self.missed_frames, stale_torque_frames=self.stale_torque_frames,
+                              stale_disturbance_frames=self.stale_disturbance_frames, first_deviating_sample=self.first_deviating_sample,
                               state_delay={k.replace("latency", "delay"): v for k, v in self.tick_delay.summary().items()})
             Path(self.timing_file).write_text(json.dumps(timing))
 

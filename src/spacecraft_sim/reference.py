@@ -13,10 +13,12 @@ tick ``t_k`` of the grid sample ``k + 1`` (and any earlier one a missed tick lef
 known in advance, so publishing one sample ahead takes the reference off the loop's critical
 path, and the first samples do not depend on the plant's first tick reaching this node; the
 controller pairs each with the state of the same stamp.  ``realtime``: in the frames of
-:mod:`sappc_msgs_py.timeline`, a timer in the middle of each frame publishes the samples up to
-:data:`~sappc_msgs_py.timeline.AHEAD_FRAMES` frames ahead, sample ``k`` stamped with frame
-``f0 + k`` (``f0``: the frame after the node's first tick), so the controller finds the
-reference of each state's stamp already there.
+:mod:`sappc_msgs_py.timeline`, sample ``k`` stamped with frame ``f0 + k``, where ``f0`` is the
+frame of the plant's first ``state/attitude`` (the node subscribes to it:
+:class:`~sappc_msgs_py.runtime.FramesAhead`); the samples of frames ``f0`` to ``f0 +
+AHEAD_FRAMES`` are published on that first state, then a timer in the middle of each frame
+publishes up to :data:`~sappc_msgs_py.timeline.AHEAD_FRAMES` frames ahead, so the controller finds
+the reference of each state's stamp already there, and the last sample is the plant's last frame's.
 
 Parameters: :data:`PARAMETERS` (the scenario's ``reference``, the grid and the mode;
 ``python -m spacecraft_sim.reference --help``), and those of :class:`~sappc_msgs_py.runtime.ProjectNode`.
@@ -31,8 +33,7 @@ from typing import Any
 from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_TF, qos_profile
 from sappc_msgs_py.convert import ns_to_stamp, quaternion_msg, stamp_to_ns, time_to_stamp, transform_from_attitude, transform_msg, vector3_msg
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, GridCursor, ProjectNode, StartGate, run_node, unmatched
-from sappc_msgs_py.timeline import AHEAD_FRAMES, MID_FRAME_PHASE, frame_index, period_ns
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, FramesAhead, GridCursor, ProjectNode, StartGate, run_node, unmatched
 
 from spacecraft_sim.core.reference import PaperReference, sample_times
 from gnc_common.validation import check_positive
@@ -75,15 +76,13 @@ class ReferenceNode(ProjectNode):
         self.pubs = [self.counting_publisher(t, 1) for t in (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)]
         self.pub_tf = self.counting_publisher(REFERENCE_TF)  # waits only for expected_subscribers
         self._tf = transform_msg(REFERENCE_TF)  # one message, re-stamped each sample
-        self._cursor = GridCursor(self.samples.t.size - 1)
         if self.mode == LOCKSTEP:
+            self._cursor = GridCursor(self.samples.t.size - 1)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile())
             self.start_when(lambda: unmatched([*self.pubs, self.pub_tf]), lambda: self._publish_through(1))
-        else:
-            self.dt_ns = period_ns(self.dt)
-            self._frame0: int | None = None  # the frame of sample 0
-            self._gate = StartGate(self, lambda: unmatched([*self.pubs, self.pub_tf]))  # no publish may block a tick
-            self.create_frame_timer(self.dt, MID_FRAME_PHASE, self._on_timer)
+        else:  # sample k on the plant's frame f0 + k, f0 its first state's (FramesAhead)
+            gate = StartGate(self, lambda: unmatched([*self.pubs, self.pub_tf]))  # no publish may block a callback
+            self.frames = FramesAhead(self, self.dt, self.samples.t.size - 1, gate.open, lambda k, ns: self._publish(k, ns_to_stamp(ns)))
 
     def _publish(self, k: int, stamp: Any) -> None:
         s = self.samples
@@ -104,15 +103,6 @@ class ReferenceNode(ProjectNode):
     def _publish_through(self, k: int) -> None:
         for j in self._cursor.through(k):
             self._publish(j, self._stamps[j])
-
-    def _on_timer(self) -> None:
-        if not self._gate.open():
-            return
-        f = frame_index(self.get_clock().now().nanoseconds, self.dt_ns, MID_FRAME_PHASE)
-        if self._frame0 is None:
-            self._frame0 = f + 1  # sample 0 is the next frame's: never stamped in the past
-        for k in self._cursor.through(f + AHEAD_FRAMES - self._frame0):  # past the grid's end: nothing (the node stays up until stopped)
-            self._publish(k, ns_to_stamp((self._frame0 + k) * self.dt_ns))
 
 
 def main(argv: list[str] | None = None) -> int:

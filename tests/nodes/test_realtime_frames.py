@@ -1,6 +1,8 @@
 """The real-time frame grid (sappc_msgs_py.timeline) and the plant's frames: states stamped with
-their frame's start, every elapsed frame integrated with the torque held and its own
-disturbance, missed frames and frames with a stale torque counted.  The plant's timer is
+their frame's start, sample 0 published ahead of its frame, every elapsed frame integrated with
+the torque held and its own disturbance (the states of missed ticks published late), missed
+frames and frames with a stale torque or disturbance counted, the end at the tick after the
+last frame with nothing published past it; the reference and the injector on the plant's frames.  The plant's timer is
 cancelled and its tick called at the times of a clock the test sets (no timing luck)."""
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from gnc_common.timing import LatencyStatistics
 from gnc_common.validation import ConfigError
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import stamp_to_ns, torque_msg
-from sappc_msgs_py.timeline import MID_FRAME_PHASE, PLANT_PHASE, StampedWindow, frame_index, period_ns
+from sappc_msgs_py.timeline import AHEAD_FRAMES, MID_FRAME_PHASE, PLANT_PHASE, START_LEAD_FRAMES, StampedWindow, frame_index, period_ns
 from fake_clock import FakeClock
 
 NS = 1_000_000_000
@@ -78,21 +80,23 @@ def test_latency_statistics_count_steps_strictly_later_than_the_deadline() -> No
 
 
 
-def test_the_plant_integrates_every_elapsed_frame_and_counts_missed_frames_and_stale_torques(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+def _realtime_plant(ros_context, monkeypatch, clock_ns: int, duration_s: float):  # type: ignore[no-untyped-def]
+    """A real-time plant whose timer is cancelled and whose clock the test sets, with a probe that
+    publishes its inputs and records the stamps of its states; returns (plant, probe, clock,
+    states, spin_until, send(topic publisher, frame, value), executor)."""
     from spacecraft_sim.plant_node import PlantNode
 
     plant = PlantNode(context=ros_context, parameter_overrides=[
-        Parameter("mode", value="realtime"), Parameter("duration_s", value=0.0), Parameter("use_disturbance_topic", value=True),
+        Parameter("mode", value="realtime"), Parameter("duration_s", value=duration_s), Parameter("use_disturbance_topic", value=True),
         Parameter("omega_BN_B0_rad_s", value=[0.01, -0.02, 0.03])])
     for timer in plant._frame_timers:
         timer.cancel()
-    f0 = 170_000_000_000
-    clock = FakeClock(f0 * DT_NS + 300_000)  # 0.3 ms into frame f0
+    clock = FakeClock(clock_ns)
     monkeypatch.setattr(plant, "get_clock", lambda: clock)
     probe = Node("probe", context=ros_context)
     qos = c.qos_profile()
-    pub_torque = probe.create_publisher(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, qos)
-    pub_dist = probe.create_publisher(c.DISTURBANCE_TORQUE.msg_class, c.DISTURBANCE_TORQUE.name, qos)
+    pubs = {"torque": probe.create_publisher(c.CONTROL_TORQUE.msg_class, c.CONTROL_TORQUE.name, qos),
+            "disturbance": probe.create_publisher(c.DISTURBANCE_TORQUE.msg_class, c.DISTURBANCE_TORQUE.name, qos)}
     states: list[int] = []
     probe.create_subscription(c.STATE_ATTITUDE.msg_class, c.STATE_ATTITUDE.name, lambda m: states.append(stamp_to_ns(m.header.stamp)), qos)
     probe.create_subscription(c.STATE_RATE.msg_class, c.STATE_RATE.name, lambda m: None, qos)
@@ -106,27 +110,38 @@ def test_the_plant_integrates_every_elapsed_frame_and_counts_missed_frames_and_s
             assert time.monotonic() < deadline, f"timed out waiting for {what}"
             ex.spin_once(timeout_sec=0.02)
 
-    try:
-        spin_until(lambda: not plant._not_ready() and pub_dist.get_subscription_count() and pub_torque.get_subscription_count(), "matching")
-        disturbance = {f0 + g: np.array([1e-3 * g, -2e-3, 5e-4 * g]) for g in range(8)}
-        for frame, d in disturbance.items():  # published ahead, each stamped with its own frame
-            m = torque_msg(d, 0.0, c.DISTURBANCE_TORQUE)
-            m.header.stamp.sec, m.header.stamp.nanosec = divmod(frame * DT_NS, NS)
-            pub_dist.publish(m)
-        spin_until(lambda: plant._disturbances.newest_ns == (f0 + 7) * DT_NS, "the disturbances ahead")
-
-        def torque(frame: int, value: list[float]) -> None:
-            m = torque_msg(value, 0.0, c.CONTROL_TORQUE)
-            m.header.stamp.sec, m.header.stamp.nanosec = divmod(frame * DT_NS, NS)
-            pub_torque.publish(m)
+    def send(which: str, frame: int, value) -> None:  # type: ignore[no-untyped-def]
+        topic = c.CONTROL_TORQUE if which == "torque" else c.DISTURBANCE_TORQUE
+        m = torque_msg(value, 0.0, topic)
+        m.header.stamp.sec, m.header.stamp.nanosec = divmod(frame * DT_NS, NS)
+        pubs[which].publish(m)
+        if which == "torque":
             spin_until(lambda: plant._torque_ns == frame * DT_NS, f"the torque of frame {frame}")
 
+    # the plant also waits for the probe's state subscriptions (its expected subscribers default to 1)
+    spin_until(lambda: not plant._not_ready() and all(p.get_subscription_count() for p in pubs.values()), "matching")
+    return plant, probe, clock, states, spin_until, send, ex
+
+
+def test_the_plant_integrates_every_elapsed_frame_and_counts_missed_frames_and_stale_torques(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    f0 = 170_000_000_000
+    # the first tick, 0.3 ms into frame f0 - START_LEAD_FRAMES: sample 0, the initial state, is published for frame f0
+    plant, probe, clock, states, spin_until, send, ex = _realtime_plant(ros_context, monkeypatch,
+                                                                        (f0 - START_LEAD_FRAMES) * DT_NS + 300_000, 0.0)
+    try:
+        disturbance = {f0 + g: np.array([1e-3 * g, -2e-3, 5e-4 * g]) for g in range(8)}
+        for frame, d in disturbance.items():  # published ahead, each stamped with its own frame
+            send("disturbance", frame, d)
+        spin_until(lambda: plant._disturbances.newest_ns == (f0 + 7) * DT_NS, "the disturbances ahead")
         x = plant.x.copy()
         body, dt = plant.body, plant.dt
-        plant._realtime_tick()  # frame f0: the first state, nothing integrated
+        plant._realtime_tick()  # sample 0, ahead of its frame f0: nothing integrated
         spin_until(lambda: len(states) == 1, "the state of f0")
-        assert states == [f0 * DT_NS] and plant.stale_torque_frames == 0 and plant.missed_frames == 0
-        torque(f0, [0.1, -0.2, 0.3])  # the answer to f0, in time
+        assert states == [f0 * DT_NS] and plant.stale_torque_frames == 0 and plant.missed_frames == 0 and plant.k == 0
+        clock.ns = f0 * DT_NS + 200_000
+        plant._realtime_tick()  # frame f0's own tick: its state is out already
+        assert len(states) == 1 and np.array_equal(plant.x, x)
+        send("torque", f0, [0.1, -0.2, 0.3])  # the answer to f0, in time
         clock.ns = (f0 + 1) * DT_NS + 200_000
         plant._realtime_tick()
         x = body.propagate(x, np.array([[0.1, -0.2, 0.3]]) + disturbance[f0], dt, 1)
@@ -134,16 +149,55 @@ def test_the_plant_integrates_every_elapsed_frame_and_counts_missed_frames_and_s
         clock.ns = (f0 + 2) * DT_NS + 4_900_000  # late, but within half a frame: frame f0 + 2, no answer to f0 + 1
         plant._realtime_tick()
         x = body.propagate(x, np.array([[0.1, -0.2, 0.3]]) + disturbance[f0 + 1], dt, 1)
-        assert plant.stale_torque_frames == 1 and plant.missed_frames == 0
-        torque(f0 + 2, [-0.05, 0.0, 0.05])
+        assert plant.stale_torque_frames == 1 and plant.missed_frames == 0 and plant.first_deviating_sample == 1
+        send("torque", f0 + 2, [-0.05, 0.0, 0.05])
         clock.ns = (f0 + 5) * DT_NS + 100_000  # frames f0 + 3 and f0 + 4 had no tick
         plant._realtime_tick()
         for g in (2, 3, 4):  # each with the torque held and its own disturbance
             x = body.propagate(x, np.array([[-0.05, 0.0, 0.05]]) + disturbance[f0 + g], dt, 1)
-        spin_until(lambda: len(states) == 4, "the states")
-        assert states == [(f0 + g) * DT_NS for g in (0, 1, 2, 5)]
+        spin_until(lambda: len(states) == 6, "the states")
+        # the states of the frames without a tick are published too, late: the sensors skip no sample
+        assert states == [(f0 + g) * DT_NS for g in range(6)]
         assert plant.missed_frames == 2 and plant.stale_torque_frames == 3  # f0 + 1, f0 + 3, f0 + 4
-        assert np.array_equal(plant.x, x) and plant.k == 5
+        assert np.array_equal(plant.x, x) and plant.k == 5 and plant.stale_disturbance_frames == 0
+        clock.ns = (f0 + 9) * DT_NS  # frame f0 + 8 has no disturbance of its own: the one of f0 + 7 held, counted
+        plant._realtime_tick()
+        assert plant.stale_disturbance_frames == 1 and plant.first_deviating_sample == 1
+    finally:
+        ex.shutdown()
+        probe.destroy_node()
+        plant.destroy_node()
+
+
+def test_a_realtime_plant_ends_at_the_tick_after_its_last_frame_without_publishing_past_it(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """duration_s = 3 frames: the states of f0 .. f0 + 3, then at the next tick the node finishes,
+    its timers stopped, with no state past the last frame; the torque of the last frame is
+    received, not applied, and counted stale when it has not come (the controller's frame)."""
+    f0 = 170_000_000_000
+    plant, probe, clock, states, spin_until, send, ex = _realtime_plant(ros_context, monkeypatch,
+                                                                        (f0 - START_LEAD_FRAMES) * DT_NS + 300_000, 3 * DT_NS / NS)
+    try:
+        for g in range(6):
+            send("disturbance", f0 + g, [0.0, 0.0, 0.0])
+        spin_until(lambda: plant._disturbances.newest_ns == (f0 + 5) * DT_NS, "the disturbances ahead")
+        plant._realtime_tick()
+        for g in range(3):
+            send("torque", f0 + g, [0.01, 0.0, 0.0])
+            clock.ns = (f0 + g + 1) * DT_NS + 100_000
+            plant._realtime_tick()
+        assert not plant.finished and plant.k == 3
+        x = plant.x.copy()
+        clock.ns = (f0 + 5) * DT_NS + 100_000  # the tick after the last frame (late: it skipped f0 + 4)
+        plant._realtime_tick()
+        spin_until(lambda: len(states) == 4, "the states")
+        assert plant.finished and states == [(f0 + g) * DT_NS for g in range(4)]
+        assert np.array_equal(plant.x, x)  # the last frame's torque is not applied
+        assert plant.stale_torque_frames == 1 and plant.first_deviating_sample == 3  # no answer to the last state came
+        assert not any(t.is_ready() or not t.is_canceled() for t in plant.timers)  # the node's timers stopped
+        clock.ns += 10 * DT_NS
+        plant._realtime_tick()  # a tick that ran anyway publishes nothing
+        ex.spin_once(timeout_sec=0.2)
+        assert len(states) == 4
     finally:
         ex.shutdown()
         probe.destroy_node()
@@ -152,50 +206,68 @@ def test_the_plant_integrates_every_elapsed_frame_and_counts_missed_frames_and_s
 
 def test_the_injector_places_fault_windows_in_the_runs_time_in_both_modes(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """Fault windows are in the run's time: in lockstep a stamp is that time; in real time the
-    stamps are epoch times of frames, and the run's time is counted from the frame of the
-    injector's sample 0 (the frame after its first tick), so a fault at 20 s starts 20 s into the
-    run, not in 1970."""
+    stamps are epoch times of frames, and the run's time is counted from the frame of the plant's
+    first state (FramesAhead; the first relayed message starts it too, should it come first), so a
+    fault at 20 s starts 20 s into the run, not in 1970."""
     from spacecraft_sim.disturbance import InjectorNode
 
     rt = InjectorNode(context=ros_context, parameter_overrides=[Parameter("mode", value="realtime")])
     for timer in rt._frame_timers:
         timer.cancel()
     f = 170_000_000_000
-    clock = FakeClock(f * DT_NS + DT_NS // 2)  # mid-frame f
+    clock = FakeClock((f - 5) * DT_NS)
     monkeypatch.setattr(rt, "get_clock", lambda: clock)
-    stamp = (f + 1 + 2000) * DT_NS  # 2000 frames after sample 0's frame (f + 1)
-    assert rt._run_time_s(stamp) == 20.0 and rt._frame0 == f + 1
-    clock.ns += 50 * DT_NS  # later calls keep the origin
+    assert rt.frames is not None and rt.frames.run_time_s(f * DT_NS) is None  # not started
+    assert rt._run_time_s(f * DT_NS) == 0.0 and rt.frames.frame0 == f  # the first stamp seen starts the run
+    stamp = (f + 2000) * DT_NS
     assert rt._run_time_s(stamp) == 20.0
+    clock.ns += 50 * DT_NS
+    rt.frames.start_at((f + 7) * DT_NS)  # later states keep the origin
+    assert rt._run_time_s(stamp) == 20.0 and rt.frames.frame0 == f
     lock = InjectorNode("injector2", context=ros_context)
     assert lock._run_time_s(20 * NS) == 20.0
     rt.destroy_node()
     lock.destroy_node()
 
 
-def test_the_reference_publishes_each_frames_sample_a_frame_and_a_half_ahead(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
-    """The module's timing (sappc_msgs_py.timeline): a publisher ahead ticks mid-frame and sends the
-    samples through two frames ahead, so the sample of frame g is out at the middle of frame g - 2,
-    a frame and a half before the plant's state of g; each stamped with its own frame, none twice."""
+def test_the_reference_publishes_its_samples_on_the_plants_frames_ahead(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The module's timing (sappc_msgs_py.timeline, runtime.FramesAhead): nothing before the plant's
+    first state; on it, samples 0 .. AHEAD_FRAMES stamped with the frames f0 .. f0 + AHEAD_FRAMES
+    (f0 that state's frame); then a timer mid-frame g sends through frame g + AHEAD_FRAMES, a
+    missed tick made up, none twice, none before the publishers are matched, none past the grid."""
     from spacecraft_sim.reference import ReferenceNode
 
-    ref = ReferenceNode(context=ros_context, parameter_overrides=[Parameter("mode", value="realtime")])
+    ref = ReferenceNode(context=ros_context, parameter_overrides=[Parameter("mode", value="realtime"),
+                                                                    Parameter("duration_s", value=0.2)])  # samples 0 .. 20
     try:
         for timer in ref._frame_timers:
             timer.cancel()
-        f = 170_000_000_000
-        clock = FakeClock(f * DT_NS + DT_NS // 2)  # mid-frame f
+        f0 = 170_000_000_000
+        clock = FakeClock((f0 - START_LEAD_FRAMES) * DT_NS + DT_NS // 2)  # the plant publishes sample 0 START_LEAD_FRAMES ahead
         monkeypatch.setattr(ref, "get_clock", lambda: clock)
-        monkeypatch.setattr(ref._gate, "open", lambda: True)  # matched: this test has no subscribers
+        matched = {"yes": False}
+        monkeypatch.setattr(ref.frames, "_ready", lambda: matched["yes"])
         sent: list[tuple[int, int]] = []
         monkeypatch.setattr(ref, "_publish", lambda k, stamp: sent.append((k, stamp_to_ns(stamp))))
-        ref._on_timer()  # sample 0 is frame f + 1's; through frame f + 2
-        assert sent == [(0, (f + 1) * DT_NS), (1, (f + 2) * DT_NS)]
-        clock.ns += DT_NS  # mid-frame f + 1: frame f + 3's sample only
-        ref._on_timer()
-        assert sent[2:] == [(2, (f + 3) * DT_NS)]
-        clock.ns += 3 * DT_NS  # two ticks missed: made up, through frame f + 6
-        ref._on_timer()
-        assert sent[3:] == [(k, (f + 1 + k) * DT_NS) for k in (3, 4, 5)]
+        ref.frames._on_timer()
+        assert sent == []  # no state yet: the run has not started
+        ref.frames.start_at(f0 * DT_NS)
+        assert sent == []  # not matched yet
+        ref.frames._on_timer()
+        matched["yes"] = True
+        ref.frames._on_timer()  # the tick of frame f0 - START_LEAD_FRAMES: through f0 + AHEAD_FRAMES
+        assert sent == [(k, (f0 + k) * DT_NS) for k in range(AHEAD_FRAMES + 1)]
+        clock.ns = f0 * DT_NS + DT_NS // 2  # mid-frame f0: nothing new
+        ref.frames._on_timer()
+        assert len(sent) == AHEAD_FRAMES + 1
+        clock.ns += DT_NS  # mid-frame f0 + 1: one more
+        ref.frames._on_timer()
+        assert sent[AHEAD_FRAMES + 1:] == [(AHEAD_FRAMES + 1, (f0 + AHEAD_FRAMES + 1) * DT_NS)]
+        clock.ns += 4 * DT_NS  # three ticks missed: made up, through frame f0 + 5 + AHEAD_FRAMES
+        ref.frames._on_timer()
+        assert [k for k, _ in sent] == list(range(AHEAD_FRAMES + 6))
+        clock.ns += 100 * DT_NS
+        ref.frames._on_timer()  # never past the grid's last sample, 20
+        assert [k for k, _ in sent] == list(range(21)) and sent[-1] == (20, (f0 + 20) * DT_NS)
     finally:
         ref.destroy_node()

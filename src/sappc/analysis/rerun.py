@@ -1,7 +1,7 @@
 """``sappc rerun``: feed a bag's recorded inputs into the controller core again.
 
 The controller node computes ``controller.step(t, dt, q, w, q_d, w_d, wdot_d)`` with
-``t = stamp_ns / 1e9`` from the five inputs of one stamp (the state it subscribes to, which is
+``t = stamp_ns / 1e9`` (real time: counted from the first step's stamp) from the five inputs of one stamp (the state it subscribes to, which is
 the fault relay's output when the run had sensor faults, and the reference).  The re-run makes
 the same calls, in the same order, on a fresh controller built from a ROS parameters file (the
 one embedded in the bag by ``sappc run``, or ``--params``), and compares each torque with the
@@ -57,7 +57,14 @@ def _replay(inputs: list[Series], widths: list[int], pairing: LockstepPairing | 
     samples: dict[int, ControlSample] = {}
     for c, r in _arrival_order(inputs):
         s = inputs[c]
-        sample = pairing.add(INPUT_TOPICS[c].name, int(s.stamps_ns[r]), s.values[r, : widths[c]])
+        stamp_ns = int(s.stamps_ns[r])
+        if isinstance(pairing, RealtimePairing) and c < RealtimePairing.N_STATE \
+                and pairing.waiting_ns is not None and pairing.waiting_ns < stamp_ns:
+            # a newer state: the one still waiting for its reference had passed its deadline (the node held the reference)
+            held = pairing.take_held()
+            if held is not None:
+                samples.setdefault(held.t_ns, held)
+        sample = pairing.add(INPUT_TOPICS[c].name, stamp_ns, s.values[r, : widths[c]])
         if sample is not None:
             samples.setdefault(sample.t_ns, sample)  # the node rejects a stamp it has computed
     return samples
@@ -179,11 +186,13 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
     rows = np.flatnonzero(keep)
     recomputed = np.full((rows.size, 3), np.nan)
     failed = 0
+    # the law's time origin, as the node's: the stamps in lockstep, the first step's stamp in real time
+    origin_ns = 0 if lockstep or rows.size == 0 else int(torque.stamps_ns[rows[0]])
     for n, r in enumerate(rows):
         sample = samples[r]
         assert sample is not None  # kept rows have their inputs
         try:
-            recomputed[n] = step_sample(controller, dt, sample).torque_B
+            recomputed[n] = step_sample(controller, dt, sample, origin_ns).torque_B
         except STEP_ERRORS:
             failed += 1  # the node then publishes zero torque
             recomputed[n] = 0.0

@@ -38,6 +38,7 @@ from sappc_msgs_py.contract import (
     ESTIMATOR_DIAGNOSTICS_LAYOUT,
     ESTIMATOR_GYRO_BIAS,
     DISTURBANCE_TORQUE,
+    ANSWER_COMMANDED,
     ANSWER_NAMES,
     ANSWER_HELD,
     ANSWER_REFUSED,
@@ -61,7 +62,7 @@ from sappc.evaluation.history import History
 from sappc.bag.mcap_scan import Scan, scan_mcap
 from sappc.evaluation.metrics import MetricsAccumulator
 
-__all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "Bag", "BagError", "BagEstimate", "BagRun", "bag_estimate", "bag_metrics", "bag_run", "find_topic", "latest_index", "nearest_index", "STAMP_TOL_NS",
+__all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "Bag", "BagError", "BagEstimate", "BagRun", "bag_estimate", "bag_metrics", "bag_run", "find_topic", "frames_lacking_inputs", "latest_index", "nearest_index", "STAMP_TOL_NS",
            "read_bag", "scan_bag"]
 
 #: Metadata records that ``sappc run``'s recorder embeds in the bag: the scenario file and the
@@ -236,8 +237,10 @@ class BagRun:
         return {"samples": int(self.answer.size), **counts, "rejected_inputs": self.rejected}
 
 
-def bag_run(bag: Bag) -> BagRun:
-    """Align the bag's topics on the state stamps (see the module docstring).
+def bag_run(bag: Bag, duration_s: float | None = None) -> BagRun:
+    """Align the bag's topics on the state stamps (see the module docstring); with
+    ``duration_s``, only the states of ``[0, duration_s]`` from the first (a run's own span: a
+    state recorded after it, e.g. from a plant that ran on, is no sample of the run).
 
     Raises
     ------
@@ -260,6 +263,8 @@ def bag_run(bag: Bag) -> BagRun:
     common = common[common >= ref.stamps_ns.min()]
     if common.size == 0:
         raise BagError(f"{bag.path}: no state sample has both attitude and rate after the first reference")
+    if duration_s is not None:
+        common = common[common - common[0] <= round(duration_s * 1e9)]
     ia = latest_index(att.stamps_ns, common)
     ir = latest_index(rate.stamps_ns, common)
     q_BN, w_BN_B = att.values[ia, :4], rate.values[ir, :3]
@@ -338,6 +343,42 @@ def bag_run(bag: Bag) -> BagRun:
         torque_topic=torque_topic,
         has_diagnostics=bool(rows),
     )
+
+
+def frames_lacking_inputs(bag: Bag, run: BagRun, dt_s: float, duration_s: float) -> dict[str, int]:
+    """A real-time run's frames ``0 .. n`` (``n = duration_s / dt_s``, on the grid of the first
+    state's stamp, :mod:`sappc_msgs_py.timeline`) that lacked an input of their own stamp, from
+    what the bag holds:
+
+    - ``state``: no state (attitude and rate) stamped with the frame (the plant missed its tick);
+    - ``reference``: the frame's control step held an earlier reference (its diagnostics'
+      ``input_stamps_reference_s`` are not the frame's stamp);
+    - ``torque``: no torque stamped with the frame (the plant held the one before over it).
+
+    A lockstep run has none by construction (the plant waits for every input of a sample).
+    """
+    dt_ns = round(dt_s * 1e9)
+    frames = run.t0_ns + dt_ns * np.arange(round(duration_s / dt_s) + 1, dtype=np.int64)
+
+    def has(topic_name: str | None, at: NDArray[np.int64]) -> NDArray[np.bool_]:
+        topic = find_topic(bag, topic_name) if topic_name is not None else None
+        return np.zeros(at.size, dtype=bool) if topic is None else np.isin(at, bag.series[topic].stamps_ns)
+
+    state = has(STATE_ATTITUDE.name, frames) & has(STATE_RATE.name, frames)
+    torque = has(CONTROL_TORQUE.name, frames)
+    held_reference = np.zeros(frames.size, dtype=bool)
+    diag_topic = find_topic(bag, CONTROLLER_DIAGNOSTICS.name)
+    labels = bag.diagnostics_labels
+    if diag_topic is not None and "input_stamps_reference_s" in labels:
+        d = bag.series[diag_topic]
+        i = nearest_index(d.stamps_ns, frames)  # the frame's own step (time_s is float epoch seconds: within STAMP_TOL_NS)
+        col = 3 * labels.index("input_stamps_reference_s")
+        used_ns = np.round(d.values[np.maximum(i, 0), col : col + 3] * 1e9)
+        own = np.all(np.abs(used_ns - frames[:, None].astype(np.float64)) <= STAMP_TOL_NS, axis=1)
+        status = d.values[np.maximum(i, 0), 3 * labels.index("status") + 2] if "status" in labels else np.zeros(frames.size)
+        held_reference = (i >= 0) & ~own & (status == ANSWER_COMMANDED)  # a control step on another stamp's reference
+    return {"frames": int(frames.size), "state": int(np.count_nonzero(~state)), "reference": int(np.count_nonzero(held_reference)),
+            "torque": int(np.count_nonzero(~torque))}
 
 
 def _estimate_record(bag: Bag, stamps_ns: NDArray[np.int64]) -> EstimateHistory | None:

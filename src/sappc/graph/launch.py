@@ -234,6 +234,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "expected_subscribers": expected(control__torque=2, controller__diagnostics=1),
         "counts_file": counts_file("controller"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "controller_timing.json"),
+        **({"duration_s": scenario.duration_s} if realtime else {}),  # nothing answered past the run's last frame
     }
     plant = {
         "inertia_kg_m2": scenario.inertia_kg_m2.ravel().tolist(),
@@ -251,7 +252,9 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         **common,
         # state: the controller (or the sensor relay) and the recorder; state/tf, joint_states: the recorder; /clock in lockstep only
         # (the estimator takes the controller's place on state/* when there is one)
-        "expected_subscribers": expected(state__attitude=2, state__rate=2, state__tf=1) + (["joint_states=1"] if scenario.wheels is not None else [])
+        # (in real time the reference and the injector also take the run's first frame from the first state/attitude: FramesAhead)
+        "expected_subscribers": expected(state__attitude=2 + 2 * realtime, state__rate=2, state__tf=1)
+        + (["joint_states=1"] if scenario.wheels is not None else [])
         + (["truth/attitude=1", "truth/rate=1", "truth/gyro_bias=1"] if scenario.sensors is not None else [])
         + ([f"/clock={clock_subs}"] if lockstep else []),
         "counts_file": counts_file("plant"),
