@@ -657,16 +657,20 @@ def _publish(drv, node, topic, stamp_ns: int, value=None) -> None:  # type: igno
 
 
 def test_realtime_computes_on_each_fresh_state_with_the_reference_of_its_stamp(realtime) -> None:  # type: ignore[no-untyped-def]
-    """Real time: a step as soon as the attitude and the rate of a new stamp have arrived, stamped
-    with it, with the reference of the same stamp when it is there (published ahead), else the
-    newest earlier one; a reference stamped after the state is never used; no step before a
-    reference at or before the state; the latency is measured from the state's stamp."""
+    """Real time: a step as soon as the attitude and the rate of a new stamp and the reference of
+    the same stamp have arrived (published ahead, or after the state), stamped with it; without
+    the reference of its stamp, the newest earlier one is held only at the middle of the state's
+    frame (the timer), and counted; a reference stamped after the state is never used; the
+    latency is measured from the state's stamp."""
     node, drv, clock = realtime
     t0 = 10 * NS
     _publish(drv, node, c.STATE_ATTITUDE, t0)
     _publish(drv, node, c.STATE_RATE, t0)
-    assert node.steps == 0  # no reference yet: not started
-    for k in (1, 2):  # the reference of frames 1 and 2, ahead of their states
+    assert node.steps == 0  # no reference yet: it waits
+    clock.ns = t0 + 6_000_000
+    node._on_timer()  # past its mid-frame, but no reference at all to hold: it keeps waiting
+    assert node.steps == 0 and node._rt.waiting_ns == t0
+    for k in (1, 2):  # the reference of frames 1 and 2, ahead of their states (frame 0's never comes)
         for topic in _REFERENCE:
             _publish(drv, node, topic, t0 + k * 10_000_000)
     clock.ns = t0 + 10_000_000 + 700_000  # the step runs 0.7 ms after the state's stamp
@@ -677,14 +681,27 @@ def test_realtime_computes_on_each_fresh_state_with_the_reference_of_its_stamp(r
     assert drv.torques[0][0] == t0 + 10_000_000 and np.any(drv.torques[0][1] != 0.0)
     assert drv.diags[0]["input_stamps_reference_s"].tolist() == [(t0 + 10_000_000) / NS] * 3  # frame 2's, ahead, not used
     assert node.latency.latency.count == 1 and node.latency.latency.max_s == 700_000 / NS and node.latency.late == 0
-    clock.ns = t0 + 30_000_000 + 10_000_001  # frame 3 answered later than one period: a late step
+    assert node.held_reference_steps == 0
+    clock.ns = t0 + 30_000_000 + 4_999_999  # just before the middle of frame 3
     _publish(drv, node, c.STATE_ATTITUDE, t0 + 30_000_000)
-    _publish(drv, node, c.STATE_RATE, t0 + 30_000_000)  # no reference of frame 3: frame 2's is held
+    _publish(drv, node, c.STATE_RATE, t0 + 30_000_000)  # no reference of frame 3: it waits
+    node._on_timer()
+    assert node.steps == 1 and node._rt.waiting_ns == t0 + 30_000_000
+    clock.ns = t0 + 30_000_000 + 10_000_001  # frame 3's deadline passed long ago: frame 2's reference held, a late step
+    node._on_timer()
     drv.spin_until(lambda: len(drv.diags) == 2, "the torque of frame 3")
     assert drv.torques[1][0] == t0 + 30_000_000
     assert drv.diags[1]["input_stamps_state_s"].tolist() == [(t0 + 30_000_000) / NS] * 2 + [0.0]
     assert drv.diags[1]["input_stamps_reference_s"].tolist() == [(t0 + 20_000_000) / NS] * 3
-    assert node.steps == 2 and node.latency.late == 1 and node.stale is False
+    assert node.steps == 2 and node.latency.late == 1 and node.stale is False and node.held_reference_steps == 1
+    clock.ns = t0 + 40_000_000 + 1_000_000  # frame 4's reference arrives after its state: the step waits for it, and takes it
+    _publish(drv, node, c.STATE_ATTITUDE, t0 + 40_000_000)
+    _publish(drv, node, c.STATE_RATE, t0 + 40_000_000)
+    assert node.steps == 2
+    for topic in _REFERENCE:
+        _publish(drv, node, topic, t0 + 40_000_000)
+    drv.spin_until(lambda: len(drv.diags) == 3, "the torque of frame 4")
+    assert drv.diags[2]["input_stamps_reference_s"].tolist() == [(t0 + 40_000_000) / NS] * 3 and node.held_reference_steps == 1
 
 
 def test_realtime_watchdog_commands_zero_torque_when_an_input_is_older_than_stale_timeout_s(realtime) -> None:  # type: ignore[no-untyped-def]
@@ -696,14 +713,16 @@ def test_realtime_watchdog_commands_zero_torque_when_an_input_is_older_than_stal
     t0 = 10 * NS
     for topic in _REFERENCE:
         _publish(drv, node, topic, t0)
-    clock.ns = t0 + 50_000_000  # the reference (held for frame 1) exactly stale_timeout_s old
+    clock.ns = t0 + 50_000_000  # the reference (held for frame 1, at its deadline) exactly stale_timeout_s old
     _publish(drv, node, c.STATE_ATTITUDE, t0 + 10_000_000)
     _publish(drv, node, c.STATE_RATE, t0 + 10_000_000)
+    node._on_timer()
     drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
     assert np.any(drv.torques[0][1] != 0.0) and node.steps == 1 and not node.stale
     clock.ns = t0 + 50_000_001  # the reference 1 ns older than stale_timeout_s
     _publish(drv, node, c.STATE_ATTITUDE, t0 + 20_000_000)
     _publish(drv, node, c.STATE_RATE, t0 + 20_000_000)
+    node._on_timer()
     drv.spin_until(lambda: len(drv.diags) == 2, "the second answer")
     assert drv.torques[1][0] == t0 + 20_000_000 and drv.torques[1][1].tolist() == [0.0, 0.0, 0.0]
     assert drv.diags[1]["status"][1] == 1.0 and drv.diags[1]["status"][2] == c.ANSWER_WATCHDOG_ZERO and node.steps == 1 and node.stale
@@ -724,6 +743,45 @@ def test_realtime_watchdog_commands_zero_torque_when_an_input_is_older_than_stal
     assert [ns for ns, _ in drv.torques] == [t0 + 10_000_000, t0 + 20_000_000, t0 + 70_000_000, t0 + 80_000_000]
     assert drv.torques[2][1].tolist() == [0.0, 0.0, 0.0] and np.any(drv.torques[3][1] != 0.0)
     assert node.steps == 2 and not node.stale and node.rejected == 0
+
+
+def test_realtime_controller_answers_nothing_past_its_runs_last_frame(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """With duration_s (two frames here), the state of the frame duration_s after the first is the
+    last answered: a later state is not stepped, and the watchdog, which would command zero torque
+    once no state came for stale_timeout_s (the plant has finished), stays silent: no torque is
+    published past the run's end (a composed run used to answer 10 s of them)."""
+    from sappc_controller.node import ControllerNode
+
+    node = ControllerNode(context=ros_context, parameter_overrides=_controller_overrides(
+        mode="realtime", control_period_s=0.01, stale_timeout_s=0.05, duration_s=0.02))  # type: ignore[no-untyped-call]
+    for timer in node._frame_timers:
+        timer.cancel()
+    clock = FakeClock(10 * NS)
+    monkeypatch.setattr(node, "get_clock", lambda: clock)
+    drv = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
+    try:
+        drv.matched()
+        t0 = 10 * NS
+        for k in range(4):
+            for topic in _REFERENCE:
+                _publish(drv, node, topic, t0 + k * 10_000_000)
+        for k in range(3):  # the first state, then the two frames of duration_s
+            clock.ns = t0 + k * 10_000_000 + 500_000
+            _publish(drv, node, c.STATE_ATTITUDE, t0 + k * 10_000_000)
+            _publish(drv, node, c.STATE_RATE, t0 + k * 10_000_000)
+            drv.spin_until(lambda: len(drv.torques) == k + 1, f"the torque of frame {k}")
+        clock.ns = t0 + 30_000_000 + 500_000  # a state past the end (the node no longer takes it in)
+        drv.pub[c.STATE_ATTITUDE.name].publish(quaternion_msg(Q0, (t0 + 30_000_000) / NS, c.STATE_ATTITUDE))
+        drv.pub[c.STATE_RATE.name].publish(vector3_msg((0.0, 0.0, 0.0), (t0 + 30_000_000) / NS, c.STATE_RATE))
+        drv.executor.spin_once(timeout_sec=0.2)
+        clock.ns += 10 * 10_000_000  # long after the last state: the watchdog would answer
+        node._on_timer()
+        drv.executor.spin_once(timeout_sec=0.2)
+        assert [ns for ns, _ in drv.torques] == [t0 + k * 10_000_000 for k in range(3)] and node.steps == 3
+    finally:
+        drv.executor.shutdown()
+        node.destroy_node()
+        drv.node.destroy_node()
 
 
 def test_realtime_input_checks_are_per_topic_and_relative_to_the_node_clock(realtime) -> None:  # type: ignore[no-untyped-def]
