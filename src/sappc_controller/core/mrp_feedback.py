@@ -68,17 +68,19 @@ class MrpFeedbackGains:
         Proportional gain on the MRP error ``sigma_BR``, ``mrpFeedback.K`` (> 0) [N m].
     P_Nms : float
         Rate-error gain on ``omega_BR_B``, ``mrpFeedback.P`` (> 0) [N m s].
-    Ki_per_kg_m2 : float
-        Integral feedback gain, ``mrpFeedback.Ki``; 0 turns the integral term off (Basilisk: any
-        ``Ki <= 0``) [1/(kg m^2)].
     integralLimit_Nms : float
-        Per-component bound of ``K int(sigma_BR) dt``, ``mrpFeedback.integralLimit`` (> 0) [N m s].
+        Per-component bound of ``K int(sigma_BR) dt``, ``mrpFeedback.integralLimit`` (> 0); used
+        only while ``Ki > 0``.  Required: its scale is the disturbance's (``P Ki int_sigma`` balances
+        it at rest), which no default knows [N m s].
+    Ki_per_kg_m2 : float
+        Integral feedback gain, ``mrpFeedback.Ki``; 0, the default, turns the integral term off
+        (Basilisk: any ``Ki <= 0``, its default -1) [1/(kg m^2)].
     """
 
     K_Nm: float
     P_Nms: float
+    integralLimit_Nms: float
     Ki_per_kg_m2: float = 0.0
-    integralLimit_Nms: float = 1.0
 
     def __post_init__(self) -> None:
         check_positive("gains.K_Nm", self.K_Nm)
