@@ -340,7 +340,7 @@ TOP_KEYS = {
     "sensors": "The plant's star tracker and gyro; absent: the state is measured exactly.",
     "estimator": "Attitude determination between the sensors and the controller (`kind: none` or `mekf`).",
     "metrics": "How the run's metrics are computed, and the requirements a run must meet.",
-    "controller": "The default controller: `sappc`, `trappc` or `blfppc` (default `sappc`).",
+    "controller": "The default controller: `sappc`, `trappc`, `blfppc` or `mrp_feedback` (default `sappc`).",
     "controllers": "The parameters of each controller the scenario can run, by name. Required.",
     "faults": "A list of actuator, sensor and link faults, each with a `kind`.",
     "controller_node": "The controller's input watchdog (both the node and the offline loop model it).",

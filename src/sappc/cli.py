@@ -1,6 +1,6 @@
 """The ``sappc`` command line.
 
-    sappc simulate SCENARIO [--controller sappc|trappc|blfppc] [--json FILE] [--out DIR]
+    sappc simulate SCENARIO [--controller sappc|trappc|blfppc|mrp_feedback] [--json FILE] [--out DIR]
     sappc simulate --from-campaign DIR --run K [--json FILE] [--out DIR]
     sappc montecarlo SCENARIO --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
     sappc tune SCENARIO [--controller K] [--trials N] [--runs-per-trial M] [--seed S] [--workers W | --scheduler ADDRESS] [--out DIR] [--resume]

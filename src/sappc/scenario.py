@@ -59,6 +59,7 @@ class ControllerKind(str, Enum):
     SAPPC = "sappc"
     TRAPPC = "trappc"
     BLFPPC = "blfppc"
+    MRP_FEEDBACK = "mrp_feedback"
 
 
 #: Memory one control sample of a run takes while it is simulated and analysed [bytes]: the

@@ -1,4 +1,4 @@
-"""The controller node (``python -m sappc_controller``): SAPPC, TraPPC or BLFPPC on the graph.
+"""The controller node (``python -m sappc_controller``): SAPPC, TraPPC, BLFPPC or MRP feedback on the graph.
 
 Subscribes to the state (``state/attitude``, ``state/rate``) and the reference
 (``reference/attitude``, ``reference/rate``, ``reference/acceleration``), publishes
@@ -157,7 +157,7 @@ _GRACE_CHECK_S = 0.05
 #: The controller node's own parameters (``--help``; those of the law, :func:`~sappc_controller.params.config_parameters`,
 #: follow ``controller``), in the order the node declares them.
 PARAMETERS = (
-    Param("controller", "sappc", "the law: SAPPC, or one of the paper's benchmarks", choices=tuple(CONTROLLER_CLASSES)),
+    Param("controller", "sappc", "the law: SAPPC, one of the paper's benchmarks (trappc, blfppc), or Basilisk's MRP feedback", choices=tuple(CONTROLLER_CLASSES)),
     Param("control_period_s", DEFAULT_CONTROL_PERIOD_S, "control period dt: the law's step (and the real-time frame and deadline)", "s",
           check="> 0"),
     MODE,

@@ -3,7 +3,7 @@
 A controller's parameters are its config's fields flattened with dots under the controller's
 name, plus the plant-level ones shared by all kinds::
 
-    controller: sappc               # sappc | trappc | blfppc
+    controller: sappc               # sappc | trappc | blfppc | mrp_feedback
     inertia_kg_m2: [4.0, 0, 0, 0, 4.0, 0, 0, 0, 4.0]   # row major, the known J
     actuator.max_torque_Nm: 0.5
     actuator.min_torque_Nm: 0.005
@@ -33,6 +33,7 @@ from sappc_msgs_py.inputs import DEFAULT_MAX_STAMP_AHEAD_S, WATCHDOG_RANGE_S, ch
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.blfppc import BlfppcConfig, BlfppcController
 from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.mrp_feedback import MrpFeedbackConfig, MrpFeedbackController
 from sappc_controller.core.sappc import SappcConfig, SappcController
 from sappc_controller.core.trappc import TrappcConfig, TrappcController
 
@@ -56,11 +57,12 @@ __all__ = [
 ]
 
 #: The config dataclass of each controller kind.
-CONFIG_CLASSES: dict[str, type] = {"sappc": SappcConfig, "trappc": TrappcConfig, "blfppc": BlfppcConfig}
+CONFIG_CLASSES: dict[str, type] = {"sappc": SappcConfig, "trappc": TrappcConfig, "blfppc": BlfppcConfig, "mrp_feedback": MrpFeedbackConfig}
 #: The controller class of each kind, built from a config of that kind (SAPPC also takes
 #: ``on_infeasible``).  Typed by what they build: ``type[AttitudeController]`` would check the
 #: calls against the base class's ``(inertia_kg_m2, actuator)`` constructor, which no caller uses.
-CONTROLLER_CLASSES: dict[str, Callable[..., AttitudeController]] = {"sappc": SappcController, "trappc": TrappcController, "blfppc": BlfppcController}
+CONTROLLER_CLASSES: dict[str, Callable[..., AttitudeController]] = {"sappc": SappcController, "trappc": TrappcController, "blfppc": BlfppcController,
+                                                                    "mrp_feedback": MrpFeedbackController}
 
 #: The node's ``control_period_s`` when a parameters file does not set it [s] (100 Hz, the paper's).
 DEFAULT_CONTROL_PERIOD_S = 0.01
@@ -225,7 +227,8 @@ def unflatten(values: dict[str, Any]) -> dict[str, Any]:
 #: Largest value of any scalar controller parameter (gains [1/s, N m, rad/s], times [s], bounds):
 #: a gain of 1e6 1/s moves the virtual control by a million times the error each second, far
 #: beyond any actuator at any control rate the nodes run (a period >= 1e-4 s); a larger value is a
-#: typo (``1e300`` once was accepted).  Every scalar parameter of the three configs is >= 0.
+#: typo (``1e300`` once was accepted).  Every scalar parameter of the four configs is >= 0
+#: (MRP feedback's gains [N m, N m s, 1/(kg m^2)] included: ``Ki = 0`` is its "off").
 PARAMETER_MAX = 1e6
 #: Range of the integer parameters (BLFPPC's odd/even exponents of its performance function).
 INTEGER_PARAMETER_RANGE = (1, 99)

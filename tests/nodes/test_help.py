@@ -70,7 +70,8 @@ def test_the_controllers_help_states_types_units_ranges_and_what_changes_at_run_
     assert "  sappc.gains.D_m_Nm  (double; [N m]; default (required); range [0, 1e+06]; changeable at run time)" in text
     assert "  sappc.rpf.l  (double; [1/s]; default (required); range [0, 1e+06])" in text  # fixed during a run
     assert "  blfppc.ftppf.m_odd  (integer; default 1; range [1, 99])" in text
-    assert "  controller  (string; default 'sappc'; one of sappc, trappc, blfppc)" in text
+    assert "  controller  (string; default 'sappc'; one of sappc, trappc, blfppc, mrp_feedback)" in text
+    assert "  mrp_feedback.gains.Ki_per_kg_m2  (double; [1/(kg m^2)]; default 0; range [0, 1e+06]; changeable at run time)" in text
     assert "``" not in text  # reStructuredText markup is shown as plain text
 
 

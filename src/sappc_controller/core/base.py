@@ -1,4 +1,4 @@
-"""The controller interface shared by SAPPC, TraPPC and BLFPPC.
+"""The controller interface shared by SAPPC, TraPPC, BLFPPC and MRP feedback.
 
 A controller never reads a clock: time ``t`` [s] and the sampling period ``dt`` [s] are arguments
 of :meth:`AttitudeController.step`.  Inputs are checked there, in Python, once; the law itself is
@@ -144,7 +144,7 @@ class AttitudeController:
 
     Parameters
     ----------
-    config : SappcConfig, TrappcConfig or BlfppcConfig
+    config : SappcConfig, TrappcConfig, BlfppcConfig or MrpFeedbackConfig
         The validated config; its type selects the law (:func:`.packing.kind_of`).
     on_infeasible : {"raise", "clamp"}
         SAPPC's policy for an infeasible RPF component (:class:`.rpf.ReferencePerformanceFunction`);
@@ -159,7 +159,10 @@ class AttitudeController:
 
     #: Gain fields :meth:`reconfigure` may change during a run (the filter's p, T3_s and
     #: V_floor are part of its state; the performance functions fix the run's envelope).
-    RUNTIME_GAINS = ("K_q", "K_omega", "K1", "K2", "K3", "D_m_Nm", "mu_rad_s", "q0_floor")
+    #: MRP feedback's four gains may all change, as Basilisk's ``mrpFeedback`` reads them at each
+    #: update (its ``int_sigma`` carries over).
+    RUNTIME_GAINS = ("K_q", "K_omega", "K1", "K2", "K3", "D_m_Nm", "mu_rad_s", "q0_floor",
+                     "K_Nm", "P_Nms", "Ki_per_kg_m2", "integralLimit_Nms")
 
     def __init__(self, config: Any, *, on_infeasible: str = "raise") -> None:
         from sappc_controller.core import kernels, packing  # see the module docstring

@@ -1,4 +1,4 @@
-"""The three control laws, compiled: SAPPC, TraPPC and BLFPPC as per-run numba kernels.
+"""The four control laws, compiled: SAPPC, TraPPC, BLFPPC and MRP feedback as per-run numba kernels.
 
 This module is **the** implementation of the laws (issue 13: one code path); every caller goes
 through :func:`controller_step`:
@@ -78,6 +78,7 @@ __all__ = [
     "BARRIER_MARGIN",
     "DOMAIN_MARGIN",
     "KIND_BLFPPC",
+    "KIND_MRP_FEEDBACK",
     "KIND_SAPPC",
     "KIND_TRAPPC",
     "N_COEF",
@@ -92,7 +93,7 @@ __all__ = [
 ]
 
 #: Controller kinds (the ``kind`` argument of :func:`controller_step`).
-KIND_SAPPC, KIND_TRAPPC, KIND_BLFPPC = 0, 1, 2
+KIND_SAPPC, KIND_TRAPPC, KIND_BLFPPC, KIND_MRP_FEEDBACK = 0, 1, 2, 3
 #: TraPPC: distance in z kept from the transformation's asymptotes (module :mod:`.trappc`):
 #: ln(1/1e-9) = 20.7 bounds |eps|, a finite "at the wall" value.
 DOMAIN_MARGIN = 1e-9
@@ -120,6 +121,8 @@ P_RHO_EINF, P_GINF, P_RPF_T2 = 23, 24, 25
 P_PF_RHO0, P_PF_RHOINF, P_PF_L = 23, 24, 25
 #: BLFPPC FTPPF: rho(0), rho_Tf, T_f, 1/m.
 P_FT_RHO0, P_FT_RHOTF, P_FT_TF, P_FT_INVM = 23, 24, 25, 26
+#: MRP feedback (Basilisk's mrpFeedback): K [N m], P [N m s], Ki [1/(kg m^2)], integralLimit [N m s].
+P_MRP_K, P_MRP_P, P_MRP_KI, P_MRP_INT_LIMIT = 6, 7, 8, 9
 N_PARAMS = 27
 
 # --- coef rows --------------------------------------------------------------------------------
@@ -132,7 +135,9 @@ S_FILTER_ON = 3  # 0.0 until the filter has its first input
 S_PREV = 4  # 15: previous eps, P_s, z, d eps/d delta, delta (3 each)
 S_HAS_PREV = 19
 S_T0 = 20
-N_STATE = 21
+S_INT_SIGMA = 21  # 3: MRP feedback's K * integral of sigma_BR dt [N m s] (mrpFeedback's int_sigma)
+S_HAS_PRIOR_CALL = 24  # MRP feedback: 0.0 until its first call (mrpFeedback's priorTime == 0)
+N_STATE = 25
 
 # --- work rows --------------------------------------------------------------------------------
 W_QBR, W_WBR, W_WBN, W_CWD, W_CWDD = 0, 1, 2, 3, 4  # error state (eq. errorsystem)
@@ -492,6 +497,80 @@ def blfppc_law(prm, coef, state, tau, dt, work, out):
     out[O_V, 2] = V3
 
 
+# ============================================================================= MRP feedback
+
+
+@jit(inline="always")
+def mrp_feedback_law(prm, state, dt, work, out):
+    """Basilisk's ``mrpFeedback`` law (Schaub & Junkins, Analytical Mechanics of Space Systems,
+    Example 8.14; module :mod:`.mrp_feedback`), ``controlLawType = 0``, no reaction-wheel terms and
+    no known external torque, operation by operation as ``Update_mrpFeedback`` computes it.
+
+    From the error state in ``work``: ``sigma_BR = q_ev / (1 + q_e0)`` (``q_e0 >= 0``, so
+    ``|sigma_BR| <= 1``: the short rotation, the set Basilisk's guidance gives after its shadow-set
+    switch), ``omega_BR_B = omega_e``, ``omega_RN_B = C_e omega_d``, ``domega_RN_B = C_e omegadot_d``.
+    The integral ``int_sigma += K h sigma_BR`` (``h = 0`` at a run's first call, else ``dt``: the
+    time since the previous call), each component scaled back to ``integralLimit``, accumulates only
+    while ``Ki > 0``; then ``z = int_sigma + J omega_BR_B`` (else ``z = 0``) and
+
+        L_r = K sigma + P dw + P Ki z - (omega_r + Ki z) x (J omega) + J (omega x omega_r - domega_r)
+        u   = -L_r
+
+    ``u`` (Basilisk's ``torqueRequestBody``) is the torque to apply.  Writes ``out[O_CMD]``;
+    ``eps = sigma_BR``, ``z``, ``rho = 0`` (the law steers the error to zero), an unbounded band
+    (the law imposes no constraint) and ``V``: the three terms of the Lyapunov function
+    ``2 K ln(1 + sigma^T sigma)``, ``dw^T J dw / 2``, ``Ki z^T z / 2`` (0 when the integral is off)."""
+    K, P, Ki, limit = prm[P_MRP_K], prm[P_MRP_P], prm[P_MRP_KI], prm[P_MRP_INT_LIMIT]
+    sigma = work[W_EPS]
+    for i in range(3):
+        sigma[i] = work[W_QBR, i] / (1.0 + work[W_QBR, 3])  # sigma_BR (Basilisk's EP2MRP for b0 >= 0)
+    s0, s1, s2 = sigma[0], sigma[1], sigma[2]
+    dw0, dw1, dw2 = work[W_WBR, 0], work[W_WBR, 1], work[W_WBR, 2]  # omega_BR_B
+    h = dt if state[S_HAS_PRIOR_CALL] != 0.0 else 0.0  # mrpFeedback: no control period at the first call
+    state[S_HAS_PRIOR_CALL] = 1.0
+    z0 = z1 = z2 = 0.0
+    if Ki > 0.0:  # integral feedback on
+        k_h = K * h
+        for i in range(3):
+            acc = k_h * sigma[i] + state[S_INT_SIGMA + i]
+            mag = abs(acc)
+            if mag > limit:  # keep |int_sigma_i| <= integralLimit, its sign kept
+                acc *= limit / mag
+            state[S_INT_SIGMA + i] = acc
+        Jdw = matvec3_flat_of(prm, P_J, dw0, dw1, dw2)
+        z0 = state[S_INT_SIGMA] + Jdw[0]  # z = K int(sigma) + J dw
+        z1 = state[S_INT_SIGMA + 1] + Jdw[1]
+        z2 = state[S_INT_SIGMA + 2] + Jdw[2]
+    kz0, kz1, kz2 = Ki * z0, Ki * z1, Ki * z2
+    L0 = (P * dw0 + K * s0) + P * kz0  # +K sigma + P dw + P Ki z
+    L1 = (P * dw1 + K * s1) + P * kz1
+    L2 = (P * dw2 + K * s2) + P * kz2
+    w0, w1, w2 = work[W_WBN, 0], work[W_WBN, 1], work[W_WBN, 2]  # omega_BN_B
+    Jw = matvec3_flat_of(prm, P_J, w0, w1, w2)
+    r0, r1, r2 = work[W_CWD, 0], work[W_CWD, 1], work[W_CWD, 2]  # omega_RN_B
+    a0, a1, a2 = r0 + kz0, r1 + kz1, r2 + kz2  # omega_r + Ki z
+    L0 = L0 - (a1 * Jw[2] - a2 * Jw[1])  # -(omega_r + Ki z) x (J omega)
+    L1 = L1 - (a2 * Jw[0] - a0 * Jw[2])
+    L2 = L2 - (a0 * Jw[1] - a1 * Jw[0])
+    b0 = (w1 * r2 - w2 * r1) - work[W_CWDD, 0]  # omega x omega_r - domega_r
+    b1 = (w2 * r0 - w0 * r2) - work[W_CWDD, 1]
+    b2 = (w0 * r1 - w1 * r0) - work[W_CWDD, 2]
+    Jb = matvec3_flat_of(prm, P_J, b0, b1, b2)
+    out[O_CMD, 0] = -(Jb[0] + L0)  # u = -L_r, the torque to apply
+    out[O_CMD, 1] = -(Jb[1] + L1)
+    out[O_CMD, 2] = -(Jb[2] + L2)
+    for i in range(3):
+        out[O_RHO, i] = 0.0
+        out[O_BL, i] = -np.inf
+        out[O_BU, i] = np.inf
+    out[O_EPS, 0], out[O_EPS, 1], out[O_EPS, 2] = s0, s1, s2
+    out[O_Z, 0], out[O_Z, 1], out[O_Z, 2] = z0, z1, z2
+    Jdw = matvec3_flat_of(prm, P_J, dw0, dw1, dw2)
+    out[O_V, 0] = 2.0 * K * np.log1p((s0 * s0 + s1 * s1) + s2 * s2)
+    out[O_V, 1] = 0.5 * ((dw0 * Jdw[0] + dw1 * Jdw[1]) + dw2 * Jdw[2])
+    out[O_V, 2] = 0.5 * max(Ki, 0.0) * ((z0 * z0 + z1 * z1) + z2 * z2)
+
+
 # ============================================================================= the step
 
 
@@ -508,6 +587,8 @@ def controller_step(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN
     tau = t - state[S_T0]
     if kind == KIND_BLFPPC:
         blfppc_law(prm, coef, state, tau, dt, work, out)
+    elif kind == KIND_MRP_FEEDBACK:
+        mrp_feedback_law(prm, state, dt, work, out)
     else:
         if kind == KIND_SAPPC:
             sappc_transform(prm, coef, state, tau, work, out)

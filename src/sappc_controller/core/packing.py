@@ -22,6 +22,7 @@ from sappc_controller.core.kernels import (
     C_SIGN,
     C_T1,
     KIND_BLFPPC,
+    KIND_MRP_FEEDBACK,
     KIND_SAPPC,
     KIND_TRAPPC,
     N_COEF,
@@ -40,6 +41,10 @@ from sappc_controller.core.kernels import (
     P_KFUN,
     P_KQ,
     P_KW,
+    P_MRP_INT_LIMIT,
+    P_MRP_K,
+    P_MRP_KI,
+    P_MRP_P,
     P_MU,
     P_P,
     P_PF_L,
@@ -56,6 +61,7 @@ from sappc_controller.core.kernels import (
     P_UMIN,
     P_VFLOOR,
 )
+from sappc_controller.core.mrp_feedback import MrpFeedbackConfig
 from sappc_controller.core.rpf import ReferencePerformanceFunction
 from sappc_controller.core.sappc import SappcConfig
 from sappc_controller.core.trappc import TrappcConfig
@@ -71,6 +77,8 @@ def kind_of(config: object) -> int:
         return KIND_TRAPPC
     if isinstance(config, BlfppcConfig):
         return KIND_BLFPPC
+    if isinstance(config, MrpFeedbackConfig):
+        return KIND_MRP_FEEDBACK
     raise ConfigError(f"no compiled kernel for {type(config).__name__}")
 
 
@@ -78,16 +86,21 @@ def pack_params(config: object, n_runs: int = 1, gains: dict[str, np.ndarray] | 
     """``prm`` rows for ``n_runs`` runs, shape (n_runs, N_PARAMS), from a validated config.
 
     ``gains`` optionally gives per-run values (N,) of ``K_q``, ``K_omega``, ``D_m_Nm``, ``mu_rad_s``
-    (Monte Carlo gain dispersions; the config's gains may also hold such arrays).
+    (Monte Carlo gain dispersions, SAPPC and TraPPC; the config's gains may also hold such arrays).
     """
     prm = np.zeros((n_runs, N_PARAMS))
     g = config.gains  # type: ignore[attr-defined]
     J = np.asarray(config.inertia_kg_m2, dtype=np.float64)  # type: ignore[attr-defined]
-    prm[:, P_P], prm[:, P_T3], prm[:, P_VFLOOR], prm[:, P_Q0FLOOR] = g.p, g.T3_s, g.V_floor, g.q0_floor
-    prm[:, P_DM], prm[:, P_MU] = g.D_m_Nm, g.mu_rad_s
     prm[:, P_UMAX] = config.actuator.max_torque_Nm  # type: ignore[attr-defined]
     prm[:, P_UMIN] = config.actuator.min_torque_Nm  # type: ignore[attr-defined]
     prm[:, P_J : P_J + 9] = J.reshape(-1)
+    if isinstance(config, MrpFeedbackConfig):
+        if gains:
+            raise ConfigError(f"per-run gains {sorted(gains)} are for SAPPC and TraPPC, not the MRP feedback controller")
+        prm[:, P_MRP_K], prm[:, P_MRP_P], prm[:, P_MRP_KI], prm[:, P_MRP_INT_LIMIT] = g.K_Nm, g.P_Nms, g.Ki_per_kg_m2, g.integralLimit_Nms
+        return prm
+    prm[:, P_P], prm[:, P_T3], prm[:, P_VFLOOR], prm[:, P_Q0FLOOR] = g.p, g.T3_s, g.V_floor, g.q0_floor
+    prm[:, P_DM], prm[:, P_MU] = g.D_m_Nm, g.mu_rad_s
     if isinstance(config, BlfppcConfig):
         prm[:, P_K1], prm[:, P_K2], prm[:, P_K3] = g.K1, g.K2, g.K3
         pf = config.ftppf
@@ -120,8 +133,9 @@ def rpf_coef(rpf: ReferencePerformanceFunction) -> np.ndarray:
 def start_coef(config: object, q_BR0: np.ndarray, *, on_infeasible: str = "raise") -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Run constants ``coef`` (N, N_COEF, 3) from the first error quaternions ``q_BR0`` (N, 4), after
     the start checks: the 180 deg singularity (:func:`.base.check_start`, raising
-    :class:`.base.SingularStartError`), the funnel containing the initial error (TraPPC, BLFPPC:
-    ``ConfigError``), the RPF feasibility (SAPPC; ``on_infeasible`` as in
+    :class:`.base.SingularStartError`; every law, MRP feedback included, so that every law refuses the
+    same starts), the funnel containing the initial error (TraPPC, BLFPPC: ``ConfigError``), the
+    RPF feasibility (SAPPC; ``on_infeasible`` as in
     :class:`.rpf.ReferencePerformanceFunction`).  Also returns the RPF's ``flat`` and ``clamped`` flags.
     """
     q_BR0 = np.atleast_2d(np.asarray(q_BR0, dtype=np.float64))
@@ -132,6 +146,8 @@ def start_coef(config: object, q_BR0: np.ndarray, *, on_infeasible: str = "raise
     if isinstance(config, SappcConfig):
         rpf = ReferencePerformanceFunction(config.rpf, q_ev0, on_infeasible=on_infeasible)
         return rpf_coef(rpf), {"flat": rpf.flat, "clamped": rpf.clamped}
+    if isinstance(config, MrpFeedbackConfig):  # no performance function: no run constants
+        return np.zeros((n, N_COEF, 3)), flags
     if isinstance(config, TrappcConfig):
         rho0, name, who = config.pf.rho_0, "pf.rho_0", "TraPPC"
     elif isinstance(config, BlfppcConfig):
