@@ -246,3 +246,32 @@ def test_the_references_cover_every_command_node_key_and_topic() -> None:
         assert key in scenario
     with pytest.raises(ref.GenerationError, match="unknown generator"):
         ref.expand("<!-- generate: nothing -->")
+
+
+def test_the_cli_reference_shows_what_help_shows_and_every_argument_has_a_meaning() -> None:
+    """No argparse marker and no hidden option on the page, a meaning for every argument, and
+    each (nested) command's usage names its own path once (``sappc scenarios copy [-h] ...``)."""
+    ref = _generators()
+    import argparse
+
+    import sappc.cli
+
+    cli = ref.gen_cli()
+    assert "SUPPRESS" not in cli
+    assert "--plots" not in cli  # simulate's deprecated alias: --help hides it, so does the page
+    rows = [line for line in cli.splitlines() if line.startswith("| `") and not line.startswith("| [")]
+    arguments = [r for r in rows if not re.match(r"^\| `\d+` \|", r)]  # not the exit-status rows
+    assert len(arguments) > 40
+    for row in arguments:
+        cells = [c.strip() for c in re.split(r"(?<!\\)\|", row)[1:-1]]
+        assert len(cells) == 2 and cells[1] and cells[1] != ".", row
+    usages = re.findall(r"```text\n(.*)\n```", cli)
+    for name, _, sub in ref._subcommands(sappc.cli._parser()):
+        assert any(u.startswith(f"sappc {name} [-h]") for u in usages), name
+        for nested, _, _ in ref._subcommands(sub):
+            mine = [u for u in usages if u.startswith(f"sappc {name} {nested} ")]
+            assert len(mine) == 1 and mine[0].startswith(f"sappc {name} {nested} [-h]") and mine[0].count(f" {nested} ") == 1, usages
+    with pytest.raises(ref.GenerationError, match="has no help"):
+        bare = argparse.ArgumentParser(prog="sappc x")
+        bare.add_argument("thing")
+        ref._argument_rows(bare)

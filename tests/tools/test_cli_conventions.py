@@ -80,6 +80,24 @@ def test_the_help_as_printed_keeps_one_status_per_line() -> None:
     assert section[-1] == "several statuses at once: the first of 3, 4, 1", proc.stdout
 
 
+def test_every_argument_says_what_it_is_and_states_its_default() -> None:
+    """What ``--help`` and the reference page show of each argument: a help text, which names
+    the default when the argument has one (argparse prints none of its own)."""
+    for name, sub in _commands(cli._parser()).items():
+        for a in sub._actions:
+            if isinstance(a, (argparse._HelpAction, argparse._SubParsersAction)) or a.help == argparse.SUPPRESS:
+                continue
+            what = f"sappc {name} {'/'.join(a.option_strings) or a.dest}"
+            assert a.help, f"{what}: no help"
+            if a.default not in (None, False):
+                assert "default" in a.help, f"{what}: default {a.default!r} not stated in its help"
+
+
+def test_a_nested_commands_usage_names_its_own_path_once() -> None:
+    proc = _sappc("scenarios", "copy", "--help")
+    assert proc.returncode == 0 and proc.stdout.splitlines()[0] == "usage: sappc scenarios copy [-h] [--force] NAME [DEST]", proc.stdout
+
+
 # ---- --json - ------------------------------------------------------------------------------
 
 
