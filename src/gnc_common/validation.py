@@ -7,6 +7,7 @@ error names the offending quantity and value.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from enum import Enum
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,7 @@ __all__ = [
     "check_positive_int",
     "check_spd_inertia",
     "check_unit_quaternion",
+    "did_you_mean",
     "from_kind_list",
     "inertia_from_row_major",
     "from_mapping",
@@ -47,6 +49,27 @@ QUATERNION_NORM_TOL = 1e-6
 #: file, a plant node parameter): the paper prints q_s(0) with 4 decimals (norm error 3.5e-5);
 #: anything beyond 1e-3 is a typo, not rounding.
 INITIAL_QUATERNION_NORM_TOL = 1e-3
+
+
+#: How close a mistyped name must be to a valid one for :func:`did_you_mean` to suggest it
+#: (``difflib.SequenceMatcher.ratio``, 0 to 1): difflib's own default, 0.6, which takes
+#: ``simulat`` to ``simulate`` and ``paper-tracking`` or ``paper_trackin`` to ``paper_tracking``
+#: (ratios above 0.9) and suggests nothing for a word that shares a few letters by chance.
+SUGGESTION_CUTOFF = 0.6
+
+
+def did_you_mean(word: str, choices: Iterable[str]) -> str:
+    """``", did you mean 'X'?"`` naming the valid choice closest to a mistyped ``word``, to put
+    into an error message right after the word; ``""`` when no choice is close
+    (:data:`SUGGESTION_CUTOFF`).
+
+    >>> did_you_mean("simulat", ["simulate", "montecarlo"])
+    ", did you mean 'simulate'?"
+    """
+    import difflib
+
+    close = difflib.get_close_matches(word, [str(c) for c in choices], n=1, cutoff=SUGGESTION_CUTOFF)
+    return f", did you mean {close[0]!r}?" if close else ""
 
 
 class InputError(ValueError):

@@ -37,7 +37,7 @@ from typing import Any, TextIO
 from pathlib import Path
 from collections.abc import Iterator, Sequence
 
-from gnc_common.validation import ConfigError, InputError
+from gnc_common.validation import ConfigError, InputError, did_you_mean
 
 from sappc.files import bag_run_name, default_output_dir
 from sappc.scenario import ControllerKind, load_scenario
@@ -549,8 +549,20 @@ _BAG_HELP = "a rosbag2 directory (e.g. runs/run/<run>/bag) or an .mcap file"
 _CONTROLLER_HELP = "controller to {} (default: the scenario's 'controller' key)"
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, whose "invalid choice" (a command, ``--controller``) also suggests the
+    closest valid one (:func:`~gnc_common.validation.did_you_mean`); its subcommands' parsers
+    are of this class too (argparse makes them of the parent's class)."""
+
+    def _check_value(self, action: argparse.Action, value: Any) -> None:
+        if action.choices is not None and value not in action.choices and isinstance(value, str):
+            choices = ", ".join(repr(c) for c in action.choices)
+            raise argparse.ArgumentError(action, f"invalid choice: {value!r}{did_you_mean(value, action.choices)} (choose from {choices})")
+        super()._check_value(action, value)
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.",
+    parser = _Parser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.",
                                      epilog=exit_status_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
