@@ -31,6 +31,7 @@ import pytest
 import yaml
 
 from conftest import ROOT
+from sappc.files import OUTPUT_ROOT
 
 #: The README's budget [bytes]: what a newcomer reads in five minutes, as the READMEs of the
 #: field's well-liked projects (rosbags, mcap, Basilisk, python-control: 5 to 15 KB).
@@ -91,6 +92,10 @@ def blocks(page: Path) -> list[Block]:
 
 def _replacements(block: Block) -> list[tuple[str, str]]:
     return [(a, b) for d in block.directives if d.startswith("replace") for a, b in re.findall(r'"([^"]*)" -> "([^"]*)"', d)]
+
+
+#: What :func:`_workdir` puts into a page's scratch directory (the checkout's, as links; the test's own).
+_SCRATCH_ENTRIES = {"config", "examples", "src", "benchmarks", "docs", ".venv", "short", "sappcw"}
 
 
 def _workdir(tmp: Path) -> Path:
@@ -203,6 +208,9 @@ def test_every_code_block_of_the_page_runs(page: Path, tmp_path: Path) -> None:
             _check_yaml(b, text)
         else:
             last_output = _run(b, text, cwd)
+    # what a reader following the page leaves in the checkout: nothing git sees, only OUTPUT_ROOT (ignored)
+    written = sorted(p.name for p in cwd.iterdir() if p.name not in _SCRATCH_ENTRIES)
+    assert set(written) <= {str(OUTPUT_ROOT)}, f"{page.relative_to(ROOT)}: its blocks wrote {written} outside {OUTPUT_ROOT}/, the one output root"
 
 
 def test_the_site_builds_with_warnings_as_errors(tmp_path: Path) -> None:
@@ -275,3 +283,4 @@ def test_the_cli_reference_shows_what_help_shows_and_every_argument_has_a_meanin
         bare = argparse.ArgumentParser(prog="sappc x")
         bare.add_argument("thing")
         ref._argument_rows(bare)
+
