@@ -284,3 +284,21 @@ def test_the_cli_reference_shows_what_help_shows_and_every_argument_has_a_meanin
         bare.add_argument("thing")
         ref._argument_rows(bare)
 
+
+#: How a page states how long a command took on some machine: ``took 31 s``, ``23 s for the whole
+#: command``, ``21 s for the study``, a printed ``wall 14.7 s``.  Such a figure goes stale with the
+#: machine and the code, so a page quotes one only beside a link to the performance page, where
+#: each is measured with its script, machine and date (or says where it was measured).
+WALL_TIME = re.compile(r"\btook (?:about )?\d+(?:\.\d+)? ?(?:s|min)\b|\d+(?:\.\d+)? ?(?:s|min) for the (?:whole command|study)\b"
+                       r"|\bwall \d+(?:\.\d+)? ?s\b")
+
+
+def test_the_pages_quote_a_commands_time_only_with_its_measurement() -> None:
+    unsourced = []
+    for page in PAGES:
+        for para in re.split(r"\n\s*\n", page.read_text(encoding="utf-8")):
+            flat = " ".join(para.split())
+            for m in WALL_TIME.finditer(flat):
+                if "performance.md" not in para and "measured" not in para.lower():
+                    unsourced.append(f"{page.relative_to(ROOT)}: ...{flat[max(0, m.start() - 60):m.end() + 20]}")
+    assert not unsourced, "a command's time without the measurement it comes from:\n" + "\n".join(unsourced)
