@@ -99,7 +99,7 @@ def safe_load_yaml(text: str) -> Any:
         return yaml.safe_load(text)
 
 
-def read_text_file(path: str | os.PathLike[str], what: str) -> str:
+def read_text_file(path: str | os.PathLike[str], what: str, *, max_bytes: int | None = None) -> str:
     """The text of a configuration file (a scenario, a parameters file), UTF-8 as YAML requires.
 
     Parameters
@@ -108,17 +108,25 @@ def read_text_file(path: str | os.PathLike[str], what: str) -> str:
         The file.
     what : str
         What the file is, for the message (``"scenario"``, ``"parameters"``).
+    max_bytes : int, optional
+        The largest file accepted [bytes]; a larger one is refused before it is read whole (let
+        alone parsed: a YAML parser takes tens of times a file's size in memory).
 
     Raises
     ------
     ConfigError
-        One line naming the file: it cannot be read, or it is not UTF-8 text (naming the first
-        byte that is not, and where).
+        One line naming the file: it cannot be read, it is larger than ``max_bytes`` (naming its
+        size and the limit), or it is not UTF-8 text (naming the first byte that is not, and where).
     """
     try:
-        data = Path(path).read_bytes()
+        with open(path, "rb") as f:
+            data = f.read() if max_bytes is None else f.read(max_bytes + 1)
+            size = os.fstat(f.fileno()).st_size
     except OSError as exc:
         raise ConfigError(f"cannot read {what} {path}: {exc.strerror}") from None
+    if max_bytes is not None and len(data) > max_bytes:
+        stated = f"{size:,} bytes" if size > max_bytes else f"more than {max_bytes:,} bytes"  # a pipe's size is not known
+        raise ConfigError(f"{path} is {stated}, more than a {what} file may be ({max_bytes:,} bytes): is it the right file?")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
