@@ -762,7 +762,7 @@ def _compile_in_children(jobs: list[tuple[tuple[str, ...], bool]]) -> None:
             if own_group:  # what the child started in its group and left behind
                 stop(child, signal.SIGKILL)
         raise
-    failed = [groups for (groups, _), code in zip(jobs, codes) if code != 0]
+    failed = [g for (groups, _), code in zip(jobs, codes) if code != 0 for g in groups]
     if failed:
         raise RuntimeError(f"compiling the numerical core's group(s) {failed} failed (exit statuses {codes}); the output above says why")
 
