@@ -31,6 +31,7 @@ import pytest
 import yaml
 
 from conftest import ROOT
+from sappc.files import OUTPUT_ROOT
 
 #: The README's budget [bytes]: what a newcomer reads in five minutes, as the READMEs of the
 #: field's well-liked projects (rosbags, mcap, Basilisk, python-control: 5 to 15 KB).
@@ -91,6 +92,10 @@ def blocks(page: Path) -> list[Block]:
 
 def _replacements(block: Block) -> list[tuple[str, str]]:
     return [(a, b) for d in block.directives if d.startswith("replace") for a, b in re.findall(r'"([^"]*)" -> "([^"]*)"', d)]
+
+
+#: What :func:`_workdir` puts into a page's scratch directory (the checkout's, as links; the test's own).
+_SCRATCH_ENTRIES = {"config", "examples", "src", "benchmarks", "docs", ".venv", "short", "sappcw"}
 
 
 def _workdir(tmp: Path) -> Path:
@@ -203,6 +208,9 @@ def test_every_code_block_of_the_page_runs(page: Path, tmp_path: Path) -> None:
             _check_yaml(b, text)
         else:
             last_output = _run(b, text, cwd)
+    # what a reader following the page leaves in the checkout: nothing git sees, only OUTPUT_ROOT (ignored)
+    written = sorted(p.name for p in cwd.iterdir() if p.name not in _SCRATCH_ENTRIES)
+    assert set(written) <= {str(OUTPUT_ROOT)}, f"{page.relative_to(ROOT)}: its blocks wrote {written} outside {OUTPUT_ROOT}/, the one output root"
 
 
 def test_the_site_builds_with_warnings_as_errors(tmp_path: Path) -> None:
@@ -246,3 +254,51 @@ def test_the_references_cover_every_command_node_key_and_topic() -> None:
         assert key in scenario
     with pytest.raises(ref.GenerationError, match="unknown generator"):
         ref.expand("<!-- generate: nothing -->")
+
+
+def test_the_cli_reference_shows_what_help_shows_and_every_argument_has_a_meaning() -> None:
+    """No argparse marker and no hidden option on the page, a meaning for every argument, and
+    each (nested) command's usage names its own path once (``sappc scenarios copy [-h] ...``)."""
+    ref = _generators()
+    import argparse
+
+    import sappc.cli
+
+    cli = ref.gen_cli()
+    assert "SUPPRESS" not in cli
+    assert "--plots" not in cli  # simulate's deprecated alias: --help hides it, so does the page
+    rows = [line for line in cli.splitlines() if line.startswith("| `") and not line.startswith("| [")]
+    arguments = [r for r in rows if not re.match(r"^\| `\d+` \|", r)]  # not the exit-status rows
+    assert len(arguments) > 40
+    for row in arguments:
+        cells = [c.strip() for c in re.split(r"(?<!\\)\|", row)[1:-1]]
+        assert len(cells) == 2 and cells[1] and cells[1] != ".", row
+    usages = re.findall(r"```text\n(.*)\n```", cli)
+    for name, _, sub in ref._subcommands(sappc.cli._parser()):
+        assert any(u.startswith(f"sappc {name} [-h]") for u in usages), name
+        for nested, _, _ in ref._subcommands(sub):
+            mine = [u for u in usages if u.startswith(f"sappc {name} {nested} ")]
+            assert len(mine) == 1 and mine[0].startswith(f"sappc {name} {nested} [-h]") and mine[0].count(f" {nested} ") == 1, usages
+    with pytest.raises(ref.GenerationError, match="has no help"):
+        bare = argparse.ArgumentParser(prog="sappc x")
+        bare.add_argument("thing")
+        ref._argument_rows(bare)
+
+
+#: How a page states how long a command took on some machine: ``took 31 s``, ``23 s for the whole
+#: command``, ``21 s for the study``, a printed ``wall 14.7 s``.  Such a figure goes stale with the
+#: machine and the code, so a page quotes one only beside a link to the performance page, where
+#: each is measured with its script, machine and date (or says where it was measured).
+WALL_TIME = re.compile(r"\btook (?:about )?\d+(?:\.\d+)? ?(?:s|min)\b|\d+(?:\.\d+)? ?(?:s|min) for the (?:whole command|study)\b"
+                       r"|\bwall \d+(?:\.\d+)? ?s\b")
+
+
+def test_the_pages_quote_a_commands_time_only_with_its_measurement() -> None:
+    unsourced = []
+    for page in PAGES:
+        for para in re.split(r"\n\s*\n", page.read_text(encoding="utf-8")):
+            flat = " ".join(para.split())
+            for m in WALL_TIME.finditer(flat):
+                if "performance.md" not in para and "measured" not in para.lower():
+                    unsourced.append(f"{page.relative_to(ROOT)}: ...{flat[max(0, m.start() - 60):m.end() + 20]}")
+    assert not unsourced, "a command's time without the measurement it comes from:\n" + "\n".join(unsourced)

@@ -100,10 +100,16 @@ def _subcommands(parser: argparse.ArgumentParser) -> list[tuple[str, str, argpar
 
 
 def _argument_rows(parser: argparse.ArgumentParser) -> list[list[str]]:
+    """One row per argument ``--help`` shows: its name and its meaning (the help, which states the
+    default where there is one, its choices, whether required); an argument ``--help`` hides
+    (``help=argparse.SUPPRESS``, e.g. a deprecated alias) is left out, and one without a help
+    stops the build."""
     rows = []
     for a in parser._actions:
-        if isinstance(a, (argparse._HelpAction, argparse._SubParsersAction)):
+        if isinstance(a, (argparse._HelpAction, argparse._SubParsersAction)) or a.help == argparse.SUPPRESS:
             continue
+        if not a.help:
+            raise GenerationError(f"{parser.prog}: argument {'/'.join(a.option_strings) or a.dest} has no help (its meaning on the page)")
         if a.option_strings:
             name = ", ".join(a.option_strings)
             if a.nargs != 0:
@@ -112,16 +118,14 @@ def _argument_rows(parser: argparse.ArgumentParser) -> list[list[str]]:
             name = a.metavar or a.dest
             if a.nargs in ("+", "*"):
                 name += " ..."
-        what = [_sentence(a.help or "")]
+        what = [_sentence(a.help)]
         if a.choices is not None:
             what.append("One of " + ", ".join(f"``{c}``" for c in a.choices) + ".")
         if a.required and a.option_strings:
             what.append("Required.")
         if not a.option_strings and a.nargs == "?":
             what.append("Optional.")
-        shown = a.option_strings and a.default not in (None, False, argparse.SUPPRESS) and "default" not in (a.help or "")
-        default = code(a.default) if shown else ""
-        rows.append([code(name), md(" ".join(w for w in what if w)), default])
+        rows.append([code(name), md(" ".join(what))])
     return rows
 
 
@@ -146,10 +150,10 @@ def gen_cli(_: str | None = None) -> str:
     for name, help_text, sub in commands:
         out += ["", f"## sappc {name}", "", md(_sentence(help_text)), "", "```text", usage_of(sub), "```", ""]
         if _argument_rows(sub):
-            out.append(table(["argument", "meaning", "default"], _argument_rows(sub)))
+            out.append(table(["argument", "meaning"], _argument_rows(sub)))
         for sub_name, sub_help, nested in _subcommands(sub):  # e.g. sappc scenarios copy
             out += ["", f"`sappc {name} {sub_name}`: {md(_sentence(sub_help))}", "", "```text", usage_of(nested), "```", ""]
-            out.append(table(["argument", "meaning", "default"], _argument_rows(nested)))
+            out.append(table(["argument", "meaning"], _argument_rows(nested)))
         out += ["", "Exit status:", ""]
         out.append(table(["status", "meaning"], [[code(c), md(_sentence(m))] for c, m in sorted(cli.EXIT_STATUSES[name])]))
     return "\n".join(out) + "\n"

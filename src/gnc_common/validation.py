@@ -7,6 +7,7 @@ error names the offending quantity and value.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from enum import Enum
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,7 @@ __all__ = [
     "check_positive_int",
     "check_spd_inertia",
     "check_unit_quaternion",
+    "did_you_mean",
     "from_kind_list",
     "inertia_from_row_major",
     "from_mapping",
@@ -47,6 +49,27 @@ QUATERNION_NORM_TOL = 1e-6
 #: file, a plant node parameter): the paper prints q_s(0) with 4 decimals (norm error 3.5e-5);
 #: anything beyond 1e-3 is a typo, not rounding.
 INITIAL_QUATERNION_NORM_TOL = 1e-3
+
+
+#: How close a mistyped name must be to a valid one for :func:`did_you_mean` to suggest it
+#: (``difflib.SequenceMatcher.ratio``, 0 to 1): difflib's own default, 0.6, which takes
+#: ``simulat`` to ``simulate`` and ``paper-tracking`` or ``paper_trackin`` to ``paper_tracking``
+#: (ratios above 0.9) and suggests nothing for a word that shares a few letters by chance.
+SUGGESTION_CUTOFF = 0.6
+
+
+def did_you_mean(word: str, choices: Iterable[str]) -> str:
+    """``", did you mean 'X'?"`` naming the valid choice closest to a mistyped ``word``, to put
+    into an error message right after the word; ``""`` when no choice is close
+    (:data:`SUGGESTION_CUTOFF`).
+
+    >>> did_you_mean("simulat", ["simulate", "montecarlo"])
+    ", did you mean 'simulate'?"
+    """
+    import difflib
+
+    close = difflib.get_close_matches(word, [str(c) for c in choices], n=1, cutoff=SUGGESTION_CUTOFF)
+    return f", did you mean {close[0]!r}?" if close else ""
 
 
 class InputError(ValueError):
@@ -76,7 +99,7 @@ def safe_load_yaml(text: str) -> Any:
         return yaml.safe_load(text)
 
 
-def read_text_file(path: str | os.PathLike[str], what: str) -> str:
+def read_text_file(path: str | os.PathLike[str], what: str, *, max_bytes: int | None = None) -> str:
     """The text of a configuration file (a scenario, a parameters file), UTF-8 as YAML requires.
 
     Parameters
@@ -85,17 +108,25 @@ def read_text_file(path: str | os.PathLike[str], what: str) -> str:
         The file.
     what : str
         What the file is, for the message (``"scenario"``, ``"parameters"``).
+    max_bytes : int, optional
+        The largest file accepted [bytes]; a larger one is refused before it is read whole (let
+        alone parsed: a YAML parser takes tens of times a file's size in memory).
 
     Raises
     ------
     ConfigError
-        One line naming the file: it cannot be read, or it is not UTF-8 text (naming the first
-        byte that is not, and where).
+        One line naming the file: it cannot be read, it is larger than ``max_bytes`` (naming its
+        size and the limit), or it is not UTF-8 text (naming the first byte that is not, and where).
     """
     try:
-        data = Path(path).read_bytes()
+        with open(path, "rb") as f:
+            data = f.read() if max_bytes is None else f.read(max_bytes + 1)
+            size = os.fstat(f.fileno()).st_size
     except OSError as exc:
         raise ConfigError(f"cannot read {what} {path}: {exc.strerror}") from None
+    if max_bytes is not None and len(data) > max_bytes:
+        stated = f"{size:,} bytes" if size > max_bytes else f"more than {max_bytes:,} bytes"  # a pipe's size is not known
+        raise ConfigError(f"{path} is {stated}, more than a {what} file may be ({max_bytes:,} bytes): is it the right file?")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -37,7 +37,7 @@ from typing import Any, TextIO
 from pathlib import Path
 from collections.abc import Iterator, Sequence
 
-from gnc_common.validation import ConfigError, InputError
+from gnc_common.validation import ConfigError, InputError, did_you_mean
 
 from sappc.files import bag_run_name, default_output_dir
 from sappc.scenario import ControllerKind, load_scenario
@@ -550,10 +550,26 @@ def _version() -> str:
 NO_COMMAND_HINT = "sappc: give a command; `sappc --help` describes them, `sappc COMMAND --help` one of them"
 #: An argument that names a scenario (``help`` of each command's positional argument).
 _SCENARIO_HELP = "a scenario file, or the name of a bundled scenario (`sappc scenarios` lists them), e.g. {}"
+#: An argument that names a recorded bag (``help`` of the positional argument of the bag commands).
+_BAG_HELP = "a rosbag2 directory (e.g. runs/run/<run>/bag) or an .mcap file"
+#: The ``help`` of ``--controller`` where it picks the controller a scenario runs with.
+_CONTROLLER_HELP = "controller to {} (default: the scenario's 'controller' key)"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, whose "invalid choice" (a command, ``--controller``) also suggests the
+    closest valid one (:func:`~gnc_common.validation.did_you_mean`); its subcommands' parsers
+    are of this class too (argparse makes them of the parent's class)."""
+
+    def _check_value(self, action: argparse.Action, value: Any) -> None:
+        if action.choices is not None and value not in action.choices and isinstance(value, str):
+            choices = ", ".join(repr(c) for c in action.choices)
+            raise argparse.ArgumentError(action, f"invalid choice: {value!r}{did_you_mean(value, action.choices)} (choose from {choices})")
+        super()._check_value(action, value)
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.",
+    parser = _Parser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.",
                                      epilog=exit_status_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -567,7 +583,7 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--from-campaign", metavar="DIR", help="re-run one run of a Monte Carlo campaign (with --run)")
     sim.add_argument("--run", type=int, metavar="K", help="the run to re-run with --from-campaign")
     sim.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
-                     help="controller to run (default: the scenario's 'controller' key)")
+                     help=_CONTROLLER_HELP.format("run"))
     sim.add_argument("--json", metavar="FILE", help="write metrics and all parameters used as JSON ('-': to stdout)")
     sim.add_argument("--out", metavar="DIR", help="write paper-style PNG figures to DIR (default: no figures)")
     sim.add_argument("--plots", metavar="DIR", dest="out", action=_DeprecatedAlias, new="--out", help=argparse.SUPPRESS)
@@ -587,7 +603,7 @@ def _parser() -> argparse.ArgumentParser:
     tn = command("tune", "find the controller's free gains with a Monte Carlo campaign in the loop (a 'tuning' section)")
     tn.add_argument("scenario", help=_SCENARIO_HELP.format("paper_tracking_tune"))
     tn.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
-                    help="controller to tune (default: the scenario's 'controller' key)")
+                    help=_CONTROLLER_HELP.format("tune"))
     tn.add_argument("--trials", type=int, default=None, help="trials in the study (default: tuning.trials)")
     tn.add_argument("--runs-per-trial", type=int, default=None, help="runs of each trial's campaign (default: tuning.runs_per_trial)")
     tn.add_argument("--seed", type=int, default=None, help="seed of the campaign's draws and of the sampler (default: tuning.seed)")
@@ -607,25 +623,28 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--compose", action="store_true",
                      help="every node in one process on one executor (faster; the same topics, parameters, bag and metrics)")
     run.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
-                     help="controller to run (default: the scenario's 'controller' key)")
+                     help=_CONTROLLER_HELP.format("run"))
     run.add_argument("--plant", choices=["native", "basilisk", "external"], default="native",  # sappc.graph.launch.PLANTS (not imported to build the parser)
                      help="native: the bundled plant; basilisk: the plant node on Basilisk's dynamics (pip install '.[basilisk]'); "
                           "external: start everything but the plant and record a run driven by "
-                          "a plant you start yourself on the printed domain (it ends once the last sample's torque is recorded)")
+                          "a plant you start yourself on the printed domain (it ends once the last sample's torque is recorded); "
+                          "default native")
     run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON ('-': to stdout)")
     run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: ROS_DOMAIN_ID from the environment, else the first free one of "
                      "SAPPC_DOMAIN_IDS, default 1-101); claimed with a lock file")
     run.set_defaults(func=_cmd_run)
     par = command("params", "print the ROS parameters file of python -m sappc_controller (or, --estimator, of python -m sappc_estimator) for a scenario")
     par.add_argument("scenario", help=_SCENARIO_HELP.format("paper_tracking"))
-    par.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None)
+    par.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
+                     help=_CONTROLLER_HELP.format("print the parameters of"))
     par.add_argument("--estimator", action="store_true",
                      help="the file of python -m sappc_estimator instead: the scenario's estimator section, else the MEKF of its sensors")
     par.set_defaults(func=_cmd_params)
     scn = command("scenarios", "list the bundled scenarios, or copy one out to edit (scenarios copy NAME [DEST])")
     scn.usage = "sappc scenarios [-h] [copy NAME [DEST] [--force]]"
     scn.set_defaults(func=_cmd_scenarios, action=None)
-    scn_sub = scn.add_subparsers(dest="action", metavar="ACTION")
+    # prog: argparse would build the nested commands' usage from `scn.usage` above (the whole synopsis)
+    scn_sub = scn.add_subparsers(dest="action", metavar="ACTION", prog="sappc scenarios")
     cp = scn_sub.add_parser("copy", help="copy a bundled scenario, with the files it extends, into DEST",
                             description="Copy a bundled scenario, with the files it extends, into DEST.",
                             epilog=exit_status_text("scenarios"), formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -633,28 +652,28 @@ def _parser() -> argparse.ArgumentParser:
     cp.add_argument("dest", metavar="DEST", nargs="?", default=".", help="the directory to copy into (created if missing; default: here)")
     cp.add_argument("--force", action="store_true", help="overwrite files of the same name")
     rep = command("report", "metrics, figures and an HTML page from a recorded bag")
-    rep.add_argument("bag", help="a rosbag2 directory (e.g. runs/run/<run>/bag) or an .mcap file")
+    rep.add_argument("bag", help=_BAG_HELP)
     rep.add_argument("--out", metavar="DIR", help="figures and report.html (default runs/report/<run>)")
     rep.add_argument("--json", metavar="FILE", help="write the metrics and what the bag holds as JSON ('-': to stdout)")
     rep.add_argument("--scenario", metavar="FILE", help="metric settings and events from this scenario (default: the one in the bag)")
     rep.set_defaults(func=_cmd_report)
     cmp = command("compare", "overlaid figures and one metrics table for several bags")
-    cmp.add_argument("bags", nargs="+", metavar="BAG")
+    cmp.add_argument("bags", nargs="+", metavar="BAG", help="the bags to compare, each " + _BAG_HELP)
     cmp.add_argument("--out", metavar="DIR", help="figures and compare.html (default runs/compare/<run>_vs_<run>...)")
     cmp.add_argument("--json", metavar="FILE", help="write every bag's metrics as JSON ('-': to stdout)")
     cmp.set_defaults(func=_cmd_compare)
     rr = command("rerun", "feed a bag's recorded inputs to the controller core and compare the torques")
-    rr.add_argument("bag")
+    rr.add_argument("bag", help="the bag of a run, " + _BAG_HELP)
     rr.add_argument("--params", metavar="FILE", help="ROS parameters file of the controller (default: the bag's own; exit 1 unless every torque matches)")
     rr.add_argument("--json", metavar="FILE", help="write the comparison as JSON ('-': to stdout)")
     rr.add_argument("--out", metavar="DIR", help="write rerun_torque.png (recorded and recomputed) and rerun.html (default: none)")
     rr.set_defaults(func=_cmd_rerun)
     rpr = command("repair", "make a bag whose recorder was killed readable by every MCAP/rosbag2 reader (as ros2 bag reindex)")
-    rpr.add_argument("bag")
+    rpr.add_argument("bag", help="the bag to rewrite in place, " + _BAG_HELP)
     rpr.add_argument("--json", metavar="FILE", help="write what was recovered as JSON ('-': to stdout)")
     rpr.set_defaults(func=_cmd_repair)
     rp = command("replay", "republish a bag on the ROS 2 graph with its timing and /clock")
-    rp.add_argument("bag")
+    rp.add_argument("bag", help="the bag to republish, " + _BAG_HELP)
     rp.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: the recorded timing)")
     rp.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all; /clock is always published)")
     rp.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")

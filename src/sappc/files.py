@@ -25,7 +25,7 @@ from pathlib import Path
 
 import yaml
 
-from gnc_common.validation import ConfigError
+from gnc_common.validation import ConfigError, did_you_mean
 
 __all__ = ["DATA_DIR", "OUTPUT_ROOT", "SCENARIOS_DIR", "BundledScenario", "bag_run_name", "bundled_scenarios", "copy_scenario",
            "default_output_dir", "extends_chain", "scenario_path"]
@@ -96,7 +96,7 @@ def scenario_path(scenario: str | Path) -> Path:
     name = p.name[: -len(SUFFIX)] if p.name.endswith(SUFFIX) else p.name
     if str(p) == p.name and name in _names():  # a bare name, not a path to a file that is missing
         return SCENARIOS_DIR / f"{name}{SUFFIX}"
-    what = "no such file" if str(p) != p.name else "no such file, and no bundled scenario of that name"
+    what = "no such file" if str(p) != p.name else "no such file, and no bundled scenario of that name" + did_you_mean(name, _names())
     raise ConfigError(f"scenario {str(scenario)!r}: {what} (bundled: {', '.join(_names())}; `sappc scenarios` lists them)")
 
 
@@ -136,7 +136,7 @@ def copy_scenario(name: str, dest: str | Path = ".", *, force: bool = False) -> 
     """
     bare = name[: -len(SUFFIX)] if name.endswith(SUFFIX) else name
     if bare not in _names():
-        raise ConfigError(f"no bundled scenario {name!r} (bundled: {', '.join(_names())})")
+        raise ConfigError(f"no bundled scenario {name!r}{did_you_mean(bare, _names())} (bundled: {', '.join(_names())})")
     out_dir = Path(dest)
     if out_dir.exists() and not out_dir.is_dir():
         raise ConfigError(f"DEST {str(dest)!r} is a file: give a directory (the scenario keeps its name, {bare}{SUFFIX})")

@@ -48,7 +48,7 @@ from gnc_common.validation import (
     read_text_file,
 )
 
-__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "read_scenario_mapping", "scenario_from_mapping"]
+__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "MAX_SCENARIO_BYTES", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "read_scenario_mapping", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
 
@@ -62,6 +62,11 @@ class ControllerKind(str, Enum):
     MRP_FEEDBACK = "mrp_feedback"
 
 
+#: The largest scenario file read [bytes], 1 MiB: the largest bundled scenario is under 9 kB, so a
+#: file a hundred times that is not a scenario written by hand; a YAML parser takes about sixty
+#: times a file's size in memory (3.2 GB and a minute for a 50 MB file of keys, issue 35), so the size is
+#: checked before the file is read.
+MAX_SCENARIO_BYTES = 1 << 20
 #: Memory one control sample of a run takes while it is simulated and analysed [bytes]: the
 #: History's 40 float64 values per sample (state, error quaternion, torques, flags, rho, band,
 #: eps, z, V, disturbance), held twice at once (the loop's output buffer and the History).
@@ -488,7 +493,7 @@ def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dic
         ``extends`` comes back to a file already in it.
     """
     p = Path(path)
-    text = read_text_file(p, "scenario")
+    text = read_text_file(p, "scenario", max_bytes=MAX_SCENARIO_BYTES)
     try:
         data = safe_load_yaml(text)
     except yaml.YAMLError as exc:

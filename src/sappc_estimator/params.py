@@ -18,6 +18,7 @@ its value; :func:`parameters_from_config` is its inverse (``sappc params --estim
 from __future__ import annotations
 
 import dataclasses
+import re
 from typing import Any
 
 import numpy as np
@@ -79,9 +80,9 @@ def _filter_parameters() -> tuple[Param, ...]:
     docs = field_docs(MekfConfig)
     # dynamic typing: [0, 0, 0] in a YAML file (integers) or one number for three axes is accepted;
     # the config's checks say what is wrong with a value, naming it
-    def describe(name: str) -> str:
+    def describe(name: str) -> str:  # the config's None is the parameter's []: the help names the value one writes
         text = " ".join(docs[name].split())
-        return f"{text} (here [] for None)" if name in _EMPTY_IS_NONE else text
+        return re.sub(r"\bNone\b", "[]", text) if name in _EMPTY_IS_NONE else text
 
     return tuple(Param(f.name, _default(f), describe(f.name), _FIELDS[f.name][0], check=_CHECKS.get(f.name, ""),
                        type=_FIELDS[f.name][1], dynamic_typing=True) for f in dataclasses.fields(MekfConfig))

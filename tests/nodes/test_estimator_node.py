@@ -400,6 +400,17 @@ def test_a_bad_parameter_stops_the_node_naming_itself_and_its_value(ros_context,
     assert words in str(err.value) and "\n" not in str(err.value), str(err.value)
 
 
+def test_the_help_speaks_of_the_values_a_parameter_takes() -> None:
+    """The config's ``None`` is the parameter's ``[]``: the help of ``initial_q_BN`` (and of its
+    sibling) says what to write, ``[]``, not the Python value behind it."""
+    from sappc_estimator.params import FILTER_PARAMETERS
+
+    helps = {p.name: p.description.replace("``", "") for p in FILTER_PARAMETERS}  # as --help prints it
+    assert [name for name, text in helps.items() if "None" in text] == []
+    assert helps["initial_q_BN"].startswith("[]: the filter starts at the first star-tracker sample")
+    assert "([]: the tracker's noise)" in helps["initial_attitude_sigma_rad"]
+
+
 def test_a_missing_tracker_noise_or_a_prior_without_its_sigma_is_named(ros_context) -> None:  # type: ignore[no-untyped-def]
     from sappc_estimator.node import EstimatorNode
 

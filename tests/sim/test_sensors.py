@@ -105,6 +105,20 @@ def test_bad_sensor_sections_stop_with_an_error_naming_the_key(sensors: dict[str
         scenario_from_mapping(raw)
 
 
+@pytest.mark.parametrize(("rate_hz", "message"), [
+    ("ten", "sensors.star_tracker.rate_hz must be a number, got 'ten'"),  # not "must be > 0": it is not a number at all
+    ([10.0], "sensors.star_tracker.rate_hz must be a number, got (10.0,)"),
+    (0.0, "sensors.star_tracker.rate_hz must be finite and > 0, got 0.0"),
+    (float("inf"), "sensors.star_tracker.rate_hz must be finite and > 0, got inf"),
+])
+def test_a_tracker_rate_that_is_not_a_positive_number_says_which_it_is_not(rate_hz: Any, message: str) -> None:
+    raw = yaml.safe_load((ROOT / "config" / "scenarios" / "paper_tracking.yaml").read_text())
+    raw["sensors"] = {"star_tracker": {"rate_hz": rate_hz}}
+    with pytest.raises(ConfigError) as err:
+        scenario_from_mapping(raw)
+    assert str(err.value) == message
+
+
 def _loop_raw(duration_s: float = 6.0) -> dict[str, Any]:
     raw = yaml.safe_load((ROOT / "config" / "scenarios" / "paper_tracking.yaml").read_text())
     raw["duration_s"] = duration_s

@@ -80,6 +80,39 @@ def test_the_help_as_printed_keeps_one_status_per_line() -> None:
     assert section[-1] == "several statuses at once: the first of 3, 4, 1", proc.stdout
 
 
+def test_every_argument_says_what_it_is_and_states_its_default() -> None:
+    """What ``--help`` and the reference page show of each argument: a help text, which names
+    the default when the argument has one (argparse prints none of its own)."""
+    for name, sub in _commands(cli._parser()).items():
+        for a in sub._actions:
+            if isinstance(a, (argparse._HelpAction, argparse._SubParsersAction)) or a.help == argparse.SUPPRESS:
+                continue
+            what = f"sappc {name} {'/'.join(a.option_strings) or a.dest}"
+            assert a.help, f"{what}: no help"
+            if a.default not in (None, False):
+                assert "default" in a.help, f"{what}: default {a.default!r} not stated in its help"
+
+
+@pytest.mark.parametrize(("argv", "line"), [
+    (["simulat", "paper_tracking"], "sappc: error: argument COMMAND: invalid choice: 'simulat', did you mean 'simulate'? (choose from 'simulate', "),
+    (["simulate", "paper_trackin"], "sappc: error: scenario 'paper_trackin': no such file, and no bundled scenario of that name, "
+                                    "did you mean 'paper_tracking'? (bundled: "),
+    (["simulate", "paper-tracking"], "sappc: error: scenario 'paper-tracking': no such file, and no bundled scenario of that name, "
+                                     "did you mean 'paper_tracking'? (bundled: "),
+    (["simulate", "paper_tracking", "--controller", "sapc"],
+     "sappc simulate: error: argument --controller: invalid choice: 'sapc', did you mean 'sappc'? (choose from 'sappc', 'trappc', 'blfppc')"),
+    (["frobnicate"], "sappc: error: argument COMMAND: invalid choice: 'frobnicate' (choose from 'simulate', "),  # nothing close: no guess
+])
+def test_a_typo_gets_the_closest_valid_name(tmp_path: Path, argv: list[str], line: str) -> None:
+    proc = _sappc(*argv, cwd=tmp_path)
+    assert proc.returncode == 2 and proc.stderr.splitlines()[-1].startswith(line), proc.stderr
+
+
+def test_a_nested_commands_usage_names_its_own_path_once() -> None:
+    proc = _sappc("scenarios", "copy", "--help")
+    assert proc.returncode == 0 and proc.stdout.splitlines()[0] == "usage: sappc scenarios copy [-h] [--force] NAME [DEST]", proc.stdout
+
+
 # ---- --json - ------------------------------------------------------------------------------
 
 
@@ -159,8 +192,10 @@ def test_a_file_wins_over_a_bundled_name_and_a_missing_one_is_named(tmp_path: Pa
     monkeypatch.chdir(tmp_path)
     Path("paper_tracking").write_text("a file of that name\n")
     assert scenario_path("paper_tracking") == Path("paper_tracking")
-    with pytest.raises(ConfigError, match=r"scenario 'paper_trackin': no such file, and no bundled scenario of that name \(bundled: .*paper_tracking,"):
-        scenario_path("paper_trackin")
+    for typo in ("paper_trackin", "paper-tracking"):
+        with pytest.raises(ConfigError, match=rf"scenario '{typo}': no such file, and no bundled scenario of that name, "
+                                              r"did you mean 'paper_tracking'\? \(bundled: .*paper_tracking,"):
+            scenario_path(typo)
     with pytest.raises(ConfigError, match=r"scenario 'sub/paper_tracking.yaml': no such file \("):
         scenario_path("sub/paper_tracking.yaml")  # a path is a path: never the bundled file of its name
 
@@ -189,7 +224,7 @@ def test_scenarios_copy_brings_the_files_a_scenario_extends_and_never_overwrites
     default = _sappc("scenarios", "copy", "paper_tracking.yaml", cwd=tmp_path)  # default DEST: here; the name with its suffix too
     assert default.returncode == 0 and (tmp_path / "paper_tracking.yaml").read_bytes() == (SCENARIOS / "paper_tracking.yaml").read_bytes()
     unknown = _sappc("scenarios", "copy", "paper_trackin", cwd=tmp_path)
-    assert unknown.returncode == 2 and "no bundled scenario 'paper_trackin' (bundled: " in unknown.stderr
+    assert unknown.returncode == 2 and "no bundled scenario 'paper_trackin', did you mean 'paper_tracking'? (bundled: " in unknown.stderr
 
 
 def test_every_bundled_scenario_extends_only_bundled_files_beside_it() -> None:

@@ -182,3 +182,26 @@ def test_the_run_commands_plant_choices_are_the_launchers() -> None:
 
     run = next(a for a in _parser()._subparsers._group_actions[0].choices["run"]._actions if "--plant" in a.option_strings)  # type: ignore[index, union-attr]
     assert tuple(run.choices) == PLANTS and run.default == "native"
+
+
+def _padded(path, size: int) -> None:  # type: ignore[no-untyped-def]
+    """``path``: experiment 1's scenario followed by one comment line, ``size`` bytes in all (a valid scenario)."""
+    text = (SCENARIOS / "paper_tracking.yaml").read_bytes()
+    path.write_bytes(text + b"#" + b"x" * (size - len(text) - 2) + b"\n")
+    assert path.stat().st_size == size
+
+
+def test_a_scenario_file_above_the_size_limit_is_refused_before_it_is_parsed(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """A file of MAX_SCENARIO_BYTES loads; one byte more is refused with one line naming its size and
+    the limit (status 2), not parsed (a 50 MB file of keys took 66 s and 3.2 GB to be refused)."""
+    from sappc.scenario import MAX_SCENARIO_BYTES
+
+    assert MAX_SCENARIO_BYTES >= 100 * max(p.stat().st_size for p in SCENARIOS.glob("*.yaml"))  # room for any hand-written one
+    at_limit, above = tmp_path / "at_limit.yaml", tmp_path / "above.yaml"
+    _padded(at_limit, MAX_SCENARIO_BYTES)
+    _padded(above, MAX_SCENARIO_BYTES + 1)
+    assert load_scenario(at_limit).raw == load_scenario(SCENARIOS / "paper_tracking.yaml").raw
+    assert main(["params", str(above)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"sappc: error: {above} is {MAX_SCENARIO_BYTES + 1:,} bytes, more than a scenario file may be "
+                   f"({MAX_SCENARIO_BYTES:,} bytes): is it the right file?\n"), err

@@ -695,13 +695,90 @@ def ensure_compiled(*, in_subprocess: bool = False, groups: tuple[str, ...] = ("
     print(f"sappc: compiling the numerical core's {' and '.join(cold)} once (~40 s; later runs load them from the cache)...",
           file=sys.stderr, flush=True)
     if in_subprocess:
-        import subprocess
-
         parallel = (os.cpu_count() or 1) > 1  # warm_up runs one group in place
-        subprocess.run([sys.executable, "-c", f"from sappc.offline.compiled_loop import warm_up; warm_up({cold!r}, parallel={parallel})"],
-                       check=True)
+        _compile_in_children([(cold, parallel)])
     else:
         warm_up(cold)
+
+
+#: Longest a compile child may take to end after SIGTERM before it is killed [s]: SIGTERM's default
+#: action ends it at once, so this bounds only a child that something made ignore it (which would
+#: otherwise keep compiling after the command ended).
+COMPILE_CHILD_EXIT_S = 5.0
+#: Whether this process is a compile child (:func:`_compile_child`): its own children then stay in
+#: its process group, which its parent terminates as a whole.
+_in_compile_child = False
+
+
+def _compile_in_children(jobs: list[tuple[tuple[str, ...], bool]]) -> None:
+    """Run :func:`warm_up` ``(groups, parallel)`` of each job in a child process, all at once, and
+    wait for them.
+
+    A child is in a process group of its own (a new session), so the terminal's Ctrl-C reaches
+    this process alone and no child prints a ``KeyboardInterrupt`` traceback; when this process is
+    interrupted (Ctrl-C, SIGTERM turned into an exception, any error) while they compile, it
+    terminates each child's group (the child and the processes it started) and waits for them,
+    :data:`COMPILE_CHILD_EXIT_S` at most before killing them, and only then re-raises: nothing
+    compiles on after the command has ended.  Inside a compile child, its own children stay in
+    its group instead (the group its parent terminates).
+
+    Raises
+    ------
+    RuntimeError
+        When a child fails (its output above says why).
+    """
+    import signal
+    import subprocess
+
+    own_group = not _in_compile_child
+    children = [subprocess.Popen([sys.executable, "-c", "from sappc.offline.compiled_loop import _compile_child; "
+                                  f"_compile_child({groups!r}, parallel={parallel})"], start_new_session=own_group)
+                for groups, parallel in jobs]
+
+    def stop(child: subprocess.Popen[bytes], sig: int) -> None:
+        try:
+            if own_group:
+                os.killpg(child.pid, sig)
+            else:
+                os.kill(child.pid, sig)
+        except ProcessLookupError:  # already gone
+            pass
+
+    try:
+        codes = [child.wait() for child in children]
+    except BaseException:
+        try:  # a second Ctrl-C does not cut the waiting short (the command's entry ignores it afterwards too)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:  # not the main thread: it cannot receive Ctrl-C anyway
+            pass
+        for child in children:
+            stop(child, signal.SIGTERM)
+        for child in children:
+            try:
+                child.wait(timeout=COMPILE_CHILD_EXIT_S)
+            except subprocess.TimeoutExpired:
+                stop(child, signal.SIGKILL)
+                child.wait()
+            if own_group:  # what the child started in its group and left behind
+                stop(child, signal.SIGKILL)
+        raise
+    failed = [g for (groups, _), code in zip(jobs, codes) if code != 0 for g in groups]
+    if failed:
+        raise RuntimeError(f"compiling the numerical core's group(s) {failed} failed (exit statuses {codes}); the output above says why")
+
+
+def _compile_child(groups: tuple[str, ...] | str, *, parallel: bool = False) -> None:
+    """The entry of a compile child (:func:`_compile_in_children`): :func:`warm_up`, which SIGTERM
+    or SIGINT ends at once and quietly (the signals' default action: an exception raised from a
+    handler could land in a finalizer of numba's, be printed and ignored there, and the compile
+    go on).  Nothing is lost: numba writes a cache file under a temporary name and renames it
+    when complete, and the kernels of its own children, in its process group, end with it."""
+    import signal
+
+    global _in_compile_child
+    _in_compile_child = True
+    signal.signal(signal.SIGINT, signal.SIG_DFL)  # Python's own handler raises KeyboardInterrupt; SIGTERM's is the default already
+    warm_up(groups, parallel=parallel)
 
 
 def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = False) -> None:
@@ -721,14 +798,7 @@ def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = 
     if unknown:
         raise ValueError(f"warm_up groups must be among {WARM_UP_GROUPS}, got {unknown}")
     if parallel and len(names) > 1:
-        import subprocess
-
-        children = [subprocess.Popen([sys.executable, "-c", f"from sappc.offline.compiled_loop import warm_up; warm_up({g!r})"])
-                    for g in names]
-        codes = [child.wait() for child in children]
-        failed = [g for g, code in zip(names, codes) if code != 0]
-        if failed:
-            raise RuntimeError(f"warm_up: compiling the group(s) {failed} failed (exit statuses {codes}); the output above says why")
+        _compile_in_children([((g,), False) for g in names])
         return
     import time
 

@@ -86,8 +86,10 @@ class StarTracker:
         sig = _three("noise_rad", self.noise_rad)
         if min(sig) < 0:
             raise ConfigError(f"noise_rad must be >= 0, got {self.noise_rad!r}")
-        if not (isinstance(self.rate_hz, (int, float)) and math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ConfigError(f"rate_hz must be > 0, got {self.rate_hz!r}")
+        if isinstance(self.rate_hz, bool) or not isinstance(self.rate_hz, (int, float)):
+            raise ConfigError(f"rate_hz must be a number, got {self.rate_hz!r}")
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ConfigError(f"rate_hz must be finite and > 0, got {self.rate_hz!r}")
         for w in self.outages_s:
             if len(w) != 2 or not all(math.isfinite(float(v)) for v in w) or not 0.0 < float(w[0]) < float(w[1]):
                 raise ConfigError(f"outages_s must be windows [start_s, end_s] with 0 < start_s < end_s, got {list(w)!r}")

@@ -77,6 +77,54 @@ def test_a_stalled_write_does_not_stop_the_executor(ros_context, tmp_path) -> No
     assert bag.series["/state/rate"].values[:, 0].tolist() == [0.0, 1.0, 2.0] and rec.max_backlog == 2
 
 
+#: How long the writer stays stalled after the close has begun [s]: the close must wait this out.
+STALL_AFTER_CLOSE_S = 0.5
+#: Messages taken while the writer is stalled on the first: all behind it when the bag is closed.
+BEHIND_AT_CLOSE = 50
+
+
+def test_closing_while_the_writer_is_behind_waits_for_its_last_pass(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The close hands the writer thread its end and waits for it: every message taken before the
+    close is in the bag, even those the writer had not reached when the close began (a close that
+    did not wait, ``join(timeout=0.0)``, lost the bag's tail)."""
+    from sappc.graph.recorder import RecorderNode
+
+    rec = RecorderNode(context=ros_context, parameter_overrides=[Parameter("output_dir", value=str(tmp_path / "bag"))])
+    stalled, release = threading.Event(), threading.Event()
+    add_message = rec.writer.add_message
+
+    def stalling_add_message(*args, **kwargs):  # type: ignore[no-untyped-def]
+        stalled.set()
+        assert release.wait(DEADLINE_S), "never released"
+        return add_message(*args, **kwargs)
+
+    rec.writer.add_message = stalling_add_message  # type: ignore[method-assign]
+    other = Node("other", context=ros_context)
+    pub = other.create_publisher(c.STATE_RATE.msg_class, c.STATE_RATE.name, c.qos_profile())
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(rec)
+    ex.add_node(other)
+    timer = threading.Timer(STALL_AFTER_CLOSE_S, release.set)
+    try:
+        _spin_until(ex, lambda: pub.get_subscription_count() >= 1, "the recorder's subscription")
+        pub.publish(vector3_msg([0.0, 0.0, 0.0], 0.0, c.STATE_RATE))
+        _spin_until(ex, stalled.is_set, "the first write")
+        for k in range(1, BEHIND_AT_CLOSE + 1):
+            pub.publish(vector3_msg([float(k), 0.0, 0.0], k * 0.01, c.STATE_RATE))
+        _spin_until(ex, lambda: rec._handover.qsize() == BEHIND_AT_CLOSE, "every message taken")
+        assert not release.is_set()  # the writer is still on the first message, the others behind it
+        timer.start()
+        rec.finish()
+        assert release.is_set(), "the close returned while its writer was still stalled"
+    finally:
+        release.set()
+        timer.cancel()
+        ex.shutdown()
+        rec.destroy_node()
+        other.destroy_node()
+    assert read_bag(tmp_path / "bag").series["/state/rate"].values[:, 0].tolist() == [float(k) for k in range(BEHIND_AT_CLOSE + 1)]
+
+
 def test_the_recorder_subscribes_to_clock_once_its_expected_publishers_are_matched(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
     from sappc.graph.recorder import RecorderNode
 
