@@ -35,7 +35,10 @@ def _spin_until(executor: SingleThreadedExecutor, condition, what: str) -> None:
         executor.spin_once(timeout_sec=0.01)
 
 
-def test_a_stalled_write_does_not_stop_the_executor(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+def _stalled_recorder(ros_context, tmp_path):  # type: ignore[no-untyped-def]
+    """A recorder whose writer thread stalls on its first message until ``release`` is set, beside a
+    node publishing ``state/rate``, both on one executor: (recorder, stalled, release, other node,
+    its publisher, executor)."""
     from sappc.graph.recorder import RecorderNode
 
     rec = RecorderNode(context=ros_context, parameter_overrides=[Parameter("output_dir", value=str(tmp_path / "bag"))])
@@ -50,11 +53,16 @@ def test_a_stalled_write_does_not_stop_the_executor(ros_context, tmp_path) -> No
     rec.writer.add_message = stalling_add_message  # type: ignore[method-assign]
     other = Node("other", context=ros_context)
     pub = other.create_publisher(c.STATE_RATE.msg_class, c.STATE_RATE.name, c.qos_profile())
-    ticks: list[float] = []
-    other.create_timer(TICK_PERIOD_S, lambda: ticks.append(time.monotonic()))
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(rec)
     ex.add_node(other)
+    return rec, stalled, release, other, pub, ex
+
+
+def test_a_stalled_write_does_not_stop_the_executor(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    rec, stalled, release, other, pub, ex = _stalled_recorder(ros_context, tmp_path)
+    ticks: list[float] = []
+    other.create_timer(TICK_PERIOD_S, lambda: ticks.append(time.monotonic()))
     try:
         _spin_until(ex, lambda: pub.get_subscription_count() >= 1, "the recorder's subscription")
         pub.publish(vector3_msg([0.0, 0.0, 0.0], 0.0, c.STATE_RATE))
@@ -87,23 +95,7 @@ def test_closing_while_the_writer_is_behind_waits_for_its_last_pass(ros_context,
     """The close hands the writer thread its end and waits for it: every message taken before the
     close is in the bag, even those the writer had not reached when the close began (a close that
     did not wait, ``join(timeout=0.0)``, lost the bag's tail)."""
-    from sappc.graph.recorder import RecorderNode
-
-    rec = RecorderNode(context=ros_context, parameter_overrides=[Parameter("output_dir", value=str(tmp_path / "bag"))])
-    stalled, release = threading.Event(), threading.Event()
-    add_message = rec.writer.add_message
-
-    def stalling_add_message(*args, **kwargs):  # type: ignore[no-untyped-def]
-        stalled.set()
-        assert release.wait(DEADLINE_S), "never released"
-        return add_message(*args, **kwargs)
-
-    rec.writer.add_message = stalling_add_message  # type: ignore[method-assign]
-    other = Node("other", context=ros_context)
-    pub = other.create_publisher(c.STATE_RATE.msg_class, c.STATE_RATE.name, c.qos_profile())
-    ex = SingleThreadedExecutor(context=ros_context)
-    ex.add_node(rec)
-    ex.add_node(other)
+    rec, stalled, release, other, pub, ex = _stalled_recorder(ros_context, tmp_path)
     timer = threading.Timer(STALL_AFTER_CLOSE_S, release.set)
     try:
         _spin_until(ex, lambda: pub.get_subscription_count() >= 1, "the recorder's subscription")
