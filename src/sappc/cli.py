@@ -615,7 +615,8 @@ def _parser() -> argparse.ArgumentParser:
     tn.add_argument("--json", metavar="FILE", help="also write the summary here ('-': to stdout)")
     tn.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     tn.set_defaults(func=_cmd_tune)
-    run = command("run", "run a scenario through the ROS 2 node graph (five processes, or one with --compose), record an MCAP bag")
+    run = command("run", "run a scenario through the ROS 2 node graph (five processes, or one with --compose), record an MCAP bag; "
+                  "a progress line on stderr every second (the run's time, the samples recorded and their rate)")
     run.add_argument("scenario", help=_SCENARIO_HELP.format("paper_tracking"))
     run.add_argument("--out", metavar="DIR", help="run directory: bag/, params.yaml, scenario.yaml, logs/ "
                      "(default runs/run/<scenario>-<controller>-<time>)")

@@ -74,6 +74,11 @@ NODES = ("recorder", "estimator", "controller", "reference", "injector", "plant"
 PLANTS = ("native", "basilisk", "external")
 #: The file the recorder writes when an external plant's run has reached its end (in the run directory).
 END_FILE = "end_reached"
+#: The recorder's progress file (in the run directory), which ``sappc run``'s progress line reads.
+PROGRESS_FILE = "logs/progress.json"
+#: Period of ``sappc run``'s progress line [s]: at least one every 2 s (issue 37), from the
+#: recorder's file, which it rewrites at each flush (0.5 s).
+PROGRESS_PERIOD_S = 1.0
 
 
 def fastdds_profile() -> Path:
@@ -300,6 +305,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "topics": [t.name for t in TOPICS + FAULT_TOPICS if t.name in published],
         "metadata_files": [paths["scenario"], paths["params"]],
         "counts_file": counts_file("recorder"),
+        "progress_file": str(Path(paths["counts"]).parent / PROGRESS_FILE),
         **({"end_after_s": scenario.duration_s, "end_file": paths["end"]} if external_plant else {}),
         **({"expected_publishers": [f"{t}={n}" for t, n in publishers.items()]} if lockstep and not external_plant else {}),
     }
@@ -423,6 +429,37 @@ def _bytes_under(directory: Path) -> int:
         with contextlib.suppress(OSError):  # a sort's temporary file removed meanwhile
             total += path.stat().st_size if path.is_file() else 0
     return total
+
+
+class _ProgressLine:
+    """``sappc run``'s progress line, every :data:`PROGRESS_PERIOD_S` while the run goes on: the
+    run's time as recorded (the newest state's, from the recorder's progress file), the samples
+    recorded and their rate since the previous line; before the first sample, how long the nodes
+    have been starting."""
+
+    def __init__(self, path: Path, duration_s: float, start: float, say: Callable[[str], None]) -> None:
+        self.path, self.duration_s, self.start, self.say = path, duration_s, start, say
+        self.last_print = start
+        self.last_samples: tuple[float, int] | None = None  # (when, samples) of the previous line
+        self.done = False  # the last sample's line is printed: nothing more
+
+    def update(self) -> None:
+        now = time.monotonic()
+        if self.done or now - self.last_print < PROGRESS_PERIOD_S:
+            return
+        self.last_print = now
+        try:
+            progress = json.loads(self.path.read_text())
+        except (OSError, ValueError):  # not written yet (no sample), or being replaced
+            self.say(f"sappc run: starting the nodes, no sample yet ({now - self.start:.0f} s)")
+            return
+        samples, t_s = int(progress["state_samples"]), float(progress["t_s"])
+        rate = "" if self.last_samples is None else f", {(samples - self.last_samples[1]) / (now - self.last_samples[0]):.0f} samples/s"
+        self.last_samples = (now, samples)
+        share = f" ({100 * t_s / self.duration_s:.0f} %)" if self.duration_s > 0 else ""
+        self.done = self.duration_s > 0 and t_s >= self.duration_s
+        self.say(f"sappc run: t = {t_s:.1f} s of {self.duration_s:g} s{share}, {samples} samples recorded{rate}"
+                 + ("; the last sample is in, stopping the nodes" if self.done else ""))
 
 
 def _fastdds_shm_clean() -> None:
@@ -552,12 +589,14 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                     f"{'/clock, ' if not realtime else ''}state/attitude and state/rate and applies control/torque; the run ends once the "
                     f"torque of t = {scenario.duration_s:g} s is recorded, or on Ctrl-C")
             deadline = start + limit
+            line = _ProgressLine(run_dir / PROGRESS_FILE, scenario.duration_s, start, say)
             while not ended():
                 for name, p in procs.items():
                     if p.proc.poll() is not None and (external or name != lead):
                         raise RuntimeError(f"node {name} exited early with status {p.proc.returncode}; last log lines:\n{p.tail()}")
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"the run did not finish within {limit:.0f} s (see {run_dir / 'logs'})")
+                line.update()
                 time.sleep(0.05)
             run_end = time.monotonic()
             if not external and procs[lead].proc.returncode != 0:

@@ -60,6 +60,7 @@ Parameters: :data:`PARAMETERS` (``python -m sappc.graph.recorder --help``), and 
 
 from __future__ import annotations
 
+import json
 import queue
 import resource
 import shutil
@@ -78,6 +79,7 @@ from sappc_msgs_py.contract import (
     CLOCK,
     CONTROL_TORQUE,
     FAULT_TOPICS,
+    STATE_ATTITUDE,
     TOPICS,
 )
 from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, sort_by_log_time, write_bag_metadata
@@ -127,6 +129,9 @@ PARAMETERS = (
     MODE,
     Param("end_after_s", 0.0, "with an external plant: write end_file once the recorded torques span this (0: never)", "s", check=">= 0"),
     Param("end_file", "", "the file written when end_after_s is reached; '' for none"),
+    Param("progress_file", "", "where the writer thread writes, at each flush, the run's progress as it records it (JSON: "
+          "state_samples, the state samples recorded; t_s, the newest state's time since the first) for sappc run's progress "
+          "line; '' for none"),
     Param("expected_publishers", [], "subscribe to /clock only once each listed topic has matched this many publishers on the "
           "recorder's side, as 'topic=count' entries (sappc run: the plant starts when its /clock subscribers are matched); "
           "none: /clock at once", type="string[]", check="topics the recorder records, other than /clock"),
@@ -205,6 +210,10 @@ class RecorderNode(ProjectNode):
         self._end_file = str(self.param(_P["end_file"]))
         self._first_torque_ns: int | None = None
         self.end_reached = False
+        self._progress_file = str(self.param(_P["progress_file"]))
+        self._states = 0  # state samples written
+        self._first_state_ns: int | None = None  # the first state's stamp and the newest one's [ns]
+        self._newest_state_ns = 0
         self._write_metadata()
         self.writer.flush()
         if self._expected and CLOCK.name in names_recorded:
@@ -253,6 +262,7 @@ class RecorderNode(ProjectNode):
                         return
                 if time.monotonic() >= next_flush:
                     self.writer.flush()
+                    self._write_progress()
                     next_flush = time.monotonic() + FLUSH_PERIOD_S
                 time.sleep(WRITE_PASS_PERIOD_S)
         except BaseException as exc:  # noqa: BLE001 (reported by finish, and logged now)
@@ -269,6 +279,21 @@ class RecorderNode(ProjectNode):
         self.writer.add_message(self._channels[name], log_time=log_ns, data=data, publish_time=log_ns, sequence=self.counts[resolved])
         if self._end_after_ns and name == CONTROL_TORQUE.name and not self.end_reached:
             self._check_end(log_ns if self.sim_time else cdr_stamp_ns(self._types[name], data))
+        if name == STATE_ATTITUDE.name:  # the run's progress: the plant's samples
+            stamp_ns = log_ns if self.sim_time else cdr_stamp_ns(self._types[name], data)
+            self._states += 1
+            if self._first_state_ns is None:
+                self._first_state_ns = stamp_ns
+            self._newest_state_ns = max(self._newest_state_ns, stamp_ns)
+
+    def _write_progress(self) -> None:
+        """The run's progress, for ``sappc run``'s progress line (``progress_file``; replaced whole)."""
+        if not self._progress_file or self._first_state_ns is None:
+            return
+        path = Path(self._progress_file)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"state_samples": self._states, "t_s": (self._newest_state_ns - self._first_state_ns) / 1e9}))
+        tmp.replace(path)
 
     def _check_end(self, torque_ns: int) -> None:
         """``end_file`` once the recorded torques span ``end_after_s`` (module docstring)."""

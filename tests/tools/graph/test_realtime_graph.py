@@ -20,6 +20,7 @@ to the paper's requirement (4e-5; lockstep 3.53e-5) over the steady window.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -58,7 +59,11 @@ def _run(tmp_path: Path, scenario: Path, compose: bool) -> tuple[Path, dict]:  #
                                "--json", str(tmp_path / "m.json")], timeout_s=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     watch.assert_clean()  # no process of the run alive, none of its shared memory left
-    return out, json.loads((tmp_path / "m.json").read_text())
+    report = json.loads((tmp_path / "m.json").read_text())
+    # the progress line (issue 37), every second: the run's time and the samples recorded so far
+    samples = [int(m.group(1)) for m in re.finditer(r"^sappc run: t = [\d.]+ s of [\d.]+ s \(\d+ %\), (\d+) samples recorded", proc.stderr, re.M)]
+    assert samples and samples == sorted(samples) and samples[-1] <= report["realtime"]["frames"], proc.stderr
+    return out, report
 
 
 def _check_frames(out: Path, report: dict, duration_s: float, dt_s: float) -> tuple[dict, dict]:  # type: ignore[type-arg]
