@@ -8,11 +8,11 @@ deviate from lockstep (missed plant ticks, stale torques and disturbances, the f
 sample), the frames that lacked an input of their own stamp, the plant's frame timer (period
 error |interval - dt| p50, p99, max; missed ticks; the state's delay after its frame's start),
 the controller's latency, and the load average before and after.  ``--busy N`` runs N CPU-bound
-processes beside the runs.  Then, per layout, the minimum, median and maximum of the steady
+processes beside the runs; ``--rt-priority N`` runs the nodes under SCHED_FIFO (``sappc run --rt-priority``).  Then, per layout, the minimum, median and maximum of the steady
 error and the counts of runs that met the criteria (exit 0, counts match, every frame recorded,
 steady max |q_ev| <= ``--bound``).  The machine is noted.
 
-    python benchmarks/bench_realtime.py paper_tracking --runs 10 [--layouts five,composed] [--busy N] [--out FILE]
+    python benchmarks/bench_realtime.py paper_tracking --runs 10 [--layouts five,composed] [--busy N] [--rt-priority N] [--out FILE]
 """
 
 from __future__ import annotations
@@ -36,12 +36,13 @@ PAPER_STEADY_BOUND = 4e-5
 LAYOUTS = {"five": [], "composed": ["--compose"]}
 
 
-def one_run(scenario: str, layout: str, scratch: Path) -> dict[str, object]:
+def one_run(scenario: str, layout: str, scratch: Path, rt_priority: int | None) -> dict[str, object]:
     out, report = scratch / "run", scratch / "m.json"
     load_before = os.getloadavg()[0]
     start = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "sappc", "run", scenario, "--realtime", *LAYOUTS[layout], "--out", str(out), "--json", str(report)],
-                          capture_output=True, text=True, cwd=ROOT)
+    priority = ["--rt-priority", str(rt_priority)] if rt_priority is not None else []
+    proc = subprocess.run([sys.executable, "-m", "sappc", "run", scenario, "--realtime", *LAYOUTS[layout], *priority, "--out", str(out),
+                           "--json", str(report)], capture_output=True, text=True, cwd=ROOT)
     wall = time.monotonic() - start
     row: dict[str, object] = {"layout": layout, "exit": proc.returncode, "wall_s": round(wall, 2), "load_before": load_before,
                               "load_after": os.getloadavg()[0]}
@@ -69,6 +70,7 @@ def main() -> int:
     parser.add_argument("--layouts", default="five,composed", help="comma-separated among: five, composed")
     parser.add_argument("--bound", type=float, default=PAPER_STEADY_BOUND, help="steady max |q_ev| criterion [rad] (default 4e-5)")
     parser.add_argument("--busy", type=int, default=0, help="CPU-bound processes beside the runs (default 0)")
+    parser.add_argument("--rt-priority", type=int, default=None, help="sappc run --rt-priority N: the nodes under SCHED_FIFO (default: not)")
     parser.add_argument("--out", help="also write the JSON to this file")
     args = parser.parse_args()
     layouts = [x.strip() for x in args.layouts.split(",") if x.strip()]
@@ -81,7 +83,7 @@ def main() -> int:
         for i in range(args.runs):
             for layout in layouts:  # alternated, so a drift of the machine's load falls on both
                 with tempfile.TemporaryDirectory(prefix="sappc-rt-") as tmp:
-                    row = one_run(args.scenario, layout, Path(tmp))
+                    row = one_run(args.scenario, layout, Path(tmp), args.rt_priority)
                 rows.append({"run": i, **row})
                 print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
     finally:
@@ -99,7 +101,7 @@ def main() -> int:
                            "runs_without_deviation": sum(r.get("first_deviating_sample") is None for r in mine),
                            "missed_frames_max": max((int(r.get("missed_frames") or 0) for r in mine), default=0),  # type: ignore[call-overload]
                            "stale_torque_frames_max": max((int(r.get("stale_torque_frames") or 0) for r in mine), default=0)}  # type: ignore[call-overload]
-    result = {"scenario": args.scenario, "commit": commit(ROOT), "machine": machine(), "busy_processes": args.busy, "bound": args.bound,
+    result = {"scenario": args.scenario, "commit": commit(ROOT), "machine": machine(), "busy_processes": args.busy, "rt_priority": args.rt_priority, "bound": args.bound,
               "summary": summary, "rows": rows}
     text = json.dumps(result, indent=1)
     print(text)

@@ -272,7 +272,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     try:
         result = run_graph(args.scenario, out_dir=args.out, controller=args.controller, realtime=args.realtime, domain_id=args.domain_id,
-                           compose=args.compose, plant=args.plant)
+                           compose=args.compose, plant=args.plant, rt_priority=args.rt_priority)
     except RuntimeError as exc:
         print(f"sappc run: failed: {exc}", file=sys.stderr)
         return 1
@@ -621,6 +621,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", metavar="DIR", help="run directory: bag/, params.yaml, scenario.yaml, logs/ "
                      "(default runs/run/<scenario>-<controller>-<time>)")
     run.add_argument("--realtime", action="store_true", help="wall-clock timers instead of lockstep (the run takes duration_s)")
+    run.add_argument("--rt-priority", type=int, metavar="N", default=None,
+                     help="with --realtime: run the nodes under SCHED_FIFO at priority N (1 to 99; root or CAP_SYS_NICE), so that "
+                          "other work on the host cannot delay their frames (default: the normal scheduler)")
     run.add_argument("--compose", action="store_true",
                      help="every node in one process on one executor (faster; the same topics, parameters, bag and metrics)")
     run.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,

@@ -38,7 +38,10 @@ Modes (parameter ``mode``):
     stamp, so a step on the same inputs as a lockstep step gives the same torque, bit for bit.
     Its latency (the torque's publication minus the state's stamp) is measured, and a
     step later than ``control_period_s`` (it missed the plant's next frame) is counted
-    (``late_steps`` in ``timing_file``).  A timer in the middle of each frame is the watchdog.
+    (``late_steps`` in ``timing_file``).  A state that is complete more than a frame after its
+    stamp is not stepped (``late_states``): its torque could no longer reach the plant's tick (a
+    plant that missed ticks publishes their states late, in a burst, and the newest is the one to
+    answer).  A timer in the middle of each frame is the watchdog.
     With ``duration_s`` (``sappc run`` sets the scenario's), the state of the frame
     ``duration_s`` after the first is the last one answered: the watchdog then stops (the plant
     has finished), so no torque is published past the run's end.
@@ -245,6 +248,7 @@ class ControllerNode(ProjectNode):
         self._rt = RealtimePairing(_INPUTS)  # real time: a sample per fresh state
         self.latency = LatencyStatistics(self.dt)  # real time: the steps' latency, in bounded memory
         self.held_reference_steps = 0  # real time: steps on a reference not of the state's own stamp (held)
+        self.late_states = 0  # real time: states more than a frame old when complete, not stepped
         self._origin_ns: int | None = 0 if self.mode == LOCKSTEP else None  # the run's time origin: real time, the first step's stamp
         self._end_ns: int | None = None  # real time: the stamp of the run's last frame (duration_s after the first state)
         self._ended = False  # real time: the last frame is answered
@@ -411,9 +415,16 @@ class ControllerNode(ProjectNode):
         self._answer_without_inputs(t_ns)
 
     def _on_fresh_state(self, sample: ControlSample) -> None:
-        """Real time: a step on the state of a new frame, at once; its latency measured."""
+        """Real time: a step on the state of a new frame, at once; its latency measured.  A state
+        more than a frame old is not stepped (counted: ``late_states``): its frame is over, so its
+        torque could not reach the plant's tick, and the states the plant published late after a
+        missed tick come in a burst whose newest is the one to answer (stepping each would cost a
+        step per missed frame just when the process is behind)."""
         if not self._gate.open() or self._answered(sample.t_ns):
             return  # the plant or the recorder not matched yet; or the watchdog answered its frame
+        if self.get_clock().now().nanoseconds - sample.t_ns > self.dt_ns:
+            self.late_states += 1
+            return
         if self.get_clock().now().nanoseconds - sample.oldest_ns > self.stale_timeout_ns:
             self._publish_zero(sample.t_ns, f"inputs older than {self.stale_timeout_ns / _NS} s", ANSWER_WATCHDOG_ZERO)
             return
@@ -508,7 +519,8 @@ class ControllerNode(ProjectNode):
         if self.timing_file:
             stats = {"steps": self.steps, "refused_steps": self.refused, "answers": dict(self.answers), "rejected": self.rejected,
                      "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
-                     **({"latency": self.latency_statistics(), "held_reference_steps": self.held_reference_steps} if self.mode == REALTIME else {})}
+                     **({"latency": self.latency_statistics(), "held_reference_steps": self.held_reference_steps,
+                         "late_states": self.late_states} if self.mode == REALTIME else {})}
             Path(self.timing_file).write_text(json.dumps(stats))
 
 

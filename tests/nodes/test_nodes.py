@@ -687,14 +687,22 @@ def test_realtime_computes_on_each_fresh_state_with_the_reference_of_its_stamp(r
     _publish(drv, node, c.STATE_RATE, t0 + 30_000_000)  # no reference of frame 3: it waits
     node._on_timer()
     assert node.steps == 1 and node._rt.waiting_ns == t0 + 30_000_000
-    clock.ns = t0 + 30_000_000 + 10_000_001  # frame 3's deadline passed long ago: frame 2's reference held, a late step
+    clock.ns = t0 + 30_000_000 + 5_000_000  # the middle of frame 3: frame 2's reference held
     node._on_timer()
     drv.spin_until(lambda: len(drv.diags) == 2, "the torque of frame 3")
     assert drv.torques[1][0] == t0 + 30_000_000
     assert drv.diags[1]["input_stamps_state_s"].tolist() == [(t0 + 30_000_000) / NS] * 2 + [0.0]
     assert drv.diags[1]["input_stamps_reference_s"].tolist() == [(t0 + 20_000_000) / NS] * 3
-    assert node.steps == 2 and node.latency.late == 1 and node.stale is False and node.held_reference_steps == 1
+    assert node.steps == 2 and node.latency.late == 0 and node.stale is False and node.held_reference_steps == 1
+    # a state complete more than a frame after its stamp (a missed tick's, published late) is not stepped
+    for topic in _REFERENCE:
+        _publish(drv, node, topic, t0 + 35_000_000)
+    clock.ns = t0 + 35_000_000 + 10_000_001
+    _publish(drv, node, c.STATE_ATTITUDE, t0 + 35_000_000)
+    _publish(drv, node, c.STATE_RATE, t0 + 35_000_000)
+    assert node.steps == 2 and node.late_states == 1 and len(drv.torques) == 2
     clock.ns = t0 + 40_000_000 + 1_000_000  # frame 4's reference arrives after its state: the step waits for it, and takes it
+    # (frame 4: its stamp is after the late state's; the reference topics' stamps only increase)
     _publish(drv, node, c.STATE_ATTITUDE, t0 + 40_000_000)
     _publish(drv, node, c.STATE_RATE, t0 + 40_000_000)
     assert node.steps == 2
@@ -713,34 +721,35 @@ def test_realtime_watchdog_commands_zero_torque_when_an_input_is_older_than_stal
     t0 = 10 * NS
     for topic in _REFERENCE:
         _publish(drv, node, topic, t0)
-    clock.ns = t0 + 50_000_000  # the reference (held for frame 1, at its deadline) exactly stale_timeout_s old
-    _publish(drv, node, c.STATE_ATTITUDE, t0 + 10_000_000)
-    _publish(drv, node, c.STATE_RATE, t0 + 10_000_000)
+    s1, s2 = t0 + 45_000_000, t0 + 45_000_001  # two states whose own reference never comes (t0's is held)
+    clock.ns = s1 + 5_000_000  # the middle of s1's frame: the reference held, exactly stale_timeout_s old
+    _publish(drv, node, c.STATE_ATTITUDE, s1)
+    _publish(drv, node, c.STATE_RATE, s1)
     node._on_timer()
     drv.spin_until(lambda: len(drv.torques) == 1, "the first torque")
     assert np.any(drv.torques[0][1] != 0.0) and node.steps == 1 and not node.stale
-    clock.ns = t0 + 50_000_001  # the reference 1 ns older than stale_timeout_s
-    _publish(drv, node, c.STATE_ATTITUDE, t0 + 20_000_000)
-    _publish(drv, node, c.STATE_RATE, t0 + 20_000_000)
+    clock.ns = s2 + 5_000_000  # the reference 1 ns older than stale_timeout_s (the state itself fresh)
+    _publish(drv, node, c.STATE_ATTITUDE, s2)
+    _publish(drv, node, c.STATE_RATE, s2)
     node._on_timer()
     drv.spin_until(lambda: len(drv.diags) == 2, "the second answer")
-    assert drv.torques[1][0] == t0 + 20_000_000 and drv.torques[1][1].tolist() == [0.0, 0.0, 0.0]
+    assert drv.torques[1][0] == s2 and drv.torques[1][1].tolist() == [0.0, 0.0, 0.0]
     assert drv.diags[1]["status"][1] == 1.0 and drv.diags[1]["status"][2] == c.ANSWER_WATCHDOG_ZERO and node.steps == 1 and node.stale
     assert drv.diags[1]["input_stamps_state_s"].tolist() == [0.0, 0.0, 0.0]  # no step: no input used
-    # the watchdog: the last state (frame 2, t0 + 20 ms) exactly stale_timeout_s old: nothing
-    clock.ns = t0 + 20_000_000 + 50_000_000
+    # the watchdog: the last state (s2) exactly stale_timeout_s old: nothing
+    clock.ns = s2 + 50_000_000
     node._on_timer()
-    clock.ns += 1  # 1 ns older: zero torque stamped with the current frame (t0 + 70 ms), once
+    clock.ns += 1  # 1 ns older: zero torque stamped with the current frame (t0 + 90 ms), once
     node._on_timer()
     node._on_timer()
     drv.spin_until(lambda: len(drv.torques) == 3, "the watchdog's zero torque")
-    for topic in _REFERENCE:  # valid inputs again (frame 8)
-        _publish(drv, node, topic, t0 + 80_000_000)
-    clock.ns = t0 + 80_000_000 + 1_000_000
-    _publish(drv, node, c.STATE_ATTITUDE, t0 + 80_000_000)
-    _publish(drv, node, c.STATE_RATE, t0 + 80_000_000)
+    for topic in _REFERENCE:  # valid inputs again (frame 10)
+        _publish(drv, node, topic, t0 + 100_000_000)
+    clock.ns = t0 + 100_000_000 + 1_000_000
+    _publish(drv, node, c.STATE_ATTITUDE, t0 + 100_000_000)
+    _publish(drv, node, c.STATE_RATE, t0 + 100_000_000)
     drv.spin_until(lambda: len(drv.torques) == 4, "control again")
-    assert [ns for ns, _ in drv.torques] == [t0 + 10_000_000, t0 + 20_000_000, t0 + 70_000_000, t0 + 80_000_000]
+    assert [ns for ns, _ in drv.torques] == [s1, s2, t0 + 90_000_000, t0 + 100_000_000]
     assert drv.torques[2][1].tolist() == [0.0, 0.0, 0.0] and np.any(drv.torques[3][1] != 0.0)
     assert node.steps == 2 and not node.stale and node.rejected == 0
 

@@ -48,8 +48,8 @@ from sappc.files import default_output_dir, scenario_path as bundled_scenario_pa
 from sappc.graph.container import NODE_CLASSES, STOP_ORDER
 from sappc.scenario import EXTENDS_KEY, ControllerKind, Scenario, load_scenario
 
-__all__ = ["DOMAIN_IDS_ENV", "GraphResult", "claim_domain_id", "domain_ids", "format_domain_ids", "isolated_environment", "node_parameters",
-           "requested_domain_id", "run_graph"]
+__all__ = ["DOMAIN_IDS_ENV", "RT_PRIORITIES", "GraphResult", "check_rt_priority", "claim_domain_id", "domain_ids", "format_domain_ids",
+           "isolated_environment", "node_parameters", "requested_domain_id", "run_graph"]
 
 #: How long a node may take to stop after SIGINT before it is killed [s]; for the recorder (and the
 #: composed process, which holds it), how long it may go without writing to its bag: closing a
@@ -360,12 +360,39 @@ class GraphResult:
         return not self.mismatched_counts()
 
 
+#: The real-time priorities ``--rt-priority`` takes: SCHED_FIFO's range on Linux (``sched_get_priority_min/max``).
+RT_PRIORITIES = range(1, 100)
+
+
+def check_rt_priority(priority: int) -> None:
+    """Whether this user may run processes under ``SCHED_FIFO`` at ``priority`` (tried in a child
+    process, so the launcher's own scheduling is never changed).
+
+    Raises
+    ------
+    ConfigError
+        For a priority outside :data:`RT_PRIORITIES`, or one the system refuses (naming what it needs).
+    """
+    if priority not in RT_PRIORITIES:
+        raise ConfigError(f"--rt-priority must be a SCHED_FIFO priority, {RT_PRIORITIES.start} to {RT_PRIORITIES.stop - 1}, got {priority}")
+    probe = subprocess.run([sys.executable, "-S", "-c", f"import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param({priority}))"],
+                           capture_output=True, text=True)
+    if probe.returncode != 0:
+        why = (probe.stderr.strip().splitlines() or ["refused"])[-1]
+        raise ConfigError(f"--rt-priority {priority}: this user may not run processes under SCHED_FIFO ({why}); it needs root, "
+                          f"CAP_SYS_NICE, or a real-time priority limit of at least {priority} (ulimit -r, /etc/security/limits.conf)")
+
+
 class _Process:
-    def __init__(self, name: str, cmd: list[str], env: dict[str, str], log_path: Path, cwd: Path) -> None:
+    def __init__(self, name: str, cmd: list[str], env: dict[str, str], log_path: Path, cwd: Path, rt_priority: int | None = None) -> None:
         self.name = name
         self.log_path = log_path
         self._log = open(log_path, "wb")  # noqa: SIM115 (closed in wait)
-        self.proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
+        # under SCHED_FIFO (--rt-priority, checked by check_rt_priority first): set in the child before it
+        # runs Python; every thread it starts (the middleware's, the recorder's writer) inherits it
+        preexec = (lambda: os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))) if rt_priority is not None else None
+        self.proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True,
+                                     preexec_fn=preexec)  # noqa: PLW1509 (a system call, no lock or allocation of Python's)
 
     def stop(self, timeout_s: float = STOP_TIMEOUT_S, progress: Callable[[], object] | None = None) -> tuple[int, bool]:
         """SIGINT, wait, SIGKILL once it has not exited within ``timeout_s``, counted from the
@@ -479,11 +506,15 @@ def run_graph(
     progress: bool = True,
     compose: bool = False,
     plant: str = "native",
+    rt_priority: int | None = None,
 ) -> GraphResult:
     """Run ``scenario_path`` through the node graph; see the module docstring.
 
     ``compose``: every node in one process on one executor (:mod:`sappc.graph.container`)
     instead of one process per node; the same parameters, topics, bag and metrics.
+    ``rt_priority``: real time only: the node processes run under ``SCHED_FIFO`` at this priority
+    (:data:`RT_PRIORITIES`; root or ``CAP_SYS_NICE``), so that other work on the host cannot delay
+    their frames (docs/how-to/realtime.md has what it changes, measured).
     ``plant``: one of :data:`PLANTS` (``"basilisk"``: the plant node on Basilisk's dynamics, the
     ``[basilisk]`` extra); with ``"external"`` no time limit applies unless
     ``timeout_s`` is given (the user's plant may start whenever it is ready).
@@ -506,18 +537,23 @@ def run_graph(
         old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
         try:
             return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
-                              timeout_s=timeout_s, progress=progress, compose=compose, plant=plant)
+                              timeout_s=timeout_s, progress=progress, compose=compose, plant=plant, rt_priority=rt_priority)
         finally:
             signal.signal(signal.SIGTERM, old_term)
             signal.signal(signal.SIGINT, old_int)
     return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
-                      timeout_s=timeout_s, progress=progress, compose=compose, plant=plant)
+                      timeout_s=timeout_s, progress=progress, compose=compose, plant=plant, rt_priority=rt_priority)
 
 
 def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, controller: str | None, realtime: bool,
-               domain_id: int | None, timeout_s: float | None, progress: bool, compose: bool, plant: str) -> GraphResult:
+               domain_id: int | None, timeout_s: float | None, progress: bool, compose: bool, plant: str,
+               rt_priority: int | None) -> GraphResult:
     if plant not in PLANTS:
         raise ConfigError(f"plant must be one of {list(PLANTS)}, got {plant!r}")
+    if rt_priority is not None:
+        if not realtime:
+            raise ConfigError("--rt-priority is for real time (--realtime): a lockstep run waits for each message, not for the clock")
+        check_rt_priority(rt_priority)
     preferred_domain, domain_source = requested_domain_id(domain_id)
     # claimed first: a domain in use stops the run before anything is written or started
     with claim_domain_id(preferred_domain, source=domain_source) as domain:
@@ -581,7 +617,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         try:
             for name, cmd in commands.items():
                 with _interrupts_deferred("starting the nodes"):  # a started process is always in procs, to be stopped
-                    procs[name] = _Process(name, cmd, env, run_dir / "logs" / f"{name}.log", cwd=run_dir)
+                    procs[name] = _Process(name, cmd, env, run_dir / "logs" / f"{name}.log", cwd=run_dir, rt_priority=rt_priority)
             say(f"sappc run: {scenario.name} with {kind.value} ({'real time' if realtime else 'lockstep'}"
                 f"{', composed' if compose else ''}), domain {domain} ({domain_source}), in {run_dir}")
             if external:

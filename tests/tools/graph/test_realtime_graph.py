@@ -155,3 +155,73 @@ def test_a_real_time_flight_run_with_the_estimator_ends_on_its_last_frame(tmp_pa
     first = plant["first_deviating_sample"]
     upto = run.history.t.size if first is None else first + 1
     assert np.array_equal(run.history.q_BN[:upto, 0], offline.history.q_BN[:upto, 0])
+
+
+def _rt_priority_allowed() -> bool:
+    from gnc_common.validation import ConfigError
+    from sappc.graph.launch import check_rt_priority
+
+    try:
+        check_rt_priority(RT_PRIORITY)
+    except ConfigError:
+        return False
+    return True
+
+
+#: The SCHED_FIFO priority the tests ask for (a low one: any allowed priority exercises the same path).
+RT_PRIORITY = 10
+
+
+@pytest.mark.skipif(not _rt_priority_allowed(), reason="this user may not use SCHED_FIFO (needs root or CAP_SYS_NICE)")
+def test_rt_priority_runs_every_node_under_sched_fifo(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """``--rt-priority N``: every node process runs under SCHED_FIFO at N (the threads it starts inherit
+    it), and the run is the same run (its frames checked as above)."""
+    import os
+    import subprocess
+    import time
+
+    from shm_watch import ShmWatch
+
+    scenario = _scenario(tmp_path, SCENARIOS / "paper_tracking.yaml", 3.0)
+    out = tmp_path / "run"
+    seen: dict[int, tuple[int, int]] = {}
+    with ShmWatch() as watch:
+        proc = subprocess.Popen([*SAPPC, "run", str(scenario), "--realtime", "--rt-priority", str(RT_PRIORITY), "--out", str(out),
+                                 "--json", str(tmp_path / "m.json")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        watch.add(proc.pid)
+        deadline = time.monotonic() + 120
+        while proc.poll() is None and time.monotonic() < deadline:
+            children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+            for pid in map(int, children):
+                try:
+                    seen[pid] = (os.sched_getscheduler(pid), os.sched_getparam(pid).sched_priority)
+                except OSError:  # exited meanwhile
+                    pass
+            time.sleep(0.2)
+        stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 0, stdout + stderr
+    assert len(seen) == 5 and set(seen.values()) == {(os.SCHED_FIFO, RT_PRIORITY)}, seen  # the five nodes
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the launcher (and so this test) unchanged
+    report = json.loads((tmp_path / "m.json").read_text())
+    _check_frames(out, report, 3.0, 0.01)
+
+
+def test_rt_priority_is_refused_with_what_it_needs(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Out of range, in lockstep, or without the right to SCHED_FIFO (the capability dropped with
+    setpriv): one line naming what it needs, exit 2, before any node starts."""
+    import shutil
+    import subprocess
+
+    scenario = _scenario(tmp_path, SCENARIOS / "paper_tracking.yaml", 1.0)
+    cases = [(["--realtime", "--rt-priority", "0"], "--rt-priority must be a SCHED_FIFO priority, 1 to 99, got 0"),
+             (["--rt-priority", "5"], "--rt-priority is for real time (--realtime)")]
+    prefix: list[str] = []
+    if shutil.which("setpriv"):
+        prefix = ["setpriv", "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice"]
+        cases.append((["--realtime", "--rt-priority", "5"], "--rt-priority 5: this user may not run processes under SCHED_FIFO"))
+    for k, (args, message) in enumerate(cases):
+        out = tmp_path / f"run{k}"
+        cmd = [*(prefix if "may not" in message else []), *SAPPC, "run", str(scenario), *args, "--out", str(out)]
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2 and message in proc.stderr, proc.stderr
+        assert not (out / "logs").exists()  # refused before the run directory is made
