@@ -8,8 +8,8 @@ deviate from lockstep (missed plant ticks, stale torques and disturbances, the f
 sample), the frames that lacked an input of their own stamp, the plant's frame timer (period
 error |interval - dt| p50, p99, max; missed ticks; the state's delay after its frame's start),
 the controller's latency, and the load average before and after.  ``--busy N`` runs N CPU-bound
-processes beside the runs; ``--rt-priority N`` runs the nodes under SCHED_FIFO (``sappc run --rt-priority``).  Then, per layout, the minimum, median and maximum of the steady
-error and the counts of runs that met the criteria (exit 0, counts match, every frame recorded,
+processes beside the runs; ``--rt-priority N`` runs the nodes under SCHED_FIFO (``sappc run
+--rt-priority``).  Then, per layout, the minimum, median and maximum of the steady error and the counts of runs that met the criteria (exit 0, counts match, every frame recorded,
 steady max |q_ev| <= ``--bound``).  The machine is noted.
 
     python benchmarks/bench_realtime.py paper_tracking --runs 10 [--layouts five,composed] [--busy N] [--rt-priority N] [--out FILE]
