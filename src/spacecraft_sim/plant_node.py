@@ -404,6 +404,7 @@ class PlantNode(ProjectNode):
         not applied, as in lockstep, and counted stale if it has not come.  No sample is published
         past the last frame, and the node's timers stop (in a composed run the executor spins on
         while the recorder drains)."""
+        assert self._frame is not None  # a state was published: the tick that ends follows it
         stamp_ns = self._frame * self.dt_ns  # the last frame's (frame f0 + n)
         self._count_stale_torque(stamp_ns)
         if self.wheels is not None:  # the last sample's wheel command, as lockstep publishes it

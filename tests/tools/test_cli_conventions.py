@@ -100,7 +100,7 @@ def test_every_argument_says_what_it_is_and_states_its_default() -> None:
     (["simulate", "paper-tracking"], "sappc: error: scenario 'paper-tracking': no such file, and no bundled scenario of that name, "
                                      "did you mean 'paper_tracking'? (bundled: "),
     (["simulate", "paper_tracking", "--controller", "sapc"],
-     "sappc simulate: error: argument --controller: invalid choice: 'sapc', did you mean 'sappc'? (choose from 'sappc', 'trappc', 'blfppc')"),
+     "sappc simulate: error: argument --controller: invalid choice: 'sapc', did you mean 'sappc'? (choose from 'sappc', 'trappc', 'blfppc', 'mrp_feedback')"),
     (["frobnicate"], "sappc: error: argument COMMAND: invalid choice: 'frobnicate' (choose from 'simulate', "),  # nothing close: no guess
 ])
 def test_a_typo_gets_the_closest_valid_name(tmp_path: Path, argv: list[str], line: str) -> None:
