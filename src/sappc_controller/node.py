@@ -447,6 +447,9 @@ class ControllerNode(ProjectNode):
         if self._ended or not self._gate.open() or self._rt.last_sample_ns is None:
             return  # the last frame answered; not started
         frame_ns = now // self.dt_ns * self.dt_ns
+        if self._end_ns is not None and frame_ns > self._end_ns:  # past the run's last frame, even one not answered (late)
+            self._ended = True
+            return
         if now - self._rt.last_sample_ns > self.stale_timeout_ns and not self._answered(frame_ns):
             self._publish_zero(frame_ns, f"no state newer than {self.stale_timeout_ns / _NS} s", ANSWER_WATCHDOG_ZERO)
 

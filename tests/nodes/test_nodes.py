@@ -793,6 +793,43 @@ def test_realtime_controller_answers_nothing_past_its_runs_last_frame(ros_contex
         drv.node.destroy_node()
 
 
+def test_realtime_controller_is_silent_past_its_last_frame_even_when_it_did_not_answer_it(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The last frame's state came more than a frame late (not stepped: a loaded machine): the
+    watchdog still publishes nothing stamped past the run's last frame."""
+    from sappc_controller.node import ControllerNode
+
+    node = ControllerNode(context=ros_context, parameter_overrides=_controller_overrides(
+        mode="realtime", control_period_s=0.01, stale_timeout_s=0.05, duration_s=0.01))  # type: ignore[no-untyped-call]
+    for timer in node._frame_timers:
+        timer.cancel()
+    clock = FakeClock(10 * NS)
+    monkeypatch.setattr(node, "get_clock", lambda: clock)
+    drv = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
+    try:
+        drv.matched()
+        t0 = 10 * NS
+        for k in range(2):
+            for topic in _REFERENCE:
+                _publish(drv, node, topic, t0 + k * 10_000_000)
+        clock.ns = t0 + 500_000
+        _publish(drv, node, c.STATE_ATTITUDE, t0)
+        _publish(drv, node, c.STATE_RATE, t0)
+        drv.spin_until(lambda: len(drv.torques) == 1, "the torque of the first frame")
+        clock.ns = t0 + 10_000_000 + 10_000_001  # the last frame's state, complete more than a frame late
+        _publish(drv, node, c.STATE_ATTITUDE, t0 + 10_000_000)
+        _publish(drv, node, c.STATE_RATE, t0 + 10_000_000)
+        assert node.late_states == 1 and len(drv.torques) == 1
+        for late in (60_000_000, 200_000_000):  # no state newer than stale_timeout_s, past the last frame
+            clock.ns = t0 + late
+            node._on_timer()
+        drv.executor.spin_once(timeout_sec=0.2)
+        assert [ns for ns, _ in drv.torques] == [t0] and node.answers["watchdog_zero"] == 0
+    finally:
+        drv.executor.shutdown()
+        node.destroy_node()
+        drv.node.destroy_node()
+
+
 def test_realtime_input_checks_are_per_topic_and_relative_to_the_node_clock(realtime) -> None:  # type: ignore[no-untyped-def]
     """Real time: "in the past" is not after the topic's previous message (the same stamp again is
     rejected, 1 ns later accepted; another topic may carry the same stamp); "far future" is more

@@ -15,6 +15,11 @@ they do not depend on timing: the plant reports the first sample that did not ru
 for bit (the law's time counted from the first step's stamp: the same compiled code on one host),
 and when there is none, every metric equals the offline run's.  Otherwise the steady error is held
 to the paper's requirement (4e-5; lockstep 3.53e-5) over the steady window.
+
+Where this user may (root, CAP_SYS_NICE), the runs use ``--rt-priority``: real-time frames on a
+host loaded by other work are what SCHED_FIFO is for, and without it a composed run on a 2-vCPU
+machine with 8 to 10 runnable processes missed most of its frames (docs/how-to/realtime.md); the
+logic under test is the same either way, and ``--rt-priority`` itself is tested below.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ import yaml
 
 from sappc.bag.read import STAMP_TOL_NS, bag_run, frames_lacking_inputs, nearest_index, read_bag
 from sappc.offline.simulate import simulate
+from sappc_msgs_py.contract import ANSWER_COMMANDED
 from sappc.scenario import load_scenario
 
 from conftest import SAPPC, SCENARIOS, run_watched
@@ -45,6 +51,21 @@ PAPER_STEADY_BOUND = 4e-5
 LAST_FRAMES = 20
 
 
+def _rt_priority_allowed() -> bool:
+    from gnc_common.validation import ConfigError
+    from sappc.graph.launch import check_rt_priority
+
+    try:
+        check_rt_priority(RT_PRIORITY)
+    except ConfigError:
+        return False
+    return True
+
+
+#: The SCHED_FIFO priority the tests ask for (a low one: any allowed priority exercises the same path).
+RT_PRIORITY = 10
+
+
 def _scenario(tmp_path: Path, source: Path, duration_s: float) -> Path:
     scenario = load_scenario(source).raw
     scenario["duration_s"] = duration_s
@@ -54,8 +75,10 @@ def _scenario(tmp_path: Path, source: Path, duration_s: float) -> Path:
 
 
 def _run(tmp_path: Path, scenario: Path, compose: bool) -> tuple[Path, dict]:  # type: ignore[type-arg]
+    """``sappc run --realtime`` (under SCHED_FIFO where this user may: see the module docstring)."""
     out = tmp_path / "run"
-    proc, watch = run_watched([*SAPPC, "run", str(scenario), "--realtime", *(["--compose"] if compose else []), "--out", str(out),
+    priority = ["--rt-priority", str(RT_PRIORITY)] if _rt_priority_allowed() else []
+    proc, watch = run_watched([*SAPPC, "run", str(scenario), "--realtime", *(["--compose"] if compose else []), *priority, "--out", str(out),
                                "--json", str(tmp_path / "m.json")], timeout_s=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     watch.assert_clean()  # no process of the run alive, none of its shared memory left
@@ -89,15 +112,17 @@ def _check_frames(out: Path, report: dict, duration_s: float, dt_s: float) -> tu
     assert lacking == {k: v for k, v in frames_lacking_inputs(bag, run, dt_s, duration_s).items() if k != "frames"}
     assert lacking["state"] == 0  # the plant publishes every frame's state, a missed tick's late
     assert lacking["reference"] == ctrl["held_reference_steps"]  # the bag says what the controller counted
-    # the last frames used the reference of their own stamp (it is published AHEAD_FRAMES ahead)
+    # the last frames' steps used the reference of their own stamp (it is published AHEAD_FRAMES ahead);
+    # a frame without a step (its state came more than a frame late on a loaded machine) is counted stale
     labels = bag.diagnostics_labels
     diag = bag.series["/controller/diagnostics"]
-    col = 3 * labels.index("input_stamps_reference_s")
+    col, status = 3 * labels.index("input_stamps_reference_s"), 3 * labels.index("status") + 2
     tail = states[-LAST_FRAMES:]
     i = nearest_index(diag.stamps_ns, tail)  # the diagnostics' time_s is float epoch seconds: within STAMP_TOL_NS
-    assert np.all(i >= 0)
-    used_ns = np.round(diag.values[i, col:col + 3] * 1e9)
-    assert np.all(np.abs(used_ns - tail[:, None]) <= STAMP_TOL_NS)
+    stepped = (i >= 0) & (diag.values[np.maximum(i, 0), status] == ANSWER_COMMANDED)
+    used_ns = np.round(diag.values[i[stepped], col:col + 3] * 1e9)
+    assert np.all(np.abs(used_ns - tail[stepped][:, None]) <= STAMP_TOL_NS)
+    assert LAST_FRAMES - int(stepped.sum()) <= plant["stale_torque_frames"]
     return plant, ctrl
 
 
@@ -155,21 +180,6 @@ def test_a_real_time_flight_run_with_the_estimator_ends_on_its_last_frame(tmp_pa
     first = plant["first_deviating_sample"]
     upto = run.history.t.size if first is None else first + 1
     assert np.array_equal(run.history.q_BN[:upto, 0], offline.history.q_BN[:upto, 0])
-
-
-def _rt_priority_allowed() -> bool:
-    from gnc_common.validation import ConfigError
-    from sappc.graph.launch import check_rt_priority
-
-    try:
-        check_rt_priority(RT_PRIORITY)
-    except ConfigError:
-        return False
-    return True
-
-
-#: The SCHED_FIFO priority the tests ask for (a low one: any allowed priority exercises the same path).
-RT_PRIORITY = 10
 
 
 @pytest.mark.skipif(not _rt_priority_allowed(), reason="this user may not use SCHED_FIFO (needs root or CAP_SYS_NICE)")
