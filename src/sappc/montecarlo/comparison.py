@@ -126,8 +126,8 @@ def compare_controllers(scenario_path: str | Path, *, seeds: int = 100, seed: in
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError(f"--seed must be a non-negative integer, got {seed!r}")
     scenario = load_scenario(scenario_path)
-    kinds = [k.value for k in ControllerKind if k.value in scenario.controllers] if controllers is None else \
-        [ControllerKind(c).value for c in controllers]
+    kinds: list[str] = [str(k.value) for k in ControllerKind if k.value in scenario.controllers] if controllers is None else \
+        [str(ControllerKind(c).value) for c in controllers]
     for kind in kinds:
         scenario.controller_config(kind)  # its errors now, naming controllers.<kind>, before any run
     wheels = scenario.wheels is not None
