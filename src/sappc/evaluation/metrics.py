@@ -269,9 +269,15 @@ class MetricsAccumulator:
             block_max = np.where(np.isfinite(a), a, 0.0).max(axis=(0, 2)) if a.size else np.zeros(n)
             old = getattr(self, attr)
             setattr(self, attr, block_max if old is None else np.maximum(old, block_max))
-        power = np.abs(np.asarray(speed_rad_s, dtype=np.float64) * np.asarray(torque_Nm, dtype=np.float64))  # |u_i Omega_i| [W]
-        block_energy = np.where(np.isfinite(power), power, 0.0).sum(axis=(0, 2)) * self.dt if power.size else np.zeros(n)  # held over dt [J]
-        self.wheel_energy = block_energy if self.wheel_energy is None else self.wheel_energy + block_energy
+        # wheel_energy_J: sum_k sum_i |u_i Omega_i| dt, summed sample by sample in time order (cumsum is
+        # sequential), the wheels in their order, so that any blocking gives the same bits
+        power = np.abs(np.asarray(speed_rad_s, dtype=np.float64) * np.asarray(torque_Nm, dtype=np.float64))  # |u_i Omega_i| [W], (B, N, W)
+        power = np.where(np.isfinite(power), power, 0.0)
+        per_sample = np.zeros(power.shape[:2])
+        for i in range(power.shape[2]):
+            per_sample = per_sample + power[:, :, i]
+        start = np.zeros(n) if self.wheel_energy is None else self.wheel_energy
+        self.wheel_energy = np.cumsum(np.vstack((start[None, :], per_sample * self.dt)), axis=0)[-1]  # held over dt [J]
 
     def update(self, k0: int, t: Array, x: Array, torque_B: Array, q_BR: Array, rho: Array, saturated: NDArray[np.bool_],
                band_lower: Array, band_upper: Array) -> None:

@@ -79,13 +79,14 @@ def _statistic(values: NDArray[np.float64], statistic: str) -> float | None:
     v = np.where(np.isnan(values), np.inf, values)
     if v.size == 0:
         return None
-    if statistic == "median":
-        out = float(np.median(v))
-    elif statistic == "p95":
-        out = float(np.percentile(v, 95.0))
-    else:
-        out = float(np.max(v))
-    return out
+    with np.errstate(invalid="ignore"):  # interpolating between two infinite values: inf - inf
+        if statistic == "median":
+            out = float(np.median(v))
+        elif statistic == "p95":
+            out = float(np.percentile(v, 95.0))
+        else:
+            out = float(np.max(v))
+    return np.inf if np.isnan(out) else out
 
 
 def noise_seed_mapping(raw: dict[str, Any], controller: str) -> dict[str, Any]:
