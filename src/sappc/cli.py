@@ -78,6 +78,7 @@ EXIT_STATUSES: dict[str, tuple[tuple[int, str], ...]] = {
                (1, "the bag holds no run to compute metrics from (no state or reference): a partial report was written"),
                *_SHARED_EXITS),
     "compare": ((0, "the comparison was written"), *_SHARED_EXITS),
+    "compare-controllers": ((0, "the comparison was written"), *_SHARED_EXITS),
     "rerun": ((0, "compared (with the bag's own parameters: every recomputed torque equals the recorded one)"),
               (1, "with the bag's own parameters, a recomputed torque differs from the recorded one"), *_SHARED_EXITS),
     "repair": ((0, "the bag was rewritten readable"), *_SHARED_EXITS),
@@ -384,6 +385,18 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     return 0 if not conf or conf["tuned"]["feasible"] else 1
 
 
+def _cmd_compare_controllers(args: argparse.Namespace) -> int:
+    from sappc.montecarlo.comparison import compare_controllers
+
+    out = args.out or str(default_output_dir("compare-controllers", f"{Path(args.scenario).stem}-seed{args.seed}"))
+    summary = compare_controllers(args.scenario, seeds=args.seeds, seed=args.seed, controllers=args.controllers, out_dir=out)
+    print((Path(out) / "comparison.md").read_text(), end="")
+    print(f"wall {summary['wall_time_s']:.1f} s; comparison.md, comparison.csv, runs.csv, comparison.png and summary.json in {out}")
+    if args.json:
+        _write_json(args.json, summary)
+    return 0
+
+
 def _cmd_params(args: argparse.Namespace) -> int:
     from sappc.scenario import controller_params_yaml, estimator_params_yaml
 
@@ -615,6 +628,18 @@ def _parser() -> argparse.ArgumentParser:
     tn.add_argument("--json", metavar="FILE", help="also write the summary here ('-': to stdout)")
     tn.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     tn.set_defaults(func=_cmd_tune)
+    cc = command("compare-controllers", "fly every controller of a scenario over the same sensor-noise seeds and tabulate "
+                 "accuracy, settling, overshoot, torque sign changes and wheel effort")
+    cc.add_argument("scenario", help=_SCENARIO_HELP.format("paper_tracking_flight"))
+    cc.add_argument("--seeds", type=int, default=100, help="noise seeds per controller (default 100): run k draws its sensors' noise "
+                    "from SeedSequence(SEED, spawn_key=(k,))")
+    cc.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    cc.add_argument("--controllers", nargs="+", choices=[c.value for c in ControllerKind], default=None, metavar="CONTROLLER",
+                    help="the controllers to compare (default: every one the scenario has parameters for)")
+    cc.add_argument("--out", metavar="DIR", help="comparison.md/.csv, runs.csv, comparison.png, summary.json "
+                    "(default runs/compare-controllers/<scenario>-seed<S>)")
+    cc.add_argument("--json", metavar="FILE", help="also write the summary here ('-': to stdout)")
+    cc.set_defaults(func=_cmd_compare_controllers)
     run = command("run", "run a scenario through the ROS 2 node graph (five processes, or one with --compose), record an MCAP bag; "
                   "a progress line on stderr every second (the run's time, the samples recorded and their rate)")
     run.add_argument("scenario", help=_SCENARIO_HELP.format("paper_tracking"))

@@ -8,8 +8,8 @@ Parameters come from a ROS YAML file (``--ros-args --params-file config/controll
 names in :mod:`sappc_controller.params`) and are turned into the core's validated config at
 start-up: a missing, unknown, invalid or infeasible parameter stops the node with one line
 naming it (exit status 2).  At run time the gains listed in
-:data:`~sappc_controller.core.base.AttitudeController.RUNTIME_GAINS` and the actuator limits may
-be changed (``ros2 param set`` or any parameter client); a change is validated as a whole and
+:data:`~sappc_controller.core.base.AttitudeController.RUNTIME_GAINS`, the actuator limits and the
+noise filters' cut-offs (:func:`~sappc_controller.params.runtime_parameter_names`) may be changed (``ros2 param set`` or any parameter client); a change is validated as a whole and
 applied at the next step, or rejected with the reason, never half-applied.  Everything else is
 read-only during a run.
 
@@ -134,6 +134,7 @@ from sappc_controller.params import (
     check_watchdog_seconds,
     config_from_parameters,
     config_parameters,
+    runtime_parameter_names,
 )
 
 __all__ = ["ControllerNode", "PARAMETERS", "main"]
@@ -313,7 +314,7 @@ class ControllerNode(ProjectNode):
             watchdog_ns = {n: _seconds_to_ns(n, v) for n, v in watchdog.items()}
         except (ConfigError, InputError, TypeError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        runtime = {f"{self.kind}.gains.{g}" for g in AttitudeController.RUNTIME_GAINS} | {"actuator.max_torque_Nm", "actuator.min_torque_Nm"}
+        runtime = runtime_parameter_names(self.kind)
         fixed = sorted(n for n in changes if n in self._config_names and n not in runtime)
         if fixed:
             return SetParametersResult(successful=False, reason=f"{fixed[0]} cannot change during a run; restart the controller")

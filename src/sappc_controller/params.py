@@ -32,7 +32,7 @@ from sappc_msgs_py.inputs import DEFAULT_MAX_STAMP_AHEAD_S, WATCHDOG_RANGE_S, ch
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.blfppc import BlfppcConfig, BlfppcController
-from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.common import ActuatorConfig, NoiseFilterConfig
 from sappc_controller.core.mrp_feedback import MrpFeedbackConfig, MrpFeedbackController
 from sappc_controller.core.sappc import SappcConfig, SappcController
 from sappc_controller.core.trappc import TrappcConfig, TrappcController
@@ -53,6 +53,7 @@ __all__ = [
     "controller_from_parameters_file",
     "parameters_from_config",
     "parameters_from_yaml",
+    "runtime_parameter_names",
     "unflatten",
 ]
 
@@ -125,6 +126,15 @@ def _leaf_docs(cls: type, prefix: str) -> dict[str, tuple[str, str]]:
     return out
 
 
+def runtime_parameter_names(kind: str) -> set[str]:
+    """The parameters of controller ``kind`` that may change during a run (applied at the next
+    step by :meth:`~sappc_controller.core.base.AttitudeController.reconfigure`): the gains of
+    :data:`~sappc_controller.core.base.AttitudeController.RUNTIME_GAINS`, the actuator limits and
+    the noise filters' cut-offs."""
+    return ({f"{kind}.gains.{g}" for g in AttitudeController.RUNTIME_GAINS} | {f"actuator.{n}" for n, _ in _leaves(ActuatorConfig, "")}
+            | {f"{kind}.noise_filter.{n}" for n, _ in _leaves(NoiseFilterConfig, "")})
+
+
 def config_parameters(kind: str) -> tuple[Param, ...]:
     """The declared parameters of controller ``kind`` (:func:`config_parameter_names`), each with
     its type, unit, range and description from the config dataclasses: what the node declares
@@ -132,7 +142,7 @@ def config_parameters(kind: str) -> tuple[Param, ...]:
     the node applies the gains of :data:`~sappc_controller.core.base.AttitudeController.RUNTIME_GAINS`
     and the actuator limits, and refuses a change of any other with the reason."""
     docs = {**_leaf_docs(_config_class(kind), kind), **{f"actuator.{n}": d for n, d in _leaf_docs(ActuatorConfig, "").items()}}
-    runtime = {f"{kind}.gains.{g}" for g in AttitudeController.RUNTIME_GAINS} | {"actuator.max_torque_Nm", "actuator.min_torque_Nm"}
+    runtime = runtime_parameter_names(kind)
     out = []
     for name, default in config_parameter_names(kind):
         if name == "inertia_kg_m2":

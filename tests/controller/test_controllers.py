@@ -232,7 +232,7 @@ def test_actuator_saturates_per_axis_and_drops_commands_below_the_minimum() -> N
     for u_cmd, u_ref, sat_ref in (([0.7, -0.004, 0.004999], [0.5, 0.0, 0.0], [1.0, 0.0, 0.0]),
                                    ([-3.0, 0.005, 0.2], [-0.5, 0.005, 0.2], [1.0, 0.0, 0.0])):
         out[K.O_CMD, :3] = u_cmd
-        K.actuator(prm, out)
+        K.actuator(prm, np.zeros(K.N_STATE), 0.01, out)  # the torque filter off (prm[P_TORQUE_WC] = 0)
         np.testing.assert_array_equal(out[K.O_TORQUE, :3], u_ref)
         np.testing.assert_array_equal(out[K.O_SAT, :3], sat_ref)
     with pytest.raises(ConfigError, match="min_torque_Nm"):

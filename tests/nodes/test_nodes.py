@@ -301,6 +301,20 @@ def test_runtime_gain_changes_are_validated_and_applied_whole(controller) -> Non
     assert described.floating_point_range[0].from_value == 0.0 and described.floating_point_range[0].to_value == PARAMETER_MAX
 
 
+def test_the_noise_filters_cutoff_changes_at_run_time_and_a_negative_one_is_refused_by_name(controller) -> None:  # type: ignore[no-untyped-def]
+    """issue 34: ``<law>.noise_filter.*`` are changeable at run time, applied to the compiled law's
+    parameters at the next step; a negative cut-off is refused naming the parameter."""
+    node, drv = controller
+    drv.send_sample(0.0, q=Q0)
+    drv.spin_until(lambda: len(drv.torques) == 1, "first torque")
+    ok = node.set_parameters([Parameter("sappc.noise_filter.torque_cutoff_hz", value=1.5)])
+    assert all(r.successful for r in ok) and node.controller.config.noise_filter.torque_cutoff_hz == 1.5
+    np.testing.assert_array_equal(node.controller._prm, pack_params(node.controller.config, 1))
+    bad = node.set_parameters([Parameter("sappc.noise_filter.rate_cutoff_hz", value=-1.0)])[0]
+    assert not bad.successful and "sappc.noise_filter.rate_cutoff_hz" in bad.reason
+    assert node.controller.config.noise_filter.rate_cutoff_hz == 0.0
+
+
 def test_a_request_mixing_a_valid_and_an_invalid_gain_is_applied_as_the_docs_say(controller) -> None:  # type: ignore[no-untyped-def]
     """Through the parameter services, as ``ros2 param`` or Foxglove send them (issue 25, defect 9):
     ``set_parameters`` is ROS's per-parameter request (each parameter is validated and applied on

@@ -223,6 +223,7 @@ METRIC_SENTENCES: dict[str, str] = {
     "estimator_reinitialisations": "How many times the filter started again from a measurement.",
     "max_abs_wheel_speed_rad_s": "The largest speed of any reaction wheel relative to the body [rad/s].",
     "max_abs_wheel_torque_Nm": "The largest motor torque of any reaction wheel [N m].",
+    "wheel_energy_J": "The wheels' motors' mechanical work in magnitude over the run, braking counted as spent [J].",
     "wall_time_s": "The wall-clock time the run took [s]: a property of the machine, not of the controller.",
     "startup_s": "The wall-clock time before the first sample: processes, imports and discovery [s].",
 }

@@ -75,6 +75,12 @@ Definitions, per run:
 ``max_abs_wheel_speed_rad_s``, ``max_abs_wheel_torque_Nm``
     Only with reaction wheels (a history with wheel records): the largest speed of any wheel
     relative to the body, and the largest motor torque, over the finite samples.
+``wheel_energy_J``
+    Only with reaction wheels: the mechanical work of the wheels' motors in magnitude,
+    ``sum_k sum_i |u_i[k] Omega_i[k]| dt`` over the run's finite samples (``u_i`` a motor's torque,
+    held over the sample's period ``dt``, ``Omega_i`` its speed relative to the body at the sample;
+    braking is counted as spent, as a motor without regeneration spends it) [J].  The effort of
+    a controller's steady jitter and of its transient, in one number.
 """
 
 from __future__ import annotations
@@ -166,6 +172,7 @@ class MetricsAccumulator:
         self.samples = 0
         self.wheel_speed_max: Array | None = None  # only with wheels
         self.wheel_torque_max: Array | None = None
+        self.wheel_energy: Array | None = None
         # only with an estimator: per run, steady max |a_i| and sum of a_i^2 (and their samples),
         # the last bias error, the NEES sum and count from NEES_FROM_S, the statuses' counts; per
         # sample of the grid, the NEES summed over the runs that have it and their number
@@ -182,7 +189,7 @@ class MetricsAccumulator:
     #: Per-run state (leading axis N), concatenated by :meth:`concatenate`.
     _PER_RUN = ("last_unsettled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
                 "torque_sign", "torque_sign_nonzero", "torque_sign_changes", "torque_reversals", "saturated_count", "outside_count",
-                "outside_s", "last_outside", "left_after_fault", "finite", "wheel_speed_max", "wheel_torque_max", "est_att_max",
+                "outside_s", "last_outside", "left_after_fault", "finite", "wheel_speed_max", "wheel_torque_max", "wheel_energy", "est_att_max",
                 "est_att_sq", "est_att_n", "est_bias_last", "est_nees_sum", "est_nees_n", "est_status_counts")
     #: Per-sample sums over runs, added by :meth:`concatenate`.
     _SUMMED = ("nees_sum_t", "nees_runs_t")
@@ -262,6 +269,15 @@ class MetricsAccumulator:
             block_max = np.where(np.isfinite(a), a, 0.0).max(axis=(0, 2)) if a.size else np.zeros(n)
             old = getattr(self, attr)
             setattr(self, attr, block_max if old is None else np.maximum(old, block_max))
+        # wheel_energy_J: sum_k sum_i |u_i Omega_i| dt, summed sample by sample in time order (cumsum is
+        # sequential), the wheels in their order, so that any blocking gives the same bits
+        power = np.abs(np.asarray(speed_rad_s, dtype=np.float64) * np.asarray(torque_Nm, dtype=np.float64))  # |u_i Omega_i| [W], (B, N, W)
+        power = np.where(np.isfinite(power), power, 0.0)
+        per_sample = np.zeros(power.shape[:2])
+        for i in range(power.shape[2]):
+            per_sample = per_sample + power[:, :, i]
+        start = np.zeros(n) if self.wheel_energy is None else self.wheel_energy
+        self.wheel_energy = np.cumsum(np.vstack((start[None, :], per_sample * self.dt)), axis=0)[-1]  # held over dt [J]
 
     def update(self, k0: int, t: Array, x: Array, torque_B: Array, q_BR: Array, rho: Array, saturated: NDArray[np.bool_],
                band_lower: Array, band_upper: Array) -> None:
@@ -344,6 +360,8 @@ class MetricsAccumulator:
         if self.wheel_speed_max is not None and self.wheel_torque_max is not None:
             m["max_abs_wheel_speed_rad_s"] = float(self.wheel_speed_max[run])
             m["max_abs_wheel_torque_Nm"] = float(self.wheel_torque_max[run])
+            if self.wheel_energy is not None:
+                m["wheel_energy_J"] = float(self.wheel_energy[run])
         if self.est_att_max is not None:
             m.update(self._estimation_metrics(run))
         if self.fault_start_s is not None:
@@ -378,6 +396,8 @@ class MetricsAccumulator:
         changes, reversals = self.switching_rates()
         wheels = {} if self.wheel_speed_max is None or self.wheel_torque_max is None else {
             "max_abs_wheel_speed_rad_s": self.wheel_speed_max, "max_abs_wheel_torque_Nm": self.wheel_torque_max}
+        if wheels and self.wheel_energy is not None:
+            wheels["wheel_energy_J"] = self.wheel_energy
         if self.est_att_max is not None:
             per_run = [self._estimation_metrics(k) for k in range(self.finite.shape[0])]
             wheels.update({key: np.array([np.nan if m[key] is None else m[key] for m in per_run], dtype=np.float64)

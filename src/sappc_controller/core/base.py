@@ -191,7 +191,8 @@ class AttitudeController:
         """Take new gains and actuator limits during a run, all or nothing, from the next step on.
 
         ``config`` is a validated config of this controller's kind; it may differ from the
-        current one only in ``gains`` fields listed in :data:`RUNTIME_GAINS` and in ``actuator``.
+        current one only in ``gains`` fields listed in :data:`RUNTIME_GAINS`, in ``actuator`` and in
+        ``noise_filter`` (a cut-off takes effect at the next step; the filters' outputs carry over).
 
         Raises
         ------
@@ -202,7 +203,7 @@ class AttitudeController:
         if type(config) is not type(current):
             raise ConfigError(f"reconfigure needs a {type(current).__name__}, got {type(config).__name__}")
         for f in fields(current):
-            if f.name in ("gains", "actuator"):
+            if f.name in ("gains", "actuator", "noise_filter"):
                 continue
             if getattr(config, f.name) != getattr(current, f.name):
                 raise ConfigError(f"{f.name} cannot change during a run (it defines the performance envelope); restart the controller")

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
 from sappc_controller.core.base import AttitudeController
-from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.common import ActuatorConfig, NoiseFilterConfig
 from sappc_controller.core.kernels import BARRIER_MARGIN
 
 __all__ = ["BARRIER_MARGIN", "BlfppcConfig", "BlfppcController", "BlfppcGains", "FiniteTimePF"]
@@ -128,12 +128,23 @@ class BlfppcGains:
 
 @dataclass(frozen=True)
 class BlfppcConfig:
-    """Validated configuration of the BLFPPC benchmark."""
+    """Validated configuration of the BLFPPC benchmark.
+
+    Attributes
+    ----------
+    inertia_kg_m2 : 3x3 known inertia ``J`` [kg m^2].
+    ftppf : FiniteTimePF
+    gains : BlfppcGains
+    actuator : ActuatorConfig
+    noise_filter : NoiseFilterConfig
+        The filters of measurement noise in the control path (all off by default; docs/design/noise.md).
+    """
 
     inertia_kg_m2: tuple[tuple[float, float, float], ...]
     ftppf: FiniteTimePF
     gains: BlfppcGains
     actuator: ActuatorConfig = ActuatorConfig()
+    noise_filter: NoiseFilterConfig = NoiseFilterConfig()
 
     def __post_init__(self) -> None:
         check_spd_inertia("inertia_kg_m2", self.inertia_kg_m2)

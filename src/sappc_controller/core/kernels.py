@@ -24,7 +24,8 @@ float64 arrays the caller owns:
     with scipy's Lambert W by :class:`.rpf.ReferencePerformanceFunction`: :func:`start_coef`).
 ``state`` (:data:`N_STATE`,)
     What a run carries from sample to sample: the dynamic-surface filter output ``S_d``, the
-    SMETF warm start (previous ``eps, P_s, z, d eps/d delta, delta``) and the time origin ``t0``.
+    SMETF warm start (previous ``eps, P_s, z, d eps/d delta, delta``), the time origin ``t0``,
+    MRP feedback's integral and the noise filters' outputs (issue 34).
     :func:`new_state` gives a fresh one.
 ``work`` (:data:`N_WORK`, 4)
     Scratch (no allocation per step); its first rows hold the error state after a step.
@@ -123,7 +124,10 @@ P_PF_RHO0, P_PF_RHOINF, P_PF_L = 23, 24, 25
 P_FT_RHO0, P_FT_RHOTF, P_FT_TF, P_FT_INVM = 23, 24, 25, 26
 #: MRP feedback (Basilisk's mrpFeedback): K [N m], P [N m s], Ki [1/(kg m^2)], integralLimit [N m s].
 P_MRP_K, P_MRP_P, P_MRP_KI, P_MRP_INT_LIMIT = 6, 7, 8, 9
-N_PARAMS = 27
+#: Every law: the noise filters' cut-offs as angular frequencies ``2 pi f_c`` [rad/s], 0 = off
+#: (:class:`.common.NoiseFilterConfig`): on the body rate, on the commanded torque.
+P_RATE_WC, P_TORQUE_WC = 27, 28
+N_PARAMS = 29
 
 # --- coef rows --------------------------------------------------------------------------------
 C_SIGN, C_T1, C_A1, C_L, C_A = 0, 1, 2, 3, 4
@@ -137,7 +141,11 @@ S_HAS_PREV = 19
 S_T0 = 20
 S_INT_SIGMA = 21  # 3: MRP feedback's K * integral of sigma_BR dt [N m s] (mrpFeedback's int_sigma)
 S_HAS_PRIOR_CALL = 24  # MRP feedback: 0.0 until its first call (mrpFeedback's priorTime == 0)
-N_STATE = 25
+S_RATE_F = 25  # 3: the rate filter's output [rad/s]
+S_RATE_F_ON = 28  # 0.0 until the rate filter has its first input
+S_TORQUE_F = 29  # 3: the torque filter's output [N m]
+S_TORQUE_F_ON = 32  # 0.0 until the torque filter has its first input
+N_STATE = 33
 
 # --- work rows --------------------------------------------------------------------------------
 W_QBR, W_WBR, W_WBN, W_CWD, W_CWDD = 0, 1, 2, 3, 4  # error state (eq. errorsystem)
@@ -251,16 +259,62 @@ def w0_plus(prm, work):
 
 
 @jit(inline="always")
-def actuator(prm, out):
-    """Per-axis saturation at ``max`` and minimum-output deadband (``|u_i| < min`` gives 0),
-    from ``out[O_CMD]`` into ``out[O_TORQUE]`` and ``out[O_SAT]`` (:class:`.common.ActuatorConfig`)."""
-    umax, umin = prm[P_UMAX], prm[P_UMIN]
+def low_pass_gain(wc, dt):
+    """Gain ``1 - exp(-wc dt)`` of the first-order low-pass ``dy/dt = wc (x - y)`` sampled exactly
+    over a step ``dt`` (its pole ``exp(-wc dt)``, matched; docs/design/noise.md): ``y[k] = y[k-1] +
+    gain (x[k] - y[k-1])``, in (0, 1) for every ``wc > 0``, ``dt > 0``, so the filter is stable."""
+    return -np.expm1(-wc * dt)  # 1 - exp(-wc dt), exact near wc dt = 0
+
+
+@jit(inline="always")
+def rate_filter(prm, state, dt, work):
+    """The rate filter (:class:`.common.NoiseFilterConfig`, ``rate_cutoff_hz``): the body rate in
+    ``work[W_WBN]`` low-passed, ``omega_f[k] = omega_f[k-1] + g (omega[k] - omega_f[k-1])``
+    (:func:`low_pass_gain`; the filter starts at its first input), and the law's rate error made
+    from it, ``omega_e = omega_f - C_e omega_d`` (eq. errorsystem)."""
+    if state[S_RATE_F_ON] == 0.0:
+        for i in range(3):
+            state[S_RATE_F + i] = work[W_WBN, i]
+        state[S_RATE_F_ON] = 1.0
+    g = low_pass_gain(prm[P_RATE_WC], dt)
     for i in range(3):
-        u = out[O_CMD, i]
-        mag = abs(u)
-        torque = min(max(u, -umax), umax)
-        out[O_TORQUE, i] = 0.0 if mag < umin else torque
-        out[O_SAT, i] = 1.0 if mag > umax else 0.0
+        w = state[S_RATE_F + i] + g * (work[W_WBN, i] - state[S_RATE_F + i])  # first-order low-pass, matched pole
+        state[S_RATE_F + i] = w
+        work[W_WBN, i] = w
+        work[W_WBR, i] = w - work[W_CWD, i]  # omega_e = omega_s - C_e omega_d
+
+
+@jit(inline="always")
+def actuator(prm, state, dt, out):
+    """Per-axis saturation at ``max`` and minimum-output deadband (``|u_i| < min`` gives 0),
+    from ``out[O_CMD]`` into ``out[O_TORQUE]`` and ``out[O_SAT]`` (:class:`.common.ActuatorConfig`).
+
+    With the torque filter on (``prm[P_TORQUE_WC] > 0``, :class:`.common.NoiseFilterConfig`) the
+    saturated command is low-passed, ``u_f[k] = u_f[k-1] + g (sat(u[k]) - u_f[k-1])``
+    (:func:`low_pass_gain`; started at its first input), before the deadband: the filter holds only
+    what the actuator can deliver, so it never winds up.  ``O_SAT`` stays the law's command beyond
+    ``max``; ``O_CMD`` stays the law's command."""
+    umax, umin = prm[P_UMAX], prm[P_UMIN]
+    wc = prm[P_TORQUE_WC]
+    if wc > 0.0:
+        g = low_pass_gain(wc, dt)
+        first = state[S_TORQUE_F_ON] == 0.0
+        state[S_TORQUE_F_ON] = 1.0
+        for i in range(3):
+            u = out[O_CMD, i]
+            clipped = min(max(u, -umax), umax)
+            prev = clipped if first else state[S_TORQUE_F + i]
+            torque = prev + g * (clipped - prev)  # first-order low-pass, matched pole
+            state[S_TORQUE_F + i] = torque
+            out[O_TORQUE, i] = 0.0 if abs(torque) < umin else torque
+            out[O_SAT, i] = 1.0 if abs(u) > umax else 0.0
+    else:
+        for i in range(3):
+            u = out[O_CMD, i]
+            mag = abs(u)
+            torque = min(max(u, -umax), umax)
+            out[O_TORQUE, i] = 0.0 if mag < umin else torque
+            out[O_SAT, i] = 1.0 if mag > umax else 0.0
 
 
 # ============================================================================= SAPPC pieces
@@ -584,6 +638,8 @@ def controller_step(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN
     error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work)
     for i in range(4):
         out[O_QBR, i] = work[W_QBR, i]
+    if prm[P_RATE_WC] > 0.0:  # the rate filter (issue 34); off, nothing here runs
+        rate_filter(prm, state, dt, work)
     tau = t - state[S_T0]
     if kind == KIND_BLFPPC:
         blfppc_law(prm, coef, state, tau, dt, work, out)
@@ -595,7 +651,7 @@ def controller_step(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN
         else:
             trappc_transform(prm, coef, tau, work, out)
         backstepping_law(prm, state, dt, work, out)
-    actuator(prm, out)
+    actuator(prm, state, dt, out)
 
 
 @jit

@@ -53,7 +53,7 @@ from dataclasses import dataclass
 from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
 from sappc_controller.core.base import AttitudeController
-from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.common import ActuatorConfig, NoiseFilterConfig
 
 __all__ = ["MrpFeedbackConfig", "MrpFeedbackController", "MrpFeedbackGains"]
 
@@ -101,11 +101,14 @@ class MrpFeedbackConfig:
     inertia_kg_m2 : 3x3 known inertia ``J`` (Basilisk's ``VehicleConfigMsg.ISCPntB_B``) [kg m^2].
     gains : MrpFeedbackGains
     actuator : ActuatorConfig
+    noise_filter : NoiseFilterConfig
+        The filters of measurement noise in the control path (all off by default; docs/design/noise.md).
     """
 
     inertia_kg_m2: tuple[tuple[float, float, float], ...]
     gains: MrpFeedbackGains
     actuator: ActuatorConfig = ActuatorConfig()
+    noise_filter: NoiseFilterConfig = NoiseFilterConfig()
 
     def __post_init__(self) -> None:
         check_spd_inertia("inertia_kg_m2", self.inertia_kg_m2)

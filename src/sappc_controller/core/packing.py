@@ -51,12 +51,14 @@ from sappc_controller.core.kernels import (
     P_PF_RHO0,
     P_PF_RHOINF,
     P_Q0FLOOR,
+    P_RATE_WC,
     P_RHO_EINF,
     P_RPF_T2,
     P_T1,
     P_T2,
     P_T3,
     P_TANTH,
+    P_TORQUE_WC,
     P_UMAX,
     P_UMIN,
     P_VFLOOR,
@@ -94,6 +96,9 @@ def pack_params(config: object, n_runs: int = 1, gains: dict[str, np.ndarray] | 
     prm[:, P_UMAX] = config.actuator.max_torque_Nm  # type: ignore[attr-defined]
     prm[:, P_UMIN] = config.actuator.min_torque_Nm  # type: ignore[attr-defined]
     prm[:, P_J : P_J + 9] = J.reshape(-1)
+    nf = config.noise_filter  # type: ignore[attr-defined]
+    prm[:, P_RATE_WC] = 2.0 * np.pi * nf.rate_cutoff_hz  # cut-off as an angular frequency [rad/s]; 0: off
+    prm[:, P_TORQUE_WC] = 2.0 * np.pi * nf.torque_cutoff_hz
     if isinstance(config, MrpFeedbackConfig):
         if gains:
             raise ConfigError(f"per-run gains {sorted(gains)} are for SAPPC and TraPPC, not the MRP feedback controller")

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
 from sappc_controller.core.base import AttitudeController
-from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.common import ActuatorConfig, NoiseFilterConfig
 from sappc_controller.core.rpf import InfeasiblePolicy, RPFParameters
 
 __all__ = ["BacksteppingGains", "SappcConfig", "SappcController"]
@@ -101,6 +101,8 @@ class SappcConfig:
         Shear angle [deg] in (0, 90); the paper uses 10.
     gains : BacksteppingGains
     actuator : ActuatorConfig
+    noise_filter : NoiseFilterConfig
+        The filters of measurement noise in the control path (all off by default; docs/design/noise.md).
     """
 
     inertia_kg_m2: tuple[tuple[float, float, float], ...]
@@ -109,6 +111,7 @@ class SappcConfig:
     gains: BacksteppingGains
     actuator: ActuatorConfig = ActuatorConfig()
     theta_deg: float = 10.0
+    noise_filter: NoiseFilterConfig = NoiseFilterConfig()
 
     def __post_init__(self) -> None:
         check_spd_inertia("inertia_kg_m2", self.inertia_kg_m2)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
 from sappc_controller.core.base import AttitudeController
-from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.common import ActuatorConfig, NoiseFilterConfig
 from sappc_controller.core.kernels import DOMAIN_MARGIN
 from sappc_controller.core.sappc import BacksteppingGains
 
@@ -77,6 +77,8 @@ class TrappcConfig:
     gains : BacksteppingGains
         Same law as SAPPC (Appendix B).
     actuator : ActuatorConfig
+    noise_filter : NoiseFilterConfig
+        The filters of measurement noise in the control path (all off by default; docs/design/noise.md).
     """
 
     inertia_kg_m2: tuple[tuple[float, float, float], ...]
@@ -84,6 +86,7 @@ class TrappcConfig:
     gains: BacksteppingGains
     actuator: ActuatorConfig = ActuatorConfig()
     K: float = 0.3
+    noise_filter: NoiseFilterConfig = NoiseFilterConfig()
 
     def __post_init__(self) -> None:
         check_spd_inertia("inertia_kg_m2", self.inertia_kg_m2)
