@@ -44,6 +44,9 @@ __all__ = [
     "covariance_msg",
     "estimator_diagnostics_from_msg",
     "estimator_diagnostics_msg",
+    "epoch_from_msg",
+    "epoch_msg",
+    "EPOCH_SOURCE",
     "no_data_msg",
     "diagnostics_from_msg",
     "diagnostics_msg",
@@ -240,6 +243,35 @@ def vector3_from_msg(msg: Any, topic: Topic) -> Array:
     return _finite(topic, "vector", [v.x, v.y, v.z])
 
 
+#: The ``source`` of a tracker epoch (``sensor_msgs/TimeReference``): the sensor that measured it.
+EPOCH_SOURCE = "star_tracker"
+
+
+def epoch_msg(epoch_ns: int, t_s: Any, topic: Topic, out: Any = None) -> Any:
+    """A ``sensor_msgs/TimeReference`` for ``topic``: the header of the sample ``t_s`` (seconds or
+    a stamp) and ``time_ref`` the time [ns] the sensor measured the sample's value (a star tracker's
+    quaternion, held between its updates, keeps its own time), ``source`` :data:`EPOCH_SOURCE`."""
+    msg = _header(topic.msg_class() if out is None else out, t_s, topic.frame_id)
+    msg.time_ref = ns_to_stamp(int(epoch_ns))
+    msg.source = EPOCH_SOURCE
+    return msg
+
+
+def epoch_from_msg(msg: Any, topic: Topic) -> int:
+    """The epoch [ns] of a ``TimeReference`` of ``topic``; checks the frame, and that it names its
+    sensor (the "no data" sample names none: :func:`no_data_msg`).
+
+    Raises
+    ------
+    InputError
+        ``invalid``: a wrong frame id, or a "no data" sample.
+    """
+    _check_frame(msg, topic)
+    if msg.source != EPOCH_SOURCE:
+        raise InputError(f"{topic.name}: no epoch (source {msg.source!r}, not {EPOCH_SOURCE!r})")
+    return stamp_to_ns(msg.time_ref)
+
+
 def torque_msg(torque_B: ArrayLike, t_s: float, topic: Topic = CONTROL_TORQUE, out: Any = None) -> Any:
     """A ``WrenchStamped`` carrying ``torque_B`` [N m] (body frame, zero force), or ``out`` filled
     (its force is left as it is: zero when it was built by this function)."""
@@ -357,8 +389,11 @@ def no_data_msg(topic: Topic, t_s: Any, out: Any = None) -> Any:
         msg.quaternion.x = msg.quaternion.y = msg.quaternion.z = msg.quaternion.w = _NO_DATA
     elif topic.type_name.endswith("Vector3Stamped"):
         msg.vector.x = msg.vector.y = msg.vector.z = _NO_DATA
+    elif topic.type_name.endswith("TimeReference"):  # no time to hold NaN: the epoch names no sensor
+        msg.time_ref = ns_to_stamp(0)
+        msg.source = ""
     else:
-        raise ValueError(f"{topic.name} has no 'no data' sample (a QuaternionStamped or Vector3Stamped topic has)")
+        raise ValueError(f"{topic.name} has no 'no data' sample (a QuaternionStamped, Vector3Stamped or TimeReference topic has)")
     return msg
 
 
