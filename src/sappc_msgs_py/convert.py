@@ -46,6 +46,7 @@ __all__ = [
     "estimator_diagnostics_msg",
     "epoch_from_msg",
     "epoch_msg",
+    "health_msg",
     "EPOCH_SOURCE",
     "no_data_msg",
     "diagnostics_from_msg",
@@ -131,7 +132,7 @@ def seconds_to_ns(t_s: float) -> int:
 #: encapsulation header.
 _STAMP_FIRST = frozenset({"geometry_msgs/msg/QuaternionStamped", "geometry_msgs/msg/Vector3Stamped",
                           "geometry_msgs/msg/WrenchStamped", "geometry_msgs/msg/TransformStamped", "rosgraph_msgs/msg/Clock",
-                          "sensor_msgs/msg/JointState"})
+                          "sensor_msgs/msg/JointState", "sensor_msgs/msg/TimeReference", "diagnostic_msgs/msg/DiagnosticArray"})
 _FLOAT_ARRAY_TYPE = "std_msgs/msg/Float64MultiArray"
 
 
@@ -270,6 +271,26 @@ def epoch_from_msg(msg: Any, topic: Topic) -> int:
     if msg.source != EPOCH_SOURCE:
         raise InputError(f"{topic.name}: no epoch (source {msg.source!r}, not {EPOCH_SOURCE!r})")
     return stamp_to_ns(msg.time_ref)
+
+
+def health_msg(t_s: Any, level: int, message: str, values: dict[str, str], out: Any = None) -> Any:
+    """The estimator's health as ROS reports health: a ``diagnostic_msgs/DiagnosticArray`` of one
+    ``DiagnosticStatus`` (:data:`~sappc_msgs_py.contract.ESTIMATOR_HEALTH_NAME`, ``level`` 0 OK, 1
+    WARN, 2 ERROR, ``message``, ``values`` as key/values in their order), the header of the sample
+    ``t_s`` (seconds or a stamp).  Into ``out`` (an array from this function) when given."""
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+    from sappc_msgs_py.contract import ESTIMATOR_HEALTH, ESTIMATOR_HEALTH_NAME
+
+    msg = ESTIMATOR_HEALTH.msg_class() if out is None else out
+    time_to_stamp(t_s, out=msg.header.stamp)
+    if not msg.status:
+        msg.status = [DiagnosticStatus(name=ESTIMATOR_HEALTH_NAME, hardware_id="sappc_estimator")]
+    status = msg.status[0]
+    status.level = bytes([int(level)])
+    status.message = message
+    status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+    return msg
 
 
 def torque_msg(torque_B: ArrayLike, t_s: float, topic: Topic = CONTROL_TORQUE, out: Any = None) -> Any:

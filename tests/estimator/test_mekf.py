@@ -116,7 +116,7 @@ class Run:
     q_true: np.ndarray  # (n, 4)
     omega_true_rad_s: np.ndarray  # (n, 3)
     bias_true_rad_s: np.ndarray  # (n, 3): the bias in the gyro sample k
-    y: np.ndarray  # (n, 7): the tracker's quaternion (held between updates) and the gyro's rate
+    y: np.ndarray  # (n, 8): the tracker's quaternion (held between updates), the gyro's rate, the quaternion's epoch [s]
 
 
 def simulate(duration_s: float, seed: int, *, outages_s: tuple[tuple[float, float], ...] = (), rate_scale_rad_s: float = 0.01,
@@ -139,13 +139,13 @@ def simulate(duration_s: float, seed: int, *, outages_s: tuple[tuple[float, floa
     prm = sensors.params(DT_S)
     draws = sensors.draws(n)
     outages = sensors.outages()
-    held = np.zeros(4)
+    held = np.zeros(5)
     bias = prm[S_BIAS0:S_BIAS0 + 3].copy()
-    y = np.zeros((n, 7))
+    y = np.zeros((n, mekf.N_MEAS))
     b_true = np.zeros((n, 3))
     for k in range(n):
         b_true[k] = bias
-        measure(k, t[k], q_true[k], omega[k], draws[k], prm, outages, held, bias, y[k])
+        measure(k, t[k], t[k], q_true[k], omega[k], draws[k], prm, outages, held, bias, y[k])
     return Run(t, q_true, omega, b_true, y)
 
 
@@ -226,7 +226,7 @@ def run_oracle(prm: np.ndarray, t_s: np.ndarray, y: np.ndarray) -> tuple[list[or
     f = MekfOracle.from_params(prm)
     outs, Ps, counters = [], np.zeros((len(t_s), 6, 6)), np.zeros((len(t_s), 4), dtype=np.int64)
     for k in range(len(t_s)):
-        outs.append(f.step(float(t_s[k]), y[k, :4], y[k, 4:]))
+        outs.append(f.step(float(t_s[k]), y[k, :4], y[k, 4:7], float(y[k, 7])))
         Ps[k] = f.P
         counters[k] = f.counters
     return outs, Ps, counters
@@ -404,39 +404,50 @@ def p0_diag(prm: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("k0, rate_scale_rad_s", [(0, 0.01), (3, 0.0), (3, 0.01)],
                          ids=["at_the_tracker_sample", "mid_hold_inertial", "mid_hold_tumbling"])
 def test_initialises_at_the_first_tracker_sample(k0: int, rate_scale_rad_s: float) -> None:
-    """``from_tracker``: the first step's sample (new by definition, even a held copy when the filter
-    starts mid-hold) becomes ``q_hat`` bit for bit, without propagation, provisionally; ``b_hat =
-    b0``, ``P = diag(P0_a, P0_b)``, ``omega_hat = ω̃ - b0``, no NIS yet, no counter moved.  The first
-    later new sample (certainly fresh) re-initialises the attitude: ``q_hat`` is that sample bit for
-    bit, ``P_aa = R``, ``P_ab = 0``.  Afterwards the filter updates exactly at the tracker's new
-    samples and only propagates on the held ones.  Mid-hold on a body tumbling at 0.01 rad/s the
-    first sample is ~1e-4 rad stale (>> the tracker's 1e-5): without the provisional attitude the
-    filter gated out the next 19 samples and re-initialised only at the 20th (2 s without an
-    update); with it, every later new sample is accepted."""
+    """``from_tracker``: the first step's sample becomes ``q_hat`` bit for bit, without
+    propagation; ``b_hat = b0``, ``P = diag(P0_a, P0_b)``, ``omega_hat = ω̃ - b0``, no NIS yet, no
+    counter moved.  Measured at this step (its epoch is the step's time: a start at a tracker
+    sample) it is the estimate at once (usable) and the next new sample updates it.  Held (its
+    epoch older: a start mid-hold) it is provisional and withheld from the controller: the first
+    later new sample (a later epoch) re-initialises the attitude, ``q_hat`` that sample bit for
+    bit, ``P_aa = R``, ``P_ab = 0``, and the estimate is usable from then on.  Afterwards the
+    filter updates exactly at the tracker's new samples and only propagates on the held ones.
+    Mid-hold on a body tumbling at 0.01 rad/s the first sample is ~1e-4 rad stale (>> the
+    tracker's 1e-5): without the provisional attitude the filter gated out the next 19 samples and
+    re-initialised only at the 20th (2 s without an update); with it, every later new sample is
+    accepted."""
     run = simulate(3.0, 21, rate_scale_rad_s=rate_scale_rad_s)
     b0 = (3e-6, -2e-6, 1e-6)
     prm = mekf_config(initial_bias_rad_s=b0).params()
     kr = run_kernel(prm, run.t_s[k0:], run.y[k0:])
+    fresh = k0 == 0
     assert kr.status[0] == mekf.STATUS_INITIALISED
     np.testing.assert_array_equal(kr.q_hat[0], run.y[k0, :4])
     np.testing.assert_array_equal(kr.b_hat[0], b0)
     np.testing.assert_array_equal(kr.P[0], np.diag(p0_diag(prm)))
     np.testing.assert_array_equal(kr.sigma[0], np.sqrt(p0_diag(prm)))
-    np.testing.assert_array_equal(kr.out[0, mekf.EO_OMEGA:mekf.EO_OMEGA + 3], run.y[k0, 4:] - np.array(b0))
+    np.testing.assert_array_equal(kr.out[0, mekf.EO_OMEGA:mekf.EO_OMEGA + 3], run.y[k0, 4:7] - np.array(b0))
     assert np.isnan(kr.nis[0])
     np.testing.assert_array_equal(kr.counters[0], [0, 0, 0, 0])
     new = tracker_samples(run)
     new = new[new > k0] - k0
     first = new[0]
-    np.testing.assert_array_equal(kr.q_hat[first], run.y[k0 + first, :4])
-    np.testing.assert_array_equal(kr.P[first][:3, :3], np.diag(prm[mekf.EP_R:mekf.EP_R + 3]))
-    np.testing.assert_array_equal(kr.P[first][:3, 3:], np.zeros((3, 3)))
+    usable = kr.out[:, mekf.EO_USABLE]
     expected = np.full(len(kr.status), mekf.STATUS_PROPAGATED)
     expected[0] = mekf.STATUS_INITIALISED
-    expected[first] = mekf.STATUS_INITIALISED
-    expected[new[1:]] = mekf.STATUS_UPDATED
+    if fresh:
+        expected[new] = mekf.STATUS_UPDATED
+        np.testing.assert_array_equal(usable, 1.0)
+    else:
+        np.testing.assert_array_equal(kr.q_hat[first], run.y[k0 + first, :4])
+        np.testing.assert_array_equal(kr.P[first][:3, :3], np.diag(prm[mekf.EP_R:mekf.EP_R + 3]))
+        np.testing.assert_array_equal(kr.P[first][:3, 3:], np.zeros((3, 3)))
+        expected[first] = mekf.STATUS_INITIALISED
+        expected[new[1:]] = mekf.STATUS_UPDATED
+        np.testing.assert_array_equal(usable[:first], 0.0)
+        np.testing.assert_array_equal(usable[first:], 1.0)
     np.testing.assert_array_equal(kr.status, expected)
-    assert kr.counters[-1, 0] == len(new) - 1 == 28 and kr.counters[-1, 1] == 0
+    assert kr.counters[-1, 0] == len(new) - (0 if fresh else 1) and len(new) == 29 and kr.counters[-1, 1] == 0
 
 
 def test_a_sample_that_is_not_finite_changes_nothing_and_gives_no_estimate() -> None:
@@ -509,6 +520,7 @@ def test_gate_rejects_an_outlier_without_a_trace() -> None:
     bad = with_outliers(run, [k], ONE_DEG, np.array([1.0, 2.0, 3.0]))
     control_y = run.y.copy()
     control_y[k:k + STRIDE, :4] = run.y[k - 1, :4]
+    control_y[k:k + STRIDE, mekf.Y_EPOCH] = run.y[k - 1, mekf.Y_EPOCH]  # held: its epoch too
     prm = mekf_config().params()
     kb = run_kernel(prm, run.t_s, bad.y)
     kc = run_kernel(prm, run.t_s, control_y)
@@ -531,8 +543,10 @@ def test_gate_rejects_an_outlier_without_a_trace() -> None:
 def test_burst_reinitialises_from_the_tracker() -> None:
     """25 tracker samples in a row 1 deg off: the first 19 are rejected; the 20th
     (``max_consecutive_rejections``) re-initialises: ``q_hat`` = that sample bit for bit,
-    ``P_aa = diag(P0_a)``, ``P_ab = 0``, ``P_bb`` and ``b_hat`` kept (``P_bb`` = the previous step's
-    plus ``σu² h``, to rounding); the next 5 (consistent with it) are accepted; the truth then
+    ``P_aa = diag(P0_a)``, ``P_ab = 0``, ``b_hat`` kept and ``P_bb`` inflated by the recovery's
+    covariance (``P_bb`` = the previous step's plus ``σu² h`` plus ``diag(recovery)``, to rounding:
+    the bias knowledge kept, its confidence not), the estimate withheld until the next accepted
+    sample; the next 5 (consistent with it) are accepted; the truth then
     returns 1 deg away and is rejected 19 times and re-initialises at the 20th; 1 s later the
     attitude error is within 3 sigma again.  The two isolated outliers before are rejected."""
     run = outlier_run(40.0, 13)
@@ -559,8 +573,10 @@ def test_burst_reinitialises_from_the_tracker() -> None:
         np.testing.assert_array_equal(kr.P[k, :3, 3:], 0.0)
         np.testing.assert_array_equal(kr.P[k, 3:, :3], 0.0)
         np.testing.assert_array_equal(kr.b_hat[k], kr.b_hat[k - 1])
-        Pbb = kr.P[k - 1, 3:, 3:] + np.diag(prm[mekf.EP_SU2:mekf.EP_SU2 + 3] * (run.t_s[k] - run.t_s[k - 1]))
+        Pbb = (kr.P[k - 1, 3:, 3:] + np.diag(prm[mekf.EP_SU2:mekf.EP_SU2 + 3] * (run.t_s[k] - run.t_s[k - 1]))
+               + np.diag(prm[mekf.EP_RECOVERY_PBB:mekf.EP_RECOVERY_PBB + 3]))
         np.testing.assert_allclose(kr.P[k, 3:, 3:], Pbb, rtol=4 * np.finfo(float).eps, atol=0.0)
+        assert kr.out[k, mekf.EO_USABLE] == 0.0 and kr.out[k + STRIDE, mekf.EO_USABLE] == 1.0  # withheld until confirmed
     err = attitude_errors(kr.q_hat, run.q_true)
     k1 = after[-1] + 100
     assert np.all(np.abs(err[k1:]) <= 3.0 * kr.sigma[k1:, :3])
@@ -584,7 +600,7 @@ def test_multiplicative_reset() -> None:
     q_prior = prm[mekf.EP_Q0:mekf.EP_Q0 + 4]
     R = np.square(TRACKER_NOISE_RAD)
     r = np.array([0.12, -0.08, 0.05])
-    y = np.zeros((2, 7))
+    y = np.zeros((2, mekf.N_MEAS))
     y[0, :4] = quat_multiply(q_prior, dq(r))
     st = mekf.new_state()
     P = np.zeros((6, 6))
@@ -602,6 +618,7 @@ def test_multiplicative_reset() -> None:
     h = 0.01
     r2 = np.array([1e-5, -2e-5, 5e-5])
     y[1, :4] = quat_multiply(q1, dq(r2))
+    y[1, mekf.Y_EPOCH] = h
     Paa = P[:3, :3].copy()
     assert mekf.mekf_step(prm, h, y[1], st, P, work, out) == mekf.STATUS_UPDATED
     p0b = prm[mekf.EP_P0B:mekf.EP_P0B + 3]
@@ -653,7 +670,7 @@ def test_covariance_stays_symmetric_positive_definite_over_3_hours() -> None:
     q0 = np.array([0.3254, 0.4068, -0.3254, 0.7891])
     q0 = q0 / np.linalg.norm(q0)
     st, P, work, out = mekf.new_state(), np.zeros((6, 6)), np.zeros((mekf.N_EST_WORK, 6)), np.zeros(mekf.N_EST_OUT)
-    held, bias, y = np.zeros(4), sp[S_BIAS0:S_BIAS0 + 3].copy(), np.zeros(7)
+    held, bias, y = np.zeros(5), sp[S_BIAS0:S_BIAS0 + 3].copy(), np.zeros(mekf.N_MEAS)
     chunk = 20000
     Pbuf, qbuf = np.zeros((chunk, 6, 6)), np.zeros((chunk, 4))
     min_eig, worst_norm, asym = np.inf, 0.0, 0
@@ -664,7 +681,7 @@ def test_covariance_stays_symmetric_positive_definite_over_3_hours() -> None:
         q_true = np.ascontiguousarray(qmul_rows(np.broadcast_to(q0, (m, 4)), dq_rows(np.outer(t, omega))))
         draws = rng.standard_normal((m, 9))
         for j in range(m):
-            measure(c0 + j, t[j], q_true[j], omega, draws[j], sp, outages, held, bias, y)
+            measure(c0 + j, t[j], t[j], q_true[j], omega, draws[j], sp, outages, held, bias, y)
             step(prm, t[j], y, st, P, work, out)
             Pbuf[j] = P
             qbuf[j] = out[:4]

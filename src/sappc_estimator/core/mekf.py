@@ -414,8 +414,7 @@ def _update(prm, st, P, q_meas, work, t):
             _reinitialise_after_failure(prm, st, P, q_meas)
             st[ES_N_CONSEC] = 0.0
             return STATUS_REINITIALISED
-        _monitor(prm, st, P, q_meas, d2, white, t)
-        return STATUS_REJECTED
+        return STATUS_REJECTED  # (the monitor judges the innovations the filter uses: an outlier is the gate's)
     # K = P[:, 0:3] S^-1 (6 x 3)
     K = work[_W_K:_W_K + 6, 0:3]
     for i in range(6):
@@ -467,7 +466,7 @@ def _monitor(prm, st, P, q_meas, d2, white, t):
     if st[ES_MON_N] < n_window:
         st[ES_MON_N] += 1.0
     if st[ES_MON_N] < n_window:
-        return STATUS_UPDATED if st[ES_N_CONSEC] == 0.0 else STATUS_REJECTED
+        return STATUS_UPDATED
     nis_sum = 0.0
     m0, m1, m2 = 0.0, 0.0, 0.0
     t_first = t
@@ -488,10 +487,9 @@ def _monitor(prm, st, P, q_meas, d2, white, t):
         st[ES_MON_LEVEL] = MON_WARN
     else:
         st[ES_MON_LEVEL] = MON_OK
-    status = STATUS_UPDATED if st[ES_N_CONSEC] == 0.0 else STATUS_REJECTED
     if not too_large:
         st[ES_MON_FAILS] = 0.0
-        return status
+        return STATUS_UPDATED
     st[ES_MON_FAILS] += 1.0
     if st[ES_MON_FAILS] >= 2.0:  # the recovery did not restore consistency: the attitude is lost
         _reinitialise_after_failure(prm, st, P, q_meas)
@@ -500,7 +498,7 @@ def _monitor(prm, st, P, q_meas, d2, white, t):
     _inflate_bias(prm, P, t - t_first)  # the recovery: a step at the failed window's start
     _clear_monitor(st)
     st[ES_N_RECOVER] += 1.0
-    return status
+    return STATUS_UPDATED
 
 
 @jit
