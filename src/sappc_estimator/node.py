@@ -283,6 +283,8 @@ class EstimatorNode(ProjectNode):
             return
         self._health_level, self._health_t_s = level, t_s
         message = _HEALTH_MESSAGES[level] if figures else "no estimate: initialising or no valid input"
+        if figures and np.isnan(f.monitor_nis_sum):
+            message = "no verdict yet: the innovations' window is filling"
         if figures and not estimate:
             message += "; the estimate is withheld (initialising, or re-initialised and not yet confirmed)"
         c = self.config

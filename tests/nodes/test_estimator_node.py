@@ -236,6 +236,64 @@ def test_lockstep_estimates_equal_the_kernel_called_directly_bit_for_bit(estimat
     assert not np.array_equal(drv.got[c.ESTIMATE_ATTITUDE.name][15 * DT_NS], q[15])
 
 
+def test_the_health_goes_out_on_diagnostics_as_ros_reports_health(estimator) -> None:  # type: ignore[no-untyped-def]
+    """``diagnostics`` (``diagnostic_msgs/DiagnosticArray``): one status named
+    ``contract.ESTIMATOR_HEALTH_NAME`` whose level is the monitor's (0 OK here: a consistent run), its
+    figures as the key/values of ``contract.ESTIMATOR_HEALTH_KEYS`` (the window, the NIS sum's band
+    at its stated probability: chi-square with 3 x 20 degrees of freedom), published when the level
+    changes and once a second of the samples' time (so 3 reports over 2.5 s here), stamped with
+    the sample."""
+    from scipy.stats import chi2
+
+    node, drv = estimator
+    q, w = measurements(251)
+    for k in range(251):
+        drv.sample(k * DT_NS, q[k], w[k])
+    drv.spin_until(lambda: len(drv.health) == 3, "three health reports")
+    stamps = [stamp_to_ns(m.header.stamp) for m in drv.health]
+    assert stamps == [0, 1_000_000_000, 2_000_000_000]
+    last = drv.health[-1].status
+    assert len(last) == 1 and last[0].name == c.ESTIMATOR_HEALTH_NAME and last[0].level == b"\x00"  # OK
+    values = {kv.key: kv.value for kv in last[0].values}
+    assert tuple(values) == c.ESTIMATOR_HEALTH_KEYS
+    lo, hi = chi2.ppf(0.5e-4, 60), chi2.isf(0.5e-4, 60)
+    assert values["window_samples"] == "20" and values["nis_sum_dof"] == "60" and values["estimate"] == "used"
+    assert values["nis_sum_band"] == f"[{lo:.6g}, {hi:.6g}]" and values["band_probability"] == "0.9999"
+    assert lo < float(values["nis_sum"]) < hi  # the window of 20 tracker samples at 2 s: a verdict
+
+
+def test_an_estimate_the_filter_has_not_confirmed_is_withheld_as_no_data(ros_context) -> None:  # type: ignore[no-untyped-def]
+    """A prior 90 deg off with a 0.2 rad sigma: the tracker's samples fail the gate; until a tracker
+    sample is accepted the node publishes "no data" on ``estimate/*`` (the controller's inputs: it
+    answers as to a dropped input, zero torque before any valid state) while the filter's own
+    figures (bias, sigmas, covariance) go out; the withheld samples are counted, and the health is a
+    warning saying so."""
+    from sappc_estimator.node import EstimatorNode
+
+    prior = quat_multiply(np.asarray(Q0), rotation_vector_to_quaternion(np.array([1.0, -2.0, 2.0]) / 3.0 * np.pi / 2.0))
+    config = MekfConfig(tracker_noise_rad=(9.7e-6, 9.7e-6, 7.3e-5), gyro_angle_random_walk_rad_sqrt_s=1.45e-6,
+                        gyro_bias_random_walk_rad_s_sqrt_s=8.1e-10, initial_q_BN=tuple(prior), initial_attitude_sigma_rad=0.2)
+    node = EstimatorNode(context=ros_context, parameter_overrides=overrides(config))
+    drv = Driver(ros_context, [node])
+    try:
+        drv.matched(node)
+        q, w = measurements(12)
+        for k in range(12):
+            drv.sample(k * DT_NS, q[k], w[k])
+        for k in range(12):
+            assert np.all(np.isnan(drv.got[c.ESTIMATE_ATTITUDE.name][k * DT_NS])) and np.all(np.isnan(drv.got[c.ESTIMATE_RATE.name][k * DT_NS]))
+            assert np.all(np.isfinite(drv.got[c.ESTIMATOR_GYRO_BIAS.name][k * DT_NS]))
+        diag = drv.got[c.ESTIMATOR_DIAGNOSTICS.name][11 * DT_NS]
+        assert diag["gate_rejections"] == 2 and diag["withheld_samples"] == 12 and node.withheld == 12 and node.rejected == 0
+        drv.spin_until(lambda: len(drv.health) >= 1, "a health report")
+        status = drv.health[0].status[0]
+        assert status.level == b"\x01" and "withheld" in status.message
+        assert {kv.key: kv.value for kv in status.values}["estimate"] == "withheld"
+    finally:
+        drv.close()
+        node.destroy_node()
+
+
 BAD = {
     "NaN in the attitude (the injector's no data)": dict(q=NO_DATA_Q),
     "Inf in the rate": dict(w=(math.inf, 0.0, 0.0)),
