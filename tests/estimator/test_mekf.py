@@ -18,6 +18,7 @@ Units: angles [rad], rates [rad/s], times [s].  Quaternions scalar last, ``q_BN`
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -282,6 +283,10 @@ def parity_case(name: str) -> tuple[np.ndarray, Run]:
         run = simulate(20.0, 14)
         return mekf_config(initial_q_BN=tuple(prior_10deg(run)), initial_attitude_sigma_rad=np.deg2rad(10.0),
                            initial_bias_rad_s=(2e-6, -1e-6, 0.5e-6), initial_bias_sigma_rad_s=(3e-6, 3e-6, 3e-6)).params(), run
+    if name == "bias_step_recovery":  # the gyro's bias steps by 2e-5 rad/s about x at 15 s: the monitor fails, the filter recovers
+        run = simulate(40.0, 31)
+        run.y[run.t_s >= 15.0, 4] += 2e-5
+        return mekf_config().params(), run
     raise ValueError(name)
 
 
@@ -350,7 +355,7 @@ def test_oracle_transition_is_the_matrix_exponential() -> None:
 # ----------------------------------------------------------------------------- (a) parity
 
 
-@pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg"])
+@pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery"])
 def test_kernel_equals_oracle(name: str) -> None:
     """Kernel = oracle step after step: statuses and counters exactly; ``q_hat`` (sign-aligned) to
     ``PARITY_ABS`` absolute; ``b_hat`` and ``omega_hat`` so that the attitude they integrate to over
@@ -365,6 +370,10 @@ def test_kernel_equals_oracle(name: str) -> None:
     status_or = np.array([oracle.STATUS.index(o.status) for o in outs])
     np.testing.assert_array_equal(kr.status, status_or)
     np.testing.assert_array_equal(kr.counters, counters_or)
+    np.testing.assert_array_equal(kr.out[:, mekf.EO_MON_LEVEL], [o.monitor_level for o in outs])  # the monitor's verdicts
+    np.testing.assert_array_equal(kr.out[:, mekf.EO_USABLE], [float(o.usable) for o in outs])
+    if name == "bias_step_recovery":  # the case has teeth: the monitor failed and the filter recovered
+        assert kr.out[-1, mekf.EO_N_RECOVER] >= 1 and np.any(kr.out[:, mekf.EO_MON_LEVEL] == mekf.MON_ERROR)
     live = np.flatnonzero(status_or != mekf.STATUS_NONE)
     assert len(live) == len(run.t_s)  # from_tracker initialises at the first step (its sample is new)
     q_or = np.array([o.q_hat for o in outs])
@@ -776,3 +785,60 @@ def test_the_gate_threshold_is_the_chi_square_quantile() -> None:
         assert chi2_3dof_isf(p) == pytest.approx(chi2.isf(p, 3), rel=1e-12), p
     with pytest.raises(ConfigError, match="false-alarm"):
         chi2_3dof_isf(1.0)
+
+
+# ----------------------------------------------------------------------------- issue 33: epochs, monitor, recovery
+
+
+def test_a_tracker_sample_is_new_by_its_epoch_never_by_its_value() -> None:
+    """Step 1 of the page: a held quaternion whose value changes (a sensor fault's window ending
+    between two tracker epochs: the bias removed from the held sample) is not a new sample, and is
+    not compared again; a later epoch is new even when its value is bit for bit the previous one
+    (a tracker at rest).  Today's exact-comparison rule fails both."""
+    run = simulate(1.0, 33, rate_scale_rad_s=0.0)  # at rest: a repeated value is a plausible measurement
+    y = run.y.copy()
+    k_changed, k_same = 45, 60  # mid-hold (epoch 0.4), and the tracker sample at 0.6
+    y[k_changed:50, :4] = quat_multiply(y[k_changed, :4], dq(np.array([2e-5, 0.0, 0.0])))  # the held value changes at 0.45
+    y[k_same:70, :4] = y[k_same - 1, :4]  # epoch 0.6 measures exactly what epoch 0.5 did
+    kr = run_kernel(mekf_config().params(), run.t_s, y)
+    assert kr.status[k_changed] == mekf.STATUS_PROPAGATED and kr.counters[k_changed, 0] == kr.counters[k_changed - 1, 0]
+    assert kr.status[k_same] == mekf.STATUS_UPDATED
+    compared = np.flatnonzero(np.isin(kr.status, (mekf.STATUS_UPDATED, mekf.STATUS_REJECTED)))
+    np.testing.assert_array_equal(compared, np.arange(10, 100, 10))  # once per epoch after the first
+
+
+def test_the_monitor_bands_are_the_chi_square_quantiles_at_their_stated_probabilities() -> None:
+    """The window's NIS sum of a consistent filter is chi-square with 3 n degrees of freedom (n
+    compared samples; Bar-Shalom, Li and Kirubarajan 2001, 5.4.2): its error and warning bands are
+    the two-sided quantiles at ``monitor_error_probability`` and ``monitor_warn_probability``, and the
+    mean test's bounds the chi-square(3) quantiles, to 1e-9 relative of scipy.stats'."""
+    from scipy.stats import chi2
+
+    prm = mekf_config(monitor_window_samples=30, monitor_warn_probability=0.95, monitor_error_probability=0.999).params()
+    k = 90
+    expected = [chi2.ppf(0.0005, k), chi2.ppf(0.025, k), chi2.isf(0.025, k), chi2.isf(0.0005, k)]
+    np.testing.assert_allclose(prm[mekf.EP_MON_NIS:mekf.EP_MON_NIS + 4], expected, rtol=1e-9)
+    np.testing.assert_allclose(prm[mekf.EP_MON_MEAN:mekf.EP_MON_MEAN + 2], [chi2.isf(0.05, 3), chi2.isf(0.001, 3)], rtol=1e-9)
+    assert prm[mekf.EP_MON_WINDOW] == 30
+    np.testing.assert_array_equal(prm[mekf.EP_RECOVERY_PBB:mekf.EP_RECOVERY_PBB + 3], prm[mekf.EP_P0B:mekf.EP_P0B + 3])  # default
+    for bad, words in (({"monitor_window_samples": 0}, "monitor_window_samples must be an integer in [1, 100]"),
+                       ({"monitor_warn_probability": 1.0}, "monitor_warn_probability must be in (0, 1)"),
+                       ({"monitor_warn_probability": 0.99, "monitor_error_probability": 0.9}, "must be at least monitor_warn_probability"),
+                       ({"bias_recovery_sigma_rad_s": -1e-6}, "bias_recovery_sigma_rad_s must be >= 0")):
+        with pytest.raises(ConfigError, match=re.escape(words)):
+            mekf_config(**bad)
+
+
+def test_a_consistent_filter_rarely_leaves_its_band_and_never_fails() -> None:
+    """300 s of the slow tumble with the data-sheet sensors (a consistent filter: tests above): no
+    verdict of the monitor is ERROR (each window's false alarm is 1e-4) and no recovery happens;
+    verdicts outside the 99 % warning band stay rare (the verdicts slide by one sample, so their
+    excursions come in runs: 1 % expected, a bound of 10 %)."""
+    run = simulate(300.0, 34)
+    kr = run_kernel(mekf_config().params(), run.t_s, run.y)
+    level = kr.out[:, mekf.EO_MON_LEVEL]
+    verdicts = level[np.isin(kr.status, (mekf.STATUS_UPDATED,)) & ~np.isnan(kr.out[:, mekf.EO_MON_NIS])]
+    print(f"\nconsistent 300 s: verdicts {verdicts.size}, warning {np.mean(verdicts == mekf.MON_WARN):.3f}, error {np.mean(verdicts == mekf.MON_ERROR):.3f}")
+    assert not np.any(level == mekf.MON_ERROR) and kr.out[-1, mekf.EO_N_RECOVER] == 0
+    assert np.mean(verdicts == mekf.MON_WARN) <= 0.10
+    assert np.all(kr.out[:, mekf.EO_USABLE] == 1.0)
