@@ -217,15 +217,16 @@ class InjectorNode(ProjectNode):
         del pending[ns]
         for old in [k for k in pending if k < ns]:  # an unpaired older sample will never pair
             del pending[old]
-        values: tuple[Any, ...] | None = tuple(entry[t.name] for t in path)
+        arrived: tuple[Any, ...] = tuple(entry[t.name] for t in path)
+        values: tuple[Any, ...] | None = arrived
         if path is self._sensor_path and len(path) == 3:  # the epoch through the faults with its sample (as a float offset: exact)
-            q, w, epoch_ns = values
+            q, w, epoch_ns = arrived
             if self._epoch_origin_ns is None:
                 self._epoch_origin_ns = int(epoch_ns)
             faulted = self.faults.sensor(self._run_time_s(ns), ns, q, w, float(int(epoch_ns) - self._epoch_origin_ns))
             values = None if faulted is None else (faulted[0], faulted[1], self._epoch_origin_ns + int(faulted[2]))
         elif path is self._sensor_path:
-            faulted = self.faults.sensor(self._run_time_s(ns), ns, *values)
+            faulted = self.faults.sensor(self._run_time_s(ns), ns, arrived[0], arrived[1])
             values = None if faulted is None else faulted[:2]
         elif not self.faults.reference(self._run_time_s(ns)):
             values = None

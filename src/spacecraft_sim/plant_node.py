@@ -415,6 +415,7 @@ class PlantNode(ProjectNode):
         not applied, as in lockstep, and counted stale if it has not come.  No sample is published
         past the last frame, and the node's timers stop (in a composed run the executor spins on
         while the recorder drains)."""
+        assert self._frame is not None  # the run ends after its frames: one was published
         stamp_ns = self._frame * self.dt_ns  # the last frame's (frame f0 + n)
         self._count_stale_torque(stamp_ns)
         if self.wheels is not None:  # the last sample's wheel command, as lockstep publishes it

@@ -415,7 +415,8 @@ class MetricsAccumulator:
         if self.est_att_max is not None:
             per_run = [self._estimation_metrics(k) for k in range(self.finite.shape[0])]
             wheels.update({key: np.array([np.nan if m[key] is None else m[key] for m in per_run], dtype=np.float64)
-                           for key in ("steady_max_abs_attitude_estimation_error_rad", "final_abs_bias_estimation_error_rad_s", "mean_nees")})
+                           for key in ("steady_max_abs_attitude_estimation_error_rad", "final_abs_bias_estimation_error_rad_s", "mean_nees",
+                                       "filter_inconsistent_fraction", "estimator_recoveries")})
         return {**wheels,
             "steady_mean_abs_qev_per_axis": steady_mean,
             "steady_mean_abs_qev": steady_mean.max(axis=1),
