@@ -28,18 +28,23 @@ One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (
    injector's "no data"), a quaternion whose norm differs from 1 by more than
    ``max_norm_error`` or a rate beyond ``max_rate`` [rad/s] (a sensor or link fault, not a
    state) changes nothing and gives no estimate (status *none*, outputs NaN).
-1. **A new tracker sample** is one whose quaternion differs (exact comparison) from the quaternion
-   of the previous step's measurement: a star tracker holds its last quaternion between updates
-   and during outages (``spacecraft_sim.core.sensors``), so a held value is not a new measurement.
-   The first step's sample is new.
+1. **A new tracker sample** is one whose epoch (``y[7]``: the time the tracker measured the
+   quaternion, which it holds between updates and through outages,
+   ``spacecraft_sim.core.sensors``; on the graph ``state/attitude_epoch``) is later than the epoch
+   of the last sample used; never by comparing values: a fault window that ends between two
+   epochs changes a held value without making it new.  The first step's sample is new.
 2. **Initialisation.**  ``from_tracker`` (default): the first step's sample becomes ``q_hat``,
-   with ``b_hat = b0`` and ``P = diag(P0_a, P0_b)``, *provisionally*: a held quaternion may be up
-   to one tracker period old (a filter started between two updates), so the first sample that
-   changes, certainly fresh, re-initialises the attitude (``q_hat = q_meas``, ``P_aa = R``,
-   ``P_ab = 0``; status *initialised*) instead of updating it.  ``from_prior``: at the first step
-   ``q_hat = q_prior``, same ``b_hat`` and ``P``, and that step's tracker sample is then
-   processed as an update (a prior far from the truth, e.g. a coarse sensor's attitude 10 deg
-   off, is corrected by the first tracker sample).
+   with ``b_hat = b0`` and ``P = diag(P0_a, P0_b)``; measured at this step (its epoch is ``t``)
+   it is the estimate at once; older (a filter started between two updates: a held quaternion may
+   be up to one tracker period old) it is *provisional*: the next new sample re-initialises the
+   attitude (``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; status *initialised*) instead of
+   updating it.  ``from_prior``: at the first step ``q_hat = q_prior``, same ``b_hat`` and
+   ``P``, and that step's tracker sample is then processed as an update (a prior far from the
+   truth, e.g. a coarse sensor's attitude 10 deg off, is corrected by the first tracker sample).
+   The estimate is *confirmed* (usable, ``out[EO_USABLE] = 1``) once initialised from a sample
+   of now or after an accepted update; a provisional attitude, a prior and a re-initialised
+   attitude are withheld (0) until a tracker sample is accepted: the callers then give the
+   controller "no data".
 3. **Propagation** from the previous step's time ``t_prev`` over ``h = t - t_prev`` with the mean
    of the two gyro samples, bias removed: ``w = (omega_prev + omega_meas) / 2 - b_hat``
    (trapezoid: the rate between two samples, not the older one held).
@@ -56,22 +61,43 @@ One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (
    chi-square with 3 degrees of freedom for a consistent filter).
    *Gate*: unless ``d2 <= gate`` the sample is rejected (counted); after ``max_rejections``
    consecutive rejections the filter re-initialises its attitude from the tracker
-   (``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; the bias and its covariance kept): a filter
-   that has lost its attitude must not reject the truth forever.
+   (``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; the bias estimate kept, its covariance
+   inflated by the recovery's ``Q_r``: the bias knowledge kept, not the confidence that let the
+   attitude drift; unconfirmed until the next accepted sample): a filter that has lost its
+   attitude must not reject the truth forever.
    *Accepted*: ``K = P H^T S^-1`` with ``H = [I 0]``, ``dx = K r``, the Joseph form
    ``P <- (I - K H) P (I - K H)^T + K R K^T`` (symmetric and positive definite whatever the
    rounding, M&C 6.25), symmetrised; the multiplicative reset ``q_hat <- normalise(q_hat ⊗
    dq(dx_a))``, ``b_hat <- b_hat + dx_b`` (M&C 6.2.3; ``P`` is not transformed by the reset).
+   *Health monitor* (after an accepted update): the sample's NIS and whitened innovation
+   ``w = L^-1 r`` (``S = L L^T``, Cholesky) go into a window of the last ``n`` accepted samples;
+   once full, each sample gives a verdict: the window's NIS sum (chi-square with ``3 n`` degrees
+   of freedom for a consistent filter: Bar-Shalom, Li and Kirubarajan, *Estimation with
+   Applications to Tracking and Navigation*, 2001, 5.4.2, the time-average NIS test) against its
+   two-sided warning and error bands, and the mean test ``|sum w|^2 / n`` (chi-square with 3: the
+   innovations are zero-mean, ibid.) against its upper bounds: level OK, WARN or ERROR
+   (``MON_*``).  A verdict above an error bound is a failed monitor: the *recovery* adds a bias
+   step of covariance ``Q_r = diag(bias_recovery_sigma^2)`` dated at the window's first sample,
+   ``age`` s ago, carried to now by the transition's bias columns: ``P_bb += Q_r``,
+   ``P_ab += -Q_r age``, ``P_aa += Q_r age^2`` (the adjustable process noise of Bar-Shalom et
+   al. 11.2, applied once when the test fails; the covariance inflation of adaptive filtering in
+   Crassidis and Junkins, *Optimal Estimation of Dynamic Systems*, 2nd ed., 2012, ch. 5), and
+   empties the window; a second failed window in a row re-initialises as after the gate's
+   rejections.
 5. **Outputs**: ``q_hat``, ``omega_hat = omega_meas - b_hat`` (the current sample), ``b_hat``, the
-   1-sigma of each error state ``sqrt(diag P)``, the last NIS and the step's status.
+   1-sigma of each error state ``sqrt(diag P)``, the last NIS, the step's status, the monitor's
+   level, window NIS sum and mean statistic, whether the estimate is usable, the recoveries.
 
 Arrays (float64, the caller's; no allocation per step)
 ------------------------------------------------------
 ``prm`` (:data:`N_EST_PARAMS`,)
     Columns ``EP_*``: ``R`` (3), ``sigma_v^2`` (3), ``sigma_u^2`` (3), ``P0_a`` (3), ``P0_b`` (3),
     ``b0`` (3), ``gate`` (inf: none), ``max_rejections`` (>= 1), the initialisation mode
-    (``INIT_*``), ``q_prior`` (4), and the plausibility bounds ``max_norm_error`` and
-    ``max_rate`` [rad/s].
+    (``INIT_*``), ``q_prior`` (4), the plausibility bounds ``max_norm_error`` and
+    ``max_rate`` [rad/s], the monitor's window, its NIS-sum bounds (4), its mean-test bounds (2)
+    and the recovery's ``Q_r`` (3).
+``y`` (:data:`N_MEAS`,)
+    The measurement: ``q_meas`` (4), ``omega_meas`` (3), the tracker sample's epoch [s] (``<= t``).
 ``st`` (:data:`N_EST_STATE`,)
     Columns ``ES_*``: initialised flag, ``q_hat`` (4), ``b_hat`` (3), the previous measurement's
     quaternion (4) and rate (3), ``t_prev``, counters (updates, rejections, consecutive rejections,
