@@ -174,6 +174,7 @@ BOUNDED_METRICS = (
     "saturation_fraction",
     "time_outside_constraint_s",
     "max_abs_wheel_speed_rad_s",  # only with reaction wheels: unknown (a failure) with the ideal actuator
+    "filter_inconsistent_fraction",  # only with an estimator: unknown (a failure) without one
 )
 
 

@@ -69,6 +69,7 @@ from sappc_msgs_py.contract import (
     ESTIMATOR_DIAGNOSTICS,
     ESTIMATOR_DIAGNOSTICS_LAYOUT,
     ESTIMATOR_GYRO_BIAS,
+    ESTIMATOR_HEALTH,
     ESTIMATOR_INPUTS,
     ESTIMATOR_NO_INPUT,
     ESTIMATOR_TOPICS,
@@ -77,6 +78,8 @@ from sappc_msgs_py.contract import (
 )
 from sappc_msgs_py.convert import (
     covariance_msg,
+    epoch_from_msg,
+    health_msg,
     estimator_diagnostics_msg,
     no_data_msg,
     ns_to_stamp,
@@ -100,6 +103,7 @@ from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import COMMON_PARAMETERS, LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
 
 from sappc_estimator.core import mekf
+from sappc_estimator.core.config import chi2_band
 from sappc_estimator.core.estimator import Mekf
 from sappc_estimator.params import DEFAULT_CONTROL_PERIOD_S, FILTER_PARAMETERS, config_from_parameters
 
@@ -122,7 +126,21 @@ _P = {p.name: p for p in PARAMETERS}
 #: The estimate the controller takes: each publisher waits for one subscriber (the controller)
 #: before its first message; the other topics wait for none unless ``expected_subscribers`` says so.
 _LOOP_OUTPUTS = (ESTIMATE_ATTITUDE, ESTIMATE_RATE)
-#: The filter's outputs that must be finite for an estimate (all but the NIS and the status).
+#: The longest time [s of the samples' stamps] between two health reports while the monitor's
+#: level does not change: 1 s, the period of ROS's diagnostic_updater (a change is reported at once).
+HEALTH_PERIOD_S = 1.0
+#: The health's message for each monitor level (``mekf.MON_*``).
+_HEALTH_MESSAGES = ("consistent: the innovations' window inside its band",
+                    "warning: the innovations' window outside its warning band, or recovering",
+                    "inconsistent: the innovations' window outside its error band")
+
+
+def decode_estimator_input(msg: Any, topic: Topic) -> Any:
+    """The value of an estimator input: :func:`~sappc_msgs_py.inputs.decode_input`'s for the
+    measurements, the epoch [ns] (an int64 array of one, exact) for ``state/attitude_epoch``."""
+    if topic.type_name.endswith("TimeReference"):
+        return np.array([epoch_from_msg(msg, topic)], dtype=np.int64)
+    return decode_input(msg, topic)
 
 
 class EstimatorNode(ProjectNode):
@@ -164,6 +182,11 @@ class EstimatorNode(ProjectNode):
         self._rt = RealtimePairing(ESTIMATOR_INPUTS)  # real time: a sample per fresh state
         self.latency = LatencyStatistics(self.dt)  # real time: the steps' latency, in bounded memory
         self._diag = np.zeros(len(ESTIMATOR_DIAGNOSTICS_LAYOUT))
+        self.withheld = 0  # samples whose estimate was withheld (initialising, unconfirmed)
+        self._health_level: int | None = None  # the level last reported on diagnostics
+        self._health_t_s = -np.inf  # when
+        dof = 3 * self.config.monitor_window_samples
+        self._band = chi2_band(dof, self.config.monitor_error_probability)
         if self.mode == LOCKSTEP:
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
         else:  # no publish may block a callback: samples before the controller is matched are skipped
@@ -188,7 +211,7 @@ class EstimatorNode(ProjectNode):
     def _on_input(self, msg: Any, topic: Topic) -> None:
         last = self._answered_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
         what = "the last answered sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
-        screened = screen_input(msg, topic, last, self._now_ns(), self.max_ahead_ns, what, decode_input, self._reject)
+        screened = screen_input(msg, topic, last, self._now_ns(), self.max_ahead_ns, what, decode_estimator_input, self._reject)
         if screened is None:
             return
         ns, value = screened  # value None: arrived, invalid (module docstring)
@@ -209,52 +232,85 @@ class EstimatorNode(ProjectNode):
         self._answered_ns = t_ns
         self.samples += 1
         if not sample.valid:
-            self._publish(t_ns, ESTIMATOR_NO_INPUT, estimate=False)
+            self._publish(t_ns, ESTIMATOR_NO_INPUT, figures=False)
             return
         if self._origin_ns is None:
             self._origin_ns = t_ns
-        q_meas, omega_meas = sample.values
-        status = self.filter.step((t_ns - self._origin_ns) / NS_PER_S, q_meas, omega_meas)
+        q_meas, omega_meas, epoch_ns = sample.values
+        status = self.filter.step((t_ns - self._origin_ns) / NS_PER_S, q_meas, omega_meas, (int(epoch_ns[0]) - self._origin_ns) / NS_PER_S)
         self.steps += 1
         # an implausible measurement (a rate beyond max_body_rate_rad_s ...) is no measurement: the
         # filter is unchanged and the sample is "no data", as the offline loop answers it
-        self._publish(t_ns, status, estimate=status != mekf.STATUS_NONE and self.filter.initialised)
+        figures = status != mekf.STATUS_NONE and self.filter.initialised
+        self._publish(t_ns, status, figures=figures, estimate=figures and self.filter.usable)
 
-    def _publish(self, t_ns: int, status: int, *, estimate: bool) -> None:
-        """The sample's outputs, stamped ``t_ns``: the filter's estimate, or "no data" (NaN) in every
-        estimate topic; the diagnostics in both cases."""
+    def _publish(self, t_ns: int, status: int, *, figures: bool, estimate: bool = False) -> None:
+        """The sample's outputs, stamped ``t_ns``: the filter's estimate, or "no data" (NaN) in the
+        estimate topics (the controller's inputs) when it has none or withholds it (not confirmed:
+        :attr:`Mekf.usable`); its figures (bias, sigmas, covariance) when it has them, else "no data";
+        the diagnostics in every case, the health when due."""
         stamp = ns_to_stamp(t_ns)
         p = self.pub
         f = self.filter
         if estimate:
             p[ESTIMATE_ATTITUDE.name].publish(quaternion_msg(f.q_BN, stamp, ESTIMATE_ATTITUDE, out=p[ESTIMATE_ATTITUDE.name].msg))
             p[ESTIMATE_RATE.name].publish(vector3_msg(f.omega_BN_B, stamp, ESTIMATE_RATE, out=p[ESTIMATE_RATE.name].msg))
-            for topic, value in ((ESTIMATOR_GYRO_BIAS, f.gyro_bias_rad_s), (ESTIMATOR_ATTITUDE_SIGMA, f.attitude_sigma_rad),
-                                 (ESTIMATOR_BIAS_SIGMA, f.bias_sigma_rad_s)):
-                p[topic.name].publish(vector3_msg(value, stamp, topic, out=p[topic.name].msg))
         else:
             self.no_data += 1
-            for topic in (ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_GYRO_BIAS, ESTIMATOR_ATTITUDE_SIGMA, ESTIMATOR_BIAS_SIGMA):
+            self.withheld += figures
+            for topic in (ESTIMATE_ATTITUDE, ESTIMATE_RATE):
                 p[topic.name].publish(no_data_msg(topic, stamp, out=p[topic.name].msg))
+        for topic, value in ((ESTIMATOR_GYRO_BIAS, f.gyro_bias_rad_s), (ESTIMATOR_ATTITUDE_SIGMA, f.attitude_sigma_rad),
+                             (ESTIMATOR_BIAS_SIGMA, f.bias_sigma_rad_s)):
+            p[topic.name].publish(vector3_msg(value, stamp, topic, out=p[topic.name].msg) if figures
+                                  else no_data_msg(topic, stamp, out=p[topic.name].msg))
         t_s = t_ns / NS_PER_S
-        p[ESTIMATOR_COVARIANCE.name].publish(covariance_msg(t_s, f.P if estimate else None, out=p[ESTIMATOR_COVARIANCE.name].msg))
+        p[ESTIMATOR_COVARIANCE.name].publish(covariance_msg(t_s, f.P if figures else None, out=p[ESTIMATOR_COVARIANCE.name].msg))
         d = self._diag
-        d[:] = (t_s, f.nis, status, f.updates, f.rejections, f.reinitialisations, self.no_data, self.rejected)
+        d[:] = (t_s, f.nis, status, f.updates, f.rejections, f.reinitialisations, self.no_data, self.rejected,
+                f.monitor_level, f.monitor_nis_sum, f.recoveries, self.withheld)
         p[ESTIMATOR_DIAGNOSTICS.name].publish(estimator_diagnostics_msg(d, out=p[ESTIMATOR_DIAGNOSTICS.name].msg))
+        self._report_health(stamp, t_s, figures, estimate)
+
+    def _report_health(self, stamp: Any, t_s: float, figures: bool, estimate: bool) -> None:
+        """``diagnostics`` (ROS's health convention): the monitor's level and figures, when the level
+        changes and at least every :data:`HEALTH_PERIOD_S` of the samples' time."""
+        f = self.filter
+        level = f.monitor_level if figures else mekf.MON_WARN  # no estimate yet (or no input): a warning
+        if not estimate and figures:
+            level = max(level, mekf.MON_WARN)  # withheld: the controller is not fed
+        if level == self._health_level and t_s - self._health_t_s < HEALTH_PERIOD_S:
+            return
+        self._health_level, self._health_t_s = level, t_s
+        message = _HEALTH_MESSAGES[level] if figures else "no estimate: initialising or no valid input"
+        if figures and np.isnan(f.monitor_nis_sum):
+            message = "no verdict yet: the innovations' window is filling"
+        if figures and not estimate:
+            message += "; the estimate is withheld (initialising, or re-initialised and not yet confirmed)"
+        c = self.config
+        values = {"time_s": f"{t_s:.9g}", "window_samples": str(c.monitor_window_samples), "nis_sum_dof": str(3 * c.monitor_window_samples),
+                  "nis_sum": f"{f.monitor_nis_sum:.6g}", "nis_sum_band": f"[{self._band[0]:.6g}, {self._band[1]:.6g}]",
+                  "band_probability": f"{c.monitor_error_probability:.6g}", "mean_statistic": f"{f.monitor_mean_statistic:.6g}",
+                  "estimate": "used" if estimate else "withheld", "recoveries": str(f.recoveries),
+                  "reinitialisations": str(f.reinitialisations), "withheld_samples": str(self.withheld)}
+        p = self.pub[ESTIMATOR_HEALTH.name]
+        p.publish(health_msg(stamp, level, message, values, out=p.msg))
 
     # ---- the end --------------------------------------------------------------------------
     def statistics(self) -> dict[str, Any]:
         """What the node did: the counts of the closing line, the rejected messages by reason and
         (real time) the steps' latency (:class:`~gnc_common.timing.LatencyStatistics`)."""
         return {"samples": self.samples, "steps": self.steps, "updates": self.filter.updates, "gate_rejections": self.filter.rejections,
-                "reinitialisations": self.filter.reinitialisations, "no_data_samples": self.no_data,
+                "reinitialisations": self.filter.reinitialisations, "recoveries": self.filter.recoveries,
+                "withheld_samples": self.withheld, "no_data_samples": self.no_data,
                 "rejected": self.rejected, "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
                 **({"latency": dict(self.latency.summary())} if self.mode == REALTIME else {})}
 
     def finish(self) -> None:
         s = self.statistics()
         self.get_logger().info(f"finished: {s['samples']} samples, {s['steps']} filter steps ({s['updates']} updates, {s['gate_rejections']} "
-                               f"gate rejections, {s['reinitialisations']} re-initialisations), {s['no_data_samples']} no-data samples, "
+                               f"gate rejections, {s['reinitialisations']} re-initialisations, {s['recoveries']} recoveries), "
+                               f"{s['no_data_samples']} no-data samples ({s['withheld_samples']} withheld), "
                                f"{s['rejected']} rejected messages {self.rejected_by_reason or ''}")
         super().finish()
         if self.timing_file:

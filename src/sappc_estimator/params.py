@@ -47,9 +47,13 @@ _FIELDS: dict[str, tuple[str, str]] = {
     "max_consecutive_rejections": ("", "integer"),
     "max_body_rate_rad_s": ("rad/s", "double"),
     "max_attitude_norm_error": ("", "double"),
+    "monitor_window_samples": ("", "integer"),
+    "monitor_warn_probability": ("", "double"),
+    "monitor_error_probability": ("", "double"),
+    "bias_recovery_sigma_rad_s": ("rad/s", "double[]"),
 }
 #: The config's optional fields whose ``None`` is an empty array parameter.
-_EMPTY_IS_NONE = ("initial_q_BN", "initial_attitude_sigma_rad")
+_EMPTY_IS_NONE = ("initial_q_BN", "initial_attitude_sigma_rad", "bias_recovery_sigma_rad_s")
 #: What the node checks for each (the config's rule, in words, for ``--help``).
 _CHECKS = {
     "tracker_noise_rad": "> 0 per axis",
@@ -62,6 +66,10 @@ _CHECKS = {
     "max_consecutive_rejections": "an integer >= 1",
     "max_body_rate_rad_s": "> 0",
     "max_attitude_norm_error": "in (0, 1e-6]",
+    "monitor_window_samples": "an integer in [1, 100]",
+    "monitor_warn_probability": "in (0, 1)",
+    "monitor_error_probability": "in [monitor_warn_probability, 1)",
+    "bias_recovery_sigma_rad_s": "[] or >= 0 per axis",
 }
 
 

@@ -10,6 +10,7 @@ topic                         type                            frame_id    conten
 ============================  ==============================  ==========  =========================================
 ``state/attitude``            geometry_msgs/QuaternionStamped ``inertial`` measured ``q_BN`` (body relative to inertial)
 ``state/rate``                geometry_msgs/Vector3Stamped    ``body``     measured ``omega_BN_B`` [rad/s]
+``state/attitude_epoch``      sensor_msgs/TimeReference       ``body``     ``time_ref``: when the star tracker measured ``state/attitude`` (a plant with sensor models only)
 ``reference/attitude``        geometry_msgs/QuaternionStamped ``inertial`` desired ``q_RN``
 ``reference/rate``            geometry_msgs/Vector3Stamped    ``reference`` desired ``omega_RN_R`` [rad/s]
 ``reference/acceleration``    geometry_msgs/Vector3Stamped    ``reference`` desired ``omegadot_RN_R`` [rad/s^2]
@@ -30,7 +31,15 @@ topic                         type                            frame_id    conten
 ``estimator/bias_sigma``      geometry_msgs/Vector3Stamped    ``body``     1-sigma gyro bias error per axis [rad/s]
 ``estimator/covariance``      std_msgs/Float64MultiArray      (none)      see :data:`COVARIANCE_DIMS`
 ``estimator/diagnostics``     std_msgs/Float64MultiArray      (none)      see :data:`ESTIMATOR_DIAGNOSTICS_LAYOUT`
+``diagnostics``               diagnostic_msgs/DiagnosticArray (none)      the estimator's health (:data:`ESTIMATOR_HEALTH_KEYS`)
 ============================  ==============================  ==========  =========================================
+
+A star tracker holds its last quaternion between its updates (10 Hz beside a 100 Hz loop), so
+``state/attitude`` repeats a measurement; a plant with sensor models says when each was measured
+on ``state/attitude_epoch`` (``sensor_msgs/TimeReference``: the header stamp is the sample's, as
+``state/attitude``'s, ``time_ref`` the tracker's own time of the quaternion, ``source``
+``star_tracker``), and the estimator knows a new tracker sample by its epoch, never by comparing
+values.  A fault relay relays it with the measurements (a frozen or delayed sample keeps its epoch).
 
 An attitude estimator (``python -m sappc_estimator``: a multiplicative EKF, ``docs/estimator.md``)
 takes the measured ``state/attitude`` and ``state/rate`` and publishes its estimate on
@@ -148,6 +157,11 @@ __all__ = [
     "ESTIMATOR_COVARIANCE",
     "ESTIMATOR_DIAGNOSTICS",
     "ESTIMATOR_DIAGNOSTICS_LAYOUT",
+    "ESTIMATOR_HEALTH",
+    "ESTIMATOR_HEALTH_KEYS",
+    "ESTIMATOR_HEALTH_NAME",
+    "RELAYED_SENSOR_TOPICS_WITH_EPOCH",
+    "STATE_ATTITUDE_EPOCH",
     "ESTIMATOR_GYRO_BIAS",
     "ESTIMATOR_INPUTS",
     "ESTIMATOR_NO_INPUT",
@@ -218,6 +232,7 @@ def _msg_class(type_name: str) -> type:
 
 STATE_ATTITUDE = Topic("state/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)
 STATE_RATE = Topic("state/rate", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
+STATE_ATTITUDE_EPOCH = Topic("state/attitude_epoch", "sensor_msgs/msg/TimeReference", Frame.BODY.value)
 REFERENCE_ATTITUDE = Topic("reference/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)
 REFERENCE_RATE = Topic("reference/rate", "geometry_msgs/msg/Vector3Stamped", Frame.REFERENCE.value)
 REFERENCE_ACCELERATION = Topic("reference/acceleration", "geometry_msgs/msg/Vector3Stamped", Frame.REFERENCE.value)
@@ -238,6 +253,11 @@ ESTIMATOR_ATTITUDE_SIGMA = Topic("estimator/attitude_sigma", "geometry_msgs/msg/
 ESTIMATOR_BIAS_SIGMA = Topic("estimator/bias_sigma", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
 ESTIMATOR_COVARIANCE = Topic("estimator/covariance", "std_msgs/msg/Float64MultiArray", None)
 ESTIMATOR_DIAGNOSTICS = Topic("estimator/diagnostics", "std_msgs/msg/Float64MultiArray", None)
+#: ROS's health convention (REP 107's diagnostics): a ``diagnostic_msgs/DiagnosticArray`` on
+#: ``diagnostics`` (relative: ``/diagnostics`` in the root namespace, where the aggregator, rqt's
+#: robot monitor and Foxglove's diagnostics panels look), one status named
+#: :data:`ESTIMATOR_HEALTH_NAME`, its figures as key/values (:data:`ESTIMATOR_HEALTH_KEYS`).
+ESTIMATOR_HEALTH = Topic("diagnostics", "diagnostic_msgs/msg/DiagnosticArray", None)
 
 #: Prefix of the topics a fault relay republishes.
 FAULT_PREFIX = "fault/"
@@ -251,6 +271,10 @@ def faulty(topic: Topic) -> Topic:
 #: The measurements a sensor-fault relay republishes (the controller is remapped to their
 #: :func:`faulty` twins), in the order of ``FaultSchedule.sensor(t, stamp, q_BN, omega_BN_B)``.
 RELAYED_SENSOR_TOPICS = (STATE_ATTITUDE, STATE_RATE)
+#: The measurements a sensor-fault relay republishes for an estimator: with the tracker's epoch (a
+#: held or delayed sample keeps its own time), in the order of ``FaultSchedule.sensor(t, stamp,
+#: q_BN, omega_BN_B, epoch)``.
+RELAYED_SENSOR_TOPICS_WITH_EPOCH = (STATE_ATTITUDE, STATE_RATE, STATE_ATTITUDE_EPOCH)
 #: The reference a reference-fault relay republishes, paired by stamp (the controller is remapped).
 RELAYED_REFERENCE_TOPICS = (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
 #: The command an actuator-fault relay republishes (the plant is remapped to its :func:`faulty` twin).
@@ -259,7 +283,7 @@ RELAYED_ACTUATOR_TOPICS = (CONTROL_TORQUE,)
 #: when a fault acts on it, and its consumer (the controller; the plant for ``actuator``) is remapped.
 RELAYED_PATHS = {"sensor": RELAYED_SENSOR_TOPICS, "reference": RELAYED_REFERENCE_TOPICS, "actuator": RELAYED_ACTUATOR_TOPICS}
 #: Every topic a fault relay may republish (the originals).
-RELAYED_TOPICS = RELAYED_SENSOR_TOPICS + RELAYED_REFERENCE_TOPICS + RELAYED_ACTUATOR_TOPICS
+RELAYED_TOPICS = RELAYED_SENSOR_TOPICS_WITH_EPOCH + RELAYED_REFERENCE_TOPICS + RELAYED_ACTUATOR_TOPICS
 #: The relays' outputs, :func:`faulty` of each of :data:`RELAYED_TOPICS`.
 FAULT_TOPICS = tuple(faulty(t) for t in RELAYED_TOPICS)
 
@@ -290,12 +314,12 @@ def consumed_names(topic: Topic) -> tuple[str, ...]:
 #: The controller's five inputs, in the order of ``AttitudeController.step(t, dt, q, w, q_d, w_d, wdot_d)``.
 CONTROLLER_INPUTS = (STATE_ATTITUDE, STATE_RATE, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
 
-#: The estimator's two inputs, in the order of its measurement ``y = (q_meas, omega_meas)``.
-ESTIMATOR_INPUTS = (STATE_ATTITUDE, STATE_RATE)
+#: The estimator's three inputs, in the order of its measurement ``y = (q_meas, omega_meas, epoch)``.
+ESTIMATOR_INPUTS = (STATE_ATTITUDE, STATE_RATE, STATE_ATTITUDE_EPOCH)
 #: What an estimator publishes per sample, in the order it publishes them: the estimate the
 #: controller takes (remapped from ``state/*``) first.
 ESTIMATOR_TOPICS = (ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_GYRO_BIAS, ESTIMATOR_ATTITUDE_SIGMA, ESTIMATOR_BIAS_SIGMA,
-                    ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS)
+                    ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS, ESTIMATOR_HEALTH)
 
 #: Every topic of the contract.
 TOPICS = (
@@ -314,12 +338,13 @@ TOPICS = (
     TRUTH_ATTITUDE,
     TRUTH_RATE,
     TRUTH_GYRO_BIAS,
+    STATE_ATTITUDE_EPOCH,
     *ESTIMATOR_TOPICS,
 )
 
 #: Topics only some runs have (a plant with reaction wheels or sensor models, an estimator):
 #: absent from a bag of a run without them, which is no fault.
-OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE, TRUTH_GYRO_BIAS, *ESTIMATOR_TOPICS)
+OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE, TRUTH_GYRO_BIAS, STATE_ATTITUDE_EPOCH, *ESTIMATOR_TOPICS)
 
 #: The attitude as frames (body and reference relative to inertial), for visualisation only: no
 #: node consumes them, a fault relay never republishes them (they show the truth).
@@ -369,7 +394,19 @@ ESTIMATOR_DIAGNOSTICS_LAYOUT = (
     "reinitialisations",  # attitude re-initialisations after consecutive rejections
     "no_data_samples",  # samples published as "no data"
     "rejected_messages",  # input messages rejected by the node's checks (frame, non-finite, stamp)
+    "monitor_level",  # the health monitor's level: 0 ok, 1 warn, 2 error (diagnostic_msgs/DiagnosticStatus's)
+    "monitor_nis_sum",  # its window's NIS sum at its last verdict (NaN before the first)
+    "recoveries",  # bias recoveries after a failed monitor
+    "withheld_samples",  # samples whose estimate was withheld from the controller (published as "no data")
 )
+#: The name of the estimator's status in ``diagnostics`` (:data:`ESTIMATOR_HEALTH`).
+ESTIMATOR_HEALTH_NAME = "sappc_estimator: MEKF health"
+#: The key/values of that status, in order: the sample's time [s], the monitor's window (compared
+#: tracker samples) and its NIS sum's degrees of freedom, the window's NIS sum and its band at the
+#: stated probability, the mean statistic, the estimate's use (``used`` or ``withheld``), and the
+#: totals of recoveries, re-initialisations and withheld samples.
+ESTIMATOR_HEALTH_KEYS = ("time_s", "window_samples", "nis_sum_dof", "nis_sum", "nis_sum_band", "band_probability", "mean_statistic",
+                         "estimate", "recoveries", "reinitialisations", "withheld_samples")
 #: What a sample did (``estimator/diagnostics`` ``status``), by code: the filter's step statuses
 #: (``sappc_estimator.core.mekf.STATUS_NAMES``, codes 0 to 5: not initialised yet, initialised,
 #: propagated only, updated, tracker sample rejected by the gate, attitude re-initialised), then

@@ -44,6 +44,10 @@ __all__ = [
     "covariance_msg",
     "estimator_diagnostics_from_msg",
     "estimator_diagnostics_msg",
+    "epoch_from_msg",
+    "epoch_msg",
+    "health_msg",
+    "EPOCH_SOURCE",
     "no_data_msg",
     "diagnostics_from_msg",
     "diagnostics_msg",
@@ -128,7 +132,7 @@ def seconds_to_ns(t_s: float) -> int:
 #: encapsulation header.
 _STAMP_FIRST = frozenset({"geometry_msgs/msg/QuaternionStamped", "geometry_msgs/msg/Vector3Stamped",
                           "geometry_msgs/msg/WrenchStamped", "geometry_msgs/msg/TransformStamped", "rosgraph_msgs/msg/Clock",
-                          "sensor_msgs/msg/JointState"})
+                          "sensor_msgs/msg/JointState", "sensor_msgs/msg/TimeReference", "diagnostic_msgs/msg/DiagnosticArray"})
 _FLOAT_ARRAY_TYPE = "std_msgs/msg/Float64MultiArray"
 
 
@@ -238,6 +242,55 @@ def vector3_from_msg(msg: Any, topic: Topic) -> Array:
     _check_frame(msg, topic)
     v = msg.vector
     return _finite(topic, "vector", [v.x, v.y, v.z])
+
+
+#: The ``source`` of a tracker epoch (``sensor_msgs/TimeReference``): the sensor that measured it.
+EPOCH_SOURCE = "star_tracker"
+
+
+def epoch_msg(epoch_ns: int, t_s: Any, topic: Topic, out: Any = None) -> Any:
+    """A ``sensor_msgs/TimeReference`` for ``topic``: the header of the sample ``t_s`` (seconds or
+    a stamp) and ``time_ref`` the time [ns] the sensor measured the sample's value (a star tracker's
+    quaternion, held between its updates, keeps its own time), ``source`` :data:`EPOCH_SOURCE`."""
+    msg = _header(topic.msg_class() if out is None else out, t_s, topic.frame_id)
+    msg.time_ref = ns_to_stamp(int(epoch_ns))
+    msg.source = EPOCH_SOURCE
+    return msg
+
+
+def epoch_from_msg(msg: Any, topic: Topic) -> int:
+    """The epoch [ns] of a ``TimeReference`` of ``topic``; checks the frame, and that it names its
+    sensor (the "no data" sample names none: :func:`no_data_msg`).
+
+    Raises
+    ------
+    InputError
+        ``invalid``: a wrong frame id, or a "no data" sample.
+    """
+    _check_frame(msg, topic)
+    if msg.source != EPOCH_SOURCE:
+        raise InputError(f"{topic.name}: no epoch (source {msg.source!r}, not {EPOCH_SOURCE!r})")
+    return stamp_to_ns(msg.time_ref)
+
+
+def health_msg(t_s: Any, level: int, message: str, values: dict[str, str], out: Any = None) -> Any:
+    """The estimator's health as ROS reports health: a ``diagnostic_msgs/DiagnosticArray`` of one
+    ``DiagnosticStatus`` (:data:`~sappc_msgs_py.contract.ESTIMATOR_HEALTH_NAME`, ``level`` 0 OK, 1
+    WARN, 2 ERROR, ``message``, ``values`` as key/values in their order), the header of the sample
+    ``t_s`` (seconds or a stamp).  Into ``out`` (an array from this function) when given."""
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+    from sappc_msgs_py.contract import ESTIMATOR_HEALTH, ESTIMATOR_HEALTH_NAME
+
+    msg = ESTIMATOR_HEALTH.msg_class() if out is None else out
+    time_to_stamp(t_s, out=msg.header.stamp)
+    if not msg.status:
+        msg.status = [DiagnosticStatus(name=ESTIMATOR_HEALTH_NAME, hardware_id="sappc_estimator")]
+    status = msg.status[0]
+    status.level = bytes([int(level)])
+    status.message = message
+    status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+    return msg
 
 
 def torque_msg(torque_B: ArrayLike, t_s: float, topic: Topic = CONTROL_TORQUE, out: Any = None) -> Any:
@@ -357,8 +410,11 @@ def no_data_msg(topic: Topic, t_s: Any, out: Any = None) -> Any:
         msg.quaternion.x = msg.quaternion.y = msg.quaternion.z = msg.quaternion.w = _NO_DATA
     elif topic.type_name.endswith("Vector3Stamped"):
         msg.vector.x = msg.vector.y = msg.vector.z = _NO_DATA
+    elif topic.type_name.endswith("TimeReference"):  # no time to hold NaN: the epoch names no sensor
+        msg.time_ref = ns_to_stamp(0)
+        msg.source = ""
     else:
-        raise ValueError(f"{topic.name} has no 'no data' sample (a QuaternionStamped or Vector3Stamped topic has)")
+        raise ValueError(f"{topic.name} has no 'no data' sample (a QuaternionStamped, Vector3Stamped or TimeReference topic has)")
     return msg
 
 

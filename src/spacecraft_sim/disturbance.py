@@ -49,11 +49,14 @@ from sappc_msgs_py.contract import (
     RELAYED_ACTUATOR_TOPICS,
     RELAYED_PATHS,
     RELAYED_SENSOR_TOPICS,
+    RELAYED_SENSOR_TOPICS_WITH_EPOCH,
     Topic,
     faulty,
     qos_profile,
 )
 from sappc_msgs_py.convert import (
+    epoch_from_msg,
+    epoch_msg,
     no_data_msg,
     ns_to_stamp,
     quaternion_from_msg,
@@ -81,6 +84,8 @@ PARAMETERS = (
     MODE,
     Param("control_period_s", 0.01, "sample period dt of the plant's grid k dt", "s", check="> 0"),
     Param("duration_s", 0.0, "end of the grid: no disturbance sample after duration_s (0: no end)", "s", check=">= 0"),
+    Param("relay_attitude_epoch", False, "relay state/attitude_epoch with the measurements (an estimator reads the relayed "
+          "measurements: a frozen or delayed tracker sample keeps its own epoch; the plant must publish it, i.e. have sensor models)"),
 )
 _P = {p.name: p for p in PARAMETERS}
 
@@ -95,6 +100,8 @@ def _relayed_msg(topic: Topic, value: Any, stamp: Any) -> Any:
     out = faulty(topic)
     if value is None:
         return no_data_msg(out, stamp)
+    if topic.type_name.endswith("TimeReference"):
+        return epoch_msg(int(value), stamp, out)
     return quaternion_msg(value, stamp, out) if _is_quaternion(topic) else vector3_msg(value, stamp, out)
 
 
@@ -147,9 +154,14 @@ class InjectorNode(ProjectNode):
         # the paired paths: the measurements (q_BN, omega_BN_B) and the reference, each paired by stamp
         self._paired: dict[tuple[Topic, ...], dict[int, dict[str, Any]]] = {}  # path -> stamp [ns] -> topic name -> value
         self.pub_relay: dict[str, Any] = {}
+        # the measurements, with the tracker's epoch when an estimator reads them
+        self._sensor_path = RELAYED_SENSOR_TOPICS_WITH_EPOCH if bool(self.param(_P["relay_attitude_epoch"])) else RELAYED_SENSOR_TOPICS
+        self._epoch_origin_ns: int | None = None  # epochs go through the fault kernels relative to the first one (exact in a float)
         for path, topics in RELAYED_PATHS.items():
             if not self.faults.acts_on(path):
                 continue
+            if topics is RELAYED_SENSOR_TOPICS:
+                topics = self._sensor_path
             for t in topics:
                 self.pub_relay[t.name] = self.counting_publisher(faulty(t), 1)
                 handler = self._on_command if topics is RELAYED_ACTUATOR_TOPICS else partial(self._on_paired, path=topics)
@@ -189,7 +201,10 @@ class InjectorNode(ProjectNode):
     def _on_paired(self, msg: Any, topic: Topic, path: tuple[Topic, ...]) -> None:
         """A measurement or reference message: relayed (faulty) once its path's sample is complete."""
         try:
-            value = quaternion_from_msg(msg, topic) if _is_quaternion(topic) else vector3_from_msg(msg, topic)
+            if topic.type_name.endswith("TimeReference"):
+                value: Any = epoch_from_msg(msg, topic)
+            else:
+                value = quaternion_from_msg(msg, topic) if _is_quaternion(topic) else vector3_from_msg(msg, topic)
         except InputError as exc:
             self._reject(exc)
             return
@@ -202,9 +217,17 @@ class InjectorNode(ProjectNode):
         del pending[ns]
         for old in [k for k in pending if k < ns]:  # an unpaired older sample will never pair
             del pending[old]
-        values: tuple[Any, ...] | None = tuple(entry[t.name] for t in path)
-        if path is RELAYED_SENSOR_TOPICS:
-            values = self.faults.sensor(self._run_time_s(ns), ns, *values)  # type: ignore[misc]  # the two state values
+        arrived: tuple[Any, ...] = tuple(entry[t.name] for t in path)
+        values: tuple[Any, ...] | None = arrived
+        if path is self._sensor_path and len(path) == 3:  # the epoch through the faults with its sample (as a float offset: exact)
+            q, w, epoch_ns = arrived
+            if self._epoch_origin_ns is None:
+                self._epoch_origin_ns = int(epoch_ns)
+            faulted = self.faults.sensor(self._run_time_s(ns), ns, q, w, float(int(epoch_ns) - self._epoch_origin_ns))
+            values = None if faulted is None else (faulted[0], faulted[1], self._epoch_origin_ns + int(faulted[2]))
+        elif path is self._sensor_path:
+            faulted = self.faults.sensor(self._run_time_s(ns), ns, arrived[0], arrived[1])
+            values = None if faulted is None else faulted[:2]
         elif not self.faults.reference(self._run_time_s(ns)):
             values = None
         for t, value in zip(path, values or [None] * len(path)):

@@ -84,10 +84,12 @@ from typing import Any
 
 import numpy as np
 
-from sappc_msgs_py.contract import (CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_RATE, STATE_TF, TRUTH_ATTITUDE, TRUTH_GYRO_BIAS, TRUTH_RATE,
+from sappc_msgs_py.contract import (CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_ATTITUDE_EPOCH, STATE_RATE, STATE_TF, TRUTH_ATTITUDE,
+                                   TRUTH_GYRO_BIAS, TRUTH_RATE,
                                    WHEEL_STATES, qos_profile)
 from sappc_msgs_py.convert import (
     clock_msg,
+    epoch_msg,
     joint_state_msg,
     ns_to_stamp,
     quaternion_msg,
@@ -105,6 +107,7 @@ from gnc_common.timing import LatencyStatistics, PeriodStatistics
 
 from spacecraft_sim.basilisk_plant import BasiliskPlant
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
+from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, S_BIAS0, Sensors, measure, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, allocation_matrix, propagate_wheels_into, wheel_speeds_into, wheel_torques, wheels_from_mapping
 from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
@@ -134,6 +137,10 @@ PARAMETERS = (
           "max_torque_Nm, max_speed_rad_s, ...); '' for the ideal actuator", check="a JSON mapping of ReactionWheels, or ''"),
     Param("sensors", "", "sensor models: the scenario's sensors mapping as JSON (star_tracker, gyro, seed): state/* then carry "
           "the measurements and truth/* the true state; '' for exact measurements", check="a JSON mapping of Sensors, or ''"),
+    Param("sensor_faults", "", "with sensor models: the scenario's faults list as JSON; the rate bias of each sensor_bias fault "
+          "(which the injector adds to the measured rate) is added to the gyro's true bias published on truth/gyro_bias, the "
+          "truth an estimator is judged against; the other faults change nothing here; '' for none",
+          check="a JSON list of faults (the scenario's faults section), or ''"),
     Param("backend", "native", "the dynamics: 'native' (the project's compiled plant) or 'basilisk' (Basilisk's spacecraft hub and "
           "reaction-wheel effector, the [basilisk] extra)", check="'native' or 'basilisk'"),
     Param("use_disturbance_topic", False, "add the torque received on disturbance/torque (the injector's) to the control torque"),
@@ -174,13 +181,17 @@ class PlantNode(ProjectNode):
         if self.sensors is not None:  # the measurement's state, and sample k's draws from the seed's stream
             self._sensor_prm, self._outages = self.sensors.params(self.dt), self.sensors.outages()
             self._sensor_rng = np.random.default_rng(self.sensors.seed)
-            self._held_q, self._bias, self._y = np.zeros(4), self._sensor_prm[S_BIAS0:S_BIAS0 + 3].copy(), np.zeros(7)
+            # the tracker's held quaternion and its epoch [ns, as a float: exact below 104 days of stamps]
+            self._held_q, self._bias, self._y = np.zeros(5), self._sensor_prm[S_BIAS0:S_BIAS0 + 3].copy(), np.zeros(8)
             self.pub_truth_att = self.counting_publisher(TRUTH_ATTITUDE)
             self.pub_truth_rate = self.counting_publisher(TRUTH_RATE)
             self.pub_truth_bias = self.counting_publisher(TRUTH_GYRO_BIAS)
-            self._bias_k = np.zeros(3)  # the bias in sample k's rate (measure walks _bias on to k + 1)
-            measure(0, 0.0, self.x[0, :4], self.x[0, 4:], np.zeros(N_SENSOR_DRAWS), self._sensor_prm, self._outages, np.zeros(4),
-                    self._bias.copy(), np.zeros(7))  # load the compiled kernel now
+            self.pub_epoch = self.counting_publisher(STATE_ATTITUDE_EPOCH)
+            self._bias_k = np.zeros(3)  # the bias in sample k's rate (measure walks _bias on to k + 1), faults included
+            self._bias_faults = FaultSchedule(_faults_param(str(self.param(_P["sensor_faults"]))))
+            self._bias_faults.gyro_bias_fault(0.0)  # load the compiled kernel now
+            measure(0, 0.0, 0.0, self.x[0, :4], self.x[0, 4:], np.zeros(N_SENSOR_DRAWS), self._sensor_prm, self._outages, np.zeros(5),
+                    self._bias.copy(), np.zeros(8))  # load the compiled kernel now
         backend = str(self.param(_P["backend"]))
         if backend not in BACKENDS:
             raise ConfigError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
@@ -460,11 +471,13 @@ class PlantNode(ProjectNode):
             self.pub_tf.publish(transform_from_attitude(self._tf, att))  # after the state: off the loop's critical path
             return
         # the sensors' measurement of sample k (the offline loop's kernel and draws), then the truth
-        self._bias_k[:] = self._bias
-        measure(self.k, self.k * self.dt, self.x[0, :4], self.x[0, 4:], self._sensor_rng.standard_normal(N_SENSOR_DRAWS), self._sensor_prm,
-                self._outages, self._held_q, self._bias, self._y)
+        self._bias_k[:] = self._bias + self._bias_faults.gyro_bias_fault(self.k * self.dt)
+        stamp = time_to_stamp(t_s)
+        measure(self.k, self.k * self.dt, float(stamp_to_ns(stamp)), self.x[0, :4], self.x[0, 4:], self._sensor_rng.standard_normal(N_SENSOR_DRAWS),
+                self._sensor_prm, self._outages, self._held_q, self._bias, self._y)
         self.pub_att.publish(quaternion_msg(self._y[:4], t_s, STATE_ATTITUDE, out=self.pub_att.msg))
-        self.pub_rate.publish(vector3_msg(self._y[4:], t_s, STATE_RATE, out=self.pub_rate.msg))
+        self.pub_rate.publish(vector3_msg(self._y[4:7], t_s, STATE_RATE, out=self.pub_rate.msg))
+        self.pub_epoch.publish(epoch_msg(int(self._y[7]), t_s, STATE_ATTITUDE_EPOCH, out=self.pub_epoch.msg))
         true_att = quaternion_msg(self.x[0, :4], t_s, TRUTH_ATTITUDE, out=self.pub_truth_att.msg)
         self.pub_truth_att.publish(true_att)
         self.pub_truth_rate.publish(vector3_msg(self.x[0, 4:], t_s, TRUTH_RATE, out=self.pub_truth_rate.msg))
@@ -499,6 +512,17 @@ def _sensors_param(text: str, dt: float) -> Sensors | None:
     """The ``sensors`` parameter (``''``: exact measurements); errors name ``sensors.<key>``."""
     data = _json_param("sensors", text, "the sensor models")
     return None if data is None else sensors_from_mapping(data, "sensors", dt)
+
+
+def _faults_param(text: str) -> tuple[Any, ...]:
+    """The ``sensor_faults`` parameter (``''``: none); errors name ``sensor_faults[i].<key>``."""
+    if not text.strip():
+        return ()
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"sensor_faults must be a JSON list of faults, got {text[:80]!r} ({exc})") from None
+    return faults_from_list(data, "sensor_faults")
 
 
 def _wheels_param(text: str) -> ReactionWheels | None:

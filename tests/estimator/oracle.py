@@ -138,6 +138,8 @@ class Output:
     b_hat: np.ndarray | None = None
     sigma: np.ndarray | None = None
     nis: float | None = None
+    monitor_level: int | None = None
+    usable: bool | None = None
 
 
 @dataclass
@@ -157,6 +159,9 @@ class MekfOracle:
     max_norm_error, max_rate : the plausibility bounds of step 0 (norm error, rate [rad/s]).
     nis_initial : the "last NIS" before any update (the page does not state it; the caller
         passes the kernel's ``new_state()`` value, see the test module).
+    window : the health monitor's window [compared samples]; nis_band : (4,) its NIS-sum bounds
+        (error low, warning low, warning high, error high); mean_bounds : (2,) the mean test's
+        (warning, error); recovery_rad2_s2 : (3,) the bias covariance a recovery adds.
     """
 
     R_rad2: np.ndarray
@@ -172,6 +177,10 @@ class MekfOracle:
     max_norm_error: float = 1e-6
     max_rate: float = 10.0
     nis_initial: float = float("nan")
+    window: int = 20
+    nis_band: tuple[float, float, float, float] = (0.0, 0.0, float("inf"), float("inf"))
+    mean_bounds: tuple[float, float] = (float("inf"), float("inf"))
+    recovery_rad2_s2: np.ndarray = field(default_factory=lambda: np.zeros(3))
     # filter state between steps
     initialised: bool = False
     q_hat: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
@@ -187,6 +196,12 @@ class MekfOracle:
     n_consecutive: int = 0
     n_reinit: int = 0
     nis: float = float("nan")
+    epoch: float = float("-inf")  # the epoch of the last tracker sample used
+    confirmed: bool = False
+    monitor: list[tuple[float, float, np.ndarray]] = field(default_factory=list)  # (t, NIS, whitened innovation), oldest first
+    level: int = 0
+    fails: int = 0
+    n_recover: int = 0
 
     def __post_init__(self) -> None:
         for name in ("R_rad2", "sv2_rad2_s", "su2_rad2_s3", "P0a_rad2", "P0b_rad2_s2", "b0_rad_s"):
@@ -208,7 +223,10 @@ class MekfOracle:
                    P0a_rad2=three(mekf.EP_P0A), P0b_rad2_s2=three(mekf.EP_P0B), b0_rad_s=three(mekf.EP_B0),
                    gate=float(prm[mekf.EP_GATE]), max_rejections=int(prm[mekf.EP_MAXREJ]), init=init,
                    q_prior=np.array(prm[mekf.EP_Q0:mekf.EP_Q0 + 4], dtype=np.float64), nis_initial=nis_initial,
-                   max_norm_error=float(prm[mekf.EP_MAX_NORM_ERR]), max_rate=float(prm[mekf.EP_MAX_RATE]))
+                   max_norm_error=float(prm[mekf.EP_MAX_NORM_ERR]), max_rate=float(prm[mekf.EP_MAX_RATE]),
+                   window=int(prm[mekf.EP_MON_WINDOW]), nis_band=tuple(float(v) for v in prm[mekf.EP_MON_NIS:mekf.EP_MON_NIS + 4]),
+                   mean_bounds=(float(prm[mekf.EP_MON_MEAN]), float(prm[mekf.EP_MON_MEAN + 1])),
+                   recovery_rad2_s2=three(mekf.EP_RECOVERY_PBB))
 
     # -- the page's steps ------------------------------------------------------------------
 
@@ -233,18 +251,59 @@ class MekfOracle:
         P = Phi @ self.P @ Phi.T + process_noise(self.sv2_rad2_s, self.su2_rad2_s3, h)
         self.P = (P + P.T) / 2.0
 
-    def _update(self, q_meas: np.ndarray) -> str:
+    def _inflate(self, age_s: float) -> None:
+        """The recovery: a bias step of covariance Q = diag(recovery) ``age_s`` ago, carried to now
+        through Phi12 = -I age: P += [[Q age², -Q age], [-Q age, Q]]."""
+        Q = np.diag(self.recovery_rad2_s2)
+        G = np.vstack((-age_s * np.eye(3), np.eye(3)))  # (6, 3): how a bias step then shows now
+        self.P = self.P + G @ Q @ G.T
+
+    def _reinitialise_after_failure(self, q_meas: np.ndarray) -> None:
+        """A lost attitude: re-initialised from the sample, the bias kept, its covariance inflated,
+        the monitor's window emptied, the estimate unconfirmed."""
+        self._reinitialise_attitude(q_meas)
+        self._inflate(0.0)
+        self.monitor = []
+        self.fails = 0
+        self.level = 1
+        self.confirmed = False
+        self.n_reinit += 1
+
+    def _monitor(self, t_s: float, q_meas: np.ndarray, white: np.ndarray, status: str) -> str:
+        self.monitor.append((t_s, self.nis, white))
+        self.monitor = self.monitor[-self.window:]
+        if len(self.monitor) < self.window:
+            return status
+        nis_sum = sum(m[1] for m in self.monitor)
+        mean = float(np.sum([m[2] for m in self.monitor], axis=0) @ np.sum([m[2] for m in self.monitor], axis=0)) / self.window
+        err_lo, warn_lo, warn_hi, err_hi = self.nis_band
+        too_large = nis_sum > err_hi or mean > self.mean_bounds[1]
+        self.level = 2 if too_large or nis_sum < err_lo else 1 if (nis_sum < warn_lo or nis_sum > warn_hi or mean > self.mean_bounds[0]) else 0
+        if not too_large:
+            self.fails = 0
+            return status
+        self.fails += 1
+        if self.fails >= 2:
+            self._reinitialise_after_failure(q_meas)
+            self.n_consecutive = 0
+            return "reinitialised"
+        self._inflate(t_s - self.monitor[0][0])
+        self.monitor = []
+        self.n_recover += 1
+        return status
+
+    def _update(self, q_meas: np.ndarray, t_s: float) -> str:
         r = rotvec(quat_multiply(quat_conjugate(self.q_hat), q_meas))
         R = np.diag(self.R_rad2)
         S = self.P[:3, :3] + R
         self.nis = float(r @ np.linalg.solve(S, r))
+        white = np.linalg.solve(np.linalg.cholesky(S), r)  # L^-1 r, S = L L^T
         if not self.nis <= self.gate:
             self.n_rejections += 1
             self.n_consecutive += 1
             if self.max_rejections >= 1 and self.n_consecutive >= self.max_rejections:
-                self._reinitialise_attitude(q_meas)
+                self._reinitialise_after_failure(q_meas)
                 self.n_consecutive = 0
-                self.n_reinit += 1
                 return "reinitialised"
             return "rejected"
         H = np.hstack((np.eye(3), np.zeros((3, 3))))
@@ -257,29 +316,33 @@ class MekfOracle:
         self.b_hat = self.b_hat + dx[3:]
         self.n_updates += 1
         self.n_consecutive = 0
-        return "updated"
+        self.confirmed = True
+        return self._monitor(t_s, q_meas, white, "updated")
 
-    def step(self, t_s: float, q_meas: np.ndarray, omega_meas: np.ndarray) -> Output:
-        """One step at time ``t_s`` [s] with the tracker's quaternion ``q_meas`` (4,) and the gyro's
-        rate ``omega_meas`` (3,) [rad/s]; returns the outputs (page, step 6)."""
+    def step(self, t_s: float, q_meas: np.ndarray, omega_meas: np.ndarray, epoch_s: float | None = None) -> Output:
+        """One step at time ``t_s`` [s] with the tracker's quaternion ``q_meas`` (4,), measured at
+        ``epoch_s`` [s] (``None``: at ``t_s``), and the gyro's rate ``omega_meas`` (3,) [rad/s];
+        returns the outputs (page, step 6)."""
         q_meas = np.asarray(q_meas, dtype=np.float64)
         omega_meas = np.asarray(omega_meas, dtype=np.float64)
+        epoch = float(t_s if epoch_s is None else epoch_s)
         # 0. no measurement: nothing changes, no output
-        if not (abs(np.linalg.norm(q_meas) - 1.0) <= self.max_norm_error and np.linalg.norm(omega_meas) <= self.max_rate):
+        if not (abs(np.linalg.norm(q_meas) - 1.0) <= self.max_norm_error and np.linalg.norm(omega_meas) <= self.max_rate
+                and epoch <= t_s):
             return Output("none")  # a NaN fails the comparisons too
-        # 1. a new tracker sample: the first step's, or one differing in any component
-        assert self.q_prev is not None or not self.seen
-        new = (not self.seen) or bool(np.any(q_meas != self.q_prev))
+        # 1. a new tracker sample: one of a later epoch than the last used
+        new = epoch > self.epoch
         if not self.initialised:
             # 2. initialisation
             status = "initialised"
             if self.init == "from_tracker":
                 self._initialise(q_meas)
-                self.provisional = True
+                self.provisional = epoch < t_s
+                self.confirmed = not self.provisional
             else:
                 assert self.q_prior is not None
                 self._initialise(self.q_prior)
-                status = self._update(q_meas)
+                status = self._update(q_meas, t_s)
         else:
             # 3. propagation, then the provisional attitude replaced or 4. the update with a new sample
             assert self.t_prev is not None
@@ -288,10 +351,13 @@ class MekfOracle:
             if new and self.provisional:
                 self._reinitialise_attitude(q_meas)
                 self.provisional = False
+                self.confirmed = True
                 status = "initialised"
             elif new:
-                status = self._update(q_meas)
+                status = self._update(q_meas, t_s)
         # 5. remember
+        if new:
+            self.epoch = epoch
         self.q_prev = q_meas.copy()
         self.omega_prev = omega_meas.copy()
         self.t_prev = float(t_s)
@@ -300,7 +366,7 @@ class MekfOracle:
         if not self.initialised:
             return Output(status)
         return Output(status, q_hat=self.q_hat.copy(), omega_hat=omega_meas - self.b_hat, b_hat=self.b_hat.copy(),
-                      sigma=np.sqrt(np.diag(self.P)), nis=self.nis)
+                      sigma=np.sqrt(np.diag(self.P)), nis=self.nis, monitor_level=self.level, usable=self.confirmed)
 
     @property
     def counters(self) -> tuple[int, int, int, int]:

@@ -18,6 +18,7 @@ Units: angles [rad], rates [rad/s], times [s].  Quaternions scalar last, ``q_BN`
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -116,7 +117,7 @@ class Run:
     q_true: np.ndarray  # (n, 4)
     omega_true_rad_s: np.ndarray  # (n, 3)
     bias_true_rad_s: np.ndarray  # (n, 3): the bias in the gyro sample k
-    y: np.ndarray  # (n, 7): the tracker's quaternion (held between updates) and the gyro's rate
+    y: np.ndarray  # (n, 8): the tracker's quaternion (held between updates), the gyro's rate, the quaternion's epoch [s]
 
 
 def simulate(duration_s: float, seed: int, *, outages_s: tuple[tuple[float, float], ...] = (), rate_scale_rad_s: float = 0.01,
@@ -139,13 +140,13 @@ def simulate(duration_s: float, seed: int, *, outages_s: tuple[tuple[float, floa
     prm = sensors.params(DT_S)
     draws = sensors.draws(n)
     outages = sensors.outages()
-    held = np.zeros(4)
+    held = np.zeros(5)
     bias = prm[S_BIAS0:S_BIAS0 + 3].copy()
-    y = np.zeros((n, 7))
+    y = np.zeros((n, mekf.N_MEAS))
     b_true = np.zeros((n, 3))
     for k in range(n):
         b_true[k] = bias
-        measure(k, t[k], q_true[k], omega[k], draws[k], prm, outages, held, bias, y[k])
+        measure(k, t[k], t[k], q_true[k], omega[k], draws[k], prm, outages, held, bias, y[k])
     return Run(t, q_true, omega, b_true, y)
 
 
@@ -226,7 +227,7 @@ def run_oracle(prm: np.ndarray, t_s: np.ndarray, y: np.ndarray) -> tuple[list[or
     f = MekfOracle.from_params(prm)
     outs, Ps, counters = [], np.zeros((len(t_s), 6, 6)), np.zeros((len(t_s), 4), dtype=np.int64)
     for k in range(len(t_s)):
-        outs.append(f.step(float(t_s[k]), y[k, :4], y[k, 4:]))
+        outs.append(f.step(float(t_s[k]), y[k, :4], y[k, 4:7], float(y[k, 7])))
         Ps[k] = f.P
         counters[k] = f.counters
     return outs, Ps, counters
@@ -282,6 +283,10 @@ def parity_case(name: str) -> tuple[np.ndarray, Run]:
         run = simulate(20.0, 14)
         return mekf_config(initial_q_BN=tuple(prior_10deg(run)), initial_attitude_sigma_rad=np.deg2rad(10.0),
                            initial_bias_rad_s=(2e-6, -1e-6, 0.5e-6), initial_bias_sigma_rad_s=(3e-6, 3e-6, 3e-6)).params(), run
+    if name == "bias_step_recovery":  # the gyro's bias steps by 2e-5 rad/s about x at 15 s: the monitor fails, the filter recovers
+        run = simulate(40.0, 31)
+        run.y[run.t_s >= 15.0, 4] += 2e-5
+        return mekf_config().params(), run
     raise ValueError(name)
 
 
@@ -350,7 +355,7 @@ def test_oracle_transition_is_the_matrix_exponential() -> None:
 # ----------------------------------------------------------------------------- (a) parity
 
 
-@pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg"])
+@pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery"])
 def test_kernel_equals_oracle(name: str) -> None:
     """Kernel = oracle step after step: statuses and counters exactly; ``q_hat`` (sign-aligned) to
     ``PARITY_ABS`` absolute; ``b_hat`` and ``omega_hat`` so that the attitude they integrate to over
@@ -365,6 +370,10 @@ def test_kernel_equals_oracle(name: str) -> None:
     status_or = np.array([oracle.STATUS.index(o.status) for o in outs])
     np.testing.assert_array_equal(kr.status, status_or)
     np.testing.assert_array_equal(kr.counters, counters_or)
+    np.testing.assert_array_equal(kr.out[:, mekf.EO_MON_LEVEL], [o.monitor_level for o in outs])  # the monitor's verdicts
+    np.testing.assert_array_equal(kr.out[:, mekf.EO_USABLE], [float(o.usable) for o in outs])
+    if name == "bias_step_recovery":  # the case has teeth: the monitor failed and the filter recovered
+        assert kr.out[-1, mekf.EO_N_RECOVER] >= 1 and np.any(kr.out[:, mekf.EO_MON_LEVEL] == mekf.MON_ERROR)
     live = np.flatnonzero(status_or != mekf.STATUS_NONE)
     assert len(live) == len(run.t_s)  # from_tracker initialises at the first step (its sample is new)
     q_or = np.array([o.q_hat for o in outs])
@@ -404,39 +413,50 @@ def p0_diag(prm: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("k0, rate_scale_rad_s", [(0, 0.01), (3, 0.0), (3, 0.01)],
                          ids=["at_the_tracker_sample", "mid_hold_inertial", "mid_hold_tumbling"])
 def test_initialises_at_the_first_tracker_sample(k0: int, rate_scale_rad_s: float) -> None:
-    """``from_tracker``: the first step's sample (new by definition, even a held copy when the filter
-    starts mid-hold) becomes ``q_hat`` bit for bit, without propagation, provisionally; ``b_hat =
-    b0``, ``P = diag(P0_a, P0_b)``, ``omega_hat = ω̃ - b0``, no NIS yet, no counter moved.  The first
-    later new sample (certainly fresh) re-initialises the attitude: ``q_hat`` is that sample bit for
-    bit, ``P_aa = R``, ``P_ab = 0``.  Afterwards the filter updates exactly at the tracker's new
-    samples and only propagates on the held ones.  Mid-hold on a body tumbling at 0.01 rad/s the
-    first sample is ~1e-4 rad stale (>> the tracker's 1e-5): without the provisional attitude the
-    filter gated out the next 19 samples and re-initialised only at the 20th (2 s without an
-    update); with it, every later new sample is accepted."""
+    """``from_tracker``: the first step's sample becomes ``q_hat`` bit for bit, without
+    propagation; ``b_hat = b0``, ``P = diag(P0_a, P0_b)``, ``omega_hat = ω̃ - b0``, no NIS yet, no
+    counter moved.  Measured at this step (its epoch is the step's time: a start at a tracker
+    sample) it is the estimate at once (usable) and the next new sample updates it.  Held (its
+    epoch older: a start mid-hold) it is provisional and withheld from the controller: the first
+    later new sample (a later epoch) re-initialises the attitude, ``q_hat`` that sample bit for
+    bit, ``P_aa = R``, ``P_ab = 0``, and the estimate is usable from then on.  Afterwards the
+    filter updates exactly at the tracker's new samples and only propagates on the held ones.
+    Mid-hold on a body tumbling at 0.01 rad/s the first sample is ~1e-4 rad stale (>> the
+    tracker's 1e-5): without the provisional attitude the filter gated out the next 19 samples and
+    re-initialised only at the 20th (2 s without an update); with it, every later new sample is
+    accepted."""
     run = simulate(3.0, 21, rate_scale_rad_s=rate_scale_rad_s)
     b0 = (3e-6, -2e-6, 1e-6)
     prm = mekf_config(initial_bias_rad_s=b0).params()
     kr = run_kernel(prm, run.t_s[k0:], run.y[k0:])
+    fresh = k0 == 0
     assert kr.status[0] == mekf.STATUS_INITIALISED
     np.testing.assert_array_equal(kr.q_hat[0], run.y[k0, :4])
     np.testing.assert_array_equal(kr.b_hat[0], b0)
     np.testing.assert_array_equal(kr.P[0], np.diag(p0_diag(prm)))
     np.testing.assert_array_equal(kr.sigma[0], np.sqrt(p0_diag(prm)))
-    np.testing.assert_array_equal(kr.out[0, mekf.EO_OMEGA:mekf.EO_OMEGA + 3], run.y[k0, 4:] - np.array(b0))
+    np.testing.assert_array_equal(kr.out[0, mekf.EO_OMEGA:mekf.EO_OMEGA + 3], run.y[k0, 4:7] - np.array(b0))
     assert np.isnan(kr.nis[0])
     np.testing.assert_array_equal(kr.counters[0], [0, 0, 0, 0])
     new = tracker_samples(run)
     new = new[new > k0] - k0
     first = new[0]
-    np.testing.assert_array_equal(kr.q_hat[first], run.y[k0 + first, :4])
-    np.testing.assert_array_equal(kr.P[first][:3, :3], np.diag(prm[mekf.EP_R:mekf.EP_R + 3]))
-    np.testing.assert_array_equal(kr.P[first][:3, 3:], np.zeros((3, 3)))
+    usable = kr.out[:, mekf.EO_USABLE]
     expected = np.full(len(kr.status), mekf.STATUS_PROPAGATED)
     expected[0] = mekf.STATUS_INITIALISED
-    expected[first] = mekf.STATUS_INITIALISED
-    expected[new[1:]] = mekf.STATUS_UPDATED
+    if fresh:
+        expected[new] = mekf.STATUS_UPDATED
+        np.testing.assert_array_equal(usable, 1.0)
+    else:
+        np.testing.assert_array_equal(kr.q_hat[first], run.y[k0 + first, :4])
+        np.testing.assert_array_equal(kr.P[first][:3, :3], np.diag(prm[mekf.EP_R:mekf.EP_R + 3]))
+        np.testing.assert_array_equal(kr.P[first][:3, 3:], np.zeros((3, 3)))
+        expected[first] = mekf.STATUS_INITIALISED
+        expected[new[1:]] = mekf.STATUS_UPDATED
+        np.testing.assert_array_equal(usable[:first], 0.0)
+        np.testing.assert_array_equal(usable[first:], 1.0)
     np.testing.assert_array_equal(kr.status, expected)
-    assert kr.counters[-1, 0] == len(new) - 1 == 28 and kr.counters[-1, 1] == 0
+    assert kr.counters[-1, 0] == len(new) - (0 if fresh else 1) and len(new) == 29 and kr.counters[-1, 1] == 0
 
 
 def test_a_sample_that_is_not_finite_changes_nothing_and_gives_no_estimate() -> None:
@@ -509,6 +529,7 @@ def test_gate_rejects_an_outlier_without_a_trace() -> None:
     bad = with_outliers(run, [k], ONE_DEG, np.array([1.0, 2.0, 3.0]))
     control_y = run.y.copy()
     control_y[k:k + STRIDE, :4] = run.y[k - 1, :4]
+    control_y[k:k + STRIDE, mekf.Y_EPOCH] = run.y[k - 1, mekf.Y_EPOCH]  # held: its epoch too
     prm = mekf_config().params()
     kb = run_kernel(prm, run.t_s, bad.y)
     kc = run_kernel(prm, run.t_s, control_y)
@@ -531,8 +552,10 @@ def test_gate_rejects_an_outlier_without_a_trace() -> None:
 def test_burst_reinitialises_from_the_tracker() -> None:
     """25 tracker samples in a row 1 deg off: the first 19 are rejected; the 20th
     (``max_consecutive_rejections``) re-initialises: ``q_hat`` = that sample bit for bit,
-    ``P_aa = diag(P0_a)``, ``P_ab = 0``, ``P_bb`` and ``b_hat`` kept (``P_bb`` = the previous step's
-    plus ``σu² h``, to rounding); the next 5 (consistent with it) are accepted; the truth then
+    ``P_aa = diag(P0_a)``, ``P_ab = 0``, ``b_hat`` kept and ``P_bb`` inflated by the recovery's
+    covariance (``P_bb`` = the previous step's plus ``σu² h`` plus ``diag(recovery)``, to rounding:
+    the bias knowledge kept, its confidence not), the estimate withheld until the next accepted
+    sample; the next 5 (consistent with it) are accepted; the truth then
     returns 1 deg away and is rejected 19 times and re-initialises at the 20th; 1 s later the
     attitude error is within 3 sigma again.  The two isolated outliers before are rejected."""
     run = outlier_run(40.0, 13)
@@ -559,8 +582,10 @@ def test_burst_reinitialises_from_the_tracker() -> None:
         np.testing.assert_array_equal(kr.P[k, :3, 3:], 0.0)
         np.testing.assert_array_equal(kr.P[k, 3:, :3], 0.0)
         np.testing.assert_array_equal(kr.b_hat[k], kr.b_hat[k - 1])
-        Pbb = kr.P[k - 1, 3:, 3:] + np.diag(prm[mekf.EP_SU2:mekf.EP_SU2 + 3] * (run.t_s[k] - run.t_s[k - 1]))
+        Pbb = (kr.P[k - 1, 3:, 3:] + np.diag(prm[mekf.EP_SU2:mekf.EP_SU2 + 3] * (run.t_s[k] - run.t_s[k - 1]))
+               + np.diag(prm[mekf.EP_RECOVERY_PBB:mekf.EP_RECOVERY_PBB + 3]))
         np.testing.assert_allclose(kr.P[k, 3:, 3:], Pbb, rtol=4 * np.finfo(float).eps, atol=0.0)
+        assert kr.out[k, mekf.EO_USABLE] == 0.0 and kr.out[k + STRIDE, mekf.EO_USABLE] == 1.0  # withheld until confirmed
     err = attitude_errors(kr.q_hat, run.q_true)
     k1 = after[-1] + 100
     assert np.all(np.abs(err[k1:]) <= 3.0 * kr.sigma[k1:, :3])
@@ -584,7 +609,7 @@ def test_multiplicative_reset() -> None:
     q_prior = prm[mekf.EP_Q0:mekf.EP_Q0 + 4]
     R = np.square(TRACKER_NOISE_RAD)
     r = np.array([0.12, -0.08, 0.05])
-    y = np.zeros((2, 7))
+    y = np.zeros((2, mekf.N_MEAS))
     y[0, :4] = quat_multiply(q_prior, dq(r))
     st = mekf.new_state()
     P = np.zeros((6, 6))
@@ -602,6 +627,7 @@ def test_multiplicative_reset() -> None:
     h = 0.01
     r2 = np.array([1e-5, -2e-5, 5e-5])
     y[1, :4] = quat_multiply(q1, dq(r2))
+    y[1, mekf.Y_EPOCH] = h
     Paa = P[:3, :3].copy()
     assert mekf.mekf_step(prm, h, y[1], st, P, work, out) == mekf.STATUS_UPDATED
     p0b = prm[mekf.EP_P0B:mekf.EP_P0B + 3]
@@ -653,7 +679,7 @@ def test_covariance_stays_symmetric_positive_definite_over_3_hours() -> None:
     q0 = np.array([0.3254, 0.4068, -0.3254, 0.7891])
     q0 = q0 / np.linalg.norm(q0)
     st, P, work, out = mekf.new_state(), np.zeros((6, 6)), np.zeros((mekf.N_EST_WORK, 6)), np.zeros(mekf.N_EST_OUT)
-    held, bias, y = np.zeros(4), sp[S_BIAS0:S_BIAS0 + 3].copy(), np.zeros(7)
+    held, bias, y = np.zeros(5), sp[S_BIAS0:S_BIAS0 + 3].copy(), np.zeros(mekf.N_MEAS)
     chunk = 20000
     Pbuf, qbuf = np.zeros((chunk, 6, 6)), np.zeros((chunk, 4))
     min_eig, worst_norm, asym = np.inf, 0.0, 0
@@ -664,7 +690,7 @@ def test_covariance_stays_symmetric_positive_definite_over_3_hours() -> None:
         q_true = np.ascontiguousarray(qmul_rows(np.broadcast_to(q0, (m, 4)), dq_rows(np.outer(t, omega))))
         draws = rng.standard_normal((m, 9))
         for j in range(m):
-            measure(c0 + j, t[j], q_true[j], omega, draws[j], sp, outages, held, bias, y)
+            measure(c0 + j, t[j], t[j], q_true[j], omega, draws[j], sp, outages, held, bias, y)
             step(prm, t[j], y, st, P, work, out)
             Pbuf[j] = P
             qbuf[j] = out[:4]
@@ -759,3 +785,60 @@ def test_the_gate_threshold_is_the_chi_square_quantile() -> None:
         assert chi2_3dof_isf(p) == pytest.approx(chi2.isf(p, 3), rel=1e-12), p
     with pytest.raises(ConfigError, match="false-alarm"):
         chi2_3dof_isf(1.0)
+
+
+# ----------------------------------------------------------------------------- issue 33: epochs, monitor, recovery
+
+
+def test_a_tracker_sample_is_new_by_its_epoch_never_by_its_value() -> None:
+    """Step 1 of the page: a held quaternion whose value changes (a sensor fault's window ending
+    between two tracker epochs: the bias removed from the held sample) is not a new sample, and is
+    not compared again; a later epoch is new even when its value is bit for bit the previous one
+    (a tracker at rest).  Today's exact-comparison rule fails both."""
+    run = simulate(1.0, 33, rate_scale_rad_s=0.0)  # at rest: a repeated value is a plausible measurement
+    y = run.y.copy()
+    k_changed, k_same = 45, 60  # mid-hold (epoch 0.4), and the tracker sample at 0.6
+    y[k_changed:50, :4] = quat_multiply(y[k_changed, :4], dq(np.array([2e-5, 0.0, 0.0])))  # the held value changes at 0.45
+    y[k_same:70, :4] = y[k_same - 1, :4]  # epoch 0.6 measures exactly what epoch 0.5 did
+    kr = run_kernel(mekf_config().params(), run.t_s, y)
+    assert kr.status[k_changed] == mekf.STATUS_PROPAGATED and kr.counters[k_changed, 0] == kr.counters[k_changed - 1, 0]
+    assert kr.status[k_same] == mekf.STATUS_UPDATED
+    compared = np.flatnonzero(np.isin(kr.status, (mekf.STATUS_UPDATED, mekf.STATUS_REJECTED)))
+    np.testing.assert_array_equal(compared, np.arange(10, 100, 10))  # once per epoch after the first
+
+
+def test_the_monitor_bands_are_the_chi_square_quantiles_at_their_stated_probabilities() -> None:
+    """The window's NIS sum of a consistent filter is chi-square with 3 n degrees of freedom (n
+    compared samples; Bar-Shalom, Li and Kirubarajan 2001, 5.4.2): its error and warning bands are
+    the two-sided quantiles at ``monitor_error_probability`` and ``monitor_warn_probability``, and the
+    mean test's bounds the chi-square(3) quantiles, to 1e-9 relative of scipy.stats'."""
+    from scipy.stats import chi2
+
+    prm = mekf_config(monitor_window_samples=30, monitor_warn_probability=0.95, monitor_error_probability=0.999).params()
+    k = 90
+    expected = [chi2.ppf(0.0005, k), chi2.ppf(0.025, k), chi2.isf(0.025, k), chi2.isf(0.0005, k)]
+    np.testing.assert_allclose(prm[mekf.EP_MON_NIS:mekf.EP_MON_NIS + 4], expected, rtol=1e-9)
+    np.testing.assert_allclose(prm[mekf.EP_MON_MEAN:mekf.EP_MON_MEAN + 2], [chi2.isf(0.05, 3), chi2.isf(0.001, 3)], rtol=1e-9)
+    assert prm[mekf.EP_MON_WINDOW] == 30
+    np.testing.assert_array_equal(prm[mekf.EP_RECOVERY_PBB:mekf.EP_RECOVERY_PBB + 3], prm[mekf.EP_P0B:mekf.EP_P0B + 3])  # default
+    for bad, words in (({"monitor_window_samples": 0}, "monitor_window_samples must be an integer in [1, 100]"),
+                       ({"monitor_warn_probability": 1.0}, "monitor_warn_probability must be in (0, 1)"),
+                       ({"monitor_warn_probability": 0.99, "monitor_error_probability": 0.9}, "must be at least monitor_warn_probability"),
+                       ({"bias_recovery_sigma_rad_s": -1e-6}, "bias_recovery_sigma_rad_s must be >= 0")):
+        with pytest.raises(ConfigError, match=re.escape(words)):
+            mekf_config(**bad)
+
+
+def test_a_consistent_filter_rarely_leaves_its_band_and_never_fails() -> None:
+    """300 s of the slow tumble with the data-sheet sensors (a consistent filter: tests above): no
+    verdict of the monitor is ERROR (each window's false alarm is 1e-4) and no recovery happens;
+    verdicts outside the 99 % warning band stay rare (the verdicts slide by one sample, so their
+    excursions come in runs: 1 % expected, a bound of 10 %)."""
+    run = simulate(300.0, 34)
+    kr = run_kernel(mekf_config().params(), run.t_s, run.y)
+    level = kr.out[:, mekf.EO_MON_LEVEL]
+    verdicts = level[np.isin(kr.status, (mekf.STATUS_UPDATED,)) & ~np.isnan(kr.out[:, mekf.EO_MON_NIS])]
+    print(f"\nconsistent 300 s: verdicts {verdicts.size}, warning {np.mean(verdicts == mekf.MON_WARN):.3f}, error {np.mean(verdicts == mekf.MON_ERROR):.3f}")
+    assert not np.any(level == mekf.MON_ERROR) and kr.out[-1, mekf.EO_N_RECOVER] == 0
+    assert np.mean(verdicts == mekf.MON_WARN) <= 0.10
+    assert np.all(kr.out[:, mekf.EO_USABLE] == 1.0)

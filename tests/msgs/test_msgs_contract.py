@@ -16,11 +16,14 @@ from sappc_msgs_py.convert import (
     clock_msg,
     covariance_from_msg,
     covariance_msg,
+    epoch_from_msg,
+    epoch_msg,
     estimator_diagnostics_from_msg,
     estimator_diagnostics_msg,
     no_data_msg,
     diagnostics_from_msg,
     diagnostics_msg,
+    health_msg,
     joint_state_msg,
     quaternion_from_msg,
     quaternion_msg,
@@ -96,7 +99,11 @@ def _sample(topic: c.Topic):  # type: ignore[no-untyped-def]
     if topic is c.ESTIMATOR_COVARIANCE:
         return covariance_msg(12.34, np.arange(36.0).reshape(6, 6) * 1e-9)
     if topic is c.ESTIMATOR_DIAGNOSTICS:
-        return estimator_diagnostics_msg([12.34, 2.5, 3.0, 120.0, 1.0, 0.0, 0.0, 2.0])
+        return estimator_diagnostics_msg([12.34, 2.5, 3.0, 120.0, 1.0, 0.0, 0.0, 2.0, 1.0, 75.5, 1.0, 3.0])
+    if topic is c.ESTIMATOR_HEALTH:
+        return health_msg(12.34, 1, "warning", {key: str(i) for i, key in enumerate(c.ESTIMATOR_HEALTH_KEYS)})
+    if topic is c.STATE_ATTITUDE_EPOCH:
+        return epoch_msg(12_300_000_000, 12.34, topic)
     if topic.type_name.endswith("QuaternionStamped"):
         return quaternion_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], 12.34, topic)
     if topic.type_name.endswith("Vector3Stamped"):
@@ -146,6 +153,11 @@ def test_schema_text_decodes_rclpy_bytes_with_two_independent_decoders(topic) ->
         assert other.transform.translation.x == other.transform.translation.y == other.transform.translation.z == 0.0
     if hasattr(msg, "data"):
         assert list(decoded.data) == list(other.data) == list(msg.data)
+    if hasattr(msg, "time_ref"):
+        assert decoded.time_ref.sec == other.time_ref.sec == 12 and decoded.source == other.source == "star_tracker"
+    if hasattr(msg, "status"):
+        assert decoded.status[0].name == other.status[0].name == c.ESTIMATOR_HEALTH_NAME
+        assert [kv.key for kv in decoded.status[0].values] == [kv.key for kv in other.status[0].values] == list(c.ESTIMATOR_HEALTH_KEYS)
     # and the hash of the type as rosbags computes it from the definition equals the installed one
     assert store.hash_rihs01(f"{pkg}/msg/{name}") == type_hash(topic.type_name)
 
@@ -196,7 +208,9 @@ def test_cdr_stamp_ns_reads_the_stamp_of_every_recorded_type_without_deserializi
         c.CONTROL_TORQUE: torque_msg([0.1, 0.2, 0.3], t_s, c.CONTROL_TORQUE),
         c.CLOCK: clock_msg(t_s),
         c.CONTROLLER_DIAGNOSTICS: diagnostics_msg(ns / 1e9, rows),
-        c.ESTIMATOR_DIAGNOSTICS: estimator_diagnostics_msg([ns / 1e9, np.nan, 3.0, 7.0, 1.0, 0.0, 2.0, 4.0]),
+        c.ESTIMATOR_DIAGNOSTICS: estimator_diagnostics_msg([ns / 1e9, np.nan, 3.0, 7.0, 1.0, 0.0, 2.0, 4.0, 0.0, np.nan, 0.0, 0.0]),
+        c.ESTIMATOR_HEALTH: health_msg(t_s, 0, "ok", {"time_s": "0"}),
+        c.STATE_ATTITUDE_EPOCH: epoch_msg(0, t_s, c.STATE_ATTITUDE_EPOCH),
         c.ESTIMATOR_COVARIANCE: covariance_msg(ns / 1e9, np.diag(np.arange(1.0, 7.0))),
         c.ESTIMATE_ATTITUDE: no_data_msg(c.ESTIMATE_ATTITUDE, t_s),
         c.STATE_TF: transform_from_attitude(transform_msg(c.STATE_TF), quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.STATE_ATTITUDE)),
@@ -294,8 +308,8 @@ def test_the_estimate_has_the_types_and_frames_of_the_state_it_replaces() -> Non
     assert (c.ESTIMATE_RATE.type_name, c.ESTIMATE_RATE.frame_id) == (c.STATE_RATE.type_name, "body")
     for topic in (c.ESTIMATOR_GYRO_BIAS, c.ESTIMATOR_ATTITUDE_SIGMA, c.ESTIMATOR_BIAS_SIGMA):
         assert topic.type_name == "geometry_msgs/msg/Vector3Stamped" and topic.frame_id == "body"
-    assert c.ESTIMATOR_INPUTS == (c.STATE_ATTITUDE, c.STATE_RATE)
-    assert all(t in c.TOPICS and t in c.OPTIONAL_TOPICS for t in c.ESTIMATOR_TOPICS) and len(c.ESTIMATOR_TOPICS) == 7
+    assert c.ESTIMATOR_INPUTS == (c.STATE_ATTITUDE, c.STATE_RATE, c.STATE_ATTITUDE_EPOCH)  # the tracker's sample knows its time
+    assert all(t in c.TOPICS and t in c.OPTIONAL_TOPICS for t in c.ESTIMATOR_TOPICS) and len(c.ESTIMATOR_TOPICS) == 8
     assert len({t.name for t in c.TOPICS}) == len(c.TOPICS)
     for topic in c.ESTIMATOR_TOPICS:
         assert f"``{topic.name}``" in (c.__doc__ or ""), topic.name  # in the contract's table
@@ -329,11 +343,22 @@ def test_the_covariance_round_trips_row_major_with_labelled_dimensions() -> None
 
 
 def test_the_estimator_diagnostics_round_trip_labelled() -> None:
-    values = [4.25, 1.5, float(c.ESTIMATOR_NO_INPUT), 40.0, 2.0, 1.0, 3.0, 5.0]
+    values = [4.25, 1.5, float(c.ESTIMATOR_NO_INPUT), 40.0, 2.0, 1.0, 3.0, 5.0, 2.0, 130.5, 1.0, 12.0]
     back = estimator_diagnostics_from_msg(estimator_diagnostics_msg(values))
     assert list(back) == list(c.ESTIMATOR_DIAGNOSTICS_LAYOUT) and list(back.values()) == values
-    with pytest.raises(ValueError, match="estimator diagnostics need 8 values"):
+    with pytest.raises(ValueError, match="estimator diagnostics need 12 values"):
         estimator_diagnostics_msg(values[:-1])
+
+
+def test_the_epoch_round_trips_exactly_and_its_no_data_sample_is_refused() -> None:
+    """``state/attitude_epoch``: the tracker's own time of a sample as integer nanoseconds (an epoch
+    stamp of 2026 too: no float in between); the "no data" sample names no sensor and is refused as
+    invalid, as a NaN quaternion is."""
+    epoch = 1_795_000_000_123_456_789
+    msg = epoch_msg(epoch, 2.5, c.STATE_ATTITUDE_EPOCH)
+    assert epoch_from_msg(msg, c.STATE_ATTITUDE_EPOCH) == epoch and stamp_to_ns(msg.header.stamp) == 2_500_000_000
+    with pytest.raises(InputError, match="no epoch"):
+        epoch_from_msg(no_data_msg(c.STATE_ATTITUDE_EPOCH, 2.5), c.STATE_ATTITUDE_EPOCH)
 
 
 @pytest.mark.parametrize("topic", [c.ESTIMATE_ATTITUDE, c.ESTIMATE_RATE, c.ESTIMATOR_GYRO_BIAS, c.faulty(c.STATE_ATTITUDE)], ids=lambda t: t.name)

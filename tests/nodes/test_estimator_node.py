@@ -31,6 +31,7 @@ from sappc_msgs_py.convert import (
     clock_msg,
     covariance_from_msg,
     diagnostics_from_msg,
+    epoch_msg,
     estimator_diagnostics_from_msg,
     ns_to_stamp,
     quaternion_msg,
@@ -59,18 +60,25 @@ CONFIG = MekfConfig(tracker_noise_rad=(9.7e-6, 9.7e-6, 7.3e-5), gyro_angle_rando
 NO_DATA_Q = (math.nan,) * 4
 
 
+#: The epochs [ns] of the last :func:`measurements` (the tracker's own time of each held quaternion).
+EPOCHS: dict[int, int] = {}
+
+
 def measurements(n: int) -> tuple[np.ndarray, np.ndarray]:
     """``n`` samples of the sensors (``spacecraft_sim.core.sensors.measure``, the plant's kernel)
     on the rotating truth: the tracker's quaternion (held between its 10 Hz updates) (n, 4), the
-    gyro's rate (n, 3)."""
+    gyro's rate (n, 3); the epoch of sample ``k``'s quaternion [ns] in :data:`EPOCHS` (what
+    :meth:`Driver.send` publishes by default)."""
     prm, draws, outages = SENSORS.params(DT_NS / 1e9), SENSORS.draws(n), SENSORS.outages()
-    held, bias, y = np.zeros(4), prm[S_BIAS0 : S_BIAS0 + 3].copy(), np.empty(7)
+    held, bias, y = np.zeros(5), prm[S_BIAS0 : S_BIAS0 + 3].copy(), np.empty(mekf.N_MEAS)
     q, w = np.empty((n, 4)), np.empty((n, 3))
+    EPOCHS.clear()
     for k in range(n):
         t = k * DT_NS / 1e9
         q_true = quat_multiply(np.asarray(Q0), rotation_vector_to_quaternion(OMEGA_TRUE * t))
-        measure(k, t, q_true, OMEGA_TRUE, draws[k], prm, outages, held, bias, y)
-        q[k], w[k] = y[:4], y[4:]
+        measure(k, t, float(k * DT_NS), q_true, OMEGA_TRUE, draws[k], prm, outages, held, bias, y)
+        q[k], w[k] = y[:4], y[4:7]
+        EPOCHS[k * DT_NS] = int(y[7])
     return q, w
 
 
@@ -93,11 +101,16 @@ class Driver:
     def __init__(self, context: Any, nodes: list[Any], extra_topics: tuple[c.Topic, ...] = ()) -> None:
         self.node = Node("driver", context=context)
         qos = c.qos_profile()
-        self.pub = {t.name: self.node.create_publisher(t.msg_class, t.name, qos) for t in (c.STATE_ATTITUDE, c.STATE_RATE, c.CLOCK, *extra_topics)}
-        self.got: dict[str, dict[int, Any]] = {t.name: {} for t in c.ESTIMATOR_TOPICS}
+        self.pub = {t.name: self.node.create_publisher(t.msg_class, t.name, qos)
+                    for t in (c.STATE_ATTITUDE, c.STATE_RATE, c.STATE_ATTITUDE_EPOCH, c.CLOCK, *extra_topics)}
+        self.got: dict[str, dict[int, Any]] = {t.name: {} for t in c.ESTIMATOR_TOPICS if t is not c.ESTIMATOR_HEALTH}  # per sample
+        self.health: list[Any] = []  # diagnostics, as published (not per sample)
+        self.node.create_subscription(c.ESTIMATOR_HEALTH.msg_class, c.ESTIMATOR_HEALTH.name, self.health.append, qos)
         decoders = {c.ESTIMATE_ATTITUDE.name: _quaternion, c.ESTIMATOR_COVARIANCE.name: covariance_from_msg,
                     c.ESTIMATOR_DIAGNOSTICS.name: estimator_diagnostics_from_msg}
         for t in c.ESTIMATOR_TOPICS:
+            if t is c.ESTIMATOR_HEALTH:
+                continue
             decode = decoders.get(t.name, _vector)
             header_free = t.type_name == "std_msgs/msg/Float64MultiArray"  # stamped by data[0], the contract's rule
             stamp = (lambda m: round(m.data[0] * 1e9)) if header_free else (lambda m: stamp_to_ns(m.header.stamp))
@@ -117,15 +130,18 @@ class Driver:
         self.spin_until(lambda: all(self.pub[t.name].get_subscription_count() >= 1 for t in c.ESTIMATOR_INPUTS)
                         and all(p.pub.get_subscription_count() >= 1 for p in estimator.pub.values()), "the estimator's topics matched")
 
-    def send(self, ns: int, q: Any, w: Any, *, frame: str | None = None, topics: tuple[c.Topic, ...] = c.ESTIMATOR_INPUTS) -> None:
-        """Publish the state of stamp ``ns`` (raw fields: the encoders refuse the bad values the tests send)."""
+    def send(self, ns: int, q: Any, w: Any, *, frame: str | None = None, topics: tuple[c.Topic, ...] = c.ESTIMATOR_INPUTS,
+             epoch_ns: int | None = None) -> None:
+        """Publish the state of stamp ``ns`` (raw fields: the encoders refuse the bad values the tests
+        send) and its tracker epoch (``epoch_ns``, else :data:`EPOCHS`' of ``ns``, else ``ns``)."""
         att = quaternion_msg(Q0, ns_to_stamp(ns), c.STATE_ATTITUDE)
         att.quaternion.x, att.quaternion.y, att.quaternion.z, att.quaternion.w = (float(v) for v in q)
         rate = vector3_msg([0.0, 0.0, 0.0], ns_to_stamp(ns), c.STATE_RATE)
         rate.vector.x, rate.vector.y, rate.vector.z = (float(v) for v in w)
         if frame is not None:
             att.header.frame_id = frame
-        for topic, msg in ((c.STATE_ATTITUDE, att), (c.STATE_RATE, rate)):
+        epoch = epoch_msg(EPOCHS.get(ns, ns) if epoch_ns is None else epoch_ns, ns_to_stamp(ns), c.STATE_ATTITUDE_EPOCH)
+        for topic, msg in ((c.STATE_ATTITUDE, att), (c.STATE_RATE, rate), (c.STATE_ATTITUDE_EPOCH, epoch)):
             if topic in topics:
                 self.pub[topic.name].publish(msg)
 
@@ -159,10 +175,12 @@ class Reference:
 
     def __init__(self, config: MekfConfig = CONFIG) -> None:
         self.prm, self.st, self.P = config.params(), mekf.new_state(), np.zeros((6, 6))
-        self.work, self.out, self.y = np.zeros((mekf.N_EST_WORK, 6)), np.empty(mekf.N_EST_OUT), np.empty(7)
+        self.work, self.out, self.y = np.zeros((mekf.N_EST_WORK, 6)), np.empty(mekf.N_EST_OUT), np.empty(mekf.N_MEAS)
 
-    def step(self, t_s: float, q: np.ndarray, w: np.ndarray) -> int:
-        self.y[:4], self.y[4:] = q, w
+    def step(self, t_s: float, q: np.ndarray, w: np.ndarray, epoch_s: float | None = None) -> int:
+        """A step with the tracker's epoch ``epoch_s`` (``None``: :data:`EPOCHS`' of ``t_s``)."""
+        self.y[:4], self.y[4:7] = q, w
+        self.y[7] = EPOCHS[round(t_s * 1e9)] / 1e9 if epoch_s is None else epoch_s
         return int(mekf.mekf_step(self.prm, t_s, self.y, self.st, self.P, self.work, self.out))
 
 
@@ -204,17 +222,76 @@ def test_lockstep_estimates_equal_the_kernel_called_directly_bit_for_bit(estimat
         np.testing.assert_array_equal(drv.got[c.ESTIMATOR_COVARIANCE.name][ns][1], ref.P)
         np.testing.assert_array_equal([diag["nis"], diag["updates"], diag["gate_rejections"], diag["reinitialisations"]],
                                       [ref.st[mekf.ES_NIS], ref.st[mekf.ES_N_UPD], ref.st[mekf.ES_N_REJ], ref.st[mekf.ES_N_REINIT]])
-    # sample 0 initialises provisionally, the tracker sample at 10 replaces it (docs/estimator.md), 20 .. 50 update
-    assert ref.st[mekf.ES_N_UPD] == 4
+    # sample 0 (measured at its own stamp: its epoch) initialises the estimate, 10 .. 50 update
+    assert ref.st[mekf.ES_N_UPD] == 5
     statuses = [drv.got[c.ESTIMATOR_DIAGNOSTICS.name][k * DT_NS]["status"] for k in range(60)]
-    assert statuses[0] == statuses[10] == mekf.STATUS_INITIALISED and statuses[20] == mekf.STATUS_UPDATED
+    assert statuses[0] == mekf.STATUS_INITIALISED and statuses[10] == statuses[20] == mekf.STATUS_UPDATED
     assert statuses[11] == mekf.STATUS_PROPAGATED
     last = drv.got[c.ESTIMATOR_DIAGNOSTICS.name][59 * DT_NS]
-    assert (last["no_data_samples"], last["rejected_messages"]) == (2, 2)
-    assert node.statistics() == {"samples": 60, "steps": 58, "updates": 4, "gate_rejections": 0, "reinitialisations": 0, "no_data_samples": 2,
+    assert (last["no_data_samples"], last["rejected_messages"], last["withheld_samples"], last["monitor_level"]) == (2, 2, 0, mekf.MON_OK)
+    assert node.statistics() == {"samples": 60, "steps": 58, "updates": 5, "gate_rejections": 0, "reinitialisations": 0, "recoveries": 0,
+                                 "withheld_samples": 0, "no_data_samples": 2,
                                  "rejected": 2, "rejected_by_reason": {"invalid": 2, "stamp_in_past": 0, "stamp_too_far_ahead": 0}}
     # the estimate is the filter's, not the tracker's sample: between updates it moves with the gyro
     assert not np.array_equal(drv.got[c.ESTIMATE_ATTITUDE.name][15 * DT_NS], q[15])
+
+
+def test_the_health_goes_out_on_diagnostics_as_ros_reports_health(estimator) -> None:  # type: ignore[no-untyped-def]
+    """``diagnostics`` (``diagnostic_msgs/DiagnosticArray``): one status named
+    ``contract.ESTIMATOR_HEALTH_NAME`` whose level is the monitor's (0 OK here: a consistent run), its
+    figures as the key/values of ``contract.ESTIMATOR_HEALTH_KEYS`` (the window, the NIS sum's band
+    at its stated probability: chi-square with 3 x 20 degrees of freedom), published when the level
+    changes and once a second of the samples' time (so 3 reports over 2.5 s here), stamped with
+    the sample."""
+    from scipy.stats import chi2
+
+    node, drv = estimator
+    q, w = measurements(251)
+    for k in range(251):
+        drv.sample(k * DT_NS, q[k], w[k])
+    drv.spin_until(lambda: len(drv.health) == 3, "three health reports")
+    stamps = [stamp_to_ns(m.header.stamp) for m in drv.health]
+    assert stamps == [0, 1_000_000_000, 2_000_000_000]
+    last = drv.health[-1].status
+    assert len(last) == 1 and last[0].name == c.ESTIMATOR_HEALTH_NAME and last[0].level == b"\x00"  # OK
+    values = {kv.key: kv.value for kv in last[0].values}
+    assert tuple(values) == c.ESTIMATOR_HEALTH_KEYS
+    lo, hi = chi2.ppf(0.5e-4, 60), chi2.isf(0.5e-4, 60)
+    assert values["window_samples"] == "20" and values["nis_sum_dof"] == "60" and values["estimate"] == "used"
+    assert values["nis_sum_band"] == f"[{lo:.6g}, {hi:.6g}]" and values["band_probability"] == "0.9999"
+    assert lo < float(values["nis_sum"]) < hi  # the window of 20 tracker samples at 2 s: a verdict
+
+
+def test_an_estimate_the_filter_has_not_confirmed_is_withheld_as_no_data(ros_context) -> None:  # type: ignore[no-untyped-def]
+    """A prior 90 deg off with a 0.2 rad sigma: the tracker's samples fail the gate; until a tracker
+    sample is accepted the node publishes "no data" on ``estimate/*`` (the controller's inputs: it
+    answers as to a dropped input, zero torque before any valid state) while the filter's own
+    figures (bias, sigmas, covariance) go out; the withheld samples are counted, and the health is a
+    warning saying so."""
+    from sappc_estimator.node import EstimatorNode
+
+    prior = quat_multiply(np.asarray(Q0), rotation_vector_to_quaternion(np.array([1.0, -2.0, 2.0]) / 3.0 * np.pi / 2.0))
+    config = MekfConfig(tracker_noise_rad=(9.7e-6, 9.7e-6, 7.3e-5), gyro_angle_random_walk_rad_sqrt_s=1.45e-6,
+                        gyro_bias_random_walk_rad_s_sqrt_s=8.1e-10, initial_q_BN=tuple(prior), initial_attitude_sigma_rad=0.2)
+    node = EstimatorNode(context=ros_context, parameter_overrides=overrides(config))
+    drv = Driver(ros_context, [node])
+    try:
+        drv.matched(node)
+        q, w = measurements(12)
+        for k in range(12):
+            drv.sample(k * DT_NS, q[k], w[k])
+        for k in range(12):
+            assert np.all(np.isnan(drv.got[c.ESTIMATE_ATTITUDE.name][k * DT_NS])) and np.all(np.isnan(drv.got[c.ESTIMATE_RATE.name][k * DT_NS]))
+            assert np.all(np.isfinite(drv.got[c.ESTIMATOR_GYRO_BIAS.name][k * DT_NS]))
+        diag = drv.got[c.ESTIMATOR_DIAGNOSTICS.name][11 * DT_NS]
+        assert diag["gate_rejections"] == 2 and diag["withheld_samples"] == 12 and node.withheld == 12 and node.rejected == 0
+        drv.spin_until(lambda: len(drv.health) >= 1, "a health report")
+        status = drv.health[0].status[0]
+        assert status.level == b"\x01" and "withheld" in status.message
+        assert {kv.key: kv.value for kv in status.values}["estimate"] == "withheld"
+    finally:
+        drv.close()
+        node.destroy_node()
 
 
 BAD = {
@@ -250,22 +327,22 @@ def test_an_invalid_input_gives_the_no_data_estimate_at_its_stamp_and_is_counted
 
 def test_stamps_in_the_past_or_too_far_ahead_are_rejected_and_counted_by_reason(estimator) -> None:  # type: ignore[no-untyped-def]
     """Lockstep: a stamp not after the last answered sample is "in the past" (the same stamp again:
-    rejected; 1 ns later: answered); more than max_stamp_ahead_s (1 s) after the latest /clock is
+    its three inputs rejected; 1 ns later: answered); more than max_stamp_ahead_s (1 s) after the latest /clock is
     "too far ahead" (exactly 1 s: answered)."""
     node, drv = estimator
     q, w = measurements(1)
     drv.sample(DT_NS, q[0], w[0])
-    drv.send(DT_NS, q[0], w[0])  # the stamp just answered: both inputs rejected
-    drv.spin_until(lambda: node.rejected == 2, "two past stamps rejected")
+    drv.send(DT_NS, q[0], w[0])  # the stamp just answered: the three inputs rejected
+    drv.spin_until(lambda: node.rejected == 3, "three past stamps rejected")
     drv.sample(DT_NS + 1, q[0], w[0])
     drv.pub[c.CLOCK.name].publish(clock_msg(1.0))
     drv.spin_until(lambda: node._clock_ns == 1_000_000_000, "/clock 1 s")
     drv.send(2_000_000_001, q[0], w[0])  # 1 s + 1 ns ahead: rejected
-    drv.spin_until(lambda: node.rejected == 4, "two far-ahead stamps rejected")
+    drv.spin_until(lambda: node.rejected == 6, "three far-ahead stamps rejected")
     drv.sample(2_000_000_000, q[0], w[0])  # exactly 1 s ahead
-    assert node.rejected_by_reason == {"stamp_in_past": 2, "stamp_too_far_ahead": 2}
+    assert node.rejected_by_reason == {"stamp_in_past": 3, "stamp_too_far_ahead": 3}
     assert node.samples == 3 and node.no_data == 0
-    assert drv.got[c.ESTIMATOR_DIAGNOSTICS.name][2_000_000_000]["rejected_messages"] == 4
+    assert drv.got[c.ESTIMATOR_DIAGNOSTICS.name][2_000_000_000]["rejected_messages"] == 6
 
 
 def test_an_implausible_rate_is_no_data_and_leaves_the_filter_as_it_was(estimator) -> None:  # type: ignore[no-untyped-def]
@@ -274,9 +351,9 @@ def test_an_implausible_rate_is_no_data_and_leaves_the_filter_as_it_was(estimato
     where it was, exactly as if the sample had never come (the offline loop answers it the same way)."""
     node, drv = estimator
     q, w = measurements(23)
-    for k in range(21):  # initialised at 0 (provisional), at 10 (the first fresh sample), updated at 20
+    for k in range(21):  # initialised at 0, updated at 10 and 20
         drv.sample(k * DT_NS, q[k], w[k])
-    assert node.filter.updates == 1
+    assert node.filter.updates == 2
     before = node.filter.st.copy(), node.filter.P.copy()
     drv.sample(21 * DT_NS, q[21], (1e300, 0.0, 0.0))
     _assert_no_data(drv, 21 * DT_NS)
@@ -285,7 +362,7 @@ def test_an_implausible_rate_is_no_data_and_leaves_the_filter_as_it_was(estimato
     np.testing.assert_array_equal(node.filter.P, before[1])
     drv.sample(22 * DT_NS, q[22], w[22])
     assert drv.got[c.ESTIMATOR_DIAGNOSTICS.name][22 * DT_NS]["status"] == mekf.STATUS_PROPAGATED
-    assert node.filter.updates == 1
+    assert node.filter.updates == 2
 
 
 
@@ -304,22 +381,22 @@ def test_realtime_steps_once_per_fresh_state_pair_with_its_stamp(ros_context, mo
         drv.matched(node)
         q, w = measurements(3)
         ref = Reference()
-        att, rate = (c.STATE_ATTITUDE,), (c.STATE_RATE,)
+        att, rate = (c.STATE_ATTITUDE, c.STATE_ATTITUDE_EPOCH), (c.STATE_RATE,)  # the attitude comes with its epoch
         clock.ns = t0 + 400_000  # 0.4 ms after the state's stamp
-        drv.send(t0, q[0], w[0], topics=att)
+        drv.send(t0, q[0], w[0], topics=att, epoch_ns=t0 + EPOCHS[0 * DT_NS])
         drv.spin_until(lambda: node._rt.last_ns(c.STATE_ATTITUDE.name) == t0, "half a pair")
         assert node.steps == 0
-        drv.send(t0, q[0], w[0], topics=rate)
+        drv.send(t0, q[0], w[0], topics=rate, epoch_ns=t0 + EPOCHS[0 * DT_NS])
         drv.spin_until(lambda: drv.answered(t0), "the estimate of the first pair")
         ref.step(0.0, q[0], w[0])
-        drv.send(t0, q[0], w[0], topics=att)  # the same stamp again on one topic: in the past
+        drv.send(t0, q[0], w[0], topics=att[:1], epoch_ns=t0 + EPOCHS[0 * DT_NS])  # the same stamp again on one topic: in the past
         drv.spin_until(lambda: node.rejected == 1, "a repeated stamp rejected")
-        drv.send(t0 + DT_NS, q[1], (math.nan, 0.0, 0.0), topics=rate)  # invalid: no sample
-        drv.send(t0 + DT_NS, q[1], w[1], topics=att)
+        drv.send(t0 + DT_NS, q[1], (math.nan, 0.0, 0.0), topics=rate, epoch_ns=t0 + EPOCHS[1 * DT_NS])  # invalid: no sample
+        drv.send(t0 + DT_NS, q[1], w[1], topics=att, epoch_ns=t0 + EPOCHS[1 * DT_NS])
         drv.spin_until(lambda: node.rejected == 2 and node._rt.last_ns(c.STATE_ATTITUDE.name) == t0 + DT_NS, "frame 1's inputs")
         clock.ns = t0 + 2 * DT_NS + 11_000_000  # frame 2 answered 11 ms late: a late step
-        drv.send(t0 + 2 * DT_NS, q[2], w[2], topics=rate)  # rate first
-        drv.send(t0 + 2 * DT_NS, q[2], w[2], topics=att)
+        drv.send(t0 + 2 * DT_NS, q[2], w[2], topics=rate, epoch_ns=t0 + EPOCHS[2 * DT_NS])  # rate first
+        drv.send(t0 + 2 * DT_NS, q[2], w[2], topics=att, epoch_ns=t0 + EPOCHS[2 * DT_NS])
         drv.spin_until(lambda: drv.answered(t0 + 2 * DT_NS), "the estimate of frame 2")
         ref.step(2 * DT_NS / 1e9, q[2], w[2])  # the filter's time: from the first sample's stamp
         assert t0 + DT_NS not in drv.got[c.ESTIMATE_ATTITUDE.name] and node.steps == 2 and node.no_data == 0

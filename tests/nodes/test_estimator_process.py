@@ -21,11 +21,11 @@ from rclpy.node import Node
 
 from sappc.bag.read import bag_estimate, read_bag
 from sappc_msgs_py import contract as c
-from sappc_msgs_py.convert import clock_msg, ns_to_stamp, quaternion_msg, stamp_to_ns, vector3_msg
+from sappc_msgs_py.convert import clock_msg, epoch_msg, ns_to_stamp, quaternion_msg, stamp_to_ns, vector3_msg
 
 from conftest import ROOT
 from shm_watch import ShmWatch
-from test_estimator_node import DT_NS, measurements
+from test_estimator_node import DT_NS, EPOCHS, measurements
 
 pytestmark = pytest.mark.slow
 
@@ -80,6 +80,7 @@ def test_the_estimator_process_answers_every_sample_records_and_stops_cleanly(ro
                 att.quaternion.x = att.quaternion.y = att.quaternion.z = att.quaternion.w = math.nan
             pubs[c.STATE_ATTITUDE.name].publish(att)
             pubs[c.STATE_RATE.name].publish(vector3_msg(w[k], ns_to_stamp(ns), c.STATE_RATE))
+            pubs[c.STATE_ATTITUDE_EPOCH.name].publish(epoch_msg(EPOCHS[ns], ns_to_stamp(ns), c.STATE_ATTITUDE_EPOCH))
             spin_until(lambda: all(ns in v for v in got.values()), f"the estimate of {ns} ns", SAMPLE_S)
         assert all(p.wait_for_all_acked() for p in pubs.values())
     finally:
@@ -93,10 +94,13 @@ def test_the_estimator_process_answers_every_sample_records_and_stops_cleanly(ro
     watch.assert_clean()  # both exited; no shared memory of theirs left behind
     assert est.returncode == 0, log
     assert rec.returncode == 0, rec_log
-    assert f"finished: {N_SAMPLES} samples, {N_SAMPLES - 1} filter steps (2 updates, 0 gate rejections, 0 re-initialisations), 1 no-data samples" in log, log  # tracker at 0 (provisional), 10 (re-initialises), 20, 30
+    assert (f"finished: {N_SAMPLES} samples, {N_SAMPLES - 1} filter steps (3 updates, 0 gate rejections, 0 re-initialisations, "
+            "0 recoveries), 1 no-data samples (0 withheld)") in log, log  # tracker at 0 (initialises: its epoch is its stamp), 10, 20, 30
     stats = json.loads(timing.read_text())
     assert stats["samples"] == N_SAMPLES and stats["no_data_samples"] == 1 and stats["rejected_by_reason"]["invalid"] == 1
-    assert json.loads(counts.read_text()) == {"/" + t.name: N_SAMPLES for t in c.ESTIMATOR_TOPICS}
+    # the health: at t = 0 (OK), at the dropped sample (a warning: no estimate) and at the next (OK again)
+    per_sample = [t for t in c.ESTIMATOR_TOPICS if t is not c.ESTIMATOR_HEALTH]
+    assert json.loads(counts.read_text()) == {**{"/" + t.name: N_SAMPLES for t in per_sample}, "/" + c.ESTIMATOR_HEALTH.name: 3}
     assert np.all(np.isnan(got[c.ESTIMATE_ATTITUDE.name][DROPPED * DT_NS])) and np.all(np.isfinite(got[c.ESTIMATE_ATTITUDE.name][0]))
 
     # the bag: every estimator topic recorded, decoded by rosbags and by the project's reader alike
@@ -110,13 +114,13 @@ def test_the_estimator_process_answers_every_sample_records_and_stops_cleanly(ro
             recorded[conn.topic] = recorded.get(conn.topic, 0) + 1
             if conn.topic == "/" + c.ESTIMATOR_COVARIANCE.name:
                 assert log_ns == round(msg.data[0] * 1e9)  # the recorder stamps it by data[0] (simulated time)
-    assert all(recorded["/" + t.name] == N_SAMPLES for t in c.ESTIMATOR_TOPICS), recorded
+    assert all(recorded["/" + t.name] == N_SAMPLES for t in per_sample) and recorded["/" + c.ESTIMATOR_HEALTH.name] == 3, recorded
     estimate = bag_estimate(read_bag(bag_dir))
     assert estimate is not None and estimate.stamps_ns.tolist() == [k * DT_NS for k in range(N_SAMPLES)]
     for k, ns in enumerate(estimate.stamps_ns.tolist()):
         np.testing.assert_array_equal(estimate.q_BN[k], got[c.ESTIMATE_ATTITUDE.name][ns])
         np.testing.assert_array_equal(estimate.omega_BN_B[k], got[c.ESTIMATE_RATE.name][ns])
         np.testing.assert_array_equal(estimate.covariance[k], got[c.ESTIMATOR_COVARIANCE.name][ns])
-    assert estimate.diagnostics["status"][DROPPED] == c.ESTIMATOR_NO_INPUT and estimate.diagnostics["updates"][-1] == 2
+    assert estimate.diagnostics["status"][DROPPED] == c.ESTIMATOR_NO_INPUT and estimate.diagnostics["updates"][-1] == 3
     assert np.all(np.isfinite(estimate.attitude_sigma_rad[estimate.diagnostics["status"] != c.ESTIMATOR_NO_INPUT]))
 

@@ -110,7 +110,7 @@ def test_sensor_bias_rotates_the_attitude_by_the_bias_in_the_body_frame() -> Non
     s = schedule({"kind": "sensor_bias", "attitude_bias_rad": bias_rad.tolist(), "rate_bias_rad_s": [1e-4, 0.0, -1e-4]})
     for k, (t, ns) in enumerate(grid(5)):
         q, w = sensor(k)
-        q_m, w_m = s.sensor(t, ns, q, w)  # type: ignore[misc]
+        q_m, w_m, _ = s.sensor(t, ns, q, w)  # type: ignore[misc]
         assert abs(np.sqrt(dot(q_m, q_m)) - 1.0) < QUAT_TOL
         dq = rotation_between(q, q_m)
         # a rotation by |b| about b / |b|: vector part sin(|b|/2) b/|b|, scalar cos(|b|/2)

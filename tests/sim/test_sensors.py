@@ -30,11 +30,11 @@ def _truth(k: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _measure_all(sensors: Sensors, draws: np.ndarray, dt: float = DT) -> np.ndarray:
     prm, outages = sensors.params(dt), sensors.outages()
-    held, bias = np.zeros(4), prm[10:13].copy()
-    out = np.zeros((draws.shape[0], 7))
+    held, bias = np.zeros(5), prm[10:13].copy()
+    out = np.zeros((draws.shape[0], 8))
     for k in range(draws.shape[0]):
         q, w = _truth(k)
-        measure(k, k * dt, q, w, draws[k], prm, outages, held, bias, out[k])
+        measure(k, k * dt, k * dt, q, w, draws[k], prm, outages, held, bias, out[k])
     return out
 
 
@@ -43,14 +43,14 @@ def test_the_white_noise_model_is_the_special_case_bit_for_bit() -> None:
     bias) and :func:`measure` with :func:`white_noise_params` give the same bits."""
     rng = np.random.default_rng(1)
     prm = white_noise_params(3e-6, 2e-6)
-    held, bias, y = np.zeros(4), np.zeros(3), np.zeros(7)
+    held, bias, y = np.zeros(5), np.zeros(3), np.zeros(8)
     for k in range(500):
         q, w = _truth(k)
         n = rng.standard_normal(6)
-        measure(k, k * DT, q, w, n, prm, np.zeros((0, 2)), held, bias, y)
+        measure(k, k * DT, k * DT, q, w, n, prm, np.zeros((0, 2)), held, bias, y)
         q_old, w_old = np.zeros(4), np.zeros(3)
         kernels.noisy_measurement(q, w, n, 3e-6, 2e-6, q_old, w_old)
-        assert np.array_equal(y[:4], q_old) and np.array_equal(y[4:], w_old)
+        assert np.array_equal(y[:4], q_old) and np.array_equal(y[4:7], w_old) and y[7] == k * DT
 
 
 def test_the_star_tracker_updates_at_its_rate_and_holds_through_outages() -> None:
@@ -60,7 +60,7 @@ def test_the_star_tracker_updates_at_its_rate_and_holds_through_outages() -> Non
     y = _measure_all(sensors, draws)
     changed = np.flatnonzero(np.any(np.diff(y[:, :4], axis=0) != 0.0, axis=1)) + 1
     assert changed.tolist() == [10, 20, 30, 40, 80, 90, 100, 110]  # every 10th sample; none at 50, 60, 70 (outage)
-    assert np.array_equal(y[:, 4:], np.array([_truth(k)[1] for k in range(120)]))  # no gyro: exact rates
+    assert np.array_equal(y[:, 4:7], np.array([_truth(k)[1] for k in range(120)]))  # no gyro: exact rates
     # at an update the error is the rotation vector sigma * n in the body frame: q_true* (x) q_meas = (r/2, 1) to O(r^3)
     from gnc_common.attitude import error_quaternion
 
@@ -79,7 +79,7 @@ def test_the_gyro_noise_and_bias_walk_have_their_stated_statistics() -> None:
     y = _measure_all(sensors, draws)
     truth = np.array([_truth(k)[1] for k in range(20_000)])
     bias = b0 + np.vstack([np.zeros(3), np.cumsum(K * np.sqrt(DT) * draws[:-1, 6:9], axis=0)])
-    white = y[:, 4:] - truth - bias
+    white = y[:, 4:7] - truth - bias
     assert np.allclose(white / (N / np.sqrt(DT)), draws[:, 3:6], rtol=0, atol=1e-6)  # noise = sigma n, up to rounding of rates ~1e-2
     assert np.all(np.abs(white.std(axis=0) / (N / np.sqrt(DT)) - 1) < 0.03)
     assert np.array_equal(y[:, :4], np.array([_truth(k)[0] for k in range(20_000)]))  # no tracker: exact attitude
@@ -145,11 +145,11 @@ def test_in_the_loop_the_controller_sees_the_measurement_and_the_record_the_trut
     x = inp.plant.x0[0].copy()
     draws = s.sensors.draws(inp.t.size)
     prm, outages = s.sensors.params(s.control_period_s), s.sensors.outages()
-    held, bias, y = np.zeros(4), prm[10:13].copy(), np.zeros(7)
+    held, bias, y = np.zeros(5), prm[10:13].copy(), np.zeros(8)
     for k in range(inp.t.size):
         assert np.array_equal(h.q_BN[k, 0], x[:4]) and np.array_equal(h.omega_BN_B[k, 0], x[4:])  # the truth is recorded
-        measure(k, inp.t[k], x[:4], x[4:7], draws[k], prm, outages, held, bias, y)
-        tau = np.asarray(ctrl.step(int(inp.grid.t_ns[k]) / 1e9, inp.grid.dt, y[:4], y[4:], inp.grid.ref_q[k], inp.grid.ref_w[k], inp.grid.ref_wd[k]).torque_B, dtype=np.float64)
+        measure(k, inp.t[k], int(inp.grid.t_ns[k]) / 1e9, x[:4], x[4:7], draws[k], prm, outages, held, bias, y)
+        tau = np.asarray(ctrl.step(int(inp.grid.t_ns[k]) / 1e9, inp.grid.dt, y[:4], y[4:7], inp.grid.ref_q[k], inp.grid.ref_w[k], inp.grid.ref_wd[k]).torque_B, dtype=np.float64)
         assert np.array_equal(h.torque_B[k, 0], tau), k
         if k < inp.t.size - 1:
             kernels.propagate(x, np.minimum(np.maximum(tau, -0.5), 0.5) + inp.disturbance.table[k], inp.grid.dt, inp.plant.substeps, inp.plant.J[0], inp.plant.J_inv[0])

@@ -408,10 +408,17 @@ def _estimate_record(bag: Bag, stamps_ns: NDArray[np.int64]) -> EstimateHistory 
         bias_true = np.full((T, 3), np.nan)
         bias_true[j >= 0] = s.values[j[j >= 0], :3]
         bias_true = bias_true[:, None]
-    no_estimate = ~np.all(np.isfinite(at(est.q_BN)), axis=-1)
+    no_figures = ~np.all(np.isfinite(at(est.gyro_bias_rad_s)), axis=-1)  # the filter's figures (its estimate may be withheld)
+    used = np.all(np.isfinite(at(est.q_BN)), axis=-1)
+
+    def figure(label: str) -> Array | None:  # a diagnostics column where the filter had figures (None: an older bag)
+        return None if label not in est.diagnostics else np.where(no_figures, np.nan, at(est.diagnostics[label]))
+
     return EstimateHistory(q_BN=at(est.q_BN), omega_BN_B=at(est.omega_BN_B), gyro_bias=at(est.gyro_bias_rad_s),
-                           covariance=at(est.covariance), nis=np.where(no_estimate, np.nan, nis),
-                           status=np.nan_to_num(status, nan=float(ESTIMATOR_NO_INPUT)).astype(np.int8), gyro_bias_true=bias_true)
+                           covariance=at(est.covariance), nis=np.where(no_figures, np.nan, nis),
+                           status=np.nan_to_num(status, nan=float(ESTIMATOR_NO_INPUT)).astype(np.int8), gyro_bias_true=bias_true,
+                           monitor_level=figure("monitor_level"), monitor_nis_sum=figure("monitor_nis_sum"),
+                           usable=np.where(no_figures, np.nan, used.astype(np.float64)), recoveries=figure("recoveries"))
 
 
 def _wheel_records(bag: Bag, stamps_ns: NDArray[np.int64]) -> dict[str, Any]:

@@ -41,7 +41,11 @@ class EstimateHistory:
     rad^2/s, rad^2/s^2), ``nis`` (T, N) the last update's normalised innovation squared,
     ``status`` (T, N) int8 the step's status (:data:`sappc_estimator.core.mekf.STATUS_NAMES`), and
     ``gyro_bias_true`` (T, N, 3) [rad/s] the gyro's true bias (the truth the plant records;
-    ``None`` when not recorded).  NaN where the filter had no estimate."""
+    ``None`` when not recorded); the health monitor's ``monitor_level`` (T, N) (``MON_*``: 0 ok, 1
+    warn, 2 error), ``monitor_nis_sum`` (T, N) its window's NIS sum, ``usable`` (T, N) 1 where the
+    estimate was given to the controller, 0 where it was withheld, ``recoveries`` (T, N) the bias
+    recoveries so far (each ``None`` when not recorded).  NaN where the filter had no estimate (the
+    attitude and rate estimates also where it was withheld)."""
 
     q_BN: Array
     omega_BN_B: Array
@@ -50,6 +54,10 @@ class EstimateHistory:
     nis: Array
     status: NDArray[np.int8]
     gyro_bias_true: Array | None = None
+    monitor_level: Array | None = None
+    monitor_nis_sum: Array | None = None
+    usable: Array | None = None
+    recoveries: Array | None = None
 
 
 def rotation_vectors(q: Array) -> Array:

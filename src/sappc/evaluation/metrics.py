@@ -72,6 +72,15 @@ Definitions, per run:
     (:func:`sappc.evaluation.estimation.nees`, 6 degrees of freedom): 6 for a consistent filter.
 ``estimator_updates``, ``estimator_gate_rejections``, ``estimator_reinitialisations``
     The filter's steps of each status (:data:`sappc_estimator.core.mekf.STATUS_NAMES`).
+``filter_inconsistent_fraction``
+    The share of the samples with the filter's figures at which its health monitor's level is
+    ERROR (its window's NIS outside the error band: docs/estimator.md, "Health monitor");
+    ``None`` when the record has no monitor.  A scenario bounds it with
+    ``metrics.requirements.filter_inconsistent_fraction_max``.
+``estimator_recoveries``, ``estimate_withheld_samples``
+    The bias recoveries after a failed monitor, and the samples whose estimate the filter withheld
+    from the controller (initialising, or re-initialised and not yet confirmed): the controller
+    answered them as a dropped input (``controller_summary``'s held and zero answers).
 ``max_abs_wheel_speed_rad_s``, ``max_abs_wheel_torque_Nm``
     Only with reaction wheels (a history with wheel records): the largest speed of any wheel
     relative to the body, and the largest motor torque, over the finite samples.
@@ -97,7 +106,7 @@ from numpy.typing import NDArray
 from gnc_common.compiled import jit
 from sappc.evaluation.estimation import EstimateHistory, attitude_errors, nees
 from sappc.evaluation.history import History
-from sappc_estimator.core.mekf import STATUS_NAMES
+from sappc_estimator.core.mekf import MON_ERROR, STATUS_NAMES
 
 __all__ = ["MetricsAccumulator"]
 
@@ -183,6 +192,10 @@ class MetricsAccumulator:
         self.est_nees_sum: Array | None = None
         self.est_nees_n: Array | None = None
         self.est_status_counts: Array | None = None
+        self.est_mon_error: Array | None = None  # per run: samples with the monitor at ERROR
+        self.est_mon_n: Array | None = None  # per run: samples with a monitor level (-1: no monitor recorded)
+        self.est_withheld: Array | None = None  # per run: samples whose estimate was withheld
+        self.est_recoveries: Array | None = None  # per run: the recoveries at the last sample with figures
         self.nees_sum_t = np.zeros(self.t.size)
         self.nees_runs_t = np.zeros(self.t.size, dtype=np.int64)
 
@@ -190,7 +203,8 @@ class MetricsAccumulator:
     _PER_RUN = ("last_unsettled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
                 "torque_sign", "torque_sign_nonzero", "torque_sign_changes", "torque_reversals", "saturated_count", "outside_count",
                 "outside_s", "last_outside", "left_after_fault", "finite", "wheel_speed_max", "wheel_torque_max", "wheel_energy", "est_att_max",
-                "est_att_sq", "est_att_n", "est_bias_last", "est_nees_sum", "est_nees_n", "est_status_counts")
+                "est_att_sq", "est_att_n", "est_bias_last", "est_nees_sum", "est_nees_n", "est_status_counts", "est_mon_error", "est_mon_n",
+                "est_withheld", "est_recoveries")
     #: Per-sample sums over runs, added by :meth:`concatenate`.
     _SUMMED = ("nees_sum_t", "nees_runs_t")
 
@@ -226,6 +240,8 @@ class MetricsAccumulator:
             self.est_att_n, self.est_nees_n = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
             self.est_bias_last, self.est_nees_sum = np.full((n, 3), np.nan), np.zeros(n)
             self.est_status_counts = np.zeros((n, len(STATUS_NAMES)), dtype=np.int64)
+            self.est_mon_error, self.est_mon_n = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+            self.est_withheld, self.est_recoveries = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
         att_max, att_sq, att_n, bias_last = self.est_att_max, self.est_att_sq, self.est_att_n, self.est_bias_last
         nees_sum, nees_n, status_counts = self.est_nees_sum, self.est_nees_n, self.est_status_counts
         assert att_sq is not None and att_n is not None and bias_last is not None and nees_sum is not None and nees_n is not None
@@ -252,6 +268,19 @@ class MetricsAccumulator:
         status = np.asarray(est.status)
         for code in range(len(STATUS_NAMES)):
             status_counts[:, code] += np.count_nonzero(status == code, axis=0)
+        assert self.est_mon_error is not None and self.est_mon_n is not None and self.est_withheld is not None
+        assert self.est_recoveries is not None
+        if est.monitor_level is None:
+            self.est_mon_n[:] = -1
+        else:
+            level = np.asarray(est.monitor_level, dtype=np.float64)
+            self.est_mon_n += np.isfinite(level).sum(axis=0)
+            self.est_mon_error += (level == MON_ERROR).sum(axis=0)
+        if est.usable is not None:
+            self.est_withheld += (np.asarray(est.usable, dtype=np.float64) == 0.0).sum(axis=0)
+        if est.recoveries is not None:
+            rec = np.asarray(est.recoveries, dtype=np.float64)
+            self.est_recoveries[...] = np.maximum(self.est_recoveries, np.where(np.isfinite(rec), rec, 0.0).max(axis=0)).astype(np.int64)
 
     def mean_nees_over_runs(self) -> tuple[Array, Array]:
         """The NEES averaged over the runs at every sample from :data:`NEES_FROM_S` (NaN where no
@@ -376,7 +405,8 @@ class MetricsAccumulator:
     def _estimation_metrics(self, run: int) -> dict[str, Any]:
         assert self.est_att_max is not None and self.est_att_sq is not None and self.est_att_n is not None
         assert self.est_bias_last is not None and self.est_nees_sum is not None and self.est_nees_n is not None
-        assert self.est_status_counts is not None
+        assert self.est_status_counts is not None and self.est_mon_error is not None and self.est_mon_n is not None
+        assert self.est_withheld is not None and self.est_recoveries is not None
         n_att, n_nees = int(self.est_att_n[run]), int(self.est_nees_n[run])
         bias = self.est_bias_last[run]
         counts = self.est_status_counts[run]
@@ -388,6 +418,10 @@ class MetricsAccumulator:
             "estimator_updates": int(counts[STATUS_NAMES.index("updated")]),
             "estimator_gate_rejections": int(counts[STATUS_NAMES.index("rejected")]),
             "estimator_reinitialisations": int(counts[STATUS_NAMES.index("reinitialised")]),
+            "filter_inconsistent_fraction": (float(self.est_mon_error[run] / self.est_mon_n[run]) if self.est_mon_n[run] > 0
+                                             else 0.0 if self.est_mon_n[run] == 0 else None),
+            "estimator_recoveries": int(self.est_recoveries[run]),
+            "estimate_withheld_samples": int(self.est_withheld[run]),
         }
 
     def criteria_arrays(self) -> dict[str, Array]:
@@ -401,7 +435,8 @@ class MetricsAccumulator:
         if self.est_att_max is not None:
             per_run = [self._estimation_metrics(k) for k in range(self.finite.shape[0])]
             wheels.update({key: np.array([np.nan if m[key] is None else m[key] for m in per_run], dtype=np.float64)
-                           for key in ("steady_max_abs_attitude_estimation_error_rad", "final_abs_bias_estimation_error_rad_s", "mean_nees")})
+                           for key in ("steady_max_abs_attitude_estimation_error_rad", "final_abs_bias_estimation_error_rad_s", "mean_nees",
+                                       "filter_inconsistent_fraction", "estimator_recoveries")})
         return {**wheels,
             "steady_mean_abs_qev_per_axis": steady_mean,
             "steady_mean_abs_qev": steady_mean.max(axis=1),

@@ -40,7 +40,8 @@ from sappc_msgs_py.runtime import parse_expected
 from sappc_controller.params import parameters_from_config, unflatten
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
 from sappc_msgs_py.contract import (CLOCK, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
-                                    RELAYED_PATHS, RELAYED_SENSOR_TOPICS, STATE_ATTITUDE, STATE_RATE, TOPICS, faulty, relay_remaps)
+                                    RELAYED_PATHS, RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_WITH_EPOCH, STATE_ATTITUDE,
+                                    STATE_ATTITUDE_EPOCH, STATE_RATE, TOPICS, faulty, relay_remaps)
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
 
@@ -253,6 +254,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "backend": backend,  # the plant's dynamics: native or basilisk
         # the sensor models as the scenario wrote them ('': exact measurements)
         "sensors": json.dumps(scenario.raw["sensors"]) if scenario.sensors is not None else "",
+        # the sensor biases' share of the gyro's true bias (truth/gyro_bias)
+        "sensor_faults": json.dumps(scenario.raw["faults"]) if scenario.sensors is not None and scenario.raw.get("faults") else "",
         "use_disturbance_topic": True,
         **common,
         # state: the controller (or the sensor relay) and the recorder; state/tf, joint_states: the recorder; /clock in lockstep only
@@ -260,7 +263,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         # (in real time the reference and the injector also take the run's first frame from the first state/attitude: FramesAhead)
         "expected_subscribers": expected(state__attitude=2 + 2 * realtime, state__rate=2, state__tf=1)
         + (["joint_states=1"] if scenario.wheels is not None else [])
-        + (["truth/attitude=1", "truth/rate=1", "truth/gyro_bias=1"] if scenario.sensors is not None else [])
+        + (["truth/attitude=1", "truth/rate=1", "truth/gyro_bias=1", f"{STATE_ATTITUDE_EPOCH.name}={1 + estimating}"]
+           if scenario.sensors is not None else [])
         + ([f"/clock={clock_subs}"] if lockstep else []),
         "counts_file": counts_file("plant"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "timing.json"),
@@ -277,6 +281,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     }
     injector = {
         "schedule_file": paths["scenario"],
+        "relay_attitude_epoch": _relays_epoch(scenario),
         "duration_s": scenario.duration_s,
         **common,
         "expected_subscribers": expected(disturbance__torque=1 if external_plant else 2) + [f"{faulty(t).name}=2" for topics in relayed for t in topics],
@@ -314,10 +319,18 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
              ("estimator", estimator)) if p is not None}
 
 
+def _relays_epoch(scenario: Scenario) -> bool:
+    """Whether the injector relays the tracker's epoch with the measurements: an estimator reads
+    them, and the plant measures (a plant with sensor models publishes ``state/attitude_epoch``)."""
+    return scenario.estimator is not None and scenario.sensors is not None
+
+
 def _relayed(scenario: Scenario) -> list[tuple[Any, ...]]:
-    """The paths the injector relays for the scenario's faults (each a tuple of contract topics)."""
+    """The paths the injector relays for the scenario's faults (each a tuple of contract topics;
+    the measurements with the tracker's epoch when :func:`_relays_epoch`)."""
     faults = FaultSchedule(scenario.faults)
-    return [topics for path, topics in RELAYED_PATHS.items() if faults.acts_on(path)]
+    sensor = RELAYED_SENSOR_TOPICS_WITH_EPOCH if _relays_epoch(scenario) else RELAYED_SENSOR_TOPICS
+    return [sensor if topics is RELAYED_SENSOR_TOPICS else topics for path, topics in RELAYED_PATHS.items() if faults.acts_on(path)]
 
 
 def _remaps(scenario: Scenario) -> dict[str, list[str]]:
@@ -329,8 +342,8 @@ def _remaps(scenario: Scenario) -> dict[str, list[str]]:
     if estimating:
         remaps["controller"] += ["-r", f"{STATE_ATTITUDE.name}:={ESTIMATE_ATTITUDE.name}", "-r", f"{STATE_RATE.name}:={ESTIMATE_RATE.name}"]
     for topics in _relayed(scenario):
-        consumer = ("plant" if topics is RELAYED_ACTUATOR_TOPICS else "estimator" if estimating and topics is RELAYED_SENSOR_TOPICS
-                    else "controller")
+        sensor = topics[0] is STATE_ATTITUDE
+        consumer = "plant" if topics is RELAYED_ACTUATOR_TOPICS else "estimator" if estimating and sensor else "controller"
         remaps[consumer] += relay_remaps(topics)
     return remaps
 

@@ -88,7 +88,8 @@ class RunCriteria:
 #: The per-run columns of a campaign with reaction wheels (metrics of :mod:`sappc.evaluation.metrics`).
 WHEEL_COLUMNS = ("max_abs_wheel_speed_rad_s", "max_abs_wheel_torque_Nm", "wheel_energy_J")
 #: Per-run columns of a campaign with an estimator (:mod:`sappc.evaluation.metrics`).
-ESTIMATOR_COLUMNS = ("steady_max_abs_attitude_estimation_error_rad", "final_abs_bias_estimation_error_rad_s", "mean_nees")
+ESTIMATOR_COLUMNS = ("steady_max_abs_attitude_estimation_error_rad", "final_abs_bias_estimation_error_rad_s", "mean_nees",
+                     "filter_inconsistent_fraction", "estimator_recoveries")
 
 
 def run_criteria(table: dict[str, Any], criteria: Criteria) -> RunCriteria:

@@ -58,13 +58,14 @@ from sappc_controller.core.kernels import N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_
 from sappc_controller.core.kernels import ControllerArrays, controller_step
 from sappc_controller.core.packing import pack_controller, start_coef
 from sappc_estimator.core.config import pack_estimator
-from sappc_estimator.core.mekf import EO_B, EO_NIS, EO_OMEGA, EO_Q, ES_NIS, N_EST_OUT, N_EST_STATE, N_EST_WORK, STATUS_NONE
-from sappc_estimator.core.mekf import EstimatorArrays, mekf_step
+from sappc_estimator.core.mekf import EO_B, EO_MON_LEVEL, EO_MON_MEAN, EO_MON_NIS, EO_N_RECOVER, EO_NIS, EO_OMEGA, EO_Q, EO_USABLE
+from sappc_estimator.core.mekf import N_EST_OUT, N_EST_STATE, N_EST_WORK, N_MEAS, STATUS_NONE, Y_EPOCH
+from sappc_estimator.core.mekf import EstimatorArrays, mekf_step, reset_state
 from spacecraft_sim.core.disturbance import pack_disturbance
 from spacecraft_sim.core.dynamics import pack_plant
 from spacecraft_sim.core.faults import pack_faults
 from spacecraft_sim.core.kernels import DisturbanceArrays, FaultArrays, PlantArrays, disturbance_at, propagate
-from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_sensor
+from spacecraft_sim.core.kernels import fault_actuator, fault_rate_bias, fault_reference, fault_sensor
 from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
 from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, pack_actuator, propagate_wheels_into, wheel_speeds_into, wheel_torques
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO, ESTIMATOR_NO_INPUT
@@ -85,10 +86,14 @@ __all__ = ["CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "cache_is_
 _NS_PER_S = 1_000_000_000
 #: Columns of the estimator's record (:attr:`LoopRecord.estimate`): the attitude estimate (4), the
 #: rate estimate (3), the bias estimate (3), the covariance (36, row major), the last NIS, the
-#: step's status, the gyro's true bias in the sample's rate (3); NaN where the filter gave no
-#: estimate (the node's "no data"), the true bias always.
+#: step's status, the gyro's true bias in the sample's rate (3: its walk and every sensor fault's
+#: rate bias), the health monitor's level, window NIS sum and mean statistic, whether the estimate
+#: was usable (1) or withheld (0), the recoveries so far; NaN where the filter had no estimate (the
+#: node's "no data"; the attitude and rate estimates also where it was withheld), the true bias
+#: always.
 R_Q, R_OMEGA, R_B, R_P, R_NIS, R_STATUS, R_BTRUE = 0, 4, 7, 10, 46, 47, 48
-N_EST_RECORD = 51
+R_MON_LEVEL, R_MON_NIS, R_MON_MEAN, R_USABLE, R_N_RECOVER = 51, 52, 53, 54, 55
+N_EST_RECORD = 56
 
 
 class LoopGrid(NamedTuple):
@@ -204,19 +209,20 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     u = np.zeros(3)
     d = np.zeros(3)
     # the sensors
-    y = np.zeros(7)  # the measured state
-    held_q = np.zeros(4)  # the star tracker's last quaternion
+    y = np.zeros(N_MEAS)  # the measured state and the tracker sample's epoch
+    held_q = np.zeros(5)  # the star tracker's last quaternion and its epoch
     bias = sens.params[n, S_BIAS0:S_BIAS0 + 3].copy()  # the gyro's bias
     # the estimator
     estimating = est.prm.shape[1] > 0
     eprm = est.prm[n]
     est_st = np.zeros(N_EST_STATE)
-    est_st[ES_NIS] = np.nan
+    reset_state(est_st)
     P = np.zeros((6, 6))
     ework = np.zeros((N_EST_WORK, 6))
     eout = np.zeros(N_EST_OUT)
     yc = np.zeros(7)  # the controller's input: the measurement, or the estimate
-    bias_k = np.zeros(3)  # the gyro's bias in sample k's rate (measure walks it on to k + 1)
+    has_estimate = False  # whether the filter gave this sample its figures
+    bias_k = np.zeros(3)  # the gyro's true bias in sample k's rate, faults included (measure walks its own on to k + 1)
     # the faults
     fkind, fwin, fprm, fint = faults.kind[n], faults.window[n], faults.params[n], faults.samples[n]
     nf = fkind.shape[0]
@@ -227,14 +233,18 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     T = grid.t.shape[0]
     for k in range(T):
         t = grid.t[k]
+        t_stamp_s = grid.t_ns[k] / _NS_PER_S  # the sample's stamp in seconds (the estimator's and the controller's time)
         if estimating:
             for i in range(3):
                 bias_k[i] = bias[i]
+            if nf > 0:
+                fault_rate_bias(t, fkind, fwin, fprm, bias_k)
         if measuring:
-            measure_run(sens, n, k, t, x, held_q, bias, y)
-        else:  # exact measurements: the true state
+            measure_run(sens, n, k, t, t_stamp_s, x, held_q, bias, y)
+        else:  # exact measurements: the true state, measured now
             for i in range(7):
                 y[i] = x[i]
+            y[Y_EPOCH] = t_stamp_s
         state_in, reference_in = True, True
         if nf > 0:
             state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, faults.draws[min(k, faults.draws.shape[0] - 1)], y)
@@ -242,8 +252,10 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
         if estimating:
             est_status = ESTIMATOR_NO_INPUT  # no measurement delivered: no filter step (the node's code)
             if state_in:
-                est_status = mekf_step(eprm, grid.t_ns[k] / _NS_PER_S, y, est_st, P, ework, eout)
-            state_in = est_status != STATUS_NONE and est_status != ESTIMATOR_NO_INPUT
+                est_status = mekf_step(eprm, t_stamp_s, y, est_st, P, ework, eout)
+            has_estimate = est_status != STATUS_NONE and est_status != ESTIMATOR_NO_INPUT and eout[EO_USABLE] >= 0.0  # (NaN: not initialised)
+            # an estimate the filter has not confirmed is withheld: "no data" for the controller
+            state_in = has_estimate and eout[EO_USABLE] == 1.0
             for i in range(4):
                 yc[i] = eout[EO_Q + i]
             for i in range(3):
@@ -252,7 +264,7 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
             for i in range(7):
                 yc[i] = y[i]
         valid = sample_verdicts(state_in, reference_in, yc[:4], yc[4:], grid.ref_q[k], grid.ref_w[k], grid.ref_wd[k], ctrl.bounds, rejected)
-        t_stamp = grid.t_ns[k] / _NS_PER_S  # the controller's time: its input's stamp in seconds, as the node computes it
+        t_stamp = t_stamp_s  # the controller's time: its input's stamp in seconds, as the node computes it
         if valid and not started:
             if probe:  # the first valid sample: what starts the controller (docstring)
                 start[0] = k
@@ -323,16 +335,23 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
                 e = rec.estimate[r, j]
                 for i in range(N_EST_RECORD):
                     e[i] = np.nan
-                if state_in:  # an estimate (else the node's "no data")
-                    for i in range(4):
-                        e[R_Q + i] = eout[EO_Q + i]
+                if has_estimate:  # the filter's figures (else the node's "no data")
+                    if state_in:  # the estimate itself, unless withheld
+                        for i in range(4):
+                            e[R_Q + i] = eout[EO_Q + i]
+                        for i in range(3):
+                            e[R_OMEGA + i] = eout[EO_OMEGA + i]
                     for i in range(3):
-                        e[R_OMEGA + i] = eout[EO_OMEGA + i]
                         e[R_B + i] = eout[EO_B + i]
                     for a in range(6):
                         for b in range(6):
                             e[R_P + 6 * a + b] = P[a, b]
                     e[R_NIS] = eout[EO_NIS]
+                    e[R_MON_LEVEL] = eout[EO_MON_LEVEL]
+                    e[R_MON_NIS] = eout[EO_MON_NIS]
+                    e[R_MON_MEAN] = eout[EO_MON_MEAN]
+                    e[R_USABLE] = eout[EO_USABLE]
+                    e[R_N_RECOVER] = eout[EO_N_RECOVER]
                 e[R_STATUS] = est_status
                 for i in range(3):
                     e[R_BTRUE + i] = bias_k[i]
@@ -495,7 +514,9 @@ class CompiledRun:
         e = e.transpose(1, 0, 2)
         return EstimateHistory(q_BN=e[..., R_Q:R_Q + 4], omega_BN_B=e[..., R_OMEGA:R_OMEGA + 3], gyro_bias=e[..., R_B:R_B + 3],
                                covariance=e[..., R_P:R_P + 36].reshape(e.shape[:2] + (6, 6)), nis=e[..., R_NIS],
-                               status=np.nan_to_num(e[..., R_STATUS]).astype(np.int8), gyro_bias_true=e[..., R_BTRUE:R_BTRUE + 3])
+                               status=np.nan_to_num(e[..., R_STATUS]).astype(np.int8), gyro_bias_true=e[..., R_BTRUE:R_BTRUE + 3],
+                               monitor_level=e[..., R_MON_LEVEL], monitor_nis_sum=e[..., R_MON_NIS], usable=e[..., R_USABLE],
+                               recoveries=e[..., R_N_RECOVER])
 
     def history(self) -> History:
         """The runs as a :class:`~sappc.evaluation.history.History` (arrays (T, N, ...): views, no copy)."""

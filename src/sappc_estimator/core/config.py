@@ -19,7 +19,8 @@ from numpy.typing import NDArray
 from gnc_common.validation import QUATERNION_NORM_TOL, ConfigError, check_positive, check_unit_quaternion
 from sappc_estimator.core import mekf
 
-__all__ = ["pack_estimator", "DEFAULT_GATE_FALSE_ALARM", "DEFAULT_MAX_BODY_RATE_RAD_S", "DEFAULT_INITIAL_BIAS_SIGMA_RAD_S", "DEFAULT_MAX_CONSECUTIVE_REJECTIONS", "MekfConfig", "chi2_3dof_isf"]
+__all__ = ["pack_estimator", "DEFAULT_GATE_FALSE_ALARM", "DEFAULT_MONITOR_ERROR_PROBABILITY", "DEFAULT_MONITOR_WARN_PROBABILITY",
+           "DEFAULT_MONITOR_WINDOW_SAMPLES", "chi2_band", "DEFAULT_MAX_BODY_RATE_RAD_S", "DEFAULT_INITIAL_BIAS_SIGMA_RAD_S", "DEFAULT_MAX_CONSECUTIVE_REJECTIONS", "MekfConfig", "chi2_3dof_isf"]
 
 Array = NDArray[np.float64]
 
@@ -39,6 +40,18 @@ DEFAULT_MAX_BODY_RATE_RAD_S = 10.0
 #: (about 2 deg/h), the order of a fibre-optic or good MEMS gyro's turn-on bias before
 #: calibration; the filter converges from it within seconds at 10 Hz tracker updates.
 DEFAULT_INITIAL_BIAS_SIGMA_RAD_S = 1e-5
+#: The health monitor's window [compared tracker samples]: 20 (2 s at 10 Hz).  Long enough that a
+#: drift of a few tracker sigmas per window stands out of the band of ``3 x 20`` degrees of freedom,
+#: short enough that a bias step on a cross-boresight axis is flagged before the innovation gate
+#: starts rejecting (measured: docs/estimator.md, "Health monitor").
+DEFAULT_MONITOR_WINDOW_SAMPLES = 20
+#: Probability that a consistent filter's window stays inside the monitor's warning band
+#: (two-sided; 1 % of a consistent filter's verdicts warn).
+DEFAULT_MONITOR_WARN_PROBABILITY = 0.99
+#: Probability that a consistent filter's window stays inside the monitor's error band (two-sided):
+#: 1 - 1e-4, the innovation gate's own false-alarm level; a verdict outside it is a failed monitor,
+#: which starts the recovery.
+DEFAULT_MONITOR_ERROR_PROBABILITY = 1.0 - 1e-4
 
 
 #: Iterations of :func:`chi2_3dof_isf`'s safeguarded Newton solve: it converges to the rounding
@@ -79,6 +92,18 @@ def chi2_3dof_isf(p: float) -> float:
             return new
         x = new
     return x
+
+
+def chi2_band(dof: int, probability: float) -> tuple[float, float]:
+    """The two-sided ``probability`` band of a chi-square variable with ``dof`` degrees of freedom
+    (equal tails): the test of a sum of ``dof / 3`` NIS values of a consistent filter (Bar-Shalom,
+    Li and Kirubarajan, *Estimation with Applications to Tracking and Navigation*, Wiley 2001,
+    5.4.2).  ``scipy.special.chdtri`` (the inverse survival function), imported here only: the
+    band is computed when a filter's parameters are packed, never at import."""
+    from scipy.special import chdtri
+
+    tail = 0.5 * (1.0 - probability)
+    return float(chdtri(dof, 1.0 - tail)), float(chdtri(dof, tail))
 
 
 def _three(name: str, value: object, *, bound: str = "any") -> tuple[float, float, float]:
@@ -130,6 +155,19 @@ class MekfConfig:
     max_attitude_norm_error : float
         A measured quaternion whose norm differs from 1 by more is no measurement, in
         ``(0, QUATERNION_NORM_TOL]`` (:data:`~gnc_common.validation.QUATERNION_NORM_TOL`).
+    monitor_window_samples : int
+        The health monitor's window [compared tracker samples], in ``[1, MON_MAX_WINDOW]``
+        (:data:`DEFAULT_MONITOR_WINDOW_SAMPLES`).
+    monitor_warn_probability : float
+        The two-sided probability of the monitor's warning band, in (0, 1)
+        (:data:`DEFAULT_MONITOR_WARN_PROBABILITY`).
+    monitor_error_probability : float
+        The two-sided probability of its error band, in ``[monitor_warn_probability, 1)``
+        (:data:`DEFAULT_MONITOR_ERROR_PROBABILITY`).
+    bias_recovery_sigma_rad_s : float, 3 floats or None
+        The bias change [rad/s, 1-sigma per axis] a failed monitor (or a re-initialisation) admits:
+        its square is added to the bias covariance.  ``None``: ``initial_bias_sigma_rad_s`` (the
+        bias may be as far off as before its first estimate); 0 turns the recovery off.
     """
 
     tracker_noise_rad: float | tuple[float, float, float]
@@ -143,6 +181,10 @@ class MekfConfig:
     max_consecutive_rejections: int = DEFAULT_MAX_CONSECUTIVE_REJECTIONS
     max_body_rate_rad_s: float = DEFAULT_MAX_BODY_RATE_RAD_S
     max_attitude_norm_error: float = QUATERNION_NORM_TOL
+    monitor_window_samples: int = DEFAULT_MONITOR_WINDOW_SAMPLES
+    monitor_warn_probability: float = DEFAULT_MONITOR_WARN_PROBABILITY
+    monitor_error_probability: float = DEFAULT_MONITOR_ERROR_PROBABILITY
+    bias_recovery_sigma_rad_s: float | tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         _three("tracker_noise_rad", self.tracker_noise_rad, bound="> 0")
@@ -166,6 +208,18 @@ class MekfConfig:
             if isinstance(getattr(self, name), bool):
                 raise ConfigError(f"{name} must be a number, got {getattr(self, name)!r}")
             check_positive(name, getattr(self, name))
+        w = self.monitor_window_samples
+        if isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= mekf.MON_MAX_WINDOW:
+            raise ConfigError(f"monitor_window_samples must be an integer in [1, {mekf.MON_MAX_WINDOW}], got {w!r}")
+        for name in ("monitor_warn_probability", "monitor_error_probability"):
+            p = getattr(self, name)
+            if isinstance(p, bool) or not isinstance(p, (int, float)) or not (math.isfinite(p) and 0.0 < p < 1.0):
+                raise ConfigError(f"{name} must be in (0, 1), got {p!r}")
+        if self.monitor_error_probability < self.monitor_warn_probability:
+            raise ConfigError(f"monitor_error_probability ({self.monitor_error_probability!r}) must be at least "
+                              f"monitor_warn_probability ({self.monitor_warn_probability!r})")
+        if self.bias_recovery_sigma_rad_s is not None:
+            _three("bias_recovery_sigma_rad_s", self.bias_recovery_sigma_rad_s, bound=">= 0")
         if self.max_attitude_norm_error > QUATERNION_NORM_TOL:
             raise ConfigError(f"max_attitude_norm_error must be in (0, {QUATERNION_NORM_TOL:g}], got {self.max_attitude_norm_error!r}")
 
@@ -192,6 +246,17 @@ class MekfConfig:
         p[mekf.EP_MAXREJ] = float(self.max_consecutive_rejections)
         p[mekf.EP_MAX_NORM_ERR] = self.max_attitude_norm_error
         p[mekf.EP_MAX_RATE] = self.max_body_rate_rad_s
+        dof = 3 * self.monitor_window_samples  # the window's NIS sum: chi-square, 3 per sample
+        err_lo, err_hi = chi2_band(dof, self.monitor_error_probability)
+        warn_lo, warn_hi = chi2_band(dof, self.monitor_warn_probability)
+        p[mekf.EP_MON_WINDOW] = float(self.monitor_window_samples)
+        p[mekf.EP_MON_NIS:mekf.EP_MON_NIS + 4] = (err_lo, warn_lo, warn_hi, err_hi)
+        # the mean test, one-sided: |sum of the whitened innovations|^2 / n is chi-square with 3
+        p[mekf.EP_MON_MEAN] = chi2_3dof_isf(1.0 - self.monitor_warn_probability)
+        p[mekf.EP_MON_MEAN + 1] = chi2_3dof_isf(1.0 - self.monitor_error_probability)
+        rec = np.asarray(_three("bias_recovery_sigma_rad_s", self.initial_bias_sigma_rad_s if self.bias_recovery_sigma_rad_s is None
+                                else self.bias_recovery_sigma_rad_s))
+        p[mekf.EP_RECOVERY_PBB:mekf.EP_RECOVERY_PBB + 3] = rec * rec
         if self.initial_q_BN is None:
             p[mekf.EP_INIT] = mekf.INIT_FROM_TRACKER
         else:

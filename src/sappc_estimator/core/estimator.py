@@ -19,8 +19,8 @@ __all__ = ["Mekf"]
 
 Array = NDArray[np.float64]
 
-#: The measurement of the warm-up step: identity attitude, at rest.
-_AT_REST = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+#: The measurement of the warm-up step: identity attitude, at rest, measured at t = 0.
+_AT_REST = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
 
 
 class Mekf:
@@ -51,7 +51,7 @@ class Mekf:
         self.st: Array = mekf.new_state()
         self.P: Array = np.zeros((6, 6))
         self.work: Array = np.zeros((mekf.N_EST_WORK, 6))
-        self.y: Array = np.zeros(7)
+        self.y: Array = np.zeros(mekf.N_MEAS)
         self.out: Array = np.full(mekf.N_EST_OUT, np.nan)
 
     def warm_up(self) -> None:
@@ -59,18 +59,46 @@ class Mekf:
         second), not at the first sample; this filter's state is not touched."""
         mekf.mekf_step(self.prm, 0.0, _AT_REST.copy(), mekf.new_state(), np.zeros((6, 6)), np.zeros_like(self.work), np.empty(mekf.N_EST_OUT))
 
-    def step(self, t_s: float, q_meas: ArrayLike, omega_meas: ArrayLike) -> int:
-        """One filter step at time ``t_s`` [s] with the tracker's ``q_meas`` (x, y, z, w) and the
-        gyro's ``omega_meas`` [rad/s]; returns the step's status (``mekf.STATUS_*``), outputs in
-        :attr:`out` and the properties below."""
+    def step(self, t_s: float, q_meas: ArrayLike, omega_meas: ArrayLike, epoch_s: float) -> int:
+        """One filter step at time ``t_s`` [s] with the tracker's ``q_meas`` (x, y, z, w), measured
+        at ``epoch_s`` [s] (the tracker sample's own time, ``<= t_s``: a new sample is one of a later
+        epoch), and the gyro's ``omega_meas`` [rad/s]; returns the step's status
+        (``mekf.STATUS_*``), outputs in :attr:`out` and the properties below."""
         self.y[:4] = q_meas
-        self.y[4:] = omega_meas
+        self.y[4:7] = omega_meas
+        self.y[mekf.Y_EPOCH] = epoch_s
         return int(mekf.mekf_step(self.prm, t_s, self.y, self.st, self.P, self.work, self.out))
 
     @property
     def initialised(self) -> bool:
         """Whether the filter has an estimate."""
         return bool(self.st[mekf.ES_INIT] != 0.0)
+
+    @property
+    def usable(self) -> bool:
+        """Whether the last step's estimate may be used (initialised and confirmed: not a provisional
+        start, a prior or a re-initialisation that no tracker sample has confirmed yet)."""
+        return bool(self.out[mekf.EO_USABLE] == 1.0)
+
+    @property
+    def monitor_level(self) -> int:
+        """The health monitor's level (``mekf.MON_*``: the ROS diagnostic levels OK, WARN, ERROR)."""
+        return int(self.st[mekf.ES_MON_LEVEL])
+
+    @property
+    def monitor_nis_sum(self) -> float:
+        """The monitor window's NIS sum at its last verdict (NaN before the first)."""
+        return float(self.st[mekf.ES_MON_NIS])
+
+    @property
+    def monitor_mean_statistic(self) -> float:
+        """The monitor window's mean statistic at its last verdict (NaN before the first)."""
+        return float(self.st[mekf.ES_MON_MEAN])
+
+    @property
+    def recoveries(self) -> int:
+        """Bias covariance inflations after a failed monitor."""
+        return int(self.st[mekf.ES_N_RECOVER])
 
     @property
     def q_BN(self) -> Array:

@@ -28,18 +28,23 @@ One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (
    injector's "no data"), a quaternion whose norm differs from 1 by more than
    ``max_norm_error`` or a rate beyond ``max_rate`` [rad/s] (a sensor or link fault, not a
    state) changes nothing and gives no estimate (status *none*, outputs NaN).
-1. **A new tracker sample** is one whose quaternion differs (exact comparison) from the quaternion
-   of the previous step's measurement: a star tracker holds its last quaternion between updates
-   and during outages (``spacecraft_sim.core.sensors``), so a held value is not a new measurement.
-   The first step's sample is new.
+1. **A new tracker sample** is one whose epoch (``y[7]``: the time the tracker measured the
+   quaternion, which it holds between updates and through outages,
+   ``spacecraft_sim.core.sensors``; on the graph ``state/attitude_epoch``) is later than the epoch
+   of the last sample used; never by comparing values: a fault window that ends between two
+   epochs changes a held value without making it new.  The first step's sample is new.
 2. **Initialisation.**  ``from_tracker`` (default): the first step's sample becomes ``q_hat``,
-   with ``b_hat = b0`` and ``P = diag(P0_a, P0_b)``, *provisionally*: a held quaternion may be up
-   to one tracker period old (a filter started between two updates), so the first sample that
-   changes, certainly fresh, re-initialises the attitude (``q_hat = q_meas``, ``P_aa = R``,
-   ``P_ab = 0``; status *initialised*) instead of updating it.  ``from_prior``: at the first step
-   ``q_hat = q_prior``, same ``b_hat`` and ``P``, and that step's tracker sample is then
-   processed as an update (a prior far from the truth, e.g. a coarse sensor's attitude 10 deg
-   off, is corrected by the first tracker sample).
+   with ``b_hat = b0`` and ``P = diag(P0_a, P0_b)``; measured at this step (its epoch is ``t``)
+   it is the estimate at once; older (a filter started between two updates: a held quaternion may
+   be up to one tracker period old) it is *provisional*: the next new sample re-initialises the
+   attitude (``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; status *initialised*) instead of
+   updating it.  ``from_prior``: at the first step ``q_hat = q_prior``, same ``b_hat`` and
+   ``P``, and that step's tracker sample is then processed as an update (a prior far from the
+   truth, e.g. a coarse sensor's attitude 10 deg off, is corrected by the first tracker sample).
+   The estimate is *confirmed* (usable, ``out[EO_USABLE] = 1``) once initialised from a sample
+   of now or after an accepted update; a provisional attitude, a prior and a re-initialised
+   attitude are withheld (0) until a tracker sample is accepted: the callers then give the
+   controller "no data".
 3. **Propagation** from the previous step's time ``t_prev`` over ``h = t - t_prev`` with the mean
    of the two gyro samples, bias removed: ``w = (omega_prev + omega_meas) / 2 - b_hat``
    (trapezoid: the rate between two samples, not the older one held).
@@ -56,22 +61,43 @@ One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (
    chi-square with 3 degrees of freedom for a consistent filter).
    *Gate*: unless ``d2 <= gate`` the sample is rejected (counted); after ``max_rejections``
    consecutive rejections the filter re-initialises its attitude from the tracker
-   (``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; the bias and its covariance kept): a filter
-   that has lost its attitude must not reject the truth forever.
+   (``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; the bias estimate kept, its covariance
+   inflated by the recovery's ``Q_r``: the bias knowledge kept, not the confidence that let the
+   attitude drift; unconfirmed until the next accepted sample): a filter that has lost its
+   attitude must not reject the truth forever.
    *Accepted*: ``K = P H^T S^-1`` with ``H = [I 0]``, ``dx = K r``, the Joseph form
    ``P <- (I - K H) P (I - K H)^T + K R K^T`` (symmetric and positive definite whatever the
    rounding, M&C 6.25), symmetrised; the multiplicative reset ``q_hat <- normalise(q_hat ⊗
    dq(dx_a))``, ``b_hat <- b_hat + dx_b`` (M&C 6.2.3; ``P`` is not transformed by the reset).
+   *Health monitor* (after an accepted update): the sample's NIS and whitened innovation
+   ``w = L^-1 r`` (``S = L L^T``, Cholesky) go into a window of the last ``n`` accepted samples;
+   once full, each sample gives a verdict: the window's NIS sum (chi-square with ``3 n`` degrees
+   of freedom for a consistent filter: Bar-Shalom, Li and Kirubarajan, *Estimation with
+   Applications to Tracking and Navigation*, 2001, 5.4.2, the time-average NIS test) against its
+   two-sided warning and error bands, and the mean test ``|sum w|^2 / n`` (chi-square with 3: the
+   innovations are zero-mean, ibid.) against its upper bounds: level OK, WARN or ERROR
+   (``MON_*``).  A verdict above an error bound is a failed monitor: the *recovery* adds a bias
+   step of covariance ``Q_r = diag(bias_recovery_sigma^2)`` dated at the window's first sample,
+   ``age`` s ago, carried to now by the transition's bias columns: ``P_bb += Q_r``,
+   ``P_ab += -Q_r age``, ``P_aa += Q_r age^2`` (the adjustable process noise of Bar-Shalom et
+   al. 11.2, applied once when the test fails; the covariance inflation of adaptive filtering in
+   Crassidis and Junkins, *Optimal Estimation of Dynamic Systems*, 2nd ed., 2012, ch. 5), and
+   empties the window; a second failed window in a row re-initialises as after the gate's
+   rejections.
 5. **Outputs**: ``q_hat``, ``omega_hat = omega_meas - b_hat`` (the current sample), ``b_hat``, the
-   1-sigma of each error state ``sqrt(diag P)``, the last NIS and the step's status.
+   1-sigma of each error state ``sqrt(diag P)``, the last NIS, the step's status, the monitor's
+   level, window NIS sum and mean statistic, whether the estimate is usable, the recoveries.
 
 Arrays (float64, the caller's; no allocation per step)
 ------------------------------------------------------
 ``prm`` (:data:`N_EST_PARAMS`,)
     Columns ``EP_*``: ``R`` (3), ``sigma_v^2`` (3), ``sigma_u^2`` (3), ``P0_a`` (3), ``P0_b`` (3),
     ``b0`` (3), ``gate`` (inf: none), ``max_rejections`` (>= 1), the initialisation mode
-    (``INIT_*``), ``q_prior`` (4), and the plausibility bounds ``max_norm_error`` and
-    ``max_rate`` [rad/s].
+    (``INIT_*``), ``q_prior`` (4), the plausibility bounds ``max_norm_error`` and
+    ``max_rate`` [rad/s], the monitor's window, its NIS-sum bounds (4), its mean-test bounds (2)
+    and the recovery's ``Q_r`` (3).
+``y`` (:data:`N_MEAS`,)
+    The measurement: ``q_meas`` (4), ``omega_meas`` (3), the tracker sample's epoch [s] (``<= t``).
 ``st`` (:data:`N_EST_STATE`,)
     Columns ``ES_*``: initialised flag, ``q_hat`` (4), ``b_hat`` (3), the previous measurement's
     quaternion (4) and rate (3), ``t_prev``, counters (updates, rejections, consecutive rejections,
@@ -98,7 +124,10 @@ __all__ = [
     "EstimatorArrays",
     "EO_B", "EO_NIS", "EO_OMEGA", "EO_Q", "EO_SIGMA", "EO_STATUS",
     "EP_B0", "EP_GATE", "EP_INIT", "EP_MAXREJ", "EP_MAX_NORM_ERR", "EP_MAX_RATE", "EP_P0A", "EP_P0B", "EP_Q0", "EP_R", "EP_SU2", "EP_SV2",
-    "ES_B", "ES_INIT", "ES_LASTQ", "ES_LASTW", "ES_NIS", "ES_N_CONSEC", "ES_N_REINIT", "ES_N_REJ", "ES_N_UPD", "ES_Q", "ES_TPREV",
+    "ES_B", "ES_CONFIRMED", "ES_EPOCH", "ES_INIT", "ES_LASTQ", "ES_LASTW", "ES_MON_LEVEL", "ES_MON_MEAN", "ES_MON_NIS", "ES_NIS",
+    "ES_N_CONSEC", "ES_N_RECOVER", "ES_N_REINIT", "ES_N_REJ", "ES_N_UPD", "ES_Q", "ES_TPREV",
+    "EO_MON_LEVEL", "EO_MON_MEAN", "EO_MON_NIS", "EO_N_RECOVER", "EO_USABLE", "EP_MON_MEAN", "EP_MON_NIS", "EP_MON_WINDOW", "EP_RECOVERY_PBB",
+    "MON_ERROR", "MON_LEVEL_NAMES", "MON_MAX_WINDOW", "MON_OK", "MON_WARN", "N_MEAS", "Y_EPOCH", "reset_state",
     "INIT_FROM_PRIOR", "INIT_FROM_TRACKER",
     "N_EST_OUT", "N_EST_PARAMS", "N_EST_STATE", "N_EST_WORK",
     "SERIES_BELOW",
@@ -111,27 +140,57 @@ __all__ = [
 #: Parameter columns (module docstring).
 EP_R, EP_SV2, EP_SU2, EP_P0A, EP_P0B, EP_B0, EP_GATE, EP_MAXREJ, EP_INIT, EP_Q0 = 0, 3, 6, 9, 12, 15, 18, 19, 20, 21
 EP_MAX_NORM_ERR, EP_MAX_RATE = 25, 26
-N_EST_PARAMS = 27
+#: The health monitor's columns: the window [compared tracker samples], the bounds of the window's
+#: NIS sum (error low, warning low, warning high, error high), the bounds of the mean test
+#: (warning, error), and the bias covariance a failed monitor adds (3, rad^2/s^2).
+EP_MON_WINDOW, EP_MON_NIS, EP_MON_MEAN, EP_RECOVERY_PBB = 27, 28, 32, 34
+N_EST_PARAMS = 37
 #: Initialisation modes (``prm[EP_INIT]``).
 INIT_FROM_TRACKER, INIT_FROM_PRIOR = 0, 1
 
 #: State columns.
 ES_INIT, ES_Q, ES_B, ES_LASTQ, ES_LASTW, ES_TPREV = 0, 1, 5, 8, 12, 15
 ES_N_UPD, ES_N_REJ, ES_N_CONSEC, ES_N_REINIT, ES_NIS, ES_SEEN, ES_PROVISIONAL = 16, 17, 18, 19, 20, 21, 22
-N_EST_STATE = 23
+#: The epoch [s] of the last tracker sample used, whether the estimate is confirmed (usable), and
+#: the monitor: samples in its window, the ring's next slot, its level (``MON_*``), the window's NIS
+#: sum and mean statistic at its last verdict, consecutive failed verdicts (too large), the
+#: recoveries (bias covariance inflations) so far, then the ring (:data:`MON_MAX_WINDOW` rows of
+#: the NIS and the whitened innovation (3)).
+ES_EPOCH, ES_CONFIRMED, ES_MON_N, ES_MON_HEAD, ES_MON_LEVEL, ES_MON_NIS, ES_MON_MEAN, ES_MON_FAILS, ES_N_RECOVER = 23, 24, 25, 26, 27, 28, 29, 30, 31
+ES_MON_RING = 32
+#: The longest monitor window [compared tracker samples]: 10 s at 10 Hz, longer than any bias
+#: step's detection should take; the ring is part of the state array.
+MON_MAX_WINDOW = 100
+#: Columns of a ring row: the sample's time [s], its NIS, its whitened innovation (3).
+_RING_WIDTH = 5
+N_EST_STATE = ES_MON_RING + _RING_WIDTH * MON_MAX_WINDOW
 
 #: Output columns.
 EO_Q, EO_OMEGA, EO_B, EO_SIGMA, EO_NIS, EO_STATUS = 0, 4, 7, 10, 16, 17
-N_EST_OUT = 18
+#: The monitor's level, the window's NIS sum and mean statistic at its last verdict (NaN before
+#: the first), whether the estimate may be used (1) or must not (0: initialising, re-initialised
+#: and not yet confirmed), and the recoveries so far.
+EO_MON_LEVEL, EO_MON_NIS, EO_MON_MEAN, EO_USABLE, EO_N_RECOVER = 18, 19, 20, 21, 22
+N_EST_OUT = 23
+
+#: The health monitor's levels (``out[EO_MON_LEVEL]``), the values of ROS's
+#: ``diagnostic_msgs/DiagnosticStatus`` levels OK, WARN and ERROR.
+MON_OK, MON_WARN, MON_ERROR = 0, 1, 2
+MON_LEVEL_NAMES = ("ok", "warn", "error")
+#: Entries of the measurement ``y``: the tracker's quaternion (4), the gyro's rate (3) and the
+#: tracker sample's epoch [s] (the time the quaternion was measured).
+N_MEAS = 8
+Y_EPOCH = 7
 
 #: What a step did (``out[EO_STATUS]``), in :data:`STATUS_NAMES` order.
 STATUS_NONE, STATUS_INITIALISED, STATUS_PROPAGATED, STATUS_UPDATED, STATUS_REJECTED, STATUS_REINITIALISED = 0, 1, 2, 3, 4, 5
 STATUS_NAMES = ("none", "initialised", "propagated", "updated", "rejected", "reinitialised")
 
 #: Rows of the scratch array: Phi (6), the product Phi P (6), K (6, as 6 x 3 in the first 3
-#: columns), I - K H (6), S and S^-1 side by side (3 rows), two vectors.
-N_EST_WORK = 32
+#: columns), I - K H (6), S and S^-1 side by side (3 rows), two vectors, the whitened innovation.
+N_EST_WORK = 33
 _W_PHI, _W_TMP, _W_K, _W_IKH, _W_S, _W_V = 0, 6, 12, 18, 24, 30
+_W_WHITE = 32
 
 #: Below this ``x = |w| h`` [rad], ``x - sin x`` is its series ``x^3/6 - x^5/120 + x^7/5040``
 #: (truncation below 1e-17 relative there); above it the closed form has no harmful cancellation
@@ -142,8 +201,20 @@ SERIES_BELOW = 1e-2
 def new_state() -> np.ndarray:
     """A fresh filter state (not initialised)."""
     st = np.zeros(N_EST_STATE)
-    st[ES_NIS] = np.nan
+    reset_state(st)
     return st
+
+
+@jit(inline="always")
+def reset_state(st):
+    """Make ``st`` a fresh filter state (not initialised), in place: zeros, the NaNs of the
+    statistics not computed yet and no tracker epoch used yet."""
+    for i in range(st.shape[0]):
+        st[i] = 0.0
+    st[ES_NIS] = np.nan
+    st[ES_MON_NIS] = np.nan
+    st[ES_MON_MEAN] = np.nan
+    st[ES_EPOCH] = -np.inf
 
 
 # ----------------------------------------------------------------------------- rotations
@@ -199,7 +270,8 @@ def _initialise(prm, q, st, P):
 
 @jit(inline="always")
 def _reinitialise_attitude(prm, st, P, q_meas):
-    """``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; the bias and its covariance kept."""
+    """``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; the bias and its covariance kept (the
+    first fresh sample after a provisional start)."""
     for i in range(4):
         st[ES_Q + i] = q_meas[i]
     for a in range(3):
@@ -207,6 +279,42 @@ def _reinitialise_attitude(prm, st, P, q_meas):
             P[a, b] = 0.0
             P[b, a] = 0.0
         P[a, a] = prm[EP_R + a]
+
+
+@jit(inline="always")
+def _inflate_bias(prm, P, age):
+    """The recovery (module docstring, "Health monitor"): a bias step of covariance
+    ``Q = diag(recovery)`` that happened ``age`` [s] ago, carried to now by the transition's bias
+    columns (``Phi12 = -I age`` to first order): ``P_bb += Q``, ``P_ab += -Q age``,
+    ``P_aa += Q age^2`` (``age = 0``: the bias alone)."""
+    for i in range(3):
+        q = prm[EP_RECOVERY_PBB + i]
+        P[3 + i, 3 + i] += q
+        P[i, 3 + i] -= q * age
+        P[3 + i, i] -= q * age
+        P[i, i] += q * age * age
+
+
+@jit(inline="always")
+def _clear_monitor(st):
+    """Empty the monitor's window (its samples were judged against a covariance that no longer holds)."""
+    st[ES_MON_N] = 0.0
+    st[ES_MON_HEAD] = 0.0
+
+
+@jit(inline="always")
+def _reinitialise_after_failure(prm, st, P, q_meas):
+    """Re-initialisation after a lost attitude (the gate's consecutive rejections, or a monitor that
+    fails again after its recovery): ``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``, the bias
+    estimate kept and its covariance inflated by the recovery's (the knowledge of the bias kept, its
+    confidence not); the estimate is unconfirmed (not to be used) until a tracker sample is accepted."""
+    _reinitialise_attitude(prm, st, P, q_meas)
+    _inflate_bias(prm, P, 0.0)
+    _clear_monitor(st)
+    st[ES_MON_FAILS] = 0.0
+    st[ES_MON_LEVEL] = MON_WARN
+    st[ES_CONFIRMED] = 0.0
+    st[ES_N_REINIT] += 1.0
 
 
 @jit(inline="always")
@@ -287,7 +395,7 @@ def _propagate(prm, st, P, w0, w1, w2, h, work):
 
 
 @jit(inline="always")
-def _update(prm, st, P, q_meas, work):
+def _update(prm, st, P, q_meas, work, t):
     """Step 4 of the module docstring; returns the status (updated, rejected or re-initialised)."""
     q = st[ES_Q:ES_Q + 4]
     # residual r = rotvec(q_hat^* ⊗ q_meas)
@@ -313,15 +421,26 @@ def _update(prm, st, P, q_meas, work):
         row = (Si[a, 0] * r0 + Si[a, 1] * r1) + Si[a, 2] * r2
         d2 += rv[a] * row
     st[ES_NIS] = d2
+    # the innovation whitened by S's Cholesky factor L (S = L L^T): w = L^-1 r, N(0, I) for a
+    # consistent filter
+    l00 = np.sqrt(S[0, 0])
+    l10 = S[1, 0] / l00
+    l20 = S[2, 0] / l00
+    l11 = np.sqrt(S[1, 1] - l10 * l10)
+    l21 = (S[2, 1] - l20 * l10) / l11
+    l22 = np.sqrt(S[2, 2] - (l20 * l20 + l21 * l21))
+    white = work[_W_WHITE]
+    white[0] = r0 / l00
+    white[1] = (r1 - l10 * white[0]) / l11
+    white[2] = (r2 - (l20 * white[0] + l21 * white[1])) / l22
     if not d2 <= prm[EP_GATE]:  # a NaN distance is rejected too
         st[ES_N_REJ] += 1.0
         st[ES_N_CONSEC] += 1.0
         if st[ES_N_CONSEC] >= prm[EP_MAXREJ]:
-            _reinitialise_attitude(prm, st, P, q_meas)
+            _reinitialise_after_failure(prm, st, P, q_meas)
             st[ES_N_CONSEC] = 0.0
-            st[ES_N_REINIT] += 1.0
             return STATUS_REINITIALISED
-        return STATUS_REJECTED
+        return STATUS_REJECTED  # (the monitor judges the innovations the filter uses: an outlier is the gate's)
     # K = P[:, 0:3] S^-1 (6 x 3)
     K = work[_W_K:_W_K + 6, 0:3]
     for i in range(6):
@@ -351,31 +470,87 @@ def _update(prm, st, P, q_meas, work):
     quat_normalize(q, q)
     st[ES_N_UPD] += 1.0
     st[ES_N_CONSEC] = 0.0
+    st[ES_CONFIRMED] = 1.0
+    return _monitor(prm, st, P, q_meas, d2, white, t)
+
+
+@jit(inline="always")
+def _monitor(prm, st, P, q_meas, d2, white, t):
+    """The health monitor (module docstring): the compared sample's time ``t``, NIS ``d2`` and
+    whitened innovation ``white`` (3) into the window; once it holds ``EP_MON_WINDOW`` samples, a verdict
+    on the window (the level), and on a window too large for its band the recovery, or, when the
+    window after a recovery fails too, the re-initialisation.  Returns the step's status
+    (updated, or re-initialised)."""
+    n_window = int(prm[EP_MON_WINDOW])
+    head = int(st[ES_MON_HEAD])
+    ring = ES_MON_RING + _RING_WIDTH * head
+    st[ring] = t
+    st[ring + 1] = d2
+    for i in range(3):
+        st[ring + 2 + i] = white[i]
+    st[ES_MON_HEAD] = float((head + 1) % n_window)
+    if st[ES_MON_N] < n_window:
+        st[ES_MON_N] += 1.0
+    if st[ES_MON_N] < n_window:
+        return STATUS_UPDATED
+    nis_sum = 0.0
+    m0, m1, m2 = 0.0, 0.0, 0.0
+    t_first = t
+    for j in range(n_window):  # the window in slot order (the sum's order fixed by the slots)
+        row = ES_MON_RING + _RING_WIDTH * j
+        t_first = min(t_first, st[row])
+        nis_sum += st[row + 1]
+        m0 += st[row + 2]
+        m1 += st[row + 3]
+        m2 += st[row + 4]
+    mean_stat = ((m0 * m0 + m1 * m1) + m2 * m2) / n_window
+    st[ES_MON_NIS] = nis_sum
+    st[ES_MON_MEAN] = mean_stat
+    too_large = not (nis_sum <= prm[EP_MON_NIS + 3] and mean_stat <= prm[EP_MON_MEAN + 1])  # NaN: too large
+    if too_large or nis_sum < prm[EP_MON_NIS]:
+        st[ES_MON_LEVEL] = MON_ERROR
+    elif nis_sum < prm[EP_MON_NIS + 1] or nis_sum > prm[EP_MON_NIS + 2] or mean_stat > prm[EP_MON_MEAN]:
+        st[ES_MON_LEVEL] = MON_WARN
+    else:
+        st[ES_MON_LEVEL] = MON_OK
+    if not too_large:
+        st[ES_MON_FAILS] = 0.0
+        return STATUS_UPDATED
+    st[ES_MON_FAILS] += 1.0
+    if st[ES_MON_FAILS] >= 2.0:  # the recovery did not restore consistency: the attitude is lost
+        _reinitialise_after_failure(prm, st, P, q_meas)
+        st[ES_N_CONSEC] = 0.0
+        return STATUS_REINITIALISED
+    _inflate_bias(prm, P, t - t_first)  # the recovery: a step at the failed window's start
+    _clear_monitor(st)
+    st[ES_N_RECOVER] += 1.0
     return STATUS_UPDATED
 
 
 @jit
 def mekf_step(prm, t, y, st, P, work, out):
-    """One step of the filter at time ``t`` [s] with the measurement ``y`` (7,) ``(q_meas (4),
-    omega_meas (3))`` (module docstring); writes ``out`` and returns the status (``STATUS_*``)."""
+    """One step of the filter at time ``t`` [s] with the measurement ``y`` (:data:`N_MEAS`,)
+    ``(q_meas (4), omega_meas (3), epoch)``, ``epoch`` [s] the time the tracker measured ``q_meas``
+    (module docstring); writes ``out`` and returns the status (``STATUS_*``)."""
     norm = np.sqrt(((y[0] * y[0] + y[1] * y[1]) + y[2] * y[2]) + y[3] * y[3])
     rate = np.sqrt((y[4] * y[4] + y[5] * y[5]) + y[6] * y[6])
-    if not (abs(norm - 1.0) <= prm[EP_MAX_NORM_ERR] and rate <= prm[EP_MAX_RATE]):  # no measurement (a NaN fails too)
+    if not (abs(norm - 1.0) <= prm[EP_MAX_NORM_ERR] and rate <= prm[EP_MAX_RATE] and y[Y_EPOCH] <= t):  # no measurement (a NaN fails too)
         for j in range(N_EST_OUT):
             out[j] = np.nan
         out[EO_STATUS] = STATUS_NONE
         return STATUS_NONE
-    new = st[ES_SEEN] == 0.0
-    for i in range(4):
-        if y[i] != st[ES_LASTQ + i]:
-            new = True
+    epoch = y[Y_EPOCH]
+    new = epoch > st[ES_EPOCH]  # a tracker sample not used before (its epoch, never its value)
+    fresh = epoch >= t  # measured at this step's time
     status = STATUS_NONE
     if st[ES_INIT] == 0.0:
         _initialise(prm, prm[EP_Q0:EP_Q0 + 4] if prm[EP_INIT] == INIT_FROM_PRIOR else y[0:4], st, P)
         status = STATUS_INITIALISED
         if prm[EP_INIT] == INIT_FROM_PRIOR:
-            status = _update(prm, st, P, y[0:4], work)
-        else:
+            status = _update(prm, st, P, y[0:4], work, t)
+        elif fresh:  # the tracker's attitude of now: an estimate
+            st[ES_CONFIRMED] = 1.0
+        else:  # up to one tracker period old: replaced by the first new sample, not used before
             st[ES_PROVISIONAL] = 1.0
     else:
         h = t - st[ES_TPREV]
@@ -385,12 +560,15 @@ def mekf_step(prm, t, y, st, P, work, out):
         w2 = 0.5 * (st[ES_LASTW + 2] + y[6]) - b[2]
         _propagate(prm, st, P, w0, w1, w2, h, work)
         status = STATUS_PROPAGATED
-        if new and st[ES_PROVISIONAL] != 0.0:  # the first fresh sample replaces the provisional attitude
+        if new and st[ES_PROVISIONAL] != 0.0:  # the first new sample replaces the provisional attitude
             _reinitialise_attitude(prm, st, P, y[0:4])
             st[ES_PROVISIONAL] = 0.0
+            st[ES_CONFIRMED] = 1.0
             status = STATUS_INITIALISED
         elif new:
-            status = _update(prm, st, P, y[0:4], work)
+            status = _update(prm, st, P, y[0:4], work, t)
+    if new:
+        st[ES_EPOCH] = epoch
     for i in range(4):
         st[ES_LASTQ + i] = y[i]
     for i in range(3):
@@ -409,6 +587,11 @@ def mekf_step(prm, t, y, st, P, work, out):
         for i in range(6):
             out[EO_SIGMA + i] = np.sqrt(P[i, i])
         out[EO_NIS] = st[ES_NIS]
+        out[EO_MON_LEVEL] = st[ES_MON_LEVEL]
+        out[EO_MON_NIS] = st[ES_MON_NIS]
+        out[EO_MON_MEAN] = st[ES_MON_MEAN]
+        out[EO_USABLE] = st[ES_CONFIRMED]
+        out[EO_N_RECOVER] = st[ES_N_RECOVER]
     out[EO_STATUS] = status
     return status
 

@@ -366,7 +366,7 @@ class FaultSchedule:
         """Forget every held sample (a new run)."""
         self._count, self._buf = self.encoded.new_state()
         self._u_last = np.zeros(3)
-        self._y = np.zeros(7)
+        self._y = np.zeros(kernels.N_FVALUE)
         self._u = np.zeros(3)
         self._draws = np.zeros((self.encoded.n, 6))
 
@@ -383,17 +383,27 @@ class FaultSchedule:
         """Whether the reference stamped ``t`` is delivered."""
         return bool(kernels.fault_reference_one(float(t), self.encoded.kind, self.encoded.window))
 
-    def sensor(self, t: float, stamp_ns: int, q_BN: Array, omega_BN_B: Array) -> tuple[Array, Array] | None:
+    def sensor(self, t: float, stamp_ns: int, q_BN: Array, omega_BN_B: Array, epoch_s: float | None = None) -> tuple[Array, Array, float] | None:
         """The measurement delivered for the true sample ``(q_BN, omega_BN_B)`` stamped ``t``
-        (``stamp_ns`` in nanoseconds, the noise key), or ``None`` when it is dropped."""
+        (``stamp_ns`` in nanoseconds, the noise key), whose tracker quaternion was measured at
+        ``epoch_s`` (``None``: at ``t``), as ``(q_BN, omega_BN_B, epoch_s)`` (a held or delayed sample
+        keeps its epoch), or ``None`` when it is dropped."""
         e, y = self.encoded, self._y
         y[:4] = q_BN
-        y[4:] = omega_BN_B
+        y[4:7] = omega_BN_B
+        y[7] = t if epoch_s is None else epoch_s
         if e.has_noise:
             self._draws[:] = noise_draws(self.faults, np.array([stamp_ns], dtype=np.int64))[0]
         if not kernels.fault_sensor_one(float(t), e.kind, e.window, e.params, e.samples, self._count, self._buf, self._draws, y):
             return None
-        return y[:4].copy(), y[4:].copy()
+        return y[:4].copy(), y[4:7].copy(), float(y[7])
+
+    def gyro_bias_fault(self, t: float) -> Array:
+        """The rate bias [rad/s] (3,) the sensor faults active at ``t`` add to the gyro's
+        (:func:`spacecraft_sim.core.kernels.fault_rate_bias`: the truth's share of the faults)."""
+        out = np.zeros(3)
+        kernels.fault_rate_bias_one(float(t), self.encoded.kind, self.encoded.window, self.encoded.params, out)
+        return out
 
 
 _KIND_CODES: dict[type, int] = {

@@ -350,8 +350,9 @@ def noisy_measurement(q_BN, omega_BN_B, n, attitude_std_rad, rate_std_rad_s, q_o
 #: Columns of ``fprm`` (per fault): effectiveness or bias (3); noise sigmas (2); sensor bias:
 #: the bias rotation as a quaternion (4) then the rate bias (3).
 N_FPARAMS = 7
-#: Values of a sample a delay or freeze keeps: the measured state (q, omega: 7) or a torque (3).
-N_FVALUE = 7
+#: Values of a sample a delay or freeze keeps: the measured state (q, omega and the tracker
+#: sample's epoch: 8, so a held or delayed sample keeps its own time) or a torque (3).
+N_FVALUE = 8
 
 
 @jit(inline="always")
@@ -386,7 +387,7 @@ def _fault_hold(fcount, fbuf, f, n, value, m):
 
 @jit(inline="always")
 def fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, draws, y):
-    """The measurement delivered for the true sample ``y`` = (q_BN, omega_BN_B) (7,) at ``t``,
+    """The measurement delivered for the true sample ``y`` = (q_BN, omega_BN_B, tracker epoch) (8,) at ``t``,
     through the sensor faults in list order, in place; ``False`` when it is dropped (the faults
     after the dropout in the list do not see the sample).
 
@@ -398,7 +399,7 @@ def fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, draws, y):
         kind = fkind[f]
         if kind == F_SENSOR_NOISE:
             if fault_active(fwin, f, t):
-                noisy_measurement(y[:4], y[4:], draws[f], fprm[f, 0], fprm[f, 1], y[:4], y[4:])
+                noisy_measurement(y[:4], y[4:7], draws[f], fprm[f, 0], fprm[f, 1], y[:4], y[4:7])
         elif kind == F_SENSOR_BIAS:
             if fault_active(fwin, f, t):
                 quat_multiply(y[:4], fprm[f, :4], tmp)
@@ -410,10 +411,27 @@ def fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, draws, y):
                 return False
         elif kind == F_SENSOR_FREEZE or kind == F_DELAY_SENSOR:
             if fault_active(fwin, f, t):
-                _fault_hold(fcount, fbuf, f, fint[f], y, 7)
+                _fault_hold(fcount, fbuf, f, fint[f], y, N_FVALUE)
             else:
                 fcount[f] = 0
     return True
+
+
+@jit(inline="always")
+def fault_rate_bias(t, fkind, fwin, fprm, out):
+    """Add to ``out`` (3,) the rate bias [rad/s] of every ``sensor_bias`` fault active at ``t``: the
+    share of the faults in the gyro's true bias (what an estimator's bias is judged against),
+    whatever the other faults do to the delivered sample."""
+    for f in range(fkind.shape[0]):
+        if fkind[f] == F_SENSOR_BIAS and fault_active(fwin, f, t):
+            for i in range(3):
+                out[i] = out[i] + fprm[f, 4 + i]
+
+
+@jit
+def fault_rate_bias_one(t, fkind, fwin, fprm, out):
+    """:func:`fault_rate_bias` called from Python (the plant node's ``truth/gyro_bias``)."""
+    fault_rate_bias(t, fkind, fwin, fprm, out)
 
 
 @jit(inline="always")

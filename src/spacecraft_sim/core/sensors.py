@@ -214,26 +214,32 @@ def rotate_by_vector(q_BN, rx, ry, rz, q_out):
 
 
 @jit
-def measure(k, t, q_BN, omega_BN_B, n, prm, outages, held_q, bias, y):
-    """The measurement of sample ``k`` at time ``t`` [s] (module docstring) into ``y`` (7,):
-    ``y[:4]`` the tracker's quaternion (updated into ``held_q`` (4,) on its samples outside the
-    ``outages`` (K, 2), held otherwise), ``y[4:]`` the gyro's rate with the bias ``bias`` (3,),
-    which then walks one period.  Stride 0 in ``prm``: no tracker, the attitude is exact.  ``n``: the sample's standard normals (6 or more; the bias walk
+def measure(k, t, t_epoch, q_BN, omega_BN_B, n, prm, outages, held_q, bias, y):
+    """The measurement of sample ``k`` at time ``t`` [s] (module docstring) into ``y`` (8,):
+    ``y[:4]`` the tracker's quaternion (updated into ``held_q[:4]`` on its samples outside the
+    ``outages`` (K, 2), held otherwise), ``y[4:7]`` the gyro's rate with the bias ``bias`` (3,),
+    which then walks one period, ``y[7]`` the tracker sample's epoch: ``t_epoch`` (this sample's
+    stamp in the consumer's seconds) when it updates, kept in ``held_q[4]`` while it holds (a star
+    tracker stamps each quaternion with its own time).  Stride 0 in ``prm``: no tracker, the attitude is exact (a new
+    sample every time).  ``n``: the sample's standard normals (6 or more; the bias walk
     reads ``n[6:9]`` only when it is non-zero), ``prm`` (:data:`N_SENSOR_PARAMS`,)."""
     stride = int(prm[_ST_STRIDE])
     if stride == 0:  # no star tracker: the true attitude
         for i in range(4):
             held_q[i] = q_BN[i]
+        held_q[4] = t_epoch
     update = stride > 0 and k % stride == 0
     for w in range(outages.shape[0]):
         if outages[w, 0] <= t < outages[w, 1]:
             update = False
     if update:
         rotate_by_vector(q_BN, prm[_ST_SIGMA] * n[0], prm[_ST_SIGMA + 1] * n[1], prm[_ST_SIGMA + 2] * n[2], held_q)
+        held_q[4] = t_epoch
     for i in range(4):
         y[i] = held_q[i]
     for i in range(3):
         y[4 + i] = (omega_BN_B[i] + bias[i]) + prm[_G_SIGMA + i] * n[3 + i]
+    y[7] = held_q[4]
     for i in range(3):
         step = prm[_G_WALK + i]
         if step != 0.0:
@@ -282,8 +288,8 @@ def pack_sensors(sensors: Sensors | None, n_runs: int, n_samples: int, control_p
 
 
 @jit(inline="always")
-def measure_run(s, n, k, t, x, held_q, bias, y):
+def measure_run(s, n, k, t, t_epoch, x, held_q, bias, y):
     """Run ``n``'s measurement of sample ``k`` (:func:`measure` with :class:`SensorArrays` ``s``, whose
     batch has draws; without draws the loop's input is the true state, which the loop copies itself:
     this call's seven arrays would cost seven reference counts per sample)."""
-    measure(k, t, x[:4], x[4:7], s.draws[n, k], s.params[n], s.outages[n], held_q, bias, y)
+    measure(k, t, t_epoch, x[:4], x[4:7], s.draws[n, k], s.params[n], s.outages[n], held_q, bias, y)

@@ -31,7 +31,7 @@ def _estimate_messages(k: int, rng: np.random.Generator, no_data: bool) -> list[
         A = rng.standard_normal((6, 6))
         P = A @ A.T
     out.append((c.ESTIMATOR_COVARIANCE.name, c.ESTIMATOR_COVARIANCE.type_name, covariance_msg(t, P), ns))
-    diag = [t, 1.5 * k, float(c.ESTIMATOR_NO_INPUT if no_data else 3), k, 0.0, 0.0, float(no_data), 0.0]
+    diag = [t, 1.5 * k, float(c.ESTIMATOR_NO_INPUT if no_data else 3), k, 0.0, 0.0, float(no_data), 0.0, 0.0, 60.0 + k, 0.0, 0.0]
     out.append((c.ESTIMATOR_DIAGNOSTICS.name, c.ESTIMATOR_DIAGNOSTICS.type_name, estimator_diagnostics_msg(diag), ns))
     return out
 
