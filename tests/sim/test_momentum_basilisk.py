@@ -19,7 +19,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sappc_momentum.core.law import dipole_mapping, feedforward_torque_B, momentum_management_step, momentum_torque_request_B, torque_to_dipole_B
+from sappc_momentum.core.law import (dipole_mapping, dumping_scale, feedforward_torque_B, gyroscopic_torque_B, momentum_management_step,
+                                     momentum_torque_request_B, torque_to_dipole_B)
 from spacecraft_sim.core.magnetic_field import BASILISK_EARTH_DIPOLE, DipoleField, dipole_field_N, to_body_B
 from spacecraft_sim.core.magnetorquers import Magnetorquers, mtb_torque_B
 from spacecraft_sim.core.orbit import MU_EARTH_M3_S2, Orbit, gravity_gradient_B, position_N, position_N_of, true_anomaly_of
@@ -413,9 +414,10 @@ def test_the_whole_law_is_the_chain_of_the_four_kernels() -> None:
     rods = Magnetorquers(max_dipole_Am2=1e4)
     Gs = np.array([_unit(rng) for _ in range(4)]).T
     Js, Omega, B, tau_c = np.full(4, 0.08), rng.uniform(-100, 100, size=4), _unit(rng) * 3e-5, rng.normal(size=3) * 1e-2
-    prm = np.array([0.01, 0.0, 0.0, 0.0])
-    m, tau_w, tmp = np.empty(3), np.empty(3), np.empty((2, 3))
-    momentum_management_step(prm, Gs, Js, rods.Gt, rods.steering_matrix(), rods.max_dipoles(), Omega, B, tau_c, m, tau_w, tmp)
+    prm = np.array([0.01, 0.0, 0.0, 0.0, 0.0])
+    m, tau_w, tmp = np.empty(3), np.empty(3), np.empty((3, 3))
+    momentum_management_step(prm, Gs, Js, np.linalg.pinv(Gs), np.full(4, 0.2), rods.Gt, rods.steering_matrix(), rods.max_dipoles(), Omega, B,
+                             np.ones(3), tau_c, m, tau_w, tmp)
     req, m_B, m_ref, tau_ref = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     momentum_torque_request_B(Gs, Js, Omega, 0.01, np.zeros(3), req)
     torque_to_dipole_B(B, req, m_B)
@@ -427,3 +429,46 @@ def test_the_whole_law_is_the_chain_of_the_four_kernels() -> None:
     assert abs(tau_mtb @ B) <= 1e-12 * np.linalg.norm(tau_mtb) * np.linalg.norm(B)
     assert tau_mtb @ h_B < 0.0  # dumps: the rods' torque opposes the wheels' momentum
     assert np.allclose(tau_mtb, req - (req @ B) * B / (B @ B), rtol=1e-12, atol=0)  # the part of the request normal to B
+
+
+def test_the_gyroscopic_term_is_omega_cross_the_wheels_momentum() -> None:
+    """``omega x (G_s h_s)``, ``h_s = J_s (G_s^T omega + Omega)``: the closed form in numpy."""
+    rng = np.random.default_rng(rng_seed + 10)
+    out = np.empty(3)
+    for _ in range(CASES):
+        Gs = np.array([_unit(rng) for _ in range(4)]).T
+        Js, Omega, w = rng.uniform(0.01, 0.1, size=4), rng.uniform(-600, 600, size=4), rng.normal(size=3) * 0.01
+        gyroscopic_torque_B(Gs, Js, Omega, w, out)
+        ref = np.cross(w, Gs @ (Js * (Gs.T @ w + Omega)))
+        assert _close(out, ref) <= REL
+
+
+def test_the_attitude_first_budget_keeps_every_motor_within_its_limit() -> None:
+    """Step 6: the scaled rods' torque keeps the minimum-norm motor torques within their limits,
+    with a motor at its limit whenever the scale is below 1 (the largest scale), and 0 when the
+    base torque alone passes a limit."""
+    rng = np.random.default_rng(rng_seed + 11)
+    rods = Magnetorquers(max_dipole_Am2=3000.0)
+    wheels_G = np.array([[0.5773502691896258, -0.5773502691896258, -0.5773502691896258, 0.5773502691896258],
+                         [0.5773502691896258, 0.5773502691896258, -0.5773502691896258, -0.5773502691896258],
+                         [0.5773502691896258] * 4])
+    Gp, u_max = np.linalg.pinv(wheels_G), np.full(4, 0.2)
+    scaled = 0
+    for _ in range(CASES):
+        base, mtb = rng.normal(size=3) * 0.08, rng.normal(size=3) * 0.15
+        s = dumping_scale(Gp, u_max, base, mtb)
+        u = -Gp @ (base - s * mtb)
+        if np.all(np.abs(Gp @ base) <= u_max):
+            assert 0.0 <= s <= 1.0 and np.all(np.abs(u) <= u_max * (1 + 1e-12))
+            if s < 1.0:
+                scaled += 1
+                assert np.isclose(np.abs(u).max(), 0.2, rtol=1e-12, atol=0)
+        else:
+            assert s == 0.0
+    assert scaled > 20
+    prm = np.array([0.05, 0.0, 0.0, 0.0, 1.0])
+    m, tau_w, tmp = np.empty(3), np.empty(3), np.empty((3, 3))
+    B, Omega = np.array([2e-5, -3e-5, 1e-5]), np.array([300.0, -200.0, 100.0, 50.0])
+    momentum_management_step(prm, wheels_G, np.full(4, 0.08), Gp, u_max, rods.Gt, rods.steering_matrix(), rods.max_dipoles(), Omega, B,
+                             np.array([0.01, -0.01, 0.005]), np.array([0.05, 0.0, -0.05]), m, tau_w, tmp)
+    assert np.all(np.abs(Gp @ tau_w) <= u_max * (1 + 1e-12))

@@ -90,8 +90,8 @@ def pack_environment(env: Environment | None, n_runs: int, locked_inertia_kg_m2:
     Gt = np.zeros((3, 0)) if rods is None else rods.Gt
     m_max = np.zeros(0) if rods is None else rods.max_dipoles()
 
-    def rep(a: Array) -> Array:
-        return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), (n, *np.shape(a))))
+    def rep(a: Array) -> Array:  # a writable C-contiguous copy per run: one argument type for every call (no recompiles)
+        return np.array(np.broadcast_to(np.asarray(a, dtype=np.float64), (n, *np.shape(a))), dtype=np.float64, order="C", copy=True)
 
     return EnvironmentArrays(rep(env.orbit.params()), rep(env.magnetic_field.params()), rep(J), rep(Gt), rep(m_max))
 
