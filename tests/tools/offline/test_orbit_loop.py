@@ -114,3 +114,14 @@ def test_a_batch_run_in_orbit_equals_the_run_alone_bit_for_bit() -> None:
         alone = run_single(inp, k, 1)
         for a, b in zip(alone.record, batch.record):
             assert np.array_equal(a[0], b[k], equal_nan=True)
+
+
+def test_the_graph_refuses_an_orbit_it_cannot_fly() -> None:
+    """``sappc run`` of a scenario with an orbit stops with exit status 2 and says why, before any
+    process starts (the plant node has no orbit yet: flying without one would be another run)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "sappc", "run", "paper_tracking_orbit"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert "the node graph does not model an orbit yet" in proc.stderr
