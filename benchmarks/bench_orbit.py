@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     qe = np.abs(run.out[0, :, 3, :3]).max(axis=1)
     rods = sc.environment.magnetorquers
     mmax = rods.max_dipoles() if rods is not None else np.zeros(0)
-    dip = np.abs(run.env[0, :, 6:]) / mmax if rods is not None else np.zeros((t.size, 0))
+    dip = np.abs(run.env[0, :, 9:]) / mmax if rods is not None else np.zeros((t.size, 0))
     umax = sc.wheels.per_wheel("max_torque_Nm")
     period = sc.environment.orbit.period_s
     orbits = []

@@ -346,6 +346,8 @@ TOP_KEYS = {
     "orbit": "The orbit, the Earth's magnetic field (a centred dipole) and the gravity-gradient torque; absent: "
              "no orbit (the paper's inertial setting).",
     "magnetorquers": "The torque rods (`m x B` on the body); needs `orbit`.",
+    "magnetometer": "What the flight software reads the Earth's field with (noise, bias, rate); needs `orbit`; absent: "
+                    "the true field, exactly.",
     "momentum_management": "The flight software's momentum dumping with the rods and the wheels' feed-forward; needs "
                            "`magnetorquers` and `actuator.kind: reaction_wheels`.",
     "metrics": "How the run's metrics are computed, and the requirements a run must meet.",
@@ -373,6 +375,7 @@ def gen_scenario(_: str | None = None) -> str:
     from spacecraft_sim.core.wheels import ReactionWheels
     from spacecraft_sim.core.magnetic_field import DipoleField
     from spacecraft_sim.core.magnetorquers import Magnetorquers
+    from spacecraft_sim.core.magnetometer import Magnetometer
     from spacecraft_sim.core.orbit import Orbit
     from sappc_momentum.core.law import MomentumManagement
 
@@ -402,6 +405,7 @@ def gen_scenario(_: str | None = None) -> str:
         [code("gravity_gradient"), "boolean", code("false"), "Whether the gravity-gradient torque acts on the spacecraft."]])
     out += dataclass_sections(DipoleField, "orbit.magnetic_field", level=3)
     out += dataclass_sections(Magnetorquers, "magnetorquers", level=2)
+    out += dataclass_sections(Magnetometer, "magnetometer", level=2)
     out += dataclass_sections(MomentumManagement, "momentum_management", level=2)
     out += dataclass_sections(sc.MetricSettings, "metrics", level=2)
     out += ["Requirements (`metrics.requirements`) bound a metric from above: "

@@ -36,6 +36,7 @@ from spacecraft_sim.core.sensors import Sensors, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, wheels_from_mapping
 from spacecraft_sim.core.environment import Environment
 from spacecraft_sim.core.magnetic_field import DipoleField
+from spacecraft_sim.core.magnetometer import Magnetometer
 from spacecraft_sim.core.magnetorquers import magnetorquers_from_mapping
 from spacecraft_sim.core.orbit import Orbit
 from sappc_momentum.core.law import MomentumManagement
@@ -133,6 +134,7 @@ _TOP_KEYS = {
     "orbit",  # the orbit, the Earth's field and the gravity gradient (spacecraft_sim.core.environment); none: the paper's inertial setting
     "magnetorquers",  # the torque rods (spacecraft_sim.core.magnetorquers); needs orbit
     "momentum_management",  # the rods' dumping law and the wheels' feed-forward (sappc_momentum); needs magnetorquers and wheels
+    "magnetometer",  # what the flight software reads the field with (spacecraft_sim.core.magnetometer); needs orbit; none: exactly
 }
 
 
@@ -384,7 +386,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     actuator, wheels = _actuator_from_mapping(data.get("actuator", {}) or {})
     sensors = None if data.get("sensors") is None else sensors_from_mapping(data["sensors"], "sensors", dt)
     estimator = _estimator_from_mapping(data.get("estimator"), sensors)
-    environment = _environment_from_mapping(data.get("orbit"), data.get("magnetorquers"))
+    environment = _environment_from_mapping(data.get("orbit"), data.get("magnetorquers"), data.get("magnetometer"), dt)
     momentum = _momentum_from_mapping(data.get("momentum_management"), environment, wheels)
     metrics = from_mapping(MetricSettings, data.get("metrics", {}) or {}, "metrics")
     node_settings = from_mapping(ControllerNodeSettings, data.get("controller_node", {}) or {}, "controller_node")
@@ -456,16 +458,19 @@ def _named(prefix: str, exc: ConfigError) -> ConfigError:
     return ConfigError(f"{prefix}.{msg[len(prefix) + 2:]}" if msg.startswith(f"{prefix}: ") else msg)
 
 
-def _environment_from_mapping(orbit: Any, rods: Any) -> Environment | None:
+def _environment_from_mapping(orbit: Any, rods: Any, magnetometer: Any = None, control_period_s: float = 0.01) -> Environment | None:
     """The ``orbit`` section (:class:`~spacecraft_sim.core.orbit.Orbit` keys, with
     ``magnetic_field``: :class:`~spacecraft_sim.core.magnetic_field.DipoleField` keys, default
     Basilisk's Earth dipole, and ``gravity_gradient``: true or false, default false) and the
-    ``magnetorquers`` section (:class:`~spacecraft_sim.core.magnetorquers.Magnetorquers` keys), which
-    needs an orbit.  Both absent: ``None`` (every scenario without them runs as before).  Errors name
-    the key."""
+    ``magnetorquers`` section (:class:`~spacecraft_sim.core.magnetorquers.Magnetorquers` keys) and the
+    ``magnetometer`` section (:class:`~spacecraft_sim.core.magnetometer.Magnetometer` keys; its rate
+    must divide the control rate), which need an orbit.  All absent: ``None`` (every scenario without
+    them runs as before).  Errors name the key."""
     if orbit is None:
         if rods is not None:
             raise ConfigError("magnetorquers needs an orbit section (the Earth's field they act against)")
+        if magnetometer is not None:
+            raise ConfigError("magnetometer needs an orbit section (the Earth's field it measures)")
         return None
     if not isinstance(orbit, dict):
         raise ConfigError(f"orbit must be a mapping, got {orbit!r}")
@@ -482,8 +487,18 @@ def _environment_from_mapping(orbit: Any, rods: Any) -> Environment | None:
         dipole: DipoleField = DipoleField() if field_raw is None else from_mapping(DipoleField, field_raw, "orbit.magnetic_field")
     except ConfigError as exc:
         raise _named("orbit.magnetic_field", exc) from None
+    mag: Magnetometer | None = None
+    if magnetometer is not None:
+        try:
+            mag = from_mapping(Magnetometer, magnetometer, "magnetometer")
+        except ConfigError as exc:
+            raise _named("magnetometer", exc) from None
+        try:
+            mag.stride(control_period_s)
+        except ConfigError as exc:
+            raise ConfigError(f"magnetometer.{exc}") from None
     return Environment(orbit=orbit_cfg, magnetic_field=dipole, gravity_gradient=gg,
-                       magnetorquers=None if rods is None else magnetorquers_from_mapping(rods, "magnetorquers"))
+                       magnetorquers=None if rods is None else magnetorquers_from_mapping(rods, "magnetorquers"), magnetometer=mag)
 
 
 def _momentum_from_mapping(data: Any, environment: Environment | None, wheels: ReactionWheels | None) -> MomentumManagement | None:

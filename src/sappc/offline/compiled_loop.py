@@ -70,7 +70,7 @@ from spacecraft_sim.core.kernels import fault_actuator, fault_reference, fault_s
 from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
 from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, allocation_matrix, pack_actuator, propagate_wheels_into, wheel_speeds_into
 from spacecraft_sim.core.wheels import wheel_torques
-from spacecraft_sim.core.environment import EnvironmentArrays, environment_field, environment_torque_B, pack_environment
+from spacecraft_sim.core.environment import EnvironmentArrays, environment_field, environment_measure_field, environment_torque_B, pack_environment
 from sappc_momentum.core.law import MomentumArrays, momentum_management_step, pack_momentum
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO, ESTIMATOR_NO_INPUT
 from sappc_msgs_py.convert import seconds_to_ns
@@ -120,9 +120,9 @@ class LoopRecord(NamedTuple):
     T_rec, W, 2) each wheel's speed [rad/s] and motor torque [N m], ``estimate`` (N, T_rec,
     :data:`N_EST_RECORD` or 0) the estimator's record (``R_*``); per run: ``rejected`` (N, 2) the
     inputs the controller rejected (invalid, implausible), ``x_final`` (N, 7 + W), ``start`` (N, 6)
-    the first valid sample (:func:`_run_one`); ``env`` (N, T_rec, 6 + M or 0) with an orbit, the true
-    field ``B_B`` [T], the environment's and the rods' torque ``L_env_B`` [N m] and the rods' dipole
-    commands (M) [A m^2] (:func:`_run_one`)."""
+    the first valid sample (:func:`_run_one`); ``env`` (N, T_rec, 9 + M or 0) with an orbit, the true
+    field ``B_B`` [T], the flight software's (measured) field [T], the environment's and the rods'
+    torque ``L_env_B`` [N m] and the rods' dipole commands (M) [A m^2] (:func:`_run_one`)."""
 
     out: np.ndarray
     x: np.ndarray
@@ -245,6 +245,7 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     r_N = np.zeros(3)
     B_N = np.zeros(3)
     B_B = np.zeros(3)
+    B_meas = np.zeros(3)  # the flight software's field: the magnetometer's, or B_B
     L_env = np.zeros(3)
     d_tot = np.zeros(3)
     etmp = np.zeros((2, 3))
@@ -334,13 +335,14 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
             disturbance_at(dist, n, k, t, d)
         if orbiting:
             environment_field(env, n, t, x[:4], r_N, B_N, B_B)
+            environment_measure_field(env, n, k, B_B, B_meas)
         if managing:
             if valid:
                 for i in range(3):
                     omega_ff[i] = yc[4 + i]
             wheel_speeds_into(x, G, wprm, wspeed)  # the tachometers
             momentum_management_step(mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n], mm.steering[n], mm.m_max[n], wspeed,
-                                     B_B, omega_ff, u_last, m_cmd, tau_w, mtmp)
+                                     B_meas, omega_ff, u_last, m_cmd, tau_w, mtmp)
             wheel_torques(tau_w, G_pinv, G, wprm, x, uw)
         elif nw > 0:
             wheel_torques(u_last, G_pinv, G, wprm, x, uw)
@@ -361,9 +363,10 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
             if orbiting:
                 for i in range(3):
                     rec.env[r, j, i] = B_B[i]
-                    rec.env[r, j, 3 + i] = L_env[i]
+                    rec.env[r, j, 3 + i] = B_meas[i]
+                    rec.env[r, j, 6 + i] = L_env[i]
                 for i in range(nm):
-                    rec.env[r, j, 6 + i] = m_cmd[i]
+                    rec.env[r, j, 9 + i] = m_cmd[i]
             if nw > 0:
                 wheel_speeds_into(x, G, wprm, wspeed)
                 for i in range(nw):
@@ -460,8 +463,8 @@ class CompiledInputs:
 
     @property
     def n_env_record(self) -> int:
-        """Columns of the environment's record: ``6 + M`` with an orbit (:class:`LoopRecord`), else 0."""
-        return 6 + int(self.environment.m_max.shape[1]) if self.environment.orbit.shape[1] > 0 else 0
+        """Columns of the environment's record: ``9 + M`` with an orbit (:class:`LoopRecord`), else 0."""
+        return 9 + int(self.environment.m_max.shape[1]) if self.environment.orbit.shape[1] > 0 else 0
 
     @property
     def estimating(self) -> bool:
@@ -523,8 +526,8 @@ class CompiledRun:
 
     @property
     def env(self) -> np.ndarray:
-        """(N, T_rec, 6 + M or 0) the true field ``B_B`` [T], the environment's torque ``L_env_B``
-        [N m] and the rods' dipole commands [A m^2] (:class:`LoopRecord`)."""
+        """(N, T_rec, 9 + M or 0) the true field ``B_B`` [T], the measured one [T], the environment's
+        torque ``L_env_B`` [N m] and the rods' dipole commands [A m^2] (:class:`LoopRecord`)."""
         return self.record.env
 
     @property
@@ -639,7 +642,8 @@ def _environment(scenario: Scenario, n: int) -> EnvironmentArrays:
     J = np.asarray(scenario.inertia_kg_m2, dtype=np.float64)
     w = scenario.wheels
     locked = J if w is None else J + np.einsum("i,ji,ki->jk", w.per_wheel("spin_inertia_kg_m2"), w.G, w.G)
-    return pack_environment(scenario.environment, n, locked)
+    return pack_environment(scenario.environment, n, locked, n_samples=int(round(scenario.duration_s / scenario.control_period_s)) + 1,
+                            control_period_s=scenario.control_period_s)
 
 
 def _momentum(scenario: Scenario, n: int) -> MomentumArrays:
