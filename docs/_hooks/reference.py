@@ -343,6 +343,13 @@ TOP_KEYS = {
     "actuator": "The controller's limits and the plant's actuator (`kind: ideal` or `reaction_wheels`).",
     "sensors": "The plant's star tracker and gyro; absent: the state is measured exactly.",
     "estimator": "Attitude determination between the sensors and the controller (`kind: none` or `mekf`).",
+    "orbit": "The orbit, the Earth's magnetic field (a centred dipole) and the gravity-gradient torque; absent: "
+             "no orbit (the paper's inertial setting).",
+    "magnetorquers": "The torque rods (`m x B` on the body); needs `orbit`.",
+    "magnetometer": "What the flight software reads the Earth's field with (noise, bias, rate); needs `orbit`; absent: "
+                    "the true field, exactly.",
+    "momentum_management": "The flight software's momentum dumping with the rods and the wheels' feed-forward; needs "
+                           "`magnetorquers` and `actuator.kind: reaction_wheels`.",
     "metrics": "How the run's metrics are computed, and the requirements a run must meet.",
     "controller": "The default controller: `sappc`, `trappc`, `blfppc` or `mrp_feedback` (default `sappc`).",
     "controllers": "The parameters of each controller the scenario can run, by name. Required.",
@@ -366,6 +373,11 @@ def gen_scenario(_: str | None = None) -> str:
     from spacecraft_sim.core.reference import PaperReference
     from spacecraft_sim.core.sensors import Sensors
     from spacecraft_sim.core.wheels import ReactionWheels
+    from spacecraft_sim.core.magnetic_field import DipoleField
+    from spacecraft_sim.core.magnetorquers import Magnetorquers
+    from spacecraft_sim.core.magnetometer import Magnetometer
+    from spacecraft_sim.core.orbit import Orbit
+    from sappc_momentum.core.law import MomentumManagement
 
     accepted = set(sc._TOP_KEYS)
     if accepted != set(TOP_KEYS):
@@ -388,6 +400,13 @@ def gen_scenario(_: str | None = None) -> str:
     out += dataclass_sections(MekfConfig, "estimator", level=2, extra=[
         [code("kind"), est_kinds, code(sc.ESTIMATOR_KINDS[0]), "The filter; the other keys are for `kind: mekf` only, "
          "and its noise figures default to the `sensors` section's."]])
+    out += dataclass_sections(Orbit, "orbit", level=2, extra=[
+        [code("magnetic_field"), f"[mapping](#{_anchor('orbit.magnetic_field')})", "see below", "The Earth's field: a centred dipole."],
+        [code("gravity_gradient"), "boolean", code("false"), "Whether the gravity-gradient torque acts on the spacecraft."]])
+    out += dataclass_sections(DipoleField, "orbit.magnetic_field", level=3)
+    out += dataclass_sections(Magnetorquers, "magnetorquers", level=2)
+    out += dataclass_sections(Magnetometer, "magnetometer", level=2)
+    out += dataclass_sections(MomentumManagement, "momentum_management", level=2)
     out += dataclass_sections(sc.MetricSettings, "metrics", level=2)
     out += ["Requirements (`metrics.requirements`) bound a metric from above: "
             + ", ".join(f"`{m}_max`" for m in sc.BOUNDED_METRICS) + ".", ""]

@@ -34,6 +34,12 @@ from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
 from spacecraft_sim.core.sensors import Sensors, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, wheels_from_mapping
+from spacecraft_sim.core.environment import Environment
+from spacecraft_sim.core.magnetic_field import DipoleField
+from spacecraft_sim.core.magnetometer import Magnetometer
+from spacecraft_sim.core.magnetorquers import magnetorquers_from_mapping
+from spacecraft_sim.core.orbit import Orbit
+from sappc_momentum.core.law import MomentumManagement
 from sappc.files import scenario_path
 from gnc_common.validation import (
     safe_load_yaml,
@@ -125,6 +131,10 @@ _TOP_KEYS = {
     "controller_node",  # the controller node's input watchdog (both paths model it)
     "sensors",  # the plant's star tracker and gyro (spacecraft_sim.core.sensors); none: exact measurements
     "estimator",  # attitude determination between the sensors and the controller (sappc_estimator); none: the measurements
+    "orbit",  # the orbit, the Earth's field and the gravity gradient (spacecraft_sim.core.environment); none: the paper's inertial setting
+    "magnetorquers",  # the torque rods (spacecraft_sim.core.magnetorquers); needs orbit
+    "momentum_management",  # the rods' dumping law and the wheels' feed-forward (sappc_momentum); needs magnetorquers and wheels
+    "magnetometer",  # what the flight software reads the field with (spacecraft_sim.core.magnetometer); needs orbit; none: exactly
 }
 
 
@@ -256,6 +266,11 @@ class Scenario:
         The attitude estimator between the sensors and the controller (``estimator: {kind:
         mekf}``; settings not given come from ``sensors``); ``None``: the controller is fed the
         measurements.
+    environment : Environment or None
+        The orbit, the Earth's field, the gravity gradient and the magnetorquers (sections
+        ``orbit`` and ``magnetorquers``); ``None``: no orbit (the paper's setting).
+    momentum : MomentumManagement or None
+        The flight software's momentum management (section ``momentum_management``).
     metrics : MetricSettings
     controller : ControllerKind
         Default controller.
@@ -290,6 +305,8 @@ class Scenario:
     wheels: ReactionWheels | None = None
     sensors: Sensors | None = None
     estimator: MekfConfig | None = None
+    environment: Environment | None = None
+    momentum: MomentumManagement | None = None
 
     def controller_config(self, kind: ControllerKind | str | None = None) -> Any:
         """The validated config dataclass of controller ``kind`` (default: the scenario's)."""
@@ -370,6 +387,8 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     actuator, wheels = _actuator_from_mapping(data.get("actuator", {}) or {})
     sensors = None if data.get("sensors") is None else sensors_from_mapping(data["sensors"], "sensors", dt)
     estimator = _estimator_from_mapping(data.get("estimator"), sensors)
+    environment = _environment_from_mapping(data.get("orbit"), data.get("magnetorquers"), data.get("magnetometer"), dt)
+    momentum = _momentum_from_mapping(data.get("momentum_management"), environment, wheels)
     metrics = from_mapping(MetricSettings, data.get("metrics", {}) or {}, "metrics")
     node_settings = from_mapping(ControllerNodeSettings, data.get("controller_node", {}) or {}, "controller_node")
 
@@ -400,6 +419,8 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
         wheels=wheels,
         sensors=sensors,
         estimator=estimator,
+        environment=environment,
+        momentum=momentum,
     )
     for name in controllers:  # validate every controller's parameters now, not at run time
         scenario.controller_config(name)
@@ -430,6 +451,72 @@ def _actuator_from_mapping(data: Any) -> tuple[ActuatorConfig, ReactionWheels | 
         raise ConfigError("missing key actuator.wheels (actuator.kind: reaction_wheels)")
     wheels = wheels_from_mapping(wheels_raw, "actuator.wheels")
     return actuator, wheels
+
+
+def _named(prefix: str, exc: ConfigError) -> ConfigError:
+    """``exc`` with a model's bare key (``<prefix>: key ...``) named in full (``<prefix>.key ...``)."""
+    msg = str(exc)
+    return ConfigError(f"{prefix}.{msg[len(prefix) + 2:]}" if msg.startswith(f"{prefix}: ") else msg)
+
+
+def _environment_from_mapping(orbit: Any, rods: Any, magnetometer: Any = None, control_period_s: float = 0.01) -> Environment | None:
+    """The ``orbit`` section (:class:`~spacecraft_sim.core.orbit.Orbit` keys, with
+    ``magnetic_field``: :class:`~spacecraft_sim.core.magnetic_field.DipoleField` keys, default
+    Basilisk's Earth dipole, and ``gravity_gradient``: true or false, default false) and the
+    ``magnetorquers`` section (:class:`~spacecraft_sim.core.magnetorquers.Magnetorquers` keys) and the
+    ``magnetometer`` section (:class:`~spacecraft_sim.core.magnetometer.Magnetometer` keys; its rate
+    must divide the control rate), which need an orbit.  All absent: ``None`` (every scenario without
+    them runs as before).  Errors name the key."""
+    if orbit is None:
+        if rods is not None:
+            raise ConfigError("magnetorquers needs an orbit section (the Earth's field they act against)")
+        if magnetometer is not None:
+            raise ConfigError("magnetometer needs an orbit section (the Earth's field it measures)")
+        return None
+    if not isinstance(orbit, dict):
+        raise ConfigError(f"orbit must be a mapping, got {orbit!r}")
+    rest = dict(orbit)
+    field_raw = rest.pop("magnetic_field", None)
+    gg = rest.pop("gravity_gradient", False)
+    if not isinstance(gg, bool):
+        raise ConfigError(f"orbit.gravity_gradient must be true or false, got {gg!r}")
+    try:
+        orbit_cfg: Orbit = from_mapping(Orbit, rest, "orbit")
+    except ConfigError as exc:
+        raise _named("orbit", exc) from None
+    try:
+        dipole: DipoleField = DipoleField() if field_raw is None else from_mapping(DipoleField, field_raw, "orbit.magnetic_field")
+    except ConfigError as exc:
+        raise _named("orbit.magnetic_field", exc) from None
+    mag: Magnetometer | None = None
+    if magnetometer is not None:
+        try:
+            mag = from_mapping(Magnetometer, magnetometer, "magnetometer")
+        except ConfigError as exc:
+            raise _named("magnetometer", exc) from None
+        try:
+            mag.stride(control_period_s)
+        except ConfigError as exc:
+            raise ConfigError(f"magnetometer.{exc}") from None
+    return Environment(orbit=orbit_cfg, magnetic_field=dipole, gravity_gradient=gg,
+                       magnetorquers=None if rods is None else magnetorquers_from_mapping(rods, "magnetorquers"), magnetometer=mag)
+
+
+def _momentum_from_mapping(data: Any, environment: Environment | None, wheels: ReactionWheels | None) -> MomentumManagement | None:
+    """The ``momentum_management`` section (:class:`~sappc_momentum.core.law.MomentumManagement`
+    keys): it needs the rods (``magnetorquers``) and the wheels (``actuator.kind: reaction_wheels``).
+    Errors name the key."""
+    if data is None:
+        return None
+    if environment is None or environment.magnetorquers is None:
+        raise ConfigError("momentum_management needs a magnetorquers section (and an orbit): the rods are what dump the momentum")
+    if wheels is None:
+        raise ConfigError("momentum_management needs actuator.kind: reaction_wheels (the momentum it manages is the wheels')")
+    try:
+        config: MomentumManagement = from_mapping(MomentumManagement, data, "momentum_management")
+    except ConfigError as exc:
+        raise _named("momentum_management", exc) from None
+    return config
 
 
 #: The estimator kinds (``estimator.kind``): none (the controller is fed the sensors' measurements)

@@ -573,6 +573,9 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         external = plant == "external"
         scenario_path = bundled_scenario_path(scenario_path)  # a file, or a bundled scenario's name
         scenario = load_scenario(scenario_path)
+        if scenario.environment is not None:  # issue 36: the plant node has no orbit yet; say so rather than fly without one
+            raise ConfigError(f"{scenario_path}: the node graph does not model an orbit yet (sections orbit, magnetorquers, "
+                              "momentum_management): run it offline with sappc simulate (docs/how-to/momentum.md)")
         kind = scenario.resolve_controller(controller)
         scenario.controller_config(kind)  # validate before any process starts
         # the controller's first step, as the node will compute it: a start the core refuses (the

@@ -23,6 +23,8 @@ sensors              ``SensorArrays`` (:func:`spacecraft_sim.core.sensors.pack_s
 estimator            ``EstimatorArrays`` (:func:`sappc_estimator.core.config.pack_estimator`)       ``mekf_step``
 disturbance          ``DisturbanceArrays`` (:func:`spacecraft_sim.core.disturbance.pack_disturbance`)  ``disturbance_at``
 faults               ``FaultArrays`` (:func:`spacecraft_sim.core.faults.pack_faults`)               ``fault_sensor``, ``fault_reference``, ``fault_actuator``
+environment          ``EnvironmentArrays`` (:func:`spacecraft_sim.core.environment.pack_environment`)  ``environment_field``, ``environment_torque_B``
+momentum management  ``MomentumArrays`` (:func:`sappc_momentum.core.law.pack_momentum`)              ``momentum_management_step``
 ===================  ==========================================================  =========================================
 
 Adding a model is its room (its arrays, its ``pack_*``, its kernels) and one registration here: a
@@ -67,7 +69,10 @@ from spacecraft_sim.core.faults import pack_faults
 from spacecraft_sim.core.kernels import DisturbanceArrays, FaultArrays, PlantArrays, disturbance_at, propagate
 from spacecraft_sim.core.kernels import fault_actuator, fault_rate_bias, fault_reference, fault_sensor
 from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
-from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, pack_actuator, propagate_wheels_into, wheel_speeds_into, wheel_torques
+from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, allocation_matrix, pack_actuator, propagate_wheels_into, wheel_speeds_into
+from spacecraft_sim.core.wheels import wheel_torques
+from spacecraft_sim.core.environment import EnvironmentArrays, environment_field, environment_measure_field, environment_torque_B, pack_environment
+from sappc_momentum.core.law import MomentumArrays, momentum_management_step, pack_momentum
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO, ESTIMATOR_NO_INPUT
 from sappc_msgs_py.convert import seconds_to_ns
 from spacecraft_sim.core.reference import sample_times
@@ -120,7 +125,9 @@ class LoopRecord(NamedTuple):
     T_rec, W, 2) each wheel's speed [rad/s] and motor torque [N m], ``estimate`` (N, T_rec,
     :data:`N_EST_RECORD` or 0) the estimator's record (``R_*``); per run: ``rejected`` (N, 2) the
     inputs the controller rejected (invalid, implausible), ``x_final`` (N, 7 + W), ``start`` (N, 6)
-    the first valid sample (:func:`_run_one`)."""
+    the first valid sample (:func:`_run_one`); ``env`` (N, T_rec, 9 + M or 0) with an orbit, the true
+    field ``B_B`` [T], the flight software's (measured) field [T], the environment's and the rods'
+    torque ``L_env_B`` [N m] and the rods' dipole commands (M) [A m^2] (:func:`_run_one`)."""
 
     out: np.ndarray
     x: np.ndarray
@@ -131,10 +138,11 @@ class LoopRecord(NamedTuple):
     rejected: np.ndarray
     x_final: np.ndarray
     start: np.ndarray
+    env: np.ndarray
 
 
 @jit
-def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
+def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec):
     """The whole time loop of run ``n`` of the models' arrays (module docstring), written at index
     ``r`` of ``rec`` (:class:`LoopRecord`), every ``stride`` samples (``stride = 0``: no histories).
 
@@ -178,7 +186,15 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     :func:`~spacecraft_sim.core.wheels.wheel_torques` (allocation, motor and speed limits) and
     :func:`~spacecraft_sim.core.wheels.propagate_wheels_into`; ``rec.wheels`` records each wheel's
     speed relative to the body and its motor torque at every sample (the torque of the last sample
-    computed, not applied)."""
+    computed, not applied).
+
+    Orbit (:class:`~spacecraft_sim.core.environment.EnvironmentArrays` with an orbit): at each
+    sample the true field ``B_B`` (:func:`~spacecraft_sim.core.environment.environment_field`); with
+    momentum management (:class:`~sappc_momentum.core.law.MomentumArrays`) the flight software
+    turns the wheels' speeds and the field (measured exactly) into the rods' dipoles and the
+    wheels' torque, the controller's minus the rods' (:func:`~sappc_momentum.core.law.momentum_management_step`),
+    which the wheels' torque path then delivers; the environment's torque (gravity gradient, rods:
+    :func:`~spacecraft_sim.core.environment.environment_torque_B`) is held beside the disturbance."""
     # the controller
     kind, prm, coef = ctrl.kind, ctrl.prm[n], ctrl.coef[n]
     state = np.zeros(N_STATE)
@@ -228,6 +244,21 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     nf = fkind.shape[0]
     fcount = np.zeros(nf, dtype=np.int64)
     fbuf = np.zeros((nf, faults.depth, 7))
+    # the orbit's environment and momentum management (issue 36)
+    orbiting = env.orbit.shape[1] > 0
+    managing = mm.prm.shape[1] > 0
+    nm = env.m_max.shape[1]
+    r_N = np.zeros(3)
+    B_N = np.zeros(3)
+    B_B = np.zeros(3)
+    B_meas = np.zeros(3)  # the flight software's field: the magnetometer's, or B_B
+    L_env = np.zeros(3)
+    d_tot = np.zeros(3)
+    etmp = np.zeros((2, 3))
+    m_cmd = np.zeros(nm)  # the rods' dipole commands
+    tau_w = np.zeros(3)  # the wheels' body torque: the controller's minus the rods'
+    mtmp = np.zeros((3, 3))
+    omega_ff = np.zeros(3)  # the body rate of the last valid sample (the gyroscopic feed-forward's: never a rejected input)
     measuring = sens.draws.shape[1] > 0
     dt = grid.dt
     T = grid.t.shape[0]
@@ -314,8 +345,23 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
                 d[i] = dist.table[k, i]
         else:
             disturbance_at(dist, n, k, t, d)
-        if nw > 0:
+        if orbiting:
+            environment_field(env, n, t, x[:4], r_N, B_N, B_B)
+            environment_measure_field(env, n, k, B_B, B_meas)
+        if managing:
+            if valid:
+                for i in range(3):
+                    omega_ff[i] = yc[4 + i]
+            wheel_speeds_into(x, G, wprm, wspeed)  # the tachometers
+            momentum_management_step(mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n], mm.steering[n], mm.m_max[n], wspeed,
+                                     B_meas, omega_ff, u_last, m_cmd, tau_w, mtmp)
+            wheel_torques(tau_w, G_pinv, G, wprm, x, uw)
+        elif nw > 0:
             wheel_torques(u_last, G_pinv, G, wprm, x, uw)
+        if orbiting:
+            environment_torque_B(env, n, x[:4], r_N, B_B, m_cmd, etmp, L_env)
+            for i in range(3):
+                d_tot[i] = d[i] + L_env[i]
         if stride > 0 and k % stride == 0:
             j = k // stride
             for row in range(N_OUT):
@@ -326,6 +372,13 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
             for i in range(3):
                 rec.d[r, j, i] = d[i]
             rec.status[r, j] = status
+            if orbiting:
+                for i in range(3):
+                    rec.env[r, j, i] = B_B[i]
+                    rec.env[r, j, 3 + i] = B_meas[i]
+                    rec.env[r, j, 6 + i] = L_env[i]
+                for i in range(nm):
+                    rec.env[r, j, 9 + i] = m_cmd[i]
             if nw > 0:
                 wheel_speeds_into(x, G, wprm, wspeed)
                 for i in range(nw):
@@ -358,28 +411,28 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
         if k < T - 1:
             if nw == 0:
                 for i in range(3):  # control (clipped by the actuator) + disturbance, held over [t_k, t_k+1]
-                    u[i] = min(max(u_last[i], -act.max_torque_Nm), act.max_torque_Nm) + d[i]
+                    u[i] = min(max(u_last[i], -act.max_torque_Nm), act.max_torque_Nm) + (d_tot[i] if orbiting else d[i])
                 propagate(x, u, dt, plant.substeps, J, J_inv)
-            else:  # the wheels' motor torques and the disturbance, held
-                propagate_wheels_into(x, uw, d, dt, plant.substeps, J, J_inv, G, wprm, wwork, wtmp)
+            else:  # the wheels' motor torques and the disturbance (with an orbit, and the environment's torque), held
+                propagate_wheels_into(x, uw, d_tot if orbiting else d, dt, plant.substeps, J, J_inv, G, wprm, wwork, wtmp)
     for i in range(7 + nw):
         rec.x_final[r, i] = x[i]
 
 
 @jit_parallel
-def run_batch_kernel(probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
+def run_batch_kernel(probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec):
     """Every run of a batch, in parallel over runs (``prange``); ``probe``: the first pass of
     :func:`_run_one` (each run's first valid sample into ``rec.start``)."""
     for i in prange(plant.x0.shape[0]):
         n = np.int64(i)  # prange's index is unsigned: one signature of _run_one for every entry (one compile)
-        _run_one(n, n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec)
+        _run_one(n, n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec)
 
 
 @jit
-def run_single_kernel(n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec):
+def run_single_kernel(n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec):
     """Run ``n`` of the batch's arrays alone (same argument types as in :func:`run_batch_kernel`);
     the record (leading axis 1) at index 0."""
-    _run_one(n, np.int64(0), probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, rec)  # int64, not a literal: run_batch_kernel's signature
+    _run_one(n, np.int64(0), probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec)  # int64, not a literal: run_batch_kernel's signature
 
 
 def _runs(arrays: Any, lo: int, hi: int) -> Any:
@@ -405,12 +458,14 @@ class CompiledInputs:
     estimator: EstimatorArrays
     disturbance: DisturbanceArrays
     faults: FaultArrays
+    environment: EnvironmentArrays
+    momentum: MomentumArrays
     config: Any = None
     on_infeasible: str = "raise"
     flags: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     #: The models, in the kernels' argument order.
-    MODELS = ("controller", "plant", "actuator", "sensors", "estimator", "disturbance", "faults")
+    MODELS = ("controller", "plant", "actuator", "sensors", "estimator", "disturbance", "faults", "environment", "momentum")
 
     @property
     def t(self) -> np.ndarray:
@@ -424,6 +479,11 @@ class CompiledInputs:
     @property
     def n_runs(self) -> int:
         return int(self.plant.x0.shape[0])
+
+    @property
+    def n_env_record(self) -> int:
+        """Columns of the environment's record: ``9 + M`` with an orbit (:class:`LoopRecord`), else 0."""
+        return 9 + int(self.environment.m_max.shape[1]) if self.environment.orbit.shape[1] > 0 else 0
 
     @property
     def estimating(self) -> bool:
@@ -482,6 +542,12 @@ class CompiledRun:
     def wheels(self) -> np.ndarray:
         """(N, T_rec, W, 2) each wheel's speed [rad/s] and motor torque [N m] (W = 0: ideal actuator)."""
         return self.record.wheels
+
+    @property
+    def env(self) -> np.ndarray:
+        """(N, T_rec, 9 + M or 0) the true field ``B_B`` [T], the measured one [T], the environment's
+        torque ``L_env_B`` [N m] and the rods' dipole commands [A m^2] (:class:`LoopRecord`)."""
+        return self.record.env
 
     @property
     def x_final(self) -> np.ndarray:
@@ -583,10 +649,33 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
         estimator=pack_estimator(scenario.estimator, n, estimator_params),
         disturbance=pack_disturbance(scenario.disturbance if disturbance is None else disturbance, t, n),
         faults=pack_faults(per_run_faults, t_ns),
+        environment=_environment(scenario, n),
+        momentum=_momentum(scenario, n),
         config=cfg,
         on_infeasible=on_infeasible,
     )
     return _started(inp)
+
+
+def _environment(scenario: Scenario, n: int) -> EnvironmentArrays:
+    """The scenario's orbital environment for ``n`` runs; the gravity gradient acts on the
+    spacecraft with its wheels locked (:mod:`spacecraft_sim.core.environment`)."""
+    J = np.asarray(scenario.inertia_kg_m2, dtype=np.float64)
+    w = scenario.wheels
+    locked = J if w is None else J + np.einsum("i,ji,ki->jk", w.per_wheel("spin_inertia_kg_m2"), w.G, w.G)
+    return pack_environment(scenario.environment, n, locked, n_samples=int(round(scenario.duration_s / scenario.control_period_s)) + 1,
+                            control_period_s=scenario.control_period_s)
+
+
+def _momentum(scenario: Scenario, n: int) -> MomentumArrays:
+    """The scenario's momentum management for ``n`` runs, with the wheels and the rods as the
+    flight software knows them (the scenario's: no misalignment)."""
+    env, w = scenario.environment, scenario.wheels
+    if scenario.momentum is None or env is None or env.magnetorquers is None or w is None:
+        return pack_momentum(None, n)
+    rods = env.magnetorquers
+    return pack_momentum(scenario.momentum, n, w.G, w.per_wheel("spin_inertia_kg_m2"), allocation_matrix(w.G), w.per_wheel("max_torque_Nm"),
+                         rods.Gt, rods.steering_matrix(), rods.max_dipoles())
 
 
 def _started(inp: CompiledInputs) -> CompiledInputs:
@@ -626,7 +715,7 @@ def _record(inp: CompiledInputs, stride: int, n: int) -> LoopRecord:
     W = inp.n_wheels
     return LoopRecord(np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, T_rec), dtype=np.int8),
                       np.zeros((n, T_rec, W, 2)), np.zeros((n, T_rec, N_EST_RECORD if inp.estimating else 0)), np.zeros((n, 2), dtype=np.int64),
-                      np.zeros((n, 7 + W)), np.zeros((n, 6)))
+                      np.zeros((n, 7 + W)), np.zeros((n, 6)), np.zeros((n, T_rec, inp.n_env_record)))
 
 
 def _check_noise(inp: CompiledInputs) -> None:

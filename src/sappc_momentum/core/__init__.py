@@ -1,0 +1,1 @@
+"""The momentum-management kernels and their configuration (no ROS, no clock)."""

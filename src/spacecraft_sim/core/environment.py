@@ -1,0 +1,158 @@
+"""The spacecraft's orbital environment in the plant (issue 36): the orbit, the Earth's field, the
+gravity-gradient torque and the magnetorquers, as the whole-run loop takes them.
+
+Each sample ``t_k`` the loop asks :func:`environment_field` for the position ``r_N``
+(:mod:`~spacecraft_sim.core.orbit`) and the true field ``B_N``, ``B_B``
+(:mod:`~spacecraft_sim.core.magnetic_field`); the flight software measures ``B_B`` and commands the
+rods; :func:`environment_torque_B` then gives the external torque of the environment and the rods,
+
+    L_env_B = L_G_B (if gravity_gradient) + (G_t sat(m_cmd)) x B_B
+
+held over ``[t_k, t_k+1]`` beside the scenario's disturbance (zero-order hold, as the disturbance and
+the wheels' command: over 10 ms the orbit moves 0.07 mrad and the attitude less, so the held torque
+differs from the continuous one by under 1e-4 of itself).
+
+The gravity gradient acts on the whole spacecraft: with reaction wheels its inertia is the locked
+one, ``J + sum J_s g g^T`` (:mod:`spacecraft_sim.core.wheels`: the scenario's ``J`` excludes the
+wheels' spin inertia), the inertia Basilisk's hub and wheels present together
+(:mod:`spacecraft_sim.basilisk_plant`).
+
+Pure: no ROS, no clock.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnc_common.compiled import jit
+from spacecraft_sim.core.magnetic_field import DipoleField, dipole_field_N, to_body_B
+from spacecraft_sim.core.magnetometer import Magnetometer, magnetometer_draws, measure_field
+from spacecraft_sim.core.magnetorquers import Magnetorquers, mtb_torque_B
+from spacecraft_sim.core.orbit import N_ORBIT_PARAMS, O_MU, Orbit, gravity_gradient_B_of, position_N
+
+__all__ = ["Environment", "EnvironmentArrays", "environment_field", "environment_measure_field", "environment_torque_B", "pack_environment"]
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Environment:
+    """The plant's orbital environment (module docstring).
+
+    Attributes
+    ----------
+    orbit : Orbit
+    magnetic_field : DipoleField
+    gravity_gradient : bool
+        Whether the gravity-gradient torque acts (an optional disturbance beside the scenario's).
+    magnetorquers : Magnetorquers or None
+    magnetometer : Magnetometer or None
+        What the flight software reads the field with (``None``: the true field, exactly).
+    """
+
+    orbit: Orbit
+    magnetic_field: DipoleField = DipoleField()
+    gravity_gradient: bool = False
+    magnetorquers: Magnetorquers | None = None
+    magnetometer: Magnetometer | None = None
+
+
+class EnvironmentArrays(NamedTuple):
+    """A batch's environment (:func:`pack_environment`): ``orbit`` (N, 10 or 0)
+    (:meth:`~spacecraft_sim.core.orbit.Orbit.params`; 0 columns: no orbit, the paper's inertial
+    setting), ``field`` (N, 4) (:meth:`~spacecraft_sim.core.magnetic_field.DipoleField.params`),
+    ``gravity`` (N, 3, 3) the inertia the gravity gradient acts on (all zero: none), ``Gt``
+    (N, 3, M) and ``m_max`` (N, M) the rods (M = 0: none), ``mag`` (N, 7 or 0)
+    (:meth:`~spacecraft_sim.core.magnetometer.Magnetometer.params`; 0 columns: the field read
+    exactly) and ``mag_draws`` (N, U, 3) its draws."""
+
+    orbit: Array
+    field: Array
+    gravity: Array
+    Gt: Array
+    m_max: Array
+    mag: Array
+    mag_draws: Array
+
+    @staticmethod
+    def run_axes() -> dict[str, int]:
+        """The axis of runs of each per-run field."""
+        return {"orbit": 0, "field": 0, "gravity": 0, "Gt": 0, "m_max": 0, "mag": 0, "mag_draws": 0}
+
+
+def pack_environment(env: Environment | None, n_runs: int, locked_inertia_kg_m2: Array | None = None, n_samples: int = 0,
+                     control_period_s: float = 0.0) -> EnvironmentArrays:
+    """A batch's environment, the same for every run but the magnetometer's draws (run ``k``: its own
+    stream) (``None``: none, empty arrays); ``locked_inertia_kg_m2`` (3, 3) the spacecraft's inertia
+    with the wheels locked (module docstring), needed with ``gravity_gradient``; ``n_samples`` and
+    ``control_period_s`` the run's samples and period, needed with a magnetometer."""
+    n = n_runs
+    if env is None:
+        return EnvironmentArrays(np.zeros((n, 0)), np.zeros((n, 4)), np.zeros((n, 3, 3)), np.zeros((n, 3, 0)), np.zeros((n, 0)),
+                                 np.zeros((n, 0)), np.zeros((n, 0, 3)))
+    if env.gravity_gradient and locked_inertia_kg_m2 is None:
+        raise ValueError("the gravity-gradient torque needs the spacecraft's inertia")
+    J = np.zeros((3, 3)) if not env.gravity_gradient else np.asarray(locked_inertia_kg_m2, dtype=np.float64)
+    rods = env.magnetorquers
+    Gt = np.zeros((3, 0)) if rods is None else rods.Gt
+    m_max = np.zeros(0) if rods is None else rods.max_dipoles()
+
+    def rep(a: Array) -> Array:  # a writable C-contiguous copy per run: one argument type for every call (no recompiles)
+        return np.array(np.broadcast_to(np.asarray(a, dtype=np.float64), (n, *np.shape(a))), dtype=np.float64, order="C", copy=True)
+
+    mag = env.magnetometer
+    if mag is None:
+        mprm, draws = np.zeros((n, 0)), np.zeros((n, 0, 3))
+    else:
+        mprm = rep(mag.params(control_period_s))
+        draws = np.ascontiguousarray(np.stack([magnetometer_draws(mag, n_samples, control_period_s, k) for k in range(n)]))
+    return EnvironmentArrays(rep(env.orbit.params()), rep(env.magnetic_field.params()), rep(J), rep(Gt), rep(m_max), mprm, draws)
+
+
+@jit
+def environment_field(env, n, t, q_BN, r_N, B_N, B_B):
+    """The position ``r_N`` [m] and the true field ``B_N``, ``B_B`` [T] (each (3,)) of run ``n`` at
+    time ``t`` [s] and attitude ``q_BN`` (module docstring); nothing when the batch has no orbit."""
+    if env.orbit.shape[1] < N_ORBIT_PARAMS:
+        return
+    position_N(env.orbit[n], t, r_N)
+    dipole_field_N(env.orbit[n], env.field[n], t, r_N, B_N)
+    to_body_B(q_BN, B_N, B_B)
+
+
+@jit
+def environment_measure_field(env, n, k, B_B, B_meas):
+    """The flight software's field ``B_meas`` (3,) at sample ``k``: the magnetometer's
+    (:func:`~spacecraft_sim.core.magnetometer.measure_field`), or the true ``B_B`` without one."""
+    if env.mag.shape[1] > 0:
+        measure_field(env.mag[n], env.mag_draws[n], k, B_B, B_meas)
+    else:
+        for j in range(3):
+            B_meas[j] = B_B[j]
+
+
+@jit
+def environment_torque_B(env, n, q_BN, r_N, B_B, m_cmd, tmp, out):
+    """``L_env_B`` (3,) [N m] into ``out``: the gravity gradient at ``r_N`` (when on) plus the rods'
+    ``(G_t sat(m_cmd)) x B_B`` (when there are rods); ``tmp`` (2, 3) scratch (module docstring)."""
+    out[0] = 0.0
+    out[1] = 0.0
+    out[2] = 0.0
+    if env.orbit.shape[1] < N_ORBIT_PARAMS:
+        return
+    J = env.gravity[n]
+    if J[0, 0] != 0.0:  # an inertia is positive definite: a zero diagonal means no gravity gradient
+        to_body_B(q_BN, r_N, tmp[0])
+        g = gravity_gradient_B_of(env.orbit[n, O_MU], J, tmp[0, 0], tmp[0, 1], tmp[0, 2])
+        out[0] = g[0]
+        out[1] = g[1]
+        out[2] = g[2]
+    if env.m_max.shape[1] > 0:
+        mtb_torque_B(env.Gt[n], env.m_max[n], m_cmd, B_B, tmp[1])
+        out[0] += tmp[1, 0]
+        out[1] += tmp[1, 1]
+        out[2] += tmp[1, 2]
