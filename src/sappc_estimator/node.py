@@ -286,7 +286,7 @@ class EstimatorNode(ProjectNode):
         if figures and np.isnan(f.monitor_nis_sum):
             message = "no verdict yet: the innovations' window is filling"
         if figures and not estimate:
-            message += "; the estimate is withheld (initialising, or re-initialised and not yet confirmed)"
+            message += "; the estimate is withheld (a prior, or re-initialised, not yet confirmed by a tracker sample)"
         c = self.config
         values = {"time_s": f"{t_s:.9g}", "window_samples": str(c.monitor_window_samples), "nis_sum_dof": str(3 * c.monitor_window_samples),
                   "nis_sum": f"{f.monitor_nis_sum:.6g}", "nis_sum_band": f"[{self._band[0]:.6g}, {self._band[1]:.6g}]",

@@ -178,7 +178,7 @@ class PlantNode(ProjectNode):
         self.n_steps = int(round(duration / self.dt))  # samples k = 0 .. n_steps, as sample_times()
         self.wheels = _wheels_param(str(self.param(_P["wheels"])))
         self.sensors = _sensors_param(str(self.param(_P["sensors"])), self.dt)
-        sensor_faults = str(self.param(_P["sensor_faults"]))  # declared whatever the sensors (--help lists it)
+        self._bias_faults = FaultSchedule(_faults_param(str(self.param(_P["sensor_faults"]))))  # (read always: every parameter declared)
         if self.sensors is not None:  # the measurement's state, and sample k's draws from the seed's stream
             self._sensor_prm, self._outages = self.sensors.params(self.dt), self.sensors.outages()
             self._sensor_rng = np.random.default_rng(self.sensors.seed)
@@ -189,7 +189,6 @@ class PlantNode(ProjectNode):
             self.pub_truth_bias = self.counting_publisher(TRUTH_GYRO_BIAS)
             self.pub_epoch = self.counting_publisher(STATE_ATTITUDE_EPOCH)
             self._bias_k = np.zeros(3)  # the bias in sample k's rate (measure walks _bias on to k + 1), faults included
-            self._bias_faults = FaultSchedule(_faults_param(sensor_faults))
             self._bias_faults.gyro_bias_fault(0.0)  # load the compiled kernel now
             measure(0, 0.0, 0.0, self.x[0, :4], self.x[0, 4:], np.zeros(N_SENSOR_DRAWS), self._sensor_prm, self._outages, np.zeros(5),
                     self._bias.copy(), np.zeros(8))  # load the compiled kernel now

@@ -338,7 +338,7 @@ class MekfOracle:
             if self.init == "from_tracker":
                 self._initialise(q_meas)
                 self.provisional = epoch < t_s
-                self.confirmed = not self.provisional
+                self.confirmed = True  # a tracker measurement, held at most one period
             else:
                 assert self.q_prior is not None
                 self._initialise(self.q_prior)

@@ -79,7 +79,7 @@ Definitions, per run:
     ``metrics.requirements.filter_inconsistent_fraction_max``.
 ``estimator_recoveries``, ``estimate_withheld_samples``
     The bias recoveries after a failed monitor, and the samples whose estimate the filter withheld
-    from the controller (initialising, or re-initialised and not yet confirmed): the controller
+    from the controller (a prior, or a re-initialisation, not yet confirmed by a tracker sample): the controller
     answered them as a dropped input (``controller_summary``'s held and zero answers).
 ``max_abs_wheel_speed_rad_s``, ``max_abs_wheel_torque_Nm``
     Only with reaction wheels (a history with wheel records): the largest speed of any wheel

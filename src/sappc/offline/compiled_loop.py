@@ -67,7 +67,7 @@ from spacecraft_sim.core.disturbance import pack_disturbance
 from spacecraft_sim.core.dynamics import pack_plant
 from spacecraft_sim.core.faults import pack_faults
 from spacecraft_sim.core.kernels import DisturbanceArrays, FaultArrays, PlantArrays, disturbance_at, propagate
-from spacecraft_sim.core.kernels import fault_actuator, fault_rate_bias, fault_reference, fault_sensor
+from spacecraft_sim.core.kernels import N_FVALUE, fault_actuator, fault_rate_bias, fault_reference, fault_sensor
 from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
 from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, allocation_matrix, pack_actuator, propagate_wheels_into, wheel_speeds_into
 from spacecraft_sim.core.wheels import wheel_torques
@@ -243,7 +243,7 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     fkind, fwin, fprm, fint = faults.kind[n], faults.window[n], faults.params[n], faults.samples[n]
     nf = fkind.shape[0]
     fcount = np.zeros(nf, dtype=np.int64)
-    fbuf = np.zeros((nf, faults.depth, 7))
+    fbuf = np.zeros((nf, faults.depth, N_FVALUE))  # a held sample: the measurement and its epoch (8), or a torque
     # the orbit's environment and momentum management (issue 36)
     orbiting = env.orbit.shape[1] > 0
     managing = mm.prm.shape[1] > 0

@@ -76,8 +76,8 @@ class Mekf:
 
     @property
     def usable(self) -> bool:
-        """Whether the last step's estimate may be used (initialised and confirmed: not a provisional
-        start, a prior or a re-initialisation that no tracker sample has confirmed yet)."""
+        """Whether the last step's estimate may be used (initialised and confirmed: not a prior or a
+        re-initialisation that no tracker sample has confirmed yet)."""
         return bool(self.out[mekf.EO_USABLE] == 1.0)
 
     @property

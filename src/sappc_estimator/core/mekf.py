@@ -41,10 +41,10 @@ One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (
    updating it.  ``from_prior``: at the first step ``q_hat = q_prior``, same ``b_hat`` and
    ``P``, and that step's tracker sample is then processed as an update (a prior far from the
    truth, e.g. a coarse sensor's attitude 10 deg off, is corrected by the first tracker sample).
-   The estimate is *confirmed* (usable, ``out[EO_USABLE] = 1``) once initialised from a sample
-   of now or after an accepted update; a provisional attitude, a prior and a re-initialised
-   attitude are withheld (0) until a tracker sample is accepted: the callers then give the
-   controller "no data".
+   The estimate is *confirmed* (usable, ``out[EO_USABLE] = 1``) when initialised from the tracker
+   (a measurement, of now or at most one tracker period old) and after an accepted update; a prior
+   and a re-initialised attitude are withheld (0) until a tracker sample is accepted: the callers
+   then give the controller "no data".
 3. **Propagation** from the previous step's time ``t_prev`` over ``h = t - t_prev`` with the mean
    of the two gyro samples, bias removed: ``w = (omega_prev + omega_meas) / 2 - b_hat``
    (trapezoid: the rate between two samples, not the older one held).
@@ -548,10 +548,10 @@ def mekf_step(prm, t, y, st, P, work, out):
         status = STATUS_INITIALISED
         if prm[EP_INIT] == INIT_FROM_PRIOR:
             status = _update(prm, st, P, y[0:4], work, t)
-        elif fresh:  # the tracker's attitude of now: an estimate
-            st[ES_CONFIRMED] = 1.0
-        else:  # up to one tracker period old: replaced by the first new sample, not used before
-            st[ES_PROVISIONAL] = 1.0
+        else:  # a tracker measurement: an estimate (of now, or provisional: up to one tracker period old,
+            st[ES_CONFIRMED] = 1.0  # replaced by the first new sample)
+            if not fresh:
+                st[ES_PROVISIONAL] = 1.0
     else:
         h = t - st[ES_TPREV]
         b = st[ES_B:ES_B + 3]
