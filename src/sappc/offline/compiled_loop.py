@@ -23,7 +23,7 @@ sensors              ``SensorArrays`` (:func:`spacecraft_sim.core.sensors.pack_s
 estimator            ``EstimatorArrays`` (:func:`sappc_estimator.core.config.pack_estimator`)       ``mekf_step``
 disturbance          ``DisturbanceArrays`` (:func:`spacecraft_sim.core.disturbance.pack_disturbance`)  ``disturbance_at``
 faults               ``FaultArrays`` (:func:`spacecraft_sim.core.faults.pack_faults`)               ``fault_sensor``, ``fault_reference``, ``fault_actuator``
-environment          ``EnvironmentArrays`` (:func:`spacecraft_sim.core.environment.pack_environment`)  ``environment_field``, ``environment_torque_B``
+environment          ``EnvironmentArrays`` (:func:`spacecraft_sim.core.environment.pack_environment`)  ``environment_field``, ``environment_measure_field``, ``environment_torque_B``
 momentum management  ``MomentumArrays`` (:func:`sappc_momentum.core.law.pack_momentum`)              ``momentum_management_step``
 ===================  ==========================================================  =========================================
 
@@ -191,8 +191,10 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     Orbit (:class:`~spacecraft_sim.core.environment.EnvironmentArrays` with an orbit): at each
     sample the true field ``B_B`` (:func:`~spacecraft_sim.core.environment.environment_field`); with
     momentum management (:class:`~sappc_momentum.core.law.MomentumArrays`) the flight software
-    turns the wheels' speeds and the field (measured exactly) into the rods' dipoles and the
-    wheels' torque, the controller's minus the rods' (:func:`~sappc_momentum.core.law.momentum_management_step`),
+    turns the wheels' speeds and the field (the magnetometer's,
+    :func:`~spacecraft_sim.core.environment.environment_measure_field`, or the true one without a
+    magnetometer) into the rods' dipoles and the wheels' torque, the controller's minus the rods'
+    (:func:`~sappc_momentum.core.law.momentum_management_step`),
     which the wheels' torque path then delivers; the environment's torque (gravity gradient, rods:
     :func:`~spacecraft_sim.core.environment.environment_torque_B`) is held beside the disturbance."""
     # the controller
