@@ -5,6 +5,7 @@ on fixed sleeps."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import time
@@ -641,20 +642,31 @@ def test_lockstep_grace_answers_a_tick_whose_inputs_never_arrive_once_lockstep_g
 def realtime(ros_context, monkeypatch):  # type: ignore[no-untyped-def]
     """A real-time controller whose frame timer (the watchdog) is cancelled: the test calls the
     timer's callback itself, at the times of a clock it sets."""
+    with _realtime_controller(ros_context, monkeypatch) as made:
+        yield made
+
+
+@contextlib.contextmanager
+def _realtime_controller(ros_context, monkeypatch, **extra):  # type: ignore[no-untyped-def]
+    """(node, driver, clock): a real-time controller (10 ms frames, stale_timeout_s 50 ms, and
+    ``extra`` parameters) with its frame timer cancelled and a clock the test sets, matched with
+    a driver; both destroyed at the end."""
     from sappc_controller.node import ControllerNode
 
-    overrides = _controller_overrides(mode="realtime", control_period_s=0.01, stale_timeout_s=0.05)  # type: ignore[no-untyped-call]
+    overrides = _controller_overrides(mode="realtime", control_period_s=0.01, stale_timeout_s=0.05, **extra)  # type: ignore[no-untyped-call]
     node = ControllerNode(context=ros_context, parameter_overrides=overrides)
     for timer in node._frame_timers:
         timer.cancel()
     clock = FakeClock(10 * NS)
     monkeypatch.setattr(node, "get_clock", lambda: clock)
     driver = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
-    driver.matched()
-    yield node, driver, clock
-    driver.executor.shutdown()
-    node.destroy_node()
-    driver.node.destroy_node()
+    try:
+        driver.matched()
+        yield node, driver, clock
+    finally:
+        driver.executor.shutdown()
+        node.destroy_node()
+        driver.node.destroy_node()
 
 
 _REFERENCE = (c.REFERENCE_ATTITUDE, c.REFERENCE_RATE, c.REFERENCE_ACCELERATION)
@@ -773,17 +785,7 @@ def test_realtime_controller_answers_nothing_past_its_runs_last_frame(ros_contex
     last answered: a later state is not stepped, and the watchdog, which would command zero torque
     once no state came for stale_timeout_s (the plant has finished), stays silent: no torque is
     published past the run's end (a composed run used to answer 10 s of them)."""
-    from sappc_controller.node import ControllerNode
-
-    node = ControllerNode(context=ros_context, parameter_overrides=_controller_overrides(
-        mode="realtime", control_period_s=0.01, stale_timeout_s=0.05, duration_s=0.02))  # type: ignore[no-untyped-call]
-    for timer in node._frame_timers:
-        timer.cancel()
-    clock = FakeClock(10 * NS)
-    monkeypatch.setattr(node, "get_clock", lambda: clock)
-    drv = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
-    try:
-        drv.matched()
+    with _realtime_controller(ros_context, monkeypatch, duration_s=0.02) as (node, drv, clock):
         t0 = 10 * NS
         for k in range(4):
             for topic in _REFERENCE:
@@ -801,26 +803,12 @@ def test_realtime_controller_answers_nothing_past_its_runs_last_frame(ros_contex
         node._on_timer()
         drv.executor.spin_once(timeout_sec=0.2)
         assert [ns for ns, _ in drv.torques] == [t0 + k * 10_000_000 for k in range(3)] and node.steps == 3
-    finally:
-        drv.executor.shutdown()
-        node.destroy_node()
-        drv.node.destroy_node()
 
 
 def test_realtime_controller_is_silent_past_its_last_frame_even_when_it_did_not_answer_it(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """The last frame's state came more than a frame late (not stepped: a loaded machine): the
     watchdog still publishes nothing stamped past the run's last frame."""
-    from sappc_controller.node import ControllerNode
-
-    node = ControllerNode(context=ros_context, parameter_overrides=_controller_overrides(
-        mode="realtime", control_period_s=0.01, stale_timeout_s=0.05, duration_s=0.01))  # type: ignore[no-untyped-call]
-    for timer in node._frame_timers:
-        timer.cancel()
-    clock = FakeClock(10 * NS)
-    monkeypatch.setattr(node, "get_clock", lambda: clock)
-    drv = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
-    try:
-        drv.matched()
+    with _realtime_controller(ros_context, monkeypatch, duration_s=0.01) as (node, drv, clock):
         t0 = 10 * NS
         for k in range(2):
             for topic in _REFERENCE:
@@ -838,10 +826,6 @@ def test_realtime_controller_is_silent_past_its_last_frame_even_when_it_did_not_
             node._on_timer()
         drv.executor.spin_once(timeout_sec=0.2)
         assert [ns for ns, _ in drv.torques] == [t0] and node.answers["watchdog_zero"] == 0
-    finally:
-        drv.executor.shutdown()
-        node.destroy_node()
-        drv.node.destroy_node()
 
 
 def test_realtime_input_checks_are_per_topic_and_relative_to_the_node_clock(realtime) -> None:  # type: ignore[no-untyped-def]
