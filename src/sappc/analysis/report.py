@@ -221,6 +221,11 @@ METRIC_SENTENCES: dict[str, str] = {
     "estimator_updates": "How many steps the filter corrected with a star-tracker measurement.",
     "estimator_gate_rejections": "How many star-tracker measurements the filter's gate rejected as outliers.",
     "estimator_reinitialisations": "How many times the filter started again from a measurement.",
+    "filter_inconsistent_fraction": "The share of the filter's samples at which its health monitor said ERROR (its innovations "
+                                    "inconsistent with its covariance).",
+    "estimator_recoveries": "How many times the filter let its gyro bias move after its health monitor failed.",
+    "estimate_withheld_samples": "How many samples the filter withheld its estimate from the controller (a prior or a "
+                                 "re-initialisation not yet confirmed by the tracker).",
     "max_abs_wheel_speed_rad_s": "The largest speed of any reaction wheel relative to the body [rad/s].",
     "max_abs_wheel_torque_Nm": "The largest motor torque of any reaction wheel [N m].",
     "wheel_energy_J": "The wheels' motors' mechanical work in magnitude over the run, braking counted as spent [J].",
