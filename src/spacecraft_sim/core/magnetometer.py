@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from gnc_common.compiled import jit
 from gnc_common.validation import ConfigError
+from spacecraft_sim.core.sensors import sample_stride
 
 __all__ = ["MAGNETOMETER_STREAM", "Magnetometer", "magnetometer_draws", "measure_field"]
 
@@ -32,9 +33,6 @@ Array = NDArray[np.float64]
 #: The magnetometer's stream in ``default_rng([seed, MAGNETOMETER_STREAM, run])``: a number no other
 #: model of the project uses (the letters "MAG" as ASCII codes, 77 65 71).
 MAGNETOMETER_STREAM = 776571
-#: Relative tolerance on ``1 / (rate dt)`` being a whole number (the star tracker's).
-_STRIDE_TOL = 1e-9
-
 
 @dataclass(frozen=True)
 class Magnetometer:
@@ -71,12 +69,7 @@ class Magnetometer:
 
     def stride(self, control_period_s: float) -> int:
         """Control samples per update; raises naming ``rate_hz`` when the rates do not divide."""
-        ratio = 1.0 / (self.rate_hz * control_period_s)
-        k = round(ratio)
-        if k < 1 or abs(ratio - k) > _STRIDE_TOL * max(1.0, ratio):
-            raise ConfigError(f"rate_hz = {self.rate_hz!r} must divide the control rate {1.0 / control_period_s:g} Hz "
-                              f"(an update every whole number of control periods)")
-        return int(k)
+        return sample_stride(self.rate_hz, control_period_s)
 
     def params(self, control_period_s: float) -> Array:
         """The kernel's parameters (7,): the stride (samples per update), ``sigma`` (3), ``b`` (3)."""

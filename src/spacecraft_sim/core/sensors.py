@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 from gnc_common.compiled import jit, quat_multiply, quat_normalize
 from gnc_common.validation import ConfigError, from_mapping
 
-__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "SensorArrays", "Sensors", "measure_run", "pack_sensors", "StarTracker", "measure", "rotate_by_vector", "sensors_from_mapping",
+__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "SensorArrays", "Sensors", "measure_run", "pack_sensors", "StarTracker", "measure", "rotate_by_vector", "sample_stride", "sensors_from_mapping",
            "white_noise_params"]
 
 Array = NDArray[np.float64]
@@ -54,6 +54,17 @@ S_BIAS0 = _G_BIAS0
 ST_SIGMA = _ST_SIGMA
 #: Rounding allowed when the tracker's period is checked to be a whole number of control periods.
 _STRIDE_TOL = 1e-9
+
+
+def sample_stride(rate_hz: float, control_period_s: float) -> int:
+    """Control samples per update of a sensor sampling at ``rate_hz``; raises naming ``rate_hz`` when
+    the rates do not divide (every sensor model's rule: the tracker's, the magnetometer's)."""
+    ratio = 1.0 / (rate_hz * control_period_s)
+    k = round(ratio)
+    if k < 1 or abs(ratio - k) > _STRIDE_TOL * max(1.0, ratio):
+        raise ConfigError(f"rate_hz = {rate_hz!r} must divide the control rate {1.0 / control_period_s:g} Hz "
+                          f"(an update every whole number of control periods)")
+    return int(k)
 
 
 def _three(name: str, value: float | tuple[float, ...]) -> tuple[float, float, float]:
@@ -96,12 +107,7 @@ class StarTracker:
 
     def stride(self, control_period_s: float) -> int:
         """Control samples per update; raises naming ``rate_hz`` when the rates do not divide."""
-        ratio = 1.0 / (self.rate_hz * control_period_s)
-        k = round(ratio)
-        if k < 1 or abs(ratio - k) > _STRIDE_TOL * max(1.0, ratio):
-            raise ConfigError(f"rate_hz = {self.rate_hz!r} must divide the control rate {1.0 / control_period_s:g} Hz "
-                              f"(an update every whole number of control periods)")
-        return int(k)
+        return sample_stride(self.rate_hz, control_period_s)
 
 
 @dataclass(frozen=True)
