@@ -1,7 +1,11 @@
 """The estimator node (``python -m sappc_estimator``): the multiplicative EKF between the sensors and the controller.
 
-Subscribes to the measured state (``state/attitude``: the star tracker's ``q_BN``, ``state/rate``:
-the gyro's ``omega_BN_B``) and publishes, per sample and with the sample's stamp, the estimate on
+Subscribes to the sensors on their own topics (``sensors/gyro``: the gyro's ``omega_BN_B`` each
+sample; ``sensors/star_tracker``: the tracker's ``q_BN`` each time it makes a sample, stamped when
+it was measured; both ``sensor_msgs/Imu``) and to the tracker's epoch of each sample
+(``state/attitude_epoch``: which tracker sample is the latest at that sample; the estimator knows a
+new tracker sample by its stamp, never by comparing values), and publishes, per sample and with
+the sample's stamp, the estimate on
 ``estimate/attitude`` and ``estimate/rate`` (the types and frames of ``state/*``, so the
 controller takes it by a remap: ``python -m sappc_controller --ros-args -r
 state/attitude:=estimate/attitude -r state/rate:=estimate/rate``), and beside it, in standard
@@ -17,8 +21,10 @@ parameter is read once, at start-up.
 Modes (parameter ``mode``):
 
 ``lockstep`` (default)
-    One filter step per sample, when the attitude and the rate of one stamp have arrived, at the
-    stamp's time (``t = stamp`` in seconds), the outputs stamped with it.  A sample whose input
+    One filter step per sample, when the gyro and the tracker's epoch of one stamp have arrived,
+    and the tracker sample that epoch names if it is a new one (a later epoch than every earlier
+    sample named: the topics are not ordered among themselves, so the epoch says what to wait
+    for), at the stamp's time (``t = stamp`` in seconds), the outputs stamped with it.  A sample whose input
     arrived invalid (non-finite, e.g. the fault injector's "no data" for a dropped measurement; a
     zero or non-unit quaternion; a wrong frame id) is not stepped (the filter skips it: the next
     valid sample propagates over the whole elapsed time) and is answered at once with the "no
@@ -26,16 +32,19 @@ Modes (parameter ``mode``):
     sample as arrived and answers it as it answers its own dropped input (held torque, or zero
     once stale).  So is a step before the filter has an estimate (before its first tracker sample).
 ``realtime``
-    One filter step per fresh state (attitude and rate of one new stamp: a frame of
-    :mod:`sappc_msgs_py.timeline`), as soon as both have arrived, published with the state's
+    One filter step per fresh sample (gyro and epoch of one new stamp: a frame of
+    :mod:`sappc_msgs_py.timeline`), as soon as both have arrived (a tracker sample the epoch names
+    that has not arrived yet is used at the first sample after it has), published with the sample's
     stamp; its latency (publication minus the state's stamp) is measured, and a step later than
     ``control_period_s`` is counted (``late_steps`` in ``timing_file``).  An invalid input is
     rejected and makes no sample (the controller's own watchdog covers the frame); the filter's
     time is counted from the first sample's stamp (a float of epoch seconds would lose 0.2 us).
 
 Input checks (:mod:`sappc_msgs_py.inputs`, the controller's): a message with a wrong frame id, a
-non-finite value, a zero or non-unit quaternion ("invalid"), a stamp in the past (lockstep: not
-after the last answered sample; real time: not after the topic's previous message) or more than
+non-finite value, a zero or non-unit quaternion, a sensor message that marks its measurement
+absent ("invalid"), a stamp in the past (lockstep: not after the last answered sample; real time,
+and the tracker's samples, which are stamped when measured: not after the topic's previous
+message) or more than
 ``max_stamp_ahead_s`` ahead of the node's time (lockstep: the latest ``/clock``; real time: the
 node's clock) is rejected, logged and counted, in total (``estimator/diagnostics``
 ``rejected_messages``) and by reason (:data:`~sappc_msgs_py.inputs.REJECT_REASONS`).  A finite
@@ -56,9 +65,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from gnc_common.timing import LatencyStatistics
-from gnc_common.validation import check_positive
+from gnc_common.validation import check_positive, check_unit_quaternion
 from sappc_msgs_py.contract import (
     CLOCK,
     ESTIMATE_ATTITUDE,
@@ -72,6 +82,8 @@ from sappc_msgs_py.contract import (
     ESTIMATOR_HEALTH,
     ESTIMATOR_INPUTS,
     ESTIMATOR_NO_INPUT,
+    SENSOR_GYRO,
+    SENSOR_STAR_TRACKER,
     ESTIMATOR_TOPICS,
     Topic,
     qos_profile,
@@ -79,12 +91,14 @@ from sappc_msgs_py.contract import (
 from sappc_msgs_py.convert import (
     covariance_msg,
     epoch_from_msg,
+    gyro_from_msg,
     health_msg,
     estimator_diagnostics_msg,
     no_data_msg,
     ns_to_stamp,
     quaternion_msg,
     stamp_to_ns,
+    star_tracker_from_msg,
     vector3_msg,
 )
 from sappc_msgs_py.inputs import (
@@ -96,7 +110,6 @@ from sappc_msgs_py.inputs import (
     LockstepPairing,
     RealtimePairing,
     check_watchdog_seconds,
-    decode_input,
     screen_input,
 )
 from sappc_msgs_py.parameters import Param
@@ -136,11 +149,65 @@ _HEALTH_MESSAGES = ("consistent: the innovations' window inside its band",
 
 
 def decode_estimator_input(msg: Any, topic: Topic) -> Any:
-    """The value of an estimator input: :func:`~sappc_msgs_py.inputs.decode_input`'s for the
-    measurements, the epoch [ns] (an int64 array of one, exact) for ``state/attitude_epoch``."""
+    """The value of an estimator input: the gyro's angular velocity [rad/s], the tracker's unit
+    quaternion ``q_BN`` (x, y, z, w), the epoch [ns] (an int64 array of one, exact) for
+    ``state/attitude_epoch``; raises :class:`~gnc_common.validation.InputError` as the decoders do."""
     if topic.type_name.endswith("TimeReference"):
         return np.array([epoch_from_msg(msg, topic)], dtype=np.int64)
-    return decode_input(msg, topic)
+    if topic.name.endswith(SENSOR_STAR_TRACKER.name):
+        return check_unit_quaternion(f"{topic.name} orientation", star_tracker_from_msg(msg, topic))
+    return gyro_from_msg(msg, topic)
+
+
+class TrackerSamples:
+    """The tracker's samples by stamp, and the one a sample of the loop uses.
+
+    A loop sample names, by its epoch, the latest tracker sample at its time.  The quaternion it
+    uses is that of the latest valid epoch any sample has named so far (:meth:`use`): a held or
+    delayed epoch (a fault) names an older sample, whose quaternion the filter does not use (not
+    new: only its validity is checked), so the filter takes what the offline loop gives it
+    (``sappc.offline.compiled_loop``: the quaternion of the latest new epoch delivered) bit for bit.
+    A tracker sample that arrived invalid is no measurement: the samples that name it propagate."""
+
+    #: Tracker samples kept that no loop sample has named yet: a tracker at 1 Hz beside a 1 kHz
+    #: loop names each within a thousand samples; more are dropped, oldest first.
+    MAX_KEPT = 1000
+
+    def __init__(self) -> None:
+        self._by_ns: dict[int, NDArray[np.float64] | None] = {}  # stamp -> q_BN (None: arrived invalid)
+        self.latest_ns: int | None = None  # the latest epoch a loop sample named
+        self.q: NDArray[np.float64] = np.full(4, np.nan)  # the quaternion of the latest valid one (NaN before one)
+        self.q_ns: int | None = None  # and its epoch
+        self.last_arrived_ns: int | None = None  # the latest stamp that arrived (stamps only increase)
+
+    def add(self, stamp_ns: int, q: NDArray[np.float64] | None) -> None:
+        """Keep a tracker sample that arrived (``None``: arrived invalid)."""
+        self.last_arrived_ns = stamp_ns
+        if self.latest_ns is not None and stamp_ns <= self.latest_ns:
+            return  # older than a sample named already: never used
+        self._by_ns[stamp_ns] = q
+        if len(self._by_ns) > self.MAX_KEPT:
+            del self._by_ns[min(self._by_ns)]
+
+    def ready(self, epoch_ns: int) -> bool:
+        """Whether a loop sample naming ``epoch_ns`` can be stepped: the epoch is not a new one, or
+        its tracker sample has arrived."""
+        return (self.latest_ns is not None and epoch_ns <= self.latest_ns) or epoch_ns in self._by_ns
+
+    def use(self, epoch_ns: int) -> int:
+        """The epoch [ns] a loop sample naming ``epoch_ns`` gives the filter, its quaternion in
+        :attr:`q`: ``epoch_ns`` itself, but the latest valid one's (not new to the filter) when
+        the sample it names arrived invalid or (real time) has not arrived yet."""
+        if epoch_ns in self._by_ns and (self.latest_ns is None or epoch_ns > self.latest_ns):
+            q = self._by_ns[epoch_ns]
+            self.latest_ns = epoch_ns
+            for ns in [ns for ns in self._by_ns if ns <= epoch_ns]:
+                del self._by_ns[ns]
+            if q is not None:
+                self.q, self.q_ns = q, epoch_ns
+        if self.q_ns is not None and epoch_ns > self.q_ns and epoch_ns not in self._by_ns:
+            return self.q_ns  # invalid, or not here yet: no new measurement
+        return epoch_ns  # (before any valid sample q is NaN: no measurement)
 
 
 class EstimatorNode(ProjectNode):
@@ -170,6 +237,9 @@ class EstimatorNode(ProjectNode):
         qos = qos_profile()
         for topic in ESTIMATOR_INPUTS:
             self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos)
+        self.create_subscription(SENSOR_STAR_TRACKER.msg_class, SENSOR_STAR_TRACKER.name, self._on_tracker, qos)
+        self.tracker = TrackerSamples()
+        self._waiting: ControlSample | None = None  # lockstep: a sample whose new tracker sample has not arrived
         self.samples = 0  # samples answered (an estimate or "no data")
         self.steps = 0  # filter steps (valid samples)
         self.no_data = 0  # samples answered with "no data"
@@ -222,8 +292,23 @@ class EstimatorNode(ProjectNode):
                 self.latency.add(self.get_clock().now().nanoseconds - fresh.t_ns)
             return
         sample = self._pending.add(topic.name, ns, value)
-        if sample is not None:
+        if sample is not None and sample.valid and not self.tracker.ready(int(sample.values[1][0])):
+            self._waiting = sample  # its tracker sample is on its way (lockstep: one sample at a time)
+        elif sample is not None:
             self._answer(sample)
+
+    def _on_tracker(self, msg: Any) -> None:
+        """A tracker sample (stamped when measured): kept by its stamp until a loop sample names it."""
+        topic = SENSOR_STAR_TRACKER
+        screened = screen_input(msg, topic, self.tracker.last_arrived_ns, self._now_ns(), self.max_ahead_ns,
+                                f"the last {topic.name} message", decode_estimator_input, self._reject)
+        if screened is None:
+            return
+        self.tracker.add(*screened)
+        waiting = self._waiting
+        if waiting is not None and self.tracker.ready(int(waiting.values[1][0])):
+            self._waiting = None
+            self._answer(waiting)
 
     # ---- samples --------------------------------------------------------------------------
     def _answer(self, sample: ControlSample) -> None:
@@ -236,8 +321,9 @@ class EstimatorNode(ProjectNode):
             return
         if self._origin_ns is None:
             self._origin_ns = t_ns
-        q_meas, omega_meas, epoch_ns = sample.values
-        status = self.filter.step((t_ns - self._origin_ns) / NS_PER_S, q_meas, omega_meas, (int(epoch_ns[0]) - self._origin_ns) / NS_PER_S)
+        omega_meas, epoch = sample.values
+        epoch_ns = self.tracker.use(int(epoch[0]))
+        status = self.filter.step((t_ns - self._origin_ns) / NS_PER_S, self.tracker.q, omega_meas, (epoch_ns - self._origin_ns) / NS_PER_S)
         self.steps += 1
         # an implausible measurement (a rate beyond max_body_rate_rad_s ...) is no measurement: the
         # filter is unchanged and the sample is "no data", as the offline loop answers it

@@ -11,6 +11,8 @@ topic                         type                            frame_id    conten
 ``state/attitude``            geometry_msgs/QuaternionStamped ``inertial`` measured ``q_BN`` (body relative to inertial)
 ``state/rate``                geometry_msgs/Vector3Stamped    ``body``     measured ``omega_BN_B`` [rad/s]
 ``state/attitude_epoch``      sensor_msgs/TimeReference       ``body``     ``time_ref``: when the star tracker measured ``state/attitude`` (a plant with sensor models only)
+``sensors/gyro``              sensor_msgs/Imu                 ``body``     the gyro's sample: ``angular_velocity`` [rad/s], its covariance (idem)
+``sensors/star_tracker``      sensor_msgs/Imu                 ``body``     the tracker's sample: ``orientation`` ``q_BN``, its covariance, stamped when measured (idem)
 ``reference/attitude``        geometry_msgs/QuaternionStamped ``inertial`` desired ``q_RN``
 ``reference/rate``            geometry_msgs/Vector3Stamped    ``reference`` desired ``omega_RN_R`` [rad/s]
 ``reference/acceleration``    geometry_msgs/Vector3Stamped    ``reference`` desired ``omegadot_RN_R`` [rad/s^2]
@@ -38,11 +40,26 @@ A star tracker holds its last quaternion between its updates (10 Hz beside a 100
 ``state/attitude`` repeats a measurement; a plant with sensor models says when each was measured
 on ``state/attitude_epoch`` (``sensor_msgs/TimeReference``: the header stamp is the sample's, as
 ``state/attitude``'s, ``time_ref`` the tracker's own time of the quaternion, ``source``
-``star_tracker``), and the estimator knows a new tracker sample by its epoch, never by comparing
-values.  A fault relay relays it with the measurements (a frozen or delayed sample keeps its epoch).
+``star_tracker``).
+
+**The sensors on their own topics** (a plant with sensor models; what an estimator reads): each
+sensor publishes a sample when it makes one, stamped with the time it was measured, in
+``sensor_msgs/Imu`` with the parts it does not measure marked absent (element 0 of their
+covariance -1, as the message's documentation says): ``sensors/gyro`` each sample of the loop
+(``angular_velocity`` and the white noise's variance per axis on its covariance's diagonal),
+``sensors/star_tracker`` at the tracker's own rate (``orientation`` ``q_BN``, the body, the
+header's frame, relative to inertial, and the variance of its small rotation error about each body
+axis), once per tracker sample: a held value is not sent again.  ``state/attitude_epoch`` is
+published with each gyro sample and names, by its ``time_ref``, the latest tracker sample at that
+time: a consumer knows a new tracker sample by its stamp, never by comparing values, and a
+lockstep consumer knows which tracker sample to wait for (DDS does not order one topic's messages
+against another's).  A fault relay relays the three (a frozen or delayed tracker sample keeps its
+epoch and is not sent again).  ``state/*`` stay as they are (the measurements at the loop's rate),
+so a plant may speak either contract: ``state/*`` alone for the controller, or ``sensors/*`` with
+``state/attitude_epoch`` for an estimator.
 
 An attitude estimator (``python -m sappc_estimator``: a multiplicative EKF, ``docs/estimator.md``)
-takes the measured ``state/attitude`` and ``state/rate`` and publishes its estimate on
+takes the sensors' ``sensors/gyro``, ``sensors/star_tracker`` and ``state/attitude_epoch`` and publishes its estimate on
 ``estimate/attitude`` and ``estimate/rate``, with the same types, frames and stamps as ``state/*``,
 so that the controller takes it by a remap (``-r state/attitude:=estimate/attitude -r
 state/rate:=estimate/rate``); ``estimator/*`` carry what plotting tools show beside it (bias,
@@ -160,7 +177,10 @@ __all__ = [
     "ESTIMATOR_HEALTH",
     "ESTIMATOR_HEALTH_KEYS",
     "ESTIMATOR_HEALTH_NAME",
-    "RELAYED_SENSOR_TOPICS_WITH_EPOCH",
+    "RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR",
+    "SENSOR_GYRO",
+    "SENSOR_STAR_TRACKER",
+    "ESTIMATOR_SUBSCRIPTIONS",
     "STATE_ATTITUDE_EPOCH",
     "ESTIMATOR_GYRO_BIAS",
     "ESTIMATOR_INPUTS",
@@ -233,6 +253,11 @@ def _msg_class(type_name: str) -> type:
 STATE_ATTITUDE = Topic("state/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)
 STATE_RATE = Topic("state/rate", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
 STATE_ATTITUDE_EPOCH = Topic("state/attitude_epoch", "sensor_msgs/msg/TimeReference", Frame.BODY.value)
+#: The sensors on their own topics (a plant with sensor models): each sample when the sensor makes
+#: it, stamped with the time it was measured, in ``sensor_msgs/Imu`` with the parts the sensor does
+#: not measure marked absent (element 0 of their covariance -1, as the message's documentation says).
+SENSOR_GYRO = Topic("sensors/gyro", "sensor_msgs/msg/Imu", Frame.BODY.value)
+SENSOR_STAR_TRACKER = Topic("sensors/star_tracker", "sensor_msgs/msg/Imu", Frame.BODY.value)
 REFERENCE_ATTITUDE = Topic("reference/attitude", "geometry_msgs/msg/QuaternionStamped", Frame.INERTIAL.value)
 REFERENCE_RATE = Topic("reference/rate", "geometry_msgs/msg/Vector3Stamped", Frame.REFERENCE.value)
 REFERENCE_ACCELERATION = Topic("reference/acceleration", "geometry_msgs/msg/Vector3Stamped", Frame.REFERENCE.value)
@@ -271,10 +296,11 @@ def faulty(topic: Topic) -> Topic:
 #: The measurements a sensor-fault relay republishes (the controller is remapped to their
 #: :func:`faulty` twins), in the order of ``FaultSchedule.sensor(t, stamp, q_BN, omega_BN_B)``.
 RELAYED_SENSOR_TOPICS = (STATE_ATTITUDE, STATE_RATE)
-#: The measurements a sensor-fault relay republishes for an estimator: with the tracker's epoch (a
-#: held or delayed sample keeps its own time), in the order of ``FaultSchedule.sensor(t, stamp,
-#: q_BN, omega_BN_B, epoch)``.
-RELAYED_SENSOR_TOPICS_WITH_EPOCH = (STATE_ATTITUDE, STATE_RATE, STATE_ATTITUDE_EPOCH)
+#: The sensors a sensor-fault relay republishes for an estimator: the gyro and the tracker's epoch of
+#: each sample, paired by stamp, then the tracker's own samples (relayed when the relayed epoch is
+#: a new one); the faults take ``FaultSchedule.sensor(t, stamp, q_BN, omega_BN_B, epoch)`` with the
+#: quaternion of the tracker sample the epoch names.  The estimator's subscriptions.
+RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR = (SENSOR_GYRO, STATE_ATTITUDE_EPOCH, SENSOR_STAR_TRACKER)
 #: The reference a reference-fault relay republishes, paired by stamp (the controller is remapped).
 RELAYED_REFERENCE_TOPICS = (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
 #: The command an actuator-fault relay republishes (the plant is remapped to its :func:`faulty` twin).
@@ -283,7 +309,7 @@ RELAYED_ACTUATOR_TOPICS = (CONTROL_TORQUE,)
 #: when a fault acts on it, and its consumer (the controller; the plant for ``actuator``) is remapped.
 RELAYED_PATHS = {"sensor": RELAYED_SENSOR_TOPICS, "reference": RELAYED_REFERENCE_TOPICS, "actuator": RELAYED_ACTUATOR_TOPICS}
 #: Every topic a fault relay may republish (the originals).
-RELAYED_TOPICS = RELAYED_SENSOR_TOPICS_WITH_EPOCH + RELAYED_REFERENCE_TOPICS + RELAYED_ACTUATOR_TOPICS
+RELAYED_TOPICS = RELAYED_SENSOR_TOPICS + RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR + RELAYED_REFERENCE_TOPICS + RELAYED_ACTUATOR_TOPICS
 #: The relays' outputs, :func:`faulty` of each of :data:`RELAYED_TOPICS`.
 FAULT_TOPICS = tuple(faulty(t) for t in RELAYED_TOPICS)
 
@@ -314,8 +340,11 @@ def consumed_names(topic: Topic) -> tuple[str, ...]:
 #: The controller's five inputs, in the order of ``AttitudeController.step(t, dt, q, w, q_d, w_d, wdot_d)``.
 CONTROLLER_INPUTS = (STATE_ATTITUDE, STATE_RATE, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
 
-#: The estimator's three inputs, in the order of its measurement ``y = (q_meas, omega_meas, epoch)``.
-ESTIMATOR_INPUTS = (STATE_ATTITUDE, STATE_RATE, STATE_ATTITUDE_EPOCH)
+#: The estimator's inputs of each sample, paired by stamp: the gyro's sample and the tracker's epoch
+#: (which names the tracker sample, :data:`SENSOR_STAR_TRACKER` of that stamp, that the sample uses).
+ESTIMATOR_INPUTS = RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR[:2]
+#: Every topic the estimator subscribes to: its paired inputs, then the tracker's samples.
+ESTIMATOR_SUBSCRIPTIONS = RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR
 #: What an estimator publishes per sample, in the order it publishes them: the estimate the
 #: controller takes (remapped from ``state/*``) first.
 ESTIMATOR_TOPICS = (ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_GYRO_BIAS, ESTIMATOR_ATTITUDE_SIGMA, ESTIMATOR_BIAS_SIGMA,
@@ -339,12 +368,15 @@ TOPICS = (
     TRUTH_RATE,
     TRUTH_GYRO_BIAS,
     STATE_ATTITUDE_EPOCH,
+    SENSOR_GYRO,
+    SENSOR_STAR_TRACKER,
     *ESTIMATOR_TOPICS,
 )
 
 #: Topics only some runs have (a plant with reaction wheels or sensor models, an estimator):
 #: absent from a bag of a run without them, which is no fault.
-OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE, TRUTH_GYRO_BIAS, STATE_ATTITUDE_EPOCH, *ESTIMATOR_TOPICS)
+OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE, TRUTH_GYRO_BIAS, STATE_ATTITUDE_EPOCH, SENSOR_GYRO, SENSOR_STAR_TRACKER,
+                   *ESTIMATOR_TOPICS)
 
 #: The attitude as frames (body and reference relative to inertial), for visualisation only: no
 #: node consumes them, a fault relay never republishes them (they show the truth).

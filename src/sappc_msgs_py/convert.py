@@ -47,6 +47,11 @@ __all__ = [
     "epoch_from_msg",
     "epoch_msg",
     "health_msg",
+    "gyro_from_msg",
+    "gyro_msg",
+    "IMU_ABSENT",
+    "star_tracker_from_msg",
+    "star_tracker_msg",
     "EPOCH_SOURCE",
     "no_data_msg",
     "diagnostics_from_msg",
@@ -132,7 +137,7 @@ def seconds_to_ns(t_s: float) -> int:
 #: encapsulation header.
 _STAMP_FIRST = frozenset({"geometry_msgs/msg/QuaternionStamped", "geometry_msgs/msg/Vector3Stamped",
                           "geometry_msgs/msg/WrenchStamped", "geometry_msgs/msg/TransformStamped", "rosgraph_msgs/msg/Clock",
-                          "sensor_msgs/msg/JointState", "sensor_msgs/msg/TimeReference", "diagnostic_msgs/msg/DiagnosticArray"})
+                          "sensor_msgs/msg/JointState", "sensor_msgs/msg/TimeReference", "sensor_msgs/msg/Imu", "diagnostic_msgs/msg/DiagnosticArray"})
 _FLOAT_ARRAY_TYPE = "std_msgs/msg/Float64MultiArray"
 
 
@@ -242,6 +247,74 @@ def vector3_from_msg(msg: Any, topic: Topic) -> Array:
     _check_frame(msg, topic)
     v = msg.vector
     return _finite(topic, "vector", [v.x, v.y, v.z])
+
+
+#: ``sensor_msgs/Imu``'s mark of a part the sensor does not measure: element 0 of its covariance
+#: (the message's documentation: "If you have no estimate for one of the data elements ... please
+#: set element 0 of the associated covariance matrix to -1").
+IMU_ABSENT = -1.0
+
+
+def _diagonal(variance: ArrayLike) -> list[float]:
+    v = np.broadcast_to(np.asarray(variance, dtype=np.float64), (3,))
+    return [float(v[0]), 0.0, 0.0, 0.0, float(v[1]), 0.0, 0.0, 0.0, float(v[2])]
+
+
+def _imu(topic: Topic, t_s: Any, out: Any) -> Any:
+    return _header(topic.msg_class() if out is None else out, t_s, topic.frame_id)
+
+
+def gyro_msg(omega_B: ArrayLike, variance: ArrayLike, t_s: Any, topic: Topic, out: Any = None) -> Any:
+    """A gyro sample as ``sensor_msgs/Imu`` for ``topic`` (:data:`~sappc_msgs_py.contract.SENSOR_GYRO`):
+    ``angular_velocity`` the measured ``omega_BN_B`` [rad/s], ``angular_velocity_covariance`` the
+    white noise's per-axis ``variance`` [(rad/s)^2] on its diagonal (the bias is not in it: it is
+    the estimator's to estimate), orientation and linear acceleration marked absent
+    (:data:`IMU_ABSENT`); the header of the time it was measured ``t_s``.  Into ``out`` when given."""
+    w = _encode(f"{topic.name} angular_velocity", omega_B, 3)
+    msg = _imu(topic, t_s, out)
+    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = w
+    msg.angular_velocity_covariance = _diagonal(variance)
+    msg.orientation.x = msg.orientation.y = msg.orientation.z = 0.0
+    msg.orientation.w = 1.0
+    msg.orientation_covariance[0] = msg.linear_acceleration_covariance[0] = IMU_ABSENT
+    return msg
+
+
+def star_tracker_msg(q_BN: ArrayLike, variance: ArrayLike, t_s: Any, topic: Topic, out: Any = None) -> Any:
+    """A star-tracker sample as ``sensor_msgs/Imu`` for ``topic``
+    (:data:`~sappc_msgs_py.contract.SENSOR_STAR_TRACKER`): ``orientation`` the measured ``q_BN``
+    (x, y, z, w; the body, the header's frame, relative to inertial), ``orientation_covariance`` the
+    per-axis ``variance`` [rad^2] of its small rotation error about the body axes on its diagonal,
+    angular velocity and linear acceleration marked absent (:data:`IMU_ABSENT`); the header of the
+    time it was measured ``t_s``.  Into ``out`` when given."""
+    q = _encode(f"{topic.name} orientation", q_BN, 4)
+    msg = _imu(topic, t_s, out)
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = q
+    msg.orientation_covariance = _diagonal(variance)
+    msg.angular_velocity.x = msg.angular_velocity.y = msg.angular_velocity.z = 0.0
+    msg.angular_velocity_covariance[0] = msg.linear_acceleration_covariance[0] = IMU_ABSENT
+    return msg
+
+
+def gyro_from_msg(msg: Any, topic: Topic) -> Array:
+    """The angular velocity [rad/s] of a gyro ``sensor_msgs/Imu`` of ``topic``; checks the frame,
+    that it measures one (its covariance not marked absent) and finiteness."""
+    _check_frame(msg, topic)
+    if msg.angular_velocity_covariance[0] == IMU_ABSENT:
+        raise InputError(f"{topic.name}: no angular velocity (angular_velocity_covariance[0] is {IMU_ABSENT})")
+    w = msg.angular_velocity
+    return _finite(topic, "angular_velocity", [w.x, w.y, w.z])
+
+
+def star_tracker_from_msg(msg: Any, topic: Topic) -> Array:
+    """The orientation ``q_BN`` (x, y, z, w) of a star-tracker ``sensor_msgs/Imu`` of ``topic``;
+    checks the frame, that it measures one (its covariance not marked absent) and finiteness (the
+    unit norm is the consumer's check, which names the value)."""
+    _check_frame(msg, topic)
+    if msg.orientation_covariance[0] == IMU_ABSENT:
+        raise InputError(f"{topic.name}: no orientation (orientation_covariance[0] is {IMU_ABSENT})")
+    q = msg.orientation
+    return _finite(topic, "orientation", [q.x, q.y, q.z, q.w])
 
 
 #: The ``source`` of a tracker epoch (``sensor_msgs/TimeReference``): the sensor that measured it.
@@ -410,11 +483,15 @@ def no_data_msg(topic: Topic, t_s: Any, out: Any = None) -> Any:
         msg.quaternion.x = msg.quaternion.y = msg.quaternion.z = msg.quaternion.w = _NO_DATA
     elif topic.type_name.endswith("Vector3Stamped"):
         msg.vector.x = msg.vector.y = msg.vector.z = _NO_DATA
+    elif topic.type_name.endswith("Imu"):  # NaN in what the sensor measures (the other parts stay absent)
+        msg.orientation.x = msg.orientation.y = msg.orientation.z = msg.orientation.w = _NO_DATA
+        msg.angular_velocity.x = msg.angular_velocity.y = msg.angular_velocity.z = _NO_DATA
+        msg.linear_acceleration_covariance[0] = IMU_ABSENT
     elif topic.type_name.endswith("TimeReference"):  # no time to hold NaN: the epoch names no sensor
         msg.time_ref = ns_to_stamp(0)
         msg.source = ""
     else:
-        raise ValueError(f"{topic.name} has no 'no data' sample (a QuaternionStamped, Vector3Stamped or TimeReference topic has)")
+        raise ValueError(f"{topic.name} has no 'no data' sample (a QuaternionStamped, Vector3Stamped, Imu or TimeReference topic has)")
     return msg
 
 

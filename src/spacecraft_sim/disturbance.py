@@ -21,7 +21,12 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
   :data:`~sappc_msgs_py.contract.RELAYED_ACTUATOR_TOPICS`) through
   :class:`~spacecraft_sim.core.faults.FaultSchedule`: with sensor faults it subscribes to
   ``state/attitude`` and ``state/rate``, pairs them by stamp and republishes the faulty
-  measurement on ``fault/state/*`` (the controller is remapped to those); with reference faults
+  measurement on ``fault/state/*`` (the controller is remapped to those; with an estimator, which
+  reads the sensors' own topics, parameter ``relay_attitude_epoch``: ``sensors/gyro`` and
+  ``state/attitude_epoch`` paired by stamp, with the quaternion of the ``sensors/star_tracker``
+  sample the epoch names, relayed on ``fault/sensors/gyro`` and ``fault/state/attitude_epoch``, and
+  the tracker's sample on ``fault/sensors/star_tracker``, stamped with its own epoch, when the
+  relayed epoch is a new one: a frozen or delayed tracker sample is not sent again); with reference faults
   it does the same with the three reference topics (``fault/reference/*``); with actuator faults
   it relays ``control/torque`` to ``fault/control/torque`` (the plant is remapped to it).  A
   dropped measurement or reference is relayed as "no data" (non-finite values, its stamp), which
@@ -49,7 +54,9 @@ from sappc_msgs_py.contract import (
     RELAYED_ACTUATOR_TOPICS,
     RELAYED_PATHS,
     RELAYED_SENSOR_TOPICS,
-    RELAYED_SENSOR_TOPICS_WITH_EPOCH,
+    RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR,
+    SENSOR_GYRO,
+    SENSOR_STAR_TRACKER,
     Topic,
     faulty,
     qos_profile,
@@ -57,11 +64,15 @@ from sappc_msgs_py.contract import (
 from sappc_msgs_py.convert import (
     epoch_from_msg,
     epoch_msg,
+    gyro_from_msg,
+    gyro_msg,
     no_data_msg,
     ns_to_stamp,
     quaternion_from_msg,
     quaternion_msg,
     stamp_to_ns,
+    star_tracker_from_msg,
+    star_tracker_msg,
     time_to_stamp,
     torque_from_msg,
     torque_msg,
@@ -84,8 +95,9 @@ PARAMETERS = (
     MODE,
     Param("control_period_s", 0.01, "sample period dt of the plant's grid k dt", "s", check="> 0"),
     Param("duration_s", 0.0, "end of the grid: no disturbance sample after duration_s (0: no end)", "s", check=">= 0"),
-    Param("relay_attitude_epoch", False, "relay state/attitude_epoch with the measurements (an estimator reads the relayed "
-          "measurements: a frozen or delayed tracker sample keeps its own epoch; the plant must publish it, i.e. have sensor models)"),
+    Param("relay_attitude_epoch", False, "relay the sensors' own topics (sensors/gyro, state/attitude_epoch, sensors/star_tracker) "
+          "instead of state/*: an estimator reads them (a frozen or delayed tracker sample keeps its own epoch; the plant must "
+          "publish them, i.e. have sensor models)"),
 )
 _P = {p.name: p for p in PARAMETERS}
 
@@ -102,6 +114,9 @@ def _relayed_msg(topic: Topic, value: Any, stamp: Any) -> Any:
         return no_data_msg(out, stamp)
     if topic.type_name.endswith("TimeReference"):
         return epoch_msg(int(value), stamp, out)
+    if topic.type_name.endswith("Imu"):  # value: (the measurement, the original's covariance diagonal)
+        encode = star_tracker_msg if topic is SENSOR_STAR_TRACKER else gyro_msg
+        return encode(value[0], value[1], stamp, out)
     return quaternion_msg(value, stamp, out) if _is_quaternion(topic) else vector3_msg(value, stamp, out)
 
 
@@ -155,8 +170,13 @@ class InjectorNode(ProjectNode):
         self._paired: dict[tuple[Topic, ...], dict[int, dict[str, Any]]] = {}  # path -> stamp [ns] -> topic name -> value
         self.pub_relay: dict[str, Any] = {}
         # the measurements, with the tracker's epoch when an estimator reads them
-        self._sensor_path = RELAYED_SENSOR_TOPICS_WITH_EPOCH if bool(self.param(_P["relay_attitude_epoch"])) else RELAYED_SENSOR_TOPICS
+        self._sensor_path = RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR if bool(self.param(_P["relay_attitude_epoch"])) else RELAYED_SENSOR_TOPICS
         self._epoch_origin_ns: int | None = None  # epochs go through the fault kernels relative to the first one (exact in a float)
+        # the estimator's path: the plant's tracker samples by stamp (q_BN, covariance diagonal), the
+        # latest epoch relayed, and a sample waiting for the tracker sample its epoch names
+        self._tracker: dict[int, tuple[Any, Any]] = {}
+        self._relayed_epoch_ns: int | None = None
+        self._waiting: tuple[Any, int, Any] | None = None
         for path, topics in RELAYED_PATHS.items():
             if not self.faults.acts_on(path):
                 continue
@@ -164,9 +184,12 @@ class InjectorNode(ProjectNode):
                 topics = self._sensor_path
             for t in topics:
                 self.pub_relay[t.name] = self.counting_publisher(faulty(t), 1)
-                handler = self._on_command if topics is RELAYED_ACTUATOR_TOPICS else partial(self._on_paired, path=topics)
+                handler = (self._on_command if topics is RELAYED_ACTUATOR_TOPICS else self._on_tracker if t is SENSOR_STAR_TRACKER
+                           else partial(self._on_paired, path=topics[:2] if topics is RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR else topics))
                 self.create_subscription(t.msg_class, t.name, partial(handler, topic=t), qos)
-            if topics is not RELAYED_ACTUATOR_TOPICS:
+            if topics is RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR:
+                self._paired[topics[:2]] = {}
+            elif topics is not RELAYED_ACTUATOR_TOPICS:
                 self._paired[topics] = {}
 
     def _publish_disturbance(self, t_s: float, stamp: Any) -> None:
@@ -203,6 +226,8 @@ class InjectorNode(ProjectNode):
         try:
             if topic.type_name.endswith("TimeReference"):
                 value: Any = epoch_from_msg(msg, topic)
+            elif topic is SENSOR_GYRO:
+                value = (gyro_from_msg(msg, topic), np.diag(np.reshape(msg.angular_velocity_covariance, (3, 3))))
             else:
                 value = quaternion_from_msg(msg, topic) if _is_quaternion(topic) else vector3_from_msg(msg, topic)
         except InputError as exc:
@@ -219,19 +244,58 @@ class InjectorNode(ProjectNode):
             del pending[old]
         arrived: tuple[Any, ...] = tuple(entry[t.name] for t in path)
         values: tuple[Any, ...] | None = arrived
-        if path is self._sensor_path and len(path) == 3:  # the epoch through the faults with its sample (as a float offset: exact)
-            q, w, epoch_ns = arrived
-            if self._epoch_origin_ns is None:
-                self._epoch_origin_ns = int(epoch_ns)
-            faulted = self.faults.sensor(self._run_time_s(ns), ns, q, w, float(int(epoch_ns) - self._epoch_origin_ns))
-            values = None if faulted is None else (faulted[0], faulted[1], self._epoch_origin_ns + int(faulted[2]))
-        elif path is self._sensor_path:
+        if path[0] is SENSOR_GYRO:
+            self._waiting = (msg.header.stamp, ns, arrived)
+            self._relay_sensors()
+            return
+        if path is self._sensor_path:
             faulted = self.faults.sensor(self._run_time_s(ns), ns, arrived[0], arrived[1])
             values = None if faulted is None else faulted[:2]
         elif not self.faults.reference(self._run_time_s(ns)):
             values = None
         for t, value in zip(path, values or [None] * len(path)):
             self.pub_relay[t.name].publish(_relayed_msg(t, value, msg.header.stamp))
+
+    def _on_tracker(self, msg: Any, topic: Topic) -> None:
+        """A tracker sample of the plant (stamped when measured): kept until the samples whose epoch
+        names it have been relayed."""
+        try:
+            q = star_tracker_from_msg(msg, topic)
+        except InputError as exc:
+            self._reject(exc)
+            return
+        self._tracker[stamp_to_ns(msg.header.stamp)] = (q, np.diag(np.reshape(msg.orientation_covariance, (3, 3))))
+        self._relay_sensors()
+
+    def _relay_sensors(self) -> None:
+        """The waiting sample of the estimator's path (gyro and epoch of one stamp), once the tracker
+        sample its epoch names has arrived: through the faults with that sample's quaternion (the
+        plant's held measurement), then relayed; the tracker sample relayed too when the relayed
+        epoch is a new one, stamped with that epoch (a frozen or delayed sample is not sent again)."""
+        if self._waiting is None:
+            return
+        stamp, ns, ((w, w_variance), epoch_ns) = self._waiting
+        epoch_ns = int(epoch_ns[0]) if np.ndim(epoch_ns) else int(epoch_ns)
+        if epoch_ns not in self._tracker:
+            return  # on its way (the topics are not ordered among themselves)
+        self._waiting = None
+        for old in [k for k in self._tracker if k < epoch_ns]:  # the plant's epochs only increase
+            del self._tracker[old]
+        q, q_variance = self._tracker[epoch_ns]
+        if self._epoch_origin_ns is None:
+            self._epoch_origin_ns = epoch_ns
+        faulted = self.faults.sensor(self._run_time_s(ns), ns, q, w, float(epoch_ns - self._epoch_origin_ns))
+        gyro, epoch = faulty(SENSOR_GYRO), faulty(RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR[1])
+        if faulted is None:
+            self.pub_relay[SENSOR_GYRO.name].publish(no_data_msg(gyro, stamp))
+            self.pub_relay[RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR[1].name].publish(no_data_msg(epoch, stamp))
+            return
+        relayed_ns = self._epoch_origin_ns + int(faulted[2])
+        if self._relayed_epoch_ns is None or relayed_ns > self._relayed_epoch_ns:
+            self._relayed_epoch_ns = relayed_ns
+            self.pub_relay[SENSOR_STAR_TRACKER.name].publish(_relayed_msg(SENSOR_STAR_TRACKER, (faulted[0], q_variance), ns_to_stamp(relayed_ns)))
+        self.pub_relay[SENSOR_GYRO.name].publish(_relayed_msg(SENSOR_GYRO, (faulted[1], w_variance), stamp))
+        self.pub_relay[RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR[1].name].publish(_relayed_msg(RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR[1], relayed_ns, stamp))
 
     def _on_command(self, msg: Any, topic: Topic) -> None:
         try:

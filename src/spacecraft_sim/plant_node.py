@@ -84,16 +84,18 @@ from typing import Any
 
 import numpy as np
 
-from sappc_msgs_py.contract import (CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, STATE_ATTITUDE, STATE_ATTITUDE_EPOCH, STATE_RATE, STATE_TF, TRUTH_ATTITUDE,
-                                   TRUTH_GYRO_BIAS, TRUTH_RATE,
+from sappc_msgs_py.contract import (CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, SENSOR_GYRO, SENSOR_STAR_TRACKER, STATE_ATTITUDE, STATE_ATTITUDE_EPOCH,
+                                   STATE_RATE, STATE_TF, TRUTH_ATTITUDE, TRUTH_GYRO_BIAS, TRUTH_RATE,
                                    WHEEL_STATES, qos_profile)
 from sappc_msgs_py.convert import (
     clock_msg,
     epoch_msg,
+    gyro_msg,
     joint_state_msg,
     ns_to_stamp,
     quaternion_msg,
     stamp_to_ns,
+    star_tracker_msg,
     time_to_stamp,
     torque_from_msg,
     transform_from_attitude,
@@ -108,7 +110,7 @@ from gnc_common.timing import LatencyStatistics, PeriodStatistics
 from spacecraft_sim.basilisk_plant import BasiliskPlant
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
-from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, S_BIAS0, Sensors, measure, sensors_from_mapping
+from spacecraft_sim.core.sensors import G_SIGMA, N_SENSOR_DRAWS, S_BIAS0, ST_SIGMA, Sensors, measure, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, allocation_matrix, propagate_wheels_into, wheel_speeds_into, wheel_torques, wheels_from_mapping
 from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
 
@@ -188,6 +190,12 @@ class PlantNode(ProjectNode):
             self.pub_truth_rate = self.counting_publisher(TRUTH_RATE)
             self.pub_truth_bias = self.counting_publisher(TRUTH_GYRO_BIAS)
             self.pub_epoch = self.counting_publisher(STATE_ATTITUDE_EPOCH)
+            # the sensors on their own topics: the gyro each sample, the tracker each sample it makes
+            self.pub_gyro = self.counting_publisher(SENSOR_GYRO)
+            self.pub_tracker = self.counting_publisher(SENSOR_STAR_TRACKER)
+            self._gyro_variance = self._sensor_prm[G_SIGMA:G_SIGMA + 3] ** 2
+            self._tracker_variance = self._sensor_prm[ST_SIGMA:ST_SIGMA + 3] ** 2
+            self._tracker_epoch_ns: int | None = None  # the last tracker sample published
             self._bias_k = np.zeros(3)  # the bias in sample k's rate (measure walks _bias on to k + 1), faults included
             self._bias_faults.gyro_bias_fault(0.0)  # load the compiled kernel now
             measure(0, 0.0, 0.0, self.x[0, :4], self.x[0, 4:], np.zeros(N_SENSOR_DRAWS), self._sensor_prm, self._outages, np.zeros(5),
@@ -477,7 +485,13 @@ class PlantNode(ProjectNode):
                 self._sensor_prm, self._outages, self._held_q, self._bias, self._y)
         self.pub_att.publish(quaternion_msg(self._y[:4], t_s, STATE_ATTITUDE, out=self.pub_att.msg))
         self.pub_rate.publish(vector3_msg(self._y[4:7], t_s, STATE_RATE, out=self.pub_rate.msg))
-        self.pub_epoch.publish(epoch_msg(int(self._y[7]), t_s, STATE_ATTITUDE_EPOCH, out=self.pub_epoch.msg))
+        epoch_ns = int(self._y[7])
+        if self._tracker_epoch_ns is None or epoch_ns > self._tracker_epoch_ns:  # a new tracker sample, stamped when measured
+            self._tracker_epoch_ns = epoch_ns
+            self.pub_tracker.publish(star_tracker_msg(self._y[:4], self._tracker_variance, ns_to_stamp(epoch_ns), SENSOR_STAR_TRACKER,
+                                                      out=self.pub_tracker.msg))
+        self.pub_gyro.publish(gyro_msg(self._y[4:7], self._gyro_variance, t_s, SENSOR_GYRO, out=self.pub_gyro.msg))
+        self.pub_epoch.publish(epoch_msg(epoch_ns, t_s, STATE_ATTITUDE_EPOCH, out=self.pub_epoch.msg))
         true_att = quaternion_msg(self.x[0, :4], t_s, TRUTH_ATTITUDE, out=self.pub_truth_att.msg)
         self.pub_truth_att.publish(true_att)
         self.pub_truth_rate.publish(vector3_msg(self.x[0, 4:], t_s, TRUTH_RATE, out=self.pub_truth_rate.msg))

@@ -18,6 +18,8 @@ from sappc_msgs_py.convert import (
     covariance_msg,
     epoch_from_msg,
     epoch_msg,
+    gyro_msg,
+    star_tracker_msg,
     estimator_diagnostics_from_msg,
     estimator_diagnostics_msg,
     no_data_msg,
@@ -104,6 +106,10 @@ def _sample(topic: c.Topic):  # type: ignore[no-untyped-def]
         return health_msg(12.34, 1, "warning", {key: str(i) for i, key in enumerate(c.ESTIMATOR_HEALTH_KEYS)})
     if topic is c.STATE_ATTITUDE_EPOCH:
         return epoch_msg(12_300_000_000, 12.34, topic)
+    if topic is c.SENSOR_GYRO:
+        return gyro_msg([1e-3, -2e-3, 3e-3], [1e-8, 2e-8, 3e-8], 12.34, topic)
+    if topic is c.SENSOR_STAR_TRACKER:
+        return star_tracker_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], [4e-10, 4e-10, 9e-9], 12.3, topic)
     if topic.type_name.endswith("QuaternionStamped"):
         return quaternion_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], 12.34, topic)
     if topic.type_name.endswith("Vector3Stamped"):
@@ -211,6 +217,8 @@ def test_cdr_stamp_ns_reads_the_stamp_of_every_recorded_type_without_deserializi
         c.ESTIMATOR_DIAGNOSTICS: estimator_diagnostics_msg([ns / 1e9, np.nan, 3.0, 7.0, 1.0, 0.0, 2.0, 4.0, 0.0, np.nan, 0.0, 0.0]),
         c.ESTIMATOR_HEALTH: health_msg(t_s, 0, "ok", {"time_s": "0"}),
         c.STATE_ATTITUDE_EPOCH: epoch_msg(0, t_s, c.STATE_ATTITUDE_EPOCH),
+        c.SENSOR_GYRO: gyro_msg([1.0, 2.0, 3.0], [1e-8, 1e-8, 1e-8], t_s, c.SENSOR_GYRO),
+        c.SENSOR_STAR_TRACKER: star_tracker_msg([0.0, 0.0, 0.0, 1.0], [1e-9, 1e-9, 1e-8], t_s, c.SENSOR_STAR_TRACKER),
         c.ESTIMATOR_COVARIANCE: covariance_msg(ns / 1e9, np.diag(np.arange(1.0, 7.0))),
         c.ESTIMATE_ATTITUDE: no_data_msg(c.ESTIMATE_ATTITUDE, t_s),
         c.STATE_TF: transform_from_attitude(transform_msg(c.STATE_TF), quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.STATE_ATTITUDE)),
@@ -308,7 +316,11 @@ def test_the_estimate_has_the_types_and_frames_of_the_state_it_replaces() -> Non
     assert (c.ESTIMATE_RATE.type_name, c.ESTIMATE_RATE.frame_id) == (c.STATE_RATE.type_name, "body")
     for topic in (c.ESTIMATOR_GYRO_BIAS, c.ESTIMATOR_ATTITUDE_SIGMA, c.ESTIMATOR_BIAS_SIGMA):
         assert topic.type_name == "geometry_msgs/msg/Vector3Stamped" and topic.frame_id == "body"
-    assert c.ESTIMATOR_INPUTS == (c.STATE_ATTITUDE, c.STATE_RATE, c.STATE_ATTITUDE_EPOCH)  # the tracker's sample knows its time
+    # the sensors on their own topics, each sample stamped when measured; the epoch names the tracker's
+    assert c.ESTIMATOR_INPUTS == (c.SENSOR_GYRO, c.STATE_ATTITUDE_EPOCH)
+    assert c.ESTIMATOR_SUBSCRIPTIONS == (c.SENSOR_GYRO, c.STATE_ATTITUDE_EPOCH, c.SENSOR_STAR_TRACKER)
+    assert all(t.type_name == "sensor_msgs/msg/Imu" and t.frame_id == "body" for t in (c.SENSOR_GYRO, c.SENSOR_STAR_TRACKER))
+    assert all(t in c.TOPICS and t in c.OPTIONAL_TOPICS and t in c.RELAYED_TOPICS for t in c.ESTIMATOR_SUBSCRIPTIONS)
     assert all(t in c.TOPICS and t in c.OPTIONAL_TOPICS for t in c.ESTIMATOR_TOPICS) and len(c.ESTIMATOR_TOPICS) == 8
     assert len({t.name for t in c.TOPICS}) == len(c.TOPICS)
     for topic in c.ESTIMATOR_TOPICS:
@@ -373,3 +385,31 @@ def test_the_no_data_sample_is_nan_in_every_value_with_its_stamp_and_frame(topic
     assert again is msg and stamp_to_ns(msg.header.stamp) == 3_000_000_000
     with pytest.raises(ValueError, match="control/torque has no 'no data' sample"):
         no_data_msg(c.CONTROL_TORQUE, 0.0)
+
+
+def test_the_sensors_imu_messages_mark_what_they_do_not_measure_and_their_decoders_check_it() -> None:
+    """``sensors/*`` are ``sensor_msgs/Imu``: the gyro's angular velocity with its white noise's
+    variance on the covariance's diagonal, the tracker's orientation with its own; the part a
+    sensor does not measure has element 0 of its covariance at -1 (the message's documented mark),
+    and a decoder refuses a message that marks its own measurement absent, a wrong frame, and NaN
+    (the relay's "no data")."""
+    from sappc_msgs_py.convert import IMU_ABSENT, gyro_from_msg, star_tracker_from_msg
+
+    g = gyro_msg([1e-3, -2e-3, 3e-3], [1e-8, 2e-8, 3e-8], 1.5, c.SENSOR_GYRO)
+    assert g.header.frame_id == "body" and stamp_to_ns(g.header.stamp) == 1_500_000_000
+    np.testing.assert_array_equal(gyro_from_msg(g, c.SENSOR_GYRO), [1e-3, -2e-3, 3e-3])
+    np.testing.assert_array_equal(np.reshape(g.angular_velocity_covariance, (3, 3)), np.diag([1e-8, 2e-8, 3e-8]))
+    assert g.orientation_covariance[0] == IMU_ABSENT == g.linear_acceleration_covariance[0] == -1.0
+    q = [0.1, -0.2, 0.3, np.sqrt(0.86)]
+    st = star_tracker_msg(q, [4e-10, 4e-10, 9e-9], 1.2, c.SENSOR_STAR_TRACKER)
+    np.testing.assert_array_equal(star_tracker_from_msg(st, c.SENSOR_STAR_TRACKER), q)
+    np.testing.assert_array_equal(np.reshape(st.orientation_covariance, (3, 3)), np.diag([4e-10, 4e-10, 9e-9]))
+    assert st.angular_velocity_covariance[0] == IMU_ABSENT == st.linear_acceleration_covariance[0]
+    with pytest.raises(InputError, match="sensors/gyro: no angular velocity"):
+        gyro_from_msg(st, c.SENSOR_GYRO)
+    with pytest.raises(InputError, match="sensors/star_tracker: no orientation"):
+        star_tracker_from_msg(g, c.SENSOR_STAR_TRACKER)
+    with pytest.raises(InputError, match="frame_id must be 'body'"):
+        gyro_from_msg(gyro_msg([0.0, 0.0, 0.0], 1e-8, 1.0, c.Topic("x", c.SENSOR_GYRO.type_name, "inertial")), c.SENSOR_GYRO)
+    with pytest.raises(InputError, match="angular_velocity"):
+        gyro_from_msg(no_data_msg(c.SENSOR_GYRO, 1.0), c.SENSOR_GYRO)

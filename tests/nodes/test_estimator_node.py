@@ -32,10 +32,12 @@ from sappc_msgs_py.convert import (
     covariance_from_msg,
     diagnostics_from_msg,
     epoch_msg,
+    gyro_msg,
     estimator_diagnostics_from_msg,
     ns_to_stamp,
     quaternion_msg,
     stamp_to_ns,
+    star_tracker_msg,
     torque_from_msg,
     vector3_msg,
 )
@@ -58,6 +60,10 @@ SENSORS = Sensors(star_tracker=StarTracker(noise_rad=(9.7e-6, 9.7e-6, 7.3e-5), r
 CONFIG = MekfConfig(tracker_noise_rad=(9.7e-6, 9.7e-6, 7.3e-5), gyro_angle_random_walk_rad_sqrt_s=1.45e-6,
                     gyro_bias_random_walk_rad_s_sqrt_s=8.1e-10)
 NO_DATA_Q = (math.nan,) * 4
+NO_DATA_W = (math.nan,) * 3
+#: What the sensors' messages say of their noise (what a plant's data sheet gives; the filter's own
+#: figures are its parameters).
+GYRO_VARIANCE, TRACKER_VARIANCE = (1e-8, 1e-8, 1e-8), (9.4e-11, 9.4e-11, 5.3e-9)
 
 
 #: The epochs [ns] of the last :func:`measurements` (the tracker's own time of each held quaternion).
@@ -102,7 +108,7 @@ class Driver:
         self.node = Node("driver", context=context)
         qos = c.qos_profile()
         self.pub = {t.name: self.node.create_publisher(t.msg_class, t.name, qos)
-                    for t in (c.STATE_ATTITUDE, c.STATE_RATE, c.STATE_ATTITUDE_EPOCH, c.CLOCK, *extra_topics)}
+                    for t in (*c.ESTIMATOR_SUBSCRIPTIONS, c.CLOCK, *extra_topics)}
         self.got: dict[str, dict[int, Any]] = {t.name: {} for t in c.ESTIMATOR_TOPICS if t is not c.ESTIMATOR_HEALTH}  # per sample
         self.health: list[Any] = []  # diagnostics, as published (not per sample)
         self.node.create_subscription(c.ESTIMATOR_HEALTH.msg_class, c.ESTIMATOR_HEALTH.name, self.health.append, qos)
@@ -127,22 +133,27 @@ class Driver:
 
     def matched(self, estimator: Any) -> None:
         """Until the estimator's subscriptions and every one of its publishers are matched with this node."""
-        self.spin_until(lambda: all(self.pub[t.name].get_subscription_count() >= 1 for t in c.ESTIMATOR_INPUTS)
+        self.spin_until(lambda: all(self.pub[t.name].get_subscription_count() >= 1 for t in c.ESTIMATOR_SUBSCRIPTIONS)
                         and all(p.pub.get_subscription_count() >= 1 for p in estimator.pub.values()), "the estimator's topics matched")
 
-    def send(self, ns: int, q: Any, w: Any, *, frame: str | None = None, topics: tuple[c.Topic, ...] = c.ESTIMATOR_INPUTS,
+    def send(self, ns: int, q: Any, w: Any, *, frame: str | None = None, topics: tuple[c.Topic, ...] = c.ESTIMATOR_SUBSCRIPTIONS,
              epoch_ns: int | None = None) -> None:
-        """Publish the state of stamp ``ns`` (raw fields: the encoders refuse the bad values the tests
-        send) and its tracker epoch (``epoch_ns``, else :data:`EPOCHS`' of ``ns``, else ``ns``)."""
-        att = quaternion_msg(Q0, ns_to_stamp(ns), c.STATE_ATTITUDE)
-        att.quaternion.x, att.quaternion.y, att.quaternion.z, att.quaternion.w = (float(v) for v in q)
-        rate = vector3_msg([0.0, 0.0, 0.0], ns_to_stamp(ns), c.STATE_RATE)
-        rate.vector.x, rate.vector.y, rate.vector.z = (float(v) for v in w)
+        """Publish the sensors of stamp ``ns`` as a plant does (raw fields: the encoders refuse the
+        bad values the tests send): the gyro's ``w`` (its frame id ``frame`` when given), the
+        tracker's epoch (``epoch_ns``, else :data:`EPOCHS`' of ``ns``, else ``ns``), and the
+        tracker's sample ``q`` stamped with that epoch when the tracker measured it at this stamp
+        (epoch ``ns``: a held sample is not sent again)."""
+        epoch_ns = EPOCHS.get(ns, ns) if epoch_ns is None else epoch_ns
+        gyro = gyro_msg([0.0, 0.0, 0.0], GYRO_VARIANCE, ns_to_stamp(ns), c.SENSOR_GYRO)
+        gyro.angular_velocity.x, gyro.angular_velocity.y, gyro.angular_velocity.z = (float(v) for v in w)
         if frame is not None:
-            att.header.frame_id = frame
-        epoch = epoch_msg(EPOCHS.get(ns, ns) if epoch_ns is None else epoch_ns, ns_to_stamp(ns), c.STATE_ATTITUDE_EPOCH)
-        for topic, msg in ((c.STATE_ATTITUDE, att), (c.STATE_RATE, rate), (c.STATE_ATTITUDE_EPOCH, epoch)):
-            if topic in topics:
+            gyro.header.frame_id = frame
+        tracker = star_tracker_msg(Q0, TRACKER_VARIANCE, ns_to_stamp(epoch_ns), c.SENSOR_STAR_TRACKER)
+        tracker.orientation.x, tracker.orientation.y, tracker.orientation.z, tracker.orientation.w = (float(v) for v in q)
+        epoch = epoch_msg(epoch_ns, ns_to_stamp(ns), c.STATE_ATTITUDE_EPOCH)
+        messages = ((c.SENSOR_STAR_TRACKER, tracker if epoch_ns == ns else None), (c.SENSOR_GYRO, gyro), (c.STATE_ATTITUDE_EPOCH, epoch))
+        for topic, msg in messages:
+            if topic in topics and msg is not None:
                 self.pub[topic.name].publish(msg)
 
     def answered(self, ns: int) -> bool:
@@ -195,18 +206,19 @@ def _assert_no_data(drv: Driver, ns: int) -> None:
 
 def test_lockstep_estimates_equal_the_kernel_called_directly_bit_for_bit(estimator) -> None:  # type: ignore[no-untyped-def]
     """A 10 Hz tracker held at 100 Hz and a biased gyro on a slowly rotating truth, fed sample by
-    sample as messages: every output equals ``mekf_step`` called on the same arrays at
-    ``t = stamp`` [s], bit for bit.  Samples 25 and 26 arrive without data (the injector's NaN
-    attitude; an attitude with a wrong frame id is rejected the same way): "no data" at their stamps, and
-    the kernel skips them (sample 27 propagates over 30 ms)."""
+    sample as messages (the tracker's own samples at 10 Hz, stamped when measured): every output
+    equals ``mekf_step`` called on the same arrays (the tracker held at 100 Hz) at ``t = stamp``
+    [s], bit for bit.  Samples 25 and 26 arrive without data (the injector's NaN gyro sample; a gyro
+    sample with a wrong frame id is rejected the same way): "no data" at their stamps, and the
+    kernel skips them (sample 27 propagates over 30 ms)."""
     node, drv = estimator
     q, w = measurements(60)
-    skipped = {25: dict(q=NO_DATA_Q), 26: dict(frame="body")}
+    skipped = {25: dict(w=NO_DATA_W), 26: dict(frame="inertial")}
     ref = Reference()
     for k in range(60):
         ns = k * DT_NS
         bad = skipped.get(k, {})
-        drv.sample(ns, bad.get("q", q[k]), w[k], frame=bad.get("frame"))
+        drv.sample(ns, q[k], bad.get("w", w[k]), frame=bad.get("frame"))
         diag = drv.got[c.ESTIMATOR_DIAGNOSTICS.name][ns]
         if k in skipped:
             _assert_no_data(drv, ns)
@@ -295,11 +307,9 @@ def test_an_estimate_the_filter_has_not_confirmed_is_withheld_as_no_data(ros_con
 
 
 BAD = {
-    "NaN in the attitude (the injector's no data)": dict(q=NO_DATA_Q),
+    "NaN in the gyro's sample (the injector's no data)": dict(w=NO_DATA_W),
     "Inf in the rate": dict(w=(math.inf, 0.0, 0.0)),
-    "a zero quaternion": dict(q=(0.0, 0.0, 0.0, 0.0)),
-    "a non-unit quaternion": dict(q=(0.0, 0.0, 0.0, 1.1)),
-    "a wrong frame id": dict(frame="body"),
+    "a wrong frame id": dict(frame="inertial"),
 }
 
 
@@ -332,7 +342,7 @@ def test_stamps_in_the_past_or_too_far_ahead_are_rejected_and_counted_by_reason(
     node, drv = estimator
     q, w = measurements(1)
     drv.sample(DT_NS, q[0], w[0])
-    drv.send(DT_NS, q[0], w[0])  # the stamp just answered: the three inputs rejected
+    drv.send(DT_NS, q[0], w[0])  # the stamp just answered: the three inputs rejected (the tracker's: not after its last)
     drv.spin_until(lambda: node.rejected == 3, "three past stamps rejected")
     drv.sample(DT_NS + 1, q[0], w[0])
     drv.pub[c.CLOCK.name].publish(clock_msg(1.0))
@@ -367,7 +377,7 @@ def test_an_implausible_rate_is_no_data_and_leaves_the_filter_as_it_was(estimato
 
 
 def test_realtime_steps_once_per_fresh_state_pair_with_its_stamp(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
-    """Real time: a step as soon as the attitude and the rate of a new stamp have arrived (either
+    """Real time: a step as soon as the gyro and the epoch of a new stamp have arrived (either
     order), stamped with it, at the filter time counted from the first sample; half a pair, a
     repeated stamp (rejected per topic) or an invalid input make no step; latency is measured."""
     from sappc_estimator.node import EstimatorNode
@@ -381,10 +391,10 @@ def test_realtime_steps_once_per_fresh_state_pair_with_its_stamp(ros_context, mo
         drv.matched(node)
         q, w = measurements(3)
         ref = Reference()
-        att, rate = (c.STATE_ATTITUDE, c.STATE_ATTITUDE_EPOCH), (c.STATE_RATE,)  # the attitude comes with its epoch
+        att, rate = (c.STATE_ATTITUDE_EPOCH, c.SENSOR_STAR_TRACKER), (c.SENSOR_GYRO,)  # the epoch and the tracker's sample; the gyro
         clock.ns = t0 + 400_000  # 0.4 ms after the state's stamp
         drv.send(t0, q[0], w[0], topics=att, epoch_ns=t0 + EPOCHS[0 * DT_NS])
-        drv.spin_until(lambda: node._rt.last_ns(c.STATE_ATTITUDE.name) == t0, "half a pair")
+        drv.spin_until(lambda: node._rt.last_ns(c.STATE_ATTITUDE_EPOCH.name) == t0, "half a pair")
         assert node.steps == 0
         drv.send(t0, q[0], w[0], topics=rate, epoch_ns=t0 + EPOCHS[0 * DT_NS])
         drv.spin_until(lambda: drv.answered(t0), "the estimate of the first pair")
@@ -393,7 +403,7 @@ def test_realtime_steps_once_per_fresh_state_pair_with_its_stamp(ros_context, mo
         drv.spin_until(lambda: node.rejected == 1, "a repeated stamp rejected")
         drv.send(t0 + DT_NS, q[1], (math.nan, 0.0, 0.0), topics=rate, epoch_ns=t0 + EPOCHS[1 * DT_NS])  # invalid: no sample
         drv.send(t0 + DT_NS, q[1], w[1], topics=att, epoch_ns=t0 + EPOCHS[1 * DT_NS])
-        drv.spin_until(lambda: node.rejected == 2 and node._rt.last_ns(c.STATE_ATTITUDE.name) == t0 + DT_NS, "frame 1's inputs")
+        drv.spin_until(lambda: node.rejected == 2 and node._rt.last_ns(c.STATE_ATTITUDE_EPOCH.name) == t0 + DT_NS, "frame 1's inputs")
         clock.ns = t0 + 2 * DT_NS + 11_000_000  # frame 2 answered 11 ms late: a late step
         drv.send(t0 + 2 * DT_NS, q[2], w[2], topics=rate, epoch_ns=t0 + EPOCHS[2 * DT_NS])  # rate first
         drv.send(t0 + 2 * DT_NS, q[2], w[2], topics=att, epoch_ns=t0 + EPOCHS[2 * DT_NS])
@@ -440,7 +450,7 @@ def test_the_controller_takes_the_estimate_by_a_remap_and_answers_no_data_as_its
             for topic, value in ((c.REFERENCE_ATTITUDE, [0.0, 0.0, 0.0, 1.0]), (c.REFERENCE_RATE, [0.0] * 3), (c.REFERENCE_ACCELERATION, [0.0] * 3)):
                 msg = quaternion_msg(value, ns_to_stamp(ns), topic) if len(value) == 4 else vector3_msg(value, ns_to_stamp(ns), topic)
                 drv.pub[topic.name].publish(msg)
-            drv.send(ns, NO_DATA_Q if k == 1 else q[k], w[k])
+            drv.send(ns, q[k], NO_DATA_W if k == 1 else w[k])
             drv.spin_until(lambda: ns in torques and ns in answers, f"the torque of {ns} ns")
         assert answers == {0: c.ANSWER_COMMANDED, DT_NS: c.ANSWER_HELD, 2 * DT_NS: c.ANSWER_COMMANDED}
         assert np.array_equal(torques[DT_NS], torques[0]) and np.any(torques[0] != 0.0)
@@ -534,3 +544,53 @@ def test_the_flight_parameters_file_is_what_sappc_params_writes_and_the_scenario
     assert "# sensors.star_tracker.noise_rad" in text and "# sensors.gyro.angle_random_walk_rad_sqrt_s" in text
     proc = subprocess.run([sys.executable, "-m", "sappc", "params", str(path), "--estimator"], capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert proc.returncode == 0 and proc.stdout == text, proc.stderr
+
+
+# ---- the tracker's own samples (issue 33) -------------------------------------------------------
+
+
+@pytest.mark.parametrize("bad_q", [(0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.1), NO_DATA_Q], ids=["zero", "non-unit", "NaN"])
+def test_an_invalid_tracker_sample_is_no_measurement_the_samples_naming_it_propagate(estimator, bad_q) -> None:  # type: ignore[no-untyped-def]
+    """The tracker's sample of epoch 100 ms arrives invalid: it is rejected and counted, and the
+    samples that name it (100 to 190 ms) are stepped with the gyro alone (propagated: the filter is
+    given the last valid sample's epoch, not new to it), as the kernel called with that epoch; the
+    next sample (200 ms) updates."""
+    node, drv = estimator
+    q, w = measurements(21)
+    ref = Reference()
+    for k in range(21):
+        ns = k * DT_NS
+        drv.sample(ns, bad_q if k == 10 else q[k], w[k])
+        epoch_s = 0.0 if 10 <= k < 20 else None  # the kernel: the last valid sample's epoch, as the node gives it
+        status = ref.step(ns / 1e9, q[k], w[k], epoch_s)
+        assert drv.got[c.ESTIMATOR_DIAGNOSTICS.name][ns]["status"] == status
+        np.testing.assert_array_equal(drv.got[c.ESTIMATE_ATTITUDE.name][ns], ref.out[mekf.EO_Q : mekf.EO_Q + 4])
+    statuses = [drv.got[c.ESTIMATOR_DIAGNOSTICS.name][k * DT_NS]["status"] for k in range(21)]
+    assert statuses[10] == mekf.STATUS_PROPAGATED and statuses[20] == mekf.STATUS_UPDATED
+    assert node.rejected_by_reason == {"invalid": 1} and node.filter.updates == 1 and node.no_data == 0
+
+
+def test_a_tracker_sample_is_used_once_by_its_stamp_whatever_its_value_and_arrival(estimator) -> None:  # type: ignore[no-untyped-def]
+    """Lockstep: a sample whose epoch names a tracker sample not yet arrived waits for it (the
+    topics are not ordered among themselves); a held epoch never makes the filter update again, even
+    when a sample with the same quaternion value arrives under a later stamp; a tracker sample older
+    than one already named (a delayed one relayed late) is never used."""
+    node, drv = estimator
+    q, w = measurements(21)
+    for k in range(10):
+        drv.sample(k * DT_NS, q[k], w[k])
+    assert node.filter.updates == 0  # sample 0 initialised
+    # sample 10: its gyro and epoch first, the tracker's sample after: no answer until it has come
+    drv.send(10 * DT_NS, q[10], w[10], topics=(c.SENSOR_GYRO, c.STATE_ATTITUDE_EPOCH))
+    drv.spin_until(lambda: node._waiting is not None, "sample 10 waiting for its tracker sample")
+    assert 10 * DT_NS not in drv.got[c.ESTIMATE_ATTITUDE.name]
+    drv.send(10 * DT_NS, q[10], w[10], topics=(c.SENSOR_STAR_TRACKER,))
+    drv.spin_until(lambda: drv.answered(10 * DT_NS), "sample 10 answered once its tracker sample came")
+    assert node.filter.updates == 1
+    for k in range(11, 20):  # held: the epoch names the 100 ms sample, used already
+        drv.sample(k * DT_NS, q[k], w[k])
+    assert node.filter.updates == 1
+    # a late tracker sample of 50 ms (older than the 100 ms one already named): kept out, never used
+    drv.send(5 * DT_NS, q[5], w[5], topics=(c.SENSOR_STAR_TRACKER,), epoch_ns=5 * DT_NS)
+    drv.sample(20 * DT_NS, q[20], w[20])
+    assert node.filter.updates == 2 and node.rejected_by_reason == {"stamp_in_past": 1}

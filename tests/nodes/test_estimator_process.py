@@ -1,5 +1,5 @@
-"""``python -m sappc_estimator`` as its own process, in lockstep between a publisher of ``state/*``
-(this test) and the subscribers of its estimate (this test, and ``python -m sappc.graph.recorder``
+"""``python -m sappc_estimator`` as its own process, in lockstep between a publisher of the sensors
+(this test: ``sensors/*``, ``state/attitude_epoch``) and the subscribers of its estimate (this test, and ``python -m sappc.graph.recorder``
 as a second process): every sample answered, a clean stop on SIGINT (exit 0, its closing line,
 timing and counts files, no shared-memory segment abandoned), and a bag whose estimator topics decode
 with ``rosbags`` and with the project's reader into exactly what was received."""
@@ -7,7 +7,6 @@ with ``rosbags`` and with the project's reader into exactly what was received.""
 from __future__ import annotations
 
 import json
-import math
 import os
 import signal
 import subprocess
@@ -21,15 +20,15 @@ from rclpy.node import Node
 
 from sappc.bag.read import bag_estimate, read_bag
 from sappc_msgs_py import contract as c
-from sappc_msgs_py.convert import clock_msg, epoch_msg, ns_to_stamp, quaternion_msg, stamp_to_ns, vector3_msg
+from sappc_msgs_py.convert import clock_msg, epoch_msg, gyro_msg, no_data_msg, ns_to_stamp, stamp_to_ns, star_tracker_msg
 
 from conftest import ROOT
 from shm_watch import ShmWatch
-from test_estimator_node import DT_NS, EPOCHS, measurements
+from test_estimator_node import DT_NS, EPOCHS, GYRO_VARIANCE, TRACKER_VARIANCE, measurements
 
 pytestmark = pytest.mark.slow
 
-#: Samples of the run; the one whose attitude is dropped (the injector's "no data").
+#: Samples of the run; the one whose gyro sample is dropped (the injector's "no data").
 N_SAMPLES, DROPPED = 40, 17
 #: Longest wait for the processes to start (imports, the numba cache) and for each sample [s].
 START_S, SAMPLE_S = 120.0, 30.0
@@ -49,7 +48,7 @@ def test_the_estimator_process_answers_every_sample_records_and_stops_cleanly(ro
     watch.add(est.pid)
     node = Node("state_publisher", context=ros_context)
     qos = c.qos_profile()
-    pubs = {t.name: node.create_publisher(t.msg_class, t.name, qos) for t in (c.CLOCK, *c.ESTIMATOR_INPUTS)}
+    pubs = {t.name: node.create_publisher(t.msg_class, t.name, qos) for t in (c.CLOCK, *c.ESTIMATOR_SUBSCRIPTIONS)}
     got: dict[str, dict[int, np.ndarray]] = {t.name: {} for t in (c.ESTIMATE_ATTITUDE, c.ESTIMATE_RATE, c.ESTIMATOR_COVARIANCE)}
     node.create_subscription(c.ESTIMATE_ATTITUDE.msg_class, c.ESTIMATE_ATTITUDE.name, lambda m: got[c.ESTIMATE_ATTITUDE.name].__setitem__(
         stamp_to_ns(m.header.stamp), np.array([m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w])), qos)
@@ -75,11 +74,10 @@ def test_the_estimator_process_answers_every_sample_records_and_stops_cleanly(ro
         for k in range(N_SAMPLES):
             ns = k * DT_NS
             pubs[c.CLOCK.name].publish(clock_msg(ns / 1e9))
-            att = quaternion_msg(q[k], ns_to_stamp(ns), c.STATE_ATTITUDE)
-            if k == DROPPED:
-                att.quaternion.x = att.quaternion.y = att.quaternion.z = att.quaternion.w = math.nan
-            pubs[c.STATE_ATTITUDE.name].publish(att)
-            pubs[c.STATE_RATE.name].publish(vector3_msg(w[k], ns_to_stamp(ns), c.STATE_RATE))
+            if EPOCHS[ns] == ns:  # the tracker measured at this sample: its sample, stamped when measured
+                pubs[c.SENSOR_STAR_TRACKER.name].publish(star_tracker_msg(q[k], TRACKER_VARIANCE, ns_to_stamp(ns), c.SENSOR_STAR_TRACKER))
+            gyro = gyro_msg(w[k], GYRO_VARIANCE, ns_to_stamp(ns), c.SENSOR_GYRO)
+            pubs[c.SENSOR_GYRO.name].publish(no_data_msg(c.SENSOR_GYRO, ns_to_stamp(ns)) if k == DROPPED else gyro)
             pubs[c.STATE_ATTITUDE_EPOCH.name].publish(epoch_msg(EPOCHS[ns], ns_to_stamp(ns), c.STATE_ATTITUDE_EPOCH))
             spin_until(lambda: all(ns in v for v in got.values()), f"the estimate of {ns} ns", SAMPLE_S)
         assert all(p.wait_for_all_acked() for p in pubs.values())

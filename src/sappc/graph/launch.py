@@ -40,7 +40,7 @@ from sappc_msgs_py.runtime import parse_expected
 from sappc_controller.params import parameters_from_config, unflatten
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
 from sappc_msgs_py.contract import (CLOCK, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
-                                    RELAYED_PATHS, RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_WITH_EPOCH, STATE_ATTITUDE,
+                                    RELAYED_PATHS, RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR, STATE_ATTITUDE,
                                     STATE_ATTITUDE_EPOCH, STATE_RATE, TOPICS, faulty, relay_remaps)
 from spacecraft_sim.core.faults import FaultSchedule
 from gnc_common.validation import ConfigError
@@ -231,6 +231,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         return str(Path(paths["counts"]) / f"{node}.json")
 
     estimating = scenario.estimator is not None
+    measuring = _relays_epoch(scenario)  # an estimator reads the sensors' own topics
     clock_subs = 5 if estimating else 4  # controller (stale watchdog), reference, injector, recorder (and the estimator: its far-ahead check)
     controller = {
         **unflatten(parameters_from_config(kind.value, scenario.controller_config(kind))),
@@ -259,12 +260,12 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "use_disturbance_topic": True,
         **common,
         # state: the controller (or the sensor relay) and the recorder; state/tf, joint_states: the recorder; /clock in lockstep only
-        # (the estimator takes the controller's place on state/* when there is one)
         # (in real time the reference and the injector also take the run's first frame from the first state/attitude: FramesAhead)
-        "expected_subscribers": expected(state__attitude=2 + 2 * realtime, state__rate=2, state__tf=1)
+        # (with an estimator, not the controller: the estimator reads the sensors' own topics, sensors/* and state/attitude_epoch)
+        "expected_subscribers": expected(state__attitude=2 - measuring + 2 * realtime, state__rate=2 - measuring, state__tf=1)
         + (["joint_states=1"] if scenario.wheels is not None else [])
-        + (["truth/attitude=1", "truth/rate=1", "truth/gyro_bias=1", f"{STATE_ATTITUDE_EPOCH.name}={1 + estimating}"]
-           if scenario.sensors is not None else [])
+        + (["truth/attitude=1", "truth/rate=1", "truth/gyro_bias=1"]
+           + [f"{t.name}={1 + estimating}" for t in RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR] if scenario.sensors is not None else [])
         + ([f"/clock={clock_subs}"] if lockstep else []),
         "counts_file": counts_file("plant"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "timing.json"),
@@ -329,7 +330,7 @@ def _relayed(scenario: Scenario) -> list[tuple[Any, ...]]:
     """The paths the injector relays for the scenario's faults (each a tuple of contract topics;
     the measurements with the tracker's epoch when :func:`_relays_epoch`)."""
     faults = FaultSchedule(scenario.faults)
-    sensor = RELAYED_SENSOR_TOPICS_WITH_EPOCH if _relays_epoch(scenario) else RELAYED_SENSOR_TOPICS
+    sensor = RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR if _relays_epoch(scenario) else RELAYED_SENSOR_TOPICS
     return [sensor if topics is RELAYED_SENSOR_TOPICS else topics for path, topics in RELAYED_PATHS.items() if faults.acts_on(path)]
 
 
@@ -342,7 +343,7 @@ def _remaps(scenario: Scenario) -> dict[str, list[str]]:
     if estimating:
         remaps["controller"] += ["-r", f"{STATE_ATTITUDE.name}:={ESTIMATE_ATTITUDE.name}", "-r", f"{STATE_RATE.name}:={ESTIMATE_RATE.name}"]
     for topics in _relayed(scenario):
-        sensor = topics[0] is STATE_ATTITUDE
+        sensor = topics in (RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR)
         consumer = "plant" if topics is RELAYED_ACTUATOR_TOPICS else "estimator" if estimating and sensor else "controller"
         remaps[consumer] += relay_remaps(topics)
     return remaps

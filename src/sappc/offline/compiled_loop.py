@@ -238,6 +238,11 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     P = np.zeros((6, 6))
     ework = np.zeros((N_EST_WORK, 6))
     eout = np.zeros(N_EST_OUT)
+    # what the filter is given: the gyro and the epoch of the sample, the quaternion of the tracker
+    # sample of the latest new epoch delivered (the graph's sensors/star_tracker: a sample is
+    # published once, when its epoch is new; sappc_estimator.node.TrackerSamples)
+    ye = np.zeros(N_MEAS)
+    delivered_epoch = -np.inf
     yc = np.zeros(7)  # the controller's input: the measurement, or the estimate
     has_estimate = False  # whether the filter gave this sample its figures
     bias_k = np.zeros(3)  # the gyro's true bias in sample k's rate, faults included (measure walks its own on to k + 1)
@@ -285,7 +290,13 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
         if estimating:
             est_status = ESTIMATOR_NO_INPUT  # no measurement delivered: no filter step (the node's code)
             if state_in:
-                est_status = mekf_step(eprm, t_stamp_s, y, est_st, P, ework, eout)
+                if y[Y_EPOCH] > delivered_epoch:
+                    delivered_epoch = y[Y_EPOCH]
+                    for i in range(4):
+                        ye[i] = y[i]
+                for i in range(4, N_MEAS):
+                    ye[i] = y[i]
+                est_status = mekf_step(eprm, t_stamp_s, ye, est_st, P, ework, eout)
             has_estimate = est_status != STATUS_NONE and est_status != ESTIMATOR_NO_INPUT and eout[EO_USABLE] >= 0.0  # (NaN: not initialised)
             # an estimate the filter has not confirmed is withheld: "no data" for the controller
             state_in = has_estimate and eout[EO_USABLE] == 1.0

@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 from gnc_common.compiled import jit, quat_multiply, quat_normalize
 from gnc_common.validation import ConfigError, from_mapping
 
-__all__ = ["N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "SensorArrays", "Sensors", "measure_run", "pack_sensors", "StarTracker", "measure", "rotate_by_vector", "sample_stride", "sensors_from_mapping",
+__all__ = ["G_SIGMA", "N_SENSOR_DRAWS", "N_SENSOR_PARAMS", "S_BIAS0", "ST_SIGMA", "Gyro", "SensorArrays", "Sensors", "measure_run", "pack_sensors", "StarTracker", "measure", "rotate_by_vector", "sample_stride", "sensors_from_mapping",
            "white_noise_params"]
 
 Array = NDArray[np.float64]
@@ -52,6 +52,9 @@ _ST_SIGMA, _ST_STRIDE, _G_SIGMA, _G_WALK, _G_BIAS0 = 0, 3, 4, 7, 10
 #: the tracker's sigmas (campaigns scale them per run).
 S_BIAS0 = _G_BIAS0
 ST_SIGMA = _ST_SIGMA
+#: Columns of :meth:`Sensors.params`: the gyro's white-noise sigma per sample (what its
+#: ``sensor_msgs/Imu`` says of its angular velocity's covariance).
+G_SIGMA = _G_SIGMA
 #: Rounding allowed when the tracker's period is checked to be a whole number of control periods.
 _STRIDE_TOL = 1e-9
 
