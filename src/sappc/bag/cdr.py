@@ -6,7 +6,7 @@ one group per payload length, into a ``(messages, bytes)`` matrix and every fiel
 column view: no per-message Python.  Layout (ROS 2 CDR, XCDR1 little endian, alignment counted
 from the end of the 4-byte encapsulation header):
 
-``*Stamped`` (QuaternionStamped, Vector3Stamped, WrenchStamped)
+``*Stamped`` (QuaternionStamped, Vector3Stamped, WrenchStamped) and ``sensor_msgs/Imu``
     header: ``int32 sec`` @0, ``uint32 nanosec`` @4, ``string frame_id`` (``uint32`` length with
     the NUL, then the characters) @8; then the doubles (4, 3 or 6) at the next multiple of 8.
 ``geometry_msgs/TransformStamped`` (the frames ``state/tf``, ``reference/tf``)
@@ -59,6 +59,10 @@ _STAMPED = {
     "geometry_msgs/msg/QuaternionStamped": (4, slice(0, 4)),  # x, y, z, w
     "geometry_msgs/msg/Vector3Stamped": (3, slice(0, 3)),
     "geometry_msgs/msg/WrenchStamped": (6, slice(3, 6)),  # force x y z, torque x y z: keep the torque
+    # (the sensors) orientation x y z w, its covariance (9), angular velocity x y z, its covariance (9),
+    # linear acceleration x y z, its covariance (9): every array of fixed size, so the layout of a
+    # stamped type; all kept (columns 0:4 the orientation, 13:16 the angular velocity)
+    "sensor_msgs/msg/Imu": (37, slice(0, 37)),
 }
 
 

@@ -157,6 +157,14 @@ def test_the_flight_scenario_through_the_graph_equals_the_offline_run(tmp_path: 
     assert not np.array_equal(measured, est.q_BN[:, 0])  # ... through the estimator
     held = np.flatnonzero(np.all(np.diff(measured, axis=0) == 0.0, axis=1)) + 1
     assert {100 + i for i in range(1, 50)} <= set(held.tolist())  # held through the outage [1.0, 1.5) s and between updates
+    # the sensors on their own topics (what the estimator read): the gyro each sample, the tracker at
+    # 10 Hz but through its outage, each sample once, stamped when measured, the values state/* hold
+    stamps = bag.series["/state/attitude"].stamps_ns
+    gyro, tracker = bag.series["/sensors/gyro"], bag.series["/sensors/star_tracker"]
+    assert np.array_equal(gyro.stamps_ns, stamps) and np.array_equal(gyro.values[:, 13:16], bag.series["/state/rate"].values)
+    measured_at = [k for k in range(0, stamps.size, 10) if not 100 <= k < 150]
+    assert np.array_equal(tracker.stamps_ns, stamps[measured_at]) and np.array_equal(tracker.values[:, :4], measured[measured_at])
+    assert np.all(tracker.values[:, 16] == -1.0) and np.all(gyro.values[:, 4] == -1.0)  # what each does not measure: absent
 
 
 @pytest.mark.slow
@@ -165,15 +173,22 @@ def test_sensor_faults_with_the_estimator_through_the_graph_equal_the_offline_ru
     an attitude bias that ends between two tracker epochs (1.0 to 1.05 s: epoch 1.0's sample
     reappears without it, and is not used again), a freeze that does too (2.0 to 2.25 s: the frozen
     sample keeps its epoch, so epochs 2.1 and 2.2 are not seen until 2.25 s, when 2.2's is used,
-    once), a gyro rate bias from 3 s.  The injector
-    relays the tracker's epoch (``state/attitude_epoch``) with the measurements through the same
-    fault kernels, so the estimator uses each tracker sample once, as offline; the plant's
-    ``truth/gyro_bias`` includes the rate bias.  Everything the estimator records, its health
-    monitor's level and the use of its estimate included, equals the offline run bit for bit."""
+    once), a gyro rate bias from 3 s; sensor noise from 0.3 to 0.8 s (a held tracker sample gets
+    new noise each sample: the one relayed is its first sample's), a delay of 3 samples from 2.5 to
+    2.75 s (the epochs go back: no tracker sample is sent again) and a dropout from 3.3 to 3.33 s.
+    The injector relays the sensors' own topics (``sensors/gyro`` and ``state/attitude_epoch`` by
+    stamp, the ``sensors/star_tracker`` sample the epoch names) through the same fault kernels, and
+    relays a tracker sample once, when its epoch is new, so the estimator uses each tracker sample
+    once, as offline; the plant's ``truth/gyro_bias`` includes the rate bias.  Everything the
+    estimator records, its health monitor's level and the use of its estimate included, equals
+    the offline run bit for bit."""
     raw = yaml.safe_load((SCENARIOS / "paper_tracking_flight.yaml").read_text())
     raw["faults"] = [{"kind": "sensor_bias", "attitude_bias_rad": [2e-5, -1e-5, 3e-5], "start_s": 1.0, "end_s": 1.05},
                      {"kind": "sensor_freeze", "start_s": 2.0, "end_s": 2.25},
-                     {"kind": "sensor_bias", "rate_bias_rad_s": [0.0, 0.0, 2e-5], "start_s": 3.0}]
+                     {"kind": "sensor_bias", "rate_bias_rad_s": [0.0, 0.0, 2e-5], "start_s": 3.0},
+                     {"kind": "sensor_noise", "attitude_std_rad": 1e-5, "rate_std_rad_s": 1e-6, "seed": 3, "start_s": 0.3, "end_s": 0.8},
+                     {"kind": "delay", "path": "sensor", "samples": 3, "start_s": 2.5, "end_s": 2.75},
+                     {"kind": "sensor_dropout", "start_s": 3.3, "end_s": 3.33}]
     source = tmp_path / "faulty_flight.yaml"
     source.write_text(yaml.safe_dump(raw))
     raw, out = _short_run(tmp_path, str(source))
@@ -190,3 +205,8 @@ def test_sensor_faults_with_the_estimator_through_the_graph_equal_the_offline_ru
     compared = np.flatnonzero(np.isin(est.status[:, 0], (3, 4, 5)))  # updated, rejected, re-initialised
     assert 105 not in compared  # epoch 1.0's sample, its bias gone at 1.05 s: not used again
     assert 210 not in compared and 220 not in compared and 225 in compared  # frozen at epoch 2.0; epoch 2.2's sample, first seen at 2.25 s, used once
+    # the tracker's samples the relay sent: each once, in the order of their epochs; the frozen
+    # epochs 2.1 and 2.2 came as 2.2 at 2.25 s (2.1 never); the delay held epoch 2.4 back, not sent again
+    sent, relayed = bag.series["/sensors/star_tracker"].stamps_ns, bag.series["/fault/sensors/star_tracker"].stamps_ns
+    assert np.all(np.diff(relayed) > 0) and set(relayed.tolist()) == set(sent.tolist()) - {2_100_000_000}
+    assert np.all(np.isnan(bag.series["/fault/sensors/gyro"].values[330:333, 13:16]))  # the dropout: "no data"
