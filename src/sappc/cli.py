@@ -130,6 +130,16 @@ def _format_value(value: object) -> str:
     return "-" if value is None else str(value)
 
 
+def first_deviating_sample(plant_timing: dict[str, Any], controller_timing: dict[str, Any]) -> int | None:
+    """The first sample of a real-time run that may not be the lockstep run's: the plant's first
+    missed or stale frame, or the controller's first sample answered unlike lockstep (a step on a
+    held reference, a state too late to step: that sample's torque is not lockstep's), whichever is
+    first (``first_deviating_sample`` of each one's timing file); ``None``: the whole run is the
+    lockstep run."""
+    found = [v for v in (plant_timing.get("first_deviating_sample"), controller_timing.get("first_deviating_sample")) if v is not None]
+    return min(found) if found else None
+
+
 def _realtime_summary(result: Any, lacking: dict[str, int]) -> dict[str, Any]:
     """A real-time run's frames (:mod:`sappc_msgs_py.timeline`): the plant's ticks, missed frames
     and frames integrated with a stale torque or disturbance, the controller's latency and held
@@ -138,7 +148,10 @@ def _realtime_summary(result: Any, lacking: dict[str, int]) -> dict[str, Any]:
     plant = result.plant_timing
     keys = ("ticks", "period_error_p50_ms", "period_error_p99_ms", "period_error_max_ms", "missed_ticks", "missed_frames", "stale_torque_frames",
             "stale_disturbance_frames", "first_deviating_sample")
-    return {"frames": lacking["frames"], **{k: plant[k] for k in keys if k in plant},
+    summary = {"frames": lacking["frames"], **{k: plant[k] for k in keys if k in plant}}
+    if "first_deviating_sample" in summary:  # the plant's (a missed or stale frame) or the controller's (a held reference, a late state)
+        summary["first_deviating_sample"] = first_deviating_sample(plant, result.controller_timing)
+    return {**summary,
             "frames_lacking_own_stamp": {k: v for k, v in lacking.items() if k != "frames"},
             "held_reference_steps": result.controller_timing.get("held_reference_steps", 0),
             "state_delay": plant.get("state_delay", {}), "controller_latency": result.controller_timing.get("latency", {})}

@@ -249,6 +249,10 @@ class ControllerNode(ProjectNode):
         self._rt = RealtimePairing(_INPUTS)  # real time: a sample per fresh state
         self.latency = LatencyStatistics(self.dt)  # real time: the steps' latency, in bounded memory
         self.held_reference_steps = 0  # real time: steps on a reference not of the state's own stamp (held)
+        # real time: the first sample answered unlike the lockstep run (a held reference; a state too
+        # late to step), counted from the first state's (sample 0)
+        self.first_deviating_sample: int | None = None
+        self._first_state_ns: int | None = None  # real time: the run's first state's stamp (sample 0)
         self.late_states = 0  # real time: states more than a frame old when complete, not stepped
         self._origin_ns: int | None = 0 if self.mode == LOCKSTEP else None  # the run's time origin: real time, the first step's stamp
         self._end_ns: int | None = None  # real time: the stamp of the run's last frame (duration_s after the first state)
@@ -371,6 +375,8 @@ class ControllerNode(ProjectNode):
                 return  # the run's last frame is answered
             fresh = self._rt.add(topic.name, ns, value)
             start = fresh.t_ns if fresh is not None else self._rt.waiting_ns
+            if self._first_state_ns is None and start is not None:
+                self._first_state_ns = start
             if self._end_ns is None and self._n_frames and start is not None:  # the first state: the run's last frame follows
                 self._end_ns = start + self._n_frames * self.dt_ns
             if fresh is not None:
@@ -415,6 +421,12 @@ class ControllerNode(ProjectNode):
         self.get_logger().warning(f"t = {t_ns / _NS:.3f} s: an input did not arrive within {self.grace_ns / _NS} s", throttle_duration_sec=1.0)
         self._answer_without_inputs(t_ns)
 
+    def _deviates_at(self, t_ns: int) -> None:
+        """Real time: note sample ``t_ns`` as answered unlike the lockstep run (the first one is
+        :attr:`first_deviating_sample`)."""
+        if self.first_deviating_sample is None and self._first_state_ns is not None:
+            self.first_deviating_sample = round((t_ns - self._first_state_ns) / self.dt_ns)
+
     def _on_fresh_state(self, sample: ControlSample) -> None:
         """Real time: a step on the state of a new frame, at once; its latency measured.  A state
         more than a frame old is not stepped (counted: ``late_states``): its frame is over, so its
@@ -425,6 +437,7 @@ class ControllerNode(ProjectNode):
             return  # the plant or the recorder not matched yet; or the watchdog answered its frame
         if self.get_clock().now().nanoseconds - sample.t_ns > self.dt_ns:
             self.late_states += 1
+            self._deviates_at(sample.t_ns)  # no torque of its own (the last frame's: the plant does not wait for it)
             return
         if self.get_clock().now().nanoseconds - sample.oldest_ns > self.stale_timeout_ns:
             self._publish_zero(sample.t_ns, f"inputs older than {self.stale_timeout_ns / _NS} s", ANSWER_WATCHDOG_ZERO)
@@ -460,7 +473,9 @@ class ControllerNode(ProjectNode):
         late = self.mode == LOCKSTEP and self._answered(t_ns)  # its tick already answered (after the grace)
         if self._origin_ns is None:  # real time: the first step's stamp is the run's time 0
             self._origin_ns = t_ns
-        self.held_reference_steps += self.mode == REALTIME and any(ns != t_ns for ns in input_ns[2:])
+        if self.mode == REALTIME and any(ns != t_ns for ns in input_ns[2:]):
+            self.held_reference_steps += 1
+            self._deviates_at(t_ns)  # its torque is not lockstep's
         try:
             out = step_sample(self.controller, self.dt, sample, self._origin_ns)
         except STEP_ERRORS as exc:
@@ -524,6 +539,7 @@ class ControllerNode(ProjectNode):
             stats = {"steps": self.steps, "refused_steps": self.refused, "answers": dict(self.answers), "rejected": self.rejected,
                      "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
                      **({"latency": self.latency_statistics(), "held_reference_steps": self.held_reference_steps,
+                         "first_deviating_sample": self.first_deviating_sample,
                          "late_states": self.late_states} if self.mode == REALTIME else {})}
             Path(self.timing_file).write_text(json.dumps(stats))
 

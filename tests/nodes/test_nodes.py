@@ -707,7 +707,7 @@ def test_realtime_computes_on_each_fresh_state_with_the_reference_of_its_stamp(r
     assert drv.torques[0][0] == t0 + 10_000_000 and np.any(drv.torques[0][1] != 0.0)
     assert drv.diags[0]["input_stamps_reference_s"].tolist() == [(t0 + 10_000_000) / NS] * 3  # frame 2's, ahead, not used
     assert node.latency.latency.count == 1 and node.latency.latency.max_s == 700_000 / NS and node.latency.late == 0
-    assert node.held_reference_steps == 0
+    assert node.held_reference_steps == 0 and node.first_deviating_sample is None
     clock.ns = t0 + 30_000_000 + 4_999_999  # just before the middle of frame 3
     _publish(drv, node, c.STATE_ATTITUDE, t0 + 30_000_000)
     _publish(drv, node, c.STATE_RATE, t0 + 30_000_000)  # no reference of frame 3: it waits
@@ -720,6 +720,7 @@ def test_realtime_computes_on_each_fresh_state_with_the_reference_of_its_stamp(r
     assert drv.diags[1]["input_stamps_state_s"].tolist() == [(t0 + 30_000_000) / NS] * 2 + [0.0]
     assert drv.diags[1]["input_stamps_reference_s"].tolist() == [(t0 + 20_000_000) / NS] * 3
     assert node.steps == 2 and node.latency.late == 0 and node.stale is False and node.held_reference_steps == 1
+    assert node.first_deviating_sample == 3  # frame 3's torque is not lockstep's (counted from the first state, frame 0)
     # a state complete more than a frame after its stamp (a missed tick's, published late) is not stepped
     for topic in _REFERENCE:
         _publish(drv, node, topic, t0 + 35_000_000)

@@ -33,6 +33,7 @@ import pytest
 import yaml
 
 from sappc.bag.read import STAMP_TOL_NS, bag_run, frames_lacking_inputs, nearest_index, read_bag
+from sappc.cli import first_deviating_sample
 from sappc.offline.simulate import simulate
 from sappc_msgs_py.contract import ANSWER_COMMANDED
 from sappc.scenario import load_scenario
@@ -130,12 +131,19 @@ def _check_against_lockstep(out: Path, report: dict, scenario: Path, plant: dict
     sc = load_scenario(scenario)
     offline = simulate(sc)
     run = bag_run(read_bag(out / "bag"), duration_s=sc.duration_s)
-    first = plant["first_deviating_sample"]
-    # sample k's state follows from frames 0 .. k-1: a deviation in frame g first shows in sample g + 1
+    ctrl = json.loads((out / "logs" / "controller_timing.json").read_text())
+    first = first_deviating_sample(plant, ctrl)
+    assert report["realtime"]["first_deviating_sample"] == first
+    # sample k's state follows from frames 0 .. k-1: a deviation in frame g first shows in sample g + 1;
+    # the controller's first deviating sample h (a held reference, a late state) has its torque changed (the state from h + 1)
     upto = run.history.t.size if first is None else first + 1
+    held_first = first is not None and first == ctrl["first_deviating_sample"]
     assert np.array_equal(run.history.q_ev[:upto, 0], offline.history.q_ev[:upto, 0])
-    assert np.array_equal(run.history.torque_B[:upto, 0], offline.history.torque_B[:upto, 0])
-    deviated = plant["missed_frames"] + plant["stale_torque_frames"] + plant["stale_disturbance_frames"]
+    differ = np.flatnonzero(np.any(run.history.torque_B[:upto - held_first, 0] != offline.history.torque_B[:upto - held_first, 0], axis=1))
+    assert differ.size == 0, (differ[:5], first, {k: plant.get(k) for k in ("missed_frames", "stale_torque_frames", "first_deviating_sample")},
+                              {k: ctrl.get(k) for k in ("held_reference_steps", "first_deviating_sample", "late_states", "answers")})
+    deviated = (plant["missed_frames"] + plant["stale_torque_frames"] + plant["stale_disturbance_frames"] + ctrl["held_reference_steps"]
+                + ctrl["late_states"])
     assert (first is None) == (deviated == 0)
     if first is None:  # the lockstep run, frame for frame: every metric the same
         for key, value in offline.metrics.items():
@@ -177,7 +185,7 @@ def test_a_real_time_flight_run_with_the_estimator_ends_on_its_last_frame(tmp_pa
     sc = load_scenario(scenario)
     offline = simulate(sc)
     run = bag_run(bag, duration_s=duration_s)
-    first = plant["first_deviating_sample"]
+    first = first_deviating_sample(plant, json.loads((out / "logs" / "controller_timing.json").read_text()))
     upto = run.history.t.size if first is None else first + 1
     assert np.array_equal(run.history.q_BN[:upto, 0], offline.history.q_BN[:upto, 0])
 
