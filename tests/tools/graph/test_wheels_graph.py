@@ -181,7 +181,7 @@ def test_sensor_faults_with_the_estimator_through_the_graph_equal_the_offline_ru
     relays a tracker sample once, when its epoch is new, so the estimator uses each tracker sample
     once, as offline; the plant's ``truth/gyro_bias`` includes the rate bias.  Everything the
     estimator records, its health monitor's level and the use of its estimate included, equals
-    the offline run bit for bit."""
+    the offline run bit for bit; composed in one process (the test above runs five)."""
     raw = yaml.safe_load((SCENARIOS / "paper_tracking_flight.yaml").read_text())
     raw["faults"] = [{"kind": "sensor_bias", "attitude_bias_rad": [2e-5, -1e-5, 3e-5], "start_s": 1.0, "end_s": 1.05},
                      {"kind": "sensor_freeze", "start_s": 2.0, "end_s": 2.25},
@@ -191,7 +191,7 @@ def test_sensor_faults_with_the_estimator_through_the_graph_equal_the_offline_ru
                      {"kind": "sensor_dropout", "start_s": 3.3, "end_s": 3.33}]
     source = tmp_path / "faulty_flight.yaml"
     source.write_text(yaml.safe_dump(raw))
-    raw, out = _short_run(tmp_path, str(source))
+    raw, out = _short_run(tmp_path, str(source), "--compose")  # one process (the flight run above: five)
     offline = compiled_loop.simulate_compiled(scenario_from_mapping(raw))
     bag = read_bag(out / "bag")
     h = bag_run(bag).history
