@@ -41,6 +41,7 @@ Parameters: :data:`PARAMETERS` (``python -m spacecraft_sim.disturbance --help``)
 from __future__ import annotations
 
 import sys
+from collections import deque
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -173,10 +174,10 @@ class InjectorNode(ProjectNode):
         self._sensor_path = RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR if bool(self.param(_P["relay_attitude_epoch"])) else RELAYED_SENSOR_TOPICS
         self._epoch_origin_ns: int | None = None  # epochs go through the fault kernels relative to the first one (exact in a float)
         # the estimator's path: the plant's tracker samples by stamp (q_BN, covariance diagonal), the
-        # latest epoch relayed, and a sample waiting for the tracker sample its epoch names
+        # latest epoch relayed, and the samples waiting, in order, for the tracker sample their epoch names
         self._tracker: dict[int, tuple[Any, Any]] = {}
         self._relayed_epoch_ns: int | None = None
-        self._waiting: tuple[Any, int, Any] | None = None
+        self._waiting: deque[tuple[Any, int, Any]] = deque()
         for path, topics in RELAYED_PATHS.items():
             if not self.faults.acts_on(path):
                 continue
@@ -245,7 +246,7 @@ class InjectorNode(ProjectNode):
         arrived: tuple[Any, ...] = tuple(entry[t.name] for t in path)
         values: tuple[Any, ...] | None = arrived
         if path[0] is SENSOR_GYRO:
-            self._waiting = (msg.header.stamp, ns, arrived)
+            self._waiting.append((msg.header.stamp, ns, arrived))
             self._relay_sensors()
             return
         if path is self._sensor_path:
@@ -268,17 +269,17 @@ class InjectorNode(ProjectNode):
         self._relay_sensors()
 
     def _relay_sensors(self) -> None:
-        """The waiting sample of the estimator's path (gyro and epoch of one stamp), once the tracker
-        sample its epoch names has arrived: through the faults with that sample's quaternion (the
-        plant's held measurement), then relayed; the tracker sample relayed too when the relayed
-        epoch is a new one, stamped with that epoch (a frozen or delayed sample is not sent again)."""
-        if self._waiting is None:
-            return
-        stamp, ns, ((w, w_variance), epoch_ns) = self._waiting
-        epoch_ns = int(epoch_ns[0]) if np.ndim(epoch_ns) else int(epoch_ns)
-        if epoch_ns not in self._tracker:
-            return  # on its way (the topics are not ordered among themselves)
-        self._waiting = None
+        """The waiting samples of the estimator's path (gyro and epoch of one stamp), in order, each
+        once the tracker sample its epoch names has arrived: through the faults with that sample's
+        quaternion (the plant's held measurement), then relayed; the tracker sample relayed too when
+        the relayed epoch is a new one, stamped with that epoch (a frozen or delayed sample is not
+        sent again)."""
+        while self._waiting and int(self._waiting[0][2][1]) in self._tracker:  # else on its way (no order among topics)
+            self._relay_sample(*self._waiting.popleft())
+
+    def _relay_sample(self, stamp: Any, ns: int, arrived: tuple[Any, ...]) -> None:
+        (w, w_variance), epoch = arrived
+        epoch_ns = int(epoch)
         for old in [k for k in self._tracker if k < epoch_ns]:  # the plant's epochs only increase
             del self._tracker[old]
         q, q_variance = self._tracker[epoch_ns]
