@@ -474,6 +474,68 @@ def test_injector_relays_actuator_and_sensor_faults(ros_context, tmp_path) -> No
     node.destroy_node()
 
 
+def test_injector_relays_the_sensors_own_topics_each_tracker_sample_once(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """With an estimator (``relay_attitude_epoch``) the injector relays ``sensors/gyro`` and
+    ``state/attitude_epoch`` paired by stamp, with the ``sensors/star_tracker`` sample the epoch
+    names: a sample whose tracker sample has not arrived waits for it (no order among topics), the
+    samples are relayed in order, a tracker sample once (stamped with its epoch); under a freeze
+    the frozen epoch is relayed and the tracker's next sample is not, until the freeze ends."""
+    from sappc_msgs_py.convert import epoch_msg, gyro_msg, ns_to_stamp, star_tracker_msg
+    from spacecraft_sim.disturbance import InjectorNode
+
+    schedule = tmp_path / "faults.yaml"
+    schedule.write_text("faults:\n  - {kind: sensor_freeze, start_s: 0.005, end_s: 0.035}\n")  # samples 1 to 3 deliver sample 1
+    inj = InjectorNode(context=ros_context, parameter_overrides=[Parameter("schedule_file", value=str(schedule)),
+                                                                  Parameter("relay_attitude_epoch", value=True)])
+    node = Node("probe", context=ros_context)
+    qos = c.qos_profile()
+    pubs = {t.name: node.create_publisher(t.msg_class, t.name, qos) for t in (c.SENSOR_GYRO, c.STATE_ATTITUDE_EPOCH, c.SENSOR_STAR_TRACKER)}
+    got: dict[str, list] = {"gyro": [], "epoch": [], "tracker": []}  # type: ignore[type-arg]
+    node.create_subscription(c.SENSOR_GYRO.msg_class, "fault/sensors/gyro", lambda m: got["gyro"].append(stamp_to_ns(m.header.stamp)), qos)
+    node.create_subscription(c.STATE_ATTITUDE_EPOCH.msg_class, "fault/state/attitude_epoch",
+                             lambda m: got["epoch"].append((stamp_to_ns(m.header.stamp), stamp_to_ns(m.time_ref))), qos)
+    node.create_subscription(c.SENSOR_STAR_TRACKER.msg_class, "fault/sensors/star_tracker",
+                             lambda m: got["tracker"].append(stamp_to_ns(m.header.stamp)), qos)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(inj)
+    ex.add_node(node)
+    deadline = time.monotonic() + DEADLINE_S
+
+    def spin_until(condition, what: str) -> None:  # type: ignore[no-untyped-def]
+        while not condition():
+            assert time.monotonic() < deadline, (what, got)
+            ex.spin_once(timeout_sec=0.02)
+
+    spin_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs.values())
+               and all(inj.pub_relay[name].pub.get_subscription_count() >= 1 for name in pubs), "matched both ways")
+    ms = 1_000_000
+
+    def sample(k: int, epoch_k: int, *, tracker: bool) -> None:
+        ns, epoch = k * 10 * ms, epoch_k * 10 * ms
+        pubs[c.SENSOR_GYRO.name].publish(gyro_msg([0.0, 0.0, 1e-3 * k], 1e-8, ns_to_stamp(ns), c.SENSOR_GYRO))
+        pubs[c.STATE_ATTITUDE_EPOCH.name].publish(epoch_msg(epoch, ns_to_stamp(ns), c.STATE_ATTITUDE_EPOCH))
+        if tracker:
+            pubs[c.SENSOR_STAR_TRACKER.name].publish(star_tracker_msg(Q0, 1e-10, ns_to_stamp(epoch), c.SENSOR_STAR_TRACKER))
+
+    sample(0, 0, tracker=False)  # its tracker sample after it: nothing relayed yet
+    sample(1, 0, tracker=False)
+    for _ in range(20):
+        ex.spin_once(timeout_sec=0.01)
+    assert got == {"gyro": [], "epoch": [], "tracker": []}
+    pubs[c.SENSOR_STAR_TRACKER.name].publish(star_tracker_msg(Q0, 1e-10, ns_to_stamp(0), c.SENSOR_STAR_TRACKER))
+    spin_until(lambda: len(got["gyro"]) == 2, "samples 0 and 1, in order")
+    sample(2, 2, tracker=True)  # frozen: sample 1's content (epoch 0) again
+    sample(3, 2, tracker=False)
+    sample(4, 4, tracker=True)  # the freeze over: epoch 40 ms, new
+    spin_until(lambda: len(got["gyro"]) == 5 and len(got["tracker"]) == 2, "samples 2 to 4")
+    assert got["gyro"] == [k * 10 * ms for k in range(5)]
+    assert got["epoch"] == [(0, 0), (10 * ms, 0), (20 * ms, 0), (30 * ms, 0), (40 * ms, 40 * ms)]
+    assert got["tracker"] == [0, 40 * ms]  # each once; epoch 20 ms never relayed (frozen over)
+    ex.shutdown()
+    inj.destroy_node()
+    node.destroy_node()
+
+
 def test_a_start_at_the_singularity_is_refused_as_offline(controller, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """q_e0 = 0 at the first sample (180 deg from the reference): the node refuses the step with
     the offline runner's error (issue 12: every entry point applies the same start check),
