@@ -5,9 +5,10 @@ several runs overlaid, of a torque re-run, of a Monte Carlo campaign."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import functools
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -21,9 +22,31 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with thi
 
     from spacecraft_sim.core.wheels import ReactionWheels
 
-__all__ = ["FigureWorker", "draw_jobs", "plot_campaign", "plot_compare", "plot_estimator", "plot_run", "plot_torque_rerun", "plot_wheels"]
+__all__ = ["FigureWorker", "draw_jobs", "house_style", "plot_campaign", "plot_compare", "plot_estimator", "plot_run", "plot_torque_rerun",
+           "plot_wheels"]
 
 Array = NDArray[np.float64]
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def house_style(draw: _F) -> _F:
+    """Draw with matplotlib's own defaults (its ``default`` style), whatever the process's global
+    settings are: another library may change them on import (Basilisk's ``simHelpers`` sets
+    ``figure.autolayout``, the tick and label sizes, a figure size), and the project's figures
+    must not depend on what else was imported (or on a user's ``matplotlibrc``).  A decorator of
+    every function that makes figures; matplotlib is imported when it is called (the Agg backend)."""
+
+    @functools.wraps(draw)
+    def drawn(*args: Any, **kwargs: Any) -> Any:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        with plt.style.context("default"):
+            return draw(*args, **kwargs)
+
+    return drawn  # type: ignore[return-value]
 
 
 #: Subscripts 1 to 3 for axis labels.  Labels are plain Unicode, never mathtext: matplotlib's
@@ -286,6 +309,7 @@ def _fork_is_safe() -> bool:
             and not any(m in sys.modules for m in ("numba", "rclpy")))
 
 
+@house_style
 def draw_jobs(jobs: Sequence[Any], *, parallel: bool | None = None) -> list[Path]:
     """Run figure jobs (callables that draw and save figures and return their paths); return every
     path in the jobs' order.
@@ -385,7 +409,7 @@ class FigureWorker:
             if task is not None:
                 make_jobs, kwargs, theirs = task
                 jobs = make_jobs(**kwargs)
-                done = [[str(p) for p in jobs[i]()] for i in theirs]
+                done = house_style(lambda: [[str(p) for p in jobs[i]()] for i in theirs])()
                 with os.fdopen(done_w, "w") as f:
                     json.dump(done, f)
             code = 0
@@ -421,14 +445,15 @@ class FigureWorker:
         sender = threading.Thread(target=send, args=(self._send,), daemon=True)
         self._send = -1
         sender.start()
-        mine = {i: jobs[i]() for i in range(len(jobs)) if i not in theirs}
+        mine = house_style(lambda: {i: jobs[i]() for i in range(len(jobs)) if i not in theirs})()
         sender.join()
         with os.fdopen(self._receive, "r") as f:
             self._receive = -1
             text = f.read()
         status = self._wait()
         got = json.loads(text) if status == 0 and text else None
-        drawn = {i: [Path(p) for p in paths] for i, paths in zip(theirs, got)} if got is not None else {i: jobs[i]() for i in theirs}
+        drawn = ({i: [Path(p) for p in paths] for i, paths in zip(theirs, got)} if got is not None
+                 else house_style(lambda: {i: jobs[i]() for i in theirs})())
         return [p for i in range(len(jobs)) for p in (mine[i] if i in mine else drawn[i])]
 
     def _wait(self) -> int:
@@ -457,6 +482,7 @@ class FigureWorker:
         self.close()
 
 
+@house_style
 def plot_estimator(h: History, out_dir: Path, *, title: str, run: int = 0, fault_windows: Sequence[tuple[float, float]] = ()) -> list[Path]:
     """``estimator.png``: the estimate against the truth with the filter's own 3-sigma bounds: per
     axis, the attitude error (:func:`sappc.evaluation.estimation.attitude_errors`, the true
@@ -523,6 +549,7 @@ def plt_subplots() -> tuple[Figure, Axes]:
     return fig, ax
 
 
+@house_style
 def plot_wheels(t: Array, speed_rad_s: Array, torque_Nm: Array, out_dir: Path, *, title: str,
                 limits: tuple[Array, Array] | None = None, fault_windows: Sequence[tuple[float, float]] = (),
                 undelivered_Nm: Array | None = None) -> list[Path]:
@@ -569,6 +596,7 @@ def plot_wheels(t: Array, speed_rad_s: Array, torque_Nm: Array, out_dir: Path, *
     return paths
 
 
+@house_style
 def plot_compare(runs: list[tuple[str, History]], out_dir: Path, *, title: str,
                  fault_windows: Sequence[tuple[float, float]] = ()) -> list[Path]:
     """Overlay several runs, as the paper's comparison figures: ``compare_qev.png`` (each q_ev
@@ -635,6 +663,7 @@ def plot_compare(runs: list[tuple[str, History]], out_dir: Path, *, title: str,
     return paths
 
 
+@house_style
 def plot_torque_rerun(t: Array, recorded: Array, recomputed: Array, out_dir: Path, *, title: str) -> list[Path]:
     """``rerun_torque.png``: recorded and recomputed torque per axis, and their difference."""
     import matplotlib
@@ -684,6 +713,7 @@ def _view_of(ax: Axes, x: Array, ys: Sequence[NDArray[Any]], *, log: bool) -> No
         ax.set_ylim(lo - pad, hi + pad)
 
 
+@house_style
 def plot_campaign(tab: dict[str, NDArray[Any]], out_dir: Path, *, criteria: tuple[float, float], title: str,
                   nees: dict[str, Any] | None = None) -> list[Path]:
     """The paper's Monte Carlo figures: t2 tracking error and steady-state error per component

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.validation import ConfigError
+from sappc.analysis.plots import house_style
 from sappc.montecarlo.campaign import simulate_runs
 from sappc.scenario import ControllerKind, load_scenario
 
@@ -205,6 +206,7 @@ _PANELS = (("steady_max_abs_qev", "steady max |q_ev|", True), ("torque_sign_chan
            ("max_abs_wheel_speed_rad_s", "peak wheel speed [rad/s]", False), ("wheel_energy_J", "wheel energy [J]", True))
 
 
+@house_style
 def _plot(path: Path, name: str, seeds: int, kinds: list[str], per_run: dict[str, dict[str, NDArray[np.float64]]], wheels: bool) -> None:
     """``comparison.png``: one panel per metric, each controller's runs as a box (median, quartiles,
     whiskers to the 5th and 95th percentiles) over its points."""

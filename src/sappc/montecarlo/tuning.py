@@ -63,6 +63,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.validation import ConfigError, from_mapping
+from sappc.analysis.plots import house_style
 from sappc.montecarlo.campaign import ChunkExecutor, simulate_runs
 from sappc.montecarlo.config import campaign_config
 from sappc.montecarlo.results import chunks
@@ -610,6 +611,7 @@ def _lookup(node: Any, path: str) -> Any:
     return node
 
 
+@house_style
 def _figures(out: Path, study: Any, cfg: TuningConfig) -> None:
     """``history.png`` (each trial's objective, feasible or not, and the best feasible so far) and
     ``tradeoff.png`` (the objective against each tuned parameter)."""

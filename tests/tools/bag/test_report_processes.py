@@ -1,9 +1,11 @@
 """``sappc report`` in its own process: it loads neither numba nor scipy (the metrics kernel's
 source runs in the interpreter for one bag; ``tests/tools/evaluation/test_metrics.py`` checks the
 bits), and the figures that its forked :class:`~sappc.analysis.plots.FigureWorker` draws are the
-figures that one process draws: the same pixels, every one.  The PNG files' bytes are not what the
-claim is about (zlib's encoding of them), and a CI run on 2026-11-28 found one file's bytes
-differing with nothing to show whether its pixels did: a difference now says which pixels."""
+figures that one process draws: the same pixels, every one, also when a library changed
+matplotlib's global settings in that process (Basilisk does on import when matplotlib is loaded:
+CI on 2026-11-28 saw the report's figures of the suite's process, after the Basilisk tests, laid
+out differently; :func:`sappc.analysis.plots.house_style` draws with matplotlib's defaults).  A
+difference says which pixels."""
 
 from __future__ import annotations
 
@@ -35,7 +37,17 @@ def test_the_report_command_loads_no_compiler_and_its_two_processes_draw_the_sam
     out = subprocess.run([sys.executable, "-c", _RUN_REPORT, str(bag), str(tmp_path / "two")], capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout
-    one = write_report(analyse_bag(bag), tmp_path / "one")  # this process has rclpy loaded: no fork, one process
+    import matplotlib
+
+    with matplotlib.rc_context():  # (restored after)
+        # a library that changes matplotlib's globals on import, as Basilisk does when matplotlib is
+        # loaded (figure.autolayout, tick and label sizes): the report's figures must not change
+        import Basilisk.utilities.simHelpers as bsk_helpers
+
+        bsk_helpers._applyMatplotlibDefaults(matplotlib)  # (once a process: the suite may have done it already)
+        matplotlib.rc("figure", autolayout=True)
+        matplotlib.rc("axes", labelsize=10)
+        one = write_report(analyse_bag(bag), tmp_path / "one")  # this process has rclpy loaded: no fork, one process
     for path in one:
         if path.suffix != ".png":
             assert (tmp_path / "two" / path.name).read_bytes() == path.read_bytes(), path.name
