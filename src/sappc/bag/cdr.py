@@ -6,9 +6,10 @@ one group per payload length, into a ``(messages, bytes)`` matrix and every fiel
 column view: no per-message Python.  Layout (ROS 2 CDR, XCDR1 little endian, alignment counted
 from the end of the 4-byte encapsulation header):
 
-``*Stamped`` (QuaternionStamped, Vector3Stamped, WrenchStamped)
+``*Stamped`` (QuaternionStamped, Vector3Stamped, WrenchStamped) and ``sensor_msgs/MagneticField``
     header: ``int32 sec`` @0, ``uint32 nanosec`` @4, ``string frame_id`` (``uint32`` length with
-    the NUL, then the characters) @8; then the doubles (4, 3 or 6) at the next multiple of 8.
+    the NUL, then the characters) @8; then the doubles (4, 3 or 6; MagneticField: the field's 3 and
+    the covariance's fixed 9, of which the field is kept) at the next multiple of 8.
 ``geometry_msgs/TransformStamped`` (the frames ``state/tf``, ``reference/tf``)
     the header as above, then ``string child_frame_id`` at the next multiple of 4, then 7 doubles
     (translation x y z, rotation x y z w) at the next multiple of 8; the rotation is kept (the
@@ -59,6 +60,7 @@ _STAMPED = {
     "geometry_msgs/msg/QuaternionStamped": (4, slice(0, 4)),  # x, y, z, w
     "geometry_msgs/msg/Vector3Stamped": (3, slice(0, 3)),
     "geometry_msgs/msg/WrenchStamped": (6, slice(3, 6)),  # force x y z, torque x y z: keep the torque
+    "sensor_msgs/msg/MagneticField": (12, slice(0, 3)),  # the field x y z, then float64[9] covariance: keep the field
 }
 
 

@@ -71,7 +71,8 @@ from spacecraft_sim.core.kernels import N_FVALUE, fault_actuator, fault_rate_bia
 from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
 from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, allocation_matrix, pack_actuator, propagate_wheels_into, wheel_speeds_into
 from spacecraft_sim.core.wheels import wheel_torques
-from spacecraft_sim.core.environment import EnvironmentArrays, environment_field, environment_measure_field, environment_torque_B, pack_environment
+from spacecraft_sim.core.environment import (EnvironmentArrays, environment_field, environment_measure_field, environment_torque_B, locked_inertia,
+                                             pack_environment)
 from sappc_momentum.core.law import MomentumArrays, momentum_management_step, pack_momentum
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO, ESTIMATOR_NO_INPUT
 from sappc_msgs_py.convert import seconds_to_ns
@@ -260,7 +261,8 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     m_cmd = np.zeros(nm)  # the rods' dipole commands
     tau_w = np.zeros(3)  # the wheels' body torque: the controller's minus the rods'
     mtmp = np.zeros((3, 3))
-    omega_ff = np.zeros(3)  # the body rate of the last valid sample (the gyroscopic feed-forward's: never a rejected input)
+    omega_ff = np.zeros(3)  # the gyroscopic feed-forward's body rate: the controller's rate input of the last sample that delivered a finite
+    # one (sappc_momentum.node reads the same topic: a dropped or withheld sample is "no data", NaN, and keeps the previous rate)
     measuring = sens.draws.shape[1] > 0
     dt = grid.dt
     T = grid.t.shape[0]
@@ -351,7 +353,7 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
             environment_field(env, n, t, x[:4], r_N, B_N, B_B)
             environment_measure_field(env, n, k, B_B, B_meas)
         if managing:
-            if valid:
+            if state_in and np.isfinite(yc[4]) and np.isfinite(yc[5]) and np.isfinite(yc[6]):  # the rate delivered, as the node reads it
                 for i in range(3):
                     omega_ff[i] = yc[4 + i]
             wheel_speeds_into(x, G, wprm, wspeed)  # the tachometers
@@ -662,9 +664,8 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
 def _environment(scenario: Scenario, n: int) -> EnvironmentArrays:
     """The scenario's orbital environment for ``n`` runs; the gravity gradient acts on the
     spacecraft with its wheels locked (:mod:`spacecraft_sim.core.environment`)."""
-    J = np.asarray(scenario.inertia_kg_m2, dtype=np.float64)
     w = scenario.wheels
-    locked = J if w is None else J + np.einsum("i,ji,ki->jk", w.per_wheel("spin_inertia_kg_m2"), w.G, w.G)
+    locked = locked_inertia(scenario.inertia_kg_m2) if w is None else locked_inertia(scenario.inertia_kg_m2, w.per_wheel("spin_inertia_kg_m2"), w.G)
     return pack_environment(scenario.environment, n, locked, n_samples=int(round(scenario.duration_s / scenario.control_period_s)) + 1,
                             control_period_s=scenario.control_period_s)
 

@@ -23,18 +23,20 @@ Pure: no ROS, no clock.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.compiled import jit
+from gnc_common.validation import ConfigError, from_mapping
 from spacecraft_sim.core.magnetic_field import DipoleField, dipole_field_N, to_body_B
 from spacecraft_sim.core.magnetometer import Magnetometer, magnetometer_draws, measure_field
-from spacecraft_sim.core.magnetorquers import Magnetorquers, mtb_torque_B
+from spacecraft_sim.core.magnetorquers import Magnetorquers, magnetorquers_from_mapping, mtb_torque_B
 from spacecraft_sim.core.orbit import N_ORBIT_PARAMS, O_MU, Orbit, gravity_gradient_B_of, position_N
 
-__all__ = ["Environment", "EnvironmentArrays", "environment_field", "environment_measure_field", "environment_torque_B", "pack_environment"]
+__all__ = ["Environment", "EnvironmentArrays", "environment_field", "environment_from_mapping", "environment_measure_field", "environment_torque_B",
+           "locked_inertia", "pack_environment"]
 
 Array = NDArray[np.float64]
 
@@ -59,6 +61,67 @@ class Environment:
     gravity_gradient: bool = False
     magnetorquers: Magnetorquers | None = None
     magnetometer: Magnetometer | None = None
+
+
+def _named(prefix: str, exc: ConfigError) -> ConfigError:
+    """``exc`` with a model's bare key (``<prefix>: key ...``) named in full (``<prefix>.key ...``)."""
+    msg = str(exc)
+    return ConfigError(f"{prefix}.{msg[len(prefix) + 2:]}" if msg.startswith(f"{prefix}: ") else msg)
+
+
+def environment_from_mapping(orbit: Any, rods: Any, magnetometer: Any = None, control_period_s: float = 0.01) -> Environment | None:
+    """The scenario's ``orbit`` section (:class:`~spacecraft_sim.core.orbit.Orbit` keys, with
+    ``magnetic_field``: :class:`~spacecraft_sim.core.magnetic_field.DipoleField` keys, default
+    Basilisk's Earth dipole, and ``gravity_gradient``: true or false, default false), its
+    ``magnetorquers`` section (:class:`~spacecraft_sim.core.magnetorquers.Magnetorquers` keys) and
+    its ``magnetometer`` section (:class:`~spacecraft_sim.core.magnetometer.Magnetometer` keys; its
+    rate must divide the control rate), which need an orbit: what the scenario loader and the plant
+    node (its ``orbit``, ``magnetorquers`` and ``magnetometer`` parameters) both read.  All absent:
+    ``None`` (every scenario without them runs as before).  Errors name the key."""
+    if orbit is None:
+        if rods is not None:
+            raise ConfigError("magnetorquers needs an orbit section (the Earth's field they act against)")
+        if magnetometer is not None:
+            raise ConfigError("magnetometer needs an orbit section (the Earth's field it measures)")
+        return None
+    if not isinstance(orbit, dict):
+        raise ConfigError(f"orbit must be a mapping, got {orbit!r}")
+    rest = dict(orbit)
+    field_raw = rest.pop("magnetic_field", None)
+    gg = rest.pop("gravity_gradient", False)
+    if not isinstance(gg, bool):
+        raise ConfigError(f"orbit.gravity_gradient must be true or false, got {gg!r}")
+    try:
+        orbit_cfg: Orbit = from_mapping(Orbit, rest, "orbit")
+    except ConfigError as exc:
+        raise _named("orbit", exc) from None
+    try:
+        dipole: DipoleField = DipoleField() if field_raw is None else from_mapping(DipoleField, field_raw, "orbit.magnetic_field")
+    except ConfigError as exc:
+        raise _named("orbit.magnetic_field", exc) from None
+    mag: Magnetometer | None = None
+    if magnetometer is not None:
+        try:
+            mag = from_mapping(Magnetometer, magnetometer, "magnetometer")
+        except ConfigError as exc:
+            raise _named("magnetometer", exc) from None
+        try:
+            mag.stride(control_period_s)
+        except ConfigError as exc:
+            raise ConfigError(f"magnetometer.{exc}") from None
+    return Environment(orbit=orbit_cfg, magnetic_field=dipole, gravity_gradient=gg,
+                       magnetorquers=None if rods is None else magnetorquers_from_mapping(rods, "magnetorquers"), magnetometer=mag)
+
+
+def locked_inertia(J: Array, spin_inertia_kg_m2: Array | None = None, G: Array | None = None) -> Array:
+    """The spacecraft's inertia with its wheels locked (3, 3) [kg m^2], ``J + sum_i J_s,i g_i g_i^T``
+    (module docstring; ``J`` alone without wheels): what the gravity gradient acts on, for the
+    offline loop and the plant node alike."""
+    J = np.asarray(J, dtype=np.float64)
+    if spin_inertia_kg_m2 is None or G is None:
+        return J
+    out: Array = J + np.einsum("i,ji,ki->jk", np.asarray(spin_inertia_kg_m2, dtype=np.float64), G, G)
+    return out
 
 
 class EnvironmentArrays(NamedTuple):
