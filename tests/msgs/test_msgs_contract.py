@@ -12,6 +12,12 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import (
+    dipole_from_msg,
+    dipole_msg,
+    magnetic_field_from_msg,
+    magnetic_field_msg,
+    wheel_speed_from_msg,
+    wheel_speed_msg,
     cdr_stamp_ns,
     clock_msg,
     covariance_from_msg,
@@ -104,6 +110,10 @@ def _sample(topic: c.Topic):  # type: ignore[no-untyped-def]
         return health_msg(12.34, 1, "warning", {key: str(i) for i, key in enumerate(c.ESTIMATOR_HEALTH_KEYS)})
     if topic is c.STATE_ATTITUDE_EPOCH:
         return epoch_msg(12_300_000_000, 12.34, topic)
+    if topic in (c.STATE_MAGNETIC_FIELD, c.TRUTH_MAGNETIC_FIELD):
+        return magnetic_field_msg([2.1e-5, -3.4e-6, 4.0e-5], 12.34, topic, [2.5e-15, 2.5e-15, 2.5e-15])
+    if topic is c.CONTROL_DIPOLE:
+        return dipole_msg(12.34, [100.0, -2500.0, 0.5])
     if topic.type_name.endswith("QuaternionStamped"):
         return quaternion_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], 12.34, topic)
     if topic.type_name.endswith("Vector3Stamped"):
@@ -114,7 +124,8 @@ def _sample(topic: c.Topic):  # type: ignore[no-untyped-def]
         return clock_msg(12.34)
     if topic.type_name.endswith("TransformStamped"):
         return transform_from_attitude(transform_msg(topic), quaternion_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], 12.34, c.STATE_ATTITUDE))
-    if topic.type_name.endswith("JointState"):
+    if topic.type_name.endswith("JointState"):  # joint_states, and state/wheel_speed's type (its velocity-only
+        # message: the same decoders, tests/tools/graph/test_orbit_graph.py reads it from a recorded bag)
         # three wheels: rclpy's serialize_message leaves 8 bytes after a four-wheel message (which
         # rosbags rejects) where DDS sends the exact 156 bytes; the four-wheel pyramid recorded
         # through the graph decodes with rosbags (tests/tools/graph/test_wheels_graph.py)
@@ -141,6 +152,9 @@ def test_schema_text_decodes_rclpy_bytes_with_two_independent_decoders(topic) ->
         assert (decoded.quaternion.w, other.quaternion.w) == (msg.quaternion.w, msg.quaternion.w)
     if hasattr(msg, "vector"):
         assert decoded.vector.z == other.vector.z == msg.vector.z
+    if hasattr(msg, "magnetic_field"):
+        assert decoded.magnetic_field.y == other.magnetic_field.y == msg.magnetic_field.y == -3.4e-6
+        assert list(decoded.magnetic_field_covariance) == list(other.magnetic_field_covariance) == list(msg.magnetic_field_covariance)
     if hasattr(msg, "wrench"):
         assert decoded.wrench.torque.y == other.wrench.torque.y == msg.wrench.torque.y
     if hasattr(msg, "velocity"):
@@ -213,6 +227,8 @@ def test_cdr_stamp_ns_reads_the_stamp_of_every_recorded_type_without_deserializi
         c.STATE_ATTITUDE_EPOCH: epoch_msg(0, t_s, c.STATE_ATTITUDE_EPOCH),
         c.ESTIMATOR_COVARIANCE: covariance_msg(ns / 1e9, np.diag(np.arange(1.0, 7.0))),
         c.ESTIMATE_ATTITUDE: no_data_msg(c.ESTIMATE_ATTITUDE, t_s),
+        c.STATE_MAGNETIC_FIELD: magnetic_field_msg([2e-5, 0.0, -3e-5], t_s),
+        c.CONTROL_DIPOLE: dipole_msg(ns / 1e9, [1.0, 2.0, 3.0]),
         c.STATE_TF: transform_from_attitude(transform_msg(c.STATE_TF), quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.STATE_ATTITUDE)),
         c.REFERENCE_TF: transform_from_attitude(transform_msg(c.REFERENCE_TF), quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.REFERENCE_ATTITUDE)),
     }
@@ -373,3 +389,49 @@ def test_the_no_data_sample_is_nan_in_every_value_with_its_stamp_and_frame(topic
     assert again is msg and stamp_to_ns(msg.header.stamp) == 3_000_000_000
     with pytest.raises(ValueError, match="control/torque has no 'no data' sample"):
         no_data_msg(c.CONTROL_TORQUE, 0.0)
+
+
+def test_the_orbits_topics_round_trip_and_bad_ones_are_refused_naming_what_is_wrong() -> None:
+    """The magnetometer (tesla, body frame, covariance diag(sigma^2) row major), the tachometers
+    (velocity only) and the rods' commands (time_s, then one per rod) round trip exactly (issue 36)."""
+    from rclpy.serialization import deserialize_message
+
+    B = np.array([2.1e-5, -3.4e-6, 4.0e-5])
+    msg = deserialize_message(serialize_message(magnetic_field_msg(B, 12.34, c.STATE_MAGNETIC_FIELD, [1e-15, 4e-15, 9e-15])),
+                              c.STATE_MAGNETIC_FIELD.msg_class)
+    assert np.array_equal(magnetic_field_from_msg(msg), B) and msg.header.frame_id == "body"
+    assert np.array_equal(np.asarray(msg.magnetic_field_covariance).reshape(3, 3), np.diag([1e-15, 4e-15, 9e-15]))
+    msg.header.frame_id = "inertial"
+    with pytest.raises(InputError, match="state/magnetic_field: frame_id must be 'body'"):
+        magnetic_field_from_msg(msg)
+    speeds = np.array([100.0, -50.5, 3.25, 0.0])
+    js = deserialize_message(serialize_message(wheel_speed_msg(speeds, 1.0)), c.STATE_WHEEL_SPEED.msg_class)
+    assert np.array_equal(wheel_speed_from_msg(js, 4), speeds) and list(js.effort) == [] and list(js.name) == ["wheel_1", "wheel_2", "wheel_3", "wheel_4"]
+    with pytest.raises(InputError, match="3 speeds for 4 wheels|4 speeds for 3 wheels"):
+        wheel_speed_from_msg(js, 3)
+    m = np.array([100.0, -2500.0, 0.5])
+    back = deserialize_message(serialize_message(dipole_msg(12.34, m)), c.CONTROL_DIPOLE.msg_class)
+    t, got = dipole_from_msg(back, 3)
+    assert t == 12.34 and np.array_equal(got, m) and back.layout.dim[0].label == "time_s,rod_1,rod_2,rod_3"
+    with pytest.raises(InputError, match="expected time_s and 4 rods"):
+        dipole_from_msg(back, 4)
+    with pytest.raises(InputError, match="control/dipole data"):
+        dipole_from_msg(dipole_msg(1.0, [np.nan, 0.0, 0.0]), 3)
+
+
+def test_the_bag_decoder_reads_the_magnetic_field_as_rclpy_deserialises_it() -> None:
+    """``sensor_msgs/MagneticField`` decoded straight from CDR (the field, not the covariance),
+    equal to rclpy's deserialisation, stamps included."""
+    from rclpy.serialization import deserialize_message
+
+    from sappc.bag import cdr
+
+    rng = np.random.default_rng(36)
+    payloads = [serialize_message(magnetic_field_msg(4e-5 * rng.standard_normal(3), 0.01 * k, c.STATE_MAGNETIC_FIELD, [2.5e-15] * 3))
+                for k in range(20)]
+    start = np.cumsum([0] + [len(p) for p in payloads[:-1]])
+    d = cdr.decode(c.STATE_MAGNETIC_FIELD.type_name, b"".join(payloads), start, np.array([len(p) for p in payloads]))
+    assert d is not None and d.undecodable == 0 and d.frame_ids == ("body",)
+    truth = [deserialize_message(p, c.STATE_MAGNETIC_FIELD.msg_class) for p in payloads]
+    assert np.array_equal(d.values, np.array([[m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z] for m in truth]))
+    assert np.array_equal(d.stamps_ns, np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in truth]))
