@@ -614,7 +614,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
             inertia_kg_m2: np.ndarray | None = None, disturbance: Any = None, config: Any = None, gains: dict[str, np.ndarray] | None = None,
             on_infeasible: str = "raise", sensor_params: np.ndarray | None = None, sensor_outages: np.ndarray | None = None,
             faults: list[tuple[Any, ...]] | None = None, wheels: list[ReactionWheels] | None = None,
-            estimator_params: np.ndarray | None = None) -> CompiledInputs:
+            estimator_params: np.ndarray | None = None, run_keys: list[tuple[int, ...]] | None = None) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
     ``sensor_params``: the sensors' parameters ((13,) or one row per run), their draws then given
@@ -626,7 +626,8 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     (the same number of wheels), else the scenario's actuator (:attr:`~sappc.scenario.Scenario.wheels`;
     none: ideal).  ``estimator_params``: one row per run of the estimator's parameters (a campaign
     whose runs have dispersed sensors), else the scenario's estimator for every run (none: the
-    controller is fed the measurements)."""
+    controller is fed the measurements).  ``run_keys``: each run's key of the magnetometer's stream
+    (a campaign's ``(run, seed)``), else ``(k,)`` for run ``k`` of the batch."""
     ensure_compiled()
     cfg = scenario.controller_config(controller) if config is None else config
     q0 = _f64(np.atleast_2d(np.asarray(scenario.q_BN0 if q_BN0 is None else q_BN0, dtype=np.float64)))
@@ -654,7 +655,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
         estimator=pack_estimator(scenario.estimator, n, estimator_params),
         disturbance=pack_disturbance(scenario.disturbance if disturbance is None else disturbance, t, n),
         faults=pack_faults(per_run_faults, t_ns),
-        environment=_environment(scenario, n),
+        environment=_environment(scenario, n, run_keys),
         momentum=_momentum(scenario, n),
         config=cfg,
         on_infeasible=on_infeasible,
@@ -662,13 +663,14 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     return _started(inp)
 
 
-def _environment(scenario: Scenario, n: int) -> EnvironmentArrays:
-    """The scenario's orbital environment for ``n`` runs; the gravity gradient acts on the
-    spacecraft with its wheels locked (:mod:`spacecraft_sim.core.environment`)."""
+def _environment(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | None = None) -> EnvironmentArrays:
+    """The scenario's orbital environment for ``n`` runs (``run_keys``: each run's magnetometer
+    stream, :func:`~spacecraft_sim.core.environment.pack_environment`); the gravity gradient acts on
+    the spacecraft with its wheels locked (:mod:`spacecraft_sim.core.environment`)."""
     w = scenario.wheels
     locked = locked_inertia(scenario.inertia_kg_m2) if w is None else locked_inertia(scenario.inertia_kg_m2, w.per_wheel("spin_inertia_kg_m2"), w.G)
     return pack_environment(scenario.environment, n, locked, n_samples=int(round(scenario.duration_s / scenario.control_period_s)) + 1,
-                            control_period_s=scenario.control_period_s)
+                            control_period_s=scenario.control_period_s, run_keys=run_keys)
 
 
 def _momentum(scenario: Scenario, n: int) -> MomentumArrays:

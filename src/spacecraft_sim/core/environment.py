@@ -22,6 +22,7 @@ Pure: no ROS, no clock.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -148,11 +149,16 @@ class EnvironmentArrays(NamedTuple):
 
 
 def pack_environment(env: Environment | None, n_runs: int, locked_inertia_kg_m2: Array | None = None, n_samples: int = 0,
-                     control_period_s: float = 0.0) -> EnvironmentArrays:
-    """A batch's environment, the same for every run but the magnetometer's draws (run ``k``: its own
-    stream) (``None``: none, empty arrays); ``locked_inertia_kg_m2`` (3, 3) the spacecraft's inertia
-    with the wheels locked (module docstring), needed with ``gravity_gradient``; ``n_samples`` and
-    ``control_period_s`` the run's samples and period, needed with a magnetometer."""
+                     control_period_s: float = 0.0, run_keys: Sequence[Sequence[int]] | None = None) -> EnvironmentArrays:
+    """A batch's environment, the same for every run but the magnetometer's draws (``None``: none,
+    empty arrays); ``locked_inertia_kg_m2`` (3, 3) the spacecraft's inertia with the wheels locked
+    (module docstring), needed with ``gravity_gradient``; ``n_samples`` and ``control_period_s``
+    the run's samples and period, needed with a magnetometer; ``run_keys`` each run's key of the
+    magnetometer's stream (:func:`~spacecraft_sim.core.magnetometer.magnetometer_draws`: a
+    campaign's ``(run, seed)``, the same whichever chunk the run is in), ``None``: ``(k,)`` for
+    run ``k`` of the batch."""
+    if run_keys is not None and len(run_keys) != n_runs:
+        raise ValueError(f"run_keys must hold one key per run ({n_runs}), got {len(run_keys)}")
     n = n_runs
     if env is None:
         return EnvironmentArrays(np.zeros((n, 0)), np.zeros((n, 4)), np.zeros((n, 3, 3)), np.zeros((n, 3, 0)), np.zeros((n, 0)),
@@ -172,7 +178,8 @@ def pack_environment(env: Environment | None, n_runs: int, locked_inertia_kg_m2:
         mprm, draws = np.zeros((n, 0)), np.zeros((n, 0, 3))
     else:
         mprm = rep(mag.params(control_period_s))
-        draws = np.ascontiguousarray(np.stack([magnetometer_draws(mag, n_samples, control_period_s, k) for k in range(n)]))
+        keys = [(k,) for k in range(n)] if run_keys is None else run_keys
+        draws = np.ascontiguousarray(np.stack([magnetometer_draws(mag, n_samples, control_period_s, key) for key in keys]))
     return EnvironmentArrays(rep(env.orbit.params()), rep(env.magnetic_field.params()), rep(J), rep(Gt), rep(m_max), mprm, draws)
 
 
