@@ -23,7 +23,7 @@ sensors              ``SensorArrays`` (:func:`spacecraft_sim.core.sensors.pack_s
 estimator            ``EstimatorArrays`` (:func:`sappc_estimator.core.config.pack_estimator`)       ``mekf_step``
 disturbance          ``DisturbanceArrays`` (:func:`spacecraft_sim.core.disturbance.pack_disturbance`)  ``disturbance_at``
 faults               ``FaultArrays`` (:func:`spacecraft_sim.core.faults.pack_faults`)               ``fault_sensor``, ``fault_reference``, ``fault_actuator``
-environment          ``EnvironmentArrays`` (:func:`spacecraft_sim.core.environment.pack_environment`)  ``environment_field``, ``environment_measure_field``, ``environment_torque_B``
+environment          ``EnvironmentArrays`` (:func:`spacecraft_sim.core.environment.pack_environment`)  ``field_of``, ``measured_field_of``, ``torque_of``
 momentum management  ``MomentumArrays`` (:func:`sappc_momentum.core.law.pack_momentum`)              ``momentum_management_step``
 ===================  ==========================================================  =========================================
 
@@ -71,8 +71,7 @@ from spacecraft_sim.core.kernels import N_FVALUE, fault_actuator, fault_rate_bia
 from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
 from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, allocation_matrix, pack_actuator, propagate_wheels_into, wheel_speeds_into
 from spacecraft_sim.core.wheels import wheel_torques
-from spacecraft_sim.core.environment import (EnvironmentArrays, environment_field, environment_measure_field, environment_torque_B, locked_inertia,
-                                             pack_environment)
+from spacecraft_sim.core.environment import EnvironmentArrays, field_of, locked_inertia, measured_field_of, pack_environment, torque_of
 from sappc_momentum.core.law import MomentumArrays, momentum_management_step, pack_momentum
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO, ESTIMATOR_NO_INPUT
 from sappc_msgs_py.convert import seconds_to_ns
@@ -258,7 +257,13 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     L_env = np.zeros(3)
     d_tot = np.zeros(3)
     etmp = np.zeros((2, 3))
+    r_B_tmp, L_mtb_tmp = etmp[0], etmp[1]
     m_cmd = np.zeros(nm)  # the rods' dipole commands
+    # the run's rows of the environment's and the law's arrays, taken once (not per sample)
+    e_orbit, e_field, e_gravity, e_Gt, e_mmax, e_mag, e_draws = env.orbit[n], env.field[n], env.gravity[n], env.Gt[n], env.m_max[n], env.mag[n], env.mag_draws[n]
+    x_q = x[:4]  # the attitude: x is integrated in place, so the view stays its first four rows
+    mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max = (mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n],
+                                                                                  mm.steering[n], mm.m_max[n])
     tau_w = np.zeros(3)  # the wheels' body torque: the controller's minus the rods'
     mtmp = np.zeros((3, 3))
     omega_ff = np.zeros(3)  # the gyroscopic feed-forward's body rate: the controller's rate input of the last sample that delivered a finite
@@ -350,20 +355,20 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
         else:
             disturbance_at(dist, n, k, t, d)
         if orbiting:
-            environment_field(env, n, t, x[:4], r_N, B_N, B_B)
-            environment_measure_field(env, n, k, B_B, B_meas)
+            field_of(e_orbit, e_field, t, x_q, r_N, B_N, B_B)
+            measured_field_of(e_mag, e_draws, k, B_B, B_meas)
         if managing:
             if state_in and np.isfinite(yc[4]) and np.isfinite(yc[5]) and np.isfinite(yc[6]):  # the rate delivered, as the node reads it
                 for i in range(3):
                     omega_ff[i] = yc[4 + i]
             wheel_speeds_into(x, G, wprm, wspeed)  # the tachometers
-            momentum_management_step(mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n], mm.steering[n], mm.m_max[n], wspeed,
-                                     B_meas, omega_ff, u_last, m_cmd, tau_w, mtmp)
+            momentum_management_step(mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max, wspeed, B_meas, omega_ff, u_last,
+                                     m_cmd, tau_w, mtmp)
             wheel_torques(tau_w, G_pinv, G, wprm, x, uw)
         elif nw > 0:
             wheel_torques(u_last, G_pinv, G, wprm, x, uw)
         if orbiting:
-            environment_torque_B(env, n, x[:4], r_N, B_B, m_cmd, etmp, L_env)
+            torque_of(e_orbit, e_gravity, e_Gt, e_mmax, x_q, r_N, B_B, m_cmd, r_B_tmp, L_mtb_tmp, L_env)
             for i in range(3):
                 d_tot[i] = d[i] + L_env[i]
         if stride > 0 and k % stride == 0:

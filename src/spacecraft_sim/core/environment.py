@@ -37,7 +37,7 @@ from spacecraft_sim.core.magnetorquers import Magnetorquers, magnetorquers_from_
 from spacecraft_sim.core.orbit import N_ORBIT_PARAMS, O_MU, Orbit, gravity_gradient_B_of, position_N
 
 __all__ = ["Environment", "EnvironmentArrays", "environment_field", "environment_from_mapping", "environment_measure_field", "environment_torque_B",
-           "locked_inertia", "pack_environment"]
+           "field_of", "locked_inertia", "measured_field_of", "pack_environment", "torque_of"]
 
 Array = NDArray[np.float64]
 
@@ -183,46 +183,68 @@ def pack_environment(env: Environment | None, n_runs: int, locked_inertia_kg_m2:
     return EnvironmentArrays(rep(env.orbit.params()), rep(env.magnetic_field.params()), rep(J), rep(Gt), rep(m_max), mprm, draws)
 
 
+# Each model has a kernel on one run's arrays (``*_of``: what the whole-run loop calls, with the
+# run's rows taken once before its samples: a row taken per call costs a view and its reference
+# count, which measured 0.2 to 0.3 us a sample, a third of the orbit's cost) and the batch's
+# entry point of run ``n`` (what the plant node calls); the same arithmetic, the same bits.
 @jit
-def environment_field(env, n, t, q_BN, r_N, B_N, B_B):
-    """The position ``r_N`` [m] and the true field ``B_N``, ``B_B`` [T] (each (3,)) of run ``n`` at
-    time ``t`` [s] and attitude ``q_BN`` (module docstring); nothing when the batch has no orbit."""
-    if env.orbit.shape[1] < N_ORBIT_PARAMS:
+def field_of(orbit, field, t, q_BN, r_N, B_N, B_B):
+    """:func:`environment_field` on one run's rows ``orbit`` (10 or 0,) and ``field`` (4,)."""
+    if orbit.shape[0] < N_ORBIT_PARAMS:
         return
-    position_N(env.orbit[n], t, r_N)
-    dipole_field_N(env.orbit[n], env.field[n], t, r_N, B_N)
+    position_N(orbit, t, r_N)
+    dipole_field_N(orbit, field, t, r_N, B_N)
     to_body_B(q_BN, B_N, B_B)
 
 
 @jit
-def environment_measure_field(env, n, k, B_B, B_meas):
-    """The flight software's field ``B_meas`` (3,) at sample ``k``: the magnetometer's
-    (:func:`~spacecraft_sim.core.magnetometer.measure_field`), or the true ``B_B`` without one."""
-    if env.mag.shape[1] > 0:
-        measure_field(env.mag[n], env.mag_draws[n], k, B_B, B_meas)
+def environment_field(env, n, t, q_BN, r_N, B_N, B_B):
+    """The position ``r_N`` [m] and the true field ``B_N``, ``B_B`` [T] (each (3,)) of run ``n`` at
+    time ``t`` [s] and attitude ``q_BN`` (module docstring); nothing when the batch has no orbit."""
+    field_of(env.orbit[n], env.field[n], t, q_BN, r_N, B_N, B_B)
+
+
+@jit
+def measured_field_of(mag, mag_draws, k, B_B, B_meas):
+    """:func:`environment_measure_field` on one run's rows ``mag`` (7 or 0,) and ``mag_draws`` (U, 3)."""
+    if mag.shape[0] > 0:
+        measure_field(mag, mag_draws, k, B_B, B_meas)
     else:
         for j in range(3):
             B_meas[j] = B_B[j]
 
 
 @jit
-def environment_torque_B(env, n, q_BN, r_N, B_B, m_cmd, tmp, out):
-    """``L_env_B`` (3,) [N m] into ``out``: the gravity gradient at ``r_N`` (when on) plus the rods'
-    ``(G_t sat(m_cmd)) x B_B`` (when there are rods); ``tmp`` (2, 3) scratch (module docstring)."""
+def environment_measure_field(env, n, k, B_B, B_meas):
+    """The flight software's field ``B_meas`` (3,) at sample ``k``: the magnetometer's
+    (:func:`~spacecraft_sim.core.magnetometer.measure_field`), or the true ``B_B`` without one."""
+    measured_field_of(env.mag[n], env.mag_draws[n], k, B_B, B_meas)
+
+
+@jit
+def torque_of(orbit, gravity, Gt, m_max, q_BN, r_N, B_B, m_cmd, r_B, L_mtb, out):
+    """:func:`environment_torque_B` on one run's rows (``orbit``, ``gravity`` (3, 3), ``Gt`` (3, M),
+    ``m_max`` (M,)); ``r_B`` and ``L_mtb`` (3,) scratch."""
     out[0] = 0.0
     out[1] = 0.0
     out[2] = 0.0
-    if env.orbit.shape[1] < N_ORBIT_PARAMS:
+    if orbit.shape[0] < N_ORBIT_PARAMS:
         return
-    J = env.gravity[n]
-    if J[0, 0] != 0.0:  # an inertia is positive definite: a zero diagonal means no gravity gradient
-        to_body_B(q_BN, r_N, tmp[0])
-        g = gravity_gradient_B_of(env.orbit[n, O_MU], J, tmp[0, 0], tmp[0, 1], tmp[0, 2])
+    if gravity[0, 0] != 0.0:  # an inertia is positive definite: a zero diagonal means no gravity gradient
+        to_body_B(q_BN, r_N, r_B)
+        g = gravity_gradient_B_of(orbit[O_MU], gravity, r_B[0], r_B[1], r_B[2])
         out[0] = g[0]
         out[1] = g[1]
         out[2] = g[2]
-    if env.m_max.shape[1] > 0:
-        mtb_torque_B(env.Gt[n], env.m_max[n], m_cmd, B_B, tmp[1])
-        out[0] += tmp[1, 0]
-        out[1] += tmp[1, 1]
-        out[2] += tmp[1, 2]
+    if m_max.shape[0] > 0:
+        mtb_torque_B(Gt, m_max, m_cmd, B_B, L_mtb)
+        out[0] += L_mtb[0]
+        out[1] += L_mtb[1]
+        out[2] += L_mtb[2]
+
+
+@jit
+def environment_torque_B(env, n, q_BN, r_N, B_B, m_cmd, tmp, out):
+    """``L_env_B`` (3,) [N m] into ``out``: the gravity gradient at ``r_N`` (when on) plus the rods'
+    ``(G_t sat(m_cmd)) x B_B`` (when there are rods); ``tmp`` (2, 3) scratch (module docstring)."""
+    torque_of(env.orbit[n], env.gravity[n], env.Gt[n], env.m_max[n], q_BN, r_N, B_B, m_cmd, tmp[0], tmp[1], out)
