@@ -435,3 +435,29 @@ def test_the_bag_decoder_reads_the_magnetic_field_as_rclpy_deserialises_it() -> 
     truth = [deserialize_message(p, c.STATE_MAGNETIC_FIELD.msg_class) for p in payloads]
     assert np.array_equal(d.values, np.array([[m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z] for m in truth]))
     assert np.array_equal(d.stamps_ns, np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in truth]))
+
+
+def test_the_bag_decoder_reads_the_tachometers_velocity_only_joint_states() -> None:
+    """``state/wheel_speed`` (a ``JointState`` with velocities and no efforts) decodes to the
+    speeds alone, as rclpy deserialises them (``joint_states``' decoding is unchanged: its test in
+    tests/tools/graph/test_wheels_graph.py)."""
+    from rclpy.serialization import deserialize_message
+
+    from sappc.bag import cdr
+
+    rng = np.random.default_rng(4)
+    # the exact bytes DDS sends (rosbags' serializer): rclpy's serialize_message leaves 12 bytes of
+    # padding after this message, more than a recorded one ever has
+    store = get_typestore(Stores.ROS2_JAZZY)
+    JointState, Header, Time = store.types["sensor_msgs/msg/JointState"], store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+    payloads = [bytes(store.serialize_cdr(JointState(header=Header(stamp=Time(sec=0, nanosec=10_000_000 * k), frame_id="body"),
+                                                     name=[f"wheel_{i + 1}" for i in range(4)], position=np.zeros(0),
+                                                     velocity=100.0 * rng.standard_normal(4), effort=np.zeros(0)), "sensor_msgs/msg/JointState"))
+                for k in range(10)]
+    assert deserialize_message(serialize_message(wheel_speed_msg([1.0, 2.0, 3.0, 4.0], 0.0)), c.STATE_WHEEL_SPEED.msg_class).velocity.tolist() == [1, 2, 3, 4]
+    start = np.cumsum([0] + [len(p) for p in payloads[:-1]])
+    d = cdr.decode(c.STATE_WHEEL_SPEED.type_name, b"".join(payloads), start, np.array([len(p) for p in payloads]))
+    assert d is not None and d.undecodable == 0 and d.values.shape == (10, 4)
+    truth = [deserialize_message(p, c.STATE_WHEEL_SPEED.msg_class) for p in payloads]
+    assert np.array_equal(d.values, np.array([list(m.velocity) for m in truth]))
+    assert d.labels == ("wheel_1", "wheel_2", "wheel_3", "wheel_4")
