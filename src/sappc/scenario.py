@@ -34,11 +34,7 @@ from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.reference import PaperReference
 from spacecraft_sim.core.sensors import Sensors, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, wheels_from_mapping
-from spacecraft_sim.core.environment import Environment
-from spacecraft_sim.core.magnetic_field import DipoleField
-from spacecraft_sim.core.magnetometer import Magnetometer
-from spacecraft_sim.core.magnetorquers import magnetorquers_from_mapping
-from spacecraft_sim.core.orbit import Orbit
+from spacecraft_sim.core.environment import Environment, environment_from_mapping
 from sappc_momentum.core.law import MomentumManagement
 from sappc.files import scenario_path
 from gnc_common.validation import (
@@ -461,46 +457,10 @@ def _named(prefix: str, exc: ConfigError) -> ConfigError:
 
 
 def _environment_from_mapping(orbit: Any, rods: Any, magnetometer: Any = None, control_period_s: float = 0.01) -> Environment | None:
-    """The ``orbit`` section (:class:`~spacecraft_sim.core.orbit.Orbit` keys, with
-    ``magnetic_field``: :class:`~spacecraft_sim.core.magnetic_field.DipoleField` keys, default
-    Basilisk's Earth dipole, and ``gravity_gradient``: true or false, default false) and the
-    ``magnetorquers`` section (:class:`~spacecraft_sim.core.magnetorquers.Magnetorquers` keys) and the
-    ``magnetometer`` section (:class:`~spacecraft_sim.core.magnetometer.Magnetometer` keys; its rate
-    must divide the control rate), which need an orbit.  All absent: ``None`` (every scenario without
-    them runs as before).  Errors name the key."""
-    if orbit is None:
-        if rods is not None:
-            raise ConfigError("magnetorquers needs an orbit section (the Earth's field they act against)")
-        if magnetometer is not None:
-            raise ConfigError("magnetometer needs an orbit section (the Earth's field it measures)")
-        return None
-    if not isinstance(orbit, dict):
-        raise ConfigError(f"orbit must be a mapping, got {orbit!r}")
-    rest = dict(orbit)
-    field_raw = rest.pop("magnetic_field", None)
-    gg = rest.pop("gravity_gradient", False)
-    if not isinstance(gg, bool):
-        raise ConfigError(f"orbit.gravity_gradient must be true or false, got {gg!r}")
-    try:
-        orbit_cfg: Orbit = from_mapping(Orbit, rest, "orbit")
-    except ConfigError as exc:
-        raise _named("orbit", exc) from None
-    try:
-        dipole: DipoleField = DipoleField() if field_raw is None else from_mapping(DipoleField, field_raw, "orbit.magnetic_field")
-    except ConfigError as exc:
-        raise _named("orbit.magnetic_field", exc) from None
-    mag: Magnetometer | None = None
-    if magnetometer is not None:
-        try:
-            mag = from_mapping(Magnetometer, magnetometer, "magnetometer")
-        except ConfigError as exc:
-            raise _named("magnetometer", exc) from None
-        try:
-            mag.stride(control_period_s)
-        except ConfigError as exc:
-            raise ConfigError(f"magnetometer.{exc}") from None
-    return Environment(orbit=orbit_cfg, magnetic_field=dipole, gravity_gradient=gg,
-                       magnetorquers=None if rods is None else magnetorquers_from_mapping(rods, "magnetorquers"), magnetometer=mag)
+    """The ``orbit``, ``magnetorquers`` and ``magnetometer`` sections:
+    :func:`spacecraft_sim.core.environment.environment_from_mapping` (the plant node reads its
+    parameters with the same function).  All absent: ``None``.  Errors name the key."""
+    return environment_from_mapping(orbit, rods, magnetometer, control_period_s)
 
 
 def _momentum_from_mapping(data: Any, environment: Environment | None, wheels: ReactionWheels | None) -> MomentumManagement | None:

@@ -34,6 +34,11 @@ topic                         type                            frame_id    conten
 ``estimator/covariance``      std_msgs/Float64MultiArray      (none)      see :data:`COVARIANCE_DIMS`
 ``estimator/diagnostics``     std_msgs/Float64MultiArray      (none)      see :data:`ESTIMATOR_DIAGNOSTICS_LAYOUT`
 ``diagnostics``               diagnostic_msgs/DiagnosticArray (none)      the estimator's health (:data:`ESTIMATOR_HEALTH_KEYS`)
+``state/magnetic_field``      sensor_msgs/MagneticField       ``body``     measured Earth's field ``B_B`` [T] (a plant in orbit only)
+``truth/magnetic_field``      sensor_msgs/MagneticField       ``body``     true ``B_B`` [T] (a plant in orbit with a magnetometer only)
+``state/wheel_speed``         sensor_msgs/JointState          ``body``     the wheels' tachometers at ``t_k`` (momentum management only)
+``control/dipole``            std_msgs/Float64MultiArray      (none)      the rods' dipole commands [A m^2], see :data:`DIPOLE_LABEL_PREFIX`
+``control/wheel_torque``      geometry_msgs/WrenchStamped     ``body``     the wheels' body torque [N m] (momentum management only)
 ============================  ==============================  ==========  =========================================
 
 A star tracker holds its last quaternion between its updates (10 Hz beside a 100 Hz loop), so
@@ -87,6 +92,34 @@ torque), ``position`` empty (wheel angles are not modelled).  Stamped with the s
 ``t_k``: the speed at ``t_k`` and the torque applied over ``[t_k, t_k+1]`` (the offline loop
 records the same).  The controller does not consume it.
 
+Momentum management (issue 36; ``python -m sappc_momentum``, flight software like the estimator).
+A plant in orbit publishes what the magnetometer reads on ``state/magnetic_field``
+(``sensor_msgs/MagneticField``, the ROS type for a magnetometer: tesla, body frame, the
+measurement's covariance ``diag(sigma^2)`` [T^2] row major; without a magnetometer model the true
+field, covariance zero), one message per sample stamped ``t_k``, held between the magnetometer's
+updates as ``state/attitude`` holds the tracker's; with a magnetometer the true field goes on
+``truth/magnetic_field`` (covariance zero).  With a momentum-management node it also publishes the
+wheels' tachometers on ``state/wheel_speed`` (``sensor_msgs/JointState``, ``velocity`` the speeds
+relative to the body at ``t_k`` [rad/s], ``effort`` and ``position`` empty): the management law
+needs the speeds at ``t_k`` before the wheels' command of ``t_k`` exists, whereas ``joint_states``
+carries that command's motor torques and is published once it is applied.  The node reads
+``state/wheel_speed``, ``state/magnetic_field``, the controller's rate input (``state/rate``, or
+what the controller is remapped to) and the controller's ``control/torque``, all of one stamp, and
+publishes, stamped alike, the rods' commands on ``control/dipole`` and the wheels' body torque
+(the controller's, minus the rods' torque as the flight software computes it, plus the gyroscopic
+feed-forward) on ``control/wheel_torque``, which the plant then takes as its torque command
+(``-r control/torque:=control/wheel_torque``), so the bag keeps the controller's own torque on
+``control/torque``.
+
+``control/dipole`` is a ``std_msgs/Float64MultiArray``: ``data[0]`` the sample's time [s] (the
+contract's convention for arrays, :func:`float_array_carries_time`), then one dipole per rod
+[A m^2] (each within the rod's limit), ``layout.dim[0].label`` ``time_s,rod_1,...,rod_M``.  Why this
+type: a magnetorquer set is commanded per rod, in any number and along any axes (Basilisk's
+``MTBCmdMsg`` is an array of ``mtbDipoleCmds``), which no ``geometry_msgs`` vector carries for a
+non-orthogonal or redundant set; ROS has no magnetorquer message, and ``Float64MultiArray`` is
+what ROS 2's actuator command interfaces take for a set of actuators (``ros2_control``'s
+``forward_command_controller`` commands, one value per joint in a stated order).
+
 Frames (:class:`Frame`): ``inertial`` (N, the fixed parent), ``body`` (B) and ``reference`` (R, the
 desired attitude).  The two transform topics make the attitude visible to tf-style tools (Foxglove's
 3D panel builds its frame tree from every ``TransformStamped``): parent ``inertial`` (the header
@@ -130,8 +163,15 @@ if TYPE_CHECKING:  # rclpy is imported where a node needs it, not by every user 
 
 __all__ = [
     "CLOCK",
+    "CONTROL_DIPOLE",
     "CONTROL_TORQUE",
+    "CONTROL_WHEEL_TORQUE",
     "CONTROLLER_INPUTS",
+    "DIPOLE_LABEL_PREFIX",
+    "MOMENTUM_TOPICS",
+    "STATE_MAGNETIC_FIELD",
+    "STATE_WHEEL_SPEED",
+    "TRUTH_MAGNETIC_FIELD",
     "CONTROLLER_DIAGNOSTICS",
     "DIAGNOSTICS_LAYOUT",
     "DISTURBANCE_TORQUE",
@@ -278,6 +318,16 @@ ESTIMATOR_ATTITUDE_SIGMA = Topic("estimator/attitude_sigma", "geometry_msgs/msg/
 ESTIMATOR_BIAS_SIGMA = Topic("estimator/bias_sigma", "geometry_msgs/msg/Vector3Stamped", Frame.BODY.value)
 ESTIMATOR_COVARIANCE = Topic("estimator/covariance", "std_msgs/msg/Float64MultiArray", None)
 ESTIMATOR_DIAGNOSTICS = Topic("estimator/diagnostics", "std_msgs/msg/Float64MultiArray", None)
+STATE_MAGNETIC_FIELD = Topic("state/magnetic_field", "sensor_msgs/msg/MagneticField", Frame.BODY.value)
+TRUTH_MAGNETIC_FIELD = Topic("truth/magnetic_field", "sensor_msgs/msg/MagneticField", Frame.BODY.value)
+STATE_WHEEL_SPEED = Topic("state/wheel_speed", "sensor_msgs/msg/JointState", Frame.BODY.value)
+CONTROL_DIPOLE = Topic("control/dipole", "std_msgs/msg/Float64MultiArray", None)
+CONTROL_WHEEL_TORQUE = Topic("control/wheel_torque", "geometry_msgs/msg/WrenchStamped", Frame.BODY.value)
+#: The rods' labels on ``control/dipole`` (after ``time_s``): ``rod_1`` .. ``rod_M``.
+DIPOLE_LABEL_PREFIX = "rod_"
+#: What momentum management adds to a run: the plant's magnetometer (and its truth) and tachometers,
+#: the management node's outputs.
+MOMENTUM_TOPICS = (STATE_MAGNETIC_FIELD, TRUTH_MAGNETIC_FIELD, STATE_WHEEL_SPEED, CONTROL_DIPOLE, CONTROL_WHEEL_TORQUE)
 #: ROS's health convention (REP 107's diagnostics): a ``diagnostic_msgs/DiagnosticArray`` on
 #: ``diagnostics`` (relative: ``/diagnostics`` in the root namespace, where the aggregator, rqt's
 #: robot monitor and Foxglove's diagnostics panels look), one status named
@@ -371,12 +421,13 @@ TOPICS = (
     SENSOR_GYRO,
     SENSOR_STAR_TRACKER,
     *ESTIMATOR_TOPICS,
+    *MOMENTUM_TOPICS,
 )
 
 #: Topics only some runs have (a plant with reaction wheels or sensor models, an estimator):
 #: absent from a bag of a run without them, which is no fault.
 OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE, TRUTH_GYRO_BIAS, STATE_ATTITUDE_EPOCH, SENSOR_GYRO, SENSOR_STAR_TRACKER,
-                   *ESTIMATOR_TOPICS)
+                   *ESTIMATOR_TOPICS, *MOMENTUM_TOPICS)
 
 #: The attitude as frames (body and reference relative to inertial), for visualisation only: no
 #: node consumes them, a fault relay never republishes them (they show the truth).

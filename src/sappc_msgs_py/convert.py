@@ -28,7 +28,11 @@ from numpy.typing import ArrayLike, NDArray
 from gnc_common.validation import InputError, as_finite_array
 
 from sappc_msgs_py.contract import (
+    CONTROL_DIPOLE,
     CONTROL_TORQUE,
+    DIPOLE_LABEL_PREFIX,
+    STATE_MAGNETIC_FIELD,
+    STATE_WHEEL_SPEED,
     COVARIANCE_DIMS,
     DIAGNOSTICS_LAYOUT,
     ERROR_STATE,
@@ -71,6 +75,12 @@ __all__ = [
     "vector3_from_msg",
     "vector3_msg",
     "wheel_names",
+    "dipole_from_msg",
+    "dipole_msg",
+    "magnetic_field_from_msg",
+    "magnetic_field_msg",
+    "wheel_speed_from_msg",
+    "wheel_speed_msg",
 ]
 
 Array = NDArray[np.float64]
@@ -137,7 +147,8 @@ def seconds_to_ns(t_s: float) -> int:
 #: encapsulation header.
 _STAMP_FIRST = frozenset({"geometry_msgs/msg/QuaternionStamped", "geometry_msgs/msg/Vector3Stamped",
                           "geometry_msgs/msg/WrenchStamped", "geometry_msgs/msg/TransformStamped", "rosgraph_msgs/msg/Clock",
-                          "sensor_msgs/msg/JointState", "sensor_msgs/msg/TimeReference", "sensor_msgs/msg/Imu", "diagnostic_msgs/msg/DiagnosticArray"})
+                          "sensor_msgs/msg/JointState", "sensor_msgs/msg/MagneticField", "sensor_msgs/msg/TimeReference", "sensor_msgs/msg/Imu",
+                          "diagnostic_msgs/msg/DiagnosticArray"})
 _FLOAT_ARRAY_TYPE = "std_msgs/msg/Float64MultiArray"
 
 
@@ -580,3 +591,77 @@ def clock_msg(t_s: float, out: Any = None) -> Any:
         out = Clock()
     time_to_stamp(t_s, out.clock)
     return out
+
+
+# ---- the orbit's topics (issue 36) --------------------------------------------------------------
+def magnetic_field_msg(field_T: ArrayLike, t_s: Any, topic: Topic = STATE_MAGNETIC_FIELD, variance_T2: ArrayLike = (0.0, 0.0, 0.0),
+                       out: Any = None) -> Any:
+    """A ``sensor_msgs/MagneticField`` (``STATE_MAGNETIC_FIELD`` or ``TRUTH_MAGNETIC_FIELD``):
+    ``magnetic_field`` the field in B [T], ``magnetic_field_covariance`` ``diag(variance_T2)``
+    [T^2] row major (zero: known exactly); or ``out`` filled."""
+    if topic.type_name != STATE_MAGNETIC_FIELD.type_name:
+        raise ValueError(f"{topic.name} does not carry a magnetic field")
+    b = _encode(f"{topic.name} magnetic_field", field_T, 3)
+    var = _encode(f"{topic.name} variance", variance_T2, 3)
+    msg = _header(topic.msg_class() if out is None else out, t_s, topic.frame_id)
+    msg.magnetic_field.x, msg.magnetic_field.y, msg.magnetic_field.z = b
+    cov = np.zeros(9)
+    cov[[0, 4, 8]] = var
+    msg.magnetic_field_covariance = cov
+    return msg
+
+
+def magnetic_field_from_msg(msg: Any, topic: Topic = STATE_MAGNETIC_FIELD) -> Array:
+    """The field [T] of a ``MagneticField``; checks frame and finiteness."""
+    _check_frame(msg, topic)
+    f = msg.magnetic_field
+    return _finite(topic, "magnetic_field", [f.x, f.y, f.z])
+
+
+def wheel_speed_msg(speed_rad_s: ArrayLike, t_s: Any, out: Any = None) -> Any:
+    """The tachometers' ``JointState`` (``STATE_WHEEL_SPEED``): ``velocity`` the wheels' speeds
+    relative to the body [rad/s], ``position`` and ``effort`` empty; or ``out`` filled."""
+    speed = np.asarray(speed_rad_s, dtype=np.float64)
+    n = speed.shape[0] if speed.ndim == 1 else -1
+    v = _encode(f"{STATE_WHEEL_SPEED.name} velocity", speed, n)
+    msg = _header(STATE_WHEEL_SPEED.msg_class() if out is None else out, t_s, STATE_WHEEL_SPEED.frame_id)
+    if len(msg.name) != n:
+        msg.name = wheel_names(n)
+    msg.velocity = v
+    return msg
+
+
+def wheel_speed_from_msg(msg: Any, n_wheels: int) -> Array:
+    """The speeds [rad/s] of a ``state/wheel_speed`` message; checks frame, count and finiteness."""
+    _check_frame(msg, STATE_WHEEL_SPEED)
+    if len(msg.velocity) != n_wheels:
+        raise InputError(f"{STATE_WHEEL_SPEED.name}: {len(msg.velocity)} speeds for {n_wheels} wheels")
+    return _finite(STATE_WHEEL_SPEED, "velocity", list(msg.velocity))
+
+
+@functools.cache
+def _dipole_layout(n_rods: int) -> Any:
+    from std_msgs.msg import MultiArrayDimension, MultiArrayLayout
+
+    labels = ["time_s"] + [f"{DIPOLE_LABEL_PREFIX}{j + 1}" for j in range(n_rods)]
+    return MultiArrayLayout(dim=[MultiArrayDimension(label=",".join(labels), size=n_rods + 1, stride=n_rods + 1)])
+
+
+def dipole_msg(t_s: float, dipoles_Am2: ArrayLike, out: Any = None) -> Any:
+    """A ``control/dipole`` message: ``data[0]`` the sample's time ``t_s`` [s], then each rod's
+    dipole command [A m^2]; labelled (:data:`~sappc_msgs_py.contract.DIPOLE_LABEL_PREFIX`).  Into
+    ``out`` when given."""
+    m = np.asarray(dipoles_Am2, dtype=np.float64).reshape(-1)
+    data = np.empty(m.size + 1)
+    data[0] = t_s
+    data[1:] = m
+    return _float_array(data, _dipole_layout(int(m.size)), out)
+
+
+def dipole_from_msg(msg: Any, n_rods: int) -> tuple[float, Array]:
+    """``(time_s, dipoles)`` of a ``control/dipole`` message; checks the layout, count and finiteness."""
+    labels = msg.layout.dim[0].label.split(",") if msg.layout.dim else []
+    if not labels or labels[0] != "time_s" or len(labels) != len(msg.data) or len(msg.data) != n_rods + 1:
+        raise InputError(f"{CONTROL_DIPOLE.name}: expected time_s and {n_rods} rods, got labels {labels} and {len(msg.data)} values")
+    data = _finite(CONTROL_DIPOLE, "data", list(msg.data))
+    return float(data[0]), data[1:]

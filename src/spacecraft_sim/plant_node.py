@@ -70,6 +70,17 @@ sample's wheel speeds and motor torques are published on ``joint_states``
 (``sensor_msgs/JointState``, stamped with the sample), before the plant integrates over it: the
 offline loop's order and kernels, so a lockstep bag equals the offline run.
 
+An orbit (parameters ``orbit``, ``magnetorquers``, ``magnetometer``: the scenario's sections as
+JSON; lockstep and the native backend only): each sample the plant computes its position, the
+Earth's field and the magnetometer's reading with the offline loop's kernels
+(:mod:`spacecraft_sim.core.environment`), publishes the reading on ``state/magnetic_field`` (and
+the true field on ``truth/magnetic_field`` with a magnetometer), and, with
+``publish_wheel_speed``, the wheels' tachometers on ``state/wheel_speed``; with
+``use_dipole_topic`` it waits for the rods' commands of the sample on ``control/dipole`` (the
+momentum-management node's) as for the torque; the gravity gradient and the rods' ``m x B`` are
+then held over the period beside the disturbance, as offline, so a lockstep bag equals the
+offline run.
+
 Parameters: :data:`PARAMETERS` (``python -m spacecraft_sim --help``), and those of
 :class:`~sappc_msgs_py.runtime.ProjectNode`.
 """
@@ -84,13 +95,17 @@ from typing import Any
 
 import numpy as np
 
-from sappc_msgs_py.contract import (CLOCK, CONTROL_TORQUE, DISTURBANCE_TORQUE, SENSOR_GYRO, SENSOR_STAR_TRACKER, STATE_ATTITUDE, STATE_ATTITUDE_EPOCH,
-                                   STATE_RATE, STATE_TF, TRUTH_ATTITUDE, TRUTH_GYRO_BIAS, TRUTH_RATE,
+from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, STATE_MAGNETIC_FIELD, STATE_WHEEL_SPEED, TRUTH_MAGNETIC_FIELD, DISTURBANCE_TORQUE,
+                                   SENSOR_GYRO, SENSOR_STAR_TRACKER, STATE_ATTITUDE, STATE_ATTITUDE_EPOCH, STATE_RATE, STATE_TF, TRUTH_ATTITUDE,
+                                   TRUTH_GYRO_BIAS, TRUTH_RATE,
                                    WHEEL_STATES, qos_profile)
 from sappc_msgs_py.convert import (
     clock_msg,
+    dipole_from_msg,
     epoch_msg,
     gyro_msg,
+    magnetic_field_msg,
+    wheel_speed_msg,
     joint_state_msg,
     ns_to_stamp,
     quaternion_msg,
@@ -109,6 +124,8 @@ from gnc_common.timing import LatencyStatistics, PeriodStatistics
 
 from spacecraft_sim.basilisk_plant import BasiliskPlant
 from spacecraft_sim.core.dynamics import RigidBody, initial_state
+from spacecraft_sim.core.environment import (Environment, environment_field, environment_from_mapping, environment_measure_field, environment_torque_B,
+                                             locked_inertia, pack_environment)
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
 from spacecraft_sim.core.sensors import G_SIGMA, N_SENSOR_DRAWS, S_BIAS0, ST_SIGMA, Sensors, measure, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, allocation_matrix, propagate_wheels_into, wheel_speeds_into, wheel_torques, wheels_from_mapping
@@ -145,6 +162,16 @@ PARAMETERS = (
           check="a JSON list of faults (the scenario's faults section), or ''"),
     Param("backend", "native", "the dynamics: 'native' (the project's compiled plant) or 'basilisk' (Basilisk's spacecraft hub and "
           "reaction-wheel effector, the [basilisk] extra)", check="'native' or 'basilisk'"),
+    Param("orbit", "", "an orbit: the scenario's orbit mapping as JSON (altitude or a Keplerian orbit, magnetic_field, gravity_gradient); "
+          "lockstep and the native backend only; '' for none (the paper's inertial setting)", check="a JSON mapping of the orbit section, or ''"),
+    Param("magnetorquers", "", "torque rods: the scenario's magnetorquers mapping as JSON (axes_B, max_dipole_Am2); needs orbit; '' for none",
+          check="a JSON mapping of Magnetorquers, or ''"),
+    Param("magnetometer", "", "the magnetometer read on state/magnetic_field: the scenario's magnetometer mapping as JSON (noise_T, bias_T, "
+          "rate_hz, seed); needs orbit; '' for the true field, exactly", check="a JSON mapping of Magnetometer, or ''"),
+    Param("use_dipole_topic", False, "wait each sample for the rods' commands on control/dipole (a momentum-management node's) and apply "
+          "them; false: the rods command nothing (needs magnetorquers)"),
+    Param("publish_wheel_speed", False, "publish the wheels' tachometers on state/wheel_speed with each state, for a momentum-management "
+          "node (needs wheels and orbit)"),
     Param("use_disturbance_topic", False, "add the torque received on disturbance/torque (the injector's) to the control torque"),
     Param("timing_file", "", "where to write the run's timing (JSON: wall time from the first sample, samples, misses; real time: the "
           "timer's period error, missed frames, frames with a stale torque); '' for none"),
@@ -238,6 +265,7 @@ class PlantNode(ProjectNode):
         self._inbox: dict[str, dict[int, np.ndarray]] = {"torque": {}}  # stamp -> value, per input
         if self.use_disturbance:
             self._inbox["disturbance"] = {}
+        self._setup_orbit(qos)  # issue 36: the orbit, the field, the rods (their own block, below)
         self._waiting_since = 0.0
         if self.mode == LOCKSTEP:
             self._watchdog = self.create_timer(min(0.05, self.timeout_s / 4), self._check_timeout)
@@ -312,7 +340,7 @@ class PlantNode(ProjectNode):
         incompatible QoS is never matched: the plant then starts without it, and says so).
         """
         missing = [f"a publisher of {sub.topic_name}" for sub in self._inputs.values() if sub.get_publisher_count() < 1]
-        missing += unmatched([p for p in (self.pub_att, self.pub_rate, self.pub_tf, self.pub_clock) if p is not None])
+        missing += unmatched([p for p in (self.pub_att, self.pub_rate, self.pub_tf, self.pub_clock, *self._orbit_publishers) if p is not None])
         if self.pub_clock is None:  # real time: no /clock
             return missing
         on_graph, matched = self.count_subscribers(self.pub_clock.resolved_name), self.pub_clock.pub.get_subscription_count()
@@ -329,6 +357,8 @@ class PlantNode(ProjectNode):
         assert self.pub_clock is not None
         self.pub_clock.publish(clock_msg(t, out=self.pub_clock.msg))
         self._publish_state(t)
+        if self._env is not None:
+            self._publish_orbit(t)
         self._waiting_ns = stamp_to_ns(time_to_stamp(t))
         self._waiting_since = time.monotonic()
         self._try_advance()  # the disturbance may already be there
@@ -434,7 +464,10 @@ class PlantNode(ProjectNode):
     # ---- the dynamics ----------------------------------------------------------------------
     def _integrate(self, torque_B: np.ndarray, disturbance_B: np.ndarray, t_s: Any) -> None:
         """One sample period from the sample stamped ``t_s``, the command and the disturbance held:
-        the native rigid body, the native wheels (publishing ``joint_states``) or Basilisk."""
+        the native rigid body, the native wheels (publishing ``joint_states``) or Basilisk; in orbit
+        the environment's torque held beside the disturbance (:meth:`_orbit_torque`)."""
+        if self._env is not None:
+            disturbance_B = self._orbit_torque(disturbance_B)
         if self.bsk is not None:
             if self.wheels is not None:
                 self._wheel_command(torque_B, t_s)
@@ -498,6 +531,88 @@ class PlantNode(ProjectNode):
         self.pub_truth_bias.publish(vector3_msg(self._bias_k, t_s, TRUTH_GYRO_BIAS, out=self.pub_truth_bias.msg))
         self.pub_tf.publish(transform_from_attitude(self._tf, true_att))  # the body as it is
 
+    # ---- the orbit (issue 36) -------------------------------------------------------------
+    def _setup_orbit(self, qos: Any) -> None:
+        """The orbit's parameters, arrays, publishers and the rods' input (none without an orbit)."""
+        env = _environment_param(str(self.param(_P["orbit"])), str(self.param(_P["magnetorquers"])), str(self.param(_P["magnetometer"])), self.dt)
+        self.use_dipole = bool(self.param(_P["use_dipole_topic"]))
+        publish_speed = bool(self.param(_P["publish_wheel_speed"]))
+        self._env: Any = None
+        self._orbit_publishers: list[Any] = []
+        if env is None:
+            if self.use_dipole or publish_speed:
+                raise ConfigError(f"use_dipole_topic and publish_wheel_speed need an orbit (parameter orbit), got use_dipole_topic={self.use_dipole}, "
+                                  f"publish_wheel_speed={publish_speed} and orbit ''")
+            return
+        if self.mode != LOCKSTEP:
+            raise ConfigError(f"orbit: the plant flies an orbit in lockstep mode only (real time: not yet), got mode {self.mode!r}")
+        if self.bsk is not None:
+            raise ConfigError("orbit: the basilisk backend has no orbit (its environment modules are not wired): use backend 'native'")
+        if self.use_dipole and env.magnetorquers is None:
+            raise ConfigError("use_dipole_topic needs magnetorquers (the rods the commands are for), got magnetorquers ''")
+        if publish_speed and self.wheels is None:
+            raise ConfigError("publish_wheel_speed needs wheels (their tachometers), got wheels ''")
+        w = self.wheels
+        locked = locked_inertia(self.body.J) if w is None else locked_inertia(self.body.J, w.per_wheel("spin_inertia_kg_m2"), w.G)
+        # the offline loop's arrays for one run (run 0: the magnetometer's draws of sappc simulate)
+        self._env = pack_environment(env, 1, locked, n_samples=self.n_steps + 1, control_period_s=self.dt)
+        self._r_N, self._B_N, self._B_B, self._B_meas, self._L_env = (np.zeros(3) for _ in range(5))
+        self._etmp = np.zeros((2, 3))
+        self.dipole = np.zeros(self._env.m_max.shape[1])  # the rods' commands (zero: none)
+        mag = env.magnetometer
+        self._mag_variance = np.zeros(3) if mag is None else np.broadcast_to(np.asarray(mag.noise_T, dtype=np.float64), (3,)) ** 2
+        self.pub_mag = self.counting_publisher(STATE_MAGNETIC_FIELD)
+        self.pub_mag_truth = self.counting_publisher(TRUTH_MAGNETIC_FIELD) if mag is not None else None
+        self.pub_speed = self.counting_publisher(STATE_WHEEL_SPEED) if publish_speed else None
+        self._tach = np.zeros(0 if w is None else w.n)
+        self._orbit_publishers = [p for p in (self.pub_mag, self.pub_speed) if p is not None]
+        if self.use_dipole:
+            self._inputs["dipole"] = self.create_subscription(CONTROL_DIPOLE.msg_class, CONTROL_DIPOLE.name, self._on_dipole, qos)
+            self._inbox["dipole"] = {}
+            self.missed["dipole"] = 0
+        x = self._full_state().copy()  # load the compiled kernels now, not at the first sample (state kept)
+        environment_field(self._env, 0, 0.0, x[:4], self._r_N, self._B_N, self._B_B)
+        environment_measure_field(self._env, 0, 0, self._B_B, self._B_meas.copy())
+        environment_torque_B(self._env, 0, x[:4], self._r_N, self._B_B, self.dipole, self._etmp, self._L_env)
+
+    def _full_state(self) -> np.ndarray:
+        """The state the offline loop carries: ``(q, omega)`` with the wheels' momenta when there are wheels."""
+        return self.xw if self.wheels is not None and self.bsk is None else self.x[0]
+
+    def _on_dipole(self, msg: Any) -> None:
+        try:
+            t_s, m = dipole_from_msg(msg, self.dipole.shape[0])
+            ns = stamp_to_ns(time_to_stamp(t_s))
+        except InputError as exc:
+            self.rejected += 1
+            self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
+            return
+        if self._waiting_ns is not None and ns < self._waiting_ns:
+            return  # a late answer to a sample already integrated (after a timeout)
+        self._inbox["dipole"][ns] = m
+        self._try_advance()
+
+    def _publish_orbit(self, t: float) -> None:
+        """Sample ``k``'s position and field (the offline loop's kernels, at ``t_k`` and the state of
+        ``t_k``), the magnetometer's reading, the true field and the tachometers, published."""
+        x = self._full_state()
+        environment_field(self._env, 0, t, x[:4], self._r_N, self._B_N, self._B_B)
+        environment_measure_field(self._env, 0, self.k, self._B_B, self._B_meas)
+        self.pub_mag.publish(magnetic_field_msg(self._B_meas, t, STATE_MAGNETIC_FIELD, self._mag_variance, out=self.pub_mag.msg))
+        if self.pub_mag_truth is not None:
+            self.pub_mag_truth.publish(magnetic_field_msg(self._B_B, t, TRUTH_MAGNETIC_FIELD, out=self.pub_mag_truth.msg))
+        if self.pub_speed is not None:
+            wheel_speeds_into(self.xw, self._G, self._wprm, self._tach)
+            self.pub_speed.publish(wheel_speed_msg(self._tach, t, out=self.pub_speed.msg))
+
+    def _orbit_torque(self, disturbance_B: np.ndarray) -> np.ndarray:
+        """The disturbance plus the environment's torque (gravity gradient, the rods' ``m x B`` of the
+        sample's commands in the true field), as the offline loop adds them (``d + L_env``)."""
+        x = self._full_state()
+        environment_torque_B(self._env, 0, x[:4], self._r_N, self._B_B, self.dipole, self._etmp, self._L_env)
+        out: np.ndarray = disturbance_B + self._L_env
+        return out
+
     def finish(self) -> None:
         run_s = 0.0 if self._wall_first is None else time.monotonic() - self._wall_first
         self.get_logger().info(f"finished at sample {self.k} after {run_s:.3f} s: {self.rejected} rejected messages, missed inputs {self.missed}")
@@ -520,6 +635,13 @@ def _json_param(name: str, text: str, what: str) -> Any:
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise ConfigError(f"{name} must be a JSON mapping of {what} or '', got {text!r} ({exc.msg})") from None
+
+
+def _environment_param(orbit: str, rods: str, magnetometer: str, dt: float) -> Environment | None:
+    """The ``orbit``, ``magnetorquers`` and ``magnetometer`` parameters (``''``: absent), read as the
+    scenario loader reads its sections; errors name the key."""
+    return environment_from_mapping(_json_param("orbit", orbit, "the orbit section"), _json_param("magnetorquers", rods, "the rods"),
+                                    _json_param("magnetometer", magnetometer, "the magnetometer"), dt)
 
 
 def _sensors_param(text: str, dt: float) -> Sensors | None:

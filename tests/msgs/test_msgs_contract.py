@@ -12,6 +12,12 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import (
+    dipole_from_msg,
+    dipole_msg,
+    magnetic_field_from_msg,
+    magnetic_field_msg,
+    wheel_speed_from_msg,
+    wheel_speed_msg,
     cdr_stamp_ns,
     clock_msg,
     covariance_from_msg,
@@ -110,6 +116,10 @@ def _sample(topic: c.Topic):  # type: ignore[no-untyped-def]
         return gyro_msg([1e-3, -2e-3, 3e-3], [1e-8, 2e-8, 3e-8], 12.34, topic)
     if topic is c.SENSOR_STAR_TRACKER:
         return star_tracker_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], [4e-10, 4e-10, 9e-9], 12.3, topic)
+    if topic in (c.STATE_MAGNETIC_FIELD, c.TRUTH_MAGNETIC_FIELD):
+        return magnetic_field_msg([2.1e-5, -3.4e-6, 4.0e-5], 12.34, topic, [2.5e-15, 2.5e-15, 2.5e-15])
+    if topic is c.CONTROL_DIPOLE:
+        return dipole_msg(12.34, [100.0, -2500.0, 0.5])
     if topic.type_name.endswith("QuaternionStamped"):
         return quaternion_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], 12.34, topic)
     if topic.type_name.endswith("Vector3Stamped"):
@@ -120,7 +130,8 @@ def _sample(topic: c.Topic):  # type: ignore[no-untyped-def]
         return clock_msg(12.34)
     if topic.type_name.endswith("TransformStamped"):
         return transform_from_attitude(transform_msg(topic), quaternion_msg([0.1, -0.2, 0.3, np.sqrt(0.86)], 12.34, c.STATE_ATTITUDE))
-    if topic.type_name.endswith("JointState"):
+    if topic.type_name.endswith("JointState"):  # joint_states, and state/wheel_speed's type (its velocity-only
+        # message: the same decoders, tests/tools/graph/test_orbit_graph.py reads it from a recorded bag)
         # three wheels: rclpy's serialize_message leaves 8 bytes after a four-wheel message (which
         # rosbags rejects) where DDS sends the exact 156 bytes; the four-wheel pyramid recorded
         # through the graph decodes with rosbags (tests/tools/graph/test_wheels_graph.py)
@@ -147,6 +158,9 @@ def test_schema_text_decodes_rclpy_bytes_with_two_independent_decoders(topic) ->
         assert (decoded.quaternion.w, other.quaternion.w) == (msg.quaternion.w, msg.quaternion.w)
     if hasattr(msg, "vector"):
         assert decoded.vector.z == other.vector.z == msg.vector.z
+    if hasattr(msg, "magnetic_field"):
+        assert decoded.magnetic_field.y == other.magnetic_field.y == msg.magnetic_field.y == -3.4e-6
+        assert list(decoded.magnetic_field_covariance) == list(other.magnetic_field_covariance) == list(msg.magnetic_field_covariance)
     if hasattr(msg, "wrench"):
         assert decoded.wrench.torque.y == other.wrench.torque.y == msg.wrench.torque.y
     if hasattr(msg, "velocity"):
@@ -221,6 +235,8 @@ def test_cdr_stamp_ns_reads_the_stamp_of_every_recorded_type_without_deserializi
         c.SENSOR_STAR_TRACKER: star_tracker_msg([0.0, 0.0, 0.0, 1.0], [1e-9, 1e-9, 1e-8], t_s, c.SENSOR_STAR_TRACKER),
         c.ESTIMATOR_COVARIANCE: covariance_msg(ns / 1e9, np.diag(np.arange(1.0, 7.0))),
         c.ESTIMATE_ATTITUDE: no_data_msg(c.ESTIMATE_ATTITUDE, t_s),
+        c.STATE_MAGNETIC_FIELD: magnetic_field_msg([2e-5, 0.0, -3e-5], t_s),
+        c.CONTROL_DIPOLE: dipole_msg(ns / 1e9, [1.0, 2.0, 3.0]),
         c.STATE_TF: transform_from_attitude(transform_msg(c.STATE_TF), quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.STATE_ATTITUDE)),
         c.REFERENCE_TF: transform_from_attitude(transform_msg(c.REFERENCE_TF), quaternion_msg([0.0, 0.0, 0.0, 1.0], t_s, c.REFERENCE_ATTITUDE)),
     }
@@ -413,3 +429,75 @@ def test_the_sensors_imu_messages_mark_what_they_do_not_measure_and_their_decode
         gyro_from_msg(gyro_msg([0.0, 0.0, 0.0], 1e-8, 1.0, c.Topic("x", c.SENSOR_GYRO.type_name, "inertial")), c.SENSOR_GYRO)
     with pytest.raises(InputError, match="angular_velocity"):
         gyro_from_msg(no_data_msg(c.SENSOR_GYRO, 1.0), c.SENSOR_GYRO)
+
+
+def test_the_orbits_topics_round_trip_and_bad_ones_are_refused_naming_what_is_wrong() -> None:
+    """The magnetometer (tesla, body frame, covariance diag(sigma^2) row major), the tachometers
+    (velocity only) and the rods' commands (time_s, then one per rod) round trip exactly (issue 36)."""
+    from rclpy.serialization import deserialize_message
+
+    B = np.array([2.1e-5, -3.4e-6, 4.0e-5])
+    msg = deserialize_message(serialize_message(magnetic_field_msg(B, 12.34, c.STATE_MAGNETIC_FIELD, [1e-15, 4e-15, 9e-15])),
+                              c.STATE_MAGNETIC_FIELD.msg_class)
+    assert np.array_equal(magnetic_field_from_msg(msg), B) and msg.header.frame_id == "body"
+    assert np.array_equal(np.asarray(msg.magnetic_field_covariance).reshape(3, 3), np.diag([1e-15, 4e-15, 9e-15]))
+    msg.header.frame_id = "inertial"
+    with pytest.raises(InputError, match="state/magnetic_field: frame_id must be 'body'"):
+        magnetic_field_from_msg(msg)
+    speeds = np.array([100.0, -50.5, 3.25, 0.0])
+    js = deserialize_message(serialize_message(wheel_speed_msg(speeds, 1.0)), c.STATE_WHEEL_SPEED.msg_class)
+    assert np.array_equal(wheel_speed_from_msg(js, 4), speeds) and list(js.effort) == [] and list(js.name) == ["wheel_1", "wheel_2", "wheel_3", "wheel_4"]
+    with pytest.raises(InputError, match="3 speeds for 4 wheels|4 speeds for 3 wheels"):
+        wheel_speed_from_msg(js, 3)
+    m = np.array([100.0, -2500.0, 0.5])
+    back = deserialize_message(serialize_message(dipole_msg(12.34, m)), c.CONTROL_DIPOLE.msg_class)
+    t, got = dipole_from_msg(back, 3)
+    assert t == 12.34 and np.array_equal(got, m) and back.layout.dim[0].label == "time_s,rod_1,rod_2,rod_3"
+    with pytest.raises(InputError, match="expected time_s and 4 rods"):
+        dipole_from_msg(back, 4)
+    with pytest.raises(InputError, match="control/dipole data"):
+        dipole_from_msg(dipole_msg(1.0, [np.nan, 0.0, 0.0]), 3)
+
+
+def test_the_bag_decoder_reads_the_magnetic_field_as_rclpy_deserialises_it() -> None:
+    """``sensor_msgs/MagneticField`` decoded straight from CDR (the field, not the covariance),
+    equal to rclpy's deserialisation, stamps included."""
+    from rclpy.serialization import deserialize_message
+
+    from sappc.bag import cdr
+
+    rng = np.random.default_rng(36)
+    payloads = [serialize_message(magnetic_field_msg(4e-5 * rng.standard_normal(3), 0.01 * k, c.STATE_MAGNETIC_FIELD, [2.5e-15] * 3))
+                for k in range(20)]
+    start = np.cumsum([0] + [len(p) for p in payloads[:-1]])
+    d = cdr.decode(c.STATE_MAGNETIC_FIELD.type_name, b"".join(payloads), start, np.array([len(p) for p in payloads]))
+    assert d is not None and d.undecodable == 0 and d.frame_ids == ("body",)
+    truth = [deserialize_message(p, c.STATE_MAGNETIC_FIELD.msg_class) for p in payloads]
+    assert np.array_equal(d.values, np.array([[m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z] for m in truth]))
+    assert np.array_equal(d.stamps_ns, np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in truth]))
+
+
+def test_the_bag_decoder_reads_the_tachometers_velocity_only_joint_states() -> None:
+    """``state/wheel_speed`` (a ``JointState`` with velocities and no efforts) decodes to the
+    speeds alone, as rclpy deserialises them (``joint_states``' decoding is unchanged: its test in
+    tests/tools/graph/test_wheels_graph.py)."""
+    from rclpy.serialization import deserialize_message
+
+    from sappc.bag import cdr
+
+    rng = np.random.default_rng(4)
+    # the exact bytes DDS sends (rosbags' serializer): rclpy's serialize_message leaves 12 bytes of
+    # padding after this message, more than a recorded one ever has
+    store = get_typestore(Stores.ROS2_JAZZY)
+    JointState, Header, Time = store.types["sensor_msgs/msg/JointState"], store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+    payloads = [bytes(store.serialize_cdr(JointState(header=Header(stamp=Time(sec=0, nanosec=10_000_000 * k), frame_id="body"),
+                                                     name=[f"wheel_{i + 1}" for i in range(4)], position=np.zeros(0),
+                                                     velocity=100.0 * rng.standard_normal(4), effort=np.zeros(0)), "sensor_msgs/msg/JointState"))
+                for k in range(10)]
+    assert deserialize_message(serialize_message(wheel_speed_msg([1.0, 2.0, 3.0, 4.0], 0.0)), c.STATE_WHEEL_SPEED.msg_class).velocity.tolist() == [1, 2, 3, 4]
+    start = np.cumsum([0] + [len(p) for p in payloads[:-1]])
+    d = cdr.decode(c.STATE_WHEEL_SPEED.type_name, b"".join(payloads), start, np.array([len(p) for p in payloads]))
+    assert d is not None and d.undecodable == 0 and d.values.shape == (10, 4)
+    truth = [deserialize_message(p, c.STATE_WHEEL_SPEED.msg_class) for p in payloads]
+    assert np.array_equal(d.values, np.array([list(m.velocity) for m in truth]))
+    assert d.labels == ("wheel_1", "wheel_2", "wheel_3", "wheel_4")

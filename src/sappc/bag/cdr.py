@@ -6,18 +6,20 @@ one group per payload length, into a ``(messages, bytes)`` matrix and every fiel
 column view: no per-message Python.  Layout (ROS 2 CDR, XCDR1 little endian, alignment counted
 from the end of the 4-byte encapsulation header):
 
-``*Stamped`` (QuaternionStamped, Vector3Stamped, WrenchStamped) and ``sensor_msgs/Imu``
+``*Stamped`` (QuaternionStamped, Vector3Stamped, WrenchStamped), ``sensor_msgs/MagneticField`` and ``sensor_msgs/Imu``
     header: ``int32 sec`` @0, ``uint32 nanosec`` @4, ``string frame_id`` (``uint32`` length with
-    the NUL, then the characters) @8; then the doubles (4, 3 or 6) at the next multiple of 8.
+    the NUL, then the characters) @8; then the doubles (4, 3 or 6; MagneticField: the field's 3 and
+    the covariance's fixed 9, of which the field is kept; Imu: its 37, every array of fixed size,
+    all kept) at the next multiple of 8.
 ``geometry_msgs/TransformStamped`` (the frames ``state/tf``, ``reference/tf``)
     the header as above, then ``string child_frame_id`` at the next multiple of 4, then 7 doubles
     (translation x y z, rotation x y z w) at the next multiple of 8; the rotation is kept (the
     contract's transforms have zero translation), the header frame ids are reported.
 ``rosgraph_msgs/Clock``
     ``int32 sec`` @0, ``uint32 nanosec`` @4.
-``sensor_msgs/JointState`` (``joint_states``: the wheels)
+``sensor_msgs/JointState`` (``joint_states``: the wheels; ``state/wheel_speed``: their tachometers, no efforts)
     the header, ``sequence<string> name`` (at the next multiple of 4), then ``sequence<float64>``
-    position (empty in the contract), velocity and effort (each count at a multiple of 4, its
+    position (empty in the contract), velocity and effort (empty on ``state/wheel_speed``) (each count at a multiple of 4, its
     doubles at the next multiple of 8).  Parsed in Python for the first message of a group, the
     others checked to carry the same frame id, names and counts (as for the multiarray below).
 ``std_msgs/Float64MultiArray``
@@ -63,6 +65,7 @@ _STAMPED = {
     # linear acceleration x y z, its covariance (9): every array of fixed size, so the layout of a
     # stamped type; all kept (columns 0:4 the orientation, 13:16 the angular velocity)
     "sensor_msgs/msg/Imu": (37, slice(0, 37)),
+    "sensor_msgs/msg/MagneticField": (12, slice(0, 3)),  # the field x y z, then float64[9] covariance: keep the field
 }
 
 
@@ -261,7 +264,8 @@ _TRAILING = 8
 def _parse_joint_state(payload: bytes) -> tuple[list[str], str, int, int, int, NDArray[np.bool_]]:
     """(joint names, frame id, absolute offsets of the velocities and of the efforts, number of
     joints, meaningful bytes) of one ``sensor_msgs/JointState`` with no positions and as many velocities and efforts
-    as names (the contract's ``joint_states``).  Up to :data:`_TRAILING` bytes after the last
+    as names (the contract's ``joint_states``), or as many velocities and no efforts (its
+    ``state/wheel_speed``, the tachometers: the efforts' offset is then -1).  Up to :data:`_TRAILING` bytes after the last
     double are allowed (rclpy's serializer was seen to leave 8 there).  The meaningful bytes are those the parse reads
     except the stamp (which differs from message to message): the encapsulation kind, the frame
     id, the names and the counts.  Raises ``ValueError`` (or ``struct.error``) otherwise."""
@@ -294,12 +298,12 @@ def _parse_joint_state(payload: bytes) -> tuple[list[str], str, int, int, int, N
     (neff,) = struct.unpack_from("<I", body, off)
     read.append((_BODY + off, _BODY + off + 4))
     eff_at = (off + 4 + 7) // 8 * 8 if neff else off + 4
-    if nvel != n or neff != n or not 0 <= len(body) - (eff_at + 8 * neff) <= _TRAILING:
+    if nvel != n or neff not in (n, 0) or not 0 <= len(body) - (eff_at + 8 * neff) <= _TRAILING:
         raise ValueError(f"{n} joints, {nvel} velocities, {neff} efforts do not fill the message")
     meaningful = np.zeros(_BODY + eff_at, dtype=bool)
     for begin, end in read:
         meaningful[begin:end] = True
-    return names, frame, _BODY + vel_at, _BODY + eff_at, n, meaningful
+    return names, frame, _BODY + vel_at, _BODY + eff_at if neff else -1, n, meaningful
 
 
 def _decode_joint_state(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]) -> Decoded:
@@ -318,7 +322,8 @@ def _decode_joint_state(u8: NDArray[np.uint8], start: NDArray[np.int64], length:
             same = (rows[:, cols] == rows[0, cols]).all(axis=1)
         if same.any():
             r = rows[same]
-            parts.append((pos[same], _stamp_ns(r), np.hstack((_col(r, vel_at, vel_at + 8 * n, "<f8"), _col(r, eff_at, eff_at + 8 * n, "<f8"))), names))
+            efforts = [_col(r, eff_at, eff_at + 8 * n, "<f8")] if eff_at > 0 else []  # none: the tachometers
+            parts.append((pos[same], _stamp_ns(r), np.hstack((_col(r, vel_at, vel_at + 8 * n, "<f8"), *efforts)), names))
             frames.add(frame)
         for k in np.flatnonzero(~same):  # another layout in a message of the same length
             try:
@@ -327,7 +332,8 @@ def _decode_joint_state(u8: NDArray[np.uint8], start: NDArray[np.int64], length:
                 continue
             slow += 1
             raw = bytes(rows[k])
-            vals = np.concatenate((np.frombuffer(raw[at : at + 8 * nk], "<f8"), np.frombuffer(raw[eff : eff + 8 * nk], "<f8")))[None, :]
+            eff_vals = [np.frombuffer(raw[eff : eff + 8 * nk], "<f8")] if eff > 0 else []
+            vals = np.concatenate((np.frombuffer(raw[at : at + 8 * nk], "<f8"), *eff_vals))[None, :]
             parts.append((pos[k : k + 1], _stamp_ns(rows[k : k + 1]), vals, names_k))
             frames.add(frame_k)
     width = max([v.shape[1] for _, _, v, _ in parts] + [0])

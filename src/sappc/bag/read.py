@@ -50,6 +50,9 @@ from sappc_msgs_py.contract import (
     TRUTH_ATTITUDE,
     TRUTH_RATE,
     WHEEL_STATES,
+    CONTROL_DIPOLE,
+    STATE_MAGNETIC_FIELD,
+    TRUTH_MAGNETIC_FIELD,
     consumed_names,
 )
 from gnc_common.attitude import error_quaternion, quat_normalize
@@ -333,6 +336,7 @@ def bag_run(bag: Bag, duration_s: float | None = None) -> BagRun:
         V=one(rows.get("lyapunov_V", nan3)),
         **_wheel_records(bag, common),
         estimate=_estimate_record(bag, common),
+        orbit=_orbit_record(bag, common),
     )
     finite_status = status[np.isfinite(status[:, 0])]
     return BagRun(
@@ -433,6 +437,31 @@ def _wheel_records(bag: Bag, stamps_ns: NDArray[np.int64]) -> dict[str, Any]:
     i = latest_index(s.stamps_ns, stamps_ns)
     v = np.where((i >= 0)[:, None], s.values[np.maximum(i, 0)], np.nan)
     return {"wheel_speed_rad_s": v[:, None, :w], "wheel_torque_Nm": v[:, None, w : 2 * w]}
+
+
+def _orbit_record(bag: Bag, stamps_ns: NDArray[np.int64]) -> Array | None:
+    """The orbit's record (T, 1, 9 + M) at the state stamps, as the offline loop records it
+    (:attr:`~sappc.evaluation.history.History.orbit`): ``truth/magnetic_field`` (without a
+    magnetometer the field is read exactly: ``state/magnetic_field``), ``state/magnetic_field``, NaN
+    for the environment's torque (not published), the rods' commands of ``control/dipole`` when a
+    management node published them; each the message of the same stamp (NaN where there is none);
+    ``None`` when the bag has no ``state/magnetic_field`` (no orbit)."""
+    measured = find_topic(bag, STATE_MAGNETIC_FIELD.name)
+    if measured is None:
+        return None
+    T = stamps_ns.size
+
+    def at(topic: str, first: int, width: int) -> Array:
+        s = bag.series[topic]
+        i = nearest_index(s.stamps_ns, stamps_ns)
+        out = np.full((T, width), np.nan)
+        out[i >= 0] = s.values[i[i >= 0], first : first + width]
+        return out
+
+    truth = find_topic(bag, TRUTH_MAGNETIC_FIELD.name) or measured
+    dipole = find_topic(bag, CONTROL_DIPOLE.name)
+    rods = [] if dipole is None else [at(dipole, 1, bag.series[dipole].values.shape[1] - 1)]  # data[0] is the time
+    return np.concatenate([at(truth, 0, 3), at(measured, 0, 3), np.full((T, 3), np.nan), *rods], axis=1)[:, None]
 
 
 @dataclass

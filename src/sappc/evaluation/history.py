@@ -24,7 +24,11 @@ class History:
     With reaction wheels (W of them), ``wheel_speed_rad_s`` (T, N, W) each wheel's speed relative
     to the body and ``wheel_torque_Nm`` (T, N, W) its motor torque; ``None`` with the ideal actuator.
     With an estimator, ``estimate`` what it gave (:class:`~sappc.evaluation.estimation.EstimateHistory`);
-    ``None`` without."""
+    ``None`` without.  In orbit, ``orbit`` (T, N, 9 + M): the true field ``B_B`` [T], the flight
+    software's (measured) field [T], the environment's torque ``L_env_B`` [N m] and the M rods'
+    dipole commands [A m^2] (:attr:`sappc.offline.compiled_loop.LoopRecord.env`'s columns; from a
+    bag the torque is NaN, not published, and the rods' columns are there with a management node's
+    ``control/dipole`` only); ``None`` without an orbit."""
 
     t: Array
     q_BN: Array
@@ -43,6 +47,7 @@ class History:
     wheel_speed_rad_s: Array | None = None
     wheel_torque_Nm: Array | None = None
     estimate: EstimateHistory | None = None
+    orbit: Array | None = None
 
     @property
     def q_ev(self) -> Array:

@@ -34,15 +34,18 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, cast
 
+import numpy as np
 import yaml
 
 from sappc_msgs_py.runtime import parse_expected
 from sappc_controller.params import parameters_from_config, unflatten
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
-from sappc_msgs_py.contract import (CLOCK, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
+from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, STATE_MAGNETIC_FIELD, STATE_WHEEL_SPEED,
+                                    TRUTH_MAGNETIC_FIELD, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
                                     RELAYED_PATHS, RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR, STATE_ATTITUDE,
                                     STATE_ATTITUDE_EPOCH, STATE_RATE, TOPICS, faulty, relay_remaps)
 from spacecraft_sim.core.faults import FaultSchedule
+from spacecraft_sim.core.wheels import allocation_matrix
 from gnc_common.validation import ConfigError
 
 from sappc.files import default_output_dir, scenario_path as bundled_scenario_path
@@ -68,7 +71,7 @@ DOMAIN_IDS = range(1, 102)
 #: must stay below 65536); ids above 101 are accepted but may collide with ephemeral ports.
 MAX_DOMAIN_ID = 232
 #: The nodes of a run, in start order (the plant starts last: it owns time).
-NODES = ("recorder", "estimator", "controller", "reference", "injector", "plant")
+NODES = ("recorder", "estimator", "controller", "momentum", "reference", "injector", "plant")
 #: Plants of ``sappc run --plant``: the bundled rigid body (``python -m spacecraft_sim``), or the
 #: user's own, started separately (every node but the plant is started; the run ends once the
 #: torque of the scenario's last sample is recorded, or on Ctrl-C).
@@ -232,6 +235,11 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
 
     estimating = scenario.estimator is not None
     measuring = _relays_epoch(scenario)  # an estimator reads the sensors' own topics
+    # issue 36: an orbit flies on the plant; momentum management is a node of its own between the
+    # controller and the plant, reading the controller's rate input (one more subscriber of it)
+    env = scenario.environment
+    managing = scenario.momentum is not None
+    sensor_relayed = any(topics[0] is STATE_ATTITUDE for topics in relayed)
     clock_subs = 5 if estimating else 4  # controller (stale watchdog), reference, injector, recorder (and the estimator: its far-ahead check)
     controller = {
         **unflatten(parameters_from_config(kind.value, scenario.controller_config(kind))),
@@ -258,15 +266,21 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         # the sensor biases' share of the gyro's true bias (truth/gyro_bias)
         "sensor_faults": json.dumps(scenario.raw["faults"]) if scenario.sensors is not None and scenario.raw.get("faults") else "",
         "use_disturbance_topic": True,
+        **_orbit_parameters(scenario),
         **common,
         # state: the controller (or the sensor relay) and the recorder; state/tf, joint_states: the recorder; /clock in lockstep only
         # (in real time the reference and the injector also take the run's first frame from the first state/attitude: FramesAhead)
         # (with an estimator, not the controller: the estimator reads the sensors' own topics, sensors/* and state/attitude_epoch)
-        "expected_subscribers": expected(state__attitude=2 - measuring + 2 * realtime, state__rate=2 - measuring, state__tf=1)
+        "expected_subscribers": expected(state__attitude=2 - measuring + 2 * realtime,
+                                         state__rate=2 - measuring + (managing and not estimating and not sensor_relayed), state__tf=1)
         + (["joint_states=1"] if scenario.wheels is not None else [])
         + (["truth/attitude=1", "truth/rate=1", "truth/gyro_bias=1"]
            + [f"{t.name}={1 + estimating}" for t in RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR] if scenario.sensors is not None else [])
-        + ([f"/clock={clock_subs}"] if lockstep else []),
+        + ([f"/clock={clock_subs}"] if lockstep else [])
+        # the magnetometer: the management node (if any) and the recorder; its truth and the tachometers
+        + ([f"{STATE_MAGNETIC_FIELD.name}={1 + managing}"] if env is not None else [])
+        + ([f"{TRUTH_MAGNETIC_FIELD.name}=1"] if env is not None and env.magnetometer is not None else [])
+        + ([f"{STATE_WHEEL_SPEED.name}=2"] if managing else []),
         "counts_file": counts_file("plant"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "timing.json"),
     }
@@ -285,7 +299,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "relay_attitude_epoch": _relays_epoch(scenario),
         "duration_s": scenario.duration_s,
         **common,
-        "expected_subscribers": expected(disturbance__torque=1 if external_plant else 2) + [f"{faulty(t).name}=2" for topics in relayed for t in topics],
+        "expected_subscribers": expected(disturbance__torque=1 if external_plant else 2)
+        + [f"{faulty(t).name}={2 + (managing and not estimating and t is STATE_RATE)}" for topics in relayed for t in topics],
         "counts_file": counts_file("injector"),
     }
     # the estimator (a scenario with one): between the plant's measurements and the controller,
@@ -293,14 +308,15 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     estimator = {
         **estimator_parameters_from_config(scenario.estimator),
         **common,
-        "expected_subscribers": expected(estimate__attitude=2, estimate__rate=2) + [f"{t.name}=1" for t in ESTIMATOR_TOPICS[2:]],
+        "expected_subscribers": expected(estimate__attitude=2, estimate__rate=2 + managing) + [f"{t.name}=1" for t in ESTIMATOR_TOPICS[2:]],
         "counts_file": counts_file("estimator"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "estimator_timing.json"),
     } if scenario.estimator is not None else None
     # lockstep with the bundled plant: the recorder subscribes to /clock, which the plant's start
     # waits for, only once it has matched every publisher of what it records (each topic listed
     # in a node's expected_subscribers is published by that node)
-    published = [t for node in (controller, plant, reference, injector, *([estimator] if estimator else []))
+    momentum = _momentum_parameters(scenario, mode, counts_file("momentum")) if managing else None
+    published = [t for node in (controller, plant, reference, injector, *([estimator] if estimator else []), *([momentum] if momentum else []))
                  for t in parse_expected(cast("list[str]", node["expected_subscribers"]))]
     publishers = Counter(t for t in published if t != CLOCK.name)
     recorder = {
@@ -317,7 +333,40 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     }
     return {f"/{name}": {"ros__parameters": p} for name, p in
             (("controller", controller), ("plant", plant), ("reference", reference), ("injector", injector), ("recorder", recorder),
-             ("estimator", estimator)) if p is not None}
+             ("estimator", estimator), ("momentum", momentum)) if p is not None}
+
+
+def _orbit_parameters(scenario: Scenario) -> dict[str, Any]:
+    """The plant's orbit parameters: the scenario's sections as written ('': absent), and whether a
+    momentum-management node commands the rods and reads the tachometers (issue 36)."""
+    raw, managing = scenario.raw, scenario.momentum is not None
+    return {key: json.dumps(raw[key]) if scenario.environment is not None and raw.get(key) is not None else ""
+            for key in ("orbit", "magnetorquers", "magnetometer")} | {"use_dipole_topic": managing, "publish_wheel_speed": managing}
+
+
+def _momentum_parameters(scenario: Scenario, mode: str, counts_file: str) -> dict[str, Any]:
+    """The momentum-management node's parameters: the law's settings, and the wheels' and rods'
+    tables as the offline loop packs them (the same functions: allocation_matrix, steering_matrix),
+    so that the node's kernel gets the same bits (a float's YAML text is its repr: exact)."""
+    mm, w, env = scenario.momentum, scenario.wheels, scenario.environment
+    assert mm is not None and w is not None and env is not None and env.magnetorquers is not None  # the scenario loader checks it
+    rods = env.magnetorquers
+    return {
+        "mode": mode,
+        "gain_per_s": float(mm.gain_per_s),
+        "target_momentum_B_Nms": [float(v) for v in mm.target_momentum_B_Nms],
+        "gyroscopic_feedforward": mm.gyroscopic_feedforward,
+        "wheel_axes_B": np.asarray(w.G, dtype=np.float64).ravel().tolist(),
+        "wheel_spin_inertia_kg_m2": np.asarray(w.per_wheel("spin_inertia_kg_m2"), dtype=np.float64).tolist(),
+        "wheel_max_torque_Nm": np.asarray(w.per_wheel("max_torque_Nm"), dtype=np.float64).tolist(),
+        "wheel_allocation": allocation_matrix(w.G).ravel().tolist(),
+        "rod_axes_B": np.asarray(rods.Gt, dtype=np.float64).ravel().tolist(),
+        "rod_steering": np.asarray(rods.steering_matrix(), dtype=np.float64).ravel().tolist(),
+        "rod_max_dipole_Am2": np.asarray(rods.max_dipoles(), dtype=np.float64).tolist(),
+        # the wheels' torque and the rods' commands: the plant and the recorder
+        "expected_subscribers": [f"{CONTROL_DIPOLE.name}=2", f"{CONTROL_WHEEL_TORQUE.name}=2"],
+        "counts_file": counts_file,
+    }
 
 
 def _relays_epoch(scenario: Scenario) -> bool:
@@ -340,12 +389,19 @@ def _remaps(scenario: Scenario) -> dict[str, list[str]]:
     relay's output."""
     remaps: dict[str, list[str]] = {n: [] for n in NODES}
     estimating = scenario.estimator is not None
+    managing = scenario.momentum is not None
     if estimating:
         remaps["controller"] += ["-r", f"{STATE_ATTITUDE.name}:={ESTIMATE_ATTITUDE.name}", "-r", f"{STATE_RATE.name}:={ESTIMATE_RATE.name}"]
+        remaps["momentum"] += ["-r", f"{STATE_RATE.name}:={ESTIMATE_RATE.name}"]  # the controller's rate input
     for topics in _relayed(scenario):
         sensor = topics in (RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR)
-        consumer = "plant" if topics is RELAYED_ACTUATOR_TOPICS else "estimator" if estimating and sensor else "controller"
+        actuator = topics is RELAYED_ACTUATOR_TOPICS
+        consumer = ("momentum" if managing else "plant") if actuator else "estimator" if estimating and sensor else "controller"
         remaps[consumer] += relay_remaps(topics)
+        if sensor and managing and not estimating:  # the controller's rate input, relayed
+            remaps["momentum"] += relay_remaps([STATE_RATE])
+    if managing:  # the plant takes the management node's wheel torque as its command (the bag keeps the controller's)
+        remaps["plant"] += ["-r", f"{CONTROL_TORQUE.name}:={CONTROL_WHEEL_TORQUE.name}"]
     return remaps
 
 
@@ -574,9 +630,10 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         external = plant == "external"
         scenario_path = bundled_scenario_path(scenario_path)  # a file, or a bundled scenario's name
         scenario = load_scenario(scenario_path)
-        if scenario.environment is not None:  # issue 36: the plant node has no orbit yet; say so rather than fly without one
-            raise ConfigError(f"{scenario_path}: the node graph does not model an orbit yet (sections orbit, magnetorquers, "
-                              "momentum_management): run it offline with sappc simulate (docs/how-to/momentum.md)")
+        if scenario.environment is not None and (realtime or plant != "native"):  # issue 36: lockstep on the bundled plant only
+            raise ConfigError(f"{scenario_path}: an orbit (sections orbit, magnetorquers, magnetometer, momentum_management) runs on the "
+                              f"graph in lockstep on the native plant only, got {'--realtime' if realtime else f'--plant {plant}'}: "
+                              "run it in lockstep, or offline with sappc simulate (docs/how-to/momentum.md)")
         kind = scenario.resolve_controller(controller)
         scenario.controller_config(kind)  # validate before any process starts
         # the controller's first step, as the node will compute it: a start the core refuses (the
@@ -604,7 +661,8 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         params_path.write_text(yaml.safe_dump(params, sort_keys=False))
         remaps = _remaps(scenario)
         limit = timeout_s if timeout_s is not None else (float("inf") if external else 60.0 + (2.0 if realtime else 1.0) * scenario.duration_s)
-        nodes = [n for n in NODES if not (external and n == "plant") and not (n == "estimator" and scenario.estimator is None)]
+        nodes = [n for n in NODES if not (external and n == "plant") and not (n == "estimator" and scenario.estimator is None)
+                 and not (n == "momentum" and scenario.momentum is None)]
 
         def say(msg: str) -> None:
             if progress:

@@ -10,7 +10,8 @@ Reproducibility
 ---------------
 Every random input of run ``k`` comes from ``SeedSequence(seed, spawn_key=(k,))``:
 its first child draws the dispersed values, its second the sensor noise (the whole run's,
-before the loop).  A
+before the loop); a magnetometer (an orbit scenario's) draws from its own stream keyed
+``(k, seed)`` (:func:`spacecraft_sim.core.magnetometer.magnetometer_draws`).  A
 run therefore depends only on ``(seed, k)``, not on the chunk size, the number
 of workers or the scheduler, and since a run inside a batch is bit for bit the
 run alone (one compiled loop, :func:`sappc.offline.compiled_loop._run_one`), the per-run results are
@@ -133,6 +134,7 @@ def simulate_runs(
                 keep_history=with_history,
                 trajectory=(min(keep_trajectories, n), cfg.trajectory_stride) if keep_trajectories > 0 else None,
                 progress=progress,
+                run_keys=[(int(k), seed) for k in inputs.runs],  # the magnetometer's draws: the run's own, whatever its chunk
             )
         except InputError as exc:  # name the campaign's run, not its place in this chunk
             message = re.sub(r"\(run (\d+)\)", lambda m: f"(run {int(inputs.runs[int(m.group(1))])})", str(exc), count=1)

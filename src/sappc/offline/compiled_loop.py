@@ -23,7 +23,7 @@ sensors              ``SensorArrays`` (:func:`spacecraft_sim.core.sensors.pack_s
 estimator            ``EstimatorArrays`` (:func:`sappc_estimator.core.config.pack_estimator`)       ``mekf_step``
 disturbance          ``DisturbanceArrays`` (:func:`spacecraft_sim.core.disturbance.pack_disturbance`)  ``disturbance_at``
 faults               ``FaultArrays`` (:func:`spacecraft_sim.core.faults.pack_faults`)               ``fault_sensor``, ``fault_reference``, ``fault_actuator``
-environment          ``EnvironmentArrays`` (:func:`spacecraft_sim.core.environment.pack_environment`)  ``environment_field``, ``environment_measure_field``, ``environment_torque_B``
+environment          ``EnvironmentArrays`` (:func:`spacecraft_sim.core.environment.pack_environment`)  ``field_of``, ``measured_field_of``, ``torque_of``
 momentum management  ``MomentumArrays`` (:func:`sappc_momentum.core.law.pack_momentum`)              ``momentum_management_step``
 ===================  ==========================================================  =========================================
 
@@ -71,7 +71,7 @@ from spacecraft_sim.core.kernels import N_FVALUE, fault_actuator, fault_rate_bia
 from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
 from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, allocation_matrix, pack_actuator, propagate_wheels_into, wheel_speeds_into
 from spacecraft_sim.core.wheels import wheel_torques
-from spacecraft_sim.core.environment import EnvironmentArrays, environment_field, environment_measure_field, environment_torque_B, pack_environment
+from spacecraft_sim.core.environment import EnvironmentArrays, field_of, locked_inertia, measured_field_of, pack_environment, torque_of
 from sappc_momentum.core.law import MomentumArrays, momentum_management_step, pack_momentum
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO, ESTIMATOR_NO_INPUT
 from sappc_msgs_py.convert import seconds_to_ns
@@ -262,10 +262,17 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     L_env = np.zeros(3)
     d_tot = np.zeros(3)
     etmp = np.zeros((2, 3))
+    r_B_tmp, L_mtb_tmp = etmp[0], etmp[1]
     m_cmd = np.zeros(nm)  # the rods' dipole commands
+    # the run's rows of the environment's and the law's arrays, taken once (not per sample)
+    e_orbit, e_field, e_gravity, e_Gt, e_mmax, e_mag, e_draws = env.orbit[n], env.field[n], env.gravity[n], env.Gt[n], env.m_max[n], env.mag[n], env.mag_draws[n]
+    x_q = x[:4]  # the attitude: x is integrated in place, so the view stays its first four rows
+    mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max = (mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n],
+                                                                                  mm.steering[n], mm.m_max[n])
     tau_w = np.zeros(3)  # the wheels' body torque: the controller's minus the rods'
     mtmp = np.zeros((3, 3))
-    omega_ff = np.zeros(3)  # the body rate of the last valid sample (the gyroscopic feed-forward's: never a rejected input)
+    omega_ff = np.zeros(3)  # the gyroscopic feed-forward's body rate: the controller's rate input of the last sample that delivered a finite
+    # one (sappc_momentum.node reads the same topic: a dropped or withheld sample is "no data", NaN, and keeps the previous rate)
     measuring = sens.draws.shape[1] > 0
     dt = grid.dt
     T = grid.t.shape[0]
@@ -359,20 +366,20 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
         else:
             disturbance_at(dist, n, k, t, d)
         if orbiting:
-            environment_field(env, n, t, x[:4], r_N, B_N, B_B)
-            environment_measure_field(env, n, k, B_B, B_meas)
+            field_of(e_orbit, e_field, t, x_q, r_N, B_N, B_B)
+            measured_field_of(e_mag, e_draws, k, B_B, B_meas)
         if managing:
-            if valid:
+            if state_in and np.isfinite(yc[4]) and np.isfinite(yc[5]) and np.isfinite(yc[6]):  # the rate delivered, as the node reads it
                 for i in range(3):
                     omega_ff[i] = yc[4 + i]
             wheel_speeds_into(x, G, wprm, wspeed)  # the tachometers
-            momentum_management_step(mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n], mm.steering[n], mm.m_max[n], wspeed,
-                                     B_meas, omega_ff, u_last, m_cmd, tau_w, mtmp)
+            momentum_management_step(mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max, wspeed, B_meas, omega_ff, u_last,
+                                     m_cmd, tau_w, mtmp)
             wheel_torques(tau_w, G_pinv, G, wprm, x, uw)
         elif nw > 0:
             wheel_torques(u_last, G_pinv, G, wprm, x, uw)
         if orbiting:
-            environment_torque_B(env, n, x[:4], r_N, B_B, m_cmd, etmp, L_env)
+            torque_of(e_orbit, e_gravity, e_Gt, e_mmax, x_q, r_N, B_B, m_cmd, r_B_tmp, L_mtb_tmp, L_env)
             for i in range(3):
                 d_tot[i] = d[i] + L_env[i]
         if stride > 0 and k % stride == 0:
@@ -609,6 +616,7 @@ class CompiledRun:
             wheel_speed_rad_s=self.wheels[..., 0].transpose(1, 0, 2) if self.wheels.shape[2] else None,
             wheel_torque_Nm=self.wheels[..., 1].transpose(1, 0, 2) if self.wheels.shape[2] else None,
             estimate=self.estimates(),
+            orbit=self.env.transpose(1, 0, 2) if self.env.shape[2] else None,
         )
 
 
@@ -622,7 +630,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
             inertia_kg_m2: np.ndarray | None = None, disturbance: Any = None, config: Any = None, gains: dict[str, np.ndarray] | None = None,
             on_infeasible: str = "raise", sensor_params: np.ndarray | None = None, sensor_outages: np.ndarray | None = None,
             faults: list[tuple[Any, ...]] | None = None, wheels: list[ReactionWheels] | None = None,
-            estimator_params: np.ndarray | None = None) -> CompiledInputs:
+            estimator_params: np.ndarray | None = None, run_keys: list[tuple[int, ...]] | None = None) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
     ``sensor_params``: the sensors' parameters ((13,) or one row per run), their draws then given
@@ -634,7 +642,8 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     (the same number of wheels), else the scenario's actuator (:attr:`~sappc.scenario.Scenario.wheels`;
     none: ideal).  ``estimator_params``: one row per run of the estimator's parameters (a campaign
     whose runs have dispersed sensors), else the scenario's estimator for every run (none: the
-    controller is fed the measurements)."""
+    controller is fed the measurements).  ``run_keys``: each run's key of the magnetometer's stream
+    (a campaign's ``(run, seed)``), else ``(k,)`` for run ``k`` of the batch."""
     ensure_compiled()
     cfg = scenario.controller_config(controller) if config is None else config
     q0 = _f64(np.atleast_2d(np.asarray(scenario.q_BN0 if q_BN0 is None else q_BN0, dtype=np.float64)))
@@ -662,7 +671,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
         estimator=pack_estimator(scenario.estimator, n, estimator_params),
         disturbance=pack_disturbance(scenario.disturbance if disturbance is None else disturbance, t, n),
         faults=pack_faults(per_run_faults, t_ns),
-        environment=_environment(scenario, n),
+        environment=_environment(scenario, n, run_keys),
         momentum=_momentum(scenario, n),
         config=cfg,
         on_infeasible=on_infeasible,
@@ -670,14 +679,14 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     return _started(inp)
 
 
-def _environment(scenario: Scenario, n: int) -> EnvironmentArrays:
-    """The scenario's orbital environment for ``n`` runs; the gravity gradient acts on the
-    spacecraft with its wheels locked (:mod:`spacecraft_sim.core.environment`)."""
-    J = np.asarray(scenario.inertia_kg_m2, dtype=np.float64)
+def _environment(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | None = None) -> EnvironmentArrays:
+    """The scenario's orbital environment for ``n`` runs (``run_keys``: each run's magnetometer
+    stream, :func:`~spacecraft_sim.core.environment.pack_environment`); the gravity gradient acts on
+    the spacecraft with its wheels locked (:mod:`spacecraft_sim.core.environment`)."""
     w = scenario.wheels
-    locked = J if w is None else J + np.einsum("i,ji,ki->jk", w.per_wheel("spin_inertia_kg_m2"), w.G, w.G)
+    locked = locked_inertia(scenario.inertia_kg_m2) if w is None else locked_inertia(scenario.inertia_kg_m2, w.per_wheel("spin_inertia_kg_m2"), w.G)
     return pack_environment(scenario.environment, n, locked, n_samples=int(round(scenario.duration_s / scenario.control_period_s)) + 1,
-                            control_period_s=scenario.control_period_s)
+                            control_period_s=scenario.control_period_s, run_keys=run_keys)
 
 
 def _momentum(scenario: Scenario, n: int) -> MomentumArrays:

@@ -113,6 +113,7 @@ def run_scenario(
     trajectory: tuple[int, int] | None = None,
     sub_batch: int = SUB_BATCH,
     progress: Callable[[int], None] | None = None,
+    run_keys: list[tuple[int, ...]] | None = None,
 ) -> tuple[MetricsAccumulator, ScenarioRun]:
     """Run the scenario's closed loop, for one run or a batch: the one place that assembles it.
 
@@ -134,7 +135,8 @@ def run_scenario(
     (:func:`~sappc.offline.compiled_loop.prepare`).  ``wheels``: one
     :class:`~spacecraft_sim.core.wheels.ReactionWheels` per run (dispersed), else the scenario's.
     ``trajectory = (n, stride)`` keeps q_ev and rho of the first ``n`` runs every ``stride``
-    samples.  ``progress(n)`` is called after each sub-batch with its number of runs.
+    samples.  ``progress(n)`` is called after each sub-batch with its number of runs.  ``run_keys``:
+    each run's key of its magnetometer's stream (a campaign's ``(run, seed)``; default ``(k,)``).
 
     Returns
     -------
@@ -148,7 +150,7 @@ def run_scenario(
         scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
         disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
         sensor_params=None if sensors is None else sensors[0], sensor_outages=None if sensors is None else sensors[2],
-        faults=faults, wheels=wheels,
+        faults=faults, wheels=wheels, run_keys=run_keys,
     )
     draws = None if sensors is None else sensors[1]
 

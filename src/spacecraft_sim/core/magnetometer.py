@@ -8,8 +8,9 @@ measurement in between (Markley & Crassidis, eq. 4.1, the standard magnetometer 
     B_meas,j = B_B,j + b_j + sigma_j n_j,        n ~ N(0, 1) per axis and update      [T]
 
 The draws are made before the run (:func:`magnetometer_draws`), one row per update, from the
-magnetometer's own stream ``default_rng([seed, MAGNETOMETER_STREAM, run])``: a run with a
-magnetometer keeps every other model's draws as they are.
+magnetometer's own stream ``default_rng([seed, MAGNETOMETER_STREAM, *key])``, ``key`` the run's
+(``(0,)`` for ``sappc simulate`` and the graph; a campaign's run ``k`` of seed ``s``: ``(k, s)``,
+whatever chunk it runs in): a run with a magnetometer keeps every other model's draws as they are.
 
 Pure: no ROS, no clock; the kernel allocates nothing.
 """
@@ -17,6 +18,7 @@ Pure: no ROS, no clock; the kernel allocates nothing.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,11 +79,13 @@ class Magnetometer:
         return np.array([float(self.stride(control_period_s)), *n, *np.asarray(self.bias_T, dtype=np.float64)], dtype=np.float64)
 
 
-def magnetometer_draws(mag: Magnetometer, n_samples: int, control_period_s: float, run: int = 0) -> Array:
-    """The standard normal draws (U, 3) of run ``run``, one row per update (``U = ceil(T / stride)``)."""
+def magnetometer_draws(mag: Magnetometer, n_samples: int, control_period_s: float, run: int | Sequence[int] = 0) -> Array:
+    """The standard normal draws (U, 3) of the run keyed ``run`` (an index, or a tuple of integers:
+    module docstring), one row per update (``U = ceil(T / stride)``)."""
     stride = mag.stride(control_period_s)
     rows = (n_samples + stride - 1) // stride
-    out: Array = np.random.default_rng([mag.seed, MAGNETOMETER_STREAM, run]).standard_normal((rows, 3))
+    key = [int(run)] if isinstance(run, (int, np.integer)) else [int(k) for k in run]
+    out: Array = np.random.default_rng([mag.seed, MAGNETOMETER_STREAM, *key]).standard_normal((rows, 3))
     return out
 
 

@@ -121,15 +121,34 @@ def test_a_batch_run_in_orbit_equals_the_run_alone_bit_for_bit() -> None:
             assert np.array_equal(a[0], b[k], equal_nan=True)
 
 
-def test_the_graph_refuses_an_orbit_it_cannot_fly() -> None:
-    """``sappc run`` of a scenario with an orbit stops with exit status 2 and says why, before any
-    process starts (the plant node has no orbit yet: flying without one would be another run)."""
+def test_the_graph_refuses_an_orbit_on_a_plant_without_one() -> None:
+    """``sappc run --plant basilisk`` of a scenario with an orbit stops with exit status 2 and says
+    why, before any process starts (the Basilisk plant has no orbit: flying without one would be
+    another run; the native plant flies it: tests/tools/graph/test_orbit_graph.py)."""
     import subprocess
     import sys
 
-    proc = subprocess.run([sys.executable, "-m", "sappc", "run", "paper_tracking_orbit"], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run([sys.executable, "-m", "sappc", "run", "paper_tracking_orbit", "--plant", "basilisk"], capture_output=True, text=True,
+                          timeout=120)
     assert proc.returncode == 2, proc.stderr
-    assert "the node graph does not model an orbit yet" in proc.stderr
+    assert "lockstep on the native plant only, got --plant basilisk" in proc.stderr
+
+
+def test_a_campaign_runs_magnetometer_draws_are_its_own_whatever_its_chunk() -> None:
+    """The magnetometer's draws of a campaign's run ``k`` come from its key ``(k, seed)``, not from
+    its place in a chunk: run 2 packed alone and packed third of three get the same draws, and the
+    three runs' draws differ (they repeated chunk to chunk before: docs/how-to/momentum.md)."""
+    from sappc.offline.compiled_loop import _environment
+
+    sc = load_scenario(scenario_path("paper_tracking_orbit"))
+    seed = 7
+    chunk = _environment(sc, 3, [(k, seed) for k in (0, 1, 2)]).mag_draws
+    alone = _environment(sc, 1, [(2, seed)]).mag_draws
+    assert chunk.shape[1] == 216_001  # 6 h of 10 Hz updates, sample 0 included
+    assert np.array_equal(chunk[2], alone[0])
+    assert not np.array_equal(chunk[0], chunk[1]) and not np.array_equal(chunk[1], chunk[2])
+    assert not np.array_equal(_environment(sc, 1, [(2, seed + 1)]).mag_draws[0], alone[0])  # another campaign seed, other draws
+    assert np.array_equal(_environment(sc, 1).mag_draws[0], _environment(sc, 1, [(0,)]).mag_draws[0])  # sappc simulate's, as before
 
 
 @pytest.mark.slow

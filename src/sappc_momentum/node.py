@@ -1,0 +1,215 @@
+"""The momentum-management node (``python -m sappc_momentum``): the magnetorquers' dumping law and
+the wheels' feed-forward on the graph (issue 36), flight software beside the estimator.
+
+For each sample it takes, all of one stamp (lockstep: the plant owns time):
+
+- the wheels' tachometers, ``state/wheel_speed`` (``sensor_msgs/JointState``, ``velocity``);
+- the magnetometer, ``state/magnetic_field`` (``sensor_msgs/MagneticField``, B frame, tesla);
+- the controller's rate input, ``state/rate`` (remapped to what the controller reads:
+  ``estimate/rate`` with an estimator, a fault relay's output with sensor faults); a "no data"
+  sample (NaN) keeps the previous rate, as a dropped rate leaves the controller's;
+- the controller's torque, ``control/torque`` (a fault relay's output with actuator faults);
+
+and publishes, with that stamp, the rods' dipole commands on ``control/dipole`` and the wheels'
+body torque on ``control/wheel_torque``, which the plant takes as its torque command.  The law is
+:func:`sappc_momentum.core.law.momentum_management_step`, the compiled kernel the offline loop
+calls on the same inputs in the same order, so a lockstep bag equals the offline run bit for bit.
+
+Parameters: :data:`PARAMETERS` (``python -m sappc_momentum --help``).  The wheels and the rods
+are given as the flight software's configuration tables: the axes, and the allocation and
+steering matrices themselves (``sappc run`` computes them with the functions the offline loop
+uses, and passes them exactly), so that the node needs no simulator.  A missing or invalid
+parameter stops the node with one line naming it (exit status 2); a message with a wrong frame,
+a wrong count or a non-finite field, speed or torque is rejected, logged and counted (the
+plant then holds its last command when its own wait runs out).  Real time is not supported yet
+(the node refuses ``mode: realtime``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gnc_common.validation import ConfigError, InputError, as_finite_array
+from sappc_momentum.core.law import MomentumManagement, momentum_management_step, pack_momentum
+from sappc_msgs_py.contract import (CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, STATE_MAGNETIC_FIELD, STATE_RATE, STATE_WHEEL_SPEED,
+                                    Topic, qos_profile)
+from sappc_msgs_py.convert import (dipole_msg, magnetic_field_from_msg, stamp_to_ns, stamp_to_time, torque_from_msg, torque_msg,
+                                   wheel_speed_from_msg)
+from sappc_msgs_py.parameters import REQUIRED, Param
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, run_node
+
+__all__ = ["INPUTS", "MomentumNode", "PARAMETERS", "RIGHT_INVERSE_TOL", "main"]
+
+#: How far ``G A`` may be from the identity for an allocation (or steering) matrix ``A`` of axes
+#: ``G`` [-]: a minimum-norm inverse computed in double precision is within 1e-15 of a right
+#: inverse; 1e-9 catches a table of other axes or a transposed one, not rounding.
+RIGHT_INVERSE_TOL = 1e-9
+
+#: The node's inputs of one sample.
+INPUTS = (STATE_WHEEL_SPEED, STATE_MAGNETIC_FIELD, STATE_RATE, CONTROL_TORQUE)
+
+PARAMETERS = (
+    MODE,
+    Param("gain_per_s", REQUIRED, "K_p: the rate at which the wheels' excess momentum is dumped (normal to the field)", "1/s", check="> 0",
+          type="double"),
+    Param("target_momentum_B_Nms", [0.0, 0.0, 0.0], "h*_B: the wheels' momentum to hold, in B", "N m s", check="3 finite values"),
+    Param("gyroscopic_feedforward", False, "add omega x (G_s h_s) to the wheels' torque and scale the rods down when the motors cannot "
+          "carry it all (attitude first; docs/how-to/momentum.md)"),
+    Param("wheel_axes_B", REQUIRED, "G_s: the wheels' spin axes in B, (3, W) row major", check="3 W finite values", type="double[]"),
+    Param("wheel_spin_inertia_kg_m2", REQUIRED, "J_s: each wheel's spin inertia", "kg m^2", check="W values > 0", type="double[]"),
+    Param("wheel_max_torque_Nm", REQUIRED, "each wheel's motor torque limit", "N m", check="W values > 0", type="double[]"),
+    Param("wheel_allocation", REQUIRED, "G_s^+: the wheels' minimum-norm allocation (W, 3) row major, the plant's own",
+          check="a right inverse of wheel_axes_B", type="double[]"),
+    Param("rod_axes_B", REQUIRED, "G_t: the rods' axes in B, (3, M) row major", check="3 M finite values", type="double[]"),
+    Param("rod_steering", REQUIRED, "the rods' steering matrix (M, 3) row major (Basilisk dipoleMapping's; pinv(G_t))",
+          check="a right inverse of rod_axes_B", type="double[]"),
+    Param("rod_max_dipole_Am2", REQUIRED, "each rod's dipole limit", "A m^2", check="M values > 0", type="double[]"),
+    Param("timing_file", "", "where to write the node's counts at the end (JSON: samples, rejected messages); '' for none"),
+)
+_P = {p.name: p for p in PARAMETERS}
+
+
+def _matrix(name: str, values: Any, rows: int | None, cols: int | None) -> np.ndarray:
+    """``values`` (a flat list) as a (rows, cols) matrix, one of them given; errors name the parameter and value."""
+    a = as_finite_array(name, values)
+    if a.ndim != 1 or a.size == 0:
+        raise ConfigError(f"{name} must be a non-empty list of numbers, got {values!r}")
+    if rows is not None:
+        if a.size % rows:
+            raise ConfigError(f"{name} must hold {rows} rows (a multiple of {rows} values), got {a.size} values")
+        return np.ascontiguousarray(a.reshape(rows, a.size // rows))
+    assert cols is not None
+    if a.size % cols:
+        raise ConfigError(f"{name} must hold rows of {cols} values (a multiple of {cols}), got {a.size} values")
+    return np.ascontiguousarray(a.reshape(a.size // cols, cols))
+
+
+def _positive(name: str, values: Any, n: int) -> np.ndarray:
+    a = as_finite_array(name, values)
+    if a.shape != (n,) or not np.all(a > 0):
+        raise ConfigError(f"{name} must be {n} values > 0 (one per axis of the table), got {list(values)!r}")
+    return a
+
+
+def _right_inverse(name: str, A: np.ndarray, axes_name: str, G: np.ndarray) -> None:
+    if A.shape != (G.shape[1], 3) or np.abs(G @ A - np.eye(3)).max() > RIGHT_INVERSE_TOL:
+        raise ConfigError(f"{name} must be a right inverse of {axes_name} ({G.shape[1]} x 3 with {axes_name} @ {name} = I to "
+                          f"{RIGHT_INVERSE_TOL}), got {A.tolist()!r}")
+
+
+class MomentumNode(ProjectNode):
+    """See the module docstring."""
+
+    PARAMETERS = PARAMETERS
+    COMMAND = "python -m sappc_momentum"
+
+    def __init__(self, node_name: str = "momentum", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.mode = self.mode_param()
+        if self.mode != LOCKSTEP:
+            raise ConfigError(f"mode: the momentum-management node runs in lockstep only (real time: not yet), got {self.mode!r}")
+        gain = self.param(_P["gain_per_s"])
+        if gain is None:
+            raise ConfigError("gain_per_s is required (K_p [1/s] > 0)")
+        config = MomentumManagement(gain_per_s=float(gain), target_momentum_B_Nms=tuple(self.param(_P["target_momentum_B_Nms"])),
+                                    gyroscopic_feedforward=bool(self.param(_P["gyroscopic_feedforward"])))
+        tables = {}
+        for p in ("wheel_axes_B", "wheel_spin_inertia_kg_m2", "wheel_max_torque_Nm", "wheel_allocation", "rod_axes_B", "rod_steering",
+                  "rod_max_dipole_Am2"):
+            value = self.param(_P[p])
+            if value is None:
+                raise ConfigError(f"{p} is required ({_P[p].description})")
+            tables[p] = value
+        self.timing_file = str(self.param(_P["timing_file"]))
+        self.check_unknown_overrides()
+        Gs = _matrix("wheel_axes_B", tables["wheel_axes_B"], 3, None)
+        Gt = _matrix("rod_axes_B", tables["rod_axes_B"], 3, None)
+        W, M = Gs.shape[1], Gt.shape[1]
+        Js = _positive("wheel_spin_inertia_kg_m2", tables["wheel_spin_inertia_kg_m2"], W)
+        u_max = _positive("wheel_max_torque_Nm", tables["wheel_max_torque_Nm"], W)
+        m_max = _positive("rod_max_dipole_Am2", tables["rod_max_dipole_Am2"], M)
+        Gs_pinv = _matrix("wheel_allocation", tables["wheel_allocation"], None, 3)
+        steering = _matrix("rod_steering", tables["rod_steering"], None, 3)
+        _right_inverse("wheel_allocation", Gs_pinv, "wheel_axes_B", Gs)
+        _right_inverse("rod_steering", steering, "rod_axes_B", Gt)
+        # the offline loop's arrays (pack_momentum), run 0
+        self._mm = [a[0] for a in pack_momentum(config, 1, Gs, Js, Gs_pinv, u_max, Gt, steering, m_max)]
+        self.n_wheels, self.n_rods = W, M
+        self._m = np.zeros(M)
+        self._tau_w = np.zeros(3)
+        self._tmp = np.zeros((3, 3))
+        self._omega = np.zeros(3)  # the last delivered finite rate (the offline loop's omega_ff)
+        self._step(np.zeros(W), np.zeros(3), np.zeros(3))  # load the compiled kernel now, not at the first sample
+        self.pub_dipole = self.counting_publisher(CONTROL_DIPOLE, 1)
+        self.pub_torque = self.counting_publisher(CONTROL_WHEEL_TORQUE, 1)
+        self._pending: dict[int, dict[str, Any]] = {}
+        self.samples = 0
+        self.rejected = 0
+        qos = qos_profile()
+        for topic in INPUTS:
+            self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos)
+        self.get_logger().info(f"momentum management ready (lockstep; K_p {config.gain_per_s:g} 1/s, {W} wheels, {M} rods, "
+                               f"gyroscopic feed-forward {'on' if config.gyroscopic_feedforward else 'off'})")
+
+    def _step(self, speeds: np.ndarray, field_T: np.ndarray, torque_B: np.ndarray) -> None:
+        momentum_management_step(*self._mm, speeds, field_T, self._omega, torque_B, self._m, self._tau_w, self._tmp)
+
+    def _decode(self, msg: Any, topic: Topic) -> Any:
+        """The value of one input (``None`` for a rate that is "no data"); :class:`InputError` for a bad message."""
+        if topic is STATE_WHEEL_SPEED:
+            return wheel_speed_from_msg(msg, self.n_wheels)
+        if topic is STATE_MAGNETIC_FIELD:
+            return magnetic_field_from_msg(msg, STATE_MAGNETIC_FIELD)
+        if topic is CONTROL_TORQUE:
+            return torque_from_msg(msg, CONTROL_TORQUE)
+        if msg.header.frame_id != STATE_RATE.frame_id:
+            raise InputError(f"{STATE_RATE.name}: frame_id must be {STATE_RATE.frame_id!r}, got {msg.header.frame_id!r}")
+        v = msg.vector
+        rate = [v.x, v.y, v.z]
+        return np.array(rate) if all(map(math.isfinite, rate)) else None  # "no data": the previous rate is kept
+
+    def _on_input(self, msg: Any, topic: Topic) -> None:
+        try:
+            value = self._decode(msg, topic)
+        except InputError as exc:
+            self.rejected += 1
+            self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
+            return
+        ns = stamp_to_ns(msg.header.stamp)
+        sample = self._pending.setdefault(ns, {})
+        sample[topic.name] = value
+        if len(sample) < len(INPUTS):
+            return
+        del self._pending[ns]
+        for old in [k for k in self._pending if k < ns]:  # an earlier sample that never completed (the plant held its command)
+            del self._pending[old]
+        rate = sample[STATE_RATE.name]
+        if rate is not None:
+            self._omega[:] = rate
+        self._step(sample[STATE_WHEEL_SPEED.name], sample[STATE_MAGNETIC_FIELD.name], sample[CONTROL_TORQUE.name])
+        stamp = msg.header.stamp
+        self.pub_dipole.publish(dipole_msg(stamp_to_time(stamp), self._m, out=self.pub_dipole.msg))
+        self.pub_torque.publish(torque_msg(self._tau_w, stamp, CONTROL_WHEEL_TORQUE, out=self.pub_torque.msg))
+        self.samples += 1
+
+    def finish(self) -> None:
+        self.get_logger().info(f"finished: {self.samples} samples, {self.rejected} rejected messages")
+        super().finish()
+        if self.timing_file:
+            Path(self.timing_file).write_text(json.dumps({"samples": self.samples, "rejected": self.rejected}))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the momentum-management node until stopped."""
+    return run_node(lambda args: MomentumNode(), argv, MomentumNode)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
