@@ -634,6 +634,10 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
             raise ConfigError(f"{scenario_path}: an orbit (sections orbit, magnetorquers, magnetometer, momentum_management) runs on the "
                               f"graph in lockstep on the native plant only, got {'--realtime' if realtime else f'--plant {plant}'}: "
                               "run it in lockstep, or offline with sappc simulate (docs/how-to/momentum.md)")
+        if scenario.estimator is not None and scenario.sensors is None:  # the estimator node reads what sensor models publish
+            raise ConfigError(f"{scenario_path}: the estimator reads the sensors' own topics (sensors/gyro, sensors/star_tracker, "
+                              "state/attitude_epoch), which the plant publishes with sensor models: add a sensors section "
+                              "(star_tracker, gyro), or run it offline with sappc simulate")
         kind = scenario.resolve_controller(controller)
         scenario.controller_config(kind)  # validate before any process starts
         # the controller's first step, as the node will compute it: a start the core refuses (the

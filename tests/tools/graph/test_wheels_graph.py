@@ -210,3 +210,17 @@ def test_sensor_faults_with_the_estimator_through_the_graph_equal_the_offline_ru
     sent, relayed = bag.series["/sensors/star_tracker"].stamps_ns, bag.series["/fault/sensors/star_tracker"].stamps_ns
     assert np.all(np.diff(relayed) > 0) and set(relayed.tolist()) == set(sent.tolist()) - {2_100_000_000}
     assert np.all(np.isnan(bag.series["/fault/sensors/gyro"].values[330:333, 13:16]))  # the dropout: "no data"
+
+
+def test_an_estimator_without_sensor_models_is_refused_naming_what_it_reads(tmp_path: Path) -> None:
+    """The estimator node reads the sensors' own topics, which the plant publishes with sensor models
+    only: a scenario with an estimator and no ``sensors`` stops before any process starts, exit 2
+    (offline it runs, the filter fed the exact state)."""
+    raw = yaml.safe_load((SCENARIOS / "paper_tracking.yaml").read_text())
+    raw["estimator"] = {"kind": "mekf", "tracker_noise_rad": 1e-5, "gyro_angle_random_walk_rad_sqrt_s": 1e-6}
+    path = tmp_path / "estimator_no_sensors.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    proc = subprocess.run([*SAPPC, "run", str(path), "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "the estimator reads the sensors' own topics" in proc.stderr and "add a sensors section" in proc.stderr
+    assert not (tmp_path / "run").exists()
