@@ -17,6 +17,9 @@ from the end of the 4-byte encapsulation header):
     contract's transforms have zero translation), the header frame ids are reported.
 ``rosgraph_msgs/Clock``
     ``int32 sec`` @0, ``uint32 nanosec`` @4.
+``sensor_msgs/TimeReference`` (``state/attitude_epoch``)
+    the header, ``time_ref`` (``int32 sec``, ``uint32 nanosec``) at the next multiple of 4, then
+    ``string source``; kept: ``time_ref``'s two fields and whether ``source`` names a sensor.
 ``sensor_msgs/JointState`` (``joint_states``: the wheels; ``state/wheel_speed``: their tachometers, no efforts)
     the header, ``sequence<string> name`` (at the next multiple of 4), then ``sequence<float64>``
     position (empty in the contract), velocity and effort (empty on ``state/wheel_speed``) (each count at a multiple of 4, its
@@ -160,6 +163,42 @@ def _decode_transform(u8: NDArray[np.uint8], start: NDArray[np.int64], length: N
             chars = rows[slen == n, _BODY + 12 : _BODY + 12 + int(n) - 1]
             frames.update(bytes(c).decode("utf-8", "replace") for c in np.unique(chars, axis=0))
     return _assemble(idx, stamps, vals, 4, length.size, frame_ids=tuple(sorted(frames)))
+
+
+def _decode_time_reference(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]) -> Decoded:
+    """``sensor_msgs/TimeReference`` (``state/attitude_epoch``): the header, ``time_ref`` (``int32
+    sec``, ``uint32 nanosec``) at the next multiple of 4 after the frame id, then ``string source``.
+    The values are ``time_ref``'s seconds and nanoseconds (as floats: exact, where one float of
+    nanoseconds would not be for a wall-clock epoch) and whether ``source`` names a sensor (1.0; 0.0
+    for the contract's "no data", which names none)."""
+    idx: list[NDArray[np.int64]] = []
+    stamps: list[NDArray[np.int64]] = []
+    vals: list[NDArray[np.float64]] = []
+    frames: set[str] = set()
+    for pos, rows in _groups(u8, start, length):
+        L = rows.shape[1]
+        if L < _BODY + 25:  # header (12 bytes, the NUL of frame_id), time_ref (8), source's length and NUL
+            continue
+        slen = _col(rows, _BODY + 8, _BODY + 12, "<u4")[:, 0].astype(np.int64)
+        time_at = _BODY + (12 + slen + 3) // 4 * 4  # absolute offset of time_ref, per row
+        inside = (slen >= 1) & (time_at + 12 <= L)
+        srclen = np.zeros(rows.shape[0], np.int64)
+        r = np.flatnonzero(inside)
+        srclen[r] = np.ascontiguousarray(rows[r[:, None], time_at[r, None] + 8 + np.arange(4)]).view("<u4")[:, 0]
+        ok = _le(rows) & inside & (srclen >= 1) & (time_at + 12 + srclen == L)
+        if not ok.any():
+            continue
+        rows, pos, slen, time_at, srclen = rows[ok], pos[ok], slen[ok], time_at[ok], srclen[ok]
+        at = time_at[:, None] + np.arange(8)
+        raw = np.ascontiguousarray(rows[np.arange(rows.shape[0])[:, None], at])
+        sec, nanosec = raw[:, :4].copy().view("<i4")[:, 0], raw[:, 4:].copy().view("<u4")[:, 0]
+        idx.append(pos)
+        stamps.append(_stamp_ns(rows))
+        vals.append(np.stack((sec.astype(np.float64), nanosec.astype(np.float64), (srclen > 1).astype(np.float64)), axis=1))
+        for n in np.unique(slen):
+            chars = rows[slen == n, _BODY + 12 : _BODY + 12 + int(n) - 1]
+            frames.update(bytes(c).decode("utf-8", "replace") for c in np.unique(chars, axis=0))
+    return _assemble(idx, stamps, vals, 3, length.size, frame_ids=tuple(sorted(frames)))
 
 
 def _decode_clock(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64]) -> Decoded:
@@ -374,6 +413,7 @@ DECODERS["geometry_msgs/msg/TransformStamped"] = _decode_transform
 DECODERS["rosgraph_msgs/msg/Clock"] = _decode_clock
 DECODERS["std_msgs/msg/Float64MultiArray"] = _decode_multiarray
 DECODERS["sensor_msgs/msg/JointState"] = _decode_joint_state
+DECODERS["sensor_msgs/msg/TimeReference"] = _decode_time_reference
 
 
 def decode(type_name: str, buffer: bytes, start: NDArray[np.int64], length: NDArray[np.int64]) -> Decoded | None:

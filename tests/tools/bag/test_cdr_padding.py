@@ -125,3 +125,25 @@ def test_a_bag_of_scribbled_diagnostics_reads_as_rclpy_deserialises(tmp_path: Pa
     assert bag.undecodable == {} and bag.diagnostics_labels == c.DIAGNOSTICS_LAYOUT
     s = bag.series[c.CONTROLLER_DIAGNOSTICS.name]
     assert np.array_equal(s.values, np.array([deserialize_message(p, Float64MultiArray).data.tolist() for p in payloads]))
+
+
+def test_time_references_decode_their_epoch_exactly_and_say_which_name_no_sensor() -> None:
+    """``state/attitude_epoch`` (``sensor_msgs/TimeReference``): the header stamp, ``time_ref`` as
+    seconds and nanoseconds (a wall-clock epoch exactly), whether ``source`` names a sensor (the
+    "no data" sample names none), the frame ids seen, rows of any frame-id length, as rclpy wrote them."""
+    from rclpy.serialization import serialize_message
+
+    from sappc.bag.cdr import decode
+    from sappc_msgs_py import contract as c
+    from sappc_msgs_py.convert import epoch_msg, no_data_msg, ns_to_stamp
+
+    msgs = [epoch_msg(1_795_000_000_123_456_789 + k, ns_to_stamp(5_000_000_000 + k), c.STATE_ATTITUDE_EPOCH) for k in range(3)]
+    msgs[1].header.frame_id = "body_2"  # another length: another group, another offset of time_ref
+    msgs.append(no_data_msg(c.STATE_ATTITUDE_EPOCH, 7.0))
+    data = [serialize_message(m) for m in msgs]
+    start = np.cumsum([0] + [len(d) for d in data[:-1]])
+    d = decode("sensor_msgs/msg/TimeReference", b"".join(data), start, np.array([len(b) for b in data]))
+    assert d is not None and d.undecodable == 0 and d.index.tolist() == [0, 1, 2, 3]
+    assert d.stamps_ns.tolist() == [5_000_000_000, 5_000_000_001, 5_000_000_002, 7_000_000_000]
+    assert [int(s) * 1_000_000_000 + int(n) for s, n in d.values[:3, :2]] == [1_795_000_000_123_456_789 + k for k in range(3)]
+    assert d.values[:, 2].tolist() == [1.0, 1.0, 1.0, 0.0] and d.frame_ids == ("body", "body_2")
