@@ -131,6 +131,8 @@ class Target:
 _PARITY = "tests/controller/test_kernels_parity.py::"
 _TUNING = "tests/tools/montecarlo/test_tuning.py::"
 _START = "tests/controller/test_start_check.py::"
+_MEKF = "tests/estimator/test_mekf.py::"
+_EST_NODE = "tests/nodes/test_estimator_node.py::"
 
 TARGETS: dict[str, Target] = {
     "sappc.montecarlo.draws": Target(
@@ -200,6 +202,39 @@ TARGETS: dict[str, Target] = {
         # presentation, as log calls are: _figures draws history.png and tradeoff.png (their content is checked by the command
         # tests' empty-axes check), _Progress the progress line on stderr
         skip_functions=("_figures", "_Progress"),
+    ),
+    # The estimator (issue 33 item 6).  Its kernel against the oracle on the 8-s sequence through every branch first; the
+    # longer parity sequences and the behaviour tests after; never the 200 s, 300 s, 3 h and 4 h runs (minutes a mutant
+    # with the JIT off).
+    "sappc_estimator.core.mekf": Target(
+        "src/sappc_estimator/core/mekf.py",
+        (f"{_MEKF}test_kernel_equals_oracle[every_branch_8s]", f"{_MEKF}test_multiplicative_reset",
+         f"{_MEKF}test_a_tracker_sample_is_new_by_its_epoch_never_by_its_value"),
+        (f"{_MEKF}test_kernel_equals_oracle[from_prior_10deg]", f"{_MEKF}test_kernel_equals_oracle[outage_20s]",
+         f"{_MEKF}test_kernel_equals_oracle[outliers_and_burst]", f"{_MEKF}test_kernel_equals_oracle[bias_step_recovery]",
+         f"{_MEKF}test_initialises_at_the_first_tracker_sample", f"{_MEKF}test_a_sample_that_is_not_finite_changes_nothing_and_gives_no_estimate",
+         f"{_MEKF}test_an_implausible_sample_is_no_measurement", f"{_MEKF}test_oracle_rotations_agree_with_scipy_and_the_kernels_helpers",
+         f"{_MEKF}test_gate_rejects_an_outlier_without_a_trace", f"{_MEKF}test_outage_propagates_only_then_reacquires"),
+    ),
+    "sappc_estimator.core.config": Target(
+        "src/sappc_estimator/core/config.py",
+        (f"{_MEKF}test_the_gate_threshold_is_the_chi_square_quantile", f"{_MEKF}test_the_monitor_bands_are_the_chi_square_quantiles_at_their_stated_probabilities",
+         f"{_MEKF}test_kernel_equals_oracle[every_branch_8s]", "tests/estimator/test_config.py"),
+        (f"{_EST_NODE}test_parameters_round_trip_through_the_config_and_accept_one_number_for_three_axes",
+         f"{_EST_NODE}test_a_bad_parameter_stops_the_node_naming_itself_and_its_value",
+         f"{_EST_NODE}test_a_missing_tracker_noise_or_a_prior_without_its_sigma_is_named",
+         f"{_MEKF}test_kernel_equals_oracle[from_prior_10deg]", f"{_MEKF}test_initialises_at_the_first_tracker_sample"),
+    ),
+    "sappc_estimator.core.estimator": Target(
+        "src/sappc_estimator/core/estimator.py",
+        ("tests/estimator/test_config.py",),
+        ("tests/nodes/test_estimator_node.py",),
+    ),
+    "sappc_estimator.node": Target(  # the node's callbacks in-process on an isolated domain
+        "src/sappc_estimator/node.py",
+        ("tests/nodes/test_estimator_node.py",),
+        # main: the process entry (run_node), run only by the process tests (tests/nodes/test_estimator_process.py, slow)
+        skip_functions=("main",),
     ),
 }
 
@@ -435,12 +470,12 @@ def _run_tests_client(sock_path: str, args: list[str]) -> int:
 PREIMPORTED = ("numpy", "scipy", "scipy.special", "scipy.integrate", "scipy.optimize", "scipy.spatial.transform", "scipy.interpolate",
                "numba", "yaml", "pytest", "_pytest.assertion.rewrite", "hypothesis", "hypothesis.strategies", "hypothesis.extra.numpy",
                "rclpy", "rclpy.node", "rclpy.executors", "rclpy.parameter", "geometry_msgs.msg", "std_msgs.msg", "rosgraph_msgs.msg",
-               "rcl_interfaces.msg", "builtin_interfaces.msg", "mcap", "mcap.reader", "mcap.writer", "rosbags", "zstandard", "lz4.frame")
+               "rcl_interfaces.msg", "builtin_interfaces.msg", "sensor_msgs.msg", "diagnostic_msgs.msg", "mcap", "mcap.reader", "mcap.writer", "rosbags", "zstandard", "lz4.frame")
 #: The node tests' wait for a message [s] (``SAPPC_TEST_DEADLINE_S``; 20 s by default): a mutant that
 #: never publishes fails in seconds; discovery and a step take well under a second.
 NODE_TEST_DEADLINE_S = 5.0
 #: The project's top-level packages (never imported by the test server).
-PROJECT_PACKAGES = {"sappc", "sappc_controller", "spacecraft_sim", "gnc_common", "sappc_msgs_py"}
+PROJECT_PACKAGES = {"sappc", "sappc_controller", "sappc_estimator", "sappc_momentum", "spacecraft_sim", "gnc_common", "sappc_msgs_py"}
 
 
 # ----------------------------------------------------------------------------- cosmic-ray workers

@@ -257,6 +257,14 @@ BURST_START_STEP, BURST_SAMPLES = 1500, 25  # 2.5 s of 1-deg outliers from 15 s:
 ONE_DEG = np.deg2rad(1.0)
 
 
+#: The short sequence through every branch: 8 s; a tracker outage; an isolated outlier (rejected);
+#: a burst of outliers longer than ``max_consecutive_rejections`` = 3 (a re-initialisation); a
+#: bias step of 5e-5 rad/s per axis at 5 s (200 times the step a 5-sample window needs to notice:
+#: the monitor warns, fails and recovers, and the drift re-initialises the filter again).
+SHORT_S, SHORT_OUTAGE_S, SHORT_OUTLIER_STEP, SHORT_BURST_STEP, SHORT_BURST_SAMPLES = 8.0, (1.0, 1.5), 200, 300, 4
+SHORT_STEP_AT_S, SHORT_STEP_RAD_S, SHORT_WINDOW, SHORT_MAX_REJ = 5.0, 5e-5, 5, 3
+
+
 def outlier_run(duration_s: float, seed: int) -> Run:
     """A tumbling run with two isolated 1-deg outliers and a 25-sample burst of them (module constants)."""
     run = simulate(duration_s, seed)
@@ -287,6 +295,12 @@ def parity_case(name: str) -> tuple[np.ndarray, Run]:
         run = simulate(40.0, 31)
         run.y[run.t_s >= 15.0, 4] += 2e-5
         return mekf_config().params(), run
+    if name == "every_branch_8s":  # every branch in 8 s (short enough for each mutant of the mutation run): SHORT_* below
+        run = simulate(SHORT_S, 35, outages_s=(SHORT_OUTAGE_S,))
+        run = with_outliers(run, [SHORT_OUTLIER_STEP] + [SHORT_BURST_STEP + STRIDE * i for i in range(SHORT_BURST_SAMPLES)],
+                            ONE_DEG, np.array([1.0, -2.0, 1.0]))
+        run.y[run.t_s >= SHORT_STEP_AT_S, 4:7] += SHORT_STEP_RAD_S
+        return mekf_config(monitor_window_samples=SHORT_WINDOW, monitor_persistence=2, max_consecutive_rejections=SHORT_MAX_REJ).params(), run
     raise ValueError(name)
 
 
@@ -355,7 +369,7 @@ def test_oracle_transition_is_the_matrix_exponential() -> None:
 # ----------------------------------------------------------------------------- (a) parity
 
 
-@pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery"])
+@pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery", "every_branch_8s"])
 def test_kernel_equals_oracle(name: str) -> None:
     """Kernel = oracle step after step: statuses and counters exactly; ``q_hat`` (sign-aligned) to
     ``PARITY_ABS`` absolute; ``b_hat`` and ``omega_hat`` so that the attitude they integrate to over
@@ -374,6 +388,13 @@ def test_kernel_equals_oracle(name: str) -> None:
     np.testing.assert_array_equal(kr.out[:, mekf.EO_USABLE], [float(o.usable) for o in outs])
     if name == "bias_step_recovery":  # the case has teeth: the monitor failed and the filter recovered
         assert kr.out[-1, mekf.EO_N_RECOVER] >= 1 and np.any(kr.out[:, mekf.EO_MON_LEVEL] == mekf.MON_ERROR)
+    if name == "every_branch_8s":  # every branch taken: rejections, re-initialisations (gate and monitor), a recovery, WARN and
+        # ERROR verdicts, a withheld estimate, an outage's propagation
+        print(f"\nevery branch: statuses {np.bincount(kr.status, minlength=6).tolist()}, counters {kr.counters[-1].tolist()}, "
+              f"recoveries {kr.out[-1, mekf.EO_N_RECOVER]:g}, levels {np.bincount(kr.out[:, mekf.EO_MON_LEVEL].astype(int), minlength=3).tolist()}")
+        assert kr.counters[-1, 1] > SHORT_MAX_REJ and kr.counters[-1, 3] >= 2 and kr.out[-1, mekf.EO_N_RECOVER] >= 1
+        assert {mekf.MON_OK, mekf.MON_WARN, mekf.MON_ERROR} <= set(kr.out[:, mekf.EO_MON_LEVEL].tolist())
+        assert np.any(kr.out[:, mekf.EO_USABLE] == 0.0) and np.any(kr.status == mekf.STATUS_PROPAGATED)
     live = np.flatnonzero(status_or != mekf.STATUS_NONE)
     assert len(live) == len(run.t_s)  # from_tracker initialises at the first step (its sample is new)
     q_or = np.array([o.q_hat for o in outs])
