@@ -218,9 +218,9 @@ TARGETS: dict[str, Target] = {
     ),
     "sappc_estimator.core.config": Target(
         "src/sappc_estimator/core/config.py",
-        (f"{_MEKF}test_the_gate_threshold_is_the_chi_square_quantile", f"{_MEKF}test_the_monitor_bands_are_the_chi_square_quantiles_at_their_stated_probabilities",
-         f"{_MEKF}test_kernel_equals_oracle[every_branch_8s]", "tests/estimator/test_config.py"),
-        (f"{_EST_NODE}test_parameters_round_trip_through_the_config_and_accept_one_number_for_three_axes",
+        ("tests/estimator/test_config.py", f"{_MEKF}test_the_gate_threshold_is_the_chi_square_quantile",
+         f"{_MEKF}test_the_monitor_bands_are_the_chi_square_quantiles_at_their_stated_probabilities"),
+        (f"{_MEKF}test_kernel_equals_oracle[every_branch_8s]", f"{_EST_NODE}test_parameters_round_trip_through_the_config_and_accept_one_number_for_three_axes",
          f"{_EST_NODE}test_a_bad_parameter_stops_the_node_naming_itself_and_its_value",
          f"{_EST_NODE}test_a_missing_tracker_noise_or_a_prior_without_its_sigma_is_named",
          f"{_MEKF}test_kernel_equals_oracle[from_prior_10deg]", f"{_MEKF}test_initialises_at_the_first_tracker_sample"),
