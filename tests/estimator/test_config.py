@@ -7,6 +7,7 @@ per run, and :class:`Mekf` is the kernel called sample by sample, bit for bit.  
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 
@@ -33,6 +34,15 @@ def config(**kw: object) -> MekfConfig:
     base: dict[str, object] = dict(tracker_noise_rad=NOISE, gyro_angle_random_walk_rad_sqrt_s=ARW, gyro_bias_random_walk_rad_s_sqrt_s=BRW)
     base.update(kw)
     return MekfConfig(**base)  # type: ignore[arg-type]
+
+
+def test_the_settings_cannot_change_once_made() -> None:
+    """A filter packs its parameters once (``Mekf``, the node): settings changed afterwards would no
+    longer be the filter's, so they cannot be changed (and, being immutable, they hash)."""
+    c = config()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        c.gate_false_alarm = 0.5  # type: ignore[misc]
+    assert hash(c) == hash(config())
 
 
 def test_the_defaults_are_the_documented_ones() -> None:
@@ -119,6 +129,7 @@ def test_every_column_of_the_parameter_array_is_the_documented_quantity() -> Non
     ({"monitor_error_probability": 1.0}, "monitor_error_probability must be in (0, 1), got 1.0"),
     ({"monitor_warn_probability": True}, "monitor_warn_probability must be in (0, 1)"),
     ({"monitor_warn_probability": math.nan}, "monitor_warn_probability must be in (0, 1)"),
+    ({"monitor_error_probability": "0.999"}, "monitor_error_probability must be in (0, 1), got '0.999'"),
     ({"monitor_error_probability": 0.98}, "monitor_error_probability (0.98) must be at least monitor_warn_probability (0.99)"),
     ({"monitor_persistence": 0}, "monitor_persistence must be an integer in [1, monitor_window_samples = 20], got 0"),
     ({"monitor_persistence": 21}, "monitor_persistence must be an integer in [1, monitor_window_samples = 20], got 21"),
