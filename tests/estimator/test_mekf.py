@@ -301,6 +301,10 @@ def parity_case(name: str) -> tuple[np.ndarray, Run]:
                             ONE_DEG, np.array([1.0, -2.0, 1.0]))
         run.y[run.t_s >= SHORT_STEP_AT_S, 4:7] += SHORT_STEP_RAD_S
         return mekf_config(monitor_window_samples=SHORT_WINDOW, monitor_persistence=2, max_consecutive_rejections=SHORT_MAX_REJ).params(), run
+    if name == "monitor_fails_twice_4s":  # a recovery that cannot help (Q_r = 0) and no gate: the second failed window re-initialises
+        run = simulate(4.0, 36)
+        run.y[run.t_s >= 1.0, 4:7] += SHORT_STEP_RAD_S
+        return mekf_config(monitor_window_samples=SHORT_WINDOW, monitor_persistence=2, gate_false_alarm=0.0, bias_recovery_sigma_rad_s=0.0).params(), run
     raise ValueError(name)
 
 
@@ -369,7 +373,8 @@ def test_oracle_transition_is_the_matrix_exponential() -> None:
 # ----------------------------------------------------------------------------- (a) parity
 
 
-@pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery", "every_branch_8s"])
+@pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery", "every_branch_8s",
+                                  "monitor_fails_twice_4s"])
 def test_kernel_equals_oracle(name: str) -> None:
     """Kernel = oracle step after step: statuses and counters exactly; ``q_hat`` (sign-aligned) to
     ``PARITY_ABS`` absolute; ``b_hat`` and ``omega_hat`` so that the attitude they integrate to over
@@ -395,6 +400,8 @@ def test_kernel_equals_oracle(name: str) -> None:
         assert kr.counters[-1, 1] > SHORT_MAX_REJ and kr.counters[-1, 3] >= 2 and kr.out[-1, mekf.EO_N_RECOVER] >= 1
         assert {mekf.MON_OK, mekf.MON_WARN, mekf.MON_ERROR} <= set(kr.out[:, mekf.EO_MON_LEVEL].tolist())
         assert np.any(kr.out[:, mekf.EO_USABLE] == 0.0) and np.any(kr.status == mekf.STATUS_PROPAGATED)
+    if name == "monitor_fails_twice_4s":  # recovered once, then re-initialised by the monitor (the gate is off)
+        assert kr.out[-1, mekf.EO_N_RECOVER] >= 1 and kr.counters[-1, 3] >= 1 and kr.counters[-1, 1] == 0
     live = np.flatnonzero(status_or != mekf.STATUS_NONE)
     assert len(live) == len(run.t_s)  # from_tracker initialises at the first step (its sample is new)
     q_or = np.array([o.q_hat for o in outs])
