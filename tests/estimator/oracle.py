@@ -140,6 +140,7 @@ class Output:
     nis: float | None = None
     monitor_level: int | None = None
     usable: bool | None = None
+    recoveries: int | None = None
 
 
 @dataclass
@@ -376,7 +377,8 @@ class MekfOracle:
         if not self.initialised:
             return Output(status)
         return Output(status, q_hat=self.q_hat.copy(), omega_hat=omega_meas - self.b_hat, b_hat=self.b_hat.copy(),
-                      sigma=np.sqrt(np.diag(self.P)), nis=self.nis, monitor_level=self.level, usable=self.confirmed)
+                      sigma=np.sqrt(np.diag(self.P)), nis=self.nis, monitor_level=self.level, usable=self.confirmed,
+                      recoveries=self.n_recover)
 
     @property
     def counters(self) -> tuple[int, int, int, int]:
