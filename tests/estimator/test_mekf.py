@@ -266,6 +266,8 @@ SHORT_STEP_AT_S, SHORT_STEP_RAD_S, SHORT_WINDOW, SHORT_MAX_REJ = 5.0, 5e-5, 5, 3
 #: The step [rad/s per axis] of the sequence where the monitor fails twice: 1e-4 rad in a 5-sample
 #: window, 10 tracker sigmas, so that the first window after a re-initialisation fails already.
 FAST_STEP_RAD_S = 2e-4
+#: How much better than it is the overconfident filter believes the tracker (its R divided by the square).
+OVERCONFIDENT = 1.6
 
 
 def outlier_run(duration_s: float, seed: int) -> Run:
@@ -304,6 +306,10 @@ def parity_case(name: str) -> tuple[np.ndarray, Run]:
                             ONE_DEG, np.array([1.0, -2.0, 1.0]))
         run.y[run.t_s >= SHORT_STEP_AT_S, 4:7] += SHORT_STEP_RAD_S
         return mekf_config(monitor_window_samples=SHORT_WINDOW, monitor_persistence=2, max_consecutive_rejections=SHORT_MAX_REJ).params(), run
+    if name == "overconfident_6s":  # the filter believes the tracker 1.6 times better than it is: window sums ~2.5 times
+        # their mean, between the warning and the error bands or beyond (every level of the NIS-sum test)
+        return mekf_config(tracker_noise_rad=tuple(v / OVERCONFIDENT for v in TRACKER_NOISE_RAD), monitor_window_samples=SHORT_WINDOW,
+                           gate_false_alarm=0.0).params(), simulate(6.0, 37)
     if name == "monitor_fails_twice_6s":  # a recovery that cannot help (Q_r = 0) and no gate: the second failed window re-initialises
         run = simulate(6.0, 36)
         run.y[run.t_s >= 1.0, 4:7] += FAST_STEP_RAD_S
@@ -377,7 +383,7 @@ def test_oracle_transition_is_the_matrix_exponential() -> None:
 
 
 @pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery", "every_branch_8s",
-                                  "monitor_fails_twice_6s"])
+                                  "monitor_fails_twice_6s", "overconfident_6s"])
 def test_kernel_equals_oracle(name: str) -> None:
     """Kernel = oracle step after step: statuses and counters exactly; ``q_hat`` (sign-aligned) to
     ``PARITY_ABS`` absolute; ``b_hat`` and ``omega_hat`` so that the attitude they integrate to over
@@ -404,6 +410,12 @@ def test_kernel_equals_oracle(name: str) -> None:
         assert kr.counters[-1, 1] > SHORT_MAX_REJ and kr.counters[-1, 3] >= 2 and kr.out[-1, mekf.EO_N_RECOVER] >= 1
         assert {mekf.MON_OK, mekf.MON_WARN, mekf.MON_ERROR} <= set(kr.out[:, mekf.EO_MON_LEVEL].tolist())
         assert np.any(kr.out[:, mekf.EO_USABLE] == 0.0) and np.any(kr.status == mekf.STATUS_PROPAGATED)
+    if name == "overconfident_6s":  # verdicts at WARN by the NIS sum's upper warning bound alone (the mean test inside its bounds)
+        lv, sums, means = kr.out[:, mekf.EO_MON_LEVEL], kr.out[:, mekf.EO_MON_NIS], kr.out[:, mekf.EO_MON_MEAN]
+        upper_warn_only = (lv == mekf.MON_WARN) & (sums > prm[mekf.EP_MON_NIS + 2]) & (sums <= prm[mekf.EP_MON_NIS + 3]) \
+            & (means <= prm[mekf.EP_MON_MEAN])
+        print(f"\noverconfident: levels {np.bincount(lv.astype(int), minlength=3).tolist()}, upper-warning-only samples {int(upper_warn_only.sum())}")
+        assert np.any(upper_warn_only)
     if name == "monitor_fails_twice_6s":  # recovered, re-initialised by the monitor (the gate is off), then recovered again: a
         # re-initialisation starts the count of failed windows afresh
         print(f"\nfails twice: recoveries {kr.out[-1, mekf.EO_N_RECOVER]:g}, counters {kr.counters[-1].tolist()}")
