@@ -140,6 +140,7 @@ class Output:
     nis: float | None = None
     monitor_level: int | None = None
     usable: bool | None = None
+    recoveries: int | None = None
 
 
 @dataclass
@@ -161,7 +162,8 @@ class MekfOracle:
         passes the kernel's ``new_state()`` value, see the test module).
     window : the health monitor's window [compared samples]; nis_band : (4,) its NIS-sum bounds
         (error low, warning low, warning high, error high); mean_bounds : (2,) the mean test's
-        (warning, error); recovery_rad2_s2 : (3,) the bias covariance a recovery adds.
+        (warning, error); recovery_rad2_s2 : (3,) the bias covariance a recovery adds;
+        persistence : verdicts in a row outside the error band that fail the monitor.
     """
 
     R_rad2: np.ndarray
@@ -181,6 +183,7 @@ class MekfOracle:
     nis_band: tuple[float, float, float, float] = (0.0, 0.0, float("inf"), float("inf"))
     mean_bounds: tuple[float, float] = (float("inf"), float("inf"))
     recovery_rad2_s2: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    persistence: int = 1
     # filter state between steps
     initialised: bool = False
     q_hat: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
@@ -201,6 +204,7 @@ class MekfOracle:
     monitor: list[tuple[float, float, np.ndarray]] = field(default_factory=list)  # (t, NIS, whitened innovation), oldest first
     level: int = 0
     fails: int = 0
+    outside: int = 0  # verdicts in a row outside the error band
     n_recover: int = 0
 
     def __post_init__(self) -> None:
@@ -226,7 +230,7 @@ class MekfOracle:
                    max_norm_error=float(prm[mekf.EP_MAX_NORM_ERR]), max_rate=float(prm[mekf.EP_MAX_RATE]),
                    window=int(prm[mekf.EP_MON_WINDOW]), nis_band=tuple(float(v) for v in prm[mekf.EP_MON_NIS:mekf.EP_MON_NIS + 4]),
                    mean_bounds=(float(prm[mekf.EP_MON_MEAN]), float(prm[mekf.EP_MON_MEAN + 1])),
-                   recovery_rad2_s2=three(mekf.EP_RECOVERY_PBB))
+                   recovery_rad2_s2=three(mekf.EP_RECOVERY_PBB), persistence=int(prm[mekf.EP_MON_PERSIST]))
 
     # -- the page's steps ------------------------------------------------------------------
 
@@ -264,6 +268,7 @@ class MekfOracle:
         self._reinitialise_attitude(q_meas)
         self._inflate(0.0)
         self.monitor = []
+        self.outside = 0
         self.fails = 0
         self.level = 1
         self.confirmed = False
@@ -278,9 +283,14 @@ class MekfOracle:
         mean = float(np.sum([m[2] for m in self.monitor], axis=0) @ np.sum([m[2] for m in self.monitor], axis=0)) / self.window
         err_lo, warn_lo, warn_hi, err_hi = self.nis_band
         too_large = nis_sum > err_hi or mean > self.mean_bounds[1]
-        self.level = 2 if too_large or nis_sum < err_lo else 1 if (nis_sum < warn_lo or nis_sum > warn_hi or mean > self.mean_bounds[0]) else 0
+        outside = too_large or nis_sum < err_lo
+        self.outside = self.outside + 1 if outside else 0
+        failed = self.outside >= self.persistence
+        self.level = 2 if failed else 1 if (outside or nis_sum < warn_lo or nis_sum > warn_hi or mean > self.mean_bounds[0]) else 0
         if not too_large:
             self.fails = 0
+            return status
+        if not failed:
             return status
         self.fails += 1
         if self.fails >= 2:
@@ -289,6 +299,7 @@ class MekfOracle:
             return "reinitialised"
         self._inflate(t_s - self.monitor[0][0])
         self.monitor = []
+        self.outside = 0
         self.n_recover += 1
         return status
 
@@ -366,7 +377,8 @@ class MekfOracle:
         if not self.initialised:
             return Output(status)
         return Output(status, q_hat=self.q_hat.copy(), omega_hat=omega_meas - self.b_hat, b_hat=self.b_hat.copy(),
-                      sigma=np.sqrt(np.diag(self.P)), nis=self.nis, monitor_level=self.level, usable=self.confirmed)
+                      sigma=np.sqrt(np.diag(self.P)), nis=self.nis, monitor_level=self.level, usable=self.confirmed,
+                      recoveries=self.n_recover)
 
     @property
     def counters(self) -> tuple[int, int, int, int]:

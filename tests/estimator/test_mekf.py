@@ -257,6 +257,19 @@ BURST_START_STEP, BURST_SAMPLES = 1500, 25  # 2.5 s of 1-deg outliers from 15 s:
 ONE_DEG = np.deg2rad(1.0)
 
 
+#: The short sequence through every branch: 8 s; a tracker outage; an isolated outlier (rejected);
+#: a burst of outliers longer than ``max_consecutive_rejections`` = 3 (a re-initialisation); a
+#: bias step of 5e-5 rad/s per axis at 5 s (200 times the step a 5-sample window needs to notice:
+#: the monitor warns, fails and recovers, and the drift re-initialises the filter again).
+SHORT_S, SHORT_OUTAGE_S, SHORT_OUTLIER_STEP, SHORT_BURST_STEP, SHORT_BURST_SAMPLES = 8.0, (1.0, 1.5), 200, 300, 4
+SHORT_STEP_AT_S, SHORT_STEP_RAD_S, SHORT_WINDOW, SHORT_MAX_REJ = 5.0, 5e-5, 5, 3
+#: The step [rad/s per axis] of the sequence where the monitor fails twice: 1e-4 rad in a 5-sample
+#: window, 10 tracker sigmas, so that the first window after a re-initialisation fails already.
+FAST_STEP_RAD_S = 2e-4
+#: How much better than it is the overconfident filter believes the tracker (its R divided by the square).
+OVERCONFIDENT = 1.6
+
+
 def outlier_run(duration_s: float, seed: int) -> Run:
     """A tumbling run with two isolated 1-deg outliers and a 25-sample burst of them (module constants)."""
     run = simulate(duration_s, seed)
@@ -287,6 +300,20 @@ def parity_case(name: str) -> tuple[np.ndarray, Run]:
         run = simulate(40.0, 31)
         run.y[run.t_s >= 15.0, 4] += 2e-5
         return mekf_config().params(), run
+    if name == "every_branch_8s":  # every branch in 8 s (short enough for each mutant of the mutation run): SHORT_* below
+        run = simulate(SHORT_S, 35, outages_s=(SHORT_OUTAGE_S,))
+        run = with_outliers(run, [SHORT_OUTLIER_STEP] + [SHORT_BURST_STEP + STRIDE * i for i in range(SHORT_BURST_SAMPLES)],
+                            ONE_DEG, np.array([1.0, -2.0, 1.0]))
+        run.y[run.t_s >= SHORT_STEP_AT_S, 4:7] += SHORT_STEP_RAD_S
+        return mekf_config(monitor_window_samples=SHORT_WINDOW, monitor_persistence=2, max_consecutive_rejections=SHORT_MAX_REJ).params(), run
+    if name == "overconfident_6s":  # the filter believes the tracker 1.6 times better than it is: window sums ~2.5 times
+        # their mean, between the warning and the error bands or beyond (every level of the NIS-sum test)
+        return mekf_config(tracker_noise_rad=tuple(v / OVERCONFIDENT for v in TRACKER_NOISE_RAD), monitor_window_samples=SHORT_WINDOW,
+                           gate_false_alarm=0.0).params(), simulate(6.0, 37)
+    if name == "monitor_fails_twice_6s":  # a recovery that cannot help (Q_r = 0) and no gate: the second failed window re-initialises
+        run = simulate(6.0, 36)
+        run.y[run.t_s >= 1.0, 4:7] += FAST_STEP_RAD_S
+        return mekf_config(monitor_window_samples=SHORT_WINDOW, monitor_persistence=2, gate_false_alarm=0.0, bias_recovery_sigma_rad_s=0.0).params(), run
     raise ValueError(name)
 
 
@@ -355,7 +382,8 @@ def test_oracle_transition_is_the_matrix_exponential() -> None:
 # ----------------------------------------------------------------------------- (a) parity
 
 
-@pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery"])
+@pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery", "every_branch_8s",
+                                  "monitor_fails_twice_6s", "overconfident_6s"])
 def test_kernel_equals_oracle(name: str) -> None:
     """Kernel = oracle step after step: statuses and counters exactly; ``q_hat`` (sign-aligned) to
     ``PARITY_ABS`` absolute; ``b_hat`` and ``omega_hat`` so that the attitude they integrate to over
@@ -372,8 +400,28 @@ def test_kernel_equals_oracle(name: str) -> None:
     np.testing.assert_array_equal(kr.counters, counters_or)
     np.testing.assert_array_equal(kr.out[:, mekf.EO_MON_LEVEL], [o.monitor_level for o in outs])  # the monitor's verdicts
     np.testing.assert_array_equal(kr.out[:, mekf.EO_USABLE], [float(o.usable) for o in outs])
+    np.testing.assert_array_equal(kr.out[:, mekf.EO_N_RECOVER], [o.recoveries for o in outs])
     if name == "bias_step_recovery":  # the case has teeth: the monitor failed and the filter recovered
         assert kr.out[-1, mekf.EO_N_RECOVER] >= 1 and np.any(kr.out[:, mekf.EO_MON_LEVEL] == mekf.MON_ERROR)
+    if name == "every_branch_8s":  # every branch taken: rejections, re-initialisations (gate and monitor), a recovery, WARN and
+        # ERROR verdicts, a withheld estimate, an outage's propagation
+        print(f"\nevery branch: statuses {np.bincount(kr.status, minlength=6).tolist()}, counters {kr.counters[-1].tolist()}, "
+              f"recoveries {kr.out[-1, mekf.EO_N_RECOVER]:g}, levels {np.bincount(kr.out[:, mekf.EO_MON_LEVEL].astype(int), minlength=3).tolist()}")
+        assert kr.counters[-1, 1] > SHORT_MAX_REJ and kr.counters[-1, 3] >= 2 and kr.out[-1, mekf.EO_N_RECOVER] >= 1
+        assert {mekf.MON_OK, mekf.MON_WARN, mekf.MON_ERROR} <= set(kr.out[:, mekf.EO_MON_LEVEL].tolist())
+        assert np.any(kr.out[:, mekf.EO_USABLE] == 0.0) and np.any(kr.status == mekf.STATUS_PROPAGATED)
+    if name == "overconfident_6s":  # verdicts at WARN by the NIS sum's upper warning bound alone (the mean test inside its bounds)
+        lv, sums, means = kr.out[:, mekf.EO_MON_LEVEL], kr.out[:, mekf.EO_MON_NIS], kr.out[:, mekf.EO_MON_MEAN]
+        upper_warn_only = (lv == mekf.MON_WARN) & (sums > prm[mekf.EP_MON_NIS + 2]) & (sums <= prm[mekf.EP_MON_NIS + 3]) \
+            & (means <= prm[mekf.EP_MON_MEAN])
+        print(f"\noverconfident: levels {np.bincount(lv.astype(int), minlength=3).tolist()}, upper-warning-only samples {int(upper_warn_only.sum())}")
+        assert np.any(upper_warn_only)
+    if name == "monitor_fails_twice_6s":  # recovered, re-initialised by the monitor (the gate is off), then recovered again: a
+        # re-initialisation starts the count of failed windows afresh
+        print(f"\nfails twice: recoveries {kr.out[-1, mekf.EO_N_RECOVER]:g}, counters {kr.counters[-1].tolist()}")
+        assert kr.out[-1, mekf.EO_N_RECOVER] >= 2 and kr.counters[-1, 3] >= 1 and kr.counters[-1, 1] == 0
+        first_reinit = np.flatnonzero(kr.status == mekf.STATUS_REINITIALISED)[0]
+        assert kr.out[-1, mekf.EO_N_RECOVER] > kr.out[first_reinit, mekf.EO_N_RECOVER]
     live = np.flatnonzero(status_or != mekf.STATUS_NONE)
     assert len(live) == len(run.t_s)  # from_tracker initialises at the first step (its sample is new)
     q_or = np.array([o.q_hat for o in outs])
@@ -830,7 +878,8 @@ def test_the_monitor_bands_are_the_chi_square_quantiles_at_their_stated_probabil
 
 def test_a_consistent_filter_rarely_leaves_its_band_and_never_fails() -> None:
     """300 s of the slow tumble with the data-sheet sensors (a consistent filter: tests above): no
-    verdict of the monitor is ERROR (each window's false alarm is 1e-4) and no recovery happens;
+    verdict of the monitor is ERROR (a consistent filter fails it ~0.3 times an hour: the test below)
+    and no recovery happens;
     verdicts outside the 99 % warning band stay rare (the verdicts slide by one sample, so their
     excursions come in runs: 1 % expected, a bound of 10 %)."""
     run = simulate(300.0, 34)
@@ -841,3 +890,53 @@ def test_a_consistent_filter_rarely_leaves_its_band_and_never_fails() -> None:
     assert not np.any(level == mekf.MON_ERROR) and kr.out[-1, mekf.EO_N_RECOVER] == 0
     assert np.mean(verdicts == mekf.MON_WARN) <= 0.10
     assert np.all(kr.out[:, mekf.EO_USABLE] == 1.0)
+
+
+#: The false-alarm test's flight time [h] and its bound on a consistent filter's failed monitors
+#: (recoveries) per hour.  The monitor's defaults are chosen for ~0.3 failures an hour (white
+#: innovations, 400 h; docs/estimator.md "False alarms"): over 4 h, Poisson(1.2), at most 4 with
+#: probability 0.992.  The design before (1e-4 a verdict, no persistence) fails ~2.5 times an hour
+#: on white innovations: Poisson(10) over 4 h, at most 4 with probability 0.03.  Measured on this
+#: seed: 3 failures (the design before: 6; at rest the filter is slightly conservative, NEES 5.85
+#: of 6, which lowers both).
+FALSE_ALARM_HOURS, FALSE_ALARMS_PER_HOUR_MAX = 4.0, 1.0
+
+
+def _at_rest_measurements(duration_s: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(t (n,), y (n, 8)) of a body at rest at the identity, measured by the data-sheet sensors as
+    the filter models them (vectorised, for hours of samples): the 10 Hz tracker's quaternion
+    ``dq(nu)``, ``nu ~ N(0, diag(R))``, held between its epochs; the 100 Hz gyro's rate ``b + eta_v``,
+    ``eta_v ~ N(0, sigma_v^2 / dt)`` per sample, the bias a random walk of ``sigma_u^2 dt`` a step
+    from :data:`BIAS0_RAD_S`."""
+    rng = np.random.default_rng(seed)
+    n = int(round(duration_s / DT_S))
+    t = np.arange(n) * DT_S
+    k_epoch = (np.arange(n) // STRIDE) * STRIDE
+    nu = rng.standard_normal((n // STRIDE + 1, 3)) * np.asarray(TRACKER_NOISE_RAD)
+    y = np.zeros((n, mekf.N_MEAS))
+    y[:, :4] = dq_rows(nu)[k_epoch // STRIDE]
+    bias = np.asarray(BIAS0_RAD_S) + np.cumsum(rng.standard_normal((n, 3)) * BRW_RAD_S_SQRT_S * np.sqrt(DT_S), axis=0)
+    y[:, 4:7] = bias + rng.standard_normal((n, 3)) * (ARW_RAD_SQRT_S / np.sqrt(DT_S))
+    y[:, mekf.Y_EPOCH] = t[k_epoch]
+    return t, y
+
+
+def test_a_consistent_filter_fails_its_monitor_less_than_once_an_hour() -> None:
+    """The monitor's false alarms counted per hour of flight, not per verdict (issue 33: the flight
+    scenario's monitor failed in 3 of 40 nominal runs, 4.5 an hour): 4 h of a consistent filter
+    (the body at rest, the sensors exactly as the filter models them), every failed monitor
+    counted (each starts a recovery): at most :data:`FALSE_ALARMS_PER_HOUR_MAX` an hour.  The
+    verdicts slide by one sample, 36 000 an hour; a monitor failing at 1e-4 a verdict, as before,
+    fails ~10 times in 4 h."""
+    t, y = _at_rest_measurements(FALSE_ALARM_HOURS * 3600.0, 3301)
+    prm = mekf_config().params()
+    st, P, work, out = mekf.new_state(), np.zeros((6, 6)), np.zeros((mekf.N_EST_WORK, 6)), np.zeros(mekf.N_EST_OUT)
+    step, errors = mekf.mekf_step, 0
+    for k in range(t.size):
+        step(prm, float(t[k]), y[k], st, P, work, out)
+        errors += out[mekf.EO_MON_LEVEL] == mekf.MON_ERROR and out[mekf.EO_STATUS] == mekf.STATUS_UPDATED
+    failures = int(st[mekf.ES_N_RECOVER] + st[mekf.ES_N_REINIT])
+    print(f"\nconsistent {FALSE_ALARM_HOURS:g} h at rest: {int(st[mekf.ES_N_UPD])} updates, {failures} failed monitors "
+          f"({int(st[mekf.ES_N_RECOVER])} recoveries), {errors} ERROR verdicts, {int(st[mekf.ES_N_REJ])} gate rejections")
+    assert st[mekf.ES_N_UPD] > 0.99 * FALSE_ALARM_HOURS * 3600.0 * TRACKER_HZ  # the monitor judged every sample but the gate's few
+    assert failures <= FALSE_ALARMS_PER_HOUR_MAX * FALSE_ALARM_HOURS

@@ -20,7 +20,7 @@ from gnc_common.validation import QUATERNION_NORM_TOL, ConfigError, check_positi
 from sappc_estimator.core import mekf
 
 __all__ = ["pack_estimator", "DEFAULT_GATE_FALSE_ALARM", "DEFAULT_MONITOR_ERROR_PROBABILITY", "DEFAULT_MONITOR_WARN_PROBABILITY",
-           "DEFAULT_MONITOR_WINDOW_SAMPLES", "chi2_band", "DEFAULT_MAX_BODY_RATE_RAD_S", "DEFAULT_INITIAL_BIAS_SIGMA_RAD_S", "DEFAULT_MAX_CONSECUTIVE_REJECTIONS", "MekfConfig", "chi2_3dof_isf"]
+           "DEFAULT_MONITOR_WINDOW_SAMPLES", "DEFAULT_MONITOR_PERSISTENCE", "chi2_band", "DEFAULT_MAX_BODY_RATE_RAD_S", "DEFAULT_INITIAL_BIAS_SIGMA_RAD_S", "DEFAULT_MAX_CONSECUTIVE_REJECTIONS", "MekfConfig", "chi2_3dof_isf"]
 
 Array = NDArray[np.float64]
 
@@ -48,10 +48,22 @@ DEFAULT_MONITOR_WINDOW_SAMPLES = 20
 #: Probability that a consistent filter's window stays inside the monitor's warning band
 #: (two-sided; 1 % of a consistent filter's verdicts warn).
 DEFAULT_MONITOR_WARN_PROBABILITY = 0.99
-#: Probability that a consistent filter's window stays inside the monitor's error band (two-sided):
-#: 1 - 1e-4, the innovation gate's own false-alarm level; a verdict outside it is a failed monitor,
-#: which starts the recovery.
-DEFAULT_MONITOR_ERROR_PROBABILITY = 1.0 - 1e-4
+#: Probability that a consistent filter's window stays inside the monitor's error band (two-sided),
+#: per verdict: 1 - 3e-5.  With :data:`DEFAULT_MONITOR_PERSISTENCE` it is chosen for the rate at
+#: which a consistent filter fails (a false recovery) per hour of flight, not per verdict: the
+#: verdicts slide by one sample, 36 000 an hour at 10 Hz, and at the gate's 1e-4 a verdict (the
+#: design before) a consistent filter failed 2.5 times an hour (white innovations, 400 h) and 4.5
+#: times an hour on the flight scenario (3 of 40 one-minute runs).  1 - 3e-5 and 2 verdicts in a
+#: row: 0.30 an hour (one false recovery in ~3 h of flight).  A stricter band or a longer
+#: persistence flags a bias step later: about a cross-boresight axis the gate then rejects a sample
+#: before the flag (1 - 2e-5 and 2, or 1e-4 and 3, on the issue's x step), about the boresight the
+#: flag comes after 4.8 s and more (the issue asks 5 s); measured in docs/estimator.md, "False alarms".
+DEFAULT_MONITOR_ERROR_PROBABILITY = 1.0 - 3e-5
+#: Consecutive verdicts outside the error band before the monitor fails (ERROR, the recovery); a
+#: single one is WARN.  60 % of a consistent filter's excursions out of the error band last a single
+#: verdict (white innovations, 400 h: 0.75 an hour at 1 - 3e-5, 0.30 of two verdicts or more), a
+#: drift's keeps growing: 2 (0.1 s at 10 Hz) delays a bias step's flag by one tracker sample.
+DEFAULT_MONITOR_PERSISTENCE = 2
 
 
 #: Iterations of :func:`chi2_3dof_isf`'s safeguarded Newton solve: it converges to the rounding
@@ -164,6 +176,9 @@ class MekfConfig:
     monitor_error_probability : float
         The two-sided probability of its error band, in ``[monitor_warn_probability, 1)``
         (:data:`DEFAULT_MONITOR_ERROR_PROBABILITY`).
+    monitor_persistence : int
+        Consecutive verdicts outside the error band before the monitor fails (ERROR and the
+        recovery), in ``[1, monitor_window_samples]``; fewer are WARN (:data:`DEFAULT_MONITOR_PERSISTENCE`).
     bias_recovery_sigma_rad_s : float, 3 floats or None
         The bias change [rad/s, 1-sigma per axis] a failed monitor (or a re-initialisation) admits:
         its square is added to the bias covariance.  ``None``: ``initial_bias_sigma_rad_s`` (the
@@ -184,6 +199,7 @@ class MekfConfig:
     monitor_window_samples: int = DEFAULT_MONITOR_WINDOW_SAMPLES
     monitor_warn_probability: float = DEFAULT_MONITOR_WARN_PROBABILITY
     monitor_error_probability: float = DEFAULT_MONITOR_ERROR_PROBABILITY
+    monitor_persistence: int = DEFAULT_MONITOR_PERSISTENCE
     bias_recovery_sigma_rad_s: float | tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
@@ -218,6 +234,9 @@ class MekfConfig:
         if self.monitor_error_probability < self.monitor_warn_probability:
             raise ConfigError(f"monitor_error_probability ({self.monitor_error_probability!r}) must be at least "
                               f"monitor_warn_probability ({self.monitor_warn_probability!r})")
+        k = self.monitor_persistence
+        if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= w:
+            raise ConfigError(f"monitor_persistence must be an integer in [1, monitor_window_samples = {w!r}], got {k!r}")
         if self.bias_recovery_sigma_rad_s is not None:
             _three("bias_recovery_sigma_rad_s", self.bias_recovery_sigma_rad_s, bound=">= 0")
         if self.max_attitude_norm_error > QUATERNION_NORM_TOL:
@@ -257,6 +276,7 @@ class MekfConfig:
         rec = np.asarray(_three("bias_recovery_sigma_rad_s", self.initial_bias_sigma_rad_s if self.bias_recovery_sigma_rad_s is None
                                 else self.bias_recovery_sigma_rad_s))
         p[mekf.EP_RECOVERY_PBB:mekf.EP_RECOVERY_PBB + 3] = rec * rec
+        p[mekf.EP_MON_PERSIST] = float(self.monitor_persistence)
         if self.initial_q_BN is None:
             p[mekf.EP_INIT] = mekf.INIT_FROM_TRACKER
         else:

@@ -19,9 +19,6 @@ __all__ = ["Mekf"]
 
 Array = NDArray[np.float64]
 
-#: The measurement of the warm-up step: identity attitude, at rest, measured at t = 0.
-_AT_REST = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0])
-
 
 class Mekf:
     """A multiplicative EKF (``docs/estimator.md``), stepped one sample at a time.
@@ -57,7 +54,8 @@ class Mekf:
     def warm_up(self) -> None:
         """One step on throwaway arrays: loads the compiled kernel now (the numba cache, about a
         second), not at the first sample; this filter's state is not touched."""
-        mekf.mekf_step(self.prm, 0.0, _AT_REST.copy(), mekf.new_state(), np.zeros((6, 6)), np.zeros_like(self.work), np.empty(mekf.N_EST_OUT))
+        at_rest = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0])  # identity attitude, at rest, measured at t = 0
+        mekf.mekf_step(self.prm, 0.0, at_rest, mekf.new_state(), np.zeros((6, 6)), np.zeros_like(self.work), np.empty(mekf.N_EST_OUT))
 
     def step(self, t_s: float, q_meas: ArrayLike, omega_meas: ArrayLike, epoch_s: float) -> int:
         """One filter step at time ``t_s`` [s] with the tracker's ``q_meas`` (x, y, z, w), measured

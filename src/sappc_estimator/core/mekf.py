@@ -76,7 +76,10 @@ One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (
    Applications to Tracking and Navigation*, 2001, 5.4.2, the time-average NIS test) against its
    two-sided warning and error bands, and the mean test ``|sum w|^2 / n`` (chi-square with 3: the
    innovations are zero-mean, ibid.) against its upper bounds: level OK, WARN or ERROR
-   (``MON_*``).  A verdict above an error bound is a failed monitor: the *recovery* adds a bias
+   (``MON_*``).  ERROR, a failed monitor, takes ``persistence`` verdicts in a row outside the error
+   band (fewer are WARN): the verdicts slide by one sample, ~36 000 an hour at 10 Hz, so a
+   per-verdict false-alarm probability alone would fail a consistent filter a few times an hour
+   (``docs/estimator.md``, "False alarms").  A failed monitor above an error bound: the *recovery* adds a bias
    step of covariance ``Q_r = diag(bias_recovery_sigma^2)`` dated at the window's first sample,
    ``age`` s ago, carried to now by the transition's bias columns: ``P_bb += Q_r``,
    ``P_ab += -Q_r age``, ``P_aa += Q_r age^2`` (the adjustable process noise of Bar-Shalom et
@@ -94,8 +97,8 @@ Arrays (float64, the caller's; no allocation per step)
     Columns ``EP_*``: ``R`` (3), ``sigma_v^2`` (3), ``sigma_u^2`` (3), ``P0_a`` (3), ``P0_b`` (3),
     ``b0`` (3), ``gate`` (inf: none), ``max_rejections`` (>= 1), the initialisation mode
     (``INIT_*``), ``q_prior`` (4), the plausibility bounds ``max_norm_error`` and
-    ``max_rate`` [rad/s], the monitor's window, its NIS-sum bounds (4), its mean-test bounds (2)
-    and the recovery's ``Q_r`` (3).
+    ``max_rate`` [rad/s], the monitor's window, its NIS-sum bounds (4), its mean-test bounds (2),
+    the recovery's ``Q_r`` (3) and the monitor's persistence [verdicts].
 ``y`` (:data:`N_MEAS`,)
     The measurement: ``q_meas`` (4), ``omega_meas`` (3), the tracker sample's epoch [s] (``<= t``).
 ``st`` (:data:`N_EST_STATE`,)
@@ -126,7 +129,7 @@ __all__ = [
     "EP_B0", "EP_GATE", "EP_INIT", "EP_MAXREJ", "EP_MAX_NORM_ERR", "EP_MAX_RATE", "EP_P0A", "EP_P0B", "EP_Q0", "EP_R", "EP_SU2", "EP_SV2",
     "ES_B", "ES_CONFIRMED", "ES_EPOCH", "ES_INIT", "ES_LASTQ", "ES_LASTW", "ES_MON_LEVEL", "ES_MON_MEAN", "ES_MON_NIS", "ES_NIS",
     "ES_N_CONSEC", "ES_N_RECOVER", "ES_N_REINIT", "ES_N_REJ", "ES_N_UPD", "ES_Q", "ES_TPREV",
-    "EO_MON_LEVEL", "EO_MON_MEAN", "EO_MON_NIS", "EO_N_RECOVER", "EO_USABLE", "EP_MON_MEAN", "EP_MON_NIS", "EP_MON_WINDOW", "EP_RECOVERY_PBB",
+    "EO_MON_LEVEL", "EO_MON_MEAN", "EO_MON_NIS", "EO_N_RECOVER", "EO_USABLE", "EP_MON_MEAN", "EP_MON_NIS", "EP_MON_PERSIST", "EP_MON_WINDOW", "EP_RECOVERY_PBB", "ES_MON_OUTSIDE",
     "MON_ERROR", "MON_LEVEL_NAMES", "MON_MAX_WINDOW", "MON_OK", "MON_WARN", "N_MEAS", "Y_EPOCH", "reset_state",
     "INIT_FROM_PRIOR", "INIT_FROM_TRACKER",
     "N_EST_OUT", "N_EST_PARAMS", "N_EST_STATE", "N_EST_WORK",
@@ -144,7 +147,10 @@ EP_MAX_NORM_ERR, EP_MAX_RATE = 25, 26
 #: NIS sum (error low, warning low, warning high, error high), the bounds of the mean test
 #: (warning, error), and the bias covariance a failed monitor adds (3, rad^2/s^2).
 EP_MON_WINDOW, EP_MON_NIS, EP_MON_MEAN, EP_RECOVERY_PBB = 27, 28, 32, 34
-N_EST_PARAMS = 37
+#: The monitor's persistence: consecutive verdicts outside the error band before the monitor fails
+#: (>= 1; 1: the first such verdict fails it).
+EP_MON_PERSIST = 37
+N_EST_PARAMS = 38
 #: Initialisation modes (``prm[EP_INIT]``).
 INIT_FROM_TRACKER, INIT_FROM_PRIOR = 0, 1
 
@@ -154,10 +160,12 @@ ES_N_UPD, ES_N_REJ, ES_N_CONSEC, ES_N_REINIT, ES_NIS, ES_SEEN, ES_PROVISIONAL = 
 #: The epoch [s] of the last tracker sample used, whether the estimate is confirmed (usable), and
 #: the monitor: samples in its window, the ring's next slot, its level (``MON_*``), the window's NIS
 #: sum and mean statistic at its last verdict, consecutive failed verdicts (too large), the
-#: recoveries (bias covariance inflations) so far, then the ring (:data:`MON_MAX_WINDOW` rows of
-#: the NIS and the whitened innovation (3)).
+#: recoveries (bias covariance inflations) so far, the consecutive verdicts outside the error band
+#: (the persistence count), then the ring (:data:`MON_MAX_WINDOW` rows of the NIS and the whitened
+#: innovation (3)).
 ES_EPOCH, ES_CONFIRMED, ES_MON_N, ES_MON_HEAD, ES_MON_LEVEL, ES_MON_NIS, ES_MON_MEAN, ES_MON_FAILS, ES_N_RECOVER = 23, 24, 25, 26, 27, 28, 29, 30, 31
-ES_MON_RING = 32
+ES_MON_OUTSIDE = 32
+ES_MON_RING = 33
 #: The longest monitor window [compared tracker samples]: 10 s at 10 Hz, longer than any bias
 #: step's detection should take; the ring is part of the state array.
 MON_MAX_WINDOW = 100
@@ -297,9 +305,11 @@ def _inflate_bias(prm, P, age):
 
 @jit(inline="always")
 def _clear_monitor(st):
-    """Empty the monitor's window (its samples were judged against a covariance that no longer holds)."""
+    """Empty the monitor's window (its samples were judged against a covariance that no longer holds)
+    and its persistence count."""
     st[ES_MON_N] = 0.0
     st[ES_MON_HEAD] = 0.0
+    st[ES_MON_OUTSIDE] = 0.0
 
 
 @jit(inline="always")
@@ -507,14 +517,22 @@ def _monitor(prm, st, P, q_meas, d2, white, t):
     st[ES_MON_NIS] = nis_sum
     st[ES_MON_MEAN] = mean_stat
     too_large = not (nis_sum <= prm[EP_MON_NIS + 3] and mean_stat <= prm[EP_MON_MEAN + 1])  # NaN: too large
-    if too_large or nis_sum < prm[EP_MON_NIS]:
+    outside = too_large or nis_sum < prm[EP_MON_NIS]  # outside the error band
+    if outside:
+        st[ES_MON_OUTSIDE] += 1.0
+    else:
+        st[ES_MON_OUTSIDE] = 0.0
+    persistent = st[ES_MON_OUTSIDE] >= prm[EP_MON_PERSIST]  # the persistence count reached: the monitor fails
+    if persistent:
         st[ES_MON_LEVEL] = MON_ERROR
-    elif nis_sum < prm[EP_MON_NIS + 1] or nis_sum > prm[EP_MON_NIS + 2] or mean_stat > prm[EP_MON_MEAN]:
+    elif outside or nis_sum < prm[EP_MON_NIS + 1] or nis_sum > prm[EP_MON_NIS + 2] or mean_stat > prm[EP_MON_MEAN]:
         st[ES_MON_LEVEL] = MON_WARN
     else:
         st[ES_MON_LEVEL] = MON_OK
     if not too_large:
         st[ES_MON_FAILS] = 0.0
+        return STATUS_UPDATED
+    if not persistent:  # outside, not yet for long enough: a warning
         return STATUS_UPDATED
     st[ES_MON_FAILS] += 1.0
     if st[ES_MON_FAILS] >= 2.0:  # the recovery did not restore consistency: the attitude is lost
