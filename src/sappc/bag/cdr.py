@@ -109,6 +109,14 @@ def _stamp_ns(rows: NDArray[np.uint8]) -> NDArray[np.int64]:
     return sec * _NS + nsec
 
 
+def _add_frame_ids(frames: set[str], rows: NDArray[np.uint8], slen: NDArray[np.int64]) -> None:
+    """Add to ``frames`` the distinct header frame ids of ``rows`` (``slen``: each one's string
+    length, its NUL included)."""
+    for n in np.unique(slen):
+        chars = rows[slen == n, _BODY + 12 : _BODY + 12 + int(n) - 1]
+        frames.update(bytes(c).decode("utf-8", "replace") for c in np.unique(chars, axis=0))
+
+
 def _decode_stamped(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64], n_doubles: int, keep: slice) -> Decoded:
     idx: list[NDArray[np.int64]] = []
     stamps: list[NDArray[np.int64]] = []
@@ -128,9 +136,7 @@ def _decode_stamped(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDA
         idx.append(pos)
         stamps.append(_stamp_ns(rows))
         vals.append(_col(rows, data_at, L, "<f8")[:, keep])
-        for n in np.unique(slen):
-            chars = rows[slen == n, _BODY + 12 : _BODY + 12 + int(n) - 1]
-            frames.update(bytes(r).decode("utf-8", "replace") for r in np.unique(chars, axis=0))
+        _add_frame_ids(frames, rows, slen)
     return _assemble(idx, stamps, vals, width, length.size, frame_ids=tuple(sorted(frames)))
 
 
@@ -159,9 +165,7 @@ def _decode_transform(u8: NDArray[np.uint8], start: NDArray[np.int64], length: N
         idx.append(pos)
         stamps.append(_stamp_ns(rows))
         vals.append(_col(rows, data_at, L, "<f8")[:, 3:7])  # the rotation, x y z w
-        for n in np.unique(slen):
-            chars = rows[slen == n, _BODY + 12 : _BODY + 12 + int(n) - 1]
-            frames.update(bytes(c).decode("utf-8", "replace") for c in np.unique(chars, axis=0))
+        _add_frame_ids(frames, rows, slen)
     return _assemble(idx, stamps, vals, 4, length.size, frame_ids=tuple(sorted(frames)))
 
 
@@ -195,9 +199,7 @@ def _decode_time_reference(u8: NDArray[np.uint8], start: NDArray[np.int64], leng
         idx.append(pos)
         stamps.append(_stamp_ns(rows))
         vals.append(np.stack((sec.astype(np.float64), nanosec.astype(np.float64), (srclen > 1).astype(np.float64)), axis=1))
-        for n in np.unique(slen):
-            chars = rows[slen == n, _BODY + 12 : _BODY + 12 + int(n) - 1]
-            frames.update(bytes(c).decode("utf-8", "replace") for c in np.unique(chars, axis=0))
+        _add_frame_ids(frames, rows, slen)
     return _assemble(idx, stamps, vals, 3, length.size, frame_ids=tuple(sorted(frames)))
 
 
