@@ -377,6 +377,7 @@ class EstimatorNode(ProjectNode):
         values = {"time_s": f"{t_s:.9g}", "window_samples": str(c.monitor_window_samples), "nis_sum_dof": str(3 * c.monitor_window_samples),
                   "nis_sum": f"{f.monitor_nis_sum:.6g}", "nis_sum_band": f"[{self._band[0]:.6g}, {self._band[1]:.6g}]",
                   "band_probability": f"{c.monitor_error_probability:.6g}", "mean_statistic": f"{f.monitor_mean_statistic:.6g}",
+                  "outside_in_a_row": str(f.monitor_outside), "persistence": str(c.monitor_persistence),
                   "estimate": "used" if estimate else "withheld", "recoveries": str(f.recoveries),
                   "reinitialisations": str(f.reinitialisations), "withheld_samples": str(self.withheld)}
         p = self.pub[ESTIMATOR_HEALTH.name]

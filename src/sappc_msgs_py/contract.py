@@ -489,7 +489,7 @@ ESTIMATOR_HEALTH_NAME = "sappc_estimator: MEKF health"
 #: stated probability, the mean statistic, the estimate's use (``used`` or ``withheld``), and the
 #: totals of recoveries, re-initialisations and withheld samples.
 ESTIMATOR_HEALTH_KEYS = ("time_s", "window_samples", "nis_sum_dof", "nis_sum", "nis_sum_band", "band_probability", "mean_statistic",
-                         "estimate", "recoveries", "reinitialisations", "withheld_samples")
+                         "outside_in_a_row", "persistence", "estimate", "recoveries", "reinitialisations", "withheld_samples")
 #: What a sample did (``estimator/diagnostics`` ``status``), by code: the filter's step statuses
 #: (``sappc_estimator.core.mekf.STATUS_NAMES``, codes 0 to 5: not initialised yet, initialised,
 #: propagated only, updated, tracker sample rejected by the gate, attitude re-initialised), then

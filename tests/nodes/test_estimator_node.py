@@ -270,6 +270,7 @@ def test_the_health_goes_out_on_diagnostics_as_ros_reports_health(estimator) -> 
     assert tuple(values) == c.ESTIMATOR_HEALTH_KEYS
     lo, hi = chi2.ppf(1.5e-5, 60), chi2.isf(1.5e-5, 60)  # the default error band: 1 - 3e-5, two-sided
     assert values["window_samples"] == "20" and values["nis_sum_dof"] == "60" and values["estimate"] == "used"
+    assert values["outside_in_a_row"] == "0" and values["persistence"] == "2"  # in the band: none outside; the default persistence
     assert values["nis_sum_band"] == f"[{lo:.6g}, {hi:.6g}]" and values["band_probability"] == "0.99997"
     assert lo < float(values["nis_sum"]) < hi  # the window of 20 tracker samples at 2 s: a verdict
 

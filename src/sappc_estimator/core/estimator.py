@@ -94,6 +94,11 @@ class Mekf:
         return float(self.st[mekf.ES_MON_MEAN])
 
     @property
+    def monitor_outside(self) -> int:
+        """Consecutive verdicts outside the error band so far (the monitor fails at its persistence)."""
+        return int(self.st[mekf.ES_MON_OUTSIDE])
+
+    @property
     def recoveries(self) -> int:
         """Bias covariance inflations after a failed monitor."""
         return int(self.st[mekf.ES_N_RECOVER])
