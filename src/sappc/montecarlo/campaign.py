@@ -46,7 +46,7 @@ from gnc_common.validation import InputError
 from sappc.montecarlo.config import campaign_config
 from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, white_noise_params
 from sappc.montecarlo.results import ESTIMATOR_COLUMNS, WHEEL_COLUMNS
-from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_faults, run_hardware, sensor_noise_draws
+from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_faults, run_hardware, run_orbits, sensor_noise_draws
 from sappc.montecarlo.results import FORMAT_VERSION, assemble, chunk_path, chunks, save_chunk
 from sappc.offline import compiled_loop
 from sappc.offline.simulate import run_scenario
@@ -135,6 +135,7 @@ def simulate_runs(
                 trajectory=(min(keep_trajectories, n), cfg.trajectory_stride) if keep_trajectories > 0 else None,
                 progress=progress,
                 run_keys=[(int(k), seed) for k in inputs.runs],  # the magnetometer's draws: the run's own, whatever its chunk
+                orbits=run_orbits(scenario, inputs),
             )
         except InputError as exc:  # name the campaign's run, not its place in this chunk
             message = re.sub(r"\(run (\d+)\)", lambda m: f"(run {int(inputs.runs[int(m.group(1))])})", str(exc), count=1)

@@ -18,7 +18,7 @@ from sappc.scenario import Scenario
 from spacecraft_sim.core.faults import faults_from_list
 
 __all__ = ["CampaignConfig", "Criteria", "Dispersions", "Distribution", "DistributionKind", "FaultDispersion", "GainDispersions",
-           "HardwareDispersions", "InitialAttitude", "SensorNoise", "campaign_config"]
+           "HardwareDispersions", "InitialAttitude", "OrbitDispersions", "SensorNoise", "campaign_config"]
 
 Array = NDArray[np.float64]
 
@@ -255,6 +255,45 @@ class HardwareDispersions:
 
 
 @dataclass(frozen=True)
+class OrbitDispersions:
+    """Per-run draws of the scenario's orbit (needs its ``orbit`` section), each scalar and added to
+    the scenario's value: where the spacecraft is on its orbit at ``t = 0`` and where the Earth, and
+    with it the field's dipole, has turned to (the field's epoch: the dipole is fixed to the Earth,
+    so the epoch of a run is its Earth rotation angle at ``t = 0``).
+
+    Attributes
+    ----------
+    mean_anomaly_deg : Distribution
+        The orbit's phase at ``t = 0`` [deg].
+    raan_deg : Distribution
+        The ascending node's right ascension [deg] (the orbit plane's angle to the Earth's
+        dipole at ``t = 0``).
+    earth_rotation_angle_deg : Distribution
+        The Earth's rotation angle at ``t = 0`` [deg]: the field's epoch.
+    """
+
+    mean_anomaly_deg: Distribution | None = None
+    raan_deg: Distribution | None = None
+    earth_rotation_angle_deg: Distribution | None = None
+
+    def __post_init__(self) -> None:
+        for name, dist in self.items():
+            dist.check_shape(f"dispersions.orbit.{name}", ())
+
+    def items(self) -> list[tuple[str, Distribution]]:
+        return [(f.name, getattr(self, f.name)) for f in dataclasses.fields(self) if getattr(self, f.name) is not None]
+
+    def check_against(self, scenario: Scenario) -> None:
+        """An orbit dispersion needs the scenario's orbit."""
+        if self.items() and scenario.environment is None:
+            raise ConfigError(f"montecarlo.dispersions.orbit.{self.items()[0][0]} needs the scenario's orbit section")
+
+    def draw(self, rng: np.random.Generator) -> dict[str, Array]:
+        """One run's draws, (1,) each, in the order of the fields (none unless dispersed: no draw taken)."""
+        return {f"orbit_{name}": dist.draw(rng, (1,)) for name, dist in self.items()}
+
+
+@dataclass(frozen=True)
 class Dispersions:
     """What varies from run to run besides the initial attitude (all optional).
 
@@ -275,6 +314,8 @@ class Dispersions:
         One drawn fault per run (kind, start, duration), added to the scenario's faults.
     hardware : HardwareDispersions
         The scenario's reaction wheels and sensors, per run.
+    orbit : OrbitDispersions
+        The scenario's orbit phase, node and field epoch, per run.
     """
 
     initial_rate_rad_s: Distribution | None = None
@@ -285,6 +326,7 @@ class Dispersions:
     gains: GainDispersions = GainDispersions()
     faults: FaultDispersion | None = None
     hardware: HardwareDispersions = HardwareDispersions()
+    orbit: OrbitDispersions = OrbitDispersions()
 
 
 @dataclass(frozen=True)
@@ -353,4 +395,5 @@ def campaign_config(scenario: Scenario) -> CampaignConfig:
         raise ConfigError(f"scenario {scenario.name!r} has no 'montecarlo' section")
     config: CampaignConfig = from_mapping(CampaignConfig, section, "montecarlo")
     config.dispersions.hardware.check_against(scenario)
+    config.dispersions.orbit.check_against(scenario)
     return config

@@ -24,7 +24,7 @@ from spacecraft_sim.core.wheels import ReactionWheels
 from sappc.montecarlo.config import CampaignConfig
 from sappc.scenario import Scenario
 
-__all__ = ["NOISE_BLOCK", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_faults", "run_generators", "run_hardware", "sensor_noise_draws"]
+__all__ = ["NOISE_BLOCK", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_faults", "run_generators", "run_hardware", "run_orbits", "sensor_noise_draws"]
 
 #: Samples of sensor noise drawn per call of the run's noise generator (``standard_normal((NOISE_BLOCK, 6))``,
 #: block after block): the sequence campaigns have always used.
@@ -48,7 +48,7 @@ class RunInputs:
     fault_choice: NDArray[np.int64]  # index into dispersions.faults.choices (-1: no fault dispersion)
     fault_start_s: Array
     fault_duration_s: Array  # inf: to the end
-    hardware: dict[str, Array] = dataclasses.field(default_factory=dict)  # per name (n, W or 3): HardwareDispersions
+    hardware: dict[str, Array] = dataclasses.field(default_factory=dict)  # per name (n, W or 3): HardwareDispersions; (n, 1) orbit_*: OrbitDispersions
 
 
 def run_generators(seed: int, run: int) -> tuple[np.random.Generator, np.random.Generator]:
@@ -72,6 +72,7 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
         gains = {name: float(dist.draw(rng, ())) for name, dist in d.gains.items()}
         fault = d.faults.draw(rng) if d.faults is not None else (-1, np.nan, np.nan)  # after the older ones: older campaigns keep their draws
         hardware = d.hardware.draw(rng)  # (none unless dispersed: no draw taken)
+        hardware.update(d.orbit.draw(rng))  # after the hardware: older campaigns keep their draws
         rows.append((euler, rate, inertia, scale, phase, gains, fault, hardware))
     euler = np.array([r[0] for r in rows]).reshape(-1, 3)
     return RunInputs(
@@ -87,7 +88,8 @@ def draw_inputs(cfg: CampaignConfig, seed: int, runs: Iterable[int]) -> RunInput
         fault_choice=np.array([r[6][0] for r in rows], dtype=np.int64),
         fault_start_s=np.array([r[6][1] for r in rows], dtype=np.float64),
         fault_duration_s=np.array([r[6][2] for r in rows], dtype=np.float64),
-        hardware={name: np.array([r[7][name] for r in rows]).reshape(len(rows), -1) for name, _ in d.hardware.items()},
+        hardware={name: np.array([r[7][name] for r in rows]).reshape(len(rows), -1)
+                  for name in [n for n, _ in d.hardware.items()] + [f"orbit_{n}" for n, _ in d.orbit.items()]},
     )
 
 
@@ -132,6 +134,18 @@ def run_hardware(scenario: Scenario, inputs: RunInputs) -> tuple[list[ReactionWh
         own = np.broadcast_to(scenario.sensors.outages()[None], (n, scenario.sensors.outages().shape[0], 2))
         outages = np.ascontiguousarray(np.concatenate((own, drawn), axis=1))
     return wheels, sensors, outages
+
+
+def run_orbits(scenario: Scenario, inputs: RunInputs) -> Array | None:
+    """Each run's orbit parameters (n, ``N_ORBIT_PARAMS``) (:meth:`~spacecraft_sim.core.orbit.Orbit.params`)
+    with its orbit dispersions added to the scenario's values; ``None`` when the orbit is not
+    dispersed (every run has the scenario's)."""
+    drawn = {k[len("orbit_"):]: v[:, 0] for k, v in inputs.hardware.items() if k.startswith("orbit_")}
+    if not drawn or scenario.environment is None:
+        return None
+    orbit = scenario.environment.orbit
+    return np.array([dataclasses.replace(orbit, **{name: float(getattr(orbit, name) + values[k]) for name, values in drawn.items()}).params()
+                     for k in range(inputs.runs.size)]).reshape(inputs.runs.size, -1)
 
 
 def run_faults(scenario: Scenario, cfg: CampaignConfig, inputs: RunInputs) -> list[tuple[Any, ...]] | None:

@@ -630,7 +630,8 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
             inertia_kg_m2: np.ndarray | None = None, disturbance: Any = None, config: Any = None, gains: dict[str, np.ndarray] | None = None,
             on_infeasible: str = "raise", sensor_params: np.ndarray | None = None, sensor_outages: np.ndarray | None = None,
             faults: list[tuple[Any, ...]] | None = None, wheels: list[ReactionWheels] | None = None,
-            estimator_params: np.ndarray | None = None, run_keys: list[tuple[int, ...]] | None = None) -> CompiledInputs:
+            estimator_params: np.ndarray | None = None, run_keys: list[tuple[int, ...]] | None = None,
+            orbits: np.ndarray | None = None) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
     ``sensor_params``: the sensors' parameters ((13,) or one row per run), their draws then given
@@ -643,7 +644,9 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     none: ideal).  ``estimator_params``: one row per run of the estimator's parameters (a campaign
     whose runs have dispersed sensors), else the scenario's estimator for every run (none: the
     controller is fed the measurements).  ``run_keys``: each run's key of the magnetometer's stream
-    (a campaign's ``(run, seed)``), else ``(k,)`` for run ``k`` of the batch."""
+    (a campaign's ``(run, seed)``), else ``(k,)`` for run ``k`` of the batch.  ``orbits``: one row
+    per run of the orbit's parameters (:meth:`~spacecraft_sim.core.orbit.Orbit.params`: a campaign's
+    dispersed orbit phase, node and field epoch), else the scenario's orbit for every run."""
     ensure_compiled()
     cfg = scenario.controller_config(controller) if config is None else config
     q0 = _f64(np.atleast_2d(np.asarray(scenario.q_BN0 if q_BN0 is None else q_BN0, dtype=np.float64)))
@@ -671,7 +674,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
         estimator=pack_estimator(scenario.estimator, n, estimator_params),
         disturbance=pack_disturbance(scenario.disturbance if disturbance is None else disturbance, t, n),
         faults=pack_faults(per_run_faults, t_ns),
-        environment=_environment(scenario, n, run_keys),
+        environment=_environment(scenario, n, run_keys, orbits),
         momentum=_momentum(scenario, n),
         config=cfg,
         on_infeasible=on_infeasible,
@@ -679,14 +682,22 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     return _started(inp)
 
 
-def _environment(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | None = None) -> EnvironmentArrays:
+def _environment(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | None = None,
+                 orbits: np.ndarray | None = None) -> EnvironmentArrays:
     """The scenario's orbital environment for ``n`` runs (``run_keys``: each run's magnetometer
-    stream, :func:`~spacecraft_sim.core.environment.pack_environment`); the gravity gradient acts on
-    the spacecraft with its wheels locked (:mod:`spacecraft_sim.core.environment`)."""
+    stream, :func:`~spacecraft_sim.core.environment.pack_environment`; ``orbits``: each run's orbit
+    parameters, else the scenario's); the gravity gradient acts on the spacecraft with its wheels
+    locked (:mod:`spacecraft_sim.core.environment`)."""
     w = scenario.wheels
     locked = locked_inertia(scenario.inertia_kg_m2) if w is None else locked_inertia(scenario.inertia_kg_m2, w.per_wheel("spin_inertia_kg_m2"), w.G)
-    return pack_environment(scenario.environment, n, locked, n_samples=int(round(scenario.duration_s / scenario.control_period_s)) + 1,
-                            control_period_s=scenario.control_period_s, run_keys=run_keys)
+    env = pack_environment(scenario.environment, n, locked, n_samples=int(round(scenario.duration_s / scenario.control_period_s)) + 1,
+                           control_period_s=scenario.control_period_s, run_keys=run_keys)
+    if orbits is None:
+        return env
+    rows = _f64(orbits)
+    if rows.shape != env.orbit.shape:
+        raise ValueError(f"orbits must be one row of orbit parameters per run, {env.orbit.shape}, got {rows.shape}")
+    return env._replace(orbit=rows)
 
 
 def _momentum(scenario: Scenario, n: int) -> MomentumArrays:

@@ -114,6 +114,7 @@ def run_scenario(
     sub_batch: int = SUB_BATCH,
     progress: Callable[[int], None] | None = None,
     run_keys: list[tuple[int, ...]] | None = None,
+    orbits: np.ndarray | None = None,
 ) -> tuple[MetricsAccumulator, ScenarioRun]:
     """Run the scenario's closed loop, for one run or a batch: the one place that assembles it.
 
@@ -137,6 +138,7 @@ def run_scenario(
     ``trajectory = (n, stride)`` keeps q_ev and rho of the first ``n`` runs every ``stride``
     samples.  ``progress(n)`` is called after each sub-batch with its number of runs.  ``run_keys``:
     each run's key of its magnetometer's stream (a campaign's ``(run, seed)``; default ``(k,)``).
+    ``orbits``: each run's orbit parameters (a campaign's dispersed orbit), else the scenario's.
 
     Returns
     -------
@@ -150,7 +152,7 @@ def run_scenario(
         scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
         disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
         sensor_params=None if sensors is None else sensors[0], sensor_outages=None if sensors is None else sensors[2],
-        faults=faults, wheels=wheels, run_keys=run_keys,
+        faults=faults, wheels=wheels, run_keys=run_keys, orbits=orbits,
     )
     draws = None if sensors is None else sensors[1]
 

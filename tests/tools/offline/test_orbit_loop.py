@@ -7,6 +7,7 @@ golden tests of tests/tools/offline/test_paper_experiments.py.)"""
 from __future__ import annotations
 
 import copy
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -165,3 +166,78 @@ def test_the_magnetometer_measures_the_field_with_its_bias_and_noise_at_its_rate
     err = (meas - true)[::10]
     assert np.all(np.abs(err.mean(axis=0) - [2e-7, -1.5e-7, 1e-7]) <= 4 * 5e-8 / np.sqrt(err.shape[0]))
     assert np.all(np.abs(err.std(axis=0) / 5e-8 - 1.0) <= 0.05)
+
+
+def _orbit_campaign(orbit_dispersions: dict[str, Any] | None) -> dict[str, Any]:
+    """The bundled 6 h orbit scenario cut to 1 s, its campaign's dispersions with ``orbit_dispersions``
+    for its orbit's (``None``: none)."""
+    raw = copy.deepcopy(read_scenario_mapping(scenario_path("paper_tracking_orbit")))
+    raw["duration_s"] = 1.0
+    del raw["montecarlo"]["dispersions"]["orbit"]
+    if orbit_dispersions is not None:
+        raw["montecarlo"]["dispersions"]["orbit"] = orbit_dispersions
+    return raw
+
+
+ORBIT_DISPERSIONS = {"mean_anomaly_deg": {"distribution": "uniform", "low": 0.0, "high": 360.0},
+                     "earth_rotation_angle_deg": {"distribution": "uniform", "low": 0.0, "high": 360.0},
+                     "raan_deg": {"distribution": "normal", "mean": 0.0, "sigma": 10.0}}
+
+
+def test_a_campaign_disperses_the_orbit_phase_node_and_field_epoch_after_every_older_draw() -> None:
+    """``montecarlo.dispersions.orbit``: each run's drawn phase, node and Earth rotation angle (the
+    field's epoch) are added to the scenario's orbit, drawn after every other value of the run (the
+    runs' other draws are those of the campaign without them), and a run flies exactly the orbit it
+    drew: its history equals, bit for bit, that of the scenario with its orbit set to those values."""
+    from sappc.montecarlo.campaign import simulate_runs
+    from sappc.montecarlo.config import campaign_config
+    from sappc.montecarlo.draws import draw_inputs, run_orbits
+    from sappc.offline.simulate import run_scenario
+
+    seed, runs = 3, [0, 5]
+    raw = _orbit_campaign(ORBIT_DISPERSIONS)
+    sc = scenario_from_mapping(raw)
+    inputs = draw_inputs(campaign_config(sc), seed, runs)
+    plain = draw_inputs(campaign_config(scenario_from_mapping(_orbit_campaign(None))), seed, runs)
+    drawn = {k: v[:, 0] for k, v in inputs.hardware.items() if k.startswith("orbit_")}
+    assert sorted(drawn) == ["orbit_earth_rotation_angle_deg", "orbit_mean_anomaly_deg", "orbit_raan_deg"]
+    assert all(v[0] != v[1] for v in drawn.values())  # each run its own
+    assert 0.0 <= drawn["orbit_mean_anomaly_deg"].min() and drawn["orbit_mean_anomaly_deg"].max() < 360.0
+    for name, values in plain.hardware.items():  # the older draws unchanged
+        assert np.array_equal(inputs.hardware[name], values)
+    assert np.array_equal(inputs.omega_BN_B0, plain.omega_BN_B0) and np.array_equal(inputs.euler_deg, plain.euler_deg, equal_nan=True)
+
+    rows = run_orbits(sc, inputs)
+    assert rows is not None and rows.shape == (2, 10)
+    assert run_orbits(scenario_from_mapping(_orbit_campaign(None)), plain) is None  # not dispersed: the scenario's
+
+    table = simulate_runs(raw, seed, runs, 0)[0]
+    assert np.array_equal(table["hw_orbit_mean_anomaly_deg"][:, 0], drawn["orbit_mean_anomaly_deg"])  # in runs.csv
+
+    k = 1  # run 5: its drawn orbit through run_scenario's ``orbits`` against the scenario written with it
+    own = copy.deepcopy(raw)
+    del own["montecarlo"]
+    for name, values in drawn.items():
+        key = name[len("orbit_"):]
+        own["orbit"][key] = own["orbit"].get(key, 0.0) + float(values[k])
+    written = scenario_from_mapping(own)
+    _, alone = run_scenario(written, keep_history=True)
+    _, dispersed = run_scenario(scenario_from_mapping({**own, "orbit": raw["orbit"]}), keep_history=True, orbits=rows[k:k + 1])
+    assert alone.history is not None and dispersed.history is not None
+    for f in dataclasses.fields(alone.history):
+        a, b = getattr(alone.history, f.name), getattr(dispersed.history, f.name)
+        if isinstance(a, np.ndarray):
+            assert np.array_equal(a, b, equal_nan=True), f.name
+    assert alone.history.orbit is not None and dispersed.history.orbit is not None
+    _, base = run_scenario(scenario_from_mapping({**own, "orbit": raw["orbit"]}), keep_history=True)
+    assert base.history is not None and base.history.orbit is not None
+    assert not np.array_equal(base.history.orbit[:, :, :3], dispersed.history.orbit[:, :, :3])  # the draw matters: another field
+
+
+def test_an_orbit_dispersion_needs_the_scenarios_orbit() -> None:
+    from sappc.montecarlo.config import campaign_config
+
+    raw = copy.deepcopy(read_scenario_mapping(scenario_path("paper_tracking_flight")))
+    raw["montecarlo"]["dispersions"]["orbit"] = {"mean_anomaly_deg": {"distribution": "uniform", "low": 0.0, "high": 360.0}}
+    with pytest.raises(ConfigError, match=r"montecarlo.dispersions.orbit.mean_anomaly_deg needs the scenario's orbit section"):
+        campaign_config(scenario_from_mapping(raw))
