@@ -36,7 +36,7 @@ from spacecraft_sim.core.sensors import Sensors, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, wheels_from_mapping
 from spacecraft_sim.core.environment import Environment, environment_from_mapping
 from sappc_momentum.core.law import MomentumManagement
-from sappc.files import scenario_path
+from sappc.files import SCENARIOS_DIR, scenario_path
 from gnc_common.validation import (
     safe_load_yaml,
     ConfigError,
@@ -531,9 +531,10 @@ def _merged(base: Any, over: Any) -> Any:
 
 def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict[str, Any]:
     """The mapping of a scenario file, with ``extends: <file>`` resolved: the named file (relative
-    to this one's directory) is read the same way and this file's keys are laid over it (mappings
-    merged key by key, lists and values replaced), so a variant of a scenario states only what it
-    changes.
+    to this one's directory; a bare file name that is not there but names a bundled scenario, e.g.
+    ``paper_tracking_flight.yaml``, is the bundled one) is read the same way and this file's keys
+    are laid over it (mappings merged key by key, lists and values replaced), so a variant of a
+    scenario states only what it changes.
 
     Raises
     ------
@@ -553,6 +554,9 @@ def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dic
     if not isinstance(base_name, str) or not base_name:
         raise ConfigError(f"{p}: {EXTENDS_KEY} must name a scenario file, got {base_name!r}")
     base_path = (p.parent / base_name).resolve()
+    bundled = SCENARIOS_DIR / base_name
+    if not base_path.exists() and Path(base_name).name == base_name and bundled.is_file():
+        base_path = bundled.resolve()  # a bundled scenario by its file name, from a file anywhere
     if base_path in _seen or base_path == p.resolve():
         raise ConfigError(f"{p}: {EXTENDS_KEY}: {base_name} comes back to a file already extended ({base_path})")
     base = read_scenario_mapping(base_path, (*_seen, p.resolve()))

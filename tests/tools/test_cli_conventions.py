@@ -20,7 +20,7 @@ from conftest import ROOT, SAPPC, SCENARIOS
 from gnc_common.validation import ConfigError
 from sappc import cli
 from sappc.files import OUTPUT_ROOT, SCENARIOS_DIR, bag_run_name, bundled_scenarios, copy_scenario, default_output_dir, scenario_path
-from sappc.scenario import load_scenario
+from sappc.scenario import load_scenario, read_scenario_mapping
 
 
 def _sappc(*args: str, cwd: Path = ROOT, timeout: float = 300) -> subprocess.CompletedProcess[str]:
@@ -225,6 +225,18 @@ def test_scenarios_copy_brings_the_files_a_scenario_extends_and_never_overwrites
     assert default.returncode == 0 and (tmp_path / "paper_tracking.yaml").read_bytes() == (SCENARIOS / "paper_tracking.yaml").read_bytes()
     unknown = _sappc("scenarios", "copy", "paper_trackin", cwd=tmp_path)
     assert unknown.returncode == 2 and "no bundled scenario 'paper_trackin', did you mean 'paper_tracking'? (bundled: " in unknown.stderr
+
+
+def test_a_file_anywhere_extends_a_bundled_scenario_by_its_file_name_and_a_file_beside_it_wins(tmp_path: Path) -> None:
+    own = tmp_path / "one_orbit.yaml"
+    own.write_text("extends: paper_tracking_orbit.yaml\nname: one_orbit\nduration_s: 5677.0\n")
+    raw = read_scenario_mapping(own)
+    assert raw == {**read_scenario_mapping(SCENARIOS / "paper_tracking_orbit.yaml"), "name": "one_orbit", "duration_s": 5677.0}
+    (tmp_path / "paper_tracking_orbit.yaml").write_text("name: mine\n")  # a file of that name beside it: that file
+    assert read_scenario_mapping(own) == {"name": "one_orbit", "duration_s": 5677.0}
+    own.write_text("extends: sub/paper_tracking_orbit.yaml\n")  # a path is a path: never a bundled file
+    with pytest.raises(ConfigError, match=r"cannot read scenario .*sub/paper_tracking_orbit.yaml"):
+        read_scenario_mapping(own)
 
 
 def test_every_bundled_scenario_extends_only_bundled_files_beside_it() -> None:
