@@ -164,6 +164,25 @@ def _print_metrics(scenario_name: str, controller: str, metrics: dict[str, objec
         print(f"  {key:<{width}}  {_format_value(value)}")
 
 
+#: The per-orbit table's columns: (metric key, heading, format).
+_ORBIT_COLUMNS = (("steady_max_abs_qev", "steady max |q_ev|", ".3e"), ("steady_mean_abs_qev", "steady mean |q_ev|", ".3e"),
+                  ("max_wheel_momentum_B_Nms", "max |h_B| [N m s]", ".3f"), ("end_wheel_momentum_B_Nms", "end |h_B| [N m s]", ".3f"),
+                  ("max_abs_wheel_speed_rad_s", "max wheel speed [rad/s]", ".1f"), ("rods_mean_dipole_fraction", "rods' duty", ".3f"))
+
+
+def _print_orbits(per_orbit: list[dict[str, Any]]) -> None:
+    """The per-orbit metrics as a table (a scenario in orbit; nothing otherwise)."""
+    if not per_orbit:
+        return
+    cols = [c for c in _ORBIT_COLUMNS if c[0] in per_orbit[0]]
+    print("per orbit:")
+    print("  " + "  ".join(["orbit", "from [s]".rjust(9)] + [h.rjust(max(len(h), 9)) for _, h, _ in cols]))
+    for e in per_orbit:
+        cells = [str(e["orbit"]).rjust(5), f"{e['from_s']:9.1f}"]
+        cells += [("-" if e[k] is None else format(e[k], f)).rjust(max(len(h), 9)) for k, h, f in cols]
+        print("  " + "  ".join(cells))
+
+
 def _write_json(path_str: str, data: object) -> None:
     """``data`` as JSON into the file ``path_str``, or to stdout for ``-`` (:func:`_stdout_to_stderr`)."""
     text = json.dumps(data, indent=2) + "\n"
@@ -192,6 +211,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     result = simulate(scenario, args.controller)
     _print_metrics(scenario.name, result.controller.value, result.metrics)
+    _print_orbits(result.per_orbit)
     failed = _print_outcome(scenario, result.metrics, result.controller_summary)
     if args.out:
         for p in plot_run(result.history, Path(args.out), title=f"{scenario.name} ({result.controller.value})",

@@ -50,7 +50,7 @@ from gnc_common.validation import (
     read_text_file,
 )
 
-__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "MAX_SCENARIO_BYTES", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "read_scenario_mapping", "scenario_from_mapping"]
+__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "MAX_SCENARIO_BYTES", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "OrbitBins", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "read_scenario_mapping", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
 
@@ -204,6 +204,30 @@ def check_requirements(requirements: object, prefix: str = "metrics.requirements
 
 
 @dataclass(frozen=True)
+class OrbitBins:
+    """What the per-orbit metrics need of a scenario in orbit (:meth:`Scenario.orbit_bins`,
+    :meth:`sappc.evaluation.metrics.MetricsAccumulator.orbit_metrics`): orbit ``j`` holds the samples
+    with ``j T <= t < (j + 1) T``.
+
+    Attributes
+    ----------
+    period_s : float
+        The orbit's period ``T`` [s].
+    wheel_spin_inertia_kg_m2 : ndarray (W,) or None
+        Each wheel's spin inertia (``None``: no wheels).
+    wheel_axes_B : ndarray (3, W) or None
+        The wheels' spin axes in the body frame (``G_s``).
+    rod_max_dipole_Am2 : ndarray (M,) or None
+        Each rod's largest dipole (``None``: no rods).
+    """
+
+    period_s: float
+    wheel_spin_inertia_kg_m2: np.ndarray | None = None
+    wheel_axes_B: np.ndarray | None = None
+    rod_max_dipole_Am2: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
 class MetricSettings:
     """How run metrics are computed (see :mod:`sappc.evaluation.metrics`).
 
@@ -329,6 +353,14 @@ class Scenario:
         """Windows (start, end) [s] of every injected disturbance event and fault, sorted: for
         marking figures and for the fault metrics."""
         return sorted(self.disturbance.events() + FaultSchedule(self.faults).events())
+
+    def orbit_bins(self) -> OrbitBins | None:
+        """The per-orbit metrics' settings of a scenario in orbit; ``None`` without an orbit."""
+        if self.environment is None:
+            return None
+        w, rods = self.wheels, self.environment.magnetorquers
+        return OrbitBins(self.environment.orbit.period_s, None if w is None else w.per_wheel("spin_inertia_kg_m2"), None if w is None else w.G,
+                         None if rods is None else rods.max_dipoles())
 
     def resolve_controller(self, kind: ControllerKind | str | None) -> ControllerKind:
         """``kind`` parsed, or the scenario's default controller when ``None``."""

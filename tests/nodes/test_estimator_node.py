@@ -9,6 +9,7 @@ sleeps.  The multi-process run (and its bag) is in ``test_estimator_process.py``
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -273,6 +274,9 @@ def test_the_health_goes_out_on_diagnostics_as_ros_reports_health(estimator) -> 
     assert values["outside_in_a_row"] == "0" and values["persistence"] == "2"  # in the band: none outside; the default persistence
     assert values["nis_sum_band"] == f"[{lo:.6g}, {hi:.6g}]" and values["band_probability"] == "0.99997"
     assert lo < float(values["nis_sum"]) < hi  # the window of 20 tracker samples at 2 s: a verdict
+    # the words: no verdict while the window of 20 tracker samples (2 s at 10 Hz) fills, then the monitor's level
+    assert [m.status[0].message for m in drv.health] == ["no verdict yet: the innovations' window is filling"] * 2 + [
+        "consistent: the innovations' window inside its band"]
 
 
 def test_an_estimate_the_filter_has_not_confirmed_is_withheld_as_no_data(ros_context) -> None:  # type: ignore[no-untyped-def]
@@ -300,11 +304,83 @@ def test_an_estimate_the_filter_has_not_confirmed_is_withheld_as_no_data(ros_con
         assert diag["gate_rejections"] == 2 and diag["withheld_samples"] == 12 and node.withheld == 12 and node.rejected == 0
         drv.spin_until(lambda: len(drv.health) >= 1, "a health report")
         status = drv.health[0].status[0]
-        assert status.level == b"\x01" and "withheld" in status.message
+        assert status.level == b"\x01" and status.message == ("no verdict yet: the innovations' window is filling; the estimate is withheld "
+                                                             "(a prior, or re-initialised, not yet confirmed by a tracker sample)")
         assert {kv.key: kv.value for kv in status.values}["estimate"] == "withheld"
     finally:
         drv.close()
         node.destroy_node()
+
+
+def test_before_any_estimate_the_health_warns_that_there_is_none(estimator) -> None:  # type: ignore[no-untyped-def]
+    """A first sample without a valid input: no figures; the health is a warning that says so."""
+    node, drv = estimator
+    q, _ = measurements(1)
+    drv.sample(0, q[0], NO_DATA_W)
+    drv.spin_until(lambda: len(drv.health) >= 1, "a health report")
+    status = drv.health[0].status[0]
+    assert status.level == b"\x01" and status.message == "no estimate: initialising or no valid input"
+
+
+def test_the_statistics_go_to_the_timing_file_when_one_is_named_and_nowhere_else(ros_context, tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    from sappc_estimator.node import EstimatorNode
+
+    monkeypatch.chdir(tmp_path)
+    for timing in ("", str(tmp_path / "timing.json")):
+        node = EstimatorNode(context=ros_context, parameter_overrides=overrides(timing_file=timing))
+        try:
+            node.finish()
+            expected = node.statistics()
+        finally:
+            node.destroy_node()
+        written = sorted(p.name for p in tmp_path.iterdir() if p.is_file())
+        if timing:
+            assert written == ["timing.json"] and json.loads((tmp_path / "timing.json").read_text()) == json.loads(json.dumps(expected))
+        else:
+            assert written == []  # no file named: none written
+
+
+def test_the_node_waits_for_a_reader_of_its_loop_outputs_only_and_lists_its_parameter_groups(ros_context) -> None:  # type: ignore[no-untyped-def]
+    """The start gate: the estimate (what the controller reads) must have a subscriber before the
+    node answers; its diagnostics and the filter's figures need none.  The parameter groups are a
+    class's (``--help`` and the node reference list them without a node)."""
+    from sappc_estimator.node import COMMON_PARAMETERS, FILTER_PARAMETERS, EstimatorNode, _LOOP_OUTPUTS
+
+    sections = EstimatorNode.parameter_sections()
+    assert [ps for _, ps in sections] == [EstimatorNode.PARAMETERS, FILTER_PARAMETERS, COMMON_PARAMETERS]
+    node = EstimatorNode(context=ros_context, parameter_overrides=overrides())
+    try:
+        waits = {name: p.min_subscribers for name, p in node.pub.items()}
+    finally:
+        node.destroy_node()
+    assert {n for n, k in waits.items() if k == 1} == {t.name for t in _LOOP_OUTPUTS} and set(waits.values()) == {0, 1}
+
+
+def test_tracker_samples_keep_at_most_their_bound_and_name_the_epoch_the_filter_may_use() -> None:
+    """:class:`TrackerSamples` by itself: the bound on the samples kept (the oldest dropped), the
+    quaternion before any valid sample (four NaN: no measurement), an epoch named before its sample
+    arrived (real time: the latest valid one's, no new measurement), an old epoch named again (a
+    frozen tracker: itself, not new to the filter), an invalid first sample (its own epoch, no
+    quaternion)."""
+    from sappc_estimator.node import TrackerSamples
+
+    q1, q2 = np.array([0.0, 0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.6, 0.8])
+    kept = TrackerSamples()
+    for k in range(TrackerSamples.MAX_KEPT + 1):
+        kept.add(k, q1)
+    assert not kept.ready(0) and kept.ready(1) and kept.ready(TrackerSamples.MAX_KEPT)  # the oldest dropped, the rest kept
+
+    ts = TrackerSamples()
+    assert ts.q.shape == (4,) and np.all(np.isnan(ts.q))
+    assert ts.use(5) == 5 and np.all(np.isnan(ts.q))  # before any sample: its own epoch, no quaternion
+    ts.add(10, None)  # arrived invalid
+    assert ts.use(10) == 10 and ts.q_ns is None and np.all(np.isnan(ts.q))
+    ts.add(20, q1)
+    assert ts.use(20) == 20 and np.array_equal(ts.q, q1)
+    assert ts.use(30) == 20 and np.array_equal(ts.q, q1)  # 30 not arrived: the latest valid one's epoch
+    ts.add(30, q2)
+    assert ts.use(30) == 30 and np.array_equal(ts.q, q2)
+    assert ts.use(20) == 20 and ts.q_ns == 30  # an old epoch named again: itself (not new), the latest quaternion kept
 
 
 BAD = {

@@ -90,6 +90,20 @@ Definitions, per run:
     held over the sample's period ``dt``, ``Omega_i`` its speed relative to the body at the sample;
     braking is counted as spent, as a motor without regeneration spends it) [J].  The effort of
     a controller's steady jitter and of its transient, in one number.
+
+Per orbit (a scenario in orbit: :meth:`MetricsAccumulator.orbit_metrics`, one entry per orbit ``j``,
+the samples with ``j T <= t < (j + 1) T``, ``T`` the orbit's period):
+
+``steady_max_abs_qev``, ``steady_mean_abs_qev``
+    As above over the orbit's samples in the steady window (``None``: none there).
+``max_wheel_momentum_B_Nms``, ``end_wheel_momentum_B_Nms``
+    With reaction wheels: the largest and the orbit's last ``|G_s J_s Omega|``, the wheels' momentum
+    in the body frame [N m s].
+``max_abs_wheel_speed_rad_s``
+    With reaction wheels: the largest speed of any wheel relative to the body.
+``rods_mean_dipole_fraction``
+    With magnetorquers (a record of their commands): the rods' duty, the mean over the orbit's
+    samples and the rods of ``|m_i| / m_max,i``.
 """
 
 from __future__ import annotations
@@ -121,6 +135,12 @@ NEES_FROM_S = 5.0
 #: ``hold_s`` of a uniform grid, for the compiled update (no per-sample hold intervals).
 _NO_HOLD = np.zeros(0)
 
+def _finite_or_none(x: Any) -> float | None:
+    """``x`` as a float, ``None`` when it is not finite (nothing measured, or a failed run)."""
+    v = float(x)
+    return v if np.isfinite(v) else None
+
+
 class MetricsAccumulator:
     """Accumulates the metrics of N runs from blocks of samples (the history need not be kept).
 
@@ -133,6 +153,8 @@ class MetricsAccumulator:
         See :class:`sappc.scenario.MetricSettings`.
     fault_windows : list of (start_s, end_s)
         Injected fault windows; empty when there are none.
+    orbit_bins : sappc.scenario.OrbitBins or None
+        A scenario in orbit: the per-orbit metrics (:meth:`orbit_metrics`); ``None``: none.
     """
 
     def __init__(
@@ -144,6 +166,7 @@ class MetricsAccumulator:
         settle_threshold: float,
         t2_s: float,
         fault_windows: list[tuple[float, float]],
+        orbit_bins: Any = None,
     ) -> None:
         self.t = np.asarray(t, dtype=np.float64)
         self.dt = float(self.t[1] - self.t[0]) if self.t.size > 1 else 0.0
@@ -198,13 +221,27 @@ class MetricsAccumulator:
         self.est_recoveries: Array | None = None  # per run: the recoveries at the last sample with figures
         self.nees_sum_t = np.zeros(self.t.size)
         self.nees_runs_t = np.zeros(self.t.size, dtype=np.int64)
+        # only in orbit: per run and orbit the steady max of max_i |q_ev,i|, the steady sums of |q_ev,i|, the
+        # wheels' largest and last |h_B| and largest speed, the rods' summed |m| / m_max; per orbit the
+        # samples seen and those in the steady window
+        self.orbit_bins = orbit_bins
+        n_orbits = int(self.t[-1] // orbit_bins.period_s) + 1 if orbit_bins is not None and self.t.size else 0
+        self.orb_steady_max = np.full((n, n_orbits), np.nan)
+        self.orb_steady_sum = np.zeros((n, n_orbits, 3))
+        self.orb_h_max = np.full((n, n_orbits), np.nan)
+        self.orb_h_end = np.full((n, n_orbits), np.nan)
+        self.orb_speed_max = np.full((n, n_orbits), np.nan)
+        self.orb_dipole_sum = np.full((n, n_orbits), np.nan)
+        self.orb_samples = np.zeros(n_orbits, dtype=np.int64)
+        self.orb_steady_samples = np.zeros(n_orbits, dtype=np.int64)
 
     #: Per-run state (leading axis N), concatenated by :meth:`concatenate`.
     _PER_RUN = ("last_unsettled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
                 "torque_sign", "torque_sign_nonzero", "torque_sign_changes", "torque_reversals", "saturated_count", "outside_count",
                 "outside_s", "last_outside", "left_after_fault", "finite", "wheel_speed_max", "wheel_torque_max", "wheel_energy", "est_att_max",
                 "est_att_sq", "est_att_n", "est_bias_last", "est_nees_sum", "est_nees_n", "est_status_counts", "est_mon_error", "est_mon_n",
-                "est_withheld", "est_recoveries")
+                "est_withheld", "est_recoveries", "orb_steady_max", "orb_steady_sum", "orb_h_max", "orb_h_end", "orb_speed_max",
+                "orb_dipole_sum")
     #: Per-sample sums over runs, added by :meth:`concatenate`.
     _SUMMED = ("nees_sum_t", "nees_runs_t")
 
@@ -230,6 +267,60 @@ class MetricsAccumulator:
             self.update_wheels(h.wheel_speed_rad_s, h.wheel_torque_Nm)
         if h.estimate is not None:
             self.update_estimate(self.samples - h.t.size, h.t, h.q_BN, h.estimate)
+        if self.orbit_bins is not None:
+            self._update_orbits(h)
+
+    def _update_orbits(self, h: History) -> None:
+        """The per-orbit sums and extremes of a block of samples (a history, in time order)."""
+        ob = self.orbit_bins
+        t = np.asarray(h.t, dtype=np.float64)
+        orbit = (t // ob.period_s).astype(np.int64)
+        bounds = np.flatnonzero(np.diff(orbit)) + 1
+        qev = np.abs(np.asarray(h.q_BR, dtype=np.float64)[..., :3])  # (B, N, 3)
+        speed = None if h.wheel_speed_rad_s is None or ob.wheel_spin_inertia_kg_m2 is None else np.asarray(h.wheel_speed_rad_s, dtype=np.float64)
+        rods = None
+        if h.orbit is not None and ob.rod_max_dipole_Am2 is not None and ob.rod_max_dipole_Am2.size:
+            rods = np.abs(np.asarray(h.orbit, dtype=np.float64)[..., 9:9 + ob.rod_max_dipole_Am2.size]) / ob.rod_max_dipole_Am2
+        for lo, hi in zip(np.concatenate(([0], bounds)), np.concatenate((bounds, [t.size]))):
+            j = int(orbit[lo])
+            self.orb_samples[j] += hi - lo
+            steady = t[lo:hi] >= self.steady_from_s
+            if steady.any():
+                q = qev[lo:hi][steady]  # (S, N, 3)
+                self.orb_steady_max[:, j] = np.fmax(self.orb_steady_max[:, j], np.max(q, axis=(0, 2)))
+                self.orb_steady_sum[:, j] += q.sum(axis=0)
+                self.orb_steady_samples[j] += int(steady.sum())
+            if speed is not None:
+                w = speed[lo:hi]  # (S, N, W)
+                hB = np.linalg.norm((w * ob.wheel_spin_inertia_kg_m2) @ np.asarray(ob.wheel_axes_B).T, axis=2)  # (S, N) [N m s]
+                self.orb_h_max[:, j] = np.fmax(self.orb_h_max[:, j], hB.max(axis=0))
+                self.orb_h_end[:, j] = hB[-1]
+                self.orb_speed_max[:, j] = np.fmax(self.orb_speed_max[:, j], np.abs(w).max(axis=(0, 2)))
+            if rods is not None:
+                self.orb_dipole_sum[:, j] = np.nan_to_num(self.orb_dipole_sum[:, j]) + np.nansum(rods[lo:hi], axis=(0, 2))
+
+    def orbit_metrics(self, run: int = 0) -> list[dict[str, Any]]:
+        """The per-orbit metrics of run ``run`` (module docstring), one entry per orbit with samples;
+        empty without an orbit."""
+        if self.orbit_bins is None:
+            return []
+        out = []
+        for j in np.flatnonzero(self.orb_samples):
+            n_steady = int(self.orb_steady_samples[j])
+            entry: dict[str, Any] = {
+                "orbit": int(j), "from_s": float(j * self.orbit_bins.period_s),
+                "steady_max_abs_qev": _finite_or_none(self.orb_steady_max[run, j]) if n_steady else None,
+                "steady_mean_abs_qev": _finite_or_none((self.orb_steady_sum[run, j] / n_steady).max()) if n_steady else None,
+            }
+            if self.orbit_bins.wheel_spin_inertia_kg_m2 is not None:
+                entry.update(max_wheel_momentum_B_Nms=_finite_or_none(self.orb_h_max[run, j]),
+                             end_wheel_momentum_B_Nms=_finite_or_none(self.orb_h_end[run, j]),
+                             max_abs_wheel_speed_rad_s=_finite_or_none(self.orb_speed_max[run, j]))
+            if self.orbit_bins.rod_max_dipole_Am2 is not None and self.orbit_bins.rod_max_dipole_Am2.size:
+                m = self.orbit_bins.rod_max_dipole_Am2.size
+                entry["rods_mean_dipole_fraction"] = _finite_or_none(self.orb_dipole_sum[run, j] / (self.orb_samples[j] * m))
+            out.append(entry)
+        return out
 
     def update_estimate(self, k0: int, t: Array, q_BN: Array, est: EstimateHistory) -> None:
         """Observe a block of samples ``k0 ..`` (``t`` (B,), arrays (B, N, ...)) of the estimator's

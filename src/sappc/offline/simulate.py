@@ -40,6 +40,8 @@ class SimulationResult:
     history: History
     metrics: dict[str, Any]
     controller_summary: dict[str, Any] = dataclasses.field(default_factory=dict)
+    #: In orbit, the metrics of each orbit (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.orbit_metrics`); else empty.
+    per_orbit: list[dict[str, Any]] = dataclasses.field(default_factory=list)
 
     def report(self) -> dict[str, Any]:
         """JSON-ready summary: metrics, controller, and every parameter used."""
@@ -48,6 +50,7 @@ class SimulationResult:
             "scenario": self.scenario.name,
             "controller": self.controller.value,
             "metrics": self.metrics,
+            **({"per_orbit": self.per_orbit} if self.per_orbit else {}),
             "controller_summary": self.controller_summary,
             "parameters": {
                 "scenario": self.scenario.raw,
@@ -208,7 +211,8 @@ def simulate(scenario: Scenario, controller: ControllerKind | str | None = None)
     result = metrics.run_metrics(0)
     result["wall_time_s"] = time.perf_counter() - start
     assert run.history is not None
-    return SimulationResult(scenario=scenario, controller=kind, history=run.history, metrics=result, controller_summary=run.controller_summary(0))
+    return SimulationResult(scenario=scenario, controller=kind, history=run.history, metrics=result, controller_summary=run.controller_summary(0),
+                            per_orbit=metrics.orbit_metrics(0))
 
 
 def metrics_accumulator(scenario: Scenario, t: np.ndarray, n_runs: int) -> MetricsAccumulator:
@@ -221,4 +225,5 @@ def metrics_accumulator(scenario: Scenario, t: np.ndarray, n_runs: int) -> Metri
         settle_threshold=ms.settle_threshold,
         t2_s=ms.t2_s,
         fault_windows=scenario.event_windows(),
+        orbit_bins=scenario.orbit_bins(),
     )

@@ -644,3 +644,61 @@ def test_the_interpreted_kernel_gives_the_compiled_kernels_bits(grid: str, monke
         for name, value in compiled.items():
             assert _same_bits(interpreted[name], value), name
     assert metrics.interpreted_update_kernel() is not metrics._update_kernel.py_func  # its helpers are the Python ones
+
+
+def test_per_orbit_metrics_equal_their_definitions_whole_in_blocks_and_concatenated() -> None:
+    """:meth:`MetricsAccumulator.orbit_metrics` against the module docstring's definitions, computed
+    here with numpy over each orbit's samples (orbit ``j``: ``j T <= t < (j + 1) T``): 2.4 orbits of a
+    made-up period, two runs, four wheels and three rods with random records, the steady window
+    starting inside the first orbit; the same fed as two blocks split inside an orbit, and as two
+    one-run accumulators concatenated.  Exact but the means (sums in another order: ``SUM_RTOL``)."""
+    from sappc.scenario import OrbitBins
+
+    rng = np.random.default_rng(36)
+    T_s, dt = 10.0, 0.1
+    t = np.arange(241) * dt  # 0 .. 24 s: orbits 0, 1 and the start of 2
+    q_ev = rng.uniform(-1e-3, 1e-3, (t.size, 2, 3))
+    W, M = 4, 3
+    G = rng.normal(size=(3, W))
+    Js = np.array([0.1, 0.2, 0.3, 0.4])
+    m_max = np.array([10.0, 20.0, 40.0])
+    speed = rng.normal(scale=50.0, size=(t.size, 2, W))
+    dipoles = rng.uniform(-40.0, 40.0, (t.size, 2, M))
+    bins = OrbitBins(T_s, Js, G, m_max)
+    h = _history(t, q_ev)
+    h.wheel_speed_rad_s, h.wheel_torque_Nm = speed, np.zeros_like(speed)
+    h.orbit = np.concatenate((np.zeros((t.size, 2, 9)), dipoles), axis=2)
+    steady_from_s = 3.0
+
+    whole = _accumulator(t, 2, steady_from_s=steady_from_s, orbit_bins=bins)
+    whole.add_history(h)
+    blocks = _accumulator(t, 2, steady_from_s=steady_from_s, orbit_bins=bins)
+    for k0, k1 in ((0, 150), (150, t.size)):  # split at 15 s, inside orbit 1
+        blocks.add_history(History(**{f: h.t[k0:k1] if f == "t" else None if getattr(h, f) is None else getattr(h, f)[k0:k1]
+                                      for f in History.__dataclass_fields__}))
+    parts = []
+    for n in range(2):
+        part = _accumulator(t, 1, steady_from_s=steady_from_s, orbit_bins=bins)
+        part.add_history(History(**{f: h.t if f == "t" else None if getattr(h, f) is None else getattr(h, f)[:, n:n + 1]
+                                    for f in History.__dataclass_fields__}))
+        parts.append(part)
+    joined = MetricsAccumulator.concatenate(parts)
+
+    hB = np.linalg.norm((speed * Js) @ G.T, axis=2)  # (T, N)
+    for n in range(2):
+        got = whole.orbit_metrics(n)
+        assert [e["orbit"] for e in got] == [0, 1, 2] and [e["from_s"] for e in got] == [0.0, 10.0, 20.0]
+        for j, e in enumerate(got):
+            m = (t >= j * T_s) & (t < (j + 1) * T_s)
+            ms = m & (t >= steady_from_s)
+            assert e["steady_max_abs_qev"] == np.abs(q_ev[ms, n]).max()
+            assert e["steady_mean_abs_qev"] == pytest.approx(np.abs(q_ev[ms, n]).mean(axis=0).max(), rel=SUM_RTOL)
+            assert e["max_wheel_momentum_B_Nms"] == hB[m, n].max() and e["end_wheel_momentum_B_Nms"] == hB[m, n][-1]
+            assert e["max_abs_wheel_speed_rad_s"] == np.abs(speed[m, n]).max()
+            assert e["rods_mean_dipole_fraction"] == pytest.approx((np.abs(dipoles[m, n]) / m_max).mean(), rel=SUM_RTOL)
+        for other in (blocks.orbit_metrics(n), joined.orbit_metrics(n)):
+            assert [e.keys() for e in other] == [e.keys() for e in got]
+            for a, b in zip(other, got):
+                for key in a:
+                    assert a[key] == pytest.approx(b[key], rel=SUM_RTOL), key
+    assert _accumulator(t, 1).orbit_metrics(0) == []  # no orbit: none
