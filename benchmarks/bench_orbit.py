@@ -7,8 +7,9 @@ and mean of ``max_i |q_ev,i|`` (samples from ``metrics.steady_from_s``), the lar
 fraction of its limit, the largest and last ``|G_s J_s Omega|``, the rods' mean ``|m| / m_max`` and
 the share of samples with a rod saturated or a motor at its torque limit; over the run, the first
 time a wheel reaches its speed limit and the first time the error passes 1e-3.  ``--figure PATH``
-writes the report figure (wheel momentum and error over the run, one point per 10 s bin: the bin's
-largest values, so a 6 h run stays readable and no peak is lost).
+writes the report figure (wheel momentum, the rods' dipoles and the error over the run, one point per
+10 s bin: the bin's largest values, so a 6 h run stays readable and no peak is lost; the rods'
+duty as the bin's mean).
 
     python benchmarks/bench_orbit.py [paper_tracking_orbit] [--set momentum_management.gain_per_s=0.02] [--figure docs/assets/orbit.png]
 """
@@ -45,6 +46,12 @@ def _binned_max(t: np.ndarray, y: np.ndarray, width: float) -> tuple[np.ndarray,
     out = np.full(n, -np.inf)
     np.maximum.at(out, idx, y)
     return (np.arange(n) + 0.5) * width, out
+
+
+def _binned_mean(t: np.ndarray, y: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+    idx = (t // width).astype(np.int64)
+    n = int(idx[-1]) + 1
+    return (np.arange(n) + 0.5) * width, np.bincount(idx, weights=y, minlength=n) / np.maximum(np.bincount(idx, minlength=n), 1)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -106,7 +113,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(9, 5.5), constrained_layout=True)
+        fig, (a1, a3, a2) = plt.subplots(3, 1, sharex=True, figsize=(9, 7.5), constrained_layout=True)
         tb, fb = _binned_max(t, frac * 100.0, FIGURE_BIN_S)
         _, hb = _binned_max(t, hB, FIGURE_BIN_S)
         a1.plot(tb / 3600.0, fb, lw=0.8, label="largest wheel speed [% of limit]")
@@ -114,13 +121,21 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         a1.axhline(30.0, color="k", ls=":", lw=0.8, label="30 %")
         a1.legend(loc="upper right", fontsize=8)
         a1.set_ylabel("wheels")
+        for i in range(dip.shape[1]):
+            tr, rb = _binned_max(t, dip[:, i] * 100.0, FIGURE_BIN_S)
+            a3.plot(tr / 3600.0, rb, lw=0.6, label=f"rod {i + 1}: |m| [% of {mmax[i]:g} A m^2] (10 s bins: largest)")
+        _, mean_dip = _binned_mean(t, dip.mean(axis=1) * 100.0, FIGURE_BIN_S) if dip.shape[1] else (None, None)
+        if mean_dip is not None:
+            a3.plot(tr / 3600.0, mean_dip, color="k", lw=0.8, label="the rods' duty, mean |m| / m_max [%] (10 s bins: mean)")
+        a3.legend(loc="upper right", fontsize=7)
+        a3.set_ylabel("magnetorquers")
         steady = t >= sc.metrics.steady_from_s
         tq, qb = _binned_max(t[steady], qe[steady], FIGURE_BIN_S)
         ok = np.isfinite(qb)
         a2.semilogy(tq[ok] / 3600.0, qb[ok], lw=0.8, label="max_i |q_ev,i| (10 s bins: largest)")
         a2.axhline(4.34e-5, color="k", ls=":", lw=0.8, label="one-minute flight run: 4.34e-5")
         for k in range(1, len(orbits)):
-            for ax in (a1, a2):
+            for ax in (a1, a3, a2):
                 ax.axvline(k * period / 3600.0, color="0.7", lw=0.6)
         a2.legend(loc="upper right", fontsize=8)
         a2.set_xlabel("time [h] (grey: orbits)")
