@@ -141,6 +141,8 @@ class Output:
     monitor_level: int | None = None
     usable: bool | None = None
     recoveries: int | None = None
+    monitor_nis_sum: float | None = None  # the window's NIS sum at the last verdict (NaN before one)
+    monitor_mean: float | None = None  # and its mean statistic
 
 
 @dataclass
@@ -206,6 +208,8 @@ class MekfOracle:
     fails: int = 0
     outside: int = 0  # verdicts in a row outside the error band
     n_recover: int = 0
+    verdict_nis_sum: float = float("nan")  # the last verdict's figures (kept through a re-initialisation)
+    verdict_mean: float = float("nan")
 
     def __post_init__(self) -> None:
         for name in ("R_rad2", "sv2_rad2_s", "su2_rad2_s3", "P0a_rad2", "P0b_rad2_s2", "b0_rad_s"):
@@ -281,6 +285,7 @@ class MekfOracle:
             return status
         nis_sum = sum(m[1] for m in self.monitor)
         mean = float(np.sum([m[2] for m in self.monitor], axis=0) @ np.sum([m[2] for m in self.monitor], axis=0)) / self.window
+        self.verdict_nis_sum, self.verdict_mean = float(nis_sum), mean
         err_lo, warn_lo, warn_hi, err_hi = self.nis_band
         too_large = nis_sum > err_hi or mean > self.mean_bounds[1]
         outside = too_large or nis_sum < err_lo
@@ -378,7 +383,7 @@ class MekfOracle:
             return Output(status)
         return Output(status, q_hat=self.q_hat.copy(), omega_hat=omega_meas - self.b_hat, b_hat=self.b_hat.copy(),
                       sigma=np.sqrt(np.diag(self.P)), nis=self.nis, monitor_level=self.level, usable=self.confirmed,
-                      recoveries=self.n_recover)
+                      recoveries=self.n_recover, monitor_nis_sum=self.verdict_nis_sum, monitor_mean=self.verdict_mean)
 
     @property
     def counters(self) -> tuple[int, int, int, int]:

@@ -448,6 +448,22 @@ def test_kernel_equals_oracle(name: str) -> None:
     assert dP_rel <= PARITY_REL_P
     assert dsig_rel <= PARITY_REL_P
     assert nis_ratio <= 1.0
+    # the monitor's figures at its verdicts: the NIS sum to the sum of its samples' NIS bounds; the mean statistic
+    # |sum w|^2 / n of the whitened innovations w = L^-1 r (L the Cholesky factor of S), whose components move by
+    # at most |Δr| / sqrt(min eig S) ~ 2 PARITY_ABS / min sigma_st each, to the bound that implies
+    sums_or = np.array([o.monitor_nis_sum for o in outs], dtype=float)
+    means_or = np.array([o.monitor_mean for o in outs], dtype=float)
+    sums_k, means_k = kr.out[:, mekf.EO_MON_NIS], kr.out[:, mekf.EO_MON_MEAN]
+    np.testing.assert_array_equal(np.isnan(sums_k), np.isnan(sums_or))
+    np.testing.assert_array_equal(np.isnan(means_k), np.isnan(means_or))
+    v = ~np.isnan(sums_or)
+    if v.any():
+        window = int(prm[mekf.EP_MON_WINDOW])
+        sum_bound = 2.0 * np.sqrt(window * sums_or[v]) * PARITY_ABS / min(TRACKER_NOISE_RAD) + PARITY_REL_P * sums_or[v]
+        mean_bound = 2.0 * np.sqrt(means_or[v]) * 2.0 * np.sqrt(window) * PARITY_ABS / min(TRACKER_NOISE_RAD) + PARITY_REL_P * means_or[v]
+        print(f"monitor figures: max |d sum| {np.max(np.abs(sums_k[v] - sums_or[v])):.2e}, max |d mean| {np.max(np.abs(means_k[v] - means_or[v])):.2e}")
+        assert np.all(np.abs(sums_k[v] - sums_or[v]) <= sum_bound)
+        assert np.all(np.abs(means_k[v] - means_or[v]) <= mean_bound)
 
 
 # ----------------------------------------------------------------------------- (b) behaviour
