@@ -212,13 +212,12 @@ TARGETS: dict[str, Target] = {
          f"{_MEKF}test_kernel_equals_oracle[overconfident_6s]", f"{_MEKF}test_a_sample_that_is_not_finite_changes_nothing_and_gives_no_estimate",
          f"{_MEKF}test_an_implausible_sample_is_no_measurement", f"{_MEKF}test_initialises_at_the_first_tracker_sample",
          f"{_MEKF}test_a_tracker_sample_is_new_by_its_epoch_never_by_its_value"),
-        # the behaviour tests, the cheapest first (-x): the prior, the burst and the gate, then the oracle on the longer
-        # sequences (the recovery, outliers and a burst, an outage); the 17-s convergence test and the multi-hour runs are left
-        # to the suite
+        # then the paths the short sequences do not take: a prior's start, a burst that re-initialises, the reset, a 20 s
+        # outage (in a first full run this stage killed 2 of 105 mutants and cost every survivor ~17 s more: the sequences
+        # that repeat the quick stage's branches, the recovery's and the outliers', are left to the suite, with the 17-s
+        # convergence test and the multi-hour runs)
         (f"{_MEKF}test_kernel_equals_oracle[from_prior_10deg]", f"{_MEKF}test_burst_reinitialises_from_the_tracker",
-         f"{_MEKF}test_gate_rejects_an_outlier_without_a_trace", f"{_MEKF}test_multiplicative_reset",
-         f"{_MEKF}test_kernel_equals_oracle[bias_step_recovery]", f"{_MEKF}test_kernel_equals_oracle[outliers_and_burst]",
-         f"{_MEKF}test_kernel_equals_oracle[outage_20s]"),
+         f"{_MEKF}test_multiplicative_reset", f"{_MEKF}test_kernel_equals_oracle[outage_20s]"),
     ),
     "sappc_estimator.core.config": Target(
         "src/sappc_estimator/core/config.py",
