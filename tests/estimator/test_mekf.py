@@ -310,6 +310,9 @@ def parity_case(name: str) -> tuple[np.ndarray, Run]:
         # their mean, between the warning and the error bands or beyond (every level of the NIS-sum test)
         return mekf_config(tracker_noise_rad=tuple(v / OVERCONFIDENT for v in TRACKER_NOISE_RAD), monitor_window_samples=SHORT_WINDOW,
                            gate_false_alarm=0.0).params(), simulate(6.0, 37)
+    if name == "fast_tumble_4s":  # rates of ~1 rad/s, |w| h from 0.0098 to 0.0101: both sides of SERIES_BELOW (the series and the closed form of
+        # the transition; the slow sequences stay on the series)
+        return mekf_config().params(), simulate(4.0, 38, rate_scale_rad_s=0.79)
     if name == "monitor_fails_twice_6s":  # a recovery that cannot help (Q_r = 0) and no gate: the second failed window re-initialises
         run = simulate(6.0, 36)
         run.y[run.t_s >= 1.0, 4:7] += FAST_STEP_RAD_S
@@ -383,7 +386,7 @@ def test_oracle_transition_is_the_matrix_exponential() -> None:
 
 
 @pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery", "every_branch_8s",
-                                  "monitor_fails_twice_6s", "overconfident_6s"])
+                                  "monitor_fails_twice_6s", "overconfident_6s", "fast_tumble_4s"])
 def test_kernel_equals_oracle(name: str) -> None:
     """Kernel = oracle step after step: statuses and counters exactly; ``q_hat`` (sign-aligned) to
     ``PARITY_ABS`` absolute; ``b_hat`` and ``omega_hat`` so that the attitude they integrate to over
@@ -416,6 +419,9 @@ def test_kernel_equals_oracle(name: str) -> None:
             & (means <= prm[mekf.EP_MON_MEAN])
         print(f"\noverconfident: levels {np.bincount(lv.astype(int), minlength=3).tolist()}, upper-warning-only samples {int(upper_warn_only.sum())}")
         assert np.any(upper_warn_only)
+    if name == "fast_tumble_4s":  # the case has teeth: both branches of the transition taken
+        x = np.linalg.norm(run.y[:, 4:7] - kr.b_hat, axis=1) * DT_S
+        assert np.any(x < mekf.SERIES_BELOW) and np.any(x >= mekf.SERIES_BELOW)
     if name == "monitor_fails_twice_6s":  # recovered, re-initialised by the monitor (the gate is off), then recovered again: a
         # re-initialisation starts the count of failed windows afresh
         print(f"\nfails twice: recoveries {kr.out[-1, mekf.EO_N_RECOVER]:g}, counters {kr.counters[-1].tolist()}")
