@@ -314,12 +314,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     bag = read_bag(result.bag_dir)
     run = bag_run(bag, duration_s=scenario.duration_s)  # the run's span, [0, duration_s]: no sample after it
     ms = scenario.metrics
-    metrics = bag_metrics(bag, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold, t2_s=ms.t2_s,
-                          fault_windows=scenario.event_windows(), run=run)
+    metrics, per_orbit = bag_metrics(bag, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold, t2_s=ms.t2_s,
+                                     fault_windows=scenario.event_windows(), run=run, orbit_bins=scenario.orbit_bins())
     metrics["wall_time_s"] = result.run_s
     if result.startup_s is not None:  # from the plant's own timing: none with an external plant
         metrics["startup_s"] = result.startup_s
     _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph{' (composed)' if args.compose else ''}", metrics)
+    _print_orbits(per_orbit)
     mismatched = result.mismatched_counts()
     node_counts: dict[str, Any] = {k: result.controller_timing[k] for k in ("refused_steps", "rejected_by_reason") if k in result.controller_timing}
     ctrl = {**run.controller_summary(), **node_counts}
@@ -346,6 +347,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "mode": "realtime" if args.realtime else "lockstep",
             "composed": args.compose,
             "metrics": metrics,
+            **({"per_orbit": per_orbit} if per_orbit else {}),
             "bag": str(result.bag_dir),
             "published": result.published,
             "recorded": result.recorded,

@@ -48,6 +48,7 @@ class BagAnalysis:
     fault_windows: list[tuple[float, float]]
     problems: list[str] = field(default_factory=list)  # what could not be computed, and why
     notes: list[str] = field(default_factory=list)  # what is worth knowing about the data
+    per_orbit: list[dict[str, Any]] = field(default_factory=list)  # a run in orbit: each orbit's metrics
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready: metrics, where the data ends, counts, problems and notes."""
@@ -58,6 +59,7 @@ class BagAnalysis:
             "scenario": self.scenario.name if self.scenario else None,
             "controller": self.controller,
             "metrics": self.metrics,
+            **({"per_orbit": self.per_orbit} if self.per_orbit else {}),
             "samples": int(h.t.size) if h is not None else 0,
             "end_s": float(h.t[-1]) if h is not None else None,
             "truncated": self.bag.truncated,
@@ -138,13 +140,14 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
 
     run: BagRun | None = None
     metrics: dict[str, Any] | None = None
+    per_orbit: list[dict[str, Any]] = []
     try:
         run = bag_run(bag)
     except BagError as exc:
         problems.append(f"no metrics and no figures of the run: {exc}")
     if run is not None:
-        metrics = bag_metrics(bag, steady_from_s=settings.steady_from_s, settle_threshold=settings.settle_threshold,
-                              t2_s=settings.t2_s, fault_windows=windows, run=run)
+        metrics, per_orbit = bag_metrics(bag, steady_from_s=settings.steady_from_s, settle_threshold=settings.settle_threshold,
+                                         t2_s=settings.t2_s, fault_windows=windows, run=run, orbit_bins=sc.orbit_bins() if sc else None)
         if not run.has_diagnostics:
             problems.append("no controller/diagnostics: rho, the constraint band, saturation and the Lyapunov values are "
                             "unknown, so the metrics that need them are null")
@@ -165,7 +168,7 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
     elif bag.truncated:
         notes.insert(0, f"the bag is cut short ({bag.truncated})")
     return BagAnalysis(path=Path(path), bag=bag, label=label, scenario=sc, controller=controller, run=run,
-                       metrics=metrics, fault_windows=windows, problems=problems, notes=notes)
+                       metrics=metrics, fault_windows=windows, problems=problems, notes=notes, per_orbit=per_orbit)
 
 
 # ---- HTML -------------------------------------------------------------------------------------
@@ -334,6 +337,11 @@ def write_report(a: BagAnalysis, out_dir: Path, *, worker: Any = None) -> list[P
     if a.metrics is not None:
         blocks.append("<h2>Metrics</h2>" + html_table(["metric", "value", "meaning"], [[k, v, METRIC_SENTENCES.get(k, "")] for k, v in a.metrics.items()])
                       + f"<p>{html.escape(NOT_APPLICABLE)}</p>")
+    if a.per_orbit:
+        keys = list(a.per_orbit[0])
+        blocks.append("<h2>Per orbit</h2>" + html_table(keys, [[e[k] for k in keys] for e in a.per_orbit])
+                      + "<p>Each orbit's samples (orbit j: j T &lt;= t &lt; (j + 1) T); the definitions: sappc.evaluation.metrics, "
+                        "\"Per orbit\".</p>")
     blocks.append(parameters_block(a.bag))
     if a.fault_windows:
         blocks.append("<p>Injected disturbance events and faults are shaded red: "

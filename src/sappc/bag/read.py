@@ -519,17 +519,19 @@ def bag_estimate(bag: Bag) -> BagEstimate | None:
 
 
 def bag_metrics(bag: Bag, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]],
-                run: BagRun | None = None) -> dict[str, Any]:
-    """The metrics of :mod:`sappc.evaluation.metrics` for the run in ``bag`` (``run``: its alignment, if made already)."""
+                run: BagRun | None = None, orbit_bins: Any = None) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The metrics of :mod:`sappc.evaluation.metrics` for the run in ``bag`` (``run``: its alignment,
+    if made already), and its per-orbit metrics (``orbit_bins``: a scenario in orbit's,
+    :meth:`sappc.scenario.Scenario.orbit_bins`; none without)."""
     run = run or bag_run(bag)
     acc = MetricsAccumulator(run.history.t, 1, steady_from_s=steady_from_s, settle_threshold=settle_threshold, t2_s=t2_s,
-                             fault_windows=fault_windows)
+                             fault_windows=fault_windows, orbit_bins=orbit_bins)
     acc.add_history(run.history)
     metrics = acc.run_metrics(0)
     if not run.has_diagnostics:  # no rho, band or saturation flags: these are unknown, not zero
         for key in _NEED_DIAGNOSTICS:
             metrics[key] = None
-    return metrics
+    return metrics, acc.orbit_metrics(0)
 
 
 #: Metrics that need ``controller/diagnostics``.

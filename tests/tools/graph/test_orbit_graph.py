@@ -14,8 +14,10 @@ import numpy as np
 import pytest
 import yaml
 
+from sappc.analysis.report import analyse_bag
 from sappc.bag.read import bag_run, read_bag
 from sappc.offline import compiled_loop
+from sappc.offline.simulate import simulate
 from sappc.scenario import load_scenario, scenario_from_mapping
 
 from conftest import ROOT, SAPPC, SCENARIOS
@@ -67,8 +69,12 @@ def test_an_orbit_arc_with_momentum_management_through_the_graph_equals_the_offl
     measured = h.orbit[:, 0, 3:6]
     assert not np.array_equal(measured, h.orbit[:, 0, :3])
     assert np.count_nonzero(np.any(np.diff(measured, axis=0) != 0.0, axis=1)) == 20  # updates at samples 10, 20, ..., 200
-    # the bag's metrics are the offline run's (sappc run computes them from the bag)
+    # the bag's metrics are the offline run's (sappc run computes them from the bag), the per-orbit ones too, and the
+    # report's (one orbit: the 2 s arc)
     assert report["metrics"]["max_abs_wheel_speed_rad_s"] == float(np.abs(off.wheel_speed_rad_s).max())
+    per_orbit = simulate(scenario_from_mapping(raw)).per_orbit
+    assert len(per_orbit) == 1 and per_orbit[0]["rods_mean_dipole_fraction"] > 0.0
+    assert report["per_orbit"] == per_orbit and analyse_bag(out / "bag").per_orbit == per_orbit
     counts = {k: v for k, v in yaml.safe_load((out / "bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"].items()
               if k == "topics_with_message_count"}
     recorded = {t["topic_metadata"]["name"].lstrip("/"): t["message_count"] for t in counts["topics_with_message_count"]}
