@@ -310,6 +310,13 @@ def parity_case(name: str) -> tuple[np.ndarray, Run]:
         # their mean, between the warning and the error bands or beyond (every level of the NIS-sum test)
         return mekf_config(tracker_noise_rad=tuple(v / OVERCONFIDENT for v in TRACKER_NOISE_RAD), monitor_window_samples=SHORT_WINDOW,
                            gate_false_alarm=0.0).params(), simulate(6.0, 37)
+    if name == "exact_rest_2s":  # at rest, the gyro reading exactly the initial bias estimate (0) and the tracker exactly the
+        # attitude: until the first update the rate is exactly zero (the transition's zero-rate branch, the identity rotation)
+        # and the first residual is exactly the identity (a zero rotation vector)
+        run = simulate(2.0, 39, rate_scale_rad_s=0.0)
+        run.y[:, 0:4] = run.q_true[0]
+        run.y[:, 4:7] = 0.0
+        return mekf_config().params(), run
     if name == "fast_tumble_4s":  # rates of ~1 rad/s, |w| h from 0.0098 to 0.0101: both sides of SERIES_BELOW (the series and the closed form of
         # the transition; the slow sequences stay on the series)
         return mekf_config().params(), simulate(4.0, 38, rate_scale_rad_s=0.79)
@@ -321,6 +328,32 @@ def parity_case(name: str) -> tuple[np.ndarray, Run]:
 
 
 # ----------------------------------------------------------------------------- the oracle's own checks
+
+
+def test_the_kernels_arrays_are_packed_as_documented_without_gaps_or_overlaps() -> None:
+    """The column layouts of the parameters, the state, the outputs and the measurement (the module
+    docstring's widths, in its order): each field starts where the one before ends, and the last
+    ends at the array's length, so no two fields share a column and none is left over."""
+    layouts = {
+        "prm": ([(mekf.EP_R, 3), (mekf.EP_SV2, 3), (mekf.EP_SU2, 3), (mekf.EP_P0A, 3), (mekf.EP_P0B, 3), (mekf.EP_B0, 3), (mekf.EP_GATE, 1),
+                 (mekf.EP_MAXREJ, 1), (mekf.EP_INIT, 1), (mekf.EP_Q0, 4), (mekf.EP_MAX_NORM_ERR, 1), (mekf.EP_MAX_RATE, 1), (mekf.EP_MON_WINDOW, 1),
+                 (mekf.EP_MON_NIS, 4), (mekf.EP_MON_MEAN, 2), (mekf.EP_RECOVERY_PBB, 3), (mekf.EP_MON_PERSIST, 1)], mekf.N_EST_PARAMS),
+        "st": ([(mekf.ES_INIT, 1), (mekf.ES_Q, 4), (mekf.ES_B, 3), (mekf.ES_LASTQ, 4), (mekf.ES_LASTW, 3), (mekf.ES_TPREV, 1), (mekf.ES_N_UPD, 1),
+                (mekf.ES_N_REJ, 1), (mekf.ES_N_CONSEC, 1), (mekf.ES_N_REINIT, 1), (mekf.ES_NIS, 1), (mekf.ES_SEEN, 1), (mekf.ES_PROVISIONAL, 1),
+                (mekf.ES_EPOCH, 1), (mekf.ES_CONFIRMED, 1), (mekf.ES_MON_N, 1), (mekf.ES_MON_HEAD, 1), (mekf.ES_MON_LEVEL, 1), (mekf.ES_MON_NIS, 1),
+                (mekf.ES_MON_MEAN, 1), (mekf.ES_MON_FAILS, 1), (mekf.ES_N_RECOVER, 1), (mekf.ES_MON_OUTSIDE, 1),
+                (mekf.ES_MON_RING, 5 * mekf.MON_MAX_WINDOW)], mekf.N_EST_STATE),
+        "out": ([(mekf.EO_Q, 4), (mekf.EO_OMEGA, 3), (mekf.EO_B, 3), (mekf.EO_SIGMA, 6), (mekf.EO_NIS, 1), (mekf.EO_STATUS, 1), (mekf.EO_MON_LEVEL, 1),
+                 (mekf.EO_MON_NIS, 1), (mekf.EO_MON_MEAN, 1), (mekf.EO_USABLE, 1), (mekf.EO_N_RECOVER, 1)], mekf.N_EST_OUT),
+        "y": ([(0, 4), (4, 3), (mekf.Y_EPOCH, 1)], mekf.N_MEAS),
+        # (the scratch rows are not packed: S and S^-1 take rows 24 to 26 and the vectors start at 30, three rows unused)
+    }
+    for name, (fields, length) in layouts.items():
+        end = 0
+        for start, width in fields:
+            assert start == end, f"{name}: a field starts at {start}, the one before ends at {end}"
+            end = start + width
+        assert end == length, f"{name}: the fields end at {end}, the array has {length}"
 
 
 def test_oracle_rotations_agree_with_scipy_and_the_kernels_helpers() -> None:
@@ -386,7 +419,7 @@ def test_oracle_transition_is_the_matrix_exponential() -> None:
 
 
 @pytest.mark.parametrize("name", ["tumbling_200s", "outage_20s", "outliers_and_burst", "from_prior_10deg", "bias_step_recovery", "every_branch_8s",
-                                  "monitor_fails_twice_6s", "overconfident_6s", "fast_tumble_4s"])
+                                  "monitor_fails_twice_6s", "overconfident_6s", "fast_tumble_4s", "exact_rest_2s"])
 def test_kernel_equals_oracle(name: str) -> None:
     """Kernel = oracle step after step: statuses and counters exactly; ``q_hat`` (sign-aligned) to
     ``PARITY_ABS`` absolute; ``b_hat`` and ``omega_hat`` so that the attitude they integrate to over
@@ -419,6 +452,8 @@ def test_kernel_equals_oracle(name: str) -> None:
             & (means <= prm[mekf.EP_MON_MEAN])
         print(f"\noverconfident: levels {np.bincount(lv.astype(int), minlength=3).tolist()}, upper-warning-only samples {int(upper_warn_only.sum())}")
         assert np.any(upper_warn_only)
+    if name == "exact_rest_2s":  # the case has teeth: steps at exactly zero rate, and a residual of exactly zero
+        assert np.any(np.all(run.y[:, 4:7] - kr.b_hat == 0.0, axis=1)) and np.any(kr.nis == 0.0)
     if name == "fast_tumble_4s":  # the case has teeth: both branches of the transition taken
         x = np.linalg.norm(run.y[:, 4:7] - kr.b_hat, axis=1) * DT_S
         assert np.any(x < mekf.SERIES_BELOW) and np.any(x >= mekf.SERIES_BELOW)
