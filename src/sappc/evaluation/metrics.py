@@ -135,6 +135,7 @@ NEES_FROM_S = 5.0
 #: ``hold_s`` of a uniform grid, for the compiled update (no per-sample hold intervals).
 _NO_HOLD = np.zeros(0)
 
+
 def _finite_or_none(x: Any) -> float | None:
     """``x`` as a float, ``None`` when it is not finite (nothing measured, or a failed run)."""
     v = float(x)

@@ -136,6 +136,7 @@ def simulate_runs(
                 progress=progress,
                 run_keys=[(int(k), seed) for k in inputs.runs],  # the magnetometer's draws: the run's own, whatever its chunk
                 orbits=run_orbits(scenario, inputs),
+                per_orbit=False,  # not in the campaign's table
             )
         except InputError as exc:  # name the campaign's run, not its place in this chunk
             message = re.sub(r"\(run (\d+)\)", lambda m: f"(run {int(inputs.runs[int(m.group(1))])})", str(exc), count=1)
