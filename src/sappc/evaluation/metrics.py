@@ -102,8 +102,9 @@ the samples with ``j T <= t < (j + 1) T``, ``T`` the orbit's period):
 ``max_abs_wheel_speed_rad_s``
     With reaction wheels: the largest speed of any wheel relative to the body.
 ``rods_mean_dipole_fraction``
-    With magnetorquers (a record of their commands): the rods' duty, the mean over the orbit's
-    samples and the rods of ``|m_i| / m_max,i``.
+    With magnetorquers: the rods' duty, the mean over the orbit's samples and the rods of
+    ``|m_i| / m_max,i`` (``None`` when the record has no rods' commands: a bag without a
+    management node).
 """
 
 from __future__ import annotations
@@ -280,8 +281,9 @@ class MetricsAccumulator:
         qev = np.abs(np.asarray(h.q_BR, dtype=np.float64)[..., :3])  # (B, N, 3)
         speed = None if h.wheel_speed_rad_s is None or ob.wheel_spin_inertia_kg_m2 is None else np.asarray(h.wheel_speed_rad_s, dtype=np.float64)
         rods = None
-        if h.orbit is not None and ob.rod_max_dipole_Am2 is not None and ob.rod_max_dipole_Am2.size:
-            rods = np.abs(np.asarray(h.orbit, dtype=np.float64)[..., 9:9 + ob.rod_max_dipole_Am2.size]) / ob.rod_max_dipole_Am2
+        m = 0 if ob.rod_max_dipole_Am2 is None else ob.rod_max_dipole_Am2.size
+        if h.orbit is not None and m and h.orbit.shape[-1] >= 9 + m:  # a bag without a management node has no rods' columns
+            rods = np.abs(np.asarray(h.orbit, dtype=np.float64)[..., 9:9 + m]) / ob.rod_max_dipole_Am2
         for lo, hi in zip(np.concatenate(([0], bounds)), np.concatenate((bounds, [t.size]))):
             j = int(orbit[lo])
             self.orb_samples[j] += hi - lo

@@ -702,3 +702,9 @@ def test_per_orbit_metrics_equal_their_definitions_whole_in_blocks_and_concatena
                 for key in a:
                     assert a[key] == pytest.approx(b[key], rel=SUM_RTOL), key
     assert _accumulator(t, 1).orbit_metrics(0) == []  # no orbit: none
+    # rods in the scenario but no commands in the record (a bag without a management node: 9 columns): no duty
+    h.orbit = h.orbit[:, :, :9]
+    idle = _accumulator(t, 2, steady_from_s=steady_from_s, orbit_bins=bins)
+    idle.add_history(h)
+    assert [e["rods_mean_dipole_fraction"] for e in idle.orbit_metrics(0)] == [None] * 3
+    assert [e["steady_max_abs_qev"] for e in idle.orbit_metrics(0)] == [e["steady_max_abs_qev"] for e in whole.orbit_metrics(0)]
