@@ -83,6 +83,16 @@ PROGRESS_FILE = "logs/progress.json"
 #: Period of ``sappc run``'s progress line [s]: at least one every 2 s (issue 37), from the
 #: recorder's file, which it rewrites at each flush (0.5 s).
 PROGRESS_PERIOD_S = 1.0
+#: Lockstep without ``timeout_s``: the run fails when no new sample is recorded for this long [s]
+#: (a lockstep run has no wall-clock pace: a loaded machine may fly an orbit slower than real time,
+#: measured 75 to 180 samples/s for a 100 Hz scenario; a stall is what must stop it), the first
+#: sample included (the nodes start in ~10 s, ~60 s on a loaded machine).
+LOCKSTEP_STALL_S = 300.0
+#: And once the last sample is in, the nodes stop and the recorder closes the bag within this much
+#: plus :data:`CLOSE_S_PER_SAMPLE` a sample recorded [s] (a safety net for a hung close: sorting
+#: one orbit's 800 MB bag took 15 min on a loaded 2-core machine, 1.6 ms a sample).
+CLOSE_BASE_S = 60.0
+CLOSE_S_PER_SAMPLE = 5e-3
 
 
 def fastdds_profile() -> Path:
@@ -539,6 +549,8 @@ class _ProgressLine:
         self.last_print = start
         self.last_samples: tuple[float, int] | None = None  # (when, samples) of the previous line
         self.done = False  # the last sample's line is printed: nothing more
+        self.done_at: float | None = None  # when the last sample was seen in
+        self.advanced_at = start  # when the samples recorded last grew (or the start)
 
     def update(self) -> None:
         now = time.monotonic()
@@ -552,9 +564,13 @@ class _ProgressLine:
             return
         samples, t_s = int(progress["state_samples"]), float(progress["t_s"])
         rate = "" if self.last_samples is None else f", {(samples - self.last_samples[1]) / (now - self.last_samples[0]):.0f} samples/s"
+        if self.last_samples is None or samples > self.last_samples[1]:
+            self.advanced_at = now
         self.last_samples = (now, samples)
         share = f" ({100 * t_s / self.duration_s:.0f} %)" if self.duration_s > 0 else ""
         self.done = self.duration_s > 0 and t_s >= self.duration_s
+        if self.done:
+            self.done_at = now
         self.say(f"sappc run: t = {t_s:.1f} s of {self.duration_s:g} s{share}, {samples} samples recorded{rate}"
                  + ("; the last sample is in, stopping the nodes" if self.done else ""))
 
@@ -598,7 +614,11 @@ def run_graph(
     ConfigError
         For an invalid scenario, or an ``out_dir`` that already holds a run.
     RuntimeError
-        When a node fails (its log tail is in the message) or the run exceeds ``timeout_s``.
+        When a node fails (its log tail is in the message) or the run exceeds ``timeout_s``; without
+        ``timeout_s``, a real-time run that exceeds 60 s plus twice its duration, or a lockstep run
+        that records no new sample for :data:`LOCKSTEP_STALL_S` or whose nodes do not stop within
+        :data:`CLOSE_BASE_S` plus :data:`CLOSE_S_PER_SAMPLE` a sample of its last sample (lockstep
+        has no wall-clock pace: a loaded machine may fly it slower than real time).
     """
     if threading.current_thread() is threading.main_thread():
         old_term = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
@@ -664,7 +684,10 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                                  backend="basilisk" if plant == "basilisk" else "native")
         params_path.write_text(yaml.safe_dump(params, sort_keys=False))
         remaps = _remaps(scenario)
-        limit = timeout_s if timeout_s is not None else (float("inf") if external else 60.0 + (2.0 if realtime else 1.0) * scenario.duration_s)
+        # the wall-clock limit: timeout_s; else real time 60 s + twice the duration; lockstep none, but the stall rule
+        # (LOCKSTEP_STALL_S, then the close's budget) below; an external plant none
+        stall_rule = timeout_s is None and not realtime and not external
+        limit = timeout_s if timeout_s is not None else (60.0 + 2.0 * scenario.duration_s if realtime and not external else float("inf"))
         nodes = [n for n in NODES if not (external and n == "plant") and not (n == "estimator" and scenario.estimator is None)
                  and not (n == "momentum" and scenario.momentum is None)]
 
@@ -709,8 +732,15 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                 for name, p in procs.items():
                     if p.proc.poll() is not None and (external or name != lead):
                         raise RuntimeError(f"node {name} exited early with status {p.proc.returncode}; last log lines:\n{p.tail()}")
-                if time.monotonic() > deadline:
+                now = time.monotonic()
+                if now > deadline:
                     raise RuntimeError(f"the run did not finish within {limit:.0f} s (see {run_dir / 'logs'})")
+                if stall_rule and line.done_at is None and now - line.advanced_at > LOCKSTEP_STALL_S:
+                    raise RuntimeError(f"no new sample recorded for {LOCKSTEP_STALL_S:.0f} s: the lockstep run is stalled (see {run_dir / 'logs'})")
+                if stall_rule and line.done_at is not None and line.last_samples is not None \
+                        and now - line.done_at > CLOSE_BASE_S + CLOSE_S_PER_SAMPLE * line.last_samples[1]:
+                    raise RuntimeError(f"the nodes did not stop within {CLOSE_BASE_S + CLOSE_S_PER_SAMPLE * line.last_samples[1]:.0f} s "
+                                       f"of the last sample (see {run_dir / 'logs'})")
                 line.update()
                 time.sleep(0.05)
             run_end = time.monotonic()
