@@ -191,10 +191,8 @@ class MekfOracle:
     q_hat: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
     b_hat: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     P: np.ndarray = field(default_factory=lambda: np.full((6, 6), np.nan))
-    q_prev: np.ndarray | None = None
     omega_prev: np.ndarray | None = None
     t_prev: float | None = None
-    seen: bool = False
     provisional: bool = False
     n_updates: int = 0
     n_rejections: int = 0
@@ -374,10 +372,8 @@ class MekfOracle:
         # 5. remember
         if new:
             self.epoch = epoch
-        self.q_prev = q_meas.copy()
         self.omega_prev = omega_meas.copy()
         self.t_prev = float(t_s)
-        self.seen = True
         # 6. outputs
         if not self.initialised:
             return Output(status)

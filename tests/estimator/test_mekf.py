@@ -18,6 +18,7 @@ Units: angles [rad], rates [rad/s], times [s].  Quaternions scalar last, ``q_BN`
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 
@@ -338,15 +339,17 @@ def test_the_kernels_arrays_are_packed_as_documented_without_gaps_or_overlaps() 
         "prm": ([(mekf.EP_R, 3), (mekf.EP_SV2, 3), (mekf.EP_SU2, 3), (mekf.EP_P0A, 3), (mekf.EP_P0B, 3), (mekf.EP_B0, 3), (mekf.EP_GATE, 1),
                  (mekf.EP_MAXREJ, 1), (mekf.EP_INIT, 1), (mekf.EP_Q0, 4), (mekf.EP_MAX_NORM_ERR, 1), (mekf.EP_MAX_RATE, 1), (mekf.EP_MON_WINDOW, 1),
                  (mekf.EP_MON_NIS, 4), (mekf.EP_MON_MEAN, 2), (mekf.EP_RECOVERY_PBB, 3), (mekf.EP_MON_PERSIST, 1)], mekf.N_EST_PARAMS),
-        "st": ([(mekf.ES_INIT, 1), (mekf.ES_Q, 4), (mekf.ES_B, 3), (mekf.ES_LASTQ, 4), (mekf.ES_LASTW, 3), (mekf.ES_TPREV, 1), (mekf.ES_N_UPD, 1),
-                (mekf.ES_N_REJ, 1), (mekf.ES_N_CONSEC, 1), (mekf.ES_N_REINIT, 1), (mekf.ES_NIS, 1), (mekf.ES_SEEN, 1), (mekf.ES_PROVISIONAL, 1),
+        "st": ([(mekf.ES_INIT, 1), (mekf.ES_Q, 4), (mekf.ES_B, 3), (mekf.ES_LASTW, 3), (mekf.ES_TPREV, 1), (mekf.ES_N_UPD, 1),
+                (mekf.ES_N_REJ, 1), (mekf.ES_N_CONSEC, 1), (mekf.ES_N_REINIT, 1), (mekf.ES_NIS, 1), (mekf.ES_PROVISIONAL, 1),
                 (mekf.ES_EPOCH, 1), (mekf.ES_CONFIRMED, 1), (mekf.ES_MON_N, 1), (mekf.ES_MON_HEAD, 1), (mekf.ES_MON_LEVEL, 1), (mekf.ES_MON_NIS, 1),
                 (mekf.ES_MON_MEAN, 1), (mekf.ES_MON_FAILS, 1), (mekf.ES_N_RECOVER, 1), (mekf.ES_MON_OUTSIDE, 1),
                 (mekf.ES_MON_RING, 5 * mekf.MON_MAX_WINDOW)], mekf.N_EST_STATE),
         "out": ([(mekf.EO_Q, 4), (mekf.EO_OMEGA, 3), (mekf.EO_B, 3), (mekf.EO_SIGMA, 6), (mekf.EO_NIS, 1), (mekf.EO_STATUS, 1), (mekf.EO_MON_LEVEL, 1),
                  (mekf.EO_MON_NIS, 1), (mekf.EO_MON_MEAN, 1), (mekf.EO_USABLE, 1), (mekf.EO_N_RECOVER, 1)], mekf.N_EST_OUT),
         "y": ([(0, 4), (4, 3), (mekf.Y_EPOCH, 1)], mekf.N_MEAS),
-        # (the scratch rows are not packed: S and S^-1 take rows 24 to 26 and the vectors start at 30, three rows unused)
+        # the scratch's rows: Phi, Phi P, K, I - K H (6 each), S and S^-1 side by side (3), two vectors, the whitened innovation
+        "work": ([(mekf._W_PHI, 6), (mekf._W_TMP, 6), (mekf._W_K, 6), (mekf._W_IKH, 6), (mekf._W_S, 3), (mekf._W_V, 2), (mekf._W_WHITE, 1)],
+                 mekf.N_EST_WORK),
     }
     for name, (fields, length) in layouts.items():
         end = 0
@@ -354,6 +357,109 @@ def test_the_kernels_arrays_are_packed_as_documented_without_gaps_or_overlaps() 
             assert start == end, f"{name}: a field starts at {start}, the one before ends at {end}"
             end = start + width
         assert end == length, f"{name}: the fields end at {end}, the array has {length}"
+
+
+def test_the_transition_is_the_matrix_exponential_on_both_sides_of_the_series() -> None:
+    """:func:`mekf.transition` (into an array of NaN: every entry is written) against ``expm(F h)``
+    evaluated in the closed form of M&C 6.83 in extended precision (``np.longdouble``, 64-bit
+    significand on x86-64: its own error ~1e-19, far below the bound), at ``x = |w| h`` from 0
+    (``w = 0`` exactly: ``[[I, -I h], [0, I]]`` bit for bit) through both sides of
+    :data:`mekf.SERIES_BELOW` to 1 rad, for steps of 0.01 s and 1 s.  Bound: each entry is a few
+    float64 operations on terms of at most ``max(1, h)``: 8 ulps of that, ``8 eps max(1, h)``.
+    The series is what is checked below ``SERIES_BELOW``: a wrong coefficient of its ``x^2`` term
+    moves ``Phi12`` by ``~x^4 h / 14520``, 6.6e-13 at ``x = 0.0099``, ``h = 1`` (80 times the bound)."""
+    assert np.finfo(np.longdouble).eps < 1e-18, "the reference needs an extended-precision long double (x86-64)"
+    rng = np.random.default_rng(41)
+    Phi = np.zeros((6, 6))
+    for h in (0.01, 1.0):
+        for x in (0.0, 1e-8, 1e-4, 0.005, 0.0099, 0.9999 * mekf.SERIES_BELOW, mekf.SERIES_BELOW, 0.0101, 0.05, 0.3, 1.0):
+            axis = rng.standard_normal(3)
+            w = axis / np.linalg.norm(axis) * (x / h)
+            Phi[:] = np.nan
+            mekf.transition(w[0], w[1], w[2], h, Phi)
+            wl = w.astype(np.longdouble)
+            hl = np.longdouble(h)
+            wn = np.sqrt(np.sum(wl * wl))
+            W = np.array([[0, -wl[2], wl[1]], [wl[2], 0, -wl[0]], [-wl[1], wl[0], 0]], dtype=np.longdouble)
+            W2 = W @ W
+            eye = np.eye(3, dtype=np.longdouble)
+            if wn > 0:  # 1 - cos x as 2 sin^2(x/2), and x - sin x by its series to x^15 below 0.1 (no cancellation in either)
+                xl = wn * hl
+                s, c = np.sin(xl) / wn, 2 * np.sin(xl / 2) ** 2 / wn ** 2
+                if xl < 0.1:
+                    terms = [(-1) ** k * xl ** (2 * k + 3) / np.longdouble(math.factorial(2 * k + 3)) for k in range(7)]
+                    d = sum(terms[::-1]) / wn ** 3
+                else:
+                    d = (xl - np.sin(xl)) / wn ** 3
+            else:
+                s, c, d = hl, hl * hl / 2, hl ** 3 / 6
+            ref = np.zeros((6, 6), dtype=np.longdouble)
+            ref[:3, :3] = eye - W * s + W2 * c
+            ref[:3, 3:] = W * c - eye * hl - W2 * d
+            ref[3:, 3:] = eye
+            err = np.max(np.abs(Phi.astype(np.longdouble) - ref))
+            assert err <= 8.0 * np.finfo(np.float64).eps * max(1.0, h), (h, x, float(err))
+            if x == 0.0:
+                np.testing.assert_array_equal(Phi, np.block([[np.eye(3), -h * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]]))
+
+
+def test_the_plausibility_bounds_accept_a_sample_at_the_bound_and_refuse_the_next_float() -> None:
+    """Step 0 of the module docstring: a quaternion whose norm differs from 1 by exactly
+    ``max_norm_error``, a rate of exactly ``max_rate`` and an epoch equal to the step's time are
+    measurements; one float beyond each is no measurement (status *none*, outputs NaN).  The values
+    are exact in binary (``2^-21``, ``sqrt(r^2) = r``), so the bound itself is what is tested."""
+    prm = mekf_config().params()
+    prm[mekf.EP_MAX_NORM_ERR] = 2.0 ** -21
+    max_rate = prm[mekf.EP_MAX_RATE]
+    t = 0.5
+
+    def status_of(q: tuple[float, float, float, float], rate: float, epoch: float) -> int:
+        y = np.array([*q, rate, 0.0, 0.0, epoch])
+        out = np.zeros(mekf.N_EST_OUT)
+        return int(mekf.mekf_step(prm, t, y, mekf.new_state(), np.zeros((6, 6)), np.zeros((mekf.N_EST_WORK, 6)), out))
+
+    at = 1.0 + 2.0 ** -21
+    assert status_of((0.0, 0.0, 0.0, at), 0.0, t) == mekf.STATUS_INITIALISED
+    assert status_of((0.0, 0.0, 0.0, np.nextafter(at, 2.0)), 0.0, t) == mekf.STATUS_NONE
+    assert status_of((0.0, 0.0, 0.0, 1.0), max_rate, t) == mekf.STATUS_INITIALISED
+    assert status_of((0.0, 0.0, 0.0, 1.0), np.nextafter(max_rate, np.inf), t) == mekf.STATUS_NONE
+    assert status_of((0.0, 0.0, 0.0, 1.0), 0.0, np.nextafter(t, 1.0)) == mekf.STATUS_NONE
+
+
+def test_a_state_reset_in_place_over_used_arrays_steps_as_fresh_ones_and_keeps_p_exactly_symmetric() -> None:
+    """Whatever the caller's ``P`` and scratch held (here NaN, and a state of an earlier run reset
+    in place by :func:`mekf.reset_state`), the steps are those of fresh arrays bit for bit (the
+    first step sets ``P``; every scratch entry is written before it is read), through every branch
+    (the ``every_branch_8s`` sequence); and ``P`` is exactly symmetric after every step (the
+    docstring's "``P`` is symmetrised": the congruences alone leave ulps of asymmetry)."""
+    prm, run = parity_case("every_branch_8s")
+    fresh = run_kernel(prm, run.t_s, run.y)
+    st, P, work, out = mekf.new_state(), np.full((6, 6), np.nan), np.full((mekf.N_EST_WORK, 6), np.nan), np.zeros(mekf.N_EST_OUT)
+    for k in range(50):  # an earlier run's state, then reset in place
+        mekf.mekf_step(prm, float(run.t_s[k]), run.y[k], st, P, work, out)
+    mekf.reset_state(st)
+    np.testing.assert_array_equal(st, mekf.new_state())
+    P[:] = np.nan
+    work[:] = np.nan
+    for k in range(len(run.t_s)):
+        status = mekf.mekf_step(prm, float(run.t_s[k]), run.y[k], st, P, work, out)
+        assert status == fresh.status[k]
+        np.testing.assert_array_equal(out, fresh.out[k])
+        np.testing.assert_array_equal(P, fresh.P[k])
+        np.testing.assert_array_equal(P, P.T)
+
+
+def test_the_estimators_arrays_slice_along_their_run_axis() -> None:
+    """:class:`mekf.EstimatorArrays` names its per-run field's axis (``run_axes``, called on the
+    class and on a batch as the whole-run loop's sub-batches do): runs 1 and 2 of a 3-run batch are
+    those runs' own parameters."""
+    from sappc.offline.compiled_loop import _runs
+    from sappc_estimator.core.config import pack_estimator
+
+    rows = np.stack([mekf_config(tracker_noise_rad=(v, v, 5 * v)).params() for v in (1e-5, 2e-5, 3e-5)])
+    arrays = pack_estimator(None, 3, params=rows)
+    assert mekf.EstimatorArrays.run_axes() == arrays.run_axes() == {"prm": 0}
+    np.testing.assert_array_equal(_runs(arrays, 1, 3).prm, rows[1:3])
 
 
 def test_oracle_rotations_agree_with_scipy_and_the_kernels_helpers() -> None:

@@ -103,11 +103,12 @@ Arrays (float64, the caller's; no allocation per step)
     The measurement: ``q_meas`` (4), ``omega_meas`` (3), the tracker sample's epoch [s] (``<= t``).
 ``st`` (:data:`N_EST_STATE`,)
     Columns ``ES_*``: initialised flag, ``q_hat`` (4), ``b_hat`` (3), the previous measurement's
-    quaternion (4) and rate (3), ``t_prev``, counters (updates, rejections, consecutive rejections,
-    re-initialisations), the last NIS (NaN before the first update), whether a step was seen, and
-    whether the attitude is still provisional.  :func:`new_state` gives a fresh one.  The caller
+    rate (3), ``t_prev``, counters (updates, rejections, consecutive rejections,
+    re-initialisations), the last NIS (NaN before the first update), and whether the attitude is
+    still provisional.  :func:`new_state` gives a fresh one.  The caller
     gives increasing times (the node rejects a stamp in the past).
-``P`` (6, 6) the covariance; ``work`` (:data:`N_EST_WORK`, 6) scratch.
+``P`` (6, 6) the covariance; ``work`` (:data:`N_EST_WORK`, 6) scratch: what the caller's ``P`` and
+    ``work`` held before the first step (or after :func:`reset_state`) does not matter.
 ``out`` (:data:`N_EST_OUT`,)
     Columns ``EO_*``: ``q_hat`` (4), ``omega_hat`` (3), ``b_hat`` (3), ``sigma`` (6: attitude [rad],
     bias [rad/s]), the last NIS, the status (``STATUS_*``).  Before initialisation everything but
@@ -127,7 +128,7 @@ __all__ = [
     "EstimatorArrays",
     "EO_B", "EO_NIS", "EO_OMEGA", "EO_Q", "EO_SIGMA", "EO_STATUS",
     "EP_B0", "EP_GATE", "EP_INIT", "EP_MAXREJ", "EP_MAX_NORM_ERR", "EP_MAX_RATE", "EP_P0A", "EP_P0B", "EP_Q0", "EP_R", "EP_SU2", "EP_SV2",
-    "ES_B", "ES_CONFIRMED", "ES_EPOCH", "ES_INIT", "ES_LASTQ", "ES_LASTW", "ES_MON_LEVEL", "ES_MON_MEAN", "ES_MON_NIS", "ES_NIS",
+    "ES_B", "ES_CONFIRMED", "ES_EPOCH", "ES_INIT", "ES_LASTW", "ES_MON_LEVEL", "ES_MON_MEAN", "ES_MON_NIS", "ES_NIS",
     "ES_N_CONSEC", "ES_N_RECOVER", "ES_N_REINIT", "ES_N_REJ", "ES_N_UPD", "ES_Q", "ES_TPREV",
     "EO_MON_LEVEL", "EO_MON_MEAN", "EO_MON_NIS", "EO_N_RECOVER", "EO_USABLE", "EP_MON_MEAN", "EP_MON_NIS", "EP_MON_PERSIST", "EP_MON_WINDOW", "EP_RECOVERY_PBB", "ES_MON_OUTSIDE",
     "MON_ERROR", "MON_LEVEL_NAMES", "MON_MAX_WINDOW", "MON_OK", "MON_WARN", "N_MEAS", "Y_EPOCH", "reset_state",
@@ -135,7 +136,7 @@ __all__ = [
     "N_EST_OUT", "N_EST_PARAMS", "N_EST_STATE", "N_EST_WORK",
     "SERIES_BELOW",
     "STATUS_INITIALISED", "STATUS_NAMES", "STATUS_NONE", "STATUS_PROPAGATED", "STATUS_REINITIALISED", "STATUS_REJECTED", "STATUS_UPDATED",
-    "mekf_step", "new_state", "rotation_quaternion", "rotation_vector",
+    "mekf_step", "new_state", "rotation_quaternion", "rotation_vector", "transition",
 ]
 
 # ----------------------------------------------------------------------------- layouts
@@ -155,17 +156,17 @@ N_EST_PARAMS = 38
 INIT_FROM_TRACKER, INIT_FROM_PRIOR = 0, 1
 
 #: State columns.
-ES_INIT, ES_Q, ES_B, ES_LASTQ, ES_LASTW, ES_TPREV = 0, 1, 5, 8, 12, 15
-ES_N_UPD, ES_N_REJ, ES_N_CONSEC, ES_N_REINIT, ES_NIS, ES_SEEN, ES_PROVISIONAL = 16, 17, 18, 19, 20, 21, 22
+ES_INIT, ES_Q, ES_B, ES_LASTW, ES_TPREV = 0, 1, 5, 8, 11
+ES_N_UPD, ES_N_REJ, ES_N_CONSEC, ES_N_REINIT, ES_NIS, ES_PROVISIONAL = 12, 13, 14, 15, 16, 17
 #: The epoch [s] of the last tracker sample used, whether the estimate is confirmed (usable), and
 #: the monitor: samples in its window, the ring's next slot, its level (``MON_*``), the window's NIS
 #: sum and mean statistic at its last verdict, consecutive failed verdicts (too large), the
 #: recoveries (bias covariance inflations) so far, the consecutive verdicts outside the error band
 #: (the persistence count), then the ring (:data:`MON_MAX_WINDOW` rows of the NIS and the whitened
 #: innovation (3)).
-ES_EPOCH, ES_CONFIRMED, ES_MON_N, ES_MON_HEAD, ES_MON_LEVEL, ES_MON_NIS, ES_MON_MEAN, ES_MON_FAILS, ES_N_RECOVER = 23, 24, 25, 26, 27, 28, 29, 30, 31
-ES_MON_OUTSIDE = 32
-ES_MON_RING = 33
+ES_EPOCH, ES_CONFIRMED, ES_MON_N, ES_MON_HEAD, ES_MON_LEVEL, ES_MON_NIS, ES_MON_MEAN, ES_MON_FAILS, ES_N_RECOVER = 18, 19, 20, 21, 22, 23, 24, 25, 26
+ES_MON_OUTSIDE = 27
+ES_MON_RING = 28
 #: The longest monitor window [compared tracker samples]: 10 s at 10 Hz, longer than any bias
 #: step's detection should take; the ring is part of the state array.
 MON_MAX_WINDOW = 100
@@ -194,11 +195,11 @@ Y_EPOCH = 7
 STATUS_NONE, STATUS_INITIALISED, STATUS_PROPAGATED, STATUS_UPDATED, STATUS_REJECTED, STATUS_REINITIALISED = 0, 1, 2, 3, 4, 5
 STATUS_NAMES = ("none", "initialised", "propagated", "updated", "rejected", "reinitialised")
 
-#: Rows of the scratch array: Phi (6), the product Phi P (6), K (6, as 6 x 3 in the first 3
+#: Rows of the scratch array, packed: Phi (6), the product Phi P (6), K (6, as 6 x 3 in the first 3
 #: columns), I - K H (6), S and S^-1 side by side (3 rows), two vectors, the whitened innovation.
-N_EST_WORK = 33
-_W_PHI, _W_TMP, _W_K, _W_IKH, _W_S, _W_V = 0, 6, 12, 18, 24, 30
-_W_WHITE = 32
+N_EST_WORK = 30
+_W_PHI, _W_TMP, _W_K, _W_IKH, _W_S, _W_V = 0, 6, 12, 18, 24, 27
+_W_WHITE = 29
 
 #: Below this ``x = |w| h`` [rad], ``x - sin x`` is its series ``x^3/6 - x^5/120 + x^7/5040``
 #: (truncation below 1e-17 relative there); above it the closed form has no harmful cancellation
@@ -354,15 +355,11 @@ def _congruence(A, P, T):
 
 
 @jit(inline="always")
-def _propagate(prm, st, P, w0, w1, w2, h, work):
-    """Step 3 of the module docstring: ``q_hat`` and ``P`` over ``h`` at the rate ``w`` (bias removed)."""
-    # attitude: q_hat <- normalise(q_hat ⊗ dq(w h))
-    dq = work[_W_V]
-    rotation_quaternion(w0 * h, w1 * h, w2 * h, dq)
-    q = st[ES_Q:ES_Q + 4]
-    quat_multiply(q, dq, q)
-    quat_normalize(q, q)
-    # transition (M&C 6.83), with W = [w x]
+def transition(w0, w1, w2, h, Phi):
+    """The error state's transition ``Phi`` (6, 6) over ``h`` [s] at the constant rate ``w`` [rad/s]
+    (bias removed), into ``Phi``: the closed form of ``expm(F h)``, ``F = [[-[w x], -I], [0, 0]]``
+    (M&C 6.83; step 3 of the module docstring), ``x - sin x`` by its series below
+    :data:`SERIES_BELOW`."""
     wn2 = (w0 * w0 + w1 * w1) + w2 * w2
     wn = np.sqrt(wn2)
     x = wn * h
@@ -375,9 +372,8 @@ def _propagate(prm, st, P, w0, w1, w2, h, work):
             d = h * h * h * ((1.0 / 6.0 - x2 / 120.0) + x2 * x2 / 5040.0)
         else:
             d = (x - np.sin(x)) / (wn2 * wn)
-    else:
-        s, c, d = h, 0.5 * h * h, h * h * h / 6.0
-    Phi = work[_W_PHI:_W_PHI + 6]
+    else:  # w = 0: s, c and d multiply W = 0 and W^2 = 0 (Phi = [[I, -I h], [0, I]])
+        s = c = d = 0.0
     for r in range(6):
         for col in range(6):
             Phi[r, col] = 0.0
@@ -392,6 +388,19 @@ def _propagate(prm, st, P, w0, w1, w2, h, work):
             Phi[r, col] = (eye - w_rc * s) + w2_rc * c
             Phi[r, 3 + col] = (w_rc * c - eye * h) - w2_rc * d
         Phi[3 + r, 3 + r] = 1.0
+
+
+@jit(inline="always")
+def _propagate(prm, st, P, w0, w1, w2, h, work):
+    """Step 3 of the module docstring: ``q_hat`` and ``P`` over ``h`` at the rate ``w`` (bias removed)."""
+    # attitude: q_hat <- normalise(q_hat ⊗ dq(w h))
+    dq = work[_W_V]
+    rotation_quaternion(w0 * h, w1 * h, w2 * h, dq)
+    q = st[ES_Q:ES_Q + 4]
+    quat_multiply(q, dq, q)
+    quat_normalize(q, q)
+    Phi = work[_W_PHI:_W_PHI + 6]
+    transition(w0, w1, w2, h, Phi)
     # P <- Phi P Phi^T + Qd
     _congruence(Phi, P, work[_W_TMP:_W_TMP + 6])
     h2 = h * h
@@ -587,29 +596,23 @@ def mekf_step(prm, t, y, st, P, work, out):
             status = _update(prm, st, P, y[0:4], work, t)
     if new:
         st[ES_EPOCH] = epoch
-    for i in range(4):
-        st[ES_LASTQ + i] = y[i]
     for i in range(3):
         st[ES_LASTW + i] = y[4 + i]
     st[ES_TPREV] = t
-    st[ES_SEEN] = 1.0
-    if st[ES_INIT] == 0.0:
-        for i in range(N_EST_OUT):
-            out[i] = np.nan
-    else:
-        for i in range(4):
-            out[EO_Q + i] = st[ES_Q + i]
-        for i in range(3):
-            out[EO_B + i] = st[ES_B + i]
-            out[EO_OMEGA + i] = y[4 + i] - st[ES_B + i]
-        for i in range(6):
-            out[EO_SIGMA + i] = np.sqrt(P[i, i])
-        out[EO_NIS] = st[ES_NIS]
-        out[EO_MON_LEVEL] = st[ES_MON_LEVEL]
-        out[EO_MON_NIS] = st[ES_MON_NIS]
-        out[EO_MON_MEAN] = st[ES_MON_MEAN]
-        out[EO_USABLE] = st[ES_CONFIRMED]
-        out[EO_N_RECOVER] = st[ES_N_RECOVER]
+    # (a measurement always leaves the filter initialised: the branch above initialises it)
+    for i in range(4):
+        out[EO_Q + i] = st[ES_Q + i]
+    for i in range(3):
+        out[EO_B + i] = st[ES_B + i]
+        out[EO_OMEGA + i] = y[4 + i] - st[ES_B + i]
+    for i in range(6):
+        out[EO_SIGMA + i] = np.sqrt(P[i, i])
+    out[EO_NIS] = st[ES_NIS]
+    out[EO_MON_LEVEL] = st[ES_MON_LEVEL]
+    out[EO_MON_NIS] = st[ES_MON_NIS]
+    out[EO_MON_MEAN] = st[ES_MON_MEAN]
+    out[EO_USABLE] = st[ES_CONFIRMED]
+    out[EO_N_RECOVER] = st[ES_N_RECOVER]
     out[EO_STATUS] = status
     return status
 
