@@ -5,15 +5,20 @@ For each sample it takes, all of one stamp (lockstep: the plant owns time):
 
 - the wheels' tachometers, ``state/wheel_speed`` (``sensor_msgs/JointState``, ``velocity``);
 - the magnetometer, ``state/magnetic_field`` (``sensor_msgs/MagneticField``, B frame, tesla);
-- the controller's rate input, ``state/rate`` (remapped to what the controller reads:
-  ``estimate/rate`` with an estimator, a fault relay's output with sensor faults); a "no data"
-  sample (NaN) keeps the previous rate, as a dropped rate leaves the controller's;
+- the controller's attitude and rate inputs, ``state/attitude`` and ``state/rate`` (remapped to
+  what the controller reads: ``estimate/*`` with an estimator, a fault relay's output with sensor
+  faults); a "no data" sample (NaN) keeps the previous one, as a dropped input leaves the
+  controller's (the attitude is the predictive law's: the wheels' momentum turned into N; before
+  the first, the law is the cross-product law);
 - the controller's torque, ``control/torque`` (a fault relay's output with actuator faults);
 
 and publishes, with that stamp, the rods' dipole commands on ``control/dipole`` and the wheels'
 body torque on ``control/wheel_torque``, which the plant takes as its torque command.  The law is
 :func:`sappc_momentum.core.law.momentum_management_step`, the compiled kernel the offline loop
-calls on the same inputs in the same order, so a lockstep bag equals the offline run bit for bit.
+calls on the same inputs in the same order, at the sample's stamp in seconds, so a lockstep bag
+equals the offline run bit for bit.  The predictive law (``law: predictive``) plans with the
+onboard orbit and field models of ``orbit_params`` and ``field_params`` (``sappc run`` passes the
+scenario's).
 
 Parameters: :data:`PARAMETERS` (``python -m sappc_momentum --help``).  The wheels and the rods
 are given as the flight software's configuration tables: the axes, and the allocation and
@@ -37,9 +42,10 @@ from typing import Any
 import numpy as np
 
 from gnc_common.validation import ConfigError, InputError, as_finite_array
-from sappc_momentum.core.law import MomentumManagement, momentum_management_step, pack_momentum
-from sappc_msgs_py.contract import (CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, STATE_MAGNETIC_FIELD, STATE_RATE, STATE_WHEEL_SPEED,
-                                    Topic, qos_profile)
+from sappc_momentum.core.law import LAWS, N_MM_WORK, MomentumManagement, momentum_management_step, pack_momentum
+from sappc_momentum.core.predictive import new_state
+from sappc_msgs_py.contract import (CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, STATE_ATTITUDE, STATE_MAGNETIC_FIELD, STATE_RATE,
+                                    STATE_WHEEL_SPEED, Topic, qos_profile)
 from sappc_msgs_py.convert import (dipole_msg, magnetic_field_from_msg, stamp_to_ns, stamp_to_time, torque_from_msg, torque_msg,
                                    wheel_speed_from_msg)
 from sappc_msgs_py.parameters import REQUIRED, Param
@@ -53,7 +59,10 @@ __all__ = ["INPUTS", "MomentumNode", "PARAMETERS", "RIGHT_INVERSE_TOL", "main"]
 RIGHT_INVERSE_TOL = 1e-9
 
 #: The node's inputs of one sample.
-INPUTS = (STATE_WHEEL_SPEED, STATE_MAGNETIC_FIELD, STATE_RATE, CONTROL_TORQUE)
+INPUTS = (STATE_WHEEL_SPEED, STATE_MAGNETIC_FIELD, STATE_ATTITUDE, STATE_RATE, CONTROL_TORQUE)
+#: Nanoseconds per second: the kernel's time is the stamp in seconds, ``ns / NS_PER_S`` (the offline loop's).
+NS_PER_S = 1_000_000_000
+_DEFAULTS = MomentumManagement(gain_per_s=1.0)
 
 PARAMETERS = (
     MODE,
@@ -71,6 +80,17 @@ PARAMETERS = (
     Param("rod_steering", REQUIRED, "the rods' steering matrix (M, 3) row major (Basilisk dipoleMapping's; pinv(G_t))",
           check="a right inverse of rod_axes_B", type="double[]"),
     Param("rod_max_dipole_Am2", REQUIRED, "each rod's dipole limit", "A m^2", check="M values > 0", type="double[]"),
+    Param("law", _DEFAULTS.law, "the request: Basilisk's cross-product law, or the LQR along the predicted field "
+          "(sappc_momentum.core.predictive)", choices=tuple(LAWS)),
+    Param("horizon_s", _DEFAULTS.horizon_s, "the predictive law's horizon", "s", check="> 0"),
+    Param("replan_s", _DEFAULTS.replan_s, "how often the predictive law plans again", "s", check="> 0, <= horizon_s"),
+    Param("plan_step_s", _DEFAULTS.plan_step_s, "the predictive law's RK4 step", "s", check="> 0, <= replan_s"),
+    Param("disturbance_time_constant_s", _DEFAULTS.disturbance_time_constant_s,
+          "the predictive law's low pass on the controller's torque (the disturbance's estimate)", "s", check="> 0"),
+    Param("orbit_params", [], "the predictive law's onboard orbit: a, e, i, node, argument of periapsis, M_0, n, mu, theta_0, "
+          "omega_E (spacecraft_sim.core.orbit.Orbit.params; [] with the cross-product law)", check="10 finite values", type="double[]"),
+    Param("field_params", [], "the predictive law's onboard dipole field: g11, h11, g10 [T], R [m] "
+          "(spacecraft_sim.core.magnetic_field.DipoleField.params; [] with the cross-product law)", check="4 finite values", type="double[]"),
     Param("timing_file", "", "where to write the node's counts at the end (JSON: samples, rejected messages); '' for none"),
 )
 _P = {p.name: p for p in PARAMETERS}
@@ -119,7 +139,17 @@ class MomentumNode(ProjectNode):
         if gain is None:
             raise ConfigError("gain_per_s is required (K_p [1/s] > 0)")
         config = MomentumManagement(gain_per_s=float(gain), target_momentum_B_Nms=tuple(self.param(_P["target_momentum_B_Nms"])),
-                                    gyroscopic_feedforward=bool(self.param(_P["gyroscopic_feedforward"])))
+                                    gyroscopic_feedforward=bool(self.param(_P["gyroscopic_feedforward"])), law=str(self.param(_P["law"])),
+                                    horizon_s=float(self.param(_P["horizon_s"])), replan_s=float(self.param(_P["replan_s"])),
+                                    plan_step_s=float(self.param(_P["plan_step_s"])),
+                                    disturbance_time_constant_s=float(self.param(_P["disturbance_time_constant_s"])))
+        orbit = field = None
+        if config.law == "predictive":
+            orbit = as_finite_array("orbit_params", self.param(_P["orbit_params"]))
+            field = as_finite_array("field_params", self.param(_P["field_params"]))
+            if orbit.shape != (10,) or field.shape != (4,):
+                raise ConfigError(f"the predictive law needs orbit_params (10 values) and field_params (4 values), got "
+                                  f"{orbit.tolist()!r} and {field.tolist()!r}")
         tables = {}
         for p in ("wheel_axes_B", "wheel_spin_inertia_kg_m2", "wheel_max_torque_Nm", "wheel_allocation", "rod_axes_B", "rod_steering",
                   "rod_max_dipole_Am2"):
@@ -140,13 +170,16 @@ class MomentumNode(ProjectNode):
         _right_inverse("wheel_allocation", Gs_pinv, "wheel_axes_B", Gs)
         _right_inverse("rod_steering", steering, "rod_axes_B", Gt)
         # the offline loop's arrays (pack_momentum), run 0
-        self._mm = [a[0] for a in pack_momentum(config, 1, Gs, Js, Gs_pinv, u_max, Gt, steering, m_max)]
+        self._mm = [a[0] for a in pack_momentum(config, 1, Gs, Js, Gs_pinv, u_max, Gt, steering, m_max, orbit, field)]
         self.n_wheels, self.n_rods = W, M
         self._m = np.zeros(M)
         self._tau_w = np.zeros(3)
-        self._tmp = np.zeros((3, 3))
+        self._tmp = np.zeros((N_MM_WORK, 3))
         self._omega = np.zeros(3)  # the last delivered finite rate (the offline loop's omega_ff)
-        self._step(np.zeros(W), np.zeros(3), np.zeros(3))  # load the compiled kernel now, not at the first sample
+        self._q = np.full(4, np.nan)  # the last delivered finite attitude (the offline loop's q_ff)
+        self._state = new_state()
+        self._step(0.0, np.zeros(W), np.zeros(3), np.zeros(3))  # load the compiled kernel now, not at the first sample
+        self._state = new_state()
         self.pub_dipole = self.counting_publisher(CONTROL_DIPOLE, 1)
         self.pub_torque = self.counting_publisher(CONTROL_WHEEL_TORQUE, 1)
         self._pending: dict[int, dict[str, Any]] = {}
@@ -155,11 +188,12 @@ class MomentumNode(ProjectNode):
         qos = qos_profile()
         for topic in INPUTS:
             self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos)
-        self.get_logger().info(f"momentum management ready (lockstep; K_p {config.gain_per_s:g} 1/s, {W} wheels, {M} rods, "
+        self.get_logger().info(f"momentum management ready (lockstep; {config.law} law, K_p {config.gain_per_s:g} 1/s, {W} wheels, {M} rods, "
                                f"gyroscopic feed-forward {'on' if config.gyroscopic_feedforward else 'off'})")
 
-    def _step(self, speeds: np.ndarray, field_T: np.ndarray, torque_B: np.ndarray) -> None:
-        momentum_management_step(*self._mm, speeds, field_T, self._omega, torque_B, self._m, self._tau_w, self._tmp)
+    def _step(self, t_s: float, speeds: np.ndarray, field_T: np.ndarray, torque_B: np.ndarray) -> None:
+        momentum_management_step(*self._mm, t_s, speeds, field_T, self._q, self._omega, torque_B, self._m, self._tau_w,
+                                 self._tmp, self._state)
 
     def _decode(self, msg: Any, topic: Topic) -> Any:
         """The value of one input (``None`` for a rate that is "no data"); :class:`InputError` for a bad message."""
@@ -169,11 +203,15 @@ class MomentumNode(ProjectNode):
             return magnetic_field_from_msg(msg, STATE_MAGNETIC_FIELD)
         if topic is CONTROL_TORQUE:
             return torque_from_msg(msg, CONTROL_TORQUE)
-        if msg.header.frame_id != STATE_RATE.frame_id:
-            raise InputError(f"{STATE_RATE.name}: frame_id must be {STATE_RATE.frame_id!r}, got {msg.header.frame_id!r}")
-        v = msg.vector
-        rate = [v.x, v.y, v.z]
-        return np.array(rate) if all(map(math.isfinite, rate)) else None  # "no data": the previous rate is kept
+        if msg.header.frame_id != topic.frame_id:
+            raise InputError(f"{topic.name}: frame_id must be {topic.frame_id!r}, got {msg.header.frame_id!r}")
+        if topic is STATE_ATTITUDE:
+            q = msg.quaternion
+            values = [q.x, q.y, q.z, q.w]
+        else:
+            v = msg.vector
+            values = [v.x, v.y, v.z]
+        return np.array(values) if all(map(math.isfinite, values)) else None  # "no data": the previous value is kept
 
     def _on_input(self, msg: Any, topic: Topic) -> None:
         try:
@@ -190,10 +228,12 @@ class MomentumNode(ProjectNode):
         del self._pending[ns]
         for old in [k for k in self._pending if k < ns]:  # an earlier sample that never completed (the plant held its command)
             del self._pending[old]
-        rate = sample[STATE_RATE.name]
+        rate, attitude = sample[STATE_RATE.name], sample[STATE_ATTITUDE.name]
         if rate is not None:
             self._omega[:] = rate
-        self._step(sample[STATE_WHEEL_SPEED.name], sample[STATE_MAGNETIC_FIELD.name], sample[CONTROL_TORQUE.name])
+        if attitude is not None:
+            self._q[:] = attitude
+        self._step(ns / NS_PER_S, sample[STATE_WHEEL_SPEED.name], sample[STATE_MAGNETIC_FIELD.name], sample[CONTROL_TORQUE.name])
         stamp = msg.header.stamp
         self.pub_dipole.publish(dipole_msg(stamp_to_time(stamp), self._m, out=self.pub_dipole.msg))
         self.pub_torque.publish(torque_msg(self._tau_w, stamp, CONTROL_WHEEL_TORQUE, out=self.pub_torque.msg))

@@ -19,8 +19,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sappc_momentum.core.law import (dipole_mapping, dumping_scale, feedforward_torque_B, gyroscopic_torque_B, momentum_management_step,
-                                     momentum_torque_request_B, torque_to_dipole_B)
+from sappc_momentum.core.law import (N_MM_WORK, dipole_mapping, dumping_scale, feedforward_torque_B, gyroscopic_torque_B,
+                                     momentum_management_step, momentum_torque_request_B, torque_to_dipole_B)
+from sappc_momentum.core.predictive import N_MM_PARAMS, new_state
 from spacecraft_sim.core.magnetic_field import BASILISK_EARTH_DIPOLE, DipoleField, dipole_field_N, to_body_B
 from spacecraft_sim.core.magnetorquers import Magnetorquers, mtb_torque_B
 from spacecraft_sim.core.orbit import MU_EARTH_M3_S2, Orbit, gravity_gradient_B, position_N, position_N_of, true_anomaly_of
@@ -35,6 +36,17 @@ rng_seed = 36
 def _close(ours: np.ndarray, theirs: np.ndarray) -> float:
     """``|ours - theirs| / |theirs|``."""
     return float(np.linalg.norm(np.asarray(ours) - np.asarray(theirs)) / np.linalg.norm(theirs))
+
+
+#: The onboard orbit and field the cross-product law does not read (zeros, as pack_momentum packs them).
+NO_ORBIT = (np.zeros(10), np.zeros(4))
+
+
+def cross_product_prm(gain_per_s: float, gyroscopic: float) -> np.ndarray:
+    """The law's parameter row for the cross-product law (:class:`~sappc_momentum.core.law.MomentumArrays`)."""
+    prm = np.zeros(N_MM_PARAMS)
+    prm[0], prm[4] = gain_per_s, gyroscopic
+    return prm
 
 
 def _unit(rng: np.random.Generator) -> np.ndarray:
@@ -414,10 +426,10 @@ def test_the_whole_law_is_the_chain_of_the_four_kernels() -> None:
     rods = Magnetorquers(max_dipole_Am2=1e4)
     Gs = np.array([_unit(rng) for _ in range(4)]).T
     Js, Omega, B, tau_c = np.full(4, 0.08), rng.uniform(-100, 100, size=4), _unit(rng) * 3e-5, rng.normal(size=3) * 1e-2
-    prm = np.array([0.01, 0.0, 0.0, 0.0, 0.0])
-    m, tau_w, tmp = np.empty(3), np.empty(3), np.empty((3, 3))
-    momentum_management_step(prm, Gs, Js, np.linalg.pinv(Gs), np.full(4, 0.2), rods.Gt, rods.steering_matrix(), rods.max_dipoles(), Omega, B,
-                             np.ones(3), tau_c, m, tau_w, tmp)
+    prm = cross_product_prm(0.01, 0.0)
+    m, tau_w, tmp = np.empty(3), np.empty(3), np.empty((N_MM_WORK, 3))
+    momentum_management_step(prm, Gs, Js, np.linalg.pinv(Gs), np.full(4, 0.2), rods.Gt, rods.steering_matrix(), rods.max_dipoles(), *NO_ORBIT,
+                             0.0, Omega, B, np.array([0.0, 0.0, 0.0, 1.0]), np.ones(3), tau_c, m, tau_w, tmp, new_state())
     req, m_B, m_ref, tau_ref = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     momentum_torque_request_B(Gs, Js, Omega, 0.01, np.zeros(3), req)
     torque_to_dipole_B(B, req, m_B)
@@ -466,9 +478,10 @@ def test_the_attitude_first_budget_keeps_every_motor_within_its_limit() -> None:
         else:
             assert s == 0.0
     assert scaled > 20
-    prm = np.array([0.05, 0.0, 0.0, 0.0, 1.0])
-    m, tau_w, tmp = np.empty(3), np.empty(3), np.empty((3, 3))
+    prm = cross_product_prm(0.05, 1.0)
+    m, tau_w, tmp = np.empty(3), np.empty(3), np.empty((N_MM_WORK, 3))
     B, Omega = np.array([2e-5, -3e-5, 1e-5]), np.array([300.0, -200.0, 100.0, 50.0])
-    momentum_management_step(prm, wheels_G, np.full(4, 0.08), Gp, u_max, rods.Gt, rods.steering_matrix(), rods.max_dipoles(), Omega, B,
-                             np.array([0.01, -0.01, 0.005]), np.array([0.05, 0.0, -0.05]), m, tau_w, tmp)
+    momentum_management_step(prm, wheels_G, np.full(4, 0.08), Gp, u_max, rods.Gt, rods.steering_matrix(), rods.max_dipoles(), *NO_ORBIT, 0.0,
+                             Omega, B, np.array([0.0, 0.0, 0.0, 1.0]), np.array([0.01, -0.01, 0.005]), np.array([0.05, 0.0, -0.05]), m, tau_w,
+                             tmp, new_state())
     assert np.all(np.abs(Gp @ tau_w) <= u_max * (1 + 1e-12))

@@ -366,6 +366,14 @@ def _momentum_parameters(scenario: Scenario, mode: str, counts_file: str) -> dic
         "gain_per_s": float(mm.gain_per_s),
         "target_momentum_B_Nms": [float(v) for v in mm.target_momentum_B_Nms],
         "gyroscopic_feedforward": mm.gyroscopic_feedforward,
+        "law": mm.law,
+        "horizon_s": mm.horizon_s,
+        "replan_s": mm.replan_s,
+        "plan_step_s": mm.plan_step_s,
+        "disturbance_time_constant_s": mm.disturbance_time_constant_s,
+        # the predictive law's onboard models: the plant's orbit and field (the offline loop's, _momentum)
+        "orbit_params": env.orbit.params().tolist() if mm.law == "predictive" else [],
+        "field_params": env.magnetic_field.params().tolist() if mm.law == "predictive" else [],
         "wheel_axes_B": np.asarray(w.G, dtype=np.float64).ravel().tolist(),
         "wheel_spin_inertia_kg_m2": np.asarray(w.per_wheel("spin_inertia_kg_m2"), dtype=np.float64).tolist(),
         "wheel_max_torque_Nm": np.asarray(w.per_wheel("max_torque_Nm"), dtype=np.float64).tolist(),
@@ -402,14 +410,15 @@ def _remaps(scenario: Scenario) -> dict[str, list[str]]:
     managing = scenario.momentum is not None
     if estimating:
         remaps["controller"] += ["-r", f"{STATE_ATTITUDE.name}:={ESTIMATE_ATTITUDE.name}", "-r", f"{STATE_RATE.name}:={ESTIMATE_RATE.name}"]
-        remaps["momentum"] += ["-r", f"{STATE_RATE.name}:={ESTIMATE_RATE.name}"]  # the controller's rate input
+        remaps["momentum"] += ["-r", f"{STATE_ATTITUDE.name}:={ESTIMATE_ATTITUDE.name}", "-r",
+                               f"{STATE_RATE.name}:={ESTIMATE_RATE.name}"]  # the controller's attitude and rate inputs
     for topics in _relayed(scenario):
         sensor = topics in (RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR)
         actuator = topics is RELAYED_ACTUATOR_TOPICS
         consumer = ("momentum" if managing else "plant") if actuator else "estimator" if estimating and sensor else "controller"
         remaps[consumer] += relay_remaps(topics)
-        if sensor and managing and not estimating:  # the controller's rate input, relayed
-            remaps["momentum"] += relay_remaps([STATE_RATE])
+        if sensor and managing and not estimating:  # the controller's attitude and rate inputs, relayed
+            remaps["momentum"] += relay_remaps([STATE_ATTITUDE, STATE_RATE])
     if managing:  # the plant takes the management node's wheel torque as its command (the bag keeps the controller's)
         remaps["plant"] += ["-r", f"{CONTROL_TORQUE.name}:={CONTROL_WHEEL_TORQUE.name}"]
     return remaps

@@ -72,7 +72,8 @@ from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack
 from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, allocation_matrix, pack_actuator, propagate_wheels_into, wheel_speeds_into
 from spacecraft_sim.core.wheels import wheel_torques
 from spacecraft_sim.core.environment import EnvironmentArrays, field_of, locked_inertia, measured_field_of, pack_environment, torque_of
-from sappc_momentum.core.law import MomentumArrays, momentum_management_step, pack_momentum
+from sappc_momentum.core.law import N_MM_WORK, MomentumArrays, momentum_management_step, pack_momentum
+from sappc_momentum.core.predictive import MS_TLAST, MS_TNEXT, N_MM_STATE
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO, ESTIMATOR_NO_INPUT
 from sappc_msgs_py.convert import seconds_to_ns
 from spacecraft_sim.core.reference import sample_times
@@ -269,8 +270,14 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     x_q = x[:4]  # the attitude: x is integrated in place, so the view stays its first four rows
     mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max = (mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n],
                                                                                   mm.steering[n], mm.m_max[n])
+    mm_orbit, mm_field = mm.orbit[n], mm.field[n]
     tau_w = np.zeros(3)  # the wheels' body torque: the controller's minus the rods'
-    mtmp = np.zeros((3, 3))
+    mtmp = np.zeros((N_MM_WORK, 3))
+    mst = np.zeros(N_MM_STATE)  # the predictive law's state (sappc_momentum.core.predictive.new_state)
+    mst[MS_TNEXT] = -np.inf
+    mst[MS_TLAST] = np.nan
+    q_ff = np.full(4, np.nan)  # the predictive law's attitude: the controller's attitude input of the last sample that delivered a
+    # finite one, as for the rate below (NaN before the first: the cross-product law)
     omega_ff = np.zeros(3)  # the gyroscopic feed-forward's body rate: the controller's rate input of the last sample that delivered a finite
     # one (sappc_momentum.node reads the same topic: a dropped or withheld sample is "no data", NaN, and keeps the previous rate)
     measuring = sens.draws.shape[1] > 0
@@ -372,9 +379,12 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
             if state_in and np.isfinite(yc[4]) and np.isfinite(yc[5]) and np.isfinite(yc[6]):  # the rate delivered, as the node reads it
                 for i in range(3):
                     omega_ff[i] = yc[4 + i]
+            if state_in and np.isfinite(yc[0]) and np.isfinite(yc[1]) and np.isfinite(yc[2]) and np.isfinite(yc[3]):  # the attitude, the same
+                for i in range(4):
+                    q_ff[i] = yc[i]
             wheel_speeds_into(x, G, wprm, wspeed)  # the tachometers
-            momentum_management_step(mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max, wspeed, B_meas, omega_ff, u_last,
-                                     m_cmd, tau_w, mtmp)
+            momentum_management_step(mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max, mm_orbit, mm_field, t_stamp_s,
+                                     wspeed, B_meas, q_ff, omega_ff, u_last, m_cmd, tau_w, mtmp, mst)
             wheel_torques(tau_w, G_pinv, G, wprm, x, uw)
         elif nw > 0:
             wheel_torques(u_last, G_pinv, G, wprm, x, uw)
@@ -674,8 +684,8 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
         estimator=pack_estimator(scenario.estimator, n, estimator_params),
         disturbance=pack_disturbance(scenario.disturbance if disturbance is None else disturbance, t, n),
         faults=pack_faults(per_run_faults, t_ns),
-        environment=_environment(scenario, n, run_keys, orbits),
-        momentum=_momentum(scenario, n),
+        environment=(env_arrays := _environment(scenario, n, run_keys, orbits)),
+        momentum=_momentum(scenario, n, env_arrays),
         config=cfg,
         on_infeasible=on_infeasible,
     )
@@ -700,15 +710,17 @@ def _environment(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | N
     return env._replace(orbit=rows)
 
 
-def _momentum(scenario: Scenario, n: int) -> MomentumArrays:
+def _momentum(scenario: Scenario, n: int, env: EnvironmentArrays) -> MomentumArrays:
     """The scenario's momentum management for ``n`` runs, with the wheels and the rods as the
-    flight software knows them (the scenario's: no misalignment)."""
+    flight software knows them (the scenario's: no misalignment) and, for the predictive law, each
+    run's orbit and field (``env``'s: the onboard models are the plant's)."""
+    env_arrays = env
     env, w = scenario.environment, scenario.wheels
     if scenario.momentum is None or env is None or env.magnetorquers is None or w is None:
         return pack_momentum(None, n)
     rods = env.magnetorquers
     return pack_momentum(scenario.momentum, n, w.G, w.per_wheel("spin_inertia_kg_m2"), allocation_matrix(w.G), w.per_wheel("max_torque_Nm"),
-                         rods.Gt, rods.steering_matrix(), rods.max_dipoles())
+                         rods.Gt, rods.steering_matrix(), rods.max_dipoles(), env_arrays.orbit, env_arrays.field)
 
 
 def _started(inp: CompiledInputs) -> CompiledInputs:

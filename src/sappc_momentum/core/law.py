@@ -47,6 +47,10 @@ measured field ``B_B`` (3,) [T] (the magnetometer) and the attitude controller's
    largest ``s`` in [0, 1] that keeps every motor within its limit (0 when the controller's and the
    gyroscopic torque alone pass it): dumping waits, the attitude does not.
 
+**The predictive law** (``law: predictive``; :mod:`.predictive`): step 1's request is the
+receding-horizon LQR's along the onboard models' predicted field instead of ``-K_p (h - h*)``
+(before the first attitude is delivered, the cross-product law's); steps 2 to 6 are the same.
+
 Flight software: never imports the simulator; every kernel takes plain arrays and allocates
 nothing.
 """
@@ -61,9 +65,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.compiled import jit
+from gnc_common.ephemeris import N_ORBIT_PARAMS
 from gnc_common.validation import ConfigError
+from sappc_momentum.core.predictive import (LAW_CROSS_PRODUCT, LAW_PREDICTIVE, MP_INV_R, MP_LAW, N_MM_PARAMS, N_PLAN_WORK, nominal_field_T,
+                                            predictive_request_B)
 
-__all__ = ["B_NORM_SQ_MIN_T2", "MomentumArrays", "MomentumManagement", "dipole_mapping", "feedforward_torque_B", "momentum_management_step",
+__all__ = ["B_NORM_SQ_MIN_T2", "LAWS", "MAX_PLAN_STEPS", "N_MM_WORK", "MomentumArrays", "MomentumManagement", "dipole_mapping", "feedforward_torque_B", "momentum_management_step",
            "gyroscopic_torque_B", "momentum_torque_request_B", "pack_momentum", "torque_to_dipole_B"]
 
 Array = NDArray[np.float64]
@@ -72,6 +79,13 @@ Array = NDArray[np.float64]
 #: below which ``torque2Dipole`` commands no dipole (a field of 1e-15 T is no field: the Earth's is
 #: 2e-5 to 6e-5 T in low orbit).
 B_NORM_SQ_MIN_T2 = 1e-30
+#: The laws (``law``): Basilisk's cross-product chain, and the field-predictive LQR (:mod:`.predictive`).
+LAWS = {"cross_product": LAW_CROSS_PRODUCT, "predictive": LAW_PREDICTIVE}
+#: The most RK4 steps a plan may take (``horizon_s / plan_step_s``): 10,000 steps are ~10 ms of
+#: one core, once per ``replan_s``; a longer plan is a typo (a step in ms), refused.
+MAX_PLAN_STEPS = 10000
+#: Rows (3 wide) of the law's scratch ``tmp``: three of the chain's, then the plan's.
+N_MM_WORK = 3 + N_PLAN_WORK
 
 
 @dataclass(frozen=True)
@@ -87,11 +101,32 @@ class MomentumManagement:
     gyroscopic_feedforward : bool
         Steps 5 and 6 of the module docstring: the gyroscopic feed-forward and the attitude-first
         budget (default off: Basilisk's chain has neither).
+    law : str
+        ``cross_product`` (default: Basilisk's ``mtbMomentumManagementSimple`` request) or
+        ``predictive`` (:mod:`.predictive`: the LQR along the predicted field, whose weight makes
+        ``gain_per_s`` its decay rate normal to the field for a constant field of the orbit's
+        mean strength).
+    horizon_s, replan_s, plan_step_s : float
+        The predictive law's horizon, how often it plans again and its plan's RK4 step [s]
+        (``0 < plan_step_s <= replan_s <= horizon_s``, at most :data:`MAX_PLAN_STEPS` steps).
+        Defaults: 3000 s (about half a low orbit: the field's direction turns by a full turn,
+        so every direction the momentum may need is reachable within it), 60 s, 10 s (the
+        field's direction turns by 0.02 rad a step; the plan converges to 1e-9 relative,
+        tested).
+    disturbance_time_constant_s : float
+        The predictive law's low pass on the controller's torque, the disturbance's estimate [s]
+        (default 200 s: the paper's periodic parts, of 628 s and shorter, and the tracking
+        torque, of 40 to 50 s, averaged out; the constant part settles in a few minutes).
     """
 
     gain_per_s: float = 0.0
     target_momentum_B_Nms: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyroscopic_feedforward: bool = False
+    law: str = "cross_product"
+    horizon_s: float = 3000.0
+    replan_s: float = 60.0
+    plan_step_s: float = 10.0
+    disturbance_time_constant_s: float = 200.0
 
     def __post_init__(self) -> None:
         k = self.gain_per_s
@@ -104,15 +139,30 @@ class MomentumManagement:
         object.__setattr__(self, "target_momentum_B_Nms", tuple(float(v) for v in h))
         if not isinstance(self.gyroscopic_feedforward, bool):
             raise ConfigError(f"gyroscopic_feedforward must be true or false, got {self.gyroscopic_feedforward!r}")
+        if self.law not in LAWS:
+            raise ConfigError(f"law must be one of {', '.join(LAWS)}, got {self.law!r}")
+        for name in ("horizon_s", "replan_s", "plan_step_s", "disturbance_time_constant_s"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not v > 0:
+                raise ConfigError(f"{name} must be a finite number > 0 [s], got {v!r}")
+            object.__setattr__(self, name, float(v))
+        if not self.plan_step_s <= self.replan_s <= self.horizon_s:
+            raise ConfigError(f"the predictive law needs plan_step_s <= replan_s <= horizon_s, got {self.plan_step_s!r}, "
+                              f"{self.replan_s!r}, {self.horizon_s!r}")
+        if self.horizon_s / self.plan_step_s > MAX_PLAN_STEPS:
+            raise ConfigError(f"horizon_s / plan_step_s must be at most {MAX_PLAN_STEPS} steps, got {self.horizon_s!r} / "
+                              f"{self.plan_step_s!r}")
 
 
 class MomentumArrays(NamedTuple):
-    """The law's arrays for a batch of N runs (``pack_momentum``): ``prm`` (N, 5) ``K_p, h*_B``, 1 or 0
-    (the gyroscopic feed-forward and the attitude-first budget on or off), ``Gs_pinv`` (N, W, 3) and
+    """The law's arrays for a batch of N runs (``pack_momentum``): ``prm`` (N, 11) ``K_p, h*_B``, 1 or 0
+    (the gyroscopic feed-forward and the attitude-first budget on or off), then the predictive
+    law's columns (:data:`.predictive.MP_LAW` on; 0 for the cross-product law), ``Gs_pinv`` (N, W, 3) and
     ``u_max`` (N, W) the wheels' allocation and motor limits,
-    (K_p = 0 and no columns: no management, ``prm.shape[1] == 0``), ``Gs`` (N, 3, W) and ``Js``
+    (no columns: no management, ``prm.shape[1] == 0``), ``Gs`` (N, 3, W) and ``Js``
     (N, W) the wheels as the flight software knows them, ``Gt`` (N, 3, M), ``steering`` (N, M, 3)
-    and ``m_max`` (N, M) the rods."""
+    and ``m_max`` (N, M) the rods, ``orbit`` (N, 10) and ``field`` (N, 4) the onboard models the
+    predictive law plans with (:mod:`gnc_common.ephemeris`; zeros for the cross-product law)."""
 
     prm: Array
     Gs: Array
@@ -122,31 +172,50 @@ class MomentumArrays(NamedTuple):
     Gt: Array
     steering: Array
     m_max: Array
+    orbit: Array
+    field: Array
 
     @staticmethod
     def run_axes() -> dict[str, int]:
         """The axis of runs of each per-run field."""
-        return {"prm": 0, "Gs": 0, "Js": 0, "Gs_pinv": 0, "u_max": 0, "Gt": 0, "steering": 0, "m_max": 0}
+        return {"prm": 0, "Gs": 0, "Js": 0, "Gs_pinv": 0, "u_max": 0, "Gt": 0, "steering": 0, "m_max": 0, "orbit": 0, "field": 0}
 
 
 def pack_momentum(config: MomentumManagement | None, n_runs: int, Gs: Array | None = None, Js: Array | None = None,
                   Gs_pinv: Array | None = None, u_max: Array | None = None, Gt: Array | None = None, steering: Array | None = None,
-                  m_max: Array | None = None) -> MomentumArrays:
+                  m_max: Array | None = None, orbit: Array | None = None, field: Array | None = None) -> MomentumArrays:
     """The law's arrays, the same for every run: ``config`` (``None``: no management, empty arrays)
     with the wheels' axes ``Gs`` (3, W), spin inertias ``Js`` (W,), allocation ``Gs_pinv`` (W, 3) and
     motor limits ``u_max`` (W,), the rods' axes ``Gt`` (3, M), their steering matrix (M, 3) and
-    dipole limits ``m_max`` (M,)."""
+    dipole limits ``m_max`` (M,), and for the predictive law the onboard orbit's and field's
+    parameters ``orbit`` (10,) or one row per run (N, 10) (a campaign's dispersed orbits) and
+    ``field`` (4,) (:meth:`spacecraft_sim.core.orbit.Orbit.params`,
+    :meth:`spacecraft_sim.core.magnetic_field.DipoleField.params`: the plant's, the flight
+    software's onboard models); each run's weight from its own orbit."""
     if config is None:
         return MomentumArrays(np.zeros((n_runs, 0)), np.zeros((n_runs, 3, 0)), np.zeros((n_runs, 0)), np.zeros((n_runs, 0, 3)),
-                              np.zeros((n_runs, 0)), np.zeros((n_runs, 3, 0)), np.zeros((n_runs, 0, 3)), np.zeros((n_runs, 0)))
+                              np.zeros((n_runs, 0)), np.zeros((n_runs, 3, 0)), np.zeros((n_runs, 0, 3)), np.zeros((n_runs, 0)),
+                              np.zeros((n_runs, 0)), np.zeros((n_runs, 0)))
     if Gs is None or Js is None or Gs_pinv is None or u_max is None or Gt is None or steering is None or m_max is None:
         raise ValueError("momentum management needs the wheels (Gs, Js, Gs_pinv, u_max) and the rods (Gt, steering, m_max)")
-    prm = np.array([config.gain_per_s, *config.target_momentum_B_Nms, float(config.gyroscopic_feedforward)], dtype=np.float64)
+    prm = np.zeros((n_runs, N_MM_PARAMS))
+    prm[:, :5] = [config.gain_per_s, *config.target_momentum_B_Nms, float(config.gyroscopic_feedforward)]
+    orbit_prm, field_prm = np.zeros((n_runs, N_ORBIT_PARAMS)), np.zeros((n_runs, 4))
+    if config.law == "predictive":
+        if orbit is None or field is None:
+            raise ValueError("the predictive law needs the onboard orbit and field (orbit, field)")
+        orbit_prm = np.array(np.broadcast_to(np.asarray(orbit, dtype=np.float64), (n_runs, N_ORBIT_PARAMS)))
+        field_prm = np.array(np.broadcast_to(np.asarray(field, dtype=np.float64), (n_runs, 4)))
+        for k in range(n_runs):  # r = (B_nom / K_p)^2 (.predictive, "The weight"), each run's orbit its own
+            b_nom = nominal_field_T(orbit_prm[k], field_prm[k])
+            prm[k, MP_LAW:] = [LAWS[config.law], (config.gain_per_s / b_nom) ** 2, config.horizon_s, config.replan_s, config.plan_step_s,
+                               config.disturbance_time_constant_s]
 
     def rep(a: Array) -> Array:  # a writable C-contiguous copy per run: one argument type for every call (no recompiles)
         return np.array(np.broadcast_to(np.asarray(a, dtype=np.float64), (n_runs, *np.shape(a))), dtype=np.float64, order="C", copy=True)
 
-    return MomentumArrays(rep(prm), rep(Gs), rep(Js), rep(Gs_pinv), rep(u_max), rep(Gt), rep(steering), rep(m_max))
+    return MomentumArrays(np.ascontiguousarray(prm), rep(Gs), rep(Js), rep(Gs_pinv), rep(u_max), rep(Gt), rep(steering), rep(m_max),
+                          np.ascontiguousarray(orbit_prm), np.ascontiguousarray(field_prm))
 
 
 @jit
@@ -154,6 +223,16 @@ def momentum_torque_request_B(Gs, Js, Omega, kp, h_target_B, out):
     """``tau_req_B = -K_p (G_s (J_s Omega) - h*_B)`` (3,) into ``out``: Basilisk
     ``mtbMomentumManagementSimple`` (its ``vElementwiseMult``, ``mMultV`` summed wheel by wheel,
     ``v3Scale(-Kp)``), with the target subtracted (zero: the module's own)."""
+    excess_momentum_B(Gs, Js, Omega, h_target_B, out)
+    out[0] = out[0] * -kp
+    out[1] = out[1] * -kp
+    out[2] = out[2] * -kp
+
+
+@jit
+def excess_momentum_B(Gs, Js, Omega, h_target_B, out):
+    """``G_s (J_s Omega) - h*_B`` (3,) [N m s] into ``out``: the wheels' momentum in B relative to
+    its target (Basilisk's ``vElementwiseMult`` and ``mMultV``, summed wheel by wheel)."""
     h0 = 0.0
     h1 = 0.0
     h2 = 0.0
@@ -162,9 +241,9 @@ def momentum_torque_request_B(Gs, Js, Omega, kp, h_target_B, out):
         h0 += Gs[0, i] * hw
         h1 += Gs[1, i] * hw
         h2 += Gs[2, i] * hw
-    out[0] = (h0 - h_target_B[0]) * -kp
-    out[1] = (h1 - h_target_B[1]) * -kp
-    out[2] = (h2 - h_target_B[2]) * -kp
+    out[0] = h0 - h_target_B[0]
+    out[1] = h1 - h_target_B[1]
+    out[2] = h2 - h_target_B[2]
 
 
 @jit
@@ -254,13 +333,22 @@ def dumping_scale(Gs_pinv, u_max, tau_base_B, tau_mtb_B):
 
 
 @jit
-def momentum_management_step(prm, Gs, Js, Gs_pinv, u_max, Gt, steering, m_max, Omega, B_B, omega_B, tau_c_B, m_out, tau_w_out, tmp):
-    """One sample of the whole chain (module docstring, steps 1 to 6): the rods' dipole commands
-    ``m_out`` (M,) and the wheels' body torque ``tau_w_out`` (3,) from the wheels' speeds ``Omega``
-    (W,), the measured field ``B_B``, the body rate ``omega_B`` (the controller's input) and the
-    controller's torque ``tau_c_B``; ``prm`` = ``(K_p, h*_B, steps 5 and 6 on 1/0)``; ``tmp`` (3, 3)
-    scratch.  Steps 5 and 6 off: Basilisk's chain, ``tau_w = tau_c - (G_t m) x B``."""
-    momentum_torque_request_B(Gs, Js, Omega, prm[0], prm[1:4], tmp[0])
+def momentum_management_step(prm, Gs, Js, Gs_pinv, u_max, Gt, steering, m_max, orbit, field, t, Omega, B_B, q_BN, omega_B, tau_c_B, m_out,
+                             tau_w_out, tmp, mst):
+    """One sample of the whole chain (module docstring, steps 1 to 6) at time ``t`` [s]: the rods'
+    dipole commands ``m_out`` (M,) and the wheels' body torque ``tau_w_out`` (3,) from the wheels'
+    speeds ``Omega`` (W,), the measured field ``B_B``, the attitude ``q_BN`` and body rate
+    ``omega_B`` (the controller's inputs; the attitude NaN before the first) and the controller's
+    torque ``tau_c_B``; ``prm`` (:class:`MomentumArrays`), the onboard models ``orbit`` and
+    ``field`` and the state ``mst`` (:func:`.predictive.new_state`) for the predictive law;
+    ``tmp`` (:data:`N_MM_WORK`, 3) scratch.  The cross-product law with steps 5 and 6 off:
+    Basilisk's chain, ``tau_w = tau_c - (G_t m) x B``."""
+    predicted = False
+    if prm[MP_LAW] == LAW_PREDICTIVE:
+        excess_momentum_B(Gs, Js, Omega, prm[1:4], tmp[1])
+        predicted = predictive_request_B(prm, orbit, field, t, tmp[1], q_BN, tau_c_B, B_B, mst, tmp[3:], tmp[0])
+    if not predicted:
+        momentum_torque_request_B(Gs, Js, Omega, prm[0], prm[1:4], tmp[0])
     torque_to_dipole_B(B_B, tmp[0], tmp[1])
     dipole_mapping(steering, tmp[1], m_max, m_out)
     if prm[4] == 0.0:

@@ -29,9 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gnc_common.compiled import jit
 from gnc_common.validation import ConfigError
-from spacecraft_sim.core.orbit import dcm_PN_of
+from gnc_common.ephemeris import dipole_field_N, dipole_field_P_of, to_body_B  # noqa: F401 (the plant's names)
 
 __all__ = ["BASILISK_EARTH_DIPOLE", "IGRF13_2020_DIPOLE", "DipoleField", "dipole_field_N", "dipole_field_P_of", "to_body_B"]
 
@@ -82,44 +81,3 @@ class DipoleField:
 BASILISK_EARTH_DIPOLE = DipoleField()
 #: IGRF-13 at epoch 2020.0 (Alken et al. 2021, Earth Planets Space 73:49, Table 2).
 IGRF13_2020_DIPOLE = DipoleField(g10_nT=-29404.8, g11_nT=-1450.9, h11_nT=4652.5, epoch="IGRF-13, 2020.0")
-
-
-@jit
-def dipole_field_P_of(fprm, x, y, z):
-    """``B_P`` [T] (3-tuple) at ``r_P = (x, y, z)`` [m] of the dipole ``fprm``
-    (:meth:`DipoleField.params`): Basilisk ``MagneticFieldCenteredDipole::evaluateMagneticFieldModel``."""
-    r = math.sqrt((x * x + y * y) + z * z)
-    rx, ry, rz = x / r, y / r, z / r  # r_hat_P
-    m0, m1, m2 = fprm[0], fprm[1], fprm[2]
-    k = (fprm[3] / r) ** 3  # (R / |r|)^3, Basilisk's pow(planetRadius / orbitRadius, 3)
-    d = 3.0 * ((rx * m0 + ry * m1) + rz * m2)  # 3 (r_hat . m)
-    return (k * (rx * d - m0), k * (ry * d - m1), k * (rz * d - m2))
-
-
-@jit
-def dipole_field_N(oprm, fprm, t, r_N, out):
-    """``B_N`` (3,) [T] at time ``t`` [s] and position ``r_N`` (3,) [m] into ``out``: ``r_P = [PN] r_N``,
-    :func:`dipole_field_P_of`, ``B_N = [PN]^T B_P`` (module docstring; ``oprm`` the orbit's
-    parameters, :meth:`~spacecraft_sim.core.orbit.Orbit.params`, for the Earth's rotation)."""
-    c, s = dcm_PN_of(oprm, t)
-    b = dipole_field_P_of(fprm, c * r_N[0] + s * r_N[1], -s * r_N[0] + c * r_N[1], r_N[2])
-    out[0] = c * b[0] - s * b[1]
-    out[1] = s * b[0] + c * b[1]
-    out[2] = b[2]
-
-
-@jit
-def to_body_B(q_BN, B_N, out):
-    """``v_B = [BN] v_N`` (3,) of the attitude ``q_BN`` (scalar last) into ``out`` (the field, or
-    any vector): the conjugate rotation of :func:`gnc_common.compiled.quat_rotate`
-    (``v_B = q^* ⊗ (v_N, 0) ⊗ q``)."""
-    x, y, z, w = -q_BN[0], -q_BN[1], -q_BN[2], q_BN[3]
-    t0 = 2.0 * (y * B_N[2] - z * B_N[1])
-    t1 = 2.0 * (z * B_N[0] - x * B_N[2])
-    t2 = 2.0 * (x * B_N[1] - y * B_N[0])
-    o0 = B_N[0] + w * t0 + (y * t2 - z * t1)
-    o1 = B_N[1] + w * t1 + (z * t0 - x * t2)
-    o2 = B_N[2] + w * t2 + (x * t1 - y * t0)
-    out[0] = o0
-    out[1] = o1
-    out[2] = o2

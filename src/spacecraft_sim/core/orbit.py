@@ -37,6 +37,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.compiled import jit
+from gnc_common.ephemeris import (KEPLER_ITERATIONS, N_ORBIT_PARAMS, O_A, O_ARGP, O_E, O_I, O_M0, O_MU, O_N, O_OMEGA_E, O_RAAN, O_THETA0,  # noqa: F401 (the plant's names)
+                                 dcm_PN_of, position_N, position_N_of, true_anomaly_of)
 from gnc_common.validation import ConfigError
 
 __all__ = ["EARTH_EQUATORIAL_RADIUS_M", "EARTH_ROTATION_RATE_RAD_S", "KEPLER_ITERATIONS", "MU_EARTH_M3_S2", "Orbit", "dcm_PN_of",
@@ -53,10 +55,6 @@ EARTH_EQUATORIAL_RADIUS_M = 6378137.0
 #: The Earth's rotation rate relative to the stars [rad/s]: IERS Conventions (2010), Table 1.1
 #: (the nominal mean angular velocity of WGS 84, 7.292115e-5).
 EARTH_ROTATION_RATE_RAD_S = 7.292115e-5
-#: Newton iterations on Kepler's equation: from ``E = M`` the iteration converges quadratically for
-#: ``e < 0.9`` (the limit :class:`Orbit` accepts), to the last bit within 6 steps; 12 make sure
-#: without a data-dependent loop (every sample costs the same).
-KEPLER_ITERATIONS = 12
 #: The largest eccentricity accepted: beyond it Newton's iteration from ``E = M`` needs a better
 #: start (Vallado, Algorithm 2), and a low Earth orbit is nearly circular anyway.
 MAX_ECCENTRICITY = 0.9
@@ -125,49 +123,6 @@ class Orbit:
                          d(self.earth_rotation_angle_deg), EARTH_ROTATION_RATE_RAD_S], dtype=np.float64)
 
 
-#: Indices of :meth:`Orbit.params`.
-O_A, O_E, O_I, O_RAAN, O_ARGP, O_M0, O_N, O_MU, O_THETA0, O_OMEGA_E = range(10)
-N_ORBIT_PARAMS = 10
-
-
-@jit
-def true_anomaly_of(M, e):
-    """``f`` [rad] of the mean anomaly ``M`` [rad] and eccentricity ``e`` (module docstring):
-    Kepler's equation by :data:`KEPLER_ITERATIONS` Newton steps, then Schaub & Junkins eq. 9.11."""
-    E = M
-    for _ in range(KEPLER_ITERATIONS):
-        E = E - (E - e * math.sin(E) - M) / (1.0 - e * math.cos(E))  # Vallado, Algorithm 2
-    return 2.0 * math.atan2(math.sqrt(1.0 + e) * math.sin(0.5 * E), math.sqrt(1.0 - e) * math.cos(0.5 * E))
-
-
-@jit
-def position_N_of(a, e, inc, raan, argp, f):
-    """``r_N`` [m] of the elements and the true anomaly ``f``, as a 3-tuple: Basilisk's
-    ``orbitalMotion.elem2rv`` term for term (Schaub & Junkins, eq. 9.105)."""
-    p = a * (1.0 - e * e)  # semilatus rectum
-    r = p / (1.0 + e * math.cos(f))  # the orbit equation
-    theta = argp + f  # argument of latitude
-    ct, st, cO, sO, ci = math.cos(theta), math.sin(theta), math.cos(raan), math.sin(raan), math.cos(inc)
-    return (r * (ct * cO - ci * st * sO), r * (ct * sO + ci * st * cO), r * (st * math.sin(inc)))
-
-
-@jit
-def position_N(prm, t, out):
-    """``r_N`` (3,) [m] at time ``t`` [s] of an orbit's parameters ``prm`` (:meth:`Orbit.params`)."""
-    e = prm[O_E]
-    f = true_anomaly_of(prm[O_M0] + prm[O_N] * t, e) if e > 0.0 else prm[O_M0] + prm[O_N] * t  # circular: f = M
-    r = position_N_of(prm[O_A], e, prm[O_I], prm[O_RAAN], prm[O_ARGP], f)
-    out[0] = r[0]
-    out[1] = r[1]
-    out[2] = r[2]
-
-
-@jit
-def dcm_PN_of(prm, t):
-    """``(cos theta, sin theta)`` of ``[PN] = R3(theta)``, ``theta = theta_0 + omega_E t``: v_P =
-    ``(c v0 + s v1, -s v0 + c v1, v2)`` (Schaub & Junkins, eq. 3.32)."""
-    theta = prm[O_THETA0] + prm[O_OMEGA_E] * t
-    return math.cos(theta), math.sin(theta)
 
 
 @jit

@@ -26,12 +26,16 @@ from conftest import ROOT, SAPPC, SCENARIOS
 #: from the first sample (the wheels hold the paper's disturbance's momentum from t = 0), a few
 #: seconds of a node graph on one core.
 ARC_S = 2.0
+#: The predictive law's replanning period and step in the arc [s] (the scenario's 60 s would plan once).
+REPLAN_S = 0.5
 
 
 def _orbit_run(tmp_path: Path, scenario_file: str, *extra: str) -> tuple[dict, Path, dict]:  # type: ignore[type-arg]
     raw = copy.deepcopy(load_scenario(SCENARIOS / scenario_file).raw)  # resolved: the bundled files extend the flight scenario
     raw["duration_s"] = ARC_S
     raw["metrics"]["steady_from_s"] = ARC_S / 2
+    if (raw.get("momentum_management") or {}).get("law") == "predictive":  # plans again every 0.5 s: the arc takes four plans, not one
+        raw["momentum_management"].update(replan_s=REPLAN_S, plan_step_s=REPLAN_S, horizon_s=300.0)
     path = tmp_path / "scenario.yaml"
     path.write_text(yaml.safe_dump(raw))
     out = tmp_path / "run"
