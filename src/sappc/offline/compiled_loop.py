@@ -710,11 +710,10 @@ def _environment(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | N
     return env._replace(orbit=rows)
 
 
-def _momentum(scenario: Scenario, n: int, env: EnvironmentArrays) -> MomentumArrays:
+def _momentum(scenario: Scenario, n: int, env_arrays: EnvironmentArrays) -> MomentumArrays:
     """The scenario's momentum management for ``n`` runs, with the wheels and the rods as the
     flight software knows them (the scenario's: no misalignment) and, for the predictive law, each
-    run's orbit and field (``env``'s: the onboard models are the plant's)."""
-    env_arrays = env
+    run's orbit and field (``env_arrays``': the onboard models are the plant's)."""
     env, w = scenario.environment, scenario.wheels
     if scenario.momentum is None or env is None or env.magnetorquers is None or w is None:
         return pack_momentum(None, n)

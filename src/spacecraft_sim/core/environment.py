@@ -30,11 +30,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.compiled import jit
+from gnc_common.ephemeris import N_ORBIT_PARAMS, O_MU, dipole_field_N, position_N, to_body_B
 from gnc_common.validation import ConfigError, from_mapping
-from spacecraft_sim.core.magnetic_field import DipoleField, dipole_field_N, to_body_B
+from spacecraft_sim.core.magnetic_field import DipoleField
 from spacecraft_sim.core.magnetometer import Magnetometer, magnetometer_draws, measure_field
 from spacecraft_sim.core.magnetorquers import Magnetorquers, magnetorquers_from_mapping, mtb_torque_B
-from spacecraft_sim.core.orbit import N_ORBIT_PARAMS, O_MU, Orbit, gravity_gradient_B_of, position_N
+from spacecraft_sim.core.orbit import Orbit, gravity_gradient_B_of
 
 __all__ = ["Environment", "EnvironmentArrays", "environment_field", "environment_from_mapping", "environment_measure_field", "environment_torque_B",
            "field_of", "locked_inertia", "measured_field_of", "pack_environment", "torque_of"]
