@@ -73,6 +73,7 @@ __all__ = [
     "quat_multiply",
     "quat_normalize",
     "quat_rotate",
+    "quat_rotate_of",
 ]
 
 
@@ -386,19 +387,23 @@ def dcm_BR_times(q_BR, v_R, out):
 
 
 @jit
+def quat_rotate_of(x, y, z, w, v0, v1, v2):
+    """``q ⊗ (v, 0) ⊗ q^*`` of the quaternion ``(x, y, z, w)`` and the vector ``(v0, v1, v2)``, as a
+    3-tuple (the scalar core of :func:`quat_rotate`; the conjugate ``(-x, -y, -z, w)`` rotates back)."""
+    # t = 2 q_v × v;  the result is v + w t + q_v × t
+    t0 = 2.0 * (y * v2 - z * v1)
+    t1 = 2.0 * (z * v0 - x * v2)
+    t2 = 2.0 * (x * v1 - y * v0)
+    return (v0 + w * t0 + (y * t2 - z * t1), v1 + w * t1 + (z * t0 - x * t2), v2 + w * t2 + (x * t1 - y * t0))
+
+
+@jit
 def quat_rotate(q_BN, v_B, out):
     """``out = v_N``, the components of ``v`` in N: ``q_BN ⊗ (v_B, 0) ⊗ q_BN^*``."""
-    x, y, z, w = q_BN[0], q_BN[1], q_BN[2], q_BN[3]
-    # t = 2 q_v × v;  v_N = v + w t + q_v × t
-    t0 = 2.0 * (y * v_B[2] - z * v_B[1])
-    t1 = 2.0 * (z * v_B[0] - x * v_B[2])
-    t2 = 2.0 * (x * v_B[1] - y * v_B[0])
-    o0 = v_B[0] + w * t0 + (y * t2 - z * t1)
-    o1 = v_B[1] + w * t1 + (z * t0 - x * t2)
-    o2 = v_B[2] + w * t2 + (x * t1 - y * t0)
-    out[0] = o0
-    out[1] = o1
-    out[2] = o2
+    o = quat_rotate_of(q_BN[0], q_BN[1], q_BN[2], q_BN[3], v_B[0], v_B[1], v_B[2])
+    out[0] = o[0]
+    out[1] = o[1]
+    out[2] = o[2]
 
 
 @jit

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 
-from gnc_common.compiled import jit
+from gnc_common.compiled import jit, quat_rotate_of
 
 __all__ = ["KEPLER_ITERATIONS", "N_ORBIT_PARAMS", "O_A", "O_ARGP", "O_E", "O_I", "O_M0", "O_MU", "O_N", "O_OMEGA_E", "O_RAAN", "O_THETA0",
            "dcm_PN_of", "dipole_field_N", "dipole_field_P_of", "position_N", "position_N_of", "to_body_B", "true_anomaly_of"]
@@ -103,13 +103,7 @@ def to_body_B(q_BN, B_N, out):
     """``v_B = [BN] v_N`` (3,) of the attitude ``q_BN`` (scalar last) into ``out`` (the field, or
     any vector): the conjugate rotation of :func:`gnc_common.compiled.quat_rotate`
     (``v_B = q^* ⊗ (v_N, 0) ⊗ q``)."""
-    x, y, z, w = -q_BN[0], -q_BN[1], -q_BN[2], q_BN[3]
-    t0 = 2.0 * (y * B_N[2] - z * B_N[1])
-    t1 = 2.0 * (z * B_N[0] - x * B_N[2])
-    t2 = 2.0 * (x * B_N[1] - y * B_N[0])
-    o0 = B_N[0] + w * t0 + (y * t2 - z * t1)
-    o1 = B_N[1] + w * t1 + (z * t0 - x * t2)
-    o2 = B_N[2] + w * t2 + (x * t1 - y * t0)
-    out[0] = o0
-    out[1] = o1
-    out[2] = o2
+    o = quat_rotate_of(-q_BN[0], -q_BN[1], -q_BN[2], q_BN[3], B_N[0], B_N[1], B_N[2])
+    out[0] = o[0]
+    out[1] = o[1]
+    out[2] = o[2]
