@@ -33,8 +33,9 @@ their place in :func:`_run_one` (the closed loop's order is the one thing the lo
 
 One code path: :func:`_run_one` is the whole time loop of one run; :func:`run_batch_kernel` calls
 it for every run in a ``prange`` (runs are independent: each has its own parameters, state and
-scratch arrays), :func:`run_single_kernel` for one run, with the same argument types, so run ``k``
-of a batch is the run alone, bit for bit.
+scratch arrays), and one run calls it from Python (:func:`run_single`) with the same argument types,
+so run ``k`` of a batch is the run alone, bit for bit (and a one-run command compiles ``_run_one``
+alone: its ~9 s of parallel lowering is the batch kernel's).
 
 What every run shares (reference, and the disturbance when no run changes it) is computed once
 before the loop: the reference quaternion by the compiled RK4 of
@@ -458,11 +459,11 @@ def run_batch_kernel(probe, stride, grid, ctrl, plant, act, sens, est, dist, fau
         _run_one(n, n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec)
 
 
-@jit
-def run_single_kernel(n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec):
-    """Run ``n`` of the batch's arrays alone (same argument types as in :func:`run_batch_kernel`);
-    the record (leading axis 1) at index 0."""
-    _run_one(n, np.int64(0), probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec)  # int64, not a literal: run_batch_kernel's signature
+def _run_alone(n: int, probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord) -> None:
+    """Run ``n`` of ``inp`` alone into index 0 of ``rec``: :func:`_run_one` called from Python with
+    :func:`run_batch_kernel`'s argument types (``int64`` indices, not Python ints' literals: one
+    signature, one compile)."""
+    _run_one(np.int64(n), np.int64(0), bool(probe), np.int64(stride), *inp.args(), rec)
 
 
 def _runs(arrays: Any, lo: int, hi: int) -> Any:
@@ -736,7 +737,7 @@ def _started(inp: CompiledInputs) -> CompiledInputs:
     """
     n = inp.n_runs
     rec = _record(inp, 0, n)
-    run_batch_kernel(True, 0, *inp.args(), rec)
+    _loop(True, 0, inp, rec)
     start = rec.start
     ok = start[:, 0] >= 0.0
     coef = np.zeros_like(inp.controller.coef)
@@ -782,15 +783,26 @@ def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = N
         rec.rejected[...] = 0  # counts: start again
     else:
         rec = _record(inp, stride, inp.n_runs)
-    run_batch_kernel(False, stride, *inp.args(), rec)
+    _loop(False, stride, inp, rec)
     return CompiledRun(inp.t[::stride] if stride else inp.t[:0], rec)
+
+
+def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord) -> None:
+    """Every run of ``inp`` into ``rec``: in parallel over runs (:func:`run_batch_kernel`), or, for one
+    run, :func:`_run_one` alone (the same bits; a one-run command then never compiles the batch
+    kernel)."""
+    if inp.n_runs == 1:
+        _run_alone(0, probe, stride, inp, rec)
+    else:
+        ensure_compiled(groups=("batches",))
+        run_batch_kernel(probe, stride, *inp.args(), rec)
 
 
 def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
     """Run ``n`` of ``inp`` alone (one thread): histories with a leading axis of length 1."""
     _check_noise(inp)
     rec = _record(inp, stride, 1)
-    run_single_kernel(n, False, stride, *inp.args(), rec)
+    _run_alone(n, False, stride, inp, rec)
     return CompiledRun(inp.t[::stride] if stride else inp.t[:0], rec)
 
 
@@ -801,17 +813,25 @@ def simulate_compiled(scenario: Scenario, controller: Any = None) -> CompiledRun
 
 # ============================================================================= compile once
 
-#: The groups of :func:`warm_up`, each compilable in its own process: the offline loops (``simulate``,
-#: campaigns, tuning) and the kernels the nodes and ``sappc rerun`` call from Python.
-WARM_UP_GROUPS = ("loops", "nodes")
-_checked = False
+#: The groups of :func:`warm_up`, each compilable in its own process: the one-run loop (``simulate``,
+#: a batch of one run), the batch loop (campaigns, tuning: parallel over runs; it calls the one-run
+#: loop's compiled ``_run_one``, so compiled after it, it adds only its own ~9 s) and the kernels
+#: the nodes and ``sappc rerun`` call from Python.  A first ``sappc simulate`` compiles ``loops``
+#: alone.
+WARM_UP_GROUPS = ("loops", "batches", "nodes")
+#: The groups that compile in one process, in this order, when :func:`warm_up` compiles in parallel.
+_TOGETHER = {"batches": "loops"}
+#: The groups this process has checked (:func:`ensure_compiled`).
+_checked: set[str] = set()
 
 
 def _entry_kernels(group: str) -> tuple[Any, ...]:
     """The kernels whose cache decides whether ``group`` must compile (its entry points, the last
     compiled of each group among them)."""
     if group == "loops":
-        return (run_single_kernel, run_batch_kernel)
+        return (_run_one,)
+    if group == "batches":
+        return (run_batch_kernel,)
     from sappc_controller.core.kernels import controller_step_batch, controller_step_one
     from spacecraft_sim.core.kernels import fault_actuator_one, fault_sensor_one, propagate_runs
 
@@ -839,11 +859,11 @@ def ensure_compiled(*, in_subprocess: bool = False, groups: tuple[str, ...] = ("
 
     ``in_subprocess``: compile in child processes (a parent about to fork workers keeps numba's
     thread pool unstarted); several groups then compile at once when there are several CPUs."""
-    global _checked
-    if _checked:
+    todo = tuple(g for g in groups if g not in _checked)
+    if not todo:
         return
-    _checked = True
-    cold = tuple(g for g in groups if not cache_is_warm((g,)))
+    _checked.update(todo)
+    cold = tuple(g for g in todo if not cache_is_warm((g,)))
     if not cold:
         return
     print(f"sappc: compiling the numerical core's {' and '.join(cold)} once (~40 s; later runs load them from the cache)...",
@@ -945,14 +965,15 @@ def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = 
     its own child process, at the same time (numba compiles on one thread; the two groups share no
     entry point, and each child writes its kernels into the same cache): on two idle cores the
     compile takes the longer group's time instead of the sum."""
-    global _checked
-    _checked = True
     names = (groups,) if isinstance(groups, str) else tuple(groups)
     unknown = [g for g in names if g not in WARM_UP_GROUPS]
     if unknown:
         raise ValueError(f"warm_up groups must be among {WARM_UP_GROUPS}, got {unknown}")
-    if parallel and len(names) > 1:
-        _compile_in_children([((g,), False) for g in names])
+    if parallel and len(names) > 1:  # one child a chain of groups (a group after the one it calls)
+        chains: dict[str, list[str]] = {}
+        for g in names:
+            chains.setdefault(_TOGETHER.get(g, g) if _TOGETHER.get(g) in names else g, []).append(g)
+        _compile_in_children([(tuple(sorted(chain, key=WARM_UP_GROUPS.index)), False) for chain in chains.values()])
         return
     import time
 
@@ -962,8 +983,11 @@ def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = 
         print(f"sappc: numerical core: {group} ready ({time.monotonic() - started:.0f} s)", file=sys.stderr, flush=True)
 
     scenario = _warm_up_scenario()
+    _checked.update(names)
     if "loops" in names:
         _warm_up_loops(scenario, compiled)
+    if "batches" in names:
+        _warm_up_batches(scenario, compiled)
     if "nodes" in names:
         _warm_up_nodes(scenario, compiled)
 
@@ -991,19 +1015,32 @@ def _warm_up_scenario() -> Scenario:
     return scenario_from_mapping(raw)
 
 
+def _warm_up_cases(scenario: Scenario, n_runs: int) -> tuple[CompiledInputs, CompiledInputs]:
+    """The warm-up's inputs of ``n_runs`` runs, without and with sensor noise."""
+    q0 = np.broadcast_to(scenario.q_BN0, (n_runs, 4))
+    inp = prepare(scenario, on_infeasible="clamp", sensor_params=white_noise_params(1e-7, 1e-7), q_BN0=q0)
+    return inp, inp.subset(0, n_runs, noise=np.zeros((n_runs, inp.t.size, 6)))
+
+
 def _warm_up_loops(scenario: Scenario, compiled: Any) -> None:
-    """The offline loops: one run and batches, with and without sensor noise, and the set-up kernels."""
+    """The one-run loop, with and without sensor noise, and the set-up kernels."""
     from spacecraft_sim.core.faults import noisy_measurement
 
-    inp = prepare(scenario, on_infeasible="clamp", sensor_params=white_noise_params(1e-7, 1e-7))
-    noisy = inp.subset(0, 1, noise=np.zeros((1, inp.t.size, 6)))
+    inp, noisy = _warm_up_cases(scenario, 1)
     compiled("the set-up kernels")
     for case in (inp, noisy):
         run_single(case, 0, 1)
+        run_batch(case, 1)  # one run: the one-run kernel (run_batch)
+        compiled("the offline loop (one run)" + (" with sensor noise" if case is noisy else ""))
+    noisy_measurement(np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(6), 1e-7, 1e-7)
+
+
+def _warm_up_batches(scenario: Scenario, compiled: Any) -> None:
+    """The batch loop (parallel over runs), with and without sensor noise."""
+    for case in _warm_up_cases(scenario, 2):
         run_batch(case, 1)
         run_batch(case, 0)
-        compiled("the offline loops (one run, and batches)" + (" with sensor noise" if case is noisy else ""))
-    noisy_measurement(np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(6), 1e-7, 1e-7)
+    compiled("the offline loop (batches)")
 
 
 def _warm_up_nodes(scenario: Scenario, compiled: Any) -> None:

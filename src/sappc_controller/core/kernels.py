@@ -420,7 +420,7 @@ def sappc_transform(prm, coef, state, tau, work, out):
     state[S_HAS_PREV] = 1.0
 
 
-@jit(inline="always")
+@jit
 def trappc_transform(prm, coef, tau, work, out):
     """TraPPC's exponential PF + homeomorphic log transformation (Appendix B; module :mod:`.trappc`):
     ``eps = s f(s z)``, ``f(x) = ln((K + x) / (K (1 - x)))``, ``psi = f'(s z) / rho``, ``eta = -rho_dot / rho``."""
@@ -485,7 +485,7 @@ def backstepping_law(prm, state, dt, work, out):
 # ============================================================================= BLFPPC
 
 
-@jit(inline="always")
+@jit
 def blfppc_law(prm, coef, state, tau, dt, work, out):
     """The BLFPPC benchmark law of Appendix C (module :mod:`.blfppc`), with ``Gamma^-1`` in the
     coupling term as the appendix writes it (docs/paper_notes.md, observation 6)."""
@@ -554,7 +554,7 @@ def blfppc_law(prm, coef, state, tau, dt, work, out):
 # ============================================================================= MRP feedback
 
 
-@jit(inline="always")
+@jit
 def mrp_feedback_law(prm, state, dt, work, out):
     """Basilisk's ``mrpFeedback`` law (Schaub & Junkins, Analytical Mechanics of Space Systems,
     Example 8.14; module :mod:`.mrp_feedback`), ``controlLawType = 0``, no reaction-wheel terms and

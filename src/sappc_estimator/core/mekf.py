@@ -262,7 +262,7 @@ def rotation_vector(q, out):
 # ----------------------------------------------------------------------------- steps
 
 
-@jit(inline="always")
+@jit
 def _initialise(prm, q, st, P):
     for i in range(4):
         st[ES_Q + i] = q[i]
@@ -277,7 +277,7 @@ def _initialise(prm, q, st, P):
     st[ES_INIT] = 1.0
 
 
-@jit(inline="always")
+@jit
 def _reinitialise_attitude(prm, st, P, q_meas):
     """``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``; the bias and its covariance kept (the
     first fresh sample after a provisional start)."""
@@ -290,7 +290,7 @@ def _reinitialise_attitude(prm, st, P, q_meas):
         P[a, a] = prm[EP_R + a]
 
 
-@jit(inline="always")
+@jit
 def _inflate_bias(prm, P, age):
     """The recovery (module docstring, "Health monitor"): a bias step of covariance
     ``Q = diag(recovery)`` that happened ``age`` [s] ago, carried to now by the transition's bias
@@ -304,7 +304,7 @@ def _inflate_bias(prm, P, age):
         P[i, i] += q * age * age
 
 
-@jit(inline="always")
+@jit
 def _clear_monitor(st):
     """Empty the monitor's window (its samples were judged against a covariance that no longer holds)
     and its persistence count."""
@@ -313,7 +313,7 @@ def _clear_monitor(st):
     st[ES_MON_OUTSIDE] = 0.0
 
 
-@jit(inline="always")
+@jit
 def _reinitialise_after_failure(prm, st, P, q_meas):
     """Re-initialisation after a lost attitude (the gate's consecutive rejections, or a monitor that
     fails again after its recovery): ``q_hat = q_meas``, ``P_aa = R``, ``P_ab = 0``, the bias
@@ -413,7 +413,7 @@ def _propagate(prm, st, P, w0, w1, w2, h, work):
     _symmetrise(P)
 
 
-@jit(inline="always")
+@jit
 def _update(prm, st, P, q_meas, work, t):
     """Step 4 of the module docstring; returns the status (updated, rejected or re-initialised)."""
     q = st[ES_Q:ES_Q + 4]
@@ -493,7 +493,7 @@ def _update(prm, st, P, q_meas, work, t):
     return _monitor(prm, st, P, q_meas, d2, white, t)
 
 
-@jit(inline="always")
+@jit
 def _monitor(prm, st, P, q_meas, d2, white, t):
     """The health monitor (module docstring): the compared sample's time ``t``, NIS ``d2`` and
     whitened innovation ``white`` (3) into the window; once it holds ``EP_MON_WINDOW`` samples, a verdict

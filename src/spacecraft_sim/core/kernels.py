@@ -324,7 +324,7 @@ def disturbance_tables(t, kinds, dparams, dscale, dphase, rand_draws, rand_win):
 # ============================================================================= sensors
 
 
-@jit(inline="always")
+@jit
 def noisy_measurement(q_BN, omega_BN_B, n, attitude_std_rad, rate_std_rad_s, q_out, omega_out):
     """The white-noise model of one sample: the fault injector's ``sensor_noise`` fault (through
     :func:`spacecraft_sim.core.faults.noisy_measurement`); the sensors' kernel
@@ -385,7 +385,7 @@ def _fault_hold(fcount, fbuf, f, n, value, m):
     fcount[f] = j + 1
 
 
-@jit(inline="always")
+@jit
 def fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, draws, y):
     """The measurement delivered for the true sample ``y`` = (q_BN, omega_BN_B, tracker epoch) (8,) at ``t``,
     through the sensor faults in list order, in place; ``False`` when it is dropped (the faults
@@ -417,7 +417,7 @@ def fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, draws, y):
     return True
 
 
-@jit(inline="always")
+@jit
 def fault_rate_bias(t, fkind, fwin, fprm, out):
     """Add to ``out`` (3,) the rate bias [rad/s] of every ``sensor_bias`` fault active at ``t``: the
     share of the faults in the gyro's true bias (what an estimator's bias is judged against),
@@ -434,7 +434,7 @@ def fault_rate_bias_one(t, fkind, fwin, fprm, out):
     fault_rate_bias(t, fkind, fwin, fprm, out)
 
 
-@jit(inline="always")
+@jit
 def fault_reference(t, fkind, fwin):
     """Whether the reference of ``t`` is delivered (no reference dropout acts)."""
     for f in range(fkind.shape[0]):
@@ -443,7 +443,7 @@ def fault_reference(t, fkind, fwin):
     return True
 
 
-@jit(inline="always")
+@jit
 def fault_actuator(t, fkind, fwin, fprm, fint, fcount, fbuf, u, u_last):
     """The torque delivered to the plant for the command ``u`` (3,) at ``t``, through the actuator
     faults in list order, in place.  A dropped command (``actuator_dropout``) leaves the actuator

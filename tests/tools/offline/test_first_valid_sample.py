@@ -120,10 +120,10 @@ def test_warm_up_names_an_unknown_group_and_a_warm_cache_compiles_nothing(monkey
     neither prints nor compiles."""
     from sappc.offline import compiled_loop
 
-    with pytest.raises(ValueError, match=r"among \('loops', 'nodes'\), got \['bogus'\]"):
+    with pytest.raises(ValueError, match=r"among \('loops', 'batches', 'nodes'\), got \['bogus'\]"):
         compiled_loop.warm_up("bogus")
     assert compiled_loop.cache_is_warm(compiled_loop.WARM_UP_GROUPS)
-    monkeypatch.setattr(compiled_loop, "_checked", False)
+    monkeypatch.setattr(compiled_loop, "_checked", set())
     monkeypatch.setattr(compiled_loop, "warm_up", lambda *a, **k: pytest.fail("compiled on a warm cache"))
     compiled_loop.ensure_compiled(groups=compiled_loop.WARM_UP_GROUPS)
     assert capsys.readouterr().err == ""
