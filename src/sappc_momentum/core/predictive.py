@@ -48,8 +48,9 @@ models (:func:`nominal_field_T`).
 **The disturbance** ``D_B`` is estimated from the attitude controller's torque: on a rigid body
 that tracks a slow reference the controller's torque cancels the environment's to within
 ``J dω_d/dt`` (1e-3 N m on the paper's trajectory), so ``D_B`` is a first-order low pass of
-``-tau_c`` with the time constant ``disturbance_time_constant_s`` (the paper's periodic parts and
-the tracking torque averaged out), turned into N with the attitude at each plan.  Before the first
+``-tau_c`` with the time constant ``disturbance_time_constant_s`` (200 s: the tracking torque's
+40 to 50 s periods attenuated 25 to 30 times, the paper's 628 s periodic parts about twice),
+turned into N with the attitude at each plan.  Before the first
 attitude is delivered the law is the cross-product law.
 
 Arrays
