@@ -46,6 +46,7 @@ from sappc_momentum.core.law import LAWS, N_MM_WORK, MomentumManagement, momentu
 from sappc_momentum.core.predictive import new_state
 from sappc_msgs_py.contract import (CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, STATE_ATTITUDE, STATE_MAGNETIC_FIELD, STATE_RATE,
                                     STATE_WHEEL_SPEED, Topic, qos_profile)
+from sappc_msgs_py.inputs import NS_PER_S  # the kernel's time: the stamp in seconds, ns / NS_PER_S (the offline loop's)
 from sappc_msgs_py.convert import (dipole_msg, magnetic_field_from_msg, stamp_to_ns, stamp_to_time, torque_from_msg, torque_msg,
                                    wheel_speed_from_msg)
 from sappc_msgs_py.parameters import REQUIRED, Param
@@ -60,8 +61,6 @@ RIGHT_INVERSE_TOL = 1e-9
 
 #: The node's inputs of one sample.
 INPUTS = (STATE_WHEEL_SPEED, STATE_MAGNETIC_FIELD, STATE_ATTITUDE, STATE_RATE, CONTROL_TORQUE)
-#: Nanoseconds per second: the kernel's time is the stamp in seconds, ``ns / NS_PER_S`` (the offline loop's).
-NS_PER_S = 1_000_000_000
 _DEFAULTS = MomentumManagement(gain_per_s=1.0)
 
 PARAMETERS = (

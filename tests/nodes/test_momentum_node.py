@@ -117,6 +117,8 @@ def test_a_sample_is_answered_with_the_kernels_commands_and_no_data_keeps_the_pr
     ("wheel_spin_inertia_kg_m2", [0.0796, 0.0796, 0.0796, 0.0], "wheel_spin_inertia_kg_m2 must be 4 values > 0"),
     ("rod_axes_B", [1.0, 0.0, 0.0, 0.0], "rod_axes_B must hold 3 rows"),
     ("gain_per_s", -0.01, "gain_per_s must be a finite number > 0, got -0.01"),
+    ("orbit_params", [1.0, 2.0], "the predictive law needs orbit_params .10 values. and field_params .4 values., got .1.0, 2.0."),
+    ("law", "lqr", "law must be one of 'cross_product', 'predictive', got 'lqr'"),
 ])
 def test_a_bad_table_stops_the_node_naming_the_parameter_and_value(ros_context, name: str, value: Any, message: str) -> None:  # type: ignore[no-untyped-def]
     from sappc_momentum.node import MomentumNode
