@@ -40,6 +40,7 @@ from sappc.files import SCENARIOS_DIR, scenario_path
 from gnc_common.validation import (
     safe_load_yaml,
     ConfigError,
+    did_you_mean,
     InputError,
     as_finite_array,
     check_initial_quaternion,
@@ -367,12 +368,16 @@ class Scenario:
         return self.controller if kind is None else controller_kind(kind)
 
 
-def controller_kind(name: ControllerKind | str) -> ControllerKind:
-    """Parse a controller name, raising :class:`ConfigError` naming the accepted ones."""
+def controller_kind(name: ControllerKind | str, *, key: str | None = None) -> ControllerKind:
+    """Parse a controller name, raising :class:`ConfigError` naming the accepted ones and the
+    closest of them to a misspelt name (``controller: sapc``: "did you mean 'sappc'?"); ``key``,
+    the scenario key the name came from, opens the message."""
     try:
         return ControllerKind(name)
     except ValueError:
-        raise ConfigError(f"unknown controller {name!r}; expected one of {[c.value for c in ControllerKind]}") from None
+        kinds = [c.value for c in ControllerKind]
+        raise ConfigError(f"{key + ': ' if key else ''}unknown controller {name!r}{did_you_mean(str(name), kinds)} "
+                          f"(choose from {', '.join(kinds)})") from None
 
 
 def scenario_from_mapping(data: Any, *, source: str = "<mapping>") -> Scenario:
@@ -440,7 +445,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
         disturbance=disturbance,
         actuator=actuator,
         metrics=metrics,
-        controller=controller_kind(data.get("controller", ControllerKind.SAPPC.value)),
+        controller=controller_kind(data.get("controller", ControllerKind.SAPPC.value), key="controller"),
         faults=faults,
         controllers=controllers,
         raw=data,

@@ -55,7 +55,8 @@ def test_table1_l_gives_the_infeasibility_error_through_the_cli(tmp_path, capsys
         (lambda r: r["disturbances"].append({"kind": "pulse", "start_s": 1.0, "torque_Nm": [1, 1, 1]}), r"missing key disturbances\[1\].duration_s"),
         (lambda r: r["controllers"].update(pid={}), "unknown key controllers.pid"),
         (lambda r: r["actuator"].update(max_torque_Nm=0.0), "actuator.max_torque_Nm"),
-        (lambda r: r.update(controller="lqr"), "unknown controller 'lqr'"),
+        (lambda r: r.update(controller="lqr"), r"^controller: unknown controller 'lqr' \(choose from sappc, trappc, blfppc, mrp_feedback\)$"),
+        (lambda r: r.update(controller="sapc"), r"^controller: unknown controller 'sapc', did you mean 'sappc'\? \(choose from "),  # issue 46
     ],
 )
 def test_bad_scenarios_name_the_offending_key(mutate, fragment) -> None:
