@@ -58,7 +58,9 @@ EXIT_INTERRUPTED = 130
 _SHARED_EXITS = ((EXIT_INVALID_INPUT, "invalid input: a bad scenario, option, file or value (one line names it)"),
                  (EXIT_INTERRUPTED, "interrupted by Ctrl-C (one line; sappc run stops its nodes and closes the bag first)"))
 _RUN_EXITS = ((EXIT_CONTROLLER_NEVER_COMMANDED, "the controller never commanded a torque"),
-              (EXIT_REQUIREMENT_FAILED, "the run broke a requirement of the scenario's metrics.requirements, or became non-finite"))
+              (EXIT_REQUIREMENT_FAILED, "the run lost control (the rule of sappc.evaluation.requirements, whatever the scenario "
+                                        "states), broke a requirement of the scenario's metrics.requirements, or became non-finite; "
+                                        "the last line names why"))
 #: When several statuses apply to one run, the first of these is the one returned (a controller
 #: that never commanded says more than a broken requirement, which says more than a count mismatch).
 _PRECEDENCE = (EXIT_CONTROLLER_NEVER_COMMANDED, EXIT_REQUIREMENT_FAILED, 1)
@@ -66,7 +68,7 @@ _PRECEDENCE = (EXIT_CONTROLLER_NEVER_COMMANDED, EXIT_REQUIREMENT_FAILED, 1)
 #: reference page all of them).
 EXIT_STATUSES: dict[str, tuple[tuple[int, str], ...]] = {
     "simulate": ((0, "the run met the scenario's requirements (--from-campaign: the run was re-run)"), *_RUN_EXITS, *_SHARED_EXITS),
-    "montecarlo": ((0, "every run passed the campaign's criteria"), (1, "a run failed the campaign's criteria"), *_SHARED_EXITS),
+    "montecarlo": ((0, "every run passed the campaign's criteria"), (1, "a run failed the campaign's criteria or lost control"), *_SHARED_EXITS),
     "tune": ((0, "a best trial was found and its confirmation campaign passed"),
              (1, "no trial met every requirement, or the best gains failed their confirmation campaign"), *_SHARED_EXITS),
     "run": ((0, "the run met the scenario's requirements and every topic's recorded count matches what was published"),
@@ -78,7 +80,10 @@ EXIT_STATUSES: dict[str, tuple[tuple[int, str], ...]] = {
                (1, "the bag holds no run to compute metrics from (no state or reference): a partial report was written"),
                *_SHARED_EXITS),
     "compare": ((0, "the comparison was written"), *_SHARED_EXITS),
-    "compare-controllers": ((0, "the comparison was written"), *_SHARED_EXITS),
+    "compare-controllers": ((0, "the comparison was written; no run lost control and every run of the scenario's own controller met "
+                                "its requirements"),
+                            (EXIT_REQUIREMENT_FAILED, "the comparison was written, but a run lost control, or a run of the scenario's "
+                             "own controller broke its requirements (one line names them)"), *_SHARED_EXITS),
     "rerun": ((0, "compared (with the bag's own parameters: every recomputed torque equals the recorded one)"),
               (1, "with the bag's own parameters, a recomputed torque differs from the recorded one"), *_SHARED_EXITS),
     "repair": ((0, "the bag was rewritten readable"), *_SHARED_EXITS),
@@ -219,11 +224,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             print(f"wrote {p}")
     if args.json:
         _write_json(args.json, {**result.report(), "failed_requirements": failed})
+    _print_verdict(scenario, failed)
     return run_exit_status({}, result.controller_summary, failed)
 
 
 def _print_outcome(scenario: Any, metrics: dict[str, Any], controller: dict[str, Any]) -> list[str]:
-    """Print what the controller did and the scenario's requirements that the run broke; return those."""
+    """Print what the controller did; return the ways the run failed (:mod:`sappc.evaluation.requirements`:
+    non-finite, the loss-of-control rule, the scenario's requirements; empty: it passed), which
+    :func:`_print_verdict` prints as the command's last line."""
     from sappc.evaluation.requirements import failed_requirements
 
     if controller.get("commanded") is not None:
@@ -232,12 +240,19 @@ def _print_outcome(scenario: Any, metrics: dict[str, Any], controller: dict[str,
         print(f"controller: computed the torque of {controller['commanded']} of {controller['samples']} samples"
               + (f"; not commanded: {others}" if others else "")
               + (f"; {rejected} input messages rejected" if rejected is not None else ""))
-    failed = failed_requirements(metrics, scenario.metrics.requirements)
+    return failed_requirements(metrics, scenario.metrics.requirements, controller, settle_threshold=scenario.metrics.settle_threshold)
+
+
+def _print_verdict(scenario: Any, failed: Sequence[str], degraded: str = "") -> None:
+    """The run's verdict in one line: ``FAILED: ...`` naming every failure (and, after a degraded
+    real-time run, ``degraded``: why), else that it met the scenario's requirements."""
     if failed:
-        print("FAILED the scenario's requirements: " + "; ".join(failed))
+        print("FAILED: " + "; ".join(failed) + (f" ({degraded})" if degraded else ""))
     elif scenario.metrics.requirements:
-        print(f"met every requirement of the scenario ({', '.join(f'{k} {v:g}' for k, v in scenario.metrics.requirements.items())})")
-    return failed
+        print(f"met every requirement of the scenario ({', '.join(f'{k} {v:g}' for k, v in scenario.metrics.requirements.items())}) "
+              "and kept control")
+    else:
+        print("kept control (the scenario states no requirements)")
 
 
 def _simulate_from_campaign(args: argparse.Namespace) -> int:
@@ -284,7 +299,7 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
     switching = summary["torque_sign_changes_per_s"]
     if switching["max"] is not None:  # None: no steady window with two samples
         print(f"  torque_sign_changes_per_s  p50 {switching['p50']:.3g}  p99 {switching['p99']:.3g}  max {switching['max']:.3g}")
-    print(f"  non-finite runs {summary['non_finite_runs']}, RPF components clamped {summary['rpf_clamped_components']}, "
+    print(f"  non-finite runs {summary['non_finite_runs']}, runs that lost control {summary['runs_lost_control']}, RPF components clamped {summary['rpf_clamped_components']}, "
           f"flat {summary['rpf_flat_components']}; wall {summary['wall_time_s']:.1f} s")
     answers = summary["controller_answers"]
     not_commanded = {k: v for k, v in answers.items() if k != "commanded" and v["samples"]}
@@ -340,6 +355,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
               f"{lat.get('late_steps', 0)} step(s) later than a frame")
     print(f"bag {result.bag_dir}: {sum(result.recorded.values())} messages on {sum(1 for n in result.recorded.values() if n)} topics; "
           + ("every topic's count matches what was published" if not mismatched else f"COUNT MISMATCH (published, recorded): {mismatched}"))
+    degraded = _realtime_degraded(realtime, ctrl) if realtime else ""
     if args.json:
         _write_json(args.json, {
             "scenario": scenario.name,
@@ -354,9 +370,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
             "controller_summary": ctrl,
             **({"realtime": realtime} if realtime else {}),
             "failed_requirements": failed,
+            **({"degraded": degraded} if degraded else {}),
             "parameters": {"scenario": scenario.raw, "nodes": str(result.run_dir / "params.yaml")},
         })
+    _print_verdict(scenario, failed, degraded)
     return run_exit_status(mismatched, ctrl, failed)
+
+
+def _realtime_degraded(realtime: dict[str, Any], controller: dict[str, Any]) -> str:
+    """Why a real-time run was degraded, for its verdict line: the frames the plant missed or
+    integrated with a stale torque, and the samples the controller held or zeroed ('' when none)."""
+    parts = [f"{realtime[k]} {label}" for k, label in (("missed_frames", "missed frames"), ("stale_torque_frames", "stale-torque frames"))
+             if realtime.get(k)]
+    parts += [f"{controller[k]} {label}" for k, label in (("held", "held torques"), ("watchdog_zero", "zero torques from the watchdog"))
+              if controller.get(k)]
+    return "real time degraded: " + ", ".join(parts) if parts else ""
 
 
 def run_exit_status(mismatched: dict[str, tuple[int, int]], controller: dict[str, Any], failed: Sequence[str] = ()) -> int:
@@ -421,14 +449,22 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
 
 def _cmd_compare_controllers(args: argparse.Namespace) -> int:
-    from sappc.montecarlo.comparison import compare_controllers
+    from sappc.montecarlo.comparison import compare_controllers, exit_failures
 
     out = args.out or str(default_output_dir("compare-controllers", f"{Path(args.scenario).stem}-seed{args.seed}"))
     summary = compare_controllers(args.scenario, seeds=args.seeds, seed=args.seed, controllers=args.controllers, out_dir=out)
     print((Path(out) / "comparison.md").read_text(), end="")
+    for kind, v in summary["verdict"].items():
+        held = " (the scenario's controller)" if kind == summary["scenario_controller"] else ""
+        print(f"  {kind}{held}: {summary['seeds'] - v['runs_failing_requirements']} of {summary['seeds']} runs met the scenario's "
+              f"requirements and kept control; {v['runs_lost_control']} lost control")
     print(f"wall {summary['wall_time_s']:.1f} s; comparison.md, comparison.csv, runs.csv, comparison.png and summary.json in {out}")
     if args.json:
         _write_json(args.json, summary)
+    failures = exit_failures(summary)
+    if failures:
+        print("FAILED: " + "; ".join(failures))
+        return EXIT_REQUIREMENT_FAILED
     return 0
 
 

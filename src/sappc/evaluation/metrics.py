@@ -60,6 +60,14 @@ Definitions, per run:
 ``finite``
     ``False`` if the run's state or torque ever became non-finite (the run
     failed); the other metrics then describe the samples before that.
+``control_lost_at_s``
+    The loss-of-control rule (:mod:`sappc.evaluation.requirements`): the time from which
+    ``max_i |q_ev,i|`` stayed above :data:`LOSS_OF_CONTROL_FACTOR` times ``settle_threshold`` (ten
+    times the scenario's settling band: 1e-2, about 1.1 deg about an axis, for the bundled
+    scenarios) to the last sample, counting only samples at ``t >= steady_from_s`` (the transient
+    is not judged); ``None`` when the last sample is within that bound, or the run ends before the
+    steady window.  A run that ends with its error that far out has lost its attitude, whatever its
+    requirements; one that leaves the bound and comes back (a fault's transient) has not.
 ``steady_max_abs_attitude_estimation_error_rad``, ``steady_rms_attitude_estimation_error_rad``
     Only with an estimator (a history with its record): over ``t >= steady_from_s``, the largest
     ``|a_i|`` and the largest over axes of the root mean square of ``a_i``, with ``a`` the true
@@ -123,7 +131,7 @@ from sappc.evaluation.estimation import EstimateHistory, attitude_errors, nees
 from sappc.evaluation.history import History
 from sappc_estimator.core.mekf import MON_ERROR, STATUS_NAMES
 
-__all__ = ["MetricsAccumulator"]
+__all__ = ["LOSS_OF_CONTROL_FACTOR", "MetricsAccumulator"]
 
 Array = NDArray[np.float64]
 
@@ -133,6 +141,13 @@ _TIME_TOL_S = 1e-9
 #: (the bias's 1e-5 rad/s prior is resolved within about 2 s at 10 Hz tracker updates; 5 s is the
 #: issue's consistency window).
 NEES_FROM_S = 5.0
+#: The loss-of-control bound as a multiple of the scenario's ``settle_threshold`` (its settling
+#: band): an error ten times the band the run had to settle into is not an inaccurate pointing but
+#: a lost one (the bundled 1e-3 band gives 1e-2, about 1.1 deg about an axis).  Measured on every
+#: bundled scenario of at most 80 s with each controller it has: every run ends below 4e-3 but one,
+#: TraPPC after the sudden fault, which ends 3.3e-2 off and never recovers (lost at 50.45 s); the
+#: fault's transient peaks (1.8e-2 to 3.1e-2) come back and are not losses.  ``control_lost_at_s``.
+LOSS_OF_CONTROL_FACTOR = 10.0
 #: ``hold_s`` of a uniform grid, for the compiled update (no per-sample hold intervals).
 _NO_HOLD = np.zeros(0)
 
@@ -185,6 +200,7 @@ class MetricsAccumulator:
         self.fault_start_s = min((s for s, _ in fault_windows), default=None)
         n = n_runs
         self.last_unsettled = np.full(n, -1)  # last sample with max|q_ev| >= threshold
+        self.last_controlled = np.full(n, -1)  # last finite sample before the steady window or within the loss bound
         self.steady_sum = np.zeros((n, 3))
         self.steady_count = 0
         self.steady_max = np.zeros(n)
@@ -238,7 +254,7 @@ class MetricsAccumulator:
         self.orb_steady_samples = np.zeros(n_orbits, dtype=np.int64)
 
     #: Per-run state (leading axis N), concatenated by :meth:`concatenate`.
-    _PER_RUN = ("last_unsettled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
+    _PER_RUN = ("last_unsettled", "last_controlled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
                 "torque_sign", "torque_sign_nonzero", "torque_sign_changes", "torque_reversals", "saturated_count", "outside_count",
                 "outside_s", "last_outside", "left_after_fault", "finite", "wheel_speed_max", "wheel_torque_max", "wheel_energy", "est_att_max",
                 "est_att_sq", "est_att_n", "est_bias_last", "est_nees_sum", "est_nees_n", "est_status_counts", "est_mon_error", "est_mon_n",
@@ -428,8 +444,8 @@ class MetricsAccumulator:
 
         self.steady_count += _update_function(t.size * self.finite.shape[0])(
             int(k0), t, f64(q_BN), f64(omega), f64(torque_B), f64(q_BR), f64(rho), np.asarray(saturated, dtype=np.bool_), f64(band_lower),
-            f64(band_upper), first, float(self.settle_threshold), float(self.steady_from_s), int(self.k_t2), hold, fault, self.finite,
-            self.last_unsettled, self.steady_sum, self.steady_max, self.rpf_error_t2_axis, self.sign0, self.overshoot, self.max_torque,
+            f64(band_upper), first, float(self.settle_threshold), float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
+            float(self.steady_from_s), int(self.k_t2), hold, fault, self.finite, self.last_unsettled, self.last_controlled, self.steady_sum, self.steady_max, self.rpf_error_t2_axis, self.sign0, self.overshoot, self.max_torque,
             self.saturated_count, self.outside_count, self.outside_s, self.last_outside, self.left_after_fault,
             self.torque_sign, self.torque_sign_nonzero, self.torque_sign_changes, self.torque_reversals,
         )
@@ -440,6 +456,14 @@ class MetricsAccumulator:
         lu = self.last_unsettled
         after = np.minimum(lu + 1, self.t.size - 1)
         return np.where(lu < 0, 0.0, np.where(lu >= self.samples - 1, np.nan, self.t[after]))
+
+    def control_lost_times(self) -> Array:
+        """``control_lost_at_s`` of every run, NaN for a run that did not lose control (module docstring)."""
+        last = self.samples - 1
+        if last < 0 or self.t[last] < self.steady_from_s - _TIME_TOL_S:
+            return np.full(self.finite.shape[0], np.nan)
+        lc = self.last_controlled
+        return np.where((lc >= last) | ~self.finite, np.nan, self.t[np.minimum(lc + 1, last)])
 
     def steady_span_s(self) -> float | None:
         """The steady window's span ``t_last - t_first`` over the samples seen (``None``: fewer than
@@ -479,6 +503,7 @@ class MetricsAccumulator:
             "left_constraint_after_fault": None,
             "returned_at_s": None,
             "finite": bool(self.finite[run]),
+            "control_lost_at_s": _finite_or_none(self.control_lost_times()[run]),
         }
         if self.wheel_speed_max is not None and self.wheel_torque_max is not None:
             m["max_abs_wheel_speed_rad_s"] = float(self.wheel_speed_max[run])
@@ -541,6 +566,7 @@ class MetricsAccumulator:
             "torque_sign_changes_per_s": changes,
             "torque_reversals_per_s": reversals,
             "settling_time_s": self.settling_times(),
+            "control_lost_at_s": self.control_lost_times(),
             "finite": self.finite,
         }
 
@@ -600,11 +626,11 @@ def _switch(u, sign, nonzero):  # type: ignore[no-untyped-def]  # a numba kernel
 
 
 @jit("int64(int64, float64[:], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], "  # type: ignore[no-untyped-call]
-     "boolean[:, :, :], float64[:, :, :], float64[:, :, :], boolean, float64, float64, int64, float64[:], float64, boolean[:], "
-     "int64[:], float64[:, :], float64[:], float64[:, :], float64[:, :], float64[:], float64[:], int64[:], int64[:], float64[:], "
+     "boolean[:, :, :], float64[:, :, :], float64[:, :, :], boolean, float64, float64, float64, int64, float64[:], float64, boolean[:], "
+     "int64[:], int64[:], float64[:, :], float64[:], float64[:, :], float64[:, :], float64[:], float64[:], int64[:], int64[:], float64[:], "
      "int64[:], boolean[:], float64[:, :], float64[:, :], int64[:, :], int64[:, :])")
 def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower, band_upper, first, settle_threshold,  # type: ignore[no-untyped-def]
-                   steady_from_s, k_t2, hold_s, fault_start_s, finite, last_unsettled, steady_sum, steady_max, rpf_error_t2_axis,
+                   loss_bound, steady_from_s, k_t2, hold_s, fault_start_s, finite, last_unsettled, last_controlled, steady_sum, steady_max, rpf_error_t2_axis,
                    sign0, overshoot, max_torque, saturated_count, outside_count, outside_s, last_outside, left_after_fault,
                    torque_sign, torque_sign_nonzero, torque_sign_changes, torque_reversals):
     """One block of samples ``k0 .. k0 + B - 1`` (arrays (B, N, ...)) into the per-run state of a
@@ -625,7 +651,7 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
             for i in range(3):
                 sign0[n, i] = 1.0 if q_BR[0, n, i] >= 0.0 else -1.0
         live = finite[n]
-        lu, lo = last_unsettled[n], last_outside[n]
+        lu, lo, lc = last_unsettled[n], last_outside[n], last_controlled[n]
         s0, s1, s2 = steady_sum[n, 0], steady_sum[n, 1], steady_sum[n, 2]
         smax, over, tmax = 0.0, 0.0, 0.0  # block maxima (numpy's reduce: from the first sample on)
         n_sat, n_out, left = 0, 0, False
@@ -648,6 +674,8 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
             max_abs_q = _maximum(_maximum(a0, a1), a2)
             if live and max_abs_q >= settle_threshold:
                 lu = k0 + k
+            if live and (t[k] < steady_from or max_abs_q <= loss_bound):  # control_lost_at_s: a NaN error is not within
+                lc = k0 + k
             if n_steady > 0:
                 use = live and t[k] >= steady_from
                 s0 = s0 + (a0 if use else 0.0)  # a sequential running sum, sample by sample
@@ -684,7 +712,7 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
             if hold_s.shape[0] > 0:
                 held = held + (hold_s[k0 + k] if outside else 0.0)  # a sequential running sum
         finite[n] = live
-        last_unsettled[n], last_outside[n] = lu, lo
+        last_unsettled[n], last_outside[n], last_controlled[n] = lu, lo, lc
         if n_steady > 0:
             steady_sum[n, 0], steady_sum[n, 1], steady_sum[n, 2] = s0, s1, s2
             steady_max[n] = _maximum(steady_max[n], smax)

@@ -158,6 +158,7 @@ def simulate_runs(
         "torque_sign_changes_per_s": crit["torque_sign_changes_per_s"],
         "torque_reversals_per_s": crit["torque_reversals_per_s"],
         "settling_time_s": crit["settling_time_s"],
+        "control_lost_at_s": crit["control_lost_at_s"],
         "finite": crit["finite"],
         **{k: crit[k] for k in WHEEL_COLUMNS if k in crit},  # with reaction wheels
         **{k: crit[k] for k in ESTIMATOR_COLUMNS if k in crit},  # with an estimator

@@ -30,10 +30,12 @@ from numpy.typing import NDArray
 
 from gnc_common.validation import ConfigError
 from sappc.analysis.plots import house_style
+from sappc.evaluation.requirements import failed_requirements, loss_of_control
 from sappc.montecarlo.campaign import simulate_runs
+from sappc_msgs_py.contract import ANSWER_NAMES
 from sappc.scenario import ControllerKind, load_scenario
 
-__all__ = ["COLUMNS", "Column", "compare_controllers", "noise_seed_mapping"]
+__all__ = ["COLUMNS", "Column", "compare_controllers", "exit_failures", "noise_seed_mapping"]
 
 #: Runs per call of the compiled loop (memory: each run's whole history feeds the metrics, about
 #: 1.5 MB per 60 s run at 100 Hz with wheels and an estimator); the figures do not depend on it.
@@ -138,9 +140,11 @@ def compare_controllers(scenario_path: str | Path, *, seeds: int = 100, seed: in
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     per_run: dict[str, dict[str, NDArray[np.float64]]] = {}
+    verdicts: dict[str, dict[str, Any]] = {}
     for kind in kinds:
         raw = noise_seed_mapping(scenario.raw, kind)
         parts: list[dict[str, NDArray[np.float64]]] = []
+        verdict: dict[str, Any] = {"runs_lost_control": 0, "runs_failing_requirements": 0, "failed_runs": []}
         for lo in range(0, seeds, CHUNK_RUNS):
             table, metrics, _ = simulate_runs(raw, seed, list(range(lo, min(lo + CHUNK_RUNS, seeds))), 0)
             crit = metrics.criteria_arrays()
@@ -148,19 +152,58 @@ def compare_controllers(scenario_path: str | Path, *, seeds: int = 100, seed: in
                       "overshoot": np.maximum(np.asarray(metrics.overshoot, dtype=np.float64), 0.0)}
             values.update({m: np.asarray(crit[m], dtype=np.float64) for m in RUN_METRICS if m in crit})
             parts.append(values)
+            _judge(verdict, scenario, table, metrics)
         per_run[kind] = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        verdicts[kind] = verdict
     rows = {kind: {c.key: _statistic(per_run[kind][c.metric], c.statistic) for c in columns} for kind in kinds}
     summary: dict[str, Any] = {
         "scenario": scenario.name, "seeds": seeds, "seed": seed, "controllers": kinds,
         "noise_seeds": f"run k draws its sensors' noise from SeedSequence({seed}, spawn_key=(k,)), k = 0 .. {seeds - 1}",
         "columns": [{"key": c.key, "label": c.label, "unit": c.unit} for c in columns],
-        "table": rows, "wall_time_s": time.perf_counter() - started,
+        "table": rows, "verdict": verdicts, "scenario_controller": scenario.controller.value,
+        "requirements": dict(scenario.metrics.requirements), "wall_time_s": time.perf_counter() - started,
     }
     _write_table(out, scenario.name, seeds, seed, kinds, columns, rows)
     _write_runs(out / "runs.csv", kinds, per_run)
     _plot(out / "comparison.png", scenario.name, seeds, kinds, per_run, wheels)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+#: How many failed runs per controller ``summary.json`` lists with their reasons.
+LISTED_FAILURES = 10
+
+
+def _judge(verdict: dict[str, Any], scenario: Any, table: dict[str, Any], metrics: Any) -> None:
+    """Add a chunk's runs to a controller's ``verdict``: the runs that lost control and those that
+    broke the scenario's requirements (:func:`sappc.evaluation.requirements.failed_requirements`,
+    the check ``sappc simulate`` makes of one run), with the first :data:`LISTED_FAILURES` reasons."""
+    for i, run in enumerate(np.asarray(table["run"])):
+        answers = {name: int(table[f"answers_{name}"][i]) for name in ANSWER_NAMES}
+        controller = {**answers, "samples": sum(answers.values())}
+        m = metrics.run_metrics(i)
+        lost = loss_of_control(m, controller, settle_threshold=scenario.metrics.settle_threshold)
+        failed = failed_requirements(m, scenario.metrics.requirements, controller, settle_threshold=scenario.metrics.settle_threshold)
+        verdict["runs_lost_control"] += bool(lost)
+        verdict["runs_failing_requirements"] += bool(failed)
+        if failed and len(verdict["failed_runs"]) < LISTED_FAILURES:
+            verdict["failed_runs"].append({"run": int(run), "why": "; ".join(failed)})
+
+
+def exit_failures(summary: dict[str, Any]) -> list[str]:
+    """What makes ``sappc compare-controllers`` fail, one line each (empty: it passes): a run of any
+    controller that lost control, and a run of the scenario's own controller (its ``controller``
+    key) that broke the scenario's requirements; the other controllers are benchmarks, measured
+    against the requirements but not held to them."""
+    out = []
+    for kind, v in summary["verdict"].items():
+        if v["runs_lost_control"]:
+            out.append(f"{kind}: {v['runs_lost_control']} of {summary['seeds']} runs lost control")
+        if kind == summary["scenario_controller"] and v["runs_failing_requirements"]:
+            first = v["failed_runs"][0]
+            out.append(f"{kind}: {v['runs_failing_requirements']} of {summary['seeds']} runs broke the scenario's requirements "
+                       f"(run {first['run']}: {first['why']})")
+    return out
 
 
 def _cell(value: float | None, fmt: str) -> str:

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from sappc.evaluation.estimation import nees_band
 from sappc.evaluation.metrics import NEES_FROM_S
+from sappc.evaluation.requirements import MIN_COMMANDED_FRACTION, lost_control
 from sappc.montecarlo.config import CampaignConfig, Criteria
 from spacecraft_sim.core.reference import sample_times
 from sappc_msgs_py.contract import ANSWER_NAMES
@@ -22,8 +23,9 @@ __all__ = ["FORMAT_VERSION", "RunCriteria", "assemble", "chunk_path", "chunks", 
 
 Array = NDArray[np.float64]
 
-#: Version of the chunk/manifest format (bumped when their contents change; 3: the switching rates).
-FORMAT_VERSION = 3
+#: Version of the chunk/manifest format (bumped when their contents change; 3: the switching rates;
+#: 4: the loss-of-control time).
+FORMAT_VERSION = 4
 #: Per-axis columns of the run table.
 _AXES = (1, 2, 3)
 
@@ -74,7 +76,9 @@ class RunCriteria:
     steady_mean_abs_qev : max over axes of the mean ``|q_ev,i|`` over the steady window.
     finite : the run's state stayed finite.
     ok_t2, ok_steady : each criterion met (and the run finite).
-    passed : both met.
+    lost : the run lost control (:func:`sappc.evaluation.requirements.lost_control`: the rule every
+        path applies, whatever the criteria).
+    passed : both criteria met and control kept.
     """
 
     rpf_error_at_t2: Array
@@ -82,6 +86,7 @@ class RunCriteria:
     finite: NDArray[np.bool_]
     ok_t2: NDArray[np.bool_]
     ok_steady: NDArray[np.bool_]
+    lost: NDArray[np.bool_]
     passed: NDArray[np.bool_]
 
 
@@ -102,7 +107,9 @@ def run_criteria(table: dict[str, Any], criteria: Criteria) -> RunCriteria:
     finite = np.asarray(table["finite"]).astype(bool) & (np.asarray(table.get("answers_refused", 0)) == 0)
     ok_t2 = finite & (t2 < criteria.rpf_error_at_t2_max)
     ok_steady = finite & (steady < criteria.steady_mean_abs_qev_max)
-    return RunCriteria(t2, steady, finite, ok_t2, ok_steady, ok_t2 & ok_steady)
+    samples = sum(np.asarray(table[f"answers_{name}"], dtype=np.int64) for name in ANSWER_NAMES)
+    lost = lost_control(table["control_lost_at_s"], table["answers_commanded"], samples)
+    return RunCriteria(t2, steady, finite, ok_t2, ok_steady, lost, ok_t2 & ok_steady & ~lost)
 
 
 def nees_consistency(tab: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
@@ -142,6 +149,8 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
     crit = cfg.criteria
     rc = run_criteria(tab, crit)
     t2, steady, finite, ok_t2, ok_steady, passed = rc.rpf_error_at_t2, rc.steady_mean_abs_qev, rc.finite, rc.ok_t2, rc.ok_steady, rc.passed
+    lost_at = np.asarray(tab["control_lost_at_s"], dtype=np.float64)
+    samples = sum(np.asarray(tab[f"answers_{name}"], dtype=np.int64) for name in ANSWER_NAMES)
 
     gain_keys = [k for k in tab if k.startswith("gain_")]
     wheel_keys = [k for k in WHEEL_COLUMNS if k in tab] + [k for k in ESTIMATOR_COLUMNS if k in tab]
@@ -157,7 +166,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
             + [f"rpf_error_at_t2_{i}" for i in _AXES] + ["rpf_error_at_t2"]
             + [f"steady_mean_abs_qev_{i}" for i in _AXES] + ["steady_mean_abs_qev", "steady_max_abs_qev", "settling_time_s",
                                                            "max_abs_torque_Nm", "torque_sign_changes_per_s", "torque_reversals_per_s",
-                                                           "rpf_clamped_components", "rpf_flat_components"]
+                                                           "rpf_clamped_components", "rpf_flat_components", "control_lost_at_s"]
             + [f"answers_{name}" for name in ANSWER_NAMES] + wheel_keys + [f"{k[3:]}_{i + 1}" for k, i in hw_cols] + (["fault_kind", "fault_start_s", "fault_end_s"] if dispersed else [])
         )
         for k in range(runs):
@@ -171,7 +180,8 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
                 + [f"{v:.17g}" for v in tab["steady_mean_abs_qev_per_axis"][k]]
                 + [f"{steady[k]:.17g}", f"{tab['steady_max_abs_qev'][k]:.17g}", f"{tab['settling_time_s'][k]:.17g}",
                    f"{tab['max_abs_torque_Nm'][k]:.17g}", f"{tab['torque_sign_changes_per_s'][k]:.17g}",
-                   f"{tab['torque_reversals_per_s'][k]:.17g}", int(tab["rpf_clamped"][k].sum()), int(tab["rpf_flat"][k].sum())]
+                   f"{tab['torque_reversals_per_s'][k]:.17g}", int(tab["rpf_clamped"][k].sum()), int(tab["rpf_flat"][k].sum()),
+                   f"{lost_at[k]:.17g}"]
                 + [int(tab[f"answers_{name}"][k]) for name in ANSWER_NAMES] + [f"{tab[w][k]:.17g}" for w in wheel_keys]
                 + [f"{np.asarray(tab[h]).reshape(runs, -1)[k, i]:.17g}" for h, i in hw_cols]
                 + ([fault_kinds[int(tab["fault_choice"][k])], f"{tab['fault_start_s'][k]:.17g}",
@@ -187,6 +197,11 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
     for k in failing[:100]:
         refused = int(tab["answers_refused"][k])
         why = ([] if tab["finite"][k] else ["non-finite state"]) + ([f"{refused} refused control steps"] if refused else [])
+        if np.isfinite(lost_at[k]):
+            why.append(f"control lost from {lost_at[k]:g} s to the end")
+        commanded = int(tab["answers_commanded"][k])
+        if lost_control(np.nan, commanded, samples[k]):
+            why.append(f"control lost: torque computed at {commanded} of {int(samples[k])} samples (< {MIN_COMMANDED_FRACTION:.0%})")
         if finite[k] and not ok_t2[k]:
             why.append(f"rpf_error_at_t2 {t2[k]:.3g} >= {crit.rpf_error_at_t2_max:g}")
         if finite[k] and not ok_steady[k]:
@@ -207,6 +222,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
         "failed_runs": reasons,
         "failed_runs_listed": len(reasons),
         "non_finite_runs": int((~finite).sum()),
+        "runs_lost_control": int(rc.lost.sum()),
         "controller_answers": {name: {"runs": int((tab[f"answers_{name}"] > 0).sum()), "samples": int(tab[f"answers_{name}"].sum())}
                                for name in ANSWER_NAMES},
         "runs_never_commanded": int((tab["answers_commanded"] == 0).sum()),

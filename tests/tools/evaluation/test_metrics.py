@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from sappc.evaluation.history import History
-from sappc.evaluation.metrics import MetricsAccumulator
+from sappc.evaluation.metrics import LOSS_OF_CONTROL_FACTOR, MetricsAccumulator
 
 #: Relative tolerance of the steady-state time-mean (summation order only, see module docstring).
 SUM_RTOL = 1e-14
@@ -108,7 +108,12 @@ def oracle(h: History, *, steady_from_s: float, settle_threshold: float, t2_s: f
             "left_constraint_after_fault": None,
             "returned_at_s": None,
             "finite": bool(live[-1]),
+            "control_lost_at_s": None,
         }
+        beyond = steady & ~(big <= LOSS_OF_CONTROL_FACTOR * settle_threshold)  # judged from the steady window; NaN is beyond
+        if live[-1] and beyond[-1]:
+            within = np.flatnonzero(~beyond)
+            m["control_lost_at_s"] = float(t[within[-1] + 1]) if within.size else float(t[0])
         if fault is not None:
             last_out = int(np.flatnonzero(outside)[-1]) if outside.any() else -1
             left = bool(np.any(outside & (t >= fault - TIME_TOL_S)))
@@ -137,6 +142,9 @@ def _rich_history(t: np.ndarray) -> History:
     q_ev = decay * np.array([[0.30, -0.20, 0.05], [-0.25, 0.15, 0.40], [0.10, 0.35, -0.30]])[None] + 0.004 * rng.standard_normal((T, 3, 3))
     q_ev[T // 2, 1, 2] = 0.2  # run 1 is unsettled again half-way
     q_ev[-1, 0, 1] = 0.15  # run 0 ends unsettled: it never settles
+    q_ev[-4:, 0, 2] = 0.31  # and its last four samples beyond the loss bound (10 x 0.03): it lost control
+    q_ev[-12, 1, 0] = 0.35  # run 1 beyond the loss bound at one steady sample, and back: not lost
+    q_ev[-11, 1, 2] = 0.3  # then exactly at the bound: within
     torque = 0.1 * rng.standard_normal((T, 3, 3))
     torque[np.abs(torque) < 0.06] = 0.0  # a minimum-output deadband: the torque switches on, off and over
     torque[:, 1, 1] = 0.05  # one axis never switches
@@ -167,6 +175,7 @@ def test_every_metric_of_every_run_equals_the_definitions(grid: str) -> None:
     assert [w["finite"] for w in want] == [True, True, False]
     assert want[0]["settling_time_s"] is None and want[1]["settling_time_s"] is not None  # both cases exercised
     assert any(w["left_constraint_after_fault"] for w in want) and any(w["returned_at_s"] for w in want)
+    assert [w["control_lost_at_s"] for w in want] == [t[-4], None, None]  # lost; back within the bound; non-finite
     for n in range(3):
         _check(acc.run_metrics(n), want[n])
 
@@ -708,3 +717,32 @@ def test_per_orbit_metrics_equal_their_definitions_whole_in_blocks_and_concatena
     idle.add_history(h)
     assert [e["rods_mean_dipole_fraction"] for e in idle.orbit_metrics(0)] == [None] * 3
     assert [e["steady_max_abs_qev"] for e in idle.orbit_metrics(0)] == [e["steady_max_abs_qev"] for e in whole.orbit_metrics(0)]
+
+
+def test_control_lost_is_judged_from_the_steady_window_to_the_end() -> None:
+    """``control_lost_at_s``: from the first sample of the final stretch of steady samples beyond
+    ``LOSS_OF_CONTROL_FACTOR * settle_threshold`` (strictly: a sample at the bound is within);
+    a transient beyond it before the steady window is not judged; ``None`` when the run ends within
+    the bound or before the steady window.  Blocks split anywhere give the same time."""
+    bound = LOSS_OF_CONTROL_FACTOR * 0.05  # 0.5
+
+    def lost(values: list[float], steady_from_s: float = 0.2, blocks: tuple[int, ...] = ()) -> float | None:
+        h = _one_axis(values)
+        acc = _accumulator(h.t, 1, settle_threshold=0.05, steady_from_s=steady_from_s)
+        x = np.concatenate((h.q_BN, h.omega_BN_B), axis=2)
+        edges = (0, *blocks, h.t.size)
+        for k0, k1 in zip(edges[:-1], edges[1:]):
+            acc.update(k0, h.t[k0:k1], x[k0:k1], h.torque_B[k0:k1], h.q_BR[k0:k1], h.rho[k0:k1], h.saturated[k0:k1],
+                       h.band_lower[k0:k1], h.band_upper[k0:k1])
+        result: float | None = acc.run_metrics(0)["control_lost_at_s"]
+        return result
+
+    t = np.arange(5) * 0.1  # _one_axis's grid
+    assert bound == 0.5
+    assert lost([0.9, 0.9, 0.1, 0.6, 0.7]) == t[3]  # beyond from k = 3 to the end
+    assert lost([0.9, 0.9, 0.1, 0.6, 0.7], blocks=(1, 4)) == t[3]
+    assert lost([0.9, 0.9, 0.1, 0.6, 0.5]) is None  # back at the bound at the last sample: within
+    assert lost([0.9, 0.9, 0.9, 0.9, 0.9]) == t[2]  # beyond since the steady window opened
+    assert lost([0.9, 0.9, 0.1, 0.2, 0.3]) is None  # beyond only in the transient
+    assert lost([0.9, 0.9, 0.9], steady_from_s=1.0) is None  # the run ends before its steady window
+    assert lost([0.9, 0.1, 0.9, 0.1, 0.6], steady_from_s=0.0) == t[4]

@@ -8,13 +8,14 @@ from __future__ import annotations
 import csv
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import yaml
 
 from gnc_common.validation import ConfigError
-from sappc.cli import main
+from sappc.cli import EXIT_REQUIREMENT_FAILED, main
 from sappc.montecarlo import tuning
 from sappc.montecarlo.campaign import simulate_runs
 from sappc.montecarlo.comparison import COLUMNS, compare_controllers, noise_seed_mapping
@@ -25,11 +26,13 @@ from conftest import SCENARIOS
 FLIGHT = SCENARIOS / "paper_tracking_flight.yaml"
 
 
-def _short_flight(tmp_path: Path, duration_s: float = 6.0) -> Path:
-    """The flight scenario cut to ``duration_s`` (steady window from 4 s, settling by 5 s)."""
+def _short_flight(tmp_path: Path, duration_s: float = 6.0, **metrics: Any) -> Path:
+    """The flight scenario cut to ``duration_s`` (steady window from 4 s, settling by 5 s), without
+    the 60 s run's requirements (a cut cannot show them) unless ``metrics`` states some."""
     raw = read_scenario_mapping(FLIGHT)
     raw["duration_s"] = duration_s
-    raw["metrics"].update(steady_from_s=4.0, t2_s=5.0, settle_threshold=0.5)
+    raw["metrics"].pop("requirements", None)
+    raw["metrics"].update({"steady_from_s": 4.0, "t2_s": 5.0, "settle_threshold": 0.5, **metrics})
     path = tmp_path / "flight.yaml"
     path.write_text(yaml.safe_dump(raw))
     return path
@@ -82,6 +85,25 @@ def test_the_command_prints_the_table(tmp_path: Path, capsys: pytest.CaptureFixt
     assert main(["compare-controllers", str(path), "--seeds", "2", "--controllers", "sappc", "--out", str(tmp_path / "o")]) == 0
     printed = capsys.readouterr().out
     assert "| sappc | " in printed and "comparison.png" in printed
+    assert "sappc (the scenario's controller): 2 of 2 runs met the scenario's requirements and kept control; 0 lost control" in printed
+
+
+def test_the_scenarios_controller_is_held_to_its_requirements_and_every_controller_to_control(tmp_path: Path,
+                                                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Exit 4 when a run of the scenario's own controller breaks a requirement (the benchmarks are
+    measured against them, not held to them), and when a run of any controller loses control."""
+    strict = _short_flight(tmp_path, requirements={"max_abs_torque_Nm_max": 0.0})  # no controller commands zero torque
+    assert main(["compare-controllers", str(strict), "--seeds", "2", "--controllers", "sappc", "mrp_feedback",
+                 "--out", str(tmp_path / "a")]) == EXIT_REQUIREMENT_FAILED
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert last.startswith("FAILED: sappc: 2 of 2 runs broke the scenario's requirements (run 0: max_abs_torque_Nm = ") and "mrp" not in last
+    assert main(["compare-controllers", str(strict), "--seeds", "2", "--controllers", "mrp_feedback", "--out", str(tmp_path / "b")]) == 0
+    assert "mrp_feedback: 0 of 2 runs met the scenario's requirements and kept control; 0 lost control" in capsys.readouterr().out
+    # a settling band of 1e-7: the loss bound 1e-6 is below every controller's steady error of ~1e-5, so every run ends "lost"
+    lost = _short_flight(tmp_path, settle_threshold=1e-7)
+    assert main(["compare-controllers", str(lost), "--seeds", "2", "--controllers", "mrp_feedback", "--out", str(tmp_path / "c")]) == \
+        EXIT_REQUIREMENT_FAILED
+    assert capsys.readouterr().out.splitlines()[-1] == "FAILED: mrp_feedback: 2 of 2 runs lost control"
 
 
 def test_the_flight_study_tunes_the_torque_filter_beside_the_gains_with_the_estimator_in_the_loop() -> None:

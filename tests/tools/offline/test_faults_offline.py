@@ -118,7 +118,7 @@ def test_simulate_reports_what_the_controller_did_and_exits_4_on_a_broken_requir
                           timeout=300)
     assert proc.returncode == 4, proc.stdout + proc.stderr
     assert "computed the torque of 5951 of 6001 samples; not commanded: watchdog zero 40, held 10" in proc.stdout
-    assert "FAILED the scenario's requirements: steady_max_abs_qev = 0.000270054 > 0.0001" in proc.stdout
+    assert "FAILED: steady_max_abs_qev = 0.000270054 > 0.0001" in proc.stdout
     report = json.loads((tmp_path / "m.json").read_text())
     assert report["controller_summary"]["held"] == 10 and report["failed_requirements"]
     del raw["metrics"]["requirements"]
