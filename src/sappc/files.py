@@ -20,12 +20,11 @@ ignored by git in the checkout), e.g. ``runs/run/paper_tracking-sappc-20260101-1
 from __future__ import annotations
 
 import shutil
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
-from gnc_common.validation import ConfigError, did_you_mean
+from gnc_common.validation import ConfigError, did_you_mean, quoted, read_yaml_file
 
 __all__ = ["DATA_DIR", "OUTPUT_ROOT", "SCENARIOS_DIR", "BundledScenario", "bag_run_name", "bundled_scenarios", "copy_scenario",
            "default_output_dir", "extends_chain", "scenario_path"]
@@ -74,7 +73,7 @@ def bundled_scenarios() -> list[BundledScenario]:
     out = []
     for name in _names():
         path = SCENARIOS_DIR / f"{name}{SUFFIX}"
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = read_yaml_file(path, "scenario")
         base = data.get("extends")
         out.append(BundledScenario(name, path, " ".join(str(data.get("description", "")).split()),
                                    Path(base).stem if isinstance(base, str) else None))
@@ -88,7 +87,8 @@ def scenario_path(scenario: str | Path) -> Path:
     Raises
     ------
     ConfigError
-        When ``scenario`` is neither, naming it and the bundled names.
+        When ``scenario`` is neither, naming it and the bundled names; when it is a path that exists
+        but is not a regular file (a directory, a pipe such as ``/dev/fd/N``, a device), saying what it is.
     """
     p = Path(scenario)
     if p.is_file():
@@ -96,8 +96,32 @@ def scenario_path(scenario: str | Path) -> Path:
     name = p.name[: -len(SUFFIX)] if p.name.endswith(SUFFIX) else p.name
     if str(p) == p.name and name in _names():  # a bare name, not a path to a file that is missing
         return SCENARIOS_DIR / f"{name}{SUFFIX}"
+    what = _not_a_file(p)
+    if what:  # it exists: say what it is, not that it is missing
+        twice = "" if what == "a directory" else " (sappc run reads the scenario twice, which a pipe or a device does not allow)"
+        raise ConfigError(f"scenario {_quoted_path(scenario)} is {what}, not a file: give a scenario file{twice}")
     what = "no such file" if str(p) != p.name else "no such file, and no bundled scenario of that name" + did_you_mean(name, _names())
-    raise ConfigError(f"scenario {str(scenario)!r}: {what} (bundled: {', '.join(_names())}; `sappc scenarios` lists them)")
+    raise ConfigError(f"scenario {_quoted_path(scenario)}: {what} (bundled: {', '.join(_names())}; "
+                      "`sappc scenarios` lists them)")
+
+
+#: What a path that exists but is not a regular file is, by its ``stat`` file type.
+_FILE_TYPES = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a pipe (a FIFO, or /dev/fd/N of a process substitution)"),
+               (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def _not_a_file(p: Path) -> str:
+    """What ``p`` is when it exists (its link followed) but is not a regular file; ``""`` otherwise."""
+    try:
+        mode = p.stat().st_mode
+    except (OSError, ValueError):  # missing, a dangling link, unreadable, or a name the system refuses
+        return ""
+    return next((what for test, what in _FILE_TYPES if test(mode)), "" if stat.S_ISREG(mode) else "not a regular file")
+
+
+def _quoted_path(scenario: str | Path) -> str:
+    """The path or name as given, quoted for a message (a long one cut)."""
+    return quoted(str(scenario), 160)
 
 
 def extends_chain(path: Path) -> list[Path]:
@@ -110,10 +134,7 @@ def extends_chain(path: Path) -> list[Path]:
     """
     chain = [path]
     while True:
-        try:
-            data = yaml.safe_load(chain[-1].read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise ConfigError(f"cannot read scenario {chain[-1]}: {exc.strerror}") from None
+        data = read_yaml_file(chain[-1], "scenario")
         base = data.get("extends") if isinstance(data, dict) else None
         if not isinstance(base, str):
             return chain

@@ -580,11 +580,7 @@ def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dic
         ``extends`` comes back to a file already in it.
     """
     p = Path(path)
-    text = read_text_file(p, "scenario", max_bytes=MAX_SCENARIO_BYTES)
-    try:
-        data = safe_load_yaml(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{p} is not valid YAML: {exc}") from None
+    data = safe_load_yaml(read_text_file(p, "scenario", max_bytes=MAX_SCENARIO_BYTES), source=str(p))
     if not isinstance(data, dict) or EXTENDS_KEY not in data:
         return data  # scenario_from_mapping names a non-mapping
     base_name = data.pop(EXTENDS_KEY)

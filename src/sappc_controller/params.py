@@ -24,7 +24,6 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import yaml
 
 from gnc_common.validation import ConfigError, check_positive, from_mapping, safe_load_yaml
 from sappc_msgs_py.parameters import REQUIRED, Param, field_docs, unit_of
@@ -182,10 +181,7 @@ def parameters_from_yaml(text: str, node: str = "controller", *, source: str = "
     ConfigError
         If the text is not YAML or has no ``ros__parameters`` for the node.
     """
-    try:
-        data = safe_load_yaml(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{source} is not valid YAML: {exc}") from None
+    data = safe_load_yaml(text, source=source)
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a ROS parameters file is a mapping of node names to ros__parameters")
     values: dict[str, Any] = {}

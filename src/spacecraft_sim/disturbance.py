@@ -43,11 +43,9 @@ from __future__ import annotations
 import sys
 from collections import deque
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from sappc_msgs_py.contract import (
     CLOCK,
@@ -85,7 +83,7 @@ from sappc_msgs_py.runtime import LOCKSTEP, MODE, FramesAhead, GridCursor, Proje
 
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
-from gnc_common.validation import ConfigError, InputError, check_positive
+from gnc_common.validation import ConfigError, InputError, check_positive, read_yaml_file
 
 __all__ = ["InjectorNode", "PARAMETERS", "load_schedule", "main"]
 
@@ -130,11 +128,9 @@ def load_schedule(path: str) -> tuple[DisturbanceSum, FaultSchedule]:
     if not path:
         return DisturbanceSum(()), FaultSchedule(())
     try:
-        data = yaml.safe_load(Path(path).read_text())
-    except OSError as exc:
-        raise ConfigError(f"schedule_file {path!r}: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"schedule_file {path!r} is not valid YAML: {exc}") from None
+        data = read_yaml_file(path, "schedule")
+    except ConfigError as exc:  # it cannot be read, or is not YAML: the message names the file
+        raise ConfigError(f"schedule_file: {exc}") from None
     if not isinstance(data, dict):
         raise ConfigError(f"schedule_file {path!r} must hold a mapping with 'disturbances' and/or 'faults'")
     return disturbances_from_list(data.get("disturbances")), FaultSchedule(faults_from_list(data.get("faults")))

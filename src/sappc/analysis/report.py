@@ -74,14 +74,8 @@ def _embedded_scenario(bag: Bag) -> Scenario | None:
     record = bag.metadata.get(SCENARIO_RECORD)
     if not record or "text" not in record:
         return None
-    import yaml
-
     source = f"{bag.path} ({SCENARIO_RECORD})"
-    try:
-        data = safe_load_yaml(record["text"])
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{source} is not valid YAML: {exc}") from None
-    return scenario_from_mapping(data, source=source)
+    return scenario_from_mapping(safe_load_yaml(record["text"], source=source), source=source)
 
 
 def _embedded_controller(bag: Bag) -> str | None:
@@ -288,16 +282,14 @@ def parameters_block(bag: Bag) -> str:
     """The run's parameters as the bag records them (``sappc run``'s :data:`~sappc.bag.read.PARAMS_RECORD`
     and :data:`~sappc.bag.read.SCENARIO_RECORD` metadata records): the controller's in a table,
     then both files as recorded, folded; a sentence when the bag has neither."""
-    import yaml
-
     texts = {name: str(bag.metadata.get(name, {}).get("text", "")) for name in (PARAMS_RECORD, SCENARIO_RECORD)}
     if not any(texts.values()):
         return (f"<h2>Parameters</h2><p>The bag records no parameters (no {PARAMS_RECORD} or {SCENARIO_RECORD} metadata "
                 "record: it was not recorded by sappc run).</p>")
     parts = ["<h2>Parameters</h2>"]
     try:
-        nodes = yaml.safe_load(texts[PARAMS_RECORD]) or {}
-    except yaml.YAMLError:
+        nodes = safe_load_yaml(texts[PARAMS_RECORD], source=PARAMS_RECORD) or {}
+    except ConfigError:  # not YAML, or past a limit: the record is still shown as text below
         nodes = {}
     node = nodes.get("/controller") if isinstance(nodes, dict) else None
     controller = node.get("ros__parameters") if isinstance(node, dict) else None

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from sappc_controller.inputs import INPUT_TOPICS, STEP_ERRORS, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import CONTROLLER_CLASSES, controller_from_parameters_file
 from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS, consumed_names
-from gnc_common.validation import read_text_file
+from gnc_common.validation import MAX_YAML_BYTES, read_text_file
 
 from sappc.bag.read import PARAMS_RECORD, STAMP_TOL_NS, Bag, BagError, Series, find_topic, nearest_index
 
@@ -132,7 +132,7 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
     """
     if params is not None:
         source = str(params)
-        text = read_text_file(params, "parameters")
+        text = read_text_file(params, "parameters", max_bytes=MAX_YAML_BYTES)
     else:
         record = bag.metadata.get(PARAMS_RECORD)
         if not record or "text" not in record:

@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from sappc_msgs_py.contract import (
@@ -56,7 +55,7 @@ from sappc_msgs_py.contract import (
     consumed_names,
 )
 from gnc_common.attitude import error_quaternion, quat_normalize
-from gnc_common.validation import safe_load_yaml
+from gnc_common.validation import ConfigError, read_yaml_file
 
 from sappc.bag.cdr import decode
 from sappc.bag.errors import BagError
@@ -113,9 +112,11 @@ def mcap_file(path: Path) -> Path:
     meta = path / "metadata.yaml"
     if meta.exists():
         try:
-            info = safe_load_yaml(meta.read_text())["rosbag2_bagfile_information"]
+            info = read_yaml_file(meta, "rosbag2 metadata")["rosbag2_bagfile_information"]
             files: list[Path] = [path / f for f in info["relative_file_paths"]]
-        except (yaml.YAMLError, KeyError, TypeError) as exc:
+        except ConfigError as exc:  # not readable, not YAML, or past a limit (the message names the file)
+            raise BagError(str(exc)) from None
+        except (KeyError, TypeError) as exc:
             raise BagError(f"{meta}: not a rosbag2 metadata file ({exc})") from None
         if len(files) > 1:
             raise BagError(f"{path}: a bag split into {len(files)} files is not supported; give one of them")

@@ -46,7 +46,7 @@ from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, CONTR
                                     STATE_ATTITUDE_EPOCH, STATE_RATE, TOPICS, faulty, relay_remaps)
 from spacecraft_sim.core.faults import FaultSchedule
 from spacecraft_sim.core.wheels import allocation_matrix
-from gnc_common.validation import ConfigError
+from gnc_common.validation import ConfigError, safe_load_yaml
 
 from sappc.files import default_output_dir, scenario_path as bundled_scenario_path
 from sappc.graph.container import NODE_CLASSES, STOP_ORDER
@@ -684,7 +684,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         text = Path(scenario_path).read_text()
         # the file as written (its comments kept), or, for one that extends another, the whole
         # scenario it resolves to: the injector reads it, the bag records it, both without the base
-        scenario_copy.write_text(yaml.safe_dump(scenario.raw, sort_keys=False) if EXTENDS_KEY in (yaml.safe_load(text) or {}) else text)
+        scenario_copy.write_text(yaml.safe_dump(scenario.raw, sort_keys=False) if EXTENDS_KEY in (safe_load_yaml(text, source=str(scenario_path)) or {}) else text)
         params_path = run_dir / "params.yaml"
         bag_dir = run_dir / "bag"
         # relative to the run directory, the nodes' working directory (node_parameters)
