@@ -19,6 +19,7 @@ so a bag cut short by a crash yields what was flushed.
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -93,7 +94,8 @@ def _string_map(buf: bytes | memoryview, off: int) -> tuple[dict[str, str], int]
 class _Builder:
     """Accumulates the records of the file as the scan walks it."""
 
-    def __init__(self) -> None:
+    def __init__(self, progress: Callable[[int, int], object] | None = None) -> None:
+        self.progress = progress  # called with (bytes walked, file size) after each chunk
         self.pieces: list[bytes] = []  # buffers holding message payloads
         self.base = 0  # total length of the pieces so far
         self.channel: list[int] = []
@@ -117,6 +119,8 @@ class _Builder:
                 break
             if op == _OP_CHUNK:
                 self._chunk(raw, body, nxt)
+                if self.progress is not None:
+                    self.progress(nxt, end)
             elif op == _OP_MESSAGE:  # a message outside any chunk (unchunked writers)
                 piece = raw[off:nxt]
                 self._walk(piece)
@@ -188,8 +192,10 @@ class _Builder:
         self._walk(data)
 
 
-def scan_mcap(path: str | Path) -> Scan:
-    """Scan the MCAP file at ``path`` (see the module docstring).
+def scan_mcap(path: str | Path, *, progress: Callable[[int, int], object] | None = None) -> Scan:
+    """Scan the MCAP file at ``path`` (see the module docstring); ``progress``, when given, is
+    called with the bytes walked so far and the file's size once the file is read and after each
+    chunk (a long bag's read-back shows how far it is: issue 46).
 
     Raises
     ------
@@ -199,7 +205,9 @@ def scan_mcap(path: str | Path) -> Scan:
     raw = Path(path).read_bytes()
     if raw[:8] != MAGIC:
         raise ValueError(f"{path}: not an MCAP file (no MCAP magic at the start)")
-    b = _Builder()
+    b = _Builder(progress)
+    if progress is not None:
+        progress(0, len(raw))
     truncated: str | None = None
     try:
         end = b.top_level(raw)

@@ -15,6 +15,9 @@ latest at or before it (zero-order hold, as the plant applies them).
 
 from __future__ import annotations
 
+import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -64,8 +67,8 @@ from sappc.evaluation.history import History
 from sappc.bag.mcap_scan import Scan, scan_mcap
 from sappc.evaluation.metrics import MetricsAccumulator
 
-__all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "Bag", "BagError", "BagEstimate", "BagRun", "bag_estimate", "bag_metrics", "bag_run", "find_topic", "frames_lacking_inputs", "latest_index", "nearest_index", "STAMP_TOL_NS",
-           "read_bag", "scan_bag"]
+__all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "TICK_PERIOD_S", "Bag", "BagError", "BagEstimate", "BagRun", "Ticker", "bag_estimate", "bag_metrics",
+           "bag_run", "find_topic", "frames_lacking_inputs", "latest_index", "nearest_index", "STAMP_TOL_NS", "read_bag", "scan_bag"]
 
 #: Metadata records that ``sappc run``'s recorder embeds in the bag: the scenario file and the
 #: ROS parameters of every node (the recorder names them ``sappc/<file name>``).
@@ -73,6 +76,97 @@ SCENARIO_RECORD = "sappc/scenario.yaml"
 PARAMS_RECORD = "sappc/params.yaml"
 
 Array = NDArray[np.float64]
+
+#: The period of a :class:`Ticker`'s line [s]: ``sappc run`` prints a line at least every 2 s to
+#: its last (issue 46), one a second as its progress line during the run
+#: (``sappc.graph.launch.PROGRESS_PERIOD_S``).
+TICK_PERIOD_S = 1.0
+#: How often a ticker's thread looks whether a line is due [s]: a line comes at most this late.
+TICK_POLL_S = 0.25
+
+
+class Ticker:
+    """A progress line while slow steps run: ``say("STEP: DETAIL (N s)")`` when a step starts
+    (:meth:`step`), then every ``period_s`` until the next step or :meth:`idle`; ``DETAIL`` is how
+    far the step says it is (:meth:`detail`, e.g. ``"12.0 of 40.3 MB"``), ``N`` the seconds since
+    the step started.
+
+    The lines come from a thread of the ticker's own while it is entered as a context (``with
+    Ticker(say) as ticker:``), so a step that cannot report (a system call, one numpy operation
+    over a whole bag, a process that takes its time to exit) still shows it is alive (issue 46:
+    ``sappc run`` was silent for up to 10 s while it stopped its nodes and read its bag back).
+    Outside a ``with`` nothing is printed but by :meth:`step`, :meth:`detail` and :meth:`poll`.
+    Every decision reads ``clock`` (a test gives one of its own and drives :meth:`poll` as the
+    thread does, every ``poll_s`` of real time).
+    """
+
+    def __init__(self, say: Callable[[str], object], *, period_s: float = TICK_PERIOD_S, poll_s: float = TICK_POLL_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._say, self._clock = say, clock
+        self.period_s, self.poll_s = period_s, poll_s
+        self._lock = threading.Lock()  # the thread and the steps' calls print one at a time
+        self._step: str | None = None  # None: idle, no line
+        self._detail = ""
+        self._started = self._last = 0.0  # when the step started, when the last line was said
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def step(self, text: str, detail: str = "") -> None:
+        """A new step: its line now, then one every period."""
+        with self._lock:
+            self._step, self._detail = text, detail
+            self._started = self._clock()
+            self._line(self._started)
+
+    def detail(self, text: str) -> None:
+        """How far the current step is, shown in its next line (said now when one is due: a step
+        that reports often enough needs no thread)."""
+        with self._lock:
+            self._detail = text
+            self._due()
+
+    def idle(self) -> None:
+        """No step: no line until the next :meth:`step` (the caller prints lines of its own)."""
+        with self._lock:
+            self._step = None
+
+    def poll(self) -> None:
+        """The current step's line, when ``period_s`` has passed since the last line."""
+        with self._lock:
+            self._due()
+
+    def _due(self) -> None:
+        now = self._clock()
+        if self._step is not None and now - self._last >= self.period_s:
+            self._line(now)
+
+    def _line(self, now: float) -> None:
+        self._last = now
+        elapsed = now - self._started
+        self._say(f"{self._step}{': ' + self._detail if self._detail else ''}" + (f" ({elapsed:.0f} s)" if elapsed > 0 else ""))
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.poll_s):
+            self.poll()
+
+    def __enter__(self) -> Ticker:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="sappc-ticker", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self.idle()
+
+
+def _reading(ticker: Ticker | None) -> Callable[[int, int], object] | None:
+    """The read-back's progress for :func:`~sappc.bag.mcap_scan.scan_mcap`: ``X of Y MB``."""
+    if ticker is None:
+        return None
+    return lambda done, total: ticker.detail(f"{done / 1e6:.1f} of {total / 1e6:.1f} MB")
 
 
 @dataclass
@@ -128,19 +222,23 @@ def mcap_file(path: Path) -> Path:
     return found[0]
 
 
-def scan_bag(path: str | Path) -> Scan:
-    """The raw messages of the bag at ``path`` (see :func:`sappc.bag.mcap_scan.scan_mcap`)."""
+def scan_bag(path: str | Path, *, ticker: Ticker | None = None) -> Scan:
+    """The raw messages of the bag at ``path`` (see :func:`sappc.bag.mcap_scan.scan_mcap`);
+    ``ticker``: the bytes read so far are its current step's detail."""
     mcap_path = mcap_file(Path(path))
     try:
-        return scan_mcap(mcap_path)
+        return scan_mcap(mcap_path, progress=_reading(ticker))
     except ValueError as exc:
         raise BagError(str(exc)) from None
     except OSError as exc:
         raise BagError(f"{mcap_path}: cannot read ({exc.strerror})") from None
 
 
-def read_bag(path: str | Path) -> Bag:
+def read_bag(path: str | Path, *, ticker: Ticker | None = None) -> Bag:
     """Every message of the contract's types in the bag at ``path``, as arrays.
+
+    ``ticker``: the read's progress as its step "reading the bag back" (the megabytes read, then
+    the topic being decoded).
 
     Raises
     ------
@@ -148,13 +246,17 @@ def read_bag(path: str | Path) -> Bag:
         If ``path`` is not a bag (no MCAP file, not MCAP, no message of the contract's types).
     """
     p = Path(path)
-    scan = scan_bag(p)
+    if ticker is not None:
+        ticker.step("reading the bag back")
+    scan = scan_bag(p, ticker=ticker)
     series: dict[str, Series] = {}
     labels: tuple[str, ...] = ()
     undecodable: dict[str, int] = {}
     frame_ids: dict[str, tuple[str, ...]] = {}
     array_labels: dict[str, tuple[str, ...]] = {}
-    for cid, channel in scan.channels.items():
+    for n, (cid, channel) in enumerate(scan.channels.items()):
+        if ticker is not None:
+            ticker.detail(f"decoding {channel.topic}, topic {n + 1} of {len(scan.channels)}")
         start, length, log_time = scan.payloads(cid)
         if channel.message_encoding != "cdr" or start.size == 0:
             continue
@@ -222,7 +324,7 @@ class BagRun:
     history: History  # one run (N = 1), t in seconds since the first aligned state
     t0_ns: int  # stamp of the first aligned state
     answer: NDArray[np.int8]  # (T,) how the controller answered each sample (contract ANSWER_* codes)
-    rejected: int  # messages the controller rejected (the last diagnostics' count)
+    rejected: int  # messages the controller rejected (the largest count of its diagnostics in the bag)
     torque_topic: str | None  # the topic the plant applied (a fault relay's when there was one)
     has_diagnostics: bool  # controller/diagnostics present (rho, band, saturation, Lyapunov values)
 
@@ -241,16 +343,19 @@ class BagRun:
         return {"samples": int(self.answer.size), **counts, "rejected_inputs": self.rejected}
 
 
-def bag_run(bag: Bag, duration_s: float | None = None) -> BagRun:
+def bag_run(bag: Bag, duration_s: float | None = None, *, ticker: Ticker | None = None) -> BagRun:
     """Align the bag's topics on the state stamps (see the module docstring); with
     ``duration_s``, only the states of ``[0, duration_s]`` from the first (a run's own span: a
     state recorded after it, e.g. from a plant that ran on, is no sample of the run).
+    ``ticker``: the alignment is its step "aligning the samples".
 
     Raises
     ------
     BagError
         If the bag lacks the state or the reference, or they never overlap.
     """
+    if ticker is not None:
+        ticker.step("aligning the samples")
     # the truth: truth/* from a plant with sensor models (its state/* are measurements), else state/*
     truth = find_topic(bag, TRUTH_ATTITUDE.name) is not None and find_topic(bag, TRUTH_RATE.name) is not None
     names = {
@@ -339,15 +444,33 @@ def bag_run(bag: Bag, duration_s: float | None = None) -> BagRun:
         estimate=_estimate_record(bag, common),
         orbit=_orbit_record(bag, common),
     )
-    finite_status = status[np.isfinite(status[:, 0])]
     return BagRun(
         history=history,
         t0_ns=t0,
         answer=answer,
-        rejected=int(finite_status[-1, 0]) if finite_status.size else 0,
+        rejected=_rejected_count(bag, diag_topic, labels),
         torque_topic=torque_topic,
         has_diagnostics=bool(rows),
     )
+
+
+def _rejected_count(bag: Bag, diag_topic: str | None, labels: tuple[str, ...]) -> int:
+    """The controller's count of rejected input messages: ``status[0]`` of its diagnostics, a count
+    that only grows, at its largest over *every* diagnostics message of the bag (0 without).
+
+    Not the last sample's of the run's span: a rejection after the last sample answered (a late
+    input at the run's end) would be missing.  A rejection after the controller's last diagnostics
+    message is in no bag (the node's own count, its ``timing_file``'s ``rejected_inputs``, has it; a
+    real-time controller looks at no input after the run's last frame, so there is none to miss)."""
+    if diag_topic is None or "status" not in labels:
+        return 0
+    values = bag.series[diag_topic].values
+    col = 3 * labels.index("status")
+    if values.shape[1] <= col or values.shape[0] == 0:
+        return 0
+    counts = values[:, col]
+    counts = counts[np.isfinite(counts)]
+    return int(counts.max()) if counts.size else 0
 
 
 def frames_lacking_inputs(bag: Bag, run: BagRun, dt_s: float, duration_s: float) -> dict[str, int]:
@@ -520,11 +643,14 @@ def bag_estimate(bag: Bag) -> BagEstimate | None:
 
 
 def bag_metrics(bag: Bag, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]],
-                run: BagRun | None = None, orbit_bins: Any = None) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+                run: BagRun | None = None, orbit_bins: Any = None, ticker: Ticker | None = None) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The metrics of :mod:`sappc.evaluation.metrics` for the run in ``bag`` (``run``: its alignment,
     if made already), and its per-orbit metrics (``orbit_bins``: a scenario in orbit's,
-    :meth:`sappc.scenario.Scenario.orbit_bins`; none without)."""
-    run = run or bag_run(bag)
+    :meth:`sappc.scenario.Scenario.orbit_bins`; none without).  ``ticker``: the computation is its
+    step "computing the metrics"."""
+    run = run or bag_run(bag, ticker=ticker)
+    if ticker is not None:
+        ticker.step("computing the metrics")
     acc = MetricsAccumulator(run.history.t, 1, steady_from_s=steady_from_s, settle_threshold=settle_threshold, t2_s=t2_s,
                              fault_windows=fault_windows, orbit_bins=orbit_bins)
     acc.add_history(run.history)

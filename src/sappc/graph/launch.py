@@ -28,7 +28,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -48,6 +48,7 @@ from spacecraft_sim.core.faults import FaultSchedule
 from spacecraft_sim.core.wheels import allocation_matrix
 from gnc_common.validation import ConfigError, safe_load_yaml
 
+from sappc.bag.read import Ticker
 from sappc.files import default_output_dir, scenario_path as bundled_scenario_path
 from sappc.graph.container import NODE_CLASSES, STOP_ORDER
 from sappc.scenario import EXTENDS_KEY, ControllerKind, Scenario, load_scenario
@@ -581,7 +582,33 @@ class _ProgressLine:
         if self.done:
             self.done_at = now
         self.say(f"sappc run: t = {t_s:.1f} s of {self.duration_s:g} s{share}, {samples} samples recorded{rate}"
-                 + ("; the last sample is in, stopping the nodes" if self.done else ""))
+                 + ("; the last sample is in" if self.done else ""))
+
+
+def _stop_nodes(procs: Mapping[str, _Process], stop_order: Sequence[str], bag_dir: Path, ticker: Ticker) -> tuple[dict[str, int], bool]:
+    """Stop the started nodes of ``stop_order`` in that order (publishers first, they wait for
+    acknowledgements; the recorder last, it drains its queues), each still running a step of
+    ``ticker`` ("stopping the nodes: NAME"; the recorder's, or the composed process's, with the
+    size of its bag so far, which is also the stop's sign of progress: :meth:`_Process.stop`);
+    return each one's exit code and whether one had to be killed."""
+    exit_codes: dict[str, int] = {}
+    killed_any = False
+    for name in stop_order:
+        if name not in procs:
+            continue
+        if procs[name].proc.poll() is None:
+            ticker.step("stopping the nodes", name)
+        recording = name in ("recorder", "composed")
+
+        def bag_written() -> int:
+            written = _bytes_under(bag_dir)
+            ticker.detail(f"{name}, its bag {written / 1e6:.1f} MB so far")  # noqa: B023 (called within this iteration)
+            return written
+
+        exit_codes[name], killed = procs[name].stop(progress=bag_written if recording else None)
+        killed_any |= killed
+    ticker.idle()
+    return exit_codes, killed_any
 
 
 def _fastdds_shm_clean() -> None:
@@ -706,8 +733,8 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
 
         env = isolated_environment(domain, (run_dir / "logs").resolve())
         procs: dict[str, _Process] = {}
-        killed_any = False
-        exit_codes: dict[str, int] = {}
+        # from the last sample on, the stop's lines (issue 46: a line at least every 2 s to the end)
+        ticker = Ticker(lambda msg: say(f"sappc run: {msg}"), period_s=PROGRESS_PERIOD_S)
         start = time.monotonic()
         node_args = {name: ["--ros-args", "-r", f"__node:={name}", "--params-file", params_path.name, *remaps[name]] for name in nodes}
         if compose:  # one process: it ends by itself when the plant finishes, the nodes stopping in STOP_ORDER
@@ -737,6 +764,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                     f"torque of t = {scenario.duration_s:g} s is recorded, or on Ctrl-C")
             deadline = start + limit
             line = _ProgressLine(run_dir / PROGRESS_FILE, scenario.duration_s, start, say)
+            stopping = False
             while not ended():
                 for name, p in procs.items():
                     if p.proc.poll() is not None and (external or name != lead):
@@ -751,6 +779,10 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                     raise RuntimeError(f"the nodes did not stop within {CLOSE_BASE_S + CLOSE_S_PER_SAMPLE * line.last_samples[1]:.0f} s "
                                        f"of the last sample (see {run_dir / 'logs'})")
                 line.update()
+                if line.done and not stopping:  # the lead ends by itself: the plant its run, the composed process its nodes
+                    ticker.step("stopping the nodes", f"waiting for the {'plant' if lead == 'plant' else 'composed nodes'} to end")
+                    stopping = True
+                ticker.poll()
                 time.sleep(0.05)
             run_end = time.monotonic()
             if not external and procs[lead].proc.returncode != 0:
@@ -758,12 +790,8 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         finally:
             # publishers first (they wait for acknowledgements), the recorder last (it drains); a
             # further Ctrl-C cannot cut this short and leave a node running
-            with _interrupts_deferred("stopping the nodes cleanly"):
-                for name in stop_order:
-                    if name in procs:
-                        code, killed = procs[name].stop(progress=(lambda: _bytes_under(bag_dir)) if name in ("recorder", "composed") else None)
-                        exit_codes[name] = code
-                        killed_any |= killed
+            with _interrupts_deferred("stopping the nodes cleanly"), ticker:  # its thread: a process's exit may take seconds
+                exit_codes, killed_any = _stop_nodes(procs, stop_order, bag_dir, ticker)
                 if killed_any:
                     _fastdds_shm_clean()
         failed = {n: c for n, c in exit_codes.items() if c != 0}

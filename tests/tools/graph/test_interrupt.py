@@ -138,9 +138,11 @@ def test_ctrl_c_early_in_sappc_run_stops_it_with_one_line_and_status_130(tmp_pat
     said = [ln for ln in seen.decode(errors="replace").splitlines() if ln.strip() and not ln.startswith("import time:")]
     assert proc.returncode == 130, "\n".join(said)
     assert not any("Traceback" in ln for ln in said), "\n".join(said)
-    # the line naming the run and its domain, and the progress lines (one a second while the nodes start)
-    progress = [ln for ln in said if re.match(r"sappc run: (\S+ with |starting the nodes, no sample yet|t = )", ln)]
-    assert len(said) - len(progress) == 1 and "interrupted" in said[-1], "\n".join(said)
+    # the line naming the run and its domain, the progress lines (one a second while the nodes start)
+    # and the stop's (issue 46: one a node, one a second while it stops); one other line, which says why
+    progress = re.compile(r"sappc run: (\S+ with |starting the nodes, no sample yet|t = |stopping the nodes: )")
+    others = [ln for ln in said if not progress.match(ln)]
+    assert len(others) == 1 and "interrupted" in others[0], "\n".join(said)
     nodes = len(watch.processes) - 1  # the launcher's children (bash exec'd the command: the same process)
     if moment == "imports":
         assert nodes == 0
