@@ -107,3 +107,21 @@ def test_output_into_a_closed_pipe_stops_quietly_with_status_1() -> None:
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 1, err
     assert "Traceback" not in err and "BrokenPipeError" not in err, err
+
+
+def test_a_degraded_real_time_run_says_why_in_its_verdict(capsys) -> None:  # type: ignore[no-untyped-def]
+    """The real-time summary's missed and stale frames and the controller's held and zeroed samples
+    end the FAILED line (issue 46's loaded run: 272 missed frames, 1,456 held torques); a clean run
+    adds nothing."""
+    from types import SimpleNamespace
+
+    from sappc.cli import _print_verdict, _realtime_degraded
+
+    realtime = {"missed_frames": 272, "stale_torque_frames": 0}
+    controller = {"samples": 6001, "commanded": 4545, "held": 1456, "watchdog_zero": 0}
+    why = _realtime_degraded(realtime, controller)
+    assert why == "real time degraded: 272 missed frames, 1456 held torques"
+    assert _realtime_degraded({"missed_frames": 0, "stale_torque_frames": 0}, {"held": 0, "watchdog_zero": 0}) == ""
+    scenario = SimpleNamespace(metrics=SimpleNamespace(requirements={"settling_time_s_max": 20.0}))
+    _print_verdict(scenario, ["settling_time_s = 57 > 20"], why)
+    assert capsys.readouterr().out == "FAILED: settling_time_s = 57 > 20 (real time degraded: 272 missed frames, 1456 held torques)\n"
