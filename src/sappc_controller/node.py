@@ -52,7 +52,14 @@ plausibility bound (``max_body_rate_rad_s``, ...: "implausible"; the check is
 :mod:`sappc_controller.core.input_check`, the offline loop's too), a stamp in the past (lockstep: not after the last computed sample; real
 time: not after the topic's previous message) or more than ``max_stamp_ahead_s`` ahead of the
 controller's time ("far future") is rejected, logged and counted, in total (diagnostics
-``status[0]``) and by reason (:data:`REJECT_REASONS`); it never reaches the law.
+``status[0]``) and by reason (:data:`REJECT_REASONS`); it never reaches the law.  The contract's
+"no data" sample (NaN in every value: the fault injector's dropped measurement or reference, the
+estimator's sample without an estimate, :func:`~sappc_msgs_py.convert.no_data_msg`) is not an
+error: it reaches no law either and its sample is answered as a dropped input, but it is counted
+apart (``no_data_inputs`` in ``timing_file`` and the closing line, logged at most once a second
+at info level), never among the rejected messages.  In real time the inputs that arrive after
+the run's last frame is answered are not looked at (nor counted): they belong to no sample of the
+run, and the diagnostics' count (which ``sappc run`` reads from the bag) could not include them.
 
 Answers (diagnostics ``status[2]``, :data:`~sappc_msgs_py.contract.ANSWER_NAMES`): a sample
 whose inputs are complete and valid is computed.  Without one at a control instant, the
@@ -179,8 +186,8 @@ PARAMETERS = (
           "implausible", "rad/s", check="> 0"),
     Param("max_reference_acceleration_rad_s2", InputBounds.max_reference_acceleration_rad_s2, "a reference acceleration of larger "
           "magnitude is rejected as implausible (ten times the most agile spacecraft's)", "rad/s^2", check="> 0"),
-    Param("timing_file", "", "where to write the node's statistics when it finishes (JSON: steps, refused, rejected by reason; real "
-          "time: the steps' latency and late steps); '' for none"),
+    Param("timing_file", "", "where to write the node's statistics when it finishes (JSON: steps, refused, rejected by reason, inputs "
+          "without data; real time: the steps' latency and late steps); '' for none"),
     Param("duration_s", 0.0, "real time: the run's length from the first state; after answering the state of its last frame the "
           "controller answers nothing more (its watchdog stops: the plant has finished); 0: no end", "s", check=">= 0"),
 )
@@ -238,6 +245,7 @@ class ControllerNode(ProjectNode):
         self.rejected = 0
         self.answers = dict.fromkeys(ANSWER_NAMES, 0)  # samples answered, by answer (diagnostics status[2])
         self.rejected_by_reason: dict[str, int] = {}
+        self.no_data_inputs = 0  # the contract's "no data" samples received (not rejections: module docstring)
         self.refused = 0  # control steps whose torque the core refused (non-finite)
         self.stale = False
         self.steps = 0
@@ -348,6 +356,13 @@ class ControllerNode(ProjectNode):
         self.rejected_by_reason[kind] = self.rejected_by_reason.get(kind, 0) + 1
         self.get_logger().warning(f"rejected a message ({self.rejected} so far): {reason}", throttle_duration_sec=1.0)
 
+    def _no_data(self, what: str) -> None:
+        """Count (apart from the rejected messages) and log, at most once a second, an input that is
+        the contract's "no data" sample (module docstring)."""
+        self.no_data_inputs += 1
+        self.get_logger().info(f"an input without data ({self.no_data_inputs} so far): {what}; its sample is answered as a dropped input",
+                               throttle_duration_sec=1.0)
+
     def _now_ns(self) -> int | None:
         """The controller's time: the latest /clock in lockstep, the node clock in real time."""
         return self._clock_ns if self.mode == LOCKSTEP else self.get_clock().now().nanoseconds
@@ -364,15 +379,15 @@ class ControllerNode(ProjectNode):
         return value
 
     def _on_input(self, msg: Any, topic: Topic) -> None:
+        if self._ended:
+            return  # real time: the run's last frame is answered; nothing after it is the run's (not even counted)
         last = self._last_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
         what = "the last computed sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
-        screened = screen_input(msg, topic, last, self._now_ns(), self.max_ahead_ns, what, self._decode, self._reject)
+        screened = screen_input(msg, topic, last, self._now_ns(), self.max_ahead_ns, what, self._decode, self._reject, self._no_data)
         if screened is None:
             return
-        ns, value = screened  # value None: arrived, invalid (module docstring)
+        ns, value = screened  # value None: arrived without a valid value: invalid, or "no data" (module docstring)
         if self.mode == REALTIME:
-            if self._ended:
-                return  # the run's last frame is answered
             fresh = self._rt.add(topic.name, ns, value)
             start = fresh.t_ns if fresh is not None else self._rt.waiting_ns
             if self._first_state_ns is None and start is not None:
@@ -529,15 +544,18 @@ class ControllerNode(ProjectNode):
         not compute included, as ``sappc run`` reports it from the bag), and the inputs rejected."""
         a = self.answers
         reasons = f" {self.rejected_by_reason}" if self.rejected_by_reason else ""
+        no_data = f"; {self.no_data_inputs} inputs without data (the contract's no data, not rejected)" if self.no_data_inputs else ""
         return (f"finished: answered {sum(a.values())} samples: {a['commanded']} commanded, {a['held']} held, {a['watchdog_zero']} watchdog zero, "
-                f"{a['refused']} refused ({self.steps} control steps computed); {self.rejected} input messages rejected{reasons}")
+                f"{a['refused']} refused ({self.steps} control steps computed); {self.rejected} input messages rejected{reasons}{no_data}")
 
     def finish(self) -> None:
         self.get_logger().info(self.closing_line())
         super().finish()
         if self.timing_file:
             stats = {"steps": self.steps, "refused_steps": self.refused, "answers": dict(self.answers), "rejected": self.rejected,
+                     "rejected_inputs": self.rejected,  # the key of sappc run's controller summary
                      "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
+                     "no_data_inputs": self.no_data_inputs,
                      **({"latency": self.latency_statistics(), "held_reference_steps": self.held_reference_steps,
                          "first_deviating_sample": self.first_deviating_sample,
                          "late_states": self.late_states} if self.mode == REALTIME else {})}

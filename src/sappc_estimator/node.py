@@ -33,12 +33,29 @@ Modes (parameter ``mode``):
     once stale).  So is a step before the filter has an estimate (before its first tracker sample).
 ``realtime``
     One filter step per fresh sample (gyro and epoch of one new stamp: a frame of
-    :mod:`sappc_msgs_py.timeline`), as soon as both have arrived (a tracker sample the epoch names
-    that has not arrived yet is used at the first sample after it has), published with the sample's
-    stamp; its latency (publication minus the state's stamp) is measured, and a step later than
-    ``control_period_s`` is counted (``late_steps`` in ``timing_file``).  An invalid input is
-    rejected and makes no sample (the controller's own watchdog covers the frame); the filter's
-    time is counted from the first sample's stamp (a float of epoch seconds would lose 0.2 us).
+    :mod:`sappc_msgs_py.timeline`), as soon as both have arrived and the tracker sample the epoch
+    names, when it is a new one, has too (as in lockstep: the topics are not ordered among
+    themselves), published with the sample's stamp; its latency (publication minus the state's
+    stamp) is measured, and a step later than ``control_period_s`` is counted (``late_steps`` in
+    ``timing_file``).  A tracker sample that has not arrived by the middle of its sample's frame
+    (a timer of the frame grid), or by the time the next sample is complete, is *late*: the sample
+    is stepped without it (propagated on the gyro) and the tracker sample is refused, never applied
+    at a later step (counted: ``late_tracker_samples``, logged at most once a second).  An invalid
+    input is rejected and makes no sample (the controller's own watchdog covers the frame); the
+    filter's time is counted from the first sample's stamp (a float of epoch seconds would lose
+    0.2 us).
+
+Time (docs/how-to/realtime.md, "Time"): stamps and epochs are integer nanoseconds; the filter gets
+float seconds since an integer origin (0 in lockstep, the first sample's stamp in real time), never
+a float of absolute time.  A tracker sample is applied at the step of the sample whose epoch first
+names it, which the plant does at the tracker sample's own stamp.  An epoch *later* than the
+sample that names it (a tracker sample "from the future", which the filter cannot take: once the
+plant's float of absolute nanoseconds, issue 46) is a contract error: counted
+(``future_tracker_epochs``), logged at most once a second, and that tracker sample is refused (it
+is never applied, neither at this step nor at a later one); the sample itself is stepped on the
+gyro and gets its estimate (not "no data").  An epoch first named by a later sample than its own
+(its own sample was dropped, or a fault relay delays the tracker) is applied at that step, as the
+offline loop does: the filter does not model a measurement's delay.
 
 Input checks (:mod:`sappc_msgs_py.inputs`, the controller's): a message with a wrong frame id, a
 non-finite value, a zero or non-unit quaternion, a sensor message that marks its measurement
@@ -52,8 +69,13 @@ but implausible measurement (a rate beyond ``max_body_rate_rad_s``) is no measur
 filter (docs/estimator.md, step 0): the filter is unchanged and the sample is "no data", as the
 offline loop answers it.
 
+The contract's "no data" inputs (the fault injector's dropped gyro sample: NaN in every value;
+:func:`~sappc_msgs_py.convert.is_no_data_msg`) are no error: the sample is answered as for an
+invalid input, and they are counted apart (``no_data_inputs``), not among the rejected messages.
+
 The closing line and ``timing_file`` count the samples answered, the filter steps, its updates,
-gate rejections and re-initialisations, the "no data" samples and the rejected messages.
+gate rejections and re-initialisations, the "no data" samples, the rejected messages, the inputs
+without data, the future tracker epochs and (real time) the late tracker samples.
 """
 
 from __future__ import annotations
@@ -114,6 +136,7 @@ from sappc_msgs_py.inputs import (
 )
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import COMMON_PARAMETERS, LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
+from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
 
 from sappc_estimator.core import mekf
 from sappc_estimator.core.config import chi2_band
@@ -146,6 +169,16 @@ HEALTH_PERIOD_S = 1.0
 _HEALTH_MESSAGES = ("consistent: the innovations' window inside its band",
                     "warning: the innovations' window outside its warning band, or recovering",
                     "inconsistent: the innovations' window outside its error band")
+
+
+def _seconds(ns: int) -> str:
+    """A stamp [ns] in seconds, exactly (``sec.nanosec``): a float of a real-time stamp would round it."""
+    return f"{ns // NS_PER_S}.{ns % NS_PER_S:09d}"
+
+
+def _named_epoch(sample: ControlSample) -> int:
+    """The tracker epoch [ns] a valid sample names (its ``state/attitude_epoch``); 0 for an invalid one."""
+    return int(sample.values[1][0]) if sample.valid else 0
 
 
 def decode_estimator_input(msg: Any, topic: Topic) -> Any:
@@ -193,6 +226,15 @@ class TrackerSamples:
         """Whether a loop sample naming ``epoch_ns`` can be stepped: the epoch is not a new one, or
         its tracker sample has arrived."""
         return (self.latest_ns is not None and epoch_ns <= self.latest_ns) or epoch_ns in self._by_ns
+
+    def refuse(self, epoch_ns: int) -> None:
+        """Never use the tracker sample of ``epoch_ns`` (nor an older one), arrived or not: it is
+        taken as named (a later sample naming it finds it not new) without its quaternion, as one
+        that arrived invalid; when it arrives later it is not kept."""
+        if self.latest_ns is None or epoch_ns > self.latest_ns:
+            self.latest_ns = epoch_ns
+            for ns in [ns for ns in self._by_ns if ns <= epoch_ns]:
+                del self._by_ns[ns]
 
     def use(self, epoch_ns: int) -> int:
         """The epoch [ns] a loop sample naming ``epoch_ns`` gives the filter, its quaternion in
@@ -245,6 +287,9 @@ class EstimatorNode(ProjectNode):
         self.no_data = 0  # samples answered with "no data"
         self.rejected = 0
         self.rejected_by_reason: dict[str, int] = {}
+        self.no_data_inputs = 0  # the contract's "no data" inputs (not rejections)
+        self.future_tracker_epochs = 0  # samples naming a tracker epoch later than their own stamp (a contract error)
+        self.late_tracker_samples = 0  # real time: tracker samples not there when their sample's step was due (refused)
         self._answered_ns: int | None = None  # lockstep: the latest stamp answered
         self._clock_ns: int | None = None  # lockstep: the latest /clock
         self._origin_ns: int | None = 0 if self.mode == LOCKSTEP else None  # real time: the first sample's stamp
@@ -254,13 +299,15 @@ class EstimatorNode(ProjectNode):
         self._diag = np.zeros(len(ESTIMATOR_DIAGNOSTICS_LAYOUT))
         self.withheld = 0  # samples whose estimate was withheld (initialising, unconfirmed)
         self._health_level: int | None = None  # the level last reported on diagnostics
-        self._health_t_s = -np.inf  # when
+        self._health_t_s = -np.inf  # when [s since the time origin]
         dof = 3 * self.config.monitor_window_samples
         self._band = chi2_band(dof, self.config.monitor_error_probability)
         if self.mode == LOCKSTEP:
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
         else:  # no publish may block a callback: samples before the controller is matched are skipped
             self._gate = StartGate(self, lambda: unmatched(list(self.pub.values())))
+            self.dt_ns = period_ns(self.dt)
+            self.create_frame_timer(self.dt, MID_FRAME_PHASE, self._on_timer)  # the deadline of a sample waiting for its tracker sample
         self.get_logger().info(f"MEKF estimator ready ({self.mode}; gate at NIS {self.config.gate_chi2:.4g}, "
                                f"{'prior attitude' if self.config.initial_q_BN is not None else 'starts at the first tracker sample'})")
 
@@ -270,6 +317,12 @@ class EstimatorNode(ProjectNode):
         self.rejected += 1
         self.rejected_by_reason[kind] = self.rejected_by_reason.get(kind, 0) + 1
         self.get_logger().warning(f"rejected a message ({self.rejected} so far): {reason}", throttle_duration_sec=1.0)
+
+    def _no_data(self, what: str) -> None:
+        """Count (apart from the rejected messages) and log, at most once a second, an input that is
+        the contract's "no data" sample."""
+        self.no_data_inputs += 1
+        self.get_logger().info(f"an input without data ({self.no_data_inputs} so far): {what}", throttle_duration_sec=1.0)
 
     def _on_clock(self, msg: Any) -> None:
         self._clock_ns = stamp_to_ns(msg.clock)
@@ -281,34 +334,70 @@ class EstimatorNode(ProjectNode):
     def _on_input(self, msg: Any, topic: Topic) -> None:
         last = self._answered_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
         what = "the last answered sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
-        screened = screen_input(msg, topic, last, self._now_ns(), self.max_ahead_ns, what, decode_estimator_input, self._reject)
+        screened = screen_input(msg, topic, last, self._now_ns(), self.max_ahead_ns, what, decode_estimator_input, self._reject, self._no_data)
         if screened is None:
             return
-        ns, value = screened  # value None: arrived, invalid (module docstring)
+        ns, value = screened  # value None: arrived without a valid value (module docstring)
         if self.mode == REALTIME:
             fresh = None if value is None else self._rt.add(topic.name, ns, value)
             if fresh is not None and self._gate.open():
-                self._answer(fresh)
-                self.latency.add(self.get_clock().now().nanoseconds - fresh.t_ns)
+                if self._waiting is not None:  # a newer sample is complete: the older one's tracker sample is late
+                    self._answer_without_tracker()
+                self._take(fresh)
             return
         sample = self._pending.add(topic.name, ns, value)
-        if sample is not None and sample.valid and not self.tracker.ready(int(sample.values[1][0])):
-            self._waiting = sample  # its tracker sample is on its way (lockstep: one sample at a time)
-        elif sample is not None:
-            self._answer(sample)
+        if sample is not None:
+            self._take(sample)
+
+    def _take(self, sample: ControlSample) -> None:
+        """A complete sample: answered now, or (valid, its epoch names a new tracker sample of its
+        time or before that has not arrived) kept until that tracker sample comes (lockstep: one
+        sample at a time; real time: until the deadline, :meth:`_on_timer`)."""
+        named = _named_epoch(sample)
+        if sample.valid and named <= sample.t_ns and not self.tracker.ready(named):
+            self._waiting = sample  # its tracker sample is on its way
+        else:
+            self._step(sample)
+
+    def _step(self, sample: ControlSample) -> None:
+        """Answer ``sample``; in real time its latency measured."""
+        self._answer(sample)
+        if self.mode == REALTIME:
+            self.latency.add(self.get_clock().now().nanoseconds - sample.t_ns)
+
+    def _answer_without_tracker(self) -> None:
+        """Real time: the waiting sample's tracker sample is late: refused (never applied at a later
+        step), counted and logged; the sample is stepped on the gyro."""
+        waiting = self._waiting
+        assert waiting is not None
+        self._waiting = None
+        named = _named_epoch(waiting)
+        self.late_tracker_samples += 1
+        self.get_logger().warning(f"the tracker sample of {_seconds(named)} s had not arrived when the sample of {_seconds(waiting.t_ns)} s "
+                                  f"that names it was due: refused, the sample propagates on the gyro ({self.late_tracker_samples} so far)",
+                                  throttle_duration_sec=1.0)
+        self.tracker.refuse(named)
+        self._step(waiting)
+
+    def _on_timer(self) -> None:
+        """Real time, in the middle of each frame: a sample still waiting for its tracker sample
+        once the middle of its own frame has passed is stepped without it."""
+        waiting = self._waiting
+        if waiting is not None and self.get_clock().now().nanoseconds >= waiting.t_ns + self.dt_ns // 2:
+            self._answer_without_tracker()
 
     def _on_tracker(self, msg: Any) -> None:
         """A tracker sample (stamped when measured): kept by its stamp until a loop sample names it."""
         topic = SENSOR_STAR_TRACKER
         screened = screen_input(msg, topic, self.tracker.last_arrived_ns, self._now_ns(), self.max_ahead_ns,
-                                f"the last {topic.name} message", decode_estimator_input, self._reject)
+                                f"the last {topic.name} message", decode_estimator_input, self._reject, self._no_data)
         if screened is None:
             return
         self.tracker.add(*screened)
         waiting = self._waiting
-        if waiting is not None and self.tracker.ready(int(waiting.values[1][0])):
+        if waiting is not None and self.tracker.ready(_named_epoch(waiting)):
             self._waiting = None
-            self._answer(waiting)
+            self._step(waiting)
 
     # ---- samples --------------------------------------------------------------------------
     def _answer(self, sample: ControlSample) -> None:
@@ -322,7 +411,14 @@ class EstimatorNode(ProjectNode):
         if self._origin_ns is None:
             self._origin_ns = t_ns
         omega_meas, epoch = sample.values
-        epoch_ns = self.tracker.use(int(epoch[0]))
+        named = int(epoch[0])
+        if named > t_ns:  # a tracker sample from the future: a contract error (module docstring), refused
+            self.future_tracker_epochs += 1
+            self.get_logger().warning(f"contract error: the sample of {_seconds(t_ns)} s names the tracker epoch {_seconds(named)} s, "
+                                      f"{named - t_ns} ns after it; that tracker sample is refused, the sample propagates on the gyro "
+                                      f"({self.future_tracker_epochs} so far)", throttle_duration_sec=1.0)
+            self.tracker.refuse(named)
+        epoch_ns = self.tracker.use(named)
         status = self.filter.step((t_ns - self._origin_ns) / NS_PER_S, self.tracker.q, omega_meas, (epoch_ns - self._origin_ns) / NS_PER_S)
         self.steps += 1
         # an implausible measurement (a rate beyond max_body_rate_rad_s ...) is no measurement: the
@@ -350,21 +446,22 @@ class EstimatorNode(ProjectNode):
                              (ESTIMATOR_BIAS_SIGMA, f.bias_sigma_rad_s)):
             p[topic.name].publish(vector3_msg(value, stamp, topic, out=p[topic.name].msg) if figures
                                   else no_data_msg(topic, stamp, out=p[topic.name].msg))
-        t_s = t_ns / NS_PER_S
+        t_s = t_ns / NS_PER_S  # the arrays' time label (the contract's data[0], seconds): never computed with
         p[ESTIMATOR_COVARIANCE.name].publish(covariance_msg(t_s, f.P if figures else None, out=p[ESTIMATOR_COVARIANCE.name].msg))
         d = self._diag
         d[:] = (t_s, f.nis, status, f.updates, f.rejections, f.reinitialisations, self.no_data, self.rejected,
                 f.monitor_level, f.monitor_nis_sum, f.recoveries, self.withheld)
         p[ESTIMATOR_DIAGNOSTICS.name].publish(estimator_diagnostics_msg(d, out=p[ESTIMATOR_DIAGNOSTICS.name].msg))
-        self._report_health(stamp, t_s, figures, estimate)
+        self._report_health(stamp, t_ns, figures, estimate)
 
-    def _report_health(self, stamp: Any, t_s: float, figures: bool, estimate: bool) -> None:
+    def _report_health(self, stamp: Any, t_ns: int, figures: bool, estimate: bool) -> None:
         """``diagnostics`` (ROS's health convention): the monitor's level and figures, when the level
         changes and at least every :data:`HEALTH_PERIOD_S` of the samples' time."""
         f = self.filter
         level = f.monitor_level if figures else mekf.MON_WARN  # no estimate yet (or no input): a warning
         if not estimate and figures:
             level = max(level, mekf.MON_WARN)  # withheld: the controller is not fed
+        t_s = (t_ns - (self._origin_ns or 0)) / NS_PER_S  # since the integer origin (0 in lockstep): never absolute time in a float
         if level == self._health_level and t_s - self._health_t_s < HEALTH_PERIOD_S:
             return
         self._health_level, self._health_t_s = level, t_s
@@ -374,7 +471,7 @@ class EstimatorNode(ProjectNode):
         if figures and not estimate:
             message += "; the estimate is withheld (a prior, or re-initialised, not yet confirmed by a tracker sample)"
         c = self.config
-        values = {"time_s": f"{t_s:.9g}", "window_samples": str(c.monitor_window_samples), "nis_sum_dof": str(3 * c.monitor_window_samples),
+        values = {"time_s": _seconds(t_ns), "window_samples": str(c.monitor_window_samples), "nis_sum_dof": str(3 * c.monitor_window_samples),
                   "nis_sum": f"{f.monitor_nis_sum:.6g}", "nis_sum_band": f"[{self._band[0]:.6g}, {self._band[1]:.6g}]",
                   "band_probability": f"{c.monitor_error_probability:.6g}", "mean_statistic": f"{f.monitor_mean_statistic:.6g}",
                   "outside_in_a_row": str(f.monitor_outside), "persistence": str(c.monitor_persistence),
@@ -391,6 +488,8 @@ class EstimatorNode(ProjectNode):
                 "reinitialisations": self.filter.reinitialisations, "recoveries": self.filter.recoveries,
                 "withheld_samples": self.withheld, "no_data_samples": self.no_data,
                 "rejected": self.rejected, "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},
+                "no_data_inputs": self.no_data_inputs, "future_tracker_epochs": self.future_tracker_epochs,
+                **({"late_tracker_samples": self.late_tracker_samples} if self.mode == REALTIME else {}),
                 **({"latency": dict(self.latency.summary())} if self.mode == REALTIME else {})}
 
     def finish(self) -> None:
@@ -398,7 +497,10 @@ class EstimatorNode(ProjectNode):
         self.get_logger().info(f"finished: {s['samples']} samples, {s['steps']} filter steps ({s['updates']} updates, {s['gate_rejections']} "
                                f"gate rejections, {s['reinitialisations']} re-initialisations, {s['recoveries']} recoveries), "
                                f"{s['no_data_samples']} no-data samples ({s['withheld_samples']} withheld), "
-                               f"{s['rejected']} rejected messages {self.rejected_by_reason or ''}")
+                               f"{s['rejected']} rejected messages {self.rejected_by_reason or ''}"
+                               + (f"; {s['no_data_inputs']} inputs without data" if s["no_data_inputs"] else "")
+                               + (f"; {s['future_tracker_epochs']} future tracker epochs (contract errors, refused)" if s["future_tracker_epochs"] else "")
+                               + (f"; {s['late_tracker_samples']} late tracker samples (refused)" if s.get("late_tracker_samples") else ""))
         super().finish()
         if self.timing_file:
             Path(self.timing_file).write_text(json.dumps(s))

@@ -74,7 +74,22 @@ the injector's "no data" for a dropped measurement; or the filter is not initial
 published as "no data" (:func:`~sappc_msgs_py.convert.no_data_msg`): NaN in every value of every
 estimate topic, the sample's stamp, so that the controller counts the sample as arrived and
 answers it as it answers its own dropped input; the diagnostics stay finite (but for ``nis``, NaN
-until the first tracker sample was compared).
+until the first tracker sample was compared).  "No data" is a sample that says it has no value,
+not a bad message: a consumer counts it apart from the messages it rejects
+(:func:`~sappc_msgs_py.convert.is_no_data_msg`, :data:`~sappc_msgs_py.inputs.NO_DATA`).  A sample
+for which the estimator has an estimate is never published as "no data": a tracker sample it
+refuses (one dated after the sample that names it, a contract error) leaves the sample
+propagated on the gyro, with its estimate.
+
+Time: every stamp of the contract is integer nanoseconds (``sec``, ``nanosec``), and so is a
+tracker epoch (``state/attitude_epoch``'s ``time_ref``, ``sensors/star_tracker``'s stamp).  A node
+that needs a float time counts it from an integer origin (0 in lockstep, the run's first sample in
+real time), never from 1970: a real-time stamp (~1.8e18 ns) is 256 ns from its neighbours in a
+float64.  A sample's tracker epoch is never later than the sample's own stamp.  The float arrays'
+``data[0]`` (below) is a time in seconds as a float: exact in lockstep (from 0), a label within
+0.12 us in real time, read back within 1 us (``sappc.bag.read.STAMP_TOL_NS``); no node computes
+with it in real time (the plant matches ``control/dipole``'s to its sample in lockstep only, the
+one mode with an orbit).
 
 Every ``std_msgs/Float64MultiArray`` of the contract carries the time it belongs to [s] in
 ``data[0]`` (:func:`float_array_carries_time`), so a recorder on simulated time can stamp it.

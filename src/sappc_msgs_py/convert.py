@@ -57,6 +57,7 @@ __all__ = [
     "star_tracker_from_msg",
     "star_tracker_msg",
     "EPOCH_SOURCE",
+    "is_no_data_msg",
     "no_data_msg",
     "diagnostics_from_msg",
     "diagnostics_msg",
@@ -488,7 +489,9 @@ def no_data_msg(topic: Topic, t_s: Any, out: Any = None) -> Any:
     """The contract's "no data" sample of ``topic`` (a ``QuaternionStamped`` or ``Vector3Stamped``
     topic): the header of time ``t_s`` (seconds or a stamp, :func:`time_to_stamp`) and NaN in every
     value, what a relay sends for a dropped measurement and an estimator for a sample without an
-    estimate; a consumer rejects it as invalid but knows its sample arrived.  Into ``out`` when given."""
+    estimate; a consumer takes no value from it but knows its sample arrived, and counts it apart
+    from the messages it rejects (:func:`is_no_data_msg`; :func:`sappc_msgs_py.inputs.screen_input`).
+    Into ``out`` when given."""
     msg = _header(topic.msg_class() if out is None else out, t_s, topic.frame_id)
     if topic.type_name.endswith("QuaternionStamped"):
         msg.quaternion.x = msg.quaternion.y = msg.quaternion.z = msg.quaternion.w = _NO_DATA
@@ -504,6 +507,35 @@ def no_data_msg(topic: Topic, t_s: Any, out: Any = None) -> Any:
     else:
         raise ValueError(f"{topic.name} has no 'no data' sample (a QuaternionStamped, Vector3Stamped, Imu or TimeReference topic has)")
     return msg
+
+
+def is_no_data_msg(msg: Any, topic: Topic) -> bool:
+    """Whether ``msg`` is the contract's "no data" sample of ``topic`` (what :func:`no_data_msg`
+    builds): the topic's frame id and NaN in every value it carries (an ``Imu``: in every part not
+    marked absent, at least one part; a ``TimeReference``: no ``source``).  A message that is only
+    partly NaN, holds an Inf or has another frame id is not: that one is invalid."""
+    if getattr(getattr(msg, "header", None), "frame_id", None) != topic.frame_id:
+        return False
+    name = topic.type_name
+    if name.endswith("QuaternionStamped"):
+        q = msg.quaternion
+        values = [q.x, q.y, q.z, q.w]
+    elif name.endswith("Vector3Stamped"):
+        v = msg.vector
+        values = [v.x, v.y, v.z]
+    elif name.endswith("Imu"):
+        values = []
+        if msg.orientation_covariance[0] != IMU_ABSENT:
+            o = msg.orientation
+            values += [o.x, o.y, o.z, o.w]
+        if msg.angular_velocity_covariance[0] != IMU_ABSENT:
+            w = msg.angular_velocity
+            values += [w.x, w.y, w.z]
+    elif name.endswith("TimeReference"):
+        return bool(msg.source == "")
+    else:
+        return False
+    return bool(values) and all(math.isnan(v) for v in values)
 
 
 def _float_array(values: NDArray[np.float64], layout: Any, out: Any) -> Any:

@@ -12,7 +12,10 @@ non-finite value or a zero or non-unit quaternion is ``"invalid"``; a stamp not 
 the node accepted (lockstep: the last sample it answered or computed; real time: the topic's
 previous message) is ``"stamp_in_past"``; a stamp more than ``max_stamp_ahead_s`` ahead of the
 node's time (lockstep: the latest ``/clock``; real time: the node's clock) is
-``"stamp_too_far_ahead"`` (:data:`REJECT_REASONS`).
+``"stamp_too_far_ahead"`` (:data:`REJECT_REASONS`).  The contract's "no data" sample (NaN in
+every value, :func:`~sappc_msgs_py.convert.no_data_msg`: a relay's dropped measurement, an
+estimator's sample without an estimate) is no error: it arrived, without a value, and is counted
+apart (:data:`NO_DATA`), never among the rejected messages.
 
 ``lockstep`` (:class:`LockstepPairing`)
     A sample is complete when every input of one stamp has arrived; the step runs at that
@@ -40,12 +43,13 @@ from numpy.typing import NDArray
 
 from gnc_common.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 from sappc_msgs_py.contract import CONTROLLER_INPUTS, Topic
-from sappc_msgs_py.convert import quaternion_from_msg, stamp_to_ns, vector3_from_msg
+from sappc_msgs_py.convert import is_no_data_msg, quaternion_from_msg, stamp_to_ns, vector3_from_msg
 from sappc_msgs_py.timeline import StampedWindow
 
 __all__ = [
     "DEFAULT_MAX_STAMP_AHEAD_S",
     "MAX_PENDING",
+    "NO_DATA",
     "NS_PER_S",
     "REJECT_REASONS",
     "WATCHDOG_RANGE_S",
@@ -67,6 +71,9 @@ MAX_PENDING = 64
 #: non-finite value or a zero or non-unit quaternion; a stamp not after the last accepted one; a
 #: stamp more than ``max_stamp_ahead_s`` ahead of the node's time.
 REJECT_REASONS = ("invalid", "stamp_in_past", "stamp_too_far_ahead")
+#: What :func:`screen_input` reports for the contract's "no data" sample (its ``no_data`` callback):
+#: not a reason for rejection (not in :data:`REJECT_REASONS`), an input that says it has no value.
+NO_DATA = "no_data"
 #: Default ``max_stamp_ahead_s`` [s]: inputs stamped further ahead of the node's time are
 #: rejected (a clock jump or a wrong stamp, not a late sample).
 DEFAULT_MAX_STAMP_AHEAD_S = 1.0
@@ -118,12 +125,16 @@ def stamp_rejection(topic_name: str, stamp_ns: int, last_ns: int | None, now_ns:
 
 
 def screen_input(msg: Any, topic: Topic, last_ns: int | None, now_ns: int | None, max_ahead_ns: int, last_what: str,
-                 decode: Callable[[Any, Topic], Array], reject: Callable[[str, str], None]) -> tuple[int, Array | None] | None:
+                 decode: Callable[[Any, Topic], Array], reject: Callable[[str, str], None],
+                 no_data: Callable[[str], None] | None = None) -> tuple[int, Array | None] | None:
     """The checks every consumer makes of one input message, in this order: its stamp
     (:func:`stamp_rejection`; a rejected stamp drops the message: ``None``), then its value
     (``decode(msg, topic)``, e.g. :func:`decode_input`; an :class:`~gnc_common.validation.InputError`
     is rejected under its ``reason`` and the value is ``None``: in lockstep the input arrived,
-    invalid).  ``reject(message, reason)`` is called for each rejection.
+    invalid).  ``reject(message, reason)`` is called for each rejection.  The contract's "no data"
+    sample (:func:`~sappc_msgs_py.convert.is_no_data_msg`) is not rejected: ``no_data(message)`` is
+    called instead (the caller counts it apart) and the value is ``None``, as for an invalid one
+    (without ``no_data`` it is rejected as ``invalid``).
 
     Returns
     -------
@@ -138,7 +149,10 @@ def screen_input(msg: Any, topic: Topic, last_ns: int | None, now_ns: int | None
     try:
         return stamp_ns, decode(msg, topic)
     except InputError as exc:
-        reject(str(exc), exc.reason)
+        if no_data is not None and is_no_data_msg(msg, topic):
+            no_data(f"{topic.name}: no data at {stamp_ns // NS_PER_S}.{stamp_ns % NS_PER_S:09d} s")
+        else:
+            reject(str(exc), exc.reason)
         return stamp_ns, None
 
 

@@ -30,7 +30,7 @@ Scheduled from a YAML file (parameter ``schedule_file``; a scenario file works: 
   it does the same with the three reference topics (``fault/reference/*``); with actuator faults
   it relays ``control/torque`` to ``fault/control/torque`` (the plant is remapped to it).  A
   dropped measurement or reference is relayed as "no data" (non-finite values, its stamp), which
-  the controller rejects but answers at once; a dropped command is answered with the last
+  the controller takes no value from (counting it apart from the messages it rejects) but answers at once; a dropped command is answered with the last
   delivered torque, with the dropped command's stamp (the actuator holds it; the plant does not
   wait for a command that will never come).
 
@@ -105,8 +105,8 @@ def _relayed_msg(topic: Topic, value: Any, stamp: Any) -> Any:
     """The relay's message for ``topic`` (its :func:`faulty` twin) carrying ``value``, or "no data"
     when ``value`` is ``None``: a dropped measurement or reference is relayed as the contract's "no
     data" sample (:func:`~sappc_msgs_py.convert.no_data_msg`: a message of its stamp whose values
-    are all NaN, the convention of REP 117 for invalid ranges).  The controller rejects it as
-    invalid but knows the sample is complete, so it answers at once (held torque, or zero once
+    are all NaN, the convention of REP 117 for invalid ranges).  The controller takes no value
+    from it (it counts it as an input without data, not as a rejected message) but knows the sample is complete, so it answers at once (held torque, or zero once
     stale) rather than after a timeout, and lockstep stays deterministic."""
     out = faulty(topic)
     if value is None:

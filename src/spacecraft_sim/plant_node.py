@@ -62,6 +62,10 @@ carry the star tracker's and the gyro's measurement of each sample
 (:func:`spacecraft_sim.core.sensors.measure`, sample ``k`` drawing the ``k``-th row of the seed's
 stream, as the offline loop does) and ``truth/attitude``, ``truth/rate`` the true state; in real
 time the state of a frame whose tick was missed is measured and published late, at the next tick.
+The tracker's epoch (``sensors/star_tracker``'s stamp, ``state/attitude_epoch``'s ``time_ref``) is
+integer nanoseconds; the sensor kernel holds it as a float offset from sample 0's stamp
+(:func:`tracker_epoch_offset`), never as a float of absolute nanoseconds (docs/how-to/realtime.md,
+"Time").
 
 Reaction wheels (parameter ``wheels``, the scenario's ``actuator.wheels`` mapping as JSON): the
 held body-torque command goes through the wheels (:mod:`spacecraft_sim.core.wheels`: allocation,
@@ -131,7 +135,7 @@ from spacecraft_sim.core.sensors import G_SIGMA, N_SENSOR_DRAWS, S_BIAS0, ST_SIG
 from spacecraft_sim.core.wheels import ReactionWheels, allocation_matrix, propagate_wheels_into, wheel_speeds_into, wheel_torques, wheels_from_mapping
 from gnc_common.validation import ConfigError, InputError, as_finite_array, check_initial_quaternion, check_positive, check_positive_int, inertia_from_row_major
 
-__all__ = ["BACKENDS", "PARAMETERS", "PlantNode", "main"]
+__all__ = ["BACKENDS", "PARAMETERS", "PlantNode", "main", "tracker_epoch_ns", "tracker_epoch_offset"]
 
 #: The plant's dynamics (parameter ``backend``).
 BACKENDS = ("native", "basilisk")
@@ -211,8 +215,11 @@ class PlantNode(ProjectNode):
         if self.sensors is not None:  # the measurement's state, and sample k's draws from the seed's stream
             self._sensor_prm, self._outages = self.sensors.params(self.dt), self.sensors.outages()
             self._sensor_rng = np.random.default_rng(self.sensors.seed)
-            # the tracker's held quaternion and its epoch [ns, as a float: exact below 104 days of stamps]
+            # the tracker's held quaternion and its epoch: a float of nanoseconds since the epoch
+            # origin (sample 0's stamp, _epoch_origin_ns), exact below 2^53 ns (104 days of run); never
+            # absolute nanoseconds (a real-time stamp, ~1.8e18 ns, is 256 ns from its neighbours in a float)
             self._held_q, self._bias, self._y = np.zeros(5), self._sensor_prm[S_BIAS0:S_BIAS0 + 3].copy(), np.zeros(8)
+            self._epoch_origin_ns: int | None = None  # sample 0's stamp: 0 in lockstep, frame f0's start in real time
             self.pub_truth_att = self.counting_publisher(TRUTH_ATTITUDE)
             self.pub_truth_rate = self.counting_publisher(TRUTH_RATE)
             self.pub_truth_bias = self.counting_publisher(TRUTH_GYRO_BIAS)
@@ -513,12 +520,14 @@ class PlantNode(ProjectNode):
             return
         # the sensors' measurement of sample k (the offline loop's kernel and draws), then the truth
         self._bias_k[:] = self._bias + self._bias_faults.gyro_bias_fault(self.k * self.dt)
-        stamp = time_to_stamp(t_s)
-        measure(self.k, self.k * self.dt, float(stamp_to_ns(stamp)), self.x[0, :4], self.x[0, 4:], self._sensor_rng.standard_normal(N_SENSOR_DRAWS),
-                self._sensor_prm, self._outages, self._held_q, self._bias, self._y)
+        stamp_ns = stamp_to_ns(time_to_stamp(t_s))
+        if self._epoch_origin_ns is None:
+            self._epoch_origin_ns = stamp_ns
+        measure(self.k, self.k * self.dt, tracker_epoch_offset(stamp_ns, self._epoch_origin_ns), self.x[0, :4], self.x[0, 4:],
+                self._sensor_rng.standard_normal(N_SENSOR_DRAWS), self._sensor_prm, self._outages, self._held_q, self._bias, self._y)
         self.pub_att.publish(quaternion_msg(self._y[:4], t_s, STATE_ATTITUDE, out=self.pub_att.msg))
         self.pub_rate.publish(vector3_msg(self._y[4:7], t_s, STATE_RATE, out=self.pub_rate.msg))
-        epoch_ns = int(self._y[7])
+        epoch_ns = tracker_epoch_ns(self._y[7], self._epoch_origin_ns)
         if self._tracker_epoch_ns is None or epoch_ns > self._tracker_epoch_ns:  # a new tracker sample, stamped when measured
             self._tracker_epoch_ns = epoch_ns
             self.pub_tracker.publish(star_tracker_msg(self._y[:4], self._tracker_variance, ns_to_stamp(epoch_ns), SENSOR_STAR_TRACKER,
@@ -582,7 +591,7 @@ class PlantNode(ProjectNode):
     def _on_dipole(self, msg: Any) -> None:
         try:
             t_s, m = dipole_from_msg(msg, self.dipole.shape[0])
-            ns = stamp_to_ns(time_to_stamp(t_s))
+            ns = stamp_to_ns(time_to_stamp(t_s))  # data[0], float seconds: exact in lockstep (from 0), the only mode with an orbit
         except InputError as exc:
             self.rejected += 1
             self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
@@ -624,6 +633,24 @@ class PlantNode(ProjectNode):
                               stale_disturbance_frames=self.stale_disturbance_frames, first_deviating_sample=self.first_deviating_sample,
                               state_delay={k.replace("latency", "delay"): v for k, v in self.tick_delay.summary().items()})
             Path(self.timing_file).write_text(json.dumps(timing))
+
+
+def tracker_epoch_offset(stamp_ns: int, origin_ns: int) -> float:
+    """The tracker epoch the sensor kernel carries (:func:`~spacecraft_sim.core.sensors.measure`'s
+    ``t_epoch``, held in a float array) for a sample stamped ``stamp_ns``: nanoseconds since the run's
+    integer origin ``origin_ns`` (sample 0's stamp), as a float, exact below 2^53 ns (104 days).
+
+    Never the absolute stamp: a real-time stamp (~1.8e18 ns since 1970) is 256 ns from its float
+    neighbours, so frame ``f`` at ``f * 10 ms`` came back 128 ns late for ``f`` = 3 mod 4, a tracker
+    sample dated after the gyro sample that names it (issue 46).  In lockstep the origin is 0 and the
+    offset is the stamp itself, bit for bit as before."""
+    return float(stamp_ns - origin_ns)
+
+
+def tracker_epoch_ns(offset: float, origin_ns: int) -> int:
+    """The stamp [ns, an integer] of a tracker epoch the sensor kernel held as ``offset`` (see
+    :func:`tracker_epoch_offset`): exact, the origin added back as an integer."""
+    return origin_ns + int(offset)
 
 
 def _json_param(name: str, text: str, what: str) -> Any:

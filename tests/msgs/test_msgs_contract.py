@@ -403,6 +403,39 @@ def test_the_no_data_sample_is_nan_in_every_value_with_its_stamp_and_frame(topic
         no_data_msg(c.CONTROL_TORQUE, 0.0)
 
 
+def test_no_data_is_told_from_an_invalid_message_and_screened_apart_from_the_rejections() -> None:
+    """The contract's "no data" sample of every kind (:func:`no_data_msg`: NaN in every value, a
+    TimeReference naming no sensor) is recognised; a message only partly NaN, with an Inf, or in
+    another frame is not (it is invalid).  ``screen_input`` hands "no data" to its ``no_data``
+    callback, not to ``reject``, with the value ``None`` (arrived, no value), and rejects it as
+    invalid when the caller gives no such callback."""
+    from sappc_msgs_py.convert import is_no_data_msg
+    from sappc_msgs_py.inputs import decode_input, screen_input
+
+    for topic in (c.ESTIMATE_ATTITUDE, c.ESTIMATE_RATE, c.SENSOR_GYRO, c.SENSOR_STAR_TRACKER, c.STATE_ATTITUDE_EPOCH, c.faulty(c.STATE_RATE)):
+        assert is_no_data_msg(no_data_msg(topic, 2.5), topic), topic.name
+    partly = no_data_msg(c.STATE_ATTITUDE, 1.0)
+    partly.quaternion.w = 1.0
+    inf = vector3_msg([0.0, 0.0, 0.0], 1.0, c.STATE_RATE)
+    inf.vector.x = inf.vector.y = inf.vector.z = float("inf")
+    wrong_frame = no_data_msg(c.Topic("x", c.STATE_RATE.type_name, "inertial"), 1.0)
+    gyro = gyro_msg([0.0, 0.0, 0.0], 1e-8, 1.0, c.SENSOR_GYRO)
+    gyro.angular_velocity.x = gyro.angular_velocity.y = gyro.angular_velocity.z = float("nan")  # the gyro's part only: no data
+    assert is_no_data_msg(gyro, c.SENSOR_GYRO)
+    for msg, topic in ((partly, c.STATE_ATTITUDE), (inf, c.STATE_RATE), (wrong_frame, c.STATE_RATE),
+                       (epoch_msg(5, 1.0, c.STATE_ATTITUDE_EPOCH), c.STATE_ATTITUDE_EPOCH), (quaternion_msg([0, 0, 0, 1], 1.0, c.STATE_ATTITUDE), c.STATE_ATTITUDE)):
+        assert not is_no_data_msg(msg, topic)
+    rejected: list[tuple[str, str]] = []
+    no_data: list[str] = []
+    reject = lambda m, r: rejected.append((m, r))  # noqa: E731
+    assert screen_input(no_data_msg(c.STATE_RATE, 1.0), c.STATE_RATE, None, None, 10**9, "", decode_input, reject, no_data.append) == (10**9, None)
+    assert rejected == [] and no_data == ["state/rate: no data at 1.000000000 s"]
+    assert screen_input(inf, c.STATE_RATE, None, None, 10**9, "", decode_input, reject, no_data.append) == (10**9, None)
+    assert [r for _, r in rejected] == ["invalid"] and len(no_data) == 1
+    assert screen_input(no_data_msg(c.STATE_RATE, 1.0), c.STATE_RATE, None, None, 10**9, "", decode_input, reject) == (10**9, None)
+    assert [r for _, r in rejected] == ["invalid", "invalid"]  # without the callback: rejected, as before
+
+
 def test_the_sensors_imu_messages_mark_what_they_do_not_measure_and_their_decoders_check_it() -> None:
     """``sensors/*`` are ``sensor_msgs/Imu``: the gyro's angular velocity with its white noise's
     variance on the covariance's diagonal, the tracker's orientation with its own; the part a

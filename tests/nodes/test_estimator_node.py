@@ -209,9 +209,9 @@ def test_lockstep_estimates_equal_the_kernel_called_directly_bit_for_bit(estimat
     """A 10 Hz tracker held at 100 Hz and a biased gyro on a slowly rotating truth, fed sample by
     sample as messages (the tracker's own samples at 10 Hz, stamped when measured): every output
     equals ``mekf_step`` called on the same arrays (the tracker held at 100 Hz) at ``t = stamp``
-    [s], bit for bit.  Samples 25 and 26 arrive without data (the injector's NaN gyro sample; a gyro
-    sample with a wrong frame id is rejected the same way): "no data" at their stamps, and the
-    kernel skips them (sample 27 propagates over 30 ms)."""
+    [s], bit for bit.  Samples 25 and 26 arrive without data (the injector's NaN gyro sample, counted
+    as an input without data, not a rejected message; a gyro sample with a wrong frame id, rejected):
+    "no data" at their stamps, and the kernel skips them (sample 27 propagates over 30 ms)."""
     node, drv = estimator
     q, w = measurements(60)
     skipped = {25: dict(w=NO_DATA_W), 26: dict(frame="inertial")}
@@ -241,10 +241,11 @@ def test_lockstep_estimates_equal_the_kernel_called_directly_bit_for_bit(estimat
     assert statuses[0] == mekf.STATUS_INITIALISED and statuses[10] == statuses[20] == mekf.STATUS_UPDATED
     assert statuses[11] == mekf.STATUS_PROPAGATED
     last = drv.got[c.ESTIMATOR_DIAGNOSTICS.name][59 * DT_NS]
-    assert (last["no_data_samples"], last["rejected_messages"], last["withheld_samples"], last["monitor_level"]) == (2, 2, 0, mekf.MON_OK)
+    assert (last["no_data_samples"], last["rejected_messages"], last["withheld_samples"], last["monitor_level"]) == (2, 1, 0, mekf.MON_OK)
     assert node.statistics() == {"samples": 60, "steps": 58, "updates": 5, "gate_rejections": 0, "reinitialisations": 0, "recoveries": 0,
                                  "withheld_samples": 0, "no_data_samples": 2,
-                                 "rejected": 2, "rejected_by_reason": {"invalid": 2, "stamp_in_past": 0, "stamp_too_far_ahead": 0}}
+                                 "rejected": 1, "rejected_by_reason": {"invalid": 1, "stamp_in_past": 0, "stamp_too_far_ahead": 0},
+                                 "no_data_inputs": 1, "future_tracker_epochs": 0}
     # the estimate is the filter's, not the tracker's sample: between updates it moves with the gyro
     assert not np.array_equal(drv.got[c.ESTIMATE_ATTITUDE.name][15 * DT_NS], q[15])
 
@@ -393,7 +394,8 @@ BAD = {
 @pytest.mark.parametrize("case", list(BAD))
 def test_an_invalid_input_gives_the_no_data_estimate_at_its_stamp_and_is_counted(estimator, case) -> None:  # type: ignore[no-untyped-def]
     """Lockstep: the sample completes (the controller downstream answers it at once), its estimate
-    is "no data", the input is counted as invalid; the filter did not step, and the next valid
+    is "no data", the input is counted as invalid (the injector's "no data", NaN in every value: as
+    an input without data, not a rejected message); the filter did not step, and the next valid
     sample propagates from the last valid one."""
     node, drv = estimator
     q, w = measurements(3)
@@ -403,13 +405,15 @@ def test_an_invalid_input_gives_the_no_data_estimate_at_its_stamp_and_is_counted
     drv.sample(DT_NS, **kwargs)
     _assert_no_data(drv, DT_NS)
     assert drv.got[c.ESTIMATOR_DIAGNOSTICS.name][DT_NS]["status"] == c.ESTIMATOR_NO_INPUT
-    assert node.rejected_by_reason == {"invalid": 1} and node.steps == 1 and node.no_data == 1
+    no_data = BAD[case].get("w") is NO_DATA_W
+    assert node.rejected_by_reason == ({} if no_data else {"invalid": 1}) and node.no_data_inputs == int(no_data)
+    assert node.steps == 1 and node.no_data == 1
     drv.sample(2 * DT_NS, q[2], w[2])
     ref = Reference()
     ref.step(0.0, q[0], w[0])
     assert ref.step(2 * DT_NS / 1e9, q[2], w[2]) == mekf.STATUS_PROPAGATED  # over 20 ms
     np.testing.assert_array_equal(drv.got[c.ESTIMATE_ATTITUDE.name][2 * DT_NS], ref.out[:4])
-    assert drv.got[c.ESTIMATOR_DIAGNOSTICS.name][2 * DT_NS]["rejected_messages"] == 1
+    assert drv.got[c.ESTIMATOR_DIAGNOSTICS.name][2 * DT_NS]["rejected_messages"] == int(not no_data)
 
 
 def test_stamps_in_the_past_or_too_far_ahead_are_rejected_and_counted_by_reason(estimator) -> None:  # type: ignore[no-untyped-def]
@@ -531,7 +535,8 @@ def test_the_controller_takes_the_estimate_by_a_remap_and_answers_no_data_as_its
             drv.spin_until(lambda: ns in torques and ns in answers, f"the torque of {ns} ns")
         assert answers == {0: c.ANSWER_COMMANDED, DT_NS: c.ANSWER_HELD, 2 * DT_NS: c.ANSWER_COMMANDED}
         assert np.array_equal(torques[DT_NS], torques[0]) and np.any(torques[0] != 0.0)
-        assert ctrl.steps == 2 and ctrl.rejected_by_reason == {"invalid": 2}  # the estimate's NaN attitude and rate
+        # the estimate's NaN attitude and rate: the contract's "no data", counted apart, not rejected
+        assert ctrl.steps == 2 and ctrl.rejected == 0 and ctrl.rejected_by_reason == {} and ctrl.no_data_inputs == 2
     finally:
         drv.close()
         est.destroy_node()
@@ -628,7 +633,8 @@ def test_the_flight_parameters_file_is_what_sappc_params_writes_and_the_scenario
 
 @pytest.mark.parametrize("bad_q", [(0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.1), NO_DATA_Q], ids=["zero", "non-unit", "NaN"])
 def test_an_invalid_tracker_sample_is_no_measurement_the_samples_naming_it_propagate(estimator, bad_q) -> None:  # type: ignore[no-untyped-def]
-    """The tracker's sample of epoch 100 ms arrives invalid: it is rejected and counted, and the
+    """The tracker's sample of epoch 100 ms arrives invalid: it is rejected and counted (NaN in every value,
+    the contract's "no data": counted apart, not rejected), and the
     samples that name it (100 to 190 ms) are stepped with the gyro alone (propagated: the filter is
     given the last valid sample's epoch, not new to it), as the kernel called with that epoch; the
     next sample (200 ms) updates."""
@@ -644,7 +650,9 @@ def test_an_invalid_tracker_sample_is_no_measurement_the_samples_naming_it_propa
         np.testing.assert_array_equal(drv.got[c.ESTIMATE_ATTITUDE.name][ns], ref.out[mekf.EO_Q : mekf.EO_Q + 4])
     statuses = [drv.got[c.ESTIMATOR_DIAGNOSTICS.name][k * DT_NS]["status"] for k in range(21)]
     assert statuses[10] == mekf.STATUS_PROPAGATED and statuses[20] == mekf.STATUS_UPDATED
-    assert node.rejected_by_reason == {"invalid": 1} and node.filter.updates == 1 and node.no_data == 0
+    no_data = all(math.isnan(v) for v in bad_q)  # the contract's "no data": not a rejected message, counted apart
+    assert node.rejected_by_reason == ({} if no_data else {"invalid": 1}) and node.no_data_inputs == int(no_data)
+    assert node.filter.updates == 1 and node.no_data == 0
 
 
 def test_a_tracker_sample_is_used_once_by_its_stamp_whatever_its_value_and_arrival(estimator) -> None:  # type: ignore[no-untyped-def]

@@ -162,7 +162,8 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     :mod:`sappc_msgs_py.contract`).  A sample is valid when its five inputs arrived (a dropout
     delivers none of the state's two or the reference's three) and pass the node's input check
     (:func:`sappc_controller.core.input_check.sample_verdicts` with ``ctrl.bounds``; each rejected
-    input counted into ``rec.rejected``: invalid, implausible).  A valid sample is computed;
+    input counted into ``rec.rejected``: invalid, implausible; the "no data" of a dropout or of the
+    estimator is no rejected input, as on the node).  A valid sample is computed;
     without one, zero torque (the watchdog) when no valid state has been computed yet or the last
     one is more than ``ctrl.stale_ns`` older than the sample (stamps ``grid.t_ns``), else its last
     answer again (held).  The plant applies the delivered torque clipped to the actuator's limit.

@@ -187,8 +187,9 @@ def sample_verdicts(state_delivered, reference_delivered, q_BN, omega_BN_B, q_RN
     input into ``rejected`` (2,) int64: ``[invalid, implausible]``.
 
     ``state_delivered`` / ``reference_delivered`` false: those inputs arrived as "no data" (a
-    dropout: the injector relays non-finite values, which the node rejects as invalid), so the
-    state's two inputs, or the reference's three, count as invalid without being looked at."""
+    dropout: the injector relays the contract's "no data" sample, NaN in every value; the estimator's
+    sample without an estimate), so the sample is not valid, but nothing is counted: "no data" is no
+    rejected input (the node counts it apart, :mod:`sappc_msgs_py.inputs`)."""
     n_invalid = 0
     n_implausible = 0
     if state_delivered:
@@ -196,20 +197,15 @@ def sample_verdicts(state_delivered, reference_delivered, q_BN, omega_BN_B, q_RN
         v1 = vector_verdict(omega_BN_B[0], omega_BN_B[1], omega_BN_B[2], bounds[B_RATE])
         n_invalid += int(v0 == INPUT_INVALID) + int(v1 == INPUT_INVALID)
         n_implausible += int(v0 == INPUT_IMPLAUSIBLE) + int(v1 == INPUT_IMPLAUSIBLE)
-    else:
-        n_invalid += 2
     if reference_delivered:
         v2 = quaternion_verdict(q_RN[0], q_RN[1], q_RN[2], q_RN[3], bounds[B_NORM])
         v3 = vector_verdict(omega_RN_R[0], omega_RN_R[1], omega_RN_R[2], bounds[B_REFERENCE_RATE])
         v4 = vector_verdict(omegadot_RN_R[0], omegadot_RN_R[1], omegadot_RN_R[2], bounds[B_REFERENCE_ACCELERATION])
         n_invalid += (int(v2 == INPUT_INVALID) + int(v3 == INPUT_INVALID)) + int(v4 == INPUT_INVALID)
         n_implausible += (int(v2 == INPUT_IMPLAUSIBLE) + int(v3 == INPUT_IMPLAUSIBLE)) + int(v4 == INPUT_IMPLAUSIBLE)
-    else:
-        n_invalid += 3
-    ok = n_invalid == 0 and n_implausible == 0
-    if not ok:
-        rejected[INPUT_INVALID - 1] += n_invalid
-        rejected[INPUT_IMPLAUSIBLE - 1] += n_implausible
+    ok = state_delivered and reference_delivered and n_invalid == 0 and n_implausible == 0
+    rejected[INPUT_INVALID - 1] += n_invalid
+    rejected[INPUT_IMPLAUSIBLE - 1] += n_implausible
     return ok
 
 
