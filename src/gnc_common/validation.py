@@ -176,8 +176,8 @@ def safe_load_yaml(text: str, *, source: str = "YAML text") -> Any:
 
     The limits are checked on the parser's events, before any value is built: the parser keeps its
     own stacks (no recursion), stops at the first event past a limit, and keeps no event, so a
-    refused text costs its parse up to that point and no more (under 50 ms for the files of issue
-    46).  The text is then parsed again by libyaml's loader (``CSafeLoader``, about ten times faster
+    refused text costs its parse up to that point and no more (5 ms at most for the files of issue
+    46: docs/performance.md).  The text is then parsed again by libyaml's loader (``CSafeLoader``, about ten times faster
     than PyYAML's own; the same constructor and resolver, so the same values); on a YAML error a
     text of at most :data:`YAML_REPARSE_BYTES` is parsed again by the pure-Python loader (under the
     same limits), so that a text either accepts is read, and the error is PyYAML's, with its words.
@@ -252,8 +252,8 @@ def _check_yaml_events(text: str, source: str, loader: type) -> None:
         elif kind in starts:
             nodes += 1
             if len(open_nodes) >= MAX_YAML_DEPTH:
-                raise ConfigError(f"{source}: YAML nested more than {MAX_YAML_DEPTH} levels deep at {where(event)} (the "
-                                  "limit, gnc_common.validation.MAX_YAML_DEPTH; the files sappc ships or writes nest 8 deep at most)")
+                raise ConfigError(f"{source}: YAML nested more than {MAX_YAML_DEPTH} levels deep at {where(event)} (limit "
+                                  "gnc_common.validation.MAX_YAML_DEPTH; sappc's own files nest 8 deep)")
             if event.anchor is not None:
                 anchors[event.anchor] = None
             open_nodes.append([event.anchor, nodes - 1, 0])
@@ -272,9 +272,8 @@ def _check_yaml_events(text: str, source: str, loader: type) -> None:
             size, height = named
             nodes += size
             if len(open_nodes) + height > MAX_YAML_DEPTH:
-                raise ConfigError(f"{source}: YAML nested more than {MAX_YAML_DEPTH} levels deep, aliases expanded, at "
-                                  f"{where(event)} (the limit, gnc_common.validation.MAX_YAML_DEPTH; the files sappc ships or "
-                                  "writes nest 8 deep at most)")
+                raise ConfigError(f"{source}: YAML nested more than {MAX_YAML_DEPTH} levels deep with its aliases expanded, at "
+                                  f"{where(event)} (limit gnc_common.validation.MAX_YAML_DEPTH; sappc's own files nest 8 deep)")
             if open_nodes:
                 open_nodes[-1][2] = max(open_nodes[-1][2], height)
         elif kind is DocumentStartEvent:
@@ -282,9 +281,8 @@ def _check_yaml_events(text: str, source: str, loader: type) -> None:
         else:
             continue
         if nodes > MAX_YAML_NODES:
-            raise ConfigError(f"{source}: YAML of more than {MAX_YAML_NODES:,} nodes once its aliases are expanded, at "
-                              f"{where(event)} (the limit, gnc_common.validation.MAX_YAML_NODES; the files sappc ships or "
-                              "writes hold 500 at most)")
+            raise ConfigError(f"{source}: YAML of more than {MAX_YAML_NODES:,} nodes with its aliases expanded, at "
+                              f"{where(event)} (limit gnc_common.validation.MAX_YAML_NODES; sappc's own files hold 500)")
 
 
 def _yaml_problem(exc: Exception) -> str:
