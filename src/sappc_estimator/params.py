@@ -50,7 +50,10 @@ _FIELDS: dict[str, tuple[str, str]] = {
     "monitor_window_samples": ("", "integer"),
     "monitor_warn_probability": ("", "double"),
     "monitor_error_probability": ("", "double"),
+    "monitor_mean_error_probability": ("", "double"),
     "monitor_persistence": ("", "integer"),
+    "monitor_drift_shift_sigma": ("", "double"),
+    "monitor_drift_false_alarm": ("", "double"),
     "bias_recovery_sigma_rad_s": ("rad/s", "double[]"),
 }
 #: The config's optional fields whose ``None`` is an empty array parameter.
@@ -70,7 +73,10 @@ _CHECKS = {
     "monitor_window_samples": "an integer in [1, 100]",
     "monitor_warn_probability": "in (0, 1)",
     "monitor_error_probability": "in [monitor_warn_probability, 1)",
+    "monitor_mean_error_probability": "in [monitor_warn_probability, 1)",
     "monitor_persistence": "an integer in [1, monitor_window_samples]",
+    "monitor_drift_shift_sigma": "> 0",
+    "monitor_drift_false_alarm": "in [0, 1) (0: no drift test)",
     "bias_recovery_sigma_rad_s": "[] or >= 0 per axis",
 }
 

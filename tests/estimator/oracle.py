@@ -143,6 +143,7 @@ class Output:
     recoveries: int | None = None
     monitor_nis_sum: float | None = None  # the window's NIS sum at the last verdict (NaN before one)
     monitor_mean: float | None = None  # and its mean statistic
+    monitor_drift: float | None = None  # the drift test's statistic (the largest CUSUM)
 
 
 @dataclass
@@ -165,7 +166,9 @@ class MekfOracle:
     window : the health monitor's window [compared samples]; nis_band : (4,) its NIS-sum bounds
         (error low, warning low, warning high, error high); mean_bounds : (2,) the mean test's
         (warning, error); recovery_rad2_s2 : (3,) the bias covariance a recovery adds;
-        persistence : verdicts in a row outside the error band that fail the monitor.
+        persistence : verdicts in a row outside the error band that fail the monitor;
+        drift_reference, drift_threshold : the drift test's CUSUM reference value and threshold
+        [innovation sigmas] (``inf``: no drift test).
     """
 
     R_rad2: np.ndarray
@@ -186,6 +189,8 @@ class MekfOracle:
     mean_bounds: tuple[float, float] = (float("inf"), float("inf"))
     recovery_rad2_s2: np.ndarray = field(default_factory=lambda: np.zeros(3))
     persistence: int = 1
+    drift_reference: float = 0.5
+    drift_threshold: float = float("inf")
     # filter state between steps
     initialised: bool = False
     q_hat: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
@@ -205,7 +210,10 @@ class MekfOracle:
     level: int = 0
     fails: int = 0
     outside: int = 0  # verdicts in a row outside the error band
+    cusum_up: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the drift test's CUSUMs, upward per component
+    cusum_down: np.ndarray = field(default_factory=lambda: np.zeros(3))  # and downward
     n_recover: int = 0
+    n_drift: int = 0  # failed monitors the drift test started
     verdict_nis_sum: float = float("nan")  # the last verdict's figures (kept through a re-initialisation)
     verdict_mean: float = float("nan")
 
@@ -231,8 +239,9 @@ class MekfOracle:
                    q_prior=np.array(prm[mekf.EP_Q0:mekf.EP_Q0 + 4], dtype=np.float64), nis_initial=nis_initial,
                    max_norm_error=float(prm[mekf.EP_MAX_NORM_ERR]), max_rate=float(prm[mekf.EP_MAX_RATE]),
                    window=int(prm[mekf.EP_MON_WINDOW]), nis_band=tuple(float(v) for v in prm[mekf.EP_MON_NIS:mekf.EP_MON_NIS + 4]),
-                   mean_bounds=(float(prm[mekf.EP_MON_MEAN]), float(prm[mekf.EP_MON_MEAN + 1])),
-                   recovery_rad2_s2=three(mekf.EP_RECOVERY_PBB), persistence=int(prm[mekf.EP_MON_PERSIST]))
+                   mean_bounds=(float(prm[mekf.EP_MON_MEAN]), float(prm[mekf.EP_MON_MEAN + 1])), recovery_rad2_s2=three(mekf.EP_RECOVERY_PBB),
+                   persistence=int(prm[mekf.EP_MON_PERSIST]), drift_reference=float(prm[mekf.EP_MON_DRIFT]),
+                   drift_threshold=float(prm[mekf.EP_MON_DRIFT + 1]))
 
     # -- the page's steps ------------------------------------------------------------------
 
@@ -269,31 +278,52 @@ class MekfOracle:
         the monitor's window emptied, the estimate unconfirmed."""
         self._reinitialise_attitude(q_meas)
         self._inflate(0.0)
-        self.monitor = []
-        self.outside = 0
+        self._empty_monitor()
         self.fails = 0
         self.level = 1
         self.confirmed = False
         self.n_reinit += 1
 
+    def _empty_monitor(self) -> None:
+        """The window emptied, its count of verdicts outside reset, the CUSUMs back to 0."""
+        self.monitor = []
+        self.outside = 0
+        self.cusum_up = np.zeros(3)
+        self.cusum_down = np.zeros(3)
+
+    @property
+    def drift(self) -> float:
+        """The drift test's statistic: the largest of its six CUSUMs."""
+        return float(max(np.max(self.cusum_up), np.max(self.cusum_down)))
+
     def _monitor(self, t_s: float, q_meas: np.ndarray, white: np.ndarray, status: str) -> str:
         self.monitor.append((t_s, self.nis, white))
         self.monitor = self.monitor[-self.window:]
-        if len(self.monitor) < self.window:
+        # the drift test: Page's CUSUM per component and sign, g <- max(0, g +- w - k)
+        self.cusum_up = np.maximum(0.0, self.cusum_up + white - self.drift_reference)
+        self.cusum_down = np.maximum(0.0, self.cusum_down - white - self.drift_reference)
+        drifted = self.drift > self.drift_threshold
+        full = len(self.monitor) == self.window
+        if not (full or drifted):
             return status
-        nis_sum = sum(m[1] for m in self.monitor)
-        mean = float(np.sum([m[2] for m in self.monitor], axis=0) @ np.sum([m[2] for m in self.monitor], axis=0)) / self.window
-        self.verdict_nis_sum, self.verdict_mean = float(nis_sum), mean
-        err_lo, warn_lo, warn_hi, err_hi = self.nis_band
-        too_large = nis_sum > err_hi or mean > self.mean_bounds[1]
-        outside = too_large or nis_sum < err_lo
-        self.outside = self.outside + 1 if outside else 0
-        failed = self.outside >= self.persistence
-        self.level = 2 if failed else 1 if (outside or nis_sum < warn_lo or nis_sum > warn_hi or mean > self.mean_bounds[0]) else 0
-        if not too_large:
-            self.fails = 0
-            return status
-        if not failed:
+        too_large = failed = False
+        if full:
+            nis_sum = sum(m[1] for m in self.monitor)
+            total = np.sum([m[2] for m in self.monitor], axis=0)
+            mean = float(total @ total) / self.window
+            self.verdict_nis_sum, self.verdict_mean = float(nis_sum), mean
+            err_lo, warn_lo, warn_hi, err_hi = self.nis_band
+            too_large = nis_sum > err_hi or mean > self.mean_bounds[1]
+            outside = too_large or nis_sum < err_lo
+            self.outside = self.outside + 1 if outside else 0
+            failed = self.outside >= self.persistence
+            self.level = 2 if failed else 1 if (outside or nis_sum < warn_lo or nis_sum > warn_hi or mean > self.mean_bounds[0]) else 0
+            if not too_large:
+                self.fails = 0
+        if drifted:
+            self.level = 2
+            self.n_drift += 1
+        elif not (too_large and failed):
             return status
         self.fails += 1
         if self.fails >= 2:
@@ -301,8 +331,7 @@ class MekfOracle:
             self.n_consecutive = 0
             return "reinitialised"
         self._inflate(t_s - self.monitor[0][0])
-        self.monitor = []
-        self.outside = 0
+        self._empty_monitor()
         self.n_recover += 1
         return status
 
@@ -379,9 +408,10 @@ class MekfOracle:
             return Output(status)
         return Output(status, q_hat=self.q_hat.copy(), omega_hat=omega_meas - self.b_hat, b_hat=self.b_hat.copy(),
                       sigma=np.sqrt(np.diag(self.P)), nis=self.nis, monitor_level=self.level, usable=self.confirmed,
-                      recoveries=self.n_recover, monitor_nis_sum=self.verdict_nis_sum, monitor_mean=self.verdict_mean)
+                      recoveries=self.n_recover, monitor_nis_sum=self.verdict_nis_sum, monitor_mean=self.verdict_mean,
+                      monitor_drift=self.drift)
 
     @property
-    def counters(self) -> tuple[int, int, int, int]:
-        """(updates, rejections, consecutive rejections, re-initialisations)."""
-        return (self.n_updates, self.n_rejections, self.n_consecutive, self.n_reinit)
+    def counters(self) -> tuple[int, int, int, int, int]:
+        """(updates, rejections, consecutive rejections, re-initialisations, drift alarms)."""
+        return (self.n_updates, self.n_rejections, self.n_consecutive, self.n_reinit, self.n_drift)

@@ -18,9 +18,11 @@ from scipy.stats import chi2
 from gnc_common.validation import QUATERNION_NORM_TOL, ConfigError, InputError
 from sappc_estimator.core import mekf
 from sappc_estimator.core.config import (DEFAULT_GATE_FALSE_ALARM, DEFAULT_INITIAL_BIAS_SIGMA_RAD_S, DEFAULT_MAX_BODY_RATE_RAD_S,
-                                         DEFAULT_MAX_CONSECUTIVE_REJECTIONS, DEFAULT_MONITOR_ERROR_PROBABILITY, DEFAULT_MONITOR_PERSISTENCE,
-                                         DEFAULT_MONITOR_WARN_PROBABILITY, DEFAULT_MONITOR_WINDOW_SAMPLES, MekfConfig, chi2_3dof_isf,
-                                         chi2_band, pack_estimator)
+                                         DEFAULT_MAX_CONSECUTIVE_REJECTIONS, DEFAULT_MONITOR_DRIFT_FALSE_ALARM, DEFAULT_MONITOR_DRIFT_SHIFT_SIGMA,
+                                         DEFAULT_MONITOR_ERROR_PROBABILITY, DEFAULT_MONITOR_MEAN_ERROR_PROBABILITY, DEFAULT_MONITOR_PERSISTENCE,
+                                         DEFAULT_MONITOR_WARN_PROBABILITY,
+                                         DEFAULT_MONITOR_WINDOW_SAMPLES, MekfConfig, chi2_3dof_isf, chi2_band, cusum_mean_run_length,
+                                         cusum_threshold, pack_estimator)
 from sappc_estimator.core.estimator import Mekf
 
 #: Per-axis figures of a data sheet, all different so that a swapped or dropped axis shows [rad, rad/sqrt(s), rad/s/sqrt(s)].
@@ -51,9 +53,12 @@ def test_the_defaults_are_the_documented_ones() -> None:
     assert (c.gate_false_alarm, c.max_consecutive_rejections, c.max_body_rate_rad_s) == (
         DEFAULT_GATE_FALSE_ALARM, DEFAULT_MAX_CONSECUTIVE_REJECTIONS, DEFAULT_MAX_BODY_RATE_RAD_S)
     assert c.initial_bias_sigma_rad_s == DEFAULT_INITIAL_BIAS_SIGMA_RAD_S == 1e-5
-    assert (c.monitor_window_samples, c.monitor_warn_probability, c.monitor_error_probability, c.monitor_persistence) == (20, 0.99, 1.0 - 3e-5, 2)
+    assert (c.monitor_window_samples, c.monitor_warn_probability, c.monitor_error_probability, c.monitor_mean_error_probability,
+            c.monitor_persistence) == (20, 0.99, 1.0 - 1e-6, 1.0 - 3e-5, 2)
     assert (DEFAULT_MONITOR_WINDOW_SAMPLES, DEFAULT_MONITOR_WARN_PROBABILITY, DEFAULT_MONITOR_ERROR_PROBABILITY,
-            DEFAULT_MONITOR_PERSISTENCE) == (20, 0.99, 1.0 - 3e-5, 2)
+            DEFAULT_MONITOR_MEAN_ERROR_PROBABILITY, DEFAULT_MONITOR_PERSISTENCE) == (20, 0.99, 1.0 - 1e-6, 1.0 - 3e-5, 2)
+    assert (c.monitor_drift_shift_sigma, c.monitor_drift_false_alarm) == (DEFAULT_MONITOR_DRIFT_SHIFT_SIGMA, DEFAULT_MONITOR_DRIFT_FALSE_ALARM) \
+        == (0.5, 1e-6)
     assert c.max_attitude_norm_error == QUATERNION_NORM_TOL
     assert c.initial_q_BN is None and c.initial_attitude_sigma_rad is None and c.bias_recovery_sigma_rad_s is None
 
@@ -64,7 +69,8 @@ def test_every_column_of_the_parameter_array_is_the_documented_quantity() -> Non
     c = config(initial_bias_rad_s=(1e-6, -2e-6, 3e-6), initial_bias_sigma_rad_s=(4e-6, 5e-6, 6e-6), initial_q_BN=tuple(q),
                initial_attitude_sigma_rad=(0.1, 0.2, 0.3), gate_false_alarm=1e-3, max_consecutive_rejections=7, max_body_rate_rad_s=3.5,
                max_attitude_norm_error=5e-7, monitor_window_samples=12, monitor_warn_probability=0.95, monitor_error_probability=0.999,
-               monitor_persistence=3, bias_recovery_sigma_rad_s=(7e-6, 8e-6, 9e-6))
+               monitor_mean_error_probability=0.9999, monitor_persistence=3, bias_recovery_sigma_rad_s=(7e-6, 8e-6, 9e-6), monitor_drift_shift_sigma=0.8,
+               monitor_drift_false_alarm=1e-4)
     p = c.params()
     assert p.shape == (mekf.N_EST_PARAMS,)
 
@@ -85,8 +91,13 @@ def test_every_column_of_the_parameter_array_is_the_documented_quantity() -> Non
     assert p[mekf.EP_MON_WINDOW] == 12 and p[mekf.EP_MON_PERSIST] == 3
     np.testing.assert_allclose(cols(mekf.EP_MON_NIS, 4), [chi2.ppf(0.0005, 36), chi2.ppf(0.025, 36), chi2.isf(0.025, 36), chi2.isf(0.0005, 36)],
                                rtol=QUANTILE_RTOL)
-    np.testing.assert_allclose(cols(mekf.EP_MON_MEAN, 2), [chi2.isf(0.05, 3), chi2.isf(0.001, 3)], rtol=QUANTILE_RTOL)
+    np.testing.assert_allclose(cols(mekf.EP_MON_MEAN, 2), [chi2.isf(0.05, 3), chi2.isf(1e-4, 3)], rtol=QUANTILE_RTOL)
     assert cols(mekf.EP_RECOVERY_PBB) == [v * v for v in (7e-6, 8e-6, 9e-6)]
+    # the drift test: the reference half the shift; the threshold at which six CUSUMs' mean run length
+    # (Siegmund's approximation, written out here) gives 1e-4 false alarms a sample together
+    k, h = cols(mekf.EP_MON_DRIFT, 2)
+    b = h + 2.0 * 1.4603545088095868 / math.sqrt(2.0 * math.pi)  # Siegmund's overshoot: -2 zeta(1/2) / sqrt(2 pi)
+    assert k == 0.4 and 6.0 / ((math.exp(2.0 * k * b) - 2.0 * k * b - 1.0) / (2.0 * k * k)) == pytest.approx(1e-4, rel=1e-12)
     # from the tracker: the tracker's noise is the first attitude's, the gate off at 0, one number for three axes
     p = config(gate_false_alarm=0.0, tracker_noise_rad=3e-5, bias_recovery_sigma_rad_s=0.0).params()
     assert p[mekf.EP_INIT] == mekf.INIT_FROM_TRACKER and cols(mekf.EP_Q0, 4) == [0.0] * 4
@@ -94,6 +105,7 @@ def test_every_column_of_the_parameter_array_is_the_documented_quantity() -> Non
     assert p[mekf.EP_GATE] == math.inf and config(gate_false_alarm=0.0).gate_chi2 == math.inf
     assert cols(mekf.EP_RECOVERY_PBB) == [0.0] * 3
     assert cols(mekf.EP_RECOVERY_PBB) != cols(mekf.EP_P0B)
+    assert config(monitor_drift_false_alarm=0.0).params()[mekf.EP_MON_DRIFT + 1] == math.inf  # no drift test
 
 
 @pytest.mark.parametrize("kw, words", [
@@ -131,11 +143,23 @@ def test_every_column_of_the_parameter_array_is_the_documented_quantity() -> Non
     ({"monitor_warn_probability": math.nan}, "monitor_warn_probability must be in (0, 1)"),
     ({"monitor_error_probability": "0.999"}, "monitor_error_probability must be in (0, 1), got '0.999'"),
     ({"monitor_error_probability": 0.98}, "monitor_error_probability (0.98) must be at least monitor_warn_probability (0.99)"),
+    ({"monitor_mean_error_probability": 1.0}, "monitor_mean_error_probability must be in (0, 1), got 1.0"),
+    ({"monitor_mean_error_probability": True}, "monitor_mean_error_probability must be in (0, 1)"),
+    ({"monitor_mean_error_probability": 0.98}, "monitor_mean_error_probability (0.98) must be at least monitor_warn_probability (0.99)"),
     ({"monitor_persistence": 0}, "monitor_persistence must be an integer in [1, monitor_window_samples = 20], got 0"),
     ({"monitor_persistence": 21}, "monitor_persistence must be an integer in [1, monitor_window_samples = 20], got 21"),
     ({"monitor_persistence": 2.0}, "monitor_persistence must be an integer in [1, monitor_window_samples = 20]"),
     ({"monitor_persistence": True}, "monitor_persistence must be an integer in [1, monitor_window_samples = 20]"),
     ({"bias_recovery_sigma_rad_s": -1e-6}, "bias_recovery_sigma_rad_s must be >= 0"),
+    ({"monitor_drift_shift_sigma": 0.0}, "monitor_drift_shift_sigma must be a finite number > 0, got 0.0"),
+    ({"monitor_drift_shift_sigma": math.inf}, "monitor_drift_shift_sigma must be a finite number > 0"),
+    ({"monitor_drift_shift_sigma": True}, "monitor_drift_shift_sigma must be a finite number > 0"),
+    ({"monitor_drift_false_alarm": 1.0}, "monitor_drift_false_alarm must be in [0, 1) (0: no drift test), got 1.0"),
+    ({"monitor_drift_false_alarm": -1e-9}, "monitor_drift_false_alarm must be in [0, 1)"),
+    ({"monitor_drift_false_alarm": math.nan}, "monitor_drift_false_alarm must be in [0, 1)"),
+    ({"monitor_drift_false_alarm": "1e-6"}, "monitor_drift_false_alarm must be in [0, 1)"),
+    # six CUSUMs of reference 2.5 alarming at 0.9 a sample: no positive threshold does that
+    ({"monitor_drift_shift_sigma": 5.0, "monitor_drift_false_alarm": 0.9}, "monitor_drift_false_alarm (0.9) is too large for monitor_drift_shift_sigma (5.0)"),
 ])
 def test_a_bad_setting_is_refused_with_its_name(kw: dict[str, object], words: str) -> None:
     with pytest.raises(ConfigError, match=re.escape(words)):
@@ -150,11 +174,13 @@ def test_a_prior_off_the_unit_sphere_is_refused() -> None:
 def test_the_boundary_values_are_accepted() -> None:
     """The closed ends of each range: no gate (0), one rejection, a window of 1 and of
     MON_MAX_WINDOW, a persistence equal to the window, equal warning and error probabilities,
-    the unit-norm tolerance itself, a recovery of 0, bias and noise walks of 0."""
+    the unit-norm tolerance itself, a recovery of 0, bias and noise walks of 0, no drift test (0)."""
     c = config(gate_false_alarm=0.0, max_consecutive_rejections=1, monitor_window_samples=1, monitor_persistence=1,
-               monitor_warn_probability=0.9, monitor_error_probability=0.9, max_attitude_norm_error=QUATERNION_NORM_TOL,
-               bias_recovery_sigma_rad_s=0.0, gyro_angle_random_walk_rad_sqrt_s=0.0, gyro_bias_random_walk_rad_s_sqrt_s=0.0)
-    assert c.params()[mekf.EP_MON_WINDOW] == 1
+               monitor_warn_probability=0.9, monitor_error_probability=0.9, monitor_mean_error_probability=0.9,
+               max_attitude_norm_error=QUATERNION_NORM_TOL,
+               bias_recovery_sigma_rad_s=0.0, gyro_angle_random_walk_rad_sqrt_s=0.0, gyro_bias_random_walk_rad_s_sqrt_s=0.0,
+               monitor_drift_false_alarm=0.0)
+    assert c.params()[mekf.EP_MON_WINDOW] == 1 and c.params()[mekf.EP_MON_DRIFT + 1] == math.inf
     assert config(monitor_window_samples=mekf.MON_MAX_WINDOW, monitor_persistence=mekf.MON_MAX_WINDOW).params()[mekf.EP_MON_PERSIST] == 100
     assert config(max_body_rate_rad_s=1, initial_bias_rad_s=-1e-6).params()[mekf.EP_MAX_RATE] == 1.0  # an int, a negative bias
 
@@ -169,6 +195,20 @@ def test_the_chi_square_quantiles() -> None:
         assert chi2_3dof_isf(p) == pytest.approx(chi2.isf(p, 3), rel=1e-12), p
     lo, hi = chi2_band(60, 0.99)
     assert lo == pytest.approx(chi2.ppf(0.005, 60), rel=QUANTILE_RTOL) and hi == pytest.approx(chi2.isf(0.005, 60), rel=QUANTILE_RTOL)
+
+
+def test_the_drift_threshold_inverts_the_mean_run_length() -> None:
+    """``cusum_threshold`` is the inverse of ``cusum_mean_run_length`` for six CUSUMs (three
+    components, two signs) across references and false-alarm probabilities, to the rounding of its
+    solve; the run length grows with the threshold and with the reference (subtracted from every
+    sample, it pulls a consistent filter's statistic down harder); ``0`` is no test."""
+    for k in (0.05, 0.25, 0.5, 1.5):
+        for p in (1e-2, 1e-4, 5e-6, 1e-9):
+            h = cusum_threshold(k, p)
+            assert 6.0 / cusum_mean_run_length(k, h) == pytest.approx(p, rel=1e-12), (k, p)
+    assert cusum_mean_run_length(0.25, 20.0) < cusum_mean_run_length(0.25, 21.0)
+    assert cusum_mean_run_length(0.3, 20.0) > cusum_mean_run_length(0.25, 20.0)
+    assert cusum_threshold(0.25, 0.0) == math.inf
 
 
 def test_a_batch_packs_one_row_per_run() -> None:
@@ -232,4 +272,8 @@ def test_mekf_is_the_kernel_called_sample_by_sample_and_reads_its_state() -> Non
     # says) at each of the 6 verdicts: ERROR from the second (the persistence), no recovery (not overconfident)
     assert f.monitor_level == mekf.MON_ERROR and f.monitor_nis_sum < f.prm[mekf.EP_MON_NIS]
     assert f.monitor_nis_sum == st[mekf.ES_MON_NIS] and f.monitor_mean_statistic == st[mekf.ES_MON_MEAN]
+    # the drift test's statistic, the largest of its six CUSUMs, as the kernel gives it (0: noise-free samples' whitened
+    # innovations stay below the reference value), no drift alarm
+    assert f.monitor_drift_statistic == out[mekf.EO_MON_DRIFT] == max(st[mekf.ES_MON_DRIFT:mekf.ES_MON_DRIFT + 6]) == 0.0
+    assert f.drift_alarms == 0 and isinstance(f.drift_alarms, int) and isinstance(f.monitor_drift_statistic, float)
     assert isinstance(f.updates, int) and isinstance(f.monitor_level, int) and isinstance(f.usable, bool)

@@ -270,10 +270,12 @@ def test_the_health_goes_out_on_diagnostics_as_ros_reports_health(estimator) -> 
     assert len(last) == 1 and last[0].name == c.ESTIMATOR_HEALTH_NAME and last[0].level == b"\x00"  # OK
     values = {kv.key: kv.value for kv in last[0].values}
     assert tuple(values) == c.ESTIMATOR_HEALTH_KEYS
-    lo, hi = chi2.ppf(1.5e-5, 60), chi2.isf(1.5e-5, 60)  # the default error band: 1 - 3e-5, two-sided
+    from sappc_estimator.core.config import DEFAULT_MONITOR_ERROR_PROBABILITY as P_ERROR  # the default error band, two-sided
+
+    lo, hi = chi2.ppf((1.0 - P_ERROR) / 2.0, 60), chi2.isf((1.0 - P_ERROR) / 2.0, 60)
     assert values["window_samples"] == "20" and values["nis_sum_dof"] == "60" and values["estimate"] == "used"
     assert values["outside_in_a_row"] == "0" and values["persistence"] == "2"  # in the band: none outside; the default persistence
-    assert values["nis_sum_band"] == f"[{lo:.6g}, {hi:.6g}]" and values["band_probability"] == "0.99997"
+    assert values["nis_sum_band"] == f"[{lo:.6g}, {hi:.6g}]" and values["band_probability"] == f"{P_ERROR:.6g}"
     assert lo < float(values["nis_sum"]) < hi  # the window of 20 tracker samples at 2 s: a verdict
     # the words: no verdict while the window of 20 tracker samples (2 s at 10 Hz) fills, then the monitor's level
     assert [m.status[0].message for m in drv.health] == ["no verdict yet: the innovations' window is filling"] * 2 + [

@@ -99,6 +99,17 @@ class Mekf:
         return int(self.st[mekf.ES_MON_OUTSIDE])
 
     @property
+    def monitor_drift_statistic(self) -> float:
+        """The drift test's statistic after the last step: the largest of its six CUSUMs [innovation
+        sigmas] (the monitor fails above ``prm[mekf.EP_MON_DRIFT + 1]``; 0 after the window is emptied)."""
+        return float(np.max(self.st[mekf.ES_MON_DRIFT : mekf.ES_MON_DRIFT + 6]))
+
+    @property
+    def drift_alarms(self) -> int:
+        """Failed monitors the drift test started (each a recovery or a re-initialisation)."""
+        return int(self.st[mekf.ES_N_DRIFT])
+
+    @property
     def recoveries(self) -> int:
         """Bias covariance inflations after a failed monitor."""
         return int(self.st[mekf.ES_N_RECOVER])

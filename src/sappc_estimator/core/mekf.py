@@ -79,17 +79,26 @@ One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (
    (``MON_*``).  ERROR, a failed monitor, takes ``persistence`` verdicts in a row outside the error
    band (fewer are WARN): the verdicts slide by one sample, ~36 000 an hour at 10 Hz, so a
    per-verdict false-alarm probability alone would fail a consistent filter a few times an hour
-   (``docs/estimator.md``, "False alarms").  A failed monitor above an error bound: the *recovery* adds a bias
+   (``docs/estimator.md``, "False alarms").  Beside the window, the *drift test*: Page's CUSUM of
+   each whitened component, upward ``g+ <- max(0, g+ + w_i - k)`` and downward
+   ``g- <- max(0, g- - w_i - k)`` (six statistics, ``k`` half the mean shift it is tuned to), fails
+   the monitor (ERROR, at once) when one exceeds its threshold ``h`` (from a stated false-alarm
+   probability per sample: Siegmund's approximation of the CUSUM's run length, :mod:`.config`): a
+   small persistent mean (a bias step about the tracker's boresight) that a 20-sample window does
+   not see adds up in it (Page, "Continuous inspection schemes", Biometrika 41, 1954; Basseville and
+   Nikiforov, *Detection of Abrupt Changes*, 1993, 2.2).  A failed monitor above an error bound, or by
+   the drift test: the *recovery* adds a bias
    step of covariance ``Q_r = diag(bias_recovery_sigma^2)`` dated at the window's first sample,
    ``age`` s ago, carried to now by the transition's bias columns: ``P_bb += Q_r``,
    ``P_ab += -Q_r age``, ``P_aa += Q_r age^2`` (the adjustable process noise of Bar-Shalom et
    al. 11.2, applied once when the test fails; the covariance inflation of adaptive filtering in
    Crassidis and Junkins, *Optimal Estimation of Dynamic Systems*, 2nd ed., 2012, ch. 5), and
-   empties the window; a second failed window in a row re-initialises as after the gate's
-   rejections.
+   empties the window and the CUSUMs; a second failure before a verdict inside the band
+   re-initialises as after the gate's rejections.
 5. **Outputs**: ``q_hat``, ``omega_hat = omega_meas - b_hat`` (the current sample), ``b_hat``, the
    1-sigma of each error state ``sqrt(diag P)``, the last NIS, the step's status, the monitor's
-   level, window NIS sum and mean statistic, whether the estimate is usable, the recoveries.
+   level, window NIS sum and mean statistic, whether the estimate is usable, the recoveries, the
+   drift test's statistic (the largest CUSUM).
 
 Arrays (float64, the caller's; no allocation per step)
 ------------------------------------------------------
@@ -98,20 +107,21 @@ Arrays (float64, the caller's; no allocation per step)
     ``b0`` (3), ``gate`` (inf: none), ``max_rejections`` (>= 1), the initialisation mode
     (``INIT_*``), ``q_prior`` (4), the plausibility bounds ``max_norm_error`` and
     ``max_rate`` [rad/s], the monitor's window, its NIS-sum bounds (4), its mean-test bounds (2),
-    the recovery's ``Q_r`` (3) and the monitor's persistence [verdicts].
+    the recovery's ``Q_r`` (3), the monitor's persistence [verdicts] and the drift test's reference
+    value and threshold (2) [innovation sigmas].
 ``y`` (:data:`N_MEAS`,)
     The measurement: ``q_meas`` (4), ``omega_meas`` (3), the tracker sample's epoch [s] (``<= t``).
 ``st`` (:data:`N_EST_STATE`,)
     Columns ``ES_*``: initialised flag, ``q_hat`` (4), ``b_hat`` (3), the previous measurement's
     rate (3), ``t_prev``, counters (updates, rejections, consecutive rejections,
-    re-initialisations), the last NIS (NaN before the first update), and whether the attitude is
-    still provisional.  :func:`new_state` gives a fresh one.  The caller
+    re-initialisations), the last NIS (NaN before the first update), whether the attitude is
+    still provisional, and the monitor's (its window, level and counts, the drift test's CUSUMs).  :func:`new_state` gives a fresh one.  The caller
     gives increasing times (the node rejects a stamp in the past).
 ``P`` (6, 6) the covariance; ``work`` (:data:`N_EST_WORK`, 6) scratch: what the caller's ``P`` and
     ``work`` held before the first step (or after :func:`reset_state`) does not matter.
 ``out`` (:data:`N_EST_OUT`,)
     Columns ``EO_*``: ``q_hat`` (4), ``omega_hat`` (3), ``b_hat`` (3), ``sigma`` (6: attitude [rad],
-    bias [rad/s]), the last NIS, the status (``STATUS_*``).  Before initialisation everything but
+    bias [rad/s]), the last NIS, the status (``STATUS_*``), the monitor's figures.  Before initialisation everything but
     the status is NaN.
 """
 
@@ -130,7 +140,8 @@ __all__ = [
     "EP_B0", "EP_GATE", "EP_INIT", "EP_MAXREJ", "EP_MAX_NORM_ERR", "EP_MAX_RATE", "EP_P0A", "EP_P0B", "EP_Q0", "EP_R", "EP_SU2", "EP_SV2",
     "ES_B", "ES_CONFIRMED", "ES_EPOCH", "ES_INIT", "ES_LASTW", "ES_MON_LEVEL", "ES_MON_MEAN", "ES_MON_NIS", "ES_NIS",
     "ES_N_CONSEC", "ES_N_RECOVER", "ES_N_REINIT", "ES_N_REJ", "ES_N_UPD", "ES_Q", "ES_TPREV",
-    "EO_MON_LEVEL", "EO_MON_MEAN", "EO_MON_NIS", "EO_N_RECOVER", "EO_USABLE", "EP_MON_MEAN", "EP_MON_NIS", "EP_MON_PERSIST", "EP_MON_WINDOW", "EP_RECOVERY_PBB", "ES_MON_OUTSIDE",
+    "EO_MON_DRIFT", "EO_MON_LEVEL", "EO_MON_MEAN", "EO_MON_NIS", "EO_N_RECOVER", "EO_USABLE", "EP_MON_DRIFT", "EP_MON_MEAN", "EP_MON_NIS", "EP_MON_PERSIST",
+    "EP_MON_WINDOW", "EP_RECOVERY_PBB", "ES_MON_DRIFT", "ES_MON_OUTSIDE", "ES_N_DRIFT",
     "MON_ERROR", "MON_LEVEL_NAMES", "MON_MAX_WINDOW", "MON_OK", "MON_WARN", "N_MEAS", "Y_EPOCH", "reset_state",
     "INIT_FROM_PRIOR", "INIT_FROM_TRACKER",
     "N_EST_OUT", "N_EST_PARAMS", "N_EST_STATE", "N_EST_WORK",
@@ -151,7 +162,11 @@ EP_MON_WINDOW, EP_MON_NIS, EP_MON_MEAN, EP_RECOVERY_PBB = 27, 28, 32, 34
 #: The monitor's persistence: consecutive verdicts outside the error band before the monitor fails
 #: (>= 1; 1: the first such verdict fails it).
 EP_MON_PERSIST = 37
-N_EST_PARAMS = 38
+#: The drift test (a CUSUM of each whitened innovation component, both signs): its reference value
+#: [innovation sigmas, half the mean shift it is tuned to] and its threshold [innovation sigmas;
+#: inf: no drift test].
+EP_MON_DRIFT = 38
+N_EST_PARAMS = 40
 #: Initialisation modes (``prm[EP_INIT]``).
 INIT_FROM_TRACKER, INIT_FROM_PRIOR = 0, 1
 
@@ -166,7 +181,12 @@ ES_N_UPD, ES_N_REJ, ES_N_CONSEC, ES_N_REINIT, ES_NIS, ES_PROVISIONAL = 12, 13, 1
 #: innovation (3)).
 ES_EPOCH, ES_CONFIRMED, ES_MON_N, ES_MON_HEAD, ES_MON_LEVEL, ES_MON_NIS, ES_MON_MEAN, ES_MON_FAILS, ES_N_RECOVER = 18, 19, 20, 21, 22, 23, 24, 25, 26
 ES_MON_OUTSIDE = 27
-ES_MON_RING = 28
+#: The drift test's six CUSUMs [innovation sigmas]: the upward ones of the whitened innovation's
+#: components x, y, z (3), then the downward ones (3); 0 at the start and after the window is emptied.
+ES_MON_DRIFT = 28
+#: The drift test's alarms so far (each failed the monitor: a recovery or a re-initialisation).
+ES_N_DRIFT = 34
+ES_MON_RING = 35
 #: The longest monitor window [compared tracker samples]: 10 s at 10 Hz, longer than any bias
 #: step's detection should take; the ring is part of the state array.
 MON_MAX_WINDOW = 100
@@ -180,7 +200,10 @@ EO_Q, EO_OMEGA, EO_B, EO_SIGMA, EO_NIS, EO_STATUS = 0, 4, 7, 10, 16, 17
 #: the first), whether the estimate may be used (1) or must not (0: initialising, re-initialised
 #: and not yet confirmed), and the recoveries so far.
 EO_MON_LEVEL, EO_MON_NIS, EO_MON_MEAN, EO_USABLE, EO_N_RECOVER = 18, 19, 20, 21, 22
-N_EST_OUT = 23
+#: The drift test's statistic after the step: the largest of its six CUSUMs [innovation sigmas]
+#: (it fails the monitor above ``prm[EP_MON_DRIFT + 1]``).
+EO_MON_DRIFT = 23
+N_EST_OUT = 24
 
 #: The health monitor's levels (``out[EO_MON_LEVEL]``), the values of ROS's
 #: ``diagnostic_msgs/DiagnosticStatus`` levels OK, WARN and ERROR.
@@ -306,11 +329,13 @@ def _inflate_bias(prm, P, age):
 
 @jit
 def _clear_monitor(st):
-    """Empty the monitor's window (its samples were judged against a covariance that no longer holds)
-    and its persistence count."""
+    """Empty the monitor's window (its samples were judged against a covariance that no longer holds),
+    its persistence count and the drift test's CUSUMs (the same samples, summed)."""
     st[ES_MON_N] = 0.0
     st[ES_MON_HEAD] = 0.0
     st[ES_MON_OUTSIDE] = 0.0
+    for i in range(6):
+        st[ES_MON_DRIFT + i] = 0.0
 
 
 @jit
@@ -496,10 +521,11 @@ def _update(prm, st, P, q_meas, work, t):
 @jit
 def _monitor(prm, st, P, q_meas, d2, white, t):
     """The health monitor (module docstring): the compared sample's time ``t``, NIS ``d2`` and
-    whitened innovation ``white`` (3) into the window; once it holds ``EP_MON_WINDOW`` samples, a verdict
-    on the window (the level), and on a window too large for its band the recovery, or, when the
-    window after a recovery fails too, the re-initialisation.  Returns the step's status
-    (updated, or re-initialised)."""
+    whitened innovation ``white`` (3) into the window and into the drift test's CUSUMs; once the
+    window holds ``EP_MON_WINDOW`` samples, a verdict on the window (the level); on a window too
+    large for its band (for ``EP_MON_PERSIST`` verdicts in a row) or a CUSUM above its threshold, the
+    recovery, or, when the monitor fails again before a verdict has cleared it, the
+    re-initialisation.  Returns the step's status (updated, or re-initialised)."""
     n_window = int(prm[EP_MON_WINDOW])
     head = int(st[ES_MON_HEAD])
     ring = ES_MON_RING + _RING_WIDTH * head
@@ -510,45 +536,69 @@ def _monitor(prm, st, P, q_meas, d2, white, t):
     st[ES_MON_HEAD] = float((head + 1) % n_window)
     if st[ES_MON_N] < n_window:
         st[ES_MON_N] += 1.0
-    if st[ES_MON_N] < n_window:
+    # the drift test: Page's CUSUM of each component of w, upward and downward, less the reference
+    # value; a NaN statistic stays NaN (and fails the test)
+    reference = prm[EP_MON_DRIFT]
+    drift = 0.0
+    for i in range(3):
+        up = st[ES_MON_DRIFT + i] + white[i] - reference
+        down = st[ES_MON_DRIFT + 3 + i] - white[i] - reference
+        up = 0.0 if up < 0.0 else up
+        down = 0.0 if down < 0.0 else down
+        st[ES_MON_DRIFT + i] = up
+        st[ES_MON_DRIFT + 3 + i] = down
+        if not up <= drift:
+            drift = up
+        if not down <= drift:
+            drift = down
+    drifted = not drift <= prm[EP_MON_DRIFT + 1]  # above the threshold (NaN: above)
+    n_held = int(st[ES_MON_N])
+    full = n_held >= n_window
+    if not (full or drifted):
         return STATUS_UPDATED
-    nis_sum = 0.0
-    m0, m1, m2 = 0.0, 0.0, 0.0
     t_first = t
-    for j in range(n_window):  # the window in slot order (the sum's order fixed by the slots)
-        row = ES_MON_RING + _RING_WIDTH * j
-        t_first = min(t_first, st[row])
-        nis_sum += st[row + 1]
-        m0 += st[row + 2]
-        m1 += st[row + 3]
-        m2 += st[row + 4]
-    mean_stat = ((m0 * m0 + m1 * m1) + m2 * m2) / n_window
-    st[ES_MON_NIS] = nis_sum
-    st[ES_MON_MEAN] = mean_stat
-    too_large = not (nis_sum <= prm[EP_MON_NIS + 3] and mean_stat <= prm[EP_MON_MEAN + 1])  # NaN: too large
-    outside = too_large or nis_sum < prm[EP_MON_NIS]  # outside the error band
-    if outside:
-        st[ES_MON_OUTSIDE] += 1.0
-    else:
-        st[ES_MON_OUTSIDE] = 0.0
-    persistent = st[ES_MON_OUTSIDE] >= prm[EP_MON_PERSIST]  # the persistence count reached: the monitor fails
-    if persistent:
+    for j in range(n_held):  # the window's oldest time: the slots hold its samples (0 .. n_held - 1 until full)
+        t_first = min(t_first, st[ES_MON_RING + _RING_WIDTH * j])
+    too_large = False
+    persistent = False
+    if full:
+        nis_sum = 0.0
+        m0, m1, m2 = 0.0, 0.0, 0.0
+        for j in range(n_window):  # the window in slot order (the sum's order fixed by the slots)
+            row = ES_MON_RING + _RING_WIDTH * j
+            nis_sum += st[row + 1]
+            m0 += st[row + 2]
+            m1 += st[row + 3]
+            m2 += st[row + 4]
+        mean_stat = ((m0 * m0 + m1 * m1) + m2 * m2) / n_window
+        st[ES_MON_NIS] = nis_sum
+        st[ES_MON_MEAN] = mean_stat
+        too_large = not (nis_sum <= prm[EP_MON_NIS + 3] and mean_stat <= prm[EP_MON_MEAN + 1])  # NaN: too large
+        outside = too_large or nis_sum < prm[EP_MON_NIS]  # outside the error band
+        if outside:
+            st[ES_MON_OUTSIDE] += 1.0
+        else:
+            st[ES_MON_OUTSIDE] = 0.0
+        persistent = st[ES_MON_OUTSIDE] >= prm[EP_MON_PERSIST]  # the persistence count reached: the monitor fails
+        if persistent:
+            st[ES_MON_LEVEL] = MON_ERROR
+        elif outside or nis_sum < prm[EP_MON_NIS + 1] or nis_sum > prm[EP_MON_NIS + 2] or mean_stat > prm[EP_MON_MEAN]:
+            st[ES_MON_LEVEL] = MON_WARN
+        else:
+            st[ES_MON_LEVEL] = MON_OK
+        if not too_large:
+            st[ES_MON_FAILS] = 0.0
+    if drifted:
         st[ES_MON_LEVEL] = MON_ERROR
-    elif outside or nis_sum < prm[EP_MON_NIS + 1] or nis_sum > prm[EP_MON_NIS + 2] or mean_stat > prm[EP_MON_MEAN]:
-        st[ES_MON_LEVEL] = MON_WARN
-    else:
-        st[ES_MON_LEVEL] = MON_OK
-    if not too_large:
-        st[ES_MON_FAILS] = 0.0
-        return STATUS_UPDATED
-    if not persistent:  # outside, not yet for long enough: a warning
+        st[ES_N_DRIFT] += 1.0
+    elif not (too_large and persistent):  # no failure: inside, low, or outside not yet for long enough (a warning)
         return STATUS_UPDATED
     st[ES_MON_FAILS] += 1.0
     if st[ES_MON_FAILS] >= 2.0:  # the recovery did not restore consistency: the attitude is lost
         _reinitialise_after_failure(prm, st, P, q_meas)
         st[ES_N_CONSEC] = 0.0
         return STATUS_REINITIALISED
-    _inflate_bias(prm, P, t - t_first)  # the recovery: a step at the failed window's start
+    _inflate_bias(prm, P, t - t_first)  # the recovery: a step at the window's start
     _clear_monitor(st)
     st[ES_N_RECOVER] += 1.0
     return STATUS_UPDATED
@@ -613,6 +663,11 @@ def mekf_step(prm, t, y, st, P, work, out):
     out[EO_MON_MEAN] = st[ES_MON_MEAN]
     out[EO_USABLE] = st[ES_CONFIRMED]
     out[EO_N_RECOVER] = st[ES_N_RECOVER]
+    drift = 0.0
+    for i in range(6):
+        if not st[ES_MON_DRIFT + i] <= drift:
+            drift = st[ES_MON_DRIFT + i]
+    out[EO_MON_DRIFT] = drift
     out[EO_STATUS] = status
     return status
 
