@@ -97,3 +97,21 @@ def test_a_failed_step_shows_the_end_of_its_output_and_where_the_rest_is(tmp_pat
     assert re.fullmatch(rf"sappcw: 3/4 dependencies failed after \d+ s; the whole output is in {re.escape(str(log))}", said[-1]), said
     assert "ERROR: no matching distribution" in log.read_text()
     assert not (root / ".venv" / ".sappc-stamp").exists()  # the next call sets up again
+
+
+def test_the_getting_started_sample_shows_the_set_ups_own_steps_and_pin_count() -> None:
+    """docs/getting-started.md shows the set-up's output: its steps are the script's, numbered
+    of as many as it has, the page names how many, and the packages are constraints.txt's pins
+    (issue 46: the page said 165 packages and three steps when there were 161 and four)."""
+    page = (ROOT / "docs" / "getting-started.md").read_text()
+    script = (ROOT / "sappcw").read_text()
+    steps = re.findall(r'step "(\d+)/(\d+) ([^"]+)"', script)
+    assert steps and {int(n) for _, n, _ in steps} == {len(steps)} and [int(k) for k, _, _ in steps] == list(range(1, len(steps) + 1))
+    sample = page.split("```text\nsappcw: setting up", 1)[1].split("```", 1)[0]
+    shown = dict.fromkeys(re.findall(r"(?m)^sappcw:   (\d+/\d+ [^:]+):", sample))
+    assert list(shown) == [f"{k}/{n} {name}" for k, n, name in steps], list(shown)
+    words = {2: "two", 3: "three", 4: "four", 5: "five", 6: "six"}
+    assert f"The set-up prints its {words[len(steps)]} steps" in page
+    pins = sum(1 for ln in (ROOT / "constraints.txt").read_text().splitlines() if re.match(r"[A-Za-z0-9]", ln))
+    counts = {int(a or b) for a, b in re.findall(r"(\d+) pinned packages|of about (\d+) packages", sample)}
+    assert counts == {pins}, (counts, pins)

@@ -108,6 +108,23 @@ def test_the_torque_filter_holds_only_what_the_actuator_delivers() -> None:
     np.testing.assert_allclose(produced_a[100:], expected, rtol=1e-12)
 
 
+def test_the_torque_filter_rises_to_the_limit_as_the_low_pass_of_the_saturated_command() -> None:
+    """The filter's input is the saturated command: a command far beyond the limit from rest gives
+    ``u_f[k] = max (1 - (1 - g)^k)``, the filter's step response to the limit, never the limit at
+    once. A filter of the law's own command, saturated after (its state clamped to the limit: no
+    wind-up either), would jump to the limit at the first sample, ``sat(g 100 N m)`` (issue 46: that
+    mutant survived every controller test)."""
+    act = ActuatorConfig(max_torque_Nm=0.1, min_torque_Nm=0.0)
+    f_c = 1.0
+    rates = np.zeros((60, 3))
+    rates[1:, 0] = -1.0  # the law asks +100 N m on x from sample 1 on, 1000 times the limit
+    produced, commanded, _ = _probe(NoiseFilterConfig(torque_cutoff_hz=f_c), rates, act)
+    g = -math.expm1(-2.0 * math.pi * f_c * DT_S)
+    k = np.arange(60)
+    np.testing.assert_allclose(produced[:, 0], 0.1 * -np.expm1(np.log1p(-g) * k), rtol=1e-13, atol=1e-18)
+    assert np.all(commanded[1:, 0] == pytest.approx(100.0)) and produced[1, 0] == pytest.approx(0.1 * g) and produced[1, 0] < 0.01
+
+
 def test_the_deadband_acts_on_the_filtered_torque() -> None:
     """The minimum output drops the filtered torque while it is below the minimum, not the law's command."""
     act = ActuatorConfig(max_torque_Nm=1.0, min_torque_Nm=0.005)

@@ -178,6 +178,43 @@ def test_simulate_out_writes_the_figures_and_plots_is_a_deprecated_alias(tmp_pat
     assert "--plots" not in _sappc("simulate", "--help").stdout  # the old spelling is not offered
 
 
+def _small_run_bag(path: Path) -> Path:
+    """A bag of a 0.2 s run: state, reference and torque at 100 Hz."""
+    from bagmaker import write_bag
+
+    from sappc_msgs_py import contract as c
+    from sappc_msgs_py.convert import quaternion_msg, torque_msg, vector3_msg
+
+    q, messages = [0.0, 0.0, 0.0, 1.0], []
+    for k in range(21):
+        t, log = k * 0.01, k * 10_000_000
+        messages += [(c.STATE_ATTITUDE.name, c.STATE_ATTITUDE.type_name, quaternion_msg(q, t, c.STATE_ATTITUDE), log),
+                     (c.STATE_RATE.name, c.STATE_RATE.type_name, vector3_msg([0.0, 0.0, 0.0], t, c.STATE_RATE), log + 1),
+                     (c.REFERENCE_ATTITUDE.name, c.REFERENCE_ATTITUDE.type_name, quaternion_msg(q, t, c.REFERENCE_ATTITUDE), log + 2),
+                     (c.CONTROL_TORQUE.name, c.CONTROL_TORQUE.type_name, torque_msg([0.0, 0.0, 0.0], t, c.CONTROL_TORQUE), log + 3)]
+    return write_bag(path, messages)
+
+
+@pytest.mark.parametrize("command", ["report", "rerun"])
+def test_a_used_out_is_refused_as_sappc_run_refuses_it(tmp_path: Path, command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 46: ``sappc run`` refuses an ``--out`` that holds files (launch.run_graph); ``report``
+    overwrote one, mixing two bags' figures. Refused before the bag is read: exit 2, one line,
+    nothing written; an empty directory is a new one."""
+    bag = _small_run_bag(tmp_path / "run.mcap")
+    used = tmp_path / "used"
+    used.mkdir()
+    (used / "report.html").write_text("another bag's report")
+    extra = ["--params", str(ROOT / "config" / "controller_sappc.yaml")] if command == "rerun" else []
+    assert cli.main([command, str(bag), "--out", str(used), *extra]) == 2
+    assert capsys.readouterr().err.splitlines() == [f"sappc: error: --out {used} exists and is not empty; choose a new directory"]
+    assert [p.name for p in used.iterdir()] == ["report.html"]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    cli.main([command, str(bag), "--out", str(empty), *extra])  # (this bag has no inputs for rerun: exit 2, naming them)
+    assert "--out" not in capsys.readouterr().err
+    assert command == "rerun" or (empty / "report.html").exists()
+
+
 # ---- bundled scenarios ---------------------------------------------------------------------------
 
 

@@ -5,6 +5,7 @@ and a sample with an input missing is skipped, never paired with a neighbour."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -95,3 +96,33 @@ def test_a_real_time_bag_steps_each_state_with_the_reference_of_its_stamp_as_the
     result = rerun_bag(read_bag(write_bag(tmp_path / "rt.mcap", messages)), PARAMS)
     assert result.mode == "realtime" and result.pairing == "the state's stamp, the reference received by then (approximate)"
     assert result.skipped == {} and result.stamps_ns.size == 30 and result.identical == 30
+
+
+def test_rerun_exits_1_when_a_torque_differs_whatever_the_parameters(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """As ``--help`` says (issue 46): 0 only when every recomputed torque equals the recorded one,
+    1 otherwise, with ``--params`` too (as diff: other gains give other torques, the expected
+    answer of a what-if, which a script tests as ``|| test $? = 1``)."""
+    import yaml
+
+    from sappc.cli import main
+
+    controller, dt = _controller()
+    messages = []
+    for k in range(20):
+        t, log = k * dt, k * 10_000_000
+        messages.append((c.CLOCK.name, c.CLOCK.type_name, clock_msg(t), log))
+        inputs = _inputs(k, t)
+        for i, (topic, value) in enumerate(inputs):
+            messages.append((topic.name, topic.type_name, _msg(topic, value, t), log + i))
+        torque = controller.step(t, dt, *(v for _, v in inputs)).torque_B
+        messages.append((c.CONTROL_TORQUE.name, c.CONTROL_TORQUE.type_name, torque_msg(torque, t, c.CONTROL_TORQUE), log + 9))
+    bag = write_bag(tmp_path / "run.mcap", messages)
+    params = yaml.safe_load(PARAMS.read_text())
+    params["/controller"]["ros__parameters"]["sappc"]["gains"]["K_q"] = 0.6
+    stiffer = tmp_path / "stiffer.yaml"
+    stiffer.write_text(yaml.safe_dump(params))
+    assert main(["rerun", str(bag), "--params", str(PARAMS)]) == 0  # the parameters it flew with: every torque
+    assert "identical torques: 20 of 20" in capsys.readouterr().out
+    assert main(["rerun", str(bag), "--params", str(stiffer)]) == 1  # some torques the same (saturated), not all
+    identical = re.search(r"identical torques: (\d+) of 20", capsys.readouterr().out)
+    assert identical is not None and 0 < int(identical.group(1)) < 20
