@@ -861,7 +861,12 @@ def test_realtime_controller_answers_nothing_past_its_runs_last_frame(ros_contex
         clock.ns = t0 + 30_000_000 + 500_000  # a state past the end (the node no longer takes it in)
         drv.pub[c.STATE_ATTITUDE.name].publish(quaternion_msg(Q0, (t0 + 30_000_000) / NS, c.STATE_ATTITUDE))
         drv.pub[c.STATE_RATE.name].publish(vector3_msg((0.0, 0.0, 0.0), (t0 + 30_000_000) / NS, c.STATE_RATE))
+        bad = vector3_msg((0.0, 0.0, 0.0), (t0 + 10_000_000) / NS, c.STATE_RATE)  # in the past, and Inf: not even looked at
+        bad.vector.x = math.inf
+        drv.pub[c.STATE_RATE.name].publish(bad)
         drv.executor.spin_once(timeout_sec=0.2)
+        drv.executor.spin_once(timeout_sec=0.2)
+        assert node.rejected == 0  # nothing after the last frame is counted: no diagnostics could carry it (issue 46)
         clock.ns += 10 * 10_000_000  # long after the last state: the watchdog would answer
         node._on_timer()
         drv.executor.spin_once(timeout_sec=0.2)
