@@ -10,7 +10,7 @@ What is asserted of each process, and why it cannot be flaky:
   length does not depend on where the temporary directory is);
 - a peak resident memory under 300 MB (the issue's bound; measured by the wrapper process that
   starts the command alone, ``RUSAGE_CHILDREN``): these commands take 50 to 170 MB, most of it
-  imports, whatever the file, where the six-level file took 324 MB before the limits;
+  imports, whatever the file, where the six-level file took 332 MB before the limits;
 - an end within :data:`TIMEOUT_S`, 60 times what the commands take here (0.3 to 0.6 s, mostly
   imports): no loaded machine is that slow, while the eight-level file ran for more than a
   minute before the limits.  The time of the refusal itself is measured, not asserted, by
