@@ -24,6 +24,7 @@ import re
 import shlex
 import subprocess
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -288,6 +289,51 @@ def test_the_cli_reference_shows_what_help_shows_and_every_argument_has_a_meanin
         ref._argument_rows(bare)
 
 
+def test_each_page_writes_into_directories_of_its_own() -> None:
+    """A reader follows page after page in one checkout: a directory that two pages' commands
+    write (an ``--out DIR``, or ``sappc report``'s default ``runs/report/<run>``) would refuse the
+    second page's run or mix the two pages' results (issue 46: ``runs/exp1`` was three pages'
+    three things, and the Foxglove tutorial's run was refused after getting started's)."""
+    from sappc.files import bag_run_name, default_output_dir
+
+    writers: dict[str, set[str]] = {}
+    for page in PAGES:
+        for b in blocks(page):
+            if b.lang != "bash":
+                continue
+            for line in b.text.splitlines():
+                outs = re.findall(r"--out[ =](\S+)", line)
+                report = re.search(r"\b(?:sappcw?|sappc) report (\S+)", line)
+                if report and not outs:
+                    outs = [str(default_output_dir("report", bag_run_name(report.group(1))))]
+                for out in outs:
+                    writers.setdefault(out.rstrip("/"), set()).add(str(page.relative_to(ROOT)))
+    shared = {d: sorted(p) for d, p in writers.items() if len(p) > 1}
+    assert len(writers) > 20 and not shared, f"directories written by more than one page: {shared}"
+
+
+#: Where a command on a page may write a file (``--out``, ``--json``, ``--results``, a ``>``): the one
+#: output root, a temporary directory (a shell variable), stdout, and the committed results of
+#: ``benchmarks/`` (what a measurement updates on purpose).
+WRITABLE = re.compile(rf"^(?:{re.escape(str(OUTPUT_ROOT))}/|/tmp/|\"?\$|-$|/dev/null$|benchmarks/results_)")
+
+
+def test_the_pages_write_only_under_runs_or_a_scratch_directory() -> None:
+    """Issue 46: the momentum how-to wrote ``orbit.json`` and CONTRIBUTING ``m.json`` into the
+    current directory, the checkout; every page (CONTRIBUTING's commands too) writes under
+    ``runs/`` (ignored by git) or a temporary directory."""
+    stray = []
+    for page in [*PAGES, ROOT / "CONTRIBUTING.md", *sorted(p for p in (ROOT / "docs").rglob("*.md") if p not in PAGES)]:
+        for b in blocks(page):
+            if b.lang != "bash":
+                continue
+            for line in b.text.splitlines():
+                command = re.split(r"\s#", line, maxsplit=1)[0]
+                targets = re.findall(r"--(?:out|json|results)[ =](\S+)", command) + re.findall(r"(?<![\d&>])>>? *([^\s&]\S*)", command)
+                stray += [f"{b.where()}: {t} ({command.strip()})" for t in targets if not WRITABLE.match(t)]
+    assert not stray, "files written outside runs/:\n" + "\n".join(stray)
+
+
 #: How a page states how long a command took on some machine: ``took 31 s``, ``23 s for the whole
 #: command``, ``21 s for the study``, a printed ``wall 14.7 s``.  Such a figure goes stale with the
 #: machine and the code, so a page quotes one only beside a link to the performance page, where
@@ -296,12 +342,78 @@ WALL_TIME = re.compile(r"\btook (?:about )?\d+(?:\.\d+)? ?(?:s|min)\b|\d+(?:\.\d
                        r"|\bwall \d+(?:\.\d+)? ?s\b")
 
 
-def test_the_pages_quote_a_commands_time_only_with_its_measurement() -> None:
+def _unsourced(pages: list[Path], quote: re.Pattern[str], sourced: Callable[[str], bool], *, code: bool = True) -> list[str]:
+    """Each match of ``quote`` in a paragraph of ``pages`` that ``sourced`` does not accept, with
+    its page and context (``code``: fenced blocks are paragraphs too; else they are left out)."""
     unsourced = []
-    for page in PAGES:
-        for para in re.split(r"\n\s*\n", page.read_text(encoding="utf-8")):
+    for page in pages:
+        text = page.read_text(encoding="utf-8")
+        if not code:
+            text = re.sub(r"(?ms)^```.*?^```", "", text)
+        for para in re.split(r"\n\s*\n", text):
             flat = " ".join(para.split())
-            for m in WALL_TIME.finditer(flat):
-                if "performance.md" not in para and "measured" not in para.lower():
+            for m in quote.finditer(flat):
+                if not sourced(para):
                     unsourced.append(f"{page.relative_to(ROOT)}: ...{flat[max(0, m.start() - 60):m.end() + 20]}")
+    return unsourced
+
+
+def test_the_pages_quote_a_commands_time_only_with_its_measurement() -> None:
+    unsourced = _unsourced(PAGES, WALL_TIME, lambda para: "performance.md" in para or "measured" in para.lower())
     assert not unsourced, "a command's time without the measurement it comes from:\n" + "\n".join(unsourced)
+
+
+#: How a page quotes a figure of a command too long for the suite (the four controllers, or the
+#: noise filters, over 100 noise seeds: ``p95 3.99e-5``, ``7.1 sign changes a second (median over
+#: 100 seeds)``).  Such a figure goes stale with the code (issue 46: 3.956e-5 and 7.2 were quoted
+#: where the code gave 3.985e-5 and 7.1), so a page quotes one only as a region that
+#: ``benchmarks/published_figures.py`` writes from its record (``<!-- figure: KEY -->``,
+#: ``<!-- figures: NAME -->``), and the record is checked against the code below.
+PUBLISHED_FIGURE = re.compile(r"\bp95\b[^|.;]*?\d|\bmedian over 100\b|\bover 100 (?:noise )?seeds\b")
+
+
+def _published_figures():  # type: ignore[no-untyped-def]
+    spec = importlib.util.spec_from_file_location("_published_figures", ROOT / "benchmarks" / "published_figures.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_pages_quote_a_long_commands_figures_only_as_its_record_gives() -> None:
+    figures = _published_figures()
+    record = figures.load()
+    assert not figures.stale_pages(record), "pages whose published figures are not the record's: python benchmarks/published_figures.py --write"
+    unmarked = _unsourced(figures.PAGES, PUBLISHED_FIGURE, lambda para: "<!-- figure" in para, code=False)
+    assert not unmarked, "a long command's figure not written from its record (benchmarks/published_figures.py):\n" + "\n".join(unmarked)
+    regions = "".join(p.read_text(encoding="utf-8") for p in figures.PAGES)
+    for name in figures.RENDERERS:  # every region is on a page, and the pages name the commands that measured them
+        assert f"<!-- figures: {name} -->" in regions, name
+    noise = (ROOT / "docs" / "design" / "noise.md").read_text(encoding="utf-8")
+    for command in figures.COMMANDS.values():
+        assert command.split(" --out")[0] in noise, command
+
+
+@pytest.mark.slow
+def test_the_published_figures_record_is_what_the_code_gives(tmp_path: Path) -> None:
+    """The record of ``benchmarks/published_figures.py`` was measured by its commands: the
+    comparison, run again (12 to 30 s), gives its table exactly, written as the how-to shows it;
+    the sweep's first runs, recomputed (two runs of each of its 27 points, about 10 s: the whole
+    sweep takes one to two and a half minutes), give every recorded metric bit for bit. A change
+    of the code that moves the published figures fails here (then ``--measure`` and ``--write``)."""
+    import numpy as np
+
+    figures = _published_figures()
+    record = figures.load()
+    summary = figures.comparison(figures.SEEDS, tmp_path / "comparison")
+    assert summary["table"] == record["sources"]["flight_comparison"]["table"]
+    written = (tmp_path / "comparison" / "comparison.md").read_text().splitlines()[2:]
+    assert figures._controller_table(record).splitlines() == written
+    runs = record["slice_runs"]
+    sweep = figures.sweep_slice_runs(figures.bench_noise_filter(), runs)
+    recorded = record["sources"]["noise_filter_sweep"]["slice"]
+    assert [(p["curve"], p["cutoff"]) for p in sweep] == [(p["curve"], p["cutoff"]) for p in recorded]
+    for point, expected in zip(sweep, recorded):
+        for name in ("qev", "sign", "overshoot", "settling_s"):
+            np.testing.assert_array_equal(point[name], expected[name], err_msg=f"noise filter sweep, {point['curve']} {point['cutoff']}, {name}")
