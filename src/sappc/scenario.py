@@ -71,10 +71,28 @@ class ControllerKind(str, Enum):
 #: keys, issue 35; at this limit about 250 MB and a few seconds), so the size is checked before the
 #: file is read.
 MAX_SCENARIO_BYTES = 4 << 20
-#: Memory one control sample of a run takes while it is simulated and analysed [bytes]: the
-#: History's 40 float64 values per sample (state, error quaternion, torques, flags, rho, band,
-#: eps, z, V, disturbance), held twice at once (the loop's output buffer and the History).
-RUN_BYTES_PER_SAMPLE = 2 * 40 * 8
+#: Memory one control sample of a run takes while it is simulated and analysed, without the
+#: flight features [bytes]: at the end of the compiled loop, the run's peak (issue 47, measured by
+#: ``benchmarks/bench_memory.py --breakdown``), its inputs (the sample's time and stamp, the
+#: reference and its two rates, a shared disturbance's table: 15 float64) and its record (the
+#: controller's rows as published, 40 float64, the true state, 7, the disturbance, 3, and the
+#: answer's int8 code), each held once; the metrics then read the record a block at a time, as
+#: views, after the inputs are freed (:func:`sappc.offline.simulate.run_scenario`).
+RUN_BYTES_PER_SAMPLE = 8 * (15 + 40 + 7 + 3) + 1
+#: What the flight features add to a sample [bytes] (:func:`run_bytes_per_sample`): the sensors'
+#: standard normal draws (9 float64), the estimator's record (56 float64:
+#: ``sappc.offline.compiled_loop.N_EST_RECORD``), a wheel's speed and motor torque (2 float64 each),
+#: the orbit's record (the true and the measured field and the environment's torque, 9 float64,
+#: and one per rod), a noise fault's draws (6 float64); a random disturbance's window index (an
+#: int64) and its draws (3 float64 a window), in place of the shared table (3 float64).
+RUN_BYTES_SENSORS = 8 * 9
+RUN_BYTES_ESTIMATOR = 8 * 56
+RUN_BYTES_PER_WHEEL = 8 * 2
+RUN_BYTES_ORBIT = 8 * 9
+RUN_BYTES_PER_ROD = 8
+RUN_BYTES_NOISE_FAULT = 8 * 6
+RUN_BYTES_RANDOM_INDEX = 8
+RUN_BYTES_DISTURBANCE_TABLE = 8 * 3
 #: Share of the machine's memory one run may take.
 RUN_MEMORY_SHARE = 0.5
 
@@ -86,9 +104,25 @@ def machine_memory_bytes() -> int:
     return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
-def check_run_fits_in_memory(duration_s: float, control_period_s: float) -> int:
-    """The number of control samples of a run, after checking that its histories fit in
-    :data:`RUN_MEMORY_SHARE` of this machine's memory (before anything is allocated).
+def run_bytes_per_sample(*, sensors: bool = False, estimator: bool = False, wheels: int = 0, orbit: bool = False, rods: int = 0,
+                         magnetometer_rate_hz: float = 0.0, control_period_s: float = 1.0, noise_fault: bool = False,
+                         random_hold_s: tuple[float, ...] = ()) -> int:
+    """The memory one control sample of a run with these features takes at its peak [bytes]:
+    :data:`RUN_BYTES_PER_SAMPLE` and what each feature adds (``RUN_BYTES_*``; the magnetometer's
+    draws, 3 float64 at its rate; ``random_hold_s``: each random disturbance's hold, its draws 3
+    float64 a window)."""
+    extra = (RUN_BYTES_SENSORS * sensors + RUN_BYTES_ESTIMATOR * estimator + RUN_BYTES_PER_WHEEL * wheels
+             + (RUN_BYTES_ORBIT + RUN_BYTES_PER_ROD * rods) * orbit + RUN_BYTES_NOISE_FAULT * noise_fault
+             + 24 * magnetometer_rate_hz * control_period_s)
+    if random_hold_s:
+        extra += sum(RUN_BYTES_RANDOM_INDEX + 24 * min(1.0, control_period_s / h) for h in random_hold_s) - RUN_BYTES_DISTURBANCE_TABLE
+    return RUN_BYTES_PER_SAMPLE + math.ceil(extra)
+
+
+def check_run_fits_in_memory(duration_s: float, control_period_s: float, bytes_per_sample: int = RUN_BYTES_PER_SAMPLE) -> int:
+    """The number of control samples of a run, after checking that its histories (``bytes_per_sample``
+    a sample: :func:`run_bytes_per_sample`) fit in :data:`RUN_MEMORY_SHARE` of this machine's memory
+    (before anything is allocated).
 
     Raises
     ------
@@ -97,11 +131,11 @@ def check_run_fits_in_memory(duration_s: float, control_period_s: float) -> int:
     """
     samples = round(duration_s / control_period_s) + 1
     limit = RUN_MEMORY_SHARE * machine_memory_bytes()
-    if samples * RUN_BYTES_PER_SAMPLE > limit:
-        longest = (limit / RUN_BYTES_PER_SAMPLE - 1) * control_period_s
+    if samples * bytes_per_sample > limit:
+        longest = (limit / bytes_per_sample - 1) * control_period_s
         raise ConfigError(
             f"duration_s = {duration_s!r} at control_period_s = {control_period_s!r} is {samples:.3g} control samples, whose "
-            f"histories need {samples * RUN_BYTES_PER_SAMPLE / 2**30:.3g} GiB; this machine allows a run "
+            f"histories need {samples * bytes_per_sample / 2**30:.3g} GiB; this machine allows a run "
             f"{limit / 2**30:.3g} GiB ({RUN_MEMORY_SHARE:.0%} of its memory): duration_s <= {longest:.6g} s at this period"
         )
     return int(samples)
@@ -401,7 +435,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     dt = check_positive("control_period_s", data["control_period_s"])
     if duration < dt:
         raise ConfigError(f"duration_s ({duration!r}) must be at least control_period_s ({dt!r})")
-    check_run_fits_in_memory(duration, dt)
+    check_run_fits_in_memory(duration, dt)  # without the features: before a long file's sections are read
 
     plant = data["plant"]
     if not isinstance(plant, dict) or set(plant) - {"inertia_kg_m2", "rk4_substeps"} or "inertia_kg_m2" not in plant:
@@ -458,7 +492,26 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     )
     for name in controllers:  # validate every controller's parameters now, not at run time
         scenario.controller_config(name)
+    check_run_fits_in_memory(duration, dt, scenario_bytes_per_sample(scenario))
     return scenario
+
+
+def scenario_bytes_per_sample(scenario: Scenario) -> int:
+    """:func:`run_bytes_per_sample` of ``scenario``'s features: the memory a sample of its run takes
+    at its peak [bytes]."""
+    from spacecraft_sim.core.disturbance import RandomTorque
+    from spacecraft_sim.core.faults import SensorNoise
+
+    env = scenario.environment
+    mag = None if env is None else env.magnetometer
+    return run_bytes_per_sample(
+        sensors=scenario.sensors is not None, estimator=scenario.estimator is not None,
+        wheels=0 if scenario.wheels is None else scenario.wheels.n, orbit=env is not None,
+        rods=0 if env is None or env.magnetorquers is None else env.magnetorquers.n,
+        magnetometer_rate_hz=0.0 if mag is None else float(mag.rate_hz), control_period_s=scenario.control_period_s,
+        noise_fault=any(isinstance(f, SensorNoise) for f in scenario.faults),
+        random_hold_s=tuple(float(m.hold_s) for m in scenario.disturbance.models if isinstance(m, RandomTorque)),
+    )
 
 
 #: The plant's actuator kinds (``actuator.kind``).

@@ -6,7 +6,9 @@ Offline runs and campaigns get it from the compiled loop
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,3 +55,13 @@ class History:
     def q_ev(self) -> Array:
         """Vector part of the error quaternion, (T, N, 3)."""
         return self.q_BR[..., :3]
+
+    def samples(self, lo: int, hi: int) -> History:
+        """Samples ``lo .. hi - 1`` of every array (the estimator's record included): views, no
+        copy.  The metrics take a long record this way, a block at a time
+        (:meth:`sappc.evaluation.metrics.MetricsAccumulator.add_history`)."""
+        def cut(record: Any) -> dict[str, Any]:
+            return {f.name: a[lo:hi] for f in dataclasses.fields(record) if isinstance(a := getattr(record, f.name), np.ndarray)}
+
+        est = self.estimate
+        return dataclasses.replace(self, **cut(self), estimate=None if est is None else dataclasses.replace(est, **cut(est)))

@@ -278,13 +278,21 @@ class MetricsAccumulator:
             setattr(merged, name, sum(getattr(p, name) for p in parts))
         return merged
 
-    def add_history(self, h: History) -> None:
-        """Observe every sample of a stored history at once (offline runs, campaign sub-batches, bags)."""
-        self._update(0, h.t, h.q_BN, h.omega_BN_B, h.torque_B, h.q_BR, h.rho, h.saturated, h.band_lower, h.band_upper)
-        if h.wheel_speed_rad_s is not None and h.wheel_torque_Nm is not None:
-            self.update_wheels(h.wheel_speed_rad_s, h.wheel_torque_Nm)
-        if h.estimate is not None:
-            self.update_estimate(self.samples - h.t.size, h.t, h.q_BN, h.estimate)
+    def add_history(self, h: History, *, block_samples: int | None = None) -> None:
+        """Observe every sample of a stored history, after the samples seen so far (offline runs,
+        campaign sub-batches, bags).  ``block_samples``: the per-sample metrics take at most that
+        many samples at a time (views: their temporaries bounded by the block, not by the record),
+        with the same bits (a block gives the same as its samples one by one); the per-orbit
+        metrics take each orbit's samples at once, as without it (their sums' order is numpy's)."""
+        T = h.t.size
+        step = T if block_samples is None or T == 0 else max(1, int(block_samples))
+        for lo in range(0, max(T, 1), max(step, 1)):
+            b = h if step >= T else h.samples(lo, lo + step)
+            self._update(self.samples, b.t, b.q_BN, b.omega_BN_B, b.torque_B, b.q_BR, b.rho, b.saturated, b.band_lower, b.band_upper)
+            if b.wheel_speed_rad_s is not None and b.wheel_torque_Nm is not None:
+                self.update_wheels(b.wheel_speed_rad_s, b.wheel_torque_Nm)
+            if b.estimate is not None:
+                self.update_estimate(self.samples - b.t.size, b.t, b.q_BN, b.estimate)
         if self.orbit_bins is not None:
             self._update_orbits(h)
 
@@ -294,18 +302,19 @@ class MetricsAccumulator:
         t = np.asarray(h.t, dtype=np.float64)
         orbit = (t // ob.period_s).astype(np.int64)
         bounds = np.flatnonzero(np.diff(orbit)) + 1
-        qev = np.abs(np.asarray(h.q_BR, dtype=np.float64)[..., :3])  # (B, N, 3)
+        q_BR = np.asarray(h.q_BR, dtype=np.float64)
         speed = None if h.wheel_speed_rad_s is None or ob.wheel_spin_inertia_kg_m2 is None else np.asarray(h.wheel_speed_rad_s, dtype=np.float64)
-        rods = None
+        dipoles = None
         m = 0 if ob.rod_max_dipole_Am2 is None else ob.rod_max_dipole_Am2.size
         if h.orbit is not None and m and h.orbit.shape[-1] >= 9 + m:  # a bag without a management node has no rods' columns
-            rods = np.abs(np.asarray(h.orbit, dtype=np.float64)[..., 9:9 + m]) / ob.rod_max_dipole_Am2
+            dipoles = np.asarray(h.orbit, dtype=np.float64)[..., 9:9 + m]
         for lo, hi in zip(np.concatenate(([0], bounds)), np.concatenate((bounds, [t.size]))):
             j = int(orbit[lo])
             self.orb_samples[j] += hi - lo
             steady = t[lo:hi] >= self.steady_from_s
+            rods = None if dipoles is None else np.abs(dipoles[lo:hi]) / ob.rod_max_dipole_Am2  # (S, N, M), one orbit's at a time
             if steady.any():
-                q = qev[lo:hi][steady]  # (S, N, 3)
+                q = np.abs(q_BR[lo:hi, ..., :3])[steady]  # (S, N, 3)
                 self.orb_steady_max[:, j] = np.fmax(self.orb_steady_max[:, j], np.max(q, axis=(0, 2)))
                 self.orb_steady_sum[:, j] += q.sum(axis=0)
                 self.orb_steady_samples[j] += int(steady.sum())
@@ -316,7 +325,7 @@ class MetricsAccumulator:
                 self.orb_h_end[:, j] = hB[-1]
                 self.orb_speed_max[:, j] = np.fmax(self.orb_speed_max[:, j], np.abs(w).max(axis=(0, 2)))
             if rods is not None:
-                self.orb_dipole_sum[:, j] = np.nan_to_num(self.orb_dipole_sum[:, j]) + np.nansum(rods[lo:hi], axis=(0, 2))
+                self.orb_dipole_sum[:, j] = np.nan_to_num(self.orb_dipole_sum[:, j]) + np.nansum(rods, axis=(0, 2))
 
     def orbit_metrics(self, run: int = 0) -> list[dict[str, Any]]:
         """The per-orbit metrics of run ``run`` (module docstring), one entry per orbit with samples;

@@ -3,7 +3,8 @@
 
 No Python runs per time step: one compiled call runs a whole run (``sappc simulate``) or a
 sub-batch of runs in parallel (campaigns); the metrics are computed from each sub-batch's stored
-history in one block, by the one definition of every metric."""
+history (views of the loop's record, in blocks of bounded size), by the one definition of every
+metric."""
 
 from __future__ import annotations
 
@@ -29,6 +30,13 @@ __all__ = ["ScenarioRun", "SimulationResult", "metrics_accumulator", "run_scenar
 #: Runs per compiled call in a batch: their full histories (~2 MB a run for 50 s at 100 Hz) are
 #: kept for the metrics block, then dropped; the buffer is reused from one sub-batch to the next.
 SUB_BATCH = 32
+#: Run-samples (samples times runs) the metrics take from a sub-batch's history at a time
+#: (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.add_history`'s ``block_samples``): their
+#: temporaries are a few hundred bytes a run-sample (the estimator's NEES solves a copy of each
+#: 6 x 6 covariance), so 2**15 bounds them to tens of MB whatever the run's length (the whole 6 h
+#: record at once took 1.1 GB more than the record, issue 47); a sub-batch of 32 runs of 50 s
+#: (160,032 run-samples) takes five blocks.  The metrics are the same bits for any block.
+METRICS_BLOCK = 1 << 15
 
 
 @dataclass(frozen=True)
@@ -131,8 +139,8 @@ def run_scenario(
     again on that sub-batch's measurements before it runs.
 
     The runs go through the compiled loop ``sub_batch`` at a time (in parallel over runs); each
-    sub-batch's full history feeds the metrics in one block and is dropped unless
-    ``keep_history``.  ``sensors = (params, draws, outages)``: the sensors' parameters
+    sub-batch's full history feeds the metrics (:data:`METRICS_BLOCK` run-samples at a time: views
+    of the loop's record, no copy) and is dropped unless ``keep_history``.  ``sensors = (params, draws, outages)``: the sensors' parameters
     (:meth:`spacecraft_sim.core.sensors.Sensors.params`, (13,) or one row per run),
     ``draws(lo, hi)`` the standard normals (hi - lo, T, 6 or 9) of runs ``lo .. hi - 1`` and the
     tracker's outages (N, K, 2) [s] per run (``None``: the scenario's for every run); by
@@ -162,7 +170,7 @@ def run_scenario(
     )
     draws = None if sensors is None else sensors[1]
 
-    n = inp.n_runs
+    n, t = inp.n_runs, inp.t
     step = n if keep_history else max(1, min(sub_batch, n))
     n_traj, traj_stride = trajectory if trajectory is not None else (0, 1)
     parts: list[MetricsAccumulator] = []
@@ -177,17 +185,19 @@ def run_scenario(
         hi = min(lo + step, n)
         sub = inp.subset(lo, hi, None if draws is None else draws(lo, hi)) if step < n or draws is not None else inp
         buffer = compiled_loop.run_batch(sub, 1, into=buffer)
+        for key, value in sub.flags.items():  # each run's start (computed again with its sensor draws)
+            flags[key][lo:hi] = value
+        if hi == n:  # the last sub-batch has run: its inputs (reference tables, sensor draws) go before the metrics
+            del sub, inp
         h = buffer.history()
-        acc = metrics_accumulator(scenario, inp.t, hi - lo, per_orbit=per_orbit)
-        acc.add_history(h)
+        acc = metrics_accumulator(scenario, t, hi - lo, per_orbit=per_orbit)
+        acc.add_history(h, block_samples=max(1, METRICS_BLOCK // (hi - lo)))
         parts.append(acc)
         x_final[lo:hi] = buffer.x_final
         for name, count in buffer.status_counts().items():
             status[name][lo:hi] = count
         for reason, count in buffer.rejected_by_reason().items():
             rejected[reason][lo:hi] = count
-        for key, value in sub.flags.items():  # each run's start (computed again with its sensor draws)
-            flags[key][lo:hi] = value
         if keep_history:
             histories.append(h)
         if lo < n_traj:
@@ -198,7 +208,7 @@ def run_scenario(
     metrics = parts[0] if len(parts) == 1 else MetricsAccumulator.concatenate(parts)
     trajectories = None
     if traj:
-        trajectories = (inp.t[::traj_stride].copy(), np.concatenate([q for q, _ in traj], axis=1), np.concatenate([r for _, r in traj], axis=1))
+        trajectories = (t[::traj_stride].copy(), np.concatenate([q for q, _ in traj], axis=1), np.concatenate([r for _, r in traj], axis=1))
     return metrics, ScenarioRun(flags, histories[0] if keep_history else None, trajectories, x_final, status, rejected)
 
 
