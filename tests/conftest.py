@@ -36,6 +36,16 @@ def run_watched(cmd: list[str], *, timeout_s: float = 600, **kwargs: Any) -> tup
     return subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr), watch
 
 
+def cut_short(raw: dict[str, Any], duration_s: float) -> dict[str, Any]:
+    """The scenario mapping ``raw``, changed in place to last ``duration_s``, without its
+    ``metrics.requirements``: a run cut short cannot show what the whole run promises (it ends before
+    its settling time or steady window, and an unknown metric fails a requirement); the
+    loss-of-control rule still judges it (:mod:`sappc.evaluation.requirements`)."""
+    raw["duration_s"] = duration_s
+    (raw.get("metrics") or {}).pop("requirements", None)
+    return raw
+
+
 @pytest.fixture(scope="session")
 def tracking_run(tmp_path_factory):  # type: ignore[no-untyped-def]
     """Experiment 1 through ``sappc run`` (60 s lockstep, recorded): (run dir, its JSON, the

@@ -211,6 +211,8 @@ METRIC_SENTENCES: dict[str, str] = {
                                    "(a run with faults).",
     "returned_at_s": "When the error re-entered its constraint band for good after a fault made it leave [s].",
     "finite": "Whether the state and the torque stayed finite (no: the run failed, and the other metrics describe it up to then).",
+    "control_lost_at_s": "When the run lost control: from then to its end the largest |q_ev,i| stayed beyond ten times the "
+                         "settling band, in the steady window (-: it kept control).",
     "steady_max_abs_attitude_estimation_error_rad": "The largest error of the estimated attitude on any axis in the steady window [rad].",
     "steady_rms_attitude_estimation_error_rad": "The root mean square of the estimated attitude's error in the steady window, "
                                                 "on the worst axis [rad].",

@@ -97,6 +97,12 @@ ESTIMATOR_COLUMNS = ("steady_max_abs_attitude_estimation_error_rad", "final_abs_
                      "filter_inconsistent_fraction", "estimator_recoveries")
 
 
+def _samples(table: dict[str, Any]) -> NDArray[np.int64]:
+    """Each run's samples: the controller's answers of every kind, summed."""
+    out: NDArray[np.int64] = np.sum([np.asarray(table[f"answers_{name}"], dtype=np.int64) for name in ANSWER_NAMES], axis=0)
+    return out
+
+
 def run_criteria(table: dict[str, Any], criteria: Criteria) -> RunCriteria:
     """The pass criteria of the runs in ``table`` (a chunk's or the campaign's per-run arrays):
     the one place that defines what passing means, for the campaign table and for
@@ -107,8 +113,7 @@ def run_criteria(table: dict[str, Any], criteria: Criteria) -> RunCriteria:
     finite = np.asarray(table["finite"]).astype(bool) & (np.asarray(table.get("answers_refused", 0)) == 0)
     ok_t2 = finite & (t2 < criteria.rpf_error_at_t2_max)
     ok_steady = finite & (steady < criteria.steady_mean_abs_qev_max)
-    samples = sum(np.asarray(table[f"answers_{name}"], dtype=np.int64) for name in ANSWER_NAMES)
-    lost = lost_control(table["control_lost_at_s"], table["answers_commanded"], samples)
+    lost = lost_control(table["control_lost_at_s"], table["answers_commanded"], _samples(table))
     return RunCriteria(t2, steady, finite, ok_t2, ok_steady, lost, ok_t2 & ok_steady & ~lost)
 
 
@@ -150,7 +155,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
     rc = run_criteria(tab, crit)
     t2, steady, finite, ok_t2, ok_steady, passed = rc.rpf_error_at_t2, rc.steady_mean_abs_qev, rc.finite, rc.ok_t2, rc.ok_steady, rc.passed
     lost_at = np.asarray(tab["control_lost_at_s"], dtype=np.float64)
-    samples = sum(np.asarray(tab[f"answers_{name}"], dtype=np.int64) for name in ANSWER_NAMES)
+    samples = _samples(tab)
 
     gain_keys = [k for k in tab if k.startswith("gain_")]
     wheel_keys = [k for k in WHEEL_COLUMNS if k in tab] + [k for k in ESTIMATOR_COLUMNS if k in tab]

@@ -19,7 +19,7 @@ from sappc.bag.read import bag_run, read_bag
 from sappc.offline.simulate import simulate
 from sappc.scenario import load_scenario
 
-from conftest import ROOT, SAPPC, SCENARIOS
+from conftest import ROOT, SAPPC, SCENARIOS, cut_short
 
 pytestmark = pytest.mark.slow
 
@@ -33,7 +33,7 @@ def mrp_run(tmp_path_factory):  # type: ignore[no-untyped-def]
     """(scenario file, run directory) of experiment 1, cut to :data:`DURATION_S`, through the graph."""
     tmp = tmp_path_factory.mktemp("mrp")
     scenario = yaml.safe_load((SCENARIOS / "paper_tracking.yaml").read_text())
-    scenario["duration_s"] = DURATION_S
+    cut_short(scenario, DURATION_S)
     path = tmp / "short.yaml"
     path.write_text(yaml.safe_dump(scenario))
     proc = subprocess.run([*SAPPC, "run", str(path), "--controller", "mrp_feedback", "--out", str(tmp / "run")],

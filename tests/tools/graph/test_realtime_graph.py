@@ -38,7 +38,7 @@ from sappc.offline.simulate import simulate
 from sappc_msgs_py.contract import ANSWER_COMMANDED
 from sappc.scenario import load_scenario
 
-from conftest import SAPPC, SCENARIOS, run_watched
+from conftest import SAPPC, SCENARIOS, cut_short, run_watched
 
 pytestmark = pytest.mark.slow
 
@@ -69,7 +69,7 @@ RT_PRIORITY = 10
 
 def _scenario(tmp_path: Path, source: Path, duration_s: float) -> Path:
     scenario = load_scenario(source).raw
-    scenario["duration_s"] = duration_s
+    cut_short(scenario, duration_s)
     path = tmp_path / "scenario.yaml"
     path.write_text(yaml.safe_dump(scenario, sort_keys=False))
     return path

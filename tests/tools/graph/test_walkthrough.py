@@ -23,8 +23,9 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
+import yaml
 
-from conftest import ROOT, SAPPC, SCENARIOS
+from conftest import ROOT, SAPPC, SCENARIOS, cut_short
 from shm_watch import ShmWatch
 
 #: The page whose walkthrough block the tests run.
@@ -172,7 +173,7 @@ def test_every_start_order_gives_the_same_run(start_in_order, order) -> None:  #
 
 def test_sappc_run_records_a_run_driven_by_an_external_plant(tmp_path) -> None:  # type: ignore[no-untyped-def]
     scenario = tmp_path / "short.yaml"
-    scenario.write_text(re.sub(r"(?m)^duration_s:.*$", "duration_s: 5.0", (SCENARIOS / "paper_tracking.yaml").read_text()))
+    scenario.write_text(yaml.safe_dump(cut_short(yaml.safe_load((SCENARIOS / "paper_tracking.yaml").read_text()), 5.0)))
     out, summary = tmp_path / "run", tmp_path / "run.json"
     watch = ShmWatch().__enter__()
     run = subprocess.Popen([*SAPPC, "run", str(scenario), "--plant", "external", "--out", str(out), "--json", str(summary)],

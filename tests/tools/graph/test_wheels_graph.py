@@ -19,7 +19,8 @@ from sappc.scenario import scenario_from_mapping
 from sappc_msgs_py.contract import WHEEL_STATES
 from sappc_msgs_py.convert import joint_state_msg
 
-from conftest import ROOT, SAPPC, SCENARIOS
+from sappc.cli import EXIT_REQUIREMENT_FAILED
+from conftest import ROOT, SAPPC, SCENARIOS, cut_short
 
 
 def _payloads(n_msgs: int, n_wheels: int, rng: np.random.Generator) -> list[bytes]:
@@ -54,7 +55,7 @@ def _short_run(tmp_path: Path, scenario_file: str, *extra: str, **sensors_change
     """``scenario_file`` cut to 4 s (steady window from 2 s; ``sensors_changes`` into its star
     tracker), run through ``sappc run`` with ``extra`` arguments: (the scenario mapping, the run directory)."""
     raw = yaml.safe_load((SCENARIOS / scenario_file).read_text())
-    raw["duration_s"] = 4.0
+    cut_short(raw, 4.0)
     raw["metrics"]["steady_from_s"] = 2.0
     raw.get("sensors", {}).get("star_tracker", {}).update(sensors_changes)
     path = tmp_path / "scenario.yaml"
@@ -62,7 +63,9 @@ def _short_run(tmp_path: Path, scenario_file: str, *extra: str, **sensors_change
     out = tmp_path / "run"
     proc = subprocess.run([*SAPPC, "run", str(path), "--out", str(out), "--json", str(tmp_path / "m.json"), *extra], capture_output=True,
                           text=True, timeout=600, cwd=ROOT)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+    # a parity test: the 4 s cut's verdict (its steady window from 2 s may judge it lost: exit 4) follows from its metrics,
+    # compared with the offline run's
+    assert proc.returncode in (0, EXIT_REQUIREMENT_FAILED), proc.stdout + proc.stderr
     return raw, out
 
 
