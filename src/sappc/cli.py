@@ -84,8 +84,9 @@ EXIT_STATUSES: dict[str, tuple[tuple[int, str], ...]] = {
                                 "its requirements"),
                             (EXIT_REQUIREMENT_FAILED, "the comparison was written, but a run lost control, or a run of the scenario's "
                              "own controller broke its requirements (one line names them)"), *_SHARED_EXITS),
-    "rerun": ((0, "compared (with the bag's own parameters: every recomputed torque equals the recorded one)"),
-              (1, "with the bag's own parameters, a recomputed torque differs from the recorded one"), *_SHARED_EXITS),
+    "rerun": ((0, "every recomputed torque equals the recorded one, bit for bit"),
+              (1, "a recomputed torque differs from the recorded one, or no sample was re-run (as diff: expected with --params of "
+                  "other gains or another controller)"), *_SHARED_EXITS),
     "repair": ((0, "the bag was rewritten readable"), *_SHARED_EXITS),
     "replay": ((0, "the bag was replayed to its end, or stopped by Ctrl-C or SIGTERM once replaying (--loop ends that way)"),
                (1, "a publisher timed out waiting for its subscribers' acknowledgements"), (EXIT_INVALID_INPUT, _SHARED_EXITS[0][1]),
@@ -323,6 +324,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         result = run_graph(args.scenario, out_dir=args.out, controller=args.controller, realtime=args.realtime, domain_id=args.domain_id,
                            compose=args.compose, plant=args.plant, rt_priority=args.rt_priority)
     except RuntimeError as exc:
+        if isinstance(exc, RecursionError):  # a bug, not a failed run: its traceback, not "failed"
+            raise
         print(f"sappc run: failed: {exc}", file=sys.stderr)
         return 1
     scenario, kind = result.scenario, result.controller
@@ -337,7 +340,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph{' (composed)' if args.compose else ''}", metrics)
     _print_orbits(per_orbit)
     mismatched = result.mismatched_counts()
-    node_counts: dict[str, Any] = {k: result.controller_timing[k] for k in ("refused_steps", "rejected_by_reason") if k in result.controller_timing}
+    # the node's own counts (a rejection in the last frame reaches no diagnostics message the bag could hold)
+    node_counts: dict[str, Any] = {k: result.controller_timing[k] for k in ("refused_steps", "rejected_by_reason", "rejected_inputs")
+                                   if k in result.controller_timing}
     ctrl = {**run.controller_summary(), **node_counts}
     failed = _print_outcome(scenario, metrics, ctrl)
     missed = int(result.plant_timing.get("missed", {}).get("torque", 0))
@@ -503,6 +508,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from sappc.analysis.plots import FigureWorker
     from sappc.analysis.report import analyse_bag, write_report
 
+    if args.out and Path(args.out).is_dir() and any(Path(args.out).iterdir()):  # as sappc run (issue 46): two reports never mix
+        raise ConfigError(f"--out {args.out} exists and is not empty; choose a new directory")
     # No cyclic garbage collection in this short command (nor in its figure process, forked with
     # it off): its passes over matplotlib's many young objects cost 0.1-0.2 s of a report's ~1 s,
     # while the cycles left (closed figures) are a few MB (peak memory measured unchanged, 95 MB).
@@ -565,6 +572,8 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
     from sappc.analysis.report import write_rerun_report
     from sappc.analysis.rerun import rerun_bag
 
+    if args.out and Path(args.out).is_dir() and any(Path(args.out).iterdir()):  # as sappc run and report (issue 46)
+        raise ConfigError(f"--out {args.out} exists and is not empty; choose a new directory")
     bag = read_bag(args.bag)
     r = rerun_bag(bag, args.params)
     s = r.summary()
@@ -579,9 +588,9 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
         print(f"wrote {paths[-1]} and {len(paths) - 1} figure(s)")
     if args.json:
         _write_json(args.json, s)
-    if args.params is None:  # the recorded parameters: a determinism check
-        return 0 if s["all_identical"] else 1
-    return 0
+    # as diff: 1 when the torques differ, whatever the parameters (the bag's own: a determinism
+    # check; --params: the same answer for a script, e.g. "are these the parameters it flew with?")
+    return 0 if s["all_identical"] else 1
 
 
 def _cmd_repair(args: argparse.Namespace) -> int:
@@ -753,7 +762,8 @@ def _parser() -> argparse.ArgumentParser:
     cp.add_argument("--force", action="store_true", help="overwrite files of the same name")
     rep = command("report", "metrics, figures and an HTML page from a recorded bag")
     rep.add_argument("bag", help=_BAG_HELP)
-    rep.add_argument("--out", metavar="DIR", help="figures and report.html (default runs/report/<run>)")
+    rep.add_argument("--out", metavar="DIR", help="figures and report.html, into a new or empty directory (default runs/report/<run>, "
+                     "rewritten by each report of that run)")
     rep.add_argument("--json", metavar="FILE", help="write the metrics and what the bag holds as JSON ('-': to stdout)")
     rep.add_argument("--scenario", metavar="FILE", help="metric settings and events from this scenario (default: the one in the bag)")
     rep.set_defaults(func=_cmd_report)
@@ -764,9 +774,11 @@ def _parser() -> argparse.ArgumentParser:
     cmp.set_defaults(func=_cmd_compare)
     rr = command("rerun", "feed a bag's recorded inputs to the controller core and compare the torques")
     rr.add_argument("bag", help="the bag of a run, " + _BAG_HELP)
-    rr.add_argument("--params", metavar="FILE", help="ROS parameters file of the controller (default: the bag's own; exit 1 unless every torque matches)")
+    rr.add_argument("--params", metavar="FILE", help="ROS parameters file of the controller (default: the bag's own); with either, "
+                    "the exit status is 1 unless every torque matches")
     rr.add_argument("--json", metavar="FILE", help="write the comparison as JSON ('-': to stdout)")
-    rr.add_argument("--out", metavar="DIR", help="write rerun_torque.png (recorded and recomputed) and rerun.html (default: none)")
+    rr.add_argument("--out", metavar="DIR", help="write rerun_torque.png (recorded and recomputed) and rerun.html into a new or "
+                    "empty directory (default: none)")
     rr.set_defaults(func=_cmd_rerun)
     rpr = command("repair", "make a bag whose recorder was killed readable by every MCAP/rosbag2 reader (as ros2 bag reindex)")
     rpr.add_argument("bag", help="the bag to rewrite in place, " + _BAG_HELP)
