@@ -317,7 +317,7 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from sappc.bag.read import bag_metrics, bag_run, frames_lacking_inputs, read_bag
+    from sappc.bag.read import Ticker, bag_metrics, bag_run, frames_lacking_inputs, read_bag
     from sappc.graph.launch import run_graph
 
     try:
@@ -329,11 +329,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"sappc run: failed: {exc}", file=sys.stderr)
         return 1
     scenario, kind = result.scenario, result.controller
-    bag = read_bag(result.bag_dir)
-    run = bag_run(bag, duration_s=scenario.duration_s)  # the run's span, [0, duration_s]: no sample after it
     ms = scenario.metrics
-    metrics, per_orbit = bag_metrics(bag, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold, t2_s=ms.t2_s,
-                                     fault_windows=scenario.event_windows(), run=run, orbit_bins=scenario.orbit_bins())
+    # a line at least every 2 s to the last (issue 46): reading the bag back, aligning it, its metrics
+    with Ticker(lambda msg: print(f"sappc run: {msg}", file=sys.stderr, flush=True)) as ticker:
+        bag = read_bag(result.bag_dir, ticker=ticker)
+        run = bag_run(bag, duration_s=scenario.duration_s, ticker=ticker)  # the run's span, [0, duration_s]: no sample after it
+        metrics, per_orbit = bag_metrics(bag, steady_from_s=ms.steady_from_s, settle_threshold=ms.settle_threshold, t2_s=ms.t2_s,
+                                         fault_windows=scenario.event_windows(), run=run, orbit_bins=scenario.orbit_bins(), ticker=ticker)
+        frames_lacking = frames_lacking_inputs(bag, run, scenario.control_period_s, scenario.duration_s) if args.realtime else None
     metrics["wall_time_s"] = result.run_s
     if result.startup_s is not None:  # from the plant's own timing: none with an external plant
         metrics["startup_s"] = result.startup_s
@@ -349,7 +352,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if missed:
         print(f"plant: {missed} sample(s) integrated with the last torque after lockstep_timeout_s without an answer "
               "(a message lost outside the fault injector, or a machine too loaded to answer in time): see logs/plant.log")
-    realtime = _realtime_summary(result, frames_lacking_inputs(bag, run, scenario.control_period_s, scenario.duration_s)) if args.realtime else None
+    realtime = _realtime_summary(result, frames_lacking) if frames_lacking is not None else None
     if realtime:
         lat = realtime["controller_latency"]
         lacking = realtime["frames_lacking_own_stamp"]
@@ -502,14 +505,19 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
     return 0
 
 
+def _refuse_used_out(out: str | None) -> None:
+    """Refuse an ``--out`` directory that already holds files, as ``sappc run`` does (two outputs never mix)."""
+    if out and Path(out).is_dir() and any(Path(out).iterdir()):
+        raise ConfigError(f"--out {out} exists and is not empty; choose a new directory")
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     import gc
 
     from sappc.analysis.plots import FigureWorker
     from sappc.analysis.report import analyse_bag, write_report
 
-    if args.out and Path(args.out).is_dir() and any(Path(args.out).iterdir()):  # as sappc run (issue 46): two reports never mix
-        raise ConfigError(f"--out {args.out} exists and is not empty; choose a new directory")
+    _refuse_used_out(args.out)
     # No cyclic garbage collection in this short command (nor in its figure process, forked with
     # it off): its passes over matplotlib's many young objects cost 0.1-0.2 s of a report's ~1 s,
     # while the cycles left (closed figures) are a few MB (peak memory measured unchanged, 95 MB).
@@ -572,8 +580,7 @@ def _cmd_rerun(args: argparse.Namespace) -> int:
     from sappc.analysis.report import write_rerun_report
     from sappc.analysis.rerun import rerun_bag
 
-    if args.out and Path(args.out).is_dir() and any(Path(args.out).iterdir()):  # as sappc run and report (issue 46)
-        raise ConfigError(f"--out {args.out} exists and is not empty; choose a new directory")
+    _refuse_used_out(args.out)
     bag = read_bag(args.bag)
     r = rerun_bag(bag, args.params)
     s = r.summary()
