@@ -5,6 +5,7 @@ reproduced, the sensor-noise sequence, progress."""
 from __future__ import annotations
 
 import copy
+import csv
 import json
 import os
 import subprocess
@@ -134,6 +135,29 @@ def test_a_run_that_goes_non_finite_is_marked_failed_and_the_campaign_continues(
     (failed,) = s["failed_runs"]
     assert failed["run"] == 2 and failed["seed_sequence"] == {"entropy": 1, "spawn_key": [2]}
     assert "non-finite" in failed["why"]
+
+
+def test_a_run_that_loses_control_fails_and_is_counted(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Run 3 starts tumbling at 5 rad/s about x (20 N m s against 0.5 N m of torque: 40 s to stop it,
+    the run lasts 21 s): it ends with its attitude lost, fails the campaign whatever its criteria
+    say, is counted in ``runs_lost_control`` and its row and reason say from when."""
+    real = compiled_loop.prepare
+    calls = {"n": 0}
+
+    def tumbling(*args, **kwargs):  # type: ignore[no-untyped-def]
+        inp = real(*args, **kwargs)
+        calls["n"] += 1
+        if calls["n"] == 1:  # the first chunk (runs 0 to 4): run 3
+            inp.plant.x0[3, 4] = 5.0
+        return inp
+
+    monkeypatch.setattr(offline_simulate.compiled_loop, "prepare", tumbling)
+    s = run_campaign(_short(tmp_path, chunk_runs=5), runs=6, seed=1, out_dir=tmp_path / "lost", progress=False)
+    assert s["runs_lost_control"] == 1 and s["passed"] == 5 and s["non_finite_runs"] == 0
+    (failed,) = s["failed_runs"]
+    assert failed["run"] == 3 and "control lost from 20.5 s to the end" in failed["why"], failed
+    rows = list(csv.DictReader((tmp_path / "lost" / "runs.csv").open()))
+    assert [r["control_lost_at_s"] for r in rows] == ["nan", "nan", "nan", "20.5", "nan", "nan"]
 
 
 def test_interrupted_campaign_resumes_to_the_same_results(tmp_path, monkeypatch) -> None:
