@@ -23,7 +23,8 @@ between two checkouts are the same numbers bit for bit.
 
 ``--baseline DIR``: also run each case in the checkout DIR (``git archive COMMIT | tar -x -C DIR``
 is enough: it runs with this checkout's ``.venv`` and ``PYTHONPATH=DIR/src``), alternately with
-this one (A B, B A, ...), and give the ratio of each pair.
+this one (A B, B A, ...), and give the ratio of each pair.  The script measures the checkout it is
+in: copied into another export, it measures that one (``--candidate-commit`` names it).
 
 ``--breakdown CASE``: where the memory goes, in one child process under ``tracemalloc`` (numpy's
 allocations are traced): each array of the loop's inputs and record larger than 1 MB, and the
@@ -254,6 +255,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="counted runs of each case and side (default 3)")
     parser.add_argument("--baseline", type=Path, help="a checkout to pair against (run with this checkout's .venv)")
     parser.add_argument("--baseline-commit", default="", help="the baseline's commit, when DIR is an export (no .git)")
+    parser.add_argument("--candidate-commit", default="", help="this checkout's commit, when it is an export (no .git)")
     parser.add_argument("--breakdown", metavar="CASE", choices=sorted(CASES), help="where the memory of CASE goes (tracemalloc)")
     args = parser.parse_args()
     roots = {"candidate": ROOT} if args.baseline is None else {"baseline": args.baseline.resolve(), "candidate": ROOT}
@@ -261,7 +263,8 @@ def main() -> None:
         "issue": 47, "date": time.strftime("%Y-%m-%d"), "machine": paired.machine(),
         "memory_total_gb": os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30,
         "load_average_1min_before": os.getloadavg()[0],
-        **{side: {"root": str(root), "commit": paired.commit(root) if (root / ".git").exists() else f"export of {args.baseline_commit or '?'}"}
+        **{side: {"root": str(root), "commit": paired.commit(root) if (root / ".git").exists()
+                  else f"export of {(args.baseline_commit if side == 'baseline' else args.candidate_commit) or '?'}"}
            for side, root in roots.items()},
     }
     if args.breakdown:
