@@ -266,10 +266,11 @@ class MekfOracle:
         P = Phi @ self.P @ Phi.T + process_noise(self.sv2_rad2_s, self.su2_rad2_s3, h)
         self.P = (P + P.T) / 2.0
 
-    def _inflate(self, age_s: float) -> None:
+    def _inflate(self, age_s: float, axes: np.ndarray | None = None) -> None:
         """The recovery: a bias step of covariance Q = diag(recovery) ``age_s`` ago, carried to now
-        through Phi12 = -I age: P += [[Q age², -Q age], [-Q age, Q]]."""
-        Q = np.diag(self.recovery_rad2_s2)
+        through Phi12 = -I age: P += [[Q age², -Q age], [-Q age, Q]]; about the ``axes`` (3 bools;
+        ``None``: every axis) only, Q's other entries 0."""
+        Q = np.diag(self.recovery_rad2_s2 * (1.0 if axes is None else axes))
         G = np.vstack((-age_s * np.eye(3), np.eye(3)))  # (6, 3): how a bias step then shows now
         self.P = self.P + G @ Q @ G.T
 
@@ -330,7 +331,9 @@ class MekfOracle:
             self._reinitialise_after_failure(q_meas)
             self.n_consecutive = 0
             return "reinitialised"
-        self._inflate(t_s - self.monitor[0][0])
+        # the window failed: a step about any axis; the drift test alone: about the axes whose CUSUM passed its threshold
+        axes = None if (too_large and failed) else np.maximum(self.cusum_up, self.cusum_down) > self.drift_threshold
+        self._inflate(t_s - self.monitor[0][0], axes)
         self._empty_monitor()
         self.n_recover += 1
         return status

@@ -600,6 +600,10 @@ def test_kernel_equals_oracle(name: str) -> None:
         else:
             first = np.flatnonzero(kr.counters[:, 4])[0]
             assert not np.isnan(kr.out[first - 1, mekf.EO_MON_NIS])  # the window had given verdicts: it was full
+            # the recovery about the drifting axis alone (z): its bias variance grows by Q_r, the others' do not grow
+            jump = np.diagonal(kr.P[first] - kr.P[first - 1])[3:]
+            q_r = prm[mekf.EP_RECOVERY_PBB:mekf.EP_RECOVERY_PBB + 3]
+            assert jump[2] > 0.5 * q_r[2] and np.all(jump[:2] < 0.0), jump
     # the drift test's statistic: each CUSUM step max(0, g + w - k) is 1-Lipschitz in g and w, and each whitened component
     # moves by at most 2 PARITY_ABS / min sigma_st (the mean statistic's bound below): after n accepted samples the
     # statistics differ by at most n times that

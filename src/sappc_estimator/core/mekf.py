@@ -87,7 +87,9 @@ One step (:func:`mekf_step`), at a sample of time ``t`` with measurement ``y = (
    small persistent mean (a bias step about the tracker's boresight) that a 20-sample window does
    not see adds up in it (Page, "Continuous inspection schemes", Biometrika 41, 1954; Basseville and
    Nikiforov, *Detection of Abrupt Changes*, 1993, 2.2).  A failed monitor above an error bound, or by
-   the drift test: the *recovery* adds a bias
+   the drift test (then about the axes whose CUSUM passed its threshold only: the whitened
+   components are the body axes' to the small off-diagonal of ``S``, and a bias step of one gyro
+   axis shows in its own): the *recovery* adds a bias
    step of covariance ``Q_r = diag(bias_recovery_sigma^2)`` dated at the window's first sample,
    ``age`` s ago, carried to now by the transition's bias columns: ``P_bb += Q_r``,
    ``P_ab += -Q_r age``, ``P_aa += Q_r age^2`` (the adjustable process noise of Bar-Shalom et
@@ -314,12 +316,14 @@ def _reinitialise_attitude(prm, st, P, q_meas):
 
 
 @jit
-def _inflate_bias(prm, P, age):
+def _inflate_bias(prm, P, age, axes=(True, True, True)):
     """The recovery (module docstring, "Health monitor"): a bias step of covariance
     ``Q = diag(recovery)`` that happened ``age`` [s] ago, carried to now by the transition's bias
     columns (``Phi12 = -I age`` to first order): ``P_bb += Q``, ``P_ab += -Q age``,
-    ``P_aa += Q age^2`` (``age = 0``: the bias alone)."""
+    ``P_aa += Q age^2`` (``age = 0``: the bias alone), about the ``axes`` (x, y, z) given."""
     for i in range(3):
+        if not axes[i]:
+            continue
         q = prm[EP_RECOVERY_PBB + i]
         P[3 + i, 3 + i] += q
         P[i, 3 + i] -= q * age
@@ -524,7 +528,8 @@ def _monitor(prm, st, P, q_meas, d2, white, t):
     whitened innovation ``white`` (3) into the window and into the drift test's CUSUMs; once the
     window holds ``EP_MON_WINDOW`` samples, a verdict on the window (the level); on a window too
     large for its band (for ``EP_MON_PERSIST`` verdicts in a row) or a CUSUM above its threshold, the
-    recovery, or, when the monitor fails again before a verdict has cleared it, the
+    recovery (about every axis for the window, about the axes whose CUSUM passed its threshold for
+    the drift test alone), or, when the monitor fails again before a verdict has cleared it, the
     re-initialisation.  Returns the step's status (updated, or re-initialised)."""
     n_window = int(prm[EP_MON_WINDOW])
     head = int(st[ES_MON_HEAD])
@@ -598,7 +603,13 @@ def _monitor(prm, st, P, q_meas, d2, white, t):
         _reinitialise_after_failure(prm, st, P, q_meas)
         st[ES_N_CONSEC] = 0.0
         return STATUS_REINITIALISED
-    _inflate_bias(prm, P, t - t_first)  # the recovery: a step at the window's start
+    if too_large and persistent:  # the window failed: a step about any axis
+        _inflate_bias(prm, P, t - t_first)
+    else:  # the drift test alone: about the axes whose CUSUMs are above the threshold
+        h = prm[EP_MON_DRIFT + 1]
+        axes = (not (st[ES_MON_DRIFT] <= h and st[ES_MON_DRIFT + 3] <= h), not (st[ES_MON_DRIFT + 1] <= h and st[ES_MON_DRIFT + 4] <= h),
+                not (st[ES_MON_DRIFT + 2] <= h and st[ES_MON_DRIFT + 5] <= h))
+        _inflate_bias(prm, P, t - t_first, axes)
     _clear_monitor(st)
     st[ES_N_RECOVER] += 1.0
     return STATUS_UPDATED
