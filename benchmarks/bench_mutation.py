@@ -217,7 +217,10 @@ TARGETS: dict[str, Target] = {
          f"{_MEKF}test_oracle_rotations_agree_with_scipy_and_the_kernels_helpers",
          f"{_MEKF}test_the_plausibility_bounds_accept_a_sample_at_the_bound_and_refuse_the_next_float",
          f"{_MEKF}test_a_state_reset_in_place_over_used_arrays_steps_as_fresh_ones_and_keeps_p_exactly_symmetric",
-         f"{_MEKF}test_the_estimators_arrays_slice_along_their_run_axis"),
+         f"{_MEKF}test_the_estimators_arrays_slice_along_their_run_axis",
+         # the drift test (issue 46): alarms with a full window and twice before one fills, the threshold's edge
+         f"{_MEKF}test_kernel_equals_oracle[drift_alarm_z_12s]", f"{_MEKF}test_kernel_equals_oracle[drift_fails_twice_8s]",
+         f"{_MEKF}test_the_drift_test_fails_the_monitor_above_its_threshold_not_at_it"),
         # then the paths the short sequences do not take: a prior's start, a burst that re-initialises, the reset, a 20 s
         # outage (in a first full run this stage killed 2 of 105 mutants and cost every survivor ~17 s more: the sequences
         # that repeat the quick stage's branches, the recovery's and the outliers', are left to the suite, with the 17-s
@@ -230,7 +233,7 @@ TARGETS: dict[str, Target] = {
         "src/sappc_estimator/core/config.py",
         ("tests/estimator/test_config.py", f"{_MEKF}test_the_gate_threshold_is_the_chi_square_quantile",
          f"{_MEKF}test_the_monitor_bands_are_the_chi_square_quantiles_at_their_stated_probabilities"),
-        (f"{_MEKF}test_kernel_equals_oracle[every_branch_8s]", f"{_EST_NODE}test_parameters_round_trip_through_the_config_and_accept_one_number_for_three_axes",
+        (f"{_MEKF}test_the_drift_tests_false_alarms_come_at_its_stated_probability", f"{_MEKF}test_kernel_equals_oracle[every_branch_8s]", f"{_EST_NODE}test_parameters_round_trip_through_the_config_and_accept_one_number_for_three_axes",
          f"{_EST_NODE}test_a_bad_parameter_stops_the_node_naming_itself_and_its_value",
          f"{_EST_NODE}test_a_missing_tracker_noise_or_a_prior_without_its_sigma_is_named",
          f"{_MEKF}test_kernel_equals_oracle[from_prior_10deg]", f"{_MEKF}test_initialises_at_the_first_tracker_sample"),
