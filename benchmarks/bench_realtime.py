@@ -60,6 +60,19 @@ def one_run(scenario: str, layout: str, scratch: Path, rt_priority: int | None) 
                controller_latency=rt.get("controller_latency"),
                plant_timer={k: rt.get(k) for k in ("ticks", "period_error_p50_ms", "period_error_p99_ms", "period_error_max_ms", "missed_ticks")},
                state_delay=rt.get("state_delay"))
+    # issue 46's checks: the verdict line's reasons, the estimator's health on the wall clock (no NaN "no data" estimate
+    # sent, gate rejections, tracker epochs dated in the future or late), and the summary's counts against the nodes' own
+    logs = out / "logs"
+    est = json.loads((logs / "estimator_timing.json").read_text()) if (logs / "estimator_timing.json").exists() else None
+    ctrl = json.loads((logs / "controller_timing.json").read_text()) if (logs / "controller_timing.json").exists() else {}
+    summary = r.get("controller_summary", {})
+    row.update(failed_requirements=r.get("failed_requirements"), degraded=r.get("degraded"),
+               rejected_inputs=summary.get("rejected_inputs"), rejected_inputs_node=ctrl.get("rejected_inputs"),
+               no_data_inputs_controller=ctrl.get("no_data_inputs"))
+    if est is not None:
+        row.update(estimator_gate_rejections=est.get("gate_rejections"), estimator_no_data_samples=est.get("no_data_samples"),
+                   future_tracker_epochs=est.get("future_tracker_epochs"), late_tracker_samples=est.get("late_tracker_samples"),
+                   estimator_updates=est.get("updates"))
     return row
 
 
@@ -100,7 +113,13 @@ def main() -> int:
                                                                                       "max": max(steady)} if steady else None,
                            "runs_without_deviation": sum(r.get("first_deviating_sample") is None for r in mine),
                            "missed_frames_max": max((int(r.get("missed_frames") or 0) for r in mine), default=0),  # type: ignore[call-overload]
-                           "stale_torque_frames_max": max((int(r.get("stale_torque_frames") or 0) for r in mine), default=0)}  # type: ignore[call-overload]
+                           "stale_torque_frames_max": max((int(r.get("stale_torque_frames") or 0) for r in mine), default=0),  # type: ignore[call-overload]
+                           # issue 46: "no data" estimates, gate rejections, bad tracker epochs; the summary's counts the nodes' own
+                           "estimator_no_data_samples_max": max((int(r.get("estimator_no_data_samples") or 0) for r in mine), default=0),  # type: ignore[call-overload]
+                           "estimator_gate_rejections_max": max((int(r.get("estimator_gate_rejections") or 0) for r in mine), default=0),  # type: ignore[call-overload]
+                           "future_or_late_tracker_samples_max": max((int(r.get("future_tracker_epochs") or 0) + int(r.get("late_tracker_samples") or 0)  # type: ignore[call-overload]
+                                                                       for r in mine), default=0),
+                           "runs_whose_counts_differ_from_the_nodes": sum(r.get("rejected_inputs") != r.get("rejected_inputs_node") for r in mine)}
     result = {"scenario": args.scenario, "commit": commit(ROOT), "machine": machine(), "busy_processes": args.busy, "rt_priority": args.rt_priority, "bound": args.bound,
               "summary": summary, "rows": rows}
     text = json.dumps(result, indent=1)
