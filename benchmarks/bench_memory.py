@@ -45,7 +45,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -92,21 +91,7 @@ def run_case(root: Path, case: str, tmp: Path, timeout_s: float = CASE_TIMEOUT_S
     JSON's hash and its ``steady_max_abs_qev``."""
     out = tmp / f"{case}.json"
     argv = [sys.executable, "-m", "sappc", "simulate", str(scenario_file(root, case, tmp)), "--json", str(out)]
-    env = {**os.environ, "PYTHONPATH": str(root / "src")}
-    with tempfile.TemporaryFile() as log:
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(argv, cwd=tmp, env=env, stdout=log, stderr=subprocess.STDOUT)
-        killer = threading.Timer(timeout_s, proc.kill)
-        killer.start()
-        try:
-            _, status, usage = os.wait4(proc.pid, 0)
-        finally:
-            killer.cancel()
-        wall = time.perf_counter() - t0
-        proc.returncode = code = os.waitstatus_to_exitcode(status)
-        if code != 0:
-            log.seek(0)
-            raise SystemExit(f"{' '.join(argv)} exited {code}:\n{log.read().decode(errors='replace')[-3000:]}")
+    wall, usage = paired.run_with_usage(argv, {"PYTHONPATH": str(root / "src")}, tmp, timeout_s)
     report = json.loads(out.read_text())
     out.unlink()
     return {"peak_rss_mb": usage.ru_maxrss / 1024.0, "user_s": usage.ru_utime, "sys_s": usage.ru_stime,

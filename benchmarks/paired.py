@@ -28,6 +28,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -71,6 +72,14 @@ def python_of(root: Path) -> str:
 def _timed(argv: list[str], env: dict[str, str], cwd: Path, timeout_s: float) -> tuple[float, float]:
     """(wall seconds, peak resident MB of the command and the processes it waited for) of one
     run; a failing command stops the benchmark with its output."""
+    wall, usage = run_with_usage(argv, env, cwd, timeout_s)
+    return wall, usage.ru_maxrss / 1024.0
+
+
+def run_with_usage(argv: list[str], env: dict[str, str], cwd: Path, timeout_s: float) -> tuple[float, Any]:
+    """(wall seconds, the OS's resource usage of this run alone: ``os.wait4``'s, its peak resident
+    set ``ru_maxrss`` in KiB) of ``argv`` with ``env`` over this process's environment; a failing
+    command stops the benchmark with its output."""
     with tempfile.TemporaryFile() as log:
         t0 = time.perf_counter()
         proc = subprocess.Popen(argv, cwd=cwd, env={**os.environ, **env}, stdout=log, stderr=subprocess.STDOUT)
@@ -86,7 +95,7 @@ def _timed(argv: list[str], env: dict[str, str], cwd: Path, timeout_s: float) ->
             log.seek(0)
             why = f"was killed after {timeout_s} s" if wall >= timeout_s else f"exited {code}"
             raise SystemExit(f"{' '.join(argv)} {why}:\n{log.read().decode(errors='replace')[-3000:]}")
-    return wall, usage.ru_maxrss / 1024.0
+    return wall, usage
 
 
 def _stats(xs: Sequence[float]) -> dict[str, float]:
