@@ -168,7 +168,7 @@ HEALTH_PERIOD_S = 1.0
 #: The health's message for each monitor level (``mekf.MON_*``).
 _HEALTH_MESSAGES = ("consistent: the innovations' window inside its band",
                     "warning: the innovations' window outside its warning band, or recovering",
-                    "inconsistent: the innovations' window outside its error band")
+                    "inconsistent: the innovations' window outside its error band, or their drift test past its threshold")
 
 
 def _seconds(ns: int) -> str:
@@ -476,7 +476,9 @@ class EstimatorNode(ProjectNode):
                   "band_probability": f"{c.monitor_error_probability:.6g}", "mean_statistic": f"{f.monitor_mean_statistic:.6g}",
                   "outside_in_a_row": str(f.monitor_outside), "persistence": str(c.monitor_persistence),
                   "estimate": "used" if estimate else "withheld", "recoveries": str(f.recoveries),
-                  "reinitialisations": str(f.reinitialisations), "withheld_samples": str(self.withheld)}
+                  "reinitialisations": str(f.reinitialisations), "withheld_samples": str(self.withheld),
+                  "drift_statistic": f"{f.monitor_drift_statistic:.6g}", "drift_threshold": f"{f.monitor_drift_threshold:.6g}",
+                  "drift_alarms": str(f.drift_alarms)}
         p = self.pub[ESTIMATOR_HEALTH.name]
         p.publish(health_msg(stamp, level, message, values, out=p.msg))
 

@@ -501,10 +501,13 @@ ESTIMATOR_DIAGNOSTICS_LAYOUT = (
 ESTIMATOR_HEALTH_NAME = "sappc_estimator: MEKF health"
 #: The key/values of that status, in order: the sample's time [s], the monitor's window (compared
 #: tracker samples) and its NIS sum's degrees of freedom, the window's NIS sum and its band at the
-#: stated probability, the mean statistic, the estimate's use (``used`` or ``withheld``), and the
-#: totals of recoveries, re-initialisations and withheld samples.
+#: stated probability, the mean statistic, the estimate's use (``used`` or ``withheld``), the
+#: totals of recoveries, re-initialisations and withheld samples, then the drift test's statistic
+#: (the largest of its CUSUMs of the whitened innovations), its threshold and the failed monitors it
+#: started (issue 46).
 ESTIMATOR_HEALTH_KEYS = ("time_s", "window_samples", "nis_sum_dof", "nis_sum", "nis_sum_band", "band_probability", "mean_statistic",
-                         "outside_in_a_row", "persistence", "estimate", "recoveries", "reinitialisations", "withheld_samples")
+                         "outside_in_a_row", "persistence", "estimate", "recoveries", "reinitialisations", "withheld_samples",
+                         "drift_statistic", "drift_threshold", "drift_alarms")
 #: What a sample did (``estimator/diagnostics`` ``status``), by code: the filter's step statuses
 #: (``sappc_estimator.core.mekf.STATUS_NAMES``, codes 0 to 5: not initialised yet, initialised,
 #: propagated only, updated, tracker sample rejected by the gate, attitude re-initialised), then

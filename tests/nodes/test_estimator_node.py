@@ -277,6 +277,10 @@ def test_the_health_goes_out_on_diagnostics_as_ros_reports_health(estimator) -> 
     assert values["outside_in_a_row"] == "0" and values["persistence"] == "2"  # in the band: none outside; the default persistence
     assert values["nis_sum_band"] == f"[{lo:.6g}, {hi:.6g}]" and values["band_probability"] == f"{P_ERROR:.6g}"
     assert lo < float(values["nis_sum"]) < hi  # the window of 20 tracker samples at 2 s: a verdict
+    # the drift test (issue 46): its CUSUM below its threshold (h_d = 25.9 sigmas at the default 1e-6 false alarms a sample,
+    # docs/estimator.md), no alarm
+    assert float(values["drift_threshold"]) == pytest.approx(25.9, abs=0.05) and values["drift_alarms"] == "0"
+    assert 0.0 <= float(values["drift_statistic"]) < float(values["drift_threshold"])
     # the words: no verdict while the window of 20 tracker samples (2 s at 10 Hz) fills, then the monitor's level
     assert [m.status[0].message for m in drv.health] == ["no verdict yet: the innovations' window is filling"] * 2 + [
         "consistent: the innovations' window inside its band"]

@@ -105,6 +105,11 @@ class Mekf:
         return float(np.max(self.st[mekf.ES_MON_DRIFT : mekf.ES_MON_DRIFT + 6]))
 
     @property
+    def monitor_drift_threshold(self) -> float:
+        """The drift test's threshold [innovation sigmas]: the monitor fails when the statistic passes it."""
+        return float(self.prm[mekf.EP_MON_DRIFT + 1])
+
+    @property
     def drift_alarms(self) -> int:
         """Failed monitors the drift test started (each a recovery or a re-initialisation)."""
         return int(self.st[mekf.ES_N_DRIFT])
