@@ -65,8 +65,8 @@ Definitions, per run:
     ``max_i |q_ev,i|`` stayed above :data:`LOSS_OF_CONTROL_FACTOR` times ``settle_threshold`` (ten
     times the scenario's settling band: 1e-2, about 1.1 deg about an axis, for the bundled
     scenarios) to the last sample, counting only samples at ``t >= steady_from_s`` (the transient
-    is not judged); ``None`` when the last sample is within that bound, or the run ends before the
-    steady window.  A run that ends with its error that far out has lost its attitude, whatever its
+    is not judged); ``None`` when the last sample is within that bound, the run ends before the
+    steady window, or the run is not finite (its failure is ``finite``).  A run that ends with its error that far out has lost its attitude, whatever its
     requirements; one that leaves the bound and comes back (a fault's transient) has not.
 ``steady_max_abs_attitude_estimation_error_rad``, ``steady_rms_attitude_estimation_error_rad``
     Only with an estimator (a history with its record): over ``t >= steady_from_s``, the largest
@@ -454,7 +454,8 @@ class MetricsAccumulator:
         self.steady_count += _update_function(t.size * self.finite.shape[0])(
             int(k0), t, f64(q_BN), f64(omega), f64(torque_B), f64(q_BR), f64(rho), np.asarray(saturated, dtype=np.bool_), f64(band_lower),
             f64(band_upper), first, float(self.settle_threshold), float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
-            float(self.steady_from_s), int(self.k_t2), hold, fault, self.finite, self.last_unsettled, self.last_controlled, self.steady_sum, self.steady_max, self.rpf_error_t2_axis, self.sign0, self.overshoot, self.max_torque,
+            float(self.steady_from_s), int(self.k_t2), hold, fault, self.finite, self.last_unsettled, self.last_controlled, self.steady_sum,
+            self.steady_max, self.rpf_error_t2_axis, self.sign0, self.overshoot, self.max_torque,
             self.saturated_count, self.outside_count, self.outside_s, self.last_outside, self.left_after_fault,
             self.torque_sign, self.torque_sign_nonzero, self.torque_sign_changes, self.torque_reversals,
         )
