@@ -68,7 +68,8 @@ _PRECEDENCE = (EXIT_CONTROLLER_NEVER_COMMANDED, EXIT_REQUIREMENT_FAILED, 1)
 #: reference page all of them).
 EXIT_STATUSES: dict[str, tuple[tuple[int, str], ...]] = {
     "simulate": ((0, "the run met the scenario's requirements (--from-campaign: the run was re-run)"), *_RUN_EXITS, *_SHARED_EXITS),
-    "montecarlo": ((0, "every run passed the campaign's criteria"), (1, "a run failed the campaign's criteria or lost control"), *_SHARED_EXITS),
+    "montecarlo": ((0, "every run passed the campaign's criteria"), (1, "a run failed the campaign's criteria or lost control"),
+                   *_SHARED_EXITS),
     "tune": ((0, "a best trial was found and its confirmation campaign passed"),
              (1, "no trial met every requirement, or the best gains failed their confirmation campaign"), *_SHARED_EXITS),
     "run": ((0, "the run met the scenario's requirements and every topic's recorded count matches what was published"),
@@ -300,7 +301,8 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
     switching = summary["torque_sign_changes_per_s"]
     if switching["max"] is not None:  # None: no steady window with two samples
         print(f"  torque_sign_changes_per_s  p50 {switching['p50']:.3g}  p99 {switching['p99']:.3g}  max {switching['max']:.3g}")
-    print(f"  non-finite runs {summary['non_finite_runs']}, runs that lost control {summary['runs_lost_control']}, RPF components clamped {summary['rpf_clamped_components']}, "
+    print(f"  non-finite runs {summary['non_finite_runs']}, runs that lost control {summary['runs_lost_control']}, "
+          f"RPF components clamped {summary['rpf_clamped_components']}, "
           f"flat {summary['rpf_flat_components']}; wall {summary['wall_time_s']:.1f} s")
     answers = summary["controller_answers"]
     not_commanded = {k: v for k, v in answers.items() if k != "commanded" and v["samples"]}
