@@ -36,6 +36,19 @@ def run_watched(cmd: list[str], *, timeout_s: float = 600, **kwargs: Any) -> tup
     return subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr), watch
 
 
+def cli_commands(parser: Any, prefix: str = "") -> dict[str, Any]:
+    """Every (sub)command of an ``argparse`` parser by its name (``scenarios copy`` for a nested one)."""
+    import argparse
+
+    out: dict[str, Any] = {}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                out[f"{prefix}{name}"] = sub
+                out.update(cli_commands(sub, f"{prefix}{name} "))
+    return out
+
+
 def cut_short(raw: dict[str, Any], duration_s: float) -> dict[str, Any]:
     """The scenario mapping ``raw``, changed in place to last ``duration_s``, without its
     ``metrics.requirements``: a run cut short cannot show what the whole run promises (it ends before

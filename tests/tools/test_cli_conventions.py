@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from conftest import ROOT, SAPPC, SCENARIOS, cut_short
+from conftest import ROOT, SAPPC, SCENARIOS, cli_commands, cut_short
 from gnc_common.validation import ConfigError
 from sappc import cli
 from sappc.files import OUTPUT_ROOT, SCENARIOS_DIR, bag_run_name, bundled_scenarios, copy_scenario, default_output_dir, scenario_path
@@ -31,17 +31,6 @@ def _short_scenario(tmp_path: Path, name: str = "paper_tracking", duration_s: fl
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(cut_short(read_scenario_mapping(SCENARIOS / f"{name}.yaml"), duration_s)))
     return path
-
-
-def _commands(parser: argparse.ArgumentParser, prefix: str = "") -> dict[str, argparse.ArgumentParser]:
-    """Every (sub)command of the parser by its name (``scenarios copy`` for a nested one)."""
-    out: dict[str, argparse.ArgumentParser] = {}
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for name, sub in action.choices.items():
-                out[f"{prefix}{name}"] = sub
-                out.update(_commands(sub, f"{prefix}{name} "))
-    return out
 
 
 # ---- --version, sappc alone, --help ------------------------------------------------------
@@ -60,7 +49,7 @@ def test_sappc_alone_prints_the_usage_and_a_hint_without_a_traceback() -> None:
 
 
 def test_every_command_has_exit_statuses_and_its_help_lists_them() -> None:
-    commands = _commands(cli._parser())
+    commands = cli_commands(cli._parser())
     top = {name.split(" ")[0] for name in commands}
     assert top == set(cli.EXIT_STATUSES), "a command without its exit statuses, or statuses of no command"
     for name, sub in commands.items():
@@ -83,7 +72,7 @@ def test_the_help_as_printed_keeps_one_status_per_line() -> None:
 def test_every_argument_says_what_it_is_and_states_its_default() -> None:
     """What ``--help`` and the reference page show of each argument: a help text, which names
     the default when the argument has one (argparse prints none of its own)."""
-    for name, sub in _commands(cli._parser()).items():
+    for name, sub in cli_commands(cli._parser()).items():
         for a in sub._actions:
             if isinstance(a, (argparse._HelpAction, argparse._SubParsersAction)) or a.help == argparse.SUPPRESS:
                 continue

@@ -22,7 +22,6 @@ What is asserted of each process, and why it cannot be flaky:
 
 from __future__ import annotations
 
-import argparse
 import os
 import re
 import resource
@@ -36,7 +35,7 @@ import pytest
 
 from bad_yaml import COMMANDS, LIMIT, MEASURE, command_args, write_bad_yaml
 import gnc_common.validation as v
-from conftest import SAPPC
+from conftest import SAPPC, cli_commands
 from gnc_common.validation import ConfigError
 from sappc import cli
 from sappc.files import SCENARIOS_DIR, scenario_path
@@ -134,17 +133,8 @@ def test_a_report_notes_a_recorded_scenario_past_a_limit_on_one_line_and_goes_on
 def test_every_command_that_takes_a_scenario_or_a_yaml_file_is_tested() -> None:
     """A command added later with a scenario argument, or a ``--params``/``--scenario`` file, must
     join :data:`COMMANDS`."""
-    def commands(parser: argparse.ArgumentParser, prefix: str = "") -> dict[str, argparse.ArgumentParser]:
-        out: dict[str, argparse.ArgumentParser] = {}
-        for action in parser._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                for name, sub in action.choices.items():
-                    out[f"{prefix}{name}"] = sub
-                    out.update(commands(sub, f"{prefix}{name} "))
-        return out
-
     reading = set()
-    for name, sub in commands(cli._parser()).items():
+    for name, sub in cli_commands(cli._parser()).items():
         for action in sub._actions:
             if action.dest == "scenario" and not action.option_strings:
                 reading.add(name)
