@@ -49,6 +49,7 @@ import dataclasses
 import os
 import sys
 from dataclasses import dataclass
+from collections.abc import Callable, Iterator
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -66,10 +67,10 @@ from sappc_estimator.core.mekf import N_EST_OUT, N_EST_STATE, N_EST_WORK, N_MEAS
 from sappc_estimator.core.mekf import EstimatorArrays, mekf_step, reset_state
 from spacecraft_sim.core.disturbance import pack_disturbance
 from spacecraft_sim.core.dynamics import pack_plant
-from spacecraft_sim.core.faults import pack_faults
+from spacecraft_sim.core.faults import SensorNoise, noise_draws, pack_faults
 from spacecraft_sim.core.kernels import DisturbanceArrays, FaultArrays, PlantArrays, disturbance_at, propagate
 from spacecraft_sim.core.kernels import N_FVALUE, fault_actuator, fault_rate_bias, fault_reference, fault_sensor
-from spacecraft_sim.core.sensors import S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
+from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
 from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, allocation_matrix, pack_actuator, propagate_wheels_into, wheel_speeds_into
 from spacecraft_sim.core.wheels import wheel_torques
 from spacecraft_sim.core.environment import EnvironmentArrays, field_of, locked_inertia, measured_field_of, pack_environment, torque_of
@@ -83,8 +84,8 @@ from sappc.evaluation.estimation import EstimateHistory
 from sappc.evaluation.history import History
 from sappc.scenario import Scenario
 
-__all__ = ["CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "cache_is_warm", "ensure_compiled", "prepare", "run_batch",
-           "run_single", "simulate_compiled", "warm_up"]
+__all__ = ["BLOCK_RUN_SAMPLES", "CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "LoopState", "NoiseStreams", "SampleMaker",
+           "cache_is_warm", "ensure_compiled", "prepare", "run_batch", "run_blocks", "run_single", "simulate_compiled", "warm_up"]
 
 #: Nanoseconds per second: the controller's and the estimator's time is each sample's stamp in
 #: seconds, as their nodes compute it from the same integer stamps (``k dt`` and
@@ -104,8 +105,10 @@ N_EST_RECORD = 56
 
 
 class LoopGrid(NamedTuple):
-    """The samples and the reference every run of a batch shares: ``t`` (T,) [s], ``t_ns`` (T,) the
-    plant's stamps [ns], ``dt`` [s], ``ref_q`` (T, 4), ``ref_w`` and ``ref_wd`` (T, 3)."""
+    """The samples and the reference every run of a batch shares, over a block of samples (B of
+    them, the whole run or a part): ``t`` (B,) [s], ``t_ns`` (B,) the plant's stamps [ns], ``dt``
+    [s], ``ref_q`` (B, 4), ``ref_w`` and ``ref_wd`` (B, 3); ``n_samples`` the run's samples T (the
+    last one's torque is not applied)."""
 
     t: np.ndarray
     t_ns: np.ndarray
@@ -113,6 +116,7 @@ class LoopGrid(NamedTuple):
     ref_q: np.ndarray
     ref_w: np.ndarray
     ref_wd: np.ndarray
+    n_samples: int
 
     @staticmethod
     def run_axes() -> dict[str, int]:
@@ -143,10 +147,67 @@ class LoopRecord(NamedTuple):
     env: np.ndarray
 
 
+#: Columns of :attr:`LoopState.flags` (int64): whether the controller has started (its first valid
+#: sample), whether it has a last valid answer, that answer's stamp [ns], whether the filter gave
+#: the last sample its figures.
+L_STARTED, L_HAS_LAST, L_LAST_STATE_NS, L_HAS_ESTIMATE = 0, 1, 2, 3
+N_LOOP_FLAGS = 4
+#: Rows of :attr:`LoopState.vec3` (3-vectors): the controller's last answer, the torque through the
+#: actuator link and the delivered one [N m], the plant's held input and the disturbance [N m],
+#: the gyro's bias and its true bias in the sample's rate [rad/s], the orbit's position [m], the
+#: field in the inertial and body frames and as measured [T], the environment's torque and the
+#: total disturbance [N m], the torque functions' scratch, the wheels' body torque [N m] and the
+#: feed-forward's rate [rad/s].
+(V_CMD, V_U_CMD, V_U_LAST, V_U, V_D, V_BIAS, V_BIAS_K, V_R_N, V_B_N, V_B_B, V_B_MEAS, V_L_ENV, V_D_TOT, V_R_B_TMP, V_L_MTB_TMP, V_TAU_W,
+ V_OMEGA_FF) = range(17)
+N_LOOP_VEC3 = 17
+
+
+class LoopState(NamedTuple):
+    """Everything :func:`_run_one` carries from one sample to the next, one row per run (axis 0):
+    every array the loop keeps across samples (its scratch too, so that no analysis of what is
+    read before it is written can be wrong) and its scalars (``flags``, ``epoch``: the latest
+    tracker epoch delivered to the filter [s]).  A few hundred float64 a run: made zero by
+    :func:`_state`, initialised by the run's first block (:func:`_initial_state`)."""
+
+    flags: np.ndarray
+    epoch: np.ndarray
+    vec3: np.ndarray
+    ctrl: np.ndarray
+    work: np.ndarray
+    out: np.ndarray
+    pub: np.ndarray
+    x: np.ndarray
+    uw: np.ndarray
+    wspeed: np.ndarray
+    wwork: np.ndarray
+    wtmp: np.ndarray
+    y: np.ndarray
+    held_q: np.ndarray
+    ye: np.ndarray
+    yc: np.ndarray
+    est: np.ndarray
+    P: np.ndarray
+    ework: np.ndarray
+    eout: np.ndarray
+    fcount: np.ndarray
+    fbuf: np.ndarray
+    m_cmd: np.ndarray
+    mtmp: np.ndarray
+    mst: np.ndarray
+    q_ff: np.ndarray
+
+
 @jit
-def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec):
-    """The whole time loop of run ``n`` of the models' arrays (module docstring), written at index
-    ``r`` of ``rec`` (:class:`LoopRecord`), every ``stride`` samples (``stride = 0``: no histories).
+def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec, st):
+    """The time loop of run ``n`` of the models' arrays (module docstring) over one block of samples,
+    ``k = k_lo .. k_lo + B - 1`` (``B`` the block's samples, ``grid.t``'s length: the per-sample
+    arrays of ``grid`` and of the models hold the block's rows), written at index ``r`` of ``rec``
+    (:class:`LoopRecord`: the block's record), every ``stride`` samples (``stride = 0``: no
+    histories; ``k_lo`` a multiple of ``stride``).  Everything the loop carries from one sample to
+    the next is in row ``r`` of ``st`` (:class:`LoopState`): the block starting at ``k_lo = 0``
+    initialises it, each later block continues it, so a run in blocks is the run in one block, bit
+    for bit.
 
     Sensors (:func:`~spacecraft_sim.core.sensors.measure_run`): with draws, the controller's input
     is the star tracker's and the gyro's measurement of the true state, else the true state.
@@ -202,107 +263,88 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
     :func:`~spacecraft_sim.core.environment.environment_torque_B`) is held beside the disturbance."""
     # the controller
     kind, prm, coef = ctrl.kind, ctrl.prm[n], ctrl.coef[n]
-    state = np.zeros(N_STATE)
-    started = False  # the first valid sample fixes the time origin (S_T0)
-    work = np.zeros((N_WORK, 4))
-    out = np.zeros((N_OUT, 4))
-    pub = np.full((N_OUT, 4), np.nan)  # the rows last published: no performance function yet
-    for row in (O_TORQUE, O_CMD, O_SAT):
-        for c in range(4):
-            pub[row, c] = 0.0  # nothing commanded
     start = rec.start[r]
-    start[0] = -1.0  # no valid sample (yet)
     rejected = rec.rejected[r]
-    has_last = False
-    last_state_ns = 0
-    cmd = np.zeros(3)  # the controller's last answer (what a held sample repeats)
-    u_cmd = np.zeros(3)
-    u_last = np.zeros(3)  # the last delivered torque (what the plant holds)
+    if k_lo == 0:
+        _initial_state(n, r, plant, sens, est, st, rec)
+    elif probe and start[0] >= 0.0:  # its start found in an earlier block
+        return
+    # what the loop carries from one sample to the next: this run's rows of st (LoopState)
+    flags, vec3 = st.flags[r], st.vec3[r]
+    started = flags[L_STARTED] != 0  # the first valid sample fixes the time origin (S_T0)
+    has_last = flags[L_HAS_LAST] != 0
+    last_state_ns = flags[L_LAST_STATE_NS]
+    has_estimate = flags[L_HAS_ESTIMATE] != 0  # whether the filter gave this sample its figures
+    delivered_epoch = st.epoch[r, 0]
+    state, work, out, pub = st.ctrl[r], st.work[r], st.out[r], st.pub[r]
+    cmd, u_cmd, u_last = vec3[V_CMD], vec3[V_U_CMD], vec3[V_U_LAST]  # the answer (what a held sample repeats), the delivered torque
     # the plant and its actuator
-    x = plant.x0[n].copy()  # (7,) or, with wheels, (7 + W,)
+    x = st.x[r]  # (7,) or, with wheels, (7 + W,)
     J, J_inv = plant.J[n], plant.J_inv[n]
     G, G_pinv, wprm = act.G[n], act.G_pinv[n], act.params[n]
     nw = wprm.shape[0]
-    uw = np.zeros(nw)  # the wheels' motor torques
-    wspeed = np.zeros(nw)
-    wwork = np.zeros((5, 7 + nw))
-    wtmp = np.zeros((3, 3))
-    u = np.zeros(3)
-    d = np.zeros(3)
+    uw, wspeed, wwork, wtmp = st.uw[r], st.wspeed[r], st.wwork[r], st.wtmp[r]  # the wheels' motor torques, speeds, scratch
+    u, d = vec3[V_U], vec3[V_D]
     # the sensors
-    y = np.zeros(N_MEAS)  # the measured state and the tracker sample's epoch
-    held_q = np.zeros(5)  # the star tracker's last quaternion and its epoch
-    bias = sens.params[n, S_BIAS0:S_BIAS0 + 3].copy()  # the gyro's bias
+    y, held_q, bias = st.y[r], st.held_q[r], vec3[V_BIAS]  # the measured state and its epoch, the tracker's last quaternion and epoch, the gyro's bias
     # the estimator
     estimating = est.prm.shape[1] > 0
     eprm = est.prm[n]
-    est_st = np.zeros(N_EST_STATE)
-    reset_state(est_st)
-    P = np.zeros((6, 6))
-    ework = np.zeros((N_EST_WORK, 6))
-    eout = np.zeros(N_EST_OUT)
+    est_st, P, ework, eout = st.est[r], st.P[r], st.ework[r], st.eout[r]
     # what the filter is given: the gyro and the epoch of the sample, the quaternion of the tracker
     # sample of the latest new epoch delivered (the graph's sensors/star_tracker: a sample is
     # published once, when its epoch is new; sappc_estimator.node.TrackerSamples)
-    ye = np.zeros(N_MEAS)
-    delivered_epoch = -np.inf
-    yc = np.zeros(7)  # the controller's input: the measurement, or the estimate
-    has_estimate = False  # whether the filter gave this sample its figures
-    bias_k = np.zeros(3)  # the gyro's true bias in sample k's rate, faults included (measure walks its own on to k + 1)
+    ye = st.ye[r]
+    yc = st.yc[r]  # the controller's input: the measurement, or the estimate
+    bias_k = vec3[V_BIAS_K]  # the gyro's true bias in sample k's rate, faults included (measure walks its own on to k + 1)
     # the faults
     fkind, fwin, fprm, fint = faults.kind[n], faults.window[n], faults.params[n], faults.samples[n]
     nf = fkind.shape[0]
-    fcount = np.zeros(nf, dtype=np.int64)
-    fbuf = np.zeros((nf, faults.depth, N_FVALUE))  # a held sample: the measurement and its epoch (8), or a torque
+    fcount, fbuf = st.fcount[r], st.fbuf[r]  # a held sample: the measurement and its epoch (8), or a torque
     # the orbit's environment and momentum management (issue 36)
     orbiting = env.orbit.shape[1] > 0
     managing = mm.prm.shape[1] > 0
     nm = env.m_max.shape[1]
-    r_N = np.zeros(3)
-    B_N = np.zeros(3)
-    B_B = np.zeros(3)
-    B_meas = np.zeros(3)  # the flight software's field: the magnetometer's, or B_B
-    L_env = np.zeros(3)
-    d_tot = np.zeros(3)
-    etmp = np.zeros((2, 3))
-    r_B_tmp, L_mtb_tmp = etmp[0], etmp[1]
-    m_cmd = np.zeros(nm)  # the rods' dipole commands
+    r_N, B_N, B_B, L_env, d_tot = vec3[V_R_N], vec3[V_B_N], vec3[V_B_B], vec3[V_L_ENV], vec3[V_D_TOT]
+    B_meas = vec3[V_B_MEAS]  # the flight software's field: the magnetometer's, or B_B
+    r_B_tmp, L_mtb_tmp = vec3[V_R_B_TMP], vec3[V_L_MTB_TMP]
+    m_cmd = st.m_cmd[r]  # the rods' dipole commands
     # the run's rows of the environment's and the law's arrays, taken once (not per sample)
     e_orbit, e_field, e_gravity, e_Gt, e_mmax, e_mag, e_draws = env.orbit[n], env.field[n], env.gravity[n], env.Gt[n], env.m_max[n], env.mag[n], env.mag_draws[n]
     x_q = x[:4]  # the attitude: x is integrated in place, so the view stays its first four rows
     mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max = (mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n],
                                                                                   mm.steering[n], mm.m_max[n])
     mm_orbit, mm_field = mm.orbit[n], mm.field[n]
-    tau_w = np.zeros(3)  # the wheels' body torque: the controller's minus the rods'
-    mtmp = np.zeros((N_MM_WORK, 3))
-    mst = np.zeros(N_MM_STATE)  # the predictive law's state (sappc_momentum.core.predictive.new_state)
-    mst[MS_TNEXT] = -np.inf
-    mst[MS_TLAST] = np.nan
-    q_ff = np.full(4, np.nan)  # the predictive law's attitude: the controller's attitude input of the last sample that delivered a
+    tau_w = vec3[V_TAU_W]  # the wheels' body torque: the controller's minus the rods'
+    mtmp = st.mtmp[r]
+    mst = st.mst[r]  # the predictive law's state (sappc_momentum.core.predictive.new_state)
+    q_ff = st.q_ff[r]  # the predictive law's attitude: the controller's attitude input of the last sample that delivered a
     # finite one, as for the rate below (NaN before the first: the cross-product law)
-    omega_ff = np.zeros(3)  # the gyroscopic feed-forward's body rate: the controller's rate input of the last sample that delivered a finite
+    omega_ff = vec3[V_OMEGA_FF]  # the gyroscopic feed-forward's body rate: the controller's rate input of the last sample that delivered a finite
     # one (sappc_momentum.node reads the same topic: a dropped or withheld sample is "no data", NaN, and keeps the previous rate)
     measuring = sens.draws.shape[1] > 0
     dt = grid.dt
-    T = grid.t.shape[0]
-    for k in range(T):
-        t = grid.t[k]
-        t_stamp_s = grid.t_ns[k] / _NS_PER_S  # the sample's stamp in seconds (the estimator's and the controller's time)
+    T = grid.n_samples
+    for kb in range(grid.t.shape[0]):  # kb: the sample's row in the block's arrays; k: its index in the run
+        k = k_lo + kb
+        t = grid.t[kb]
+        t_stamp_s = grid.t_ns[kb] / _NS_PER_S  # the sample's stamp in seconds (the estimator's and the controller's time)
         if estimating:
             for i in range(3):
                 bias_k[i] = bias[i]
             if nf > 0:
                 fault_rate_bias(t, fkind, fwin, fprm, bias_k)
         if measuring:
-            measure_run(sens, n, k, t, t_stamp_s, x, held_q, bias, y)
+            measure_run(sens, n, k, kb, t, t_stamp_s, x, held_q, bias, y)
         else:  # exact measurements: the true state, measured now
             for i in range(7):
                 y[i] = x[i]
             y[Y_EPOCH] = t_stamp_s
         state_in, reference_in = True, True
         if nf > 0:
-            state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, faults.draws[min(k, faults.draws.shape[0] - 1)], y)
+            state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, faults.draws[min(kb, faults.draws.shape[0] - 1)], y)
             reference_in = fault_reference(t, fkind, fwin)
+        est_status = ESTIMATOR_NO_INPUT
         if estimating:
             est_status = ESTIMATOR_NO_INPUT  # no measurement delivered: no filter step (the node's code)
             if state_in:
@@ -323,26 +365,26 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
         else:
             for i in range(7):
                 yc[i] = y[i]
-        valid = sample_verdicts(state_in, reference_in, yc[:4], yc[4:], grid.ref_q[k], grid.ref_w[k], grid.ref_wd[k], ctrl.bounds, rejected)
+        valid = sample_verdicts(state_in, reference_in, yc[:4], yc[4:], grid.ref_q[kb], grid.ref_w[kb], grid.ref_wd[kb], ctrl.bounds, rejected)
         t_stamp = t_stamp_s  # the controller's time: its input's stamp in seconds, as the node computes it
         if valid and not started:
             if probe:  # the first valid sample: what starts the controller (docstring)
                 start[0] = k
                 start[1] = t_stamp
-                error_quaternion(grid.ref_q[k], yc[:4], start[2:6])
+                error_quaternion(grid.ref_q[kb], yc[:4], start[2:6])
                 return
             state[S_T0] = t_stamp
             started = True
         status = ANSWER_COMMANDED
         if valid:
-            controller_step(kind, t_stamp, dt, yc[:4], yc[4:], grid.ref_q[k], grid.ref_w[k], grid.ref_wd[k], prm, coef, state, work, out)
+            controller_step(kind, t_stamp, dt, yc[:4], yc[4:], grid.ref_q[kb], grid.ref_w[kb], grid.ref_wd[kb], prm, coef, state, work, out)
             if not (np.isfinite(out[O_TORQUE, 0] + out[O_TORQUE, 1] + out[O_TORQUE, 2])
                     and np.isfinite(out[O_CMD, 0] + out[O_CMD, 1] + out[O_CMD, 2])):
                 status = ANSWER_REFUSED
             else:
                 has_last = True
-                last_state_ns = grid.t_ns[k]
-        elif not has_last or grid.t_ns[k] - last_state_ns > ctrl.stale_ns:  # no valid state yet, or too old
+                last_state_ns = grid.t_ns[kb]
+        elif not has_last or grid.t_ns[kb] - last_state_ns > ctrl.stale_ns:  # no valid state yet, or too old
             status = ANSWER_WATCHDOG_ZERO
         else:
             status = ANSWER_HELD
@@ -368,12 +410,12 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
         for i in range(3):
             pub[O_TORQUE, i] = u_last[i]
         if sens.draws.shape[1] > 0 or nf > 0 or estimating or status != ANSWER_COMMANDED:
-            error_quaternion(grid.ref_q[k], x[:4], pub[O_QBR])  # the true error (metrics)
+            error_quaternion(grid.ref_q[kb], x[:4], pub[O_QBR])  # the true error (metrics)
         if dist.use_table:  # shared by every run: its table (disturbance_at: each run's own)
             for i in range(3):
-                d[i] = dist.table[k, i]
+                d[i] = dist.table[kb, i]
         else:
-            disturbance_at(dist, n, k, t, d)
+            disturbance_at(dist, n, kb, t, d)
         if orbiting:
             field_of(e_orbit, e_field, t, x_q, r_N, B_N, B_B)
             measured_field_of(e_mag, e_draws, k, B_B, B_meas)
@@ -394,8 +436,8 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
             torque_of(e_orbit, e_gravity, e_Gt, e_mmax, x_q, r_N, B_B, m_cmd, r_B_tmp, L_mtb_tmp, L_env)
             for i in range(3):
                 d_tot[i] = d[i] + L_env[i]
-        if stride > 0 and k % stride == 0:
-            j = k // stride
+        if stride > 0 and kb % stride == 0:
+            j = kb // stride  # the block's record starts at its first sample (k_lo is a multiple of stride)
             for row in range(N_OUT):
                 for c in range(4):
                     rec.out[r, j, row, c] = pub[row, c]
@@ -447,24 +489,57 @@ def _run_one(n, r, probe, stride, grid, ctrl, plant, act, sens, est, dist, fault
                 propagate(x, u, dt, plant.substeps, J, J_inv)
             else:  # the wheels' motor torques and the disturbance (with an orbit, and the environment's torque), held
                 propagate_wheels_into(x, uw, d_tot if orbiting else d, dt, plant.substeps, J, J_inv, G, wprm, wwork, wtmp)
+    # the block's end: the scalars back into st (the arrays are st's own rows)
+    flags[L_STARTED] = 1 if started else 0
+    flags[L_HAS_LAST] = 1 if has_last else 0
+    flags[L_LAST_STATE_NS] = last_state_ns
+    flags[L_HAS_ESTIMATE] = 1 if has_estimate else 0
+    st.epoch[r, 0] = delivered_epoch
     for i in range(7 + nw):
         rec.x_final[r, i] = x[i]
 
 
+@jit
+def _initial_state(n, r, plant, sens, est, st, rec):
+    """Run ``n``'s state before its first sample into row ``r`` of ``st`` (:class:`LoopState`,
+    allocated zero by :func:`_state`) and of ``rec``'s per-run arrays: what is not zero at the start."""
+    pub = st.pub[r]
+    for row in range(N_OUT):
+        for c in range(4):
+            pub[row, c] = np.nan  # the rows last published: no performance function yet
+    for row in (O_TORQUE, O_CMD, O_SAT):
+        for c in range(4):
+            pub[row, c] = 0.0  # nothing commanded
+    rec.start[r, 0] = -1.0  # no valid sample (yet)
+    for i in range(rec.rejected.shape[1]):
+        rec.rejected[r, i] = 0
+    x0 = plant.x0[n]
+    for i in range(x0.shape[0]):
+        st.x[r, i] = x0[i]
+    for i in range(3):
+        st.vec3[r, V_BIAS, i] = sens.params[n, S_BIAS0 + i]  # the gyro's bias
+    reset_state(st.est[r])
+    st.epoch[r, 0] = -np.inf  # no tracker sample delivered yet
+    st.mst[r, MS_TNEXT] = -np.inf
+    st.mst[r, MS_TLAST] = np.nan
+    for i in range(4):
+        st.q_ff[r, i] = np.nan
+
+
 @jit_parallel
-def run_batch_kernel(probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec):
-    """Every run of a batch, in parallel over runs (``prange``); ``probe``: the first pass of
-    :func:`_run_one` (each run's first valid sample into ``rec.start``)."""
+def run_batch_kernel(probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec, st):
+    """Every run of a batch over one block of samples, in parallel over runs (``prange``);
+    ``probe``: the first pass of :func:`_run_one` (each run's first valid sample into ``rec.start``)."""
     for i in prange(plant.x0.shape[0]):
         n = np.int64(i)  # prange's index is unsigned: one signature of _run_one for every entry (one compile)
-        _run_one(n, n, probe, stride, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec)
+        _run_one(n, n, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec, st)
 
 
-def _run_alone(n: int, probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord) -> None:
-    """Run ``n`` of ``inp`` alone into index 0 of ``rec``: :func:`_run_one` called from Python with
-    :func:`run_batch_kernel`'s argument types (``int64`` indices, not Python ints' literals: one
-    signature, one compile)."""
-    _run_one(np.int64(n), np.int64(0), bool(probe), np.int64(stride), *inp.args(), rec)
+def _run_alone(n: int, probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState) -> None:
+    """Run ``n`` of ``inp`` alone (its block of samples) into index 0 of ``rec`` and ``st``:
+    :func:`_run_one` called from Python with :func:`run_batch_kernel`'s argument types (``int64``
+    indices, not Python ints' literals: one signature, one compile)."""
+    _run_one(np.int64(n), np.int64(0), bool(probe), np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st)
 
 
 def _runs(arrays: Any, lo: int, hi: int) -> Any:
@@ -475,12 +550,88 @@ def _runs(arrays: Any, lo: int, hi: int) -> Any:
                               for name, axis in axes.items()})
 
 
+class NoiseStreams:
+    """The sensors' standard normals of a batch's runs, rows in sample order, drawn block after
+    block: one generator per run (a campaign's), or one stream (``n_runs = 1``) shared by every run
+    of a batch (a scenario's ``sensors.seed``: every run measures with the same draws).  A ``numpy.random.Generator`` fills
+    ``standard_normal`` in order, so rows drawn in blocks are the rows of one call, bit for bit
+    (``tests/tools/offline/test_blocks.py``).
+
+    ``generators()`` makes the generators afresh, one per run: :meth:`open` starts the draws again
+    from the run's first sample (the start's probe, then the run itself)."""
+
+    def __init__(self, generators: Callable[[], list[np.random.Generator]], n_runs: int, width: int) -> None:
+        self._generators = generators
+        self.n_runs = int(n_runs)
+        self.width = int(width)
+        self._open: list[np.random.Generator] = []
+
+    def open(self) -> NoiseStreams:
+        """Start every stream at its first row; returns ``self``."""
+        self._open = self._generators()
+        if len(self._open) != self.n_runs:
+            raise ValueError(f"noise streams: {len(self._open)} generators for {self.n_runs} runs")
+        return self
+
+    def take(self, rows: int) -> np.ndarray:
+        """The next ``rows`` draws of every run, (N, rows, width) float64 C-contiguous."""
+        if not self._open:
+            self.open()
+        return np.ascontiguousarray(np.stack([g.standard_normal((rows, self.width)) for g in self._open]))
+
+
+@dataclass
+class SampleMaker:
+    """How a batch's per-sample inputs are made for any block of its samples, in order: the grid
+    (``k dt`` and the stamps), the reference (its RK4 carried from block to block:
+    :meth:`~spacecraft_sim.core.reference.PaperReference.sample`), the disturbance's table or
+    random draws (functions of the sample's time), the noise faults' draws (functions of the
+    stamp) for the batch's ``n_runs`` runs.  The sensors' draws come from the inputs' own
+    :class:`NoiseStreams`.  Every value is the one the whole run's arrays hold at that sample."""
+
+    n_samples: int
+    dt: float
+    reference: Any
+    disturbance: Any
+    n_runs: int
+    faults: tuple[Any, ...]
+    fault_noise: bool
+
+    def times(self, k_lo: int, k_hi: int) -> tuple[np.ndarray, np.ndarray]:
+        """Samples ``k_lo .. k_hi - 1``: their times ``k dt`` [s] (the products of
+        :func:`~spacecraft_sim.core.reference.sample_times`) and the plant's stamps [ns]."""
+        t = np.arange(k_lo, k_hi, dtype=np.float64) * self.dt  # k exact in float64: the same products as sample_times
+        t_ns = np.array([seconds_to_ns(float(tk)) for tk in t], dtype=np.int64)
+        return t, t_ns
+
+    def grid(self, k_lo: int, k_hi: int, carry: np.ndarray) -> LoopGrid:
+        """The grid of samples ``k_lo .. k_hi - 1``, the reference continued from ``carry``
+        (:meth:`~spacecraft_sim.core.reference.PaperReference.start`, advanced in place)."""
+        t, t_ns = self.times(k_lo, k_hi)
+        ref = self.reference.sample(t, carry)
+        return LoopGrid(t, t_ns, self.dt, _f64(ref.q_RN), _f64(ref.omega_RN_R), _f64(ref.omegadot_RN_R), self.n_samples)
+
+
+#: Run-samples (samples times runs) of one block of :func:`run_blocks`: the block's inputs and
+#: record take up to about 1.2 kB a run-sample (the orbit scenario's record 1009 bytes, its inputs
+#: 194: docs/design/streaming.md), so 2**17 bounds a block to about 160 MB whatever the run's
+#: length or the sub-batch's runs, while a block still runs for tens of milliseconds (the call's
+#: cost from Python, and the inputs made per block, stay below a percent).
+BLOCK_RUN_SAMPLES = 1 << 17
+
+
 @dataclass
 class CompiledInputs:
     """Everything a compiled batch needs: the shared grid and each model's arrays (module
     docstring), the controller's ``config`` and RPF policy ``on_infeasible`` (each run's start is
     computed from them: :func:`_started`), and the RPF's ``flat`` and ``clamped`` components
-    (N, 3) in ``flags``."""
+    (N, 3) in ``flags``.
+
+    The per-sample arrays (the grid's, the sensors' draws, the disturbance's table and random
+    draws, the noise faults' draws) are those of the block of samples from ``k_lo`` (the whole run
+    after :func:`prepare`, none with ``prepare(..., whole=False)``); :meth:`blocks` gives the run's
+    blocks in order, made by ``maker`` (for ``runs``, this batch's runs among the maker's) with
+    the sensors' draws from ``noise``."""
 
     grid: LoopGrid
     controller: ControllerArrays
@@ -495,14 +646,28 @@ class CompiledInputs:
     config: Any = None
     on_infeasible: str = "raise"
     flags: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    maker: SampleMaker | None = None
+    noise: NoiseStreams | None = None
+    runs: tuple[int, int] | None = None
+    k_lo: int = 0
 
     #: The models, in the kernels' argument order.
     MODELS = ("controller", "plant", "actuator", "sensors", "estimator", "disturbance", "faults", "environment", "momentum")
 
     @property
     def t(self) -> np.ndarray:
-        """The sample times (T,) [s]."""
+        """The sample times of the block held (T, the whole run, after :func:`prepare`) [s]."""
         return self.grid.t
+
+    @property
+    def n_samples(self) -> int:
+        """The run's samples (all blocks)."""
+        return int(self.grid.n_samples)
+
+    @property
+    def holds_whole(self) -> bool:
+        """Whether the per-sample arrays held are the whole run's."""
+        return self.k_lo == 0 and self.grid.t.size == self.n_samples
 
     @property
     def n_wheels(self) -> int:
@@ -523,23 +688,88 @@ class CompiledInputs:
         return bool(self.estimator.prm.shape[1] > 0)
 
     def args(self) -> tuple[Any, ...]:
-        """The kernels' arguments after ``probe`` and ``stride``."""
+        """The kernels' arguments after ``probe``, ``stride`` and ``k_lo``."""
         return (self.grid, *(getattr(self, m) for m in self.MODELS))
 
-    def subset(self, lo: int, hi: int, noise: np.ndarray | None = None) -> CompiledInputs:
-        """Runs ``lo .. hi - 1`` (contiguous copies: the same argument types), with ``noise``
-        (hi - lo, T, 6 or 9) as their sensor draws when given (their starts then computed again:
-        new measurements may start a run elsewhere)."""
+    def subset(self, lo: int, hi: int, noise: np.ndarray | NoiseStreams | None = None) -> CompiledInputs:
+        """Runs ``lo .. hi - 1`` (contiguous copies: the same argument types), with ``noise`` as
+        their sensor draws when given: (hi - lo, T, 6 or 9), or their :class:`NoiseStreams` (then
+        drawn block by block, or whole when this batch holds the whole run); their starts are then
+        computed again (new measurements may start a run elsewhere)."""
         models = {m: _runs(getattr(self, m), lo, hi) for m in self.MODELS}
-        if noise is not None:
+        streams = self.noise if self.noise is None or self.noise.n_runs == 1 else None
+        if isinstance(noise, NoiseStreams):
+            streams = noise
+            if self.holds_whole:
+                noise = noise.open().take(self.n_samples)
+        if isinstance(noise, np.ndarray):
             models["sensors"] = models["sensors"]._replace(draws=np.ascontiguousarray(noise, dtype=np.float64))
-        sub = dataclasses.replace(self, **models, flags={k: v[lo:hi] for k, v in self.flags.items()})
+        base = (0, self.n_runs) if self.runs is None else self.runs
+        sub = dataclasses.replace(self, **models, flags={k: v[lo:hi] for k, v in self.flags.items()}, noise=streams,
+                                  runs=(base[0] + lo, base[0] + hi))
         if noise is None:
             return sub
         try:
             return _started(sub)
         except SingularStartError as exc:  # name the run in the whole batch
             raise SingularStartError(exc.q_e0, exc.run + lo) from None
+
+    def blocks(self, block_samples: int, stride: int = 1) -> Iterator[CompiledInputs]:
+        """The run's blocks of ``block_samples`` samples (rounded down to a multiple of ``stride``,
+        the record's: each block's record starts at a recorded sample), in order: these inputs with
+        the per-sample arrays of each block.  A batch that holds the whole run gives it in one
+        block when it fits, else slices of it; otherwise the blocks are made (``maker``, ``noise``)."""
+        T = self.n_samples
+        size = max(stride, block_samples // max(stride, 1) * max(stride, 1)) if stride > 0 else max(1, block_samples)
+        if self.holds_whole and size >= T:
+            yield self
+            return
+        if self.holds_whole:
+            for k_lo in range(0, T, size):
+                yield self._slice(k_lo, min(k_lo + size, T))
+            return
+        if self.maker is None:
+            raise ValueError("these inputs hold a block of samples and no maker of the others")
+        carry = self.maker.reference.start()
+        if self.noise is not None:
+            self.noise.open()
+        for k_lo in range(0, T, size):
+            yield self._made(k_lo, min(k_lo + size, T), carry)
+
+    def whole(self) -> CompiledInputs:
+        """These inputs with the whole run's per-sample arrays (one block)."""
+        return self if self.holds_whole else next(self.blocks(self.n_samples))
+
+    def _slice(self, k_lo: int, k_hi: int) -> CompiledInputs:
+        """Samples ``k_lo .. k_hi - 1`` of the whole run held (contiguous copies)."""
+        g, c = self.grid, np.ascontiguousarray
+        d, f, s = self.disturbance, self.faults, self.sensors
+        return dataclasses.replace(
+            self, k_lo=k_lo,
+            grid=g._replace(t=c(g.t[k_lo:k_hi]), t_ns=c(g.t_ns[k_lo:k_hi]), ref_q=c(g.ref_q[k_lo:k_hi]), ref_w=c(g.ref_w[k_lo:k_hi]),
+                            ref_wd=c(g.ref_wd[k_lo:k_hi])),
+            sensors=s._replace(draws=c(s.draws[:, k_lo:k_hi]) if s.draws.shape[1] else s.draws),
+            disturbance=d._replace(table=c(d.table[k_lo:k_hi]) if d.table.shape[0] else d.table,
+                                   windows=c(d.windows[:, k_lo:k_hi])),
+            faults=f._replace(draws=c(f.draws[k_lo:k_hi]) if f.draws.shape[0] > 1 else f.draws))
+
+    def _made(self, k_lo: int, k_hi: int, carry: np.ndarray) -> CompiledInputs:
+        """Samples ``k_lo .. k_hi - 1`` made by ``maker`` (the reference continued from ``carry``)."""
+        m = self.maker
+        assert m is not None
+        grid = m.grid(k_lo, k_hi, carry)
+        lo, hi = (0, m.n_runs) if self.runs is None else self.runs
+        made = pack_disturbance(m.disturbance, grid.t, m.n_runs)
+        dist = self.disturbance._replace(table=made.table, windows=made.windows,
+                                         draws=made.draws if (lo, hi) == (0, m.n_runs) else np.ascontiguousarray(made.draws[:, lo:hi]))
+        faults = self.faults._replace(draws=noise_draws(m.faults, grid.t_ns)) if m.fault_noise else self.faults
+        sensors = self.sensors
+        if self.noise is not None:
+            draws = self.noise.take(k_hi - k_lo)
+            if self.noise.n_runs != self.n_runs:  # a stream shared by every run: its rows for each
+                draws = np.ascontiguousarray(np.broadcast_to(draws[:1], (self.n_runs,) + draws.shape[1:]))
+            sensors = sensors._replace(draws=draws)
+        return dataclasses.replace(self, k_lo=k_lo, grid=grid, disturbance=dist, faults=faults, sensors=sensors)
 
 
 @dataclass
@@ -643,7 +873,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
             on_infeasible: str = "raise", sensor_params: np.ndarray | None = None, sensor_outages: np.ndarray | None = None,
             faults: list[tuple[Any, ...]] | None = None, wheels: list[ReactionWheels] | None = None,
             estimator_params: np.ndarray | None = None, run_keys: list[tuple[int, ...]] | None = None,
-            orbits: np.ndarray | None = None) -> CompiledInputs:
+            orbits: np.ndarray | None = None, whole: bool = True) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
     ``sensor_params``: the sensors' parameters ((13,) or one row per run), their draws then given
@@ -658,7 +888,10 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     controller is fed the measurements).  ``run_keys``: each run's key of the magnetometer's stream
     (a campaign's ``(run, seed)``), else ``(k,)`` for run ``k`` of the batch.  ``orbits``: one row
     per run of the orbit's parameters (:meth:`~spacecraft_sim.core.orbit.Orbit.params`: a campaign's
-    dispersed orbit phase, node and field epoch), else the scenario's orbit for every run."""
+    dispersed orbit phase, node and field epoch), else the scenario's orbit for every run.
+    ``whole``: the inputs hold the whole run's per-sample arrays (the reference, the draws, the
+    disturbance's table: about 200 bytes a sample); else none, each block's made when it runs
+    (:meth:`CompiledInputs.blocks`, :func:`run_blocks`)."""
     ensure_compiled()
     cfg = scenario.controller_config(controller) if config is None else config
     q0 = _f64(np.atleast_2d(np.asarray(scenario.q_BN0 if q_BN0 is None else q_BN0, dtype=np.float64)))
@@ -669,29 +902,36 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     h0 = np.array([w.initial_momentum(w0[k]) for k, w in enumerate(per_run_wheels)]).reshape(n, -1)
     plant = pack_plant(np.concatenate((q0, w0, h0), axis=1), scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2,
                        scenario.rk4_substeps)
-    t = _f64(sample_times(scenario.duration_s, scenario.control_period_s))
-    t_ns = np.array([seconds_to_ns(float(tk)) for tk in t], dtype=np.int64)  # the plant's stamps
-    ref = scenario.reference.sample(t)
-    grid = LoopGrid(t, t_ns, float(scenario.control_period_s), _f64(ref.q_RN), _f64(ref.omega_RN_R), _f64(ref.omegadot_RN_R))
+    T = sample_times(scenario.duration_s, scenario.control_period_s).size
     per_run_faults = [scenario.faults] * n if faults is None else list(faults)
     if len(per_run_faults) != n:
         raise ValueError(f"faults must hold one list per run ({n}), got {len(per_run_faults)}")
+    dist_model = scenario.disturbance if disturbance is None else disturbance
+    maker = SampleMaker(T, float(scenario.control_period_s), scenario.reference, dist_model, n, tuple(per_run_faults[0]),
+                        any(isinstance(f, SensorNoise) for fl in per_run_faults for f in fl))
+    # the per-sample arrays: none here (each block's from the maker); the models' own packing on no samples
+    t, t_ns = maker.times(0, 0)
+    grid = LoopGrid(t, t_ns, maker.dt, np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)), T)
+    own = scenario.sensors if sensor_params is None else None
+    noise = None if own is None else NoiseStreams(lambda: [np.random.default_rng(own.seed)], 1, N_SENSOR_DRAWS)
     inp = CompiledInputs(
         grid=grid,
         controller=pack_controller(cfg, n, stale_timeout_ns=seconds_to_ns(scenario.controller_node.stale_timeout_s),
                                    input_bounds=scenario.controller_node.input_bounds().packed(), gains=gains),
         plant=plant,
         actuator=actuator,
-        sensors=pack_sensors(scenario.sensors, n, t.size, scenario.control_period_s, sensor_params, sensor_outages),
+        sensors=pack_sensors(scenario.sensors, n, 0, scenario.control_period_s, sensor_params, sensor_outages),
         estimator=pack_estimator(scenario.estimator, n, estimator_params),
-        disturbance=pack_disturbance(scenario.disturbance if disturbance is None else disturbance, t, n),
+        disturbance=pack_disturbance(dist_model, t, n),
         faults=pack_faults(per_run_faults, t_ns),
         environment=(env_arrays := _environment(scenario, n, run_keys, orbits)),
         momentum=_momentum(scenario, n, env_arrays),
         config=cfg,
         on_infeasible=on_infeasible,
+        maker=maker,
+        noise=noise,
     )
-    return _started(inp)
+    return _started(inp.whole() if whole else inp)
 
 
 def _environment(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | None = None,
@@ -726,10 +966,10 @@ def _momentum(scenario: Scenario, n: int, env_arrays: EnvironmentArrays) -> Mome
 
 def _started(inp: CompiledInputs) -> CompiledInputs:
     """``inp`` with each run's start (:func:`_run_one`'s docstring): the first pass of the loop
-    (``probe``) finds each run's first valid sample and its error quaternion, from which
-    :func:`~sappc_controller.core.packing.start_coef` (the node's own start: the 180 deg check, the
-    funnels, the RPF with ``inp.on_infeasible``) gives ``coef`` and ``flags``.  A run without a valid
-    sample never starts (zero ``coef``, no flags set).
+    (``probe``) finds each run's first valid sample and its error quaternion, block after block
+    until every run has started, from which :func:`~sappc_controller.core.packing.start_coef` (the
+    node's own start: the 180 deg check, the funnels, the RPF with ``inp.on_infeasible``) gives
+    ``coef`` and ``flags``.  A run without a valid sample never starts (zero ``coef``, no flags set).
 
     Raises
     ------
@@ -737,8 +977,12 @@ def _started(inp: CompiledInputs) -> CompiledInputs:
         As the node's first step would, naming the run's index in ``inp``.
     """
     n = inp.n_runs
-    rec = _record(inp, 0, n)
-    _loop(True, 0, inp, rec)
+    rec = _record(inp, 0, n, 0)
+    st = _state(inp, n)
+    for block in inp.blocks(inp.n_samples if inp.holds_whole else BLOCK_RUN_SAMPLES // max(n, 1), 0):
+        _loop(True, 0, block, rec, st)
+        if np.all(rec.start[:, 0] >= 0.0):
+            break
     start = rec.start
     ok = start[:, 0] >= 0.0
     coef = np.zeros_like(inp.controller.coef)
@@ -755,13 +999,26 @@ def _started(inp: CompiledInputs) -> CompiledInputs:
     return dataclasses.replace(inp, controller=inp.controller._replace(coef=_f64(coef)), flags=flags)
 
 
-def _record(inp: CompiledInputs, stride: int, n: int) -> LoopRecord:
-    T = inp.t.size
+def _record(inp: CompiledInputs, stride: int, n: int, samples: int | None = None) -> LoopRecord:
+    """A record of ``n`` runs for ``samples`` samples (default: the run's) every ``stride``."""
+    T = inp.n_samples if samples is None else samples
     T_rec = 0 if stride == 0 else (T - 1) // stride + 1
     W = inp.n_wheels
     return LoopRecord(np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, T_rec), dtype=np.int8),
                       np.zeros((n, T_rec, W, 2)), np.zeros((n, T_rec, N_EST_RECORD if inp.estimating else 0)), np.zeros((n, 2), dtype=np.int64),
                       np.zeros((n, 7 + W)), np.zeros((n, 6)), np.zeros((n, T_rec, inp.n_env_record)))
+
+
+def _state(inp: CompiledInputs, n: int) -> LoopState:
+    """A zero :class:`LoopState` of ``n`` runs of ``inp``'s models (one pass of the loop: the run's
+    first block initialises it, :func:`_initial_state`)."""
+    W = inp.n_wheels
+    nf, depth, nm = inp.faults.kind.shape[1], inp.faults.depth, inp.environment.m_max.shape[1]
+    z = np.zeros
+    return LoopState(z((n, N_LOOP_FLAGS), dtype=np.int64), z((n, 1)), z((n, N_LOOP_VEC3, 3)), z((n, N_STATE)), z((n, N_WORK, 4)),
+                     z((n, N_OUT, 4)), z((n, N_OUT, 4)), z((n, 7 + W)), z((n, W)), z((n, W)), z((n, 5, 7 + W)), z((n, 3, 3)), z((n, N_MEAS)),
+                     z((n, 5)), z((n, N_MEAS)), z((n, 7)), z((n, N_EST_STATE)), z((n, 6, 6)), z((n, N_EST_WORK, 6)), z((n, N_EST_OUT)),
+                     z((n, nf), dtype=np.int64), z((n, nf, depth, N_FVALUE)), z((n, nm)), z((n, N_MM_WORK, 3)), z((n, N_MM_STATE)), z((n, 4)))
 
 
 def _check_noise(inp: CompiledInputs) -> None:
@@ -771,39 +1028,71 @@ def _check_noise(inp: CompiledInputs) -> None:
 
 
 def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = None) -> CompiledRun:
-    """Every run of ``inp`` in one compiled call, in parallel over runs.
+    """Every run of ``inp``, the whole run in one compiled call (its record over every sample), in
+    parallel over runs (:func:`run_blocks` keeps one block's record at a time).
 
     ``into``: the result of an earlier call with the same number of runs and stride, whose arrays
     are overwritten (sub-batches of a campaign reuse one buffer: no new pages per sub-batch).
     """
+    inp = inp.whole()
     _check_noise(inp)
     fresh = _record(inp, stride, 0)  # shapes only
     if into is not None and into.record.out.shape[0] == inp.n_runs and all(
             a.shape[1:] == b.shape[1:] for a, b in zip(into.record, fresh)):
         rec = into.record
-        rec.rejected[...] = 0  # counts: start again
     else:
         rec = _record(inp, stride, inp.n_runs)
-    _loop(False, stride, inp, rec)
+    _loop(False, stride, inp, rec, _state(inp, inp.n_runs))
     return CompiledRun(inp.t[::stride] if stride else inp.t[:0], rec)
 
 
-def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord) -> None:
-    """Every run of ``inp`` into ``rec``: in parallel over runs (:func:`run_batch_kernel`), or, for one
-    run, :func:`_run_one` alone (the same bits; a one-run command then never compiles the batch
-    kernel)."""
+def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None = None) -> Iterator[CompiledRun]:
+    """Every run of ``inp``, block after block of samples (in parallel over runs): yields each
+    block's :class:`CompiledRun` (its times and record, every ``stride`` samples), the same bits as
+    :func:`run_batch`'s record over those samples.  Memory is one block's inputs and record,
+    whatever the run's length: ``block_samples`` samples (default :data:`BLOCK_RUN_SAMPLES` over
+    the runs).  The record is one buffer reused from block to block (its views are valid until the
+    next block); its per-run arrays (``rejected``, ``x_final``, ``start``) are the run's so far."""
+    n = inp.n_runs
+    size = max(1, BLOCK_RUN_SAMPLES // max(n, 1)) if block_samples is None else int(block_samples)
+    if stride > 0:
+        size = max(stride, size // stride * stride)
+    size = min(size, inp.n_samples)
+    st = _state(inp, n)
+    rec = _record(inp, stride, n, size)
+    for block in inp.blocks(size, stride):
+        _check_noise(block)
+        _loop(False, stride, block, rec, st)
+        b = block.t.size
+        b_rec = 0 if stride == 0 else (b - 1) // stride + 1
+        view = rec if b_rec == rec.out.shape[1] else LoopRecord(*(a[:, :b_rec] if a.ndim >= 2 and name not in _PER_RUN else a
+                                                                 for name, a in zip(LoopRecord._fields, rec)))
+        yield CompiledRun(block.t[::stride] if stride else block.t[:0], view)
+
+
+#: The fields of :class:`LoopRecord` that are per run, not per sample.
+_PER_RUN = ("rejected", "x_final", "start")
+
+
+def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState) -> None:
+    """Every run of ``inp`` (its block of samples) into ``rec`` and ``st``: in parallel over runs
+    (:func:`run_batch_kernel`), or, for one run, :func:`_run_one` alone (the same bits; a one-run
+    command then never compiles the batch kernel)."""
+    if stride > 0 and inp.k_lo % stride != 0:
+        raise ValueError(f"a block must start at a recorded sample: k_lo {inp.k_lo} is not a multiple of the stride {stride}")
     if inp.n_runs == 1:
-        _run_alone(0, probe, stride, inp, rec)
+        _run_alone(0, probe, stride, inp, rec, st)
     else:
         ensure_compiled(groups=("batches",))
-        run_batch_kernel(probe, stride, *inp.args(), rec)
+        run_batch_kernel(probe, stride, np.int64(inp.k_lo), *inp.args(), rec, st)
 
 
 def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
-    """Run ``n`` of ``inp`` alone (one thread): histories with a leading axis of length 1."""
+    """Run ``n`` of ``inp`` alone (one thread), the whole run: histories with a leading axis of length 1."""
+    inp = inp.whole()
     _check_noise(inp)
     rec = _record(inp, stride, 1)
-    _run_alone(n, False, stride, inp, rec)
+    _run_alone(n, False, stride, inp, rec, _state(inp, 1))
     return CompiledRun(inp.t[::stride] if stride else inp.t[:0], rec)
 
 

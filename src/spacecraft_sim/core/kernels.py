@@ -217,18 +217,18 @@ def _reference_qdot(q, t, a_rad_s, periods, w, wd, out):
 
 
 @jit
-def reference_quaternions(t, q0, a_rad_s, periods, max_step_s, out):
-    """``q_RN`` (T, 4) at the increasing times ``t`` (T,) >= 0 [s] into ``out``, from ``q0`` at
-    ``t = 0``: classical RK4 on the kinematics, each interval between samples (and ``[0, t_0]``)
-    in ``ceil(length / max_step_s)`` equal steps; the integrated quaternion is kept as it is and
-    each sample is its normalised copy.  Fixed steps from the sample times alone: the same
-    samples give the same bits on every path and, with no BLAS call, on every host
-    (docs/parity.md); see :class:`.reference.PaperReference` for the accuracy."""
-    q = q0.copy()
+def reference_quaternions(t, q, t_prev, a_rad_s, periods, max_step_s, out):
+    """``q_RN`` (T, 4) at the increasing times ``t`` (T,) >= ``t_prev`` [s] into ``out``, from the
+    integrated quaternion ``q`` (4,) at ``t_prev`` (``q_RN0`` and 0 for a run's start), which is
+    integrated in place to ``t[-1]`` (so the next block of samples continues from it): classical
+    RK4 on the kinematics, each interval between samples (and ``[t_prev, t_0]``) in
+    ``ceil(length / max_step_s)`` equal steps; the integrated quaternion is kept as it is and each
+    sample is its normalised copy.  Fixed steps from the sample times alone: the same samples give
+    the same bits on every path, in one call or block after block, and, with no BLAS call, on every
+    host (docs/parity.md); see :class:`.reference.PaperReference` for the accuracy."""
     qs = np.empty(4)
     k1, k2, k3, k4 = np.empty(4), np.empty(4), np.empty(4), np.empty(4)
     w, wd = np.empty(3), np.empty(3)
-    t_prev = 0.0
     for j in range(t.shape[0]):
         span = t[j] - t_prev
         n = int(np.ceil(span / max_step_s)) if span > 0.0 else 0

@@ -100,13 +100,24 @@ class PaperReference:
         """Desired angular acceleration [rad/s^2], shape (..., 3)."""
         return self.rates(t)[1]
 
-    def sample(self, t: ArrayLike) -> ReferenceSamples:
-        """The reference at increasing times ``t`` >= 0 [s], shape (T,)."""
+    def sample(self, t: ArrayLike, carry: Array | None = None) -> ReferenceSamples:
+        """The reference at increasing times ``t`` >= 0 [s], shape (T,).
+
+        ``carry``: a run's samples block after block, the same bits as in one call: the integrated
+        quaternion and its time ``(q (4), t [s])`` from :meth:`start` (the run's start), which this
+        call advances in place to ``t[-1]``; the next block's times must follow it."""
         times = as_finite_array("t", t).reshape(-1)
-        if times.size and (times[0] < 0.0 or np.any(np.diff(times) < 0.0)):
-            raise ConfigError("reference sample times must be >= 0 and non-decreasing")
+        state = self.start() if carry is None else carry
+        if times.size and (times[0] < state[4] or np.any(np.diff(times) < 0.0)):
+            raise ConfigError(f"reference sample times must be >= {state[4]!r} and non-decreasing")
         q = np.empty((times.size, 4))
-        kernels.reference_quaternions(np.ascontiguousarray(times), np.asarray(self.q_RN0, dtype=np.float64),
-                                      float(np.radians(self.amplitude_deg_s)), np.asarray(self.periods_s, dtype=np.float64),
-                                      MAX_STEP_S, q)
+        q_int = state[:4]  # a view: integrated in place
+        kernels.reference_quaternions(np.ascontiguousarray(times), q_int, float(state[4]), float(np.radians(self.amplitude_deg_s)),
+                                      np.asarray(self.periods_s, dtype=np.float64), MAX_STEP_S, q)
+        if times.size:
+            state[4] = times[-1]
         return ReferenceSamples(times, q, *self.rates(times))
+
+    def start(self) -> Array:
+        """The integration's state at the run's start, ``(q_RN0 (4), 0.0)``: :meth:`sample`'s ``carry``."""
+        return np.array([*np.asarray(self.q_RN0, dtype=np.float64), 0.0])

@@ -297,8 +297,9 @@ def pack_sensors(sensors: Sensors | None, n_runs: int, n_samples: int, control_p
 
 
 @jit(inline="always")
-def measure_run(s, n, k, t, t_epoch, x, held_q, bias, y):
+def measure_run(s, n, k, kb, t, t_epoch, x, held_q, bias, y):
     """Run ``n``'s measurement of sample ``k`` (:func:`measure` with :class:`SensorArrays` ``s``, whose
-    batch has draws; without draws the loop's input is the true state, which the loop copies itself:
-    this call's seven arrays would cost seven reference counts per sample)."""
-    measure(k, t, t_epoch, x[:4], x[4:7], s.draws[n, k], s.params[n], s.outages[n], held_q, bias, y)
+    batch has draws, row ``kb`` of them: the loop's draws are those of its block of samples; without
+    draws the loop's input is the true state, which the loop copies itself: this call's seven arrays
+    would cost seven reference counts per sample)."""
+    measure(k, t, t_epoch, x[:4], x[4:7], s.draws[n, kb], s.params[n], s.outages[n], held_q, bias, y)
