@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,7 +24,11 @@ from spacecraft_sim.core.wheels import ReactionWheels
 from sappc.montecarlo.config import CampaignConfig
 from sappc.scenario import Scenario
 
-__all__ = ["NOISE_BLOCK", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_faults", "run_generators", "run_hardware", "run_orbits", "sensor_noise_draws"]
+if TYPE_CHECKING:
+    from sappc.offline.compiled_loop import NoiseStreams
+
+__all__ = ["NOISE_BLOCK", "RunInputs", "dispersed_disturbance", "draw_inputs", "run_faults", "run_generators", "run_hardware", "run_orbits", "sensor_noise_draws",
+           "sensor_noise_streams"]
 
 #: Samples of sensor noise drawn per call of the run's noise generator (``standard_normal((NOISE_BLOCK, 6))``,
 #: block after block): the sequence campaigns have always used.
@@ -173,6 +177,17 @@ def sensor_noise_draws(seed: int, runs: Iterable[int], n_samples: int, width: in
         for b in range(n_blocks):
             out[i, b * NOISE_BLOCK : (b + 1) * NOISE_BLOCK] = rng.standard_normal((NOISE_BLOCK, width))
     return out[:, :n_samples]
+
+
+def sensor_noise_streams(seed: int, runs: Iterable[int], width: int = 6) -> NoiseStreams:
+    """The draws of :func:`sensor_noise_draws` as streams, drawn block by block while the runs run
+    (:class:`~sappc.offline.compiled_loop.NoiseStreams`): each run's second generator, whose rows
+    in blocks of any size are the rows of :func:`sensor_noise_draws` (a ``Generator`` fills in
+    order), without the whole run's (T, width) array."""
+    from sappc.offline.compiled_loop import NoiseStreams
+
+    runs_list = [int(k) for k in runs]
+    return NoiseStreams(lambda: [run_generators(seed, k)[1] for k in runs_list], len(runs_list), width)
 
 
 def dispersed_disturbance(scenario: Scenario, inputs: RunInputs) -> DisturbanceSum:

@@ -1,0 +1,119 @@
+"""The offline loop in blocks of samples (issue 47, docs/design/streaming.md): a run stepped block
+after block (:func:`sappc.offline.compiled_loop.run_blocks`, its inputs made per block) is the run
+in one call (:func:`~sappc.offline.compiled_loop.run_batch`), bit for bit, for every block size.
+
+The equality is exact, not within a tolerance: the same compiled code does the same float64
+operations in the same order on the same values; only where the loop's carried values live
+(:class:`~sappc.offline.compiled_loop.LoopState`) and where its inputs are made changes.  A
+value forgotten in the state, a reference integration restarted, a noise stream restarted or
+misaligned changes the trajectory after the first block boundary, which these comparisons see.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sappc.files import scenario_path
+from sappc.montecarlo.draws import sensor_noise_draws, sensor_noise_streams
+from sappc.offline import compiled_loop
+from sappc.offline.compiled_loop import NoiseStreams, prepare, run_batch, run_blocks
+from sappc.scenario import read_scenario_mapping, scenario_from_mapping
+
+#: Block sizes [samples]: one sample (every boundary), a prime (boundaries at every phase of the
+#: star tracker's and the magnetometer's strides), a power of two, and more than the run (one block).
+BLOCKS = (1, 7, 4096, 10**9)
+#: Per-run fields of the record: the run's so far, not per sample (the last block's are the run's).
+PER_RUN = ("rejected", "x_final", "start")
+
+
+def _with(name: str, duration_s: float, **changes: Any) -> Any:
+    raw = read_scenario_mapping(scenario_path(name))
+    raw.update(changes, duration_s=duration_s)
+    (raw.get("metrics") or {}).pop("requirements", None)
+    return scenario_from_mapping(raw)
+
+
+def _blocked(inp: compiled_loop.CompiledInputs, block: int) -> dict[str, np.ndarray]:
+    """The record of ``inp`` run in blocks of ``block`` samples, joined along the samples."""
+    parts = [{f: np.array(getattr(run.record, f)) for f in run.record._fields} for run in run_blocks(inp, 1, block)]
+    return {f: parts[-1][f] if f in PER_RUN else np.concatenate([p[f] for p in parts], axis=1) for f in parts[0]}
+
+
+def _assert_same(whole: compiled_loop.CompiledRun, blocked: dict[str, np.ndarray], block: int) -> None:
+    for f in whole.record._fields:
+        a, b = getattr(whole.record, f), blocked[f]
+        assert a.shape == b.shape and a.dtype == b.dtype, (f, block)
+        assert np.array_equal(a.view(np.uint8), b.view(np.uint8)), (f, block)  # the bytes: NaN where NaN, -0.0 where -0.0
+
+
+SCENARIOS = {
+    # faults of every path (a delay, a freeze, dropouts, a stuck actuator, a noise fault) and a random disturbance
+    "faults_random": lambda: _with("paper_fault", 3.0,
+                                   disturbances=[{"kind": "paper_periodic", "omega_p_rad_s": 0.01},
+                                                 {"kind": "random", "sigma_Nm": [1e-3, 1e-3, 1e-3], "hold_s": 0.03, "seed": 1}],
+                                   faults=[{"kind": "sensor_noise", "start_s": 0.5, "end_s": 1.5, "attitude_std_rad": 1e-4,
+                                            "rate_std_rad_s": 1e-5, "seed": 3},
+                                           {"kind": "delay", "path": "sensor", "samples": 3, "start_s": 1.0, "end_s": 1.8},
+                                           {"kind": "sensor_dropout", "start_s": 2.0, "end_s": 2.2},
+                                           {"kind": "sensor_freeze", "start_s": 2.25, "end_s": 2.4},
+                                           {"kind": "reference_dropout", "start_s": 2.45, "end_s": 2.5},
+                                           {"kind": "actuator_stuck", "start_s": 2.6, "end_s": 2.7}]),
+    # wheels, sensors, the estimator, a tracker outage, a delay and a dropout
+    "flight_outage": lambda: _with("flight_tracker_outage", 4.0,
+                                   sensors={**read_scenario_mapping(scenario_path("flight_tracker_outage"))["sensors"],
+                                            "star_tracker": {**read_scenario_mapping(scenario_path("flight_tracker_outage"))["sensors"]["star_tracker"],
+                                                             "outages_s": [[1.0, 2.5]]}},
+                                   # a delay delivers tracker samples older than the last one delivered
+                                   faults=[{"kind": "delay", "path": "sensor", "samples": 13, "start_s": 0.5, "end_s": 0.9},
+                                           {"kind": "sensor_dropout", "start_s": 3.0, "end_s": 3.3}]),
+    # the orbit: field, magnetometer, rods, gravity gradient, the predictive momentum law
+    "orbit": lambda: _with("paper_tracking_orbit", 3.0),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SCENARIOS))
+def test_a_run_in_blocks_is_the_run_in_one_call(name: str) -> None:
+    scenario = SCENARIOS[name]()
+    whole = run_batch(prepare(scenario), 1)
+    blocked_inputs = prepare(scenario, whole=False)
+    assert blocked_inputs.grid.t.size == 0  # nothing per sample held before the blocks
+    for block in BLOCKS:
+        _assert_same(whole, _blocked(blocked_inputs, block), block)
+        _assert_same(whole, _blocked(prepare(scenario), block), block)  # slices of the whole run's inputs: the same
+
+
+def test_a_campaign_sub_batch_in_blocks_is_the_sub_batch_in_one_call() -> None:
+    """Dispersed starts, per-run noise streams (a campaign's), a sub-batch of runs 1..3 of 5."""
+    scenario = _with("paper_tracking_flight", 3.0)
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(5, 4)) * 0.05 + np.asarray(scenario.q_BN0)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    params = scenario.sensors.params(scenario.control_period_s)
+    T = compiled_loop.sample_times(scenario.duration_s, scenario.control_period_s).size
+    whole = run_batch(prepare(scenario, q_BN0=q, sensor_params=params).subset(1, 4, sensor_noise_draws(11, range(1, 4), T, 9)), 1)
+    blocked = prepare(scenario, q_BN0=q, sensor_params=params, whole=False).subset(1, 4, sensor_noise_streams(11, range(1, 4), 9))
+    for block in (7, 4096):
+        _assert_same(whole, _blocked(blocked, block), block)
+
+
+@pytest.mark.parametrize("sizes", [(1, 7, 256, 300, 436), (256, 256, 488), (1000,)])
+def test_noise_streams_in_blocks_are_the_whole_draws(sizes: tuple[int, ...]) -> None:
+    """A Generator's standard normals drawn in blocks are the rows of one draw (what makes the
+    sensors' draws per block the run's), for a campaign's streams and a scenario's shared one."""
+    rows = sum(sizes)
+    streams = sensor_noise_streams(5, [0, 4, 9], 9).open()
+    got = np.concatenate([streams.take(s) for s in sizes], axis=1)
+    assert np.array_equal(got, sensor_noise_draws(5, [0, 4, 9], rows, 9))
+    shared = NoiseStreams(lambda: [np.random.default_rng(7)], 1, 9).open()
+    assert np.array_equal(np.concatenate([shared.take(s) for s in sizes], axis=1)[0], np.random.default_rng(7).standard_normal((rows, 9)))
+
+
+def test_a_block_must_start_at_a_recorded_sample() -> None:
+    inp = prepare(_with("paper_tracking", 0.1))
+    block = next(iter(inp.blocks(3, 1)))
+    rec = compiled_loop._record(inp, 2, 1, 3)
+    with pytest.raises(ValueError, match="multiple of the stride"):
+        compiled_loop._loop(False, 2, compiled_loop.dataclasses.replace(block, k_lo=3), rec, compiled_loop._state(inp, 1))
