@@ -12,10 +12,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sappc.evaluation.estimation import nees_band
-from sappc.evaluation.metrics import NEES_FROM_S
+from sappc.evaluation.metrics import NEES_FROM_S, SampleGrid, nees_sample_stride
 from sappc.evaluation.requirements import MIN_COMMANDED_FRACTION, lost_control
 from sappc.montecarlo.config import CampaignConfig, Criteria
-from spacecraft_sim.core.reference import sample_times
 from sappc_msgs_py.contract import ANSWER_NAMES
 from sappc.scenario import Scenario
 
@@ -123,8 +122,12 @@ def nees_consistency(tab: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
     of that average (:func:`~sappc.evaluation.estimation.nees_band`, 6 degrees of freedom per run).
     For a consistent filter each sample's average falls outside its band with probability 5 %, so
     the fraction of samples inside it is about 0.95 (neighbouring samples are correlated: it
-    fluctuates from campaign to campaign); ``t_s``, ``mean`` and the band are the figure's."""
-    t = sample_times(scenario.duration_s, scenario.control_period_s)
+    fluctuates from campaign to campaign); ``t_s``, ``mean`` and the band are the figure's.  A run
+    longer than :data:`~sappc.evaluation.metrics.NEES_EXACT_MAX_SAMPLES` samples has its NEES at
+    every :func:`~sappc.evaluation.metrics.nees_sample_stride`-th sample only (``tsum_nees``'s
+    length): the test and the figure take those samples."""
+    grid = SampleGrid.of_run(scenario.duration_s, scenario.control_period_s)  # sample_times' grid, not stored
+    t = grid.times_s(np.arange(0, grid.n_samples, nees_sample_stride(grid.n_samples)))
     counted = tab["tsum_nees_runs"]
     n_runs = int(counted.max()) if counted.size else 0
     full = counted == n_runs  # samples where every run has an estimate (from NEES_FROM_S)
