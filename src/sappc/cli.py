@@ -216,11 +216,11 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from sappc.offline.simulate import simulate
 
     scenario = load_scenario(args.scenario)
-    result = simulate(scenario, args.controller)
+    result = simulate(scenario, args.controller, history=bool(args.out))  # without figures, no history: memory flat in the run's length
     _print_metrics(scenario.name, result.controller.value, result.metrics)
     _print_orbits(result.per_orbit)
     failed = _print_outcome(scenario, result.metrics, result.controller_summary)
-    if args.out:
+    if args.out and result.history is not None:
         for p in plot_run(result.history, Path(args.out), title=f"{scenario.name} ({result.controller.value})",
                           fault_windows=scenario.event_windows(), wheels=scenario.wheels):
             print(f"wrote {p}")

@@ -46,9 +46,10 @@ from gnc_common.validation import InputError
 from sappc.montecarlo.config import campaign_config
 from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, white_noise_params
 from sappc.montecarlo.results import ESTIMATOR_COLUMNS, WHEEL_COLUMNS
-from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_faults, run_hardware, run_orbits, sensor_noise_draws
+from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_faults, run_hardware, run_orbits, sensor_noise_streams
 from sappc.montecarlo.results import FORMAT_VERSION, assemble, chunk_path, chunks, save_chunk
 from sappc.offline import compiled_loop
+from sappc.offline.compiled_loop import NoiseStreams
 from sappc.offline.simulate import run_scenario
 from sappc.scenario import ControllerKind, Scenario, scenario_from_mapping
 
@@ -100,17 +101,16 @@ def simulate_runs(
     if inputs.gains and (not hasattr(config, "gains") or not hasattr(config.gains, "K_q")):
         raise ConfigError(f"montecarlo.dispersions.gains needs a SAPPC or TraPPC controller, not {scenario.controller.value!r}")
     noise = cfg.dispersions.sensor_noise
-    n_samples = int(round(scenario.duration_s / scenario.control_period_s)) + 1
 
     if noise.enabled and scenario.sensors is not None:
         raise ConfigError("montecarlo.dispersions.sensor_noise and the scenario's sensors section are two sensor models: keep one")
     width = 6 if noise.enabled else N_SENSOR_DRAWS
 
-    def noise_draws(lo: int, hi: int) -> NDArray[np.float64]:
-        return sensor_noise_draws(seed, inputs.runs[lo:hi], n_samples, width)
+    def noise_draws(lo: int, hi: int) -> NoiseStreams:  # each run's stream, drawn block by block while it runs
+        return sensor_noise_streams(seed, inputs.runs[lo:hi], width)
 
     run_wheels, run_sensor_params, run_outages = run_hardware(scenario, inputs)
-    sensors: tuple[NDArray[np.float64], Callable[[int, int], NDArray[np.float64]], NDArray[np.float64] | None] | None = None
+    sensors: tuple[NDArray[np.float64], Callable[[int, int], NoiseStreams], NDArray[np.float64] | None] | None = None
     if noise.enabled:
         sensors = (white_noise_params(noise.attitude_sigma_rad, noise.rate_sigma_rad_s), noise_draws, None)
     elif scenario.sensors is not None:  # each run draws its sensors' noise from its own stream

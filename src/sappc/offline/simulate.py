@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -19,7 +19,7 @@ import numpy as np
 from spacecraft_sim.core.disturbance import DisturbanceModel
 
 from sappc.evaluation.history import History
-from sappc.evaluation.metrics import MetricsAccumulator
+from sappc.evaluation.metrics import MetricsAccumulator, SampleGrid
 from sappc.offline import compiled_loop
 from sappc_msgs_py.contract import ANSWER_NAMES
 from sappc_controller.core.input_check import REJECT_REASONS
@@ -41,11 +41,11 @@ METRICS_BLOCK = 1 << 15
 
 @dataclass(frozen=True)
 class SimulationResult:
-    """A finished offline run: its history, metrics and the parameters that produced it."""
+    """A finished offline run: its history (``None`` when not kept), metrics and the parameters that produced it."""
 
     scenario: Scenario
     controller: ControllerKind
-    history: History
+    history: History | None
     metrics: dict[str, Any]
     controller_summary: dict[str, Any] = dataclasses.field(default_factory=dict)
     #: In orbit, the metrics of each orbit (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.orbit_metrics`); else empty.
@@ -166,16 +166,18 @@ def run_scenario(
         scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
         disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
         sensor_params=None if sensors is None else sensors[0], sensor_outages=None if sensors is None else sensors[2],
-        faults=faults, wheels=wheels, run_keys=run_keys, orbits=orbits,
+        faults=faults, wheels=wheels, run_keys=run_keys, orbits=orbits, whole=keep_history,
     )
     draws = None if sensors is None else sensors[1]
 
-    n, t = inp.n_runs, inp.t
+    n, T = inp.n_runs, inp.n_samples
     step = n if keep_history else max(1, min(sub_batch, n))
     n_traj, traj_stride = trajectory if trajectory is not None else (0, 1)
     parts: list[MetricsAccumulator] = []
     histories: list[History] = []
-    traj: list[tuple[np.ndarray, np.ndarray]] = []
+    traj_t = np.zeros(0)
+    traj_q: list[np.ndarray] = []  # per sub-batch with trajectories, (T_s, m, 3)
+    traj_rho: list[np.ndarray] = []
     x_final = np.empty((n, 7 + inp.n_wheels))
     status = {name: np.zeros(n, dtype=np.int64) for name in ANSWER_NAMES}
     rejected = {reason: np.zeros(n, dtype=np.int64) for reason in REJECT_REASONS}
@@ -184,56 +186,74 @@ def run_scenario(
     for lo in range(0, n, step):
         hi = min(lo + step, n)
         sub = inp.subset(lo, hi, None if draws is None else draws(lo, hi)) if step < n or draws is not None else inp
-        buffer = compiled_loop.run_batch(sub, 1, into=buffer)
         for key, value in sub.flags.items():  # each run's start (computed again with its sensor draws)
             flags[key][lo:hi] = value
-        if hi == n:  # the last sub-batch has run: its inputs (reference tables, sensor draws) go before the metrics
-            del sub, inp
-        h = buffer.history()
-        acc = metrics_accumulator(scenario, t, hi - lo, per_orbit=per_orbit)
-        acc.add_history(h, block_samples=max(1, METRICS_BLOCK // (hi - lo)))
-        parts.append(acc)
-        x_final[lo:hi] = buffer.x_final
-        for name, count in buffer.status_counts().items():
-            status[name][lo:hi] = count
-        for reason, count in buffer.rejected_by_reason().items():
+        acc = metrics_accumulator(scenario, T, float(scenario.control_period_s), hi - lo, per_orbit=per_orbit)
+        if keep_history:  # the whole record, one block
+            buffer = compiled_loop.run_batch(sub, 1, into=buffer)
+            blocks: Iterator[compiled_loop.CompiledRun] = iter((buffer,))
+        else:  # a block of samples at a time: memory flat in the run's length
+            blocks = compiled_loop.run_blocks(sub, 1)
+        del sub
+        if hi == n:  # the last sub-batch has started: its whole inputs (reference tables, sensor draws) go before the metrics
+            del inp
+        m = min(n_traj, hi) - lo  # runs of this sub-batch whose trajectories are kept
+        pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        k_lo = 0
+        block = None
+        for block in blocks:
+            h = block.history()
+            acc.add_history(h, block_samples=max(1, METRICS_BLOCK // (hi - lo)))
+            for name, count in block.status_counts().items():
+                status[name][lo:hi] += count
+            if m > 0:  # the trajectories' samples k = 0, stride, 2 stride, ... that fall in this block
+                first = -k_lo % traj_stride
+                pieces.append((h.t[first::traj_stride].copy(), h.q_BR[first::traj_stride, :m, :3].astype(np.float32),
+                               h.rho[first::traj_stride, :m].astype(np.float32)))
+            k_lo += h.t.size
+            if keep_history:
+                histories.append(h)
+        assert block is not None
+        if pieces:
+            traj_t = np.concatenate([p[0] for p in pieces])
+            traj_q.append(np.concatenate([p[1] for p in pieces]))
+            traj_rho.append(np.concatenate([p[2] for p in pieces]))
+        x_final[lo:hi] = block.x_final
+        for reason, count in block.rejected_by_reason().items():
             rejected[reason][lo:hi] = count
-        if keep_history:
-            histories.append(h)
-        if lo < n_traj:
-            m = min(n_traj, hi) - lo
-            traj.append((h.q_BR[::traj_stride, :m, :3].astype(np.float32), h.rho[::traj_stride, :m].astype(np.float32)))
+        parts.append(acc)
         if progress is not None:
             progress(hi - lo)
     metrics = parts[0] if len(parts) == 1 else MetricsAccumulator.concatenate(parts)
-    trajectories = None
-    if traj:
-        trajectories = (t[::traj_stride].copy(), np.concatenate([q for q, _ in traj], axis=1), np.concatenate([r for _, r in traj], axis=1))
+    trajectories = (traj_t, np.concatenate(traj_q, axis=1), np.concatenate(traj_rho, axis=1)) if traj_q else None
     return metrics, ScenarioRun(flags, histories[0] if keep_history else None, trajectories, x_final, status, rejected)
 
 
-def simulate(scenario: Scenario, controller: ControllerKind | str | None = None) -> SimulationResult:
+def simulate(scenario: Scenario, controller: ControllerKind | str | None = None, *, history: bool = True) -> SimulationResult:
     """Run ``scenario`` with ``controller`` (default: the scenario's) and compute its metrics.
 
+    ``history``: keep every sample (the figures, the tests); else the run goes a block of samples
+    at a time (:func:`~sappc.offline.compiled_loop.run_blocks`), its memory flat in its length,
+    and the result's ``history`` is ``None``.  The metrics are the same bits either way.
     ``metrics["wall_time_s"]`` is the wall time of the run (reference generation, start checks
     and the metrics included, file output excluded).
     """
     kind = scenario.resolve_controller(controller)
     start = time.perf_counter()
-    metrics, run = run_scenario(scenario, controller=kind, keep_history=True)
+    metrics, run = run_scenario(scenario, controller=kind, keep_history=history)
     result = metrics.run_metrics(0)
     result["wall_time_s"] = time.perf_counter() - start
-    assert run.history is not None
     return SimulationResult(scenario=scenario, controller=kind, history=run.history, metrics=result, controller_summary=run.controller_summary(0),
                             per_orbit=metrics.orbit_metrics(0))
 
 
-def metrics_accumulator(scenario: Scenario, t: np.ndarray, n_runs: int, *, per_orbit: bool = True) -> MetricsAccumulator:
-    """A :class:`MetricsAccumulator` with the scenario's metric settings and fault windows, and in
-    orbit its per-orbit bins unless ``per_orbit`` is false."""
+def metrics_accumulator(scenario: Scenario, n_samples: int, dt: float, n_runs: int, *, per_orbit: bool = True) -> MetricsAccumulator:
+    """A :class:`MetricsAccumulator` of ``n_runs`` runs on the grid ``k dt``, ``k = 0 .. n_samples - 1``,
+    with the scenario's metric settings and fault windows, and in orbit its per-orbit bins unless
+    ``per_orbit`` is false."""
     ms = scenario.metrics
     return MetricsAccumulator(
-        t,
+        SampleGrid(n_samples, dt),  # k dt, sample_times' products, held as a description (nothing of the run's length)
         n_runs,
         steady_from_s=ms.steady_from_s,
         settle_threshold=ms.settle_threshold,

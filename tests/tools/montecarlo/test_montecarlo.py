@@ -273,8 +273,8 @@ def test_the_numpy_cores_24_run_table_is_reproduced(tmp_path, monkeypatch) -> No
     from sim import oracle as sim_oracle
     from spacecraft_sim.core.reference import PaperReference, ReferenceSamples
 
-    def recorded_reference(self: PaperReference, t: np.ndarray) -> ReferenceSamples:
-        times = np.asarray(t, dtype=np.float64).reshape(-1)
+    def recorded_reference(self: PaperReference, t: np.ndarray, carry: np.ndarray | None = None) -> ReferenceSamples:
+        times = np.asarray(t, dtype=np.float64).reshape(-1)  # the oracle integrates from q_RN0 at t = 0 for any block: carry unused
         q = sim_oracle.reference_quaternions_dop853(times, np.array(self.q_RN0), self.amplitude_deg_s, self.periods_s)
         return ReferenceSamples(times, q, *self.rates(times))
 
