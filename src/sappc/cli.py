@@ -215,8 +215,26 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         raise ConfigError("--run needs --from-campaign DIR")
     from sappc.offline.simulate import simulate
 
-    scenario = load_scenario(args.scenario)
-    result = simulate(scenario, args.controller, history=bool(args.out))  # without figures, no history: memory flat in the run's length
+    scenario = load_scenario(args.scenario) if args.duration is None else _with_duration(args.scenario, args.duration)
+    import time
+
+    from sappc.bag.read import Ticker
+
+    with Ticker(lambda msg: print(f"sappc simulate: {msg}", file=sys.stderr, flush=True)) as ticker:
+        started = time.monotonic()
+        stepped = []  # whether the progress line has started
+
+        def progress(samples: int) -> None:  # after each block of samples
+            if args.no_progress or time.monotonic() - started < SIMULATE_PROGRESS_AFTER_S:
+                return
+            if not stepped:
+                ticker.step("simulating")
+                stepped.append(True)
+            ticker.detail(f"{samples * scenario.control_period_s:.0f} of {scenario.duration_s:.0f} s")
+
+        # memory flat in the run's length: the figures from the envelope, no history without them
+        result = simulate(scenario, args.controller, history="envelope" if args.out else "none", progress=progress)
+        ticker.idle()
     _print_metrics(scenario.name, result.controller.value, result.metrics)
     _print_orbits(result.per_orbit)
     failed = _print_outcome(scenario, result.metrics, result.controller_summary)
@@ -228,6 +246,26 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         _write_json(args.json, {**result.report(), "failed_requirements": failed})
     _print_verdict(scenario, failed)
     return run_exit_status({}, result.controller_summary, failed)
+
+
+#: A ``sappc simulate`` run shows a progress line once it has run this long [s]: the paper's runs
+#: (under a second) print none, a 6 h orbit run (tens of seconds) one a second.
+SIMULATE_PROGRESS_AFTER_S = 2.0
+
+
+def _with_duration(path: str, duration_s: float) -> Any:
+    """The scenario at ``path`` flown for ``duration_s`` (``simulate --duration``): its mapping with
+    ``duration_s`` replaced, validated as the file is (the message names the file)."""
+    from sappc.files import scenario_path
+    from sappc.scenario import read_scenario_mapping, scenario_from_mapping
+
+    p = scenario_path(path)
+    raw = read_scenario_mapping(p)
+    raw["duration_s"] = duration_s
+    try:
+        return scenario_from_mapping(raw, source=str(p))
+    except ConfigError as exc:
+        raise ConfigError(f"{p} with --duration {duration_s!r}: {exc}") from None
 
 
 def _print_outcome(scenario: Any, metrics: dict[str, Any], controller: dict[str, Any]) -> list[str]:
@@ -689,6 +727,11 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--json", metavar="FILE", help="write metrics and all parameters used as JSON ('-': to stdout)")
     sim.add_argument("--out", metavar="DIR", help="write paper-style PNG figures to DIR (default: no figures)")
     sim.add_argument("--plots", metavar="DIR", dest="out", action=_DeprecatedAlias, new="--out", help=argparse.SUPPRESS)
+    sim.add_argument("--duration", type=float, metavar="SECONDS",
+                     help="fly the scenario for this long instead of its duration_s (e.g. 86400 or 604800: a day or a week of "
+                          "paper_tracking_orbit); memory does not grow with it")
+    sim.add_argument("--no-progress", action="store_true", help=f"no progress line on stderr (shown once a run takes over "
+                                                                 f"{SIMULATE_PROGRESS_AFTER_S:g} s)")
     sim.set_defaults(func=_cmd_simulate)
     mc = command("montecarlo", "run a Monte Carlo campaign (scenario with a 'montecarlo' section)")
     mc.add_argument("scenario", help=_SCENARIO_HELP.format("paper_montecarlo"))

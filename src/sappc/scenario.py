@@ -122,7 +122,9 @@ def run_bytes_per_sample(*, sensors: bool = False, estimator: bool = False, whee
 def check_run_fits_in_memory(duration_s: float, control_period_s: float, bytes_per_sample: int = RUN_BYTES_PER_SAMPLE) -> int:
     """The number of control samples of a run, after checking that its histories (``bytes_per_sample``
     a sample: :func:`run_bytes_per_sample`) fit in :data:`RUN_MEMORY_SHARE` of this machine's memory
-    (before anything is allocated).
+    (before anything is allocated).  Only a run that keeps its whole record needs it
+    (:func:`sappc.offline.simulate.run_scenario` with ``keep_history``): a run in blocks of samples,
+    what ``sappc simulate`` and the campaigns fly, holds nothing of its length (docs/design/streaming.md).
 
     Raises
     ------
@@ -435,7 +437,6 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     dt = check_positive("control_period_s", data["control_period_s"])
     if duration < dt:
         raise ConfigError(f"duration_s ({duration!r}) must be at least control_period_s ({dt!r})")
-    check_run_fits_in_memory(duration, dt)  # without the features: before a long file's sections are read
 
     plant = data["plant"]
     if not isinstance(plant, dict) or set(plant) - {"inertia_kg_m2", "rk4_substeps"} or "inertia_kg_m2" not in plant:
@@ -492,7 +493,6 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     )
     for name in controllers:  # validate every controller's parameters now, not at run time
         scenario.controller_config(name)
-    check_run_fits_in_memory(duration, dt, scenario_bytes_per_sample(scenario))
     return scenario
 
 

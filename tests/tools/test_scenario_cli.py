@@ -144,26 +144,28 @@ def test_the_run_figures_show_what_they_draw(tmp_path, monkeypatch) -> None:  # 
     assert_every_axes_shows_data(figures, at_least=100)
 
 
-def test_a_run_too_long_for_this_machine_stops_before_anything_is_allocated(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
-    """duration_s = 1e9 s at 100 Hz is 1e11 samples: one line naming the key and the longest duration
-    that fits, exit status 2, in well under a second (nothing is allocated)."""
+def test_a_whole_record_too_long_for_this_machine_is_refused_before_anything_is_allocated() -> None:
+    """duration_s = 1e9 s at 100 Hz is 1e11 samples: the scenario loads (a run in blocks, what
+    ``sappc simulate`` and campaigns fly, holds nothing of its length), but keeping its whole record
+    (``run_scenario(keep_history=True)``, the tests' and ``simulate()``'s full history) is refused in
+    one line naming the key and the longest duration that fits, in well under a second (nothing is
+    allocated)."""
     import time
 
-    from sappc.scenario import RUN_BYTES_PER_SAMPLE, RUN_MEMORY_SHARE, machine_memory_bytes
+    from sappc.offline.simulate import run_scenario
+    from sappc.scenario import RUN_BYTES_PER_SAMPLE, RUN_MEMORY_SHARE, check_run_fits_in_memory, machine_memory_bytes
 
     raw = yaml.safe_load((SCENARIOS / "paper_tracking.yaml").read_text())
     raw["duration_s"] = 1.0e9
-    path = tmp_path / "long.yaml"
-    path.write_text(yaml.safe_dump(raw))
+    scenario = scenario_from_mapping(raw)
     start = time.perf_counter()
-    assert main(["simulate", str(path)]) == 2
+    with pytest.raises(ConfigError) as err:
+        run_scenario(scenario, keep_history=True)
     assert time.perf_counter() - start < 5.0
-    err = capsys.readouterr().err
     longest = (RUN_MEMORY_SHARE * machine_memory_bytes() / RUN_BYTES_PER_SAMPLE - 1) * 0.01
-    assert err.startswith(f"sappc: error: {path}: duration_s = 1000000000.0 at control_period_s = 0.01 is 1e+11 control samples")
-    assert f"duration_s <= {longest:.6g} s" in err and err.count("\n") == 1
-    raw["duration_s"] = 0.9 * longest  # just inside the bound: accepted
-    scenario_from_mapping(raw)
+    assert str(err.value).startswith("duration_s = 1000000000.0 at control_period_s = 0.01 is 1e+11 control samples")
+    assert f"duration_s <= {longest:.6g} s" in str(err.value) and "\n" not in str(err.value)
+    check_run_fits_in_memory(0.9 * longest, 0.01)  # just inside the bound: accepted
 
 
 @pytest.mark.parametrize("moments", [(1.0, 1.0, 4.0), (1.0, 2.0, 3.5)])

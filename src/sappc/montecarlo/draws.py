@@ -9,6 +9,7 @@ child draws the dispersed values (:func:`draw_inputs`), its second the sensor no
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -186,8 +187,12 @@ def sensor_noise_streams(seed: int, runs: Iterable[int], width: int = 6) -> Nois
     order), without the whole run's (T, width) array."""
     from sappc.offline.compiled_loop import NoiseStreams
 
-    runs_list = [int(k) for k in runs]
-    return NoiseStreams(lambda: [run_generators(seed, k)[1] for k in runs_list], len(runs_list), width)
+    return NoiseStreams([functools.partial(_noise_generator, seed, int(k)) for k in runs], width)
+
+
+def _noise_generator(seed: int, run: int) -> np.random.Generator:
+    """Run ``run``'s sensor-noise generator (its second: :func:`run_generators`)."""
+    return run_generators(seed, run)[1]
 
 
 def dispersed_disturbance(scenario: Scenario, inputs: RunInputs) -> DisturbanceSum:

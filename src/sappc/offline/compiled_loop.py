@@ -46,10 +46,11 @@ disturbance becomes a (T, 3) table.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import sys
 from dataclasses import dataclass
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -73,6 +74,7 @@ from spacecraft_sim.core.kernels import N_FVALUE, fault_actuator, fault_rate_bia
 from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, S_BIAS0, SensorArrays, measure_run, pack_sensors, white_noise_params
 from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, allocation_matrix, pack_actuator, propagate_wheels_into, wheel_speeds_into
 from spacecraft_sim.core.wheels import wheel_torques
+from spacecraft_sim.core.magnetometer import magnetometer_generator
 from spacecraft_sim.core.environment import EnvironmentArrays, field_of, locked_inertia, measured_field_of, pack_environment, torque_of
 from sappc_momentum.core.law import N_MM_WORK, MomentumArrays, momentum_management_step, pack_momentum
 from sappc_momentum.core.predictive import MS_TLAST, MS_TNEXT, N_MM_STATE
@@ -315,6 +317,8 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max = (mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n],
                                                                                   mm.steering[n], mm.m_max[n])
     mm_orbit, mm_field = mm.orbit[n], mm.field[n]
+    mag_stride = int(e_mag[0]) if e_mag.shape[0] > 0 else 1
+    mag_row0 = (k_lo + mag_stride - 1) // mag_stride  # the block's first magnetometer update: e_draws' first row
     tau_w = vec3[V_TAU_W]  # the wheels' body torque: the controller's minus the rods'
     mtmp = st.mtmp[r]
     mst = st.mst[r]  # the predictive law's state (sappc_momentum.core.predictive.new_state)
@@ -418,7 +422,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
             disturbance_at(dist, n, kb, t, d)
         if orbiting:
             field_of(e_orbit, e_field, t, x_q, r_N, B_N, B_B)
-            measured_field_of(e_mag, e_draws, k, B_B, B_meas)
+            measured_field_of(e_mag, e_draws, k, mag_row0, B_B, B_meas)
         if managing:
             if state_in and np.isfinite(yc[4]) and np.isfinite(yc[5]) and np.isfinite(yc[6]):  # the rate delivered, as the node reads it
                 for i in range(3):
@@ -551,33 +555,39 @@ def _runs(arrays: Any, lo: int, hi: int) -> Any:
 
 
 class NoiseStreams:
-    """The sensors' standard normals of a batch's runs, rows in sample order, drawn block after
-    block: one generator per run (a campaign's), or one stream (``n_runs = 1``) shared by every run
-    of a batch (a scenario's ``sensors.seed``: every run measures with the same draws).  A ``numpy.random.Generator`` fills
+    """Standard normals of a batch's runs, rows in order, drawn block after block: the sensors'
+    (one generator per run, a campaign's; or one stream, ``n_runs = 1``, shared by every run of a
+    batch: a scenario's ``sensors.seed``, every run measuring with the same draws) and the
+    magnetometer's (one per run, keyed by the run).  A ``numpy.random.Generator`` fills
     ``standard_normal`` in order, so rows drawn in blocks are the rows of one call, bit for bit
     (``tests/tools/offline/test_blocks.py``).
 
-    ``generators()`` makes the generators afresh, one per run: :meth:`open` starts the draws again
-    from the run's first sample (the start's probe, then the run itself)."""
+    ``makers``: one function per run making its generator afresh: :meth:`open` starts the draws
+    again from the run's first row (the start's probe, then the run itself)."""
 
-    def __init__(self, generators: Callable[[], list[np.random.Generator]], n_runs: int, width: int) -> None:
-        self._generators = generators
-        self.n_runs = int(n_runs)
+    def __init__(self, makers: Sequence[Callable[[], np.random.Generator]], width: int) -> None:
+        self.makers = tuple(makers)
         self.width = int(width)
         self._open: list[np.random.Generator] = []
 
+    @property
+    def n_runs(self) -> int:
+        return len(self.makers)
+
+    def runs(self, lo: int, hi: int) -> NoiseStreams:
+        """The streams of runs ``lo .. hi - 1`` (not opened)."""
+        return NoiseStreams(self.makers[lo:hi], self.width)
+
     def open(self) -> NoiseStreams:
         """Start every stream at its first row; returns ``self``."""
-        self._open = self._generators()
-        if len(self._open) != self.n_runs:
-            raise ValueError(f"noise streams: {len(self._open)} generators for {self.n_runs} runs")
+        self._open = [make() for make in self.makers]
         return self
 
     def take(self, rows: int) -> np.ndarray:
         """The next ``rows`` draws of every run, (N, rows, width) float64 C-contiguous."""
         if not self._open:
             self.open()
-        return np.ascontiguousarray(np.stack([g.standard_normal((rows, self.width)) for g in self._open]))
+        return np.ascontiguousarray(np.stack([g.standard_normal((rows, self.width)) for g in self._open]).reshape(self.n_runs, rows, self.width))
 
 
 @dataclass
@@ -631,7 +641,9 @@ class CompiledInputs:
     draws, the noise faults' draws) are those of the block of samples from ``k_lo`` (the whole run
     after :func:`prepare`, none with ``prepare(..., whole=False)``); :meth:`blocks` gives the run's
     blocks in order, made by ``maker`` (for ``runs``, this batch's runs among the maker's) with
-    the sensors' draws from ``noise``."""
+    the sensors' draws from ``noise`` and the magnetometer's from ``mag_noise`` (this batch's
+    runs'; a block's ``environment.mag_draws`` are its updates' rows, from the first update at or
+    after ``k_lo``)."""
 
     grid: LoopGrid
     controller: ControllerArrays
@@ -648,6 +660,7 @@ class CompiledInputs:
     flags: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     maker: SampleMaker | None = None
     noise: NoiseStreams | None = None
+    mag_noise: NoiseStreams | None = None
     runs: tuple[int, int] | None = None
     k_lo: int = 0
 
@@ -706,7 +719,7 @@ class CompiledInputs:
             models["sensors"] = models["sensors"]._replace(draws=np.ascontiguousarray(noise, dtype=np.float64))
         base = (0, self.n_runs) if self.runs is None else self.runs
         sub = dataclasses.replace(self, **models, flags={k: v[lo:hi] for k, v in self.flags.items()}, noise=streams,
-                                  runs=(base[0] + lo, base[0] + hi))
+                                  mag_noise=None if self.mag_noise is None else self.mag_noise.runs(lo, hi), runs=(base[0] + lo, base[0] + hi))
         if noise is None:
             return sub
         try:
@@ -731,8 +744,9 @@ class CompiledInputs:
         if self.maker is None:
             raise ValueError("these inputs hold a block of samples and no maker of the others")
         carry = self.maker.reference.start()
-        if self.noise is not None:
-            self.noise.open()
+        for streams in (self.noise, self.mag_noise):
+            if streams is not None:
+                streams.open()
         for k_lo in range(0, T, size):
             yield self._made(k_lo, min(k_lo + size, T), carry)
 
@@ -743,9 +757,10 @@ class CompiledInputs:
     def _slice(self, k_lo: int, k_hi: int) -> CompiledInputs:
         """Samples ``k_lo .. k_hi - 1`` of the whole run held (contiguous copies)."""
         g, c = self.grid, np.ascontiguousarray
-        d, f, s = self.disturbance, self.faults, self.sensors
+        d, f, s, e = self.disturbance, self.faults, self.sensors, self.environment
+        r0, r1 = self._mag_rows(k_lo, k_hi)
         return dataclasses.replace(
-            self, k_lo=k_lo,
+            self, k_lo=k_lo, environment=e._replace(mag_draws=c(e.mag_draws[:, r0:r1])),
             grid=g._replace(t=c(g.t[k_lo:k_hi]), t_ns=c(g.t_ns[k_lo:k_hi]), ref_q=c(g.ref_q[k_lo:k_hi]), ref_w=c(g.ref_w[k_lo:k_hi]),
                             ref_wd=c(g.ref_wd[k_lo:k_hi])),
             sensors=s._replace(draws=c(s.draws[:, k_lo:k_hi]) if s.draws.shape[1] else s.draws),
@@ -769,7 +784,17 @@ class CompiledInputs:
             if self.noise.n_runs != self.n_runs:  # a stream shared by every run: its rows for each
                 draws = np.ascontiguousarray(np.broadcast_to(draws[:1], (self.n_runs,) + draws.shape[1:]))
             sensors = sensors._replace(draws=draws)
-        return dataclasses.replace(self, k_lo=k_lo, grid=grid, disturbance=dist, faults=faults, sensors=sensors)
+        env = self.environment
+        if self.mag_noise is not None:
+            r0, r1 = self._mag_rows(k_lo, k_hi)
+            env = env._replace(mag_draws=self.mag_noise.take(r1 - r0))
+        return dataclasses.replace(self, k_lo=k_lo, grid=grid, disturbance=dist, faults=faults, sensors=sensors, environment=env)
+
+    def _mag_rows(self, k_lo: int, k_hi: int) -> tuple[int, int]:
+        """The magnetometer's update rows of samples ``k_lo .. k_hi - 1`` (updates at ``k % stride == 0``)."""
+        mag = self.environment.mag
+        stride = int(mag[0, 0]) if mag.shape[1] > 0 and mag.shape[0] > 0 else 1
+        return -(-k_lo // stride), -(-k_hi // stride)
 
 
 @dataclass
@@ -913,7 +938,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     t, t_ns = maker.times(0, 0)
     grid = LoopGrid(t, t_ns, maker.dt, np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)), T)
     own = scenario.sensors if sensor_params is None else None
-    noise = None if own is None else NoiseStreams(lambda: [np.random.default_rng(own.seed)], 1, N_SENSOR_DRAWS)
+    noise = None if own is None else NoiseStreams([lambda: np.random.default_rng(own.seed)], N_SENSOR_DRAWS)
     inp = CompiledInputs(
         grid=grid,
         controller=pack_controller(cfg, n, stale_timeout_ns=seconds_to_ns(scenario.controller_node.stale_timeout_s),
@@ -924,25 +949,28 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
         estimator=pack_estimator(scenario.estimator, n, estimator_params),
         disturbance=pack_disturbance(dist_model, t, n),
         faults=pack_faults(per_run_faults, t_ns),
-        environment=(env_arrays := _environment(scenario, n, run_keys, orbits)),
+        environment=(env_arrays := _environment(scenario, n, run_keys, orbits, n_samples=0)),  # the magnetometer's draws per block
         momentum=_momentum(scenario, n, env_arrays),
         config=cfg,
         on_infeasible=on_infeasible,
         maker=maker,
         noise=noise,
+        mag_noise=_magnetometer_streams(scenario, n, run_keys),
     )
     return _started(inp.whole() if whole else inp)
 
 
 def _environment(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | None = None,
-                 orbits: np.ndarray | None = None) -> EnvironmentArrays:
+                 orbits: np.ndarray | None = None, n_samples: int | None = None) -> EnvironmentArrays:
     """The scenario's orbital environment for ``n`` runs (``run_keys``: each run's magnetometer
     stream, :func:`~spacecraft_sim.core.environment.pack_environment`; ``orbits``: each run's orbit
-    parameters, else the scenario's); the gravity gradient acts on the spacecraft with its wheels
-    locked (:mod:`spacecraft_sim.core.environment`)."""
+    parameters, else the scenario's; ``n_samples``: the samples whose magnetometer draws are
+    packed, default the run's); the gravity gradient acts on the spacecraft with its wheels locked
+    (:mod:`spacecraft_sim.core.environment`)."""
     w = scenario.wheels
     locked = locked_inertia(scenario.inertia_kg_m2) if w is None else locked_inertia(scenario.inertia_kg_m2, w.per_wheel("spin_inertia_kg_m2"), w.G)
-    env = pack_environment(scenario.environment, n, locked, n_samples=int(round(scenario.duration_s / scenario.control_period_s)) + 1,
+    samples = int(round(scenario.duration_s / scenario.control_period_s)) + 1 if n_samples is None else n_samples
+    env = pack_environment(scenario.environment, n, locked, n_samples=samples,
                            control_period_s=scenario.control_period_s, run_keys=run_keys)
     if orbits is None:
         return env
@@ -950,6 +978,16 @@ def _environment(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | N
     if rows.shape != env.orbit.shape:
         raise ValueError(f"orbits must be one row of orbit parameters per run, {env.orbit.shape}, got {rows.shape}")
     return env._replace(orbit=rows)
+
+
+def _magnetometer_streams(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | None) -> NoiseStreams | None:
+    """The magnetometer's draws of ``n`` runs as streams (each run's key: ``run_keys``, else ``(k,)``;
+    :func:`~spacecraft_sim.core.magnetometer.magnetometer_draws`' rows), ``None`` without one."""
+    mag = None if scenario.environment is None else scenario.environment.magnetometer
+    if mag is None:
+        return None
+    keys = [(k,) for k in range(n)] if run_keys is None else list(run_keys)
+    return NoiseStreams([functools.partial(magnetometer_generator, mag, key) for key in keys], 3)
 
 
 def _momentum(scenario: Scenario, n: int, env_arrays: EnvironmentArrays) -> MomentumArrays:

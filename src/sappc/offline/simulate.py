@@ -12,7 +12,7 @@ import dataclasses
 import time
 from dataclasses import dataclass
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -23,9 +23,12 @@ from sappc.evaluation.metrics import MetricsAccumulator, SampleGrid
 from sappc.offline import compiled_loop
 from sappc_msgs_py.contract import ANSWER_NAMES
 from sappc_controller.core.input_check import REJECT_REASONS
-from sappc.scenario import ControllerKind, Scenario
+from sappc.scenario import ControllerKind, Scenario, check_run_fits_in_memory, scenario_bytes_per_sample
 
-__all__ = ["ScenarioRun", "SimulationResult", "metrics_accumulator", "run_scenario", "simulate"]
+if TYPE_CHECKING:
+    from sappc.evaluation.envelope import HistoryEnvelope
+
+__all__ = ["HISTORY_KINDS", "ScenarioRun", "SimulationResult", "metrics_accumulator", "run_scenario", "simulate"]
 
 #: Runs per compiled call in a batch: their full histories (~2 MB a run for 50 s at 100 Hz) are
 #: kept for the metrics block, then dropped; the buffer is reused from one sub-batch to the next.
@@ -127,6 +130,8 @@ def run_scenario(
     run_keys: list[tuple[int, ...]] | None = None,
     orbits: np.ndarray | None = None,
     per_orbit: bool = True,
+    envelope: HistoryEnvelope | None = None,
+    sample_progress: Callable[[int], None] | None = None,
 ) -> tuple[MetricsAccumulator, ScenarioRun]:
     """Run the scenario's closed loop, for one run or a batch: the one place that assembles it.
 
@@ -152,7 +157,15 @@ def run_scenario(
     each run's key of its magnetometer's stream (a campaign's ``(run, seed)``; default ``(k,)``).
     ``orbits``: each run's orbit parameters (a campaign's dispersed orbit), else the scenario's.
     ``per_orbit``: in orbit, also the per-orbit metrics (0.9 s of CPU a 6 h run; a campaign, which
-    does not report them, leaves them out).
+    does not report them, leaves them out).  ``envelope``: fed every block of a one-run batch's
+    history (the figures of a run whose history is not kept).  ``sample_progress(k)``: called after
+    each block of the first sub-batch with its samples run so far (a long run's progress).
+
+    Raises
+    ------
+    ConfigError
+        With ``keep_history``, when the whole record would not fit in this machine's memory
+        (:func:`~sappc.scenario.check_run_fits_in_memory`): a run in blocks holds nothing of its length.
 
     Returns
     -------
@@ -162,6 +175,11 @@ def run_scenario(
         RPF flags, the history when kept, trajectories, final states.
     """
     config = scenario.controller_config(controller) if controller_config is None else controller_config
+    if keep_history:  # the whole record of every run, before anything is allocated
+        runs = 1 if q_BN0 is None else np.atleast_2d(q_BN0).shape[0]
+        check_run_fits_in_memory(scenario.duration_s, scenario.control_period_s, scenario_bytes_per_sample(scenario) * runs)
+    if envelope is not None and q_BN0 is not None and np.atleast_2d(q_BN0).shape[0] != 1:
+        raise ValueError("an envelope takes the history of one run")
     inp = compiled_loop.prepare(
         scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
         disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
@@ -204,6 +222,8 @@ def run_scenario(
         for block in blocks:
             h = block.history()
             acc.add_history(h, block_samples=max(1, METRICS_BLOCK // (hi - lo)))
+            if envelope is not None:
+                envelope.add(h)
             for name, count in block.status_counts().items():
                 status[name][lo:hi] += count
             if m > 0:  # the trajectories' samples k = 0, stride, 2 stride, ... that fall in this block
@@ -211,6 +231,8 @@ def run_scenario(
                 pieces.append((h.t[first::traj_stride].copy(), h.q_BR[first::traj_stride, :m, :3].astype(np.float32),
                                h.rho[first::traj_stride, :m].astype(np.float32)))
             k_lo += h.t.size
+            if sample_progress is not None and lo == 0:
+                sample_progress(k_lo)
             if keep_history:
                 histories.append(h)
         assert block is not None
@@ -229,21 +251,39 @@ def run_scenario(
     return metrics, ScenarioRun(flags, histories[0] if keep_history else None, trajectories, x_final, status, rejected)
 
 
-def simulate(scenario: Scenario, controller: ControllerKind | str | None = None, *, history: bool = True) -> SimulationResult:
+#: What :func:`simulate` keeps of a run's samples: all of them, the figures' bounded envelope
+#: (:class:`~sappc.evaluation.envelope.HistoryEnvelope`: the whole run up to its full-rate
+#: threshold), or none.
+HISTORY_KINDS = ("full", "envelope", "none")
+
+
+def simulate(scenario: Scenario, controller: ControllerKind | str | None = None, *, history: str = "full",
+             progress: Callable[[int], None] | None = None) -> SimulationResult:
     """Run ``scenario`` with ``controller`` (default: the scenario's) and compute its metrics.
 
-    ``history``: keep every sample (the figures, the tests); else the run goes a block of samples
-    at a time (:func:`~sappc.offline.compiled_loop.run_blocks`), its memory flat in its length,
-    and the result's ``history`` is ``None``.  The metrics are the same bits either way.
-    ``metrics["wall_time_s"]`` is the wall time of the run (reference generation, start checks
-    and the metrics included, file output excluded).
+    ``history`` (:data:`HISTORY_KINDS`): ``"full"`` keeps every sample (one block: memory linear in
+    the run's length); ``"envelope"`` (``sappc simulate --out``: the figures) and ``"none"`` run a
+    block of samples at a time (:func:`~sappc.offline.compiled_loop.run_blocks`), their memory flat
+    in the run's length, the result's ``history`` the figures' envelope or ``None``.  The metrics
+    are the same bits in every case.  ``progress(samples)``: called after each block with the
+    samples run so far.  ``metrics["wall_time_s"]`` is the wall time of the run
+    (reference generation, start checks and the metrics included, file output excluded).
     """
+    if history not in HISTORY_KINDS:
+        raise ValueError(f"history must be one of {HISTORY_KINDS}, got {history!r}")
     kind = scenario.resolve_controller(controller)
     start = time.perf_counter()
-    metrics, run = run_scenario(scenario, controller=kind, keep_history=history)
+    envelope = None
+    if history == "envelope":
+        from sappc.evaluation.envelope import HistoryEnvelope
+
+        envelope = HistoryEnvelope((SampleGrid.of_run(scenario.duration_s, scenario.control_period_s).n_samples - 1) * scenario.control_period_s,
+                                   wheels=scenario.wheels)
+    metrics, run = run_scenario(scenario, controller=kind, keep_history=history == "full", envelope=envelope, sample_progress=progress)
     result = metrics.run_metrics(0)
     result["wall_time_s"] = time.perf_counter() - start
-    return SimulationResult(scenario=scenario, controller=kind, history=run.history, metrics=result, controller_summary=run.controller_summary(0),
+    kept = run.history if envelope is None else envelope.history()
+    return SimulationResult(scenario=scenario, controller=kind, history=kept, metrics=result, controller_summary=run.controller_summary(0),
                             per_orbit=metrics.orbit_metrics(0))
 
 

@@ -206,10 +206,11 @@ def environment_field(env, n, t, q_BN, r_N, B_N, B_B):
 
 
 @jit
-def measured_field_of(mag, mag_draws, k, B_B, B_meas):
-    """:func:`environment_measure_field` on one run's rows ``mag`` (7 or 0,) and ``mag_draws`` (U, 3)."""
+def measured_field_of(mag, mag_draws, k, row0, B_B, B_meas):
+    """:func:`environment_measure_field` on one run's rows ``mag`` (7 or 0,) and ``mag_draws`` (U, 3),
+    the update rows from ``row0`` (:func:`~spacecraft_sim.core.magnetometer.measure_field`)."""
     if mag.shape[0] > 0:
-        measure_field(mag, mag_draws, k, B_B, B_meas)
+        measure_field(mag, mag_draws, k, row0, B_B, B_meas)
     else:
         for j in range(3):
             B_meas[j] = B_B[j]
@@ -219,7 +220,7 @@ def measured_field_of(mag, mag_draws, k, B_B, B_meas):
 def environment_measure_field(env, n, k, B_B, B_meas):
     """The flight software's field ``B_meas`` (3,) at sample ``k``: the magnetometer's
     (:func:`~spacecraft_sim.core.magnetometer.measure_field`), or the true ``B_B`` without one."""
-    measured_field_of(env.mag[n], env.mag_draws[n], k, B_B, B_meas)
+    measured_field_of(env.mag[n], env.mag_draws[n], k, 0, B_B, B_meas)
 
 
 @jit

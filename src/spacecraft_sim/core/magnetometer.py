@@ -28,7 +28,7 @@ from gnc_common.compiled import jit
 from gnc_common.validation import ConfigError
 from spacecraft_sim.core.sensors import sample_stride
 
-__all__ = ["MAGNETOMETER_STREAM", "Magnetometer", "magnetometer_draws", "measure_field"]
+__all__ = ["MAGNETOMETER_STREAM", "Magnetometer", "magnetometer_draws", "magnetometer_generator", "measure_field"]
 
 Array = NDArray[np.float64]
 
@@ -84,18 +84,25 @@ def magnetometer_draws(mag: Magnetometer, n_samples: int, control_period_s: floa
     module docstring), one row per update (``U = ceil(T / stride)``)."""
     stride = mag.stride(control_period_s)
     rows = (n_samples + stride - 1) // stride
-    key = [int(run)] if isinstance(run, (int, np.integer)) else [int(k) for k in run]
-    out: Array = np.random.default_rng([mag.seed, MAGNETOMETER_STREAM, *key]).standard_normal((rows, 3))
+    out: Array = magnetometer_generator(mag, run).standard_normal((rows, 3))
     return out
 
 
+def magnetometer_generator(mag: Magnetometer, run: int | Sequence[int] = 0) -> np.random.Generator:
+    """The generator of the run keyed ``run``'s draws (:func:`magnetometer_draws` its first rows;
+    drawn block by block, the same rows: a ``Generator`` fills in order)."""
+    key = [int(run)] if isinstance(run, (int, np.integer)) else [int(k) for k in run]
+    return np.random.default_rng([mag.seed, MAGNETOMETER_STREAM, *key])
+
+
 @jit
-def measure_field(prm, draws, k, B_B, held):
+def measure_field(prm, draws, k, row0, B_B, held):
     """The measurement of sample ``k`` into ``held`` (3,): a new one when ``k`` is an update sample
-    (``k % stride == 0``: ``B_B + b + sigma n``, module docstring), else the held one unchanged."""
+    (``k % stride == 0``: ``B_B + b + sigma n``, module docstring), else the held one unchanged;
+    ``draws`` hold the update rows from ``row0`` (0: the run's; a block of samples: its own)."""
     stride = int(prm[0])
     if k % stride != 0:
         return
-    row = k // stride
+    row = k // stride - row0
     for j in range(3):
         held[j] = B_B[j] + prm[4 + j] + prm[1 + j] * draws[row, j]

@@ -99,6 +99,19 @@ def test_a_campaign_sub_batch_in_blocks_is_the_sub_batch_in_one_call() -> None:
         _assert_same(whole, _blocked(blocked, block), block)
 
 
+def test_an_orbit_sub_batch_in_blocks_is_the_sub_batch_in_one_call() -> None:
+    """Each run's magnetometer stream keyed as a campaign keys it, runs 1..3 of 5 (their streams
+    sliced from the batch's), blocks that start between the magnetometer's updates."""
+    scenario = _with("paper_tracking_orbit", 2.0)
+    q = np.tile(np.asarray(scenario.q_BN0), (5, 1))
+    keys = [(k, 42) for k in range(5)]
+    whole = run_batch(prepare(scenario, q_BN0=q, run_keys=keys).subset(1, 4), 1)
+    blocked = prepare(scenario, q_BN0=q, run_keys=keys, whole=False).subset(1, 4)
+    assert whole.record.env.shape[2] > 0 and scenario.environment.magnetometer is not None
+    for block in (1, 7, 33):
+        _assert_same(whole, _blocked(blocked, block), block)
+
+
 @pytest.mark.parametrize("sizes", [(1, 7, 256, 300, 436), (256, 256, 488), (1000,)])
 def test_noise_streams_in_blocks_are_the_whole_draws(sizes: tuple[int, ...]) -> None:
     """A Generator's standard normals drawn in blocks are the rows of one draw (what makes the
@@ -107,7 +120,7 @@ def test_noise_streams_in_blocks_are_the_whole_draws(sizes: tuple[int, ...]) -> 
     streams = sensor_noise_streams(5, [0, 4, 9], 9).open()
     got = np.concatenate([streams.take(s) for s in sizes], axis=1)
     assert np.array_equal(got, sensor_noise_draws(5, [0, 4, 9], rows, 9))
-    shared = NoiseStreams(lambda: [np.random.default_rng(7)], 1, 9).open()
+    shared = NoiseStreams([lambda: np.random.default_rng(7)], 9).open()
     assert np.array_equal(np.concatenate([shared.take(s) for s in sizes], axis=1)[0], np.random.default_rng(7).standard_normal((rows, 9)))
 
 
