@@ -624,10 +624,11 @@ class SampleMaker:
 
 #: Run-samples (samples times runs) of one block of :func:`run_blocks`: the block's inputs and
 #: record take up to about 1.2 kB a run-sample (the orbit scenario's record 1009 bytes, its inputs
-#: 194: docs/design/streaming.md), so 2**17 bounds a block to about 160 MB whatever the run's
-#: length or the sub-batch's runs, while a block still runs for tens of milliseconds (the call's
+#: 194: docs/design/streaming.md), so 2**16 bounds a block to about 80 MB whatever the run's
+#: length or the sub-batch's runs (a 60 s run's process, numba and the kernels loaded, is about
+#: 190 MB), while a block still runs for about half a second of the orbit scenario (the call's
 #: cost from Python, and the inputs made per block, stay below a percent).
-BLOCK_RUN_SAMPLES = 1 << 17
+BLOCK_RUN_SAMPLES = 1 << 16
 
 
 @dataclass
