@@ -210,3 +210,21 @@ def test_a_scenario_file_above_the_size_limit_is_refused_before_it_is_parsed(tmp
     err = capsys.readouterr().err
     assert err == (f"sappc: error: {above} is {MAX_SCENARIO_BYTES + 1:,} bytes, more than a scenario file may be "
                    f"({MAX_SCENARIO_BYTES:,} bytes): is it the right file?\n"), err
+
+
+def test_simulate_duration_flies_the_scenario_longer_and_draws_its_figures_from_the_envelope(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """``--duration 250``: the paper's task for 25001 samples (beyond the envelope's full-rate
+    threshold: the figures come from the bounded envelope), every figure written, the JSON's
+    scenario the file's with the new duration; a bad duration is one line naming the option."""
+    from sappc.evaluation.envelope import FULL_RATE_MAX_SAMPLES
+
+    out, js = tmp_path / "figs", tmp_path / "m.json"
+    assert main(["simulate", "paper_tracking", "--duration", "250", "--out", str(out), "--json", str(js), "--no-progress"]) == 0
+    report = json.loads(js.read_text())
+    assert report["controller_summary"]["samples"] == 25001 > FULL_RATE_MAX_SAMPLES
+    assert report["parameters"]["scenario"]["duration_s"] == 250.0
+    assert {p.name for p in out.glob("*.png")} >= {"qev.png", "qev_zoom.png", "qev_log.png", "torque.png", "eps_lyapunov.png"}
+    capsys.readouterr()
+    assert main(["simulate", "paper_tracking", "--duration", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert "--duration -1.0" in err and "duration_s" in err and err.count("\n") == 1

@@ -11,8 +11,8 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
-from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -24,9 +24,6 @@ from sappc.offline import compiled_loop
 from sappc_msgs_py.contract import ANSWER_NAMES
 from sappc_controller.core.input_check import REJECT_REASONS
 from sappc.scenario import ControllerKind, Scenario, check_run_fits_in_memory, scenario_bytes_per_sample
-
-if TYPE_CHECKING:
-    from sappc.evaluation.envelope import HistoryEnvelope
 
 __all__ = ["HISTORY_KINDS", "ScenarioRun", "SimulationResult", "metrics_accumulator", "run_scenario", "simulate"]
 
@@ -130,7 +127,7 @@ def run_scenario(
     run_keys: list[tuple[int, ...]] | None = None,
     orbits: np.ndarray | None = None,
     per_orbit: bool = True,
-    envelope: HistoryEnvelope | None = None,
+    sinks: Sequence[Callable[[History], None]] = (),
     sample_progress: Callable[[int], None] | None = None,
 ) -> tuple[MetricsAccumulator, ScenarioRun]:
     """Run the scenario's closed loop, for one run or a batch: the one place that assembles it.
@@ -157,8 +154,10 @@ def run_scenario(
     each run's key of its magnetometer's stream (a campaign's ``(run, seed)``; default ``(k,)``).
     ``orbits``: each run's orbit parameters (a campaign's dispersed orbit), else the scenario's.
     ``per_orbit``: in orbit, also the per-orbit metrics (0.9 s of CPU a 6 h run; a campaign, which
-    does not report them, leaves them out).  ``envelope``: fed every block of a one-run batch's
-    history (the figures of a run whose history is not kept).  ``sample_progress(k)``: called after
+    does not report them, leaves them out).  ``sinks``: each called with every block of a one-run
+    batch's history, in order (views of a buffer reused for the next block: a sink copies what it
+    keeps): the figures' envelope (:class:`~sappc.evaluation.envelope.HistoryEnvelope`'s ``add``),
+    a recorder.  ``sample_progress(k)``: called after
     each block of the first sub-batch with its samples run so far (a long run's progress).
 
     Raises
@@ -178,8 +177,8 @@ def run_scenario(
     if keep_history:  # the whole record of every run, before anything is allocated
         runs = 1 if q_BN0 is None else np.atleast_2d(q_BN0).shape[0]
         check_run_fits_in_memory(scenario.duration_s, scenario.control_period_s, scenario_bytes_per_sample(scenario) * runs)
-    if envelope is not None and q_BN0 is not None and np.atleast_2d(q_BN0).shape[0] != 1:
-        raise ValueError("an envelope takes the history of one run")
+    if sinks and q_BN0 is not None and np.atleast_2d(q_BN0).shape[0] != 1:
+        raise ValueError("a sink takes the history of one run")
     inp = compiled_loop.prepare(
         scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
         disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
@@ -222,8 +221,8 @@ def run_scenario(
         for block in blocks:
             h = block.history()
             acc.add_history(h, block_samples=max(1, METRICS_BLOCK // (hi - lo)))
-            if envelope is not None:
-                envelope.add(h)
+            for sink in sinks:
+                sink(h)
             for name, count in block.status_counts().items():
                 status[name][lo:hi] += count
             if m > 0:  # the trajectories' samples k = 0, stride, 2 stride, ... that fall in this block
@@ -258,7 +257,7 @@ HISTORY_KINDS = ("full", "envelope", "none")
 
 
 def simulate(scenario: Scenario, controller: ControllerKind | str | None = None, *, history: str = "full",
-             progress: Callable[[int], None] | None = None) -> SimulationResult:
+             progress: Callable[[int], None] | None = None, sinks: Sequence[Callable[[History], None]] = ()) -> SimulationResult:
     """Run ``scenario`` with ``controller`` (default: the scenario's) and compute its metrics.
 
     ``history`` (:data:`HISTORY_KINDS`): ``"full"`` keeps every sample (one block: memory linear in
@@ -266,7 +265,7 @@ def simulate(scenario: Scenario, controller: ControllerKind | str | None = None,
     block of samples at a time (:func:`~sappc.offline.compiled_loop.run_blocks`), their memory flat
     in the run's length, the result's ``history`` the figures' envelope or ``None``.  The metrics
     are the same bits in every case.  ``progress(samples)``: called after each block with the
-    samples run so far.  ``metrics["wall_time_s"]`` is the wall time of the run
+    samples run so far; ``sinks``: each given every block's history (:func:`run_scenario`).  ``metrics["wall_time_s"]`` is the wall time of the run
     (reference generation, start checks and the metrics included, file output excluded).
     """
     if history not in HISTORY_KINDS:
@@ -279,7 +278,8 @@ def simulate(scenario: Scenario, controller: ControllerKind | str | None = None,
 
         envelope = HistoryEnvelope((SampleGrid.of_run(scenario.duration_s, scenario.control_period_s).n_samples - 1) * scenario.control_period_s,
                                    wheels=scenario.wheels)
-    metrics, run = run_scenario(scenario, controller=kind, keep_history=history == "full", envelope=envelope, sample_progress=progress)
+    metrics, run = run_scenario(scenario, controller=kind, keep_history=history == "full", sinks=(*sinks, *(() if envelope is None else (envelope.add,))),
+                                sample_progress=progress)
     result = metrics.run_metrics(0)
     result["wall_time_s"] = time.perf_counter() - start
     kept = run.history if envelope is None else envelope.history()

@@ -130,3 +130,23 @@ def test_a_block_must_start_at_a_recorded_sample() -> None:
     rec = compiled_loop._record(inp, 2, 1, 3)
     with pytest.raises(ValueError, match="multiple of the stride"):
         compiled_loop._loop(False, 2, compiled_loop.dataclasses.replace(block, k_lo=3), rec, compiled_loop._state(inp, 1))
+
+
+@pytest.mark.parametrize("name", ["faults_random", "flight_outage", "orbit"])
+def test_simulate_in_blocks_gives_the_metrics_of_the_whole_record(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``simulate(history="none")`` and ``"envelope"`` (``sappc simulate`` without and with
+    ``--out``) step the run in blocks (of 7 samples here) and give every metric, the per-orbit table
+    and the controller's summary of ``history="full"`` (the whole record), the same bits; the
+    envelope of a run this short is its whole history."""
+    from sappc.offline.simulate import simulate
+
+    scenario = SCENARIOS[name]()
+    full = simulate(scenario, history="full")
+    monkeypatch.setattr(compiled_loop, "BLOCK_RUN_SAMPLES", 7)
+    for kind in ("none", "envelope"):
+        got = simulate(scenario, history=kind)
+        for key in full.metrics.keys() - {"wall_time_s"}:
+            assert repr(got.metrics[key]) == repr(full.metrics[key]), (kind, key)
+        assert got.per_orbit == full.per_orbit and got.controller_summary == full.controller_summary, kind
+    assert got.history is not None and full.history is not None
+    assert np.array_equal(got.history.q_BR, full.history.q_BR) and np.array_equal(got.history.t, full.history.t)
