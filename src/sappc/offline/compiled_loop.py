@@ -29,18 +29,24 @@ momentum management  ``MomentumArrays`` (:func:`sappc_momentum.core.law.pack_mom
 
 Adding a model is its room (its arrays, its ``pack_*``, its kernels) and one registration here: a
 field of :class:`CompiledInputs`, its ``pack_*`` call in :func:`prepare` and its kernels' call at
-their place in :func:`_run_one` (the closed loop's order is the one thing the loop knows).
+their place in :func:`_run_one` (the closed loop's order is the one thing the loop knows); what its
+kernels carry from one sample to the next goes into :class:`LoopState`, and its per-sample arrays,
+if any, are made per block (:class:`SampleMaker`, :meth:`CompiledInputs.blocks`).
 
-One code path: :func:`_run_one` is the whole time loop of one run; :func:`run_batch_kernel` calls
-it for every run in a ``prange`` (runs are independent: each has its own parameters, state and
-scratch arrays), and one run calls it from Python (:func:`run_single`) with the same argument types,
-so run ``k`` of a batch is the run alone, bit for bit (and a one-run command compiles ``_run_one``
-alone: its ~9 s of parallel lowering is the batch kernel's).
+One code path: :func:`_run_one` is the time loop of one run over a block of samples (the whole run
+is one block, or the blocks follow one another: :class:`LoopState` carries the run between them,
+so the run in blocks is the run in one call, bit for bit); :func:`run_batch_kernel` calls it for
+every run in a ``prange`` (runs are independent: each has its own parameters, state and scratch
+arrays), and one run calls it from Python (:func:`run_single`) with the same argument types, so run
+``k`` of a batch is the run alone, bit for bit (and a one-run command compiles ``_run_one`` alone:
+its ~9 s of parallel lowering is the batch kernel's).  :func:`run_batch` runs a batch in one block
+(its whole record), :func:`run_blocks` a block of :data:`BLOCK_RUN_SAMPLES` run-samples at a time
+(memory flat in the run's length: docs/design/streaming.md).
 
-What every run shares (reference, and the disturbance when no run changes it) is computed once
-before the loop: the reference quaternion by the compiled RK4 of
-:meth:`spacecraft_sim.core.reference.PaperReference.sample`, its rates by the rate kernel; a shared
-disturbance becomes a (T, 3) table.
+What every run shares (reference, and the disturbance when no run changes it) is computed once per
+block: the reference quaternion by the compiled RK4 of
+:meth:`spacecraft_sim.core.reference.PaperReference.sample` (continued from block to block), its
+rates by the rate kernel; a shared disturbance becomes a (B, 3) table.
 """
 
 from __future__ import annotations
