@@ -1,6 +1,6 @@
 """The ``sappc`` command line.
 
-    sappc simulate SCENARIO [--controller sappc|trappc|blfppc|mrp_feedback] [--json FILE] [--out DIR]
+    sappc simulate SCENARIO [--controller sappc|trappc|blfppc|mrp_feedback] [--json FILE] [--out DIR] [--record DIR]
     sappc simulate --from-campaign DIR --run K [--json FILE] [--out DIR]
     sappc montecarlo SCENARIO --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
     sappc tune SCENARIO [--controller K] [--trials N] [--runs-per-trial M] [--seed S] [--workers W | --scheduler ADDRESS] [--out DIR] [--resume]
@@ -216,6 +216,11 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from sappc.offline.simulate import simulate
 
     scenario = load_scenario(args.scenario) if args.duration is None else _with_duration(args.scenario, args.duration)
+    writer = None
+    if args.record is not None:  # the bag's directory before the run: one that exists stops here
+        from sappc.bag.write_offline import OfflineBagWriter
+
+        writer = OfflineBagWriter(scenario, args.record, controller=args.controller)
     import time
 
     from sappc.bag.read import Ticker
@@ -232,9 +237,17 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                 stepped.append(True)
             ticker.detail(f"{samples * scenario.control_period_s:.0f} of {scenario.duration_s:.0f} s")
 
-        # memory flat in the run's length: the figures from the envelope, no history without them
-        result = simulate(scenario, args.controller, history="envelope" if args.out else "none", progress=progress)
+        # memory flat in the run's length: the figures from the envelope, no history without them;
+        # with --record each block of the run written to the bag as it comes
+        try:
+            result = simulate(scenario, args.controller, history="envelope" if args.out else "none", progress=progress,
+                              sinks=() if writer is None else (writer,))
+        finally:
+            if writer is not None:
+                writer.close()  # (a failed run: what was written, a whole file)
         ticker.idle()
+    if writer is not None:
+        print(f"wrote {writer.dir} ({writer.samples} samples of {len(writer.channels)} topics)")
     _print_metrics(scenario.name, result.controller.value, result.metrics)
     _print_orbits(result.per_orbit)
     failed = _print_outcome(scenario, result.metrics, result.controller_summary)
@@ -303,6 +316,10 @@ def _simulate_from_campaign(args: argparse.Namespace) -> int:
 
     if args.scenario is not None or args.controller is not None:
         raise ConfigError("--from-campaign takes the scenario and controller from the campaign; give neither")
+    if args.record is not None:
+        raise ConfigError("--record records a scenario's run, not a campaign's: give SCENARIO")
+    if args.duration is not None:
+        raise ConfigError("--duration changes a scenario's run, not a campaign's: give SCENARIO")
     if args.run is None:
         raise ConfigError("--from-campaign needs --run K")
     scenario, row, metrics, history = load_campaign_run(args.from_campaign, args.run, with_history=bool(args.out))
@@ -727,6 +744,10 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--json", metavar="FILE", help="write metrics and all parameters used as JSON ('-': to stdout)")
     sim.add_argument("--out", metavar="DIR", help="write paper-style PNG figures to DIR (default: no figures)")
     sim.add_argument("--plots", metavar="DIR", dest="out", action=_DeprecatedAlias, new="--out", help=argparse.SUPPRESS)
+    sim.add_argument("--record", metavar="DIR",
+                     help="write the run's full-rate record to the new directory DIR as a bag (rosbag2, MCAP) of the graph's topics, "
+                          "types and stamps, block by block (memory does not grow with the run): sappc report, compare, rerun and "
+                          "Foxglove read it as a run of sappc run")
     sim.add_argument("--duration", type=float, metavar="SECONDS",
                      help="fly the scenario for this long instead of its duration_s (e.g. 86400 or 604800: a day or a week of "
                           "paper_tracking_orbit); memory does not grow with it")

@@ -228,3 +228,17 @@ def test_simulate_duration_flies_the_scenario_longer_and_draws_its_figures_from_
     assert main(["simulate", "paper_tracking", "--duration", "-1"]) == 2
     err = capsys.readouterr().err
     assert "--duration -1.0" in err and "duration_s" in err and err.count("\n") == 1
+
+
+def test_simulate_record_writes_a_bag_that_report_reads(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """``--record DIR``: the run's bag (rosbag2 MCAP of the graph's topics), which ``sappc report``
+    reads with the run's metrics; a DIR that exists is refused before the run (exit 2, one line)."""
+    bag, sim_json, rep_json = tmp_path / "bag", tmp_path / "sim.json", tmp_path / "rep.json"
+    assert main(["simulate", "paper_tracking", "--duration", "3", "--record", str(bag), "--json", str(sim_json), "--no-progress"]) in (0, 4)
+    assert (bag / "metadata.yaml").is_file() and list(bag.glob("*.mcap"))
+    assert main(["report", str(bag), "--out", str(tmp_path / "report"), "--json", str(rep_json)]) == 0
+    simulated, reported = json.loads(sim_json.read_text())["metrics"], json.loads(rep_json.read_text())["metrics"]
+    assert reported["steady_max_abs_qev"] == simulated["steady_max_abs_qev"] and reported["max_abs_torque_Nm"] == simulated["max_abs_torque_Nm"]
+    capsys.readouterr()
+    assert main(["simulate", "paper_tracking", "--duration", "3", "--record", str(bag)]) == 2
+    assert capsys.readouterr().err.count("\n") == 1

@@ -30,7 +30,9 @@ class History:
     software's (measured) field [T], the environment's torque ``L_env_B`` [N m] and the M rods'
     dipole commands [A m^2] (:attr:`sappc.offline.compiled_loop.LoopRecord.env`'s columns; from a
     bag the torque is NaN, not published, and the rods' columns are there with a management node's
-    ``control/dipole`` only); ``None`` without an orbit."""
+    ``control/dipole`` only); ``None`` without an orbit.  ``answer`` (T, N) int8: how the controller
+    answered each sample (the contract's ``ANSWER_*`` codes, the loop's record of them); ``None``
+    where not recorded (a bag's are :attr:`sappc.bag.read.BagRun.answer`)."""
 
     t: Array
     q_BN: Array
@@ -50,6 +52,7 @@ class History:
     wheel_torque_Nm: Array | None = None
     estimate: EstimateHistory | None = None
     orbit: Array | None = None
+    answer: NDArray[np.int8] | None = None
 
     @property
     def q_ev(self) -> Array:

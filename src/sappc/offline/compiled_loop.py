@@ -891,6 +891,7 @@ class CompiledRun:
             wheel_torque_Nm=self.wheels[..., 1].transpose(1, 0, 2) if self.wheels.shape[2] else None,
             estimate=self.estimates(),
             orbit=self.env.transpose(1, 0, 2) if self.env.shape[2] else None,
+            answer=self.status.T,
         )
 
 
