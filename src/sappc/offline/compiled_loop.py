@@ -86,10 +86,10 @@ from sappc_momentum.core.law import N_MM_WORK, MomentumArrays, momentum_manageme
 from sappc_momentum.core.predictive import MS_TLAST, MS_TNEXT, N_MM_STATE
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO, ESTIMATOR_NO_INPUT
 from sappc_msgs_py.convert import seconds_to_ns
-from spacecraft_sim.core.reference import sample_times
 
 from sappc.evaluation.estimation import EstimateHistory
 from sappc.evaluation.history import History
+from sappc.evaluation.metrics import SampleGrid
 from sappc.scenario import Scenario
 
 __all__ = ["BLOCK_RUN_SAMPLES", "CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "LoopState", "NoiseStreams", "SampleMaker",
@@ -935,7 +935,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     h0 = np.array([w.initial_momentum(w0[k]) for k, w in enumerate(per_run_wheels)]).reshape(n, -1)
     plant = pack_plant(np.concatenate((q0, w0, h0), axis=1), scenario.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2,
                        scenario.rk4_substeps)
-    T = sample_times(scenario.duration_s, scenario.control_period_s).size
+    T = SampleGrid.of_run(scenario.duration_s, scenario.control_period_s).n_samples  # sample_times' count, not its array (480 MB a week)
     per_run_faults = [scenario.faults] * n if faults is None else list(faults)
     if len(per_run_faults) != n:
         raise ValueError(f"faults must hold one list per run ({n}), got {len(per_run_faults)}")

@@ -21,6 +21,7 @@ from sappc.montecarlo.draws import sensor_noise_draws, sensor_noise_streams
 from sappc.offline import compiled_loop
 from sappc.offline.compiled_loop import NoiseStreams, prepare, run_batch, run_blocks
 from sappc.scenario import read_scenario_mapping, scenario_from_mapping
+from spacecraft_sim.core.reference import sample_times
 
 #: Block sizes [samples]: one sample (every boundary), a prime (boundaries at every phase of the
 #: star tracker's and the magnetometer's strides), a power of two, and more than the run (one block).
@@ -92,7 +93,7 @@ def test_a_campaign_sub_batch_in_blocks_is_the_sub_batch_in_one_call() -> None:
     q = rng.normal(size=(5, 4)) * 0.05 + np.asarray(scenario.q_BN0)
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     params = scenario.sensors.params(scenario.control_period_s)
-    T = compiled_loop.sample_times(scenario.duration_s, scenario.control_period_s).size
+    T = sample_times(scenario.duration_s, scenario.control_period_s).size
     whole = run_batch(prepare(scenario, q_BN0=q, sensor_params=params).subset(1, 4, sensor_noise_draws(11, range(1, 4), T, 9)), 1)
     blocked = prepare(scenario, q_BN0=q, sensor_params=params, whole=False).subset(1, 4, sensor_noise_streams(11, range(1, 4), 9))
     for block in (7, 4096):
@@ -150,3 +151,35 @@ def test_simulate_in_blocks_gives_the_metrics_of_the_whole_record(name: str, mon
         assert got.per_orbit == full.per_orbit and got.controller_summary == full.controller_summary, kind
     assert got.history is not None and full.history is not None
     assert np.array_equal(got.history.q_BR, full.history.q_BR) and np.array_equal(got.history.t, full.history.t)
+
+
+def _traced_peak_of_first_blocks(duration_s: float) -> tuple[int, int]:
+    """(the traced peak [bytes], the samples) of preparing the orbit scenario for ``duration_s``, its
+    metrics' accumulator and its first two blocks through the metrics (``tracemalloc``: numpy's
+    arrays included)."""
+    import tracemalloc
+
+    from sappc.offline.simulate import metrics_accumulator
+
+    scenario = _with("paper_tracking_orbit", duration_s)
+    tracemalloc.start()
+    try:
+        inp = prepare(scenario, whole=False)
+        acc = metrics_accumulator(scenario, inp.n_samples, scenario.control_period_s, 1)
+        for _, run in zip(range(2), run_blocks(inp, 1)):
+            acc.add_history(run.history())
+        return tracemalloc.get_traced_memory()[1], inp.n_samples
+    finally:
+        tracemalloc.stop()
+
+
+def test_a_weeks_run_holds_nothing_of_its_length() -> None:
+    """A week of the orbit scenario (60,480,001 samples) allocates, to start, what a day does
+    (8,640,001) but for the one array that grows: the campaign's per-sample NEES, at most 2**22
+    entries of 16 bytes (64 MiB; a day keeps 2,880,001: the week's adds 18 MiB).  The bound is one
+    byte for each of the week's 51.8 million more samples (52 MB): any array over the run's
+    samples, even the sample times alone (8 bytes a sample), breaks it."""
+    day, day_samples = _traced_peak_of_first_blocks(86400.0)
+    week, week_samples = _traced_peak_of_first_blocks(604800.0)
+    assert week_samples == 60_480_001 and day_samples == 8_640_001
+    assert week - day < 1.0 * (week_samples - day_samples), f"{(week - day) / 2**20:.0f} MiB more for a week"
