@@ -4,10 +4,10 @@
 
 One ``sappc montecarlo paper_tracking_orbit --runs N --workers W --out DIR`` in a child process of
 its own per repeat (after one uncounted warm-up of one run, which loads or compiles the numba
-cache).  Measured: the wall time, the CPU time of the process tree, and the peak resident set
-``ru_maxrss`` that ``os.wait4`` gives for the child, which on Linux is the largest resident set of
-any one process of its tree (the command and the worker processes it waited for): with workers,
-the largest worker's peak (a worker holds its chunk's runs; the parent holds the results).  The
+cache).  Measured: the wall time, the CPU time of the process tree, each process's own peak
+resident set (``VmHWM``, read every half second: :func:`proc_tree.run_polled`): the parent's (it
+assembles the table and the figures) and the largest worker's (a worker runs its chunks), and
+``ru_maxrss`` of ``os.wait4`` (the largest single process of the tree, exact).  The
 campaign's ``runs.csv`` is hashed: equal hashes between two checkouts are the same table bit for
 bit (``--baseline DIR``: the same cases in the checkout DIR, alternately, as bench_memory.py).
 
@@ -29,6 +29,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import paired  # noqa: E402
+from proc_tree import run_polled  # noqa: E402
 
 #: The campaign's scenario: the 6 h orbit (2,160,001 samples a run, the heaviest bundled campaign).
 SCENARIO = "paper_tracking_orbit"
@@ -42,10 +43,13 @@ def run_campaign(root: Path, runs: int, workers: int, tmp: Path) -> dict[str, An
     scenario = root / "src" / "sappc" / "data" / "scenarios" / f"{SCENARIO}.yaml"
     argv = [sys.executable, "-m", "sappc", "montecarlo", str(scenario), "--runs", str(runs), "--workers", str(workers),
             "--out", str(out / "mc"), "--no-progress"]
-    wall, usage = paired.run_with_usage(argv, {"PYTHONPATH": str(root / "src")}, tmp, CAMPAIGN_TIMEOUT_S)
+    run = run_polled(argv, tmp, CAMPAIGN_TIMEOUT_S, {"PYTHONPATH": str(root / "src")})
+    if run["exit"] not in (0, 1):  # 1: a run failed the campaign's criteria (a result, not an error)
+        raise SystemExit(f"{' '.join(argv)} exited {run['exit']}:\n{run['output_tail']}")
     table = (out / "mc" / "runs.csv").read_bytes()
-    return {"peak_rss_mb": usage.ru_maxrss / 1024.0, "cpu_s": usage.ru_utime + usage.ru_stime, "wall_s": wall,
-            "runs_csv_digest": hashlib.sha256(table).hexdigest()[:16]}
+    peaks = list(run["peak_by_pid_mb"].values())
+    return {"peak_rss_mb": run["ru_maxrss_mb"], "parent_peak_mb": peaks[0], "worker_peak_mb": max(peaks[1:], default=0.0),
+            "cpu_s": run["cpu_s"], "wall_s": run["wall_s"], "runs_csv_digest": hashlib.sha256(table).hexdigest()[:16]}
 
 
 def main() -> None:
@@ -65,7 +69,7 @@ def main() -> None:
             order = list(roots.items()) if i % 2 == 0 else list(reversed(roots.items()))
             for side, root in order:
                 results[side].append(run_campaign(root, args.runs, args.workers, tmp))
-    summary = {side: {key: statistics.median(r[key] for r in rs) for key in ("peak_rss_mb", "cpu_s", "wall_s")}
+    summary = {side: {key: statistics.median(r[key] for r in rs) for key in ("peak_rss_mb", "parent_peak_mb", "worker_peak_mb", "cpu_s", "wall_s")}
                | {"runs_csv_digests": sorted({r["runs_csv_digest"] for r in rs})} for side, rs in results.items()}
     print(json.dumps({"benchmark": "bench_campaign_memory", "machine": paired.machine(), "scenario": SCENARIO, "runs": args.runs,
                       "workers": args.workers, "repeats": args.repeats,
