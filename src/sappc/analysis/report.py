@@ -24,7 +24,8 @@ from sappc_msgs_py.contract import CLOCK, ESTIMATOR_TOPICS, FAULT_TOPICS, MOMENT
 from sappc_controller.params import parameters_from_yaml
 from gnc_common.validation import ConfigError, safe_load_yaml
 
-from sappc.bag.read import PARAMS_RECORD, SCENARIO_RECORD, Bag, BagError, BagRun, bag_metrics, bag_run, find_topic, read_bag
+from sappc.bag.blocks import BLOCK_BYTES, BagBlocks, figure_sink
+from sappc.bag.read import PARAMS_RECORD, SCENARIO_RECORD, Bag, BagError, BagRun, find_topic
 from sappc.scenario import MetricSettings, Scenario, load_scenario, scenario_from_mapping
 
 __all__ = ["METRIC_SENTENCES", "NOT_APPLICABLE", "BagAnalysis", "analyse_bag", "compare_bags", "html_page", "metric_meanings", "parameters_block",
@@ -49,10 +50,11 @@ class BagAnalysis:
     problems: list[str] = field(default_factory=list)  # what could not be computed, and why
     notes: list[str] = field(default_factory=list)  # what is worth knowing about the data
     per_orbit: list[dict[str, Any]] = field(default_factory=list)  # a run in orbit: each orbit's metrics
+    read_whole: str | None = None  # why the bag was read whole, not in blocks (sappc.bag.blocks); None: in blocks
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready: metrics, where the data ends, counts, problems and notes."""
-        h = self.run.history if self.run is not None else None
+        r = self.run
         return {
             "bag": str(self.path),
             "label": self.label,
@@ -60,8 +62,8 @@ class BagAnalysis:
             "controller": self.controller,
             "metrics": self.metrics,
             **({"per_orbit": self.per_orbit} if self.per_orbit else {}),
-            "samples": int(h.t.size) if h is not None else 0,
-            "end_s": float(h.t[-1]) if h is not None else None,
+            "samples": r.samples if r is not None else 0,
+            "end_s": r.end_s if r is not None else None,
             "truncated": self.bag.truncated,
             "messages": self.bag.counts,
             "undecodable": self.bag.undecodable,
@@ -88,18 +90,22 @@ def _embedded_controller(bag: Bag) -> str | None:
         return None
 
 
-def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagAnalysis:
+def analyse_bag(path: str | Path, *, scenario: str | Path | None = None, block_bytes: int = BLOCK_BYTES) -> BagAnalysis:
     """Read the bag at ``path`` and compute what its data allows (see the module docstring).
 
     ``scenario``: a scenario file whose metric settings and events apply (default: the one
     embedded in the bag, else :class:`~sappc.scenario.MetricSettings` defaults and no events).
+    The bag is read in blocks of ``block_bytes`` (:class:`~sappc.bag.blocks.BagBlocks`: the
+    memory is set by the block, not by the bag); the figures' History is
+    :func:`~sappc.bag.blocks.figure_sink`'s.
 
     Raises
     ------
     BagError
         If ``path`` is not a bag or holds no message of the contract's types.
     """
-    bag = read_bag(path)
+    blocks = BagBlocks(path, block_bytes=block_bytes)
+    bag = blocks.bag  # its metadata records; its counts once the blocks are read
     notes: list[str] = []
     problems: list[str] = []
     sc: Scenario | None
@@ -115,6 +121,11 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
     label = controller or Path(path).name
     settings = sc.metrics if sc else MetricSettings()
     windows = sc.event_windows() if sc else []
+    wheels = sc.wheels if sc else None
+    measured = blocks.measure(steady_from_s=settings.steady_from_s, settle_threshold=settings.settle_threshold, t2_s=settings.t2_s,
+                              fault_windows=windows, orbit_bins=sc.orbit_bins() if sc else None,
+                              figures=lambda t_end_s: figure_sink(t_end_s, wheels=wheels))
+    bag = measured.bag
 
     for undecodable, n in bag.undecodable.items():
         notes.append(f"{undecodable}: {n} message(s) do not fit their type's layout and were skipped")
@@ -132,20 +143,16 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
     if missing:
         notes.append(f"topics absent from the bag: {', '.join(missing)}")
 
-    run: BagRun | None = None
-    metrics: dict[str, Any] | None = None
-    per_orbit: list[dict[str, Any]] = []
-    try:
-        run = bag_run(bag)
-    except BagError as exc:
-        problems.append(f"no metrics and no figures of the run: {exc}")
+    run, metrics, per_orbit = measured.run, measured.metrics, measured.per_orbit
+    if measured.read_whole is not None:
+        notes.append(f"the bag was read whole, not in blocks ({measured.read_whole}): its memory grows with its length")
+    if measured.problem is not None:
+        problems.append(f"no metrics and no figures of the run: {measured.problem}")
     if run is not None:
-        metrics, per_orbit = bag_metrics(bag, steady_from_s=settings.steady_from_s, settle_threshold=settings.settle_threshold,
-                                         t2_s=settings.t2_s, fault_windows=windows, run=run, orbit_bins=sc.orbit_bins() if sc else None)
         if not run.has_diagnostics:
             problems.append("no controller/diagnostics: rho, the constraint band, saturation and the Lyapunov values are "
                             "unknown, so the metrics that need them are null")
-        end = float(run.history.t[-1])
+        end = run.end_s
         if bag.truncated:
             of = f" of the scenario's {sc.duration_s:g} s" if sc else ""
             notes.insert(0, f"the bag is cut short ({bag.truncated}); its data ends at t = {end:.3f} s{of}: "
@@ -162,7 +169,8 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None) -> BagA
     elif bag.truncated:
         notes.insert(0, f"the bag is cut short ({bag.truncated})")
     return BagAnalysis(path=Path(path), bag=bag, label=label, scenario=sc, controller=controller, run=run,
-                       metrics=metrics, fault_windows=windows, problems=problems, notes=notes, per_orbit=per_orbit)
+                       metrics=metrics, fault_windows=windows, problems=problems, notes=notes, per_orbit=per_orbit,
+                       read_whole=measured.read_whole)
 
 
 # ---- HTML -------------------------------------------------------------------------------------
@@ -377,7 +385,7 @@ def compare_bags(analyses: list[BagAnalysis], out_dir: Path) -> tuple[list[str],
     notes = [f"{lab}: {n}" for lab, a in zip(labels, analyses) for n in a.problems + a.notes]
     blocks = [
         "<h2>Runs</h2>" + html_table(["run", "bag", "scenario", "samples"],
-                                     [[lab, str(a.path), a.scenario.name if a.scenario else None, run.history.t.size]
+                                     [[lab, str(a.path), a.scenario.name if a.scenario else None, run.samples]
                                       for lab, a, run in zip(labels, analyses, runs)]),
         html_list(notes, "note"),
         "<h2>Metrics</h2>" + html_table(header, rows) + f"<p>{html.escape(NOT_APPLICABLE)}</p>",

@@ -18,8 +18,9 @@ so a bag cut short by a crash yields what was flushed.
 
 from __future__ import annotations
 
+import os
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,7 +29,7 @@ import numpy as np
 import zstandard
 from numpy.typing import NDArray
 
-__all__ = ["MAGIC", "Channel", "Scan", "scan_mcap"]
+__all__ = ["MAGIC", "Channel", "McapWalk", "Piece", "Scan", "scan_mcap"]
 
 #: The 8 bytes that open (and close) an MCAP file of major version 0.
 MAGIC = b"\x89MCAP0\r\n"
@@ -153,23 +154,29 @@ class _Builder:
         unpack_head, unpack_msg = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
         channel, log_time, start, length = self.channel, self.log_time, self.start, self.length
         before = len(start)
-        while off + 9 <= end:
-            op, n = unpack_head(buf, off)
-            body = off + 9
-            nxt = body + n
-            if nxt > end:
-                raise ValueError(f"a record runs past the end of its chunk (offset {off})")
-            if op == _OP_MESSAGE:
-                if n < 22:
-                    raise ValueError(f"message record of {n} bytes")
-                ch, _seq, log_t, _pub = unpack_msg(buf, body)
-                channel.append(ch)
-                log_time.append(log_t)
-                start.append(base + body + 22)
-                length.append(n - 22)
-            elif op in (_OP_SCHEMA, _OP_CHANNEL):
-                self._definition(op, buf, body)
-            off = nxt
+        try:
+            while off + 9 <= end:
+                op, n = unpack_head(buf, off)
+                body = off + 9
+                nxt = body + n
+                if nxt > end:
+                    raise ValueError(f"a record runs past the end of its chunk (offset {off})")
+                if op == _OP_MESSAGE:
+                    if n < 22:
+                        raise ValueError(f"message record of {n} bytes")
+                    ch, _seq, log_t, _pub = unpack_msg(buf, body)
+                    channel.append(ch)
+                    log_time.append(log_t)
+                    start.append(base + body + 22)
+                    length.append(n - 22)
+                elif op in (_OP_SCHEMA, _OP_CHANNEL):
+                    self._definition(op, buf, body)
+                off = nxt
+        except (ValueError, struct.error):
+            # none of the chunk's messages: their payloads are in no kept buffer (reading stops here)
+            for column in (channel, log_time, start, length):
+                del column[before:]
+            raise
         if len(start) > before:
             self.pieces.append(buf)
             self.base += len(buf)
@@ -229,3 +236,211 @@ def scan_mcap(path: str | Path, *, progress: Callable[[int, int], object] | None
         metadata=b.metadata,
         truncated=truncated,
     )
+
+
+# ---- the file a chunk at a time -----------------------------------------------------------------
+
+_OP_MESSAGE_INDEX = 0x07
+#: Message index record: channel id u16, then the byte length u32 of its (log time u64, offset u64) pairs.
+_MESSAGE_INDEX_HEAD = struct.Struct("<HI")
+#: Bytes of a message record before its payload: opcode u8, length u64, channel id u16, sequence
+#: u32, log time u64, publish time u64.
+_MESSAGE_PAYLOAD_AT = 9 + 22
+#: The file's read buffer [bytes]: records are read in file order, a few at a time.
+_READ_BUFFER_BYTES = 1 << 20
+
+
+@dataclass
+class Piece:
+    """The messages of one chunk (or of one message outside any chunk), in file order."""
+
+    data: bytes  # the chunk's uncompressed records
+    channel_id: NDArray[np.int64]  # (m,)
+    log_time_ns: NDArray[np.int64]  # (m,)
+    start: NDArray[np.int64]  # (m,) offset of each payload in ``data``
+    length: NDArray[np.int64]  # (m,) payload length [bytes]
+    walked: int  # bytes of the file walked up to the end of this piece
+
+
+class McapWalk:
+    """The messages of an MCAP file a chunk at a time (:meth:`pieces`): the same messages, channels,
+    metadata and end as :func:`scan_mcap`'s, in the same order, without reading the file whole or
+    keeping what was walked (``sappc.bag.blocks``: a bag of 16.5 million messages, 756 MB).
+
+    A chunk's messages are found from the message index records that follow it (where the writer
+    wrote them: rosbag2 and the ``mcap`` package do): their records are read as columns, with no
+    Python per message; the records between them (schemas and channels) are walked.  A chunk whose
+    index does not account for each of its records exactly is walked record by record, as
+    :func:`scan_mcap` walks every chunk.  :attr:`channels`, :attr:`metadata` and
+    :attr:`truncated` are those of the records walked so far (all of them once :meth:`pieces` is
+    exhausted)."""
+
+    def __init__(self, path: str | Path, *, progress: Callable[[int, int], object] | None = None) -> None:
+        self.path = Path(path)
+        self.progress = progress
+        self._defs = _Builder()  # its schemas, channels and metadata; its message lists stay empty
+        self.truncated: str | None = None
+        self.size = 0  # the file's bytes
+
+    @property
+    def channels(self) -> dict[int, Channel]:
+        return self._defs.channels
+
+    @property
+    def metadata(self) -> dict[str, dict[str, str]]:
+        return self._defs.metadata
+
+    def pieces(self) -> Iterator[Piece]:
+        """Every chunk's messages (chunks without messages skipped), then :attr:`truncated` set.
+
+        Raises
+        ------
+        ValueError
+            If the file does not start with the MCAP magic.
+        """
+        with open(self.path, "rb", buffering=_READ_BUFFER_BYTES) as f:
+            size = self.size = os.fstat(f.fileno()).st_size
+            if f.read(8) != MAGIC:
+                raise ValueError(f"{self.path}: not an MCAP file (no MCAP magic at the start)")
+            f.seek(max(size - 8, 0))
+            tail = f.read(8)
+            f.seek(8)
+            if self.progress is not None:
+                self.progress(0, size)
+            off = 8
+            pending: tuple[bytes, list[NDArray[np.int64]], int] | None = None  # a chunk's record, its index's offsets, its end
+            try:
+                while off + 9 <= size:
+                    op, n = _RECORD_HEAD.unpack(f.read(9))
+                    body = off + 9
+                    nxt = body + n
+                    if nxt > size:
+                        break
+                    if op == _OP_MESSAGE_INDEX and pending is not None:
+                        pending[1].append(_index_offsets(f.read(n)))
+                        off = nxt
+                        continue
+                    if pending is not None:
+                        yield from self._chunk(*pending)
+                        pending = None
+                    if op == _OP_CHUNK:
+                        pending = (f.read(n), [], nxt)
+                    elif op == _OP_MESSAGE:  # a message outside any chunk (unchunked writers)
+                        piece = _RECORD_HEAD.pack(op, n) + f.read(n)
+                        yield from self._walked(piece, nxt)
+                    elif op in (_OP_SCHEMA, _OP_CHANNEL):
+                        self._defs._definition(op, f.read(n), 0)
+                    elif op == _OP_METADATA:
+                        record = f.read(n)
+                        name, pos = _string(record, 0)
+                        self._defs.metadata[name], _ = _string_map(record, pos)
+                    elif op == _OP_DATA_END:
+                        off = nxt
+                        break
+                    else:
+                        f.seek(n, os.SEEK_CUR)
+                    off = nxt
+                if pending is not None:
+                    yield from self._chunk(*pending)
+                    pending = None
+                # a whole file ends with a footer record and the magic; anything else means it was cut
+                if tail != MAGIC and off < size:
+                    self.truncated = f"the file ends inside a record at byte {off} of {size}"
+                elif tail != MAGIC:
+                    self.truncated = f"the file ends after {size} bytes without its footer"
+            except (ValueError, struct.error, zstandard.ZstdError, RuntimeError) as exc:  # lz4 raises RuntimeError
+                self.truncated = f"unreadable record ({type(exc).__name__}: {exc})"
+
+    def _chunk(self, record: bytes, offsets: list[NDArray[np.int64]], end: int) -> Iterator[Piece]:
+        """The messages of a chunk record (its content, decompressed as :func:`scan_mcap` does)."""
+        _t0, _t1, size, _crc = _CHUNK_HEAD.unpack_from(record, 0)
+        compression, pos = _string(record, 28)
+        (n,) = _U64.unpack_from(record, pos)
+        if pos + 8 + n > len(record):
+            raise ValueError("chunk records run past the chunk")
+        data = record[pos + 8 : pos + 8 + n]
+        if compression == "zstd":
+            data = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+        elif compression == "lz4":
+            data = lz4.frame.decompress(data)
+        elif compression:
+            raise ValueError(f"unsupported chunk compression {compression!r}")
+        if len(data) != size:
+            raise ValueError(f"chunk decompressed to {len(data)} bytes, its header says {size}")
+        indexed = self._indexed(data, offsets)
+        if indexed is None:
+            yield from self._walked(data, end)
+        elif indexed[0].size:
+            channel_id, log_time, start, length = indexed
+            yield Piece(data, channel_id, log_time, start, length, walked=end)
+        if self.progress is not None:
+            self.progress(end, self.size)
+
+    def _walked(self, data: bytes, end: int) -> Iterator[Piece]:
+        """The messages of ``data`` walked record by record (:func:`scan_mcap`'s walk, errors included)."""
+        b = self._defs
+        b.channel, b.log_time, b.start, b.length, b.pieces, b.base = [], [], [], [], [], 0
+        b._walk(data)
+        if b.start:
+            yield Piece(data, np.asarray(b.channel, np.int64), np.asarray(b.log_time, np.int64), np.asarray(b.start, np.int64),
+                        np.asarray(b.length, np.int64), walked=end)
+        b.channel, b.log_time, b.start, b.length, b.pieces = [], [], [], [], []
+
+    def _indexed(self, data: bytes, offsets: list[NDArray[np.int64]]
+                 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]] | None:
+        """(channel id, log time, payload start, payload length) of every message of ``data`` from
+        the chunk's message index (``offsets``: of each message record), when the index accounts for
+        every message record exactly (each record at an offset is a whole message of the chunk; the
+        records between them, walked, are none); ``None`` otherwise (the chunk is then walked)."""
+        if not offsets:
+            return None
+        o = np.sort(np.concatenate(offsets))
+        size = len(data)
+        if o.size == 0 or o[0] < 0 or o[-1] + _MESSAGE_PAYLOAD_AT > size or np.any(o[1:] == o[:-1]):
+            return None
+        u8 = np.frombuffer(data, np.uint8)
+
+        def column(at: int, width: int, dtype: str) -> NDArray[np.int64]:
+            return np.ascontiguousarray(u8[(o + at)[:, None] + np.arange(width)]).view(dtype)[:, 0].astype(np.int64)
+
+        if np.any(u8[o] != _OP_MESSAGE):
+            return None
+        n = np.ascontiguousarray(u8[(o + 1)[:, None] + np.arange(8)]).view("<u8")[:, 0]
+        if np.any(n < 22) or np.any(n > size):
+            return None
+        ends = o + 9 + n.astype(np.int64)
+        if ends[-1] > size or np.any(o[1:] < ends[:-1]):
+            return None
+        # the records between the messages (and before the first, after the last): walked
+        gaps = np.flatnonzero(o[1:] != ends[:-1])
+        regions = [(0, int(o[0]))] + [(int(ends[g]), int(o[g + 1])) for g in gaps] + [(int(ends[-1]), size)]
+        for lo, hi in regions:
+            if not self._between(data, lo, hi, last=hi == size):
+                return None
+        return column(9, 2, "<u2"), column(15, 8, "<u8"), o + _MESSAGE_PAYLOAD_AT, n.astype(np.int64) - 22
+
+    def _between(self, data: bytes, lo: int, hi: int, *, last: bool) -> bool:
+        """Walk the records of ``data[lo:hi]`` (definitions read): False when one is a message or
+        they do not end at ``hi`` (``last``: the chunk's end, where the walk stops as :func:`scan_mcap`'s)."""
+        off = lo
+        while off + 9 <= hi:
+            op, n = _RECORD_HEAD.unpack_from(data, off)
+            nxt = off + 9 + n
+            if nxt > hi or op == _OP_MESSAGE:
+                return False
+            if op in (_OP_SCHEMA, _OP_CHANNEL):
+                self._defs._definition(op, data, off + 9)
+            off = nxt
+        return off == hi or last
+
+
+def _index_offsets(record: bytes) -> NDArray[np.int64]:
+    """The message record offsets of a message index record (none when it does not parse: the
+    chunk is then walked)."""
+    if len(record) < _MESSAGE_INDEX_HEAD.size:
+        return np.zeros(0, np.int64)
+    _channel, n = _MESSAGE_INDEX_HEAD.unpack_from(record, 0)
+    if n % 16 or _MESSAGE_INDEX_HEAD.size + n > len(record):
+        return np.full(1, -1, np.int64)  # an impossible offset: the index is not used
+    pairs = np.frombuffer(record, "<u8", count=n // 8, offset=_MESSAGE_INDEX_HEAD.size)
+    return pairs[1::2].astype(np.int64)

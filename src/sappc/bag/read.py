@@ -68,7 +68,8 @@ from sappc.bag.mcap_scan import Scan, scan_mcap
 from sappc.evaluation.metrics import MetricsAccumulator
 
 __all__ = ["PARAMS_RECORD", "SCENARIO_RECORD", "TICK_PERIOD_S", "Bag", "BagError", "BagEstimate", "BagRun", "Ticker", "bag_estimate", "bag_metrics",
-           "bag_run", "find_topic", "frames_lacking_inputs", "latest_index", "nearest_index", "STAMP_TOL_NS", "read_bag", "scan_bag"]
+           "aligned", "aligned_topics", "bag_run", "find_topic", "frames_lacking_inputs", "latest_index", "nearest_index", "STAMP_TOL_NS", "read_bag",
+           "sample_stamps", "scan_bag", "state_topics", "torque_topic"]
 
 #: Metadata records that ``sappc run``'s recorder embeds in the bag: the scenario file and the
 #: ROS parameters of every node (the recorder names them ``sappc/<file name>``).
@@ -190,11 +191,21 @@ class Bag:
     undecodable: dict[str, int] = field(default_factory=dict)  # topic -> messages not fitting its type
     frame_ids: dict[str, tuple[str, ...]] = field(default_factory=dict)  # topic -> header frame ids seen
     array_labels: dict[str, tuple[str, ...]] = field(default_factory=dict)  # Float64MultiArray topic -> its first dimension's labels
+    # a bag read in blocks (:mod:`sappc.bag.blocks`) keeps no series: each topic's messages read
+    # (decoded), in the order ``series`` would have them; None: the counts are the series'
+    message_counts: dict[str, int] | None = None
 
     @property
     def counts(self) -> dict[str, int]:
         """Messages read per topic."""
+        if self.message_counts is not None:
+            return dict(self.message_counts)
         return {t: s.stamps_ns.size for t, s in self.series.items()}
+
+    @property
+    def topics(self) -> tuple[str, ...]:
+        """The topics read (those of :attr:`series`, or of :attr:`message_counts` for a bag read in blocks)."""
+        return tuple(self.message_counts if self.message_counts is not None else self.series)
 
 
 def mcap_file(path: Path) -> Path:
@@ -282,11 +293,12 @@ def find_topic(bag: Bag, name: str) -> str | None:
     """The recorded topic whose name is ``name``, else one that ends with ``/name`` (a namespaced
     run) and is not a fault relay's output (``fault/state/attitude`` is not ``state/attitude``)."""
     name = name.lstrip("/")
-    for t in bag.series:
+    topics = bag.topics
+    for t in topics:
         if t.lstrip("/") == name:
             return t
     relay = "/" + FAULT_PREFIX.strip("/") + "/" + name
-    for t in bag.series:
+    for t in topics:
         if t.endswith("/" + name) and not ("/" + t.lstrip("/")).endswith(relay):
             return t
     return None
@@ -327,6 +339,19 @@ class BagRun:
     rejected: int  # messages the controller rejected (the largest count of its diagnostics in the bag)
     torque_topic: str | None  # the topic the plant applied (a fault relay's when there was one)
     has_diagnostics: bool  # controller/diagnostics present (rho, band, saturation, Lyapunov values)
+    # the last sample's time [s] when ``history`` is not every sample (a long bag read in blocks,
+    # :mod:`sappc.bag.blocks`: a bounded history for the figures); None: ``history.t[-1]``
+    t_end_s: float | None = None
+
+    @property
+    def samples(self) -> int:
+        """The run's aligned samples."""
+        return int(self.answer.size)
+
+    @property
+    def end_s(self) -> float:
+        """The last sample's time from the first [s]."""
+        return float(self.history.t[-1]) if self.t_end_s is None else self.t_end_s
 
     @property
     def stale(self) -> NDArray[np.bool_]:
@@ -356,13 +381,46 @@ def bag_run(bag: Bag, duration_s: float | None = None, *, ticker: Ticker | None 
     """
     if ticker is not None:
         ticker.step("aligning the samples")
-    # the truth: truth/* from a plant with sensor models (its state/* are measurements), else state/*
+    common = sample_stamps(bag, duration_s)
+    history, answer, has_diagnostics = aligned(bag, common, int(common[0]))
+    diag_topic = find_topic(bag, CONTROLLER_DIAGNOSTICS.name)
+    return BagRun(
+        history=history,
+        t0_ns=int(common[0]),
+        answer=answer,
+        rejected=_rejected_count(bag, diag_topic, bag.diagnostics_labels),
+        torque_topic=torque_topic(bag),
+        has_diagnostics=has_diagnostics,
+    )
+
+
+def state_topics(bag: Bag) -> dict[str, str | None]:
+    """The topics a run's samples are aligned on: ``att``, ``rate`` (the truth: ``truth/*`` from a
+    plant with sensor models, whose ``state/*`` are measurements, else ``state/*``) and ``ref``
+    (``reference/attitude``); ``None`` for one the bag lacks."""
+    return {k: find_topic(bag, v) for k, v in _state_names(bag).items()}
+
+
+def _state_names(bag: Bag) -> dict[str, str]:
     truth = find_topic(bag, TRUTH_ATTITUDE.name) is not None and find_topic(bag, TRUTH_RATE.name) is not None
-    names = {
+    return {
         "att": TRUTH_ATTITUDE.name if truth else STATE_ATTITUDE.name,
         "rate": TRUTH_RATE.name if truth else STATE_RATE.name,
         "ref": REFERENCE_ATTITUDE.name,
     }
+
+
+def sample_stamps(bag: Bag, duration_s: float | None = None) -> NDArray[np.int64]:
+    """The stamps of the run's samples [ns], sorted: those of both an attitude and a rate
+    (:func:`state_topics`) from the first reference on; with ``duration_s``, only those of
+    ``[0, duration_s]`` from the first.  Reads only the three topics' stamps.
+
+    Raises
+    ------
+    BagError
+        If the bag lacks the state or the reference, or they never overlap.
+    """
+    names = _state_names(bag)
     found = {k: find_topic(bag, v) for k, v in names.items()}
     missing = [names[k] for k, v in found.items() if v is None or bag.series[v].stamps_ns.size == 0]
     if missing:
@@ -374,6 +432,37 @@ def bag_run(bag: Bag, duration_s: float | None = None, *, ticker: Ticker | None 
         raise BagError(f"{bag.path}: no state sample has both attitude and rate after the first reference")
     if duration_s is not None:
         common = common[common - common[0] <= round(duration_s * 1e9)]
+    stamps: NDArray[np.int64] = common
+    return stamps
+
+
+def torque_topic(bag: Bag) -> str | None:
+    """The torque the plant applied: the actuator relay's output when the run relayed it."""
+    return next((t for name in consumed_names(CONTROL_TORQUE) if (t := find_topic(bag, name)) is not None), None)
+
+
+def aligned_topics(bag: Bag) -> tuple[str, ...]:
+    """Every topic :func:`aligned` reads, each once: a bag read in blocks keeps a window of these
+    (:mod:`sappc.bag.blocks`)."""
+    found = state_topics(bag)
+    names = (DISTURBANCE_TORQUE, CONTROLLER_DIAGNOSTICS, WHEEL_STATES, TRUTH_GYRO_BIAS, STATE_MAGNETIC_FIELD, TRUTH_MAGNETIC_FIELD,
+             CONTROL_DIPOLE, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_GYRO_BIAS, ESTIMATOR_ATTITUDE_SIGMA, ESTIMATOR_BIAS_SIGMA,
+             ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS)
+    topics = [found["att"], found["rate"], found["ref"], torque_topic(bag)] + [find_topic(bag, t.name) for t in names]
+    return tuple(dict.fromkeys(t for t in topics if t is not None))
+
+
+def aligned(bag: Bag, common: NDArray[np.int64], t0_ns: int) -> tuple[History, NDArray[np.int8], bool]:
+    """The run's samples at the stamps ``common`` (ns; sorted, a part of :func:`sample_stamps`'s),
+    ``t`` counted from ``t0_ns`` (the first sample's stamp): the History (N = 1), how the
+    controller answered each sample, and whether the bag has the controller's diagnostics.
+
+    Each sample reads only the messages near its stamp (its own, the latest before it, the
+    reference's next after it), so a bag whose series hold every message within
+    ``2 STAMP_TOL_NS`` of each stamp of ``common``, the latest before and the next after (a
+    window of :mod:`sappc.bag.blocks`), gives the same values as the whole bag, bit for bit."""
+    found = state_topics(bag)
+    att, rate, ref = (bag.series[found[k]] for k in ("att", "rate", "ref"))  # type: ignore[index]  # sample_stamps found them
     ia = latest_index(att.stamps_ns, common)
     ir = latest_index(rate.stamps_ns, common)
     q_BN, w_BN_B = att.values[ia, :4], rate.values[ir, :3]
@@ -389,8 +478,6 @@ def bag_run(bag: Bag, duration_s: float | None = None, *, ticker: Ticker | None 
     q_RN = np.where(exact[:, None], rq[j], quat_normalize((1.0 - w) * rq[j] + w * q1))
     q_BR = error_quaternion(q_RN, q_BN)
 
-    # the torque the plant applied: the actuator relay's output when the run relayed it
-    torque_topic = next((t for name in consumed_names(CONTROL_TORQUE) if (t := find_topic(bag, name)) is not None), None)
     T = common.size
 
     def held(topic: str | None, width: int) -> Array:
@@ -424,13 +511,12 @@ def bag_run(bag: Bag, duration_s: float | None = None, *, ticker: Ticker | None 
     def one(a: NDArray[Any]) -> NDArray[Any]:
         return a[:, None, :]  # (T, 3) -> (T, 1, 3): one run
 
-    t0 = int(common[0])
     history = History(
-        t=(common - t0) / 1e9,
+        t=(common - t0_ns) / 1e9,
         q_BN=q_BN[:, None, :],
         omega_BN_B=w_BN_B[:, None, :],
         q_BR=q_BR[:, None, :],
-        torque_B=one(held(torque_topic, 3)),
+        torque_B=one(held(torque_topic(bag), 3)),
         torque_cmd_B=one(rows.get("torque_cmd_Nm", nan3)),
         saturated=one(rows.get("saturated", np.zeros((T, 3))) > 0.5),
         disturbance_B=one(held(find_topic(bag, DISTURBANCE_TORQUE.name), 3)),
@@ -444,14 +530,7 @@ def bag_run(bag: Bag, duration_s: float | None = None, *, ticker: Ticker | None 
         estimate=_estimate_record(bag, common),
         orbit=_orbit_record(bag, common),
     )
-    return BagRun(
-        history=history,
-        t0_ns=t0,
-        answer=answer,
-        rejected=_rejected_count(bag, diag_topic, labels),
-        torque_topic=torque_topic,
-        has_diagnostics=bool(rows),
-    )
+    return history, answer, bool(rows)
 
 
 def _rejected_count(bag: Bag, diag_topic: str | None, labels: tuple[str, ...]) -> int:
