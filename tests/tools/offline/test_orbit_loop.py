@@ -40,11 +40,33 @@ def _wheel_momentum_B(sc: Any, run: Any) -> np.ndarray:
     return np.asarray(np.linalg.norm(h @ sc.wheels.G.T, axis=1))
 
 
+#: The bundled scenarios with momentum management: the 6 h scenario and its orbits of the momentum
+#: page's campaign (docs/how-to/momentum.md, "Across orbits").
+MANAGED = {"paper_tracking_orbit", "paper_tracking_orbit_800km", "paper_tracking_orbit_800km_sso"}
+
+
 def test_no_bundled_scenario_but_the_orbit_ones_has_an_environment() -> None:
     for bundled in bundled_scenarios():
         sc = load_scenario(bundled.path)
         assert (sc.environment is not None) == ("orbit" in sc.name), sc.name
-        assert (sc.momentum is not None) == (sc.name == "paper_tracking_orbit"), sc.name
+        assert (sc.momentum is not None) == (sc.name in MANAGED), sc.name
+
+
+def test_the_campaigns_other_orbits_change_only_the_orbit() -> None:
+    """The 800 km scenarios fly the 500 km scenario's spacecraft, rods, magnetometer and law: every
+    key but the orbit's altitude and inclination (and the name, description, requirements stated
+    again) is the same, so the momentum page's campaign compares orbits, not settings."""
+    base = load_scenario("paper_tracking_orbit")
+    for name, altitude_m, inclination_deg in (("paper_tracking_orbit_800km", 800_000.0, 51.6),
+                                              ("paper_tracking_orbit_800km_sso", 800_000.0, 98.6)):
+        sc = load_scenario(name)
+        assert sc.environment is not None and base.environment is not None
+        assert (sc.environment.orbit.altitude_m, sc.environment.orbit.inclination_deg) == (altitude_m, inclination_deg), name
+        at_500km = dataclasses.replace(sc.environment.orbit, altitude_m=500_000.0, inclination_deg=97.4)
+        assert at_500km == base.environment.orbit, name
+        assert sc.momentum == base.momentum and sc.metrics.requirements == base.metrics.requirements, name
+        same = {k: v for k, v in sc.raw.items() if k not in ("name", "description", "orbit", "metrics")}
+        assert same == {k: v for k, v in base.raw.items() if k not in ("name", "description", "orbit", "metrics")}, name
 
 
 @pytest.mark.parametrize(("change", "message"), [

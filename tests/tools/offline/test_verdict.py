@@ -21,7 +21,8 @@ from sappc.scenario import load_scenario, read_scenario_mapping
 #: The bundled scenarios that show a failure and exit 4 on purpose (docs/how-to/faults.md).
 FAILING_ON_PURPOSE = {"paper_tracking_wheels_saturation", "paper_tracking_orbit_no_management"}
 #: The 6 h scenarios (a run each costs about 15 s and 3.5 GB): only the failure case below flies one.
-LONG = {"paper_tracking_orbit", "paper_tracking_orbit_no_management"}
+LONG = {"paper_tracking_orbit", "paper_tracking_orbit_no_management", "paper_tracking_orbit_800km",
+        "paper_tracking_orbit_800km_sso"}
 
 
 def test_every_bundled_scenario_states_its_requirements() -> None:
