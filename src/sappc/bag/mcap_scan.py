@@ -82,6 +82,26 @@ def _string(buf: bytes | memoryview, off: int) -> tuple[str, int]:
     return bytes(buf[off + 4 : end]).decode("utf-8"), end
 
 
+def _chunk_data(buf: Any, at: int, end: int) -> Any:
+    """The records of the chunk record whose body starts at ``at`` in ``buf`` and ends before
+    ``end``, decompressed (zstd, lz4 or none), checked against the size its header states."""
+    _t0, _t1, size, _crc = _CHUNK_HEAD.unpack_from(buf, at)
+    compression, pos = _string(buf, at + 28)
+    (n,) = _U64.unpack_from(buf, pos)
+    if pos + 8 + n > end:
+        raise ValueError("chunk records run past the chunk")
+    data = buf[pos + 8 : pos + 8 + n]
+    if compression == "zstd":
+        data = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    elif compression == "lz4":
+        data = lz4.frame.decompress(data)
+    elif compression:
+        raise ValueError(f"unsupported chunk compression {compression!r}")
+    if len(data) != size:
+        raise ValueError(f"chunk decompressed to {len(data)} bytes, its header says {size}")
+    return data
+
+
 def _string_map(buf: bytes | memoryview, off: int) -> tuple[dict[str, str], int]:
     (n,) = _U32.unpack_from(buf, off)
     pos, end = off + 4, off + 4 + n
@@ -182,21 +202,7 @@ class _Builder:
             self.base += len(buf)
 
     def _chunk(self, raw: bytes, body: int, end: int) -> None:
-        _t0, _t1, size, _crc = _CHUNK_HEAD.unpack_from(raw, body)
-        compression, pos = _string(raw, body + 28)
-        (n,) = _U64.unpack_from(raw, pos)
-        if pos + 8 + n > end:
-            raise ValueError("chunk records run past the chunk")
-        data = raw[pos + 8 : pos + 8 + n]
-        if compression == "zstd":
-            data = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-        elif compression == "lz4":
-            data = lz4.frame.decompress(data)
-        elif compression:
-            raise ValueError(f"unsupported chunk compression {compression!r}")
-        if len(data) != size:
-            raise ValueError(f"chunk decompressed to {len(data)} bytes, its header says {size}")
-        self._walk(data)
+        self._walk(_chunk_data(raw, body, end))
 
 
 def scan_mcap(path: str | Path, *, progress: Callable[[int, int], object] | None = None) -> Scan:
@@ -353,20 +359,7 @@ class McapWalk:
 
     def _chunk(self, record: bytes, offsets: list[NDArray[np.int64]], end: int) -> Iterator[Piece]:
         """The messages of a chunk record (its content, decompressed as :func:`scan_mcap` does)."""
-        _t0, _t1, size, _crc = _CHUNK_HEAD.unpack_from(record, 0)
-        compression, pos = _string(record, 28)
-        (n,) = _U64.unpack_from(record, pos)
-        if pos + 8 + n > len(record):
-            raise ValueError("chunk records run past the chunk")
-        data = record[pos + 8 : pos + 8 + n]
-        if compression == "zstd":
-            data = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-        elif compression == "lz4":
-            data = lz4.frame.decompress(data)
-        elif compression:
-            raise ValueError(f"unsupported chunk compression {compression!r}")
-        if len(data) != size:
-            raise ValueError(f"chunk decompressed to {len(data)} bytes, its header says {size}")
+        data = _chunk_data(record, 0, len(record))
         indexed = self._indexed(data, offsets)
         if indexed is None:
             yield from self._walked(data, end)
