@@ -9,6 +9,7 @@ must still be parsed on its own.
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +101,7 @@ def test_another_layout_of_the_same_length_is_still_parsed_on_its_own(rng, monke
 
     _, payloads = _scribbled(rng)
     msg = diagnostics_msg(5.0, {label: rng.standard_normal(3) for label in c.DIAGNOSTICS_LAYOUT[1:]})
+    msg.layout = copy.deepcopy(msg.layout)  # the encoder shares one layout among its messages: changed here, every later one would carry it
     msg.layout.dim[1].label = "axiz"
     payloads.insert(7, serialize_message(msg))
     d, parses = _decode_counting(payloads, monkeypatch)
