@@ -227,7 +227,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     with Ticker(lambda msg: print(f"sappc simulate: {msg}", file=sys.stderr, flush=True)) as ticker:
         started = time.monotonic()
-        stepped = []  # whether the progress line has started
+        stepped: list[bool] = []  # whether the progress line has started
 
         def progress(samples: int) -> None:  # after each block of samples
             if args.no_progress or time.monotonic() - started < SIMULATE_PROGRESS_AFTER_S:
@@ -389,7 +389,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     ms = scenario.metrics
     # a line at least every 2 s to the last (issue 46): reading the bag back, aligning it, its metrics
     with Ticker(lambda msg: print(f"sappc run: {msg}", file=sys.stderr, flush=True)) as ticker:
-        settings = {"steady_from_s": ms.steady_from_s, "settle_threshold": ms.settle_threshold, "t2_s": ms.t2_s,
+        settings: dict[str, Any] = {"steady_from_s": ms.steady_from_s, "settle_threshold": ms.settle_threshold, "t2_s": ms.t2_s,
                     "fault_windows": scenario.event_windows(), "orbit_bins": scenario.orbit_bins()}
         frames_lacking = None
         if args.realtime:  # the frames' own-stamp check reads every message: the bag whole (a real-time run is minutes)

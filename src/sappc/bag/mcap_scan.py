@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import struct
+from typing import Any
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path

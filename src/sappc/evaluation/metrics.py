@@ -226,7 +226,7 @@ class MetricsAccumulator:
 
     def __init__(
         self,
-        t: Array,
+        t: Array | SampleGrid,
         n_runs: int,
         *,
         steady_from_s: float,

@@ -164,7 +164,8 @@ def simulate_runs(
         **{k: crit[k] for k in ESTIMATOR_COLUMNS if k in crit},  # with an estimator
         # with an estimator: the NEES summed over this chunk's runs at every sample, and how many
         # runs had one there (summed over chunks, not concatenated: the campaign's consistency test)
-        **({"tsum_nees": metrics.nees_sum_t, "tsum_nees_runs": metrics.nees_runs_t} if metrics.est_att_max is not None else {}),
+        **({"tsum_nees": metrics.nees_sum_t, "tsum_nees_runs": metrics.nees_runs_t}
+           if metrics.nees_sum_t is not None and metrics.nees_runs_t is not None else {}),
         "fault_choice": inputs.fault_choice,
         "fault_start_s": inputs.fault_start_s,
         "fault_duration_s": inputs.fault_duration_s,

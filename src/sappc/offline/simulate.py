@@ -118,7 +118,7 @@ def run_scenario(
     disturbance: DisturbanceModel | None = None,
     gains: dict[str, np.ndarray] | None = None,
     faults: list[tuple[Any, ...]] | None = None,
-    sensors: tuple[np.ndarray, Callable[[int, int], np.ndarray], np.ndarray | None] | None = None,
+    sensors: tuple[np.ndarray, Callable[[int, int], np.ndarray | compiled_loop.NoiseStreams], np.ndarray | None] | None = None,
     wheels: list[Any] | None = None,
     keep_history: bool = False,
     trajectory: tuple[int, int] | None = None,
