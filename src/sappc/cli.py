@@ -404,7 +404,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             measured = BagBlocks(result.bag_dir, duration_s=scenario.duration_s, ticker=ticker).measure(figures=lambda t_end_s: NoFigures(),
                                                                                                      **settings)
             if measured.run is None or measured.metrics is None:
-                raise BagError(f"{result.bag_dir}: {measured.problem}")
+                raise BagError(measured.problem or f"{result.bag_dir}: no run in the bag")  # bag_run's own message (it names the bag)
             run, metrics, per_orbit = measured.run, measured.metrics, measured.per_orbit
     metrics["wall_time_s"] = result.run_s
     if result.startup_s is not None:  # from the plant's own timing: none with an external plant
@@ -601,7 +601,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 def _report(args: argparse.Namespace, analyse_bag: Any, write_report: Any, worker: Any) -> int:
     a = analyse_bag(args.bag, scenario=args.scenario)
     print(f"bag {a.path}: {sum(a.bag.counts.values())} messages on {len(a.bag.counts)} topics"
-          + (f", data to t = {a.run.history.t[-1]:.3f} s" if a.run is not None else ""))
+          + (f", data to t = {a.run.end_s:.3f} s" if a.run is not None else ""))  # (a long run's history is the figures' envelope)
     for line in a.problems:
         print(f"  problem: {line}")
     for line in a.notes:
@@ -645,13 +645,11 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 
 def _cmd_rerun(args: argparse.Namespace) -> int:
-    from sappc.bag.read import read_bag
     from sappc.analysis.report import write_rerun_report
-    from sappc.analysis.rerun import rerun_bag
+    from sappc.analysis.rerun import rerun_blocks
 
     _refuse_used_out(args.out)
-    bag = read_bag(args.bag)
-    r = rerun_bag(bag, args.params)
+    r = rerun_blocks(args.bag, args.params)  # the bag a block at a time (issue 47 item 6): the same result
     s = r.summary()
     print(f"re-ran {s['samples']} control steps of {args.bag} through the {r.controller} core ({r.mode} bag; inputs paired by {r.pairing}), parameters from {r.params_source}")
     for why, n in r.skipped.items():
