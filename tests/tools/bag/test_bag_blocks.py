@@ -18,8 +18,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from mcap.writer import CompressionType, IndexType, Writer
-from rclpy.serialization import serialize_message
 
 from sappc.bag import blocks as bag_blocks
 from sappc.bag.blocks import BagBlocks, FullHistory, concatenate_histories
@@ -29,7 +27,6 @@ from sappc.scenario import OrbitBins
 from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import (covariance_msg, diagnostics_msg, dipole_msg, estimator_diagnostics_msg, joint_state_msg, magnetic_field_msg,
                                    no_data_msg, quaternion_msg, torque_msg, vector3_msg)
-from sappc_msgs_py.schemas import schema_text
 
 from bagmaker import write_bag
 
@@ -287,20 +284,7 @@ def _assert_walk_is_the_scan(path: Path) -> None:
 
 def _indexless_bag(path: Path, messages: list[tuple[str, str, object, int]]) -> Path:
     """A bag written without message indexes (each chunk is then walked record by record)."""
-    with open(path, "wb") as f:
-        w = Writer(f, chunk_size=4096, index_types=IndexType.NONE, use_summary_offsets=False)
-        w.start(profile="ros2", library="tests")
-        schemas: dict[str, int] = {}
-        channels: dict[str, int] = {}
-        for topic, type_name, msg, log_ns in messages:
-            if type_name not in schemas:
-                schemas[type_name] = w.register_schema(type_name, "ros2msg", schema_text(type_name).encode())
-            if topic not in channels:
-                channels[topic] = w.register_channel(topic, "cdr", schemas[type_name])
-            w.add_message(channels[topic], log_time=log_ns, data=serialize_message(msg), publish_time=log_ns)
-        w.add_metadata("sappc/x", {"text": "y"})
-        w.finish()
-    return path
+    return write_bag(path, messages, indexed=False, metadata={"sappc/x": {"text": "y"}})
 
 
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
