@@ -354,9 +354,8 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
         if nf > 0:
             state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, faults.draws[min(kb, faults.draws.shape[0] - 1)], y)
             reference_in = fault_reference(t, fkind, fwin)
-        est_status = ESTIMATOR_NO_INPUT
+        est_status = ESTIMATOR_NO_INPUT  # no measurement delivered: no filter step (the node's code)
         if estimating:
-            est_status = ESTIMATOR_NO_INPUT  # no measurement delivered: no filter step (the node's code)
             if state_in:
                 if y[Y_EPOCH] > delivered_epoch:
                     delivered_epoch = y[Y_EPOCH]
