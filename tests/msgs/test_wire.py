@@ -224,9 +224,10 @@ def _covered(layout: wire.Layout) -> set[int]:
     return pos
 
 
-#: The types whose rclpy serialization (rmw_fastrtps 8.4.3) is longer than the CDR it holds: a
-#: ``JointState`` comes with 8 (with efforts) or 12 (without) bytes past its last value, what the
-#: type support's size estimate reserved (uninitialised memory; rclpy deserializes it all the same).
+#: The types whose ``rclpy.serialization.serialize_message`` (rclpy 7.1.6, rmw_fastrtps 8.4.3) is
+#: longer than the CDR it holds: a ``JointState`` of 4 wheels comes with 8 (with efforts) or 12
+#: (without) bytes of whatever memory held past its last value (rclpy deserializes it all the same;
+#: what a publisher of the same object sends, and a raw subscriber receives, is the CDR alone).
 RCLPY_TRAILING_BYTES = ("sensor_msgs/msg/JointState",)
 
 
