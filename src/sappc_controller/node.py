@@ -90,6 +90,7 @@ non-finite torque; the node then publishes zero, counts the refused step and say
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from functools import partial
@@ -112,12 +113,11 @@ from sappc_msgs_py.contract import (
     Topic,
     qos_profile,
 )
+from sappc_msgs_py import wire
 from sappc_msgs_py.convert import (
-    diagnostics_msg,
-    ns_to_stamp,
+    cdr_stamp_ns,
+    diagnostics_values,
     quaternion_from_msg,
-    stamp_to_ns,
-    torque_msg,
     vector3_from_msg,
 )
 from sappc_msgs_py.inputs import screen_input
@@ -150,6 +150,8 @@ __all__ = ["ControllerNode", "PARAMETERS", "main"]
 _INPUTS = INPUT_TOPICS
 #: Each input topic's slot in the input check (:mod:`sappc_controller.core.input_check`: the step's order).
 _SLOTS = {topic.name: slot for slot, topic in enumerate(_INPUTS)}
+#: How the input check names each input's value.
+_WHAT = {t.name: f"{t.name} quaternion" if t.type_name.endswith("QuaternionStamped") else t.name for t in _INPUTS}
 _NS = NS_PER_S
 
 
@@ -241,7 +243,12 @@ class ControllerNode(ProjectNode):
         self.pub_torque: CountingPublisher | None = None
         self.pub_diag: CountingPublisher | None = None
         qos = qos_profile()
-        self._input_subs = [self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos) for topic in _INPUTS]
+        # every topic as CDR bytes (sappc_msgs_py.wire): taken raw, published as bytes
+        self._wire = {t.name: wire.codec(t) for t in (*_INPUTS, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS)}
+        self._decoders = {t.name: partial(quaternion_from_msg if t.type_name.endswith("QuaternionStamped") else vector3_from_msg, topic=t)
+                          for t in _INPUTS}  # what a message the codec does not take goes through (wire.take)
+        self._input_subs = [self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos, raw=True)
+                            for topic in _INPUTS]
         self.rejected = 0
         self.answers = dict.fromkeys(ANSWER_NAMES, 0)  # samples answered, by answer (diagnostics status[2])
         self.rejected_by_reason: dict[str, int] = {}
@@ -266,11 +273,11 @@ class ControllerNode(ProjectNode):
         self._end_ns: int | None = None  # real time: the stamp of the run's last frame (duration_s after the first state)
         self._ended = False  # real time: the last frame is answered
         # before the first computed sample the controller has no performance function: NaN rows (as the offline loop records)
-        self._diag_rows = {k: np.full(3, np.nan) for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
-        self._held: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.zeros(3), np.zeros(3), np.zeros(3))  # last torque, command, saturation
+        self._diag_rows: dict[str, list[float]] = {k: [math.nan] * 3 for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
+        self._held: tuple[list[float], list[float], list[float]] = ([0.0] * 3, [0.0] * 3, [0.0] * 3)  # last torque, command, saturation
         self.start_when(self._inputs_missing, self._offer_outputs)
         if self.mode == LOCKSTEP:
-            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
+            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos, raw=True)
             self.create_timer(_GRACE_CHECK_S, self._check_grace)
         else:
             self.dt_ns = period_ns(self.dt)
@@ -367,18 +374,15 @@ class ControllerNode(ProjectNode):
         """The controller's time: the latest /clock in lockstep, the node clock in real time."""
         return self._clock_ns if self.mode == LOCKSTEP else self.get_clock().now().nanoseconds
 
-    def _decode(self, msg: Any, topic: Topic) -> np.ndarray:
-        """The message's value, checked by :func:`~sappc_controller.core.input_check.check_input`
-        (the offline loop's check): raises ``InputError`` (invalid) or ``ImplausibleInputError``."""
-        if topic.type_name.endswith("QuaternionStamped"):
-            value = quaternion_from_msg(msg, topic)
-            check_input(_SLOTS[topic.name], f"{topic.name} quaternion", value, self.input_bounds, self._bounds)
-            return value
-        value = vector3_from_msg(msg, topic)
-        check_input(_SLOTS[topic.name], topic.name, value, self.input_bounds, self._bounds)
+    def _decode(self, raw: bytes, topic: Topic) -> np.ndarray:
+        """The message's value (:func:`sappc_msgs_py.wire.take`), checked by
+        :func:`~sappc_controller.core.input_check.check_input` (the offline loop's check): raises
+        ``InputError`` (invalid) or ``ImplausibleInputError``."""
+        value = wire.take(raw, topic, self._decoders[topic.name], self._wire[topic.name])
+        check_input(_SLOTS[topic.name], _WHAT[topic.name], value, self.input_bounds, self._bounds)
         return value
 
-    def _on_input(self, msg: Any, topic: Topic) -> None:
+    def _on_input(self, msg: bytes, topic: Topic) -> None:
         if self._ended:
             return  # real time: the run's last frame is answered; nothing after it is the run's (not even counted)
         last = self._last_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
@@ -424,8 +428,8 @@ class ControllerNode(ProjectNode):
             torque, torque_cmd, saturated = self._held
             self._publish(t_ns, torque, torque_cmd, saturated, [0] * len(_INPUTS), ANSWER_HELD)
 
-    def _on_clock(self, msg: Any) -> None:
-        self._clock_ns = stamp_to_ns(msg.clock)
+    def _on_clock(self, raw: bytes) -> None:
+        self._clock_ns = cdr_stamp_ns(CLOCK.type_name, raw)
         self._clock_wall_ns = time.monotonic_ns()
 
     def _check_grace(self) -> None:
@@ -506,33 +510,33 @@ class ControllerNode(ProjectNode):
         if self.stale:
             self.get_logger().info("valid inputs again: control resumed")
         self.stale = False
-        # out's arrays are the core's buffer, overwritten by the next step: keep copies (republished with zero torque)
-        self._diag_rows = {"rho": out.rho.copy(), "band_lower": out.band_lower.copy(), "band_upper": out.band_upper.copy(), "eps": out.eps.copy(),
-                           "z": out.z.copy(), "lyapunov_V": out.V.copy()}
-        self._publish(t_ns, out.torque_B, out.torque_cmd_B, out.saturated, input_ns, ANSWER_COMMANDED)
+        # out's arrays are the core's buffer, overwritten by the next step: kept as lists (republished with zero torque)
+        self._diag_rows = {"rho": out.rho.tolist(), "band_lower": out.band_lower.tolist(), "band_upper": out.band_upper.tolist(), "eps": out.eps.tolist(),
+                           "z": out.z.tolist(), "lyapunov_V": out.V.tolist()}
+        self._publish(t_ns, out.torque_B.tolist(), out.torque_cmd_B.tolist(), out.saturated.tolist(), input_ns, ANSWER_COMMANDED)
 
     def _publish_zero(self, t_ns: int, why: str, answer: int) -> None:
         if not self.stale:
             self.get_logger().warning(f"{why}: commanding zero torque until valid inputs return")
         self.stale = True
-        zero = np.zeros(3)
+        zero = [0.0] * 3
         self._publish(t_ns, zero, zero, zero, [0] * len(_INPUTS), answer)
 
-    def _publish(self, t_ns: int, torque: np.ndarray, torque_cmd: np.ndarray, saturated: np.ndarray, input_ns: list[int], answer: int) -> None:
+    def _publish(self, t_ns: int, torque: list[float], torque_cmd: list[float], saturated: list[float], input_ns: list[int], answer: int) -> None:
+        """Publish sample ``t_ns``'s torque and diagnostics (the values as lists of floats: the torque
+        produced and commanded [N m], the saturation flags)."""
         self._offer_outputs()  # a sample completed before the offer (its inputs' publishers not yet seen)
         assert self.pub_torque is not None and self.pub_diag is not None
         self._answered_ns = t_ns if self._answered_ns is None else max(self._answered_ns, t_ns)
         self._ended = self._end_ns is not None and t_ns >= self._end_ns  # real time: nothing is answered past the last frame
         self.answers[ANSWER_NAMES[answer]] += 1
-        self._held = (np.array(torque, dtype=np.float64), np.array(torque_cmd, dtype=np.float64), np.array(saturated, dtype=np.float64))
-        t = t_ns / _NS
-        stamp = ns_to_stamp(t_ns)
-        self.pub_torque.publish(torque_msg(torque, stamp, CONTROL_TORQUE, out=self.pub_torque.msg))
-        rows: dict[str, ArrayLike] = dict(self._diag_rows)
-        rows.update(torque_cmd_Nm=torque_cmd, saturated=np.asarray(saturated, dtype=np.float64), status=[float(self.rejected), float(answer != ANSWER_COMMANDED), float(answer)],
-                    input_stamps_state_s=[input_ns[0] / _NS, input_ns[1] / _NS, 0.0],
-                    input_stamps_reference_s=[n / _NS for n in input_ns[2:]])
-        self.pub_diag.publish(diagnostics_msg(t, rows, out=self.pub_diag.msg))
+        self._held = (torque, torque_cmd, saturated)
+        self.pub_torque.publish(self._wire[CONTROL_TORQUE.name].encode(t_ns, torque))
+        rows: dict[str, ArrayLike] = {**self._diag_rows, "torque_cmd_Nm": torque_cmd, "saturated": saturated,
+                                      "status": [float(self.rejected), float(answer != ANSWER_COMMANDED), float(answer)],
+                                      "input_stamps_state_s": [input_ns[0] / _NS, input_ns[1] / _NS, 0.0],
+                                      "input_stamps_reference_s": [n / _NS for n in input_ns[2:]]}
+        self.pub_diag.publish(self._wire[CONTROLLER_DIAGNOSTICS.name].encode(None, diagnostics_values(t_ns / _NS, rows)))
 
     def latency_statistics(self) -> dict[str, Any]:
         """Real time: the steps' latency (torque out minus the state's stamp: p50, p99, max) and

@@ -119,7 +119,7 @@ from sappc_msgs_py.convert import (
     no_data_msg,
     ns_to_stamp,
     quaternion_msg,
-    stamp_to_ns,
+    cdr_stamp_ns,
     star_tracker_from_msg,
     vector3_msg,
 )
@@ -137,6 +137,7 @@ from sappc_msgs_py.inputs import (
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import COMMON_PARAMETERS, LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
+from sappc_msgs_py.wire import deserialize
 
 from sappc_estimator.core import mekf
 from sappc_estimator.core.config import chi2_band
@@ -181,10 +182,12 @@ def _named_epoch(sample: ControlSample) -> int:
     return int(sample.values[1][0]) if sample.valid else 0
 
 
-def decode_estimator_input(msg: Any, topic: Topic) -> Any:
-    """The value of an estimator input: the gyro's angular velocity [rad/s], the tracker's unit
-    quaternion ``q_BN`` (x, y, z, w), the epoch [ns] (an int64 array of one, exact) for
-    ``state/attitude_epoch``; raises :class:`~gnc_common.validation.InputError` as the decoders do."""
+def decode_estimator_input(raw: bytes, topic: Topic) -> Any:
+    """The value of an estimator input received as CDR bytes: the gyro's angular velocity [rad/s],
+    the tracker's unit quaternion ``q_BN`` (x, y, z, w), the epoch [ns] (an int64 array of one,
+    exact) for ``state/attitude_epoch``; raises :class:`~gnc_common.validation.InputError` as the
+    decoders do."""
+    msg = deserialize(raw, topic)
     if topic.type_name.endswith("TimeReference"):
         return np.array([epoch_from_msg(msg, topic)], dtype=np.int64)
     if topic.name.endswith(SENSOR_STAR_TRACKER.name):
@@ -278,8 +281,8 @@ class EstimatorNode(ProjectNode):
         self.pub = {t.name: self.counting_publisher(t, 1 if t in _LOOP_OUTPUTS else 0) for t in ESTIMATOR_TOPICS}
         qos = qos_profile()
         for topic in ESTIMATOR_INPUTS:
-            self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos)
-        self.create_subscription(SENSOR_STAR_TRACKER.msg_class, SENSOR_STAR_TRACKER.name, self._on_tracker, qos)
+            self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos, raw=True)
+        self.create_subscription(SENSOR_STAR_TRACKER.msg_class, SENSOR_STAR_TRACKER.name, self._on_tracker, qos, raw=True)
         self.tracker = TrackerSamples()
         self._waiting: ControlSample | None = None  # lockstep: a sample whose new tracker sample has not arrived
         self.samples = 0  # samples answered (an estimate or "no data")
@@ -303,7 +306,7 @@ class EstimatorNode(ProjectNode):
         dof = 3 * self.config.monitor_window_samples
         self._band = chi2_band(dof, self.config.monitor_error_probability)
         if self.mode == LOCKSTEP:
-            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
+            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos, raw=True)
         else:  # no publish may block a callback: samples before the controller is matched are skipped
             self._gate = StartGate(self, lambda: unmatched(list(self.pub.values())))
             self.dt_ns = period_ns(self.dt)
@@ -324,14 +327,14 @@ class EstimatorNode(ProjectNode):
         self.no_data_inputs += 1
         self.get_logger().info(f"an input without data ({self.no_data_inputs} so far): {what}", throttle_duration_sec=1.0)
 
-    def _on_clock(self, msg: Any) -> None:
-        self._clock_ns = stamp_to_ns(msg.clock)
+    def _on_clock(self, raw: bytes) -> None:
+        self._clock_ns = cdr_stamp_ns(CLOCK.type_name, raw)
 
     def _now_ns(self) -> int | None:
         """The node's time: the latest /clock in lockstep, the node clock in real time."""
         return self._clock_ns if self.mode == LOCKSTEP else self.get_clock().now().nanoseconds
 
-    def _on_input(self, msg: Any, topic: Topic) -> None:
+    def _on_input(self, msg: bytes, topic: Topic) -> None:
         last = self._answered_ns if self.mode == LOCKSTEP else self._rt.last_ns(topic.name)
         what = "the last answered sample" if self.mode == LOCKSTEP else f"the last {topic.name} message"
         screened = screen_input(msg, topic, last, self._now_ns(), self.max_ahead_ns, what, decode_estimator_input, self._reject, self._no_data)
@@ -386,7 +389,7 @@ class EstimatorNode(ProjectNode):
         if waiting is not None and self.get_clock().now().nanoseconds >= waiting.t_ns + self.dt_ns // 2:
             self._answer_without_tracker()
 
-    def _on_tracker(self, msg: Any) -> None:
+    def _on_tracker(self, msg: bytes) -> None:
         """A tracker sample (stamped when measured): kept by its stamp until a loop sample names it."""
         topic = SENSOR_STAR_TRACKER
         screened = screen_input(msg, topic, self.tracker.last_arrived_ns, self._now_ns(), self.max_ahead_ns,

@@ -61,6 +61,7 @@ __all__ = [
     "no_data_msg",
     "diagnostics_from_msg",
     "diagnostics_msg",
+    "diagnostics_values",
     "joint_state_msg",
     "ns_to_stamp",
     "cdr_stamp_ns",
@@ -68,6 +69,7 @@ __all__ = [
     "quaternion_msg",
     "stamp_to_ns",
     "stamp_to_time",
+    "time_to_ns",
     "time_to_stamp",
     "torque_from_msg",
     "torque_msg",
@@ -111,7 +113,10 @@ def _encode(name: str, values: Any, n: int) -> list[float]:
     elif isinstance(values, (list, tuple)) and len(values) == n and all(isinstance(v, float) for v in values):
         out = list(values)
     else:
-        out = as_finite_array(name, values, shape_tail=(n,)).tolist()  # raises, naming the value
+        checked = as_finite_array(name, values, shape_tail=(n,))  # raises, naming the value
+        if checked.shape != (n,):  # e.g. a (1, n) row: not n values
+            raise InputError(f"{name} must be {n} values, got an array of shape {checked.shape}")
+        out = checked.tolist()
     if not all(map(math.isfinite, out)):
         as_finite_array(name, values)  # raises, naming the value
     return out
@@ -126,15 +131,25 @@ def time_to_stamp(t_s: Any, out: Any = None) -> Any:
     0.2 us in a float of seconds, so relays and real-time nodes pass stamps, not floats.
     """
     stamp = _time_class()() if out is None else out
+    stamp.sec, stamp.nanosec = divmod(time_to_ns(t_s), _NS_PER_S)
+    return stamp
+
+
+def time_to_ns(t_s: Any) -> int:
+    """The integer nanoseconds of the stamp :func:`time_to_stamp` gives for ``t_s`` (seconds,
+    >= 0, rounded to the nanosecond; or a stamp, exact), without building it.
+
+    Raises
+    ------
+    InputError
+        For a negative or non-finite time.
+    """
     if hasattr(t_s, "sec") and hasattr(t_s, "nanosec"):
-        stamp.sec, stamp.nanosec = int(t_s.sec), int(t_s.nanosec)
-        return stamp
+        return int(t_s.sec) * _NS_PER_S + int(t_s.nanosec)
     t = t_s if type(t_s) is float and math.isfinite(t_s) else float(as_finite_array("t_s", t_s))
     if t < 0.0:
         raise InputError(f"t_s must be >= 0 for a ROS stamp, got {t_s!r}")
-    ns = seconds_to_ns(t)
-    stamp.sec, stamp.nanosec = ns // _NS_PER_S, ns % _NS_PER_S
-    return stamp
+    return seconds_to_ns(t)
 
 
 def seconds_to_ns(t_s: float) -> int:
@@ -453,14 +468,31 @@ def diagnostics_msg(t_s: float, rows: dict[str, ArrayLike], out: Any = None) -> 
 
     ``rows`` maps every label except ``time_s`` to 3 values; the labels go into ``layout.dim``.
     """
-    data = np.empty((len(DIAGNOSTICS_LAYOUT), 3))
-    data[0] = t_s
-    missing = [k for k in DIAGNOSTICS_LAYOUT[1:] if k not in rows]
-    if missing or set(rows) - set(DIAGNOSTICS_LAYOUT):
+    return _float_array(np.array(diagnostics_values(t_s, rows)), _diagnostics_layout(), out)
+
+
+_DIAGNOSTICS_ROWS = frozenset(DIAGNOSTICS_LAYOUT[1:])
+
+
+def diagnostics_values(t_s: float, rows: dict[str, ArrayLike]) -> list[float]:
+    """The data of :func:`diagnostics_msg`, row major (``time_s`` three times, then each row of
+    ``rows`` in the layout's order; the nodes publish it as bytes with
+    :func:`sappc_msgs_py.wire.codec`).  A row is 3 values (a float64 vector, or anything
+    ``numpy.asarray`` makes 3 float64 of)."""
+    if rows.keys() != _DIAGNOSTICS_ROWS:
+        missing = [k for k in DIAGNOSTICS_LAYOUT[1:] if k not in rows]
         raise ValueError(f"diagnostics need exactly {DIAGNOSTICS_LAYOUT[1:]}, missing {missing}, extra {sorted(set(rows) - set(DIAGNOSTICS_LAYOUT))}")
-    for i, label in enumerate(DIAGNOSTICS_LAYOUT[1:], start=1):
-        data[i] = np.asarray(rows[label], dtype=np.float64).reshape(3)
-    return _float_array(data, _diagnostics_layout(), out)
+    t = float(t_s)
+    data = [t, t, t]
+    for label in DIAGNOSTICS_LAYOUT[1:]:
+        row = rows[label]
+        if isinstance(row, list) and len(row) == 3:
+            data += row
+        elif type(row) is np.ndarray and row.shape == (3,) and row.dtype == np.float64:
+            data += row.tolist()
+        else:
+            data += np.asarray(row, dtype=np.float64).reshape(3).tolist()
+    return data
 
 
 @functools.cache

@@ -43,8 +43,9 @@ from numpy.typing import NDArray
 
 from gnc_common.validation import ConfigError, InputError, check_positive, check_unit_quaternion
 from sappc_msgs_py.contract import CONTROLLER_INPUTS, Topic
-from sappc_msgs_py.convert import is_no_data_msg, quaternion_from_msg, stamp_to_ns, vector3_from_msg
+from sappc_msgs_py.convert import cdr_stamp_ns, is_no_data_msg, quaternion_from_msg, vector3_from_msg
 from sappc_msgs_py.timeline import StampedWindow
+from sappc_msgs_py.wire import deserialize, take
 
 __all__ = [
     "DEFAULT_MAX_STAMP_AHEAD_S",
@@ -124,10 +125,11 @@ def stamp_rejection(topic_name: str, stamp_ns: int, last_ns: int | None, now_ns:
     return None
 
 
-def screen_input(msg: Any, topic: Topic, last_ns: int | None, now_ns: int | None, max_ahead_ns: int, last_what: str,
-                 decode: Callable[[Any, Topic], Array], reject: Callable[[str, str], None],
+def screen_input(msg: bytes, topic: Topic, last_ns: int | None, now_ns: int | None, max_ahead_ns: int, last_what: str,
+                 decode: Callable[[bytes, Topic], Array], reject: Callable[[str, str], None],
                  no_data: Callable[[str], None] | None = None) -> tuple[int, Array | None] | None:
-    """The checks every consumer makes of one input message, in this order: its stamp
+    """The checks every consumer makes of one input message, received as CDR bytes (a
+    subscription's ``raw=True``: :mod:`sappc_msgs_py.wire`), in this order: its stamp
     (:func:`stamp_rejection`; a rejected stamp drops the message: ``None``), then its value
     (``decode(msg, topic)``, e.g. :func:`decode_input`; an :class:`~gnc_common.validation.InputError`
     is rejected under its ``reason`` and the value is ``None``: in lockstep the input arrived,
@@ -141,7 +143,7 @@ def screen_input(msg: Any, topic: Topic, last_ns: int | None, now_ns: int | None
     tuple or None
         ``(stamp_ns, value or None)``, or ``None`` for a dropped message.
     """
-    stamp_ns = stamp_to_ns(msg.header.stamp)
+    stamp_ns = cdr_stamp_ns(topic.type_name, msg)
     rejection = stamp_rejection(topic.name, stamp_ns, last_ns, now_ns, max_ahead_ns, last_what)
     if rejection is not None:
         reject(rejection[1], rejection[0])
@@ -149,16 +151,16 @@ def screen_input(msg: Any, topic: Topic, last_ns: int | None, now_ns: int | None
     try:
         return stamp_ns, decode(msg, topic)
     except InputError as exc:
-        if no_data is not None and is_no_data_msg(msg, topic):
+        if no_data is not None and is_no_data_msg(deserialize(msg, topic), topic):
             no_data(f"{topic.name}: no data at {stamp_ns // NS_PER_S}.{stamp_ns % NS_PER_S:09d} s")
         else:
             reject(str(exc), exc.reason)
         return stamp_ns, None
 
 
-def decode_input(msg: Any, topic: Topic) -> Array:
-    """The value of an input message of ``topic``: a ``QuaternionStamped``'s unit quaternion
-    ``(x, y, z, w)``, a ``Vector3Stamped``'s vector.
+def decode_input(msg: bytes, topic: Topic) -> Array:
+    """The value of an input message of ``topic`` (CDR bytes, :func:`sappc_msgs_py.wire.take`): a
+    ``QuaternionStamped``'s unit quaternion ``(x, y, z, w)``, a ``Vector3Stamped``'s vector.
 
     Raises
     ------
@@ -166,8 +168,8 @@ def decode_input(msg: Any, topic: Topic) -> Array:
         For a wrong frame id, a non-finite value, a zero or non-unit quaternion ("invalid").
     """
     if topic.type_name.endswith("QuaternionStamped"):
-        return check_unit_quaternion(f"{topic.name} quaternion", quaternion_from_msg(msg, topic))
-    return vector3_from_msg(msg, topic)
+        return check_unit_quaternion(f"{topic.name} quaternion", np.asarray(take(msg, topic, lambda m: quaternion_from_msg(m, topic))))
+    return np.asarray(take(msg, topic, lambda m: vector3_from_msg(m, topic)))
 
 
 @dataclass(frozen=True)

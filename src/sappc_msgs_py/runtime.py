@@ -13,6 +13,9 @@ The facts behind the choices are measured in ``docs/ros2_notes.md``:
   recorder and the loop partners are matched.  :class:`CountingPublisher` waits for an expected
   number of subscribers before its first message and counts what it publishes, so a bag can be
   checked message for message.
+- The nodes publish the loop's messages as CDR bytes (:mod:`sappc_msgs_py.wire`), which
+  :meth:`CountingPublisher.publish` hands to rclpy's C publisher directly; :func:`run_nodes`
+  spins the executor in C++ (``spin_until_future_complete``) until a node finishes.
 """
 
 from __future__ import annotations
@@ -97,6 +100,7 @@ class CountingPublisher:
         self.topic = topic
         self.msg = topic.msg_class()
         self.pub = node.create_publisher(topic.msg_class, topic.name, qos)
+        self._publish_raw = self.pub.handle.publish_raw  # serialized messages, without rclpy's per-call type dispatch
         self.min_subscribers = min_subscribers
         self.count = 0
         self._ready = min_subscribers == 0
@@ -132,9 +136,13 @@ class CountingPublisher:
         self._ready = True
 
     def publish(self, msg: Any) -> None:
+        """Publish ``msg``: CDR bytes (:mod:`sappc_msgs_py.wire`) or a message object of the topic's type."""
         if not self._ready:
             self.wait_matched()
-        self.pub.publish(msg)
+        if type(msg) is bytes:
+            self._publish_raw(msg)
+        else:
+            self.pub.publish(msg)
         self.count += 1
 
     def wait_acked(self, timeout_s: float = ACK_TIMEOUT_S) -> bool:
@@ -309,11 +317,23 @@ class ProjectNode(Node):
 
     def __init__(self, node_name: str, **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self.finished = False
+        self._finished = False
+        self.finished_future: Any = None  # run_nodes's: done when a node of the process finishes
         self._expected = parse_expected(list(self.param(COMMON_PARAMETERS[0])))
         self._counts_file = str(self.param(COMMON_PARAMETERS[1]))
         self._counting_pubs: list[CountingPublisher] = []
         self._frame_timers: list[Any] = []  # create_frame_timer's timers (kept referenced)
+
+    @property
+    def finished(self) -> bool:
+        """Whether the node's work is done (:func:`run_nodes` then finishes it)."""
+        return self._finished
+
+    @finished.setter
+    def finished(self, value: bool) -> None:
+        self._finished = value
+        if value and self.finished_future is not None and not self.finished_future.done():
+            self.finished_future.set_result(True)  # the executor's spin returns at once
 
     @classmethod
     def parameter_sections(cls) -> list[tuple[str, tuple[Param, ...]]]:
@@ -478,6 +498,7 @@ def run_nodes(make_nodes: Callable[[list[str]], list[ProjectNode]], argv: list[s
     import rclpy
     from rclpy.experimental.events_executor import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
+    from rclpy.task import Future
     from rclpy.utilities import try_shutdown
 
     args = list(sys.argv if argv is None else argv)
@@ -508,8 +529,13 @@ def run_nodes(make_nodes: Callable[[list[str]], list[ProjectNode]], argv: list[s
 
             profiler = cProfile.Profile()
             profiler.enable()
+        # spun in C++ until a node finishes, returning every SPIN_TIMEOUT_S to look at the signal
+        # flag: no Python between the messages (a spin_once loop cost a few microseconds a message)
+        done = Future()
+        for node in nodes:
+            node.finished_future = done
         while not stop["signal"] and not any(node.finished for node in nodes):
-            executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+            executor.spin_until_future_complete(done, timeout_sec=SPIN_TIMEOUT_S)
         if profiler is not None:
             profiler.disable()
             profiler.dump_stats(str(Path(profile_dir) / f"{'+'.join(n.get_name() for n in nodes)}.prof"))

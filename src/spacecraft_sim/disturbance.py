@@ -60,7 +60,9 @@ from sappc_msgs_py.contract import (
     faulty,
     qos_profile,
 )
+from sappc_msgs_py import wire
 from sappc_msgs_py.convert import (
+    cdr_stamp_ns,
     epoch_from_msg,
     epoch_msg,
     gyro_from_msg,
@@ -72,7 +74,7 @@ from sappc_msgs_py.convert import (
     stamp_to_ns,
     star_tracker_from_msg,
     star_tracker_msg,
-    time_to_stamp,
+    time_to_ns,
     torque_from_msg,
     torque_msg,
     vector3_from_msg,
@@ -154,15 +156,16 @@ class InjectorNode(ProjectNode):
         self.rejected = 0
         qos = qos_profile()
         self.pub_d = self.counting_publisher(DISTURBANCE_TORQUE, 1)
+        self._wire_d = wire.codec(DISTURBANCE_TORQUE)  # published as CDR bytes (sappc_msgs_py.wire)
         self.frames: FramesAhead | None = None
         if self.mode == LOCKSTEP:
             self._cursor = GridCursor(self.last_k)
-            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos)
+            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos, raw=True)
             self.start_when(lambda: unmatched([self.pub_d]), lambda: self._publish_through(1))
         else:  # sample k on the plant's frame f0 + k, f0 its first state's (FramesAhead)
             gate = StartGate(self, lambda: unmatched([self.pub_d]))  # no publish may block a callback
             self.frames = FramesAhead(self, self.dt, self.last_k, gate.open,
-                                      lambda k, ns: self._publish_disturbance(k * self.dt, ns_to_stamp(ns)))
+                                      lambda k, ns: self._publish_disturbance(k * self.dt, ns))
         # the paired paths: the measurements (q_BN, omega_BN_B) and the reference, each paired by stamp
         self._paired: dict[tuple[Topic, ...], dict[int, dict[str, Any]]] = {}  # path -> stamp [ns] -> topic name -> value
         self.pub_relay: dict[str, Any] = {}
@@ -189,17 +192,17 @@ class InjectorNode(ProjectNode):
             elif topics is not RELAYED_ACTUATOR_TOPICS:
                 self._paired[topics] = {}
 
-    def _publish_disturbance(self, t_s: float, stamp: Any) -> None:
+    def _publish_disturbance(self, t_s: float, stamp_ns: int) -> None:
         d = self.disturbance.torque_B(np.array([t_s]), 1)[0, 0]
-        self.pub_d.publish(torque_msg(d, stamp, DISTURBANCE_TORQUE, out=self.pub_d.msg))
+        self.pub_d.publish(self._wire_d.encode(stamp_ns, d))
 
-    def _on_clock(self, msg: Any) -> None:
-        self._publish_through(round(stamp_to_ns(msg.clock) / 1e9 / self.dt) + 1)  # one sample ahead
+    def _on_clock(self, raw: bytes) -> None:
+        self._publish_through(round(cdr_stamp_ns(CLOCK.type_name, raw) / 1e9 / self.dt) + 1)  # one sample ahead
 
     def _publish_through(self, k: int) -> None:
         for j in self._cursor.through(k):
             t = j * self.dt  # on the plant's grid (k dt, as sample_times)
-            self._publish_disturbance(t, time_to_stamp(t))
+            self._publish_disturbance(t, time_to_ns(t))
 
     def _run_time_s(self, stamp_ns: int) -> float:
         """The run's time [s] of a stamp, which the fault windows are in: the stamp itself in

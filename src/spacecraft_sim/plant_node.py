@@ -103,8 +103,9 @@ from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, STATE
                                    SENSOR_GYRO, SENSOR_STAR_TRACKER, STATE_ATTITUDE, STATE_ATTITUDE_EPOCH, STATE_RATE, STATE_TF, TRUTH_ATTITUDE,
                                    TRUTH_GYRO_BIAS, TRUTH_RATE,
                                    WHEEL_STATES, qos_profile)
+from sappc_msgs_py import wire
 from sappc_msgs_py.convert import (
-    clock_msg,
+    cdr_stamp_ns,
     dipole_from_msg,
     epoch_msg,
     gyro_msg,
@@ -113,9 +114,8 @@ from sappc_msgs_py.convert import (
     joint_state_msg,
     ns_to_stamp,
     quaternion_msg,
-    stamp_to_ns,
     star_tracker_msg,
-    time_to_stamp,
+    time_to_ns,
     torque_from_msg,
     transform_from_attitude,
     transform_msg,
@@ -256,11 +256,14 @@ class PlantNode(ProjectNode):
         self.pub_att = self.counting_publisher(STATE_ATTITUDE, 1)
         self.pub_rate = self.counting_publisher(STATE_RATE, 1)
         self.pub_tf = self.counting_publisher(STATE_TF)  # nobody needs it to fly: waits only for expected_subscribers
-        self._tf = transform_msg(STATE_TF)  # one message, re-stamped each sample
+        self._tf = transform_msg(STATE_TF)  # one message, re-stamped each sample (with sensors: the truth's)
+        # the loop's topics as CDR bytes (sappc_msgs_py.wire): published and taken without message objects
+        self._wire = {t: wire.codec(t) for t in (CLOCK, STATE_ATTITUDE, STATE_RATE, STATE_TF, CONTROL_TORQUE, DISTURBANCE_TORQUE)}
         self.pub_clock = self.counting_publisher(CLOCK) if self.mode == LOCKSTEP else None
-        self._inputs = {"torque": self.create_subscription(CONTROL_TORQUE.msg_class, CONTROL_TORQUE.name, self._on_torque, qos)}
+        self._inputs = {"torque": self.create_subscription(CONTROL_TORQUE.msg_class, CONTROL_TORQUE.name, self._on_torque, qos, raw=True)}
         if self.use_disturbance:
-            self._inputs["disturbance"] = self.create_subscription(DISTURBANCE_TORQUE.msg_class, DISTURBANCE_TORQUE.name, self._on_disturbance, qos)
+            self._inputs["disturbance"] = self.create_subscription(DISTURBANCE_TORQUE.msg_class, DISTURBANCE_TORQUE.name, self._on_disturbance,
+                                                                   qos, raw=True)
 
         self.torque = np.zeros((1, 3))
         self.disturbance = np.zeros((1, 3))
@@ -294,9 +297,9 @@ class PlantNode(ProjectNode):
             self.create_frame_timer(self.dt, PLANT_PHASE, self._realtime_tick)
 
     # ---- inputs ---------------------------------------------------------------------------
-    def _decode(self, msg: Any, topic: Any) -> np.ndarray | None:
+    def _decode(self, raw: bytes, topic: Any) -> np.ndarray | None:
         try:
-            torque = torque_from_msg(msg, topic).reshape(1, 3)
+            torque = np.asarray(wire.take(raw, topic, lambda msg: torque_from_msg(msg, topic), self._wire[topic])).reshape(1, 3)
             if topic is CONTROL_TORQUE and self.wheels is None:  # the ideal actuator's limit; the wheels have their own
                 torque = np.minimum(np.maximum(torque, -self.max_torque), self.max_torque)
             return torque
@@ -305,17 +308,17 @@ class PlantNode(ProjectNode):
             self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
             return None
 
-    def _on_torque(self, msg: Any) -> None:
-        self._on_input(msg, CONTROL_TORQUE, "torque")
+    def _on_torque(self, raw: bytes) -> None:
+        self._on_input(raw, CONTROL_TORQUE, "torque")
 
-    def _on_disturbance(self, msg: Any) -> None:
-        self._on_input(msg, DISTURBANCE_TORQUE, "disturbance")
+    def _on_disturbance(self, raw: bytes) -> None:
+        self._on_input(raw, DISTURBANCE_TORQUE, "disturbance")
 
-    def _on_input(self, msg: Any, topic: Any, which: str) -> None:
-        value = self._decode(msg, topic)
+    def _on_input(self, raw: bytes, topic: Any, which: str) -> None:
+        value = self._decode(raw, topic)
         if value is None:
             return
-        ns = stamp_to_ns(msg.header.stamp)
+        ns = cdr_stamp_ns(topic.type_name, raw)
         if self.mode == REALTIME:
             if which == "torque":
                 self.torque, self._torque_ns = value, ns
@@ -362,11 +365,12 @@ class PlantNode(ProjectNode):
     def _publish_sample(self) -> None:
         t = self.k * self.dt  # the grid of spacecraft_sim.core.reference.sample_times
         assert self.pub_clock is not None
-        self.pub_clock.publish(clock_msg(t, out=self.pub_clock.msg))
+        t_ns = time_to_ns(t)
+        self.pub_clock.publish(self._wire[CLOCK].encode(t_ns))
         self._publish_state(t)
         if self._env is not None:
             self._publish_orbit(t)
-        self._waiting_ns = stamp_to_ns(time_to_stamp(t))
+        self._waiting_ns = t_ns
         self._waiting_since = time.monotonic()
         self._try_advance()  # the disturbance may already be there
 
@@ -513,14 +517,14 @@ class PlantNode(ProjectNode):
         if self._wall_first is None:
             self._wall_first = time.monotonic()
         if self.sensors is None:
-            att = quaternion_msg(self.x[0, :4], t_s, STATE_ATTITUDE, out=self.pub_att.msg)
-            self.pub_att.publish(att)
-            self.pub_rate.publish(vector3_msg(self.x[0, 4:], t_s, STATE_RATE, out=self.pub_rate.msg))
-            self.pub_tf.publish(transform_from_attitude(self._tf, att))  # after the state: off the loop's critical path
+            t_ns, q, w = time_to_ns(t_s), self.x[0, :4], self.x[0, 4:]
+            self.pub_att.publish(self._wire[STATE_ATTITUDE].encode(t_ns, q))
+            self.pub_rate.publish(self._wire[STATE_RATE].encode(t_ns, w))
+            self.pub_tf.publish(self._wire[STATE_TF].encode(t_ns, q))  # after the state: off the loop's critical path
             return
         # the sensors' measurement of sample k (the offline loop's kernel and draws), then the truth
         self._bias_k[:] = self._bias + self._bias_faults.gyro_bias_fault(self.k * self.dt)
-        stamp_ns = stamp_to_ns(time_to_stamp(t_s))
+        stamp_ns = time_to_ns(t_s)
         if self._epoch_origin_ns is None:
             self._epoch_origin_ns = stamp_ns
         measure(self.k, self.k * self.dt, tracker_epoch_offset(stamp_ns, self._epoch_origin_ns), self.x[0, :4], self.x[0, 4:],
@@ -591,7 +595,7 @@ class PlantNode(ProjectNode):
     def _on_dipole(self, msg: Any) -> None:
         try:
             t_s, m = dipole_from_msg(msg, self.dipole.shape[0])
-            ns = stamp_to_ns(time_to_stamp(t_s))  # data[0], float seconds: exact in lockstep (from 0), the only mode with an orbit
+            ns = time_to_ns(t_s)  # data[0], float seconds: exact in lockstep (from 0), the only mode with an orbit
         except InputError as exc:
             self.rejected += 1
             self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")

@@ -31,7 +31,8 @@ from typing import Any
 
 
 from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_TF, qos_profile
-from sappc_msgs_py.convert import ns_to_stamp, quaternion_msg, stamp_to_ns, time_to_stamp, transform_from_attitude, transform_msg, vector3_msg
+from sappc_msgs_py import wire
+from sappc_msgs_py.convert import cdr_stamp_ns, time_to_ns
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, FramesAhead, GridCursor, ProjectNode, StartGate, run_node, unmatched
 
@@ -70,30 +71,33 @@ class ReferenceNode(ProjectNode):
         duration = check_positive("duration_s", self.param(_P["duration_s"]))
         self.mode = self.mode_param()
         self.samples = ref.sample(sample_times(duration, self.dt))
-        # stamp (ns) of each grid sample -> index, for exact matching of /clock ticks
-        self._stamps = [time_to_stamp(float(t)) for t in self.samples.t]
-        self._index = {stamp_to_ns(st): k for k, st in enumerate(self._stamps)}
-        self.pubs = [self.counting_publisher(t, 1) for t in (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)]
+        # stamp (ns) of each grid sample, and its index for exact matching of /clock ticks
+        self._stamps = [time_to_ns(float(t)) for t in self.samples.t]
+        self._index = {ns: k for k, ns in enumerate(self._stamps)}
+        topics = (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION, REFERENCE_TF)
+        self.pubs = [self.counting_publisher(t, 1) for t in topics[:3]]
         self.pub_tf = self.counting_publisher(REFERENCE_TF)  # waits only for expected_subscribers
-        self._tf = transform_msg(REFERENCE_TF)  # one message, re-stamped each sample
+        self._wire = [wire.codec(t) for t in topics]  # published as CDR bytes (sappc_msgs_py.wire)
         if self.mode == LOCKSTEP:
             self._cursor = GridCursor(self.samples.t.size - 1)
-            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile())
+            self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile(), raw=True)
             self.start_when(lambda: unmatched([*self.pubs, self.pub_tf]), lambda: self._publish_through(1))
         else:  # sample k on the plant's frame f0 + k, f0 its first state's (FramesAhead)
             gate = StartGate(self, lambda: unmatched([*self.pubs, self.pub_tf]))  # no publish may block a callback
-            self.frames = FramesAhead(self, self.dt, self.samples.t.size - 1, gate.open, lambda k, ns: self._publish(k, ns_to_stamp(ns)))
+            self.frames = FramesAhead(self, self.dt, self.samples.t.size - 1, gate.open, lambda k, ns: self._publish(k, ns))
 
-    def _publish(self, k: int, stamp: Any) -> None:
+    def _publish(self, k: int, stamp_ns: int) -> None:
         s = self.samples
         att, rate, acc = self.pubs
-        att.publish(quaternion_msg(s.q_RN[k], stamp, REFERENCE_ATTITUDE, out=att.msg))
-        rate.publish(vector3_msg(s.omega_RN_R[k], stamp, REFERENCE_RATE, out=rate.msg))
-        acc.publish(vector3_msg(s.omegadot_RN_R[k], stamp, REFERENCE_ACCELERATION, out=acc.msg))
-        self.pub_tf.publish(transform_from_attitude(self._tf, att.msg))
+        w_att, w_rate, w_acc, w_tf = self._wire
+        q = s.q_RN[k]
+        att.publish(w_att.encode(stamp_ns, q))
+        rate.publish(w_rate.encode(stamp_ns, s.omega_RN_R[k]))
+        acc.publish(w_acc.encode(stamp_ns, s.omegadot_RN_R[k]))
+        self.pub_tf.publish(w_tf.encode(stamp_ns, q))
 
-    def _on_clock(self, msg: Any) -> None:
-        ns = stamp_to_ns(msg.clock)
+    def _on_clock(self, raw: bytes) -> None:
+        ns = cdr_stamp_ns(CLOCK.type_name, raw)
         k = self._index.get(ns)
         if k is None:
             self.get_logger().warning(f"/clock {ns / 1e9:.9f} s is not on the reference grid (dt = {self.dt} s, n = {len(self._index)}); nothing published")

@@ -425,14 +425,17 @@ def test_no_data_is_told_from_an_invalid_message_and_screened_apart_from_the_rej
     for msg, topic in ((partly, c.STATE_ATTITUDE), (inf, c.STATE_RATE), (wrong_frame, c.STATE_RATE),
                        (epoch_msg(5, 1.0, c.STATE_ATTITUDE_EPOCH), c.STATE_ATTITUDE_EPOCH), (quaternion_msg([0, 0, 0, 1], 1.0, c.STATE_ATTITUDE), c.STATE_ATTITUDE)):
         assert not is_no_data_msg(msg, topic)
+    from rclpy.serialization import serialize_message
+
     rejected: list[tuple[str, str]] = []
     no_data: list[str] = []
     reject = lambda m, r: rejected.append((m, r))  # noqa: E731
-    assert screen_input(no_data_msg(c.STATE_RATE, 1.0), c.STATE_RATE, None, None, 10**9, "", decode_input, reject, no_data.append) == (10**9, None)
+    raw_no_data = serialize_message(no_data_msg(c.STATE_RATE, 1.0))  # screen_input takes what a raw subscription gives
+    assert screen_input(raw_no_data, c.STATE_RATE, None, None, 10**9, "", decode_input, reject, no_data.append) == (10**9, None)
     assert rejected == [] and no_data == ["state/rate: no data at 1.000000000 s"]
-    assert screen_input(inf, c.STATE_RATE, None, None, 10**9, "", decode_input, reject, no_data.append) == (10**9, None)
+    assert screen_input(serialize_message(inf), c.STATE_RATE, None, None, 10**9, "", decode_input, reject, no_data.append) == (10**9, None)
     assert [r for _, r in rejected] == ["invalid"] and len(no_data) == 1
-    assert screen_input(no_data_msg(c.STATE_RATE, 1.0), c.STATE_RATE, None, None, 10**9, "", decode_input, reject) == (10**9, None)
+    assert screen_input(raw_no_data, c.STATE_RATE, None, None, 10**9, "", decode_input, reject) == (10**9, None)
     assert [r for _, r in rejected] == ["invalid", "invalid"]  # without the callback: rejected, as before
 
 

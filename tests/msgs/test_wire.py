@@ -476,8 +476,6 @@ def test_encode_refuses_a_non_finite_value_or_a_wrong_length_naming_the_topic(to
         codec.encode(STAMP_NS, good, good)
 
 
-@pytest.mark.xfail(strict=True, raises=TypeError, reason="convert._encode (which Codec.encode uses) lets a (1, n) array through "
-                                                        "as_finite_array(shape_tail=(n,)), then math.isfinite of its nested list raises TypeError")
 def test_encode_refuses_a_value_of_another_shape_naming_the_topic() -> None:
     """A (1, n) array (the plant keeps its torque so) is not a field's n values: InputError naming the topic."""
     codec = wire.codec(c.CONTROL_TORQUE)
@@ -514,8 +512,6 @@ def test_the_controller_diagnostics_codec_takes_nan_rows(rng: np.random.Generato
     assert len(calls) == 1
 
 
-@pytest.mark.xfail(strict=True, reason="wire.Codec.encode of a non-finite codec (controller/diagnostics) raises numpy's reshape "
-                                       "ValueError, which names neither the topic nor is an InputError (its docstring says both)")
 def test_the_controller_diagnostics_codec_refuses_a_wrong_length_naming_the_topic() -> None:
     """A wrong number of diagnostics values raises InputError naming the topic, as the encoder's docstring promises."""
     codec = wire.codec(c.CONTROLLER_DIAGNOSTICS)

@@ -248,7 +248,7 @@ def test_the_reference_publishes_its_samples_on_the_plants_frames_ahead(ros_cont
         matched = {"yes": False}
         monkeypatch.setattr(ref.frames, "_ready", lambda: matched["yes"])
         sent: list[tuple[int, int]] = []
-        monkeypatch.setattr(ref, "_publish", lambda k, stamp: sent.append((k, stamp_to_ns(stamp))))
+        monkeypatch.setattr(ref, "_publish", lambda k, stamp_ns: sent.append((k, stamp_ns)))
         ref.frames._on_timer()
         assert sent == []  # no state yet: the run has not started
         ref.frames.start_at(f0 * DT_NS)

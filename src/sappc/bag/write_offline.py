@@ -79,8 +79,6 @@ node's ``control/wheel_torque``; the fault relays' outputs but ``fault/control/t
 from __future__ import annotations
 
 import dataclasses
-import struct
-import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,10 +87,10 @@ from typing import IO, Any
 
 import numpy as np
 import yaml
-import zstandard
 from numpy.typing import NDArray
 
 from sappc.bag.errors import BagError
+from sappc.bag.mcap_write import MESSAGE_HEAD_BYTES, ZSTD_LEVEL, McapWriter, message_head
 from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, write_bag_metadata
 from sappc.evaluation.history import History
 from sappc.scenario import ControllerKind, Scenario
@@ -135,6 +133,7 @@ from sappc_msgs_py.contract import (
     Topic,
     faulty,
 )
+from sappc_msgs_py import wire
 from sappc_msgs_py.schemas import schema_text, type_hash
 from spacecraft_sim.core.faults import FaultSchedule
 
@@ -150,140 +149,15 @@ CHUNK_SIZE_BYTES = 256 * 1024
 #: calls per piece (a few per field, some 150 fields for the orbit scenario) stay a few percent
 #: of its encoding.
 ENCODE_BYTES = 4 * 1024 * 1024
-#: zstd's level for the chunks: 1.  On the orbit scenario's chunks it compresses as well as the
-#: ``mcap`` writer's default 3 (the graph recorder's: 4.3 against 4.2 times) at 1.4 times its
-#: speed (490 against 340 MB/s); compression is most of the writing's cost.
-ZSTD_LEVEL = 1
 #: The ``library`` field of the bags written here.
 LIBRARY = "sappc simulate --record (sappc.bag.write_offline)"
 
 #: Topics of a graph run that an offline bag never has (its record does not hold them; module docstring).
 UNRECORDED_TOPICS = ("sensors/gyro", "sensors/star_tracker", "state/attitude_epoch", "diagnostics", "control/wheel_torque")
 
-_MAGIC = b"\x89MCAP0\r\n"
-_OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
-_OP_MESSAGE_INDEX, _OP_CHUNK_INDEX, _OP_ATTACHMENT_INDEX, _OP_STATISTICS = 0x07, 0x08, 0x0A, 0x0B
-_OP_METADATA, _OP_METADATA_INDEX, _OP_SUMMARY_OFFSET, _OP_DATA_END = 0x0C, 0x0D, 0x0E, 0x0F
-#: A message record's head: opcode u8, content length u64, channel id u16, sequence u32, log and
-#: publish times u64 (the MCAP specification's field widths).
-_MESSAGE_HEAD_BYTES = 1 + 8 + 2 + 4 + 8 + 8
-#: A CDR payload's encapsulation header (little-endian plain CDR, options zero): the alignment
-#: origin is after it.
-_CDR_LE = b"\x00\x01\x00\x00"
 _NS_PER_S = 1_000_000_000
 
 Array = NDArray[np.float64]
-
-
-# ---- CDR layouts ------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Field:
-    """A value of a payload filled per message: ``key`` of the block's values, at ``offset`` in
-    the payload, ``count`` float64 (``key == "stamp"``: ``int32 sec, uint32 nanosec``)."""
-
-    key: str
-    offset: int
-    count: int
-
-
-class _Payload:
-    """A message's CDR bytes with every value zero, and where its values go (:class:`_Field`): the
-    fixed parts (frame ids, names, labels, counts) written once, as rclpy's serializer writes
-    them (alignment from the end of the encapsulation header, padding zero)."""
-
-    def __init__(self) -> None:
-        self.buf = bytearray(_CDR_LE)
-        self.fields: list[_Field] = []
-
-    def align(self, n: int) -> None:
-        self.buf += bytes(-(len(self.buf) - len(_CDR_LE)) % n)
-
-    def u32(self, value: int) -> None:
-        self.align(4)
-        self.buf += struct.pack("<I", value)
-
-    def string(self, text: str) -> None:
-        raw = text.encode("utf-8") + b"\0"
-        self.u32(len(raw))
-        self.buf += raw
-
-    def stamp(self) -> None:
-        self.align(4)
-        self.fields.append(_Field("stamp", len(self.buf), 0))
-        self.buf += bytes(8)
-
-    def header(self, frame_id: str | None) -> None:
-        self.stamp()
-        self.string(frame_id or "")
-
-    def doubles(self, key: str | None, count: int) -> None:
-        """``count`` float64 (aligned to 8 when there is one), filled from ``key`` (``None``: zero)."""
-        if count == 0:
-            return
-        self.align(8)
-        if key is not None:
-            self.fields.append(_Field(key, len(self.buf), count))
-        self.buf += bytes(8 * count)
-
-    def sequence(self, key: str | None, count: int) -> None:
-        """A ``sequence<float64>`` of ``count`` values (its length, then the values)."""
-        self.u32(count)
-        self.doubles(key, count)
-
-    def multiarray(self, dims: list[tuple[str, int, int]], data_offset: int, key: str, count: int) -> None:
-        """A ``std_msgs/Float64MultiArray``: its layout's dimensions (label, size, stride) and
-        ``data_offset``, then ``count`` values."""
-        self.u32(len(dims))
-        for label, size, stride in dims:
-            self.string(label)
-            self.u32(size)
-            self.u32(stride)
-        self.u32(data_offset)
-        self.sequence(key, count)
-
-
-def _stamped(topic: Topic, key: str, count: int, before: int = 0) -> _Payload:
-    """A header then ``count`` doubles of ``key`` (after ``before`` zero doubles: a wrench's force)."""
-    p = _Payload()
-    p.header(topic.frame_id)
-    p.doubles(None, before)
-    p.doubles(key, count)
-    return p
-
-
-def _transform(topic: Topic, key: str) -> _Payload:
-    p = _Payload()
-    p.header(topic.frame_id)
-    p.string(topic.child_frame_id or "")
-    p.doubles(None, 3)  # the translation: zero
-    p.doubles(key, 4)  # the rotation x y z w (the contract's transforms: the attitude)
-    return p
-
-
-def _clock() -> _Payload:
-    p = _Payload()
-    p.stamp()
-    return p
-
-
-def _magnetic_field(topic: Topic, key: str, variance_T2: Array) -> _Payload:
-    p = _stamped(topic, key, 3)
-    cov = np.zeros(9)
-    cov[[0, 4, 8]] = variance_T2  # diag(variance) row major, as magnetic_field_msg writes it
-    p.buf += cov.astype("<f8").tobytes()
-    return p
-
-
-def _joint_state(topic: Topic, n: int, speed: str, effort: str | None) -> _Payload:
-    p = _Payload()
-    p.header(topic.frame_id)
-    p.u32(n)
-    for i in range(n):  # wheel_names(n)
-        p.string(f"wheel_{i + 1}")
-    p.sequence(None, 0)  # position: empty
-    p.sequence(speed, n)
-    p.sequence(effort, n if effort is not None else 0)
-    return p
 
 
 # ---- which topics ---------------------------------------------------------------------------
@@ -316,67 +190,39 @@ def offline_topics(scenario: Scenario) -> tuple[Topic, ...]:
     return tuple(t for t in TOPICS + FAULT_TOPICS if t in wanted)
 
 
-def _payload(topic: Topic, scenario: Scenario) -> _Payload:
+def _payload(topic: Topic, scenario: Scenario) -> wire.Layout:
     """The layout of ``topic``'s messages for ``scenario`` (its keys those of :func:`_block_values`)."""
     n_wheels = 0 if scenario.wheels is None else scenario.wheels.n
-    layouts: dict[Topic, Callable[[], _Payload]] = {
-        CLOCK: _clock,
-        STATE_ATTITUDE: lambda: _stamped(STATE_ATTITUDE, "q_BN", 4),
-        STATE_RATE: lambda: _stamped(STATE_RATE, "omega_BN_B", 3),
-        TRUTH_ATTITUDE: lambda: _stamped(TRUTH_ATTITUDE, "q_BN", 4),
-        TRUTH_RATE: lambda: _stamped(TRUTH_RATE, "omega_BN_B", 3),
-        TRUTH_GYRO_BIAS: lambda: _stamped(TRUTH_GYRO_BIAS, "gyro_bias_true", 3),
-        STATE_TF: lambda: _transform(STATE_TF, "q_BN"),
-        REFERENCE_TF: lambda: _transform(REFERENCE_TF, "q_RN"),
-        REFERENCE_ATTITUDE: lambda: _stamped(REFERENCE_ATTITUDE, "q_RN", 4),
-        REFERENCE_RATE: lambda: _stamped(REFERENCE_RATE, "omega_RN_R", 3),
-        REFERENCE_ACCELERATION: lambda: _stamped(REFERENCE_ACCELERATION, "omegadot_RN_R", 3),
-        CONTROL_TORQUE: lambda: _stamped(CONTROL_TORQUE, "torque_B", 3, before=3),
-        faulty(CONTROL_TORQUE): lambda: _stamped(faulty(CONTROL_TORQUE), "torque_B", 3, before=3),
-        DISTURBANCE_TORQUE: lambda: _stamped(DISTURBANCE_TORQUE, "disturbance_B", 3, before=3),
-        CONTROLLER_DIAGNOSTICS: _controller_diagnostics,
-        WHEEL_STATES: lambda: _joint_state(WHEEL_STATES, n_wheels, "wheel_speed", "wheel_torque"),
-        STATE_WHEEL_SPEED: lambda: _joint_state(STATE_WHEEL_SPEED, n_wheels, "wheel_speed", None),
-        ESTIMATE_ATTITUDE: lambda: _stamped(ESTIMATE_ATTITUDE, "est_q_BN", 4),
-        ESTIMATE_RATE: lambda: _stamped(ESTIMATE_RATE, "est_omega_BN_B", 3),
-        ESTIMATOR_GYRO_BIAS: lambda: _stamped(ESTIMATOR_GYRO_BIAS, "est_gyro_bias", 3),
-        ESTIMATOR_ATTITUDE_SIGMA: lambda: _stamped(ESTIMATOR_ATTITUDE_SIGMA, "est_attitude_sigma", 3),
-        ESTIMATOR_BIAS_SIGMA: lambda: _stamped(ESTIMATOR_BIAS_SIGMA, "est_bias_sigma", 3),
-        ESTIMATOR_COVARIANCE: _covariance,
-        ESTIMATOR_DIAGNOSTICS: _estimator_diagnostics,
-        STATE_MAGNETIC_FIELD: lambda: _magnetic_field(STATE_MAGNETIC_FIELD, "B_meas", _magnetometer_variance(scenario)),
-        TRUTH_MAGNETIC_FIELD: lambda: _magnetic_field(TRUTH_MAGNETIC_FIELD, "B_B", np.zeros(3)),
-        CONTROL_DIPOLE: lambda: _dipole(_n_rods(scenario)),
+    layouts: dict[Topic, Callable[[], wire.Layout]] = {
+        CLOCK: wire.clock,
+        STATE_ATTITUDE: lambda: wire.stamped(STATE_ATTITUDE, "q_BN", 4),
+        STATE_RATE: lambda: wire.stamped(STATE_RATE, "omega_BN_B", 3),
+        TRUTH_ATTITUDE: lambda: wire.stamped(TRUTH_ATTITUDE, "q_BN", 4),
+        TRUTH_RATE: lambda: wire.stamped(TRUTH_RATE, "omega_BN_B", 3),
+        TRUTH_GYRO_BIAS: lambda: wire.stamped(TRUTH_GYRO_BIAS, "gyro_bias_true", 3),
+        STATE_TF: lambda: wire.transform(STATE_TF, "q_BN"),
+        REFERENCE_TF: lambda: wire.transform(REFERENCE_TF, "q_RN"),
+        REFERENCE_ATTITUDE: lambda: wire.stamped(REFERENCE_ATTITUDE, "q_RN", 4),
+        REFERENCE_RATE: lambda: wire.stamped(REFERENCE_RATE, "omega_RN_R", 3),
+        REFERENCE_ACCELERATION: lambda: wire.stamped(REFERENCE_ACCELERATION, "omegadot_RN_R", 3),
+        CONTROL_TORQUE: lambda: wire.stamped(CONTROL_TORQUE, "torque_B", 3, before=3),
+        faulty(CONTROL_TORQUE): lambda: wire.stamped(faulty(CONTROL_TORQUE), "torque_B", 3, before=3),
+        DISTURBANCE_TORQUE: lambda: wire.stamped(DISTURBANCE_TORQUE, "disturbance_B", 3, before=3),
+        CONTROLLER_DIAGNOSTICS: wire.controller_diagnostics,
+        WHEEL_STATES: lambda: wire.joint_state(WHEEL_STATES, n_wheels, "wheel_speed", "wheel_torque"),
+        STATE_WHEEL_SPEED: lambda: wire.joint_state(STATE_WHEEL_SPEED, n_wheels, "wheel_speed", None),
+        ESTIMATE_ATTITUDE: lambda: wire.stamped(ESTIMATE_ATTITUDE, "est_q_BN", 4),
+        ESTIMATE_RATE: lambda: wire.stamped(ESTIMATE_RATE, "est_omega_BN_B", 3),
+        ESTIMATOR_GYRO_BIAS: lambda: wire.stamped(ESTIMATOR_GYRO_BIAS, "est_gyro_bias", 3),
+        ESTIMATOR_ATTITUDE_SIGMA: lambda: wire.stamped(ESTIMATOR_ATTITUDE_SIGMA, "est_attitude_sigma", 3),
+        ESTIMATOR_BIAS_SIGMA: lambda: wire.stamped(ESTIMATOR_BIAS_SIGMA, "est_bias_sigma", 3),
+        ESTIMATOR_COVARIANCE: wire.covariance,
+        ESTIMATOR_DIAGNOSTICS: wire.estimator_diagnostics,
+        STATE_MAGNETIC_FIELD: lambda: wire.magnetic_field(STATE_MAGNETIC_FIELD, "B_meas", _magnetometer_variance(scenario)),
+        TRUTH_MAGNETIC_FIELD: lambda: wire.magnetic_field(TRUTH_MAGNETIC_FIELD, "B_B", np.zeros(3)),
+        CONTROL_DIPOLE: lambda: wire.dipole(_n_rods(scenario)),
     }
     return layouts[topic]()
-
-
-def _controller_diagnostics() -> _Payload:
-    n = len(DIAGNOSTICS_LAYOUT)  # as convert.diagnostics_msg lays it out
-    p = _Payload()
-    p.multiarray([(",".join(DIAGNOSTICS_LAYOUT), n, 3 * n), ("axis", 3, 3)], 0, "diagnostics", 3 * n)
-    return p
-
-
-def _covariance() -> _Payload:
-    n = len(ERROR_STATE)  # as convert.covariance_msg lays it out
-    p = _Payload()
-    p.multiarray([(COVARIANCE_DIMS[0], n, n * n), (COVARIANCE_DIMS[1], n, n)], 1, "covariance", 1 + n * n)
-    return p
-
-
-def _estimator_diagnostics() -> _Payload:
-    n = len(ESTIMATOR_DIAGNOSTICS_LAYOUT)  # as convert.estimator_diagnostics_msg lays it out
-    p = _Payload()
-    p.multiarray([(",".join(ESTIMATOR_DIAGNOSTICS_LAYOUT), n, n)], 0, "estimator_diagnostics", n)
-    return p
-
-
-def _dipole(n_rods: int) -> _Payload:
-    labels = ["time_s"] + [f"{DIPOLE_LABEL_PREFIX}{j + 1}" for j in range(n_rods)]  # as convert.dipole_msg lays it out
-    p = _Payload()
-    p.multiarray([(",".join(labels), n_rods + 1, n_rods + 1)], 0, "dipole", n_rods + 1)
-    return p
 
 
 def _magnetometer_variance(scenario: Scenario) -> Array:
@@ -415,7 +261,7 @@ def controller_parameters(scenario: Scenario, controller: ControllerKind | str |
 class _Channel:
     topic: Topic
     id: int
-    payload: _Payload
+    payload: wire.Layout
     offset: int  # of its message record in a sample's row [bytes]
 
 
@@ -451,7 +297,7 @@ class OfflineBagWriter:
         for cid, topic in enumerate(topics, start=1):
             payload = _payload(topic, scenario)
             self.channels.append(_Channel(topic, cid, payload, offset))
-            offset += _MESSAGE_HEAD_BYTES + len(payload.buf)
+            offset += MESSAGE_HEAD_BYTES + len(payload.buf)
         self.row_bytes = offset  # one sample's messages, every topic
         self._template = self._row_template()
         self.samples_per_chunk = max(1, CHUNK_SIZE_BYTES // self.row_bytes)
@@ -463,9 +309,6 @@ class OfflineBagWriter:
         self._pending_ns = np.zeros(0, np.int64)
         self._no_data = 0  # the estimator's "no data" and withheld samples so far (its diagnostics' counts)
         self._withheld = 0
-        self._compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
-        self._chunk_indexes: list[bytes] = []  # one ChunkIndex record a chunk written
-        self._metadata_indexes: list[tuple[int, int, str]] = []
         self.closed = False
 
         self.dir.mkdir(parents=True)
@@ -475,27 +318,18 @@ class OfflineBagWriter:
         (self.dir / "scenario.yaml").write_text(scenario_text)
         (self.dir / "params.yaml").write_text(params_text)
         self._file: IO[bytes] = open(self.dir / self.mcap_name, "wb")  # noqa: SIM115 (closed in close)
-        self._file.write(_MAGIC)
-        self._record(_OP_HEADER, _string("ros2") + _string(LIBRARY))
+        self._mcap = McapWriter(self._file, LIBRARY, level=ZSTD_LEVEL)
         # the schemas (each before its first channel, as the recorder registers them) and the
         # channels, here and again in the summary section
         qos_text = yaml.safe_dump(offered_qos_v9(), sort_keys=False)
-        self._schemas: dict[str, int] = {}
-        schema_records: list[bytes] = []
-        channel_records: list[bytes] = []
+        schemas: dict[str, int] = {}
         for ch, (name, type_name) in zip(self.channels, self.topic_names):
-            if type_name not in self._schemas:
-                self._schemas[type_name] = len(self._schemas) + 1
-                schema_records.append(_record_bytes(_OP_SCHEMA, struct.pack("<H", self._schemas[type_name]) + _string(type_name)
-                                                    + _string("ros2msg") + _bytes(schema_text(type_name).encode())))
-                self._file.write(schema_records[-1])
-            channel = struct.pack("<HH", ch.id, self._schemas[type_name]) + _string(name) + _string("cdr")
-            channel_records.append(_record_bytes(_OP_CHANNEL, channel + _map({"offered_qos_profiles": qos_text,
-                                                                              "topic_type_hash": type_hash(type_name)})))
-            self._file.write(channel_records[-1])
-        self._schema_records, self._channel_records = b"".join(schema_records), b"".join(channel_records)
-        self._metadata("sappc/scenario.yaml", {"text": scenario_text})
-        self._metadata("sappc/params.yaml", {"text": params_text})
+            if type_name not in schemas:
+                schemas[type_name] = self._mcap.schema(type_name, "ros2msg", schema_text(type_name).encode())
+            cid = self._mcap.channel(name, "cdr", schemas[type_name], {"offered_qos_profiles": qos_text, "topic_type_hash": type_hash(type_name)})
+            assert cid == ch.id  # the channels' ids are their order, from 1
+        self._mcap.metadata("sappc/scenario.yaml", {"text": scenario_text})
+        self._mcap.metadata("sappc/params.yaml", {"text": params_text})
         self._file.flush()
         write_bag_metadata(self.dir, self._bag_metadata())  # the topics now, the counts at the close
 
@@ -582,8 +416,7 @@ class OfflineBagWriter:
         the sequence and times) and the payloads' fixed bytes."""
         row = bytearray()
         for ch in self.channels:
-            content_bytes = _MESSAGE_HEAD_BYTES - 9 + len(ch.payload.buf)  # after the opcode and the length
-            row += struct.pack("<BQHIQQ", _OP_MESSAGE, content_bytes, ch.id, 0, 0, 0) + ch.payload.buf
+            row += message_head(ch.id, 0, 0, 0, len(ch.payload.buf)) + ch.payload.buf
         return np.frombuffer(bytes(row), np.uint8)
 
     def _rows(self, t_ns: NDArray[np.int64], values: dict[str, Array]) -> NDArray[np.uint8]:
@@ -600,7 +433,7 @@ class OfflineBagWriter:
             _put(rows, at + 11, seq[:, None])
             _put(rows, at + 15, log[:, None])  # log time
             _put(rows, at + 23, log[:, None])  # publish time
-            base = at + _MESSAGE_HEAD_BYTES
+            base = at + MESSAGE_HEAD_BYTES
             for f in ch.payload.fields:
                 if f.key == "stamp":
                     _put(rows, base + f.offset, sec[:, None])
@@ -631,37 +464,21 @@ class OfflineBagWriter:
     @property
     def chunks(self) -> int:
         """Chunks written."""
-        return len(self._chunk_indexes)
+        return self._mcap.chunks
 
     def _chunk(self, rows: NDArray[np.uint8], t_ns: NDArray[np.int64]) -> None:
-        """One chunk record of the samples' ``rows`` (stamps ``t_ns``), then its message indexes."""
-        data = np.ascontiguousarray(rows).data
-        size = rows.size
-        compressed = self._compressor.compress(data)
-        start, end = int(t_ns[0]), int(t_ns[-1])
-        if self.start_ns is None:
-            self.start_ns = start
-        self.end_ns = end
-        chunk_at = self._file.tell()
-        content = struct.pack("<QQQI", start, end, size, zlib.crc32(data)) + _string("zstd") + struct.pack("<Q", len(compressed))
-        self._file.write(struct.pack("<BQ", _OP_CHUNK, len(content) + len(compressed)))
-        self._file.write(content)
-        self._file.write(compressed)
-        chunk_length = self._file.tell() - chunk_at
-        index_at = self._file.tell()
-        offsets: dict[int, int] = {}
+        """One chunk of the samples' ``rows`` (stamps ``t_ns``), then its message indexes."""
         n = t_ns.size
-        pairs = np.empty((n, 2), "<u8")
-        pairs[:, 0] = t_ns
+        index: dict[int, NDArray[np.uint64]] = {}
         for ch in self.channels:
-            offsets[ch.id] = self._file.tell()
+            pairs = np.empty((n, 2), np.uint64)
+            pairs[:, 0] = t_ns
             pairs[:, 1] = ch.offset + self.row_bytes * np.arange(n, dtype=np.uint64)
-            self._file.write(struct.pack("<BQHI", _OP_MESSAGE_INDEX, 2 + 4 + pairs.nbytes, ch.id, pairs.nbytes))
-            self._file.write(pairs.tobytes())
-        index_length = self._file.tell() - index_at
-        self._chunk_indexes.append(_record_bytes(_OP_CHUNK_INDEX, struct.pack("<QQQQ", start, end, chunk_at, chunk_length)
-                                                 + _map_u16_u64(offsets) + struct.pack("<Q", index_length) + _string("zstd")
-                                                 + struct.pack("<QQ", len(compressed), size)))
+            index[ch.id] = pairs
+        self._mcap.chunk(np.ascontiguousarray(rows).data, int(t_ns[0]), int(t_ns[-1]), index)
+        if self.start_ns is None:
+            self.start_ns = int(t_ns[0])
+        self.end_ns = int(t_ns[-1])
 
     # -- the end -----------------------------------------------------------------------------
     def close(self) -> Path:
@@ -673,9 +490,8 @@ class OfflineBagWriter:
             self._chunk(self._pending, self._pending_ns)
             self._pending = self._pending[:0]
         meta = self._bag_metadata()
-        self._metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})
-        self._record(_OP_DATA_END, struct.pack("<I", 0))  # no data-section CRC (as the mcap writer by default)
-        self._summary()
+        self._mcap.metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})
+        self._mcap.finish()
         self._file.close()
         self.closed = True
         write_bag_metadata(self.dir, meta)
@@ -692,68 +508,7 @@ class OfflineBagWriter:
         return bag_metadata(self.mcap_name, self.topic_names, counts, self.start_ns or 0, self.end_ns, self.custom)
 
 
-    def _summary(self) -> None:
-        """The summary section (schemas, channels, statistics, chunk and metadata indexes), its
-        offsets and the footer, as the ``mcap`` writer lays them out."""
-        summary_start = self._file.tell()
-        n = len(self.channels)
-        # messages, schemas, channels, attachments, metadata, chunks; the first and last log times; per channel
-        stats = (struct.pack("<QHIIII", self.samples * n, len(self._schemas), n, 0, len(self._metadata_indexes),
-                             len(self._chunk_indexes))
-                 + struct.pack("<QQ", self.start_ns or 0, self.end_ns)
-                 + _map_u16_u64({ch.id: self.samples for ch in self.channels}))
-        groups = [(_OP_SCHEMA, self._schema_records), (_OP_CHANNEL, self._channel_records),
-                  (_OP_STATISTICS, _record_bytes(_OP_STATISTICS, stats)),
-                  (_OP_CHUNK_INDEX, b"".join(self._chunk_indexes)), (_OP_ATTACHMENT_INDEX, b""),
-                  (_OP_METADATA_INDEX, b"".join(_record_bytes(_OP_METADATA_INDEX, struct.pack("<QQ", at, length) + _string(name))
-                                                for at, length, name in self._metadata_indexes))]
-        summary = bytearray()
-        offsets = bytearray()
-        for opcode, data in groups:
-            offsets += _record_bytes(_OP_SUMMARY_OFFSET, struct.pack("<BQQ", opcode, summary_start + len(summary), len(data)))
-            summary += data
-        offset_start = summary_start + len(summary)
-        summary += offsets
-        footer_head = struct.pack("<BQQQ", _OP_FOOTER, 8 + 8 + 4, summary_start, offset_start)
-        crc = zlib.crc32(footer_head, zlib.crc32(bytes(summary)))
-        self._file.write(summary)
-        self._file.write(footer_head + struct.pack("<I", crc))
-        self._file.write(_MAGIC)
-
-    def _record(self, opcode: int, content: bytes) -> None:
-        self._file.write(_record_bytes(opcode, content))
-
-    def _metadata(self, name: str, data: dict[str, str]) -> None:
-        at = self._file.tell()
-        self._record(_OP_METADATA, _string(name) + _map(data))
-        self._metadata_indexes.append((at, self._file.tell() - at, name))
-
-
 def _put(rows: NDArray[np.uint8], offset: int, values: NDArray[Any]) -> None:
     """``values`` (n, m) into bytes ``offset ..`` of each row of ``rows``, in their dtype's bytes."""
     width = values.shape[1] * values.dtype.itemsize
     rows[:, offset : offset + width] = np.ascontiguousarray(values).view(np.uint8).reshape(values.shape[0], width)
-
-
-def _record_bytes(opcode: int, content: bytes) -> bytes:
-    return struct.pack("<BQ", opcode, len(content)) + content
-
-
-def _string(text: str) -> bytes:
-    raw = text.encode("utf-8")
-    return struct.pack("<I", len(raw)) + raw
-
-
-def _bytes(raw: bytes) -> bytes:
-    return struct.pack("<I", len(raw)) + raw
-
-
-def _map(entries: dict[str, str]) -> bytes:
-    body = b"".join(_string(k) + _string(v) for k, v in entries.items())
-    return struct.pack("<I", len(body)) + body
-
-
-def _map_u16_u64(entries: dict[int, int]) -> bytes:
-    body = b"".join(struct.pack("<HQ", k, v) for k, v in entries.items())
-    return struct.pack("<I", len(body)) + body
-

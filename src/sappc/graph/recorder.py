@@ -9,7 +9,10 @@ the MCAP file as metadata records named ``sappc/<file name>``.
 Two threads, as rosbag2's recorder has: the executor's thread only *takes* each message (its raw
 CDR bytes, and in real time the wall time it was taken) and hands it to a queue; a writer thread
 does everything else (the stamp, the counts, the MCAP record, compression, the flush every
-:data:`FLUSH_PERIOD_S`), in passes every :data:`WRITE_PASS_PERIOD_S` (not woken per message).  The middleware's queues are so emptied at the pace messages arrive,
+:data:`FLUSH_PERIOD_S`), in passes every :data:`WRITE_PASS_PERIOD_S` (not woken per message).
+The records are built by :mod:`sappc.bag.mcap_write` (about a microsecond of Python a message;
+the ``mcap`` package's writer spent several, holding the interpreter lock the executor's thread
+waits for: 0.3 s of a 2.3 s composed loop, issue 48).  The middleware's queues are so emptied at the pace messages arrive,
 whatever compressing a chunk costs: a recorder that fell behind used to leave the samples in the
 publishers' histories, which overflowed when it was late enough (issue 25).
 
@@ -72,7 +75,6 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from mcap.writer import CompressionType, Writer
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from sappc_msgs_py.contract import (
@@ -82,6 +84,7 @@ from sappc_msgs_py.contract import (
     STATE_ATTITUDE,
     TOPICS,
 )
+from sappc.bag.mcap_write import ChunkBuilder, McapWriter
 from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, sort_by_log_time, write_bag_metadata
 from sappc_msgs_py.convert import cdr_stamp_ns
 from sappc_msgs_py.parameters import REQUIRED, Param
@@ -108,7 +111,7 @@ FLUSH_PERIOD_S = 0.5
 #: ~100 kB), written well inside the flush period.
 WRITE_PASS_PERIOD_S = 0.02
 #: The ``library`` field of the bags the recorder writes.
-RECORDER_LIBRARY = "sappc recorder (mcap-python)"
+RECORDER_LIBRARY = "sappc recorder (sappc.bag.mcap_write)"
 #: MCAP chunk size [bytes]: about 1.5 s of a 100 Hz run; compression per chunk (zstd).
 CHUNK_SIZE = 256 * 1024
 
@@ -172,12 +175,12 @@ class RecorderNode(ProjectNode):
         self.dir.mkdir(parents=True)
         self.mcap_name = f"{self.dir.name}_0.mcap"
         self._file = open(self.dir / self.mcap_name, "wb")  # noqa: SIM115 (closed in finish)
-        self.writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
-        self.writer.start(profile="ros2", library=RECORDER_LIBRARY)
+        self._mcap = McapWriter(self._file, RECORDER_LIBRARY)
+        self.writer = ChunkBuilder(self._mcap, CHUNK_SIZE)  # the messages, a chunk at a time
         self.custom: dict[str, str] = {}
         for f in files:
             shutil.copyfile(f, self.dir / f.name)
-            self.writer.add_metadata(f"sappc/{f.name}", {"text": f.read_text()})
+            self._mcap.metadata(f"sappc/{f.name}", {"text": f.read_text()})
             self.custom[f"sappc/{f.name}"] = f.name
 
         self._qos = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_ALL)
@@ -189,13 +192,13 @@ class RecorderNode(ProjectNode):
         qos_text = yaml.safe_dump(offered_qos_v9(), sort_keys=False)
         for topic in recorded:  # every channel now, in the topics' order: the bag does not depend on when /clock is subscribed
             if topic.type_name not in schemas:
-                schemas[topic.type_name] = self.writer.register_schema(topic.type_name, "ros2msg", schema_text(topic.type_name).encode())
+                schemas[topic.type_name] = self._mcap.schema(topic.type_name, "ros2msg", schema_text(topic.type_name).encode())
             if topic is CLOCK and self._expected:
                 resolved = self.resolve_topic_name(topic.name)  # subscribed once the others are matched (module docstring)
             else:
                 self._subscribe(topic)
                 resolved = str(self._recorded_subs[topic.name].topic_name)
-            self._channels[topic.name] = self.writer.register_channel(
+            self._channels[topic.name] = self._mcap.channel(
                 resolved, "cdr", schemas[topic.type_name], {"offered_qos_profiles": qos_text, "topic_type_hash": type_hash(topic.type_name)}
             )
             self.topics.append((resolved, topic.type_name))
@@ -215,7 +218,7 @@ class RecorderNode(ProjectNode):
         self._first_state_ns: int | None = None  # the first state's stamp and the newest one's [ns]
         self._newest_state_ns = 0
         self._write_metadata()
-        self.writer.flush()
+        self._file.flush()
         if self._expected and CLOCK.name in names_recorded:
             self.start_when(self._publishers_missing, lambda: self._subscribe(CLOCK))
         # the hand-over from the taking thread (the executor's) to the writer thread: (topic, raw CDR, wall time taken [ns])
@@ -276,7 +279,7 @@ class RecorderNode(ProjectNode):
         self.end_ns = max(self.end_ns, log_ns)
         resolved = self._resolved[name]
         self.counts[resolved] += 1
-        self.writer.add_message(self._channels[name], log_time=log_ns, data=data, publish_time=log_ns, sequence=self.counts[resolved])
+        self.writer.add(self._channels[name], self.counts[resolved], log_ns, log_ns, data)
         if self._end_after_ns and name == CONTROL_TORQUE.name and not self.end_reached:
             self._check_end(log_ns if self.sim_time else cdr_stamp_ns(self._types[name], data))
         if name == STATE_ATTITUDE.name:  # the run's progress: the plant's samples
@@ -324,8 +327,9 @@ class RecorderNode(ProjectNode):
         if self._writer_error is not None:
             raise RuntimeError(f"{self.dir}: the bag writer failed: {self._writer_error}") from self._writer_error
         meta = bag_metadata(self.mcap_name, self.topics, self.counts, self.start_ns or 0, self.end_ns, self.custom)
-        self.writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})
-        self.writer.finish()
+        self.writer.flush()
+        self._mcap.metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(meta["rosbag2_bagfile_information"], sort_keys=False)})
+        self._mcap.finish()
         self._file.close()
         if self.sim_time:  # the file in time order, whatever order the middleware delivered the topics in
             sort_by_log_time(self.dir / self.mcap_name, chunk_size=CHUNK_SIZE, library=RECORDER_LIBRARY)

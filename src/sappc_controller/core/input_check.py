@@ -174,7 +174,7 @@ def input_verdict(slot: int, value: NDArray[np.float64], bounds: NDArray[np.floa
     about 20 us typing its arguments, which for one message is ten times the check itself; the
     interpreted source makes the same IEEE operations on the same doubles (products, sums, a
     correctly rounded square root, comparisons), so the verdict is the same."""
-    v = [float(x) for x in value]
+    v = value.tolist() if type(value) is np.ndarray else [float(x) for x in value]
     if slot == SLOT_ATTITUDE or slot == SLOT_REFERENCE_ATTITUDE:
         return int(quaternion_verdict.py_func(v[0], v[1], v[2], v[3], float(bounds[B_NORM])))
     bound = bounds[B_RATE] if slot == SLOT_RATE else bounds[B_REFERENCE_RATE] if slot == SLOT_REFERENCE_RATE else bounds[B_REFERENCE_ACCELERATION]
