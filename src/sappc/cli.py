@@ -409,6 +409,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     metrics["wall_time_s"] = result.run_s
     if result.startup_s is not None:  # from the plant's own timing: none with an external plant
         metrics["startup_s"] = result.startup_s
+    if result.first_sample_after_up_s is not None:
+        metrics["first_sample_after_nodes_up_s"] = result.first_sample_after_up_s
     _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph{' (composed)' if args.compose else ''}", metrics)
     _print_orbits(per_orbit)
     mismatched = result.mismatched_counts()

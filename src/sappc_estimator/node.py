@@ -104,24 +104,19 @@ from sappc_msgs_py.contract import (
     ESTIMATOR_HEALTH,
     ESTIMATOR_INPUTS,
     ESTIMATOR_NO_INPUT,
-    SENSOR_GYRO,
     SENSOR_STAR_TRACKER,
     ESTIMATOR_TOPICS,
     Topic,
     qos_profile,
 )
 from sappc_msgs_py.convert import (
-    covariance_msg,
+    covariance_values,
     epoch_from_msg,
     gyro_from_msg,
     health_msg,
-    estimator_diagnostics_msg,
-    no_data_msg,
     ns_to_stamp,
-    quaternion_msg,
     cdr_stamp_ns,
     star_tracker_from_msg,
-    vector3_msg,
 )
 from sappc_msgs_py.inputs import (
     DEFAULT_MAX_STAMP_AHEAD_S,
@@ -137,7 +132,7 @@ from sappc_msgs_py.inputs import (
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import COMMON_PARAMETERS, LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
-from sappc_msgs_py.wire import deserialize
+from sappc_msgs_py import wire
 
 from sappc_estimator.core import mekf
 from sappc_estimator.core.config import chi2_band
@@ -183,16 +178,16 @@ def _named_epoch(sample: ControlSample) -> int:
 
 
 def decode_estimator_input(raw: bytes, topic: Topic) -> Any:
-    """The value of an estimator input received as CDR bytes: the gyro's angular velocity [rad/s],
-    the tracker's unit quaternion ``q_BN`` (x, y, z, w), the epoch [ns] (an int64 array of one,
-    exact) for ``state/attitude_epoch``; raises :class:`~gnc_common.validation.InputError` as the
-    decoders do."""
-    msg = deserialize(raw, topic)
-    if topic.type_name.endswith("TimeReference"):
-        return np.array([epoch_from_msg(msg, topic)], dtype=np.int64)
+    """The value of an estimator input received as CDR bytes (:func:`sappc_msgs_py.wire.take`):
+    the gyro's angular velocity [rad/s], the tracker's unit quaternion ``q_BN`` (x, y, z, w), the
+    epoch [ns] (an int64 array of one, exact) for ``state/attitude_epoch``; raises
+    :class:`~gnc_common.validation.InputError` as the decoders do."""
+    if topic.type_name.endswith("TimeReference"):  # the layout fixes the source: the sensor's epoch
+        return np.array([wire.take(raw, topic, lambda m: epoch_from_msg(m, topic), pick=lambda v: v[0])], dtype=np.int64)
     if topic.name.endswith(SENSOR_STAR_TRACKER.name):
-        return check_unit_quaternion(f"{topic.name} orientation", star_tracker_from_msg(msg, topic))
-    return gyro_from_msg(msg, topic)
+        q = wire.take(raw, topic, lambda m: star_tracker_from_msg(m, topic), pick=wire.PICK_ORIENTATION)
+        return check_unit_quaternion(f"{topic.name} orientation", q)
+    return wire.take(raw, topic, lambda m: gyro_from_msg(m, topic), pick=wire.PICK_GYRO)
 
 
 class TrackerSamples:
@@ -279,6 +274,7 @@ class EstimatorNode(ProjectNode):
         self.filter.warm_up()  # the compiled kernel loaded now (cache load ~1 s), not at the first sample
 
         self.pub = {t.name: self.counting_publisher(t, 1 if t in _LOOP_OUTPUTS else 0) for t in ESTIMATOR_TOPICS}
+        self._wire = {t.name: wire.codec(t) for t in ESTIMATOR_TOPICS if t is not ESTIMATOR_HEALTH}
         qos = qos_profile()
         for topic in ESTIMATOR_INPUTS:
             self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos, raw=True)
@@ -434,28 +430,27 @@ class EstimatorNode(ProjectNode):
         estimate topics (the controller's inputs) when it has none or withholds it (not confirmed:
         :attr:`Mekf.usable`); its figures (bias, sigmas, covariance) when it has them, else "no data";
         the diagnostics in every case, the health when due."""
-        stamp = ns_to_stamp(t_ns)
         p = self.pub
+        w = self._wire  # every output but the health as CDR bytes (sappc_msgs_py.wire)
         f = self.filter
         if estimate:
-            p[ESTIMATE_ATTITUDE.name].publish(quaternion_msg(f.q_BN, stamp, ESTIMATE_ATTITUDE, out=p[ESTIMATE_ATTITUDE.name].msg))
-            p[ESTIMATE_RATE.name].publish(vector3_msg(f.omega_BN_B, stamp, ESTIMATE_RATE, out=p[ESTIMATE_RATE.name].msg))
+            p[ESTIMATE_ATTITUDE.name].publish(w[ESTIMATE_ATTITUDE.name].encode(t_ns, f.q_BN))
+            p[ESTIMATE_RATE.name].publish(w[ESTIMATE_RATE.name].encode(t_ns, f.omega_BN_B))
         else:
             self.no_data += 1
             self.withheld += figures
             for topic in (ESTIMATE_ATTITUDE, ESTIMATE_RATE):
-                p[topic.name].publish(no_data_msg(topic, stamp, out=p[topic.name].msg))
+                p[topic.name].publish(w[topic.name].no_data(t_ns))
         for topic, value in ((ESTIMATOR_GYRO_BIAS, f.gyro_bias_rad_s), (ESTIMATOR_ATTITUDE_SIGMA, f.attitude_sigma_rad),
                              (ESTIMATOR_BIAS_SIGMA, f.bias_sigma_rad_s)):
-            p[topic.name].publish(vector3_msg(value, stamp, topic, out=p[topic.name].msg) if figures
-                                  else no_data_msg(topic, stamp, out=p[topic.name].msg))
+            p[topic.name].publish(w[topic.name].encode(t_ns, value) if figures else w[topic.name].no_data(t_ns))
         t_s = t_ns / NS_PER_S  # the arrays' time label (the contract's data[0], seconds): never computed with
-        p[ESTIMATOR_COVARIANCE.name].publish(covariance_msg(t_s, f.P if figures else None, out=p[ESTIMATOR_COVARIANCE.name].msg))
+        p[ESTIMATOR_COVARIANCE.name].publish(w[ESTIMATOR_COVARIANCE.name].encode(None, covariance_values(t_s, f.P if figures else None)))
         d = self._diag
         d[:] = (t_s, f.nis, status, f.updates, f.rejections, f.reinitialisations, self.no_data, self.rejected,
                 f.monitor_level, f.monitor_nis_sum, f.recoveries, self.withheld)
-        p[ESTIMATOR_DIAGNOSTICS.name].publish(estimator_diagnostics_msg(d, out=p[ESTIMATOR_DIAGNOSTICS.name].msg))
-        self._report_health(stamp, t_ns, figures, estimate)
+        p[ESTIMATOR_DIAGNOSTICS.name].publish(w[ESTIMATOR_DIAGNOSTICS.name].encode(None, d))
+        self._report_health(ns_to_stamp(t_ns), t_ns, figures, estimate)
 
     def _report_health(self, stamp: Any, t_ns: int, figures: bool, estimate: bool) -> None:
         """``diagnostics`` (ROS's health convention): the monitor's level and figures, when the level

@@ -47,8 +47,8 @@ from sappc_momentum.core.predictive import new_state
 from sappc_msgs_py.contract import (CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, STATE_ATTITUDE, STATE_MAGNETIC_FIELD, STATE_RATE,
                                     STATE_WHEEL_SPEED, Topic, qos_profile)
 from sappc_msgs_py.inputs import NS_PER_S  # the kernel's time: the stamp in seconds, ns / NS_PER_S (the offline loop's)
-from sappc_msgs_py.convert import (dipole_msg, magnetic_field_from_msg, stamp_to_ns, stamp_to_time, torque_from_msg, torque_msg,
-                                   wheel_speed_from_msg)
+from sappc_msgs_py import wire
+from sappc_msgs_py.convert import cdr_stamp_ns, magnetic_field_from_msg, torque_from_msg, wheel_speed_from_msg
 from sappc_msgs_py.parameters import REQUIRED, Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, run_node
 
@@ -185,8 +185,22 @@ class MomentumNode(ProjectNode):
         self.samples = 0
         self.rejected = 0
         qos = qos_profile()
+        # every topic as CDR bytes (sappc_msgs_py.wire): the inputs' layouts (the field's covariance, whatever the
+        # magnetometer's, read as values), what each picks, and the object decoder of any other message
+        field_layout = wire.stamped(STATE_MAGNETIC_FIELD, "field_and_covariance", 12)
+        self._takes: dict[str, tuple[wire.Codec, Any, Any]] = {
+            STATE_WHEEL_SPEED.name: (wire.Codec(wire.joint_state(STATE_WHEEL_SPEED, W, "speed", None), STATE_WHEEL_SPEED.name), wire.PICK_ALL,
+                                     lambda msg: wheel_speed_from_msg(msg, W)),
+            STATE_MAGNETIC_FIELD.name: (wire.Codec(field_layout, STATE_MAGNETIC_FIELD.name), _field,
+                                        lambda msg: magnetic_field_from_msg(msg, STATE_MAGNETIC_FIELD)),
+            CONTROL_TORQUE.name: (wire.codec(CONTROL_TORQUE), wire.PICK_ALL, lambda msg: torque_from_msg(msg, CONTROL_TORQUE)),
+            STATE_ATTITUDE.name: (wire.codec(STATE_ATTITUDE), wire.PICK_ALL, partial(_state_or_no_data, topic=STATE_ATTITUDE)),
+            STATE_RATE.name: (wire.codec(STATE_RATE), wire.PICK_ALL, partial(_state_or_no_data, topic=STATE_RATE)),
+        }
+        self._wire_dipole = wire.Codec(wire.dipole(M), CONTROL_DIPOLE.name)
+        self._wire_torque = wire.codec(CONTROL_WHEEL_TORQUE)
         for topic in INPUTS:
-            self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos)
+            self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos, raw=True)
         self.get_logger().info(f"momentum management ready (lockstep; {config.law} law, K_p {config.gain_per_s:g} 1/s, {W} wheels, {M} rods, "
                                f"gyroscopic feed-forward {'on' if config.gyroscopic_feedforward else 'off'})")
 
@@ -194,32 +208,20 @@ class MomentumNode(ProjectNode):
         momentum_management_step(*self._mm, t_s, speeds, field_T, self._q, self._omega, torque_B, self._m, self._tau_w,
                                  self._tmp, self._state)
 
-    def _decode(self, msg: Any, topic: Topic) -> Any:
-        """The value of one input (``None`` for a rate that is "no data"); :class:`InputError` for a bad message."""
-        if topic is STATE_WHEEL_SPEED:
-            return wheel_speed_from_msg(msg, self.n_wheels)
-        if topic is STATE_MAGNETIC_FIELD:
-            return magnetic_field_from_msg(msg, STATE_MAGNETIC_FIELD)
-        if topic is CONTROL_TORQUE:
-            return torque_from_msg(msg, CONTROL_TORQUE)
-        if msg.header.frame_id != topic.frame_id:
-            raise InputError(f"{topic.name}: frame_id must be {topic.frame_id!r}, got {msg.header.frame_id!r}")
-        if topic is STATE_ATTITUDE:
-            q = msg.quaternion
-            values = [q.x, q.y, q.z, q.w]
-        else:
-            v = msg.vector
-            values = [v.x, v.y, v.z]
-        return np.array(values) if all(map(math.isfinite, values)) else None  # "no data": the previous value is kept
+    def _decode(self, raw: bytes, topic: Topic) -> Any:
+        """The value of one input received as CDR bytes (``None`` for a state that is "no data");
+        :class:`InputError` for a bad message (:func:`sappc_msgs_py.wire.take`)."""
+        fast, pick, decoder = self._takes[topic.name]
+        return wire.take(raw, topic, decoder, fast, pick)
 
-    def _on_input(self, msg: Any, topic: Topic) -> None:
+    def _on_input(self, raw: bytes, topic: Topic) -> None:
         try:
-            value = self._decode(msg, topic)
+            value = self._decode(raw, topic)
         except InputError as exc:
             self.rejected += 1
             self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
             return
-        ns = stamp_to_ns(msg.header.stamp)
+        ns = cdr_stamp_ns(topic.type_name, raw)
         sample = self._pending.setdefault(ns, {})
         sample[topic.name] = value
         if len(sample) < len(INPUTS):
@@ -233,9 +235,8 @@ class MomentumNode(ProjectNode):
         if attitude is not None:
             self._q[:] = attitude
         self._step(ns / NS_PER_S, sample[STATE_WHEEL_SPEED.name], sample[STATE_MAGNETIC_FIELD.name], sample[CONTROL_TORQUE.name])
-        stamp = msg.header.stamp
-        self.pub_dipole.publish(dipole_msg(stamp_to_time(stamp), self._m, out=self.pub_dipole.msg))
-        self.pub_torque.publish(torque_msg(self._tau_w, stamp, CONTROL_WHEEL_TORQUE, out=self.pub_torque.msg))
+        self.pub_dipole.publish(self._wire_dipole.encode(None, [ns / NS_PER_S, *self._m.tolist()]))  # data[0]: the time [s]
+        self.pub_torque.publish(self._wire_torque.encode(ns, self._tau_w))
         self.samples += 1
 
     def finish(self) -> None:
@@ -243,6 +244,26 @@ class MomentumNode(ProjectNode):
         super().finish()
         if self.timing_file:
             Path(self.timing_file).write_text(json.dumps({"samples": self.samples, "rejected": self.rejected}))
+
+
+def _field(values: tuple[float, ...]) -> np.ndarray | None:
+    """:func:`~sappc_msgs_py.wire.take`'s pick of a ``MagneticField`` (its field, then its
+    covariance): the field [T] when finite (what :func:`~sappc_msgs_py.convert.magnetic_field_from_msg` gives)."""
+    return np.array(values[:3]) if all(map(math.isfinite, values[:3])) else None
+
+
+def _state_or_no_data(msg: Any, topic: Topic) -> np.ndarray | None:
+    """An attitude or rate message: its values, or ``None`` for "no data" (non-finite: the previous
+    value is kept); :class:`InputError` for a wrong frame id."""
+    if msg.header.frame_id != topic.frame_id:
+        raise InputError(f"{topic.name}: frame_id must be {topic.frame_id!r}, got {msg.header.frame_id!r}")
+    if topic is STATE_ATTITUDE:
+        q = msg.quaternion
+        values = [q.x, q.y, q.z, q.w]
+    else:
+        v = msg.vector
+        values = [v.x, v.y, v.z]
+    return np.array(values) if all(map(math.isfinite, values)) else None
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -46,6 +46,7 @@ __all__ = [
     "clock_msg",
     "covariance_from_msg",
     "covariance_msg",
+    "covariance_values",
     "estimator_diagnostics_from_msg",
     "estimator_diagnostics_msg",
     "epoch_from_msg",
@@ -591,11 +592,23 @@ def covariance_msg(t_s: float, P: ArrayLike | None, out: Any = None) -> Any:
     InputError
         When ``P`` is not a finite (6, 6) array.
     """
+    return _float_array(covariance_values(t_s, P), _covariance_layout(), out)
+
+
+def covariance_values(t_s: float, P: ArrayLike | None) -> Array:
+    """The data of :func:`covariance_msg` (the nodes publish it as bytes with
+    :func:`sappc_msgs_py.wire.codec`).
+
+    Raises
+    ------
+    InputError
+        When ``P`` is not a finite (6, 6) array.
+    """
     n = len(ERROR_STATE)
     data = np.empty(1 + n * n)
     data[0] = t_s
     data[1:] = _NO_DATA if P is None else as_finite_array("estimator/covariance P", P, shape_tail=(n, n)).reshape(n * n)
-    return _float_array(data, _covariance_layout(), out)
+    return data
 
 
 @functools.cache

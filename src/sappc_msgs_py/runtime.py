@@ -319,6 +319,7 @@ class ProjectNode(Node):
         super().__init__(node_name, **kwargs)
         self._finished = False
         self.finished_future: Any = None  # run_nodes's: done when a node of the process finishes
+        self.up_monotonic_s: float | None = None  # run_nodes's: when every node of the process was built (CLOCK_MONOTONIC [s])
         self._expected = parse_expected(list(self.param(COMMON_PARAMETERS[0])))
         self._counts_file = str(self.param(COMMON_PARAMETERS[1]))
         self._counting_pubs: list[CountingPublisher] = []
@@ -519,8 +520,10 @@ def run_nodes(make_nodes: Callable[[list[str]], list[ProjectNode]], argv: list[s
         except (ConfigError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
+        up = time.monotonic()  # every node of the process built: what follows is discovery, matching and the run
         executor = EventsExecutor()
         for node in nodes:
+            node.up_monotonic_s = up
             executor.add_node(node)
         profile_dir = os.environ.get("SAPPC_PROFILE_DIR", "")  # developer aid: cProfile of the spin loop
         profiler = None

@@ -57,17 +57,23 @@ from sappc_msgs_py.contract import (
     DIPOLE_LABEL_PREFIX,
     DISTURBANCE_TORQUE,
     ERROR_STATE,
+    ESTIMATOR_COVARIANCE,
+    ESTIMATOR_DIAGNOSTICS,
     ESTIMATOR_DIAGNOSTICS_LAYOUT,
     REFERENCE_ACCELERATION,
     REFERENCE_ATTITUDE,
     REFERENCE_RATE,
     REFERENCE_TF,
+    SENSOR_GYRO,
+    SENSOR_STAR_TRACKER,
     STATE_ATTITUDE,
+    STATE_ATTITUDE_EPOCH,
     STATE_RATE,
     STATE_TF,
     Topic,
 )
 from gnc_common.validation import InputError
+from sappc_msgs_py.convert import EPOCH_SOURCE, IMU_ABSENT
 from sappc_msgs_py.convert import _encode as checked_floats
 
 __all__ = [
@@ -80,11 +86,18 @@ __all__ = [
     "controller_diagnostics",
     "covariance",
     "dipole",
+    "epoch",
     "estimator_diagnostics",
+    "gyro_values",
+    "imu",
     "joint_state",
+    "star_tracker_values",
     "magnetic_field",
     "stamped",
     "take",
+    "PICK_ALL",
+    "PICK_GYRO",
+    "PICK_ORIENTATION",
     "transform",
 ]
 
@@ -97,10 +110,15 @@ _STAMP = struct.Struct("<iI")  # builtin_interfaces/Time: int32 sec, uint32 nano
 T = TypeVar("T")
 
 
+#: :attr:`Field.count` of a time (``int32 sec, uint32 nanosec``, given as integer nanoseconds).
+TIME_FIELD = -1
+
+
 @dataclass(frozen=True)
 class Field:
     """A value of a payload filled per message: ``key`` (a name the filler knows), at ``offset``
-    in the payload, ``count`` float64 (``key == "stamp"``: ``int32 sec, uint32 nanosec``)."""
+    in the payload, ``count`` float64 (``key == "stamp"``: the header's ``int32 sec, uint32
+    nanosec``; ``count`` :data:`TIME_FIELD`: another time, given as integer nanoseconds)."""
 
     key: str
     offset: int
@@ -141,6 +159,12 @@ class Layout:
     def stamp(self) -> None:
         self.align(4)
         self.fields.append(Field("stamp", len(self.buf), 0))
+        self.buf += bytes(8)
+
+    def time(self, key: str) -> None:
+        """A ``builtin_interfaces/Time`` filled from ``key`` (integer nanoseconds; ``count`` -1)."""
+        self.align(4)
+        self.fields.append(Field(key, len(self.buf), TIME_FIELD))
         self.buf += bytes(8)
 
     def header(self, frame_id: str | None) -> None:
@@ -227,6 +251,54 @@ def joint_state(topic: Topic, n: int, speed: str, effort: str | None) -> Layout:
     return p
 
 
+#: ``sensor_msgs/Imu``'s doubles after its header, in order: orientation (4), its covariance (9),
+#: angular velocity (3), its covariance (9), linear acceleration (3), its covariance (9); every
+#: array of fixed size, so one field of 37 (:func:`imu`).  Where each part starts:
+IMU_ORIENTATION, IMU_ORIENTATION_COV, IMU_ANGULAR_VELOCITY, IMU_ANGULAR_VELOCITY_COV, IMU_LINEAR_ACCELERATION_COV = 0, 4, 13, 16, 28
+IMU_DOUBLES = 37
+
+
+def imu(topic: Topic) -> Layout:
+    """A ``sensor_msgs/Imu`` of ``topic``: the header, then its 37 doubles as one field ``imu``
+    (:data:`IMU_DOUBLES`; :func:`gyro_values`, :func:`star_tracker_values`)."""
+    p = Layout()
+    p.header(topic.frame_id)
+    p.doubles("imu", IMU_DOUBLES)
+    return p
+
+
+def _diagonal9(variance: Any) -> list[float]:
+    v = np.broadcast_to(np.asarray(variance, dtype=np.float64), (3,)).tolist()
+    return [v[0], 0.0, 0.0, 0.0, v[1], 0.0, 0.0, 0.0, v[2]]
+
+
+def gyro_values(omega_B: Any, variance: Any) -> list[float]:
+    """The 37 doubles of a gyro sample (:func:`~sappc_msgs_py.convert.gyro_msg`'s message): no
+    orientation (its covariance marked absent, :data:`~sappc_msgs_py.convert.IMU_ABSENT`), the
+    angular velocity [rad/s] with ``diag(variance)``, no linear acceleration (marked absent)."""
+    absent = [-1.0] + [0.0] * 8
+    return [0.0, 0.0, 0.0, 1.0, *absent, *np.asarray(omega_B, dtype=np.float64).reshape(3).tolist(), *_diagonal9(variance),
+            0.0, 0.0, 0.0, *absent]
+
+
+def star_tracker_values(q_BN: Any, variance: Any) -> list[float]:
+    """The 37 doubles of a star-tracker sample (:func:`~sappc_msgs_py.convert.star_tracker_msg`'s
+    message): the orientation (x, y, z, w) with ``diag(variance)``, no angular velocity nor linear
+    acceleration (their covariances marked absent)."""
+    absent = [-1.0] + [0.0] * 8
+    return [*np.asarray(q_BN, dtype=np.float64).reshape(4).tolist(), *_diagonal9(variance), 0.0, 0.0, 0.0, *absent, 0.0, 0.0, 0.0, *absent]
+
+
+def epoch(topic: Topic, source: str) -> Layout:
+    """A ``sensor_msgs/TimeReference`` of ``topic``: the header, ``time_ref`` (field ``time_ref``,
+    integer nanoseconds), ``source`` (fixed)."""
+    p = Layout()
+    p.header(topic.frame_id)
+    p.time("time_ref")
+    p.string(source)
+    return p
+
+
 def controller_diagnostics() -> Layout:
     """``controller/diagnostics``: the rows of :data:`~sappc_msgs_py.contract.DIAGNOSTICS_LAYOUT`, 3 values each."""
     n = len(DIAGNOSTICS_LAYOUT)  # as convert.diagnostics_msg lays it out
@@ -272,11 +344,12 @@ class Codec:
         self.size = len(self.template)
         stamps = [f.offset for f in layout.fields if f.key == "stamp"]
         self._stamp_at = stamps[0] if stamps else None
-        self._fields = [(f.key, f.offset, f.count, struct.Struct(f"<{f.count}d")) for f in layout.fields if f.key != "stamp"]
-        self.count = sum(f[2] for f in self._fields)
+        self._fields = [(f.key, f.offset, f.count, _STAMP if f.count == TIME_FIELD else struct.Struct(f"<{f.count}d"))
+                        for f in layout.fields if f.key != "stamp"]
+        self.count = sum(f[2] for f in self._fields if f[2] != TIME_FIELD)
         self._fixed = [(a, b, self.template[a:b]) for a, b in layout.fixed]
         # one struct over every value when the fields are one run of doubles (every layout but JointState's)
-        one = len(self._fields) == 1
+        one = len(self._fields) == 1 and self._fields[0][2] != TIME_FIELD
         self._read = self._fields[0][3] if one else None
         self._read_at = self._fields[0][1] if one else 0
 
@@ -296,7 +369,9 @@ class Codec:
         if len(values) != len(self._fields):
             raise ValueError(f"{self.name}: {len(values)} value groups for the layout's {len(self._fields)}")
         for (key, offset, count, fmt), v in zip(self._fields, values):
-            if self.finite:
+            if count == TIME_FIELD:
+                fmt.pack_into(buf, offset, *divmod(int(v), _NS_PER_S))
+            elif self.finite:
                 fmt.pack_into(buf, offset, *checked_floats(f"{self.name} {key}", v, count))
             elif type(v) is list and len(v) == count:  # any floats (NaN included)
                 fmt.pack_into(buf, offset, *v)
@@ -318,9 +393,24 @@ class Codec:
         if self._read is not None:
             return self._read.unpack_from(raw, self._read_at)
         out: tuple[float, ...] = ()
-        for _key, offset, _count, fmt in self._fields:
-            out += fmt.unpack_from(raw, offset)
+        for _key, offset, count, fmt in self._fields:
+            if count == TIME_FIELD:
+                sec, nanosec = fmt.unpack_from(raw, offset)
+                out += (sec * _NS_PER_S + nanosec,)
+            else:
+                out += fmt.unpack_from(raw, offset)
         return out
+
+    def no_data(self, stamp_ns: int) -> bytes:
+        """The contract's "no data" sample (:func:`~sappc_msgs_py.convert.no_data_msg`) of a layout
+        whose values are all its fields' doubles (a ``QuaternionStamped`` or ``Vector3Stamped``):
+        NaN in every value, stamped ``stamp_ns``."""
+        buf = bytearray(self.template)
+        if self._stamp_at is not None:
+            _STAMP.pack_into(buf, self._stamp_at, *divmod(stamp_ns, _NS_PER_S))
+        for _key, offset, count, fmt in self._fields:
+            fmt.pack_into(buf, offset, *([math.nan] * count))
+        return bytes(buf)
 
 
 #: The layouts of the loop's fixed topics (those whose layout the topic alone decides).
@@ -336,7 +426,14 @@ _LAYOUTS: dict[Topic, Callable[[], Layout]] = {
     CONTROL_TORQUE: lambda: stamped(CONTROL_TORQUE, "torque_B", 3, before=3),
     DISTURBANCE_TORQUE: lambda: stamped(DISTURBANCE_TORQUE, "disturbance_B", 3, before=3),
     CONTROLLER_DIAGNOSTICS: controller_diagnostics,
+    SENSOR_GYRO: lambda: imu(SENSOR_GYRO),
+    SENSOR_STAR_TRACKER: lambda: imu(SENSOR_STAR_TRACKER),
+    STATE_ATTITUDE_EPOCH: lambda: epoch(STATE_ATTITUDE_EPOCH, EPOCH_SOURCE),
+    ESTIMATOR_COVARIANCE: covariance,
+    ESTIMATOR_DIAGNOSTICS: estimator_diagnostics,
 }
+#: Topics whose values may be NaN (float arrays of figures: no figure yet, "no data").
+_MAY_BE_NAN = frozenset({CONTROLLER_DIAGNOSTICS, ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS})
 
 #: The value a topic's type carries, by type, for the topics not listed in :data:`_LAYOUTS`
 #: (a relay's ``fault/...`` topics, a remapped name): the layout from the type and the frame.
@@ -346,6 +443,8 @@ _BY_TYPE: dict[str, Callable[[Topic], Layout]] = {
     "geometry_msgs/msg/WrenchStamped": lambda t: stamped(t, "torque", 3, before=3),
     "geometry_msgs/msg/TransformStamped": lambda t: transform(t, "rotation"),
     "rosgraph_msgs/msg/Clock": lambda t: clock(),
+    "sensor_msgs/msg/Imu": imu,
+    "sensor_msgs/msg/TimeReference": lambda t: epoch(t, EPOCH_SOURCE),
 }
 
 
@@ -356,25 +455,53 @@ def codec(topic: Topic) -> Codec:
     diagnostics); a topic of another type raises ``ValueError``."""
     make = _LAYOUTS.get(topic)
     if make is not None:
-        return Codec(make(), topic.name, finite=topic is not CONTROLLER_DIAGNOSTICS)
+        return Codec(make(), topic.name, finite=topic not in _MAY_BE_NAN)
     by_type = _BY_TYPE.get(topic.type_name)
     if by_type is None:
         raise ValueError(f"{topic.name}: no fixed CDR layout for {topic.type_name}")
     return Codec(by_type(topic), topic.name)
 
 
-def take(raw: bytes, topic: Topic, decoder: Callable[[Any], T], fast: Codec | None = None) -> NDArray[np.float64] | T:
+def _all_finite(values: tuple[float, ...]) -> NDArray[np.float64] | None:
+    return np.array(values) if all(map(math.isfinite, values)) else None
+
+
+def _gyro(values: tuple[float, ...]) -> NDArray[np.float64] | None:
+    """A gyro ``Imu``'s angular velocity, when it measures one (its covariance not marked absent) and it is finite."""
+    w = values[IMU_ANGULAR_VELOCITY:IMU_ANGULAR_VELOCITY + 3]
+    return np.array(w) if values[IMU_ANGULAR_VELOCITY_COV] != IMU_ABSENT and all(map(math.isfinite, w)) else None
+
+
+def _orientation(values: tuple[float, ...]) -> NDArray[np.float64] | None:
+    """A star tracker ``Imu``'s orientation, when it measures one (its covariance not marked absent) and it is finite."""
+    q = values[IMU_ORIENTATION:IMU_ORIENTATION + 4]
+    return np.array(q) if values[IMU_ORIENTATION_COV] != IMU_ABSENT and all(map(math.isfinite, q)) else None
+
+
+#: What :func:`take` picks from a message's values (``None``: the object decoder decides): every
+#: value, finite (the default); a gyro's angular velocity; a star tracker's orientation.
+PICK_ALL: Callable[[tuple[float, ...]], NDArray[np.float64] | None] = _all_finite
+PICK_GYRO: Callable[[tuple[float, ...]], NDArray[np.float64] | None] = _gyro
+PICK_ORIENTATION: Callable[[tuple[float, ...]], NDArray[np.float64] | None] = _orientation
+
+
+def take(raw: bytes, topic: Topic, decoder: Callable[[Any], T], fast: Codec | None = None,
+         pick: Callable[[tuple[float, ...]], Any] = _all_finite) -> Any:
     """The value of a message of ``topic`` received as bytes.
 
-    ``fast`` (default :func:`codec` of ``topic``): when ``raw`` has its layout and every value is
-    finite, the values as a float64 array.  Otherwise ``raw`` is deserialized (rclpy) and
-    ``decoder(msg)`` (the topic's object decoder of :mod:`sappc_msgs_py.convert`) decides: its
-    value, or its :class:`~gnc_common.validation.InputError` naming what is wrong.
+    ``fast`` (default :func:`codec` of ``topic``): when ``raw`` has its layout, ``pick(values)``
+    (default :data:`PICK_ALL`: every value, all finite, as a float64 array), unless it is ``None``.
+    Otherwise ``raw`` is deserialized (rclpy) and ``decoder(msg)`` (the topic's object decoder of
+    :mod:`sappc_msgs_py.convert`) decides: its value, or its
+    :class:`~gnc_common.validation.InputError` naming what is wrong.  A ``pick`` accepts exactly
+    what the decoder accepts of a message of the layout, and gives the decoder's value.
     """
     c = fast if fast is not None else codec(topic)
     values = c.values(raw)
-    if values is not None and all(map(math.isfinite, values)):
-        return np.array(values)
+    if values is not None:
+        value = pick(values)
+        if value is not None:
+            return value
     return decoder(deserialize(raw, topic))
 
 

@@ -92,6 +92,7 @@ Parameters: :data:`PARAMETERS` (``python -m spacecraft_sim --help``), and those 
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -107,19 +108,9 @@ from sappc_msgs_py import wire
 from sappc_msgs_py.convert import (
     cdr_stamp_ns,
     dipole_from_msg,
-    epoch_msg,
-    gyro_msg,
-    magnetic_field_msg,
-    wheel_speed_msg,
-    joint_state_msg,
     ns_to_stamp,
-    quaternion_msg,
-    star_tracker_msg,
     time_to_ns,
     torque_from_msg,
-    transform_from_attitude,
-    transform_msg,
-    vector3_msg,
 )
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MATCH_TIMEOUT_S, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
@@ -184,6 +175,12 @@ _P = {p.name: p for p in PARAMETERS}
 
 
 
+def _time_and_values(values: tuple[float, ...]) -> tuple[float, np.ndarray] | None:
+    """:func:`~sappc_msgs_py.wire.take`'s pick of a ``control/dipole`` of the layout: ``(time_s,
+    dipoles)`` when every value is finite (what :func:`~sappc_msgs_py.convert.dipole_from_msg` gives)."""
+    return (values[0], np.array(values[1:])) if all(map(math.isfinite, values)) else None
+
+
 class PlantNode(ProjectNode):
     """See the module docstring."""
 
@@ -244,6 +241,7 @@ class PlantNode(ProjectNode):
             w = self.wheels
             self._u_wheels, self._speeds = np.zeros(w.n), np.zeros(w.n)  # what joint_states publishes
             self.pub_wheels = self.counting_publisher(WHEEL_STATES)
+            self._wire_wheels = wire.Codec(wire.joint_state(WHEEL_STATES, w.n, "speed", "effort"), WHEEL_STATES.name)
             if self.bsk is None:  # the native wheels: state (q, omega, h), the allocation and scratch, once
                 self.xw = np.concatenate((self.x[0], w.initial_momentum(self.x[0, 4:])))
                 self._G, self._Gp, self._wprm = w.G, allocation_matrix(w.G), w.params()
@@ -256,9 +254,9 @@ class PlantNode(ProjectNode):
         self.pub_att = self.counting_publisher(STATE_ATTITUDE, 1)
         self.pub_rate = self.counting_publisher(STATE_RATE, 1)
         self.pub_tf = self.counting_publisher(STATE_TF)  # nobody needs it to fly: waits only for expected_subscribers
-        self._tf = transform_msg(STATE_TF)  # one message, re-stamped each sample (with sensors: the truth's)
         # the loop's topics as CDR bytes (sappc_msgs_py.wire): published and taken without message objects
-        self._wire = {t: wire.codec(t) for t in (CLOCK, STATE_ATTITUDE, STATE_RATE, STATE_TF, CONTROL_TORQUE, DISTURBANCE_TORQUE)}
+        self._wire = {t: wire.codec(t) for t in (CLOCK, STATE_ATTITUDE, STATE_RATE, STATE_TF, CONTROL_TORQUE, DISTURBANCE_TORQUE, TRUTH_ATTITUDE,
+                                                 TRUTH_RATE, TRUTH_GYRO_BIAS, SENSOR_GYRO, SENSOR_STAR_TRACKER, STATE_ATTITUDE_EPOCH)}
         self.pub_clock = self.counting_publisher(CLOCK) if self.mode == LOCKSTEP else None
         self._inputs = {"torque": self.create_subscription(CONTROL_TORQUE.msg_class, CONTROL_TORQUE.name, self._on_torque, qos, raw=True)}
         if self.use_disturbance:
@@ -500,7 +498,7 @@ class PlantNode(ProjectNode):
             wheel_torques(np.ascontiguousarray(torque_B, dtype=np.float64), self._Gp, self._G, self._wprm, self.xw, self._u_wheels)
             wheel_speeds_into(self.xw, self._G, self._wprm, self._speeds)
         if t_s is not None:
-            self.pub_wheels.publish(joint_state_msg(self._speeds, self._u_wheels, t_s, out=self.pub_wheels.msg))
+            self.pub_wheels.publish(self._wire_wheels.encode(time_to_ns(t_s), self._speeds, self._u_wheels))
 
     def _step_wheels(self, torque_B: np.ndarray, disturbance_B: np.ndarray, t_s: Any) -> None:
         """One sample period with the wheels: the command (published at ``t_s``), then the
@@ -529,20 +527,21 @@ class PlantNode(ProjectNode):
             self._epoch_origin_ns = stamp_ns
         measure(self.k, self.k * self.dt, tracker_epoch_offset(stamp_ns, self._epoch_origin_ns), self.x[0, :4], self.x[0, 4:],
                 self._sensor_rng.standard_normal(N_SENSOR_DRAWS), self._sensor_prm, self._outages, self._held_q, self._bias, self._y)
-        self.pub_att.publish(quaternion_msg(self._y[:4], t_s, STATE_ATTITUDE, out=self.pub_att.msg))
-        self.pub_rate.publish(vector3_msg(self._y[4:7], t_s, STATE_RATE, out=self.pub_rate.msg))
-        epoch_ns = tracker_epoch_ns(self._y[7], self._epoch_origin_ns)
+        wc = self._wire
+        y = self._y
+        self.pub_att.publish(wc[STATE_ATTITUDE].encode(stamp_ns, y[:4]))
+        self.pub_rate.publish(wc[STATE_RATE].encode(stamp_ns, y[4:7]))
+        epoch_ns = tracker_epoch_ns(y[7], self._epoch_origin_ns)
         if self._tracker_epoch_ns is None or epoch_ns > self._tracker_epoch_ns:  # a new tracker sample, stamped when measured
             self._tracker_epoch_ns = epoch_ns
-            self.pub_tracker.publish(star_tracker_msg(self._y[:4], self._tracker_variance, ns_to_stamp(epoch_ns), SENSOR_STAR_TRACKER,
-                                                      out=self.pub_tracker.msg))
-        self.pub_gyro.publish(gyro_msg(self._y[4:7], self._gyro_variance, t_s, SENSOR_GYRO, out=self.pub_gyro.msg))
-        self.pub_epoch.publish(epoch_msg(epoch_ns, t_s, STATE_ATTITUDE_EPOCH, out=self.pub_epoch.msg))
-        true_att = quaternion_msg(self.x[0, :4], t_s, TRUTH_ATTITUDE, out=self.pub_truth_att.msg)
-        self.pub_truth_att.publish(true_att)
-        self.pub_truth_rate.publish(vector3_msg(self.x[0, 4:], t_s, TRUTH_RATE, out=self.pub_truth_rate.msg))
-        self.pub_truth_bias.publish(vector3_msg(self._bias_k, t_s, TRUTH_GYRO_BIAS, out=self.pub_truth_bias.msg))
-        self.pub_tf.publish(transform_from_attitude(self._tf, true_att))  # the body as it is
+            self.pub_tracker.publish(wc[SENSOR_STAR_TRACKER].encode(epoch_ns, wire.star_tracker_values(y[:4], self._tracker_variance)))
+        self.pub_gyro.publish(wc[SENSOR_GYRO].encode(stamp_ns, wire.gyro_values(y[4:7], self._gyro_variance)))
+        self.pub_epoch.publish(wc[STATE_ATTITUDE_EPOCH].encode(stamp_ns, epoch_ns))
+        q_true = self.x[0, :4]
+        self.pub_truth_att.publish(wc[TRUTH_ATTITUDE].encode(stamp_ns, q_true))
+        self.pub_truth_rate.publish(wc[TRUTH_RATE].encode(stamp_ns, self.x[0, 4:]))
+        self.pub_truth_bias.publish(wc[TRUTH_GYRO_BIAS].encode(stamp_ns, self._bias_k))
+        self.pub_tf.publish(wc[STATE_TF].encode(stamp_ns, q_true))  # the body as it is
 
     # ---- the orbit (issue 36) -------------------------------------------------------------
     def _setup_orbit(self, qos: Any) -> None:
@@ -578,9 +577,14 @@ class PlantNode(ProjectNode):
         self.pub_mag_truth = self.counting_publisher(TRUTH_MAGNETIC_FIELD) if mag is not None else None
         self.pub_speed = self.counting_publisher(STATE_WHEEL_SPEED) if publish_speed else None
         self._tach = np.zeros(0 if w is None else w.n)
+        # as CDR bytes (sappc_msgs_py.wire): the field (the magnetometer's variance fixed), the truth, the tachometers, the rods' commands
+        self._wire_mag = wire.Codec(wire.magnetic_field(STATE_MAGNETIC_FIELD, "field", self._mag_variance), STATE_MAGNETIC_FIELD.name)
+        self._wire_mag_truth = wire.Codec(wire.magnetic_field(TRUTH_MAGNETIC_FIELD, "field", np.zeros(3)), TRUTH_MAGNETIC_FIELD.name)
+        self._wire_speed = wire.Codec(wire.joint_state(STATE_WHEEL_SPEED, self._tach.size, "speed", None), STATE_WHEEL_SPEED.name)
+        self._wire_dipole = wire.Codec(wire.dipole(self.dipole.size), CONTROL_DIPOLE.name)
         self._orbit_publishers = [p for p in (self.pub_mag, self.pub_speed) if p is not None]
         if self.use_dipole:
-            self._inputs["dipole"] = self.create_subscription(CONTROL_DIPOLE.msg_class, CONTROL_DIPOLE.name, self._on_dipole, qos)
+            self._inputs["dipole"] = self.create_subscription(CONTROL_DIPOLE.msg_class, CONTROL_DIPOLE.name, self._on_dipole, qos, raw=True)
             self._inbox["dipole"] = {}
             self.missed["dipole"] = 0
         x = self._full_state().copy()  # load the compiled kernels now, not at the first sample (state kept)
@@ -592,9 +596,10 @@ class PlantNode(ProjectNode):
         """The state the offline loop carries: ``(q, omega)`` with the wheels' momenta when there are wheels."""
         return self.xw if self.wheels is not None and self.bsk is None else self.x[0]
 
-    def _on_dipole(self, msg: Any) -> None:
+    def _on_dipole(self, raw: bytes) -> None:
         try:
-            t_s, m = dipole_from_msg(msg, self.dipole.shape[0])
+            t_s, m = wire.take(raw, CONTROL_DIPOLE, lambda msg: dipole_from_msg(msg, self.dipole.shape[0]), self._wire_dipole,
+                               pick=_time_and_values)
             ns = time_to_ns(t_s)  # data[0], float seconds: exact in lockstep (from 0), the only mode with an orbit
         except InputError as exc:
             self.rejected += 1
@@ -611,12 +616,13 @@ class PlantNode(ProjectNode):
         x = self._full_state()
         environment_field(self._env, 0, t, x[:4], self._r_N, self._B_N, self._B_B)
         environment_measure_field(self._env, 0, self.k, self._B_B, self._B_meas)
-        self.pub_mag.publish(magnetic_field_msg(self._B_meas, t, STATE_MAGNETIC_FIELD, self._mag_variance, out=self.pub_mag.msg))
+        t_ns = time_to_ns(t)
+        self.pub_mag.publish(self._wire_mag.encode(t_ns, self._B_meas))
         if self.pub_mag_truth is not None:
-            self.pub_mag_truth.publish(magnetic_field_msg(self._B_B, t, TRUTH_MAGNETIC_FIELD, out=self.pub_mag_truth.msg))
+            self.pub_mag_truth.publish(self._wire_mag_truth.encode(t_ns, self._B_B))
         if self.pub_speed is not None:
             wheel_speeds_into(self.xw, self._G, self._wprm, self._tach)
-            self.pub_speed.publish(wheel_speed_msg(self._tach, t, out=self.pub_speed.msg))
+            self.pub_speed.publish(self._wire_speed.encode(t_ns, self._tach))
 
     def _orbit_torque(self, disturbance_B: np.ndarray) -> np.ndarray:
         """The disturbance plus the environment's torque (gravity gradient, the rods' ``m x B`` of the
@@ -631,7 +637,8 @@ class PlantNode(ProjectNode):
         self.get_logger().info(f"finished at sample {self.k} after {run_s:.3f} s: {self.rejected} rejected messages, missed inputs {self.missed}")
         super().finish()
         if self.timing_file:
-            timing = {"run_s": run_s, "samples": self.k + 1, "rejected": self.rejected, "missed": self.missed, "first_sample_monotonic_s": self._wall_first}
+            timing = {"run_s": run_s, "samples": self.k + 1, "rejected": self.rejected, "missed": self.missed, "first_sample_monotonic_s": self._wall_first,
+                      "nodes_up_monotonic_s": self.up_monotonic_s}
             if self.mode == REALTIME:
                 timing.update(self.tick_stats.summary(), missed_frames=self.missed_frames, stale_torque_frames=self.stale_torque_frames,
                               stale_disturbance_frames=self.stale_disturbance_frames, first_deviating_sample=self.first_deviating_sample,

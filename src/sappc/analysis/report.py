@@ -239,6 +239,8 @@ METRIC_SENTENCES: dict[str, str] = {
     "wheel_energy_J": "The wheels' motors' mechanical work in magnitude over the run, braking counted as spent [J].",
     "wall_time_s": "The wall-clock time the run took [s]: a property of the machine, not of the controller.",
     "startup_s": "The wall-clock time before the first sample: processes, imports and discovery [s].",
+    "first_sample_after_nodes_up_s": "The wall-clock time from the plant's process having built its nodes (composed: every node) to the "
+                                     "first sample: discovery and matching [s].",
 }
 #: What a ``-`` in a table of metrics means.
 NOT_APPLICABLE = ("A - marks a metric that does not apply to this run: the returned_* metrics without a fault, "

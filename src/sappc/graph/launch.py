@@ -440,6 +440,8 @@ class GraphResult:
     exit_codes: dict[str, int]
     controller_timing: dict[str, Any] = field(default_factory=dict)  # the controller node's timing file
     plant_timing: dict[str, Any] = field(default_factory=dict)  # the plant node's (run_s, samples, missed)
+    #: from the plant's process having built its nodes (composed: every node) to its first sample [s]: discovery and matching (None: an external plant)
+    first_sample_after_up_s: float | None = None
 
     def mismatched_counts(self) -> dict[str, tuple[int, int]]:
         """Topics whose recorded count differs from the published one: (published, recorded)."""
@@ -811,6 +813,8 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
     run_s = float(timing.get("run_s", total))  # the plant's first sample to its last
     first_sample = timing.get("first_sample_monotonic_s")  # CLOCK_MONOTONIC is one clock for every process
     startup_s = float(first_sample) - start if first_sample is not None else (None if external else total - run_s)
+    up = timing.get("nodes_up_monotonic_s")
+    after_up_s = float(first_sample) - float(up) if first_sample is not None and up is not None else None
     return GraphResult(
         scenario=scenario,
         controller=kind,
@@ -819,6 +823,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         published=published,
         recorded=recorded,
         startup_s=startup_s,
+        first_sample_after_up_s=after_up_s,
         run_s=run_s,
         exit_codes=exit_codes,
         controller_timing=json.loads(ctrl_timing.read_text()) if (ctrl_timing := run_dir / "logs" / "controller_timing.json").exists() else {},

@@ -207,5 +207,5 @@ def test_sappc_run_records_a_run_driven_by_an_external_plant(tmp_path) -> None: 
     assert result["controller_summary"]["commanded"] == 501, result["controller_summary"]
     assert result["recorded"]["/state/attitude"] == 501 and result["recorded"]["/control/torque"] == 501
     assert result["recorded"]["/controller/diagnostics"] == result["published"]["/controller/diagnostics"] == 501
-    assert "startup_s" not in result["metrics"]  # the plant's start is the user's
+    assert "startup_s" not in result["metrics"] and "first_sample_after_nodes_up_s" not in result["metrics"]  # the plant's start is the user's
     watch.assert_clean()
