@@ -162,7 +162,7 @@ class McapWriter:
 
 class ChunkBuilder:
     """Messages gathered one at a time into the chunk in progress of ``writer``, written by
-    :meth:`flush` (and by :meth:`add` once the chunk holds ``chunk_size`` bytes)."""
+    :meth:`flush` (and by :meth:`add_message` once the chunk holds ``chunk_size`` bytes)."""
 
     def __init__(self, writer: McapWriter, chunk_size: int) -> None:
         self.writer = writer
@@ -172,7 +172,7 @@ class ChunkBuilder:
         self._start = 0
         self._end = 0
 
-    def add(self, channel_id: int, sequence: int, log_ns: int, publish_ns: int, data: bytes) -> None:
+    def add_message(self, channel_id: int, sequence: int, log_ns: int, publish_ns: int, data: bytes) -> None:
         """Add a message record (the chunk is written once it holds ``chunk_size`` bytes)."""
         buf = self._data
         if not buf:

@@ -279,7 +279,7 @@ class RecorderNode(ProjectNode):
         self.end_ns = max(self.end_ns, log_ns)
         resolved = self._resolved[name]
         self.counts[resolved] += 1
-        self.writer.add(self._channels[name], self.counts[resolved], log_ns, log_ns, data)
+        self.writer.add_message(self._channels[name], self.counts[resolved], log_ns, log_ns, data)
         if self._end_after_ns and name == CONTROL_TORQUE.name and not self.end_reached:
             self._check_end(log_ns if self.sim_time else cdr_stamp_ns(self._types[name], data))
         if name == STATE_ATTITUDE.name:  # the run's progress: the plant's samples
