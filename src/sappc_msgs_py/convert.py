@@ -167,6 +167,7 @@ _STAMP_FIRST = frozenset({"geometry_msgs/msg/QuaternionStamped", "geometry_msgs/
                           "sensor_msgs/msg/JointState", "sensor_msgs/msg/MagneticField", "sensor_msgs/msg/TimeReference", "sensor_msgs/msg/Imu",
                           "diagnostic_msgs/msg/DiagnosticArray"})
 _FLOAT_ARRAY_TYPE = "std_msgs/msg/Float64MultiArray"
+_STAMP_LE, _STAMP_BE = struct.Struct("<iI"), struct.Struct(">iI")
 
 
 def cdr_stamp_ns(type_name: str, cdr: bytes) -> int:
@@ -183,10 +184,10 @@ def cdr_stamp_ns(type_name: str, cdr: bytes) -> int:
     ValueError
         For a type outside the contract, or a float array that is not one of the contract's.
     """
-    order = "<" if cdr[1] & 1 else ">"
     if type_name in _STAMP_FIRST:
-        sec, nanosec = struct.unpack_from(order + "iI", cdr, 4)
+        sec, nanosec = (_STAMP_LE if cdr[1] & 1 else _STAMP_BE).unpack_from(cdr, 4)
         return int(sec) * _NS_PER_S + int(nanosec)
+    order = "<" if cdr[1] & 1 else ">"
     if type_name == _FLOAT_ARRAY_TYPE:
         first = _float_array_time(order, cdr)
         if first is None:
