@@ -319,7 +319,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     estimator = {
         **estimator_parameters_from_config(scenario.estimator),
         **common,
-        "expected_subscribers": expected(estimate__attitude=2, estimate__rate=2 + managing) + [f"{t.name}=1" for t in ESTIMATOR_TOPICS[2:]],
+        "expected_subscribers": expected(estimate__attitude=2 + managing, estimate__rate=2 + managing) + [f"{t.name}=1" for t in ESTIMATOR_TOPICS[2:]],
         "counts_file": counts_file("estimator"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "estimator_timing.json"),
     } if scenario.estimator is not None else None
