@@ -89,6 +89,11 @@ from gnc_common.validation import ConfigError, InputError, check_positive, read_
 
 __all__ = ["InjectorNode", "PARAMETERS", "load_schedule", "main"]
 
+#: Samples of disturbance computed at once [samples]: one compiled call per block, not one per
+#: sample (10 us each); the torque of each sample is the same bits either way (the kernel computes
+#: every sample on its own, at its own ``k dt``).
+DISTURBANCE_BLOCK = 1024
+
 #: The injector's parameters (``--help``), in the order the node declares them.
 PARAMETERS = (
     Param("schedule_file", "", "YAML file with 'disturbances:' and/or 'faults:' lists (a scenario file works); '' for none: zero "
@@ -157,6 +162,7 @@ class InjectorNode(ProjectNode):
         qos = qos_profile()
         self.pub_d = self.counting_publisher(DISTURBANCE_TORQUE, 1)
         self._wire_d = wire.codec(DISTURBANCE_TORQUE)  # published as CDR bytes (sappc_msgs_py.wire)
+        self._table: tuple[int, np.ndarray] = (0, np.zeros((0, 3)))  # the disturbance of samples lo, lo + 1, ... (a block)
         self.frames: FramesAhead | None = None
         if self.mode == LOCKSTEP:
             self._cursor = GridCursor(self.last_k)
@@ -165,7 +171,7 @@ class InjectorNode(ProjectNode):
         else:  # sample k on the plant's frame f0 + k, f0 its first state's (FramesAhead)
             gate = StartGate(self, lambda: unmatched([self.pub_d]))  # no publish may block a callback
             self.frames = FramesAhead(self, self.dt, self.last_k, gate.open,
-                                      lambda k, ns: self._publish_disturbance(k * self.dt, ns))
+                                      lambda k, ns: self._publish_disturbance(k, ns))
         # the paired paths: the measurements (q_BN, omega_BN_B) and the reference, each paired by stamp
         self._paired: dict[tuple[Topic, ...], dict[int, dict[str, Any]]] = {}  # path -> stamp [ns] -> topic name -> value
         self.pub_relay: dict[str, Any] = {}
@@ -192,17 +198,20 @@ class InjectorNode(ProjectNode):
             elif topics is not RELAYED_ACTUATOR_TOPICS:
                 self._paired[topics] = {}
 
-    def _publish_disturbance(self, t_s: float, stamp_ns: int) -> None:
-        d = self.disturbance.torque_B(np.array([t_s]), 1)[0, 0]
-        self.pub_d.publish(self._wire_d.encode(stamp_ns, d))
+    def _publish_disturbance(self, k: int, stamp_ns: int) -> None:
+        """Publish sample ``k``'s disturbance (at ``t = k dt``), stamped ``stamp_ns``."""
+        lo, table = self._table
+        if not lo <= k < lo + table.shape[0]:  # the next block of samples, at once (one compiled call, not one a sample)
+            n = DISTURBANCE_BLOCK if self.last_k is None else max(1, min(DISTURBANCE_BLOCK, self.last_k + 1 - k))
+            lo, table = self._table = k, self.disturbance.torque_B(np.arange(k, k + n) * self.dt, 1)[:, 0]
+        self.pub_d.publish(self._wire_d.encode(stamp_ns, table[k - lo]))
 
     def _on_clock(self, raw: bytes) -> None:
         self._publish_through(round(cdr_stamp_ns(CLOCK.type_name, raw) / 1e9 / self.dt) + 1)  # one sample ahead
 
     def _publish_through(self, k: int) -> None:
         for j in self._cursor.through(k):
-            t = j * self.dt  # on the plant's grid (k dt, as sample_times)
-            self._publish_disturbance(t, time_to_ns(t))
+            self._publish_disturbance(j, time_to_ns(j * self.dt))  # on the plant's grid (k dt, as sample_times)
 
     def _run_time_s(self, stamp_ns: int) -> float:
         """The run's time [s] of a stamp, which the fault windows are in: the stamp itself in
