@@ -73,8 +73,6 @@ run with the project's Fast DDS profile.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import fcntl
 import json
 import os
 import statistics
@@ -82,12 +80,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import paired  # noqa: E402
+from sappc.graph.launch import claim_domain_id  # noqa: E402  (the parent claims its domain as sappc run does)
 
 #: What each node subscribes to, from the node modules' ``create_subscription`` calls (names before
 #: the run's remaps), and how it uses it: ``gates``: the inputs of a sample the node waits for before
@@ -540,27 +538,6 @@ def _env(domain: int, log_dir: Path) -> dict[str, str]:
             "ROS_LOG_DIR": str(log_dir), "PYTHONUNBUFFERED": "1"}
 
 
-@contextlib.contextmanager
-def _claim_domain(preferred: int | None) -> Iterator[int]:
-    """A ROS domain no ``sappc run`` or test on this machine uses meanwhile: ``preferred``, or the
-    first free one of 1 to 101, claimed as sappc.graph.launch.claim_domain_id claims it (an exclusive
-    ``flock`` on ``$TMPDIR/sappc-domain-<id>.lock``; not imported: the parent reads no node code)."""
-    for domain in [preferred] if preferred is not None else range(1, 102):
-        fd = os.open(Path(tempfile.gettempdir()) / f"sappc-domain-{domain}.lock", os.O_CREAT | os.O_RDWR, 0o600)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            continue
-        try:
-            yield domain
-        finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-            os.close(fd)
-        return
-    raise SystemExit(f"ROS domain {preferred} is in use by a sappc run or test" if preferred is not None else "no free ROS domain in 1 to 101")
-
-
 def _composed(py: str, spec_path: Path, spec: dict[str, Any], env: dict[str, str], mode: str, tmp: Path) -> tuple[float, dict[str, Any]]:
     counts = tmp / "counts_composed.json"
     out = subprocess.run([py, "-c", _NODE, str(spec_path), ",".join(spec["roles"]), mode, str(counts), "0"], env=env, capture_output=True,
@@ -649,7 +626,7 @@ def main() -> None:
         }
         print(f"bench_graph_floor: {args.scenario}: {len(spec['topics'])} topics, {n_proc} nodes, {per_step_msgs:.4g} messages and "
               f"{per_step_deliveries:.4g} deliveries per sample (from {run_dir})", file=sys.stderr, flush=True)
-        with _claim_domain(args.domain_id) as domain:
+        with claim_domain_id(args.domain_id, source="--domain-id") as domain:  # as sappc run claims it
             env = _env(domain, tmp / "logs")
             result["domain_id"] = domain
             for mode in args.modes.split(","):
