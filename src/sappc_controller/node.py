@@ -378,7 +378,7 @@ class ControllerNode(ProjectNode):
         """The message's value (:func:`sappc_msgs_py.wire.take`), checked by
         :func:`~sappc_controller.core.input_check.check_input` (the offline loop's check): raises
         ``InputError`` (invalid) or ``ImplausibleInputError``."""
-        value = wire.take(raw, topic, self._decoders[topic.name], self._wire[topic.name])
+        value: np.ndarray = wire.take(raw, topic, self._decoders[topic.name], self._wire[topic.name])
         check_input(_SLOTS[topic.name], _WHAT[topic.name], value, self.input_bounds, self._bounds)
         return value
 
