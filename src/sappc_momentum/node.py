@@ -197,7 +197,7 @@ class MomentumNode(ProjectNode):
             STATE_ATTITUDE.name: (wire.codec(STATE_ATTITUDE), wire.PICK_ALL, partial(_state_or_no_data, topic=STATE_ATTITUDE)),
             STATE_RATE.name: (wire.codec(STATE_RATE), wire.PICK_ALL, partial(_state_or_no_data, topic=STATE_RATE)),
         }
-        self._wire_dipole = wire.Codec(wire.dipole(M), CONTROL_DIPOLE.name)
+        self._wire_dipole = wire.Codec(wire.dipole(M), CONTROL_DIPOLE.name, finite=False)  # as dipole_msg: taken as computed (the plant checks)
         self._wire_torque = wire.codec(CONTROL_WHEEL_TORQUE)
         for topic in INPUTS:
             self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos, raw=True)
