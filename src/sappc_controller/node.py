@@ -128,7 +128,7 @@ from gnc_common.validation import ConfigError, InputError, check_positive
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.input_check import REJECT_REASONS as INPUT_REJECT_REASONS
-from sappc_controller.core.input_check import InputBounds, check_input
+from sappc_controller.core.input_check import INPUT_OK, InputBounds, check_input, input_verdict
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
 from sappc_controller.inputs import INPUT_TOPICS, NS_PER_S, STEP_ERRORS, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import (
@@ -233,6 +233,7 @@ class ControllerNode(ProjectNode):
         self.grace_ns = _seconds_to_ns("lockstep_grace_s", self.param(_P["lockstep_grace_s"]))
         self.input_bounds = InputBounds(**{name: self.param(_P[name]) for name in _BOUND_PARAMS})
         self._bounds = self.input_bounds.packed()
+        self._bounds_list = self._bounds.tolist()  # the per-message check's (floats, not array items)
 
         # load the compiled step now (cache load ~1 s), not at the first sample, which the plant
         # waits for at most lockstep_timeout_s: a step at rest, then forget it
@@ -378,8 +379,13 @@ class ControllerNode(ProjectNode):
         """The message's value (:func:`sappc_msgs_py.wire.take`), checked by
         :func:`~sappc_controller.core.input_check.check_input` (the offline loop's check): raises
         ``InputError`` (invalid) or ``ImplausibleInputError``."""
+        slot = _SLOTS[topic.name]
+        values = self._wire[topic.name].values(raw)  # a message of the layout: its values, checked as they are
+        if values is not None and input_verdict(slot, values, self._bounds_list) == INPUT_OK:  # accepted: finite too
+            return np.array(values)
+        # anything else (another layout, a rejected value): the decoder and the check that name what is wrong
         value: np.ndarray = wire.take(raw, topic, self._decoders[topic.name], self._wire[topic.name])
-        check_input(_SLOTS[topic.name], _WHAT[topic.name], value, self.input_bounds, self._bounds)
+        check_input(slot, _WHAT[topic.name], value, self.input_bounds, self._bounds)
         return value
 
     def _on_input(self, msg: bytes, topic: Topic) -> None:

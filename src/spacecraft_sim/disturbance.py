@@ -162,7 +162,7 @@ class InjectorNode(ProjectNode):
         qos = qos_profile()
         self.pub_d = self.counting_publisher(DISTURBANCE_TORQUE, 1)
         self._wire_d = wire.codec(DISTURBANCE_TORQUE)  # published as CDR bytes (sappc_msgs_py.wire)
-        self._table: tuple[int, np.ndarray] = (0, np.zeros((0, 3)))  # the disturbance of samples lo, lo + 1, ... (a block)
+        self._table: tuple[int, list[int], list[bytes]] = (0, [], [])  # samples lo, lo + 1, ... (a block): stamps, messages
         self.frames: FramesAhead | None = None
         if self.mode == LOCKSTEP:
             self._cursor = GridCursor(self.last_k)
@@ -200,11 +200,27 @@ class InjectorNode(ProjectNode):
 
     def _publish_disturbance(self, k: int, stamp_ns: int) -> None:
         """Publish sample ``k``'s disturbance (at ``t = k dt``), stamped ``stamp_ns``."""
-        lo, table = self._table
-        if not lo <= k < lo + table.shape[0]:  # the next block of samples, at once (one compiled call, not one a sample)
-            n = DISTURBANCE_BLOCK if self.last_k is None else max(1, min(DISTURBANCE_BLOCK, self.last_k + 1 - k))
-            lo, table = self._table = k, self.disturbance.torque_B(np.arange(k, k + n) * self.dt, 1)[:, 0]
-        self.pub_d.publish(self._wire_d.encode(stamp_ns, table[k - lo]))
+        lo, stamps, messages = self._table
+        i = k - lo
+        if not (0 <= i < len(stamps) and stamps[i] == stamp_ns):  # the next block of samples, at once
+            self._table = lo, stamps, messages = self._encode_block(k, stamp_ns)
+            i = 0
+        self.pub_d.publish(messages[i])
+
+    def _encode_block(self, k: int, stamp_ns: int) -> tuple[int, list[int], list[bytes]]:
+        """Samples ``k ..`` (:data:`DISTURBANCE_BLOCK`, to the grid's end) computed (one compiled call,
+        not one a sample) and encoded (:meth:`~sappc_msgs_py.wire.Codec.encode_block`), sample ``k``
+        stamped ``stamp_ns``, the others as the node will ask for them: on the plant's grid in
+        lockstep (``k dt``, as ``sample_times``), the frames after ``k``'s in real time.  A sample
+        asked for with another stamp starts a new block (``_publish_disturbance`` checks)."""
+        n = DISTURBANCE_BLOCK if self.last_k is None else max(1, min(DISTURBANCE_BLOCK, self.last_k + 1 - k))
+        torque = self.disturbance.torque_B(np.arange(k, k + n) * self.dt, 1)[:, 0]
+        if self.frames is None:
+            stamps = [time_to_ns(j * self.dt) for j in range(k, k + n)]
+        else:
+            stamps = [stamp_ns + (j - k) * self.frames.dt_ns for j in range(k, k + n)]
+        stamps[0] = stamp_ns
+        return k, stamps, self._wire_d.encode_block(stamps, torque)
 
     def _on_clock(self, raw: bytes) -> None:
         self._publish_through(round(cdr_stamp_ns(CLOCK.type_name, raw) / 1e9 / self.dt) + 1)  # one sample ahead

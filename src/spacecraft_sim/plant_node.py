@@ -250,6 +250,8 @@ class PlantNode(ProjectNode):
                 self._step_wheels(np.zeros(3), np.zeros(3), None)  # load the compiled kernels now, not at the first sample (state kept)
 
         self.body.propagate(self.x, np.zeros((1, 3)), self.dt, self.substeps)  # load the compiled plant now, not at the first sample
+        self.x = np.ascontiguousarray(self.x)  # the native plant's two state buffers (1, 7) and its torque (1, 3)
+        self._x_next, self._u_B = np.empty_like(self.x), np.zeros((1, 3))
         qos = qos_profile()
         self.pub_att = self.counting_publisher(STATE_ATTITUDE, 1)
         self.pub_rate = self.counting_publisher(STATE_RATE, 1)
@@ -296,15 +298,20 @@ class PlantNode(ProjectNode):
 
     # ---- inputs ---------------------------------------------------------------------------
     def _decode(self, raw: bytes, topic: Any) -> np.ndarray | None:
-        try:
-            torque = np.asarray(wire.take(raw, topic, lambda msg: torque_from_msg(msg, topic), self._wire[topic])).reshape(1, 3)
-            if topic is CONTROL_TORQUE and self.wheels is None:  # the ideal actuator's limit; the wheels have their own
-                torque = np.minimum(np.maximum(torque, -self.max_torque), self.max_torque)
-            return torque
-        except InputError as exc:
-            self.rejected += 1
-            self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
-            return None
+        """The torque of a message, (1, 3) [N m], clipped to the ideal actuator's limit; ``None``
+        for a rejected message (counted and logged)."""
+        values = self._wire[topic].values(raw)  # a message of the layout, finite (NaN and Inf propagate to the sum)
+        if values is None or not math.isfinite(sum(values)):  # anything else: the decoder names what is wrong
+            try:
+                values = tuple(np.asarray(wire.take(raw, topic, lambda msg: torque_from_msg(msg, topic), self._wire[topic])).reshape(3).tolist())
+            except InputError as exc:
+                self.rejected += 1
+                self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
+                return None
+        if topic is CONTROL_TORQUE and self.wheels is None:  # the ideal actuator's limit (on finite floats, as numpy's clip); the wheels have their own
+            m = self.max_torque
+            return np.array(([min(max(v, -m), m) for v in values],))
+        return np.array((values,))
 
     def _on_torque(self, raw: bytes) -> None:
         self._on_input(raw, CONTROL_TORQUE, "torque")
@@ -365,7 +372,7 @@ class PlantNode(ProjectNode):
         assert self.pub_clock is not None
         t_ns = time_to_ns(t)
         self.pub_clock.publish(self._wire[CLOCK].encode(t_ns))
-        self._publish_state(t)
+        self._publish_state(t, t_ns)
         if self._env is not None:
             self._publish_orbit(t)
         self._waiting_ns = t_ns
@@ -373,9 +380,11 @@ class PlantNode(ProjectNode):
         self._try_advance()  # the disturbance may already be there
 
     def _advance(self) -> None:
-        for box in self._inbox.values():  # drop what belongs to this sample or earlier
-            for old in [k for k in box if self._waiting_ns is not None and k <= self._waiting_ns]:
-                del box[old]
+        waiting = self._waiting_ns
+        if waiting is not None:
+            for box in self._inbox.values():  # drop what belongs to this sample or earlier
+                for old in [k for k in box if k <= waiting]:
+                    del box[old]
         self._waiting_ns = None
         if self.k >= self.n_steps:  # the last sample's torque is received (and recorded), not applied
             if self.wheels is not None:
@@ -484,8 +493,10 @@ class PlantNode(ProjectNode):
             self.x = self.bsk.state()[None, :7]
         elif self.wheels is not None:
             self._step_wheels(torque_B, disturbance_B, t_s)
-        else:
-            self.x = self.body.propagate(self.x, torque_B[None] + disturbance_B[None], self.dt, self.substeps)
+        else:  # into the state's second buffer, then swapped (self.x is read at once by whoever reads it)
+            np.add(torque_B, disturbance_B, out=self._u_B[0])
+            self.body.propagate_into(self.x, self._u_B, self.dt, self.substeps, self._x_next)
+            self.x, self._x_next = self._x_next, self.x
 
     # ---- reaction wheels -------------------------------------------------------------------
     def _wheel_command(self, torque_B: np.ndarray, t_s: Any) -> None:
@@ -511,18 +522,21 @@ class PlantNode(ProjectNode):
         if t_s is not None:
             self.x = x[None, :7].copy()
 
-    def _publish_state(self, t_s: Any) -> None:
+    def _publish_state(self, t_s: Any, t_ns: int | None = None) -> None:
+        """Publish the state of the sample stamped ``t_s`` (``t_ns``: its nanoseconds, when the caller has them)."""
         if self._wall_first is None:
             self._wall_first = time.monotonic()
+        if t_ns is None:
+            t_ns = time_to_ns(t_s)
         if self.sensors is None:
-            t_ns, q, w = time_to_ns(t_s), self.x[0, :4], self.x[0, 4:]
+            q, w = self.x[0, :4], self.x[0, 4:]
             self.pub_att.publish(self._wire[STATE_ATTITUDE].encode(t_ns, q))
             self.pub_rate.publish(self._wire[STATE_RATE].encode(t_ns, w))
             self.pub_tf.publish(self._wire[STATE_TF].encode(t_ns, q))  # after the state: off the loop's critical path
             return
         # the sensors' measurement of sample k (the offline loop's kernel and draws), then the truth
         self._bias_k[:] = self._bias + self._bias_faults.gyro_bias_fault(self.k * self.dt)
-        stamp_ns = time_to_ns(t_s)
+        stamp_ns = t_ns
         if self._epoch_origin_ns is None:
             self._epoch_origin_ns = stamp_ns
         measure(self.k, self.k * self.dt, tracker_epoch_offset(stamp_ns, self._epoch_origin_ns), self.x[0, :4], self.x[0, 4:],

@@ -77,7 +77,9 @@ class ReferenceNode(ProjectNode):
         topics = (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION, REFERENCE_TF)
         self.pubs = [self.counting_publisher(t, 1) for t in topics[:3]]
         self.pub_tf = self.counting_publisher(REFERENCE_TF)  # waits only for expected_subscribers
-        self._wire = [wire.codec(t) for t in topics]  # published as CDR bytes (sappc_msgs_py.wire)
+        self._wire = [wire.codec(t) for t in topics]  # published as CDR bytes (sappc_msgs_py.wire), a block at a time
+        self._all_pubs = [*self.pubs, self.pub_tf]
+        self._block: tuple[int, list[int], list[list[bytes]]] = (0, [], [])  # samples lo .. : their stamps, each topic's messages
         if self.mode == LOCKSTEP:
             self._cursor = GridCursor(self.samples.t.size - 1)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile(), raw=True)
@@ -87,14 +89,27 @@ class ReferenceNode(ProjectNode):
             self.frames = FramesAhead(self, self.dt, self.samples.t.size - 1, gate.open, lambda k, ns: self._publish(k, ns))
 
     def _publish(self, k: int, stamp_ns: int) -> None:
+        lo, stamps, messages = self._block
+        i = k - lo
+        if not (0 <= i < len(stamps) and stamps[i] == stamp_ns):  # the block from k, its stamps on k's
+            self._block = lo, stamps, messages = self._encode_block(k, stamp_ns)
+            i = 0
+        for pub, m in zip(self._all_pubs, messages):
+            pub.publish(m[i])
+
+    def _encode_block(self, k: int, stamp_ns: int) -> tuple[int, list[int], list[list[bytes]]]:
+        """Samples ``k ..`` (:data:`~sappc_msgs_py.wire.BLOCK_SAMPLES`, to the grid's end), sample
+        ``k`` stamped ``stamp_ns``: in lockstep each its grid stamp, in real time the frames after
+        ``k``'s (``FramesAhead`` stamps frame ``f0 + j``).  A sample asked for with another stamp
+        than its block gave it starts a new block (``_publish`` checks), so a stamp is never guessed."""
         s = self.samples
-        att, rate, acc = self.pubs
+        hi = min(k + wire.BLOCK_SAMPLES, s.t.size)
+        stamps = self._stamps[k:hi] if self.mode == LOCKSTEP else [stamp_ns + (j - k) * self.frames.dt_ns for j in range(k, hi)]
+        stamps[0] = stamp_ns
         w_att, w_rate, w_acc, w_tf = self._wire
-        q = s.q_RN[k]
-        att.publish(w_att.encode(stamp_ns, q))
-        rate.publish(w_rate.encode(stamp_ns, s.omega_RN_R[k]))
-        acc.publish(w_acc.encode(stamp_ns, s.omegadot_RN_R[k]))
-        self.pub_tf.publish(w_tf.encode(stamp_ns, q))
+        q = s.q_RN[k:hi]
+        return k, stamps, [w_att.encode_block(stamps, q), w_rate.encode_block(stamps, s.omega_RN_R[k:hi]),
+                           w_acc.encode_block(stamps, s.omegadot_RN_R[k:hi]), w_tf.encode_block(stamps, q)]
 
     def _on_clock(self, raw: bytes) -> None:
         ns = cdr_stamp_ns(CLOCK.type_name, raw)

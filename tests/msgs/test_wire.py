@@ -629,3 +629,34 @@ def test_the_one_pack_encoder_writes_the_general_paths_bytes(name: str, rng: np.
         bad[-1] = math.nan
         with pytest.raises(InputError, match=case.codec.name):  # the fast path's check hands a NaN to the general path's
             case.codec.encode(case.stamp_ns, bad)
+
+
+@pytest.mark.parametrize("topic", [*ENCODED_TOPICS, c.CONTROLLER_DIAGNOSTICS], ids=lambda t: t.name)
+def test_encode_block_writes_encodes_bytes_message_by_message(topic: c.Topic, rng: np.random.Generator) -> None:
+    """Codec.encode_block (the reference's and the injector's blocks) gives, message by message, the
+    bytes Codec.encode gives for the same stamp and values: stamps over whole seconds, at zero and
+    near int32 seconds' end included (its stamp is its own numpy arithmetic, not encode's divmod)."""
+    codec = wire.codec(topic)
+    stamps = [0, 1, 999_999_999, 1_000_000_000, 10_000_000, 59_990_000_000, STAMP_NS, (2**31 - 1) * 1_000_000_000 + 999_999_999]
+    values = rng.normal(size=(len(stamps), codec.count))
+    block = codec.encode_block(stamps, values)
+    assert block == [codec.encode(None if topic is c.CONTROLLER_DIAGNOSTICS else s, v) for s, v in zip(stamps, values)]
+    assert codec.encode_block([], np.zeros((0, codec.count))) == []
+
+
+@pytest.mark.parametrize("topic", ENCODED_TOPICS, ids=lambda t: t.name)
+def test_encode_block_refuses_what_encode_refuses_in_encodes_words(topic: c.Topic) -> None:
+    """A block with a non-finite value or a stamp beyond int32 seconds is encode's, message by
+    message: its error names the topic; values of another shape are refused naming it too."""
+    codec = wire.codec(topic)
+    good = np.zeros((3, codec.count))
+    bad = good.copy()
+    bad[1, -1] = math.nan
+    with pytest.raises(InputError, match=topic.name):
+        codec.encode_block([0, 1, 2], bad)
+    with pytest.raises(struct.error):  # int32 seconds: what encode's pack raises
+        codec.encode_block([0, 1, 2**31 * 1_000_000_000], good)
+    with pytest.raises(ValueError, match=topic.name):
+        codec.encode_block([0, 1], good)
+    with pytest.raises(ValueError, match="one run of doubles"):
+        wire.Codec(wire.joint_state(c.WHEEL_STATES, 3, "speed", "effort"), c.WHEEL_STATES.name).encode_block([0], np.zeros((1, 6)))

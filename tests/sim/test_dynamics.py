@@ -185,3 +185,20 @@ def test_derivative_shares_a_batch_of_one_as_propagate_does(rng) -> None:  # typ
     for k in range(2):
         np.testing.assert_array_equal(two[k], body.propagate(np.ascontiguousarray(x[k]), u[k], 0.05, 2))
         np.testing.assert_array_equal(two_J[k], RigidBody(Js[k]).propagate(np.ascontiguousarray(x[k]), u[k], 0.05, 2))
+
+
+def test_propagate_into_is_propagate_bit_for_bit(rng) -> None:  # type: ignore[no-untyped-def]
+    """``propagate_into`` (the plant node's step into its own buffers) gives ``propagate``'s state,
+    bit for bit, step after step, for one run and for a batch; ``x`` is left as it was."""
+    body = RigidBody(J_GENERAL)
+    for n in (1, 4):
+        x = np.ascontiguousarray(initial_state(random_unit_quaternions(rng, n), 0.1 * rng.standard_normal((n, 3))))
+        expected, buf = x.copy(), np.empty_like(x)
+        for _ in range(50):
+            u = rng.standard_normal((n, 3))
+            before = x.copy()
+            expected = body.propagate(expected, u, 0.01, 2)
+            body.propagate_into(x, u, 0.01, 2, buf)
+            np.testing.assert_array_equal(x, before)
+            x, buf = buf, x
+            np.testing.assert_array_equal(x, expected)

@@ -161,8 +161,8 @@ class McapWriter:
 
 
 class ChunkBuilder:
-    """Messages gathered one at a time into the chunk in progress of ``writer``, written by
-    :meth:`flush` (and by :meth:`add_message` once the chunk holds ``chunk_size`` bytes)."""
+    """Messages gathered into the chunk in progress of ``writer``, written by
+    :meth:`flush` (and by :meth:`add_messages` once the chunk holds ``chunk_size`` bytes)."""
 
     def __init__(self, writer: McapWriter, chunk_size: int) -> None:
         self.writer = writer
@@ -172,23 +172,30 @@ class ChunkBuilder:
         self._start = 0
         self._end = 0
 
-    def add_message(self, channel_id: int, sequence: int, log_ns: int, publish_ns: int, data: bytes) -> None:
-        """Add a message record (the chunk is written once it holds ``chunk_size`` bytes)."""
-        buf = self._data
-        if not buf:
-            self._start = self._end = log_ns
-        elif log_ns < self._start:
-            self._start = log_ns
-        elif log_ns > self._end:
-            self._end = log_ns
-        entries = self._index.get(channel_id)
-        if entries is None:
-            entries = self._index[channel_id] = []
-        entries += (log_ns, len(buf))
-        buf += _MESSAGE_HEAD.pack(_OP_MESSAGE, MESSAGE_HEAD_BYTES - 9 + len(data), channel_id, sequence, log_ns, publish_ns)
-        buf += data
-        if len(buf) >= self.chunk_size:
-            self.flush()
+    def add_messages(self, messages: list[tuple[int, int, int, int, bytes]]) -> None:
+        """Add a message record for each ``(channel_id, sequence, log_ns, publish_ns, data)``, in
+        order (a recorder's pass); a chunk is written each time it holds ``chunk_size`` bytes."""
+        buf, index, size = self._data, self._index, self.chunk_size
+        pack, head = _MESSAGE_HEAD.pack, MESSAGE_HEAD_BYTES - 9
+        start, end = self._start, self._end
+        for channel_id, sequence, log_ns, publish_ns, data in messages:
+            if not buf:
+                start = end = log_ns
+            elif log_ns < start:
+                start = log_ns
+            elif log_ns > end:
+                end = log_ns
+            entries = index.get(channel_id)
+            if entries is None:
+                entries = index[channel_id] = []
+            entries += (log_ns, len(buf))
+            buf += pack(_OP_MESSAGE, head + len(data), channel_id, sequence, log_ns, publish_ns)
+            buf += data
+            if len(buf) >= size:
+                self._start, self._end = start, end
+                self.flush()
+                buf, index = self._data, self._index
+        self._start, self._end = start, end
 
     def flush(self) -> None:
         """Write the chunk in progress, if it holds a message."""

@@ -122,6 +122,14 @@ class RigidBody:
         return self._shaped(out, form)
 
 
+    def propagate_into(self, x: Array, torque_B: Array, dt: float, substeps: int, out: Array) -> None:
+        """:meth:`propagate` into ``out`` (N, 7), for a caller that steps its own arrays each sample
+        (the plant node: no array made, no shape worked out per call): ``x`` (N or 1, 7) and
+        ``torque_B`` (N or 1, 3) float64, ``out`` not aliasing ``x``, ``dt`` and ``substeps`` as
+        :meth:`propagate` checks them (the caller checked them once).  The same kernel: the same bits."""
+        kernels.propagate_runs(x, torque_B, dt, substeps, self._J3, self._J_inv3, out)
+
+
 def initial_state(q_BN: ArrayLike, omega_BN_B: ArrayLike) -> Array:
     """Stack quaternion(s) and rate(s) into the (N, 7) state array (Fortran order)."""
     q = np.atleast_2d(np.asarray(q_BN, dtype=np.float64))

@@ -43,14 +43,14 @@ def _stalled_recorder(ros_context, tmp_path):  # type: ignore[no-untyped-def]
 
     rec = RecorderNode(context=ros_context, parameter_overrides=[Parameter("output_dir", value=str(tmp_path / "bag"))])
     stalled, release = threading.Event(), threading.Event()
-    add_message = rec.writer.add_message
+    add_messages = rec.writer.add_messages
 
-    def stalling_add_message(*args, **kwargs):  # type: ignore[no-untyped-def]
+    def stalling_add_messages(*args, **kwargs):  # type: ignore[no-untyped-def]
         stalled.set()
         assert release.wait(DEADLINE_S), "never released"
-        return add_message(*args, **kwargs)
+        return add_messages(*args, **kwargs)
 
-    rec.writer.add_message = stalling_add_message  # type: ignore[method-assign]
+    rec.writer.add_messages = stalling_add_messages  # type: ignore[method-assign]
     other = Node("other", context=ros_context)
     pub = other.create_publisher(c.STATE_RATE.msg_class, c.STATE_RATE.name, c.qos_profile())
     ex = SingleThreadedExecutor(context=ros_context)
@@ -410,7 +410,7 @@ def test_a_failing_writer_fails_the_close_naming_the_bag(ros_context, tmp_path) 
     def broken(*args, **kwargs):  # type: ignore[no-untyped-def]
         raise OSError("No space left on device")
 
-    d.rec.writer.add_message = broken  # type: ignore[method-assign]
+    d.rec.writer.add_messages = broken  # type: ignore[method-assign]
     d.publish(c.STATE_RATE, NS)
     _spin_until(d.ex, lambda: d.rec._writer_error is not None, "the writer's failure")
     with pytest.raises(RuntimeError, match=f"{tmp_path / 'bag'}: the bag writer failed: No space left on device"):
@@ -488,7 +488,7 @@ def test_every_message_is_flushed_to_the_file_within_a_second_of_being_written(r
     real_handover, real_writer = rec._handover, rec.writer
     monkeypatch.setattr(recorder, "time", clock)
     rec._handover, rec.writer = _Arrivals(clock, arrivals), Writer()  # type: ignore[assignment]
-    rec._write = lambda *item: writes.append(clock.now)  # type: ignore[method-assign]
+    rec._write_batch = lambda batch: writes.extend(clock.now for _ in batch)  # type: ignore[method-assign]
     rec._write_loop()
     monkeypatch.undo()
     assert rec._writer_error is None and len(writes) == 301
