@@ -68,6 +68,13 @@ do (``--ahead 0``: on the tick, as before), the messages are the real ones (the 
 bytes with their labels, not 256) re-stamped in one object per publisher rather than built per
 publish, the QoS is the contract's (depth 10,000, not 10), the domain is claimed, and the nodes
 run with the project's Fast DDS profile.
+
+Each process spins its ``EventsExecutor`` in C++ (``spin_until_future_complete`` on a future the
+plant's last sample completes), as the project's nodes do (``sappc_msgs_py.runtime.run_nodes``).
+Until 2026-12-06 it spun in a Python ``spin_once`` loop, which costs a few microseconds a message
+more: the floors measured so were not rclpy's (composed ``paper_tracking`` 0.90 s against 0.63 s
+spun in C++, five processes 3.18 s against 2.65 s, the same call, machine B), and the ratios
+quoted against them were too low by that much (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -193,6 +200,8 @@ def subscribe(node, role, name, callback, q=QOS, raw=None):
     return node.create_subscription(T[name]["cls"], name, on, q, raw=serialized if raw is None else raw)
 def outputs(node, names):
     return [(publisher(node, n), T[n]["period"]) for n in names]
+from rclpy.task import Future
+finished = Future()  # completed by the plant's last sample: the loop spins in C++ until then (as run_nodes does)
 nodes, state = [], {"done": False, "t0": None, "t1": None, "k": 0, "progress": time.monotonic()}
 plant_pubs, plant_subs = {}, []
 for role in roles:
@@ -225,6 +234,7 @@ for role in roles:
             state["progress"] = time.monotonic()
             if k >= steps - 1:
                 state["t1"], state["done"] = time.perf_counter(), True
+                finished.set_result(True)
             else:
                 state["k"] = k + 1
                 step(k + 1)
@@ -297,7 +307,7 @@ if "plant" in roles:
     state["progress"] = time.monotonic()
     state["step"](0)
     while not state["done"]:
-        ex.spin_once(timeout_sec=1.0)
+        ex.spin_until_future_complete(finished, timeout_sec=1.0)
         if time.monotonic() - state["progress"] > 60.0:
             raise SystemExit(f"the bare loop stalled at sample {state['k']} of {steps} (a message lost before its match?)")
     loop_s = state["t1"] - state["t0"]
@@ -310,7 +320,7 @@ if "plant" in roles:
 else:
     end, told = time.monotonic() + float(sys.argv[5]), False
     while time.monotonic() < end and not stop:
-        ex.spin_once(timeout_sec=0.1)
+        ex.spin_until_future_complete(finished, timeout_sec=0.1)  # never completed here: C++ spins for 0.1 s
         if not told and complete():  # the parent waits for this before it stops the process
             write_counts(True)
             told = True
