@@ -1,7 +1,7 @@
 """Issues 28 and 48: rclpy's own floor for the lockstep loop's message pattern, bare.
 
     python benchmarks/bench_graph_floor.py [--scenario paper_tracking] [--steps 6001] [--repeats 3]
-                                           [--from-run DIR] [--probe-s 3] [--ahead 1] [--modes messages,serialized]
+                                           [--from-run DIR] [--probe-s 3] [--ahead 1] [--modes messages,serialized,work]
                                            [--domain-id N]
 
 The graph of ``sappc run SCENARIO`` (lockstep) with every node reduced to its messages, and no
@@ -69,6 +69,20 @@ bytes with their labels, not 256) re-stamped in one object per publisher rather 
 publish, the QoS is the contract's (depth 10,000, not 10), the domain is claimed, and the nodes
 run with the project's Fast DDS profile.
 
+A third mode, ``work``, is the floor of Python nodes that do this run's unavoidable work and
+nothing else: ``serialized``, plus, with the project's own code, every subscription but the
+recorder's unpacks its message's values against the topic's layout (``sappc_msgs_py.wire``'s
+``Codec.values``), every publication is encoded from its values (``Codec.encode``, where the topic
+has a one-pack layout), the controller steps the run's control law once a sample on the inputs it
+decoded (``controller_from_parameters_file`` of the run's ``params.yaml``), the plant steps the
+rigid body once a sample into its buffers (``RigidBody.propagate_into``), and the recorder hands
+each message to a writer thread that builds the MCAP chunks (``sappc.bag.mcap_write``) a pass at a
+time, as the project's recorder does.  No input checks, no pairing beyond counting, no watchdog,
+no diagnostics beyond the bytes: what any Python implementation of these nodes pays at least
+(the estimator's and the momentum node's own numerical work is not in it, so for the flight
+scenario it is lower still than that).  The JSON counts the work done (law steps, plant steps,
+messages decoded and written).
+
 Each process spins its ``EventsExecutor`` in C++ (``spin_until_future_complete`` on a future the
 plant's last sample completes), as the project's nodes do (``sappc_msgs_py.runtime.run_nodes``).
 Until 2026-12-06 it spun in a Python ``spin_once`` loop, which costs a few microseconds a message
@@ -135,7 +149,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy, DurabilityPo
 from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 spec = json.load(open(sys.argv[1]))
-roles, serialized, counts_path = sys.argv[2].split(","), sys.argv[3] == "serialized", sys.argv[4]
+roles, mode, counts_path = sys.argv[2].split(","), sys.argv[3], sys.argv[4]
+serialized, work = mode in ("serialized", "work"), mode == "work"
 steps, dt_ns, ahead = spec["steps"], spec["dt_ns"], spec["ahead"]
 dt_s, half = dt_ns / 1e9, dt_ns // 2
 stop = []
@@ -151,6 +166,32 @@ for name, t in spec["topics"].items():
     T[name] = dict(t, cls=getattr(importlib.import_module(pkg + ".msg"), cls), raw=bytes.fromhex(t["raw_hex"]))
 _STAMP, _F64 = struct.Struct("<iI"), struct.Struct("<d")
 published, received, all_pubs = {}, {}, []
+if work:  # the nodes' unavoidable work (module docstring): the project's codecs, law, plant and bag writer
+    import queue, tempfile, threading
+    import numpy as np
+    from sappc_msgs_py import wire
+    from sappc_msgs_py.contract import CLOCK, TOPICS
+    from sappc_msgs_py.convert import cdr_stamp_ns
+    CODECS = {}
+    for t in TOPICS:
+        if t is CLOCK:
+            continue  # a node reads /clock's stamp (sample_of's k_of does): that is its decode
+        try:
+            CODECS["/" + t.name.lstrip("/")] = wire.codec(t)
+        except ValueError:
+            pass
+    LATEST = {}  # topic -> the last value a work subscription decoded
+DONE = {"law_steps": 0, "plant_steps": 0, "messages_written": 0, "decoded": 0}  # work: what was done, in the counts file
+def decoder(name):
+    # work: what a node does first with a message of the topic: its values unpacked and checked against the layout
+    c = CODECS.get(name) if work else None
+    if c is None:
+        return None
+    def decode(m, c=c, name=name):
+        v = c.values(m)
+        LATEST[name] = np.array(v) if v is not None else None
+        DONE["decoded"] += v is not None
+    return decode
 def publisher(node, name):
     # publish(k): the topic's real message, stamped with sample k (bytes, or one message object re-stamped)
     t = T[name]
@@ -158,6 +199,16 @@ def publisher(node, name):
     all_pubs.append(p)
     kind, off = t["slot"]
     cnt = published.setdefault(name, [0])
+    c = CODECS.get(name) if work else None
+    if c is not None and c._whole is not None:  # work: encoded from its values by the project's codec
+        values = list(c.values(t["raw"]))
+        if kind == "f64":  # data[0], the time label (the controller's diagnostics)
+            def pub(k, values=values):
+                values[0] = k * dt_s; p.publish(c.encode(None, values)); cnt[0] += 1
+        else:
+            def pub(k, values=values):
+                p.publish(c.encode(k * dt_ns, values)); cnt[0] += 1
+        return pub
     if serialized:
         buf = bytearray(t["raw"])
         if kind == "f64":
@@ -194,9 +245,15 @@ def sample_of(name):
     return lambda m: (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec + half) // dt_ns
 def subscribe(node, role, name, callback, q=QOS, raw=None):
     cnt = received.setdefault(role, {}).setdefault(name, [0])
+    decode = decoder(name) if role != "recorder" else None
     def on(m):
         cnt[0] += 1
         callback(m)
+    if decode is not None:
+        def on(m, decode=decode):
+            cnt[0] += 1
+            decode(m)
+            callback(m)
     return node.create_subscription(T[name]["cls"], name, on, q, raw=serialized if raw is None else raw)
 def outputs(node, names):
     return [(publisher(node, n), T[n]["period"]) for n in names]
@@ -210,14 +267,62 @@ for role in roles:
     for name in r.get("listens", []):
         subscribe(n, role, name, sample_of(name))
     if r["kind"] == "recorder":
+        take = [].append
+        if work:  # the project's recorder's work: a hand-over queue, a writer thread building MCAP chunks a pass at a time
+            from sappc.bag.mcap_write import ChunkBuilder, McapWriter
+            handover = queue.SimpleQueue()
+            bag = tempfile.NamedTemporaryFile(prefix="floor-", suffix=".mcap")
+            mcap = McapWriter(bag, "bench_graph_floor")
+            schema = mcap.schema("std_msgs/msg/Empty", "ros2msg", b"")
+            chan = {nm: mcap.channel(nm, "cdr", schema, {}) for nm in r["subscribes"]}
+            types = {nm: T[nm]["type"] for nm in r["subscribes"]}
+            chunks, seqs = ChunkBuilder(mcap, 256 * 1024), {nm: 0 for nm in r["subscribes"]}
+            def write_loop():
+                while True:
+                    batch = [handover.get()]
+                    try:
+                        while batch[-1] is not None:
+                            batch.append(handover.get_nowait())
+                    except queue.Empty:
+                        pass
+                    records = []
+                    for item in batch:
+                        if item is None:
+                            chunks.add_messages(records)
+                            chunks.flush()
+                            DONE["messages_written"] += len(records)
+                            return
+                        nm, data = item
+                        log_ns = cdr_stamp_ns(types[nm], data)
+                        seqs[nm] += 1
+                        records.append((chan[nm], seqs[nm], log_ns, log_ns, data))
+                    chunks.add_messages(records)
+                    DONE["messages_written"] += len(records)
+                    time.sleep(0.02)
+            writer = threading.Thread(target=write_loop, daemon=True)
+            writer.start()
         for name in r["subscribes"]:
-            subscribe(n, role, name, [].append, REC_QOS, raw=True)
+            if work:
+                take = lambda m, name=name: handover.put((name, m))
+            subscribe(n, role, name, take, REC_QOS, raw=True)
     elif r["kind"] == "plant":
         per_sample, after = outputs(n, r["outputs"]), outputs(n, r["after"])
         for name, (pub, _) in zip(r["outputs"], per_sample):
             plant_pubs[name] = pub
         ngates, pending = len(r["gates"]), {}
+        body = None
+        if work:  # the project's rigid body, stepped once a sample into its buffers (as the plant node does)
+            from spacecraft_sim.core.dynamics import RigidBody
+            pp = spec["plant"]
+            body = RigidBody(np.array(pp["inertia_kg_m2"], dtype=np.float64).reshape(3, 3))
+            xs = [np.ascontiguousarray([[0.0, 0.0, 0.0, 1.0, 0.001, 0.0, 0.0]]), np.zeros((1, 7))]
+            u_B = np.zeros((1, 3))
         def step(k, per_sample=per_sample):
+            if body is not None and k:
+                np.add(LATEST.get(r["gates"][0], np.zeros(3)), LATEST.get(r["gates"][-1], np.zeros(3)), out=u_B[0])
+                body.propagate_into(xs[0], u_B, dt_s, spec["plant"]["rk4_substeps"], xs[1])
+                xs.reverse()
+                DONE["plant_steps"] += 1
             for pub, period in per_sample:
                 if k % period == 0:
                     pub(k)
@@ -255,13 +360,22 @@ for role in roles:
     else:  # gated: publishes sample k once it holds every input of k
         outs, pending = outputs(n, r["outputs"]), {}
         base, sched = len(r["gates"]), [T[s]["period"] for s in r["scheduled"]]
-        def on_input(m, k_of, outs=outs, pending=pending, base=base, sched=sched):
+        law = None
+        if work and role == "controller":  # the project's law, stepped once a sample on the inputs decoded
+            from sappc_controller.params import CONTROLLER_CLASSES, controller_from_parameters_file
+            kind, config, _ = controller_from_parameters_file(spec["params_yaml"])
+            law = CONTROLLER_CLASSES[kind](config)
+            law_inputs = r["gates"]
+        def on_input(m, k_of, outs=outs, pending=pending, base=base, sched=sched, law=law):
             k = k_of(m)
             got = pending.get(k, 0) + 1
             if got < base + sum(1 for p in sched if k % p == 0):
                 pending[k] = got
                 return
             pending.pop(k, None)
+            if law is not None:
+                law.step(k * dt_s, dt_s, *(LATEST[t] for t in law_inputs))
+                DONE["law_steps"] += 1
             for pub, period in outs:
                 if k % period == 0:
                     pub(k)
@@ -276,7 +390,7 @@ def complete():
     return all(c[0] >= scheduled[t] for d in received.values() for t, c in d.items())
 def write_counts(done):
     with open(counts_path + ".tmp", "w") as f:
-        json.dump({"complete": done, "published": {t: c[0] for t, c in published.items()},
+        json.dump({"complete": done, "work": DONE, "published": {t: c[0] for t, c in published.items()},
                    "received": {r: {t: c[0] for t, c in d.items()} for r, d in received.items()}}, f)
     import os; os.replace(counts_path + ".tmp", counts_path)
 def finish():
@@ -315,6 +429,9 @@ if "plant" in roles:
     end = time.monotonic() + 30.0
     while not complete() and time.monotonic() < end:
         ex.spin_once(timeout_sec=0.05)
+    if work and "recorder" in roles:
+        handover.put(None)
+        writer.join()
     finish()
     print(json.dumps({"loop_s": loop_s}), flush=True)
 else:
@@ -324,6 +441,9 @@ else:
         if not told and complete():  # the parent waits for this before it stops the process
             write_counts(True)
             told = True
+    if work and "recorder" in roles:
+        handover.put(None)
+        writer.join()
     finish()
 ex.shutdown()
 rclpy.shutdown()
@@ -505,7 +625,9 @@ def _topology(run_dir: Path, steps: int, ahead: int, probe_s: float | None) -> t
 
     topics = {t: {"type": bag[t]["type"], "raw_hex": bag[t]["raw"].hex(), "slot": _slot(bag[t]["type"], bag[t]["raw"], bag[t]["stamps"][-1]),
                   "period": period[t]} for t in publisher}
+    plant = {"inertia_kg_m2": [float(v) for v in params["plant"]["inertia_kg_m2"]], "rk4_substeps": int(params["plant"].get("rk4_substeps", 1))}
     spec = {"steps": steps, "dt_ns": dt_ns, "ahead": ahead, "topics": topics, "roles": roles, "subscribers": {t: len(s) for t, s in subscribers.items()},
+            "params_yaml": (run_dir / "params.yaml").read_text(), "plant": plant,
             "qos": _contract_qos(), "recorder_qos": {"reliability": "reliable", "durability": "volatile", "history": "keep_all", "depth": 0}}
     table = {t: {"type": bag[t]["type"], "bytes": len(bag[t]["raw"]), "publisher": publisher[t], "subscribers": subscribers[t],
                  "period_samples": period[t], "probe_run_count": counts[publisher[t]][t]} for t in publisher}
@@ -534,8 +656,12 @@ def _check(spec: dict[str, Any], counts: list[dict[str, Any]]) -> dict[str, Any]
     bad = {t: {"published": published.get(t, 0), "delivered": delivered.get(t, 0), "scheduled": n, "subscribers": spec["subscribers"][t]}
            for t, n in msgs.items()
            if published.get(t, 0) != n or delivered.get(t, 0) != n * spec["subscribers"][t]}
+    work: dict[str, int] = {}
+    for c in counts:
+        for k, n in c.get("work", {}).items():
+            work[k] = work.get(k, 0) + n
     return {"messages": sum(published.values()), "deliveries": sum(delivered.values()), "mismatched_topics": bad,
-            "complete": all(c.get("complete") for c in counts)}
+            "complete": all(c.get("complete") for c in counts), "work": work}
 
 
 # ---- the two layouts ----------------------------------------------------------------------------
@@ -602,7 +728,7 @@ def main() -> None:
     parser.add_argument("--probe-s", type=float, default=3.0, help="the probe run's duration [s] (default 3: three estimator health messages)")
     parser.add_argument("--ahead", type=int, default=1, choices=(0, 1),
                         help="samples the reference and the injector publish ahead of /clock (1: the nodes' GridCursor; 0: on the tick)")
-    parser.add_argument("--modes", default="messages,serialized", help="comma-separated: messages, serialized")
+    parser.add_argument("--modes", default="messages,serialized", help="comma-separated: messages, serialized, work")
     env_domain = os.environ.get("SAPPC_BENCH_DOMAIN")
     parser.add_argument("--domain-id", type=int, default=int(env_domain) if env_domain else None,
                         help="ROS domain of the bare graph (default: SAPPC_BENCH_DOMAIN, else a free one, claimed as sappc run claims it)")
@@ -654,6 +780,7 @@ def main() -> None:
                         "us_per_step": med / args.steps * 1e6, "messages_per_s": sum(msgs.values()) / med, "processes": 1 if name == "composed" else n_proc,
                         "messages_per_step": per_step_msgs, "deliveries_per_step": per_step_deliveries,
                         "measured": {"messages": [c["messages"] for c in checks], "deliveries": [c["deliveries"] for c in checks],
+                                     **({"work_done": [c["work"] for c in checks]} if mode == "work" else {}),
                                      "as_scheduled": all(not c["mismatched_topics"] and c["complete"] for c in checks),
                                      "mismatched_topics": next((c["mismatched_topics"] for c in checks if c["mismatched_topics"]), {})},
                     }

@@ -6,13 +6,14 @@
 Each round, for each layout (``composed``: ``sappc run --compose``, every node in one process;
 ``processes``: one process per node): rclpy's serialized floor of the scenario's message pattern
 (``benchmarks/bench_graph_floor.py --scenario S --repeats 1``: every node reduced to its messages,
-CDR bytes end to end), then ``sappc run config/scenarios/S.yaml`` in this checkout and, with
+CDR bytes end to end) and its work floor (``--modes work``: the same with the run's unavoidable
+work done by the project's code: codecs, the law, the rigid body, the bag writer), then ``sappc run config/scenarios/S.yaml`` in this checkout and, with
 ``--baseline``, in the baseline checkout (its own ``.venv``: the main the issue was filed on), the
 two checkouts alternating which goes first.  The loop is ``sappc run``'s ``wall_time_s`` (the
 plant's first sample to its last); ``first_sample_after_nodes_up_s`` (where the checkout reports
 it) is the start once the nodes are built.  Prints one JSON document: per layout the rounds, their
-medians and the ratios per round (this checkout / floor, baseline / floor, this checkout /
-baseline) with their medians; the machine and the load average before and after.
+medians and the ratios per round (this checkout / floor, / work floor, baseline / floor, this
+checkout / baseline, work floor / floor) with their medians; the machine and the load average before and after.
 """
 
 from __future__ import annotations
@@ -36,15 +37,20 @@ ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 1800.0
 
 
-def floor(scenario: str) -> dict[str, float]:
-    """The serialized floor of ``scenario``'s pattern, per layout [s] (one run of each)."""
-    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_graph_floor.py"), "--scenario", scenario, "--repeats", "1", "--modes", "serialized"],
-                         capture_output=True, text=True, timeout=TIMEOUT_S, cwd=ROOT)
+def floor(scenario: str) -> dict[str, dict[str, float]]:
+    """The floors of ``scenario``'s pattern, per layout [s] (one run of each): ``serialized``
+    (rclpy's, bare) and ``work`` (Python nodes doing the run's unavoidable work, bench_graph_floor's
+    docstring)."""
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_graph_floor.py"), "--scenario", scenario, "--repeats", "1",
+                          "--modes", "serialized,work"], capture_output=True, text=True, timeout=TIMEOUT_S, cwd=ROOT)
     if out.returncode != 0:
         raise SystemExit(f"bench_graph_floor.py failed:\n{out.stderr[-3000:]}")
     doc = json.loads(out.stdout[out.stdout.index("{"):])
-    processes = next(k for k in doc if k.endswith("_processes_serialized"))  # five_, six_, seven_: one per node
-    return {"composed": float(doc["composed_serialized"]["loop_s"]["median"]), "processes": float(doc[processes]["loop_s"]["median"])}
+    floors: dict[str, dict[str, float]] = {}
+    for mode in ("serialized", "work"):
+        processes = next(k for k in doc if k.endswith(f"_processes_{mode}"))  # five_, six_, seven_: one per node
+        floors[mode] = {"composed": float(doc[f"composed_{mode}"]["loop_s"]["median"]), "processes": float(doc[processes]["loop_s"]["median"])}
+    return floors
 
 
 def project_loop(root: Path, scenario: str, layout: str) -> dict[str, Any]:
@@ -78,7 +84,7 @@ def main() -> None:
         floors = floor(args.scenario)
         for layout in layouts:
             order = list(sides) if r % 2 == 0 else list(reversed(sides))  # neither side always first
-            entry: dict[str, Any] = {"floor_s": floors[layout]}
+            entry: dict[str, Any] = {"floor_s": floors["serialized"][layout], "work_floor_s": floors["work"][layout]}
             for side in order:
                 entry[side] = project_loop(sides[side], args.scenario, layout)
             rounds[layout].append(entry)
@@ -88,12 +94,16 @@ def main() -> None:
                               "commit": paired.commit(ROOT), "baseline_commit": paired.commit(args.baseline) if args.baseline else None,
                               "load_average_1min": {"before": load_before, "after": os.getloadavg()[0]}, "layouts": {}}
     for layout, entries in rounds.items():
-        summary: dict[str, Any] = {"rounds": entries, "floor_s_median": _median([e["floor_s"] for e in entries])}
+        summary: dict[str, Any] = {"rounds": entries, "floor_s_median": _median([e["floor_s"] for e in entries]),
+                                   "work_floor_s_median": _median([e["work_floor_s"] for e in entries]),
+                                   "work_floor_over_floor": [e["work_floor_s"] / e["floor_s"] for e in entries]}
+        summary["work_floor_over_floor_median"] = _median(summary["work_floor_over_floor"])
         for side in sides:
             loops = [e[side]["loop_s"] for e in entries if e[side]["loop_s"] is not None]
             summary[f"{side}_loop_s_median"] = _median(loops)
-            summary[f"{side}_over_floor"] = [e[side]["loop_s"] / e["floor_s"] for e in entries if e[side]["loop_s"] is not None]
-            summary[f"{side}_over_floor_median"] = _median(summary[f"{side}_over_floor"])
+            for key in ("floor", "work_floor"):
+                summary[f"{side}_over_{key}"] = [e[side]["loop_s"] / e[f"{key}_s"] for e in entries if e[side]["loop_s"] is not None]
+                summary[f"{side}_over_{key}_median"] = _median(summary[f"{side}_over_{key}"])
         if "baseline" in sides:
             pairs = [e["candidate"]["loop_s"] / e["baseline"]["loop_s"] for e in entries
                      if e["candidate"]["loop_s"] is not None and e["baseline"]["loop_s"]]
