@@ -65,6 +65,11 @@ def project_loop(root: Path, scenario: str, layout: str) -> dict[str, Any]:
             "first_sample_after_nodes_up_s": metrics.get("first_sample_after_nodes_up_s")}
 
 
+def _local_changes(root: Path) -> str:
+    """What a checkout changes against its commit (``git diff --stat``), so a measured baseline says it."""
+    return subprocess.run(["git", "-C", str(root), "diff", "--stat"], capture_output=True, text=True).stdout.strip()
+
+
 def _median(xs: list[float]) -> float | None:
     return statistics.median(xs) if xs else None
 
@@ -92,6 +97,7 @@ def main() -> None:
             time.sleep(1.0)
     result: dict[str, Any] = {"benchmark": "bench_graph_vs_floor", "scenario": args.scenario, "machine": paired.machine(),
                               "commit": paired.commit(ROOT), "baseline_commit": paired.commit(args.baseline) if args.baseline else None,
+                              "baseline_local_changes": _local_changes(args.baseline) if args.baseline else None,
                               "load_average_1min": {"before": load_before, "after": os.getloadavg()[0]}, "layouts": {}}
     for layout, entries in rounds.items():
         summary: dict[str, Any] = {"rounds": entries, "floor_s_median": _median([e["floor_s"] for e in entries]),

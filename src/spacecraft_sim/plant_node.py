@@ -168,7 +168,7 @@ PARAMETERS = (
     Param("publish_wheel_speed", False, "publish the wheels' tachometers on state/wheel_speed with each state, for a momentum-management "
           "node (needs wheels and orbit)"),
     Param("use_disturbance_topic", False, "add the torque received on disturbance/torque (the injector's) to the control torque"),
-    Param("timing_file", "", "where to write the run's timing (JSON: wall time from the first sample, samples, misses; real time: the "
+    Param("timing_file", "", "where to write the run's timing (JSON: wall time from the first sample to the last one answered, samples, misses; real time: the "
           "timer's period error, missed frames, frames with a stale torque); '' for none"),
 )
 _P = {p.name: p for p in PARAMETERS}
@@ -204,7 +204,8 @@ class PlantNode(ProjectNode):
         self.timeout_s = check_positive("lockstep_timeout_s", self.param(_P["lockstep_timeout_s"]))
         self.use_disturbance = bool(self.param(_P["use_disturbance_topic"]))
         self.timing_file = str(self.param(_P["timing_file"]))
-        self._wall_first: float | None = None
+        self._wall_first: float | None = None  # monotonic time of the first sample's state, and of the run's end (the last sample answered)
+        self._wall_last: float | None = None
         self.n_steps = int(round(duration / self.dt))  # samples k = 0 .. n_steps, as sample_times()
         self.wheels = _wheels_param(str(self.param(_P["wheels"])))
         self.sensors = _sensors_param(str(self.param(_P["sensors"])), self.dt)
@@ -389,6 +390,7 @@ class PlantNode(ProjectNode):
         if self.k >= self.n_steps:  # the last sample's torque is received (and recorded), not applied
             if self.wheels is not None:
                 self._wheel_command(self.torque[0], self.k * self.dt)
+            self._wall_last = time.monotonic()  # the run's last sample is answered: the loop is over
             self.finished = True
             return
         self._integrate(self.torque[0], self.disturbance[0], self.k * self.dt)
@@ -477,6 +479,7 @@ class PlantNode(ProjectNode):
         if self.wheels is not None:  # the last sample's wheel command, as lockstep publishes it
             self._wheel_command(self.torque[0], ns_to_stamp(stamp_ns))
         self.end_run()
+        self._wall_last = time.monotonic()
         self.finished = True
 
     # ---- the dynamics ----------------------------------------------------------------------
@@ -647,7 +650,9 @@ class PlantNode(ProjectNode):
         return out
 
     def finish(self) -> None:
-        run_s = 0.0 if self._wall_first is None else time.monotonic() - self._wall_first
+        # the loop: the first sample to the last one's answer (not what comes after it: a composed
+        # run's recorder drain, the acknowledgements); an interrupted run's, to now
+        run_s = 0.0 if self._wall_first is None else (time.monotonic() if self._wall_last is None else self._wall_last) - self._wall_first
         self.get_logger().info(f"finished at sample {self.k} after {run_s:.3f} s: {self.rejected} rejected messages, missed inputs {self.missed}")
         super().finish()
         if self.timing_file:
