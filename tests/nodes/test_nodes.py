@@ -1022,3 +1022,30 @@ def test_plant_publishes_its_first_sample_only_once_a_controller_is_there(ros_co
     ex.shutdown()
     plant.destroy_node()
     node.destroy_node()
+
+
+def test_callback_times_counts_every_call_of_each_subscription_and_timer(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The developer aid SAPPC_CALLBACK_TIMES_DIR (runtime.CallbackTimes): each subscription's and
+    timer's callback still runs, its calls are counted exactly per node and topic, and the JSON says
+    so (the times are wall times: only their sign is certain)."""
+    import json
+
+    from rclpy.serialization import serialize_message
+
+    from sappc_msgs_py.runtime import CallbackTimes
+
+    node = Node("timed", context=ros_context)
+    taken: list[object] = []
+    sub = node.create_subscription(c.STATE_RATE.msg_class, c.STATE_RATE.name, taken.append, c.qos_profile(), raw=True)
+    timer = node.create_timer(3600.0, lambda: taken.append("tick"))
+    times = CallbackTimes([node])  # type: ignore[list-item]
+    raw = serialize_message(c.STATE_RATE.msg_class())
+    for _ in range(3):
+        sub.callback(raw)
+    timer.callback()
+    times.write(tmp_path / "times.json")
+    doc = json.loads((tmp_path / "times.json").read_text())
+    assert taken == [raw, raw, raw, "tick"]
+    assert doc["timed"]["/state/rate"]["calls"] == 3 and doc["timed"]["timer"]["calls"] == 1
+    assert doc["timed"]["/state/rate"]["total_s"] >= 0.0 and doc["timed"]["/state/rate"]["us_per_call"] >= 0.0
+    node.destroy_node()
