@@ -24,7 +24,7 @@ import pytest
 from conftest import ROOT
 
 SRC = ROOT / "src"
-PROJECT = ("gnc_common", "sappc_controller", "sappc_estimator", "sappc_momentum", "spacecraft_sim", "sappc_msgs_py", "sappc")
+PROJECT = ("gnc_common", "sappc_controller", "sappc_estimator", "sappc_momentum", "sappc_modes", "spacecraft_sim", "sappc_msgs_py", "sappc")
 
 #: Room (a module prefix; the longest match wins) -> floor.
 FLOORS: dict[str, int] = {
@@ -32,11 +32,13 @@ FLOORS: dict[str, int] = {
     "sappc_controller.core": 1,
     "sappc_estimator.core": 1,
     "sappc_momentum.core": 1,
+    "sappc_modes.core": 1,
     "spacecraft_sim.core": 1,
     "sappc_msgs_py": 1,
     "sappc_controller": 2,
     "sappc_estimator": 2,
     "sappc_momentum": 2,
+    "sappc_modes": 2,
     "spacecraft_sim": 2,
     "sappc.files": 2,  # the bundled data files and the default output directories: the scenario loader finds its files there
     "sappc.scenario": 3,
@@ -56,13 +58,15 @@ FLOORS: dict[str, int] = {
 NEVER = {("sappc_controller", "spacecraft_sim"), ("spacecraft_sim", "sappc_controller"), ("sappc_msgs_py", "spacecraft_sim"),
          ("sappc_estimator", "spacecraft_sim"), ("spacecraft_sim", "sappc_estimator"), ("sappc_estimator", "sappc_controller"),
          ("sappc_controller", "sappc_estimator"), ("sappc_momentum", "spacecraft_sim"), ("spacecraft_sim", "sappc_momentum"),
-         ("sappc_momentum", "sappc_controller"), ("sappc_momentum", "sappc_estimator")}
+         ("sappc_momentum", "sappc_controller"), ("sappc_momentum", "sappc_estimator"),
+         ("sappc_modes", "spacecraft_sim"), ("spacecraft_sim", "sappc_modes"), ("sappc_modes", "sappc_controller"),
+         ("sappc_modes", "sappc_estimator"), ("sappc_modes", "sappc_momentum")}
 #: The modules that may import rclpy: nodes, the contract's node runtime (and its QoS), the graph tools.
 # sappc_msgs_py.wire: rclpy's deserializer for what its codecs do not take (imported in the function
 # that uses it, so the offline bag writer, which imports the layouts, loads no rclpy: tested below)
 ROS_MODULES = ("sappc_msgs_py.runtime", "sappc_msgs_py.contract", "sappc_msgs_py.wire", "sappc_controller.node", "sappc_estimator.node", "sappc_momentum.node", "spacecraft_sim.plant_node",
                "spacecraft_sim.reference", "spacecraft_sim.disturbance", "sappc.graph")
-PURE_ROOMS = ("gnc_common", "sappc_controller.core", "sappc_estimator.core", "sappc_momentum.core", "spacecraft_sim.core")
+PURE_ROOMS = ("gnc_common", "sappc_controller.core", "sappc_estimator.core", "sappc_momentum.core", "sappc_modes.core", "spacecraft_sim.core")
 CLOCK_MODULES = {"time", "datetime"}
 
 

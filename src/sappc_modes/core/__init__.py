@@ -1,0 +1,1 @@
+"""The flight-mode kernel and its configuration (no ROS, no clock)."""

@@ -1,0 +1,287 @@
+"""Flight modes and their guarded transitions (issue 49): the kernel every path will share.
+
+Four modes, after Astrobee's GNC and Basilisk's flight-software modes:
+
+==========  =========================================================================================
+DETUMBLE    B-dot on the magnetorquers from the magnetometer alone (no gyro, no tracker needed):
+            the tumble after separation is damped before anything points.
+HOLD        rate damping / inertial hold with MRP feedback on the estimate: the star tracker locks,
+            the estimator converges.
+TRACK       the scenario's controller (SAPPC) on its reference.
+SAFE        what HOLD does, on the gyro alone: the attitude estimate is not trusted.
+==========  =========================================================================================
+
+Each sample, :func:`mode_step` takes the sample's inputs (:data:`N_INPUTS` floats, ``IN_*``), counts
+for how many consecutive samples each guard's condition has held, and takes at most one
+transition; it returns why (``R_*``, :data:`REASON_NAMES`), :data:`R_NONE` for none.  The guards,
+each with a threshold and a persistence (:class:`ModeConfig`):
+
+=====================  ===================================================================  ================
+from -> to             condition (every sample of the persistence)                          reason
+=====================  ===================================================================  ================
+any -> requested       a ground request (``IN_REQUEST``: a mode's number) for another mode:  ``request``
+                       at once, the operator's authority; every count restarts
+DETUMBLE -> HOLD       body-rate magnitude ``< detumbled_rate_rad_s`` for                    ``detumbled``
+                       ``detumbled_for_s``
+HOLD, TRACK -> SAFE    the run's loss-of-control rule fires (``IN_LOST``), at once           ``control_lost``
+HOLD, TRACK -> SAFE    a wheel's speed beyond ``max_wheel_speed_fraction`` of its limit, at  ``wheel_speed``
+                       once
+HOLD, TRACK -> SAFE    the estimator's health ERROR or STALE for ``safe_on_error_for_s``     ``estimator_error``
+HOLD -> TRACK          health OK and the estimate's attitude 1-sigma                        ``acquired``
+                       ``<= converged_sigma_rad`` for ``healthy_for_s``
+SAFE -> HOLD           health OK, converged, control not lost, the wheels within their       ``recovered``
+                       limit, for ``recover_for_s`` (then HOLD's own guard to TRACK)
+=====================  ===================================================================  ================
+
+A transition restarts every count: each guard counts from its mode's entry (HOLD after SAFE waits
+its own ``healthy_for_s`` before TRACK).  DETUMBLE has no SAFE guard: while the spacecraft
+tumbles the tracker cannot lock and the estimator is expected to report ERROR, and DETUMBLE
+uses neither the estimate nor the wheels.  The SAFE guards come first in HOLD and TRACK: a sample
+that meets a SAFE condition never starts TRACK.  Ground commands: ``IN_REQUEST`` (``-1``: none) and
+``IN_INHIBIT``, a sum of ``INHIBIT_*`` flags that each stop one automatic transition (a request
+still goes through).  An unknown input (NaN: no measurement yet, no health message yet) meets no
+condition: it neither starts a mode nor sends one to SAFE.
+
+The kernel runs compiled (numba) in loops and interpreted (``mode_step.py_func``) in a node: the
+same operations on the same doubles, so the same modes.  Flight software: never imports the
+simulator; plain arrays, nothing allocated.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnc_common.compiled import jit
+from gnc_common.validation import ConfigError
+
+__all__ = [
+    "DEFAULT_CONVERGED_SIGMA_RAD",
+    "DEFAULT_DETUMBLED_FOR_S",
+    "DEFAULT_DETUMBLED_RATE_RAD_S",
+    "DEFAULT_HEALTHY_FOR_S",
+    "DEFAULT_MAX_WHEEL_SPEED_FRACTION",
+    "DEFAULT_RECOVER_FOR_S",
+    "DEFAULT_SAFE_ON_ERROR_FOR_S",
+    "DETUMBLE",
+    "HEALTH_ERROR",
+    "HEALTH_OK",
+    "HEALTH_STALE",
+    "HEALTH_WARN",
+    "HOLD",
+    "INHIBIT_ACQUIRED",
+    "INHIBIT_DETUMBLED",
+    "INHIBIT_RECOVERED",
+    "INHIBIT_SAFE",
+    "IN_HEALTH",
+    "IN_INHIBIT",
+    "IN_LOST",
+    "IN_RATE",
+    "IN_REQUEST",
+    "IN_SIGMA",
+    "IN_WHEEL",
+    "MODE_NAMES",
+    "N_INPUTS",
+    "N_PARAMS",
+    "N_STATE",
+    "ModeConfig",
+    "REASON_NAMES",
+    "R_ACQUIRED",
+    "R_CONTROL_LOST",
+    "R_DETUMBLED",
+    "R_ESTIMATOR_ERROR",
+    "R_NONE",
+    "R_RECOVERED",
+    "R_REQUEST",
+    "R_WHEEL_SPEED",
+    "SAFE",
+    "S_MODE",
+    "S_REASON",
+    "TRACK",
+    "mode_step",
+    "new_mode_state",
+    "samples_for",
+]
+
+Array = NDArray[np.float64]
+
+#: The modes, in the order a flight normally meets them; :data:`MODE_NAMES` their names.
+DETUMBLE, HOLD, TRACK, SAFE = 0, 1, 2, 3
+MODE_NAMES = ("DETUMBLE", "HOLD", "TRACK", "SAFE")
+#: The estimator's health levels, diagnostic_msgs/DiagnosticStatus's (``monitor_level`` on ``diagnostics``).
+HEALTH_OK, HEALTH_WARN, HEALTH_ERROR, HEALTH_STALE = 0, 1, 2, 3
+
+#: Inputs of a sample (:data:`N_INPUTS` floats): the body-rate magnitude [rad/s]; the estimator's
+#: health level (``HEALTH_*``); its attitude 1-sigma, the largest axis's [rad]; 1.0 when the run's
+#: loss-of-control rule fires, else 0.0; the largest wheel speed as a fraction of its limit (NaN:
+#: no wheels); the ground's requested mode (-1: none); the ground's inhibit flags (a sum of ``INHIBIT_*``).
+IN_RATE, IN_HEALTH, IN_SIGMA, IN_LOST, IN_WHEEL, IN_REQUEST, IN_INHIBIT = 0, 1, 2, 3, 4, 5, 6
+N_INPUTS = 7
+#: Inhibit flags (``IN_INHIBIT``): each stops one automatic transition.
+INHIBIT_DETUMBLED, INHIBIT_ACQUIRED, INHIBIT_SAFE, INHIBIT_RECOVERED = 1, 2, 4, 8
+#: Parameters (:meth:`ModeConfig.packed`): the rate threshold and its samples, the convergence
+#: threshold, the samples of health, of ERROR and of recovery, the wheel-speed fraction.
+P_RATE, P_RATE_N, P_SIGMA, P_HEALTHY_N, P_ERROR_N, P_RECOVER_N, P_WHEEL = 0, 1, 2, 3, 4, 5, 6
+N_PARAMS = 7
+#: State (:func:`new_mode_state`): the mode, the consecutive samples each condition has held since
+#: the mode's entry (slow rate, healthy, ERROR, recovering), the reason of the last transition.
+S_MODE, S_RATE_N, S_HEALTHY_N, S_ERROR_N, S_RECOVER_N, S_REASON = 0, 1, 2, 3, 4, 5
+N_STATE = 6
+#: Why a transition was taken (:func:`mode_step`'s return), :data:`REASON_NAMES` their names.
+R_NONE, R_REQUEST, R_DETUMBLED, R_ACQUIRED, R_ESTIMATOR_ERROR, R_CONTROL_LOST, R_WHEEL_SPEED, R_RECOVERED = 0, 1, 2, 3, 4, 5, 6, 7
+REASON_NAMES = ("none", "request", "detumbled", "acquired", "estimator_error", "control_lost", "wheel_speed", "recovered")
+
+#: Default ``detumbled_rate_rad_s`` (0.5 deg/s): star trackers acquire below about 1 deg/s
+#: (datasheets give 0.5 to 3 deg/s); half the lower figure leaves the tracker margin to lock in HOLD.
+DEFAULT_DETUMBLED_RATE_RAD_S = math.radians(0.5)
+#: Default ``detumbled_for_s``: the rate below the threshold for 30 s, not one quiet sample of a
+#: tumble whose rate B-dot damps unevenly along the field's rotation.
+DEFAULT_DETUMBLED_FOR_S = 30.0
+#: Default ``converged_sigma_rad``: the estimate within twice the flight scenario's tracking
+#: requirement (5e-5 on ``q_ev``, a half-angle: 1e-4 rad of angle), so TRACK starts on an estimate
+#: good enough for what TRACK must meet.
+DEFAULT_CONVERGED_SIGMA_RAD = 1e-4
+#: Default ``healthy_for_s``: ten of the estimator's health messages (1 Hz) in a row OK and converged.
+DEFAULT_HEALTHY_FOR_S = 10.0
+#: Default ``safe_on_error_for_s``: at once; the health monitor's ERROR is already a persistent
+#: conclusion (its window of innovations), not a single sample's.
+DEFAULT_SAFE_ON_ERROR_FOR_S = 0.0
+#: Default ``recover_for_s``: 30 s of health before leaving SAFE, three times HOLD's own wait, so a
+#: health that flickers at the monitor's threshold does not cycle SAFE and HOLD.
+DEFAULT_RECOVER_FOR_S = 30.0
+#: Default ``max_wheel_speed_fraction``: SAFE beyond a wheel's speed limit itself (the issue's guard).
+DEFAULT_MAX_WHEEL_SPEED_FRACTION = 1.0
+
+
+def samples_for(seconds: float, dt_s: float) -> int:
+    """The consecutive samples of period ``dt_s`` a condition must hold for to have held
+    ``seconds``: ``ceil(seconds / dt_s)``, at least one (0 s: the sample itself); a quotient within
+    1e-9 of an integer counts as that integer (0.3 s at 0.1 s is 3 samples, not 4)."""
+    q = seconds / dt_s
+    n = math.ceil(q - 1e-9 * max(1.0, q))
+    return max(1, int(n))
+
+
+def _check_number(name: str, value: object, *, positive: bool) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0 or (positive and value == 0):
+        raise ConfigError(f"{name} must be a finite number {'> 0' if positive else '>= 0'}, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class ModeConfig:
+    """The guards' thresholds and persistences (module docstring); each default is a named
+    constant with its reason.
+
+    Attributes
+    ----------
+    detumbled_rate_rad_s : float
+        DETUMBLE -> HOLD below this body-rate magnitude [rad/s] (> 0).
+    detumbled_for_s : float
+        ... held this long [s] (>= 0).
+    converged_sigma_rad : float
+        HOLD -> TRACK (and SAFE -> HOLD) with the estimate's attitude 1-sigma at most this [rad] (> 0).
+    healthy_for_s : float
+        ... and health OK, this long [s] (>= 0).
+    safe_on_error_for_s : float
+        HOLD, TRACK -> SAFE after the health's ERROR or STALE this long [s] (>= 0; 0: at once).
+    recover_for_s : float
+        SAFE -> HOLD after every SAFE condition cleared and health OK and converged this long [s] (>= 0).
+    max_wheel_speed_fraction : float
+        HOLD, TRACK -> SAFE when a wheel's speed passes this fraction of its limit (> 0).
+    """
+
+    detumbled_rate_rad_s: float = DEFAULT_DETUMBLED_RATE_RAD_S
+    detumbled_for_s: float = DEFAULT_DETUMBLED_FOR_S
+    converged_sigma_rad: float = DEFAULT_CONVERGED_SIGMA_RAD
+    healthy_for_s: float = DEFAULT_HEALTHY_FOR_S
+    safe_on_error_for_s: float = DEFAULT_SAFE_ON_ERROR_FOR_S
+    recover_for_s: float = DEFAULT_RECOVER_FOR_S
+    max_wheel_speed_fraction: float = DEFAULT_MAX_WHEEL_SPEED_FRACTION
+
+    def __post_init__(self) -> None:
+        for name in ("detumbled_rate_rad_s", "converged_sigma_rad", "max_wheel_speed_fraction"):
+            object.__setattr__(self, name, _check_number(name, getattr(self, name), positive=True))
+        for name in ("detumbled_for_s", "healthy_for_s", "safe_on_error_for_s", "recover_for_s"):
+            object.__setattr__(self, name, _check_number(name, getattr(self, name), positive=False))
+
+    def packed(self, dt_s: float) -> Array:
+        """The parameters as :func:`mode_step` takes them (:data:`N_PARAMS`,), the persistences in
+        samples of period ``dt_s`` (:func:`samples_for`)."""
+        dt = _check_number("dt_s", dt_s, positive=True)
+        out = np.zeros(N_PARAMS)
+        out[P_RATE] = self.detumbled_rate_rad_s
+        out[P_RATE_N] = samples_for(self.detumbled_for_s, dt)
+        out[P_SIGMA] = self.converged_sigma_rad
+        out[P_HEALTHY_N] = samples_for(self.healthy_for_s, dt)
+        out[P_ERROR_N] = samples_for(self.safe_on_error_for_s, dt)
+        out[P_RECOVER_N] = samples_for(self.recover_for_s, dt)
+        out[P_WHEEL] = self.max_wheel_speed_fraction
+        return out
+
+
+def new_mode_state(mode: int = DETUMBLE) -> Array:
+    """A flight's state (:data:`N_STATE`,) starting in ``mode`` (default DETUMBLE: after separation)."""
+    if isinstance(mode, bool) or mode not in (DETUMBLE, HOLD, TRACK, SAFE):
+        raise ConfigError(f"mode must be one of {dict(enumerate(MODE_NAMES))}, got {mode!r}")
+    state = np.zeros(N_STATE)
+    state[S_MODE] = mode
+    return state
+
+
+@jit
+def mode_step(state, inputs, params):  # type: ignore[no-untyped-def]  # a numba kernel
+    """One sample (module docstring): ``state`` (:data:`N_STATE`,) updated in place from ``inputs``
+    (:data:`N_INPUTS`,) and ``params`` (:meth:`ModeConfig.packed`); returns the reason of the
+    transition taken (``R_*``), :data:`R_NONE` for none."""
+    mode = int(state[S_MODE])
+    flags = inputs[IN_INHIBIT]
+    inhibit = int(flags) if flags >= 0.0 and flags < 16.0 else 0  # NaN or out of range: nothing inhibited (a node refuses such a command)
+    health = inputs[IN_HEALTH]
+    lost = inputs[IN_LOST] > 0.5
+    wheel_beyond = inputs[IN_WHEEL] > params[P_WHEEL]  # NaN (no wheels): never beyond
+    healthy = health == HEALTH_OK and inputs[IN_SIGMA] <= params[P_SIGMA]
+    # the counts of consecutive samples (a NaN input fails every comparison it is in: no count)
+    state[S_RATE_N] = state[S_RATE_N] + 1.0 if inputs[IN_RATE] < params[P_RATE] else 0.0
+    state[S_HEALTHY_N] = state[S_HEALTHY_N] + 1.0 if healthy else 0.0
+    state[S_ERROR_N] = state[S_ERROR_N] + 1.0 if health >= HEALTH_ERROR else 0.0
+    state[S_RECOVER_N] = state[S_RECOVER_N] + 1.0 if healthy and not lost and not wheel_beyond else 0.0
+    request = inputs[IN_REQUEST]
+    target = mode
+    reason = R_NONE
+    if request >= 0.0 and request <= 3.0 and request == math.floor(request) and int(request) != mode:
+        target = int(request)
+        reason = R_REQUEST
+    elif mode == HOLD or mode == TRACK:
+        if (inhibit & INHIBIT_SAFE) == 0:
+            if lost:
+                target = SAFE
+                reason = R_CONTROL_LOST
+            elif wheel_beyond:
+                target = SAFE
+                reason = R_WHEEL_SPEED
+            elif state[S_ERROR_N] >= params[P_ERROR_N]:
+                target = SAFE
+                reason = R_ESTIMATOR_ERROR
+        if reason == R_NONE and mode == HOLD and (inhibit & INHIBIT_ACQUIRED) == 0 and state[S_HEALTHY_N] >= params[P_HEALTHY_N]:
+            target = TRACK
+            reason = R_ACQUIRED
+    elif mode == DETUMBLE:
+        if (inhibit & INHIBIT_DETUMBLED) == 0 and state[S_RATE_N] >= params[P_RATE_N]:
+            target = HOLD
+            reason = R_DETUMBLED
+    elif mode == SAFE:
+        if (inhibit & INHIBIT_RECOVERED) == 0 and state[S_RECOVER_N] >= params[P_RECOVER_N]:
+            target = HOLD
+            reason = R_RECOVERED
+    if reason != R_NONE:
+        state[S_MODE] = target
+        state[S_RATE_N] = 0.0
+        state[S_HEALTHY_N] = 0.0
+        state[S_ERROR_N] = 0.0
+        state[S_RECOVER_N] = 0.0
+        state[S_REASON] = reason
+    return reason
