@@ -160,7 +160,7 @@ def test_compiled_and_interpreted_take_the_same_transitions_on_random_flights() 
 
 @pytest.mark.parametrize(("name", "value"), [("detumbled_rate_rad_s", 0.0), ("detumbled_rate_rad_s", math.nan), ("converged_sigma_rad", -1.0),
                                              ("healthy_for_s", -0.1), ("recover_for_s", math.inf), ("max_wheel_speed_fraction", True),
-                                             ("safe_on_error_for_s", "1")])
+                                             ("safe_on_error_for_s", [1.0, 2.0])])
 def test_the_configuration_refuses_a_bad_value_naming_it(name: str, value: object) -> None:
     with pytest.raises(ConfigError, match=name):
         m.ModeConfig(**{name: value})  # type: ignore[arg-type]

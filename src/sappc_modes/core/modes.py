@@ -56,7 +56,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.compiled import jit
-from gnc_common.validation import ConfigError
+from gnc_common.validation import ConfigError, check_positive
 
 __all__ = [
     "DEFAULT_CONVERGED_SIGMA_RAD",
@@ -166,9 +166,11 @@ def samples_for(seconds: float, dt_s: float) -> int:
 
 
 def _check_number(name: str, value: object, *, positive: bool) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0 or (positive and value == 0):
-        raise ConfigError(f"{name} must be a finite number {'> 0' if positive else '>= 0'}, got {value!r}")
-    return float(value)
+    """``value`` checked as every setting of the project is (:func:`~gnc_common.validation.check_positive`), one number."""
+    x = check_positive(name, value, allow_zero=not positive)
+    if not isinstance(x, float):
+        raise ConfigError(f"{name} must be one number, got {value!r}")
+    return x
 
 
 @dataclass(frozen=True)
