@@ -220,6 +220,7 @@ __all__ = [
     "Topic",
     "WHEEL_STATES",
     "consumed_names",
+    "controller_state_sources",
     "COVARIANCE_DIMS",
     "ERROR_STATE",
     "ESTIMATE_ATTITUDE",
@@ -404,6 +405,14 @@ def consumed_names(topic: Topic) -> tuple[str, ...]:
 
 #: The controller's five inputs, in the order of ``AttitudeController.step(t, dt, q, w, q_d, w_d, wdot_d)``.
 CONTROLLER_INPUTS = (STATE_ATTITUDE, STATE_RATE, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION)
+
+
+def controller_state_sources(estimating: bool) -> tuple[Topic, Topic]:
+    """Where a run's controller takes its attitude and rate (its ``state/attitude`` and
+    ``state/rate`` inputs) from: the estimator's estimate when the run has one (``sappc run``
+    remaps them to ``estimate/*``), else the plant's ``state/*``.  The one rule for the launcher's
+    remaps and for ``sappc rerun``, which feeds the controller the same messages again."""
+    return (ESTIMATE_ATTITUDE, ESTIMATE_RATE) if estimating else (STATE_ATTITUDE, STATE_RATE)
 
 #: The estimator's inputs of each sample, paired by stamp: the gyro's sample and the tracker's epoch
 #: (which names the tracker sample, :data:`SENSOR_STAR_TRACKER` of that stamp, that the sample uses).

@@ -2,7 +2,8 @@
 
 The controller node computes ``controller.step(t, dt, q, w, q_d, w_d, wdot_d)`` with
 ``t = stamp_ns / 1e9`` (real time: counted from the first step's stamp) from the five inputs of one stamp (the state it subscribes to, which is
-the fault relay's output when the run had sensor faults, and the reference).  The re-run makes
+the estimator's estimate when the run had one, the fault relay's output when the run had sensor
+faults and no estimator, and the reference).  The re-run makes
 the same calls, in the same order, on a fresh controller built from a ROS parameters file (the
 one embedded in the bag by ``sappc run``, or ``--params``), and compares each torque with the
 one the node published on ``control/torque``.  With the recorded parameters and a lockstep bag
@@ -29,11 +30,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from numpy.typing import NDArray
 
 from sappc_controller.inputs import INPUT_TOPICS, STEP_ERRORS, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import CONTROLLER_CLASSES, controller_from_parameters_file
-from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS, consumed_names
+from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS, consumed_names, controller_state_sources
 from gnc_common.validation import MAX_YAML_BYTES, read_text_file
 
 from sappc.bag.blocks import BLOCK_BYTES, EDGE_NS, BagBlocks, NotInBlocks
@@ -139,6 +141,21 @@ def _controller(path: Path, metadata: dict[str, dict[str, str]], params: str | P
     return source, kind, CONTROLLER_CLASSES[kind](config), dt
 
 
+def _input_names(metadata: dict[str, dict[str, str]]) -> list[tuple[str, ...]]:
+    """The names under which the run's controller received each of its five inputs, the one to
+    prefer first: its attitude and rate from the estimator's estimate when the run had one
+    (:func:`~sappc_msgs_py.contract.controller_state_sources`; the bag's
+    :data:`~sappc.bag.read.PARAMS_RECORD` configures an ``estimator`` node), the relay's output
+    for a relayed input, else the topic itself."""
+    record = metadata.get(PARAMS_RECORD) or {}
+    try:
+        nodes = yaml.safe_load(record.get("text", "")) or {}
+    except yaml.YAMLError:
+        nodes = {}
+    estimating = isinstance(nodes, dict) and any(str(name).strip("/") == "estimator" for name in nodes)
+    return [consumed_names(t) for t in (*controller_state_sources(estimating), *INPUT_TOPICS[2:])]
+
+
 #: Each input's width: a quaternion's 4, a vector's 3.
 _WIDTHS = [4 if t.type_name.endswith("QuaternionStamped") else 3 for t in INPUT_TOPICS]
 _NOT_A_STEP = "not a control step (the last torque held, or zero torque)"
@@ -242,8 +259,8 @@ def rerun_bag(bag: Bag, params: str | Path | None = None) -> RerunResult:
         If the parameters are invalid.
     """
     source, kind, controller, dt = _controller(bag.path, bag.metadata, params)
-    # the inputs the controller subscribed to: the relay's when the run relayed them
-    inputs = [_series(bag, *consumed_names(t)) for t in INPUT_TOPICS]
+    # the inputs the controller subscribed to: the estimate when the run estimated, the relay's when it relayed them
+    inputs = [_series(bag, *names) for names in _input_names(bag.metadata)]
     torque = _series(bag, CONTROL_TORQUE.name)
     lockstep = find_topic(bag, CLOCK.name) is not None
     stepper = _Stepper(controller, dt, lockstep)
@@ -306,7 +323,7 @@ def _rerun_in_blocks(bb: BagBlocks, params: str | Path | None) -> RerunResult:
     view = bb.view()  # the topics in the whole bag's order, each "with messages" as the index counted them (decoded: checked at the end)
     for name, t in view.series.items():
         view.series[name] = Series(np.zeros(bb.topic(name).messages, np.int64), t.values, t.log_time_ns)
-    input_topics = [_series_topic(view, *consumed_names(t)) for t in INPUT_TOPICS]
+    input_topics = [_series_topic(view, *names) for names in _input_names(bb.bag.metadata)]
     torque_topic = _series_topic(view, CONTROL_TORQUE.name)
     diag_topic = find_topic(view, CONTROLLER_DIAGNOSTICS.name)
     if diag_topic is None:

@@ -41,9 +41,9 @@ from sappc_msgs_py.runtime import parse_expected
 from sappc_controller.params import parameters_from_config, unflatten
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
 from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, STATE_MAGNETIC_FIELD, STATE_WHEEL_SPEED,
-                                    TRUTH_MAGNETIC_FIELD, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
+                                    TRUTH_MAGNETIC_FIELD, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
                                     RELAYED_PATHS, RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR, STATE_ATTITUDE,
-                                    STATE_ATTITUDE_EPOCH, STATE_RATE, TOPICS, faulty, relay_remaps)
+                                    STATE_ATTITUDE_EPOCH, STATE_RATE, TOPICS, controller_state_sources, faulty, relay_remaps)
 from spacecraft_sim.core.faults import FaultSchedule
 from spacecraft_sim.core.wheels import allocation_matrix
 from gnc_common.validation import ConfigError, safe_load_yaml
@@ -410,9 +410,9 @@ def _remaps(scenario: Scenario) -> dict[str, list[str]]:
     estimating = scenario.estimator is not None
     managing = scenario.momentum is not None
     if estimating:
-        remaps["controller"] += ["-r", f"{STATE_ATTITUDE.name}:={ESTIMATE_ATTITUDE.name}", "-r", f"{STATE_RATE.name}:={ESTIMATE_RATE.name}"]
-        remaps["momentum"] += ["-r", f"{STATE_ATTITUDE.name}:={ESTIMATE_ATTITUDE.name}", "-r",
-                               f"{STATE_RATE.name}:={ESTIMATE_RATE.name}"]  # the controller's attitude and rate inputs
+        attitude, rate = controller_state_sources(estimating)
+        for node in ("controller", "momentum"):  # the momentum node takes the controller's attitude and rate inputs
+            remaps[node] += ["-r", f"{STATE_ATTITUDE.name}:={attitude.name}", "-r", f"{STATE_RATE.name}:={rate.name}"]
     for topics in _relayed(scenario):
         sensor = topics in (RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR)
         actuator = topics is RELAYED_ACTUATOR_TOPICS

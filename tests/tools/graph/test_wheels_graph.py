@@ -14,6 +14,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from sappc.bag import cdr
 from sappc.bag.read import bag_run, read_bag
+from sappc.analysis.rerun import rerun_blocks
 from sappc.offline import compiled_loop
 from sappc.scenario import scenario_from_mapping
 from sappc_msgs_py.contract import WHEEL_STATES
@@ -168,6 +169,9 @@ def test_the_flight_scenario_through_the_graph_equals_the_offline_run(tmp_path: 
     measured_at = [k for k in range(0, stamps.size, 10) if not 100 <= k < 150]
     assert np.array_equal(tracker.stamps_ns, stamps[measured_at]) and np.array_equal(tracker.values[:, :4], measured[measured_at])
     assert np.all(tracker.values[:, 16] == -1.0) and np.all(gyro.values[:, 4] == -1.0)  # what each does not measure: absent
+    # sappc rerun feeds the controller what it took, the estimate, not the measurements: every torque again, bit for bit
+    rerun = rerun_blocks(out / "bag")
+    assert rerun.stamps_ns.size == stamps.size and rerun.identical == stamps.size
 
 
 @pytest.mark.slow
@@ -213,6 +217,10 @@ def test_sensor_faults_with_the_estimator_through_the_graph_equal_the_offline_ru
     sent, relayed = bag.series["/sensors/star_tracker"].stamps_ns, bag.series["/fault/sensors/star_tracker"].stamps_ns
     assert np.all(np.diff(relayed) > 0) and set(relayed.tolist()) == set(sent.tolist()) - {2_100_000_000}
     assert np.all(np.isnan(bag.series["/fault/sensors/gyro"].values[330:333, 13:16]))  # the dropout: "no data"
+    # sappc rerun: the controller took the estimate (not the relayed measurements): every torque it
+    # computed again, bit for bit (the dropout's three samples held the last torque: no step to re-run)
+    rerun = rerun_blocks(out / "bag")
+    assert sum(rerun.skipped.values()) == 3 and rerun.identical == rerun.stamps_ns.size == h.torque_B.shape[0] - 3
 
 
 def test_an_estimator_without_sensor_models_is_refused_naming_what_it_reads(tmp_path: Path) -> None:
