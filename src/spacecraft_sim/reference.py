@@ -5,7 +5,8 @@ Publishes ``reference/attitude``, ``reference/rate`` and ``reference/acceleratio
 ``TransformStamped`` with the attitude's stamp and quaternion ``q_RN``, for tf-style viewers; the
 reference node owns frame R as the plant owns B), from :class:`~spacecraft_sim.core.reference.PaperReference`,
 sampled on the grid ``k dt``, ``k = 0 .. duration_s / dt``, exactly as the offline runner samples
-it (the attitude is integrated once over the whole grid).
+it (the attitude integrated on from one block of samples to the next: the same bits as over the
+whole grid at once, in memory bounded whatever the run's length).
 
 ``lockstep``: samples 0 and 1 as soon as its subscribers are matched, then on each ``/clock``
 tick ``t_k`` of the grid sample ``k + 1`` (and any earlier one a missed tick left out:
@@ -29,6 +30,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
+import numpy as np
 
 from sappc_msgs_py.contract import CLOCK, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_TF, qos_profile
 from sappc_msgs_py import wire
@@ -36,7 +38,7 @@ from sappc_msgs_py.convert import cdr_stamp_ns, time_to_ns
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, FramesAhead, GridCursor, ProjectNode, StartGate, run_node, unmatched
 
-from spacecraft_sim.core.reference import PaperReference, sample_times
+from spacecraft_sim.core.reference import PaperReference, ReferenceSamples, sample_times
 from gnc_common.validation import check_positive
 
 __all__ = ["PARAMETERS", "ReferenceNode", "main"]
@@ -70,10 +72,15 @@ class ReferenceNode(ProjectNode):
         self.dt = check_positive("control_period_s", self.param(_P["control_period_s"]))
         duration = check_positive("duration_s", self.param(_P["duration_s"]))
         self.mode = self.mode_param()
-        self.samples = ref.sample(sample_times(duration, self.dt))
-        # stamp (ns) of each grid sample, and its index for exact matching of /clock ticks
-        self._stamps = [time_to_ns(float(t)) for t in self.samples.t]
-        self._index = {ns: k for k, ns in enumerate(self._stamps)}
+        self.ref = ref
+        self.n_steps = len(sample_times(duration, self.dt)) - 1  # samples k = 0 .. n_steps, the grid k dt
+        # the reference is sampled a block at a time as the run goes (bounded memory, whatever the
+        # run's length), its attitude integrated on from one block to the next: the same bits as
+        # the whole grid in one call (PaperReference.sample's carry)
+        self._carry = ref.start()
+        self._carry_k = 0  # the next sample the carry's integration reaches
+        self._samples: tuple[int, ReferenceSamples | None] = (0, None)  # the block sampled last, from sample lo
+        self._sampled(0, min(wire.BLOCK_SAMPLES, self.n_steps + 1))  # the first block now: the compiled integration loaded before the run
         topics = (REFERENCE_ATTITUDE, REFERENCE_RATE, REFERENCE_ACCELERATION, REFERENCE_TF)
         self.pubs = [self.counting_publisher(t, 1) for t in topics[:3]]
         self.pub_tf = self.counting_publisher(REFERENCE_TF)  # waits only for expected_subscribers
@@ -81,12 +88,12 @@ class ReferenceNode(ProjectNode):
         self._all_pubs = [*self.pubs, self.pub_tf]
         self._block: tuple[int, list[int], list[list[bytes]]] = (0, [], [])  # samples lo .. : their stamps, each topic's messages
         if self.mode == LOCKSTEP:
-            self._cursor = GridCursor(self.samples.t.size - 1)
+            self._cursor = GridCursor(self.n_steps)
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos_profile(), raw=True)
             self.start_when(lambda: unmatched([*self.pubs, self.pub_tf]), lambda: self._publish_through(1))
         else:  # sample k on the plant's frame f0 + k, f0 its first state's (FramesAhead)
             gate = StartGate(self, lambda: unmatched([*self.pubs, self.pub_tf]))  # no publish may block a callback
-            self.frames = FramesAhead(self, self.dt, self.samples.t.size - 1, gate.open, lambda k, ns: self._publish(k, ns))
+            self.frames = FramesAhead(self, self.dt, self.n_steps, gate.open, lambda k, ns: self._publish(k, ns))
 
     def _publish(self, k: int, stamp_ns: int) -> None:
         lo, stamps, messages = self._block
@@ -102,26 +109,45 @@ class ReferenceNode(ProjectNode):
         ``k`` stamped ``stamp_ns``: in lockstep each its grid stamp, in real time the frames after
         ``k``'s (``FramesAhead`` stamps frame ``f0 + j``).  A sample asked for with another stamp
         than its block gave it starts a new block (``_publish`` checks), so a stamp is never guessed."""
-        s = self.samples
-        hi = min(k + wire.BLOCK_SAMPLES, s.t.size)
-        stamps = self._stamps[k:hi] if self.mode == LOCKSTEP else [stamp_ns + (j - k) * self.frames.dt_ns for j in range(k, hi)]
+        hi = min(k + wire.BLOCK_SAMPLES, self.n_steps + 1)
+        s = self._sampled(k, hi)
+        stamps = [self._grid_ns(j) for j in range(k, hi)] if self.mode == LOCKSTEP else [stamp_ns + (j - k) * self.frames.dt_ns for j in range(k, hi)]
         stamps[0] = stamp_ns
         w_att, w_rate, w_acc, w_tf = self._wire
-        q = s.q_RN[k:hi]
-        return k, stamps, [w_att.encode_block(stamps, q), w_rate.encode_block(stamps, s.omega_RN_R[k:hi]),
-                           w_acc.encode_block(stamps, s.omegadot_RN_R[k:hi]), w_tf.encode_block(stamps, q)]
+        return k, stamps, [w_att.encode_block(stamps, s.q_RN), w_rate.encode_block(stamps, s.omega_RN_R),
+                           w_acc.encode_block(stamps, s.omegadot_RN_R), w_tf.encode_block(stamps, s.q_RN)]
+
+    def _sampled(self, k: int, hi: int) -> ReferenceSamples:
+        """The reference at samples ``k .. hi - 1`` of the grid: from the block sampled last when it
+        holds them, else integrated on from the carry (from the run's start again if ``k`` is
+        before it: a block asked for again, which the cursors never do)."""
+        lo, block = self._samples
+        if block is not None and lo <= k and hi <= lo + block.t.size:
+            return ReferenceSamples(*(a[k - lo:hi - lo] for a in (block.t, block.q_RN, block.omega_RN_R, block.omegadot_RN_R)))
+        if k < self._carry_k:
+            self._carry, self._carry_k = self.ref.start(), 0
+        if k > self._carry_k:  # integrated through the samples skipped, unpublished
+            self.ref.sample(np.arange(self._carry_k, k, dtype=np.float64) * self.dt, self._carry)
+        block = self.ref.sample(np.arange(k, hi, dtype=np.float64) * self.dt, self._carry)  # the grid's k dt (sample_times)
+        self._carry_k = hi
+        self._samples = (k, block)
+        return block
+
+    def _grid_ns(self, k: int) -> int:
+        """The stamp [ns] of grid sample ``k`` (``k dt``, as the plant stamps it)."""
+        return time_to_ns(float(k) * self.dt)
 
     def _on_clock(self, raw: bytes) -> None:
         ns = cdr_stamp_ns(CLOCK.type_name, raw)
-        k = self._index.get(ns)
-        if k is None:
-            self.get_logger().warning(f"/clock {ns / 1e9:.9f} s is not on the reference grid (dt = {self.dt} s, n = {len(self._index)}); nothing published")
+        k = round(ns / 1e9 / self.dt)
+        if not 0 <= k <= self.n_steps or self._grid_ns(k) != ns:
+            self.get_logger().warning(f"/clock {ns / 1e9:.9f} s is not on the reference grid (dt = {self.dt} s, n = {self.n_steps + 1}); nothing published")
             return
         self._publish_through(k + 1)  # one sample ahead: never on the loop's critical path
 
     def _publish_through(self, k: int) -> None:
         for j in self._cursor.through(k):
-            self._publish(j, self._stamps[j])
+            self._publish(j, self._grid_ns(j))
 
 
 def main(argv: list[str] | None = None) -> int:
