@@ -30,13 +30,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from sappc_controller.inputs import INPUT_TOPICS, STEP_ERRORS, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import CONTROLLER_CLASSES, controller_from_parameters_file
 from sappc_msgs_py.contract import CLOCK, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS, consumed_names, controller_state_sources
-from gnc_common.validation import MAX_YAML_BYTES, read_text_file
+from gnc_common.validation import MAX_YAML_BYTES, ConfigError, read_text_file, safe_load_yaml
 
 from sappc.bag.blocks import BLOCK_BYTES, EDGE_NS, BagBlocks, NotInBlocks
 from sappc.bag.read import PARAMS_RECORD, STAMP_TOL_NS, Bag, BagError, Series, find_topic, nearest_index, read_bag
@@ -149,8 +148,8 @@ def _input_names(metadata: dict[str, dict[str, str]]) -> list[tuple[str, ...]]:
     for a relayed input, else the topic itself."""
     record = metadata.get(PARAMS_RECORD) or {}
     try:
-        nodes = yaml.safe_load(record.get("text", "")) or {}
-    except yaml.YAMLError:
+        nodes = safe_load_yaml(record.get("text", ""), source=f"the bag's {PARAMS_RECORD}") or {}
+    except ConfigError:  # unreadable parameters name no estimator (without --params the re-run has refused them already)
         nodes = {}
     estimating = isinstance(nodes, dict) and any(str(name).strip("/") == "estimator" for name in nodes)
     return [consumed_names(t) for t in (*controller_state_sources(estimating), *INPUT_TOPICS[2:])]
