@@ -266,7 +266,8 @@ class ControllerNode(ProjectNode):
         self.latency = LatencyStatistics(self.dt)  # real time: the steps' latency, in bounded memory
         self.held_reference_steps = 0  # real time: steps on a reference not of the state's own stamp (held)
         # real time: the first sample answered unlike the lockstep run (a held reference; a state too
-        # late to step), counted from the first state's (sample 0)
+        # late to step; a state replaced by a newer one before any reference came: never stepped),
+        # counted from the first state's (sample 0)
         self.first_deviating_sample: int | None = None
         self._first_state_ns: int | None = None  # real time: the run's first state's stamp (sample 0)
         self.late_states = 0  # real time: states more than a frame old when complete, not stepped
@@ -398,12 +399,15 @@ class ControllerNode(ProjectNode):
             return
         ns, value = screened  # value None: arrived without a valid value: invalid, or "no data" (module docstring)
         if self.mode == REALTIME:
+            waited = self._rt.waiting_ns
             fresh = self._rt.add(topic.name, ns, value)
             start = fresh.t_ns if fresh is not None else self._rt.waiting_ns
             if self._first_state_ns is None and start is not None:
                 self._first_state_ns = start
             if self._end_ns is None and self._n_frames and start is not None:  # the first state: the run's last frame follows
                 self._end_ns = start + self._n_frames * self.dt_ns
+            if waited is not None and self._rt.waiting_ns != waited and (fresh is None or fresh.t_ns != waited):
+                self._deviates_at(waited)  # a state replaced by a newer one before any reference came: never stepped, unlike lockstep
             if fresh is not None:
                 self._on_fresh_state(fresh)
             return

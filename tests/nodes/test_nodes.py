@@ -769,7 +769,10 @@ def test_realtime_computes_on_each_fresh_state_with_the_reference_of_its_stamp(r
     assert drv.torques[0][0] == t0 + 10_000_000 and np.any(drv.torques[0][1] != 0.0)
     assert drv.diags[0]["input_stamps_reference_s"].tolist() == [(t0 + 10_000_000) / NS] * 3  # frame 2's, ahead, not used
     assert node.latency.latency.count == 1 and node.latency.latency.max_s == 700_000 / NS and node.latency.late == 0
-    assert node.held_reference_steps == 0 and node.first_deviating_sample is None
+    # frame 0's state was never stepped (frame 1's replaced it before any reference had come): the
+    # first sample not answered as in lockstep
+    assert node.held_reference_steps == 0 and node.first_deviating_sample == 0
+    node.first_deviating_sample = None  # forgotten, to see frame 3's own below
     clock.ns = t0 + 30_000_000 + 4_999_999  # just before the middle of frame 3
     _publish(drv, node, c.STATE_ATTITUDE, t0 + 30_000_000)
     _publish(drv, node, c.STATE_RATE, t0 + 30_000_000)  # no reference of frame 3: it waits
