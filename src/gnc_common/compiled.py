@@ -85,7 +85,7 @@ KERNEL_MODULES = ("gnc_common.compiled", "gnc_common.ephemeris", "sappc_controll
                   "spacecraft_sim.core.kernels", "sappc.offline.compiled_loop", "sappc.evaluation.metrics", "spacecraft_sim.core.wheels",
                   "spacecraft_sim.core.sensors", "spacecraft_sim.core.orbit", "spacecraft_sim.core.magnetic_field",
                   "spacecraft_sim.core.magnetorquers", "spacecraft_sim.core.environment", "sappc_momentum.core.law", "sappc_momentum.core.predictive",
-                  "spacecraft_sim.core.magnetometer", "sappc_modes.core.modes")
+                  "spacecraft_sim.core.magnetometer", "sappc_modes.core.modes", "sappc_modes.core.bdot")
 #: Characters of the sources' SHA-256 digest in the cache directory's name.
 _DIGEST_CHARS = 16
 
