@@ -350,6 +350,8 @@ TOP_KEYS = {
                     "the true field, exactly.",
     "momentum_management": "The flight software's momentum dumping with the rods and the wheels' feed-forward; needs "
                            "`magnetorquers` and `actuator.kind: reaction_wheels`.",
+    "modes": "The flight modes (DETUMBLE, HOLD, TRACK, SAFE: docs/design/modes.md); needs `magnetorquers` and "
+             "`momentum_management`; absent: the controller flies from the first sample.",
     "metrics": "How the run's metrics are computed, and the requirements a run must meet.",
     "controller": "The default controller: `sappc`, `trappc`, `blfppc` or `mrp_feedback` (default `sappc`).",
     "controllers": "The parameters of each controller the scenario can run, by name. Required.",
@@ -407,6 +409,17 @@ def gen_scenario(_: str | None = None) -> str:
     out += dataclass_sections(Magnetorquers, "magnetorquers", level=2)
     out += dataclass_sections(Magnetometer, "magnetometer", level=2)
     out += dataclass_sections(MomentumManagement, "momentum_management", level=2)
+    from sappc_controller.core.mrp_feedback import MrpFeedbackGains
+    from sappc_modes.core.modes import MODE_NAMES, ModeConfig
+
+    out += ["## `modes` { #key-modes }", "", table(["key", "type", "default", "meaning"], [
+        [code("initial_mode"), " or ".join(code(m) for m in MODE_NAMES), code(MODE_NAMES[0]), "The first mode (a flight after separation: DETUMBLE)."],
+        [code("detumble_gain_N_m_s"), f"number or {code(sc.GAIN_CRITERION)}", code(sc.GAIN_CRITERION),
+         "B-dot's gain [N m s]; `criterion`: `k* = 2 n (1 + sin xi_m) J_min` from the orbit, the field and the inertia."],
+        [code("hold_gains"), f"[mapping](#{_anchor('modes.hold_gains')})", "required", "HOLD's MRP feedback gains (SAFE: `P_Nms` alone)."],
+        [code("transitions"), f"[mapping](#{_anchor('modes.transitions')})", "see below", "The guards' thresholds and persistences."]]), ""]
+    out += dataclass_sections(MrpFeedbackGains, "modes.hold_gains", level=3)
+    out += dataclass_sections(ModeConfig, "modes.transitions", level=3)
     out += dataclass_sections(sc.MetricSettings, "metrics", level=2)
     out += ["Requirements (`metrics.requirements`) bound a metric from above: "
             + ", ".join(f"`{m}_max`" for m in sc.BOUNDED_METRICS) + ".", ""]

@@ -288,11 +288,18 @@ def _print_outcome(scenario: Any, metrics: dict[str, Any], controller: dict[str,
     from sappc.evaluation.requirements import failed_requirements
 
     if controller.get("commanded") is not None:
-        others = ", ".join(f"{k.replace('_', ' ')} {controller[k]}" for k in ("watchdog_zero", "held", "refused") if controller[k])
+        others = ", ".join(f"{k.replace('_', ' ')} {controller[k]}" for k in ("watchdog_zero", "held", "refused") if controller.get(k))
+        if controller.get("inactive"):
+            others += (", " if others else "") + f"inactive (another mode's law) {controller['inactive']}"
         rejected = controller.get("rejected_inputs")
         print(f"controller: computed the torque of {controller['commanded']} of {controller['samples']} samples"
               + (f"; not commanded: {others}" if others else "")
               + (f"; {rejected} input messages rejected" if rejected is not None else ""))
+    if "mode_sequence" in metrics:
+        times = metrics["time_in_mode_s"]
+        print("modes: " + " -> ".join(metrics["mode_sequence"]) + f" ({metrics['mode_transitions']} transitions"
+              + ("" if metrics["time_to_track_s"] is None else f"; TRACK from {metrics['time_to_track_s']:.2f} s")
+              + "; time in " + ", ".join(f"{name} {s:.1f} s" for name, s in times.items() if s > 0.0) + ")")
     return failed_requirements(metrics, scenario.metrics.requirements, controller, settle_threshold=scenario.metrics.settle_threshold)
 
 

@@ -36,6 +36,9 @@ from spacecraft_sim.core.sensors import Sensors, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, wheels_from_mapping
 from spacecraft_sim.core.environment import Environment, environment_from_mapping
 from sappc_momentum.core.law import MomentumManagement
+from sappc_controller.core.mrp_feedback import MrpFeedbackGains
+from sappc_modes.core.bdot import detumble_gain, geomagnetic_inclination_rad
+from sappc_modes.core.modes import DETUMBLE, MODE_NAMES, ModeConfig
 from sappc.files import SCENARIOS_DIR, scenario_path
 from gnc_common.validation import (
     safe_load_yaml,
@@ -51,7 +54,7 @@ from gnc_common.validation import (
     read_text_file,
 )
 
-__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "MAX_SCENARIO_BYTES", "ControllerKind", "ControllerNodeSettings", "MetricSettings", "OrbitBins", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "read_scenario_mapping", "scenario_from_mapping"]
+__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "MAX_SCENARIO_BYTES", "ControllerKind", "ControllerNodeSettings", "FlightModes", "MetricSettings", "OrbitBins", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "read_scenario_mapping", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
 
@@ -169,6 +172,7 @@ _TOP_KEYS = {
     "magnetorquers",  # the torque rods (spacecraft_sim.core.magnetorquers); needs orbit
     "momentum_management",  # the rods' dumping law and the wheels' feed-forward (sappc_momentum); needs magnetorquers and wheels
     "magnetometer",  # what the flight software reads the field with (spacecraft_sim.core.magnetometer); needs orbit; none: exactly
+    "modes",  # the flight modes (sappc_modes): DETUMBLE, HOLD, TRACK, SAFE; needs momentum_management; none: TRACK from the start
 }
 
 
@@ -218,6 +222,7 @@ BOUNDED_METRICS = (
     "saturation_fraction",
     "time_outside_constraint_s",
     "max_abs_wheel_speed_rad_s",  # only with reaction wheels: unknown (a failure) with the ideal actuator
+    "time_to_track_s",  # only with flight modes: unknown (a failure) when the flight never reached TRACK
     "filter_inconsistent_fraction",  # only with an estimator: unknown (a failure) without one
 )
 
@@ -293,6 +298,97 @@ class MetricSettings:
         check_positive("metrics.t2_s", self.t2_s, allow_zero=True)
 
 
+#: The keys of the ``modes`` section.
+MODES_KEYS = ("initial_mode", "transitions", "detumble_gain_N_m_s", "hold_gains")
+#: ``modes.detumble_gain_N_m_s: criterion``: the gain of Avanzini and Giulietti's criterion from the
+#: scenario's orbit, field and inertia (:func:`detumble_criterion_gain`).
+GAIN_CRITERION = "criterion"
+
+
+@dataclass(frozen=True)
+class FlightModes:
+    """The ``modes`` section: the mode manager's guards, its first mode, and its laws outside TRACK
+    (docs/design/modes.md).
+
+    Attributes
+    ----------
+    transitions : ModeConfig
+        The guards' thresholds and persistences (``modes.transitions``, :class:`~sappc_modes.core.modes.ModeConfig` keys).
+    initial_mode : int
+        The first mode (``modes.initial_mode``: a name of :data:`~sappc_modes.core.modes.MODE_NAMES`;
+        default DETUMBLE, a flight after separation).
+    detumble_gain_N_m_s : float
+        The B-dot gain ``k`` [N m s] (:mod:`sappc_modes.core.bdot`).
+    detumble_gain_source : str
+        ``criterion`` when the gain is the criterion's (:func:`detumble_criterion_gain`), else ``given``.
+    hold_gains : MrpFeedbackGains
+        The MRP feedback gains of HOLD (on the estimate, towards the attitude at HOLD's entry) and
+        of SAFE (``P_Nms`` alone: rate damping on the gyro).
+    """
+
+    transitions: ModeConfig
+    initial_mode: int
+    detumble_gain_N_m_s: float
+    detumble_gain_source: str
+    hold_gains: MrpFeedbackGains
+
+
+def detumble_criterion_gain(environment: Environment, inertia_kg_m2: Array) -> tuple[float, float]:
+    """The B-dot gain of the criterion ``k* = 2 n (1 + sin xi_m) J_min``
+    (:func:`sappc_modes.core.bdot.detumble_gain`) for the scenario's orbit (its mean motion ``n``),
+    the geomagnetic inclination ``xi_m`` at ``t = 0`` (the orbit's normal against the dipole's
+    axis, which turns with the Earth: the value at the run's start, as flight software sets its
+    gain once) and the inertia's smallest principal moment; returns ``(k*, xi_m)`` [N m s, rad]."""
+    orbit, field = environment.orbit, environment.magnetic_field
+    i, raan = math.radians(orbit.inclination_deg), math.radians(orbit.raan_deg)
+    normal_N = np.array([math.sin(i) * math.sin(raan), -math.sin(i) * math.cos(raan), math.cos(i)])  # h / |h| of the orbit
+    m_P = np.array([field.g11_nT, field.h11_nT, field.g10_nT])  # the dipole's axis in the Earth-fixed frame (magnetic_field's m)
+    theta = math.radians(orbit.earth_rotation_angle_deg)
+    c, s = math.cos(theta), math.sin(theta)
+    m_N = np.array([c * m_P[0] - s * m_P[1], s * m_P[0] + c * m_P[1], m_P[2]])  # [PN]^T m_P at t = 0
+    xi_m = geomagnetic_inclination_rad(normal_N, m_N)
+    J_min = float(np.linalg.eigvalsh(np.asarray(inertia_kg_m2, dtype=np.float64))[0])
+    return detumble_gain(orbit.mean_motion_rad_s, xi_m, J_min), xi_m
+
+
+def _modes_from_mapping(data: Any, environment: Environment | None, momentum: MomentumManagement | None,
+                        inertia_kg_m2: Array) -> FlightModes | None:
+    """The ``modes`` section (:data:`MODES_KEYS`): it needs the rods and the wheels' momentum
+    management (B-dot commands the rods; HOLD and TRACK fly on the wheels).  Errors name the key."""
+    if data is None:
+        return None
+    if not isinstance(data, dict):
+        raise ConfigError(f"modes must be a mapping, got {data!r}")
+    unknown = sorted(set(data) - set(MODES_KEYS), key=str)
+    if unknown:
+        raise ConfigError(f"unknown key modes.{unknown[0]}{did_you_mean(str(unknown[0]), list(MODES_KEYS))}; "
+                          f"modes accepts {', '.join(MODES_KEYS)}")
+    if environment is None or environment.magnetorquers is None or momentum is None:
+        raise ConfigError("modes needs an orbit, magnetorquers and momentum_management: DETUMBLE commands the rods, "
+                          "HOLD and TRACK fly on the wheels whose momentum the rods dump")
+    name = data.get("initial_mode", MODE_NAMES[DETUMBLE])
+    if name not in MODE_NAMES:
+        raise ConfigError(f"modes.initial_mode must be one of {', '.join(MODE_NAMES)}, got {name!r}{did_you_mean(str(name), list(MODE_NAMES))}")
+    try:
+        transitions: ModeConfig = from_mapping(ModeConfig, data.get("transitions", {}) or {}, "modes.transitions")
+    except ConfigError as exc:
+        raise _named("modes.transitions", exc) from None
+    gain = data.get("detumble_gain_N_m_s", GAIN_CRITERION)
+    if gain == GAIN_CRITERION:
+        k, source = detumble_criterion_gain(environment, inertia_kg_m2)[0], GAIN_CRITERION
+    else:
+        k, source = check_positive("modes.detumble_gain_N_m_s", gain), "given"
+        if not isinstance(k, float):
+            raise ConfigError(f"modes.detumble_gain_N_m_s must be a number or {GAIN_CRITERION!r}, got {gain!r}")
+    if "hold_gains" not in data:
+        raise ConfigError("modes.hold_gains is required: the MRP feedback gains of HOLD and SAFE (K_Nm, P_Nms, integralLimit_Nms)")
+    try:
+        hold: MrpFeedbackGains = from_mapping(MrpFeedbackGains, data["hold_gains"], "modes.hold_gains")
+    except ConfigError as exc:
+        raise _named("modes.hold_gains", exc) from None
+    return FlightModes(transitions, MODE_NAMES.index(name), float(k), source, hold)
+
+
 @dataclass(frozen=True)
 class Scenario:
     """A loaded, validated scenario.
@@ -329,6 +425,9 @@ class Scenario:
         ``orbit`` and ``magnetorquers``); ``None``: no orbit (the paper's setting).
     momentum : MomentumManagement or None
         The flight software's momentum management (section ``momentum_management``).
+    modes : FlightModes or None
+        The flight modes (section ``modes``); ``None``: the scenario's controller flies from the
+        first sample (TRACK alone).
     metrics : MetricSettings
     controller : ControllerKind
         Default controller.
@@ -365,6 +464,7 @@ class Scenario:
     estimator: MekfConfig | None = None
     environment: Environment | None = None
     momentum: MomentumManagement | None = None
+    modes: FlightModes | None = None
 
     def controller_config(self, kind: ControllerKind | str | None = None) -> Any:
         """The validated config dataclass of controller ``kind`` (default: the scenario's)."""
@@ -458,6 +558,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
     estimator = _estimator_from_mapping(data.get("estimator"), sensors)
     environment = _environment_from_mapping(data.get("orbit"), data.get("magnetorquers"), data.get("magnetometer"), dt)
     momentum = _momentum_from_mapping(data.get("momentum_management"), environment, wheels)
+    modes = _modes_from_mapping(data.get("modes"), environment, momentum, J)
     metrics = from_mapping(MetricSettings, data.get("metrics", {}) or {}, "metrics")
     node_settings = from_mapping(ControllerNodeSettings, data.get("controller_node", {}) or {}, "controller_node")
 
@@ -490,6 +591,7 @@ def _scenario_from_mapping(data: dict[str, Any], source: str) -> Scenario:
         estimator=estimator,
         environment=environment,
         momentum=momentum,
+        modes=modes,
     )
     for name in controllers:  # validate every controller's parameters now, not at run time
         scenario.controller_config(name)
@@ -610,6 +712,8 @@ def _estimator_from_mapping(data: Any, sensors: Sensors | None) -> MekfConfig | 
 
 #: The key of a scenario file that names the file it extends (its own keys override the base's).
 EXTENDS_KEY = "extends"
+#: The key of an extending file that lists the mappings it gives whole (:func:`read_scenario_mapping`).
+REPLACE_KEY = "replace"
 
 
 def _merged(base: Any, over: Any) -> Any:
@@ -624,7 +728,9 @@ def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dic
     to this one's directory; a bare file name that is not there but names a bundled scenario, e.g.
     ``paper_tracking_flight.yaml``, is the bundled one) is read the same way and this file's keys
     are laid over it (mappings merged key by key, lists and values replaced), so a variant of a
-    scenario states only what it changes.
+    scenario states only what it changes.  ``replace: [<dotted key>, ...]`` (with ``extends``) names
+    the mappings this file gives whole instead of merged (``replace: [metrics.requirements]``: the
+    base's requirements dropped, this file's alone).
 
     Raises
     ------
@@ -648,8 +754,22 @@ def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dic
     base = read_scenario_mapping(base_path, (*_seen, p.resolve()))
     if not isinstance(base, dict):
         raise ConfigError(f"{base_path}: a scenario must be a mapping at the top level")
+    for dotted in _replaced_keys(p, data.pop(REPLACE_KEY, [])):
+        *parents, leaf = dotted.split(".")
+        node: Any = base
+        for key in parents:
+            node = node.get(key) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node.pop(leaf, None)  # the base's value gone: this file's alone is laid
     merged: dict[str, Any] = _merged(base, data)
     return merged
+
+
+def _replaced_keys(path: Path, keys: Any) -> list[str]:
+    """The ``replace`` list of a file that extends another: dotted keys (``metrics.requirements``)."""
+    if not isinstance(keys, list) or not all(isinstance(k, str) and k and all(k.split(".")) for k in keys):
+        raise ConfigError(f"{path}: {REPLACE_KEY} must be a list of dotted keys (e.g. [metrics.requirements]), got {keys!r}")
+    return keys
 
 
 def load_scenario(path: str | Path) -> Scenario:

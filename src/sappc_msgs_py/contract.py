@@ -201,6 +201,7 @@ __all__ = [
     "ANSWER_COMMANDED",
     "ANSWER_NAMES",
     "ANSWER_HELD",
+    "ANSWER_INACTIVE",
     "ANSWER_REFUSED",
     "ANSWER_WATCHDOG_ZERO",
     "RELAYED_PATHS",
@@ -539,10 +540,11 @@ def float_array_carries_time(first_label: str) -> bool:
 #: sample's inputs are missing or invalid and no valid state is newer than ``stale_timeout_s``);
 #: the last torque held (inputs missing or invalid, not yet stale: a short outage is ridden
 #: through, as an actuator holds its last command); zero torque because the core refused the
-#: step (a non-finite torque).
-ANSWER_COMMANDED, ANSWER_WATCHDOG_ZERO, ANSWER_HELD, ANSWER_REFUSED = 0, 1, 2, 3
+#: step (a non-finite torque); the controller inactive (flight modes: outside TRACK, the mode
+#: manager's law commands the torque, docs/design/modes.md).
+ANSWER_COMMANDED, ANSWER_WATCHDOG_ZERO, ANSWER_HELD, ANSWER_REFUSED, ANSWER_INACTIVE = 0, 1, 2, 3, 4
 #: Names of the answer codes, in code order (run summaries).
-ANSWER_NAMES = ("commanded", "watchdog_zero", "held", "refused")
+ANSWER_NAMES = ("commanded", "watchdog_zero", "held", "refused", "inactive")
 
 
 def qos_profile() -> QoSProfile:

@@ -32,7 +32,10 @@ class History:
     bag the torque is NaN, not published, and the rods' columns are there with a management node's
     ``control/dipole`` only); ``None`` without an orbit.  ``answer`` (T, N) int8: how the controller
     answered each sample (the contract's ``ANSWER_*`` codes, the loop's record of them); ``None``
-    where not recorded (a bag's are :attr:`sappc.bag.read.BagRun.answer`)."""
+    where not recorded (a bag's are :attr:`sappc.bag.read.BagRun.answer`).  With flight modes,
+    ``mode`` (T, N) int8 the mode flown (:data:`sappc_modes.core.modes.MODE_NAMES`' index) and
+    ``mode_reason`` (T, N) int8 the reason of the transition taken at the sample (``R_*``,
+    ``R_NONE`` for none); ``None`` without modes."""
 
     t: Array
     q_BN: Array
@@ -53,6 +56,8 @@ class History:
     estimate: EstimateHistory | None = None
     orbit: Array | None = None
     answer: NDArray[np.int8] | None = None
+    mode: NDArray[np.int8] | None = None
+    mode_reason: NDArray[np.int8] | None = None
 
     @property
     def q_ev(self) -> Array:

@@ -105,6 +105,12 @@ Definitions, per run:
     braking is counted as spent, as a motor without regeneration spends it) [J].  The effort of
     a controller's steady jitter and of its transient, in one number.
 
+``mode_sequence``, ``time_to_track_s``, ``time_in_mode_s``, ``mode_transitions``
+    Only with flight modes (a history with its mode record: docs/design/modes.md): the modes in the
+    order flown (their names; the first :data:`MAX_MODE_SEQUENCE`), the first entry into TRACK
+    [s] (``None``: never), each mode's samples times ``dt`` [s] (on a non-uniform grid, the samples'
+    hold intervals), and the transitions taken.
+
 Per orbit (a scenario in orbit: :meth:`MetricsAccumulator.orbit_metrics`, one entry per orbit ``j``,
 the samples with ``j T <= t < (j + 1) T``, ``T`` the orbit's period):
 
@@ -137,11 +143,16 @@ from gnc_common.compiled import jit
 from sappc.evaluation.estimation import EstimateHistory, attitude_errors, nees
 from sappc.evaluation.history import History
 from sappc_estimator.core.mekf import MON_ERROR, STATUS_NAMES
+from sappc_modes.core.modes import MODE_NAMES, TRACK
 
 __all__ = ["LOSS_OF_CONTROL_FACTOR", "NEES_EXACT_MAX_SAMPLES", "MetricsAccumulator", "SampleGrid", "nees_sample_stride"]
 
 Array = NDArray[np.float64]
 
+#: The modes of ``mode_sequence`` kept per run: a flight's sequence is a handful (DETUMBLE, HOLD,
+#: TRACK, and a SAFE and HOLD per health failure); a run cycling more than this is reported by its
+#: ``mode_transitions``, its sequence cut.
+MAX_MODE_SEQUENCE = 32
 #: Time comparisons on the sampling grid allow this much rounding in k * dt [s].
 _TIME_TOL_S = 1e-9
 #: Start of the NEES statistics [s]: the filter's transient from its initial covariance is over
@@ -320,6 +331,14 @@ class MetricsAccumulator:
         self._rods_buffers: list[Array | None] = [None]  # per group (capacity, runs, M), allocated with the first rods' samples
         self._rods_filled = 0  # the open orbit's samples in each buffer
         self._rods_written = True  # orb_dipole_sum holds the open orbit's buffered samples' sum
+        # only with flight modes (allocated with the first block's mode record): per run the samples in
+        # each mode (on a non-uniform grid, their summed hold intervals [s]), each mode's first entry [s] (NaN: never), the transitions, the last mode
+        # seen (-1: none) and the sequence flown (its first MAX_MODE_SEQUENCE modes, -1 after)
+        self.mode_time_s: Array | None = None
+        self.mode_entry_s: Array | None = None
+        self.mode_transitions: NDArray[np.int64] | None = None
+        self.mode_last: NDArray[np.int64] | None = None
+        self.mode_seq: NDArray[np.int64] | None = None
 
     def time_s(self, k: Any) -> Any:
         """The time of sample ``k`` of the grid (an index or an array of them) [s]."""
@@ -346,7 +365,7 @@ class MetricsAccumulator:
                 "outside_s", "last_outside", "left_after_fault", "finite", "wheel_speed_max", "wheel_torque_max", "wheel_energy", "est_att_max",
                 "est_att_sq", "est_att_n", "est_bias_last", "est_nees_sum", "est_nees_n", "est_status_counts", "est_mon_error", "est_mon_n",
                 "est_withheld", "est_recoveries", "orb_steady_max", "orb_steady_sum", "orb_h_max", "orb_h_end", "orb_speed_max",
-                "orb_dipole_sum")
+                "orb_dipole_sum", "mode_time_s", "mode_entry_s", "mode_transitions", "mode_last", "mode_seq")
     #: Per-sample sums over runs, added by :meth:`concatenate`.
     _SUMMED = ("nees_sum_t", "nees_runs_t")
 
@@ -389,6 +408,42 @@ class MetricsAccumulator:
                 self.update_estimate(self.samples - b.t.size, b.t, b.q_BN, b.estimate)
             if self.orbit_bins is not None:
                 self._update_orbits(b)
+            if b.mode is not None:
+                self._update_modes(b.t, b.mode)
+
+    def _update_modes(self, t: Array, mode: NDArray[np.int8]) -> None:
+        """The mode metrics of a block (``mode`` (B, N) the mode of each sample), after the samples
+        seen: the time in each mode (each sample held ``dt``, or its interval on a non-uniform
+        grid), and each change of mode (at a block's first sample too, against the last seen)."""
+        m = np.asarray(mode, dtype=np.int64)
+        B, n = m.shape
+        if B == 0:
+            return
+        if self.mode_time_s is None:
+            self.mode_time_s = np.zeros((n, len(MODE_NAMES)))
+            self.mode_entry_s = np.full((n, len(MODE_NAMES)), np.nan)
+            self.mode_transitions = np.zeros(n, dtype=np.int64)
+            self.mode_last = np.full(n, -1, dtype=np.int64)
+            self.mode_seq = np.full((n, MAX_MODE_SEQUENCE), -1, dtype=np.int64)
+        assert self.mode_entry_s is not None and self.mode_transitions is not None and self.mode_last is not None and self.mode_seq is not None
+        k0 = self.samples - B  # the block's first sample's index in the run
+        if self.hold_s is None:  # a uniform grid: the samples counted (exact), times dt when read
+            for j in range(len(MODE_NAMES)):
+                self.mode_time_s[:, j] += np.count_nonzero(m == j, axis=0)
+        else:  # each sample's interval, summed in time order (the same bits for any split into blocks)
+            held = self.hold_s[k0:k0 + B]
+            self.mode_time_s[...] = _summed_onto(self.mode_time_s, held[:, None, None] * (m[..., None] == np.arange(len(MODE_NAMES))))
+        prev = np.concatenate((self.mode_last[None, :], m[:-1]), axis=0)  # (B, N) each sample's previous mode (-1: the run's first)
+        for k, r in zip(*np.nonzero(m != prev)):
+            entered = int(m[k, r])
+            if prev[k, r] >= 0:
+                self.mode_transitions[r] += 1
+            if np.isnan(self.mode_entry_s[r, entered]):
+                self.mode_entry_s[r, entered] = float(t[k])
+            free = np.flatnonzero(self.mode_seq[r] < 0)
+            if free.size:
+                self.mode_seq[r, free[0]] = entered
+        self.mode_last[:] = m[-1]
 
     def _update_orbits(self, h: History) -> None:
         """The per-orbit sums and extremes of a block of samples (a history, after the samples seen,
@@ -681,6 +736,14 @@ class MetricsAccumulator:
                 m["wheel_energy_J"] = float(self.wheel_energy[run])
         if self.est_att_max is not None:
             m.update(self._estimation_metrics(run))
+        if self.mode_time_s is not None:
+            assert self.mode_entry_s is not None and self.mode_transitions is not None and self.mode_seq is not None
+            seq = self.mode_seq[run]
+            m["mode_sequence"] = [MODE_NAMES[int(j)] for j in seq[seq >= 0]]
+            m["time_to_track_s"] = _finite_or_none(self.mode_entry_s[run, TRACK])
+            scale = self.dt if self.hold_s is None else 1.0
+            m["time_in_mode_s"] = {name: float(self.mode_time_s[run, j] * scale) for j, name in enumerate(MODE_NAMES)}
+            m["mode_transitions"] = int(self.mode_transitions[run])
         if self.fault_start_s is not None:
             left = bool(self.left_after_fault[run])
             returned = lo < last
@@ -720,6 +783,9 @@ class MetricsAccumulator:
             "max_abs_wheel_speed_rad_s": self.wheel_speed_max, "max_abs_wheel_torque_Nm": self.wheel_torque_max}
         if wheels and self.wheel_energy is not None:
             wheels["wheel_energy_J"] = self.wheel_energy
+        if self.mode_entry_s is not None and self.mode_transitions is not None:
+            wheels["time_to_track_s"] = self.mode_entry_s[:, TRACK].copy()
+            wheels["mode_transitions"] = self.mode_transitions.astype(np.float64)
         if self.est_att_max is not None:
             per_run = [self._estimation_metrics(k) for k in range(self.finite.shape[0])]
             wheels.update({key: np.array([np.nan if m[key] is None else m[key] for m in per_run], dtype=np.float64)

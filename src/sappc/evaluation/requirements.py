@@ -11,8 +11,13 @@ Every run is judged, whether or not its scenario states requirements:
   last sample (the metric ``control_lost_at_s``); a fault's transient that comes back within the
   bound is not a loss;
 - the controller computed the torque of fewer than :data:`MIN_COMMANDED_FRACTION` of the run's
-  samples (it held, zeroed or refused the rest: lost inputs, a withheld estimate, a starved
-  real-time loop): the spacecraft flew open loop more than closed.
+  samples it was active for (it held, zeroed or refused the rest: lost inputs, a withheld
+  estimate, a starved real-time loop): the spacecraft flew open loop more than closed.  With
+  flight modes, the samples outside TRACK (``inactive``: the mode's own law flew them) are not
+  the controller's.
+
+**Never tracked**: with flight modes, a run that never reached TRACK (its ``mode_sequence`` says
+where it stayed).
 
 **Non-finite**: a run whose state or torque became non-finite.
 
@@ -72,9 +77,12 @@ def loss_of_control(metrics: Mapping[str, Any], controller: Mapping[str, Any] | 
                    f"to the end" + ("" if peak is None else f" (up to {peak:.5g})"))
     cmd = None if controller is None else controller.get("commanded")
     n = None if controller is None else controller.get("samples")
+    inactive = 0 if controller is None else int(controller.get("inactive") or 0)  # flight modes: the samples another mode's law flew
+    if n is not None:
+        n -= inactive
     if cmd is not None and n and bool(lost_control(np.nan, cmd, n)):
-        out.append(f"control lost: the controller computed the torque of {cmd} of {n} samples "
-                   f"({cmd / n:.0%}, fewer than {MIN_COMMANDED_FRACTION:.0%})")
+        of = f"of the {n} samples it was active for" if inactive else f"of {n} samples"
+        out.append(f"control lost: the controller computed the torque of {cmd} {of} ({cmd / n:.0%}, fewer than {MIN_COMMANDED_FRACTION:.0%})")
     return out
 
 
@@ -85,6 +93,8 @@ def failed_requirements(metrics: Mapping[str, Any], requirements: Mapping[str, f
     ``metrics`` break."""
     failed = [] if metrics.get("finite", True) else ["the run became non-finite"]
     failed += loss_of_control(metrics, controller, settle_threshold=settle_threshold)
+    if "mode_sequence" in metrics and metrics.get("time_to_track_s") is None:
+        failed.append("the flight never reached TRACK (modes flown: " + ", ".join(metrics["mode_sequence"]) + ")")
     for key, bound in requirements.items():
         name = key[: -len("_max")]
         value = metrics.get(name)

@@ -692,6 +692,9 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
             raise ConfigError(f"{scenario_path}: an orbit (sections orbit, magnetorquers, magnetometer, momentum_management) runs on the "
                               f"graph in lockstep on the native plant only, got {'--realtime' if realtime else f'--plant {plant}'}: "
                               "run it in lockstep, or offline with sappc simulate (docs/how-to/momentum.md)")
+        if scenario.modes is not None:  # issue 49: the mode manager is offline only so far (no mode node yet)
+            raise ConfigError(f"{scenario_path}: flight modes (section modes) fly offline only so far: the graph has no mode node yet, "
+                              "and without one it would fly another flight; run it with sappc simulate (docs/design/modes.md)")
         if scenario.estimator is not None and scenario.sensors is None:  # the estimator node reads what sensor models publish
             raise ConfigError(f"{scenario_path}: the estimator reads the sensors' own topics (sensors/gyro, sensors/star_tracker, "
                               "state/attitude_epoch), which the plant publishes with sensor models: add a sensors section "

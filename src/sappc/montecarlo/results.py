@@ -113,8 +113,10 @@ ESTIMATOR_COLUMNS = ("steady_max_abs_attitude_estimation_error_rad", "final_abs_
 
 
 def _samples(table: dict[str, Any]) -> NDArray[np.int64]:
-    """Each run's samples: the controller's answers of every kind, summed."""
-    out: NDArray[np.int64] = np.sum([np.asarray(table[f"answers_{name}"], dtype=np.int64) for name in ANSWER_NAMES], axis=0)
+    """Each run's samples the controller was active for: its answers of every kind but ``inactive``
+    (flight modes: the samples another mode's law flew), summed."""
+    out: NDArray[np.int64] = np.sum([np.asarray(table[f"answers_{name}"], dtype=np.int64) for name in ANSWER_NAMES
+                                     if name != "inactive"], axis=0)
     return out
 
 
@@ -225,7 +227,8 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
             why.append(f"control lost from {lost_at[k]:g} s to the end")
         commanded = int(tab["answers_commanded"][k])
         if lost_control(np.nan, commanded, samples[k]):
-            why.append(f"control lost: torque computed at {commanded} of {int(samples[k])} samples (< {MIN_COMMANDED_FRACTION:.0%})")
+            of = "of the {} samples it was active for" if int(tab.get("answers_inactive", np.zeros(k + 1, dtype=np.int64))[k]) else "of {} samples"
+            why.append(f"control lost: torque computed at {commanded} {of.format(int(samples[k]))} (< {MIN_COMMANDED_FRACTION:.0%})")
         if finite[k] and not ok_t2[k]:
             why.append(f"rpf_error_at_t2 {t2[k]:.3g} >= {crit.rpf_error_at_t2_max:g}")
         if finite[k] and not ok_steady[k]:

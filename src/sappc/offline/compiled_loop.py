@@ -25,6 +25,7 @@ disturbance          ``DisturbanceArrays`` (:func:`spacecraft_sim.core.disturban
 faults               ``FaultArrays`` (:func:`spacecraft_sim.core.faults.pack_faults`)               ``fault_sensor``, ``fault_reference``, ``fault_actuator``
 environment          ``EnvironmentArrays`` (:func:`spacecraft_sim.core.environment.pack_environment`)  ``field_of``, ``measured_field_of``, ``torque_of``
 momentum management  ``MomentumArrays`` (:func:`sappc_momentum.core.law.pack_momentum`)              ``momentum_management_step``
+flight modes         ``ModeArrays`` (:func:`sappc_modes.core.packing.pack_modes`)                   ``mode_step``, ``bdot_step``
 ===================  ==========================================================  =========================================
 
 Adding a model is its room (its arrays, its ``pack_*``, its kernels) and one registration here: a
@@ -53,6 +54,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import os
 import sys
 from dataclasses import dataclass
@@ -66,7 +68,7 @@ from gnc_common.compiled import error_quaternion, jit, jit_parallel
 from sappc_controller.core.base import SingularStartError
 from sappc_controller.core.input_check import REJECT_REASONS, sample_verdicts
 from sappc_controller.core.kernels import N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
-from sappc_controller.core.kernels import ControllerArrays, controller_step
+from sappc_controller.core.kernels import KIND_MRP_FEEDBACK, ControllerArrays, controller_step
 from sappc_controller.core.packing import pack_controller, start_coef
 from sappc_estimator.core.config import pack_estimator
 from sappc_estimator.core.mekf import EO_B, EO_MON_LEVEL, EO_MON_MEAN, EO_MON_NIS, EO_N_RECOVER, EO_NIS, EO_OMEGA, EO_Q, EO_USABLE
@@ -82,9 +84,15 @@ from spacecraft_sim.core.wheels import ActuatorArrays, ReactionWheels, allocatio
 from spacecraft_sim.core.wheels import wheel_torques
 from spacecraft_sim.core.magnetometer import magnetometer_generator
 from spacecraft_sim.core.environment import EnvironmentArrays, field_of, locked_inertia, measured_field_of, pack_environment, torque_of
-from sappc_momentum.core.law import N_MM_WORK, MomentumArrays, momentum_management_step, pack_momentum
+from sappc_momentum.core.law import N_MM_WORK, MomentumArrays, dipole_mapping, momentum_management_step, pack_momentum
+from sappc_modes.core.bdot import BS_B_PREV, BS_T_PREV, N_BDOT_STATE, bdot_step
+from sappc_modes.core.modes import DETUMBLE, HEALTH_OK, HOLD, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, R_NONE, S_MODE
+from sappc_modes.core.modes import SAFE, TRACK, mode_step
+from sappc_modes.core.modes import N_INPUTS as N_MODE_INPUTS, N_STATE as N_MODE_STATE
+from sappc_modes.core.packing import MR_ENTRY, MR_SAMPLES, MR_TRANSITIONS, N_MODE_RUN, ModeArrays, pack_modes
 from sappc_momentum.core.predictive import MS_TLAST, MS_TNEXT, N_MM_STATE
-from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO, ESTIMATOR_NO_INPUT
+from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_INACTIVE, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
+from sappc_msgs_py.contract import ESTIMATOR_NO_INPUT
 from sappc_msgs_py.convert import seconds_to_ns
 
 from sappc.evaluation.estimation import EstimateHistory
@@ -141,7 +149,11 @@ class LoopRecord(NamedTuple):
     inputs the controller rejected (invalid, implausible), ``x_final`` (N, 7 + W), ``start`` (N, 6)
     the first valid sample (:func:`_run_one`); ``env`` (N, T_rec, 9 + M or 0) with an orbit, the true
     field ``B_B`` [T], the flight software's (measured) field [T], the environment's and the rods'
-    torque ``L_env_B`` [N m] and the rods' dipole commands (M) [A m^2] (:func:`_run_one`)."""
+    torque ``L_env_B`` [N m] and the rods' dipole commands (M) [A m^2] (:func:`_run_one`); with modes,
+    ``mode`` (N, T_rec, 2 or 0) int8 the mode flown and the reason of the transition taken at the
+    sample (``R_*`` of :mod:`sappc_modes.core.modes`, ``R_NONE`` for none), and per run
+    ``mode_run`` (N, :data:`~sappc_modes.core.packing.N_MODE_RUN` or 0) each mode's first entry
+    [s], its samples and the transitions (``MR_*``)."""
 
     out: np.ndarray
     x: np.ndarray
@@ -153,6 +165,8 @@ class LoopRecord(NamedTuple):
     x_final: np.ndarray
     start: np.ndarray
     env: np.ndarray
+    mode: np.ndarray
+    mode_run: np.ndarray
 
 
 #: Columns of :attr:`LoopState.flags` (int64): whether the controller has started (its first valid
@@ -165,10 +179,11 @@ N_LOOP_FLAGS = 4
 #: the gyro's bias and its true bias in the sample's rate [rad/s], the orbit's position [m], the
 #: field in the inertial and body frames and as measured [T], the environment's torque and the
 #: total disturbance [N m], the torque functions' scratch, the wheels' body torque [N m] and the
-#: feed-forward's rate [rad/s].
+#: feed-forward's rate [rad/s], B-dot's body dipole [A m^2] (modes), zero (the hold's reference rate
+#: and its derivative).
 (V_CMD, V_U_CMD, V_U_LAST, V_U, V_D, V_BIAS, V_BIAS_K, V_R_N, V_B_N, V_B_B, V_B_MEAS, V_L_ENV, V_D_TOT, V_R_B_TMP, V_L_MTB_TMP, V_TAU_W,
- V_OMEGA_FF) = range(17)
-N_LOOP_VEC3 = 17
+ V_OMEGA_FF, V_M_B, V_ZERO) = range(19)
+N_LOOP_VEC3 = 19
 
 
 class LoopState(NamedTuple):
@@ -176,7 +191,10 @@ class LoopState(NamedTuple):
     every array the loop keeps across samples (its scratch too, so that no analysis of what is
     read before it is written can be wrong) and its scalars (``flags``, ``epoch``: the latest
     tracker epoch delivered to the filter [s]).  A few hundred float64 a run: made zero by
-    :func:`_state`, initialised by the run's first block (:func:`_initial_state`)."""
+    :func:`_state`, initialised by the run's first block (:func:`_initial_state`).  With modes:
+    the mode manager's state and inputs, the hold law's controller state, scratch and rows, the
+    attitude held (NaN until HOLD's first valid sample), the unit quaternion (SAFE's attitude and
+    reference) and B-dot's state."""
 
     flags: np.ndarray
     epoch: np.ndarray
@@ -204,10 +222,18 @@ class LoopState(NamedTuple):
     mtmp: np.ndarray
     mst: np.ndarray
     q_ff: np.ndarray
+    mode: np.ndarray
+    mode_in: np.ndarray
+    hctrl: np.ndarray
+    hwork: np.ndarray
+    hout: np.ndarray
+    q_hold: np.ndarray
+    q_unit: np.ndarray
+    bdot: np.ndarray
 
 
 @jit
-def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec, st):
+def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st):
     """The time loop of run ``n`` of the models' arrays (module docstring) over one block of samples,
     ``k = k_lo .. k_lo + B - 1`` (``B`` the block's samples, ``grid.t``'s length: the per-sample
     arrays of ``grid`` and of the models hold the block's rows), written at index ``r`` of ``rec``
@@ -268,13 +294,30 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     magnetometer) into the rods' dipoles and the wheels' torque, the controller's minus the rods'
     (:func:`~sappc_momentum.core.law.momentum_management_step`),
     which the wheels' torque path then delivers; the environment's torque (gravity gradient, rods:
-    :func:`~spacecraft_sim.core.environment.environment_torque_B`) is held beside the disturbance."""
+    :func:`~spacecraft_sim.core.environment.environment_torque_B`) is held beside the disturbance.
+
+    Flight modes (:class:`~sappc_modes.core.packing.ModeArrays` with guards; docs/design/modes.md):
+    each sample, after the estimator, :func:`~sappc_modes.core.modes.mode_step` takes the gyro's
+    rate magnitude (NaN when no measurement was delivered), the estimator's health level and the
+    largest attitude 1-sigma of its covariance (NaN without figures; without an estimator OK and
+    0 while measurements arrive), the largest wheel speed as a fraction of its limit; the loss of
+    control, the ground's request and its inhibits are not modelled offline (0, none, none).  The
+    scenario's controller computes only in TRACK, where it starts at its first valid sample (the
+    start above, whose probe runs the modes too); outside TRACK its answer is ``ANSWER_INACTIVE``
+    and the mode's law commands: DETUMBLE zero torque on the wheels and B-dot
+    (:func:`~sappc_modes.core.bdot.bdot_step`, on each new magnetometer sample, held between) on
+    the rods through :func:`~sappc_momentum.core.law.dipole_mapping` instead of momentum
+    management; HOLD the MRP feedback law on the controller's input (the estimate) towards the
+    attitude of its first valid sample in HOLD, zero rate; SAFE the same law with no attitude gain
+    on the gyro's rate (the attitude is not used).  Each entry into HOLD or SAFE restarts the law's
+    state, each into DETUMBLE B-dot's.  A second entry into TRACK continues the controller started
+    at the first (its time origin and funnel: docs/design/modes.md says what is not built)."""
     # the controller
     kind, prm, coef = ctrl.kind, ctrl.prm[n], ctrl.coef[n]
     start = rec.start[r]
     rejected = rec.rejected[r]
     if k_lo == 0:
-        _initial_state(n, r, plant, sens, est, st, rec)
+        _initial_state(n, r, plant, sens, est, md, st, rec)
     elif probe and start[0] >= 0.0:  # its start found in an earlier block
         return
     # what the loop carries from one sample to the next: this run's rows of st (LoopState)
@@ -332,6 +375,12 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     # finite one, as for the rate below (NaN before the first: the cross-product law)
     omega_ff = vec3[V_OMEGA_FF]  # the gyroscopic feed-forward's body rate: the controller's rate input of the last sample that delivered a finite
     # one (sappc_momentum.node reads the same topic: a dropped or withheld sample is "no data", NaN, and keeps the previous rate)
+    # the flight modes (issue 49): the manager's state, inputs and run summary, the hold law's rows, B-dot's state
+    moding = md.prm.shape[1] > 0
+    mode_st, mode_in, mode_run = st.mode[r], st.mode_in[r], rec.mode_run[r]
+    hctrl, hwork, hout, q_hold, q_unit, bd_st = st.hctrl[r], st.hwork[r], st.hout[r], st.q_hold[r], st.q_unit[r], st.bdot[r]
+    m_B, zero3 = vec3[V_M_B], vec3[V_ZERO]
+    md_prm, md_bdot, md_hold, md_safe = md.prm[n], md.bdot[n], md.hold_prm[n], md.safe_prm[n]
     measuring = sens.draws.shape[1] > 0
     dt = grid.dt
     T = grid.n_samples
@@ -354,6 +403,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
         if nf > 0:
             state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, faults.draws[min(kb, faults.draws.shape[0] - 1)], y)
             reference_in = fault_reference(t, fkind, fwin)
+        gyro_in = state_in and np.isfinite(y[4] + y[5] + y[6])  # the gyro's rate delivered (the mode manager's and SAFE's)
         est_status = ESTIMATOR_NO_INPUT  # no measurement delivered: no filter step (the node's code)
         if estimating:
             if state_in:
@@ -376,7 +426,41 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
                 yc[i] = y[i]
         valid = sample_verdicts(state_in, reference_in, yc[:4], yc[4:], grid.ref_q[kb], grid.ref_w[kb], grid.ref_wd[kb], ctrl.bounds, rejected)
         t_stamp = t_stamp_s  # the controller's time: its input's stamp in seconds, as the node computes it
-        if valid and not started:
+        mode = TRACK  # without modes the controller flies every sample
+        reason = R_NONE
+        if moding:  # the mode manager's inputs (sappc_modes.core.modes.IN_*; docstring), then its step
+            mode_in[IN_RATE] = math.sqrt((y[4] * y[4] + y[5] * y[5]) + y[6] * y[6]) if gyro_in else np.nan
+            if estimating:
+                mode_in[IN_HEALTH] = eout[EO_MON_LEVEL] if has_estimate else np.nan
+                mode_in[IN_SIGMA] = math.sqrt(max(P[0, 0], max(P[1, 1], P[2, 2]))) if has_estimate else np.nan
+            else:  # the measurements themselves: healthy while they arrive
+                mode_in[IN_HEALTH] = HEALTH_OK if gyro_in else np.nan
+                mode_in[IN_SIGMA] = 0.0 if gyro_in else np.nan
+            mode_in[IN_LOST] = 0.0
+            mode_in[IN_WHEEL] = np.nan
+            if nw > 0:
+                wheel_speeds_into(x, G, wprm, wspeed)  # the tachometers
+                frac = 0.0
+                for i in range(nw):
+                    frac = max(frac, abs(wspeed[i]) / wprm[i, _W_MAX_SPEED])
+                mode_in[IN_WHEEL] = frac
+            mode_in[IN_REQUEST] = -1.0
+            mode_in[IN_INHIBIT] = 0.0
+            reason = mode_step(mode_st, mode_in, md_prm)
+            mode = int(mode_st[S_MODE])
+            if reason != R_NONE:
+                mode_run[MR_TRANSITIONS] += 1.0
+                if np.isnan(mode_run[MR_ENTRY + mode]):
+                    mode_run[MR_ENTRY + mode] = t
+                if mode == HOLD or mode == SAFE:  # the hold law starts afresh, its attitude taken at its first valid sample
+                    for i in range(hctrl.shape[0]):
+                        hctrl[i] = 0.0
+                    for i in range(4):
+                        q_hold[i] = np.nan
+                elif mode == DETUMBLE:
+                    _reset_bdot(bd_st)
+            mode_run[MR_SAMPLES + mode] += 1.0
+        if valid and not started and mode == TRACK:
             if probe:  # the first valid sample: what starts the controller (docstring)
                 start[0] = k
                 start[1] = t_stamp
@@ -385,7 +469,22 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
             state[S_T0] = t_stamp
             started = True
         status = ANSWER_COMMANDED
-        if valid:
+        if mode != TRACK:  # the mode's own law (docstring); the controller is inactive
+            status = ANSWER_INACTIVE
+            law = False
+            if mode == HOLD and valid:
+                if np.isnan(q_hold[0]):
+                    for i in range(4):
+                        q_hold[i] = yc[i]
+                controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, yc[:4], yc[4:], q_hold, zero3, zero3, md_hold, coef, hctrl, hwork, hout)
+                law = True
+            elif mode == SAFE and gyro_in:
+                controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, q_unit, y[4:7], q_unit, zero3, zero3, md_safe, coef, hctrl, hwork, hout)
+                law = True
+            law = law and np.isfinite(hout[O_TORQUE, 0] + hout[O_TORQUE, 1] + hout[O_TORQUE, 2])
+            for i in range(3):
+                cmd[i] = hout[O_TORQUE, i] if law else 0.0
+        elif valid:
             controller_step(kind, t_stamp, dt, yc[:4], yc[4:], grid.ref_q[kb], grid.ref_w[kb], grid.ref_wd[kb], prm, coef, state, work, out)
             if not (np.isfinite(out[O_TORQUE, 0] + out[O_TORQUE, 1] + out[O_TORQUE, 2])
                     and np.isfinite(out[O_CMD, 0] + out[O_CMD, 1] + out[O_CMD, 2])):
@@ -403,6 +502,10 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
                     pub[row, c] = out[row, c]
             for i in range(3):
                 cmd[i] = out[O_TORQUE, i]
+        elif status == ANSWER_INACTIVE:  # the mode's law: its command, the controller's rows kept
+            for i in range(3):
+                pub[O_CMD, i] = cmd[i]
+                pub[O_SAT, i] = 0.0
         elif status != ANSWER_HELD:  # a zero answer: zero command and saturation, earlier rows
             for i in range(3):
                 cmd[i] = 0.0
@@ -436,8 +539,14 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
                 for i in range(4):
                     q_ff[i] = yc[i]
             wheel_speeds_into(x, G, wprm, wspeed)  # the tachometers
-            momentum_management_step(mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max, mm_orbit, mm_field, t_stamp_s,
-                                     wspeed, B_meas, q_ff, omega_ff, u_last, m_cmd, tau_w, mtmp, mst)
+            if mode == DETUMBLE:  # B-dot on the rods, on each new magnetometer sample (its update's time), nothing on the wheels
+                bdot_step(md_bdot, B_meas, (k - k % mag_stride) * dt, bd_st, m_B)
+                dipole_mapping(mm_steering, m_B, mm_m_max, m_cmd)
+                for i in range(3):
+                    tau_w[i] = 0.0
+            else:
+                momentum_management_step(mm_prm, mm_Gs, mm_Js, mm_Gs_pinv, mm_u_max, mm_Gt, mm_steering, mm_m_max, mm_orbit, mm_field, t_stamp_s,
+                                         wspeed, B_meas, q_ff, omega_ff, u_last, m_cmd, tau_w, mtmp, mst)
             wheel_torques(tau_w, G_pinv, G, wprm, x, uw)
         elif nw > 0:
             wheel_torques(u_last, G_pinv, G, wprm, x, uw)
@@ -455,6 +564,9 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
             for i in range(3):
                 rec.d[r, j, i] = d[i]
             rec.status[r, j] = status
+            if moding:
+                rec.mode[r, j, 0] = mode
+                rec.mode[r, j, 1] = reason
             if orbiting:
                 for i in range(3):
                     rec.env[r, j, i] = B_B[i]
@@ -508,8 +620,23 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
         rec.x_final[r, i] = x[i]
 
 
+#: The column of the wheels' speed limit [rad/s] in their kernels' parameters
+#: (:meth:`spacecraft_sim.core.wheels.ReactionWheels.params`): the mode manager's wheel guard.
+_W_MAX_SPEED = 2
+
+
 @jit
-def _initial_state(n, r, plant, sens, est, st, rec):
+def _reset_bdot(bd_st):
+    """B-dot's state as :func:`sappc_modes.core.bdot.new_bdot_state` makes it: no previous field, zero dipole."""
+    for i in range(bd_st.shape[0]):
+        bd_st[i] = 0.0
+    for i in range(3):
+        bd_st[BS_B_PREV + i] = np.nan
+    bd_st[BS_T_PREV] = np.nan
+
+
+@jit
+def _initial_state(n, r, plant, sens, est, md, st, rec):
     """Run ``n``'s state before its first sample into row ``r`` of ``st`` (:class:`LoopState`,
     allocated zero by :func:`_state`) and of ``rec``'s per-run arrays: what is not zero at the start."""
     pub = st.pub[r]
@@ -533,15 +660,27 @@ def _initial_state(n, r, plant, sens, est, st, rec):
     st.mst[r, MS_TLAST] = np.nan
     for i in range(4):
         st.q_ff[r, i] = np.nan
+    if md.prm.shape[1] > 0:  # the flight modes: the first mode entered at t = 0
+        for i in range(st.mode.shape[1]):
+            st.mode[r, i] = 0.0
+        st.mode[r, S_MODE] = md.initial[n]
+        for i in range(N_MODE_RUN):
+            rec.mode_run[r, i] = np.nan if i < MR_SAMPLES else 0.0
+        rec.mode_run[r, MR_ENTRY + int(md.initial[n])] = 0.0
+        _reset_bdot(st.bdot[r])
+        for i in range(4):
+            st.q_hold[r, i] = np.nan
+            st.q_unit[r, i] = 0.0
+        st.q_unit[r, 3] = 1.0
 
 
 @jit_parallel
-def run_batch_kernel(probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec, st):
+def run_batch_kernel(probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st):
     """Every run of a batch over one block of samples, in parallel over runs (``prange``);
     ``probe``: the first pass of :func:`_run_one` (each run's first valid sample into ``rec.start``)."""
     for i in prange(plant.x0.shape[0]):
         n = np.int64(i)  # prange's index is unsigned: one signature of _run_one for every entry (one compile)
-        _run_one(n, n, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, rec, st)
+        _run_one(n, n, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st)
 
 
 def _run_alone(n: int, probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState) -> None:
@@ -661,6 +800,7 @@ class CompiledInputs:
     faults: FaultArrays
     environment: EnvironmentArrays
     momentum: MomentumArrays
+    modes: ModeArrays
     config: Any = None
     on_infeasible: str = "raise"
     flags: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
@@ -671,7 +811,7 @@ class CompiledInputs:
     k_lo: int = 0
 
     #: The models, in the kernels' argument order.
-    MODELS = ("controller", "plant", "actuator", "sensors", "estimator", "disturbance", "faults", "environment", "momentum")
+    MODELS = ("controller", "plant", "actuator", "sensors", "estimator", "disturbance", "faults", "environment", "momentum", "modes")
 
     @property
     def t(self) -> np.ndarray:
@@ -852,6 +992,12 @@ class CompiledRun:
         """(N, 2) int64 the inputs the controller rejected, by reason (``invalid``, ``implausible``)."""
         return self.record.rejected
 
+    @property
+    def mode_run(self) -> np.ndarray:
+        """(N, :data:`~sappc_modes.core.packing.N_MODE_RUN` or 0) each run's mode summary: each
+        mode's first entry [s] (NaN: never), its samples, the transitions (``MR_*``)."""
+        return self.record.mode_run
+
     def status_counts(self) -> dict[str, np.ndarray]:
         """Samples of each status per run (N,), by :data:`ANSWER_NAMES`."""
         return {name: np.count_nonzero(self.status == code, axis=1) for code, name in enumerate(ANSWER_NAMES)}
@@ -891,6 +1037,8 @@ class CompiledRun:
             estimate=self.estimates(),
             orbit=self.env.transpose(1, 0, 2) if self.env.shape[2] else None,
             answer=self.status.T,
+            mode=self.record.mode[..., 0].T if self.record.mode.shape[2] else None,
+            mode_reason=self.record.mode[..., 1].T if self.record.mode.shape[2] else None,
         )
 
 
@@ -958,6 +1106,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
         faults=pack_faults(per_run_faults, t_ns),
         environment=(env_arrays := _environment(scenario, n, run_keys, orbits, n_samples=0)),  # the magnetometer's draws per block
         momentum=_momentum(scenario, n, env_arrays),
+        modes=_modes(scenario, n),
         config=cfg,
         on_infeasible=on_infeasible,
         maker=maker,
@@ -1009,6 +1158,24 @@ def _momentum(scenario: Scenario, n: int, env_arrays: EnvironmentArrays) -> Mome
                          rods.Gt, rods.steering_matrix(), rods.max_dipoles(), env_arrays.orbit, env_arrays.field)
 
 
+def _modes(scenario: Scenario, n: int) -> ModeArrays:
+    """The scenario's flight modes for ``n`` runs (none: every array empty): the guards, the first
+    mode, the B-dot gain, and the MRP feedback rows of HOLD (``modes.hold_gains``, the scenario's
+    inertia and actuator) and of SAFE (the same with no attitude gain: rate damping)."""
+    modes = scenario.modes
+    if modes is None:
+        return pack_modes(None, n, scenario.control_period_s)
+    from sappc_controller.core.kernels import P_MRP_K
+    from sappc_controller.core.mrp_feedback import MrpFeedbackConfig
+    from sappc_controller.core.packing import pack_params
+
+    hold = pack_params(MrpFeedbackConfig(tuple(map(tuple, scenario.inertia_kg_m2.tolist())), modes.hold_gains, scenario.actuator), 1)[0]
+    safe = hold.copy()
+    safe[P_MRP_K] = 0.0  # SAFE: the attitude is not trusted, the rate alone is damped
+    return pack_modes(modes.transitions, n, scenario.control_period_s, initial_mode=modes.initial_mode,
+                      bdot_gain_N_m_s=modes.detumble_gain_N_m_s, hold_prm=hold, safe_prm=safe)
+
+
 def _started(inp: CompiledInputs) -> CompiledInputs:
     """``inp`` with each run's start (:func:`_run_one`'s docstring): the first pass of the loop
     (``probe``) finds each run's first valid sample and its error quaternion, block after block
@@ -1049,9 +1216,11 @@ def _record(inp: CompiledInputs, stride: int, n: int, samples: int | None = None
     T = inp.n_samples if samples is None else samples
     T_rec = 0 if stride == 0 else (T - 1) // stride + 1
     W = inp.n_wheels
+    moding = inp.modes.active
     return LoopRecord(np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, T_rec), dtype=np.int8),
                       np.zeros((n, T_rec, W, 2)), np.zeros((n, T_rec, N_EST_RECORD if inp.estimating else 0)), np.zeros((n, 2), dtype=np.int64),
-                      np.zeros((n, 7 + W)), np.zeros((n, 6)), np.zeros((n, T_rec, inp.n_env_record)))
+                      np.zeros((n, 7 + W)), np.zeros((n, 6)), np.zeros((n, T_rec, inp.n_env_record)),
+                      np.zeros((n, T_rec, 2 if moding else 0), dtype=np.int8), np.zeros((n, N_MODE_RUN if moding else 0)))
 
 
 def _state(inp: CompiledInputs, n: int) -> LoopState:
@@ -1063,7 +1232,9 @@ def _state(inp: CompiledInputs, n: int) -> LoopState:
     return LoopState(z((n, N_LOOP_FLAGS), dtype=np.int64), z((n, 1)), z((n, N_LOOP_VEC3, 3)), z((n, N_STATE)), z((n, N_WORK, 4)),
                      z((n, N_OUT, 4)), z((n, N_OUT, 4)), z((n, 7 + W)), z((n, W)), z((n, W)), z((n, 5, 7 + W)), z((n, 3, 3)), z((n, N_MEAS)),
                      z((n, 5)), z((n, N_MEAS)), z((n, 7)), z((n, N_EST_STATE)), z((n, 6, 6)), z((n, N_EST_WORK, 6)), z((n, N_EST_OUT)),
-                     z((n, nf), dtype=np.int64), z((n, nf, depth, N_FVALUE)), z((n, nm)), z((n, N_MM_WORK, 3)), z((n, N_MM_STATE)), z((n, 4)))
+                     z((n, nf), dtype=np.int64), z((n, nf, depth, N_FVALUE)), z((n, nm)), z((n, N_MM_WORK, 3)), z((n, N_MM_STATE)), z((n, 4)),
+                     z((n, N_MODE_STATE)), z((n, N_MODE_INPUTS)), z((n, N_STATE)), z((n, N_WORK, 4)), z((n, N_OUT, 4)), z((n, 4)), z((n, 4)),
+                     z((n, N_BDOT_STATE)))
 
 
 def _check_noise(inp: CompiledInputs) -> None:
@@ -1116,7 +1287,7 @@ def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None =
 
 
 #: The fields of :class:`LoopRecord` that are per run, not per sample.
-_PER_RUN = ("rejected", "x_final", "start")
+_PER_RUN = ("rejected", "x_final", "start", "mode_run")
 
 
 def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState) -> None:

@@ -42,13 +42,15 @@ def _wheel_momentum_B(sc: Any, run: Any) -> np.ndarray:
 
 #: The bundled scenarios with momentum management: the 6 h scenario and its orbits of the momentum
 #: page's campaign (docs/how-to/momentum.md, "Across orbits").
-MANAGED = {"paper_tracking_orbit", "paper_tracking_orbit_800km", "paper_tracking_orbit_800km_sso"}
+MANAGED = {"paper_tracking_orbit", "paper_tracking_orbit_800km", "paper_tracking_orbit_800km_sso", "flight_separation"}
+#: The bundled scenarios in orbit: the orbit ones, and the separation (issue 49: its modes detumble on the rods).
+IN_ORBIT = {"flight_separation"}
 
 
 def test_no_bundled_scenario_but_the_orbit_ones_has_an_environment() -> None:
     for bundled in bundled_scenarios():
         sc = load_scenario(bundled.path)
-        assert (sc.environment is not None) == ("orbit" in sc.name), sc.name
+        assert (sc.environment is not None) == ("orbit" in sc.name or sc.name in IN_ORBIT), sc.name
         assert (sc.momentum is not None) == (sc.name in MANAGED), sc.name
 
 

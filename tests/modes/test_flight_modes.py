@@ -1,0 +1,227 @@
+"""The flight modes in the offline closed loop (issue 49): the ``modes`` section, the loop's laws in
+each mode, the start of the controller at TRACK's entry, the mode metrics and verdict, and the
+separation scenario from tip-off to tracking."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from gnc_common.validation import ConfigError
+from sappc.evaluation.requirements import failed_requirements
+from sappc.files import scenario_path
+from sappc.offline.compiled_loop import prepare, run_batch, run_blocks, run_single
+from sappc.offline.simulate import simulate
+from sappc.scenario import load_scenario, read_scenario_mapping, scenario_from_mapping
+from sappc_controller.core.kernels import O_RHO, O_TORQUE
+from sappc_modes.core.bdot import detumble_gain
+from sappc_modes.core.modes import DETUMBLE, HOLD, R_ACQUIRED, R_DETUMBLED, R_NONE, TRACK
+from sappc_modes.core.packing import MR_ENTRY, MR_SAMPLES, MR_TRANSITIONS
+from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_INACTIVE
+
+
+def _separation(duration_s: float, **modes: Any) -> Any:
+    """The bundled separation scenario, ``duration_s`` long, its ``modes`` keys replaced."""
+    raw = read_scenario_mapping(scenario_path("flight_separation"))
+    raw["duration_s"] = duration_s
+    raw["modes"] = {**raw["modes"], **modes}
+    return scenario_from_mapping(raw)
+
+
+#: Guards quick enough for a few seconds of flight: DETUMBLE for 0.5 s whatever the rate, HOLD for
+#: 0.5 s of a healthy estimate (any 1-sigma below 1 rad), then TRACK.
+QUICK = {"transitions": {"detumbled_rate_rad_s": 10.0, "detumbled_for_s": 0.5, "healthy_for_s": 0.5, "converged_sigma_rad": 1.0}}
+
+
+# ---------------------------------------------------------------------------- the modes section
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"initial_mode": "SLEEP"}, "modes.initial_mode must be one of DETUMBLE, HOLD, TRACK, SAFE"),
+    ({"hold_gain": 1.0}, "unknown key modes.hold_gain"),
+    ({"detumble_gain_N_m_s": -1.0}, "modes.detumble_gain_N_m_s"),
+    ({"detumble_gain_N_m_s": "criteria"}, "modes.detumble_gain_N_m_s"),
+    ({"transitions": {"detumbled_rate_rad_s": 0.0}}, "detumbled_rate_rad_s"),
+    ({"hold_gains": {"K_Nm": 0.16}}, "modes.hold_gains"),
+])
+def test_the_modes_section_names_a_bad_key_or_value(change: dict[str, Any], message: str) -> None:
+    raw = read_scenario_mapping(scenario_path("flight_separation"))
+    raw["modes"] = {**raw["modes"], **change}
+    with pytest.raises(ConfigError, match=message.replace(".", r"\.")):
+        scenario_from_mapping(raw)
+
+
+def test_modes_need_the_rods_and_momentum_management() -> None:
+    raw = read_scenario_mapping(scenario_path("flight_separation"))
+    raw["momentum_management"] = None
+    with pytest.raises(ConfigError, match="modes needs an orbit, magnetorquers and momentum_management"):
+        scenario_from_mapping(raw)
+    raw = read_scenario_mapping(scenario_path("flight_separation"))
+    del raw["modes"]["hold_gains"]
+    with pytest.raises(ConfigError, match="modes.hold_gains is required"):
+        scenario_from_mapping(raw)
+
+
+def test_the_criterion_gain_is_computed_from_the_orbit_field_and_inertia() -> None:
+    """``criterion``: k* = 2 n (1 + sin xi_m) J_min with xi_m the angle between the orbit's normal
+    and the dipole's axis at t = 0, computed here from the file's numbers by hand."""
+    sc = load_scenario(scenario_path("flight_separation"))
+    raw = read_scenario_mapping(scenario_path("flight_separation"))
+    orbit, field = raw["orbit"], raw["orbit"]["magnetic_field"]
+    i = math.radians(orbit["inclination_deg"])  # raan 0, Earth rotation angle 0 in the file
+    assert orbit["raan_deg"] == 0.0 and orbit["earth_rotation_angle_deg"] == 0.0
+    normal = np.array([0.0, -math.sin(i), math.cos(i)])
+    m = np.array([field["g11_nT"], field["h11_nT"], field["g10_nT"]])
+    xi = math.acos(abs(normal @ m) / np.linalg.norm(m))
+    n = sc.environment.orbit.mean_motion_rad_s
+    assert sc.modes is not None and sc.modes.detumble_gain_source == "criterion"
+    expected = detumble_gain(n, min(xi, math.pi - xi), 4.0)  # J = diag(4, 4, 4)
+    assert sc.modes.detumble_gain_N_m_s == pytest.approx(expected, rel=1e-12)  # the same formula, operands rounded alike
+    assert sc.modes.detumble_gain_N_m_s == pytest.approx(2 * n * (1 + math.sin(xi)) * 4.0, rel=1e-12)
+    given = _separation(1.0, detumble_gain_N_m_s=0.02)
+    assert given.modes is not None and given.modes.detumble_gain_N_m_s == 0.02 and given.modes.detumble_gain_source == "given"
+
+
+# ---------------------------------------------------------------------------- the loop in each mode
+
+
+@pytest.fixture(scope="module")
+def detumbling() -> Any:
+    """Twenty seconds of the separation: DETUMBLE throughout (its rate is far above the guard's)."""
+    sc = _separation(20.0)
+    return sc, run_single(prepare(sc), 0, 1)
+
+
+def test_detumble_commands_b_dot_on_the_rods_and_nothing_on_the_wheels(detumbling: Any) -> None:
+    sc, run = detumbling
+    mode = run.record.mode[0, :, 0]
+    assert np.all(mode == DETUMBLE) and np.all(run.record.mode[0, :, 1] == R_NONE)
+    assert np.all(run.status[0] == ANSWER_INACTIVE)
+    assert np.all(run.wheels[0, :, :, 1] == 0.0)  # no motor torque
+    B_meas, m_rods = run.env[0, :, 3:6], run.env[0, :, 9:12]
+    k_gain, dt = sc.modes.detumble_gain_N_m_s, sc.control_period_s
+    stride = int(round(1.0 / (sc.environment.magnetometer.rate_hz * dt)))  # the magnetometer's update every 10 samples
+    m_max = sc.environment.magnetorquers.max_dipoles()
+    checked = 0
+    for k in range(stride, run.t.size, stride):
+        B, B_prev = B_meas[k], B_meas[k - stride]
+        m_B = -(k_gain / (B @ B)) * (B - B_prev) / (stride * dt)  # the law, with the rods along the body axes
+        expected = np.clip(m_B, -m_max, m_max)
+        # the kernel's operations in another order: a few ulps of the dipole (the field's difference
+        # is exact, its norm and the quotients round once or twice each)
+        np.testing.assert_allclose(m_rods[k], expected, rtol=1e-12, atol=0.0)
+        np.testing.assert_array_equal(m_rods[k:k + stride], np.broadcast_to(m_rods[k], (min(stride, run.t.size - k), 3)))  # held
+        checked += 1
+    assert checked == run.t.size // stride - (run.t.size % stride == 0)
+    assert np.all(m_rods[:stride] == 0.0)  # the first sample only primes the law
+    # dissipative on average: the rods' torque m x B_true against the body rate (a sample's power may
+    # be positive: the law differences the magnetometer's noisy samples, 50 nT against a change of
+    # about 200 nT a sample at this rate), and the kinetic energy falls
+    w = run.x[0, :, 4:]
+    torque = np.cross(m_rods[stride:], run.env[0, stride:, 0:3])
+    power = np.einsum("ij,ij->i", torque, w[stride:])
+    assert power.mean() < 0.0 and np.count_nonzero(power < 0.0) > 0.9 * power.size
+    assert w[-1] @ w[-1] < w[0] @ w[0]
+
+
+def test_the_controller_starts_at_tracks_entry_and_hold_flies_before() -> None:
+    sc = _separation(3.0, **QUICK)
+    inp = prepare(sc)
+    run = run_single(inp, 0, 1)
+    mode, reason = run.record.mode[0, :, 0], run.record.mode[0, :, 1]
+    k_hold = int(np.flatnonzero(mode == HOLD)[0])
+    k_track = int(np.flatnonzero(mode == TRACK)[0])
+    assert 0 < k_hold < k_track and np.all(mode[:k_hold] == DETUMBLE) and np.all(mode[k_hold:k_track] == HOLD) and np.all(mode[k_track:] == TRACK)
+    assert reason[k_hold] == R_DETUMBLED and reason[k_track] == R_ACQUIRED
+    assert np.count_nonzero(reason) == 2
+    assert k_hold == 49  # 0.5 s is 50 samples meeting the guard: the 50th (k = 49) takes the transition and flies HOLD
+    # the controller: inactive until TRACK, then it computes from its first valid sample there
+    assert np.all(run.status[0, :k_track] == ANSWER_INACTIVE) and np.all(run.status[0, k_track:] == ANSWER_COMMANDED)
+    assert np.all(np.isnan(run.out[0, :k_track, O_RHO, :3])) and np.all(np.isfinite(run.out[0, k_track:, O_RHO, :3]))
+    # HOLD: the wheels carry the hold law's torque (the first HOLD sample holds its own attitude: no attitude error)
+    assert np.any(run.out[0, k_hold:k_track, O_TORQUE, :3] != 0.0)
+    # the run's summary
+    mr = run.record.mode_run[0]
+    assert mr[MR_ENTRY + DETUMBLE] == 0.0 and mr[MR_ENTRY + HOLD] == run.t[k_hold] and mr[MR_ENTRY + TRACK] == run.t[k_track]
+    assert np.isnan(mr[MR_ENTRY + 3])
+    assert mr[MR_SAMPLES + DETUMBLE] == k_hold and mr[MR_SAMPLES + HOLD] == k_track - k_hold and mr[MR_SAMPLES + TRACK] == run.t.size - k_track
+    assert mr[MR_TRANSITIONS] == 2
+
+
+def test_a_moded_run_in_blocks_and_in_a_batch_is_the_run_alone_bit_for_bit() -> None:
+    sc = _separation(3.0, **QUICK)
+    inp = prepare(sc)
+    alone = run_single(inp, 0, 1)
+    for block in (7, 128):
+        parts = list((r.record.mode.copy(), r.record.out.copy()) for r in run_blocks(inp, 1, block))
+        assert np.array_equal(np.concatenate([p[0] for p in parts], axis=1), alone.record.mode), block
+        assert np.array_equal(np.concatenate([p[1] for p in parts], axis=1).view(np.uint8), alone.record.out.view(np.uint8)), block
+    q0 = np.stack([sc.q_BN0, sc.q_BN0])
+    batch = run_batch(prepare(sc, q_BN0=q0), 1)
+    # run 0 of the batch is the run alone (run 1 draws its own magnetometer noise: its key (1,))
+    assert np.array_equal(batch.record.mode[0], alone.record.mode[0])
+    assert np.array_equal(batch.record.x[0].view(np.uint8), alone.record.x[0].view(np.uint8))
+    assert np.array_equal(batch.record.mode_run[0], alone.record.mode_run[0], equal_nan=True)
+
+
+def test_the_mode_metrics_and_a_flight_that_never_tracks_fails() -> None:
+    sc = _separation(3.0, **QUICK)
+    result = simulate(sc, history="none")
+    m = result.metrics
+    assert m["mode_sequence"] == ["DETUMBLE", "HOLD", "TRACK"]
+    assert m["mode_transitions"] == 2
+    times = m["time_in_mode_s"]
+    assert sum(times.values()) == pytest.approx(301 * 0.01, abs=1e-9)  # every sample held dt
+    assert times["DETUMBLE"] == pytest.approx(0.49, abs=1e-9) and times["SAFE"] == 0.0  # k = 0 .. 48 (test above)
+    assert m["time_to_track_s"] == pytest.approx(0.49 + times["HOLD"], abs=1e-9)
+    assert result.controller_summary["inactive"] == round((times["DETUMBLE"] + times["HOLD"]) / 0.01)
+    # a flight that stays in DETUMBLE (the default guards: 1 s is far too short to detumble)
+    stuck = simulate(_separation(1.0), history="none")
+    assert stuck.metrics["mode_sequence"] == ["DETUMBLE"] and stuck.metrics["time_to_track_s"] is None
+    failed = failed_requirements(stuck.metrics, {}, stuck.controller_summary)
+    assert "the flight never reached TRACK (modes flown: DETUMBLE)" in failed
+    assert not any("computed the torque" in line for line in failed)  # its inactive samples are not the controller's
+
+
+def test_the_graph_refuses_a_scenario_with_modes(tmp_path: Any) -> None:
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "sappc", "run", "flight_separation", "--out", str(tmp_path / "run")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert "flight modes (section modes) fly offline only so far" in proc.stderr
+
+
+# ---------------------------------------------------------------------------- the separation
+
+
+def test_the_separation_detumbles_acquires_and_tracks_to_the_flight_figures() -> None:
+    """The bundled separation scenario, whole (an orbit): DETUMBLE, HOLD, TRACK; the tracking error
+    in the steady window (from 1200 s, after TRACK's start) within the flight scenario's 5e-5
+    (paper_tracking_flight's requirement on the max)."""
+    sc = load_scenario(scenario_path("flight_separation"))
+    result = simulate(sc, history="none")
+    m = result.metrics
+    assert m["mode_sequence"] == ["DETUMBLE", "HOLD", "TRACK"]
+    assert m["finite"] and m["control_lost_at_s"] is None
+    assert m["time_to_track_s"] is not None and m["time_to_track_s"] < sc.metrics.steady_from_s - 25.0  # SAPPC's transient before the window
+    assert m["steady_max_abs_qev"] <= 5.0e-5
+    assert failed_requirements(m, sc.metrics.requirements, result.controller_summary, settle_threshold=sc.metrics.settle_threshold) == []
+
+
+def test_replace_gives_a_mapping_whole_instead_of_merged(tmp_path: Any) -> None:
+    """``replace: [metrics.requirements]`` drops the base's requirements (the separation's are its
+    own: none of the flight scenario's settling time, overshoot or switching rate)."""
+    sc = load_scenario(scenario_path("flight_separation"))
+    assert set(sc.metrics.requirements) == {"steady_max_abs_qev_max", "max_abs_wheel_speed_rad_s_max", "time_to_track_s_max"}
+    merged = tmp_path / "merged.yaml"
+    merged.write_text("extends: flight_separation.yaml\nmetrics:\n  requirements: {overshoot_max: 1.0}\n")
+    assert set(load_scenario(merged).metrics.requirements) == set(sc.metrics.requirements) | {"overshoot_max"}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("extends: flight_separation.yaml\nreplace: metrics.requirements\n")
+    with pytest.raises(ConfigError, match="replace must be a list of dotted keys"):
+        load_scenario(bad)
