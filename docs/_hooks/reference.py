@@ -417,6 +417,8 @@ def gen_scenario(_: str | None = None) -> str:
         [code("detumble_gain_N_m_s"), f"number or {code(sc.GAIN_CRITERION)}", code(sc.GAIN_CRITERION),
          "B-dot's gain [N m s]; `criterion`: `k* = 2 n (1 + sin xi_m) J_min` from the orbit, the field and the inertia."],
         [code("hold_gains"), f"[mapping](#{_anchor('modes.hold_gains')})", "required", "HOLD's MRP feedback gains (SAFE: `P_Nms` alone)."],
+        [code("hold_attitude"), " or ".join(code(a) for a in sc.HOLD_ATTITUDES), code(sc.HOLD_ATTITUDES[0]),
+         "HOLD holds the attitude of its entry, or points at the scenario's reference (an acquisition before TRACK)."],
         [code("transitions"), f"[mapping](#{_anchor('modes.transitions')})", "see below", "The guards' thresholds and persistences."]]), ""]
     out += dataclass_sections(MrpFeedbackGains, "modes.hold_gains", level=3)
     out += dataclass_sections(ModeConfig, "modes.transitions", level=3)

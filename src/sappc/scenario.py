@@ -299,7 +299,10 @@ class MetricSettings:
 
 
 #: The keys of the ``modes`` section.
-MODES_KEYS = ("initial_mode", "transitions", "detumble_gain_N_m_s", "hold_gains")
+MODES_KEYS = ("initial_mode", "transitions", "detumble_gain_N_m_s", "hold_gains", "hold_attitude")
+#: ``modes.hold_attitude``: HOLD holds the attitude of its entry (an inertial hold), or points at the
+#: scenario's reference (an acquisition: TRACK then starts near it, with ``transitions.acquired_error_rad``).
+HOLD_ATTITUDES = ("entry", "reference")
 #: ``modes.detumble_gain_N_m_s: criterion``: the gain of Avanzini and Giulietti's criterion from the
 #: scenario's orbit, field and inertia (:func:`detumble_criterion_gain`).
 GAIN_CRITERION = "criterion"
@@ -322,8 +325,11 @@ class FlightModes:
     detumble_gain_source : str
         ``criterion`` when the gain is the criterion's (:func:`detumble_criterion_gain`), else ``given``.
     hold_gains : MrpFeedbackGains
-        The MRP feedback gains of HOLD (on the estimate, towards the attitude at HOLD's entry) and
-        of SAFE (``P_Nms`` alone: rate damping on the gyro).
+        The MRP feedback gains of HOLD (on the estimate) and of SAFE (``P_Nms`` alone: rate
+        damping on the gyro).
+    hold_on_reference : bool
+        ``modes.hold_attitude: reference``: HOLD points at the scenario's reference; ``entry``
+        (default): it holds the attitude of its entry.
     """
 
     transitions: ModeConfig
@@ -331,6 +337,7 @@ class FlightModes:
     detumble_gain_N_m_s: float
     detumble_gain_source: str
     hold_gains: MrpFeedbackGains
+    hold_on_reference: bool = False
 
 
 def detumble_criterion_gain(environment: Environment, inertia_kg_m2: Array) -> tuple[float, float]:
@@ -386,7 +393,10 @@ def _modes_from_mapping(data: Any, environment: Environment | None, momentum: Mo
         hold: MrpFeedbackGains = from_mapping(MrpFeedbackGains, data["hold_gains"], "modes.hold_gains")
     except ConfigError as exc:
         raise _named("modes.hold_gains", exc) from None
-    return FlightModes(transitions, MODE_NAMES.index(name), float(k), source, hold)
+    attitude = data.get("hold_attitude", HOLD_ATTITUDES[0])
+    if attitude not in HOLD_ATTITUDES:
+        raise ConfigError(f"modes.hold_attitude must be one of {', '.join(HOLD_ATTITUDES)}, got {attitude!r}")
+    return FlightModes(transitions, MODE_NAMES.index(name), float(k), source, hold, attitude == "reference")
 
 
 @dataclass(frozen=True)

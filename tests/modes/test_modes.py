@@ -4,6 +4,7 @@ compiled against interpreted, and the configuration's checks."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -21,10 +22,10 @@ STEPS = [pytest.param(m.mode_step, id="compiled"), pytest.param(m.mode_step.py_f
 
 
 def sample(rate: float = math.nan, health: float = math.nan, sigma: float = math.nan, lost: float = 0.0, wheel: float = math.nan,
-           request: float = -1.0, inhibit: float = 0.0) -> np.ndarray:
+           request: float = -1.0, inhibit: float = 0.0, error: float = math.nan) -> np.ndarray:
     x = np.empty(m.N_INPUTS)
     x[m.IN_RATE], x[m.IN_HEALTH], x[m.IN_SIGMA], x[m.IN_LOST] = rate, health, sigma, lost
-    x[m.IN_WHEEL], x[m.IN_REQUEST], x[m.IN_INHIBIT] = wheel, request, inhibit
+    x[m.IN_WHEEL], x[m.IN_REQUEST], x[m.IN_INHIBIT], x[m.IN_ERROR] = wheel, request, inhibit, error
     return x
 
 
@@ -173,3 +174,23 @@ def test_a_flight_starts_in_a_mode_of_the_four() -> None:
             m.new_mode_state(bad)
     with pytest.raises(ConfigError, match="dt_s"):
         CONFIG.packed(0.0)
+
+
+@pytest.mark.parametrize("step", STEPS)
+def test_with_an_acquisition_threshold_hold_hands_over_only_near_the_reference(step: Any) -> None:
+    """``acquired_error_rad``: HOLD -> TRACK also needs the error against the reference within it,
+    every sample of ``healthy_for_s`` (at the threshold counts; NaN, unknown, does not); without
+    it (default) the error is not read."""
+    params = dataclasses.replace(CONFIG, acquired_error_rad=0.02).packed(DT)
+    state = at(m.HOLD)
+    for _ in range(20):  # healthy but far: never
+        assert step(state, sample(**GOOD, error=0.5), params) == m.R_NONE
+    for _ in range(20):  # healthy, the error unknown: never
+        assert step(state, sample(**GOOD), params) == m.R_NONE
+    reasons = [int(step(state, sample(**GOOD, error=0.02), params)) for _ in range(5)]
+    assert reasons == [m.R_NONE] * 4 + [m.R_ACQUIRED]  # 0.5 s at 0.1 s: the 5th sample at the threshold
+    state = at(m.HOLD)
+    assert [int(step(state, sample(**GOOD, error=0.5), PARAMS)) for _ in range(5)] == [m.R_NONE] * 4 + [m.R_ACQUIRED]  # not read
+    with pytest.raises(ConfigError, match="acquired_error_rad"):
+        m.ModeConfig(acquired_error_rad=0.0)
+    assert m.ModeConfig().packed(DT)[m.P_ACQUIRED] == math.inf

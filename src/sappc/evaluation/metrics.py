@@ -11,7 +11,13 @@ Its memory does not grow with a run's duration (issue 47) when it is given the s
 per-run state, the per-orbit table (a row per orbit), the open orbit's rods' duty samples (one
 orbit at most) and the campaign's per-sample NEES (at most :data:`NEES_EXACT_MAX_SAMPLES`
 samples).  Every metric is the same bits for any split of the run into blocks.
-Definitions, per run:
+Definitions, per run, each from the run's **origin**: its first sample, or with flight modes its
+first sample in TRACK (docs/design/modes.md: the scenario's controller starts there); the samples
+before the origin enter none of the metrics below but the loss-of-control rule's (they are before
+the steady window) and ``finite``, and a run that never reaches TRACK has no origin (its settling
+time, steady and RPF metrics unknown).  Times ``t`` below count from the origin (``steady_from_s``
+and ``t2_s`` after it), except ``control_lost_at_s`` and ``returned_at_s``, which are the run's own
+times:
 
 ``settling_time_s``
     The first sample time after which ``max_i |q_ev,i|`` stays below
@@ -267,13 +273,20 @@ class MetricsAccumulator:
         self.k_t2 = k_t2 if k_t2 >= 0 and abs(self.time_s(k_t2) - t2_s) <= 0.5 * self.dt + _TIME_TOL_S else -1
         self.fault_start_s = min((s for s, _ in fault_windows), default=None)
         n = n_runs
+        # each run's origin: the sample its tracking starts at (0; with flight modes TRACK's first
+        # sample, -1 until the run reaches it: set by add_history from the mode record), its steady
+        # samples and the first one's index, its sample nearest t2 after the origin (-1: none)
+        self.origin_k = np.zeros(n, dtype=np.int64)
+        self.steady_n = np.zeros(n, dtype=np.int64)
+        self.steady_first = np.full(n, -1, dtype=np.int64)
+        self.k_t2_run = np.full(n, self.k_t2, dtype=np.int64)
+        self.t2_s = t2_s
         self.last_unsettled = np.full(n, -1)  # last sample with max|q_ev| >= threshold
         self.last_controlled = np.full(n, -1)  # last finite sample before the steady window or within the loss bound
         self.steady_sum = np.zeros((n, 3))
-        self.steady_count = 0
         self.steady_max = np.zeros(n)
         self.rpf_error_t2_axis = np.full((n, 3), np.nan)
-        self.sign0: Array | None = None
+        self.sign0 = np.zeros((n, 3))  # the error's signs at the run's origin (the overshoot's)
         self.overshoot = np.zeros(n)
         self.max_torque = np.zeros(n)
         # per axis: sign(u) of the last steady sample (NaN: none yet), the last non-zero one (0: none yet), the counts
@@ -325,7 +338,7 @@ class MetricsAccumulator:
         self.orb_speed_max = np.full((n, n_orbits), np.nan)
         self.orb_dipole_sum = np.full((n, n_orbits), np.nan)
         self.orb_samples = np.zeros(n_orbits, dtype=np.int64)
-        self.orb_steady_samples = np.zeros(n_orbits, dtype=np.int64)
+        self.orb_steady_samples = np.zeros((n, n_orbits), dtype=np.int64)  # per run: its steady window is its own
         self._orb_open = -1  # the open orbit (-1: none yet)
         self._rods_runs = [n]  # the runs of each group of the rods' buffers
         self._rods_buffers: list[Array | None] = [None]  # per group (capacity, runs, M), allocated with the first rods' samples
@@ -360,12 +373,12 @@ class MetricsAccumulator:
         return min(candidates, key=lambda k: abs(float(self.time_s(k)) - t_s))  # min keeps the first of equals
 
     #: Per-run state (leading axis N), concatenated by :meth:`concatenate`.
-    _PER_RUN = ("last_unsettled", "last_controlled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
+    _PER_RUN = ("origin_k", "steady_n", "steady_first", "k_t2_run", "last_unsettled", "last_controlled", "steady_sum", "steady_max", "rpf_error_t2_axis", "sign0", "overshoot", "max_torque",
                 "torque_sign", "torque_sign_nonzero", "torque_sign_changes", "torque_reversals", "saturated_count", "outside_count",
                 "outside_s", "last_outside", "left_after_fault", "finite", "wheel_speed_max", "wheel_torque_max", "wheel_energy", "est_att_max",
                 "est_att_sq", "est_att_n", "est_bias_last", "est_nees_sum", "est_nees_n", "est_status_counts", "est_mon_error", "est_mon_n",
                 "est_withheld", "est_recoveries", "orb_steady_max", "orb_steady_sum", "orb_h_max", "orb_h_end", "orb_speed_max",
-                "orb_dipole_sum", "mode_time_s", "mode_entry_s", "mode_transitions", "mode_last", "mode_seq")
+                "orb_dipole_sum", "orb_steady_samples", "mode_time_s", "mode_entry_s", "mode_transitions", "mode_last", "mode_seq")
     #: Per-sample sums over runs, added by :meth:`concatenate`.
     _SUMMED = ("nees_sum_t", "nees_runs_t")
 
@@ -375,7 +388,7 @@ class MetricsAccumulator:
         fed the same samples: sub-batches of a campaign).  Per-run results are unchanged: each part's
         open orbit's rods' samples stay a group of their own (their duty summed as the part's)."""
         first = parts[0]
-        if any(p.samples != first.samples or p.steady_count != first.steady_count for p in parts):
+        if any(p.samples != first.samples for p in parts):
             raise ValueError("accumulators fed different samples cannot be concatenated")
         for p in parts:
             p._write_open_rods()
@@ -398,6 +411,8 @@ class MetricsAccumulator:
         per-orbit table included, is the same bits for any split into blocks and calls (sums run
         sample after sample; the rods' duty waits for its orbit's last sample)."""
         T = h.t.size
+        if h.mode is not None:
+            self._set_origins(h.mode)
         step = T if block_samples is None or T == 0 else max(1, int(block_samples))
         for lo in range(0, max(T, 1), max(step, 1)):
             b = h if step >= T else h.samples(lo, lo + step)
@@ -410,6 +425,40 @@ class MetricsAccumulator:
                 self._update_orbits(b)
             if b.mode is not None:
                 self._update_modes(b.t, b.mode)
+
+    def _set_origins(self, mode: NDArray[np.int8]) -> None:
+        """With flight modes, each run's origin is TRACK's first sample (module docstring): from a
+        block's mode record (B, N), the block that follows the samples seen; a run not yet in
+        TRACK has none (-1), its metrics waiting for it."""
+        m = np.asarray(mode)
+        if self.samples == 0:  # a record with modes: every origin (and its t2 sample) waits for TRACK
+            self.origin_k[:] = -1
+            self.k_t2_run[:] = -1
+        waiting = self.origin_k < 0
+        if not waiting.any() or m.shape[0] == 0:
+            return
+        tracking = m[:, waiting] == TRACK
+        found = tracking.any(axis=0)
+        runs = np.flatnonzero(waiting)[found]
+        self.origin_k[runs] = self.samples + np.argmax(tracking[:, found], axis=0)
+        origin = self.origin_s()
+        for r in runs:  # the RPF's error is read t2 after the origin
+            k = self._nearest_sample(float(origin[r]) + self.t2_s)
+            ok = k >= 0 and abs(float(self.time_s(k)) - float(origin[r]) - self.t2_s) <= 0.5 * self.dt + _TIME_TOL_S
+            self.k_t2_run[r] = k if ok else -1
+
+    def origin_s(self) -> Array:
+        """Each run's origin's time [s]: 0 for a run counted from its first sample (the times are
+        the run's own: a bag's may start later), else its origin sample's time (TRACK's entry);
+        NaN: not reached."""
+        o = self.origin_k
+        return np.where(o > 0, self.time_s(np.maximum(o, 0)), np.where(o == 0, 0.0, np.nan))
+
+    def steady_from_per_run(self) -> Array:
+        """Each run's steady window's start [s]: its origin plus ``steady_from_s`` (infinite while
+        the origin is not known: no steady sample)."""
+        origin = self.origin_s()
+        return np.where(np.isnan(origin), np.inf, np.nan_to_num(origin) + self.steady_from_s)
 
     def _update_modes(self, t: Array, mode: NDArray[np.int8]) -> None:
         """The mode metrics of a block (``mode`` (B, N) the mode of each sample), after the samples
@@ -463,6 +512,10 @@ class MetricsAccumulator:
         m = 0 if ob.rod_max_dipole_Am2 is None else ob.rod_max_dipole_Am2.size
         if h.orbit is not None and m and h.orbit.shape[-1] >= 9 + m:  # a bag without a management node has no rods' columns
             dipoles = np.asarray(h.orbit, dtype=np.float64)[..., 9:9 + m]
+        # the runs by their steady window's start (its origin plus steady_from_s; a run whose origin is
+        # not known yet has none): runs of one start share every mask, from the first sample on
+        starts = self.steady_from_per_run()
+        groups = [(float(v), np.flatnonzero(starts == v)) for v in np.unique(starts[np.isfinite(starts)])]
         for lo, hi in zip(np.concatenate(([0], bounds)), np.concatenate((bounds, [t.size]))):
             j = int(orbit[lo])
             if j != self._orb_open:  # the open orbit has ended: its rods' duty is final
@@ -470,13 +523,14 @@ class MetricsAccumulator:
                 self._orb_open, self._rods_filled = j, 0
             seen = self.orb_samples[j] > 0  # the orbit's extremes so far (else NaN: none yet)
             self.orb_samples[j] += hi - lo
-            steady = t[lo:hi] >= self.steady_from_s
-            if steady.any():
-                q = np.abs(q_BR[lo:hi, ..., :3])[steady]  # (S, N, 3)
-                q_max = np.max(q, axis=(0, 2))  # a NaN wins, as over the whole orbit
-                self.orb_steady_max[:, j] = np.maximum(self.orb_steady_max[:, j], q_max) if self.orb_steady_samples[j] else q_max
-                self.orb_steady_sum[:, j] = _summed_onto(self.orb_steady_sum[:, j], q)
-                self.orb_steady_samples[j] += int(steady.sum())
+            for start_s, runs in groups:  # the runs of one steady window together (every run, without modes)
+                steady = t[lo:hi] >= start_s
+                if steady.any():
+                    q = np.abs(q_BR[lo:hi, runs, :3])[steady]  # (S, R, 3)
+                    q_max = np.max(q, axis=(0, 2))  # a NaN wins, as over the whole orbit
+                    self.orb_steady_max[runs, j] = np.maximum(self.orb_steady_max[runs, j], q_max) if self.orb_steady_samples[runs[0], j] else q_max
+                    self.orb_steady_sum[runs, j] = _summed_onto(self.orb_steady_sum[runs, j], q)
+                    self.orb_steady_samples[runs, j] += int(steady.sum())
             if speed is not None:
                 w = speed[lo:hi]  # (S, N, W)
                 hB = np.linalg.norm((w * ob.wheel_spin_inertia_kg_m2) @ np.asarray(ob.wheel_axes_B).T, axis=2)  # (S, N) [N m s]
@@ -532,7 +586,7 @@ class MetricsAccumulator:
         self._write_open_rods()
         out = []
         for j in np.flatnonzero(self.orb_samples):
-            n_steady = int(self.orb_steady_samples[j])
+            n_steady = int(self.orb_steady_samples[run, j])
             entry: dict[str, Any] = {
                 "orbit": int(j), "from_s": float(j * self.orbit_bins.period_s),
                 "steady_max_abs_qev": _finite_or_none(self.orb_steady_max[run, j]) if n_steady else None,
@@ -567,7 +621,7 @@ class MetricsAccumulator:
         assert status_counts is not None
         a = attitude_errors(np.asarray(est.q_BN, dtype=np.float64), np.asarray(q_BN, dtype=np.float64))  # (B, N, 3), NaN: no estimate
         has = np.all(np.isfinite(a), axis=-1)
-        steady = (np.asarray(t) >= self.steady_from_s - _TIME_TOL_S)[:, None] & has
+        steady = (np.asarray(t)[:, None] >= self.steady_from_per_run()[None, :] - _TIME_TOL_S) & has
         self.est_att_max = np.maximum(att_max, np.where(steady[..., None], np.abs(a), 0.0).max(axis=0))
         att_sq[...] = _summed_onto(att_sq, np.where(steady[..., None], a * a, 0.0))
         att_n += steady.sum(axis=0)
@@ -657,51 +711,52 @@ class MetricsAccumulator:
         t = np.asarray(t, dtype=np.float64).reshape(-1)
         if t.size == 0:
             return
-        first = self.sign0 is None
-        if self.sign0 is None:
-            self.sign0 = np.zeros((self.finite.shape[0], 3))
         hold = self.hold_s if self.hold_s is not None else _NO_HOLD
         fault = np.nan if self.fault_start_s is None else float(self.fault_start_s)
         def f64(a: Any) -> Array:
             return np.asarray(a, dtype=np.float64)
 
-        self.steady_count += _update_function(t.size * self.finite.shape[0])(
+        _update_function(t.size * self.finite.shape[0])(
             int(k0), t, f64(q_BN), f64(omega), f64(torque_B), f64(q_BR), f64(rho), np.asarray(saturated, dtype=np.bool_), f64(band_lower),
-            f64(band_upper), first, float(self.settle_threshold), float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
-            float(self.steady_from_s), int(self.k_t2), hold, fault, self.finite, self.last_unsettled, self.last_controlled, self.steady_sum,
+            f64(band_upper), self.origin_k, float(self.settle_threshold), float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
+            self.steady_from_per_run(), self.k_t2_run, hold, fault, self.finite, self.last_unsettled, self.last_controlled, self.steady_sum,
             self.steady_max, self.rpf_error_t2_axis, self.sign0, self.overshoot, self.max_torque,
             self.saturated_count, self.outside_count, self.outside_s, self.last_outside, self.left_after_fault,
-            self.torque_sign, self.torque_sign_nonzero, self.torque_sign_changes, self.torque_reversals,
+            self.torque_sign, self.torque_sign_nonzero, self.torque_sign_changes, self.torque_reversals, self.steady_n, self.steady_first,
         )
         self.samples += t.size
 
     def settling_times(self) -> Array:
-        """``settling_time_s`` of every run, NaN for a run that never settles."""
+        """``settling_time_s`` of every run from its origin, NaN for a run that never settles (or
+        never reached its origin)."""
         lu = self.last_unsettled
         after = np.minimum(lu + 1, self.n_grid - 1)
-        return np.where(lu < 0, 0.0, np.where(lu >= self.samples - 1, np.nan, self.time_s(after)))
+        origin = self.origin_s()
+        settled = np.where(lu < 0, 0.0, np.where(lu >= self.samples - 1, np.nan, self.time_s(after) - np.nan_to_num(origin)))
+        return np.where(np.isnan(origin), np.nan, settled)
 
     def control_lost_times(self) -> Array:
         """``control_lost_at_s`` of every run, NaN for a run that did not lose control (module docstring)."""
         last = self.samples - 1
-        if last < 0 or self.time_s(last) < self.steady_from_s - _TIME_TOL_S:
+        if last < 0:
             return np.full(self.finite.shape[0], np.nan)
+        before_window = self.time_s(last) < self.steady_from_per_run() - _TIME_TOL_S  # the run ends before its steady window
         lc = self.last_controlled
-        return np.where((lc >= last) | ~self.finite, np.nan, self.time_s(np.minimum(lc + 1, last)))
+        return np.where((lc >= last) | ~self.finite | before_window, np.nan, self.time_s(np.minimum(lc + 1, last)))
 
-    def steady_span_s(self) -> float | None:
-        """The steady window's span ``t_last - t_first`` over the samples seen (``None``: fewer than
-        two samples in it): the time base of the switching rates."""
-        if self.steady_count < 2:
-            return None
-        return float(self.time_s(self.samples - 1) - self.time_s(self.samples - self.steady_count))
+    def steady_span_s(self) -> Array:
+        """Each run's steady window's span ``t_last - t_first`` over the samples seen (NaN: fewer
+        than two samples in it): the time base of the switching rates."""
+        n = self.steady_n
+        span = np.full(n.shape[0], np.nan)
+        ok = n >= 2
+        if self.samples > 0 and ok.any():
+            span[ok] = self.time_s(self.samples - 1) - self.time_s(self.steady_first[ok])
+        return span
 
     def switching_rates(self) -> tuple[Array, Array]:
         """``torque_sign_changes_per_s`` and ``torque_reversals_per_s`` of every run (NaN: no span)."""
         span = self.steady_span_s()
-        if span is None:
-            nan = np.full(self.finite.shape[0], np.nan)
-            return nan, nan.copy()
         return self.torque_sign_changes.max(axis=1) / span, self.torque_reversals.max(axis=1) / span
 
     def run_metrics(self, run: int = 0) -> dict[str, Any]:
@@ -709,13 +764,13 @@ class MetricsAccumulator:
         last = self.samples - 1
         settling_s = float(self.settling_times()[run])
         settling = None if np.isnan(settling_s) else settling_s
-        steady = self.steady_count > 0
+        steady = self.steady_n[run] > 0
         lo = int(self.last_outside[run])
         changes, reversals = self.switching_rates()
         m: dict[str, Any] = {
             "settling_time_s": settling,
             "steady_max_abs_qev": float(self.steady_max[run]) if steady else None,
-            "steady_mean_abs_qev": float((self.steady_sum[run] / self.steady_count).max()) if steady else None,
+            "steady_mean_abs_qev": float((self.steady_sum[run] / self.steady_n[run]).max()) if steady else None,
             "rpf_error_at_t2": None if np.isnan(self.rpf_error_t2_axis[run]).any() else float(self.rpf_error_t2_axis[run].max()),
             "overshoot": float(max(0.0, self.overshoot[run])),
             "max_abs_torque_Nm": float(self.max_torque[run]),
@@ -777,7 +832,7 @@ class MetricsAccumulator:
 
     def criteria_arrays(self) -> dict[str, Array]:
         """Per-run arrays for campaign tables: the two Monte Carlo criteria per component and more."""
-        steady_mean = self.steady_sum / max(self.steady_count, 1)
+        steady_mean = self.steady_sum / np.maximum(self.steady_n, 1)[:, None]
         changes, reversals = self.switching_rates()
         wheels = {} if self.wheel_speed_max is None or self.wheel_torque_max is None else {
             "max_abs_wheel_speed_rad_s": self.wheel_speed_max, "max_abs_wheel_torque_Nm": self.wheel_torque_max}
@@ -861,30 +916,40 @@ def _switch(u, sign, nonzero):  # type: ignore[no-untyped-def]  # a numba kernel
 
 
 @jit("int64(int64, float64[:], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], "  # type: ignore[no-untyped-call]
-     "boolean[:, :, :], float64[:, :, :], float64[:, :, :], boolean, float64, float64, float64, int64, float64[:], float64, boolean[:], "
+     "boolean[:, :, :], float64[:, :, :], float64[:, :, :], int64[:], float64, float64, float64[:], int64[:], float64[:], float64, boolean[:], "
      "int64[:], int64[:], float64[:, :], float64[:], float64[:, :], float64[:, :], float64[:], float64[:], int64[:], int64[:], float64[:], "
-     "int64[:], boolean[:], float64[:, :], float64[:, :], int64[:, :], int64[:, :])")
-def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower, band_upper, first, settle_threshold,  # type: ignore[no-untyped-def]
+     "int64[:], boolean[:], float64[:, :], float64[:, :], int64[:, :], int64[:, :], int64[:], int64[:])")
+def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower, band_upper, origin_k, settle_threshold,  # type: ignore[no-untyped-def]
                    loss_bound, steady_from_s, k_t2, hold_s, fault_start_s, finite, last_unsettled, last_controlled, steady_sum, steady_max, rpf_error_t2_axis,
                    sign0, overshoot, max_torque, saturated_count, outside_count, outside_s, last_outside, left_after_fault,
-                   torque_sign, torque_sign_nonzero, torque_sign_changes, torque_reversals):
+                   torque_sign, torque_sign_nonzero, torque_sign_changes, torque_reversals, steady_n, steady_first):
     """One block of samples ``k0 .. k0 + B - 1`` (arrays (B, N, ...)) into the per-run state of a
     :class:`MetricsAccumulator` (in place), run by run, sample by sample: the definitions of the
     module docstring.  Sums run sample by sample in time order, maxima and counts are exact, so a
-    block gives the same bits as its samples one by one.  Returns the block's number of samples in
-    the steady window.  ``fault_start_s`` NaN: no faults; ``hold_s`` empty: uniform grid."""
+    block gives the same bits as its samples one by one.  Each run counts from its origin
+    ``origin_k[n]`` (the sample its tracking starts at: 0, or with flight modes TRACK's first
+    sample; -1: not yet): the samples before it enter no metric but the loss-of-control rule's
+    (they are before the steady window, finite or not) and the run's finiteness; its steady window
+    from ``steady_from_s[n]`` [s] (its origin's time plus the scenario's ``steady_from_s``; infinite
+    before the origin is known), its RPF error at sample ``k_t2[n]`` (-1: none), its error's initial
+    signs (the overshoot's) at its origin.  Counts the steady samples of each run into
+    ``steady_n`` and the first one's index into ``steady_first`` (-1: none yet); returns the
+    block's steady run-samples.  ``fault_start_s`` NaN: no faults; ``hold_s`` empty: uniform grid."""
     B = t.shape[0]
-    steady_from = steady_from_s - _TIME_TOL_S
     has_fault = fault_start_s == fault_start_s
     fault_from = fault_start_s - _TIME_TOL_S
-    n_steady = 0
-    for k in range(B):
-        if t[k] >= steady_from:
-            n_steady += 1
+    total_steady = 0
     for n in range(finite.shape[0]):
-        if first:
-            for i in range(3):
-                sign0[n, i] = 1.0 if q_BR[0, n, i] >= 0.0 else -1.0
+        steady_from = steady_from_s[n] - _TIME_TOL_S
+        origin = origin_k[n]
+        n_steady = 0
+        for k in range(B):
+            if t[k] >= steady_from:
+                n_steady += 1
+        if n_steady > 0 and steady_first[n] < 0:
+            steady_first[n] = k0 + B - n_steady  # the window is the block's last samples (t increases)
+        steady_n[n] += n_steady
+        total_steady += n_steady
         live = finite[n]
         lu, lo, lc = last_unsettled[n], last_outside[n], last_controlled[n]
         s0, s1, s2 = steady_sum[n, 0], steady_sum[n, 1], steady_sum[n, 2]
@@ -905,9 +970,15 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
                 ok = ok and np.isfinite(torque[k, n, i])
             live = live and ok  # a failed run stops at its last finite sample
             e0, e1, e2 = q_BR[k, n, 0], q_BR[k, n, 1], q_BR[k, n, 2]
+            if k0 + k == origin:  # the run's origin: the overshoot's initial signs
+                sign0[n, 0] = 1.0 if e0 >= 0.0 else -1.0
+                sign0[n, 1] = 1.0 if e1 >= 0.0 else -1.0
+                sign0[n, 2] = 1.0 if e2 >= 0.0 else -1.0
+                g0, g1, g2 = -sign0[n, 0], -sign0[n, 1], -sign0[n, 2]
+            counted = live and origin >= 0 and k0 + k >= origin  # from the run's origin on
             a0, a1, a2 = abs(e0), abs(e1), abs(e2)
             max_abs_q = _maximum(_maximum(a0, a1), a2)
-            if live and max_abs_q >= settle_threshold:
+            if counted and max_abs_q >= settle_threshold:
                 lu = k0 + k
             if live and (t[k] < steady_from or max_abs_q <= loss_bound):  # control_lost_at_s: a NaN error is not within
                 lc = k0 + k
@@ -925,20 +996,20 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
                     c1, r1 = c1 + a, r1 + b
                     p2, z2, a, b = _switch(torque[k, n, 2], p2, z2)
                     c2, r2 = c2 + a, r2 + b
-            if k0 + k == k_t2:
+            if k0 + k == k_t2[n]:
                 rpf_error_t2_axis[n, 0] = abs(e0 - rho[k, n, 0]) if live else np.nan
                 rpf_error_t2_axis[n, 1] = abs(e1 - rho[k, n, 1]) if live else np.nan
                 rpf_error_t2_axis[n, 2] = abs(e2 - rho[k, n, 2]) if live else np.nan
-            v = _maximum(_maximum(g0 * e0, g1 * e1), g2 * e2) if live else -np.inf
+            v = _maximum(_maximum(g0 * e0, g1 * e1), g2 * e2) if counted else -np.inf
             over = v if k == 0 else _maximum(over, v)
-            v = _maximum(_maximum(abs(torque[k, n, 0]), abs(torque[k, n, 1])), abs(torque[k, n, 2])) if live else 0.0
+            v = _maximum(_maximum(abs(torque[k, n, 0]), abs(torque[k, n, 1])), abs(torque[k, n, 2])) if counted else 0.0
             tmax = v if k == 0 else _maximum(tmax, v)
-            if live and (saturated[k, n, 0] or saturated[k, n, 1] or saturated[k, n, 2]):
+            if counted and (saturated[k, n, 0] or saturated[k, n, 1] or saturated[k, n, 2]):
                 n_sat += 1
             # inside: within every component's band; a NaN band (none yet) fails the comparison
             inside = ((e0 >= band_lower[k, n, 0] and e0 <= band_upper[k, n, 0]) and (e1 >= band_lower[k, n, 1] and e1 <= band_upper[k, n, 1])
                       and (e2 >= band_lower[k, n, 2] and e2 <= band_upper[k, n, 2]))
-            outside = live and not inside
+            outside = counted and not inside
             if outside:
                 n_out += 1
                 lo = k0 + k
@@ -967,4 +1038,4 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
             outside_s[n] = held
         if left:
             left_after_fault[n] = True
-    return n_steady
+    return total_steady

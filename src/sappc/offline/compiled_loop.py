@@ -86,7 +86,8 @@ from spacecraft_sim.core.magnetometer import magnetometer_generator
 from spacecraft_sim.core.environment import EnvironmentArrays, field_of, locked_inertia, measured_field_of, pack_environment, torque_of
 from sappc_momentum.core.law import N_MM_WORK, MomentumArrays, dipole_mapping, momentum_management_step, pack_momentum
 from sappc_modes.core.bdot import BS_B_PREV, BS_T_PREV, N_BDOT_STATE, bdot_step
-from sappc_modes.core.modes import DETUMBLE, HEALTH_OK, HOLD, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, R_NONE, S_MODE
+from sappc_modes.core.modes import DETUMBLE, HEALTH_OK, HOLD, IN_ERROR, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, R_NONE
+from sappc_modes.core.modes import S_MODE
 from sappc_modes.core.modes import SAFE, TRACK, mode_step
 from sappc_modes.core.modes import N_INPUTS as N_MODE_INPUTS, N_STATE as N_MODE_STATE
 from sappc_modes.core.packing import MR_ENTRY, MR_SAMPLES, MR_TRANSITIONS, N_MODE_RUN, ModeArrays, pack_modes
@@ -194,7 +195,7 @@ class LoopState(NamedTuple):
     :func:`_state`, initialised by the run's first block (:func:`_initial_state`).  With modes:
     the mode manager's state and inputs, the hold law's controller state, scratch and rows, the
     attitude held (NaN until HOLD's first valid sample), the unit quaternion (SAFE's attitude and
-    reference) and B-dot's state."""
+    reference), B-dot's state and the error quaternion of the mode manager's error input."""
 
     flags: np.ndarray
     epoch: np.ndarray
@@ -230,6 +231,7 @@ class LoopState(NamedTuple):
     q_hold: np.ndarray
     q_unit: np.ndarray
     bdot: np.ndarray
+    q_err: np.ndarray
 
 
 @jit
@@ -308,7 +310,9 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     (:func:`~sappc_modes.core.bdot.bdot_step`, on each new magnetometer sample, held between) on
     the rods through :func:`~sappc_momentum.core.law.dipole_mapping` instead of momentum
     management; HOLD the MRP feedback law on the controller's input (the estimate) towards the
-    attitude of its first valid sample in HOLD, zero rate; SAFE the same law with no attitude gain
+    attitude of its first valid sample in HOLD, zero rate (or, ``hold_reference``, towards the
+    scenario's reference with its rates: an acquisition; the mode manager then also reads the
+    estimate's error against the reference, ``IN_ERROR``); SAFE the same law with no attitude gain
     on the gyro's rate (the attitude is not used).  Each entry into HOLD or SAFE restarts the law's
     state, each into DETUMBLE B-dot's.  A second entry into TRACK continues the controller started
     at the first (its time origin and funnel: docs/design/modes.md says what is not built)."""
@@ -381,6 +385,8 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     hctrl, hwork, hout, q_hold, q_unit, bd_st = st.hctrl[r], st.hwork[r], st.hout[r], st.q_hold[r], st.q_unit[r], st.bdot[r]
     m_B, zero3 = vec3[V_M_B], vec3[V_ZERO]
     md_prm, md_bdot, md_hold, md_safe = md.prm[n], md.bdot[n], md.hold_prm[n], md.safe_prm[n]
+    md_to_reference = md.hold_reference[n] != 0.0
+    q_err = st.q_err[r]
     measuring = sens.draws.shape[1] > 0
     dt = grid.dt
     T = grid.n_samples
@@ -446,6 +452,10 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
                 mode_in[IN_WHEEL] = frac
             mode_in[IN_REQUEST] = -1.0
             mode_in[IN_INHIBIT] = 0.0
+            mode_in[IN_ERROR] = np.nan
+            if valid:  # the estimate's error against the reference: its rotation angle
+                error_quaternion(grid.ref_q[kb], yc[:4], q_err)
+                mode_in[IN_ERROR] = 2.0 * math.atan2(math.sqrt((q_err[0] * q_err[0] + q_err[1] * q_err[1]) + q_err[2] * q_err[2]), abs(q_err[3]))
             reason = mode_step(mode_st, mode_in, md_prm)
             mode = int(mode_st[S_MODE])
             if reason != R_NONE:
@@ -473,10 +483,14 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
             status = ANSWER_INACTIVE
             law = False
             if mode == HOLD and valid:
-                if np.isnan(q_hold[0]):
-                    for i in range(4):
-                        q_hold[i] = yc[i]
-                controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, yc[:4], yc[4:], q_hold, zero3, zero3, md_hold, coef, hctrl, hwork, hout)
+                if md_to_reference:  # an acquisition: MRP feedback on the scenario's reference
+                    controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, yc[:4], yc[4:], grid.ref_q[kb], grid.ref_w[kb], grid.ref_wd[kb], md_hold, coef,
+                                    hctrl, hwork, hout)
+                else:  # an inertial hold of the attitude of HOLD's first valid sample
+                    if np.isnan(q_hold[0]):
+                        for i in range(4):
+                            q_hold[i] = yc[i]
+                    controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, yc[:4], yc[4:], q_hold, zero3, zero3, md_hold, coef, hctrl, hwork, hout)
                 law = True
             elif mode == SAFE and gyro_in:
                 controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, q_unit, y[4:7], q_unit, zero3, zero3, md_safe, coef, hctrl, hwork, hout)
@@ -1173,7 +1187,7 @@ def _modes(scenario: Scenario, n: int) -> ModeArrays:
     safe = hold.copy()
     safe[P_MRP_K] = 0.0  # SAFE: the attitude is not trusted, the rate alone is damped
     return pack_modes(modes.transitions, n, scenario.control_period_s, initial_mode=modes.initial_mode,
-                      bdot_gain_N_m_s=modes.detumble_gain_N_m_s, hold_prm=hold, safe_prm=safe)
+                      bdot_gain_N_m_s=modes.detumble_gain_N_m_s, hold_prm=hold, safe_prm=safe, hold_on_reference=modes.hold_on_reference)
 
 
 def _started(inp: CompiledInputs) -> CompiledInputs:
@@ -1234,7 +1248,7 @@ def _state(inp: CompiledInputs, n: int) -> LoopState:
                      z((n, 5)), z((n, N_MEAS)), z((n, 7)), z((n, N_EST_STATE)), z((n, 6, 6)), z((n, N_EST_WORK, 6)), z((n, N_EST_OUT)),
                      z((n, nf), dtype=np.int64), z((n, nf, depth, N_FVALUE)), z((n, nm)), z((n, N_MM_WORK, 3)), z((n, N_MM_STATE)), z((n, 4)),
                      z((n, N_MODE_STATE)), z((n, N_MODE_INPUTS)), z((n, N_STATE)), z((n, N_WORK, 4)), z((n, N_OUT, 4)), z((n, 4)), z((n, 4)),
-                     z((n, N_BDOT_STATE)))
+                     z((n, N_BDOT_STATE)), z((n, 4)))
 
 
 def _check_noise(inp: CompiledInputs) -> None:

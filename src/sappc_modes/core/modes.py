@@ -28,7 +28,9 @@ HOLD, TRACK -> SAFE    a wheel's speed beyond ``max_wheel_speed_fraction`` of it
                        once
 HOLD, TRACK -> SAFE    the estimator's health ERROR or STALE for ``safe_on_error_for_s``     ``estimator_error``
 HOLD -> TRACK          health OK and the estimate's attitude 1-sigma                        ``acquired``
-                       ``<= converged_sigma_rad`` for ``healthy_for_s``
+                       ``<= converged_sigma_rad`` (and, when ``acquired_error_rad`` is set,
+                       the attitude error against the reference ``<=`` it) for
+                       ``healthy_for_s``
 SAFE -> HOLD           health OK, converged, control not lost, the wheels within their       ``recovered``
                        limit, for ``recover_for_s`` (then HOLD's own guard to TRACK)
 =====================  ===================================================================  ================
@@ -76,6 +78,7 @@ __all__ = [
     "INHIBIT_DETUMBLED",
     "INHIBIT_RECOVERED",
     "INHIBIT_SAFE",
+    "IN_ERROR",
     "IN_HEALTH",
     "IN_INHIBIT",
     "IN_LOST",
@@ -117,17 +120,19 @@ HEALTH_OK, HEALTH_WARN, HEALTH_ERROR, HEALTH_STALE = 0, 1, 2, 3
 #: Inputs of a sample (:data:`N_INPUTS` floats): the body-rate magnitude [rad/s]; the estimator's
 #: health level (``HEALTH_*``); its attitude 1-sigma, the largest axis's [rad]; 1.0 when the run's
 #: loss-of-control rule fires, else 0.0; the largest wheel speed as a fraction of its limit (NaN:
-#: no wheels); the ground's requested mode (-1: none); the ground's inhibit flags (a sum of ``INHIBIT_*``).
-IN_RATE, IN_HEALTH, IN_SIGMA, IN_LOST, IN_WHEEL, IN_REQUEST, IN_INHIBIT = 0, 1, 2, 3, 4, 5, 6
-N_INPUTS = 7
+#: no wheels); the ground's requested mode (-1: none); the ground's inhibit flags (a sum of ``INHIBIT_*``);
+#: the estimate's attitude error against the reference, its rotation angle [rad] (NaN: unknown).
+IN_RATE, IN_HEALTH, IN_SIGMA, IN_LOST, IN_WHEEL, IN_REQUEST, IN_INHIBIT, IN_ERROR = 0, 1, 2, 3, 4, 5, 6, 7
+N_INPUTS = 8
 #: Inhibit flags (``IN_INHIBIT``): each stops one automatic transition.
 INHIBIT_DETUMBLED, INHIBIT_ACQUIRED, INHIBIT_SAFE, INHIBIT_RECOVERED = 1, 2, 4, 8
 #: Parameters (:meth:`ModeConfig.packed`): the rate threshold and its samples, the convergence
-#: threshold, the samples of health, of ERROR and of recovery, the wheel-speed fraction.
-P_RATE, P_RATE_N, P_SIGMA, P_HEALTHY_N, P_ERROR_N, P_RECOVER_N, P_WHEEL = 0, 1, 2, 3, 4, 5, 6
-N_PARAMS = 7
+#: threshold, the samples of health, of ERROR and of recovery, the wheel-speed fraction, the
+#: acquisition's error threshold (infinite: no condition).
+P_RATE, P_RATE_N, P_SIGMA, P_HEALTHY_N, P_ERROR_N, P_RECOVER_N, P_WHEEL, P_ACQUIRED = 0, 1, 2, 3, 4, 5, 6, 7
+N_PARAMS = 8
 #: State (:func:`new_mode_state`): the mode, the consecutive samples each condition has held since
-#: the mode's entry (slow rate, healthy, ERROR, recovering), the reason of the last transition.
+#: the mode's entry (slow rate, healthy and acquired, ERROR, recovering), the reason of the last transition.
 S_MODE, S_RATE_N, S_HEALTHY_N, S_ERROR_N, S_RECOVER_N, S_REASON = 0, 1, 2, 3, 4, 5
 N_STATE = 6
 #: Why a transition was taken (:func:`mode_step`'s return), :data:`REASON_NAMES` their names.
@@ -194,6 +199,11 @@ class ModeConfig:
         SAFE -> HOLD after every SAFE condition cleared and health OK and converged this long [s] (>= 0).
     max_wheel_speed_fraction : float
         HOLD, TRACK -> SAFE when a wheel's speed passes this fraction of its limit (> 0).
+    acquired_error_rad : float or None
+        HOLD -> TRACK also needs the attitude error against the reference (its rotation angle) at
+        most this [rad] (> 0): a HOLD that points at the reference hands over near it, where the
+        tracking controller's funnel is feasible (docs/design/modes.md); ``None`` (default): no
+        such condition.
     """
 
     detumbled_rate_rad_s: float = DEFAULT_DETUMBLED_RATE_RAD_S
@@ -203,10 +213,13 @@ class ModeConfig:
     safe_on_error_for_s: float = DEFAULT_SAFE_ON_ERROR_FOR_S
     recover_for_s: float = DEFAULT_RECOVER_FOR_S
     max_wheel_speed_fraction: float = DEFAULT_MAX_WHEEL_SPEED_FRACTION
+    acquired_error_rad: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("detumbled_rate_rad_s", "converged_sigma_rad", "max_wheel_speed_fraction"):
             object.__setattr__(self, name, _check_number(name, getattr(self, name), positive=True))
+        if self.acquired_error_rad is not None:
+            object.__setattr__(self, "acquired_error_rad", _check_number("acquired_error_rad", self.acquired_error_rad, positive=True))
         for name in ("detumbled_for_s", "healthy_for_s", "safe_on_error_for_s", "recover_for_s"):
             object.__setattr__(self, name, _check_number(name, getattr(self, name), positive=False))
 
@@ -222,6 +235,7 @@ class ModeConfig:
         out[P_ERROR_N] = samples_for(self.safe_on_error_for_s, dt)
         out[P_RECOVER_N] = samples_for(self.recover_for_s, dt)
         out[P_WHEEL] = self.max_wheel_speed_fraction
+        out[P_ACQUIRED] = math.inf if self.acquired_error_rad is None else self.acquired_error_rad
         return out
 
 
@@ -246,9 +260,10 @@ def mode_step(state, inputs, params):  # type: ignore[no-untyped-def]  # a numba
     lost = inputs[IN_LOST] > 0.5
     wheel_beyond = inputs[IN_WHEEL] > params[P_WHEEL]  # NaN (no wheels): never beyond
     healthy = health == HEALTH_OK and inputs[IN_SIGMA] <= params[P_SIGMA]
+    acquired = params[P_ACQUIRED] == math.inf or inputs[IN_ERROR] <= params[P_ACQUIRED]  # no condition, or near the reference
     # the counts of consecutive samples (a NaN input fails every comparison it is in: no count)
     state[S_RATE_N] = state[S_RATE_N] + 1.0 if inputs[IN_RATE] < params[P_RATE] else 0.0
-    state[S_HEALTHY_N] = state[S_HEALTHY_N] + 1.0 if healthy else 0.0
+    state[S_HEALTHY_N] = state[S_HEALTHY_N] + 1.0 if healthy and acquired else 0.0
     state[S_ERROR_N] = state[S_ERROR_N] + 1.0 if health >= HEALTH_ERROR else 0.0
     state[S_RECOVER_N] = state[S_RECOVER_N] + 1.0 if healthy and not lost and not wheel_beyond else 0.0
     request = inputs[IN_REQUEST]

@@ -34,19 +34,22 @@ class ModeArrays(NamedTuple):
     (:meth:`~sappc_modes.core.modes.ModeConfig.packed`), ``initial`` (N,) each run's first mode,
     ``bdot`` (N, :data:`~sappc_modes.core.bdot.N_BDOT_PARAMS`) the B-dot law's, ``hold_prm`` and
     ``safe_prm`` (N, P) the MRP feedback law's parameter rows in HOLD and in SAFE (the
-    controller's packing).  Without modes every array has no columns (and ``initial`` no rows'
-    meaning): the loop flies TRACK alone, as before modes existed."""
+    controller's packing), ``hold_reference`` (N,) 1.0 where HOLD points at the scenario's
+    reference (an acquisition), 0.0 where it holds the attitude of its entry.  Without modes every
+    array has no columns (and ``initial`` and ``hold_reference`` no meaning): the loop flies TRACK
+    alone, as before modes existed."""
 
     prm: Array
     initial: Array
     bdot: Array
     hold_prm: Array
     safe_prm: Array
+    hold_reference: Array
 
     @staticmethod
     def run_axes() -> dict[str, int]:
         """The axis of runs of each per-run field (the others are shared by every run)."""
-        return {"prm": 0, "initial": 0, "bdot": 0, "hold_prm": 0, "safe_prm": 0}
+        return {"prm": 0, "initial": 0, "bdot": 0, "hold_prm": 0, "safe_prm": 0, "hold_reference": 0}
 
     @property
     def active(self) -> bool:
@@ -55,13 +58,13 @@ class ModeArrays(NamedTuple):
 
 
 def pack_modes(config: ModeConfig | None, n_runs: int, dt_s: float, *, initial_mode: int = DETUMBLE, bdot_gain_N_m_s: float = 0.0,
-               hold_prm: Array | None = None, safe_prm: Array | None = None) -> ModeArrays:
+               hold_prm: Array | None = None, safe_prm: Array | None = None, hold_on_reference: bool = False) -> ModeArrays:
     """The modes of ``n_runs`` runs sampled every ``dt_s``: the guards of ``config``, the first
-    mode, the B-dot gain [N m s] and the MRP feedback rows of HOLD and SAFE ((P,) or (N, P));
-    ``config`` ``None``: no modes (every array empty)."""
+    mode, the B-dot gain [N m s], the MRP feedback rows of HOLD and SAFE ((P,) or (N, P)) and
+    whether HOLD points at the reference; ``config`` ``None``: no modes (every array empty)."""
     if config is None:
         empty = np.zeros((n_runs, 0))
-        return ModeArrays(empty, np.zeros(n_runs), empty.copy(), empty.copy(), empty.copy())
+        return ModeArrays(empty, np.zeros(n_runs), empty.copy(), empty.copy(), empty.copy(), np.zeros(n_runs))
     if isinstance(initial_mode, bool) or initial_mode not in (DETUMBLE, HOLD, TRACK, SAFE):
         raise ValueError(f"initial_mode must be one of {dict(enumerate(MODE_NAMES))}, got {initial_mode!r}")
     if hold_prm is None or safe_prm is None:
@@ -76,4 +79,5 @@ def pack_modes(config: ModeConfig | None, n_runs: int, dt_s: float, *, initial_m
 
     prm = rows(config.packed(dt_s), N_PARAMS)
     bdot = rows(pack_bdot(bdot_gain_N_m_s), N_BDOT_PARAMS)
-    return ModeArrays(prm, np.full(n_runs, float(initial_mode)), bdot, rows(hold_prm), rows(safe_prm))
+    return ModeArrays(prm, np.full(n_runs, float(initial_mode)), bdot, rows(hold_prm), rows(safe_prm),
+                      np.full(n_runs, 1.0 if hold_on_reference else 0.0))
