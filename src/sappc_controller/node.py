@@ -7,7 +7,7 @@ Subscribes to the state (``state/attitude``, ``state/rate``) and the reference
 Parameters come from a ROS YAML file (``--ros-args --params-file config/controller_sappc.yaml``,
 names in :mod:`sappc_controller.params`) and are turned into the core's validated config at
 start-up: a missing, unknown, invalid or infeasible parameter stops the node with one line
-naming it (exit status 2).  At run time the gains listed in
+naming it (exit status 2; a managed node's configure transition fails instead: "Managed" below).  At run time the gains listed in
 :data:`~sappc_controller.core.base.AttitudeController.RUNTIME_GAINS`, the actuator limits and the
 noise filters' cut-offs (:func:`~sappc_controller.params.runtime_parameter_names`) may be changed (``ros2 param set`` or any parameter client); a change is validated as a whole and
 applied at the next step, or rejected with the reason, never half-applied.  Everything else is
@@ -69,6 +69,47 @@ before its first valid sample included (there is no answer to hold), else it hol
 answer (a short outage is ridden through; in real time the plant holds it); it computes again as
 soon as valid inputs return.
 
+Managed (parameter ``managed``, default false; docs/design/modes.md, "Managed nodes"): by default
+the node is configured and active from the start, as described above, and offers no lifecycle
+services.  With ``managed:=true`` it is a ROS 2 managed (lifecycle) node: it starts
+``unconfigured``, with only ``managed``, ``expected_subscribers`` and ``counts_file`` declared and
+nothing subscribed or offered, and is driven through the standard services
+``/<node>/change_state`` and ``/<node>/get_state`` (``lifecycle_msgs/srv/ChangeState``,
+``GetState``; a transition not allowed from the current state is refused with ``success:
+false``):
+
+- configure: everything the plain node does at start-up: the parameters declared and validated
+  into the law's config, the compiled step loaded (a step at rest), the inputs subscribed, the
+  outputs offered once every input has a publisher.  A bad parameter (missing, unknown, invalid,
+  infeasible) fails the transition and is logged naming it; the node stays ``unconfigured`` (the
+  process lives on).  The node is then ``inactive``.
+- inactive (after configure, or deactivate): the controller steps no law, but it keeps answering
+  the plant in lockstep (and each fresh state and the watchdog in real time), so the loop never
+  waits for it: every sample answered gets, on ``control/torque``, the torque (0, 0, 0) stamped
+  with the sample's stamp, and on ``controller/diagnostics``: ``torque_cmd_Nm`` and
+  ``saturated`` zero, ``status = [rejected so far, 1, 4]`` (the answer
+  :data:`~sappc_msgs_py.contract.ANSWER_INACTIVE`, "inactive"), input stamps zero, and the rho,
+  band, eps, z and V rows of the last computed sample (NaN before the first), as the offline loop
+  records a sample the controller does not command.  Inputs are still checked and counted.
+- activate: the law answers again, from the next sample: a controller that has not started yet
+  starts at its first valid sample while active (its time origin and funnel); one that was
+  deactivated continues where it stopped (as the offline loop's second entry into TRACK), and a
+  sample without valid inputs is answered as above (held: the last answer, zero after an
+  inactive one; or watchdog zero).
+- cleanup: the subscriptions, timers and publishers destroyed and the parameter callback removed;
+  ``unconfigured``.  A new configure builds a new law (a fresh start) from the same parameters.
+- shutdown: as cleanup, then ``finalized``; the process ends on SIGINT or SIGTERM, as always.
+
+Design: the lifecycle is :class:`~sappc_msgs_py.runtime.ManagedNode`, the project's base node
+with rclpy's :class:`~rclpy.lifecycle.LifecycleNodeMixin` mixed in (the mixin is initialised,
+and its services created, only when ``managed`` is true).  Start-up moved whole into
+:meth:`ControllerNode.configure_node`, which the base runs while building a plain node and at the
+configure transition of a managed one: one code path for both, so a plain node is exactly what it
+was.  Lockstep answering needs no change: every answer goes through one publishing method, which
+commands zero torque and the answer ``inactive`` whenever the node is not active (and the law is
+not stepped).  rclpy's ``LifecyclePublisher`` is not used: it would drop an inactive
+controller's messages, and the plant would then wait for its torque.
+
 The run starts at the first valid sample (:class:`~sappc_controller.core.base.AttitudeController`'s
 first step): its time is the performance function's time origin and its error gives the
 performance function's start (sign, and ``rpf.rho_e0`` when that is left to the initial error).
@@ -104,6 +145,7 @@ from rcl_interfaces.msg import SetParametersResult
 from sappc_msgs_py.contract import (
     ANSWER_COMMANDED,
     ANSWER_HELD,
+    ANSWER_INACTIVE,
     ANSWER_NAMES,
     ANSWER_REFUSED,
     ANSWER_WATCHDOG_ZERO,
@@ -122,7 +164,7 @@ from sappc_msgs_py.convert import (
 )
 from sappc_msgs_py.inputs import screen_input
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, REALTIME, CountingPublisher, ProjectNode, StartGate, run_node, unmatched
+from sappc_msgs_py.runtime import LOCKSTEP, MANAGED, MODE, REALTIME, CountingPublisher, ManagedNode, StartGate, run_node, unmatched
 from gnc_common.timing import LatencyStatistics
 from gnc_common.validation import ConfigError, InputError, check_positive
 
@@ -174,6 +216,7 @@ PARAMETERS = (
     Param("control_period_s", DEFAULT_CONTROL_PERIOD_S, "control period dt: the law's step (and the real-time frame and deadline)", "s",
           check="> 0"),
     MODE,
+    MANAGED,
     Param("stale_timeout_s", DEFAULT_STALE_TIMEOUT_S, "zero torque when no valid state is newer than this at a control instant", "s",
           range=WATCHDOG_RANGE_S, read_only=False),
     Param("max_stamp_ahead_s", DEFAULT_MAX_STAMP_AHEAD_S, "inputs stamped further ahead of the controller's time are rejected", "s",
@@ -205,8 +248,8 @@ def _seconds_to_ns(name: str, value: Any) -> int:
 _AT_REST_Q = np.array([0.0, 0.0, 0.0, 1.0])
 _ZERO3 = np.zeros(3)
 
-class ControllerNode(ProjectNode):
-    """See the module docstring."""
+class ControllerNode(ManagedNode):
+    """See the module docstring (its section "Managed" for the lifecycle)."""
 
     PARAMETERS = PARAMETERS
     COMMAND = "python -m sappc_controller"
@@ -218,7 +261,14 @@ class ControllerNode(ProjectNode):
         return [("parameters", cls.PARAMETERS), *laws, *super().parameter_sections()[1:]]
 
     def __init__(self, node_name: str = "controller", **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
+        self._parameter_callback = False  # whether _on_set_parameters is added (configure_node; a cleanup removes it)
+        super().__init__(node_name, **kwargs)  # not managed: configured (configure_node) and active; managed: unconfigured
+
+    def configure_node(self) -> None:
+        """The parameters declared and validated into the law's config, the compiled step loaded,
+        the inputs subscribed; the outputs offered once every input has a publisher
+        (:class:`~sappc_msgs_py.runtime.ManagedNode`: while the node is built, or at a managed
+        node's configure transition).  Raises ``ConfigError`` naming a bad parameter."""
         self.kind = str(self.param(_P["controller"]))
         declared = config_parameters(self.kind)
         self._config_names = [p.name for p in declared]
@@ -290,7 +340,16 @@ class ControllerNode(ProjectNode):
         self._n_frames = int(round(duration / self.dt))  # frames after the first (0: no end)
         self._check_unknown_overrides()  # after every declaration
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._parameter_callback = True
         self.get_logger().info(f"{self.kind} controller ready ({self.mode}, dt = {self.dt} s)")
+
+    def release_node(self) -> None:
+        """A managed controller's cleanup: its parameter callback removed (its subscriptions,
+        timers and publishers are destroyed by :class:`~sappc_msgs_py.runtime.ManagedNode`); the
+        parameters stay declared, and the next configure builds a new law from them."""
+        if self._parameter_callback:
+            self.remove_on_set_parameters_callback(self._on_set_parameters)
+            self._parameter_callback = False
 
     # ---- start ----------------------------------------------------------------------------
     def _inputs_missing(self) -> list[str]:
@@ -429,10 +488,13 @@ class ControllerNode(ProjectNode):
         return self._answered_ns is not None and t_ns <= self._answered_ns
 
     def _answer_without_inputs(self, t_ns: int) -> None:
-        """Lockstep: sample ``t_ns`` has no valid inputs: zero torque when stale, else the last answer held."""
+        """Lockstep: sample ``t_ns`` has no valid inputs: zero torque when stale, else the last answer held
+        (inactive: zero torque, answered ``inactive``)."""
         if self._answered(t_ns):
             return
-        if self._outage_at(t_ns):
+        if not self.active:
+            self._answer_inactive(t_ns)
+        elif self._outage_at(t_ns):
             self._publish_zero(t_ns, "no valid state", ANSWER_WATCHDOG_ZERO)
         else:
             torque, torque_cmd, saturated = self._held
@@ -497,9 +559,14 @@ class ControllerNode(ProjectNode):
             self._publish_zero(frame_ns, f"no state newer than {self.stale_timeout_ns / _NS} s", ANSWER_WATCHDOG_ZERO)
 
     def _compute(self, sample: ControlSample) -> None:
-        """One control step on a complete sample (the inputs paired by :mod:`sappc_controller.inputs`)."""
+        """One control step on a complete sample (the inputs paired by :mod:`sappc_controller.inputs`);
+        inactive: no step, the sample answered with zero torque (``inactive``)."""
         t_ns, input_ns = sample.t_ns, list(sample.input_ns)
         late = self.mode == LOCKSTEP and self._answered(t_ns)  # its tick already answered (after the grace)
+        if not self.active:
+            if not late:
+                self._answer_inactive(t_ns)
+            return
         if self._origin_ns is None:  # real time: the first step's stamp is the run's time 0
             self._origin_ns = t_ns
         if self.mode == REALTIME and any(ns != t_ns for ns in input_ns[2:]):
@@ -525,7 +592,16 @@ class ControllerNode(ProjectNode):
                            "z": out.z.tolist(), "lyapunov_V": out.V.tolist()}
         self._publish(t_ns, out.torque_B.tolist(), out.torque_cmd_B.tolist(), out.saturated.tolist(), input_ns, ANSWER_COMMANDED)
 
+    def _answer_inactive(self, t_ns: int) -> None:
+        """Sample ``t_ns`` answered by an inactive (deactivated, or configured and not yet activated)
+        controller: zero torque, no control step (module docstring, "Managed")."""
+        zero = [0.0] * 3
+        self._publish(t_ns, zero, zero, zero, [0] * len(_INPUTS), ANSWER_INACTIVE)
+
     def _publish_zero(self, t_ns: int, why: str, answer: int) -> None:
+        if not self.active:
+            self._answer_inactive(t_ns)
+            return
         if not self.stale:
             self.get_logger().warning(f"{why}: commanding zero torque until valid inputs return")
         self.stale = True
@@ -537,6 +613,9 @@ class ControllerNode(ProjectNode):
         produced and commanded [N m], the saturation flags)."""
         self._offer_outputs()  # a sample completed before the offer (its inputs' publishers not yet seen)
         assert self.pub_torque is not None and self.pub_diag is not None
+        if not self.active:  # whatever path led here, an inactive controller commands zero torque
+            torque = torque_cmd = saturated = [0.0] * 3
+            answer = ANSWER_INACTIVE
         self._answered_ns = t_ns if self._answered_ns is None else max(self._answered_ns, t_ns)
         self._ended = self._end_ns is not None and t_ns >= self._end_ns  # real time: nothing is answered past the last frame
         self.answers[ANSWER_NAMES[answer]] += 1
@@ -556,16 +635,19 @@ class ControllerNode(ProjectNode):
     def closing_line(self) -> str:
         """What the node did, for its last log line: the samples answered, by answer (what it did
         not compute included, as ``sappc run`` reports it from the bag), and the inputs rejected."""
+        if not self.configurations:
+            return "finished: never configured (a managed node that received no configure transition, or none succeeded)"
         a = self.answers
         reasons = f" {self.rejected_by_reason}" if self.rejected_by_reason else ""
         no_data = f"; {self.no_data_inputs} inputs without data (the contract's no data, not rejected)" if self.no_data_inputs else ""
+        inactive = f", {a['inactive']} inactive" if a["inactive"] else ""
         return (f"finished: answered {sum(a.values())} samples: {a['commanded']} commanded, {a['held']} held, {a['watchdog_zero']} watchdog zero, "
-                f"{a['refused']} refused ({self.steps} control steps computed); {self.rejected} input messages rejected{reasons}{no_data}")
+                f"{a['refused']} refused{inactive} ({self.steps} control steps computed); {self.rejected} input messages rejected{reasons}{no_data}")
 
     def finish(self) -> None:
         self.get_logger().info(self.closing_line())
         super().finish()
-        if self.timing_file:
+        if self.configurations and self.timing_file:
             stats = {"steps": self.steps, "refused_steps": self.refused, "answers": dict(self.answers), "rejected": self.rejected,
                      "rejected_inputs": self.rejected,  # the key of sappc run's controller summary
                      "rejected_by_reason": {r: self.rejected_by_reason.get(r, 0) for r in REJECT_REASONS},

@@ -16,6 +16,10 @@ The facts behind the choices are measured in ``docs/ros2_notes.md``:
 - The nodes publish the loop's messages as CDR bytes (:mod:`sappc_msgs_py.wire`), which
   :meth:`CountingPublisher.publish` hands to rclpy's C publisher directly; :func:`run_nodes`
   spins the executor in C++ (``spin_until_future_complete``) until a node finishes.
+- A node may be a ROS 2 managed (lifecycle) node (:class:`ManagedNode`, parameter
+  :data:`MANAGED`): it then starts unconfigured and is brought up through the standard lifecycle
+  services (docs/design/modes.md, "Managed nodes").  By default it configures and activates itself
+  while it is built, exactly as a plain node.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from rclpy.lifecycle import LifecycleNodeMixin, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -42,6 +47,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ACK_TIMEOUT_S",
     "LOCKSTEP",
+    "MANAGED",
     "MODE",
     "REALTIME",
     "COMMON_PARAMETERS",
@@ -49,6 +55,7 @@ __all__ = [
     "FramesAhead",
     "GridCursor",
     "MATCH_TIMEOUT_S",
+    "ManagedNode",
     "ProjectNode",
     "SPIN_TIMEOUT_S",
     "START_CHECK_S",
@@ -293,6 +300,11 @@ COMMON_PARAMETERS = (
           "(a topic not listed: the node's default, 1 on the topics of the control loop, else 0)", type="string[]"),
     Param("counts_file", "", "where the node writes the messages it published per topic (JSON) when it finishes; '' for none"),
 )
+#: Whether a node is a ROS 2 managed (lifecycle) node (:class:`ManagedNode`): listed among the
+#: own parameters of each node that can be one.
+MANAGED = Param("managed", False, "a ROS 2 managed (lifecycle) node: start unconfigured and wait for the standard "
+                "lifecycle services (/<node>/change_state, /<node>/get_state: configure, activate, deactivate, cleanup, "
+                "shutdown); false: configured and active from the start (docs/design/modes.md, 'Managed nodes')")
 #: The timing mode of every node.
 MODE = Param("mode", LOCKSTEP, "lockstep: the plant owns time and the others follow its stamped samples; realtime: wall-clock timers",
              choices=(LOCKSTEP, REALTIME))
@@ -323,6 +335,7 @@ class ProjectNode(Node):
         self._expected = parse_expected(list(self.param(COMMON_PARAMETERS[0])))
         self._counts_file = str(self.param(COMMON_PARAMETERS[1]))
         self._counting_pubs: list[CountingPublisher] = []
+        self._retired_counts: dict[str, int] = {}  # what counting publishers destroyed early (a cleanup) published
         self._frame_timers: list[Any] = []  # create_frame_timer's timers (kept referenced)
 
     @property
@@ -370,9 +383,12 @@ class ProjectNode(Node):
         from rclpy.exceptions import ParameterException
 
         try:
-            value = _declare(self, p)
+            # declared already: a managed node configured again after its cleanup reads it again
+            value = self.get_parameter(p.name).value if self.has_parameter(p.name) else _declare(self, p)
         except ParameterException as exc:  # rclpy's words name the parameter and the value; not a traceback
             raise ConfigError(" ".join(str(exc).split())) from None
+        if value is None and isinstance(p.default, (list, tuple)):  # declared by type, not given (_declare)
+            value = list(p.default)
         if p.choices and value not in p.choices:
             raise ConfigError(f"{p.name} must be one of {', '.join(repr(c) for c in p.choices)}, got {value!r}")
         return value
@@ -437,8 +453,11 @@ class ProjectNode(Node):
         self._frame_timers.append(one_shot)
 
     def publish_counts(self) -> dict[str, int]:
-        """Messages published per resolved topic name."""
-        return {p.resolved_name: p.count for p in self._counting_pubs}
+        """Messages published per resolved topic name (those of publishers destroyed since included)."""
+        counts = dict(self._retired_counts)
+        for p in self._counting_pubs:
+            counts[p.resolved_name] = counts.get(p.resolved_name, 0) + p.count
+        return counts
 
     def end_run(self) -> None:
         """Stop every timer of the node: the run has ended, and nothing it would publish belongs
@@ -457,6 +476,176 @@ class ProjectNode(Node):
             tmp = path.with_suffix(".tmp")
             tmp.write_text(json.dumps(self.publish_counts(), indent=1, sort_keys=True))
             tmp.replace(path)
+
+
+class ManagedNode(LifecycleNodeMixin, ProjectNode):
+    """A :class:`ProjectNode` that is a ROS 2 managed (lifecycle) node when its parameter
+    :data:`MANAGED` is true, and a plain node, configured and active from the start, when it is
+    false (the default).
+
+    A subclass puts what it does at start-up (declare and validate its parameters, load its
+    compiled kernels, create its subscriptions, timers and publishers) in :meth:`configure_node`,
+    which raises :class:`~gnc_common.validation.ConfigError` (or ``ValueError``) naming a bad
+    parameter, and reads :attr:`active` where an inactive node must behave otherwise.
+
+    Not managed: :meth:`configure_node` runs while the node is built (a bad parameter raises out
+    of the constructor: the process stops with exit status 2, as every node's does) and the node is
+    active; it offers no lifecycle services and has no lifecycle state machine.
+
+    Managed: the node is built with only :data:`COMMON_PARAMETERS` and :data:`MANAGED` declared,
+    in the primary state ``unconfigured``, and offers rclpy's lifecycle services
+    (``/<node>/change_state``, ``get_state``, ``get_available_states``,
+    ``get_available_transitions``, ``get_transition_graph``; ``lifecycle_msgs/srv``).  The
+    transitions:
+
+    configure
+        :meth:`configure_node`.  A bad parameter fails the transition (``success: false``; the
+        reason is logged at error level) and the node stays ``unconfigured``, alive; whatever the
+        attempt had created is destroyed.  Any other exception is logged with its traceback and
+        takes the node through ``ErrorProcessing`` back to ``unconfigured``.
+    activate, deactivate
+        :attr:`active` set and cleared; what that means is the subclass's.
+    cleanup
+        Every subscription, timer and publisher created since the configure transition began is
+        destroyed (the counts of the destroyed publishers are kept for the counts file), then
+        :meth:`release_node`; back to ``unconfigured``.  The declared parameters stay declared
+        (with their values), and a new configure reads them again.
+    shutdown
+        From any primary state: as cleanup when configured; then ``finalized``.  The process
+        keeps spinning until it is stopped as any node is (SIGINT, SIGTERM): ending it inside the
+        service call could lose the call's response.
+
+    The transitions run in the executor's thread, between the node's other callbacks, so an input
+    is handled either wholly before or wholly after a transition.  rclpy's
+    :class:`~rclpy.lifecycle.LifecyclePublisher` (which drops what is published while inactive) is
+    not used: what an inactive node publishes is the subclass's decision (an inactive controller
+    still answers the plant, with zero torque).
+    """
+
+    def __init__(self, node_name: str, **kwargs: Any) -> None:
+        ProjectNode.__init__(self, node_name, **kwargs)
+        self.managed = bool(self.param(MANAGED))
+        #: Whether the node is configured (managed: between configure and cleanup or shutdown).
+        self.configured = False
+        #: Whether the node is active (not managed: always).
+        self.active = False
+        #: Successful configurations so far (0: the node never ran; its counters do not exist).
+        self.configurations = 0
+        self._before_configure: tuple[list[Any], list[Any], list[Any]] | None = None
+        if not self.managed:
+            self.configure_node()
+            self.configured, self.active, self.configurations = True, True, 1
+            return
+        LifecycleNodeMixin.__init__(self)
+        # rclpy's change_state service raises out of the executor (which ends the node) on a
+        # transition id the current state does not have: refused instead, as a wrong label is
+        self._service_change_state.callback = self._refusing_unknown_transitions(self._service_change_state.callback)
+        where = f"{self.get_fully_qualified_name()}/change_state"
+        self.get_logger().info(f"managed node: unconfigured; waiting for a configure transition on {where}")
+
+    def destroy_node(self) -> None:
+        """Destroy the node, and a managed node's lifecycle state machine with it: the machine owns
+        the lifecycle services and holds the node's handle, so rclpy's ``Node.destroy_node`` alone
+        leaves them offered until the garbage collector finds the node (another node of the same
+        name on the domain would then share its clients with a server that never answers)."""
+        super().destroy_node()
+        if self.managed:
+            self._state_machine.destroy_when_not_in_use()
+
+    def _refusing_unknown_transitions(self, handle: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
+        """rclpy's ``change_state`` handler ``handle``, answering ``success: false`` (and logging
+        why) where it would raise: a transition that does not leave the current state."""
+        from rclpy.impl.implementation_singleton import rclpy_implementation
+
+        def change_state(request: Any, response: Any) -> Any:
+            try:
+                return handle(request, response)
+            except rclpy_implementation.RCLError as exc:
+                self.get_logger().warning(f"transition {request.transition.id} {request.transition.label!r} refused: {exc}")
+                response.success = False
+                return response
+
+        return change_state
+
+    def configure_node(self) -> None:
+        """Declare and validate the parameters, load the kernels, create the subscriptions,
+        timers and publishers (the subclass's start-up).
+
+        Raises
+        ------
+        ConfigError
+            Naming a missing, unknown, invalid or infeasible parameter (``ValueError`` likewise).
+        """
+
+    def release_node(self) -> None:
+        """What a cleanup releases beyond the subscriptions, timers and publishers created by
+        :meth:`configure_node` (which :class:`ManagedNode` destroys itself): e.g. a parameter callback."""
+
+    # ---- lifecycle transitions (rclpy's LifecycleNodeMixin calls them; managed nodes only) ----
+    def _entities(self) -> tuple[list[Any], list[Any], list[Any]]:
+        return list(self.subscriptions), list(self.timers), list(self.publishers)
+
+    def _release(self) -> None:
+        """Destroy what was created since the configure transition began, then :meth:`release_node`."""
+        if self._before_configure is None:
+            return
+        subs, timers, pubs = self._before_configure
+        self._before_configure = None
+        for cp in [cp for cp in self._counting_pubs if cp.pub not in pubs]:
+            self._retired_counts[cp.resolved_name] = self._retired_counts.get(cp.resolved_name, 0) + cp.count
+            self._counting_pubs.remove(cp)
+        for timer in [t for t in self.timers if t not in timers]:
+            self.destroy_timer(timer)
+        self._frame_timers = [t for t in self._frame_timers if t in timers]
+        for sub in [s for s in self.subscriptions if s not in subs]:
+            self.destroy_subscription(sub)
+        for pub in [p for p in self.publishers if p not in pubs]:
+            self.destroy_publisher(pub)
+        self.release_node()
+        self.configured = self.active = False
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._before_configure = self._entities()
+        try:
+            self.configure_node()
+        except (ConfigError, ValueError) as exc:
+            self.get_logger().error(f"configure failed: {exc}; the node stays unconfigured")
+            self._release()
+            return TransitionCallbackReturn.FAILURE
+        except Exception:  # a defect, not a parameter: its traceback, then ErrorProcessing (on_error)
+            import traceback
+
+            self.get_logger().error(f"configure raised:\n{traceback.format_exc()}")
+            return TransitionCallbackReturn.ERROR
+        self.configured = True
+        self.configurations += 1
+        self.get_logger().info("configured: inactive")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = True
+        self.get_logger().info("activated")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = False
+        self.get_logger().info("deactivated")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        self.get_logger().info("cleaned up: unconfigured")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        self.get_logger().info("shut down: finalized")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        self.get_logger().error(f"a transition from {state.label} failed with an error: what configure made is released; unconfigured")
+        return TransitionCallbackReturn.SUCCESS
 
 
 def run_node(make_node: Callable[[list[str]], ProjectNode], argv: list[str] | None = None, node_class: type[ProjectNode] | None = None) -> int:
