@@ -372,6 +372,10 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
         print("  controller answers not commanded: " + ", ".join(f"{k.replace('_', ' ')} {v['samples']} samples in {v['runs']} runs"
                                                              for k, v in not_commanded.items())
               + f"; runs never commanded {summary['runs_never_commanded']}")
+    if "modes" in summary:
+        tt = summary["modes"]["time_to_track_s"]
+        print(f"  modes: time to TRACK p50 {_fmt(tt['p50'], '.1f')} s, p95 {_fmt(tt['p95'], '.1f')} s, max {_fmt(tt['max'], '.1f')} s; "
+              f"runs that never reached TRACK {summary['modes']['runs_never_tracked']}")
     for f in summary["failed_runs"][:10]:
         print(f"  failed run {f['run']}: {f['why']}")
     print(f"results in {out}")

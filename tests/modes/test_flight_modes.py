@@ -290,3 +290,31 @@ def test_a_moded_runs_metrics_are_those_of_its_samples_from_track_on() -> None:
                 assert got[key] == want[key], (block, n, key, got[key], want[key])
             assert got["time_to_track_s"] == t[k]
         # the split matters nowhere: every block size gives these numbers (checked against the run alone above)
+
+
+def test_a_campaign_of_separations_reports_the_time_to_track(tmp_path: Any) -> None:
+    """A campaign with modes: each run's time to TRACK and transitions in its table and runs.csv,
+    their distribution and the runs that never tracked in the summary, and such a run's reason."""
+    import csv
+    import json
+
+    from sappc.montecarlo.campaign import run_campaign
+
+    quick = tmp_path / "quick.yaml"
+    quick.write_text("extends: flight_separation.yaml\nduration_s: 3.0\nmetrics:\n  steady_from_s: 1.0\n  t2_s: 0.5\n"
+                     "modes:\n  transitions: {detumbled_rate_rad_s: 10.0, detumbled_for_s: 0.5, healthy_for_s: 0.5, converged_sigma_rad: 1.0,"
+                     " acquired_error_rad: null}\n"
+                     "montecarlo:\n  chunk_runs: 2\n")
+    summary = run_campaign(quick, runs=3, seed=7, out_dir=tmp_path / "out", progress=False)
+    modes = summary["modes"]
+    assert modes["runs_never_tracked"] == 0 and modes["time_to_track_s"]["max"] <= 3.0
+    assert modes["time_to_track_s"]["p50"] <= modes["time_to_track_s"]["p95"] <= modes["time_to_track_s"]["max"]
+    rows = list(csv.DictReader((tmp_path / "out" / "runs.csv").open()))
+    assert len(rows) == 3 and all(0.49 <= float(r["time_to_track_s"]) <= 3.0 and float(r["mode_transitions"]) == 2.0 for r in rows)
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["modes"] == modes
+    # a campaign whose runs never reach TRACK (the default guards: 3 s is far too short to detumble)
+    slow = tmp_path / "slow.yaml"
+    slow.write_text("extends: flight_separation.yaml\nduration_s: 3.0\nmontecarlo:\n  chunk_runs: 2\n")
+    summary = run_campaign(slow, runs=2, seed=7, out_dir=tmp_path / "out_slow", progress=False)
+    assert summary["modes"]["runs_never_tracked"] == 2 and summary["passed"] == 0
+    assert all("never reached TRACK" in f["why"] for f in summary["failed_runs"])

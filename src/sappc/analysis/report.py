@@ -237,6 +237,10 @@ METRIC_SENTENCES: dict[str, str] = {
     "max_abs_wheel_speed_rad_s": "The largest speed of any reaction wheel relative to the body [rad/s].",
     "max_abs_wheel_torque_Nm": "The largest motor torque of any reaction wheel [N m].",
     "wheel_energy_J": "The wheels' motors' mechanical work in magnitude over the run, braking counted as spent [J].",
+    "mode_sequence": "The flight modes in the order the run flew them (a scenario with flight modes).",
+    "time_to_track_s": "When the run first entered TRACK, the mode in which the scenario's controller flies [s].",
+    "time_in_mode_s": "How long the run flew in each flight mode [s].",
+    "mode_transitions": "How many transitions between flight modes the run took.",
     "wall_time_s": "The wall-clock time the run took [s]: a property of the machine, not of the controller.",
     "startup_s": "The wall-clock time before the first sample: processes, imports and discovery [s].",
     "first_sample_after_nodes_up_s": "The wall-clock time from the plant's process having built its nodes (composed: every node) to the "

@@ -11,13 +11,15 @@ Its memory does not grow with a run's duration (issue 47) when it is given the s
 per-run state, the per-orbit table (a row per orbit), the open orbit's rods' duty samples (one
 orbit at most) and the campaign's per-sample NEES (at most :data:`NEES_EXACT_MAX_SAMPLES`
 samples).  Every metric is the same bits for any split of the run into blocks.
-Definitions, per run, each from the run's **origin**: its first sample, or with flight modes its
-first sample in TRACK (docs/design/modes.md: the scenario's controller starts there); the samples
-before the origin enter none of the metrics below but the loss-of-control rule's (they are before
-the steady window) and ``finite``, and a run that never reaches TRACK has no origin (its settling
-time, steady and RPF metrics unknown).  Times ``t`` below count from the origin (``steady_from_s``
-and ``t2_s`` after it), except ``control_lost_at_s`` and ``returned_at_s``, which are the run's own
-times:
+Each run is measured from its **origin**: its first sample, or with flight modes its first sample
+in TRACK (docs/design/modes.md: the scenario's controller starts there); the samples before the
+origin enter none of the tracking metrics below but the loss-of-control rule's (they are before the
+steady window) and ``finite``, and a run that never reaches TRACK has no origin (its settling time,
+steady and RPF metrics unknown).  Times ``t`` below count from the origin (``steady_from_s`` and
+``t2_s`` after it), except ``control_lost_at_s`` and ``returned_at_s``, which are the run's own
+times; the wheels' metrics cover the whole run.
+
+Definitions, per run:
 
 ``settling_time_s``
     The first sample time after which ``max_i |q_ev,i|`` stays below

@@ -45,7 +45,7 @@ from gnc_common.validation import ConfigError
 from gnc_common.validation import InputError
 from sappc.montecarlo.config import campaign_config
 from spacecraft_sim.core.sensors import N_SENSOR_DRAWS, white_noise_params
-from sappc.montecarlo.results import ESTIMATOR_COLUMNS, WHEEL_COLUMNS
+from sappc.montecarlo.results import ESTIMATOR_COLUMNS, MODE_COLUMNS, WHEEL_COLUMNS
 from sappc.montecarlo.draws import dispersed_disturbance, draw_inputs, run_faults, run_hardware, run_orbits, sensor_noise_streams
 from sappc.montecarlo.results import FORMAT_VERSION, assemble, chunk_path, chunks, save_chunk
 from sappc.offline import compiled_loop
@@ -162,6 +162,7 @@ def simulate_runs(
         "finite": crit["finite"],
         **{k: crit[k] for k in WHEEL_COLUMNS if k in crit},  # with reaction wheels
         **{k: crit[k] for k in ESTIMATOR_COLUMNS if k in crit},  # with an estimator
+        **{k: crit[k] for k in MODE_COLUMNS if k in crit},  # with flight modes
         # with an estimator: the NEES summed over this chunk's runs at every sample, and how many
         # runs had one there (summed over chunks, not concatenated: the campaign's consistency test)
         **({"tsum_nees": metrics.nees_sum_t, "tsum_nees_runs": metrics.nees_runs_t}

@@ -81,6 +81,12 @@ def _percentiles(x: Array) -> dict[str, float | None]:
     return {"p50": float(p[0]), "p90": float(p[1]), "p99": float(p[2]), "max": float(x.max())}
 
 
+def _p95(x: Array) -> float | None:
+    """The 95th percentile of the finite values (``None``: none)."""
+    x = x[np.isfinite(x)]
+    return float(np.percentile(x, 95)) if x.size else None
+
+
 @dataclasses.dataclass(frozen=True)
 class RunCriteria:
     """The paper's pass criteria (experiment 4) evaluated per run, arrays over runs.
@@ -107,6 +113,9 @@ class RunCriteria:
 
 #: The per-run columns of a campaign with reaction wheels (metrics of :mod:`sappc.evaluation.metrics`).
 WHEEL_COLUMNS = ("max_abs_wheel_speed_rad_s", "max_abs_wheel_torque_Nm", "wheel_energy_J")
+#: Per-run columns of a campaign with flight modes (issue 49): the first entry into TRACK [s] (NaN:
+#: never) and the transitions taken.
+MODE_COLUMNS = ("time_to_track_s", "mode_transitions")
 #: Per-run columns of a campaign with an estimator (:mod:`sappc.evaluation.metrics`).
 ESTIMATOR_COLUMNS = ("steady_max_abs_attitude_estimation_error_rad", "final_abs_bias_estimation_error_rad_s", "mean_nees",
                      "filter_inconsistent_fraction", "estimator_recoveries")
@@ -179,7 +188,7 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
     samples = _samples(tab)
 
     gain_keys = [k for k in tab if k.startswith("gain_")]
-    wheel_keys = [k for k in WHEEL_COLUMNS if k in tab] + [k for k in ESTIMATOR_COLUMNS if k in tab]
+    wheel_keys = [k for k in WHEEL_COLUMNS if k in tab] + [k for k in ESTIMATOR_COLUMNS if k in tab] + [k for k in MODE_COLUMNS if k in tab]
     hw_cols = [(k, i) for k in tab if k.startswith("hw_") for i in range(np.asarray(tab[k]).reshape(runs, -1).shape[1])]
     dispersed = cfg.dispersions.faults is not None
     fault_kinds = [str(c["kind"]) for c in cfg.dispersions.faults.choices] if cfg.dispersions.faults is not None else []
@@ -229,6 +238,8 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
         if lost_control(np.nan, commanded, samples[k]):
             of = "of the {} samples it was active for" if int(tab.get("answers_inactive", np.zeros(k + 1, dtype=np.int64))[k]) else "of {} samples"
             why.append(f"control lost: torque computed at {commanded} {of.format(int(samples[k]))} (< {MIN_COMMANDED_FRACTION:.0%})")
+        if "time_to_track_s" in tab and not np.isfinite(tab["time_to_track_s"][k]):
+            why.append("never reached TRACK")
         if finite[k] and not ok_t2[k]:
             why.append(f"rpf_error_at_t2 {t2[k]:.3g} >= {crit.rpf_error_at_t2_max:g}")
         if finite[k] and not ok_steady[k]:
@@ -264,6 +275,11 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
         "torque_sign_changes_per_s": _percentiles(tab["torque_sign_changes_per_s"]),
         "torque_reversals_per_s": _percentiles(tab["torque_reversals_per_s"]),
         **({"estimator": _estimator_summary(tab, scenario)} if "tsum_nees" in tab else {}),
+        **({"modes": {"runs_never_tracked": int((~np.isfinite(np.asarray(tab["time_to_track_s"], dtype=np.float64))).sum()),
+                      "time_to_track_s": {**_percentiles(np.asarray(tab["time_to_track_s"], dtype=np.float64)),
+                                          "p95": _p95(np.asarray(tab["time_to_track_s"], dtype=np.float64))},
+                      "mode_transitions": _percentiles(np.asarray(tab["mode_transitions"], dtype=np.float64))}}
+           if "time_to_track_s" in tab else {}),
         "wall_time_s": wall_s,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -274,7 +274,7 @@ def test_the_run_summary_counts_what_the_controller_did_and_sets_the_exit_status
                       has_diagnostics=diagnostics)
 
     s = run([0, 1, 1, 2, 3, 0], 7).controller_summary()
-    assert s == {"samples": 6, "commanded": 2, "watchdog_zero": 2, "held": 1, "refused": 1, "rejected_inputs": 7}
+    assert s == {"samples": 6, "commanded": 2, "watchdog_zero": 2, "held": 1, "refused": 1, "inactive": 0, "rejected_inputs": 7}
     assert run_exit_status({}, s) == 0 and run_exit_status({"/state/rate": (10, 9)}, s) == 1
     assert run_exit_status({}, s, ["steady_max_abs_qev = 2e-4 > 1e-4"]) == EXIT_REQUIREMENT_FAILED == 4
     never = run([1, 1, 3], 0).controller_summary()
