@@ -419,6 +419,8 @@ def gen_scenario(_: str | None = None) -> str:
         [code("hold_gains"), f"[mapping](#{_anchor('modes.hold_gains')})", "required", "HOLD's MRP feedback gains (SAFE: `P_Nms` alone)."],
         [code("hold_attitude"), " or ".join(code(a) for a in sc.HOLD_ATTITUDES), code(sc.HOLD_ATTITUDES[0]),
          "HOLD holds the attitude of its entry, or points at the scenario's reference (an acquisition before TRACK)."],
+        [code("requests"), "list of `{at_s, mode}`", "none",
+         "The ground's mode requests, each at the first sample at or after `at_s` [s], at once from any mode."],
         [code("transitions"), f"[mapping](#{_anchor('modes.transitions')})", "see below", "The guards' thresholds and persistences."]]), ""]
     out += dataclass_sections(MrpFeedbackGains, "modes.hold_gains", level=3)
     out += dataclass_sections(ModeConfig, "modes.transitions", level=3)

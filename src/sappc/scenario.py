@@ -299,7 +299,7 @@ class MetricSettings:
 
 
 #: The keys of the ``modes`` section.
-MODES_KEYS = ("initial_mode", "transitions", "detumble_gain_N_m_s", "hold_gains", "hold_attitude")
+MODES_KEYS = ("initial_mode", "transitions", "detumble_gain_N_m_s", "hold_gains", "hold_attitude", "requests")
 #: ``modes.hold_attitude``: HOLD holds the attitude of its entry (an inertial hold), or points at the
 #: scenario's reference (an acquisition: TRACK then starts near it, with ``transitions.acquired_error_rad``).
 HOLD_ATTITUDES = ("entry", "reference")
@@ -330,6 +330,10 @@ class FlightModes:
     hold_on_reference : bool
         ``modes.hold_attitude: reference``: HOLD points at the scenario's reference; ``entry``
         (default): it holds the attitude of its entry.
+    requests : tuple of (float, int)
+        ``modes.requests``: the ground's mode requests, each ``{at_s: <time [s]>, mode: <name>}``,
+        executed at the first sample at or after its time (an operator's command: at once, from any
+        mode; docs/design/modes.md).
     """
 
     transitions: ModeConfig
@@ -338,6 +342,7 @@ class FlightModes:
     detumble_gain_source: str
     hold_gains: MrpFeedbackGains
     hold_on_reference: bool = False
+    requests: tuple[tuple[float, int], ...] = ()
 
 
 def detumble_criterion_gain(environment: Environment, inertia_kg_m2: Array) -> tuple[float, float]:
@@ -396,7 +401,27 @@ def _modes_from_mapping(data: Any, environment: Environment | None, momentum: Mo
     attitude = data.get("hold_attitude", HOLD_ATTITUDES[0])
     if attitude not in HOLD_ATTITUDES:
         raise ConfigError(f"modes.hold_attitude must be one of {', '.join(HOLD_ATTITUDES)}, got {attitude!r}")
-    return FlightModes(transitions, MODE_NAMES.index(name), float(k), source, hold, attitude == "reference")
+    return FlightModes(transitions, MODE_NAMES.index(name), float(k), source, hold, attitude == "reference",
+                       _mode_requests(data.get("requests")))
+
+
+def _mode_requests(data: Any) -> tuple[tuple[float, int], ...]:
+    """``modes.requests``: a list of ``{at_s, mode}`` (a time >= 0 [s] and a mode's name); errors name the item."""
+    if data is None:
+        return ()
+    if not isinstance(data, list):
+        raise ConfigError(f"modes.requests must be a list of {{at_s: <s>, mode: <name>}}, got {data!r}")
+    out = []
+    for i, item in enumerate(data):
+        if not isinstance(item, dict) or set(item) != {"at_s", "mode"}:
+            raise ConfigError(f"modes.requests[{i}] must be a mapping with exactly at_s and mode, got {item!r}")
+        at_s = check_positive(f"modes.requests[{i}].at_s", item["at_s"], allow_zero=True)
+        if not isinstance(at_s, float):
+            raise ConfigError(f"modes.requests[{i}].at_s must be one number, got {item['at_s']!r}")
+        if item["mode"] not in MODE_NAMES:
+            raise ConfigError(f"modes.requests[{i}].mode must be one of {', '.join(MODE_NAMES)}, got {item['mode']!r}")
+        out.append((at_s, MODE_NAMES.index(item["mode"])))
+    return tuple(sorted(out))
 
 
 @dataclass(frozen=True)

@@ -93,7 +93,8 @@ false``):
   records a sample the controller does not command.  Inputs are still checked and counted.
 - activate: the law answers again, from the next sample: a controller that has not started yet
   starts at its first valid sample while active (its time origin and funnel); one that was
-  deactivated continues where it stopped (as the offline loop's second entry into TRACK), and a
+  deactivated after it had started starts again there, afresh (its state, time origin and funnel
+  from that sample: as the offline loop restarts it at each later entry into TRACK), and a
   sample without valid inputs is answered as above (held: the last answer, zero after an
   inactive one; or watchdog zero).
 - cleanup: the subscriptions, timers and publishers destroyed and the parameter callback removed;
@@ -591,6 +592,13 @@ class ControllerNode(ManagedNode):
         self._diag_rows = {"rho": out.rho.tolist(), "band_lower": out.band_lower.tolist(), "band_upper": out.band_upper.tolist(), "eps": out.eps.tolist(),
                            "z": out.z.tolist(), "lyapunov_V": out.V.tolist()}
         self._publish(t_ns, out.torque_B.tolist(), out.torque_cmd_B.tolist(), out.saturated.tolist(), input_ns, ANSWER_COMMANDED)
+
+    def on_activate(self, state: Any) -> Any:
+        """A later activation (the law had started): the law starts again, afresh, at its first valid
+        sample while active (module docstring), as the offline loop's later entries into TRACK."""
+        if self.steps > 0:
+            self.controller.reset()
+        return super().on_activate(state)
 
     def _answer_inactive(self, t_ns: int) -> None:
         """Sample ``t_ns`` answered by an inactive (deactivated, or configured and not yet activated)

@@ -318,3 +318,61 @@ def test_a_campaign_of_separations_reports_the_time_to_track(tmp_path: Any) -> N
     summary = run_campaign(slow, runs=2, seed=7, out_dir=tmp_path / "out_slow", progress=False)
     assert summary["modes"]["runs_never_tracked"] == 2 and summary["passed"] == 0
     assert all("never reached TRACK" in f["why"] for f in summary["failed_runs"])
+
+
+def _requested(duration_s: float, requests: list[dict[str, Any]]) -> Any:
+    """A few seconds of the separation with quick guards (a 1 s recovery from SAFE) and the ground's ``requests``."""
+    return _separation(duration_s, transitions={**QUICK["transitions"], "recover_for_s": 1.0}, requests=requests)
+
+
+def test_each_later_entry_into_track_restarts_the_controller_afresh() -> None:
+    """Ground requests send a tracking spacecraft to SAFE twice; it recovers, acquires and tracks
+    again each time: each later TRACK entry restarts the controller (its state afresh, its time
+    origin and start constants from its first valid sample there), so that sample's answer is the
+    one of a controller started fresh on its inputs (the kernel called alone: the same compiled
+    operations, bit for bit); the run in blocks and in a batch is the run alone, bit for bit (a
+    restart's constants, computed when the run meets it, replay the block)."""
+    from gnc_common.compiled import error_quaternion
+    from sappc.offline.compiled_loop import R_OMEGA, R_Q
+    from sappc_controller.core.kernels import N_WORK, controller_step_one, new_state
+    from sappc_controller.core.packing import start_coef
+    from sappc_modes.core.modes import R_RECOVERED, R_REQUEST, SAFE
+
+    sc = _requested(20.0, [{"at_s": 12.0, "mode": "SAFE"}, {"at_s": 5.0, "mode": "SAFE"}])  # given out of order: sorted
+    inp = prepare(sc)
+    run = run_single(inp, 0, 1)
+    mode, reason = run.record.mode[0, :, 0], run.record.mode[0, :, 1]
+    k_safe = np.flatnonzero(reason == R_REQUEST)
+    assert run.t[k_safe].tolist() == [5.0, 12.0] and np.all(mode[k_safe] == SAFE)
+    entries = np.flatnonzero((reason == R_ACQUIRED) & (mode == TRACK))
+    assert entries.size == 3 and np.count_nonzero(reason == R_RECOVERED) == 2
+    assert inp.modes.starts_known[0] == 3  # the first start and two restarts
+    grid = inp.whole().grid
+    for k in entries[1:]:  # each restart: the first valid sample in TRACK is the entry's own sample here
+        assert run.status[0, k] == ANSWER_COMMANDED
+        e = run.record.estimate[0, k]
+        q, w = np.ascontiguousarray(e[R_Q:R_Q + 4]), np.ascontiguousarray(e[R_OMEGA:R_OMEGA + 3])
+        q_e0 = np.empty(4)
+        error_quaternion(grid.ref_q[k], q, q_e0)
+        coef, _ = start_coef(inp.config, q_e0[None], on_infeasible=inp.on_infeasible)
+        t_k = grid.t_ns[k] / 1_000_000_000
+        out = np.zeros((1,) + run.out.shape[2:])
+        controller_step_one(inp.controller.kind, t_k, sc.control_period_s, q, w, grid.ref_q[k], grid.ref_w[k], grid.ref_wd[k],
+                            inp.controller.prm[:1], np.ascontiguousarray(coef), new_state(1, t_k), np.zeros((N_WORK, 4)), out, np.zeros((1, 3), bool))
+        assert np.array_equal(run.out[0, k, :3].view(np.uint8), out[0, :3].view(np.uint8)), k  # torque, command, saturation
+        assert np.array_equal(run.out[0, k, 4:].view(np.uint8), out[0, 4:].view(np.uint8)), k  # rho, the band, eps, z, V
+    for block in (7, 1000):
+        parts = [(r.record.mode.copy(), r.record.out.copy()) for r in run_blocks(prepare(sc), 1, block)]
+        assert np.array_equal(np.concatenate([p[0] for p in parts], axis=1), run.record.mode), block
+        assert np.array_equal(np.concatenate([p[1] for p in parts], axis=1).view(np.uint8), run.record.out.view(np.uint8)), block
+    batch = run_batch(prepare(sc, q_BN0=np.stack([sc.q_BN0, sc.q_BN0])), 1)
+    assert np.array_equal(batch.record.out[0].view(np.uint8), run.record.out[0].view(np.uint8))
+
+
+def test_mode_requests_are_checked() -> None:
+    for requests, message in (([{"at_s": -1.0, "mode": "SAFE"}], "modes.requests\\[0\\].at_s"),
+                              ([{"at_s": 1.0, "mode": "OFF"}], "modes.requests\\[0\\].mode must be one of"),
+                              ([{"at": 1.0, "mode": "SAFE"}], "modes.requests\\[0\\] must be a mapping with exactly at_s and mode"),
+                              ({"at_s": 1.0}, "modes.requests must be a list")):
+        with pytest.raises(ConfigError, match=message):
+            _requested(1.0, requests)  # type: ignore[arg-type]

@@ -149,9 +149,10 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     _assert_inactive_answer(drv.torques[-1][1], drv.diags[-1])
     assert node.steps == 1 and node.rejected == 1
 
-    assert lc.transition(Transition.TRANSITION_ACTIVATE)  # the law continues where it stopped
+    assert lc.transition(Transition.TRANSITION_ACTIVATE)  # the law starts again, afresh, at its first valid sample while active
     torque, diag = _answered(drv, 0.04)
-    assert diag["status"][2] == c.ANSWER_COMMANDED and node.steps == 2 and node.controller.t0 == 0.01
+    assert diag["status"][2] == c.ANSWER_COMMANDED and node.steps == 2 and node.controller.t0 == 0.04
+    assert diag["rho"][1] == pytest.approx(0.4, abs=1e-12)  # its RPF from rho_e0 again, as at the first start
     assert np.linalg.norm(torque) > 1e-3 and np.all(np.abs(torque) <= MAX_TORQUE_NM)
     assert not lc.transition(Transition.TRANSITION_CLEANUP)  # not from active
     assert lc.state() == (State.PRIMARY_STATE_ACTIVE, "active")

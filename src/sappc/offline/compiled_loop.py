@@ -67,7 +67,7 @@ from numba import prange
 from gnc_common.compiled import error_quaternion, jit, jit_parallel
 from sappc_controller.core.base import SingularStartError
 from sappc_controller.core.input_check import REJECT_REASONS, sample_verdicts
-from sappc_controller.core.kernels import N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
+from sappc_controller.core.kernels import N_COEF, N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
 from sappc_controller.core.kernels import KIND_MRP_FEEDBACK, ControllerArrays, controller_step
 from sappc_controller.core.packing import pack_controller, start_coef
 from sappc_estimator.core.config import pack_estimator
@@ -147,8 +147,8 @@ class LoopRecord(NamedTuple):
     T_rec, 3) the disturbance, ``status`` (N, T_rec) int8 the answers (``ANSWER_*``), ``wheels`` (N,
     T_rec, W, 2) each wheel's speed [rad/s] and motor torque [N m], ``estimate`` (N, T_rec,
     :data:`N_EST_RECORD` or 0) the estimator's record (``R_*``); per run: ``rejected`` (N, 2) the
-    inputs the controller rejected (invalid, implausible), ``x_final`` (N, 7 + W), ``start`` (N, 6)
-    the first valid sample (:func:`_run_one`); ``env`` (N, T_rec, 9 + M or 0) with an orbit, the true
+    inputs the controller rejected (invalid, implausible), ``x_final`` (N, 7 + W), ``start`` (N, 7)
+    the first valid sample, or a restart's pause (:func:`_run_one`); ``env`` (N, T_rec, 9 + M or 0) with an orbit, the true
     field ``B_B`` [T], the flight software's (measured) field [T], the environment's and the rods'
     torque ``L_env_B`` [N m] and the rods' dipole commands (M) [A m^2] (:func:`_run_one`); with modes,
     ``mode`` (N, T_rec, 2 or 0) int8 the mode flown and the reason of the transition taken at the
@@ -172,9 +172,13 @@ class LoopRecord(NamedTuple):
 
 #: Columns of :attr:`LoopState.flags` (int64): whether the controller has started (its first valid
 #: sample), whether it has a last valid answer, that answer's stamp [ns], whether the filter gave
-#: the last sample its figures.
-L_STARTED, L_HAS_LAST, L_LAST_STATE_NS, L_HAS_ESTIMATE = 0, 1, 2, 3
-N_LOOP_FLAGS = 4
+#: the last sample its figures, the controller's starts so far (flight modes: one per entry into TRACK).
+L_STARTED, L_HAS_LAST, L_LAST_STATE_NS, L_HAS_ESTIMATE, L_N_STARTS = 0, 1, 2, 3, 4
+N_LOOP_FLAGS = 5
+#: The restarts of the controller a run may take (flight modes: each entry into TRACK after the
+#: first starts it again, with constants of its own): a flight that leaves TRACK more often than
+#: this (a health cycling through SAFE) continues its last start at each further entry.
+MAX_RESTARTS = 8
 #: Rows of :attr:`LoopState.vec3` (3-vectors): the controller's last answer, the torque through the
 #: actuator link and the delivered one [N m], the plant's held input and the disturbance [N m],
 #: the gyro's bias and its true bias in the sample's rate [rad/s], the orbit's position [m], the
@@ -302,8 +306,9 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     each sample, after the estimator, :func:`~sappc_modes.core.modes.mode_step` takes the gyro's
     rate magnitude (NaN when no measurement was delivered), the estimator's health level and the
     largest attitude 1-sigma of its covariance (NaN without figures; without an estimator OK and
-    0 while measurements arrive), the largest wheel speed as a fraction of its limit; the loss of
-    control, the ground's request and its inhibits are not modelled offline (0, none, none).  The
+    0 while measurements arrive), the largest wheel speed as a fraction of its limit, the
+    scenario's ground requests (``ModeArrays.requests``); the loss of control and the ground's
+    inhibits are not modelled offline (0, none).  The
     scenario's controller computes only in TRACK, where it starts at its first valid sample (the
     start above, whose probe runs the modes too); outside TRACK its answer is ``ANSWER_INACTIVE``
     and the mode's law commands: DETUMBLE zero torque on the wheels and B-dot
@@ -312,12 +317,18 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     management; HOLD the MRP feedback law on the controller's input (the estimate) towards the
     attitude of its first valid sample in HOLD, zero rate (or, ``hold_reference``, towards the
     scenario's reference with its rates: an acquisition; the mode manager then also reads the
-    estimate's error against the reference, ``IN_ERROR``); SAFE the same law with no attitude gain
+    estimate's error against the reference, ``IN_ERROR``; the ground's requests of the scenario,
+    ``IN_REQUEST``, each at the first sample at or after its time); SAFE the same law with no attitude gain
     on the gyro's rate (the attitude is not used).  Each entry into HOLD or SAFE restarts the law's
-    state, each into DETUMBLE B-dot's.  A second entry into TRACK continues the controller started
-    at the first (its time origin and funnel: docs/design/modes.md says what is not built)."""
+    state, each into DETUMBLE B-dot's.  Each later entry into TRACK **restarts** the controller (up
+    to :data:`MAX_RESTARTS` times): its state afresh, its time origin and start constants from its
+    first valid sample there, as at the run's start; those constants come from Python (the RPF
+    needs scipy), so a run that meets a restart whose constants are not known yet pauses there: it
+    records the restart in ``rec.start`` (its sample, time, error quaternion and the start's index)
+    and returns, and :func:`_loop` computes them and runs the block again from its state before
+    (:data:`MAX_RESTARTS`; ``ModeArrays.restart_coef``, ``starts_known``)."""
     # the controller
-    kind, prm, coef = ctrl.kind, ctrl.prm[n], ctrl.coef[n]
+    kind, prm = ctrl.kind, ctrl.prm[n]
     start = rec.start[r]
     rejected = rec.rejected[r]
     if k_lo == 0:
@@ -330,6 +341,8 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     has_last = flags[L_HAS_LAST] != 0
     last_state_ns = flags[L_LAST_STATE_NS]
     has_estimate = flags[L_HAS_ESTIMATE] != 0  # whether the filter gave this sample its figures
+    n_starts = flags[L_N_STARTS]  # the controller's starts so far: the first's constants are ctrl.coef's, a restart's md.restart_coef's
+    coef = ctrl.coef[n] if n_starts <= 1 else md.restart_coef[n, n_starts - 2]
     delivered_epoch = st.epoch[r, 0]
     state, work, out, pub = st.ctrl[r], st.work[r], st.out[r], st.pub[r]
     cmd, u_cmd, u_last = vec3[V_CMD], vec3[V_U_CMD], vec3[V_U_LAST]  # the answer (what a held sample repeats), the delivered torque
@@ -386,6 +399,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     m_B, zero3 = vec3[V_M_B], vec3[V_ZERO]
     md_prm, md_bdot, md_hold, md_safe = md.prm[n], md.bdot[n], md.hold_prm[n], md.safe_prm[n]
     md_to_reference = md.hold_reference[n] != 0.0
+    md_requests = md.requests[n]
     q_err = st.q_err[r]
     measuring = sens.draws.shape[1] > 0
     dt = grid.dt
@@ -451,6 +465,9 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
                     frac = max(frac, abs(wspeed[i]) / wprm[i, _W_MAX_SPEED])
                 mode_in[IN_WHEEL] = frac
             mode_in[IN_REQUEST] = -1.0
+            for j in range(md_requests.shape[0]):  # the ground's request of this sample: its first at or after the request's time
+                if t >= md_requests[j, 0] and t - dt < md_requests[j, 0]:
+                    mode_in[IN_REQUEST] = md_requests[j, 1]
             mode_in[IN_INHIBIT] = 0.0
             mode_in[IN_ERROR] = np.nan
             if valid:  # the estimate's error against the reference: its rotation angle
@@ -459,6 +476,8 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
             reason = mode_step(mode_st, mode_in, md_prm)
             mode = int(mode_st[S_MODE])
             if reason != R_NONE:
+                if mode == TRACK and started and n_starts <= md.restart_coef.shape[1]:
+                    started = False  # a later entry into TRACK: the controller starts again at its first valid sample
                 mode_run[MR_TRANSITIONS] += 1.0
                 if np.isnan(mode_run[MR_ENTRY + mode]):
                     mode_run[MR_ENTRY + mode] = t
@@ -471,13 +490,21 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
                     _reset_bdot(bd_st)
             mode_run[MR_SAMPLES + mode] += 1.0
         if valid and not started and mode == TRACK:
-            if probe:  # the first valid sample: what starts the controller (docstring)
-                start[0] = k
-                start[1] = t_stamp
-                error_quaternion(grid.ref_q[kb], yc[:4], start[2:6])
-                return
-            state[S_T0] = t_stamp
-            started = True
+            if n_starts >= md.starts_known[n]:  # its constants not known yet: the probe's start, or a restart's pause (docstring)
+                if probe or n_starts > 0:
+                    start[0] = k
+                    start[1] = t_stamp
+                    error_quaternion(grid.ref_q[kb], yc[:4], start[2:6])
+                    start[6] = n_starts
+                    return
+            else:
+                if n_starts > 0:  # a restart: the controller afresh, with its own constants
+                    coef = md.restart_coef[n, n_starts - 1]
+                    for i in range(state.shape[0]):
+                        state[i] = 0.0
+                state[S_T0] = t_stamp
+                started = True
+                n_starts += 1
         status = ANSWER_COMMANDED
         if mode != TRACK:  # the mode's own law (docstring); the controller is inactive
             status = ANSWER_INACTIVE
@@ -629,6 +656,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     flags[L_HAS_LAST] = 1 if has_last else 0
     flags[L_LAST_STATE_NS] = last_state_ns
     flags[L_HAS_ESTIMATE] = 1 if has_estimate else 0
+    flags[L_N_STARTS] = n_starts
     st.epoch[r, 0] = delivered_epoch
     for i in range(7 + nw):
         rec.x_final[r, i] = x[i]
@@ -1178,7 +1206,7 @@ def _modes(scenario: Scenario, n: int) -> ModeArrays:
     inertia and actuator) and of SAFE (the same with no attitude gain: rate damping)."""
     modes = scenario.modes
     if modes is None:
-        return pack_modes(None, n, scenario.control_period_s)
+        return pack_modes(None, n, scenario.control_period_s, coef_shape=(N_COEF, 3))
     from sappc_controller.core.kernels import P_MRP_K
     from sappc_controller.core.mrp_feedback import MrpFeedbackConfig
     from sappc_controller.core.packing import pack_params
@@ -1187,7 +1215,8 @@ def _modes(scenario: Scenario, n: int) -> ModeArrays:
     safe = hold.copy()
     safe[P_MRP_K] = 0.0  # SAFE: the attitude is not trusted, the rate alone is damped
     return pack_modes(modes.transitions, n, scenario.control_period_s, initial_mode=modes.initial_mode,
-                      bdot_gain_N_m_s=modes.detumble_gain_N_m_s, hold_prm=hold, safe_prm=safe, hold_on_reference=modes.hold_on_reference)
+                      bdot_gain_N_m_s=modes.detumble_gain_N_m_s, hold_prm=hold, safe_prm=safe, hold_on_reference=modes.hold_on_reference,
+                      coef_shape=(N_COEF, 3), max_restarts=MAX_RESTARTS, requests=modes.requests)
 
 
 def _started(inp: CompiledInputs) -> CompiledInputs:
@@ -1203,6 +1232,7 @@ def _started(inp: CompiledInputs) -> CompiledInputs:
         As the node's first step would, naming the run's index in ``inp``.
     """
     n = inp.n_runs
+    inp = dataclasses.replace(inp, modes=inp.modes._replace(starts_known=np.zeros(n)))  # nothing known: the probe finds each first start
     rec = _record(inp, 0, n, 0)
     st = _state(inp, n)
     for block in inp.blocks(inp.n_samples if inp.holds_whole else BLOCK_RUN_SAMPLES // max(n, 1), 0):
@@ -1222,7 +1252,9 @@ def _started(inp: CompiledInputs) -> CompiledInputs:
         coef[rows] = c
         for key in flags:
             flags[key][rows] = f[key]
-    return dataclasses.replace(inp, controller=inp.controller._replace(coef=_f64(coef)), flags=flags)
+    known = ok.astype(np.float64)  # the first start's constants known (a restart's: found as the run goes, _with_restarts)
+    modes = inp.modes._replace(starts_known=known, restart_coef=np.zeros_like(inp.modes.restart_coef))
+    return dataclasses.replace(inp, controller=inp.controller._replace(coef=_f64(coef)), flags=flags, modes=modes)
 
 
 def _record(inp: CompiledInputs, stride: int, n: int, samples: int | None = None) -> LoopRecord:
@@ -1233,7 +1265,7 @@ def _record(inp: CompiledInputs, stride: int, n: int, samples: int | None = None
     moding = inp.modes.active
     return LoopRecord(np.zeros((n, T_rec, N_OUT, 4)), np.zeros((n, T_rec, 7)), np.zeros((n, T_rec, 3)), np.zeros((n, T_rec), dtype=np.int8),
                       np.zeros((n, T_rec, W, 2)), np.zeros((n, T_rec, N_EST_RECORD if inp.estimating else 0)), np.zeros((n, 2), dtype=np.int64),
-                      np.zeros((n, 7 + W)), np.zeros((n, 6)), np.zeros((n, T_rec, inp.n_env_record)),
+                      np.zeros((n, 7 + W)), np.zeros((n, 7)), np.zeros((n, T_rec, inp.n_env_record)),
                       np.zeros((n, T_rec, 2 if moding else 0), dtype=np.int8), np.zeros((n, N_MODE_RUN if moding else 0)))
 
 
@@ -1311,10 +1343,49 @@ def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: Lo
     if stride > 0 and inp.k_lo % stride != 0:
         raise ValueError(f"a block must start at a recorded sample: k_lo {inp.k_lo} is not a multiple of the stride {stride}")
     if inp.n_runs == 1:
-        _run_alone(0, probe, stride, inp, rec, st)
+        _with_restarts(lambda: _run_alone(0, probe, stride, inp, rec, st), probe, inp, rec, st, np.zeros(1, dtype=np.int64))
     else:
         ensure_compiled(groups=("batches",))
-        run_batch_kernel(probe, stride, np.int64(inp.k_lo), *inp.args(), rec, st)
+        _with_restarts(lambda: run_batch_kernel(probe, stride, np.int64(inp.k_lo), *inp.args(), rec, st), probe, inp, rec, st,
+                       np.arange(inp.n_runs))
+
+
+def _with_restarts(call: Callable[[], None], probe: bool, inp: CompiledInputs, rec: LoopRecord, st: LoopState, runs: np.ndarray) -> None:
+    """``call()`` (a block of the loop into ``rec`` and ``st``, whose row ``r`` is run ``runs[r]``
+    of ``inp``), then, while a run paused at a restart whose constants are not known yet
+    (:func:`_run_one`: flight modes, a later entry into TRACK), those constants computed
+    (:func:`_restart_constants`) and the block run again from the state it started from: the same
+    bits as if they had been known from the start (the loop is deterministic, and what it carries
+    is all in ``st`` and the record's per-run fields)."""
+    if probe or inp.modes.restart_coef.shape[1] == 0:  # the probe finds first starts; without modes there is no restart
+        call()
+        return
+    while True:
+        kept = [a.copy() for a in st] + [rec.rejected.copy(), rec.mode_run.copy()]
+        rec.start[:, 0] = -1.0
+        call()
+        paused = np.flatnonzero(rec.start[:, 0] >= 0.0)
+        if paused.size == 0:
+            return
+        _restart_constants(inp, rec.start, paused, runs)
+        for a, b in zip(list(st) + [rec.rejected, rec.mode_run], kept):
+            a[...] = b
+
+
+def _restart_constants(inp: CompiledInputs, start: np.ndarray, rows: np.ndarray, runs: np.ndarray) -> None:
+    """The start constants of the restarts at which record rows ``rows`` paused (``start``: each
+    row's sample, time, error quaternion and start index) into ``inp.modes`` (in place: every block
+    of the run shares its arrays), by the controller's own start (:func:`~sappc_controller.core.packing.start_coef`,
+    the first start's checks and RPF policy)."""
+    md = inp.modes
+    try:
+        c, _ = start_coef(inp.config, start[rows, 2:6], on_infeasible=inp.on_infeasible)
+    except SingularStartError as exc:  # the run's index in inp
+        raise SingularStartError(exc.q_e0, int(runs[rows[exc.run]])) from None
+    for i, r in enumerate(rows):
+        n, s = int(runs[r]), int(start[r, 6])
+        md.restart_coef[n, s - 1] = c[i]
+        md.starts_known[n] = s + 1
 
 
 def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
@@ -1322,7 +1393,8 @@ def run_single(inp: CompiledInputs, n: int = 0, stride: int = 1) -> CompiledRun:
     inp = inp.whole()
     _check_noise(inp)
     rec = _record(inp, stride, 1)
-    _run_alone(n, False, stride, inp, rec, _state(inp, 1))
+    st = _state(inp, 1)
+    _with_restarts(lambda: _run_alone(n, False, stride, inp, rec, st), False, inp, rec, st, np.array([n], dtype=np.int64))
     return CompiledRun(inp.t[::stride] if stride else inp.t[:0], rec)
 
 
