@@ -284,20 +284,29 @@ class MetricSettings:
     requirements : dict
         Upper bounds ``<metric>_max`` that a run must meet (:mod:`sappc.evaluation.requirements`);
         a run that breaks one exits with status 4.
+    origin : str
+        With flight modes, where a run's tracking metrics count from: ``first_track`` (default) its
+        first entry into TRACK, ``last_track`` its last (the tracking a recovery came back to:
+        after a SAFE, the accuracy regained); without modes, the run's first sample either way.
     """
 
     steady_from_s: float = 25.0
     settle_threshold: float = 1e-3
     t2_s: float = 20.0
     requirements: dict[str, float] = field(default_factory=dict)
+    origin: str = "first_track"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "requirements", check_requirements(self.requirements))
         check_positive("metrics.steady_from_s", self.steady_from_s, allow_zero=True)
         check_positive("metrics.settle_threshold", self.settle_threshold)
         check_positive("metrics.t2_s", self.t2_s, allow_zero=True)
+        if self.origin not in METRIC_ORIGINS:
+            raise ConfigError(f"metrics.origin must be one of {', '.join(METRIC_ORIGINS)}, got {self.origin!r}")
 
 
+#: Where a run's tracking metrics count from with flight modes (``metrics.origin``).
+METRIC_ORIGINS = ("first_track", "last_track")
 #: The keys of the ``modes`` section.
 MODES_KEYS = ("initial_mode", "transitions", "detumble_gain_N_m_s", "hold_gains", "hold_attitude", "requests")
 #: ``modes.hold_attitude``: HOLD holds the attitude of its entry (an inertial hold), or points at the

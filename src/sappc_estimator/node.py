@@ -164,7 +164,8 @@ HEALTH_PERIOD_S = 1.0
 #: The health's message for each monitor level (``mekf.MON_*``).
 _HEALTH_MESSAGES = ("consistent: the innovations' window inside its band",
                     "warning: the innovations' window outside its warning band, or recovering",
-                    "inconsistent: the innovations' window outside its error band, or their drift test past its threshold")
+                    "inconsistent: the innovations' window outside its error band, or their drift test past its threshold",
+                    "stale: no tracker sample for longer than tracker_stale_s")
 
 
 def _seconds(ns: int) -> str:

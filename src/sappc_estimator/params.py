@@ -55,6 +55,7 @@ _FIELDS: dict[str, tuple[str, str]] = {
     "monitor_drift_shift_sigma": ("", "double"),
     "monitor_drift_false_alarm": ("", "double"),
     "bias_recovery_sigma_rad_s": ("rad/s", "double[]"),
+    "tracker_stale_s": ("s", "double"),
 }
 #: The config's optional fields whose ``None`` is an empty array parameter.
 _EMPTY_IS_NONE = ("initial_q_BN", "initial_attitude_sigma_rad", "bias_recovery_sigma_rad_s")
@@ -78,6 +79,7 @@ _CHECKS = {
     "monitor_drift_shift_sigma": "> 0",
     "monitor_drift_false_alarm": "in [0, 1) (0: no drift test)",
     "bias_recovery_sigma_rad_s": "[] or >= 0 per axis",
+    "tracker_stale_s": "> 0 (inf: never)",
 }
 
 

@@ -355,7 +355,8 @@ def test_the_kernels_arrays_are_packed_as_documented_without_gaps_or_overlaps() 
     layouts = {
         "prm": ([(mekf.EP_R, 3), (mekf.EP_SV2, 3), (mekf.EP_SU2, 3), (mekf.EP_P0A, 3), (mekf.EP_P0B, 3), (mekf.EP_B0, 3), (mekf.EP_GATE, 1),
                  (mekf.EP_MAXREJ, 1), (mekf.EP_INIT, 1), (mekf.EP_Q0, 4), (mekf.EP_MAX_NORM_ERR, 1), (mekf.EP_MAX_RATE, 1), (mekf.EP_MON_WINDOW, 1),
-                 (mekf.EP_MON_NIS, 4), (mekf.EP_MON_MEAN, 2), (mekf.EP_RECOVERY_PBB, 3), (mekf.EP_MON_PERSIST, 1), (mekf.EP_MON_DRIFT, 2)],
+                 (mekf.EP_MON_NIS, 4), (mekf.EP_MON_MEAN, 2), (mekf.EP_RECOVERY_PBB, 3), (mekf.EP_MON_PERSIST, 1), (mekf.EP_MON_DRIFT, 2),
+                 (mekf.EP_TRACKER_STALE, 1)],
                 mekf.N_EST_PARAMS),
         "st": ([(mekf.ES_INIT, 1), (mekf.ES_Q, 4), (mekf.ES_B, 3), (mekf.ES_LASTW, 3), (mekf.ES_TPREV, 1), (mekf.ES_N_UPD, 1),
                 (mekf.ES_N_REJ, 1), (mekf.ES_N_CONSEC, 1), (mekf.ES_N_REINIT, 1), (mekf.ES_NIS, 1), (mekf.ES_PROVISIONAL, 1),

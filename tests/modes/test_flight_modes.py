@@ -248,7 +248,8 @@ def _moded(t: np.ndarray, q_ev: np.ndarray, mode: np.ndarray, rng: np.random.Gen
     return dc.replace(h, mode=mode.astype(np.int8), mode_reason=np.zeros((T, N), dtype=np.int8))
 
 
-def test_a_moded_runs_metrics_are_those_of_its_samples_from_track_on() -> None:
+@pytest.mark.parametrize("origin", ["first_track", "last_track"])
+def test_a_moded_runs_metrics_are_those_of_its_samples_from_track_on(origin: str) -> None:
     """The metrics' origin (sappc.evaluation.metrics): a run with modes is measured from its first
     TRACK sample, as the same run's samples from there would be measured alone with their times
     from zero, bit for bit (an exact binary grid: the times' differences are exact), whatever the
@@ -266,8 +267,12 @@ def test_a_moded_runs_metrics_are_those_of_its_samples_from_track_on() -> None:
     for n, k in enumerate(starts):
         if k is not None:
             mode[k:, n] = TRACK
+    mode[40:47, 0] = 3  # run 0 leaves TRACK for SAFE, and enters it again at 47 (last_track: its origin); run 1 at 33
+    mode[30:33, 1] = HOLD
+    if origin == "last_track":
+        starts = (47, 33, None)
     h = _moded(t, q_ev, mode, rng)
-    settings = {"steady_from_s": 4.0, "settle_threshold": 0.02, "t2_s": 2.5, "fault_windows": []}
+    settings = {"steady_from_s": 4.0, "settle_threshold": 0.02, "t2_s": 2.5, "fault_windows": [], "origin": origin}
     keys = ("settling_time_s", "steady_max_abs_qev", "steady_mean_abs_qev", "rpf_error_at_t2", "overshoot", "max_abs_torque_Nm",
             "torque_sign_changes_per_s", "torque_reversals_per_s", "time_outside_constraint_s")
     for block in (T, 7, 1):
@@ -281,14 +286,14 @@ def test_a_moded_runs_metrics_are_those_of_its_samples_from_track_on() -> None:
                 assert got["time_to_track_s"] is None and got["max_abs_torque_Nm"] == 0.0 and got["time_outside_constraint_s"] == 0.0
                 continue
             tail = dataclasses.replace(h.samples(k, T), t=t[k:] - t[k], mode=None, mode_reason=None)
-            alone = MetricsAccumulator(tail.t, 1, **settings)  # type: ignore[arg-type]
+            alone = MetricsAccumulator(tail.t, 1, **{**settings, "origin": "first_track"})  # type: ignore[arg-type]
             alone.add_history(dataclasses.replace(tail, **{f: getattr(tail, f)[:, n:n + 1] for f in (
                 "q_BN", "omega_BN_B", "q_BR", "torque_B", "torque_cmd_B", "saturated", "disturbance_B", "rho", "band_lower", "band_upper",
                 "eps", "z", "V")}))
             want = alone.run_metrics(0)
             for key in keys:
                 assert got[key] == want[key], (block, n, key, got[key], want[key])
-            assert got["time_to_track_s"] == t[k]
+            assert got["time_to_track_s"] == t[20 if n == 0 else 0]  # the first entry, whatever the origin
         # the split matters nowhere: every block size gives these numbers (checked against the run alone above)
 
 
@@ -376,3 +381,52 @@ def test_mode_requests_are_checked() -> None:
                               ({"at_s": 1.0}, "modes.requests must be a list")):
         with pytest.raises(ConfigError, match=message):
             _requested(1.0, requests)  # type: ignore[arg-type]
+
+
+def test_the_blinded_tracker_goes_safe_on_the_gyro_and_tracks_again_to_the_flight_figures() -> None:
+    """The bundled blinded-tracker scenario: the tracker silent from 2000 s to 2120 s while
+    tracking; the health STALE once its last sample (1999.9 s) is 2 s old, SAFE after 5 s of it
+    (the guard's persistence in whole samples), SAFE's torque the rate damping of the gyro alone
+    (the estimate is not used), HOLD once healthy again, TRACK again with the controller restarted,
+    and from that restart the flight scenario's figures: its requirements (metrics.origin:
+    last_track), and the loss-of-control rule."""
+    from sappc.offline.compiled_loop import R_B, R_MON_LEVEL, R_OMEGA
+    from sappc_controller.core.kernels import KIND_MRP_FEEDBACK, N_OUT, N_WORK, O_CMD, controller_step_one, new_state
+    from sappc_controller.core.kernels import O_TORQUE as O_TORQUE_ROW
+    from sappc_estimator.core.mekf import MON_STALE
+    from sappc_modes.core.modes import R_ESTIMATOR_ERROR, R_RECOVERED, SAFE, samples_for
+
+    sc = load_scenario(scenario_path("flight_blinded_tracker"))
+    inp = prepare(sc)
+    run = run_single(inp, 0, 1)
+    mode, reason = run.record.mode[0, :, 0], run.record.mode[0, :, 1]
+    events = [(int(k), int(mode[k]), int(reason[k])) for k in np.flatnonzero(reason)]
+    assert [e[1:] for e in events] == [(HOLD, R_DETUMBLED), (TRACK, R_ACQUIRED), (SAFE, R_ESTIMATOR_ERROR), (HOLD, R_RECOVERED),
+                                       (TRACK, R_ACQUIRED)]
+    level = run.record.estimate[0, :, R_MON_LEVEL]
+    stale = np.flatnonzero(level == MON_STALE)
+    dt = sc.control_period_s
+    # the last tracker sample at 1999.9 s (10 Hz): STALE at the first sample more than 2 s later, to the tracker's return
+    assert run.t[stale[0]] == pytest.approx(1999.9 + 2.0 + dt, abs=1e-9) and run.t[stale[-1] + 1] == pytest.approx(2120.0, abs=1e-9)
+    assert np.all(np.diff(stale) == 1)
+    k_safe = events[2][0]
+    assert k_safe - stale[0] == samples_for(5.0, dt) - 1  # the guard's 500th sample of STALE takes SAFE
+    assert events[3][0] > stale[-1]  # HOLD only once the tracker is back (and the health OK 30 s)
+    # SAFE flies the rate damping of the gyro alone: each sample's command is the MRP feedback law with
+    # no attitude gain on the gyro's rate (the estimate's rate plus its bias: the gyro's measurement,
+    # to one rounding of each component), whatever the estimate's attitude
+    safe_rows = np.flatnonzero(mode == SAFE)
+    e = run.record.estimate[0]
+    for k in safe_rows[:: max(1, safe_rows.size // 50)]:
+        gyro = e[k, R_OMEGA:R_OMEGA + 3] + e[k, R_B:R_B + 3]
+        unit = np.array([0.0, 0.0, 0.0, 1.0])
+        out = np.zeros((1, N_OUT, 4))
+        controller_step_one(KIND_MRP_FEEDBACK, run.t[k], dt, unit, gyro, unit, np.zeros(3), np.zeros(3), inp.modes.safe_prm[:1],
+                            inp.controller.coef[:1], new_state(1), np.zeros((N_WORK, 4)), out, np.zeros((1, 3), bool))
+        # the loop commands the law's torque after its actuator model (saturation, minimum output):
+        # one rounding of the gyro's reconstruction, times the rate gain P = 40, is far below both
+        np.testing.assert_allclose(run.out[0, k, O_CMD, :3], out[0, O_TORQUE_ROW, :3], rtol=0.0, atol=1e-12)
+    result = simulate(sc, history="none")
+    assert failed_requirements(result.metrics, sc.metrics.requirements, result.controller_summary,
+                               settle_threshold=sc.metrics.settle_threshold) == []
+    assert result.metrics["mode_sequence"] == ["DETUMBLE", "HOLD", "TRACK", "SAFE", "HOLD", "TRACK"]

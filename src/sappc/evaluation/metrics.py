@@ -253,6 +253,7 @@ class MetricsAccumulator:
         t2_s: float,
         fault_windows: list[tuple[float, float]],
         orbit_bins: Any = None,
+        origin: str = "first_track",
     ) -> None:
         # the grid: described (grid) or its times (t); n_grid its samples
         self.grid: SampleGrid | None = t if isinstance(t, SampleGrid) else None
@@ -283,6 +284,9 @@ class MetricsAccumulator:
         self.steady_first = np.full(n, -1, dtype=np.int64)
         self.k_t2_run = np.full(n, self.k_t2, dtype=np.int64)
         self.t2_s = t2_s
+        if origin not in ("first_track", "last_track"):
+            raise ValueError(f"origin must be first_track or last_track, got {origin!r}")
+        self.origin = origin  # with modes: the first entry into TRACK, or each later one starting the run's tracking afresh
         self.last_unsettled = np.full(n, -1)  # last sample with max|q_ev| >= threshold
         self.last_controlled = np.full(n, -1)  # last finite sample before the steady window or within the loss bound
         self.steady_sum = np.zeros((n, 3))
@@ -413,11 +417,18 @@ class MetricsAccumulator:
         per-orbit table included, is the same bits for any split into blocks and calls (sums run
         sample after sample; the rods' duty waits for its orbit's last sample)."""
         T = h.t.size
+        cuts: dict[int, list[int]] = {}
         if h.mode is not None:
             self._set_origins(h.mode)
+            if self.origin == "last_track":
+                cuts = self._later_entries(h.mode)
         step = T if block_samples is None or T == 0 else max(1, int(block_samples))
-        for lo in range(0, max(T, 1), max(step, 1)):
-            b = h if step >= T else h.samples(lo, lo + step)
+        edges = sorted({0, T, *cuts})
+        pieces = [(lo, min(lo + step, hi)) for a, hi in zip(edges[:-1], edges[1:]) for lo in range(a, hi, max(step, 1))] or [(0, 0)]
+        for lo, hi in pieces:
+            if lo in cuts:  # a later entry into TRACK: those runs' tracking counts afresh from it
+                self._restart_origin(cuts[lo], self.samples)
+            b = h if (lo, hi) == (0, T) else h.samples(lo, hi)
             self._update(self.samples, b.t, b.q_BN, b.omega_BN_B, b.torque_B, b.q_BR, b.rho, b.saturated, b.band_lower, b.band_upper)
             if b.wheel_speed_rad_s is not None and b.wheel_torque_Nm is not None:
                 self.update_wheels(b.wheel_speed_rad_s, b.wheel_torque_Nm)
@@ -448,6 +459,39 @@ class MetricsAccumulator:
             k = self._nearest_sample(float(origin[r]) + self.t2_s)
             ok = k >= 0 and abs(float(self.time_s(k)) - float(origin[r]) - self.t2_s) <= 0.5 * self.dt + _TIME_TOL_S
             self.k_t2_run[r] = k if ok else -1
+
+    def _later_entries(self, mode: NDArray[np.int8]) -> dict[int, list[int]]:
+        """``origin="last_track"``: the samples of a block (B, N) at which a run enters TRACK again
+        after its origin (block-relative index: the runs entering there)."""
+        m = np.asarray(mode, dtype=np.int64)
+        last = self.mode_last if self.mode_last is not None else np.full(m.shape[1], -1, dtype=np.int64)
+        prev = np.concatenate((last[None, :], m[:-1]), axis=0)
+        cuts: dict[int, list[int]] = {}
+        for k, r in zip(*np.nonzero((m == TRACK) & (prev != TRACK))):
+            if 0 <= self.origin_k[r] < self.samples + int(k):
+                cuts.setdefault(int(k), []).append(int(r))
+        return cuts
+
+    def _restart_origin(self, runs: list[int], k: int) -> None:
+        """Runs ``runs`` start their tracking afresh at sample ``k`` (``origin="last_track"``): their
+        origin moves there and every tracking metric's state is that of a run not yet started
+        (the wheels', finiteness and the loss-of-control rule's stay the run's own)."""
+        r = np.asarray(runs, dtype=np.int64)
+        self.origin_k[r] = k
+        origin = self.origin_s()
+        for i in r:
+            kk = self._nearest_sample(float(origin[i]) + self.t2_s)
+            ok = kk >= 0 and abs(float(self.time_s(kk)) - float(origin[i]) - self.t2_s) <= 0.5 * self.dt + _TIME_TOL_S
+            self.k_t2_run[i] = kk if ok else -1
+        for name, value in (("last_unsettled", -1), ("steady_sum", 0.0), ("steady_max", 0.0), ("rpf_error_t2_axis", np.nan),
+                            ("overshoot", 0.0), ("max_torque", 0.0), ("torque_sign", np.nan), ("torque_sign_nonzero", 0.0),
+                            ("torque_sign_changes", 0), ("torque_reversals", 0), ("saturated_count", 0), ("outside_count", 0),
+                            ("outside_s", 0.0), ("last_outside", -1), ("left_after_fault", False), ("steady_n", 0), ("steady_first", -1),
+                            ("est_att_max", 0.0), ("est_att_sq", 0.0), ("est_att_n", 0), ("orb_steady_max", np.nan), ("orb_steady_sum", 0.0),
+                            ("orb_steady_samples", 0)):
+            a = getattr(self, name)
+            if a is not None:
+                a[r] = value
 
     def origin_s(self) -> Array:
         """Each run's origin's time [s]: 0 for a run counted from its first sample (the times are

@@ -300,4 +300,5 @@ def metrics_accumulator(scenario: Scenario, n_samples: int, dt: float, n_runs: i
         t2_s=ms.t2_s,
         fault_windows=scenario.event_windows(),
         orbit_bins=scenario.orbit_bins() if per_orbit else None,
+        origin=ms.origin,
     )

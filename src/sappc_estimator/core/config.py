@@ -272,6 +272,10 @@ class MekfConfig:
         The bias change [rad/s, 1-sigma per axis] a failed monitor (or a re-initialisation) admits:
         its square is added to the bias covariance.  ``None``: ``initial_bias_sigma_rad_s`` (the
         bias may be as far off as before its first estimate); 0 turns the recovery off.
+    tracker_stale_s : float
+        The health reports STALE once the last tracker sample the filter used is older than this
+        [s] (> 0): a blinded tracker gives no innovations, so the window's verdict would stay as it
+        was; ``inf`` (default): never.
     """
 
     tracker_noise_rad: float | tuple[float, float, float]
@@ -293,6 +297,7 @@ class MekfConfig:
     monitor_drift_shift_sigma: float = DEFAULT_MONITOR_DRIFT_SHIFT_SIGMA
     monitor_drift_false_alarm: float = DEFAULT_MONITOR_DRIFT_FALSE_ALARM
     bias_recovery_sigma_rad_s: float | tuple[float, float, float] | None = None
+    tracker_stale_s: float = math.inf
 
     def __post_init__(self) -> None:
         _three("tracker_noise_rad", self.tracker_noise_rad, bound="> 0")
@@ -339,6 +344,9 @@ class MekfConfig:
         cusum_threshold(0.5 * d, f)  # a threshold > 0, or the error naming both
         if self.bias_recovery_sigma_rad_s is not None:
             _three("bias_recovery_sigma_rad_s", self.bias_recovery_sigma_rad_s, bound=">= 0")
+        ts = self.tracker_stale_s
+        if isinstance(ts, bool) or not isinstance(ts, (int, float)) or not ts > 0.0:  # NaN fails too
+            raise ConfigError(f"tracker_stale_s must be a number > 0 (inf: never stale), got {ts!r}")
         if self.max_attitude_norm_error > QUATERNION_NORM_TOL:
             raise ConfigError(f"max_attitude_norm_error must be in (0, {QUATERNION_NORM_TOL:g}], got {self.max_attitude_norm_error!r}")
 
@@ -380,6 +388,7 @@ class MekfConfig:
         rec = np.asarray(_three("bias_recovery_sigma_rad_s", self.initial_bias_sigma_rad_s if self.bias_recovery_sigma_rad_s is None
                                 else self.bias_recovery_sigma_rad_s))
         p[mekf.EP_RECOVERY_PBB:mekf.EP_RECOVERY_PBB + 3] = rec * rec
+        p[mekf.EP_TRACKER_STALE] = float(self.tracker_stale_s)
         p[mekf.EP_MON_PERSIST] = float(self.monitor_persistence)
         if self.initial_q_BN is None:
             p[mekf.EP_INIT] = mekf.INIT_FROM_TRACKER

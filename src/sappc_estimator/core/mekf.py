@@ -109,8 +109,9 @@ Arrays (float64, the caller's; no allocation per step)
     ``b0`` (3), ``gate`` (inf: none), ``max_rejections`` (>= 1), the initialisation mode
     (``INIT_*``), ``q_prior`` (4), the plausibility bounds ``max_norm_error`` and
     ``max_rate`` [rad/s], the monitor's window, its NIS-sum bounds (4), its mean-test bounds (2),
-    the recovery's ``Q_r`` (3), the monitor's persistence [verdicts] and the drift test's reference
-    value and threshold (2) [innovation sigmas].
+    the recovery's ``Q_r`` (3), the monitor's persistence [verdicts], the drift test's reference
+    value and threshold (2) [innovation sigmas] and the tracker's silence before STALE [s] (inf:
+    never).
 ``y`` (:data:`N_MEAS`,)
     The measurement: ``q_meas`` (4), ``omega_meas`` (3), the tracker sample's epoch [s] (``<= t``).
 ``st`` (:data:`N_EST_STATE`,)
@@ -143,8 +144,8 @@ __all__ = [
     "ES_B", "ES_CONFIRMED", "ES_EPOCH", "ES_INIT", "ES_LASTW", "ES_MON_LEVEL", "ES_MON_MEAN", "ES_MON_NIS", "ES_NIS",
     "ES_N_CONSEC", "ES_N_RECOVER", "ES_N_REINIT", "ES_N_REJ", "ES_N_UPD", "ES_Q", "ES_TPREV",
     "EO_MON_DRIFT", "EO_MON_LEVEL", "EO_MON_MEAN", "EO_MON_NIS", "EO_N_RECOVER", "EO_USABLE", "EP_MON_DRIFT", "EP_MON_MEAN", "EP_MON_NIS", "EP_MON_PERSIST",
-    "EP_MON_WINDOW", "EP_RECOVERY_PBB", "ES_MON_DRIFT", "ES_MON_OUTSIDE", "ES_N_DRIFT",
-    "MON_ERROR", "MON_LEVEL_NAMES", "MON_MAX_WINDOW", "MON_OK", "MON_WARN", "N_MEAS", "Y_EPOCH", "reset_state",
+    "EP_MON_WINDOW", "EP_RECOVERY_PBB", "EP_TRACKER_STALE", "ES_MON_DRIFT", "ES_MON_OUTSIDE", "ES_N_DRIFT",
+    "MON_ERROR", "MON_LEVEL_NAMES", "MON_MAX_WINDOW", "MON_OK", "MON_STALE", "MON_WARN", "N_MEAS", "Y_EPOCH", "reset_state",
     "INIT_FROM_PRIOR", "INIT_FROM_TRACKER",
     "N_EST_OUT", "N_EST_PARAMS", "N_EST_STATE", "N_EST_WORK",
     "SERIES_BELOW",
@@ -168,7 +169,10 @@ EP_MON_PERSIST = 37
 #: [innovation sigmas, half the mean shift it is tuned to] and its threshold [innovation sigmas;
 #: inf: no drift test].
 EP_MON_DRIFT = 38
-N_EST_PARAMS = 40
+#: The tracker's silence after which the health is STALE [s] (inf: never): the last tracker sample
+#: used is older than this at a step (a blinded tracker: no innovations, so no verdict of the window).
+EP_TRACKER_STALE = 40
+N_EST_PARAMS = 41
 #: Initialisation modes (``prm[EP_INIT]``).
 INIT_FROM_TRACKER, INIT_FROM_PRIOR = 0, 1
 
@@ -210,7 +214,10 @@ N_EST_OUT = 24
 #: The health monitor's levels (``out[EO_MON_LEVEL]``), the values of ROS's
 #: ``diagnostic_msgs/DiagnosticStatus`` levels OK, WARN and ERROR.
 MON_OK, MON_WARN, MON_ERROR = 0, 1, 2
-MON_LEVEL_NAMES = ("ok", "warn", "error")
+#: The health's level while the tracker is silent past ``EP_TRACKER_STALE``: ROS's
+#: ``diagnostic_msgs/DiagnosticStatus`` STALE (no current information), not a verdict of the window.
+MON_STALE = 3
+MON_LEVEL_NAMES = ("ok", "warn", "error", "stale")
 #: Entries of the measurement ``y``: the tracker's quaternion (4), the gyro's rate (3) and the
 #: tracker sample's epoch [s] (the time the quaternion was measured).
 N_MEAS = 8
@@ -669,7 +676,9 @@ def mekf_step(prm, t, y, st, P, work, out):
     for i in range(6):
         out[EO_SIGMA + i] = np.sqrt(P[i, i])
     out[EO_NIS] = st[ES_NIS]
-    out[EO_MON_LEVEL] = st[ES_MON_LEVEL]
+    # the window's verdict, or STALE while the tracker has been silent too long (out only: the
+    # monitor's own level is unchanged, and comes back with the next tracker sample)
+    out[EO_MON_LEVEL] = MON_STALE if t - st[ES_EPOCH] > prm[EP_TRACKER_STALE] else st[ES_MON_LEVEL]
     out[EO_MON_NIS] = st[ES_MON_NIS]
     out[EO_MON_MEAN] = st[ES_MON_MEAN]
     out[EO_USABLE] = st[ES_CONFIRMED]
