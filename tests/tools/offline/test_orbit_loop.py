@@ -42,9 +42,9 @@ def _wheel_momentum_B(sc: Any, run: Any) -> np.ndarray:
 
 #: The bundled scenarios with momentum management: the 6 h scenario and its orbits of the momentum
 #: page's campaign (docs/how-to/momentum.md, "Across orbits").
-MANAGED = {"paper_tracking_orbit", "paper_tracking_orbit_800km", "paper_tracking_orbit_800km_sso", "flight_separation"}
-#: The bundled scenarios in orbit: the orbit ones, and the separation (issue 49: its modes detumble on the rods).
-IN_ORBIT = {"flight_separation"}
+MANAGED = {"paper_tracking_orbit", "paper_tracking_orbit_800km", "paper_tracking_orbit_800km_sso", "flight_separation", "flight_blinded_tracker"}
+#: The bundled scenarios in orbit: the orbit ones, and the separations (issue 49: their modes detumble on the rods).
+IN_ORBIT = {"flight_separation", "flight_blinded_tracker"}
 
 
 def test_no_bundled_scenario_but_the_orbit_ones_has_an_environment() -> None:
