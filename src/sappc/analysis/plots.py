@@ -293,9 +293,58 @@ def _run_jobs(
     def estimator_figures() -> list[Path]:
         return plot_estimator(h, out_dir, title=title, run=run, fault_windows=faults) if h.estimate is not None else []
 
+    def mode_figures() -> list[Path]:
+        return plot_modes(h, out_dir, title=title, run=run, fault_windows=faults) if h.mode is not None else []
+
     jobs = [lambda: qev("qev.png", np.ones_like(t, dtype=bool), False), lambda: qev("qev_zoom.png", t >= zoom_from_s, True),
-            qev_log, torque, eps_lyapunov, wheel_figures, estimator_figures]
+            qev_log, torque, eps_lyapunov, wheel_figures, estimator_figures, mode_figures]
     return jobs
+
+
+#: Each flight mode's colour in ``modes.png`` (:data:`sappc_modes.core.modes.MODE_NAMES`' order).
+_MODE_COLORS = ("tab:purple", "tab:olive", "tab:green", "tab:red")
+
+
+def mode_segments(t: Array, mode: NDArray[Any]) -> list[tuple[float, float, int]]:
+    """The contiguous spans of one run's mode record (``t`` (T,), ``mode`` (T,)): ``(start, end,
+    mode)`` each, a span ending where the next starts (the last at the last sample)."""
+    m = np.asarray(mode, dtype=np.int64)
+    if m.size == 0:
+        return []
+    starts = np.concatenate(([0], np.flatnonzero(m[1:] != m[:-1]) + 1))
+    ends = np.append(starts[1:], m.size - 1)
+    return [(float(t[a]), float(t[b]), int(m[a])) for a, b in zip(starts, ends)]
+
+
+def plot_modes(h: History, out_dir: Path, *, title: str, run: int = 0, fault_windows: Sequence[tuple[float, float]] = ()) -> list[Path]:
+    """``modes.png`` of a run with flight modes (docs/design/modes.md): the body rate's magnitude
+    [deg/s] and the largest attitude-error component, on log axes, over a band per mode (the
+    mode's name in the legend, once)."""
+    from sappc_modes.core.modes import MODE_NAMES
+
+    if h.mode is None:
+        return []
+    paths: list[Path] = []
+    t = h.t
+    rate = np.degrees(np.linalg.norm(h.omega_BN_B[:, run], axis=-1))
+    err = np.max(np.abs(h.q_ev[:, run]), axis=-1)
+    fig, axes = _rows(2, height=5.5)
+    spans = mode_segments(t, h.mode[:, run])
+    for ax, y, label in ((axes[0], rate, "|ω| [deg/s]"), (axes[1], err, "max |q_ev,i|")):
+        named: set[int] = set()
+        for start, end, m in spans:
+            ax.axvspan(start, end, color=_MODE_COLORS[m % len(_MODE_COLORS)], alpha=0.15, lw=0,
+                       label=MODE_NAMES[m] if m not in named and 0 <= m < len(MODE_NAMES) else None)
+            named.add(m)
+        ax.plot(t, np.where(y > 0, y, np.nan), color="tab:blue", lw=0.8, label=label)
+        _log_axis(ax)
+        _mark_faults(ax, fault_windows, float(t[-1]))
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8, ncol=2)
+        ax.set_ylabel(label)
+    axes[-1].set_xlabel("time [s]")
+    _finish(fig, out_dir / "modes.png", f"{title}: flight modes", paths, margins=dict(left=0.12, right=0.97, bottom=0.1, top=0.9, hspace=0.12))
+    return paths
 
 
 def _fork_is_safe() -> bool:

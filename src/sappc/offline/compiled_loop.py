@@ -1113,8 +1113,12 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     dispersed orbit phase, node and field epoch), else the scenario's orbit for every run.
     ``whole``: the inputs hold the whole run's per-sample arrays (the reference, the draws, the
     disturbance's table: about 200 bytes a sample); else none, each block's made when it runs
-    (:meth:`CompiledInputs.blocks`, :func:`run_blocks`)."""
+    (:meth:`CompiledInputs.blocks`, :func:`run_blocks`).  With flight modes the RPF's policy is
+    ``clamp`` whatever ``on_infeasible`` says: the controller starts at each entry into TRACK from
+    whatever error the acquisition left, and a flight does not stop there."""
     ensure_compiled()
+    if scenario.modes is not None:  # a flight starts its controller at each TRACK entry, whatever the error: an infeasible l is clamped, counted
+        on_infeasible = "clamp"
     cfg = scenario.controller_config(controller) if config is None else config
     q0 = _f64(np.atleast_2d(np.asarray(scenario.q_BN0 if q_BN0 is None else q_BN0, dtype=np.float64)))
     n = q0.shape[0]
