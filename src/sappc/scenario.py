@@ -41,6 +41,7 @@ from sappc_modes.core.bdot import detumble_gain, geomagnetic_inclination_rad
 from sappc_modes.core.modes import DETUMBLE, MODE_NAMES, ModeConfig
 from sappc.files import SCENARIOS_DIR, scenario_path
 from gnc_common.validation import (
+    quoted,
     safe_load_yaml,
     ConfigError,
     did_you_mean,
@@ -302,7 +303,7 @@ class MetricSettings:
         check_positive("metrics.settle_threshold", self.settle_threshold)
         check_positive("metrics.t2_s", self.t2_s, allow_zero=True)
         if self.origin not in METRIC_ORIGINS:
-            raise ConfigError(f"metrics.origin must be one of {', '.join(METRIC_ORIGINS)}, got {self.origin!r}")
+            raise ConfigError(f"metrics.origin must be one of {', '.join(METRIC_ORIGINS)}, got {quoted(self.origin)}")
 
 
 #: Where a run's tracking metrics count from with flight modes (``metrics.origin``).
@@ -379,7 +380,7 @@ def _modes_from_mapping(data: Any, environment: Environment | None, momentum: Mo
     if data is None:
         return None
     if not isinstance(data, dict):
-        raise ConfigError(f"modes must be a mapping, got {data!r}")
+        raise ConfigError(f"modes must be a mapping, got {quoted(data)}")
     unknown = sorted(set(data) - set(MODES_KEYS), key=str)
     if unknown:
         raise ConfigError(f"unknown key modes.{unknown[0]}{did_you_mean(str(unknown[0]), list(MODES_KEYS))}; "
@@ -389,7 +390,7 @@ def _modes_from_mapping(data: Any, environment: Environment | None, momentum: Mo
                           "HOLD and TRACK fly on the wheels whose momentum the rods dump")
     name = data.get("initial_mode", MODE_NAMES[DETUMBLE])
     if name not in MODE_NAMES:
-        raise ConfigError(f"modes.initial_mode must be one of {', '.join(MODE_NAMES)}, got {name!r}{did_you_mean(str(name), list(MODE_NAMES))}")
+        raise ConfigError(f"modes.initial_mode must be one of {', '.join(MODE_NAMES)}, got {quoted(name)}{did_you_mean(str(name), list(MODE_NAMES))}")
     try:
         transitions: ModeConfig = from_mapping(ModeConfig, data.get("transitions", {}) or {}, "modes.transitions")
     except ConfigError as exc:
@@ -400,7 +401,7 @@ def _modes_from_mapping(data: Any, environment: Environment | None, momentum: Mo
     else:
         k, source = check_positive("modes.detumble_gain_N_m_s", gain), "given"
         if not isinstance(k, float):
-            raise ConfigError(f"modes.detumble_gain_N_m_s must be a number or {GAIN_CRITERION!r}, got {gain!r}")
+            raise ConfigError(f"modes.detumble_gain_N_m_s must be a number or {GAIN_CRITERION!r}, got {quoted(gain)}")
     if "hold_gains" not in data:
         raise ConfigError("modes.hold_gains is required: the MRP feedback gains of HOLD and SAFE (K_Nm, P_Nms, integralLimit_Nms)")
     try:
@@ -409,7 +410,7 @@ def _modes_from_mapping(data: Any, environment: Environment | None, momentum: Mo
         raise _named("modes.hold_gains", exc) from None
     attitude = data.get("hold_attitude", HOLD_ATTITUDES[0])
     if attitude not in HOLD_ATTITUDES:
-        raise ConfigError(f"modes.hold_attitude must be one of {', '.join(HOLD_ATTITUDES)}, got {attitude!r}")
+        raise ConfigError(f"modes.hold_attitude must be one of {', '.join(HOLD_ATTITUDES)}, got {quoted(attitude)}")
     return FlightModes(transitions, MODE_NAMES.index(name), float(k), source, hold, attitude == "reference",
                        _mode_requests(data.get("requests")))
 
@@ -419,16 +420,16 @@ def _mode_requests(data: Any) -> tuple[tuple[float, int], ...]:
     if data is None:
         return ()
     if not isinstance(data, list):
-        raise ConfigError(f"modes.requests must be a list of {{at_s: <s>, mode: <name>}}, got {data!r}")
+        raise ConfigError(f"modes.requests must be a list of {{at_s: <s>, mode: <name>}}, got {quoted(data)}")
     out = []
     for i, item in enumerate(data):
         if not isinstance(item, dict) or set(item) != {"at_s", "mode"}:
-            raise ConfigError(f"modes.requests[{i}] must be a mapping with exactly at_s and mode, got {item!r}")
+            raise ConfigError(f"modes.requests[{i}] must be a mapping with exactly at_s and mode, got {quoted(item)}")
         at_s = check_positive(f"modes.requests[{i}].at_s", item["at_s"], allow_zero=True)
         if not isinstance(at_s, float):
-            raise ConfigError(f"modes.requests[{i}].at_s must be one number, got {item['at_s']!r}")
+            raise ConfigError(f"modes.requests[{i}].at_s must be one number, got {quoted(item['at_s'])}")
         if item["mode"] not in MODE_NAMES:
-            raise ConfigError(f"modes.requests[{i}].mode must be one of {', '.join(MODE_NAMES)}, got {item['mode']!r}")
+            raise ConfigError(f"modes.requests[{i}].mode must be one of {', '.join(MODE_NAMES)}, got {quoted(item['mode'])}")
         out.append((at_s, MODE_NAMES.index(item["mode"])))
     return tuple(sorted(out))
 
@@ -669,7 +670,7 @@ def _actuator_from_mapping(data: Any) -> tuple[ActuatorConfig, ReactionWheels | 
     actuator, ``kind: ideal`` (default) or ``kind: reaction_wheels`` with a ``wheels`` mapping
     (:class:`~spacecraft_sim.core.wheels.ReactionWheels`); errors name the key."""
     if not isinstance(data, dict):
-        raise ConfigError(f"actuator must be a mapping, got {data!r}")
+        raise ConfigError(f"actuator must be a mapping, got {quoted(data)}")
     rest = dict(data)
     kind = rest.pop("kind", "ideal")
     wheels_raw = rest.pop("wheels", None)
@@ -812,7 +813,7 @@ def read_scenario_mapping(path: str | Path, _seen: tuple[Path, ...] = ()) -> dic
 def _replaced_keys(path: Path, keys: Any) -> list[str]:
     """The ``replace`` list of a file that extends another: dotted keys (``metrics.requirements``)."""
     if not isinstance(keys, list) or not all(isinstance(k, str) and k and all(k.split(".")) for k in keys):
-        raise ConfigError(f"{path}: {REPLACE_KEY} must be a list of dotted keys (e.g. [metrics.requirements]), got {keys!r}")
+        raise ConfigError(f"{path}: {REPLACE_KEY} must be a list of dotted keys (e.g. [metrics.requirements]), got {quoted(keys)}")
     return keys
 
 
