@@ -985,13 +985,15 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
     has_fault = fault_start_s == fault_start_s
     fault_from = fault_start_s - _TIME_TOL_S
     total_steady = 0
+    n_steady = 0
     for n in range(finite.shape[0]):
         steady_from = steady_from_s[n] - _TIME_TOL_S
         origin = origin_k[n]
-        n_steady = 0
-        for k in range(B):
-            if t[k] >= steady_from:
-                n_steady += 1
+        if n == 0 or steady_from_s[n] != steady_from_s[n - 1]:  # the block's steady samples (every run's alike without modes)
+            n_steady = 0
+            for k in range(B):
+                if t[k] >= steady_from:
+                    n_steady += 1
         if n_steady > 0 and steady_first[n] < 0:
             steady_first[n] = k0 + B - n_steady  # the window is the block's last samples (t increases)
         steady_n[n] += n_steady
