@@ -423,7 +423,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
         if nf > 0:
             state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, faults.draws[min(kb, faults.draws.shape[0] - 1)], y)
             reference_in = fault_reference(t, fkind, fwin)
-        gyro_in = state_in and np.isfinite(y[4] + y[5] + y[6])  # the gyro's rate delivered (the mode manager's and SAFE's)
+        gyro_in = moding and state_in and np.isfinite(y[4] + y[5] + y[6])  # the gyro's rate delivered (the mode manager's and SAFE's)
         est_status = ESTIMATOR_NO_INPUT  # no measurement delivered: no filter step (the node's code)
         if estimating:
             if state_in:
