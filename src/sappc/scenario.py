@@ -36,6 +36,7 @@ from spacecraft_sim.core.sensors import Sensors, sensors_from_mapping
 from spacecraft_sim.core.wheels import ReactionWheels, wheels_from_mapping
 from spacecraft_sim.core.environment import Environment, environment_from_mapping
 from sappc_momentum.core.law import MomentumManagement
+from gnc_common.ephemeris import dcm_PN_of
 from sappc_controller.core.mrp_feedback import MrpFeedbackGains
 from sappc_modes.core.bdot import detumble_gain, geomagnetic_inclination_rad
 from sappc_modes.core.modes import DETUMBLE, MODE_NAMES, ModeConfig
@@ -365,9 +366,8 @@ def detumble_criterion_gain(environment: Environment, inertia_kg_m2: Array) -> t
     i, raan = math.radians(orbit.inclination_deg), math.radians(orbit.raan_deg)
     normal_N = np.array([math.sin(i) * math.sin(raan), -math.sin(i) * math.cos(raan), math.cos(i)])  # h / |h| of the orbit
     m_P = np.array([field.g11_nT, field.h11_nT, field.g10_nT])  # the dipole's axis in the Earth-fixed frame (magnetic_field's m)
-    theta = math.radians(orbit.earth_rotation_angle_deg)
-    c, s = math.cos(theta), math.sin(theta)
-    m_N = np.array([c * m_P[0] - s * m_P[1], s * m_P[0] + c * m_P[1], m_P[2]])  # [PN]^T m_P at t = 0
+    c, s = dcm_PN_of.py_func(orbit.params(), 0.0)  # the Earth's rotation at t = 0, as the plant's field turns it
+    m_N = np.array([c * m_P[0] - s * m_P[1], s * m_P[0] + c * m_P[1], m_P[2]])  # [PN]^T m_P
     xi_m = geomagnetic_inclination_rad(normal_N, m_N)
     J_min = float(np.linalg.eigvalsh(np.asarray(inertia_kg_m2, dtype=np.float64))[0])
     return detumble_gain(orbit.mean_motion_rad_s, xi_m, J_min), xi_m

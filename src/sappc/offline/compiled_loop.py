@@ -85,7 +85,7 @@ from spacecraft_sim.core.wheels import wheel_torques
 from spacecraft_sim.core.magnetometer import magnetometer_generator
 from spacecraft_sim.core.environment import EnvironmentArrays, field_of, locked_inertia, measured_field_of, pack_environment, torque_of
 from sappc_momentum.core.law import N_MM_WORK, MomentumArrays, dipole_mapping, momentum_management_step, pack_momentum
-from sappc_modes.core.bdot import BS_B_PREV, BS_T_PREV, N_BDOT_STATE, bdot_step
+from sappc_modes.core.bdot import N_BDOT_STATE, bdot_step, reset_bdot_state
 from sappc_modes.core.modes import DETUMBLE, HEALTH_OK, HOLD, IN_ERROR, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, R_NONE
 from sappc_modes.core.modes import S_MODE
 from sappc_modes.core.modes import SAFE, TRACK, mode_step
@@ -487,7 +487,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
                     for i in range(4):
                         q_hold[i] = np.nan
                 elif mode == DETUMBLE:
-                    _reset_bdot(bd_st)
+                    reset_bdot_state(bd_st)
             mode_run[MR_SAMPLES + mode] += 1.0
         if valid and not started and mode == TRACK:
             if n_starts >= md.starts_known[n]:  # its constants not known yet: the probe's start, or a restart's pause (docstring)
@@ -668,16 +668,6 @@ _W_MAX_SPEED = 2
 
 
 @jit
-def _reset_bdot(bd_st):
-    """B-dot's state as :func:`sappc_modes.core.bdot.new_bdot_state` makes it: no previous field, zero dipole."""
-    for i in range(bd_st.shape[0]):
-        bd_st[i] = 0.0
-    for i in range(3):
-        bd_st[BS_B_PREV + i] = np.nan
-    bd_st[BS_T_PREV] = np.nan
-
-
-@jit
 def _initial_state(n, r, plant, sens, est, md, st, rec):
     """Run ``n``'s state before its first sample into row ``r`` of ``st`` (:class:`LoopState`,
     allocated zero by :func:`_state`) and of ``rec``'s per-run arrays: what is not zero at the start."""
@@ -709,7 +699,7 @@ def _initial_state(n, r, plant, sens, est, md, st, rec):
         for i in range(N_MODE_RUN):
             rec.mode_run[r, i] = np.nan if i < MR_SAMPLES else 0.0
         rec.mode_run[r, MR_ENTRY + int(md.initial[n])] = 0.0
-        _reset_bdot(st.bdot[r])
+        reset_bdot_state(st.bdot[r])
         for i in range(4):
             st.q_hold[r, i] = np.nan
             st.q_unit[r, i] = 0.0

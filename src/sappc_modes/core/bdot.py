@@ -120,6 +120,7 @@ __all__ = [
     "mean_projector_min_eigenvalue",
     "new_bdot_state",
     "pack_bdot",
+    "reset_bdot_state",
     "predicted_detumble_time_s",
 ]
 
@@ -139,10 +140,20 @@ N_BDOT_STATE = 7
 
 def new_bdot_state() -> Array:
     """A fresh state (:data:`N_BDOT_STATE`,): no previous sample (NaN field and time), zero dipole held."""
-    state = np.zeros(N_BDOT_STATE)
-    state[BS_B_PREV:BS_B_PREV + 3] = np.nan
-    state[BS_T_PREV] = np.nan
+    state = np.empty(N_BDOT_STATE)
+    reset_bdot_state.py_func(state)
     return state
+
+
+@jit
+def reset_bdot_state(state):  # type: ignore[no-untyped-def]  # a numba kernel
+    """``state`` (:data:`N_BDOT_STATE`,) made fresh in place (:func:`new_bdot_state`): the loop's
+    entry into DETUMBLE."""
+    for i in range(state.shape[0]):
+        state[i] = 0.0
+    for i in range(3):
+        state[BS_B_PREV + i] = math.nan
+    state[BS_T_PREV] = math.nan
 
 
 def _number(name: str, value: object, *, allow_zero: bool = False) -> float:
