@@ -39,6 +39,7 @@ topic                         type                            frame_id    conten
 ``state/wheel_speed``         sensor_msgs/JointState          ``body``     the wheels' tachometers at ``t_k`` (momentum management only)
 ``control/dipole``            std_msgs/Float64MultiArray      (none)      the rods' dipole commands [A m^2], see :data:`DIPOLE_LABEL_PREFIX`
 ``control/wheel_torque``      geometry_msgs/WrenchStamped     ``body``     the wheels' body torque [N m] (momentum management only)
+``mode/status``               std_msgs/Float64MultiArray      (none)      the flight mode of each sample, see :data:`MODE_STATUS_LAYOUT` (flight modes only)
 ============================  ==============================  ==========  =========================================
 
 A star tracker holds its last quaternion between its updates (10 Hz beside a 100 Hz loop), so
@@ -135,6 +136,18 @@ non-orthogonal or redundant set; ROS has no magnetorquer message, and ``Float64M
 what ROS 2's actuator command interfaces take for a set of actuators (``ros2_control``'s
 ``forward_command_controller`` commands, one value per joint in a stated order).
 
+Flight modes (issue 49; ``python -m sappc_modes``, the mode manager, flight software;
+docs/design/modes.md).  The mode node reads each sample's gyro, estimate, estimator figures,
+reference and tachometers and publishes the sample's mode on ``mode/status`` (a
+``std_msgs/Float64MultiArray`` of :data:`MODE_STATUS_LAYOUT`: ``data[0]`` the sample's time [s],
+then the mode's number, ``sappc_modes.core.modes.MODE_NAMES``, and the reason of the transition
+taken at that sample, ``REASON_NAMES``, 0 for none), one message per sample.  The controller and
+the momentum node take it as one more input of the sample (lockstep: paired by its time): outside
+TRACK the controller answers ``inactive`` with the mode's law (HOLD, SAFE: MRP feedback) and the
+momentum node commands B-dot on the rods in DETUMBLE.  Why this type: a number per sample that a
+lockstep consumer pairs with the sample, in the contract's convention for arrays, plotted by every
+tool; ``diagnostics`` carries the mode in words for people.
+
 Frames (:class:`Frame`): ``inertial`` (N, the fixed parent), ``body`` (B) and ``reference`` (R, the
 desired attitude).  The two transform topics make the attitude visible to tf-style tools (Foxglove's
 3D panel builds its frame tree from every ``TransformStamped``): parent ``inertial`` (the header
@@ -184,6 +197,8 @@ __all__ = [
     "CONTROLLER_INPUTS",
     "DIPOLE_LABEL_PREFIX",
     "MOMENTUM_TOPICS",
+    "MODE_STATUS",
+    "MODE_STATUS_LAYOUT",
     "STATE_MAGNETIC_FIELD",
     "STATE_WHEEL_SPEED",
     "TRUTH_MAGNETIC_FIELD",
@@ -340,6 +355,12 @@ TRUTH_MAGNETIC_FIELD = Topic("truth/magnetic_field", "sensor_msgs/msg/MagneticFi
 STATE_WHEEL_SPEED = Topic("state/wheel_speed", "sensor_msgs/msg/JointState", Frame.BODY.value)
 CONTROL_DIPOLE = Topic("control/dipole", "std_msgs/msg/Float64MultiArray", None)
 CONTROL_WHEEL_TORQUE = Topic("control/wheel_torque", "geometry_msgs/msg/WrenchStamped", Frame.BODY.value)
+#: The flight mode of each sample (the mode node's; docstring).
+MODE_STATUS = Topic("mode/status", "std_msgs/msg/Float64MultiArray", None)
+#: Layout of ``mode/status``: one value per label, ``layout.dim[0]`` the labels joined by commas:
+#: the sample's time [s], the mode's number (``sappc_modes.core.modes.MODE_NAMES``), the reason of
+#: the transition taken at the sample (``sappc_modes.core.modes.REASON_NAMES``; 0: none).
+MODE_STATUS_LAYOUT = ("time_s", "mode", "reason")
 #: The rods' labels on ``control/dipole`` (after ``time_s``): ``rod_1`` .. ``rod_M``.
 DIPOLE_LABEL_PREFIX = "rod_"
 #: What momentum management adds to a run: the plant's magnetometer (and its truth) and tachometers,
@@ -447,12 +468,13 @@ TOPICS = (
     SENSOR_STAR_TRACKER,
     *ESTIMATOR_TOPICS,
     *MOMENTUM_TOPICS,
+    MODE_STATUS,
 )
 
 #: Topics only some runs have (a plant with reaction wheels or sensor models, an estimator):
 #: absent from a bag of a run without them, which is no fault.
 OPTIONAL_TOPICS = (WHEEL_STATES, TRUTH_ATTITUDE, TRUTH_RATE, TRUTH_GYRO_BIAS, STATE_ATTITUDE_EPOCH, SENSOR_GYRO, SENSOR_STAR_TRACKER,
-                   *ESTIMATOR_TOPICS, *MOMENTUM_TOPICS)
+                   *ESTIMATOR_TOPICS, *MOMENTUM_TOPICS, MODE_STATUS)
 
 #: The attitude as frames (body and reference relative to inertial), for visualisation only: no
 #: node consumes them, a fault relay never republishes them (they show the truth).

@@ -60,6 +60,8 @@ from sappc_msgs_py.contract import (
     ESTIMATOR_COVARIANCE,
     ESTIMATOR_DIAGNOSTICS,
     ESTIMATOR_DIAGNOSTICS_LAYOUT,
+    MODE_STATUS,
+    MODE_STATUS_LAYOUT,
     REFERENCE_ACCELERATION,
     REFERENCE_ATTITUDE,
     REFERENCE_RATE,
@@ -328,6 +330,14 @@ def estimator_diagnostics() -> Layout:
     return p
 
 
+def mode_status() -> Layout:
+    """``mode/status``: the values of :data:`~sappc_msgs_py.contract.MODE_STATUS_LAYOUT`."""
+    n = len(MODE_STATUS_LAYOUT)
+    p = Layout()
+    p.multiarray([(",".join(MODE_STATUS_LAYOUT), n, n)], 0, "mode_status", n)
+    return p
+
+
 def dipole(n_rods: int) -> Layout:
     """``control/dipole``: the time, then each rod's dipole."""
     labels = ["time_s"] + [f"{DIPOLE_LABEL_PREFIX}{j + 1}" for j in range(n_rods)]  # as convert.dipole_msg lays it out
@@ -493,6 +503,7 @@ _LAYOUTS: dict[Topic, Callable[[], Layout]] = {
     CONTROLLER_DIAGNOSTICS: controller_diagnostics,
     ESTIMATOR_COVARIANCE: covariance,
     ESTIMATOR_DIAGNOSTICS: estimator_diagnostics,
+    MODE_STATUS: mode_status,
 }
 #: Topics whose values may be NaN (float arrays of figures: no figure yet, "no data").
 _MAY_BE_NAN = frozenset({CONTROLLER_DIAGNOSTICS, ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS})
