@@ -144,6 +144,8 @@ from numpy.typing import ArrayLike
 from rcl_interfaces.msg import SetParametersResult
 
 from sappc_msgs_py.contract import (
+    MODE_STATUS,
+    SENSOR_GYRO,
     ANSWER_COMMANDED,
     ANSWER_HELD,
     ANSWER_INACTIVE,
@@ -158,6 +160,7 @@ from sappc_msgs_py.contract import (
 )
 from sappc_msgs_py import wire
 from sappc_msgs_py.convert import (
+    time_to_ns,
     cdr_stamp_ns,
     diagnostics_values,
     quaternion_from_msg,
@@ -170,6 +173,10 @@ from gnc_common.timing import LatencyStatistics
 from gnc_common.validation import ConfigError, InputError, check_positive
 
 from sappc_controller.core.base import AttitudeController
+from sappc_controller.core.mrp_feedback import MrpFeedbackGains
+from sappc_modes.core.laws import ModeLaws
+from sappc_modes.core.modes import HOLD, R_NONE, SAFE, TRACK
+from sappc_modes.core.packing import MAX_RESTARTS
 from sappc_controller.core.input_check import REJECT_REASONS as INPUT_REJECT_REASONS
 from sappc_controller.core.input_check import INPUT_OK, InputBounds, check_input, input_verdict
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
@@ -236,6 +243,15 @@ PARAMETERS = (
           "without data; real time: the steps' latency and late steps); '' for none"),
     Param("duration_s", 0.0, "real time: the run's length from the first state; after answering the state of its last frame the "
           "controller answers nothing more (its watchdog stops: the plant has finished); 0: no end", "s", check=">= 0"),
+    Param("flight_modes", False, "lockstep: take each sample's mode (mode/status) and gyro (sensors/gyro); outside TRACK answer "
+          "'inactive' with the mode's law (HOLD, SAFE), restart the law at each later entry into TRACK, clamp an infeasible RPF start "
+          "(docs/design/modes.md)"),
+    Param("hold_K_Nm", 0.0, "flight modes: HOLD's MRP feedback attitude gain K (SAFE's is 0)", "N m", check="> 0 with flight_modes"),
+    Param("hold_P_Nms", 0.0, "flight modes: HOLD's and SAFE's rate gain P", "N m s", check="> 0 with flight_modes"),
+    Param("hold_integralLimit_Nms", 0.0, "flight modes: HOLD's and SAFE's integral limit", "N m s", check=">= 0"),
+    Param("hold_Ki_per_kg_m2", 0.0, "flight modes: HOLD's and SAFE's integral gain (0: none)", "1/(kg m^2)", check=">= 0"),
+    Param("hold_attitude", "entry", "flight modes: HOLD holds the attitude of its entry, or points at the reference (an acquisition)",
+          choices=("entry", "reference")),
 )
 _P = {p.name: p for p in PARAMETERS}
 
@@ -243,6 +259,23 @@ _P = {p.name: p for p in PARAMETERS}
 def _seconds_to_ns(name: str, value: Any) -> int:
     """A watchdog parameter [s] checked (finite, within :data:`~sappc_controller.params.WATCHDOG_RANGE_S`) -> [ns]."""
     return int(round(check_watchdog_seconds(name, value) * _NS))
+
+
+#: Where the gyro's angular velocity sits in a ``sensor_msgs/Imu``'s 37 doubles (:func:`sappc_msgs_py.wire.gyro_values`).
+_IMU_OMEGA = 13
+
+
+class _FlightModes:
+    """What the node keeps with flight modes (parameter ``flight_modes``): the laws of HOLD and
+    SAFE, the samples waiting for their mode and gyro (by stamp), and the law's starts."""
+
+    def __init__(self, laws: ModeLaws) -> None:
+        self.laws = laws
+        self.samples: dict[int, ControlSample] = {}
+        self.modes: dict[int, tuple[int, int]] = {}
+        self.gyro: dict[int, np.ndarray | None] = {}
+        self.started = False  # the law has started since the last entry into TRACK
+        self.starts = 0  # the law's starts so far (the first, then one per later entry into TRACK)
 
 
 #: Inputs of the warm-up step (identity attitude and reference, at rest).
@@ -276,7 +309,12 @@ class ControllerNode(ManagedNode):
         for p in declared:
             self.param(p)
         config = config_from_parameters(self.kind, self._config_values())
-        self.controller: AttitudeController = CONTROLLER_CLASSES[self.kind](config)
+        self.flight_modes = bool(self.param(_P["flight_modes"]))
+        # with flight modes the law starts at each entry into TRACK from whatever error the acquisition left: an infeasible RPF
+        # start is clamped (counted), as offline (sappc.offline.compiled_loop.prepare)
+        self.controller: AttitudeController = (CONTROLLER_CLASSES[self.kind](config, on_infeasible="clamp")
+                                               if self.flight_modes and self.kind == "sappc" else CONTROLLER_CLASSES[self.kind](config))
+        self._modes = self._flight_modes(config) if self.flight_modes else None
         self.dt = check_positive("control_period_s", self.param(_P["control_period_s"]))
         self.mode = self.mode_param()
         self.stale_timeout_ns = _seconds_to_ns("stale_timeout_s", self.param(_P["stale_timeout_s"]))
@@ -297,6 +335,7 @@ class ControllerNode(ManagedNode):
         qos = qos_profile()
         # every topic as CDR bytes (sappc_msgs_py.wire): taken raw, published as bytes
         self._wire = {t.name: wire.codec(t) for t in (*_INPUTS, CONTROL_TORQUE, CONTROLLER_DIAGNOSTICS)}
+        self._wire_modes = {t.name: wire.codec(t) for t in (MODE_STATUS, SENSOR_GYRO)}
         self._decoders = {t.name: partial(quaternion_from_msg if t.type_name.endswith("QuaternionStamped") else vector3_from_msg, topic=t)
                           for t in _INPUTS}  # what a message the codec does not take goes through (wire.take)
         self._input_subs = [self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos, raw=True)
@@ -329,6 +368,11 @@ class ControllerNode(ManagedNode):
         self._diag_rows: dict[str, list[float]] = {k: [math.nan] * 3 for k in ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")}
         self._held: tuple[list[float], list[float], list[float]] = ([0.0] * 3, [0.0] * 3, [0.0] * 3)  # last torque, command, saturation
         self.start_when(self._inputs_missing, self._offer_outputs)
+        if self._modes is not None:
+            if self.mode != LOCKSTEP:
+                raise ConfigError("flight_modes: lockstep only (real time: not yet)")
+            self._input_subs += [self.create_subscription(t.msg_class, t.name, partial(self._on_mode_input, topic=t), qos, raw=True)
+                                 for t in (MODE_STATUS, SENSOR_GYRO)]
         if self.mode == LOCKSTEP:
             self.create_subscription(CLOCK.msg_class, CLOCK.name, self._on_clock, qos, raw=True)
             self.create_timer(_GRACE_CHECK_S, self._check_grace)
@@ -343,6 +387,18 @@ class ControllerNode(ManagedNode):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._parameter_callback = True
         self.get_logger().info(f"{self.kind} controller ready ({self.mode}, dt = {self.dt} s)")
+
+    def _flight_modes(self, config: Any) -> _FlightModes:
+        """The flight modes' laws and bookkeeping (parameter ``flight_modes``); raises ``ConfigError`` naming a bad gain."""
+        try:
+            gains = MrpFeedbackGains(K_Nm=float(self.param(_P["hold_K_Nm"])), P_Nms=float(self.param(_P["hold_P_Nms"])),
+                                     integralLimit_Nms=float(self.param(_P["hold_integralLimit_Nms"])),
+                                     Ki_per_kg_m2=float(self.param(_P["hold_Ki_per_kg_m2"])))
+        except (ConfigError, ValueError) as exc:
+            raise ConfigError(f"flight_modes: HOLD's gains (hold_K_Nm, hold_P_Nms, hold_integralLimit_Nms, hold_Ki_per_kg_m2): {exc}") from None
+        laws = ModeLaws(np.asarray(config.inertia_kg_m2, dtype=np.float64), gains, config.actuator,
+                        str(self.param(_P["hold_attitude"])) == "reference")
+        return _FlightModes(laws)
 
     def release_node(self) -> None:
         """A managed controller's cleanup: its parameter callback removed (its subscriptions,
@@ -474,10 +530,77 @@ class ControllerNode(ManagedNode):
         sample = self._pending.add(topic.name, ns, value)
         if sample is None:
             return
+        if self._modes is not None:  # the sample waits for its mode and gyro (_answer_in_mode)
+            self._modes.samples[sample.t_ns] = sample
+            self._try_mode_sample(sample.t_ns)
+            return
         if sample.valid:
             self._compute(sample)
         else:
             self._answer_without_inputs(sample.t_ns)
+
+    # ---- flight modes (lockstep) -----------------------------------------------------------
+    def _on_mode_input(self, raw: bytes, topic: Topic) -> None:
+        """``mode/status`` or ``sensors/gyro`` of a sample (parameter ``flight_modes``)."""
+        fm = self._modes
+        assert fm is not None
+        values = self._wire_modes[topic.name].values(raw)
+        if values is None:  # not the contract's layout: rejected (the sample then waits for the grace)
+            self._reject(f"{topic.name}: not the contract's layout", "invalid")
+            return
+        if topic is MODE_STATUS:
+            ns = time_to_ns(values[0])
+            fm.modes[ns] = (int(values[1]), int(values[2]))
+        else:
+            ns = cdr_stamp_ns(topic.type_name, raw)
+            omega = np.array(values[_IMU_OMEGA:_IMU_OMEGA + 3])
+            fm.gyro[ns] = omega if np.all(np.isfinite(omega)) else None
+        self._try_mode_sample(ns)
+
+    def _try_mode_sample(self, t_ns: int) -> None:
+        """Answer sample ``t_ns`` once its five inputs, its mode and its gyro have arrived."""
+        fm = self._modes
+        assert fm is not None
+        if t_ns not in fm.samples or t_ns not in fm.modes or t_ns not in fm.gyro:
+            return
+        sample, (mode, reason), gyro = fm.samples.pop(t_ns), fm.modes.pop(t_ns), fm.gyro.pop(t_ns)
+        for table in (fm.samples, fm.modes, fm.gyro):  # an earlier sample that never completed
+            for old in [k for k in table if k < t_ns]:
+                del table[old]
+        self._answer_in_mode(sample, mode, reason, gyro)
+
+    def _answer_in_mode(self, sample: ControlSample, mode: int, reason: int, gyro: np.ndarray | None) -> None:
+        """A sample of a flight (the offline loop's rules, docs/design/modes.md): at an entry into
+        TRACK the law restarts (when it had started, up to ``MAX_RESTARTS`` times), at one into HOLD
+        or SAFE their law's state; in TRACK the law answers as without modes, elsewhere the mode's law,
+        answered ``inactive``."""
+        fm = self._modes
+        assert fm is not None
+        if reason != R_NONE:
+            if mode == TRACK:
+                if fm.started and fm.starts <= MAX_RESTARTS:
+                    self.controller.reset()  # a later entry: the law starts afresh at its first valid sample
+                    fm.started = False
+            elif mode in (HOLD, SAFE):
+                fm.laws.enter()
+        t_ns = sample.t_ns
+        if mode == TRACK:
+            if sample.valid:
+                if not fm.started:
+                    fm.started = True
+                    fm.starts += 1
+                self._compute(sample)
+            else:
+                self._answer_without_inputs(t_ns)
+            return
+        if self._answered(t_ns):
+            return
+        if not self.active:
+            self._answer_inactive(t_ns)
+            return
+        inputs = tuple(np.asarray(v) for v in sample.values) if sample.valid else None
+        torque = fm.laws.torque(mode, t_ns / _NS, self.dt, inputs, gyro)  # type: ignore[arg-type]
+        self._publish(t_ns, torque, torque, [0.0] * 3, [0] * len(_INPUTS), ANSWER_INACTIVE)
 
     # ---- control instants -----------------------------------------------------------------
     def _outage_at(self, t_ns: int) -> bool:

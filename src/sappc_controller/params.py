@@ -19,6 +19,7 @@ the config, validated by the same code as a scenario file, so every error names 
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from collections.abc import Callable
 from typing import Any
@@ -243,7 +244,7 @@ INTEGER_PARAMETER_RANGE = (1, 99)
 def parameter_range(name: str, default: Any) -> tuple[float, float] | tuple[int, int] | None:
     """The range of scalar parameter ``name`` (for its ROS descriptor and the start-up check):
     integers :data:`INTEGER_PARAMETER_RANGE`, floats ``[0, PARAMETER_MAX]``; ``None`` for arrays."""
-    if name == "inertia_kg_m2":
+    if name == "inertia_kg_m2" or name.rsplit(".", 1)[-1] in UNSET_NAN:  # (NaN: "none"; the config checks a number given)
         return None
     if isinstance(default, int) and not isinstance(default, bool):
         return INTEGER_PARAMETER_RANGE
@@ -271,8 +272,11 @@ def config_from_parameters(kind: str, values: dict[str, Any]) -> Any:
         Naming the parameter (``sappc.rpf.l``, ``inertia_kg_m2``...) that is missing or invalid.
     """
     cls = _config_class(kind)
-    given = {k: (list(v) if isinstance(v, (tuple, np.ndarray)) else v) for k, v in values.items() if v is not None}
+    # NaN: a setting given as "none" (UNSET_NAN: rpf.rho_e0 from the initial error), kept as None
+    unset = [k for k, v in values.items() if isinstance(v, float) and math.isnan(v)]
+    given = {k: (list(v) if isinstance(v, (tuple, np.ndarray)) else v) for k, v in values.items() if v is not None and k not in unset}
     check_parameter_ranges(given, config_parameter_names(kind))
+    given.update(dict.fromkeys(unset))
     J = given.pop("inertia_kg_m2", None)
     if J is None:
         raise ConfigError("missing parameter inertia_kg_m2 (9 values, row major)")
@@ -289,6 +293,11 @@ def config_from_parameters(kind: str, values: dict[str, Any]) -> Any:
     return dataclasses.replace(config, actuator=actuator)
 
 
+#: The settings whose ``None`` has a meaning (``rpf.rho_e0``: the RPF starts at each component's
+#: initial error, the paper's Monte Carlo form): as a ROS parameter, which cannot be null, NaN.
+UNSET_NAN = ("rho_e0",)
+
+
 def parameters_from_config(kind: str, config: Any) -> dict[str, Any]:
     """Flat parameter values of a config (the inverse of :func:`config_from_parameters`)."""
     flat: dict[str, Any] = {"controller": kind}
@@ -301,6 +310,8 @@ def parameters_from_config(kind: str, config: Any) -> dict[str, Any]:
                 walk(value, name)
             elif value is not None:
                 flat[name] = np.asarray(value, dtype=np.float64).ravel().tolist() if isinstance(value, (tuple, list)) else value
+            elif f.name in UNSET_NAN:  # a ROS parameter cannot be null: NaN says "none" (config_from_parameters)
+                flat[name] = math.nan
 
     walk(config, kind)
     flat["inertia_kg_m2"] = flat.pop(f"{kind}.inertia_kg_m2")

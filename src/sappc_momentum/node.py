@@ -43,12 +43,15 @@ import numpy as np
 
 from gnc_common.validation import ConfigError, InputError, as_finite_array
 from sappc_momentum.core.law import LAWS, N_MM_WORK, MomentumManagement, momentum_management_step, pack_momentum
+from sappc_momentum.core.law import MomentumArrays, dipole_mapping
 from sappc_momentum.core.predictive import new_state
-from sappc_msgs_py.contract import (CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, STATE_ATTITUDE, STATE_MAGNETIC_FIELD, STATE_RATE,
+from sappc_modes.core.bdot import bdot_step, new_bdot_state, pack_bdot, reset_bdot_state
+from sappc_modes.core.modes import DETUMBLE, R_NONE, TRACK
+from sappc_msgs_py.contract import (CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, MODE_STATUS, STATE_ATTITUDE, STATE_MAGNETIC_FIELD, STATE_RATE,
                                     STATE_WHEEL_SPEED, Topic, qos_profile)
 from sappc_msgs_py.inputs import NS_PER_S  # the kernel's time: the stamp in seconds, ns / NS_PER_S (the offline loop's)
 from sappc_msgs_py import wire
-from sappc_msgs_py.convert import cdr_stamp_ns, magnetic_field_from_msg, torque_from_msg, wheel_speed_from_msg
+from sappc_msgs_py.convert import cdr_stamp_ns, magnetic_field_from_msg, time_to_ns, torque_from_msg, wheel_speed_from_msg
 from sappc_msgs_py.parameters import REQUIRED, Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, run_node
 
@@ -62,6 +65,8 @@ RIGHT_INVERSE_TOL = 1e-9
 #: The node's inputs of one sample.
 INPUTS = (STATE_WHEEL_SPEED, STATE_MAGNETIC_FIELD, STATE_ATTITUDE, STATE_RATE, CONTROL_TORQUE)
 _DEFAULTS = MomentumManagement(gain_per_s=1.0)
+#: The rods' steering matrix and limits among the law's arrays (B-dot's dipole mapping, flight modes).
+_STEERING, _M_MAX = MomentumArrays._fields.index("steering"), MomentumArrays._fields.index("m_max")
 
 PARAMETERS = (
     MODE,
@@ -91,6 +96,13 @@ PARAMETERS = (
     Param("field_params", [], "the predictive law's onboard dipole field: g11, h11, g10 [T], R [m] "
           "(spacecraft_sim.core.magnetic_field.DipoleField.params; [] with the cross-product law)", check="4 finite values", type="double[]"),
     Param("timing_file", "", "where to write the node's counts at the end (JSON: samples, rejected messages); '' for none"),
+    Param("flight_modes", False, "take each sample's mode (mode/status): in DETUMBLE B-dot on the rods and nothing on the wheels "
+          "instead of the management law (docs/design/modes.md)"),
+    Param("bdot_gain_N_m_s", 0.0, "flight modes: B-dot's gain k (the scenario's modes.detumble_gain_N_m_s)", "N m s", check="> 0 with flight_modes"),
+    Param("magnetometer_stride", 1, "flight modes: the loop's samples per magnetometer update (B-dot differentiates new samples only; "
+          "1: every sample)", check=">= 1"),
+    Param("control_period_s", 0.01, "flight modes: the loop's sample period (a magnetometer update's time is its sample's k dt)", "s",
+          check="> 0"),
 )
 _P = {p.name: p for p in PARAMETERS}
 
@@ -157,6 +169,18 @@ class MomentumNode(ProjectNode):
                 raise ConfigError(f"{p} is required ({_P[p].description})")
             tables[p] = value
         self.timing_file = str(self.param(_P["timing_file"]))
+        self.flight_modes = bool(self.param(_P["flight_modes"]))
+        gain = float(self.param(_P["bdot_gain_N_m_s"]))
+        self._bdot_prm = pack_bdot(gain) if self.flight_modes else None  # raises ConfigError naming a bad gain
+        self._mag_stride = int(self.param(_P["magnetometer_stride"]))
+        if self._mag_stride < 1:
+            raise ConfigError(f"magnetometer_stride must be >= 1, got {self._mag_stride}")
+        self.dt = float(self.param(_P["control_period_s"]))
+        if not (math.isfinite(self.dt) and self.dt > 0.0):
+            raise ConfigError(f"control_period_s must be > 0, got {self.dt!r}")
+        self.dt_ns = time_to_ns(self.dt)
+        self._bdot_state = new_bdot_state()
+        self._m_B = np.zeros(3)
         self.check_unknown_overrides()
         Gs = _matrix("wheel_axes_B", tables["wheel_axes_B"], 3, None)
         Gt = _matrix("rod_axes_B", tables["rod_axes_B"], 3, None)
@@ -199,7 +223,9 @@ class MomentumNode(ProjectNode):
         }
         self._wire_dipole = wire.Codec(wire.dipole(M), CONTROL_DIPOLE.name, finite=False)  # as dipole_msg: taken as computed (the plant checks)
         self._wire_torque = wire.codec(CONTROL_WHEEL_TORQUE)
-        for topic in INPUTS:
+        self._inputs = INPUTS + ((MODE_STATUS,) if self.flight_modes else ())
+        self._wire_mode = wire.codec(MODE_STATUS)
+        for topic in self._inputs:
             self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos, raw=True)
         self.get_logger().info(f"momentum management ready (lockstep; {config.law} law, K_p {config.gain_per_s:g} 1/s, {W} wheels, {M} rods, "
                                f"gyroscopic feed-forward {'on' if config.gyroscopic_feedforward else 'off'})")
@@ -215,16 +241,24 @@ class MomentumNode(ProjectNode):
         return wire.take(raw, topic, decoder, fast, pick)
 
     def _on_input(self, raw: bytes, topic: Topic) -> None:
-        try:
-            value = self._decode(raw, topic)
-        except InputError as exc:
-            self.rejected += 1
-            self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
-            return
-        ns = cdr_stamp_ns(topic.type_name, raw)
+        if topic is MODE_STATUS:  # the mode node's (flight modes): its time in data[0] (exact in lockstep)
+            values = self._wire_mode.values(raw)
+            if values is None:
+                self.rejected += 1
+                self.get_logger().warning(f"rejected a {topic.name} message of another layout ({self.rejected} so far)")
+                return
+            ns, value = time_to_ns(values[0]), (int(values[1]), int(values[2]))
+        else:
+            try:
+                value = self._decode(raw, topic)
+            except InputError as exc:
+                self.rejected += 1
+                self.get_logger().warning(f"rejected a message ({self.rejected} so far): {exc}")
+                return
+            ns = cdr_stamp_ns(topic.type_name, raw)
         sample = self._pending.setdefault(ns, {})
         sample[topic.name] = value
-        if len(sample) < len(INPUTS):
+        if len(sample) < len(self._inputs):
             return
         del self._pending[ns]
         for old in [k for k in self._pending if k < ns]:  # an earlier sample that never completed (the plant held its command)
@@ -234,7 +268,16 @@ class MomentumNode(ProjectNode):
             self._omega[:] = rate
         if attitude is not None:
             self._q[:] = attitude
-        self._step(ns / NS_PER_S, sample[STATE_WHEEL_SPEED.name], sample[STATE_MAGNETIC_FIELD.name], sample[CONTROL_TORQUE.name])
+        mode, reason = sample[MODE_STATUS.name] if self.flight_modes else (TRACK, R_NONE)
+        if mode == DETUMBLE:  # B-dot on the rods, on each new magnetometer sample (its update's time), nothing on the wheels
+            if reason != R_NONE:
+                reset_bdot_state(self._bdot_state)
+            k = ns // self.dt_ns
+            bdot_step(self._bdot_prm, sample[STATE_MAGNETIC_FIELD.name], float(k - k % self._mag_stride) * self.dt, self._bdot_state, self._m_B)
+            dipole_mapping(self._mm[_STEERING], self._m_B, self._mm[_M_MAX], self._m)
+            self._tau_w[:] = 0.0
+        else:
+            self._step(ns / NS_PER_S, sample[STATE_WHEEL_SPEED.name], sample[STATE_MAGNETIC_FIELD.name], sample[CONTROL_TORQUE.name])
         self.pub_dipole.publish(self._wire_dipole.encode(None, [ns / NS_PER_S, *self._m.tolist()]))  # data[0]: the time [s]
         self.pub_torque.publish(self._wire_torque.encode(ns, self._tau_w))
         self.samples += 1

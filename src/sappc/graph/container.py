@@ -35,13 +35,14 @@ NODE_CLASSES: dict[str, tuple[str, str]] = {
     "estimator": ("sappc_estimator.node", "EstimatorNode"),
     "controller": ("sappc_controller.node", "ControllerNode"),
     "momentum": ("sappc_momentum.node", "MomentumNode"),
+    "modes": ("sappc_modes.node", "ModeNode"),
     "reference": ("spacecraft_sim.reference", "ReferenceNode"),
     "injector": ("spacecraft_sim.disturbance", "InjectorNode"),
     "plant": ("spacecraft_sim.plant_node", "PlantNode"),
 }
 #: Stop order: publishers first (each waits for its subscribers' acknowledgements), the recorder
 #: last (it drains its queues); the same order in which ``sappc run`` signals the five processes.
-STOP_ORDER = ("plant", "estimator", "controller", "momentum", "reference", "injector", "recorder")
+STOP_ORDER = ("plant", "estimator", "modes", "controller", "momentum", "reference", "injector", "recorder")
 
 
 def build_nodes(composition: list[dict[str, Any]]) -> list[ProjectNode]:

@@ -40,7 +40,9 @@ import yaml
 from sappc_msgs_py.runtime import parse_expected
 from sappc_controller.params import parameters_from_config, unflatten
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
-from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, STATE_MAGNETIC_FIELD, STATE_WHEEL_SPEED,
+from sappc_modes.core.modes import MODE_NAMES
+from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS,
+                                    MODE_STATUS, REFERENCE_ATTITUDE, RELAYED_REFERENCE_TOPICS, SENSOR_GYRO, STATE_MAGNETIC_FIELD, STATE_WHEEL_SPEED,
                                     TRUTH_MAGNETIC_FIELD, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
                                     RELAYED_PATHS, RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR, STATE_ATTITUDE,
                                     STATE_ATTITUDE_EPOCH, STATE_RATE, TOPICS, controller_state_sources, faulty, relay_remaps)
@@ -72,7 +74,7 @@ DOMAIN_IDS = range(1, 102)
 #: must stay below 65536); ids above 101 are accepted but may collide with ephemeral ports.
 MAX_DOMAIN_ID = 232
 #: The nodes of a run, in start order (the plant starts last: it owns time).
-NODES = ("recorder", "estimator", "controller", "momentum", "reference", "injector", "plant")
+NODES = ("recorder", "estimator", "modes", "controller", "momentum", "reference", "injector", "plant")
 #: Plants of ``sappc run --plant``: the bundled rigid body (``python -m spacecraft_sim``), or the
 #: user's own, started separately (every node but the plant is started; the run ends once the
 #: torque of the scenario's last sample is recorded, or on Ctrl-C).
@@ -251,6 +253,12 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     env = scenario.environment
     managing = scenario.momentum is not None
     sensor_relayed = any(topics[0] is STATE_ATTITUDE for topics in relayed)
+    # issue 49: the mode node reads the gyro, the estimate and its figures, the reference and the tachometers (one more
+    # subscriber of each, at the relay's output when one is relayed); the controller reads the gyro too (SAFE's law)
+    flight = scenario.modes
+    moding = flight is not None
+    gyro_relayed = any(SENSOR_GYRO in topics for topics in relayed)
+    reference_relayed = any(REFERENCE_ATTITUDE in topics for topics in relayed)
     clock_subs = 5 if estimating else 4  # controller (stale watchdog), reference, injector, recorder (and the estimator: its far-ahead check)
     controller = {
         **unflatten(parameters_from_config(kind.value, scenario.controller_config(kind))),
@@ -261,6 +269,9 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "counts_file": counts_file("controller"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "controller_timing.json"),
         **({"duration_s": scenario.duration_s} if realtime else {}),  # nothing answered past the run's last frame
+        **({"flight_modes": True, "hold_K_Nm": flight.hold_gains.K_Nm, "hold_P_Nms": flight.hold_gains.P_Nms,
+            "hold_integralLimit_Nms": flight.hold_gains.integralLimit_Nms, "hold_Ki_per_kg_m2": flight.hold_gains.Ki_per_kg_m2,
+            "hold_attitude": "reference" if flight.hold_on_reference else "entry"} if flight is not None else {}),
     }
     plant = {
         "inertia_kg_m2": scenario.inertia_kg_m2.ravel().tolist(),
@@ -286,12 +297,13 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
                                          state__rate=2 - measuring + (managing and not estimating and not sensor_relayed), state__tf=1)
         + (["joint_states=1"] if scenario.wheels is not None else [])
         + (["truth/attitude=1", "truth/rate=1", "truth/gyro_bias=1"]
-           + [f"{t.name}={1 + estimating}" for t in RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR] if scenario.sensors is not None else [])
+           + [f"{t.name}={1 + estimating + 2 * (moding and t is SENSOR_GYRO and not gyro_relayed)}" for t in RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR]
+           if scenario.sensors is not None else [])
         + ([f"/clock={clock_subs}"] if lockstep else [])
         # the magnetometer: the management node (if any) and the recorder; its truth and the tachometers
         + ([f"{STATE_MAGNETIC_FIELD.name}={1 + managing}"] if env is not None else [])
         + ([f"{TRUTH_MAGNETIC_FIELD.name}=1"] if env is not None and env.magnetometer is not None else [])
-        + ([f"{STATE_WHEEL_SPEED.name}=2"] if managing else []),
+        + ([f"{STATE_WHEEL_SPEED.name}={2 + moding}"] if managing else []),
         "counts_file": counts_file("plant"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "timing.json"),
     }
@@ -302,7 +314,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "periods_s": list(ref.periods_s),
         "duration_s": scenario.duration_s,
         **common,
-        "expected_subscribers": expected(reference__attitude=2, reference__rate=2, reference__acceleration=2, reference__tf=1),
+        "expected_subscribers": expected(**dict.fromkeys(("reference__attitude", "reference__rate", "reference__acceleration"),
+                                                         2 + (moding and not reference_relayed)), reference__tf=1),
         "counts_file": counts_file("reference"),
     }
     injector = {
@@ -311,7 +324,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         "duration_s": scenario.duration_s,
         **common,
         "expected_subscribers": expected(disturbance__torque=1 if external_plant else 2)
-        + [f"{faulty(t).name}={2 + (managing and not estimating and t is STATE_RATE)}" for topics in relayed for t in topics],
+        + [f"{faulty(t).name}={2 + (managing and not estimating and t is STATE_RATE) + 2 * (moding and t is SENSOR_GYRO) + (moding and t in RELAYED_REFERENCE_TOPICS)}"
+           for topics in relayed for t in topics],
         "counts_file": counts_file("injector"),
     }
     # the estimator (a scenario with one): between the plant's measurements and the controller,
@@ -319,7 +333,8 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     estimator = {
         **estimator_parameters_from_config(scenario.estimator),
         **common,
-        "expected_subscribers": expected(estimate__attitude=2 + managing, estimate__rate=2 + managing) + [f"{t.name}=1" for t in ESTIMATOR_TOPICS[2:]],
+        "expected_subscribers": expected(estimate__attitude=2 + managing + moding, estimate__rate=2 + managing + moding)
+        + [f"{t.name}={1 + (moding and t in (ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS))}" for t in ESTIMATOR_TOPICS[2:]],
         "counts_file": counts_file("estimator"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "estimator_timing.json"),
     } if scenario.estimator is not None else None
@@ -327,7 +342,9 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     # waits for, only once it has matched every publisher of what it records (each topic listed
     # in a node's expected_subscribers is published by that node)
     momentum = _momentum_parameters(scenario, mode, counts_file("momentum")) if managing else None
-    published = [t for node in (controller, plant, reference, injector, *([estimator] if estimator else []), *([momentum] if momentum else []))
+    modes = _mode_parameters(scenario, mode, counts_file("modes")) if moding else None
+    published = [t for node in (controller, plant, reference, injector, *([estimator] if estimator else []), *([momentum] if momentum else []),
+                                *([modes] if modes else []))
                  for t in parse_expected(cast("list[str]", node["expected_subscribers"]))]
     publishers = Counter(t for t in published if t != CLOCK.name)
     recorder = {
@@ -344,7 +361,7 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     }
     return {f"/{name}": {"ros__parameters": p} for name, p in
             (("controller", controller), ("plant", plant), ("reference", reference), ("injector", injector), ("recorder", recorder),
-             ("estimator", estimator), ("momentum", momentum)) if p is not None}
+             ("estimator", estimator), ("momentum", momentum), ("modes", modes)) if p is not None}
 
 
 def _orbit_parameters(scenario: Scenario) -> dict[str, Any]:
@@ -385,6 +402,33 @@ def _momentum_parameters(scenario: Scenario, mode: str, counts_file: str) -> dic
         # the wheels' torque and the rods' commands: the plant and the recorder
         "expected_subscribers": [f"{CONTROL_DIPOLE.name}=2", f"{CONTROL_WHEEL_TORQUE.name}=2"],
         "counts_file": counts_file,
+        # flight modes (issue 49): B-dot in DETUMBLE, on each new magnetometer sample (the offline loop's stride)
+        **({"flight_modes": True, "bdot_gain_N_m_s": scenario.modes.detumble_gain_N_m_s, "control_period_s": scenario.control_period_s,
+            "magnetometer_stride": env.magnetometer.stride(scenario.control_period_s) if env.magnetometer is not None else 1}
+           if scenario.modes is not None else {}),
+    }
+
+
+def _mode_parameters(scenario: Scenario, mode: str, counts_file: str) -> dict[str, Any]:
+    """The mode node's parameters (issue 49): the scenario's ``modes`` section (the guards, the first
+    mode, the ground's requests), the wheels' speed limits (the wheel guard) and the controller's
+    input bounds (the acquisition guard reads the estimate of a sample the controller finds valid),
+    as the offline loop packs them (a float's YAML text is its repr: exact)."""
+    flight, wheels = scenario.modes, scenario.wheels
+    assert flight is not None and wheels is not None  # the scenario loader checks it (modes need momentum management, hence wheels)
+    return {
+        "mode": mode,
+        "control_period_s": scenario.control_period_s,
+        "initial_mode": MODE_NAMES[flight.initial_mode],
+        "transitions": json.dumps(asdict(flight.transitions)),
+        "wheel_max_speed_rad_s": wheels.per_wheel("max_speed_rad_s").tolist(),
+        # (an empty list has no type in a parameters file: none given is the default, none)
+        **({"requests_at_s": [float(a) for a, _ in flight.requests], "requests_mode": [MODE_NAMES[m] for _, m in flight.requests]}
+           if flight.requests else {}),
+        **asdict(scenario.controller_node.input_bounds()),
+        # each sample's mode: the controller, the momentum node and the recorder
+        "expected_subscribers": [f"{MODE_STATUS.name}=3"],
+        "counts_file": counts_file,
     }
 
 
@@ -420,6 +464,12 @@ def _remaps(scenario: Scenario) -> dict[str, list[str]]:
         remaps[consumer] += relay_remaps(topics)
         if sensor and managing and not estimating:  # the controller's attitude and rate inputs, relayed
             remaps["momentum"] += relay_remaps([STATE_ATTITUDE, STATE_RATE])
+    for topics in _relayed(scenario):  # flight modes: the mode node reads the gyro and the reference, the controller the gyro (SAFE)
+        if scenario.modes is not None and SENSOR_GYRO in topics:
+            remaps["modes"] += relay_remaps([SENSOR_GYRO])
+            remaps["controller"] += relay_remaps([SENSOR_GYRO])
+        if scenario.modes is not None and topics is RELAYED_REFERENCE_TOPICS:
+            remaps["modes"] += relay_remaps(RELAYED_REFERENCE_TOPICS)
     if managing:  # the plant takes the management node's wheel torque as its command (the bag keeps the controller's)
         remaps["plant"] += ["-r", f"{CONTROL_TORQUE.name}:={CONTROL_WHEEL_TORQUE.name}"]
     return remaps
@@ -692,9 +742,9 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
             raise ConfigError(f"{scenario_path}: an orbit (sections orbit, magnetorquers, magnetometer, momentum_management) runs on the "
                               f"graph in lockstep on the native plant only, got {'--realtime' if realtime else f'--plant {plant}'}: "
                               "run it in lockstep, or offline with sappc simulate (docs/how-to/momentum.md)")
-        if scenario.modes is not None:  # issue 49: the mode manager is offline only so far (no mode node yet)
-            raise ConfigError(f"{scenario_path}: flight modes (section modes) fly offline only so far: the graph has no mode node yet, "
-                              "and without one it would fly another flight; run it with sappc simulate (docs/design/modes.md)")
+        if scenario.modes is not None and scenario.estimator is None:  # issue 49: the mode node reads the estimator's health
+            raise ConfigError(f"{scenario_path}: flight modes (section modes) run on the graph with an estimator only (the mode node "
+                              "reads its estimate, covariance and health); run it offline with sappc simulate (docs/design/modes.md)")
         if scenario.estimator is not None and scenario.sensors is None:  # the estimator node reads what sensor models publish
             raise ConfigError(f"{scenario_path}: the estimator reads the sensors' own topics (sensors/gyro, sensors/star_tracker, "
                               "state/attitude_epoch), which the plant publishes with sensor models: add a sensors section "
@@ -704,8 +754,9 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         # the controller's first step, as the node will compute it: a start the core refuses (the
         # 180 deg singularity) stops here with the core's error, before any process starts
         ref0 = scenario.reference.sample([0.0])
-        scenario.build_controller(kind).step(0.0, scenario.control_period_s, scenario.q_BN0, scenario.omega_BN_B0_rad_s,
-                                             ref0.q_RN[0], ref0.omega_RN_R[0], ref0.omegadot_RN_R[0])
+        if scenario.modes is None:  # (with flight modes the law starts at TRACK's entry, clamped: docs/design/modes.md)
+            scenario.build_controller(kind).step(0.0, scenario.control_period_s, scenario.q_BN0, scenario.omega_BN_B0_rad_s,
+                                                 ref0.q_RN[0], ref0.omega_RN_R[0], ref0.omegadot_RN_R[0])
         stamp = time.strftime("%Y%m%d-%H%M%S")
         run_dir = Path(out_dir) if out_dir is not None else default_output_dir("run", f"{scenario.name}-{kind.value}-{stamp}")
         if run_dir.exists() and any(run_dir.iterdir()):
@@ -730,7 +781,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         stall_rule = timeout_s is None and not realtime and not external
         limit = timeout_s if timeout_s is not None else (60.0 + 2.0 * scenario.duration_s if realtime and not external else float("inf"))
         nodes = [n for n in NODES if not (external and n == "plant") and not (n == "estimator" and scenario.estimator is None)
-                 and not (n == "momentum" and scenario.momentum is None)]
+                 and not (n == "momentum" and scenario.momentum is None) and not (n == "modes" and scenario.modes is None)]
 
         def say(msg: str) -> None:
             if progress:

@@ -88,9 +88,9 @@ from sappc_momentum.core.law import N_MM_WORK, MomentumArrays, dipole_mapping, m
 from sappc_modes.core.bdot import N_BDOT_STATE, bdot_step, reset_bdot_state
 from sappc_modes.core.modes import DETUMBLE, HEALTH_OK, HOLD, IN_ERROR, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, R_NONE
 from sappc_modes.core.modes import S_MODE
-from sappc_modes.core.modes import SAFE, TRACK, mode_step
+from sappc_modes.core.modes import SAFE, TRACK, attitude_error_angle, mode_step, sigma_of_covariance, wheel_speed_fraction
 from sappc_modes.core.modes import N_INPUTS as N_MODE_INPUTS, N_STATE as N_MODE_STATE
-from sappc_modes.core.packing import MR_ENTRY, MR_SAMPLES, MR_TRANSITIONS, N_MODE_RUN, ModeArrays, pack_modes
+from sappc_modes.core.packing import MAX_RESTARTS, MR_ENTRY, MR_SAMPLES, MR_TRANSITIONS, N_MODE_RUN, ModeArrays, hold_and_safe_params, pack_modes
 from sappc_momentum.core.predictive import MS_TLAST, MS_TNEXT, N_MM_STATE
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_INACTIVE, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
 from sappc_msgs_py.contract import ESTIMATOR_NO_INPUT
@@ -175,10 +175,6 @@ class LoopRecord(NamedTuple):
 #: the last sample its figures, the controller's starts so far (flight modes: one per entry into TRACK).
 L_STARTED, L_HAS_LAST, L_LAST_STATE_NS, L_HAS_ESTIMATE, L_N_STARTS = 0, 1, 2, 3, 4
 N_LOOP_FLAGS = 5
-#: The restarts of the controller a run may take (flight modes: each entry into TRACK after the
-#: first starts it again, with constants of its own): a flight that leaves TRACK more often than
-#: this (a health cycling through SAFE) continues its last start at each further entry.
-MAX_RESTARTS = 8
 #: Rows of :attr:`LoopState.vec3` (3-vectors): the controller's last answer, the torque through the
 #: actuator link and the delivered one [N m], the plant's held input and the disturbance [N m],
 #: the gyro's bias and its true bias in the sample's rate [rad/s], the orbit's position [m], the
@@ -452,7 +448,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
             mode_in[IN_RATE] = math.sqrt((y[4] * y[4] + y[5] * y[5]) + y[6] * y[6]) if gyro_in else np.nan
             if estimating:
                 mode_in[IN_HEALTH] = eout[EO_MON_LEVEL] if has_estimate else np.nan
-                mode_in[IN_SIGMA] = math.sqrt(max(P[0, 0], max(P[1, 1], P[2, 2]))) if has_estimate else np.nan
+                mode_in[IN_SIGMA] = sigma_of_covariance(P) if has_estimate else np.nan
             else:  # the measurements themselves: healthy while they arrive
                 mode_in[IN_HEALTH] = HEALTH_OK if gyro_in else np.nan
                 mode_in[IN_SIGMA] = 0.0 if gyro_in else np.nan
@@ -460,10 +456,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
             mode_in[IN_WHEEL] = np.nan
             if nw > 0:
                 wheel_speeds_into(x, G, wprm, wspeed)  # the tachometers
-                frac = 0.0
-                for i in range(nw):
-                    frac = max(frac, abs(wspeed[i]) / wprm[i, _W_MAX_SPEED])
-                mode_in[IN_WHEEL] = frac
+                mode_in[IN_WHEEL] = wheel_speed_fraction(wspeed, wprm[:, _W_MAX_SPEED])
             mode_in[IN_REQUEST] = -1.0
             for j in range(md_requests.shape[0]):  # the ground's request of this sample: its first at or after the request's time
                 if t >= md_requests[j, 0] and t - dt < md_requests[j, 0]:
@@ -471,8 +464,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
             mode_in[IN_INHIBIT] = 0.0
             mode_in[IN_ERROR] = np.nan
             if valid:  # the estimate's error against the reference: its rotation angle
-                error_quaternion(grid.ref_q[kb], yc[:4], q_err)
-                mode_in[IN_ERROR] = 2.0 * math.atan2(math.sqrt((q_err[0] * q_err[0] + q_err[1] * q_err[1]) + q_err[2] * q_err[2]), abs(q_err[3]))
+                mode_in[IN_ERROR] = attitude_error_angle(grid.ref_q[kb], yc[:4], q_err)
             reason = mode_step(mode_st, mode_in, md_prm)
             mode = int(mode_st[S_MODE])
             if reason != R_NONE:
@@ -1201,13 +1193,7 @@ def _modes(scenario: Scenario, n: int) -> ModeArrays:
     modes = scenario.modes
     if modes is None:
         return pack_modes(None, n, scenario.control_period_s, coef_shape=(N_COEF, 3))
-    from sappc_controller.core.kernels import P_MRP_K
-    from sappc_controller.core.mrp_feedback import MrpFeedbackConfig
-    from sappc_controller.core.packing import pack_params
-
-    hold = pack_params(MrpFeedbackConfig(tuple(map(tuple, scenario.inertia_kg_m2.tolist())), modes.hold_gains, scenario.actuator), 1)[0]
-    safe = hold.copy()
-    safe[P_MRP_K] = 0.0  # SAFE: the attitude is not trusted, the rate alone is damped
+    hold, safe = hold_and_safe_params(scenario.inertia_kg_m2, modes.hold_gains, scenario.actuator)  # SAFE: no attitude gain
     return pack_modes(modes.transitions, n, scenario.control_period_s, initial_mode=modes.initial_mode,
                       bdot_gain_N_m_s=modes.detumble_gain_N_m_s, hold_prm=hold, safe_prm=safe, hold_on_reference=modes.hold_on_reference,
                       coef_shape=(N_COEF, 3), max_restarts=MAX_RESTARTS, requests=modes.requests)

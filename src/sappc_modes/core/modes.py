@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gnc_common.compiled import jit
+from gnc_common.compiled import error_quaternion, jit
 from gnc_common.validation import ConfigError, check_positive
 
 __all__ = [
@@ -305,3 +305,31 @@ def mode_step(state, inputs, params):  # type: ignore[no-untyped-def]  # a numba
         state[S_RECOVER_N] = 0.0
         state[S_REASON] = reason
     return reason
+
+
+@jit
+def attitude_error_angle(q_RN, q_BN, q_err):  # type: ignore[no-untyped-def]  # a numba kernel
+    """The mode manager's ``IN_ERROR``: the rotation angle [rad] of the attitude ``q_BN`` against the
+    reference ``q_RN`` (``q_err``, (4,), receives the error quaternion ``q_BR`` with ``q_0 >= 0``,
+    :func:`~gnc_common.compiled.error_quaternion`), ``2 atan2(|q_err,v|, |q_err,0|)``.  The offline
+    loop's and the mode node's one formula."""
+    error_quaternion(q_RN, q_BN, q_err)
+    return 2.0 * math.atan2(math.sqrt((q_err[0] * q_err[0] + q_err[1] * q_err[1]) + q_err[2] * q_err[2]), abs(q_err[3]))
+
+
+@jit
+def wheel_speed_fraction(speeds_rad_s, max_speeds_rad_s):  # type: ignore[no-untyped-def]  # a numba kernel
+    """The mode manager's ``IN_WHEEL``: the largest ``|speed_i| / max_speed_i`` of the wheels (0.0 for
+    none: the loop gives NaN without wheels itself).  The offline loop's and the mode node's one formula."""
+    frac = 0.0
+    for i in range(speeds_rad_s.shape[0]):
+        frac = max(frac, abs(speeds_rad_s[i]) / max_speeds_rad_s[i])
+    return frac
+
+
+@jit
+def sigma_of_covariance(P):  # type: ignore[no-untyped-def]  # a numba kernel
+    """The mode manager's ``IN_SIGMA``: the largest attitude 1-sigma [rad] of the estimator's
+    covariance ``P`` (6, 6), ``sqrt(max(P_00, P_11, P_22))``.  The offline loop's and the mode node's one formula."""
+    return math.sqrt(max(P[0, 0], max(P[1, 1], P[2, 2])))
+

@@ -30,6 +30,13 @@ MR_ENTRY, MR_SAMPLES, MR_TRANSITIONS = 0, 4, 8
 N_MODE_RUN = 9
 
 
+#: The restarts of the controller a run may take (flight modes: each entry into TRACK after the
+#: first starts it again, with constants of its own): a flight that leaves TRACK more often than
+#: this (a health cycling through SAFE) continues its last start at each further entry.  The
+#: offline loop's and the controller node's.
+MAX_RESTARTS = 8
+
+
 class ModeArrays(NamedTuple):
     """The modes of a batch: ``prm`` (N, :data:`~sappc_modes.core.modes.N_PARAMS`) the guards
     (:meth:`~sappc_modes.core.modes.ModeConfig.packed`), ``initial`` (N,) each run's first mode,
@@ -101,3 +108,22 @@ def pack_modes(config: ModeConfig | None, n_runs: int, dt_s: float, *, initial_m
     return ModeArrays(prm, np.full(n_runs, float(initial_mode)), bdot, rows(hold_prm), rows(safe_prm),
                       np.full(n_runs, 1.0 if hold_on_reference else 0.0), np.zeros((n_runs, int(max_restarts)) + tuple(coef_shape)),
                       np.zeros(n_runs), np.ascontiguousarray(np.broadcast_to(table, (n_runs,) + table.shape)))
+
+
+def hold_and_safe_params(inertia_kg_m2: Array, gains: object, actuator: object) -> tuple[Array, Array]:
+    """The MRP feedback parameter rows of HOLD and SAFE (:func:`pack_modes`' ``hold_prm`` and
+    ``safe_prm``): Basilisk's mrpFeedback with ``gains`` (a
+    :class:`~sappc_controller.core.mrp_feedback.MrpFeedbackGains`), the inertia [kg m^2] and the
+    actuator (:class:`~sappc_controller.core.common.ActuatorConfig`) of the spacecraft; SAFE the same
+    with no attitude gain (``K = 0``: the attitude is not trusted, the rate alone is damped).  The
+    offline loop's and the controller node's one packing."""
+    from sappc_controller.core.kernels import P_MRP_K
+    from sappc_controller.core.mrp_feedback import MrpFeedbackConfig
+    from sappc_controller.core.packing import pack_params
+
+    J = tuple(map(tuple, np.asarray(inertia_kg_m2, dtype=np.float64).tolist()))
+    hold = pack_params(MrpFeedbackConfig(J, gains, actuator), 1)[0]  # type: ignore[arg-type]
+    safe = hold.copy()
+    safe[P_MRP_K] = 0.0
+    return hold, safe
+
