@@ -15,8 +15,9 @@ messages that Foxglove and PlotJuggler plot, ``estimator/gyro_bias``, ``estimato
 one compiled kernel for the node and the offline loop; its settings are the parameters of
 :data:`~sappc_estimator.params.FILTER_PARAMETERS` (a ROS YAML file: ``--ros-args --params-file
 config/estimator_mekf.yaml``), validated at start-up by the config's own checks: a missing,
-unknown or invalid parameter stops the node with one line naming it (exit status 2).  Every
-parameter is read once, at start-up.
+unknown or invalid parameter stops the node with one line naming it (exit status 2; a managed
+node's configure transition fails instead: "Managed" below).  Every parameter is read once, at
+start-up.
 
 Modes (parameter ``mode``):
 
@@ -76,6 +77,56 @@ invalid input, and they are counted apart (``no_data_inputs``), not among the re
 The closing line and ``timing_file`` count the samples answered, the filter steps, its updates,
 gate rejections and re-initialisations, the "no data" samples, the rejected messages, the inputs
 without data, the future tracker epochs and (real time) the late tracker samples.
+
+Managed (parameter ``managed``, default false; docs/design/modes.md, "Managed nodes"): by default
+the node is configured and active from the start, as described above, and offers no lifecycle
+services.  With ``managed:=true`` it is a ROS 2 managed (lifecycle) node, as the controller is: it
+starts ``unconfigured``, with only ``managed``, ``expected_subscribers`` and ``counts_file``
+declared and nothing subscribed or offered, and is driven through the standard services
+``/<node>/change_state`` and ``/<node>/get_state`` (``lifecycle_msgs/srv/ChangeState``,
+``GetState``; a transition not allowed from the current state is refused with ``success:
+false``):
+
+- configure: everything the plain node does at start-up: the parameters declared and validated
+  into the filter's config, the compiled kernel loaded (a step on throwaway arrays), the inputs
+  subscribed, the outputs offered.  A bad parameter (missing, unknown, invalid) fails the
+  transition and is logged naming it; the node stays ``unconfigured`` (the process lives on).  The
+  node is then ``inactive``.
+- inactive (after configure, or deactivate): the filter is not stepped, but every sample the node
+  would answer is still answered, when it would be (in lockstep once its inputs, and the new
+  tracker sample its epoch names, have arrived), so a plant in lockstep never waits: with the
+  sample's stamp, the contract's "no data" (NaN) on ``estimate/attitude``, ``estimate/rate``,
+  ``estimator/gyro_bias``, ``estimator/attitude_sigma``, ``estimator/bias_sigma`` and
+  ``estimator/covariance`` (as for a sample whose inputs arrived invalid: the controller behind it
+  answers as to its own dropped input), and on ``estimator/diagnostics`` the status
+  :data:`~sappc_msgs_py.contract.ESTIMATOR_INACTIVE` (``inactive``, 7) whatever the sample's inputs
+  (``no_input`` would say they arrived invalid), the sample counted in ``no_data_samples`` (not
+  in ``withheld_samples``: no estimate was made), the filter's own figures (``nis``, its totals,
+  the monitor's level and NIS sum) as its last step left them.  ``diagnostics`` says so at level
+  WARN (message ``inactive: ...``, key ``estimate`` ``withheld``), at once when the node answers
+  its first sample inactive and then once a second of the samples' time.  Inputs are still checked
+  and counted (rejected messages, inputs without data, future tracker epochs, late tracker
+  samples), and the tracker's samples are still taken as the samples name them, so none is applied
+  after activation that belongs to a sample answered inactive.
+- activate: the filter steps again from the next sample.  One that has not stepped since it was
+  built starts as a configured filter does (at its first tracker sample, or from its prior); one
+  deactivated after it had stepped is replaced by a fresh filter from the same config, as a fresh
+  configure would build (not propagated over the gap: its estimate, covariance, bias and monitor
+  afresh, from the next valid sample: the tracker's latest sample, provisional until a new one
+  comes, or the prior), whose totals (updates, gate rejections, re-initialisations, recoveries,
+  drift alarms) go on from the earlier filter's, so the diagnostics' counts stay totals
+  (:meth:`~sappc_estimator.core.estimator.Mekf.restarted`).  The node's own counts go on too.
+- cleanup: the subscriptions, timers and publishers destroyed; ``unconfigured``.  A new configure
+  builds a new filter (and new counts) from the same parameters.
+- shutdown: as cleanup, then ``finalized``; the process ends on SIGINT or SIGTERM, as always.
+
+Design: the lifecycle is :class:`~sappc_msgs_py.runtime.ManagedNode`, as the controller's.
+Start-up is :meth:`EstimatorNode.configure_node`, which the base runs while building a plain node
+and at the configure transition of a managed one: one code path for both, so a plain node is
+exactly what it was.  Every sample is answered by one method, which steps no filter and answers
+``inactive`` whenever the node is not active.  rclpy's ``LifecyclePublisher`` is not used: it
+would drop an inactive estimator's messages, and the controller (and the plant behind it) would
+then wait.
 """
 
 from __future__ import annotations
@@ -102,6 +153,7 @@ from sappc_msgs_py.contract import (
     ESTIMATOR_DIAGNOSTICS_LAYOUT,
     ESTIMATOR_GYRO_BIAS,
     ESTIMATOR_HEALTH,
+    ESTIMATOR_INACTIVE,
     ESTIMATOR_INPUTS,
     ESTIMATOR_NO_INPUT,
     SENSOR_STAR_TRACKER,
@@ -130,7 +182,7 @@ from sappc_msgs_py.inputs import (
     screen_input,
 )
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import COMMON_PARAMETERS, LOCKSTEP, MODE, REALTIME, ProjectNode, StartGate, run_node, unmatched
+from sappc_msgs_py.runtime import COMMON_PARAMETERS, LOCKSTEP, MANAGED, MODE, REALTIME, ManagedNode, StartGate, run_node, unmatched
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
 from sappc_msgs_py import wire
 
@@ -145,6 +197,7 @@ __all__ = ["EstimatorNode", "PARAMETERS", "main"]
 #: follow), in the order the node declares them.
 PARAMETERS = (
     MODE,
+    MANAGED,
     Param("max_stamp_ahead_s", DEFAULT_MAX_STAMP_AHEAD_S, "inputs stamped further ahead of the node's time (lockstep: the latest "
           "/clock; real time: its clock) are rejected", "s", range=WATCHDOG_RANGE_S),
     Param("control_period_s", DEFAULT_CONTROL_PERIOD_S, "real time: a step published later than this after its state's stamp is "
@@ -166,6 +219,11 @@ _HEALTH_MESSAGES = ("consistent: the innovations' window inside its band",
                     "warning: the innovations' window outside its warning band, or recovering",
                     "inconsistent: the innovations' window outside its error band, or their drift test past its threshold",
                     "stale: no tracker sample for longer than tracker_stale_s")
+#: The health's message while the node is inactive (level WARN; module docstring, "Managed").
+_INACTIVE_MESSAGE = "inactive: the estimator is not active (a managed node configured and not activated, or deactivated); no estimate"
+#: The health's remembered level for a report while inactive: a key of its own, so the first
+#: inactive sample is reported at once whatever the monitor's level was (and so is the first after).
+_INACTIVE_KEY = -1
 
 
 def _seconds(ns: int) -> str:
@@ -251,8 +309,8 @@ class TrackerSamples:
         return epoch_ns  # (before any valid sample q is NaN: no measurement)
 
 
-class EstimatorNode(ProjectNode):
-    """See the module docstring."""
+class EstimatorNode(ManagedNode):
+    """See the module docstring (its section "Managed" for the lifecycle)."""
 
     PARAMETERS = PARAMETERS
     COMMAND = "python -m sappc_estimator"
@@ -264,7 +322,13 @@ class EstimatorNode(ProjectNode):
                 ("parameters of every node", COMMON_PARAMETERS)]
 
     def __init__(self, node_name: str = "estimator", **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
+        super().__init__(node_name, **kwargs)  # not managed: configured (configure_node) and active; managed: unconfigured
+
+    def configure_node(self) -> None:
+        """The parameters declared and validated into the filter's config, the compiled kernel
+        loaded, the inputs subscribed and the outputs offered
+        (:class:`~sappc_msgs_py.runtime.ManagedNode`: while the node is built, or at a managed
+        node's configure transition).  Raises ``ConfigError`` naming a bad parameter."""
         self.mode = self.mode_param()
         self.max_ahead_ns = round(check_watchdog_seconds("max_stamp_ahead_s", self.param(_P["max_stamp_ahead_s"])) * NS_PER_S)
         self.dt = check_positive("control_period_s", self.param(_P["control_period_s"]))
@@ -273,6 +337,7 @@ class EstimatorNode(ProjectNode):
         self.check_unknown_overrides()  # after every declaration
         self.filter = Mekf(self.config)
         self.filter.warm_up()  # the compiled kernel loaded now (cache load ~1 s), not at the first sample
+        self._steps_at_filter = 0  # self.steps when this filter was built (a later activation builds a fresh one)
 
         self.pub = {t.name: self.counting_publisher(t, 1 if t in _LOOP_OUTPUTS else 0) for t in ESTIMATOR_TOPICS}
         self._wire = {t.name: wire.codec(t) for t in ESTIMATOR_TOPICS if t is not ESTIMATOR_HEALTH}
@@ -298,7 +363,7 @@ class EstimatorNode(ProjectNode):
         self.latency = LatencyStatistics(self.dt)  # real time: the steps' latency, in bounded memory
         self._diag = np.zeros(len(ESTIMATOR_DIAGNOSTICS_LAYOUT))
         self.withheld = 0  # samples whose estimate was withheld (initialising, unconfirmed)
-        self._health_level: int | None = None  # the level last reported on diagnostics
+        self._health_level: int | None = None  # the level last reported on diagnostics (_INACTIVE_KEY: inactive)
         self._health_t_s = -np.inf  # when [s since the time origin]
         dof = 3 * self.config.monitor_window_samples
         self._band = chi2_band(dof, self.config.monitor_error_probability)
@@ -406,7 +471,7 @@ class EstimatorNode(ProjectNode):
         self._answered_ns = t_ns
         self.samples += 1
         if not sample.valid:
-            self._publish(t_ns, ESTIMATOR_NO_INPUT, figures=False)
+            self._publish(t_ns, ESTIMATOR_NO_INPUT if self.active else ESTIMATOR_INACTIVE, figures=False)
             return
         if self._origin_ns is None:
             self._origin_ns = t_ns
@@ -419,6 +484,9 @@ class EstimatorNode(ProjectNode):
                                       f"({self.future_tracker_epochs} so far)", throttle_duration_sec=1.0)
             self.tracker.refuse(named)
         epoch_ns = self.tracker.use(named)
+        if not self.active:  # managed, inactive: the tracker's sample taken as named, no filter step ("Managed")
+            self._publish(t_ns, ESTIMATOR_INACTIVE, figures=False)
+            return
         status = self.filter.step((t_ns - self._origin_ns) / NS_PER_S, self.tracker.q, omega_meas, (epoch_ns - self._origin_ns) / NS_PER_S)
         self.steps += 1
         # an implausible measurement (a rate beyond max_body_rate_rad_s ...) is no measurement: the
@@ -430,7 +498,7 @@ class EstimatorNode(ProjectNode):
         """The sample's outputs, stamped ``t_ns``: the filter's estimate, or "no data" (NaN) in the
         estimate topics (the controller's inputs) when it has none or withholds it (not confirmed:
         :attr:`Mekf.usable`); its figures (bias, sigmas, covariance) when it has them, else "no data";
-        the diagnostics in every case, the health when due."""
+        the diagnostics in every case, the health when due (``status`` inactive: the health says so)."""
         p = self.pub
         w = self._wire  # every output but the health as CDR bytes (sappc_msgs_py.wire)
         f = self.filter
@@ -451,20 +519,22 @@ class EstimatorNode(ProjectNode):
         d[:] = (t_s, f.nis, status, f.updates, f.rejections, f.reinitialisations, self.no_data, self.rejected,
                 f.monitor_level, f.monitor_nis_sum, f.recoveries, self.withheld)
         p[ESTIMATOR_DIAGNOSTICS.name].publish(w[ESTIMATOR_DIAGNOSTICS.name].encode(None, d))
-        self._report_health(ns_to_stamp(t_ns), t_ns, figures, estimate)
+        self._report_health(ns_to_stamp(t_ns), t_ns, figures, estimate, status == ESTIMATOR_INACTIVE)
 
-    def _report_health(self, stamp: Any, t_ns: int, figures: bool, estimate: bool) -> None:
+    def _report_health(self, stamp: Any, t_ns: int, figures: bool, estimate: bool, inactive: bool = False) -> None:
         """``diagnostics`` (ROS's health convention): the monitor's level and figures, when the level
-        changes and at least every :data:`HEALTH_PERIOD_S` of the samples' time."""
+        changes (or the node becomes inactive, or active again) and at least every
+        :data:`HEALTH_PERIOD_S` of the samples' time; inactive: a warning that says so."""
         f = self.filter
-        level = f.monitor_level if figures else mekf.MON_WARN  # no estimate yet (or no input): a warning
+        level = f.monitor_level if figures else mekf.MON_WARN  # no estimate yet (or no input, or inactive): a warning
         if not estimate and figures:
             level = max(level, mekf.MON_WARN)  # withheld: the controller is not fed
         t_s = (t_ns - (self._origin_ns or 0)) / NS_PER_S  # since the integer origin (0 in lockstep): never absolute time in a float
-        if level == self._health_level and t_s - self._health_t_s < HEALTH_PERIOD_S:
+        key = _INACTIVE_KEY if inactive else level
+        if key == self._health_level and t_s - self._health_t_s < HEALTH_PERIOD_S:
             return
-        self._health_level, self._health_t_s = level, t_s
-        message = _HEALTH_MESSAGES[level] if figures else "no estimate: initialising or no valid input"
+        self._health_level, self._health_t_s = key, t_s
+        message = _HEALTH_MESSAGES[level] if figures else _INACTIVE_MESSAGE if inactive else "no estimate: initialising or no valid input"
         if figures and np.isnan(f.monitor_nis_sum):
             message = "no verdict yet: the innovations' window is filling"
         if figures and not estimate:
@@ -481,6 +551,16 @@ class EstimatorNode(ProjectNode):
         p = self.pub[ESTIMATOR_HEALTH.name]
         p.publish(health_msg(stamp, level, message, values, out=p.msg))
 
+    # ---- lifecycle --------------------------------------------------------------------------
+    def on_activate(self, state: Any) -> Any:
+        """A later activation (the filter had stepped): a fresh filter from the same config, its
+        totals carried on (module docstring, "Managed"); then active, from the next sample."""
+        if self.steps > self._steps_at_filter:
+            self.filter = self.filter.restarted()
+            self._steps_at_filter = self.steps
+            self.get_logger().info("a fresh filter from the same config: it starts again at the next valid sample")
+        return super().on_activate(state)
+
     # ---- the end --------------------------------------------------------------------------
     def statistics(self) -> dict[str, Any]:
         """What the node did: the counts of the closing line, the rejected messages by reason and
@@ -494,6 +574,10 @@ class EstimatorNode(ProjectNode):
                 **({"latency": dict(self.latency.summary())} if self.mode == REALTIME else {})}
 
     def finish(self) -> None:
+        if not self.configurations:
+            self.get_logger().info("finished: never configured (a managed node that received no configure transition, or none succeeded)")
+            super().finish()
+            return
         s = self.statistics()
         self.get_logger().info(f"finished: {s['samples']} samples, {s['steps']} filter steps ({s['updates']} updates, {s['gate_rejections']} "
                                f"gate rejections, {s['reinitialisations']} re-initialisations, {s['recoveries']} recoveries), "

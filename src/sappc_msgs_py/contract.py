@@ -255,6 +255,7 @@ __all__ = [
     "ESTIMATOR_SUBSCRIPTIONS",
     "STATE_ATTITUDE_EPOCH",
     "ESTIMATOR_GYRO_BIAS",
+    "ESTIMATOR_INACTIVE",
     "ESTIMATOR_INPUTS",
     "ESTIMATOR_NO_INPUT",
     "ESTIMATOR_STATUS_NAMES",
@@ -543,10 +544,14 @@ ESTIMATOR_HEALTH_KEYS = ("time_s", "window_samples", "nis_sum_dof", "nis_sum", "
 #: What a sample did (``estimator/diagnostics`` ``status``), by code: the filter's step statuses
 #: (``sappc_estimator.core.mekf.STATUS_NAMES``, codes 0 to 5: not initialised yet, initialised,
 #: propagated only, updated, tracker sample rejected by the gate, attitude re-initialised), then
-#: :data:`ESTIMATOR_NO_INPUT`.
-ESTIMATOR_STATUS_NAMES = ("none", "initialised", "propagated", "updated", "rejected", "reinitialised", "no_input")
+#: :data:`ESTIMATOR_NO_INPUT` and :data:`ESTIMATOR_INACTIVE`.
+ESTIMATOR_STATUS_NAMES = ("none", "initialised", "propagated", "updated", "rejected", "reinitialised", "no_input", "inactive")
 #: The status of a sample whose inputs arrived invalid: no filter step ("no data" published).
 ESTIMATOR_NO_INPUT = 6
+#: The status of a sample answered by an inactive estimator (a managed node configured and not
+#: activated, or deactivated: ``sappc_estimator.node``, "Managed"): no filter step, whatever its
+#: inputs ("no data" published, as for :data:`ESTIMATOR_NO_INPUT`).
+ESTIMATOR_INACTIVE = 7
 
 
 def float_array_carries_time(first_label: str) -> bool:

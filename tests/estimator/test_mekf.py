@@ -469,6 +469,40 @@ def test_a_state_reset_in_place_over_used_arrays_steps_as_fresh_ones_and_keeps_p
         np.testing.assert_array_equal(P, P.T)
 
 
+def test_a_restarted_filter_steps_as_a_new_one_and_carries_its_totals_on() -> None:
+    """:meth:`Mekf.restarted` (the managed estimator node's later activation): a filter that has run
+    through every branch (``every_branch_8s``: gate rejections, a re-initialisation, a recovery),
+    restarted, steps through the same sequence exactly as a new filter of the same config, bit for
+    bit, while its totals (updates, gate rejections, re-initialisations, recoveries, drift alarms;
+    the recoveries' in its outputs too) are the new one's plus the first filter's."""
+    from sappc_estimator.core.estimator import Mekf
+
+    prm, run = parity_case("every_branch_8s")
+    config = mekf_config(monitor_window_samples=SHORT_WINDOW, monitor_persistence=2, max_consecutive_rejections=SHORT_MAX_REJ)
+    assert config.params().tolist() == prm.tolist()
+
+    def totals(f: Mekf) -> list[int]:
+        return [f.updates, f.rejections, f.reinitialisations, f.recoveries, f.drift_alarms]
+
+    def steps(f: Mekf):  # type: ignore[no-untyped-def]
+        for k in range(len(run.t_s)):
+            yield f.step(float(run.t_s[k]), run.y[k, :4], run.y[k, 4:7], float(run.y[k, mekf.Y_EPOCH]))
+
+    first = Mekf(config)
+    for _ in steps(first):
+        pass
+    assert min(first.updates, first.rejections, first.reinitialisations, first.recoveries) > 0
+    restarted, new = first.restarted(), Mekf(config)
+    assert not restarted.initialised and restarted.config is config and totals(restarted) == totals(first)
+    others = np.arange(mekf.N_EST_OUT) != mekf.EO_N_RECOVER
+    for a, b in zip(steps(restarted), steps(new), strict=True):
+        assert a == b
+        np.testing.assert_array_equal(restarted.out[others], new.out[others])
+        np.testing.assert_array_equal(restarted.P, new.P)
+        assert restarted.out[mekf.EO_N_RECOVER] == new.out[mekf.EO_N_RECOVER] + first.recoveries
+    assert totals(restarted) == [a + b for a, b in zip(totals(new), totals(first), strict=True)]
+
+
 def test_the_estimators_arrays_slice_along_their_run_axis() -> None:
     """:class:`mekf.EstimatorArrays` names its per-run field's axis (``run_axes``, called on the
     class and on a batch as the whole-run loop's sub-batches do): runs 1 and 2 of a 3-run batch are

@@ -343,11 +343,13 @@ def test_the_estimate_has_the_types_and_frames_of_the_state_it_replaces() -> Non
         assert f"``{topic.name}``" in (c.__doc__ or ""), topic.name  # in the contract's table
 
 
-def test_the_estimator_status_codes_are_the_kernels_then_no_input() -> None:
+def test_the_estimator_status_codes_are_the_kernels_then_no_input_then_inactive() -> None:
     from sappc_estimator.core import mekf
 
     assert c.ESTIMATOR_STATUS_NAMES[: len(mekf.STATUS_NAMES)] == mekf.STATUS_NAMES
-    assert c.ESTIMATOR_STATUS_NAMES[c.ESTIMATOR_NO_INPUT] == "no_input" and len(c.ESTIMATOR_STATUS_NAMES) == c.ESTIMATOR_NO_INPUT + 1
+    assert c.ESTIMATOR_NO_INPUT == len(mekf.STATUS_NAMES) and c.ESTIMATOR_STATUS_NAMES[c.ESTIMATOR_NO_INPUT] == "no_input"
+    assert c.ESTIMATOR_INACTIVE == c.ESTIMATOR_NO_INPUT + 1 and c.ESTIMATOR_STATUS_NAMES[c.ESTIMATOR_INACTIVE] == "inactive"
+    assert len(c.ESTIMATOR_STATUS_NAMES) == c.ESTIMATOR_INACTIVE + 1
 
 
 def test_the_covariance_round_trips_row_major_with_labelled_dimensions() -> None:

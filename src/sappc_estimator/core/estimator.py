@@ -19,6 +19,9 @@ __all__ = ["Mekf"]
 
 Array = NDArray[np.float64]
 
+#: The filter state's totals (counts since the filter started), which :meth:`Mekf.restarted` carries on.
+_TOTALS = [mekf.ES_N_UPD, mekf.ES_N_REJ, mekf.ES_N_REINIT, mekf.ES_N_RECOVER, mekf.ES_N_DRIFT]
+
 
 class Mekf:
     """A multiplicative EKF (``docs/estimator.md``), stepped one sample at a time.
@@ -56,6 +59,16 @@ class Mekf:
         second), not at the first sample; this filter's state is not touched."""
         at_rest = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0])  # identity attitude, at rest, measured at t = 0
         mekf.mekf_step(self.prm, 0.0, at_rest, mekf.new_state(), np.zeros((6, 6)), np.zeros_like(self.work), np.empty(mekf.N_EST_OUT))
+
+    def restarted(self) -> Mekf:
+        """A fresh filter of the same config (not initialised: ``Mekf(self.config)``) whose totals go
+        on from this one's: the tracker samples accepted and gated out, the re-initialisations, the
+        recoveries and the drift alarms.  The kernel only ever adds to these counts (no step reads
+        them), so the fresh filter steps exactly as a new one, bit for bit, its outputs but the
+        recoveries' total included (the managed estimator node's later activation)."""
+        fresh = Mekf(self.config)
+        fresh.st[_TOTALS] = self.st[_TOTALS]
+        return fresh
 
     def step(self, t_s: float, q_meas: ArrayLike, omega_meas: ArrayLike, epoch_s: float) -> int:
         """One filter step at time ``t_s`` [s] with the tracker's ``q_meas`` (x, y, z, w), measured
