@@ -14,7 +14,9 @@ not built yet and the node refuses it):
 
 and publishes the sample's mode on ``mode/status`` (:data:`~sappc_msgs_py.contract.MODE_STATUS_LAYOUT`:
 the time [s], the mode, the reason of the transition taken at the sample), which the controller
-and the momentum node take as one more input of the sample.  The transition kernel is
+and the momentum node take as one more input of the sample, and the mode in words on ROS's
+``diagnostics`` (``sappc_msgs_py.contract.MODE_HEALTH_NAME``: at each transition and at least once a
+second of the samples' time; ERROR in SAFE, else OK).  The transition kernel is
 :func:`sappc_modes.core.modes.mode_step`, fed exactly as the offline loop feeds it
 (:func:`sappc.offline.compiled_loop._run_one`'s docstring, "Flight modes"): the gyro's rate
 magnitude (NaN when its sample is "no data" or not finite), the monitor's level and the largest
@@ -48,15 +50,15 @@ from rcl_interfaces.msg import SetParametersResult
 from gnc_common.validation import ConfigError, as_finite_array, from_mapping
 from sappc_controller.core.input_check import InputBounds, sample_verdicts
 from sappc_modes.core.modes import (
-    HOLD, IN_ERROR, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, INHIBIT_ACQUIRED, INHIBIT_DETUMBLED,
-    INHIBIT_RECOVERED, INHIBIT_SAFE, MODE_NAMES, N_INPUTS, REASON_NAMES, R_NONE, S_MODE, ModeConfig, attitude_error_angle, mode_step,
+    HEALTH_ERROR, HEALTH_OK, HOLD, IN_ERROR, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, INHIBIT_ACQUIRED, INHIBIT_DETUMBLED,
+    INHIBIT_RECOVERED, INHIBIT_SAFE, MODE_NAMES, N_INPUTS, REASON_NAMES, R_NONE, S_MODE, S_REASON, SAFE, ModeConfig, attitude_error_angle, mode_step,
     new_mode_state, sigma_of_covariance, wheel_speed_fraction,
 )
 from sappc_msgs_py import wire
 from sappc_msgs_py.contract import (ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS, ESTIMATOR_DIAGNOSTICS_LAYOUT,
-                                    MODE_STATUS, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, SENSOR_GYRO, STATE_WHEEL_SPEED,
+                                    ESTIMATOR_HEALTH, MODE_HEALTH_NAME, MODE_STATUS, REFERENCE_ACCELERATION, REFERENCE_ATTITUDE, REFERENCE_RATE, SENSOR_GYRO, STATE_WHEEL_SPEED,
                                     Topic, qos_profile)
-from sappc_msgs_py.convert import cdr_stamp_ns, time_to_ns
+from sappc_msgs_py.convert import cdr_stamp_ns, health_msg, ns_to_stamp, time_to_ns
 from sappc_msgs_py.inputs import NS_PER_S
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, run_node
@@ -72,6 +74,9 @@ INHIBITS = {"detumbled": INHIBIT_DETUMBLED, "acquired": INHIBIT_ACQUIRED, "safe"
 #: orientation and its covariance: :func:`sappc_msgs_py.wire.gyro_values`).
 _IMU_OMEGA = 13
 _MONITOR_LEVEL = ESTIMATOR_DIAGNOSTICS_LAYOUT.index("monitor_level")
+#: The longest time [s of the samples' stamps] between two reports on ``diagnostics`` while the mode
+#: does not change: 1 s, ROS's diagnostic_updater's period (the estimator's too); a transition is reported at once.
+HEALTH_PERIOD_S = 1.0
 
 PARAMETERS = (
     MODE,
@@ -172,6 +177,10 @@ class ModeNode(ProjectNode):
         self.transitions = 0
         self.rejected = 0
         self.pub_status = self.counting_publisher(MODE_STATUS, 1)
+        self.pub_health = self.counting_publisher(ESTIMATOR_HEALTH, 1)  # ROS's diagnostics topic (the estimator's too)
+        self._health_msg: Any = None  # the DiagnosticArray, reused
+        self._health_t_s = -math.inf  # the samples' time of the last report [s]
+        self._since_s = 0.0  # the current mode's entry [s]
         self._wire_status = wire.codec(MODE_STATUS)
         qos = qos_profile()
         for topic in INPUTS:
@@ -256,11 +265,29 @@ class ModeNode(ProjectNode):
         mode_in[IN_ERROR] = attitude_error_angle(q_r, q, self._q_err) if valid else math.nan
         reason = int(mode_step(self._state, mode_in, self._prm))
         mode = int(self._state[S_MODE])
+        t_s = t_ns / NS_PER_S
         if reason != R_NONE:
             self.transitions += 1
-            self.get_logger().info(f"t = {t_ns / NS_PER_S:.2f} s: {MODE_NAMES[mode]} ({REASON_NAMES[reason]})")
-        self.pub_status.publish(self._wire_status.encode(None, [t_ns / NS_PER_S, float(mode), float(reason)]))
+            self._since_s = t_s
+            self.get_logger().info(f"t = {t_s:.2f} s: {MODE_NAMES[mode]} ({REASON_NAMES[reason]})")
+        self.pub_status.publish(self._wire_status.encode(None, [t_s, float(mode), float(reason)]))
+        if reason != R_NONE or self.samples == 0 or t_s - self._health_t_s >= HEALTH_PERIOD_S:
+            self._report(t_ns, mode)
         self.samples += 1
+
+    def _report(self, t_ns: int, mode: int) -> None:
+        """``diagnostics`` (ROS's health convention): the mode in words, at each transition and at
+        least every :data:`HEALTH_PERIOD_S` of the samples' time; ERROR in SAFE, else OK."""
+        t_s = t_ns / NS_PER_S
+        self._health_t_s = t_s
+        entry = REASON_NAMES[int(self._state[S_REASON])] if self.transitions else "initial"
+        values = {"time_s": f"{t_s:.9f}", "mode": MODE_NAMES[mode], "since_s": f"{self._since_s:.9f}", "reason": entry,
+                  "transitions": str(self.transitions), "inhibit": ",".join(n for n, f in INHIBITS.items() if self._inhibit & f)}
+        level = HEALTH_ERROR if mode == SAFE else HEALTH_OK
+        message = f"{MODE_NAMES[mode]} since {self._since_s:.2f} s ({entry})" + (": the mission is interrupted" if mode == SAFE else "")
+        self._health_msg = health_msg(ns_to_stamp(t_ns), level, message, values, out=self._health_msg, name=MODE_HEALTH_NAME,
+                                      hardware_id="sappc_modes")
+        self.pub_health.publish(self._health_msg)
 
     def finish(self) -> None:
         self.get_logger().info(f"finished: {self.samples} samples, {self.transitions} transitions, last mode "

@@ -146,7 +146,8 @@ the momentum node take it as one more input of the sample (lockstep: paired by i
 TRACK the controller answers ``inactive`` with the mode's law (HOLD, SAFE: MRP feedback) and the
 momentum node commands B-dot on the rods in DETUMBLE.  Why this type: a number per sample that a
 lockstep consumer pairs with the sample, in the contract's convention for arrays, plotted by every
-tool; ``diagnostics`` carries the mode in words for people.
+tool; ``diagnostics`` carries the mode in words for people (:data:`MODE_HEALTH_NAME`, at each
+transition and at least once a second of the samples' time).
 
 Frames (:class:`Frame`): ``inertial`` (N, the fixed parent), ``body`` (B) and ``reference`` (R, the
 desired attitude).  The two transform topics make the attitude visible to tf-style tools (Foxglove's
@@ -197,6 +198,8 @@ __all__ = [
     "CONTROLLER_INPUTS",
     "DIPOLE_LABEL_PREFIX",
     "MOMENTUM_TOPICS",
+    "MODE_HEALTH_KEYS",
+    "MODE_HEALTH_NAME",
     "MODE_STATUS",
     "MODE_STATUS_LAYOUT",
     "STATE_MAGNETIC_FIELD",
@@ -530,6 +533,13 @@ ESTIMATOR_DIAGNOSTICS_LAYOUT = (
     "recoveries",  # bias recoveries after a failed monitor
     "withheld_samples",  # samples whose estimate was withheld from the controller (published as "no data")
 )
+#: The name of the mode manager's status in ``diagnostics`` (:data:`ESTIMATOR_HEALTH`'s topic, ROS's
+#: one health topic: the mode node publishes there too), level OK but in SAFE (ERROR: the mission
+#: is interrupted), its key/values :data:`MODE_HEALTH_KEYS`.
+MODE_HEALTH_NAME = "sappc_modes: flight mode"
+#: The key/values of that status, in order: the sample's time [s], the mode, since when [s], the
+#: reason of its entry, the transitions so far, the ground's inhibits (names, comma-separated).
+MODE_HEALTH_KEYS = ("time_s", "mode", "since_s", "reason", "transitions", "inhibit")
 #: The name of the estimator's status in ``diagnostics`` (:data:`ESTIMATOR_HEALTH`).
 ESTIMATOR_HEALTH_NAME = "sappc_estimator: MEKF health"
 #: The key/values of that status, in order: the sample's time [s], the monitor's window (compared

@@ -375,9 +375,11 @@ def epoch_from_msg(msg: Any, topic: Topic) -> int:
     return stamp_to_ns(msg.time_ref)
 
 
-def health_msg(t_s: Any, level: int, message: str, values: dict[str, str], out: Any = None) -> Any:
-    """The estimator's health as ROS reports health: a ``diagnostic_msgs/DiagnosticArray`` of one
-    ``DiagnosticStatus`` (:data:`~sappc_msgs_py.contract.ESTIMATOR_HEALTH_NAME`, ``level`` 0 OK, 1
+def health_msg(t_s: Any, level: int, message: str, values: dict[str, str], out: Any = None, *, name: str | None = None,
+               hardware_id: str = "sappc_estimator") -> Any:
+    """A node's health as ROS reports health: a ``diagnostic_msgs/DiagnosticArray`` of one
+    ``DiagnosticStatus`` (``name``, by default the estimator's
+    :data:`~sappc_msgs_py.contract.ESTIMATOR_HEALTH_NAME`, and ``hardware_id``; ``level`` 0 OK, 1
     WARN, 2 ERROR, ``message``, ``values`` as key/values in their order), the header of the sample
     ``t_s`` (seconds or a stamp).  Into ``out`` (an array from this function) when given."""
     from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -387,7 +389,7 @@ def health_msg(t_s: Any, level: int, message: str, values: dict[str, str], out: 
     msg = ESTIMATOR_HEALTH.msg_class() if out is None else out
     time_to_stamp(t_s, out=msg.header.stamp)
     if not msg.status:
-        msg.status = [DiagnosticStatus(name=ESTIMATOR_HEALTH_NAME, hardware_id="sappc_estimator")]
+        msg.status = [DiagnosticStatus(name=ESTIMATOR_HEALTH_NAME if name is None else name, hardware_id=hardware_id)]
     status = msg.status[0]
     status.level = bytes([int(level)])
     status.message = message

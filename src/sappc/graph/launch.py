@@ -42,6 +42,7 @@ from sappc_controller.params import parameters_from_config, unflatten
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
 from sappc_modes.core.modes import MODE_NAMES
 from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS,
+                                    ESTIMATOR_HEALTH,
                                     MODE_STATUS, REFERENCE_ATTITUDE, RELAYED_REFERENCE_TOPICS, SENSOR_GYRO, STATE_MAGNETIC_FIELD, STATE_WHEEL_SPEED,
                                     TRUTH_MAGNETIC_FIELD, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
                                     RELAYED_PATHS, RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR, STATE_ATTITUDE,
@@ -427,7 +428,7 @@ def _mode_parameters(scenario: Scenario, mode: str, counts_file: str) -> dict[st
            if flight.requests else {}),
         **asdict(scenario.controller_node.input_bounds()),
         # each sample's mode: the controller, the momentum node and the recorder
-        "expected_subscribers": [f"{MODE_STATUS.name}=3"],
+        "expected_subscribers": [f"{MODE_STATUS.name}=3", f"{ESTIMATOR_HEALTH.name}=1"],  # (diagnostics: the mode in words, the recorder)
         "counts_file": counts_file,
     }
 
