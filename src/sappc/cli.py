@@ -295,12 +295,18 @@ def _print_outcome(scenario: Any, metrics: dict[str, Any], controller: dict[str,
         print(f"controller: computed the torque of {controller['commanded']} of {controller['samples']} samples"
               + (f"; not commanded: {others}" if others else "")
               + (f"; {rejected} input messages rejected" if rejected is not None else ""))
+    _print_modes(metrics)
+    return failed_requirements(metrics, scenario.metrics.requirements, controller, settle_threshold=scenario.metrics.settle_threshold)
+
+
+def _print_modes(metrics: dict[str, Any]) -> None:
+    """The flight modes' line of a run with flight modes (``sappc simulate``, ``run``, ``report``): the
+    modes flown, the transitions, TRACK's start and the time in each mode; nothing without modes."""
     if "mode_sequence" in metrics:
         times = metrics["time_in_mode_s"]
         print("modes: " + " -> ".join(metrics["mode_sequence"]) + f" ({metrics['mode_transitions']} transitions"
               + ("" if metrics["time_to_track_s"] is None else f"; TRACK from {metrics['time_to_track_s']:.2f} s")
               + "; time in " + ", ".join(f"{name} {s:.1f} s" for name, s in times.items() if s > 0.0) + ")")
-    return failed_requirements(metrics, scenario.metrics.requirements, controller, settle_threshold=scenario.metrics.settle_threshold)
 
 
 def _print_verdict(scenario: Any, failed: Sequence[str], degraded: str = "") -> None:
@@ -401,7 +407,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     # a line at least every 2 s to the last (issue 46): reading the bag back, aligning it, its metrics
     with Ticker(lambda msg: print(f"sappc run: {msg}", file=sys.stderr, flush=True)) as ticker:
         settings: dict[str, Any] = {"steady_from_s": ms.steady_from_s, "settle_threshold": ms.settle_threshold, "t2_s": ms.t2_s,
-                    "fault_windows": scenario.event_windows(), "orbit_bins": scenario.orbit_bins()}
+                    "fault_windows": scenario.event_windows(), "orbit_bins": scenario.orbit_bins(), "origin": ms.origin}
         frames_lacking = None
         if args.realtime:  # the frames' own-stamp check reads every message: the bag whole (a real-time run is minutes)
             bag = read_bag(result.bag_dir, ticker=ticker)
@@ -621,6 +627,7 @@ def _report(args: argparse.Namespace, analyse_bag: Any, write_report: Any, worke
         print(f"  note: {line}")
     if a.metrics is not None:
         _print_metrics(a.scenario.name if a.scenario else a.path.name, a.label, a.metrics)
+        _print_modes(a.metrics)
     out = Path(args.out) if args.out else default_output_dir("report", bag_run_name(args.bag))
     paths = write_report(a, out, worker=worker)
     print(f"wrote {paths[-1]} and {len(paths) - 1} figure(s) in {out}")

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sappc_msgs_py.contract import CLOCK, ESTIMATOR_TOPICS, FAULT_TOPICS, MOMENTUM_TOPICS, OPTIONAL_TOPICS, TOPICS, TRANSFORM_TOPICS, WHEEL_STATES, Topic
+from sappc_msgs_py.contract import (CLOCK, ESTIMATOR_TOPICS, FAULT_TOPICS, MODE_STATUS, MOMENTUM_TOPICS, OPTIONAL_TOPICS, TOPICS, TRANSFORM_TOPICS,
+                                    WHEEL_STATES, Topic)
 from sappc_controller.params import parameters_from_yaml
 from gnc_common.validation import ConfigError, safe_load_yaml
 
@@ -123,7 +124,7 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None, block_b
     windows = sc.event_windows() if sc else []
     wheels = sc.wheels if sc else None
     measured = blocks.measure(steady_from_s=settings.steady_from_s, settle_threshold=settings.settle_threshold, t2_s=settings.t2_s,
-                              fault_windows=windows, orbit_bins=sc.orbit_bins() if sc else None,
+                              fault_windows=windows, orbit_bins=sc.orbit_bins() if sc else None, origin=settings.origin,
                               figures=lambda t_end_s: figure_sink(t_end_s, wheels=wheels))
     bag = measured.bag
 
@@ -136,9 +137,12 @@ def analyse_bag(path: str | Path, *, scenario: str | Path | None = None, block_b
             notes.append(f"{topic}: frame id(s) {list(frames)}, the contract says {spec.frame_id!r}")
     # /clock and the frames (state/tf, reference/tf: for viewers, not decoded here) are no input of the analysis
     # joint_states only from a plant with reaction wheels, truth/* only from one with sensor models
-    # (the orbit's topics, MOMENTUM_TOPICS, each only from a run that has its model: optional here)
+    # (the orbit's topics, MOMENTUM_TOPICS, each only from a run that has its model: optional here;
+    # mode/status only from a run with flight modes)
     optional = tuple(t for t in OPTIONAL_TOPICS if sc is None or t in MOMENTUM_TOPICS or (t is WHEEL_STATES and sc.wheels is None)
-                     or (t is not WHEEL_STATES and sc.sensors is None) or (t in ESTIMATOR_TOPICS and sc.estimator is None))
+                     or (t is MODE_STATUS and sc.modes is None)
+                     or (t is not WHEEL_STATES and t is not MODE_STATUS and sc.sensors is None)
+                     or (t in ESTIMATOR_TOPICS and sc.estimator is None))
     missing = [t.name for t in TOPICS if t.name != CLOCK.name and t not in TRANSFORM_TOPICS + optional and find_topic(bag, t.name) is None]
     if missing:
         notes.append(f"topics absent from the bag: {', '.join(missing)}")

@@ -43,7 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sappc_msgs_py.contract import (CONTROLLER_DIAGNOSTICS, ESTIMATOR_DIAGNOSTICS, ESTIMATOR_DIAGNOSTICS_LAYOUT, FAULT_PREFIX,
-                                    REFERENCE_ATTITUDE, STATE_ATTITUDE, STATE_RATE, TRUTH_ATTITUDE, TRUTH_RATE)
+                                    MODE_STATUS_LAYOUT, REFERENCE_ATTITUDE, STATE_ATTITUDE, STATE_RATE, TRUTH_ATTITUDE, TRUTH_RATE)
 
 from sappc.bag.cdr import DECODERS, Decoded, decode
 from sappc.bag.errors import BagError
@@ -526,11 +526,11 @@ class BagBlocks:
 
     def diagnostics_labels(self) -> tuple[str, ...]:
         """As :func:`~sappc.bag.read.read_bag`: the labels of the first float array (in channel order)
-        whose first is ``time_s`` and that is not the estimator's."""
+        whose first is ``time_s`` and that is neither the estimator's nor the mode's."""
         for t in self._topics.values():
             lab = t.labels or ()
             if t.channel.schema_name == CONTROLLER_DIAGNOSTICS.type_name and lab[:1] == ("time_s",) \
-                    and lab != ESTIMATOR_DIAGNOSTICS_LAYOUT:
+                    and lab != ESTIMATOR_DIAGNOSTICS_LAYOUT and lab != MODE_STATUS_LAYOUT:
                 return lab
         return ()
 
@@ -583,9 +583,11 @@ class BagBlocks:
     # ---- the driver --------------------------------------------------------------------------------
 
     def measure(self, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]],
-                orbit_bins: Any = None, figures: Callable[[float], FigureSink] | None = None) -> MeasuredBag:
+                orbit_bins: Any = None, figures: Callable[[float], FigureSink] | None = None, origin: str = "first_track") -> MeasuredBag:
         """The run's metrics and per-orbit table (:func:`~sappc.bag.read.bag_metrics`'s), its
-        History for the figures, read a block at a time (:meth:`blocks`).
+        History for the figures, read a block at a time (:meth:`blocks`).  ``origin``: with flight
+        modes (a bag with ``mode/status``), where the tracking metrics count from (the scenario's
+        ``metrics.origin``, :class:`~sappc.evaluation.metrics.MetricsAccumulator`'s).
 
         ``figures``: given the run's last sample time [s], the sink the History blocks are fed to,
         whose :meth:`FigureSink.history` is the :class:`~sappc.bag.read.BagRun`'s ``history``
@@ -600,7 +602,7 @@ class BagBlocks:
         from sappc.evaluation.metrics import MetricsAccumulator
 
         settings: dict[str, Any] = {"steady_from_s": steady_from_s, "settle_threshold": settle_threshold, "t2_s": t2_s,
-                                    "fault_windows": fault_windows}
+                                    "fault_windows": fault_windows, "origin": origin}
         try:
             if self.problem is not None:
                 for _ in self.blocks():  # the counts, the layouts: no sample

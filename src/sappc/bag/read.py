@@ -11,6 +11,10 @@ truth even when a fault relay feeds the controller; ``truth/attitude`` and ``tru
 plant has sensor models and ``state/*`` are its measurements): the reference is interpolated at each stamp
 (exact when the stamps coincide, as in lockstep), torques, disturbances and diagnostics are the
 latest at or before it (zero-order hold, as the plant applies them).
+
+Flight modes: a bag with ``mode/status`` (whoever wrote it: ``sappc simulate --record`` or the
+graph's mode node) gives each sample's mode and transition reason (:func:`_mode_record`), as the
+offline loop records them; a bag without it has no mode record (``History.mode`` ``None``).
 """
 
 from __future__ import annotations
@@ -53,6 +57,8 @@ from sappc_msgs_py.contract import (
     TRUTH_RATE,
     WHEEL_STATES,
     CONTROL_DIPOLE,
+    MODE_STATUS,
+    MODE_STATUS_LAYOUT,
     STATE_MAGNETIC_FIELD,
     TRUTH_MAGNETIC_FIELD,
     consumed_names,
@@ -275,8 +281,9 @@ def read_bag(path: str | Path, *, ticker: Ticker | None = None) -> Bag:
         if d is None:
             continue
         series[channel.topic] = Series(d.stamps_ns, d.values, log_time[d.index])
-        # the controller's diagnostics: time_s first, not the estimator's (joint_states' labels are its joint names)
-        if channel.schema_name == CONTROLLER_DIAGNOSTICS.type_name and d.labels[:1] == ("time_s",) and d.labels != ESTIMATOR_DIAGNOSTICS_LAYOUT:
+        # the controller's diagnostics: time_s first, not the estimator's nor the mode's (joint_states' labels are its joint names)
+        if channel.schema_name == CONTROLLER_DIAGNOSTICS.type_name and d.labels[:1] == ("time_s",) and d.labels != ESTIMATOR_DIAGNOSTICS_LAYOUT \
+                and d.labels != MODE_STATUS_LAYOUT:
             labels = labels or d.labels
         frame_ids[channel.topic] = d.frame_ids
         if channel.schema_name == ESTIMATOR_DIAGNOSTICS.type_name:
@@ -447,7 +454,7 @@ def aligned_topics(bag: Bag) -> tuple[str, ...]:
     found = state_topics(bag)
     names = (DISTURBANCE_TORQUE, CONTROLLER_DIAGNOSTICS, WHEEL_STATES, TRUTH_GYRO_BIAS, STATE_MAGNETIC_FIELD, TRUTH_MAGNETIC_FIELD,
              CONTROL_DIPOLE, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_GYRO_BIAS, ESTIMATOR_ATTITUDE_SIGMA, ESTIMATOR_BIAS_SIGMA,
-             ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS)
+             ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS, MODE_STATUS)
     topics = [found["att"], found["rate"], found["ref"], torque_topic(bag)] + [find_topic(bag, t.name) for t in names]
     return tuple(dict.fromkeys(t for t in topics if t is not None))
 
@@ -529,8 +536,39 @@ def aligned(bag: Bag, common: NDArray[np.int64], t0_ns: int) -> tuple[History, N
         **_wheel_records(bag, common),
         estimate=_estimate_record(bag, common),
         orbit=_orbit_record(bag, common),
+        **_mode_record(bag, common),
     )
     return history, answer, bool(rows)
+
+
+def _mode_record(bag: Bag, stamps_ns: NDArray[np.int64]) -> dict[str, Any]:
+    """``mode`` and ``mode_reason`` (T, 1) int8 from ``mode/status`` at the state stamps, as the
+    offline loop records them (:attr:`~sappc.evaluation.history.History.mode`); nothing when the bag
+    has no ``mode/status`` (a run without flight modes).
+
+    Each sample takes the message of its own stamp (``data[0]``, float seconds: exact in lockstep,
+    within :data:`STAMP_TOL_NS` in real time); a sample without one (a message lost in real time)
+    keeps the mode of the latest message before it (a mode holds until a transition), or, before
+    the first message, the first message's, and no reason (``R_NONE``, 0: a transition taken at a
+    sample whose message is missing is not known).  The columns are found by their labels
+    (``layout.dim[0]``): a float array on that name without ``time_s`` first and a ``mode`` and a
+    ``reason`` gives no mode record."""
+    topic = find_topic(bag, MODE_STATUS.name)
+    if topic is None:
+        return {}
+    s = bag.series[topic]
+    labels = bag.array_labels.get(topic) or MODE_STATUS_LAYOUT
+    if labels[:1] != MODE_STATUS_LAYOUT[:1] or "mode" not in labels or "reason" not in labels or s.stamps_ns.size == 0 \
+            or s.values.shape[1] < len(labels):
+        return {}
+    own = nearest_index(s.stamps_ns, stamps_ns)
+    exact = own >= 0
+    held = latest_index(s.stamps_ns, stamps_ns)
+    first = int(np.argmin(s.stamps_ns))  # (the first of the least stamps: argmin's)
+    i = np.where(exact, own, np.where(held >= 0, held, first))
+    mode = s.values[i, labels.index("mode")]
+    reason = np.where(exact, s.values[i, labels.index("reason")], 0.0)
+    return {"mode": mode.astype(np.int8)[:, None], "mode_reason": reason.astype(np.int8)[:, None]}
 
 
 def _rejected_count(bag: Bag, diag_topic: str | None, labels: tuple[str, ...]) -> int:
@@ -722,16 +760,18 @@ def bag_estimate(bag: Bag) -> BagEstimate | None:
 
 
 def bag_metrics(bag: Bag, *, steady_from_s: float, settle_threshold: float, t2_s: float, fault_windows: list[tuple[float, float]],
-                run: BagRun | None = None, orbit_bins: Any = None, ticker: Ticker | None = None) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+                run: BagRun | None = None, orbit_bins: Any = None, ticker: Ticker | None = None,
+                origin: str = "first_track") -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The metrics of :mod:`sappc.evaluation.metrics` for the run in ``bag`` (``run``: its alignment,
     if made already), and its per-orbit metrics (``orbit_bins``: a scenario in orbit's,
-    :meth:`sappc.scenario.Scenario.orbit_bins`; none without).  ``ticker``: the computation is its
-    step "computing the metrics"."""
+    :meth:`sappc.scenario.Scenario.orbit_bins`; none without).  ``origin``: with flight modes (a bag
+    with ``mode/status``), where the tracking metrics count from (the scenario's ``metrics.origin``).
+    ``ticker``: the computation is its step "computing the metrics"."""
     run = run or bag_run(bag, ticker=ticker)
     if ticker is not None:
         ticker.step("computing the metrics")
     acc = MetricsAccumulator(run.history.t, 1, steady_from_s=steady_from_s, settle_threshold=settle_threshold, t2_s=t2_s,
-                             fault_windows=fault_windows, orbit_bins=orbit_bins)
+                             fault_windows=fault_windows, orbit_bins=orbit_bins, origin=origin)
     acc.add_history(run.history)
     metrics = acc.run_metrics(0)
     if not run.has_diagnostics:  # no rho, band or saturation flags: these are unknown, not zero

@@ -69,6 +69,11 @@ Topics, and what each holds (the names are resolved in the root namespace, ``/st
 ``state/magnetic_field``, ``truth/magnetic_field``, ``control/dipole``
     In orbit: the flight software's field with the magnetometer's variance (zero without one),
     the true field (with a magnetometer), the rods' commands (momentum management only).
+``mode/status``
+    With flight modes: each sample's mode and the reason of the transition taken at it (the
+    History's ``mode`` and ``mode_reason``), ``data[0]`` the sample's time, as the mode node
+    publishes them (:data:`~sappc_msgs_py.contract.MODE_STATUS_LAYOUT`); a scenario without
+    modes has no such channel.
 
 Not written, because the record does not hold them: the sensors' own topics
 (``sensors/gyro``, ``sensors/star_tracker``, ``state/attitude_epoch``) and, with sensor models,
@@ -110,6 +115,7 @@ from sappc_msgs_py.contract import (
     ESTIMATOR_DIAGNOSTICS,
     ESTIMATOR_GYRO_BIAS,
     FAULT_TOPICS,
+    MODE_STATUS,
     REFERENCE_ACCELERATION,
     REFERENCE_ATTITUDE,
     REFERENCE_RATE,
@@ -182,6 +188,8 @@ def offline_topics(scenario: Scenario) -> tuple[Topic, ...]:
             wanted.add(TRUTH_MAGNETIC_FIELD)
     if managing:
         wanted |= {STATE_WHEEL_SPEED, CONTROL_DIPOLE}
+    if scenario.modes is not None:
+        wanted.add(MODE_STATUS)
     return tuple(t for t in TOPICS + FAULT_TOPICS if t in wanted)
 
 
@@ -216,6 +224,7 @@ def _payload(topic: Topic, scenario: Scenario) -> wire.Layout:
         STATE_MAGNETIC_FIELD: lambda: wire.magnetic_field(STATE_MAGNETIC_FIELD, "B_meas", _magnetometer_variance(scenario)),
         TRUTH_MAGNETIC_FIELD: lambda: wire.magnetic_field(TRUTH_MAGNETIC_FIELD, "B_B", np.zeros(3)),
         CONTROL_DIPOLE: lambda: wire.dipole(_n_rods(scenario)),
+        MODE_STATUS: wire.mode_status,
     }
     return layouts[topic]()
 
@@ -238,15 +247,20 @@ def _n_rods(scenario: Scenario) -> int:
 def controller_parameters(scenario: Scenario, controller: ControllerKind | str | None = None) -> dict[str, Any]:
     """The controller node's ROS parameters of a lockstep graph run of ``scenario``
     (``{"/controller": {"ros__parameters": ...}}``: the controller's configuration, its period,
-    mode, watchdog and input bounds, as :func:`sappc.graph.launch.node_parameters` gives them, but
-    the graph's plumbing: expected subscribers, counts and timing files)."""
+    mode, watchdog and input bounds, with flight modes HOLD's and SAFE's gains, as
+    :func:`sappc.graph.launch.node_parameters` gives them, but the graph's plumbing: expected
+    subscribers, counts and timing files)."""
     kind = scenario.resolve_controller(controller)
+    flight = scenario.modes
     params = {
         **unflatten(parameters_from_config(kind.value, scenario.controller_config(kind))),
         "control_period_s": scenario.control_period_s,
         "mode": "lockstep",
         "stale_timeout_s": scenario.controller_node.stale_timeout_s,
         **dataclasses.asdict(scenario.controller_node.input_bounds()),
+        **({"flight_modes": True, "hold_K_Nm": flight.hold_gains.K_Nm, "hold_P_Nms": flight.hold_gains.P_Nms,
+            "hold_integralLimit_Nms": flight.hold_gains.integralLimit_Nms, "hold_Ki_per_kg_m2": flight.hold_gains.Ki_per_kg_m2,
+            "hold_attitude": "reference" if flight.hold_on_reference else "entry"} if flight is not None else {}),
     }
     return {"/controller": {"ros__parameters": params}}
 
@@ -297,6 +311,7 @@ class OfflineBagWriter:
         self._template = self._row_template()
         self.samples_per_chunk = max(1, CHUNK_SIZE_BYTES // self.row_bytes)
         self.topic_names = [("/" + t.name.lstrip("/"), t.type_name) for t in topics]  # resolved in the root namespace
+        self.modes = MODE_STATUS in topics  # each block's History must carry its mode record
         self.samples = 0  # samples written (and so each topic's messages)
         self.start_ns: int | None = None
         self.end_ns = 0
@@ -335,6 +350,8 @@ class OfflineBagWriter:
             raise ValueError(f"{self.dir}: the bag is closed")
         if history.q_BN.shape[1] != 1:
             raise ValueError(f"a bag holds one run, got a history of {history.q_BN.shape[1]}")
+        if self.modes and (history.mode is None or history.mode_reason is None):
+            raise ValueError(f"{self.dir}: the scenario has flight modes: the History must carry its mode record (mode, mode_reason)")
         T = history.t.size
         if T == 0:
             return
@@ -404,6 +421,8 @@ class OfflineBagWriter:
         if h.orbit is not None:
             o = one(h.orbit)
             v.update(B_B=o[:, 0:3], B_meas=o[:, 3:6], dipole=np.concatenate((t_s, o[:, 9:]), axis=1))
+        if h.mode is not None and h.mode_reason is not None:  # the mode node's [time_s, mode, reason]
+            v["mode_status"] = np.concatenate((t_s, one(h.mode), one(h.mode_reason)), axis=1)
         return v
 
     def _row_template(self) -> NDArray[np.uint8]:
