@@ -64,7 +64,7 @@ NEVER = {("sappc_controller", "spacecraft_sim"), ("spacecraft_sim", "sappc_contr
 #: The modules that may import rclpy: nodes, the contract's node runtime (and its QoS), the graph tools.
 # sappc_msgs_py.wire: rclpy's deserializer for what its codecs do not take (imported in the function
 # that uses it, so the offline bag writer, which imports the layouts, loads no rclpy: tested below)
-ROS_MODULES = ("sappc_msgs_py.runtime", "sappc_msgs_py.contract", "sappc_msgs_py.wire", "sappc_controller.node", "sappc_estimator.node", "sappc_momentum.node", "spacecraft_sim.plant_node",
+ROS_MODULES = ("sappc_msgs_py.runtime", "sappc_msgs_py.contract", "sappc_msgs_py.wire", "sappc_controller.node", "sappc_estimator.node", "sappc_momentum.node", "sappc_modes.node", "spacecraft_sim.plant_node",
                "spacecraft_sim.reference", "spacecraft_sim.disturbance", "sappc.graph")
 PURE_ROOMS = ("gnc_common", "sappc_controller.core", "sappc_estimator.core", "sappc_momentum.core", "sappc_modes.core", "spacecraft_sim.core")
 CLOCK_MODULES = {"time", "datetime"}

@@ -81,7 +81,7 @@ __all__ = [
 #: on its own source file only, so a cached function that calls a kernel of another module would
 #: survive an edit of that kernel; the cache directory is therefore named by a digest of all of
 #: them (``tests/test_layering.py`` checks that every module using :func:`jit` is listed).
-KERNEL_MODULES = ("gnc_common.compiled", "gnc_common.ephemeris", "sappc_controller.core.kernels", "sappc_controller.core.input_check", "sappc_estimator.core.mekf",
+KERNEL_MODULES = ("gnc_common.compiled", "gnc_common.ephemeris", "sappc_controller.core.kernels", "gnc_common.input_check", "sappc_estimator.core.mekf",
                   "spacecraft_sim.core.kernels", "sappc.offline.compiled_loop", "sappc.evaluation.metrics", "spacecraft_sim.core.wheels",
                   "spacecraft_sim.core.sensors", "spacecraft_sim.core.orbit", "spacecraft_sim.core.magnetic_field",
                   "spacecraft_sim.core.magnetorquers", "spacecraft_sim.core.environment", "sappc_momentum.core.law", "sappc_momentum.core.predictive",

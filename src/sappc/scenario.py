@@ -27,7 +27,7 @@ from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.common import ActuatorConfig
 from sappc_estimator.core.config import MekfConfig
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
-from sappc_controller.core.input_check import InputBounds
+from gnc_common.input_check import InputBounds
 from sappc_controller.params import CONFIG_CLASSES, CONTROLLER_CLASSES, DEFAULT_STALE_TIMEOUT_S, check_watchdog_seconds, parameters_from_config, unflatten
 from spacecraft_sim.core.disturbance import DisturbanceSum, disturbances_from_list
 from spacecraft_sim.core.faults import FaultSchedule, faults_from_list
@@ -189,7 +189,7 @@ class ControllerNodeSettings:
         Zero torque when no valid state is newer than this at a control instant [s]; within
         :data:`~sappc_controller.params.WATCHDOG_RANGE_S` (the node parameter's range).
     max_attitude_norm_error, max_body_rate_rad_s, max_reference_rate_rad_s, max_reference_acceleration_rad_s2 : float
-        The plausibility bounds on the inputs (:class:`~sappc_controller.core.input_check.InputBounds`,
+        The plausibility bounds on the inputs (:class:`~gnc_common.input_check.InputBounds`,
         whose defaults and reasons they take): an input beyond one is rejected.
     """
 

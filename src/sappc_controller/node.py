@@ -49,7 +49,7 @@ Modes (parameter ``mode``):
 Input checks: a message with a wrong frame id, a non-finite value, a zero or non-unit
 quaternion ("invalid"), a body rate, reference rate or reference acceleration beyond its
 plausibility bound (``max_body_rate_rad_s``, ...: "implausible"; the check is
-:mod:`sappc_controller.core.input_check`, the offline loop's too), a stamp in the past (lockstep: not after the last computed sample; real
+:mod:`gnc_common.input_check`, the offline loop's too), a stamp in the past (lockstep: not after the last computed sample; real
 time: not after the topic's previous message) or more than ``max_stamp_ahead_s`` ahead of the
 controller's time ("far future") is rejected, logged and counted, in total (diagnostics
 ``status[0]``) and by reason (:data:`REJECT_REASONS`); it never reaches the law.  The contract's
@@ -174,11 +174,11 @@ from gnc_common.validation import ConfigError, InputError, check_positive
 
 from sappc_controller.core.base import AttitudeController
 from sappc_controller.core.mrp_feedback import MrpFeedbackGains
-from sappc_modes.core.laws import ModeLaws
+from sappc_controller.modes import ModeLaws
 from sappc_modes.core.modes import HOLD, R_NONE, SAFE, TRACK
 from sappc_modes.core.packing import MAX_RESTARTS
-from sappc_controller.core.input_check import REJECT_REASONS as INPUT_REJECT_REASONS
-from sappc_controller.core.input_check import INPUT_OK, InputBounds, check_input, input_verdict
+from gnc_common.input_check import REJECT_REASONS as INPUT_REJECT_REASONS
+from gnc_common.input_check import INPUT_OK, InputBounds, check_input, input_verdict
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
 from sappc_controller.inputs import INPUT_TOPICS, NS_PER_S, STEP_ERRORS, ControlSample, LockstepPairing, RealtimePairing, step_sample
 from sappc_controller.params import (
@@ -198,18 +198,18 @@ __all__ = ["ControllerNode", "PARAMETERS", "main"]
 
 #: The five inputs of one control step, by topic (paired by :mod:`sappc_controller.inputs`).
 _INPUTS = INPUT_TOPICS
-#: Each input topic's slot in the input check (:mod:`sappc_controller.core.input_check`: the step's order).
+#: Each input topic's slot in the input check (:mod:`gnc_common.input_check`: the step's order).
 _SLOTS = {topic.name: slot for slot, topic in enumerate(_INPUTS)}
 #: How the input check names each input's value.
 _WHAT = {t.name: f"{t.name} quaternion" if t.type_name.endswith("QuaternionStamped") else t.name for t in _INPUTS}
 _NS = NS_PER_S
 
 
-#: Why an input is rejected (``rejected_by_reason`` keys): :data:`sappc_controller.core.input_check.REJECT_REASONS`
+#: Why an input is rejected (``rejected_by_reason`` keys): :data:`gnc_common.input_check.REJECT_REASONS`
 #: (the offline loop counts the same).
 REJECT_REASONS = INPUT_REJECT_REASONS
 
-#: The plausibility bounds on the inputs (:class:`~sappc_controller.core.input_check.InputBounds`), read at start-up.
+#: The plausibility bounds on the inputs (:class:`~gnc_common.input_check.InputBounds`), read at start-up.
 _BOUND_PARAMS = ("max_attitude_norm_error", "max_body_rate_rad_s", "max_reference_rate_rad_s", "max_reference_acceleration_rad_s2")
 #: Watchdog parameters: changeable at run time, applied at once, each within WATCHDOG_RANGE_S.
 _WATCHDOG_PARAMS = ("stale_timeout_s", "max_stamp_ahead_s", "lockstep_grace_s")
@@ -254,6 +254,8 @@ PARAMETERS = (
           choices=("entry", "reference")),
 )
 _P = {p.name: p for p in PARAMETERS}
+#: The flight modes' HOLD and SAFE law's parameters (``flight_modes``).
+_HOLD_PARAMS = ("hold_K_Nm", "hold_P_Nms", "hold_integralLimit_Nms", "hold_Ki_per_kg_m2", "hold_attitude")
 
 
 def _seconds_to_ns(name: str, value: Any) -> int:
@@ -314,7 +316,8 @@ class ControllerNode(ManagedNode):
         # start is clamped (counted), as offline (sappc.offline.compiled_loop.prepare)
         self.controller: AttitudeController = (CONTROLLER_CLASSES[self.kind](config, on_infeasible="clamp")
                                                if self.flight_modes and self.kind == "sappc" else CONTROLLER_CLASSES[self.kind](config))
-        self._modes = self._flight_modes(config) if self.flight_modes else None
+        hold = {name: self.param(_P[name]) for name in _HOLD_PARAMS}  # declared whether or not the run flies modes (--help lists them)
+        self._modes = self._flight_modes(config, hold) if self.flight_modes else None
         self.dt = check_positive("control_period_s", self.param(_P["control_period_s"]))
         self.mode = self.mode_param()
         self.stale_timeout_ns = _seconds_to_ns("stale_timeout_s", self.param(_P["stale_timeout_s"]))
@@ -388,16 +391,15 @@ class ControllerNode(ManagedNode):
         self._parameter_callback = True
         self.get_logger().info(f"{self.kind} controller ready ({self.mode}, dt = {self.dt} s)")
 
-    def _flight_modes(self, config: Any) -> _FlightModes:
-        """The flight modes' laws and bookkeeping (parameter ``flight_modes``); raises ``ConfigError`` naming a bad gain."""
+    def _flight_modes(self, config: Any, hold: dict[str, Any]) -> _FlightModes:
+        """The flight modes' laws and bookkeeping (parameter ``flight_modes``) from the ``hold_*``
+        parameters' values; raises ``ConfigError`` naming a bad gain."""
         try:
-            gains = MrpFeedbackGains(K_Nm=float(self.param(_P["hold_K_Nm"])), P_Nms=float(self.param(_P["hold_P_Nms"])),
-                                     integralLimit_Nms=float(self.param(_P["hold_integralLimit_Nms"])),
-                                     Ki_per_kg_m2=float(self.param(_P["hold_Ki_per_kg_m2"])))
+            gains = MrpFeedbackGains(K_Nm=float(hold["hold_K_Nm"]), P_Nms=float(hold["hold_P_Nms"]),
+                                     integralLimit_Nms=float(hold["hold_integralLimit_Nms"]), Ki_per_kg_m2=float(hold["hold_Ki_per_kg_m2"]))
         except (ConfigError, ValueError) as exc:
             raise ConfigError(f"flight_modes: HOLD's gains (hold_K_Nm, hold_P_Nms, hold_integralLimit_Nms, hold_Ki_per_kg_m2): {exc}") from None
-        laws = ModeLaws(np.asarray(config.inertia_kg_m2, dtype=np.float64), gains, config.actuator,
-                        str(self.param(_P["hold_attitude"])) == "reference")
+        laws = ModeLaws(np.asarray(config.inertia_kg_m2, dtype=np.float64), gains, config.actuator, str(hold["hold_attitude"]) == "reference")
         return _FlightModes(laws)
 
     def release_node(self) -> None:
@@ -494,7 +496,7 @@ class ControllerNode(ManagedNode):
 
     def _decode(self, raw: bytes, topic: Topic) -> np.ndarray:
         """The message's value (:func:`sappc_msgs_py.wire.take`), checked by
-        :func:`~sappc_controller.core.input_check.check_input` (the offline loop's check): raises
+        :func:`~gnc_common.input_check.check_input` (the offline loop's check): raises
         ``InputError`` (invalid) or ``ImplausibleInputError``."""
         slot = _SLOTS[topic.name]
         values = self._wire[topic.name].values(raw)  # a message of the layout: its values, checked as they are

@@ -24,7 +24,7 @@ attitude 1-sigma of the covariance when the estimator has figures (NaN otherwise
 wheel speed as a fraction of its limit (``wheel_max_speed_rad_s``), the ground's requests, and
 the attitude error of the estimate against the reference when the controller would find the
 sample valid (the controller's own input check,
-:func:`~sappc_controller.core.input_check.sample_verdicts`, with the same bounds): so a lockstep
+:func:`~gnc_common.input_check.sample_verdicts`, with the same bounds): so a lockstep
 run's modes equal the offline run's, sample for sample.
 
 Ground commands (standard ROS 2 parameters, ``ros2 param set /modes request_mode SAFE``):
@@ -48,7 +48,7 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 
 from gnc_common.validation import ConfigError, as_finite_array, from_mapping
-from sappc_controller.core.input_check import InputBounds, sample_verdicts
+from gnc_common.input_check import InputBounds, sample_verdicts
 from sappc_modes.core.modes import (
     HEALTH_ERROR, HEALTH_OK, HOLD, IN_ERROR, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, INHIBIT_ACQUIRED, INHIBIT_DETUMBLED,
     INHIBIT_RECOVERED, INHIBIT_SAFE, MODE_NAMES, N_INPUTS, REASON_NAMES, R_NONE, S_MODE, S_REASON, SAFE, ModeConfig, attitude_error_angle, mode_step,

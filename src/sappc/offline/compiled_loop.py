@@ -66,9 +66,10 @@ from numba import prange
 
 from gnc_common.compiled import error_quaternion, jit, jit_parallel
 from sappc_controller.core.base import SingularStartError
-from sappc_controller.core.input_check import REJECT_REASONS, sample_verdicts
+from gnc_common.input_check import REJECT_REASONS, sample_verdicts
 from sappc_controller.core.kernels import N_COEF, N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
 from sappc_controller.core.kernels import KIND_MRP_FEEDBACK, ControllerArrays, controller_step
+from sappc_controller.core.mrp_feedback import hold_and_safe_params
 from sappc_controller.core.packing import pack_controller, start_coef
 from sappc_estimator.core.config import pack_estimator
 from sappc_estimator.core.mekf import EO_B, EO_MON_LEVEL, EO_MON_MEAN, EO_MON_NIS, EO_N_RECOVER, EO_NIS, EO_OMEGA, EO_Q, EO_USABLE
@@ -90,7 +91,7 @@ from sappc_modes.core.modes import DETUMBLE, HEALTH_OK, HOLD, IN_ERROR, IN_HEALT
 from sappc_modes.core.modes import S_MODE
 from sappc_modes.core.modes import SAFE, TRACK, attitude_error_angle, mode_step, sigma_of_covariance, wheel_speed_fraction
 from sappc_modes.core.modes import N_INPUTS as N_MODE_INPUTS, N_STATE as N_MODE_STATE
-from sappc_modes.core.packing import MAX_RESTARTS, MR_ENTRY, MR_SAMPLES, MR_TRANSITIONS, N_MODE_RUN, ModeArrays, hold_and_safe_params, pack_modes
+from sappc_modes.core.packing import MAX_RESTARTS, MR_ENTRY, MR_SAMPLES, MR_TRANSITIONS, N_MODE_RUN, ModeArrays, pack_modes
 from sappc_momentum.core.predictive import MS_TLAST, MS_TNEXT, N_MM_STATE
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_INACTIVE, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
 from sappc_msgs_py.contract import ESTIMATOR_NO_INPUT
@@ -258,7 +259,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
     The controller answers as the node does in lockstep (the ``ANSWER_*`` codes of
     :mod:`sappc_msgs_py.contract`).  A sample is valid when its five inputs arrived (a dropout
     delivers none of the state's two or the reference's three) and pass the node's input check
-    (:func:`sappc_controller.core.input_check.sample_verdicts` with ``ctrl.bounds``; each rejected
+    (:func:`gnc_common.input_check.sample_verdicts` with ``ctrl.bounds``; each rejected
     input counted into ``rec.rejected``: invalid, implausible; the "no data" of a dropout or of the
     estimator is no rejected input, as on the node).  A valid sample is computed;
     without one, zero torque (the watchdog) when no valid state has been computed yet or the last
@@ -1028,7 +1029,7 @@ class CompiledRun:
 
     def rejected_by_reason(self) -> dict[str, np.ndarray]:
         """Inputs rejected per run (N,), by every reason of
-        :data:`~sappc_controller.core.input_check.REJECT_REASONS` (the node's summary keys; the
+        :data:`~gnc_common.input_check.REJECT_REASONS` (the node's summary keys; the
         stamp checks never reject anything offline)."""
         n = self.rejected.shape[0]
         return {reason: (self.rejected[:, i] if i < self.rejected.shape[1] else np.zeros(n, dtype=np.int64))

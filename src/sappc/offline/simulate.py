@@ -22,7 +22,7 @@ from sappc.evaluation.history import History
 from sappc.evaluation.metrics import MetricsAccumulator, SampleGrid
 from sappc.offline import compiled_loop
 from sappc_msgs_py.contract import ANSWER_NAMES
-from sappc_controller.core.input_check import REJECT_REASONS
+from gnc_common.input_check import REJECT_REASONS
 from sappc.scenario import ControllerKind, Scenario, check_run_fits_in_memory, scenario_bytes_per_sample
 
 __all__ = ["HISTORY_KINDS", "ScenarioRun", "SimulationResult", "metrics_accumulator", "run_scenario", "simulate"]
@@ -88,7 +88,7 @@ class ScenarioRun:
     runs every ``stride`` samples (float32 (T_s, n, 3)), else ``None``; ``x_final`` (N, 7 + W) (W wheel momenta);
     ``status``: per run (N,), the samples the controller answered in each way
     (:data:`~sappc_msgs_py.contract.ANSWER_NAMES`); ``rejected``: per run (N,), the inputs it
-    rejected, by reason (:data:`~sappc_controller.core.input_check.REJECT_REASONS`)."""
+    rejected, by reason (:data:`~gnc_common.input_check.REJECT_REASONS`)."""
 
     flags: dict[str, np.ndarray]
     history: History | None

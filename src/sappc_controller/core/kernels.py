@@ -706,7 +706,7 @@ class ControllerArrays(NamedTuple):
     """The controller of a batch, as the whole-run loop takes it (:mod:`sappc.offline.compiled_loop`):
     ``kind`` (``KIND_*``), ``prm`` (N, N_PARAMS) and ``coef`` (N, N_COEF, 3) each run's parameters
     and start constants, and the node's answer rules: ``stale_ns`` the watchdog's timeout [ns] and
-    ``bounds`` the input check's bounds (:meth:`.input_check.InputBounds.packed`).  Packed by
+    ``bounds`` the input check's bounds (:meth:`gnc_common.input_check.InputBounds.packed`).  Packed by
     :func:`.packing.pack_controller`; ``coef`` is filled at each run's first valid sample."""
 
     kind: int

@@ -50,6 +50,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+from numpy.typing import ArrayLike
+
 from gnc_common.validation import ConfigError, check_positive, check_spd_inertia
 
 from sappc_controller.core.base import AttitudeController
@@ -121,3 +124,20 @@ class MrpFeedbackController(AttitudeController):
 
     def __init__(self, config: MrpFeedbackConfig) -> None:
         super().__init__(config)
+
+
+def hold_and_safe_params(inertia_kg_m2: ArrayLike, gains: MrpFeedbackGains, actuator: ActuatorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The parameter rows of the flight modes' HOLD and SAFE laws (docs/design/modes.md): this law
+    with ``gains``, the spacecraft's inertia [kg m^2] and actuator; SAFE the same with no attitude
+    gain (``K = 0``: the attitude is not trusted, the rate alone is damped).  The offline loop's
+    (:class:`~sappc_modes.core.packing.ModeArrays`) and the controller node's
+    (:class:`sappc_controller.modes.ModeLaws`) one packing."""
+    from sappc_controller.core.kernels import P_MRP_K
+    from sappc_controller.core.packing import pack_params
+
+    J = tuple(map(tuple, np.asarray(inertia_kg_m2, dtype=np.float64).tolist()))
+    hold = pack_params(MrpFeedbackConfig(J, gains, actuator), 1)[0]
+    safe = hold.copy()
+    safe[P_MRP_K] = 0.0
+    return hold, safe
+

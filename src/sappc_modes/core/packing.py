@@ -109,21 +109,3 @@ def pack_modes(config: ModeConfig | None, n_runs: int, dt_s: float, *, initial_m
                       np.full(n_runs, 1.0 if hold_on_reference else 0.0), np.zeros((n_runs, int(max_restarts)) + tuple(coef_shape)),
                       np.zeros(n_runs), np.ascontiguousarray(np.broadcast_to(table, (n_runs,) + table.shape)))
 
-
-def hold_and_safe_params(inertia_kg_m2: Array, gains: object, actuator: object) -> tuple[Array, Array]:
-    """The MRP feedback parameter rows of HOLD and SAFE (:func:`pack_modes`' ``hold_prm`` and
-    ``safe_prm``): Basilisk's mrpFeedback with ``gains`` (a
-    :class:`~sappc_controller.core.mrp_feedback.MrpFeedbackGains`), the inertia [kg m^2] and the
-    actuator (:class:`~sappc_controller.core.common.ActuatorConfig`) of the spacecraft; SAFE the same
-    with no attitude gain (``K = 0``: the attitude is not trusted, the rate alone is damped).  The
-    offline loop's and the controller node's one packing."""
-    from sappc_controller.core.kernels import P_MRP_K
-    from sappc_controller.core.mrp_feedback import MrpFeedbackConfig
-    from sappc_controller.core.packing import pack_params
-
-    J = tuple(map(tuple, np.asarray(inertia_kg_m2, dtype=np.float64).tolist()))
-    hold = pack_params(MrpFeedbackConfig(J, gains, actuator), 1)[0]  # type: ignore[arg-type]
-    safe = hold.copy()
-    safe[P_MRP_K] = 0.0
-    return hold, safe
-

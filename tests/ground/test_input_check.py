@@ -1,4 +1,4 @@
-"""The controller's input check (:mod:`sappc_controller.core.input_check`, issue 25, 2.3): one
+"""The controller's input check (:mod:`gnc_common.input_check`, issue 25, 2.3): one
 compiled verdict for the node's messages and the offline loop's samples, configurable plausibility
 bounds, one-line errors naming the value and the bound, and the scenario's ``controller_node``
 section reaching the offline loop (the graph's node gets the same values: ``sappc.graph.launch``)."""
@@ -16,7 +16,7 @@ from gnc_common.validation import QUATERNION_NORM_TOL, ConfigError, InputError
 from sappc.graph.launch import node_parameters
 from sappc.offline import compiled_loop
 from sappc.scenario import ControllerKind, scenario_from_mapping
-from sappc_controller.core.input_check import (
+from gnc_common.input_check import (
     DEFAULT_MAX_BODY_RATE_RAD_S,
     INPUT_IMPLAUSIBLE,
     INPUT_INVALID,
@@ -133,7 +133,7 @@ def test_the_nodes_interpreted_verdict_is_the_compiled_one() -> None:
     loop runs them compiled.  Same operations on the same doubles, so the same verdict on every
     value, including values one unit in the last place either side of each bound and non-finite
     ones (the compiled kernels called directly here)."""
-    from sappc_controller.core import input_check as ic
+    from gnc_common import input_check as ic
 
     rng = np.random.default_rng(11)
     tol, rate = PACKED[ic.B_NORM], PACKED[ic.B_RATE]

@@ -1,6 +1,8 @@
 """The controller's acceptance test of its inputs: finite, unit quaternions, plausible magnitudes.
 
-One implementation for every path: the offline loop checks each sample's five inputs with
+In the ground floor because the flight software shares it: the controller, and the mode manager
+(:mod:`sappc_modes.node` reads the estimate's error against the reference only on a sample the
+controller finds valid).  One implementation for every path: the offline loop checks each sample's five inputs with
 :func:`sample_verdicts` (:func:`sappc.offline.compiled_loop._run_one`, inside its compiled loop),
 the controller node each message with :func:`input_verdict` (:mod:`sappc_controller.node`, after
 the message's frame id and finiteness are decoded), which runs the same verdict kernels' source

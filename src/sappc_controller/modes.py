@@ -1,11 +1,11 @@
-"""The laws of HOLD and SAFE for a node (issue 49): the controller node's torque outside TRACK.
+"""The flight modes' laws of HOLD and SAFE for the controller node (issue 49): its torque outside TRACK.
 
 The offline loop calls the same kernel on the same arrays inline
 (:func:`sappc.offline.compiled_loop._run_one`, "Flight modes"); this class holds them for a node,
 one sample at a time, so that a lockstep run's torque equals the offline run's, bit for bit:
 
 - HOLD: Basilisk's MRP feedback (:func:`~sappc_controller.core.kernels.controller_step` with
-  ``KIND_MRP_FEEDBACK`` and the rows of :func:`~sappc_modes.core.packing.hold_and_safe_params`)
+  ``KIND_MRP_FEEDBACK`` and the rows of :func:`~sappc_controller.core.mrp_feedback.hold_and_safe_params`)
   on the controller's input (the estimate) of a valid sample, towards the scenario's reference
   with its rates (``hold_on_reference``: an acquisition) or the attitude of HOLD's first valid
   sample at rest (an inertial hold);
@@ -24,8 +24,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sappc_controller.core.kernels import KIND_MRP_FEEDBACK, N_COEF, N_OUT, N_STATE, N_WORK, O_TORQUE, controller_step
+from sappc_controller.core.common import ActuatorConfig
+from sappc_controller.core.mrp_feedback import MrpFeedbackGains, hold_and_safe_params
 from sappc_modes.core.modes import HOLD, SAFE
-from sappc_modes.core.packing import hold_and_safe_params
 
 __all__ = ["ModeLaws"]
 
@@ -47,7 +48,7 @@ class ModeLaws:
         HOLD points at the reference (``modes.hold_attitude: reference``), else holds its entry attitude.
     """
 
-    def __init__(self, inertia_kg_m2: ArrayLike, gains: object, actuator: object, hold_on_reference: bool) -> None:
+    def __init__(self, inertia_kg_m2: ArrayLike, gains: MrpFeedbackGains, actuator: ActuatorConfig, hold_on_reference: bool) -> None:
         self.hold_prm, self.safe_prm = hold_and_safe_params(np.asarray(inertia_kg_m2, dtype=np.float64), gains, actuator)
         self.hold_on_reference = bool(hold_on_reference)
         self._state = np.zeros(N_STATE)
