@@ -33,6 +33,44 @@ Ground commands (standard ROS 2 parameters, ``ros2 param set /modes request_mode
 ``recovered``; a request still goes through).  The scenario's own requests
 (``requests_at_s``, ``requests_mode``) are requested at the first sample at or after their time,
 as offline.  The loss-of-control guard is not fed yet (0, as offline).
+
+Managed (parameter ``managed``, default false; docs/design/modes.md, "Managed nodes"): by default
+the node is configured and active from the start, exactly as described above, and offers no
+lifecycle services.  With ``managed:=true`` it is a ROS 2 managed (lifecycle) node, as the
+controller and the estimator are: it starts ``unconfigured``, with only ``managed``,
+``expected_subscribers`` and ``counts_file`` declared and nothing subscribed or offered, and is
+driven through the standard services ``/<node>/change_state`` and ``/<node>/get_state``
+(``lifecycle_msgs/srv/ChangeState``, ``GetState``; a transition not allowed from the current state
+is refused with ``success: false``):
+
+- configure: everything the plain node does at start-up: the parameters declared and validated
+  (the guards, the first mode, the scheduled requests, the input bounds, the ground commands),
+  the compiled kernels loaded, the ground commands' parameter callback added, the inputs
+  subscribed, ``mode/status`` and ``diagnostics`` offered.  A bad parameter fails the transition,
+  logged naming it; the node stays ``unconfigured`` (the process lives on).  The node is then
+  ``inactive``, in the first mode (``initial_mode``).
+- inactive (after configure, or deactivate): the kernel is not stepped, but every sample is still
+  answered on ``mode/status``, when it is complete, so a plant in lockstep never waits (the
+  controller and the momentum node wait for it): the mode held, reason none (0), as if every
+  automatic transition were inhibited and no request came.  No request is taken: a ground request
+  (``request_mode``) stays pending, read back as the mode's name, and is taken at the first sample
+  answered active; a scheduled request (``requests_at_s``) whose sample is answered inactive is not
+  taken (its sample has passed).  ``diagnostics`` says so, at level WARN (ERROR still in SAFE), its
+  message starting ``inactive: ...`` and naming the mode held, at once at the first sample answered
+  inactive and then at least once a second of the samples' time.  Inputs are still checked and
+  counted; the samples answered inactive are counted apart (``inactive_samples`` in the closing
+  line and ``timing_file``).
+- activate: the flight goes on from the mode held, every guard's count restarted (each condition
+  counts its persistence again from the first sample answered active, as after a transition);
+  ``diagnostics`` reports at once that the node is active.
+- cleanup: the subscriptions and publishers destroyed, the parameter callback removed;
+  ``unconfigured``.  A new configure starts a new flight (the first mode, new counts) from the
+  same parameters.
+- shutdown: as cleanup, then ``finalized``; the process ends on SIGINT or SIGTERM, as always.
+
+Design: :class:`~sappc_msgs_py.runtime.ManagedNode`, as the controller's; start-up is
+:meth:`ModeNode.configure_node`, which the base runs while building a plain node and at the
+configure transition of a managed one, so a plain node is exactly what it was.
 """
 
 from __future__ import annotations
@@ -50,8 +88,8 @@ from rcl_interfaces.msg import SetParametersResult
 from gnc_common.validation import ConfigError, as_finite_array, from_mapping
 from gnc_common.input_check import InputBounds, sample_verdicts
 from sappc_modes.core.modes import (
-    HEALTH_ERROR, HEALTH_OK, HOLD, IN_ERROR, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, INHIBIT_ACQUIRED, INHIBIT_DETUMBLED,
-    INHIBIT_RECOVERED, INHIBIT_SAFE, MODE_NAMES, N_INPUTS, REASON_NAMES, R_NONE, S_MODE, S_REASON, SAFE, ModeConfig, attitude_error_angle, mode_step,
+    HEALTH_ERROR, HEALTH_OK, HEALTH_WARN, HOLD, IN_ERROR, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, INHIBIT_ACQUIRED, INHIBIT_DETUMBLED,
+    INHIBIT_RECOVERED, INHIBIT_SAFE, MODE_NAMES, N_INPUTS, REASON_NAMES, R_NONE, S_ERROR_N, S_HEALTHY_N, S_MODE, S_RATE_N, S_REASON, S_RECOVER_N, SAFE, ModeConfig, attitude_error_angle, mode_step,
     new_mode_state, sigma_of_covariance, wheel_speed_fraction,
 )
 from sappc_msgs_py import wire
@@ -61,9 +99,9 @@ from sappc_msgs_py.contract import (ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_
 from sappc_msgs_py.convert import cdr_stamp_ns, health_msg, ns_to_stamp, time_to_ns
 from sappc_msgs_py.inputs import NS_PER_S
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, MANAGED, MODE, ManagedNode, run_node
 
-__all__ = ["INHIBITS", "INPUTS", "ModeNode", "PARAMETERS", "main"]
+__all__ = ["INACTIVE_MESSAGE", "INHIBITS", "INPUTS", "ModeNode", "PARAMETERS", "main"]
 
 #: The node's inputs of one sample (module docstring).
 INPUTS = (SENSOR_GYRO, ESTIMATE_ATTITUDE, ESTIMATE_RATE, ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS, REFERENCE_ATTITUDE, REFERENCE_RATE,
@@ -77,9 +115,12 @@ _MONITOR_LEVEL = ESTIMATOR_DIAGNOSTICS_LAYOUT.index("monitor_level")
 #: The longest time [s of the samples' stamps] between two reports on ``diagnostics`` while the mode
 #: does not change: 1 s, ROS's diagnostic_updater's period (the estimator's too); a transition is reported at once.
 HEALTH_PERIOD_S = 1.0
+#: How ``diagnostics``' message starts while the node is inactive (level WARN; module docstring, "Managed").
+INACTIVE_MESSAGE = "inactive: the mode manager is not active (a managed node configured and not activated, or deactivated); the mode held"
 
 PARAMETERS = (
     MODE,
+    MANAGED,
     Param("control_period_s", 0.01, "the loop's sample period (the persistences in samples, the requests' sample)", "s", check="> 0"),
     Param("initial_mode", "DETUMBLE", "the mode of the first sample (after separation: DETUMBLE)", choices=MODE_NAMES),
     Param("transitions", "", "the guards' thresholds and persistences as a JSON mapping of sappc_modes.core.modes.ModeConfig's fields "
@@ -116,14 +157,21 @@ def _inhibit_flags(names: list[str]) -> int:
     return flags
 
 
-class ModeNode(ProjectNode):
-    """See the module docstring."""
+class ModeNode(ManagedNode):
+    """See the module docstring (its section "Managed" for the lifecycle)."""
 
     PARAMETERS = PARAMETERS
     COMMAND = "python -m sappc_modes"
 
     def __init__(self, node_name: str = "modes", **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
+        self._parameter_callback = False  # whether _on_set_parameters is added (configure_node; a cleanup removes it)
+        super().__init__(node_name, **kwargs)  # not managed: configured (configure_node) and active; managed: unconfigured
+
+    def configure_node(self) -> None:
+        """The parameters declared and validated (the guards, the first mode, the requests, the
+        input bounds), the compiled kernels loaded, the inputs subscribed and the outputs offered
+        (:class:`~sappc_msgs_py.runtime.ManagedNode`: while the node is built, or at a managed
+        node's configure transition).  Raises ``ConfigError`` naming a bad parameter."""
         self.mode = self.mode_param()
         if self.mode != LOCKSTEP:
             raise ConfigError(f"mode: the mode node runs in lockstep only (real time: not yet), got {self.mode!r}")
@@ -162,6 +210,7 @@ class ModeNode(ProjectNode):
         self.timing_file = str(self.param(_P["timing_file"]))
         self.check_unknown_overrides()
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._parameter_callback = True
         # load the compiled kernels now, not at the first sample (which the plant waits for)
         mode_step(new_mode_state(HOLD), self._in, self._prm)
         attitude_error_angle(np.array([0.0, 0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.0, 1.0]), self._q_err)
@@ -174,12 +223,14 @@ class ModeNode(ProjectNode):
         self._codecs[STATE_WHEEL_SPEED.name] = wire.Codec(wire.joint_state(STATE_WHEEL_SPEED, n_wheels, "speed", None), STATE_WHEEL_SPEED.name)
         self._pending: dict[int, dict[str, tuple[float, ...]]] = {}
         self.samples = 0
+        self.inactive_samples = 0  # samples answered inactive (managed: module docstring, "Managed")
         self.transitions = 0
         self.rejected = 0
         self.pub_status = self.counting_publisher(MODE_STATUS, 1)
         self.pub_health = self.counting_publisher(ESTIMATOR_HEALTH, 1)  # ROS's diagnostics topic (the estimator's too)
         self._health_msg: Any = None  # the DiagnosticArray, reused
         self._health_t_s = -math.inf  # the samples' time of the last report [s]
+        self._health_inactive = False  # whether the last report said inactive (a change is reported at once)
         self._since_s = 0.0  # the current mode's entry [s]
         self._wire_status = wire.codec(MODE_STATUS)
         qos = qos_profile()
@@ -187,6 +238,14 @@ class ModeNode(ProjectNode):
             self.create_subscription(topic.msg_class, topic.name, partial(self._on_input, topic=topic), qos, raw=True)
         self.get_logger().info(f"mode manager ready (lockstep; first mode {MODE_NAMES[int(self._state[S_MODE])]}, "
                                f"{len(self._requests)} scheduled requests)")
+
+    def release_node(self) -> None:
+        """A managed node's cleanup: its parameter callback removed (its subscriptions and
+        publishers are destroyed by :class:`~sappc_msgs_py.runtime.ManagedNode`); the parameters
+        stay declared, and the next configure reads them again."""
+        if self._parameter_callback:
+            self.remove_on_set_parameters_callback(self._on_set_parameters)
+            self._parameter_callback = False
 
     # ---- ground commands ---------------------------------------------------------------------
     def _apply_ground(self, request: str, inhibit: list[str]) -> None:
@@ -208,7 +267,7 @@ class ModeNode(ProjectNode):
         except ConfigError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         if request:
-            self.get_logger().info(f"ground: {request} requested (taken at the next sample)")
+            self.get_logger().info(f"ground: {request} requested (taken at the next sample{'' if self.active else ' answered active'})")
         return SetParametersResult(successful=True)
 
     # ---- samples -----------------------------------------------------------------------------
@@ -234,7 +293,11 @@ class ModeNode(ProjectNode):
         self._step(ns, sample)
 
     def _step(self, t_ns: int, sample: dict[str, tuple[float, ...]]) -> None:
-        """One sample (module docstring): the kernel's inputs as the offline loop makes them, its step, ``mode/status``."""
+        """One sample (module docstring): the kernel's inputs as the offline loop makes them, its step,
+        ``mode/status``; inactive, the mode held (:meth:`_answer_inactive`)."""
+        if not self.active:
+            self._answer_inactive(t_ns)
+            return
         mode_in = self._in
         gyro = sample[SENSOR_GYRO.name][_IMU_OMEGA:_IMU_OMEGA + 3]
         gyro_in = all(map(math.isfinite, gyro))
@@ -271,30 +334,62 @@ class ModeNode(ProjectNode):
             self._since_s = t_s
             self.get_logger().info(f"t = {t_s:.2f} s: {MODE_NAMES[mode]} ({REASON_NAMES[reason]})")
         self.pub_status.publish(self._wire_status.encode(None, [t_s, float(mode), float(reason)]))
-        if reason != R_NONE or self.samples == 0 or t_s - self._health_t_s >= HEALTH_PERIOD_S:
+        if reason != R_NONE or self.samples == 0 or self._health_inactive or t_s - self._health_t_s >= HEALTH_PERIOD_S:
             self._report(t_ns, mode)
         self.samples += 1
 
-    def _report(self, t_ns: int, mode: int) -> None:
+    def _answer_inactive(self, t_ns: int) -> None:
+        """Sample ``t_ns`` answered by an inactive node (module docstring, "Managed"): the mode held,
+        reason none, no kernel step, no request taken; ``diagnostics`` says so at once and then at
+        least every :data:`HEALTH_PERIOD_S`."""
+        mode = int(self._state[S_MODE])
+        t_s = t_ns / NS_PER_S
+        self.pub_status.publish(self._wire_status.encode(None, [t_s, float(mode), float(R_NONE)]))
+        if not self._health_inactive or t_s - self._health_t_s >= HEALTH_PERIOD_S:
+            self._report(t_ns, mode, inactive=True)
+        self.samples += 1
+        self.inactive_samples += 1
+
+    def _report(self, t_ns: int, mode: int, inactive: bool = False) -> None:
         """``diagnostics`` (ROS's health convention): the mode in words, at each transition and at
-        least every :data:`HEALTH_PERIOD_S` of the samples' time; ERROR in SAFE, else OK."""
+        least every :data:`HEALTH_PERIOD_S` of the samples' time; ERROR in SAFE, else OK; inactive
+        (managed), a warning that says so (ERROR still in SAFE)."""
         t_s = t_ns / NS_PER_S
         self._health_t_s = t_s
+        self._health_inactive = inactive
         entry = REASON_NAMES[int(self._state[S_REASON])] if self.transitions else "initial"
         values = {"time_s": f"{t_s:.9f}", "mode": MODE_NAMES[mode], "since_s": f"{self._since_s:.9f}", "reason": entry,
                   "transitions": str(self.transitions), "inhibit": ",".join(n for n, f in INHIBITS.items() if self._inhibit & f)}
-        level = HEALTH_ERROR if mode == SAFE else HEALTH_OK
+        level = HEALTH_ERROR if mode == SAFE else HEALTH_WARN if inactive else HEALTH_OK
         message = f"{MODE_NAMES[mode]} since {self._since_s:.2f} s ({entry})" + (": the mission is interrupted" if mode == SAFE else "")
+        if inactive:
+            message = f"{INACTIVE_MESSAGE}; {message}"
         self._health_msg = health_msg(ns_to_stamp(t_ns), level, message, values, out=self._health_msg, name=MODE_HEALTH_NAME,
                                       hardware_id="sappc_modes")
         self.pub_health.publish(self._health_msg)
 
+    # ---- lifecycle --------------------------------------------------------------------------
+    def on_activate(self, state: Any) -> Any:
+        """An activation: the flight goes on from the mode held, every guard's count restarted (as
+        at a transition: each condition counts again from here); then active, from the next sample."""
+        for i in (S_RATE_N, S_HEALTHY_N, S_ERROR_N, S_RECOVER_N):
+            self._state[i] = 0.0
+        return super().on_activate(state)
+
+    # ---- the end --------------------------------------------------------------------------
     def finish(self) -> None:
-        self.get_logger().info(f"finished: {self.samples} samples, {self.transitions} transitions, last mode "
+        if not self.configurations:
+            self.get_logger().info("finished: never configured (a managed node that received no configure transition, or none succeeded)")
+            super().finish()
+            return
+        inactive = f" ({self.inactive_samples} inactive)" if self.managed else ""
+        self.get_logger().info(f"finished: {self.samples} samples{inactive}, {self.transitions} transitions, last mode "
                                f"{MODE_NAMES[int(self._state[S_MODE])]}, {self.rejected} rejected messages")
         super().finish()
         if self.timing_file:
-            Path(self.timing_file).write_text(json.dumps({"samples": self.samples, "transitions": self.transitions, "rejected": self.rejected}))
+            counts = {"samples": self.samples, "transitions": self.transitions, "rejected": self.rejected,
+                      **({"inactive_samples": self.inactive_samples} if self.managed else {})}
+            Path(self.timing_file).write_text(json.dumps(counts))
 
 
 def _parameter(name: str, value: Any) -> Any:

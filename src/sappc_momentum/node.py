@@ -27,7 +27,39 @@ uses, and passes them exactly), so that the node needs no simulator.  A missing 
 parameter stops the node with one line naming it (exit status 2); a message with a wrong frame,
 a wrong count or a non-finite field, speed or torque is rejected, logged and counted (the
 plant then holds its last command when its own wait runs out).  Real time is not supported yet
-(the node refuses ``mode: realtime``).
+(the node refuses ``mode: realtime``; a managed node's configure transition fails instead).
+
+Managed (parameter ``managed``, default false; docs/design/modes.md, "Managed nodes"): by default
+the node is configured and active from the start, exactly as described above, and offers no
+lifecycle services.  With ``managed:=true`` it is a ROS 2 managed (lifecycle) node, as the
+controller and the estimator are: it starts ``unconfigured``, with only ``managed``,
+``expected_subscribers`` and ``counts_file`` declared and nothing subscribed or offered, and is
+driven through the standard services ``/<node>/change_state`` and ``/<node>/get_state``
+(``lifecycle_msgs/srv/ChangeState``, ``GetState``; a transition not allowed from the current state
+is refused with ``success: false``):
+
+- configure: everything the plain node does at start-up: the parameters declared and validated
+  (the tables, the law's settings, the onboard models), the compiled kernels loaded, the inputs
+  subscribed, ``control/dipole`` and ``control/wheel_torque`` offered.  A bad parameter fails the
+  transition, logged naming it; the node stays ``unconfigured`` (the process lives on).  The node
+  is then ``inactive``.
+- inactive (after configure, or deactivate): no management and no B-dot (neither law's state is
+  stepped), but every sample is still answered, when it is complete, with its stamp, so a plant in
+  lockstep never waits: the rods commanded zero on ``control/dipole`` and the wheels given the
+  controller's own torque, unchanged, on ``control/wheel_torque`` (what the plant would apply with
+  no management node).  Inputs are still checked and counted, and the last delivered attitude and
+  rate still kept (they are the inputs' hold, not the law's state).  Counted apart:
+  ``inactive_samples`` in the closing line and ``timing_file``.
+- activate: the law afresh from the next sample: a fresh predictive state (no plan, no disturbance
+  estimate: it plans at once) and a fresh B-dot state (no previous field sample), as a new
+  configure would build them, whether or not the law had stepped before.
+- cleanup: the subscriptions and publishers destroyed; ``unconfigured``.  A new configure builds
+  a new law (and new counts) from the same parameters.
+- shutdown: as cleanup, then ``finalized``; the process ends on SIGINT or SIGTERM, as always.
+
+Design: :class:`~sappc_msgs_py.runtime.ManagedNode`, as the controller's; start-up is
+:meth:`MomentumNode.configure_node`, which the base runs while building a plain node and at the
+configure transition of a managed one, so a plain node is exactly what it was.
 """
 
 from __future__ import annotations
@@ -53,7 +85,7 @@ from sappc_msgs_py.inputs import NS_PER_S  # the kernel's time: the stamp in sec
 from sappc_msgs_py import wire
 from sappc_msgs_py.convert import cdr_stamp_ns, magnetic_field_from_msg, time_to_ns, torque_from_msg, wheel_speed_from_msg
 from sappc_msgs_py.parameters import REQUIRED, Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, MANAGED, MODE, ManagedNode, run_node
 
 __all__ = ["INPUTS", "MomentumNode", "PARAMETERS", "RIGHT_INVERSE_TOL", "main"]
 
@@ -70,6 +102,7 @@ _STEERING, _M_MAX = MomentumArrays._fields.index("steering"), MomentumArrays._fi
 
 PARAMETERS = (
     MODE,
+    MANAGED,
     Param("gain_per_s", REQUIRED, "K_p: the rate at which the wheels' excess momentum is dumped (normal to the field)", "1/s", check="> 0",
           type="double"),
     Param("target_momentum_B_Nms", [0.0, 0.0, 0.0], "h*_B: the wheels' momentum to hold, in B", "N m s", check="3 finite values"),
@@ -135,14 +168,20 @@ def _right_inverse(name: str, A: np.ndarray, axes_name: str, G: np.ndarray) -> N
                           f"{RIGHT_INVERSE_TOL}), got {A.tolist()!r}")
 
 
-class MomentumNode(ProjectNode):
-    """See the module docstring."""
+class MomentumNode(ManagedNode):
+    """See the module docstring (its section "Managed" for the lifecycle)."""
 
     PARAMETERS = PARAMETERS
     COMMAND = "python -m sappc_momentum"
 
     def __init__(self, node_name: str = "momentum", **kwargs: Any) -> None:
-        super().__init__(node_name, **kwargs)
+        super().__init__(node_name, **kwargs)  # not managed: configured (configure_node) and active; managed: unconfigured
+
+    def configure_node(self) -> None:
+        """The parameters declared and validated into the law's arrays, the compiled kernel loaded,
+        the inputs subscribed and the outputs offered (:class:`~sappc_msgs_py.runtime.ManagedNode`:
+        while the node is built, or at a managed node's configure transition).  Raises
+        ``ConfigError`` naming a bad parameter."""
         self.mode = self.mode_param()
         if self.mode != LOCKSTEP:
             raise ConfigError(f"mode: the momentum-management node runs in lockstep only (real time: not yet), got {self.mode!r}")
@@ -207,6 +246,7 @@ class MomentumNode(ProjectNode):
         self.pub_torque = self.counting_publisher(CONTROL_WHEEL_TORQUE, 1)
         self._pending: dict[int, dict[str, Any]] = {}
         self.samples = 0
+        self.inactive_samples = 0  # samples answered inactive (managed: module docstring, "Managed")
         self.rejected = 0
         qos = qos_profile()
         # every topic as CDR bytes (sappc_msgs_py.wire): the inputs' layouts (the field's covariance, whatever the
@@ -268,6 +308,12 @@ class MomentumNode(ProjectNode):
             self._omega[:] = rate
         if attitude is not None:
             self._q[:] = attitude
+        if not self.active:  # managed, inactive: the rods at zero, the controller's torque to the wheels, no law stepped ("Managed")
+            self.pub_dipole.publish(self._wire_dipole.encode(None, [ns / NS_PER_S, *([0.0] * self.n_rods)]))
+            self.pub_torque.publish(self._wire_torque.encode(ns, sample[CONTROL_TORQUE.name]))
+            self.samples += 1
+            self.inactive_samples += 1
+            return
         mode, reason = sample[MODE_STATUS.name] if self.flight_modes else (TRACK, R_NONE)
         if mode == DETUMBLE:  # B-dot on the rods, on each new magnetometer sample (its update's time), nothing on the wheels
             if reason != R_NONE:
@@ -282,11 +328,27 @@ class MomentumNode(ProjectNode):
         self.pub_torque.publish(self._wire_torque.encode(ns, self._tau_w))
         self.samples += 1
 
+    # ---- lifecycle --------------------------------------------------------------------------
+    def on_activate(self, state: Any) -> Any:
+        """An activation: the law afresh from the next sample (module docstring, "Managed"): a fresh
+        predictive state and a fresh B-dot state (what configure built, unchanged at a first
+        activation); then active."""
+        self._state = new_state()
+        reset_bdot_state(self._bdot_state)
+        return super().on_activate(state)
+
+    # ---- the end --------------------------------------------------------------------------
     def finish(self) -> None:
-        self.get_logger().info(f"finished: {self.samples} samples, {self.rejected} rejected messages")
+        if not self.configurations:
+            self.get_logger().info("finished: never configured (a managed node that received no configure transition, or none succeeded)")
+            super().finish()
+            return
+        inactive = f" ({self.inactive_samples} inactive)" if self.managed else ""
+        self.get_logger().info(f"finished: {self.samples} samples{inactive}, {self.rejected} rejected messages")
         super().finish()
         if self.timing_file:
-            Path(self.timing_file).write_text(json.dumps({"samples": self.samples, "rejected": self.rejected}))
+            counts = {"samples": self.samples, "rejected": self.rejected, **({"inactive_samples": self.inactive_samples} if self.managed else {})}
+            Path(self.timing_file).write_text(json.dumps(counts))
 
 
 def _field(values: tuple[float, ...]) -> np.ndarray | None:

@@ -19,6 +19,7 @@ NODES = {
     "sappc_controller": ("sappc_controller.node", "ControllerNode"),
     "sappc_estimator": ("sappc_estimator.node", "EstimatorNode"),
     "sappc_momentum": ("sappc_momentum.node", "MomentumNode"),
+    "sappc_modes": ("sappc_modes.node", "ModeNode"),
     "spacecraft_sim": ("spacecraft_sim.plant_node", "PlantNode"),
     "spacecraft_sim.reference": ("spacecraft_sim.reference", "ReferenceNode"),
     "spacecraft_sim.disturbance": ("spacecraft_sim.disturbance", "InjectorNode"),
@@ -92,6 +93,10 @@ def test_a_node_declares_exactly_what_its_help_lists(command: str, ros_context, 
         from test_momentum_node import overrides as momentum_overrides
 
         overrides = momentum_overrides()
+    elif command == "sappc_modes":
+        from test_mode_node import overrides as mode_overrides
+
+        overrides = mode_overrides()
     elif command == "sappc.graph.recorder":
         overrides = [Parameter("output_dir", value=str(tmp_path / "bag"))]
     node = cls(context=ros_context, parameter_overrides=overrides)
