@@ -194,3 +194,30 @@ def test_with_an_acquisition_threshold_hold_hands_over_only_near_the_reference(s
     with pytest.raises(ConfigError, match="acquired_error_rad"):
         m.ModeConfig(acquired_error_rad=0.0)
     assert m.ModeConfig().packed(DT)[m.P_ACQUIRED] == math.inf
+
+
+@pytest.mark.parametrize("step", STEPS)
+def test_with_a_lost_attitude_threshold_track_goes_safe_after_its_persistence(step: Any) -> None:
+    """``lost_error_rad``: TRACK -> SAFE (``control_lost``) once the estimate's error against the
+    reference stays above it for ``lost_for_s`` (at the threshold is not above it; an unknown error,
+    NaN, restarts the count); HOLD is not judged by it (an acquisition starts far); the SAFE inhibit
+    stops it; without it (default) the error is not read."""
+    params = dataclasses.replace(CONFIG, lost_error_rad=0.05, lost_for_s=0.3).packed(DT)  # 3 samples
+    above = float(np.nextafter(0.05, 1.0))
+    state = at(m.TRACK)
+    assert [int(step(state, sample(**GOOD, error=0.05), params)) for _ in range(10)] == [m.R_NONE] * 10
+    assert [int(step(state, sample(**GOOD, error=above), params)) for _ in range(2)] == [m.R_NONE] * 2
+    assert step(state, sample(**GOOD), params) == m.R_NONE  # unknown: the count restarts
+    assert [int(step(state, sample(**GOOD, error=above), params)) for _ in range(3)] == [m.R_NONE] * 2 + [m.R_CONTROL_LOST]
+    assert state[m.S_MODE] == m.SAFE and state[m.S_LOST_N] == 0.0  # every count restarts at a transition
+    state = at(m.HOLD)
+    far = sample(**GOOD, error=1.0)
+    assert [int(step(state, far, params)) for _ in range(5)] == [m.R_NONE] * 4 + [m.R_ACQUIRED]  # HOLD: never SAFE on it, tracks
+    state = at(m.TRACK)
+    x = sample(**GOOD, error=1.0, inhibit=float(m.INHIBIT_SAFE))
+    assert [int(step(state, x, params)) for _ in range(10)] == [m.R_NONE] * 10
+    state = at(m.TRACK)
+    assert [int(step(state, sample(**GOOD, error=1.0), PARAMS)) for _ in range(10)] == [m.R_NONE] * 10  # not read
+    with pytest.raises(ConfigError, match="lost_error_rad"):
+        m.ModeConfig(lost_error_rad=-1.0)
+    assert m.ModeConfig().packed(DT)[m.P_LOST] == math.inf and list(PARAMS[[m.P_LOST_N]]) == [100]

@@ -24,6 +24,9 @@ any -> requested       a ground request (``IN_REQUEST``: a mode's number) for an
 DETUMBLE -> HOLD       body-rate magnitude ``< detumbled_rate_rad_s`` for                    ``detumbled``
                        ``detumbled_for_s``
 HOLD, TRACK -> SAFE    the run's loss-of-control rule fires (``IN_LOST``), at once           ``control_lost``
+TRACK -> SAFE          the estimate's attitude error against the reference (``IN_ERROR``)   ``control_lost``
+                       ``> lost_error_rad`` for ``lost_for_s`` (when ``lost_error_rad`` is
+                       set: flight software's own view of a lost attitude)
 HOLD, TRACK -> SAFE    a wheel's speed beyond ``max_wheel_speed_fraction`` of its limit, at  ``wheel_speed``
                        once
 HOLD, TRACK -> SAFE    the estimator's health ERROR or STALE for ``safe_on_error_for_s``     ``estimator_error``
@@ -128,13 +131,17 @@ N_INPUTS = 8
 INHIBIT_DETUMBLED, INHIBIT_ACQUIRED, INHIBIT_SAFE, INHIBIT_RECOVERED = 1, 2, 4, 8
 #: Parameters (:meth:`ModeConfig.packed`): the rate threshold and its samples, the convergence
 #: threshold, the samples of health, of ERROR and of recovery, the wheel-speed fraction, the
-#: acquisition's error threshold (infinite: no condition).
-P_RATE, P_RATE_N, P_SIGMA, P_HEALTHY_N, P_ERROR_N, P_RECOVER_N, P_WHEEL, P_ACQUIRED = 0, 1, 2, 3, 4, 5, 6, 7
-N_PARAMS = 8
+#: acquisition's error threshold (infinite: no condition), the lost attitude's error threshold
+#: (infinite: no condition) and its samples.
+P_RATE, P_RATE_N, P_SIGMA, P_HEALTHY_N, P_ERROR_N, P_RECOVER_N, P_WHEEL, P_ACQUIRED, P_LOST, P_LOST_N = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
+N_PARAMS = 10
 #: State (:func:`new_mode_state`): the mode, the consecutive samples each condition has held since
-#: the mode's entry (slow rate, healthy and acquired, ERROR, recovering), the reason of the last transition.
-S_MODE, S_RATE_N, S_HEALTHY_N, S_ERROR_N, S_RECOVER_N, S_REASON = 0, 1, 2, 3, 4, 5
-N_STATE = 6
+#: the mode's entry (slow rate, healthy and acquired, ERROR, recovering), the reason of the last
+#: transition, the consecutive samples of a lost attitude (:data:`COUNTS`: the counts).
+S_MODE, S_RATE_N, S_HEALTHY_N, S_ERROR_N, S_RECOVER_N, S_REASON, S_LOST_N = 0, 1, 2, 3, 4, 5, 6
+N_STATE = 7
+#: The state's consecutive-sample counts (each restarts at a transition: :func:`restart_counts`).
+COUNTS = (S_RATE_N, S_HEALTHY_N, S_ERROR_N, S_RECOVER_N, S_LOST_N)
 #: Why a transition was taken (:func:`mode_step`'s return), :data:`REASON_NAMES` their names.
 R_NONE, R_REQUEST, R_DETUMBLED, R_ACQUIRED, R_ESTIMATOR_ERROR, R_CONTROL_LOST, R_WHEEL_SPEED, R_RECOVERED = 0, 1, 2, 3, 4, 5, 6, 7
 REASON_NAMES = ("none", "request", "detumbled", "acquired", "estimator_error", "control_lost", "wheel_speed", "recovered")
@@ -162,6 +169,10 @@ DEFAULT_SAFE_ON_ERROR_FOR_S = 5.0
 DEFAULT_RECOVER_FOR_S = 30.0
 #: Default ``max_wheel_speed_fraction``: SAFE beyond a wheel's speed limit itself (the issue's guard).
 DEFAULT_MAX_WHEEL_SPEED_FRACTION = 1.0
+#: Default ``lost_for_s``: 10 s of a lost attitude before SAFE (with ``lost_error_rad`` set). A
+#: tracking controller recovers a fault's transient in seconds (the paper's sudden fault: under 5 s
+#: outside its band); a spacecraft still far off after twice that is not coming back on its own.
+DEFAULT_LOST_FOR_S = 10.0
 
 
 def samples_for(seconds: float, dt_s: float) -> int:
@@ -207,6 +218,14 @@ class ModeConfig:
         most this [rad] (> 0): a HOLD that points at the reference hands over near it, where the
         tracking controller's funnel is feasible (docs/design/modes.md); ``None`` (default): no
         such condition.
+    lost_error_rad : float or None
+        TRACK -> SAFE (reason ``control_lost``) when the estimate's attitude error against the
+        reference (its rotation angle) stays above this [rad] (> 0) for ``lost_for_s``: the
+        loss-of-control rule flight software can apply online (the run's own rule,
+        :mod:`sappc.evaluation.requirements`, judges the true error after the run); ``None``
+        (default): no such condition.  A sample without a valid estimate restarts the count.
+    lost_for_s : float
+        ... held this long [s] (>= 0).
     """
 
     detumbled_rate_rad_s: float = DEFAULT_DETUMBLED_RATE_RAD_S
@@ -217,13 +236,17 @@ class ModeConfig:
     recover_for_s: float = DEFAULT_RECOVER_FOR_S
     max_wheel_speed_fraction: float = DEFAULT_MAX_WHEEL_SPEED_FRACTION
     acquired_error_rad: float | None = None
+    lost_error_rad: float | None = None
+    lost_for_s: float = DEFAULT_LOST_FOR_S
 
     def __post_init__(self) -> None:
         for name in ("detumbled_rate_rad_s", "converged_sigma_rad", "max_wheel_speed_fraction"):
             object.__setattr__(self, name, _check_number(name, getattr(self, name), positive=True))
         if self.acquired_error_rad is not None:
             object.__setattr__(self, "acquired_error_rad", _check_number("acquired_error_rad", self.acquired_error_rad, positive=True))
-        for name in ("detumbled_for_s", "healthy_for_s", "safe_on_error_for_s", "recover_for_s"):
+        if self.lost_error_rad is not None:
+            object.__setattr__(self, "lost_error_rad", _check_number("lost_error_rad", self.lost_error_rad, positive=True))
+        for name in ("detumbled_for_s", "healthy_for_s", "safe_on_error_for_s", "recover_for_s", "lost_for_s"):
             object.__setattr__(self, name, _check_number(name, getattr(self, name), positive=False))
 
     def packed(self, dt_s: float) -> Array:
@@ -239,6 +262,8 @@ class ModeConfig:
         out[P_RECOVER_N] = samples_for(self.recover_for_s, dt)
         out[P_WHEEL] = self.max_wheel_speed_fraction
         out[P_ACQUIRED] = math.inf if self.acquired_error_rad is None else self.acquired_error_rad
+        out[P_LOST] = math.inf if self.lost_error_rad is None else self.lost_error_rad
+        out[P_LOST_N] = samples_for(self.lost_for_s, dt)
         return out
 
 
@@ -269,6 +294,7 @@ def mode_step(state, inputs, params):  # type: ignore[no-untyped-def]  # a numba
     state[S_HEALTHY_N] = state[S_HEALTHY_N] + 1.0 if healthy and acquired else 0.0
     state[S_ERROR_N] = state[S_ERROR_N] + 1.0 if health >= HEALTH_ERROR else 0.0
     state[S_RECOVER_N] = state[S_RECOVER_N] + 1.0 if healthy and not lost and not wheel_beyond else 0.0
+    state[S_LOST_N] = state[S_LOST_N] + 1.0 if inputs[IN_ERROR] > params[P_LOST] else 0.0  # (infinite: never; NaN: no count)
     request = inputs[IN_REQUEST]
     target = mode
     reason = R_NONE
@@ -277,7 +303,7 @@ def mode_step(state, inputs, params):  # type: ignore[no-untyped-def]  # a numba
         reason = R_REQUEST
     elif mode == HOLD or mode == TRACK:
         if (inhibit & INHIBIT_SAFE) == 0:
-            if lost:
+            if lost or (mode == TRACK and state[S_LOST_N] >= params[P_LOST_N]):
                 target = SAFE
                 reason = R_CONTROL_LOST
             elif wheel_beyond:
@@ -299,12 +325,20 @@ def mode_step(state, inputs, params):  # type: ignore[no-untyped-def]  # a numba
             reason = R_RECOVERED
     if reason != R_NONE:
         state[S_MODE] = target
-        state[S_RATE_N] = 0.0
-        state[S_HEALTHY_N] = 0.0
-        state[S_ERROR_N] = 0.0
-        state[S_RECOVER_N] = 0.0
+        restart_counts(state)
         state[S_REASON] = reason
     return reason
+
+
+@jit
+def restart_counts(state):  # type: ignore[no-untyped-def]  # a numba kernel
+    """Every consecutive-sample count of ``state`` (:data:`COUNTS`) back to zero: a transition's
+    (each guard counts from its mode's entry), or a mode node's activation."""
+    state[S_RATE_N] = 0.0
+    state[S_HEALTHY_N] = 0.0
+    state[S_ERROR_N] = 0.0
+    state[S_RECOVER_N] = 0.0
+    state[S_LOST_N] = 0.0
 
 
 @jit
