@@ -287,6 +287,23 @@ def test_a_moded_runs_metrics_are_those_of_its_samples_from_track_on(origin: str
         # the split matters nowhere: every block size gives these numbers (checked against the run alone above)
 
 
+def test_every_per_run_metric_says_whether_a_new_origin_restarts_it() -> None:
+    """``origin: last_track`` restarts the tracking metrics at each TRACK entry
+    (``MetricsAccumulator._restart_origin``): every per-run field is either restarted, to the fresh
+    value ``__init__`` gives it, or kept, never both, never neither (a new metric must choose)."""
+    from sappc.evaluation.metrics import MetricsAccumulator, SampleGrid
+
+    restarted = [name for name, _ in MetricsAccumulator._RESTARTED_AT_ORIGIN]
+    kept = list(MetricsAccumulator._KEPT_AT_ORIGIN)
+    assert sorted(restarted + kept) == sorted(MetricsAccumulator._PER_RUN) and len(set(restarted) | set(kept)) == len(restarted) + len(kept)
+    sc = load_scenario(scenario_path("flight_separation"))
+    fresh = MetricsAccumulator(SampleGrid.of_run(1.0, 0.01), 2, steady_from_s=0.5, settle_threshold=1e-3, t2_s=0.5, fault_windows=[],
+                               orbit_bins=sc.orbit_bins(), origin="last_track")
+    for name, value in MetricsAccumulator._RESTARTED_AT_ORIGIN:
+        a = getattr(fresh, name)
+        assert a is None or np.array_equal(a, np.full_like(a, value), equal_nan=True), name  # (None: allocated with the first block)
+
+
 def test_a_campaign_of_separations_reports_the_time_to_track(tmp_path: Any) -> None:
     """A campaign with modes: each run's time to TRACK and transitions in its table and runs.csv,
     their distribution and the runs that never tracked in the summary, and such a run's reason."""

@@ -385,6 +385,23 @@ class MetricsAccumulator:
                 "est_att_sq", "est_att_n", "est_bias_last", "est_nees_sum", "est_nees_n", "est_status_counts", "est_mon_error", "est_mon_n",
                 "est_withheld", "est_recoveries", "orb_steady_max", "orb_steady_sum", "orb_h_max", "orb_h_end", "orb_speed_max",
                 "orb_dipole_sum", "orb_steady_samples", "mode_time_s", "mode_entry_s", "mode_transitions", "mode_last", "mode_seq")
+    #: The per-run state a new origin (``origin="last_track"``, :meth:`_restart_origin`) sets back to
+    #: a run not yet started: each tracking metric's, with its fresh value (``__init__``'s).
+    _RESTARTED_AT_ORIGIN = (("last_unsettled", -1), ("steady_sum", 0.0), ("steady_max", 0.0), ("rpf_error_t2_axis", np.nan),
+                            ("overshoot", 0.0), ("max_torque", 0.0), ("torque_sign", np.nan), ("torque_sign_nonzero", 0.0),
+                            ("torque_sign_changes", 0), ("torque_reversals", 0), ("saturated_count", 0), ("outside_count", 0),
+                            ("outside_s", 0.0), ("last_outside", -1), ("left_after_fault", False), ("steady_n", 0), ("steady_first", -1),
+                            ("est_att_max", 0.0), ("est_att_sq", 0.0), ("est_att_n", 0), ("orb_steady_max", np.nan), ("orb_steady_sum", 0.0),
+                            ("orb_steady_samples", 0))
+    #: ... and what it keeps: the origin itself and what follows from it (``t2``'s sample, the
+    #: overshoot's signs, set at the origin's sample), and the run's own figures (finiteness, the
+    #: loss-of-control rule's, the wheels', the estimator's whole-run ones, the per-orbit momentum,
+    #: the modes').  Every name of :data:`_PER_RUN` is in exactly one of the two (tested): a new
+    #: per-run metric must say which.
+    _KEPT_AT_ORIGIN = ("origin_k", "k_t2_run", "sign0", "last_controlled", "finite", "wheel_speed_max", "wheel_torque_max", "wheel_energy",
+                       "est_bias_last", "est_nees_sum", "est_nees_n", "est_status_counts", "est_mon_error", "est_mon_n", "est_withheld",
+                       "est_recoveries", "orb_h_max", "orb_h_end", "orb_speed_max", "orb_dipole_sum", "mode_time_s", "mode_entry_s",
+                       "mode_transitions", "mode_last", "mode_seq")
     #: Per-sample sums over runs, added by :meth:`concatenate`.
     _SUMMED = ("nees_sum_t", "nees_runs_t")
 
@@ -483,12 +500,7 @@ class MetricsAccumulator:
             kk = self._nearest_sample(float(origin[i]) + self.t2_s)
             ok = kk >= 0 and abs(float(self.time_s(kk)) - float(origin[i]) - self.t2_s) <= 0.5 * self.dt + _TIME_TOL_S
             self.k_t2_run[i] = kk if ok else -1
-        for name, value in (("last_unsettled", -1), ("steady_sum", 0.0), ("steady_max", 0.0), ("rpf_error_t2_axis", np.nan),
-                            ("overshoot", 0.0), ("max_torque", 0.0), ("torque_sign", np.nan), ("torque_sign_nonzero", 0.0),
-                            ("torque_sign_changes", 0), ("torque_reversals", 0), ("saturated_count", 0), ("outside_count", 0),
-                            ("outside_s", 0.0), ("last_outside", -1), ("left_after_fault", False), ("steady_n", 0), ("steady_first", -1),
-                            ("est_att_max", 0.0), ("est_att_sq", 0.0), ("est_att_n", 0), ("orb_steady_max", np.nan), ("orb_steady_sum", 0.0),
-                            ("orb_steady_samples", 0)):
+        for name, value in self._RESTARTED_AT_ORIGIN:
             a = getattr(self, name)
             if a is not None:
                 a[r] = value
