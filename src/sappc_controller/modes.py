@@ -58,6 +58,15 @@ class ModeLaws:
         self._q_hold = np.full(4, np.nan)
         self._q_unit = np.array([0.0, 0.0, 0.0, 1.0])
         self._zero3 = np.zeros(3)
+        # the compiled step loaded now, not at the first sample of HOLD or SAFE: a direct call of the kernel is a
+        # dispatch of its own (measured: the first HOLD sample of a separation through the graph took the plant's
+        # 2 s lockstep timeout to answer), then the law afresh
+        at_rest = (self._q_unit, self._zero3, self._q_unit, self._zero3, self._zero3)
+        self.torque(HOLD, 0.0, 0.01, at_rest, None)
+        self.torque(SAFE, 0.0, 0.01, None, self._zero3)
+        self._out[:] = 0.0
+        self._work[:] = 0.0
+        self.enter()
 
     def enter(self) -> None:
         """An entry into HOLD or SAFE: the law's state afresh, HOLD's attitude taken at its next valid sample."""
