@@ -332,6 +332,7 @@ class ProjectNode(Node):
         self._finished = False
         self.finished_future: Any = None  # run_nodes's: done when a node of the process finishes
         self.up_monotonic_s: float | None = None  # run_nodes's: when every node of the process was built (CLOCK_MONOTONIC [s])
+        self.callback_times: CallbackTimes | None = None  # run_nodes's developer aid (SAPPC_CALLBACK_TIMES_DIR), when set
         self._expected = parse_expected(list(self.param(COMMON_PARAMETERS[0])))
         self._counts_file = str(self.param(COMMON_PARAMETERS[1]))
         self._counting_pubs: list[CountingPublisher] = []
@@ -619,6 +620,8 @@ class ManagedNode(LifecycleNodeMixin, ProjectNode):
             return TransitionCallbackReturn.ERROR
         self.configured = True
         self.configurations += 1
+        if self.callback_times is not None:  # what configure subscribed is timed too (the developer aid)
+            self.callback_times.wrap(self)
         self.get_logger().info("configured: inactive")
         return TransitionCallbackReturn.SUCCESS
 
@@ -679,11 +682,18 @@ class CallbackTimes:
 
     def __init__(self, nodes: list[ProjectNode]) -> None:
         self._sums: dict[tuple[str, str], list[int]] = {}  # (node, topic) -> [calls, total ns]
+        self._wrapped: set[int] = set()  # the ids of the subscriptions and timers wrapped
         for node in nodes:
-            for sub in node.subscriptions:
-                sub.callback = self._wrap(node.get_name(), str(sub.topic_name), sub.callback)
-            for timer in node.timers:
-                timer.callback = self._wrap(node.get_name(), "timer", timer.callback)
+            self.wrap(node)
+            node.callback_times = self  # a managed node's configure wraps what it creates (ManagedNode.on_configure)
+
+    def wrap(self, node: ProjectNode) -> None:
+        """Time every subscription's and timer's callback of ``node`` not timed yet."""
+        entities: list[tuple[Any, str]] = [*((sub, str(sub.topic_name)) for sub in node.subscriptions), *((t, "timer") for t in node.timers)]
+        for entity, topic in entities:
+            if id(entity) not in self._wrapped:
+                self._wrapped.add(id(entity))
+                entity.callback = self._wrap(node.get_name(), topic, entity.callback)
 
     def _wrap(self, node: str, topic: str, callback: Callable[..., Any]) -> Callable[..., Any]:
         acc = self._sums.setdefault((node, topic), [0, 0])

@@ -13,6 +13,12 @@ the context switches of every message.
 order they start, each ``{"name": ..., "args": [ROS arguments]}`` with the same ``--ros-args``
 (``__node:=`` remap, ``--params-file``, topic remaps) its own process would get.  The run ends when
 the plant finishes (or on SIGINT / SIGTERM); the nodes then stop in :data:`STOP_ORDER`.
+
+The managed nodes (the controller, estimator, mode and momentum nodes: their arguments carry
+``-p managed:=true``) are built unconfigured, as in their own processes, and ``sappc run``'s
+lifecycle client brings them up through their standard services, which this process's executor
+answers between the other nodes' callbacks (:mod:`sappc.graph.launch`, "Bring-up"); the plant
+built here waits for that client as it does in its own process.
 """
 
 from __future__ import annotations

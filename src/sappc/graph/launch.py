@@ -13,6 +13,35 @@ lock file (two runs at once never share a domain), ``ROS_AUTOMATIC_DISCOVERY_RAN
 fast discovery, ``ROS_LOG_DIR`` inside the run directory.  No process outlives the run: every
 child is waited for, killed after :data:`STOP_TIMEOUT_S` if it must be, and stale Fast DDS
 shared-memory segments are cleaned when one had to be killed.
+
+Bring-up (issue 49, item 2; docs/how-to/nodes.md, "Bring-up: managed nodes"): the controller, and
+the estimator, mode and momentum nodes of a scenario that has them (:data:`MANAGED_NODES`), are
+started as ROS 2 managed (lifecycle) nodes: ``-p managed:=true`` on their command line (in the
+composed process, in their arguments), not in ``params.yaml``, which stays the plain nodes' file
+(with it alone each node starts configured and active, as ``python -m sappc_controller`` does by
+default).  They start ``unconfigured``, and the launcher brings them up through the standard
+lifecycle services with a plain rclpy client of ``lifecycle_msgs`` in its own process
+(:class:`_BringUp`: a context of its own on the run's domain, with the nodes' discovery range and
+Fast DDS profile, no signal handlers): ``configure`` each (``/<node>/change_state``), in the order
+estimator, modes, controller, momentum (those the run has), then ``activate`` each in the same
+order, one transition at a time, each answered before the next is asked.  Meanwhile the other
+processes start and wait for their partners as always; what they wait for is made at configure
+(the managed nodes' subscriptions and publishers: the plant waits for a publisher of its torque
+and for its expected subscribers, the recorder for every publisher of what it records before it
+subscribes to ``/clock``), so nothing waited for is missing for good while a node is unconfigured,
+and none of them gives up waiting (no time limit on those waits; the run's own stall rule and
+deadline apply).  Configured is not yet active: the plant's first sample waits for one subscriber
+more, the client's ``state/tf`` subscription, made once every managed node is active (the plant's
+``expected_subscribers`` count it), so no sample is ever answered by an inactive node and the
+lockstep samples are exactly those of plain nodes.  Once the plant's first sample has come
+through, the client lets go (its subscription, node and context).  A transition a node answers
+with ``success: false`` (a parameter its configure refuses) stops the run with one line naming the
+node and the transition, followed by that node's last log lines (the composed process's when
+composed), as a node that fails to start does (``RuntimeError``; ``sappc run``: exit status 1).
+``logs/bringup.json`` (:data:`BRINGUP_FILE`) records every transition: the node, its label, when it
+was asked and answered (CLOCK_MONOTONIC seconds, the clock of the plant's ``logs/timing.json``),
+when every node was active and when the plant's first sample came through.  With ``--plant
+external`` there is no gate (your plant is told to start once the nodes are active).
 """
 
 from __future__ import annotations
@@ -76,6 +105,16 @@ DOMAIN_IDS = range(1, 102)
 MAX_DOMAIN_ID = 232
 #: The nodes of a run, in start order (the plant starts last: it owns time).
 NODES = ("recorder", "estimator", "modes", "controller", "momentum", "reference", "injector", "plant")
+#: The nodes ``sappc run`` starts as ROS 2 managed (lifecycle) nodes (``managed:=true``), in the
+#: order it configures them, then activates them (module docstring, "Bring-up"); a run has those
+#: its scenario needs (always the controller).
+MANAGED_NODES = ("estimator", "modes", "controller", "momentum")
+#: The bring-up's transitions (``lifecycle_msgs/msg/Transition``'s labels), each made for every
+#: managed node of the run, in :data:`MANAGED_NODES` order, before the next.
+BRINGUP_TRANSITIONS = ("configure", "activate")
+#: The bring-up's record (in the run directory): every transition's node, label, request and
+#: answer times (CLOCK_MONOTONIC [s], the clock of the plant's timing file) and the gate's opening.
+BRINGUP_FILE = "logs/bringup.json"
 #: Plants of ``sappc run --plant``: the bundled rigid body (``python -m spacecraft_sim``), or the
 #: user's own, started separately (every node but the plant is started; the run ends once the
 #: torque of the scenario's last sample is recorded, or on Ctrl-C).
@@ -295,7 +334,10 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
         # (in real time the reference and the injector also take the run's first frame from the first state/attitude: FramesAhead)
         # (with an estimator, not the controller: the estimator reads the sensors' own topics, sensors/* and state/attitude_epoch)
         "expected_subscribers": expected(state__attitude=2 - measuring + 2 * realtime,
-                                         state__rate=2 - measuring + (managing and not estimating and not sensor_relayed), state__tf=1)
+                                         state__rate=2 - measuring + (managing and not estimating and not sensor_relayed),
+                                         # state/tf: the recorder, and (the bundled plant) sappc run's bring-up client once every
+                                         # managed node is active: the plant's first sample waits for it (module docstring, "Bring-up")
+                                         state__tf=1 + (not external_plant))
         + (["joint_states=1"] if scenario.wheels is not None else [])
         + (["truth/attitude=1", "truth/rate=1", "truth/gyro_bias=1"]
            + [f"{t.name}={1 + estimating + 2 * (moding and t is SENSOR_GYRO and not gyro_relayed)}" for t in RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR]
@@ -493,6 +535,8 @@ class GraphResult:
     plant_timing: dict[str, Any] = field(default_factory=dict)  # the plant node's (run_s, samples, missed)
     #: from the plant's process having built its nodes (composed: every node) to its first sample [s]: discovery and matching (None: an external plant)
     first_sample_after_up_s: float | None = None
+    #: the bring-up's record (:data:`BRINGUP_FILE`): each lifecycle transition made, in order
+    bringup: list[dict[str, Any]] = field(default_factory=list)
 
     def mismatched_counts(self) -> dict[str, tuple[int, int]]:
         """Topics whose recorded count differs from the published one: (published, recorded)."""
@@ -670,6 +714,175 @@ def _fastdds_shm_clean() -> None:
         subprocess.run([str(tool), "shm", "clean"], capture_output=True, check=False)
 
 
+#: Serialises the process-wide environment the bring-up client's ROS context is created in.
+_ENV_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _environment(values: Mapping[str, str]) -> Iterator[None]:
+    """``os.environ`` updated with ``values`` while the context lasts (the middleware reads the
+    discovery range and the Fast DDS profile from the environment when a participant is made),
+    then restored."""
+    with _ENV_LOCK:
+        old = {key: os.environ.get(key) for key in values}
+        os.environ.update(values)
+        try:
+            yield
+        finally:
+            for key, value in old.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+
+
+class BringUpFailed(RuntimeError):
+    """A lifecycle transition of the bring-up failed: ``node`` and ``transition`` name it."""
+
+    def __init__(self, node: str, transition: str, state: str) -> None:
+        super().__init__(f"node {node}: its {transition} transition failed (it stays {state})")
+        self.node, self.transition = node, transition
+
+
+class _BringUp:
+    """``sappc run``'s lifecycle client (module docstring, "Bring-up"): a plain rclpy node in the
+    launcher's process, on the run's domain and environment, that configures each managed node of
+    ``nodes`` (:data:`MANAGED_NODES` order), then activates each, through the standard
+    ``/<node>/change_state`` services (``lifecycle_msgs/srv/ChangeState``), one transition at a
+    time; then, with ``gate``, subscribes to ``state/tf``, which the bundled plant waits for
+    before its first sample (``expected_subscribers``), and lets go of everything once the
+    plant's first sample has come.
+
+    :meth:`poll` does what is due without blocking longer than ``timeout_s`` (the run's loop calls
+    it in place of its sleep, so the loop's checks go on: a node that exits, the deadline, the stall
+    rule, the progress line); a failed transition raises :class:`BringUpFailed`.
+    """
+
+    def __init__(self, nodes: Sequence[str], domain: int, env: Mapping[str, str], gate: bool) -> None:
+        import rclpy
+        from lifecycle_msgs.srv import ChangeState
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+        from rclpy.utilities import try_shutdown
+
+        self.nodes = list(nodes)
+        self.steps = [(name, t) for t in BRINGUP_TRANSITIONS for name in self.nodes]
+        self.record: list[dict[str, Any]] = []
+        self.active_at: float | None = None  # when the last transition was answered (CLOCK_MONOTONIC [s])
+        self.gate_open_at: float | None = None  # when the plant's first sample came through the gate
+        self._gate = gate
+        self._gate_sub: Any = None
+        self._pending: tuple[str, str, Any, float] | None = None
+        isolation = {k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE", "ROS_LOG_DIR") if k in env}
+        with _environment(isolation):  # the participant is made with the node: both inside
+            self.context = Context()
+            rclpy.init(context=self.context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+            try:
+                self.node = rclpy.create_node("sappc_run_bringup", context=self.context, start_parameter_services=False)
+                self.executor = SingleThreadedExecutor(context=self.context)
+                self.executor.add_node(self.node)
+                self.clients = {name: self.node.create_client(ChangeState, f"/{name}/change_state") for name in self.nodes}
+            except BaseException:
+                try_shutdown(context=self.context)
+                raise
+        self._request = ChangeState.Request
+        self._closed = False
+
+    @property
+    def up(self) -> bool:
+        """Every managed node of the run is active."""
+        return self.active_at is not None
+
+    @property
+    def done(self) -> bool:
+        """Every node active and, with a gate, the plant's first sample through it: the client is let go."""
+        return self._closed
+
+    def poll(self, timeout_s: float) -> None:
+        """Spin the client's node for at most ``timeout_s`` and take the bring-up's next step.
+
+        Raises
+        ------
+        BringUpFailed
+            When a node answers a transition with ``success: false``.
+        """
+        if self._closed:
+            time.sleep(timeout_s)
+            return
+        self.executor.spin_once(timeout_sec=timeout_s)
+        if self._pending is not None:
+            name, transition, future, asked = self._pending
+            if not future.done():
+                return
+            self._pending = None
+            answer = future.result()
+            now = time.monotonic()
+            self.record.append({"node": name, "transition": transition, "requested_monotonic_s": asked, "answered_monotonic_s": now,
+                                "success": bool(answer is not None and answer.success)})
+            if answer is None or not answer.success:
+                raise BringUpFailed(name, transition, "unconfigured" if transition == "configure" else "inactive")
+            self.steps.pop(0)
+        if self.steps:
+            from lifecycle_msgs.msg import Transition
+
+            name, transition = self.steps[0]
+            client = self.clients[name]
+            if client.service_is_ready():
+                ids = {"configure": Transition.TRANSITION_CONFIGURE, "activate": Transition.TRANSITION_ACTIVATE}
+                future = client.call_async(self._request(transition=Transition(id=ids[transition])))
+                self._pending = (name, transition, future, time.monotonic())
+            return
+        if self.active_at is None:
+            self.active_at = time.monotonic()
+            if not self._gate:
+                self.close()
+                return
+            from sappc_msgs_py.contract import STATE_TF, qos_profile
+
+            self._gate_sub = self.node.create_subscription(STATE_TF.msg_class, STATE_TF.name, self._on_gate, qos_profile(), raw=True)
+        elif self.gate_open_at is not None:
+            self.close()
+
+    def _on_gate(self, _raw: bytes) -> None:
+        if self.gate_open_at is None:
+            self.gate_open_at = time.monotonic()
+
+    def write(self, path: Path) -> None:
+        """The bring-up's record (:data:`BRINGUP_FILE`), as JSON (not written when the directory is gone)."""
+        with contextlib.suppress(OSError):
+            path.write_text(json.dumps({"nodes": self.nodes, "transitions": self.record, "active_monotonic_s": self.active_at,
+                                        "gate_open_monotonic_s": self.gate_open_at}, indent=1))
+
+    def close(self) -> None:
+        """Let go of the client: its subscription, node and context (twice is once)."""
+        if self._closed:
+            return
+        self._closed = True
+        from rclpy.utilities import try_shutdown
+
+        # cleanup on every path (an interrupted spin included): a step that fails must not keep the
+        # nodes from being stopped after it
+        for step in (lambda: self.executor.shutdown(timeout_sec=1.0), self.node.destroy_node, lambda: try_shutdown(context=self.context)):
+            with contextlib.suppress(Exception):
+                step()
+
+
+def _bring_up(bringup: _BringUp, procs: Mapping[str, _Process], compose: bool, start: float, say: Callable[[str], None]) -> None:
+    """One step of the bring-up (:meth:`_BringUp.poll`, at most 50 ms); its end said once; a failed
+    transition stops the run with one line naming the node and the transition, and that node's
+    (or the composed process's) last log lines."""
+    was_up = bringup.up
+    try:
+        bringup.poll(0.05)
+    except BringUpFailed as exc:
+        log = procs["composed" if compose else exc.node]
+        raise RuntimeError(f"{exc}; last log lines:\n{log.tail()}") from None
+    if bringup.active_at is not None and not was_up:
+        say(f"sappc run: {', '.join(bringup.nodes)} configured and active through their lifecycle services "
+            f"({bringup.active_at - start:.1f} s after the launch)")
+
+
 def run_graph(
     scenario_path: str | Path,
     *,
@@ -793,7 +1006,10 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         # from the last sample on, the stop's lines (issue 46: a line at least every 2 s to the end)
         ticker = Ticker(lambda msg: say(f"sappc run: {msg}"), period_s=PROGRESS_PERIOD_S)
         start = time.monotonic()
-        node_args = {name: ["--ros-args", "-r", f"__node:={name}", "--params-file", params_path.name, *remaps[name]] for name in nodes}
+        # the managed nodes start unconfigured (managed:=true): the launcher's client brings them up (_BringUp)
+        managed = [n for n in MANAGED_NODES if n in nodes]
+        node_args = {name: ["--ros-args", "-r", f"__node:={name}", "--params-file", params_path.name, *remaps[name],
+                            *(["-p", "managed:=true"] if name in managed else [])] for name in nodes}
         if compose:  # one process: it ends by itself when the plant finishes, the nodes stopping in STOP_ORDER
             composition = run_dir / "composition.json"
             composition.write_text(json.dumps([{"name": name, "args": node_args[name]} for name in nodes], indent=1))
@@ -804,6 +1020,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
             commands = {name: [sys.executable, "-m", NODE_CLASSES[name][0], *node_args[name]] for name in nodes}
             lead, stop_order = "plant", [n for n in STOP_ORDER if n in nodes]
         end_file = run_dir / END_FILE
+        bringup: _BringUp | None = None
 
         def ended() -> bool:
             """The plant finished (it exits), or the recorder saw an external plant's last sample."""
@@ -813,8 +1030,17 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
             for name, cmd in commands.items():
                 with _interrupts_deferred("starting the nodes"):  # a started process is always in procs, to be stopped
                     procs[name] = _Process(name, cmd, env, run_dir / "logs" / f"{name}.log", cwd=run_dir, rt_priority=rt_priority)
+            with _interrupts_deferred("starting the nodes"):  # while the processes start: the lifecycle client, on the run's domain
+                bringup = _BringUp(managed, domain, env, gate=not external)
             say(f"sappc run: {scenario.name} with {kind.value} ({'real time' if realtime else 'lockstep'}"
                 f"{', composed' if compose else ''}), domain {domain} ({domain_source}), in {run_dir}")
+            while external and not bringup.up:  # your plant is told to start once the managed nodes are active
+                for name, p in procs.items():
+                    if p.proc.poll() is not None:
+                        raise RuntimeError(f"node {name} exited early with status {p.proc.returncode}; last log lines:\n{p.tail()}")
+                if time.monotonic() > start + limit:
+                    raise RuntimeError(f"the run did not finish within {limit:.0f} s (see {run_dir / 'logs'})")
+                _bring_up(bringup, procs, compose, start, say)
             if external:
                 say(f"sappc run: waiting for your plant on ROS_DOMAIN_ID={domain} (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST): it publishes "
                     f"{'/clock, ' if not realtime else ''}state/attitude and state/rate and applies control/torque; the run ends once the "
@@ -836,11 +1062,14 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                     raise RuntimeError(f"the nodes did not stop within {CLOSE_BASE_S + CLOSE_S_PER_SAMPLE * line.last_samples[1]:.0f} s "
                                        f"of the last sample (see {run_dir / 'logs'})")
                 line.update()
+                if not bringup.done:
+                    _bring_up(bringup, procs, compose, start, say)
                 if line.done and not stopping:  # the lead ends by itself: the plant its run, the composed process its nodes
                     ticker.step("stopping the nodes", f"waiting for the {'plant' if lead == 'plant' else 'composed nodes'} to end")
                     stopping = True
                 ticker.poll()
-                time.sleep(0.05)
+                if bringup.done:
+                    time.sleep(0.05)
             run_end = time.monotonic()
             if not external and procs[lead].proc.returncode != 0:
                 raise RuntimeError(f"the {lead} process failed with status {procs[lead].proc.returncode}; last log lines:\n{procs[lead].tail()}")
@@ -848,6 +1077,9 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
             # publishers first (they wait for acknowledgements), the recorder last (it drains); a
             # further Ctrl-C cannot cut this short and leave a node running
             with _interrupts_deferred("stopping the nodes cleanly"), ticker:  # its thread: a process's exit may take seconds
+                if bringup is not None:  # the lifecycle client let go (whatever happened), its record kept
+                    bringup.close()
+                    bringup.write(run_dir / BRINGUP_FILE)
                 exit_codes, killed_any = _stop_nodes(procs, stop_order, bag_dir, ticker)
                 if killed_any:
                     _fastdds_shm_clean()
@@ -881,6 +1113,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         first_sample_after_up_s=after_up_s,
         run_s=run_s,
         exit_codes=exit_codes,
+        bringup=json.loads((run_dir / BRINGUP_FILE).read_text())["transitions"],
         controller_timing=json.loads(ctrl_timing.read_text()) if (ctrl_timing := run_dir / "logs" / "controller_timing.json").exists() else {},
         plant_timing=timing,
     )
