@@ -89,7 +89,7 @@ from gnc_common.validation import ConfigError, as_finite_array, from_mapping
 from gnc_common.input_check import InputBounds, sample_verdicts
 from sappc_modes.core.modes import (
     HEALTH_ERROR, HEALTH_OK, HEALTH_WARN, HOLD, IN_ERROR, IN_HEALTH, IN_INHIBIT, IN_LOST, IN_RATE, IN_REQUEST, IN_SIGMA, IN_WHEEL, INHIBIT_ACQUIRED, INHIBIT_DETUMBLED,
-    INHIBIT_RECOVERED, INHIBIT_SAFE, MODE_NAMES, N_INPUTS, REASON_NAMES, R_NONE, S_ERROR_N, S_HEALTHY_N, S_MODE, S_RATE_N, S_REASON, S_RECOVER_N, SAFE, ModeConfig, attitude_error_angle, mode_step,
+    INHIBIT_RECOVERED, INHIBIT_SAFE, MODE_NAMES, N_INPUTS, REASON_NAMES, R_NONE, S_MODE, S_REASON, SAFE, ModeConfig, attitude_error_angle, mode_step, restart_counts,
     new_mode_state, sigma_of_covariance, wheel_speed_fraction,
 )
 from sappc_msgs_py import wire
@@ -372,8 +372,7 @@ class ModeNode(ManagedNode):
     def on_activate(self, state: Any) -> Any:
         """An activation: the flight goes on from the mode held, every guard's count restarted (as
         at a transition: each condition counts again from here); then active, from the next sample."""
-        for i in (S_RATE_N, S_HEALTHY_N, S_ERROR_N, S_RECOVER_N):
-            self._state[i] = 0.0
+        restart_counts(self._state)
         return super().on_activate(state)
 
     # ---- the end --------------------------------------------------------------------------

@@ -242,6 +242,10 @@ class MomentumNode(ManagedNode):
         self._state = new_state()
         self._step(0.0, np.zeros(W), np.zeros(3), np.zeros(3))  # load the compiled kernel now, not at the first sample
         self._state = new_state()
+        if self.flight_modes:  # B-dot's kernels too (a direct dispatch each: a cache load at DETUMBLE's first sample otherwise), then afresh
+            bdot_step(self._bdot_prm, np.array([1e-5, 0.0, 0.0]), 0.0, self._bdot_state, np.zeros(3))
+            dipole_mapping(self._mm[_STEERING], np.zeros(3), self._mm[_M_MAX], np.zeros(M))
+            self._bdot_state = new_bdot_state()
         self.pub_dipole = self.counting_publisher(CONTROL_DIPOLE, 1)
         self.pub_torque = self.counting_publisher(CONTROL_WHEEL_TORQUE, 1)
         self._pending: dict[int, dict[str, Any]] = {}
