@@ -56,7 +56,7 @@ from gnc_common.validation import (
     read_text_file,
 )
 
-__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "MAX_SCENARIO_BYTES", "ControllerKind", "ControllerNodeSettings", "FlightModes", "MetricSettings", "OrbitBins", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "read_scenario_mapping", "scenario_from_mapping"]
+__all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "MAX_SCENARIO_BYTES", "ControllerKind", "ControllerNodeSettings", "FlightModes", "controller_node_parameters", "MetricSettings", "OrbitBins", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "read_scenario_mapping", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
 
@@ -833,6 +833,27 @@ def load_scenario(path: str | Path) -> Scenario:
         return scenario_from_mapping(data, source=str(p))
     except ConfigError as exc:  # every message names the file, once
         raise type(exc)(str(exc) if str(exc).startswith(f"{p}: ") else f"{p}: {exc}") from None
+
+
+def controller_node_parameters(scenario: Scenario, kind: ControllerKind | str | None = None, *, mode: str = "lockstep") -> dict[str, Any]:
+    """The controller node's ROS parameters for a run of ``scenario``: the law's configuration, the
+    period and ``mode``, the watchdog and the input bounds, and with flight modes HOLD's and SAFE's
+    gains (``flight_modes``, ``hold_*``), flat names nested as a parameters file has them; not the
+    graph's plumbing (expected subscribers, counts and timing files, a real-time end).  The one set
+    ``sappc run`` gives the node (:func:`sappc.graph.launch.node_parameters`) and an offline bag
+    records (:func:`sappc.bag.write_offline.controller_parameters`)."""
+    k = scenario.resolve_controller(kind)
+    flight = scenario.modes
+    return {
+        **unflatten(parameters_from_config(k.value, scenario.controller_config(k))),
+        "control_period_s": scenario.control_period_s,
+        "mode": mode,
+        "stale_timeout_s": scenario.controller_node.stale_timeout_s,
+        **dataclasses.asdict(scenario.controller_node.input_bounds()),  # the input plausibility bounds (offline too)
+        **({"flight_modes": True, "hold_K_Nm": flight.hold_gains.K_Nm, "hold_P_Nms": flight.hold_gains.P_Nms,
+            "hold_integralLimit_Nms": flight.hold_gains.integralLimit_Nms, "hold_Ki_per_kg_m2": flight.hold_gains.Ki_per_kg_m2,
+            "hold_attitude": "reference" if flight.hold_on_reference else "entry"} if flight is not None else {}),
+    }
 
 
 def controller_params_yaml(scenario: Scenario, kind: ControllerKind | str | None = None, node_name: str = "controller") -> str:

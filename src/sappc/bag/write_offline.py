@@ -83,7 +83,6 @@ node's ``control/wheel_torque``; the fault relays' outputs but ``fault/control/t
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,8 +97,7 @@ from sappc.bag.errors import BagError
 from sappc.bag.mcap_write import MESSAGE_HEAD_BYTES, ZSTD_LEVEL, McapWriter, message_head
 from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, write_bag_metadata
 from sappc.evaluation.history import History
-from sappc.scenario import ControllerKind, Scenario
-from sappc_controller.params import parameters_from_config, unflatten
+from sappc.scenario import ControllerKind, Scenario, controller_node_parameters
 from sappc_msgs_py.contract import (
     ANSWER_COMMANDED,
     CLOCK,
@@ -250,18 +248,7 @@ def controller_parameters(scenario: Scenario, controller: ControllerKind | str |
     mode, watchdog and input bounds, with flight modes HOLD's and SAFE's gains, as
     :func:`sappc.graph.launch.node_parameters` gives them, but the graph's plumbing: expected
     subscribers, counts and timing files)."""
-    kind = scenario.resolve_controller(controller)
-    flight = scenario.modes
-    params = {
-        **unflatten(parameters_from_config(kind.value, scenario.controller_config(kind))),
-        "control_period_s": scenario.control_period_s,
-        "mode": "lockstep",
-        "stale_timeout_s": scenario.controller_node.stale_timeout_s,
-        **dataclasses.asdict(scenario.controller_node.input_bounds()),
-        **({"flight_modes": True, "hold_K_Nm": flight.hold_gains.K_Nm, "hold_P_Nms": flight.hold_gains.P_Nms,
-            "hold_integralLimit_Nms": flight.hold_gains.integralLimit_Nms, "hold_Ki_per_kg_m2": flight.hold_gains.Ki_per_kg_m2,
-            "hold_attitude": "reference" if flight.hold_on_reference else "entry"} if flight is not None else {}),
-    }
+    params = controller_node_parameters(scenario, controller)
     return {"/controller": {"ros__parameters": params}}
 
 

@@ -67,7 +67,6 @@ import numpy as np
 import yaml
 
 from sappc_msgs_py.runtime import parse_expected
-from sappc_controller.params import parameters_from_config, unflatten
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
 from sappc_modes.core.modes import MODE_NAMES
 from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS,
@@ -83,7 +82,7 @@ from gnc_common.validation import ConfigError, safe_load_yaml
 from sappc.bag.read import Ticker
 from sappc.files import default_output_dir, scenario_path as bundled_scenario_path
 from sappc.graph.container import NODE_CLASSES, STOP_ORDER
-from sappc.scenario import EXTENDS_KEY, ControllerKind, Scenario, load_scenario
+from sappc.scenario import EXTENDS_KEY, ControllerKind, Scenario, controller_node_parameters, load_scenario
 
 __all__ = ["DOMAIN_IDS_ENV", "RT_PRIORITIES", "GraphResult", "check_rt_priority", "claim_domain_id", "domain_ids", "format_domain_ids",
            "isolated_environment", "node_parameters", "requested_domain_id", "run_graph"]
@@ -295,23 +294,16 @@ def node_parameters(scenario: Scenario, kind: ControllerKind, *, realtime: bool,
     sensor_relayed = any(topics[0] is STATE_ATTITUDE for topics in relayed)
     # issue 49: the mode node reads the gyro, the estimate and its figures, the reference and the tachometers (one more
     # subscriber of each, at the relay's output when one is relayed); the controller reads the gyro too (SAFE's law)
-    flight = scenario.modes
-    moding = flight is not None
+    moding = scenario.modes is not None
     gyro_relayed = any(SENSOR_GYRO in topics for topics in relayed)
     reference_relayed = any(REFERENCE_ATTITUDE in topics for topics in relayed)
     clock_subs = 5 if estimating else 4  # controller (stale watchdog), reference, injector, recorder (and the estimator: its far-ahead check)
     controller = {
-        **unflatten(parameters_from_config(kind.value, scenario.controller_config(kind))),
-        **common,
-        "stale_timeout_s": scenario.controller_node.stale_timeout_s,
-        **asdict(scenario.controller_node.input_bounds()),  # the input plausibility bounds (offline too)
+        **controller_node_parameters(scenario, kind, mode=mode),  # the law, period, mode, watchdog, input bounds, flight modes' laws
         "expected_subscribers": expected(control__torque=2, controller__diagnostics=1),
         "counts_file": counts_file("controller"),
         "timing_file": str(Path(paths["counts"]).parent / "logs" / "controller_timing.json"),
         **({"duration_s": scenario.duration_s} if realtime else {}),  # nothing answered past the run's last frame
-        **({"flight_modes": True, "hold_K_Nm": flight.hold_gains.K_Nm, "hold_P_Nms": flight.hold_gains.P_Nms,
-            "hold_integralLimit_Nms": flight.hold_gains.integralLimit_Nms, "hold_Ki_per_kg_m2": flight.hold_gains.Ki_per_kg_m2,
-            "hold_attitude": "reference" if flight.hold_on_reference else "entry"} if flight is not None else {}),
     }
     plant = {
         "inertia_kg_m2": scenario.inertia_kg_m2.ravel().tolist(),
