@@ -69,6 +69,17 @@ before its first valid sample included (there is no answer to hold), else it hol
 answer (a short outage is ridden through; in real time the plant holds it); it computes again as
 soon as valid inputs return.
 
+Flight modes (parameter ``flight_modes``, default false; lockstep only; docs/design/modes.md, "The
+modes on the graph"): the node also takes, for each sample, the mode node's ``mode/status`` (paired
+by its time) and the gyro's ``sensors/gyro``, and answers the sample once all seven have arrived.
+In TRACK it answers as without modes, its law restarted at each later entry into TRACK (afresh at
+its first valid sample there, up to :data:`~sappc_modes.core.packing.MAX_RESTARTS` times, as the
+offline loop); outside TRACK it answers ``inactive`` with the mode's own law
+(:class:`sappc_controller.modes.ModeLaws`: HOLD's MRP feedback of the ``hold_*`` gains on a valid
+sample, towards the reference with ``hold_attitude: reference`` or HOLD's entry attitude; SAFE's on
+the gyro's rate alone; zero in DETUMBLE, and when the law has no input), as its torque and command,
+saturation zero.  An infeasible RPF start is clamped (counted), as the offline loop's flights.
+
 Managed (parameter ``managed``, default false; docs/design/modes.md, "Managed nodes"): by default
 the node is configured and active from the start, as described above, and offers no lifecycle
 services.  With ``managed:=true`` it is a ROS 2 managed (lifecycle) node: it starts
