@@ -80,14 +80,8 @@ sample, towards the reference with ``hold_attitude: reference`` or HOLD's entry 
 the gyro's rate alone; zero in DETUMBLE, and when the law has no input), as its torque and command,
 saturation zero.  An infeasible RPF start is clamped (counted), as the offline loop's flights.
 
-Managed (parameter ``managed``, default false; docs/design/modes.md, "Managed nodes"): by default
-the node is configured and active from the start, as described above, and offers no lifecycle
-services.  With ``managed:=true`` it is a ROS 2 managed (lifecycle) node: it starts
-``unconfigured``, with only ``managed``, ``expected_subscribers`` and ``counts_file`` declared and
-nothing subscribed or offered, and is driven through the standard services
-``/<node>/change_state`` and ``/<node>/get_state`` (``lifecycle_msgs/srv/ChangeState``,
-``GetState``; a transition not allowed from the current state is refused with ``success:
-false``):
+Managed (``managed:=true``; default false: the plain node above): a ROS 2 managed (lifecycle) node,
+as :class:`~sappc_msgs_py.runtime.ManagedNode` says for every node; for this one:
 
 - configure: everything the plain node does at start-up: the parameters declared and validated
   into the law's config, the compiled step loaded (a step at rest), the inputs subscribed, the

@@ -78,14 +78,8 @@ The closing line and ``timing_file`` count the samples answered, the filter step
 gate rejections and re-initialisations, the "no data" samples, the rejected messages, the inputs
 without data, the future tracker epochs and (real time) the late tracker samples.
 
-Managed (parameter ``managed``, default false; docs/design/modes.md, "Managed nodes"): by default
-the node is configured and active from the start, as described above, and offers no lifecycle
-services.  With ``managed:=true`` it is a ROS 2 managed (lifecycle) node, as the controller is: it
-starts ``unconfigured``, with only ``managed``, ``expected_subscribers`` and ``counts_file``
-declared and nothing subscribed or offered, and is driven through the standard services
-``/<node>/change_state`` and ``/<node>/get_state`` (``lifecycle_msgs/srv/ChangeState``,
-``GetState``; a transition not allowed from the current state is refused with ``success:
-false``):
+Managed (``managed:=true``; default false: the plain node above): a ROS 2 managed (lifecycle) node,
+as :class:`~sappc_msgs_py.runtime.ManagedNode` says for every node; for this one:
 
 - configure: everything the plain node does at start-up: the parameters declared and validated
   into the filter's config, the compiled kernel loaded (a step on throwaway arrays), the inputs

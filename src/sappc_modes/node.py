@@ -34,21 +34,14 @@ Ground commands (standard ROS 2 parameters, ``ros2 param set /modes request_mode
 (``requests_at_s``, ``requests_mode``) are requested at the first sample at or after their time,
 as offline.  The loss-of-control guard is not fed yet (0, as offline).
 
-Managed (parameter ``managed``, default false; docs/design/modes.md, "Managed nodes"): by default
-the node is configured and active from the start, exactly as described above, and offers no
-lifecycle services.  With ``managed:=true`` it is a ROS 2 managed (lifecycle) node, as the
-controller and the estimator are: it starts ``unconfigured``, with only ``managed``,
-``expected_subscribers`` and ``counts_file`` declared and nothing subscribed or offered, and is
-driven through the standard services ``/<node>/change_state`` and ``/<node>/get_state``
-(``lifecycle_msgs/srv/ChangeState``, ``GetState``; a transition not allowed from the current state
-is refused with ``success: false``):
+Managed (``managed:=true``; default false: the plain node above): a ROS 2 managed (lifecycle) node,
+as :class:`~sappc_msgs_py.runtime.ManagedNode` says for every node; for this one:
 
-- configure: everything the plain node does at start-up: the parameters declared and validated
-  (the guards, the first mode, the scheduled requests, the input bounds, the ground commands),
-  the compiled kernels loaded, the ground commands' parameter callback added, the inputs
-  subscribed, ``mode/status`` and ``diagnostics`` offered.  A bad parameter fails the transition,
-  logged naming it; the node stays ``unconfigured`` (the process lives on).  The node is then
-  ``inactive``, in the first mode (``initial_mode``).
+- configure (:meth:`ModeNode.configure_node`, the plain node's start-up): the parameters declared
+  and validated (the guards, the first mode, the scheduled requests, the input bounds, the ground
+  commands), the compiled kernels loaded, the ground commands' parameter callback added, the
+  inputs subscribed, ``mode/status`` and ``diagnostics`` offered; then ``inactive``, in the first
+  mode (``initial_mode``).
 - inactive (after configure, or deactivate): the kernel is not stepped, but every sample is still
   answered on ``mode/status``, when it is complete, so a plant in lockstep never waits (the
   controller and the momentum node wait for it): the mode held, reason none (0), as if every
@@ -63,14 +56,8 @@ is refused with ``success: false``):
 - activate: the flight goes on from the mode held, every guard's count restarted (each condition
   counts its persistence again from the first sample answered active, as after a transition);
   ``diagnostics`` reports at once that the node is active.
-- cleanup: the subscriptions and publishers destroyed, the parameter callback removed;
-  ``unconfigured``.  A new configure starts a new flight (the first mode, new counts) from the
-  same parameters.
-- shutdown: as cleanup, then ``finalized``; the process ends on SIGINT or SIGTERM, as always.
-
-Design: :class:`~sappc_msgs_py.runtime.ManagedNode`, as the controller's; start-up is
-:meth:`ModeNode.configure_node`, which the base runs while building a plain node and at the
-configure transition of a managed one, so a plain node is exactly what it was.
+- cleanup: the parameter callback removed too.  A new configure starts a new flight (the first
+  mode, new counts) from the same parameters.
 """
 
 from __future__ import annotations

@@ -29,20 +29,12 @@ a wrong count or a non-finite field, speed or torque is rejected, logged and cou
 plant then holds its last command when its own wait runs out).  Real time is not supported yet
 (the node refuses ``mode: realtime``; a managed node's configure transition fails instead).
 
-Managed (parameter ``managed``, default false; docs/design/modes.md, "Managed nodes"): by default
-the node is configured and active from the start, exactly as described above, and offers no
-lifecycle services.  With ``managed:=true`` it is a ROS 2 managed (lifecycle) node, as the
-controller and the estimator are: it starts ``unconfigured``, with only ``managed``,
-``expected_subscribers`` and ``counts_file`` declared and nothing subscribed or offered, and is
-driven through the standard services ``/<node>/change_state`` and ``/<node>/get_state``
-(``lifecycle_msgs/srv/ChangeState``, ``GetState``; a transition not allowed from the current state
-is refused with ``success: false``):
+Managed (``managed:=true``; default false: the plain node above): a ROS 2 managed (lifecycle) node,
+as :class:`~sappc_msgs_py.runtime.ManagedNode` says for every node; for this one:
 
-- configure: everything the plain node does at start-up: the parameters declared and validated
-  (the tables, the law's settings, the onboard models), the compiled kernels loaded, the inputs
-  subscribed, ``control/dipole`` and ``control/wheel_torque`` offered.  A bad parameter fails the
-  transition, logged naming it; the node stays ``unconfigured`` (the process lives on).  The node
-  is then ``inactive``.
+- configure (:meth:`MomentumNode.configure_node`, the plain node's start-up): the parameters
+  declared and validated (the tables, the law's settings, the onboard models), the compiled
+  kernels loaded, the inputs subscribed, ``control/dipole`` and ``control/wheel_torque`` offered.
 - inactive (after configure, or deactivate): no management and no B-dot (neither law's state is
   stepped), but every sample is still answered, when it is complete, with its stamp, so a plant in
   lockstep never waits: the rods commanded zero on ``control/dipole`` and the wheels given the
@@ -53,13 +45,7 @@ is refused with ``success: false``):
 - activate: the law afresh from the next sample: a fresh predictive state (no plan, no disturbance
   estimate: it plans at once) and a fresh B-dot state (no previous field sample), as a new
   configure would build them, whether or not the law had stepped before.
-- cleanup: the subscriptions and publishers destroyed; ``unconfigured``.  A new configure builds
-  a new law (and new counts) from the same parameters.
-- shutdown: as cleanup, then ``finalized``; the process ends on SIGINT or SIGTERM, as always.
-
-Design: :class:`~sappc_msgs_py.runtime.ManagedNode`, as the controller's; start-up is
-:meth:`MomentumNode.configure_node`, which the base runs while building a plain node and at the
-configure transition of a managed one, so a plain node is exactly what it was.
+- cleanup: a new configure builds a new law (and new counts) from the same parameters.
 """
 
 from __future__ import annotations

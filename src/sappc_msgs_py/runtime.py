@@ -493,17 +493,20 @@ class ManagedNode(LifecycleNodeMixin, ProjectNode):
     of the constructor: the process stops with exit status 2, as every node's does) and the node is
     active; it offers no lifecycle services and has no lifecycle state machine.
 
-    Managed: the node is built with only :data:`COMMON_PARAMETERS` and :data:`MANAGED` declared,
+    Managed (``managed:=true``; docs/design/modes.md, "Managed nodes"): the node is built with
+    only :data:`COMMON_PARAMETERS` and :data:`MANAGED` declared and nothing subscribed or offered,
     in the primary state ``unconfigured``, and offers rclpy's lifecycle services
     (``/<node>/change_state``, ``get_state``, ``get_available_states``,
-    ``get_available_transitions``, ``get_transition_graph``; ``lifecycle_msgs/srv``).  The
-    transitions:
+    ``get_available_transitions``, ``get_transition_graph``; ``lifecycle_msgs/srv``).  A
+    transition not allowed from the current state is refused (``success: false``; rclpy's own
+    handler would raise out of the executor and end the process).  The transitions:
 
     configure
-        :meth:`configure_node`.  A bad parameter fails the transition (``success: false``; the
-        reason is logged at error level) and the node stays ``unconfigured``, alive; whatever the
-        attempt had created is destroyed.  Any other exception is logged with its traceback and
-        takes the node through ``ErrorProcessing`` back to ``unconfigured``.
+        :meth:`configure_node`; the node is then ``inactive``.  A bad parameter fails the
+        transition (``success: false``; the reason is logged at error level, naming it) and the
+        node stays ``unconfigured``, alive (the process lives on); whatever the attempt had
+        created is destroyed.  Any other exception is logged with its traceback and takes the node
+        through ``ErrorProcessing`` back to ``unconfigured``.
     activate, deactivate
         :attr:`active` set and cleared; what that means is the subclass's.
     cleanup

@@ -1,7 +1,7 @@
 """The estimator as a ROS 2 managed (lifecycle) node (issue 49, item 2), driven the way any ROS 2
 tool drives one: a plain rclpy client of ``lifecycle_msgs`` (``ChangeState`` and ``GetState`` on
-``/estimator/change_state`` and ``/estimator/get_state``: test_lifecycle.py's
-:class:`~test_lifecycle.LifecycleClient`), no project code on the client's side.
+``/estimator/change_state`` and ``/estimator/get_state``: tests/lifecycle_client.py's
+:class:`~lifecycle_client.LifecycleClient`), no project code on the client's side.
 
 In-process on an isolated domain (the ``ros_context`` fixture), with test_estimator_node.py's
 driver standing in for the plant (``sensors/gyro``, ``state/attitude_epoch``,
@@ -16,26 +16,20 @@ Waits are on conditions with a deadline, never on fixed sleeps."""
 
 from __future__ import annotations
 
-import contextlib
-import os
-import signal
-import subprocess
-import sys
-import time
 from typing import Any
 
 import numpy as np
 import pytest
-from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.msg import Transition
 
 from sappc_estimator.core import mekf
 from sappc_msgs_py import contract as c
 
 from conftest import ROOT
 from fake_clock import FakeClock
-from shm_watch import ShmWatch
+from lifecycle_client import (ACTIVE, FINALIZED, INACTIVE, UNCONFIGURED, LifecycleClient, assert_configure_fails, assert_not_managed,
+                              captured_log, closing, diagnostics_report, managed_process)
 from test_estimator_node import DT_NS, EPOCHS, NO_DATA_W, Driver, Reference, _assert_no_data, measurements, overrides
-from test_lifecycle import LifecycleClient
 from test_nodes import DEADLINE_S
 
 #: The estimator's outputs that carry the estimate (the controller's inputs).
@@ -53,10 +47,8 @@ def managed(ros_context):  # type: ignore[no-untyped-def]
 
     node = EstimatorNode(context=ros_context, parameter_overrides=overrides(managed=True))
     driver = Driver(ros_context, [node])
-    client = LifecycleClient(driver.node, "estimator", driver.spin_until)
-    yield node, driver, client
-    driver.close()
-    node.destroy_node()
+    with closing(node, driver):
+        yield node, driver, LifecycleClient(driver.node, "estimator", driver.spin_until)
 
 
 def _inputs_subscribed(drv: Driver) -> list[int]:
@@ -88,14 +80,9 @@ def _assert_the_kernels(drv: Driver, ns: int, ref: Reference, status: int, total
 
 
 def _health_report(drv: Driver, since: int, inactive: bool) -> Any:
-    """The status of the first health report after the first ``since`` whose message says (or,
-    ``inactive`` false, does not say) that the estimator is inactive, once it has come (a report of
-    the last sample before a transition may still be on its way)."""
-    def found() -> Any:
-        return next((m.status[0] for m in drv.health[since:] if m.status[0].message.startswith(INACTIVE_HEALTH) == inactive), None)
-
-    drv.spin_until(lambda: found() is not None, f"a health report {'' if inactive else 'not '}saying inactive")
-    return found()
+    """The status of the first health report after the first ``since`` that says (or, ``inactive``
+    false, does not say) that the estimator is inactive, once it has come."""
+    return diagnostics_report(drv, since, INACTIVE_HEALTH, inactive)
 
 
 def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answers(managed) -> None:  # type: ignore[no-untyped-def]
@@ -109,16 +96,16 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     its totals carried on."""
     node, drv, lc = managed
     q, w = measurements(42)
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
     # unconfigured: nothing subscribed, nothing offered, no parameter of the filter declared
     assert _inputs_subscribed(drv) == [0] * len(drv.pub) and _outputs_offered(drv) == [0] * len(c.ESTIMATOR_TOPICS)
     assert node.has_parameter("managed") and not node.has_parameter("tracker_noise_rad") and not node.has_parameter("mode")
     assert not lc.transition(Transition.TRANSITION_ACTIVATE)  # not from unconfigured
     assert not lc.transition(Transition.TRANSITION_DEACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
 
     assert lc.transition(Transition.TRANSITION_CONFIGURE)
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     assert node.get_parameter("tracker_noise_rad").value == pytest.approx([9.7e-6, 9.7e-6, 7.3e-5])
     assert node.config.tracker_noise_rad == (9.7e-6, 9.7e-6, 7.3e-5)  # the filter's config built from them
     drv.matched(node)  # the inputs subscribed, the outputs offered
@@ -132,10 +119,10 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert health.level == b"\x01" and health is drv.health[0].status[0]  # WARN, in words, at the first sample
     assert not lc.transition(Transition.TRANSITION_CONFIGURE)  # configured already
     assert not lc.transition(Transition.TRANSITION_CLEANUP + 100)  # no such transition
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
 
     assert lc.transition(Transition.TRANSITION_ACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_ACTIVE, "active")
+    assert lc.state() == ACTIVE
     # active: the filter from the next sample, as the kernel called directly from there (sample 3
     # names the tracker's sample of 0 s, taken while inactive: a provisional start; 10 replaces it;
     # 20 is an update)
@@ -148,10 +135,10 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     _health_report(drv, reports, inactive=False)  # active: the inactive warning gone
     first = node.filter
     assert not lc.transition(Transition.TRANSITION_CLEANUP)  # not from active
-    assert lc.state() == (State.PRIMARY_STATE_ACTIVE, "active")
+    assert lc.state() == ACTIVE
 
     assert lc.transition(Transition.TRANSITION_DEACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     reports = len(drv.health)
     for k in (22, 23):
         drv.sample(k * DT_NS, q[k], w[k])
@@ -170,7 +157,7 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
 
     assert lc.transition(Transition.TRANSITION_DEACTIVATE)
     assert lc.transition(Transition.TRANSITION_CLEANUP)
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
     # everything configure created is gone: the inputs unsubscribed, the outputs withdrawn
     drv.spin_until(lambda: _inputs_subscribed(drv) == [0] * len(drv.pub), "the subscriptions destroyed")
     drv.spin_until(lambda: _outputs_offered(drv) == [0] * len(c.ESTIMATOR_TOPICS), "the outputs withdrawn")
@@ -179,10 +166,10 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert counts["/estimate/attitude"] == counts["/estimator/diagnostics"] == 42
 
     assert lc.transition(Transition.TRANSITION_CONFIGURE)  # the same parameters read again: a new filter
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     assert node.steps == 0 and node.samples == 0 and not node.filter.initialised and node.filter.updates == 0 and node.configurations == 2
     assert lc.transition(Transition.TRANSITION_INACTIVE_SHUTDOWN)
-    assert lc.state() == (State.PRIMARY_STATE_FINALIZED, "finalized")
+    assert lc.state() == FINALIZED
     assert not lc.transition(Transition.TRANSITION_CONFIGURE)  # nothing leaves finalized
     drv.spin_until(lambda: _inputs_subscribed(drv) == [0] * len(drv.pub), "the subscriptions destroyed at shutdown")
 
@@ -206,27 +193,11 @@ def test_a_bad_parameter_fails_the_configure_transition_and_the_node_stays_uncon
     params = [Parameter("managed", value=True)] if bad is None else overrides(managed=True, **bad)
     node = EstimatorNode(context=ros_context, parameter_overrides=params)
     driver = Driver(ros_context, [node])
-    errors: list[str] = []
-    infos: list[str] = []
-    logger = node.get_logger()
-    original_error, original_info = logger.error, logger.info
-    logger.error = lambda message, **kw: (errors.append(message), original_error(message, **kw))[1]  # type: ignore[method-assign]
-    logger.info = lambda message, **kw: (infos.append(message), original_info(message, **kw))[1]  # type: ignore[method-assign]
-    try:
+    with closing(node, driver), captured_log(node) as (errors, infos):
         lc = LifecycleClient(driver.node, "estimator", driver.spin_until)
-        before = (len(list(node.subscriptions)), len(list(node.timers)), len(list(node.publishers)))
-        for attempt in (1, 2):
-            assert not lc.transition(Transition.TRANSITION_CONFIGURE), attempt
-            assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
-            assert (len(list(node.subscriptions)), len(list(node.timers)), len(list(node.publishers))) == before
-            assert len(errors) == attempt and errors[-1].startswith("configure failed: ") and named in errors[-1], errors
-        assert node.configurations == 0 and not node.active
+        assert_configure_fails(lc, node, errors, named, attempts=2)
         node.finish()
         assert infos[-1].startswith("finished: never configured"), infos
-    finally:
-        logger.error, logger.info = original_error, original_info  # type: ignore[method-assign]
-        driver.close()
-        node.destroy_node()
 
 
 def test_an_inactive_realtime_estimator_answers_each_fresh_sample_with_no_data(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
@@ -242,7 +213,7 @@ def test_an_inactive_realtime_estimator_answers_each_fresh_sample_with_no_data(r
     clock = FakeClock(t0)
     monkeypatch.setattr(node, "get_clock", lambda: clock)
     drv = Driver(ros_context, [node])
-    try:
+    with closing(node, drv):
         lc = LifecycleClient(drv.node, "estimator", drv.spin_until)
         assert lc.transition(Transition.TRANSITION_CONFIGURE)
         drv.matched(node)
@@ -262,9 +233,6 @@ def test_an_inactive_realtime_estimator_answers_each_fresh_sample_with_no_data(r
         ref = Reference()
         _assert_the_kernels(drv, ns, ref, ref.step(2 * DT_NS / 1e9, q[2], w[2]), {"updates": 0, "gate_rejections": 0})
         assert drv.got[c.ESTIMATOR_DIAGNOSTICS.name][ns]["status"] == mekf.STATUS_INITIALISED and node.steps == 1
-    finally:
-        drv.close()
-        node.destroy_node()
 
 
 def test_an_estimator_not_managed_starts_active_and_offers_no_lifecycle_services(ros_context) -> None:  # type: ignore[no-untyped-def]
@@ -274,62 +242,20 @@ def test_an_estimator_not_managed_starts_active_and_offers_no_lifecycle_services
 
     node = EstimatorNode(context=ros_context, parameter_overrides=overrides())
     driver = Driver(ros_context, [node])
-    try:
-        assert node.get_parameter("managed").value is False and node.configured and node.active
-        assert "  managed  (bool; default False)" in EstimatorNode.help_text()
-        assert not any(name.endswith(("/change_state", "/get_state")) for name, _ in node.get_service_names_and_types_by_node("estimator", "/"))
+    with closing(node, driver):
+        assert_not_managed(node, "estimator")
         driver.matched(node)
         q, w = measurements(1)
         driver.sample(0, q[0], w[0])
         assert driver.got[c.ESTIMATOR_DIAGNOSTICS.name][0]["status"] == mekf.STATUS_INITIALISED and node.steps == 1
-    finally:
-        driver.close()
-        node.destroy_node()
 
 
-#: Longest wait for the process to start (imports, the compiled kernel's cache) [s].
-START_S = 120.0
-
-
-@contextlib.contextmanager
 def _managed_process(ros_context):  # type: ignore[no-untyped-def]
     """(process, driver, lifecycle client, its log once stopped): ``python -m sappc_estimator``
-    managed, with config/estimator_mekf.yaml, in the fixture's isolated environment, the sensors'
-    driver and a lifecycle client on this process's side.  At the end the process gets SIGINT; its
-    shared memory is checked (tests/shm_watch.py); a failure inside says what the process logged."""
-    watch = ShmWatch().__enter__()
-    cmd = [sys.executable, "-m", "sappc_estimator", "--ros-args", "--params-file", str(ROOT / "config" / "estimator_mekf.yaml"),
-           "-p", "managed:=true"]
-    proc = subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
-    watch.add(proc.pid)
-    driver = Driver(ros_context, [])
-    limit_s = [START_S]  # the first wait includes the process's start; each later one DEADLINE_S
-
-    def spin_until(condition, what: str) -> None:  # type: ignore[no-untyped-def]
-        deadline = time.monotonic() + limit_s[0]
-        while not condition():
-            assert proc.poll() is None, f"the estimator exited while waiting for {what}"
-            assert time.monotonic() < deadline, f"timed out waiting for {what}"
-            driver.executor.spin_once(timeout_sec=0.02)
-
-    driver.spin_until = spin_until  # type: ignore[method-assign]
-    out = {"log": ""}
-    failure: AssertionError | None = None
-    try:
-        client = LifecycleClient(driver.node, "estimator", spin_until)
-        limit_s[0] = DEADLINE_S
-        yield proc, driver, client, out
-    except AssertionError as exc:
-        failure = exc
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-        out["log"] = proc.communicate(timeout=60)[0]
-        driver.close()
-        watch.__exit__(None, None, None)
-    if failure is not None:
-        raise AssertionError(f"{failure}\n--- the estimator's log ---\n{out['log']}") from failure
-    watch.assert_clean()
+    managed, with config/estimator_mekf.yaml, the sensors' driver and a lifecycle client on this
+    process's side (:func:`lifecycle_client.managed_process`: SIGINT at the end, the shared memory
+    checked)."""
+    return managed_process("sappc_estimator", ROOT / "config" / "estimator_mekf.yaml", (), lambda: Driver(ros_context, []), DEADLINE_S)
 
 
 @pytest.mark.slow
@@ -341,11 +267,11 @@ def test_the_managed_estimator_process_is_brought_up_and_down_through_its_lifecy
     closing line counting the samples."""
     q, w = measurements(2)
     with _managed_process(ros_context) as (proc, driver, lc, out):
-        assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+        assert lc.state() == UNCONFIGURED
         assert not lc.transition(Transition.TRANSITION_ACTIVATE)  # refused, and the process lives on
-        assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured") and proc.poll() is None
+        assert lc.state() == UNCONFIGURED and proc.poll() is None
         assert lc.transition(Transition.TRANSITION_CONFIGURE)
-        assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+        assert lc.state() == INACTIVE
         driver.spin_until(lambda: all(n >= 1 for n in _inputs_subscribed(driver)) and all(n >= 1 for n in _outputs_offered(driver)),
                           "the estimator's topics matched")
         driver.sample(0, q[0], w[0])

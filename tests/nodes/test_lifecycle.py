@@ -9,58 +9,28 @@ the answer ``inactive``), the law again once active, a bad parameter failing the
 transition with the node alive and unconfigured.  Then the same as a process (``python -m
 sappc_controller -p managed:=true``, on rclpy's ``EventsExecutor`` as every node runs), stopped by
 SIGINT, with no shared memory left behind.  Waits are on conditions with a deadline, never on
-fixed sleeps."""
+fixed sleeps.  The client, the process and the checks every managed node shares: tests/lifecycle_client.py."""
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
-import signal
-import subprocess
-import sys
-import time
 
 import numpy as np
 import pytest
-from lifecycle_msgs.msg import State, Transition
-from lifecycle_msgs.srv import ChangeState, GetState
-from rclpy.node import Node
+from lifecycle_msgs.msg import Transition
 
 from sappc_msgs_py import contract as c
 
 from conftest import ROOT
-from shm_watch import ShmWatch
 from fake_clock import FakeClock
+from lifecycle_client import (ACTIVE, FINALIZED, INACTIVE, UNCONFIGURED, LifecycleClient, assert_configure_fails, assert_not_managed,
+                              captured_log, closing, managed_process)
 from test_nodes import _REFERENCE, DEADLINE_S, NS, Q0, Driver, _controller_overrides, _publish
 
 #: The actuator limit of the paper's scenario [N m] (config/scenarios/paper_tracking.yaml).
 MAX_TORQUE_NM = 0.5
 #: The diagnostics' rows of the law's performance function (NaN before its first step).
 RPF_ROWS = ("rho", "band_lower", "band_upper", "eps", "z", "lyapunov_V")
-
-
-class LifecycleClient:
-    """What ``ros2 lifecycle get/set`` does, with plain rclpy: ``ChangeState`` and ``GetState``
-    clients of node ``target``'s standard services, on ``node``, spun by ``spin_until``."""
-
-    def __init__(self, node: Node, target: str, spin_until) -> None:  # type: ignore[no-untyped-def]
-        self.change = node.create_client(ChangeState, f"/{target}/change_state")
-        self.get = node.create_client(GetState, f"/{target}/get_state")
-        self.spin_until = spin_until
-        spin_until(lambda: self.change.service_is_ready() and self.get.service_is_ready(), f"the lifecycle services of /{target}")
-
-    def _call(self, client, request):  # type: ignore[no-untyped-def]
-        future = client.call_async(request)
-        self.spin_until(future.done, f"the answer of {client.srv_name}")
-        return future.result()
-
-    def state(self) -> tuple[int, str]:
-        s = self._call(self.get, GetState.Request()).current_state
-        return s.id, s.label
-
-    def transition(self, transition_id: int) -> bool:
-        return bool(self._call(self.change, ChangeState.Request(transition=Transition(id=transition_id))).success)
 
 
 @pytest.fixture
@@ -71,11 +41,8 @@ def managed(ros_context):  # type: ignore[no-untyped-def]
 
     node = ControllerNode(context=ros_context, parameter_overrides=_controller_overrides(stale_timeout_s=0.05, managed=True))  # type: ignore[no-untyped-call]
     driver = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
-    client = LifecycleClient(driver.node, "controller", driver.spin_until)
-    yield node, driver, client
-    driver.executor.shutdown()
-    node.destroy_node()
-    driver.node.destroy_node()
+    with closing(node, driver):
+        yield node, driver, LifecycleClient(driver.node, "controller", driver.spin_until)
 
 
 def _answered(drv: Driver, t: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -105,17 +72,17 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     last computed sample's performance-function rows; active, the law commands a non-zero torque
     on a 50 deg error."""
     node, drv, lc = managed
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
     # unconfigured: nothing subscribed, nothing offered, no parameter of the law declared
     assert all(p.get_subscription_count() == 0 for p in drv.pub.values())
     assert all(s.get_publisher_count() == 0 for s in drv.outputs)
     assert not node.has_parameter("controller") and not node.has_parameter("sappc.gains.K_q")
     assert not lc.transition(Transition.TRANSITION_ACTIVATE)  # not from unconfigured
     assert not lc.transition(Transition.TRANSITION_DEACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
 
     assert lc.transition(Transition.TRANSITION_CONFIGURE)
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     assert node.get_parameter("sappc.gains.K_q").value == 0.3 and node.controller.config.gains.K_q == 0.3  # the law built from them
     drv.matched()  # subscribed, and the outputs offered once every input had a publisher
     # inactive before the first activation: zero torque, no law, no performance function yet
@@ -125,10 +92,10 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert node.steps == 0 and node.controller.t0 is None
     assert not lc.transition(Transition.TRANSITION_CONFIGURE)  # configured already
     assert not lc.transition(Transition.TRANSITION_CLEANUP + 100)  # no such transition
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
 
     assert lc.transition(Transition.TRANSITION_ACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_ACTIVE, "active")
+    assert lc.state() == ACTIVE
     torque, commanded = _answered(drv, 0.01)
     assert commanded["status"].tolist() == [0.0, 0.0, c.ANSWER_COMMANDED] and node.steps == 1
     assert np.linalg.norm(torque) > 1e-3 and np.all(np.abs(torque) <= MAX_TORQUE_NM)
@@ -136,7 +103,7 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert commanded["rho"][1] == pytest.approx(0.4, abs=1e-12)  # the RPF starts at rho_e0 on the largest axis
 
     assert lc.transition(Transition.TRANSITION_DEACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     torque, diag = _answered(drv, 0.02)
     _assert_inactive_answer(torque, diag)
     for row in RPF_ROWS:  # the last computed sample's rows, kept (as the offline loop records a sample it does not command)
@@ -155,11 +122,11 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert diag["rho"][1] == pytest.approx(0.4, abs=1e-12)  # its RPF from rho_e0 again, as at the first start
     assert np.linalg.norm(torque) > 1e-3 and np.all(np.abs(torque) <= MAX_TORQUE_NM)
     assert not lc.transition(Transition.TRANSITION_CLEANUP)  # not from active
-    assert lc.state() == (State.PRIMARY_STATE_ACTIVE, "active")
+    assert lc.state() == ACTIVE
 
     assert lc.transition(Transition.TRANSITION_DEACTIVATE)
     assert lc.transition(Transition.TRANSITION_CLEANUP)
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
     # everything configure created is gone: the inputs unsubscribed, the outputs withdrawn
     drv.spin_until(lambda: all(p.get_subscription_count() == 0 for p in drv.pub.values()), "the subscriptions destroyed")
     drv.spin_until(lambda: all(s.get_publisher_count() == 0 for s in drv.outputs), "the outputs withdrawn")
@@ -167,10 +134,10 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert node.publish_counts() == {"/control/torque": 5, "/controller/diagnostics": 5}  # counted though the publishers are gone
 
     assert lc.transition(Transition.TRANSITION_CONFIGURE)  # the same parameters read again: a new law
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     assert node.steps == 0 and node.controller.t0 is None and node.configurations == 2
     assert lc.transition(Transition.TRANSITION_INACTIVE_SHUTDOWN)
-    assert lc.state() == (State.PRIMARY_STATE_FINALIZED, "finalized")
+    assert lc.state() == FINALIZED
     assert not lc.transition(Transition.TRANSITION_CONFIGURE)  # nothing leaves finalized
     drv.spin_until(lambda: all(p.get_subscription_count() == 0 for p in drv.pub.values()), "the subscriptions destroyed at shutdown")
     assert all(np.all(np.isfinite(tq)) and np.all(np.abs(tq) <= MAX_TORQUE_NM) for _, tq in drv.torques)
@@ -191,25 +158,10 @@ def test_a_bad_parameter_fails_the_configure_transition_and_the_node_stays_uncon
 
     node = ControllerNode(context=ros_context, parameter_overrides=_controller_overrides(managed=True, **bad))  # type: ignore[no-untyped-call]
     driver = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
-    errors: list[str] = []
-    logger = node.get_logger()
-    original = logger.error
-    logger.error = lambda message, **kw: (errors.append(message), original(message, **kw))[1]  # type: ignore[method-assign]
-    try:
+    with closing(node, driver), captured_log(node) as (errors, _):
         lc = LifecycleClient(driver.node, "controller", driver.spin_until)
-        before = (len(list(node.subscriptions)), len(list(node.timers)), len(list(node.publishers)))
-        for attempt in (1, 2):
-            assert not lc.transition(Transition.TRANSITION_CONFIGURE), attempt
-            assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
-            assert (len(list(node.subscriptions)), len(list(node.timers)), len(list(node.publishers))) == before
-            assert len(errors) == attempt and errors[-1].startswith("configure failed: ") and named in errors[-1], errors
-        assert node.configurations == 0 and not node.active
+        assert_configure_fails(lc, node, errors, named, attempts=2)
         assert node.closing_line().startswith("finished: never configured")
-    finally:
-        logger.error = original  # type: ignore[method-assign]
-        driver.executor.shutdown()
-        node.destroy_node()
-        driver.node.destroy_node()
 
 
 def test_an_inactive_realtime_controller_answers_each_fresh_state_and_its_watchdog_with_zero(ros_context, monkeypatch) -> None:  # type: ignore[no-untyped-def]
@@ -225,7 +177,7 @@ def test_an_inactive_realtime_controller_answers_each_fresh_state_and_its_watchd
     clock = FakeClock(10 * NS)
     monkeypatch.setattr(node, "get_clock", lambda: clock)
     drv = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
-    try:
+    with closing(node, drv):
         lc = LifecycleClient(drv.node, "controller", drv.spin_until)
         assert lc.transition(Transition.TRANSITION_CONFIGURE)
         for timer in node._frame_timers:  # the frame timer (the watchdog) is the test's to call
@@ -255,10 +207,6 @@ def test_an_inactive_realtime_controller_answers_each_fresh_state_and_its_watchd
         drv.spin_until(lambda: len(drv.torques) == 3 and len(drv.diags) == 3, "the law's answer")
         assert drv.diags[2]["status"][2] == c.ANSWER_COMMANDED and node.steps == 1
         assert np.linalg.norm(drv.torques[2][1]) > 1e-3 and np.all(np.abs(drv.torques[2][1]) <= MAX_TORQUE_NM)
-    finally:
-        drv.executor.shutdown()
-        node.destroy_node()
-        drv.node.destroy_node()
 
 
 def test_destroying_a_managed_node_withdraws_its_lifecycle_services(ros_context) -> None:  # type: ignore[no-untyped-def]
@@ -286,64 +234,20 @@ def test_a_controller_not_managed_starts_active_and_offers_no_lifecycle_services
 
     node = ControllerNode(context=ros_context, parameter_overrides=_controller_overrides())  # type: ignore[no-untyped-call]
     driver = Driver(ros_context, [node])  # type: ignore[no-untyped-call]
-    try:
-        assert node.get_parameter("managed").value is False and node.configured and node.active
-        assert "  managed  (bool; default False)" in ControllerNode.help_text()
-        assert not any(name.endswith(("/change_state", "/get_state")) for name, _ in node.get_service_names_and_types_by_node("controller", "/"))
+    with closing(node, driver):
+        assert_not_managed(node, "controller")
         driver.matched()
         torque, diag = _answered(driver, 0.0)
         assert diag["status"][2] == c.ANSWER_COMMANDED and np.linalg.norm(torque) > 1e-3
-    finally:
-        driver.executor.shutdown()
-        node.destroy_node()
-        driver.node.destroy_node()
 
 
-#: Longest wait for the process to start (imports, the compiled kernels' cache) [s].
-START_S = 120.0
-
-
-@contextlib.contextmanager
 def _managed_process(ros_context, *params: str):  # type: ignore[no-untyped-def]
     """(process, driver, lifecycle client, its log once stopped): ``python -m sappc_controller``
     managed, with the SAPPC parameters of config/controller_sappc.yaml and ``params`` (``-p``
-    entries), in the fixture's isolated environment, a driver (test_nodes.py's) and a lifecycle
-    client on this process's side.  At the end the process gets SIGINT; its shared memory is
-    checked (tests/shm_watch.py); a failure inside says what the process logged."""
-    watch = ShmWatch().__enter__()
-    cmd = [sys.executable, "-m", "sappc_controller", "--ros-args", "--params-file", str(ROOT / "config" / "controller_sappc.yaml"),
-           "-p", "managed:=true", *[a for p in params for a in ("-p", p)]]
-    proc = subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
-    watch.add(proc.pid)
-    driver = Driver(ros_context, [])  # type: ignore[no-untyped-call]
-    limit_s = [START_S]  # the first wait includes the process's start; each later one DEADLINE_S
-
-    def spin_until(condition, what: str) -> None:  # type: ignore[no-untyped-def]
-        deadline = time.monotonic() + limit_s[0]
-        while not condition():
-            assert proc.poll() is None, f"the controller exited while waiting for {what}"
-            assert time.monotonic() < deadline, f"timed out waiting for {what}"
-            driver.executor.spin_once(timeout_sec=0.02)
-
-    driver.spin_until = spin_until  # type: ignore[method-assign]
-    out = {"log": ""}
-    failure: AssertionError | None = None
-    try:
-        client = LifecycleClient(driver.node, "controller", spin_until)
-        limit_s[0] = DEADLINE_S
-        yield proc, driver, client, out
-    except AssertionError as exc:
-        failure = exc
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-        out["log"] = proc.communicate(timeout=60)[0]
-        driver.executor.shutdown()
-        driver.node.destroy_node()
-        watch.__exit__(None, None, None)
-    if failure is not None:
-        raise AssertionError(f"{failure}\n--- the controller's log ---\n{out['log']}") from failure
-    watch.assert_clean()
+    entries), a driver (test_nodes.py's) and a lifecycle client on this process's side
+    (:func:`lifecycle_client.managed_process`: SIGINT at the end, the shared memory checked)."""
+    return managed_process("sappc_controller", ROOT / "config" / "controller_sappc.yaml", params,
+                           lambda: Driver(ros_context, []), DEADLINE_S)  # type: ignore[no-untyped-call]
 
 
 @pytest.mark.slow
@@ -354,12 +258,12 @@ def test_the_managed_controller_process_is_brought_up_and_down_through_its_lifec
     lockstep sample with zero torque (inactive); activated, with the law; deactivated, zero again;
     stopped by SIGINT: exit 0, its closing line counting each answer."""
     with _managed_process(ros_context, "stale_timeout_s:=0.05") as (proc, driver, lc, out):
-        assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+        assert lc.state() == UNCONFIGURED
         # refused, and the process lives on (rclpy's own handler raises out of the executor here)
         assert not lc.transition(Transition.TRANSITION_ACTIVATE)
-        assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured") and proc.poll() is None
+        assert lc.state() == UNCONFIGURED and proc.poll() is None
         assert lc.transition(Transition.TRANSITION_CONFIGURE)
-        assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+        assert lc.state() == INACTIVE
         driver.matched()
         torque, diag = _answered(driver, 0.0)
         _assert_inactive_answer(torque, diag)
@@ -367,7 +271,7 @@ def test_the_managed_controller_process_is_brought_up_and_down_through_its_lifec
         torque, diag = _answered(driver, 0.01)
         assert diag["status"][2] == c.ANSWER_COMMANDED and np.linalg.norm(torque) > 1e-3 and np.all(np.abs(torque) <= MAX_TORQUE_NM)
         assert lc.transition(Transition.TRANSITION_DEACTIVATE)
-        assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+        assert lc.state() == INACTIVE
         torque, diag = _answered(driver, 0.02)
         _assert_inactive_answer(torque, diag)
     log = out["log"]
@@ -382,7 +286,7 @@ def test_a_managed_controller_process_with_a_bad_parameter_lives_on_unconfigured
     services, and stops cleanly on SIGINT (exit 0)."""
     with _managed_process(ros_context, "control_period_s:=-1.0") as (proc, _driver, lc, out):
         assert not lc.transition(Transition.TRANSITION_CONFIGURE)
-        assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured") and proc.poll() is None
+        assert lc.state() == UNCONFIGURED and proc.poll() is None
     log = out["log"]
     assert proc.returncode == 0, log
     assert "configure failed: control_period_s" in log and "finished: never configured" in log, log

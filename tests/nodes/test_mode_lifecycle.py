@@ -1,7 +1,7 @@
 """The mode node as a ROS 2 managed (lifecycle) node (issue 49, item 2), driven the way any ROS 2
 tool drives one: a plain rclpy client of ``lifecycle_msgs`` (``ChangeState`` and ``GetState`` on
-``/modes/change_state`` and ``/modes/get_state``: test_lifecycle.py's
-:class:`~test_lifecycle.LifecycleClient`), no project code on the client's side.
+``/modes/change_state`` and ``/modes/get_state``: tests/lifecycle_client.py's
+:class:`~lifecycle_client.LifecycleClient`), no project code on the client's side.
 
 In-process on an isolated domain (the ``ros_context`` fixture), a driver node publishing the
 node's nine inputs of one stamp (quick_flight's settings: HOLD goes to TRACK after 0.5 s of a
@@ -15,14 +15,11 @@ the start.  Waits are on conditions with a deadline, never on fixed sleeps."""
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
 import pytest
-from lifecycle_msgs.msg import State, Transition
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
+from lifecycle_msgs.msg import Transition
 from rclpy.parameter import Parameter
 
 from sappc_modes.core.modes import HOLD, P_HEALTHY_N, R_ACQUIRED, R_NONE, R_REQUEST, S_ERROR_N, S_HEALTHY_N, S_RATE_N, S_RECOVER_N, SAFE, TRACK
@@ -30,7 +27,8 @@ from sappc_modes.node import INACTIVE_MESSAGE, INPUTS
 from sappc_msgs_py import contract as c
 from sappc_msgs_py import wire
 
-from test_lifecycle import LifecycleClient
+from lifecycle_client import (ACTIVE, FINALIZED, INACTIVE, UNCONFIGURED, LifecycleClient, TopicDriver, assert_configure_fails,
+                              assert_not_managed, captured_log, closing, diagnostics_report)
 from test_mode_node import overrides, sample
 from test_nodes import DEADLINE_S
 
@@ -40,12 +38,12 @@ _COUNTS = (S_RATE_N, S_HEALTHY_N, S_ERROR_N, S_RECOVER_N)
 OK, WARN, ERROR = b"\x00", b"\x01", b"\x02"
 
 
-class ModeDriver:
+class ModeDriver(TopicDriver):
     """A test node publishing the mode node's inputs of one stamp (as CDR, the node's own layouts)
     and collecting ``mode/status`` by stamp and ``diagnostics`` as published."""
 
     def __init__(self, context: Any, nodes: list[Any]) -> None:
-        self.node = Node("driver", context=context)
+        super().__init__(context, nodes, "the mode node", DEADLINE_S)
         qos = c.qos_profile()
         self.pub = {t.name: self.node.create_publisher(t.msg_class, t.name, qos) for t in INPUTS}
         self.codecs = {t.name: wire.codec(t) for t in INPUTS if t is not c.STATE_WHEEL_SPEED}
@@ -54,28 +52,10 @@ class ModeDriver:
         self.health: list[Any] = []
         self.subs = [self.node.create_subscription(c.MODE_STATUS.msg_class, c.MODE_STATUS.name, self._on_status, qos),
                      self.node.create_subscription(c.ESTIMATOR_HEALTH.msg_class, c.ESTIMATOR_HEALTH.name, self.health.append, qos)]
-        self.executor = SingleThreadedExecutor(context=context)
-        for n in (self.node, *nodes):
-            self.executor.add_node(n)
 
     def _on_status(self, msg: Any) -> None:
         t_s, mode, reason = msg.data
         self.status[round(t_s * 1e9)] = (t_s, int(mode), int(reason))
-
-    def spin_until(self, condition: Any, what: str) -> None:
-        deadline = time.monotonic() + DEADLINE_S
-        while not condition():
-            assert time.monotonic() < deadline, f"timed out waiting for {what}"
-            self.executor.spin_once(timeout_sec=0.02)
-
-    def subscribed(self) -> list[int]:
-        return [p.get_subscription_count() for p in self.pub.values()]
-
-    def offered(self) -> list[int]:
-        return [s.get_publisher_count() for s in self.subs]
-
-    def matched(self) -> None:
-        self.spin_until(lambda: min(self.subscribed()) >= 1 and min(self.offered()) >= 1, "the mode node's topics matched")
 
     def sample(self, k: int) -> tuple[int, int]:
         """Send sample ``k`` (test_mode_node.py's healthy sample: a slow gyro, a converged estimate at
@@ -94,18 +74,9 @@ class ModeDriver:
         return mode, reason
 
     def report(self, since: int, inactive: bool) -> Any:
-        """The first ``diagnostics`` status after the first ``since`` whose message says (or,
-        ``inactive`` false, does not say) that the node is inactive, once it has come (a report of
-        the last sample before a transition may still be on its way)."""
-        def found() -> Any:
-            return next((m.status[0] for m in self.health[since:] if m.status[0].message.startswith(INACTIVE_MESSAGE) == inactive), None)
-
-        self.spin_until(lambda: found() is not None, f"a report on diagnostics {'' if inactive else 'not '}saying inactive")
-        return found()
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
+        """The first ``diagnostics`` status after the first ``since`` that says (or, ``inactive``
+        false, does not say) that the node is inactive, once it has come."""
+        return diagnostics_report(self, since, INACTIVE_MESSAGE, inactive)
 
 
 @pytest.fixture
@@ -116,10 +87,8 @@ def managed(ros_context):  # type: ignore[no-untyped-def]
 
     node = ModeNode(context=ros_context, parameter_overrides=overrides(managed=True, initial_mode="HOLD"))
     driver = ModeDriver(ros_context, [node])
-    client = LifecycleClient(driver.node, "modes", driver.spin_until)
-    yield node, driver, client
-    driver.close()
-    node.destroy_node()
+    with closing(node, driver):
+        yield node, driver, LifecycleClient(driver.node, "modes", driver.spin_until)
 
 
 def _counts(node: Any) -> list[float]:
@@ -137,14 +106,14 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     inactive waits for the first active sample, a scheduled one (quick_flight's SAFE at 2.5 s)
     whose sample is answered inactive is not taken."""
     node, drv, lc = managed
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
     assert drv.subscribed() == [0] * len(INPUTS) and drv.offered() == [0, 0]
     assert node.has_parameter("managed") and not node.has_parameter("transitions") and not node.has_parameter("request_mode")
     assert not lc.transition(Transition.TRANSITION_ACTIVATE)  # not from unconfigured
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
 
     assert lc.transition(Transition.TRANSITION_CONFIGURE)
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     healthy_n = int(node._prm[P_HEALTHY_N])
     assert healthy_n == 50  # quick_flight: healthy_for_s 0.5 at 10 ms
     drv.matched()
@@ -158,7 +127,7 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert not lc.transition(Transition.TRANSITION_CONFIGURE)  # configured already
 
     assert lc.transition(Transition.TRANSITION_ACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_ACTIVE, "active")
+    assert lc.state() == ACTIVE
     reports = len(drv.health)
     first = healthy_n + 10
     assert all(drv.sample(k) == (HOLD, R_NONE) for k in range(first, first + 30))  # 30 of the 50 samples of health
@@ -167,7 +136,7 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert report is drv.health[reports].status[0] and report.level == OK and report.message.startswith("HOLD since"), report.message
 
     assert lc.transition(Transition.TRANSITION_DEACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     reports = len(drv.health)
     k = first + 30
     assert all(drv.sample(j) == (HOLD, R_NONE) for j in range(k, k + 5))
@@ -198,18 +167,18 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert report.level == ERROR and "SAFE since" in report.message  # SAFE stays ERROR
 
     assert lc.transition(Transition.TRANSITION_CLEANUP)
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
     drv.spin_until(lambda: drv.subscribed() == [0] * len(INPUTS), "the subscriptions destroyed")
     drv.spin_until(lambda: drv.offered() == [0, 0], "the outputs withdrawn")
     assert node.publish_counts()["/mode/status"] == node.samples == k + 4  # every sample answered, inactive or not
     assert not node._parameter_callback
 
     assert lc.transition(Transition.TRANSITION_CONFIGURE)  # a new flight from the same parameters
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     assert node.samples == 0 and node.transitions == 0 and int(node._state[0]) == HOLD and node.configurations == 2
     assert node.set_parameters([Parameter("request_mode", value="SLEEP")])[0].successful is False  # the callback back
     assert lc.transition(Transition.TRANSITION_INACTIVE_SHUTDOWN)
-    assert lc.state() == (State.PRIMARY_STATE_FINALIZED, "finalized")
+    assert lc.state() == FINALIZED
     drv.spin_until(lambda: drv.subscribed() == [0] * len(INPUTS), "the subscriptions destroyed at shutdown")
 
 
@@ -227,26 +196,12 @@ def test_a_bad_parameter_fails_the_configure_transition_and_the_node_stays_uncon
 
     node = ModeNode(context=ros_context, parameter_overrides=overrides(managed=True, **bad))
     driver = ModeDriver(ros_context, [node])
-    errors: list[str] = []
-    infos: list[str] = []
-    logger = node.get_logger()
-    original_error, original_info = logger.error, logger.info
-    logger.error = lambda message, **kw: (errors.append(message), original_error(message, **kw))[1]  # type: ignore[method-assign]
-    logger.info = lambda message, **kw: (infos.append(message), original_info(message, **kw))[1]  # type: ignore[method-assign]
-    try:
+    with closing(node, driver), captured_log(node) as (errors, infos):
         lc = LifecycleClient(driver.node, "modes", driver.spin_until)
-        before = (len(list(node.subscriptions)), len(list(node.timers)), len(list(node.publishers)))
-        assert not lc.transition(Transition.TRANSITION_CONFIGURE)
-        assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
-        assert (len(list(node.subscriptions)), len(list(node.timers)), len(list(node.publishers))) == before
-        assert len(errors) == 1 and errors[0].startswith("configure failed: ") and named in errors[0], errors
-        assert node.configurations == 0 and not node.active and not node._parameter_callback
+        assert_configure_fails(lc, node, errors, named)
+        assert not node._parameter_callback
         node.finish()
         assert infos[-1].startswith("finished: never configured"), infos
-    finally:
-        logger.error, logger.info = original_error, original_info  # type: ignore[method-assign]
-        driver.close()
-        node.destroy_node()
 
 
 def test_a_mode_node_not_managed_starts_active_and_offers_no_lifecycle_services(ros_context) -> None:  # type: ignore[no-untyped-def]
@@ -256,14 +211,9 @@ def test_a_mode_node_not_managed_starts_active_and_offers_no_lifecycle_services(
 
     node = ModeNode(context=ros_context, parameter_overrides=overrides(initial_mode="HOLD"))
     driver = ModeDriver(ros_context, [node])
-    try:
-        assert node.get_parameter("managed").value is False and node.configured and node.active
-        assert "  managed  (bool; default False)" in ModeNode.help_text()
-        assert not any(name.endswith(("/change_state", "/get_state")) for name, _ in node.get_service_names_and_types_by_node("modes", "/"))
+    with closing(node, driver):
+        assert_not_managed(node, "modes")
         driver.matched()
         assert [driver.sample(k) for k in range(50)][-2:] == [(HOLD, R_NONE), (TRACK, R_ACQUIRED)]
         assert driver.report(0, inactive=False).level == OK
         assert np.isfinite(node._health_t_s)
-    finally:
-        driver.close()
-        node.destroy_node()

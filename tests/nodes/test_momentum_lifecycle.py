@@ -1,7 +1,7 @@
 """The momentum-management node as a ROS 2 managed (lifecycle) node (issue 49, item 2), driven the
 way any ROS 2 tool drives one: a plain rclpy client of ``lifecycle_msgs`` (``ChangeState`` and
-``GetState`` on ``/momentum/change_state`` and ``/momentum/get_state``: test_lifecycle.py's
-:class:`~test_lifecycle.LifecycleClient`), no project code on the client's side.
+``GetState`` on ``/momentum/change_state`` and ``/momentum/get_state``: tests/lifecycle_client.py's
+:class:`~lifecycle_client.LifecycleClient`), no project code on the client's side.
 
 In-process on an isolated domain (the ``ros_context`` fixture), a driver node standing in for the
 plant, the controller and the mode node (the node's inputs of one stamp, ``mode/status``
@@ -15,14 +15,11 @@ with a deadline, never on fixed sleeps."""
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
 import pytest
-from lifecycle_msgs.msg import State, Transition
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
+from lifecycle_msgs.msg import Transition
 
 from sappc_modes.core.bdot import bdot_step, new_bdot_state, pack_bdot
 from sappc_modes.core.modes import DETUMBLE, R_NONE, TRACK
@@ -32,7 +29,8 @@ from sappc_msgs_py import contract as c
 from sappc_msgs_py.convert import dipole_from_msg, magnetic_field_msg, quaternion_msg, stamp_to_ns, torque_from_msg, torque_msg, vector3_msg, wheel_speed_msg
 from sappc_msgs_py import wire
 
-from test_lifecycle import LifecycleClient
+from lifecycle_client import (ACTIVE, FINALIZED, INACTIVE, UNCONFIGURED, LifecycleClient, TopicDriver, assert_configure_fails,
+                              assert_not_managed, captured_log, closing)
 from test_momentum_node import Kernel, overrides
 from test_nodes import DEADLINE_S
 
@@ -47,20 +45,17 @@ def _managed_overrides(**extra: Any) -> list[Any]:
     return overrides(managed=True, flight_modes=True, bdot_gain_N_m_s=BDOT_GAIN, control_period_s=0.01, magnetometer_stride=1, **extra)
 
 
-class MomentumDriver:
+class MomentumDriver(TopicDriver):
     """A test node publishing the momentum node's inputs of one stamp and collecting its answers by stamp."""
 
     def __init__(self, context: Any, nodes: list[Any]) -> None:
-        self.node = Node("driver", context=context)
+        super().__init__(context, nodes, "the momentum node", DEADLINE_S)
         qos = c.qos_profile()
         self.pub = {t.name: self.node.create_publisher(t.msg_class, t.name, qos) for t in INPUTS}
         self.dipole: dict[int, np.ndarray] = {}
         self.wheel_torque: dict[int, np.ndarray] = {}
         self.subs = [self.node.create_subscription(c.CONTROL_DIPOLE.msg_class, c.CONTROL_DIPOLE.name, self._on_dipole, qos),
                      self.node.create_subscription(c.CONTROL_WHEEL_TORQUE.msg_class, c.CONTROL_WHEEL_TORQUE.name, self._on_torque, qos)]
-        self.executor = SingleThreadedExecutor(context=context)
-        for n in (self.node, *nodes):
-            self.executor.add_node(n)
         rng = np.random.default_rng(49)
         self.q = np.array([0.3254, 0.4068, -0.3254, 0.7891]) / np.linalg.norm([0.3254, 0.4068, -0.3254, 0.7891])
         self.omega = np.array([0.01, -0.02, 0.015])
@@ -76,21 +71,6 @@ class MomentumDriver:
     def _on_torque(self, msg: Any) -> None:
         self.wheel_torque[stamp_to_ns(msg.header.stamp)] = torque_from_msg(msg, c.CONTROL_WHEEL_TORQUE)
 
-    def spin_until(self, condition: Any, what: str) -> None:
-        deadline = time.monotonic() + DEADLINE_S
-        while not condition():
-            assert time.monotonic() < deadline, f"timed out waiting for {what}"
-            self.executor.spin_once(timeout_sec=0.02)
-
-    def subscribed(self) -> list[int]:
-        return [p.get_subscription_count() for p in self.pub.values()]
-
-    def offered(self) -> list[int]:
-        return [s.get_publisher_count() for s in self.subs]
-
-    def matched(self) -> None:
-        self.spin_until(lambda: min(self.subscribed()) >= 1 and min(self.offered()) >= 1, "the momentum node's topics matched")
-
     def sample(self, k: int, mode: int) -> tuple[np.ndarray, np.ndarray]:
         """Send sample ``k`` (flight mode ``mode``, no transition) and return the node's answer: the
         rods' dipoles and the wheels' torque of that stamp."""
@@ -103,10 +83,6 @@ class MomentumDriver:
         self.pub[c.MODE_STATUS.name].publish(wire.codec(c.MODE_STATUS).encode(None, [t, float(mode), float(R_NONE)]))
         self.spin_until(lambda: ns in self.dipole and ns in self.wheel_torque, f"the answer of sample {k}")
         return self.dipole[ns], self.wheel_torque[ns]
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
 
 
 class Bdot:
@@ -133,10 +109,8 @@ def managed(ros_context):  # type: ignore[no-untyped-def]
 
     node = MomentumNode(context=ros_context, parameter_overrides=_managed_overrides())
     driver = MomentumDriver(ros_context, [node])
-    client = LifecycleClient(driver.node, "momentum", driver.spin_until)
-    yield node, driver, client
-    driver.close()
-    node.destroy_node()
+    with closing(node, driver):
+        yield node, driver, LifecycleClient(driver.node, "momentum", driver.spin_until)
 
 
 def _assert_inactive_answer(drv: MomentumDriver, k: int, answer: tuple[np.ndarray, np.ndarray]) -> None:
@@ -156,16 +130,16 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     afresh (fresh kernels from that sample on, bit for bit)."""
     node, drv, lc = managed
     params = {p.name: p.value for p in _managed_overrides()}
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
     # unconfigured: nothing subscribed, nothing offered, no parameter of the law declared
     assert drv.subscribed() == [0] * len(INPUTS) and drv.offered() == [0, 0]
     assert node.has_parameter("managed") and not node.has_parameter("gain_per_s") and not node.has_parameter("mode")
     assert not lc.transition(Transition.TRANSITION_ACTIVATE)  # not from unconfigured
     assert not lc.transition(Transition.TRANSITION_DEACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
 
     assert lc.transition(Transition.TRANSITION_CONFIGURE)
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     assert node.get_parameter("gain_per_s").value == params["gain_per_s"] and node.flight_modes
     drv.matched()
     # inactive before the first activation: every sample answered, no law stepped (its state as built)
@@ -175,10 +149,10 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     np.testing.assert_array_equal(node._bdot_state, new_bdot_state())
     assert node.samples == 2 and node.inactive_samples == 2 and node.rejected == 0
     assert not lc.transition(Transition.TRANSITION_CONFIGURE)  # configured already
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
 
     assert lc.transition(Transition.TRANSITION_ACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_ACTIVE, "active")
+    assert lc.state() == ACTIVE
     law, bdot = Kernel(params), Bdot(node)  # both from their first active sample
     for k in (2, 3):  # TRACK: the predictive law
         m, tau = drv.sample(k, TRACK)
@@ -193,7 +167,7 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert np.abs(m).max() > 0.0  # the second B-dot sample differentiates
 
     assert lc.transition(Transition.TRANSITION_DEACTIVATE)
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     held = node._state.copy(), node._bdot_state.copy()
     for k, mode in ((6, DETUMBLE), (7, TRACK)):
         _assert_inactive_answer(drv, k, drv.sample(k, mode))
@@ -216,7 +190,7 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
 
     assert lc.transition(Transition.TRANSITION_DEACTIVATE)
     assert lc.transition(Transition.TRANSITION_CLEANUP)
-    assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
+    assert lc.state() == UNCONFIGURED
     drv.spin_until(lambda: drv.subscribed() == [0] * len(INPUTS), "the subscriptions destroyed")
     drv.spin_until(lambda: drv.offered() == [0, 0], "the outputs withdrawn")
     assert node.samples == 12 and node.inactive_samples == 4
@@ -224,10 +198,10 @@ def test_the_lifecycle_through_lifecycle_msgs_services_and_what_each_state_answe
     assert counts["/control/dipole"] == counts["/control/wheel_torque"] == 12
 
     assert lc.transition(Transition.TRANSITION_CONFIGURE)  # the same parameters read again: new counts
-    assert lc.state() == (State.PRIMARY_STATE_INACTIVE, "inactive")
+    assert lc.state() == INACTIVE
     assert node.samples == 0 and node.configurations == 2
     assert lc.transition(Transition.TRANSITION_INACTIVE_SHUTDOWN)
-    assert lc.state() == (State.PRIMARY_STATE_FINALIZED, "finalized")
+    assert lc.state() == FINALIZED
     assert not lc.transition(Transition.TRANSITION_CONFIGURE)  # nothing leaves finalized
     drv.spin_until(lambda: drv.subscribed() == [0] * len(INPUTS), "the subscriptions destroyed at shutdown")
 
@@ -246,26 +220,11 @@ def test_a_bad_parameter_fails_the_configure_transition_and_the_node_stays_uncon
 
     node = MomentumNode(context=ros_context, parameter_overrides=_managed_overrides(**bad))
     driver = MomentumDriver(ros_context, [node])
-    errors: list[str] = []
-    infos: list[str] = []
-    logger = node.get_logger()
-    original_error, original_info = logger.error, logger.info
-    logger.error = lambda message, **kw: (errors.append(message), original_error(message, **kw))[1]  # type: ignore[method-assign]
-    logger.info = lambda message, **kw: (infos.append(message), original_info(message, **kw))[1]  # type: ignore[method-assign]
-    try:
+    with closing(node, driver), captured_log(node) as (errors, infos):
         lc = LifecycleClient(driver.node, "momentum", driver.spin_until)
-        before = (len(list(node.subscriptions)), len(list(node.timers)), len(list(node.publishers)))
-        assert not lc.transition(Transition.TRANSITION_CONFIGURE)
-        assert lc.state() == (State.PRIMARY_STATE_UNCONFIGURED, "unconfigured")
-        assert (len(list(node.subscriptions)), len(list(node.timers)), len(list(node.publishers))) == before
-        assert len(errors) == 1 and errors[0].startswith("configure failed: ") and named in errors[0], errors
-        assert node.configurations == 0 and not node.active
+        assert_configure_fails(lc, node, errors, named)
         node.finish()
         assert infos[-1].startswith("finished: never configured"), infos
-    finally:
-        logger.error, logger.info = original_error, original_info  # type: ignore[method-assign]
-        driver.close()
-        node.destroy_node()
 
 
 def test_a_momentum_node_not_managed_starts_active_and_offers_no_lifecycle_services(ros_context) -> None:  # type: ignore[no-untyped-def]
@@ -276,15 +235,10 @@ def test_a_momentum_node_not_managed_starts_active_and_offers_no_lifecycle_servi
     params = {p.name: p.value for p in overrides()}
     node = MomentumNode(context=ros_context, parameter_overrides=overrides(flight_modes=True, bdot_gain_N_m_s=BDOT_GAIN))
     driver = MomentumDriver(ros_context, [node])
-    try:
-        assert node.get_parameter("managed").value is False and node.configured and node.active
-        assert "  managed  (bool; default False)" in MomentumNode.help_text()
-        assert not any(name.endswith(("/change_state", "/get_state")) for name, _ in node.get_service_names_and_types_by_node("momentum", "/"))
+    with closing(node, driver):
+        assert_not_managed(node, "momentum")
         driver.matched()
         m, tau = driver.sample(0, TRACK)
         m_ref, tau_ref = Kernel(params).step(0.0, driver.speeds[0], driver.field[0], driver.q, driver.omega, driver.torque[0])
         np.testing.assert_array_equal(m, m_ref)
         np.testing.assert_array_equal(tau, tau_ref)
-    finally:
-        driver.close()
-        node.destroy_node()
