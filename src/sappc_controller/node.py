@@ -173,7 +173,7 @@ from sappc_msgs_py.convert import (
 )
 from sappc_msgs_py.inputs import screen_input
 from sappc_msgs_py.parameters import Param
-from sappc_msgs_py.runtime import LOCKSTEP, MANAGED, MODE, REALTIME, CountingPublisher, ManagedNode, StartGate, run_node, unmatched
+from sappc_msgs_py.runtime import LOCKSTEP, MANAGED, MODE, NEVER_CONFIGURED, REALTIME, CountingPublisher, ManagedNode, StartGate, run_node, unmatched
 from gnc_common.timing import LatencyStatistics
 from gnc_common.validation import ConfigError, InputError, check_positive
 
@@ -774,7 +774,7 @@ class ControllerNode(ManagedNode):
         """What the node did, for its last log line: the samples answered, by answer (what it did
         not compute included, as ``sappc run`` reports it from the bag), and the inputs rejected."""
         if not self.configurations:
-            return "finished: never configured (a managed node that received no configure transition, or none succeeded)"
+            return NEVER_CONFIGURED
         a = self.answers
         reasons = f" {self.rejected_by_reason}" if self.rejected_by_reason else ""
         no_data = f"; {self.no_data_inputs} inputs without data (the contract's no data, not rejected)" if self.no_data_inputs else ""

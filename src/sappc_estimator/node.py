@@ -568,9 +568,7 @@ class EstimatorNode(ManagedNode):
                 **({"latency": dict(self.latency.summary())} if self.mode == REALTIME else {})}
 
     def finish(self) -> None:
-        if not self.configurations:
-            self.get_logger().info("finished: never configured (a managed node that received no configure transition, or none succeeded)")
-            super().finish()
+        if self.finished_unconfigured():
             return
         s = self.statistics()
         self.get_logger().info(f"finished: {s['samples']} samples, {s['steps']} filter steps ({s['updates']} updates, {s['gate_rejections']} "

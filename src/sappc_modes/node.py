@@ -364,9 +364,7 @@ class ModeNode(ManagedNode):
 
     # ---- the end --------------------------------------------------------------------------
     def finish(self) -> None:
-        if not self.configurations:
-            self.get_logger().info("finished: never configured (a managed node that received no configure transition, or none succeeded)")
-            super().finish()
+        if self.finished_unconfigured():
             return
         inactive = f" ({self.inactive_samples} inactive)" if self.managed else ""
         self.get_logger().info(f"finished: {self.samples} samples{inactive}, {self.transitions} transitions, last mode "

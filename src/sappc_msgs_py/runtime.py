@@ -49,6 +49,7 @@ __all__ = [
     "LOCKSTEP",
     "MANAGED",
     "MODE",
+    "NEVER_CONFIGURED",
     "REALTIME",
     "COMMON_PARAMETERS",
     "CountingPublisher",
@@ -479,6 +480,10 @@ class ProjectNode(Node):
             tmp.replace(path)
 
 
+#: The closing line of a managed node that was never configured (:meth:`ManagedNode.finished_unconfigured`).
+NEVER_CONFIGURED = "finished: never configured (a managed node that received no configure transition, or none succeeded)"
+
+
 class ManagedNode(LifecycleNodeMixin, ProjectNode):
     """A :class:`ProjectNode` that is a ROS 2 managed (lifecycle) node when its parameter
     :data:`MANAGED` is true, and a plain node, configured and active from the start, when it is
@@ -570,6 +575,17 @@ class ManagedNode(LifecycleNodeMixin, ProjectNode):
                 return response
 
         return change_state
+
+    def finished_unconfigured(self) -> bool:
+        """At the end, a managed node that was never configured (it received no configure
+        transition, or none succeeded: its counters do not exist): its closing line
+        (:data:`NEVER_CONFIGURED`) said and the base's finish done; ``True``.  ``False`` otherwise
+        (the node says its own closing line)."""
+        if self.configurations:
+            return False
+        self.get_logger().info(NEVER_CONFIGURED)
+        ProjectNode.finish(self)
+        return True
 
     def configure_node(self) -> None:
         """Declare and validate the parameters, load the kernels, create the subscriptions,
