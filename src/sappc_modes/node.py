@@ -32,7 +32,9 @@ Ground commands (standard ROS 2 parameters, ``ros2 param set /modes request_mode
 ''), ``inhibit`` (names of automatic transitions to stop: ``detumbled``, ``acquired``, ``safe``,
 ``recovered``; a request still goes through).  The scenario's own requests
 (``requests_at_s``, ``requests_mode``) are requested at the first sample at or after their time,
-as offline.  The loss-of-control guard is not fed yet (0, as offline).
+as offline.  The external loss-of-control flag (``IN_LOST``) is not fed (0, as offline): the
+online loss of control is the kernel's own guard on the estimate's error (``lost_error_rad`` of
+``transitions``).
 
 Managed (``managed:=true``; default false: the plain node above): a ROS 2 managed (lifecycle) node,
 as :class:`~sappc_msgs_py.runtime.ManagedNode` says for every node; for this one:
