@@ -22,7 +22,7 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, not with thi
 
     from spacecraft_sim.core.wheels import ReactionWheels
 
-__all__ = ["FigureWorker", "draw_jobs", "house_style", "plot_campaign", "plot_compare", "plot_estimator", "plot_run", "plot_torque_rerun",
+__all__ = ["RUN_FIGURE_SHAPES", "FigureWorker", "draw_jobs", "house_style", "plot_campaign", "plot_compare", "plot_estimator", "plot_run", "plot_torque_rerun",
            "plot_wheels"]
 
 Array = NDArray[np.float64]
@@ -146,13 +146,51 @@ _RUN_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "
 
 
 def _rows(n: int = 3, height: float = 7.5) -> tuple[Figure, NDArray[np.object_]]:
-    """A figure of ``n`` (at least 2) rows sharing the time axis, and its array of Axes."""
+    """A figure of ``n`` (at least 2) rows sharing the time axis, and its array of Axes: one that
+    :func:`_prepare_rows` made in advance when there is one of that shape, else a new one."""
+    pool = _PREPARED.get((n, height))
+    if pool:
+        return pool.pop(0)
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt.subplots(n, 1, figsize=(8, height), sharex=True)
+
+
+#: Figures of :func:`_rows` made in advance (:func:`_prepare_rows`), by (rows, height).
+_PREPARED: dict[tuple[int, float], list[tuple[Figure, NDArray[np.object_]]]] = {}
+
+#: The shapes of :func:`plot_run`'s figures of every run (``qev``, ``qev_zoom`` and ``qev_log``:
+#: (3, 7.5); ``torque``: (3, 6.5); ``eps_lyapunov``: (2, 6.0)), in the order a :class:`FigureWorker`
+#: prepares them while it waits: the two processes that then draw each have a copy of what was
+#: prepared, so two of the first shape serve its three figures unless one process draws all three.
+RUN_FIGURE_SHAPES: tuple[tuple[int, float], ...] = ((3, 7.5), (3, 7.5), (3, 6.5), (2, 6.0), (3, 7.5))
+
+#: Ticks made in advance on each axis of a prepared figure (:func:`_prepare_rows`): the time axis of
+#: a 60 s run has 9 major tick positions (-10 to 70 s), a y axis 6 to 10.
+_PREPARED_TICKS = (9, 8)
+
+
+def _prepare_rows(n: int, height: float) -> None:
+    """Make a figure of :func:`_rows` now, with its axes' first ticks (each a group of lines and
+    texts: creating them is a third of drawing a figure), for a later :func:`_rows` of that shape
+    to take.  The figure drawn on it is the one a new figure gives: matplotlib creates the ticks
+    of an axis from its tick settings whenever they are first needed, and applies a change of
+    these settings to the ticks already made (``tests/tools/bag/test_report_processes.py`` checks
+    every pixel).  Call it with the style the figures are drawn with (:func:`house_style`)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(n, 1, figsize=(8, height), sharex=True)
+    for ax in axes:
+        for axis, ticks in zip((ax.xaxis, ax.yaxis), _PREPARED_TICKS):
+            axis.get_major_ticks(ticks)
+            axis.get_minor_ticks(1)
+    _PREPARED.setdefault((n, height), []).append((fig, axes))
 
 
 def plot_run(
@@ -172,12 +210,12 @@ def plot_run(
     (:func:`plot_wheels`; the limits drawn are ``wheels``', when given); return their paths.
     Injected faults are shaded red.
 
-    ``worker``: a :class:`FigureWorker` started earlier draws four of the figures while this
-    process draws the others; else ``parallel``: draw them in two processes (:func:`draw_jobs`;
-    ``None``: when that is safe).  The files are the same either way."""
+    ``worker``: a :class:`FigureWorker` started earlier draws them (this process does not import
+    matplotlib); else ``parallel``: draw them in two processes (:func:`draw_jobs`; ``None``: when
+    that is safe).  The files are the same either way."""
     kwargs = dict(h=h, out_dir=out_dir, title=title, fault_windows=list(fault_windows), zoom_from_s=zoom_from_s, run=run, wheels=wheels)
     if worker is not None and worker.alive:
-        return worker.draw(_run_jobs, kwargs, theirs=(1, 2, 3, 4))
+        return worker.draw(_run_jobs, kwargs)
     return draw_jobs(_run_jobs(**kwargs), parallel=parallel)  # type: ignore[arg-type]
 
 
@@ -363,30 +401,38 @@ def draw_jobs(jobs: Sequence[Any], *, parallel: bool | None = None) -> list[Path
     """Run figure jobs (callables that draw and save figures and return their paths); return every
     path in the jobs' order.
 
-    With ``parallel`` (``None``: when :func:`_fork_is_safe`), a forked child draws every other job
-    while this process draws the rest (two CPUs: about half the time, matplotlib's import
-    included, as the child imports it on its own); the files are the same as one process's.  A
-    child that fails has its jobs drawn again here."""
+    With ``parallel`` (``None``: when :func:`_fork_is_safe`), a forked child and this process take
+    the jobs one at a time, in order, each the next one left when it is done with its last (two
+    CPUs: about half the time; a child forked before matplotlib is imported imports it on its
+    own); the files are the same as one process's.  The jobs that a child which failed did not
+    send back are drawn again here."""
+    return [p for paths in _draw_each(jobs, parallel=parallel) for p in paths]
+
+
+def _draw_each(jobs: Sequence[Any], *, parallel: bool | None = None) -> list[list[Path]]:
+    """:func:`draw_jobs`, the paths of each job apart (matplotlib imported and its style set by the caller)."""
     import os
 
     jobs = list(jobs)
     if parallel is None:
         parallel = _fork_is_safe()
-    if not parallel or len(jobs) < 2:
-        return [p for job in jobs for p in job()]
+    if not parallel or len(jobs) < 2 or len(jobs) > 256:
+        return [list(job()) for job in jobs]
     import json
     import sys
 
-    mine, theirs = jobs[0::2], jobs[1::2]
     sys.stdout.flush()
     sys.stderr.flush()
+    queue_r, queue_w = os.pipe()  # the jobs' numbers, a byte each: a read of one byte takes one job, in one process
+    os.write(queue_w, bytes(range(len(jobs))))
+    os.close(queue_w)
     read_end, write_end = os.pipe()
     pid = os.fork()
     if pid == 0:  # the child: draw, send the paths, leave without the parent's exit handlers
         code = 1
         try:
             os.close(read_end)
-            done = [[str(p) for p in job()] for job in theirs]
+            done = {i: [str(p) for p in paths] for i, paths in _take_jobs(queue_r, jobs).items()}
             with os.fdopen(write_end, "w") as f:
                 json.dump(done, f)
             code = 0
@@ -394,28 +440,73 @@ def draw_jobs(jobs: Sequence[Any], *, parallel: bool | None = None) -> list[Path
             os._exit(code)
     os.close(write_end)
     try:
-        drawn = [job() for job in mine]
+        drawn = _take_jobs(queue_r, jobs)
     finally:
+        os.close(queue_r)
         with os.fdopen(read_end) as f:
             text = f.read()
         _, status = os.waitpid(pid, 0)
     if status == 0 and text:
-        theirs_drawn = [[Path(p) for p in paths] for paths in json.loads(text)]
-    else:
-        theirs_drawn = [job() for job in theirs]
-    order = [drawn[i // 2] if i % 2 == 0 else theirs_drawn[i // 2] for i in range(len(jobs))]
-    return [p for paths in order for p in paths]
+        drawn.update({int(i): [Path(p) for p in paths] for i, paths in json.loads(text).items()})
+    for i, job in enumerate(jobs):  # a child that failed: the jobs it took and did not send back
+        if i not in drawn:
+            drawn[i] = list(job())
+    return [drawn[i] for i in range(len(jobs))]
+
+
+def _take_jobs(queue: int, jobs: Sequence[Any]) -> dict[int, list[Path]]:
+    """Draw the jobs whose numbers this process reads from the pipe ``queue``, one at a time, until
+    it is empty; return their paths by number."""
+    import os
+
+    drawn: dict[int, list[Path]] = {}
+    while number := os.read(queue, 1):
+        drawn[number[0]] = list(jobs[number[0]]())
+    return drawn
+
+
+def _import_matplotlib() -> None:
+    """Import matplotlib (the Agg backend, pyplot) without writing the docstrings of its artists'
+    ``set`` methods: on import, matplotlib lists every property of each artist class into them
+    (:func:`matplotlib.artist.kwdoc`), a quarter of its import time (0.06 of 0.26 s on machine C);
+    only ``help()`` reads them, and a figure process never calls it.  Their signatures and every
+    behaviour are matplotlib's own."""
+    import matplotlib.artist as martist
+
+    kwdoc = martist.kwdoc
+    martist.kwdoc = lambda artist: ""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot  # noqa: F401
+    finally:
+        martist.kwdoc = kwdoc
+
+
+def _prepare_until_readable(shapes: Sequence[tuple[int, float]], fd: int) -> None:
+    """:func:`_prepare_rows` of each of ``shapes`` in turn until the file descriptor ``fd`` has
+    something to read (a task: its figures are drawn then, in two processes)."""
+    import select
+
+    for shape in shapes:
+        if select.select([fd], [], [], 0)[0]:
+            return
+        _prepare_rows(*shape)
 
 
 class FigureWorker:
     """A child process forked now, which imports matplotlib while this process goes on (``sappc
-    report`` reads the bag meanwhile), then draws the figures it is sent (:meth:`draw`).
+    report`` reads the bag meanwhile), makes figures of the shapes ``prepare`` in advance
+    (:func:`_prepare_rows`, until a task comes), then draws the figures it is sent
+    (:meth:`draw`) in two processes (:func:`draw_jobs`: it forks once more, with matplotlib
+    imported and the prepared figures made).
 
     Started only where forking is safe (:func:`_fork_is_safe`; else :attr:`alive` is false and
     the figures are drawn here).  Use it as a context manager: leaving it ends the child; a child
     whose parent ended without a word reads the end of its pipe and leaves."""
 
-    def __init__(self) -> None:
+    def __init__(self, prepare: Sequence[tuple[int, float]] = ()) -> None:
         import os
         import sys
 
@@ -431,13 +522,13 @@ class FigureWorker:
         if pid == 0:
             os.close(task_w)
             os.close(done_r)
-            self._serve(task_r, done_w)  # never returns
+            self._serve(task_r, done_w, tuple(prepare))  # never returns
         os.close(task_r)
         os.close(done_w)
         self.pid, self._send, self._receive = pid, task_w, done_r
 
     @staticmethod
-    def _serve(task_r: int, done_w: int) -> None:
+    def _serve(task_r: int, done_w: int, prepare: tuple[tuple[int, float], ...]) -> None:
         import json
         import os
         import pickle
@@ -445,11 +536,8 @@ class FigureWorker:
 
         code = 1
         try:
-            import matplotlib
-
-            matplotlib.use("Agg")
-            import matplotlib.pyplot  # noqa: F401  (the import is the point: it overlaps the parent's work)
-
+            _import_matplotlib()  # the point: it overlaps the parent's work
+            house_style(_prepare_until_readable)(prepare, task_r)
             with os.fdopen(task_r, "rb") as f:
                 try:
                     task = pickle.load(f)
@@ -458,9 +546,9 @@ class FigureWorker:
             if task is not None:
                 make_jobs, kwargs, theirs = task
                 jobs = make_jobs(**kwargs)
-                done = house_style(lambda: [[str(p) for p in jobs[i]()] for i in theirs])()
+                done = house_style(_draw_each)([jobs[i] for i in theirs])
                 with os.fdopen(done_w, "w") as f:
-                    json.dump(done, f)
+                    json.dump([[str(p) for p in paths] for paths in done], f)
             code = 0
         except BaseException:  # noqa: BLE001  (the parent draws the figures itself)
             traceback.print_exc()
@@ -472,16 +560,17 @@ class FigureWorker:
         """Whether the child was started and has not been used or closed."""
         return self.pid > 0 and self._send >= 0
 
-    def draw(self, make_jobs: Any, kwargs: dict[str, Any], theirs: Sequence[int]) -> list[Path]:
-        """Have the child draw jobs ``theirs`` of ``make_jobs(**kwargs)`` (a module-level function:
-        it is sent by name), draw the others here, and return every path in the jobs' order.  A
-        child that failed has its jobs drawn again here."""
+    def draw(self, make_jobs: Any, kwargs: dict[str, Any], theirs: Sequence[int] | None = None) -> list[Path]:
+        """Have the child draw jobs ``theirs`` (``None``: every one) of ``make_jobs(**kwargs)`` (a
+        module-level function: it is sent by name), draw the others here, and return every path in
+        the jobs' order.  A child that failed has its jobs drawn again here.  This process imports
+        matplotlib only to draw."""
         import json
         import os
         import pickle
 
         jobs = make_jobs(**kwargs)
-        theirs = [i for i in theirs if i < len(jobs)]
+        theirs = list(range(len(jobs))) if theirs is None else [i for i in theirs if i < len(jobs)]
         import threading
 
         def send(fd: int) -> None:  # in a thread: the pipe holds 64 kB, the child reads once matplotlib is imported
@@ -494,7 +583,8 @@ class FigureWorker:
         sender = threading.Thread(target=send, args=(self._send,), daemon=True)
         self._send = -1
         sender.start()
-        mine = house_style(lambda: {i: jobs[i]() for i in range(len(jobs)) if i not in theirs})()
+        mine_jobs = [i for i in range(len(jobs)) if i not in theirs]
+        mine = house_style(lambda: {i: jobs[i]() for i in mine_jobs})() if mine_jobs else {}
         sender.join()
         with os.fdopen(self._receive, "r") as f:
             self._receive = -1

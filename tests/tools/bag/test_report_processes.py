@@ -1,6 +1,7 @@
 """``sappc report`` in its own process: it loads neither numba nor scipy (the metrics kernel's
 source runs in the interpreter for one bag; ``tests/tools/evaluation/test_metrics.py`` checks the
-bits), and the figures that its forked :class:`~sappc.analysis.plots.FigureWorker` draws are the
+bits) nor matplotlib (its forked :class:`~sappc.analysis.plots.FigureWorker` draws every figure, in
+two processes, on figures it made in advance), and the figures that worker draws are the
 figures that one process draws: the same pixels, every one, also when a library changed
 matplotlib's global settings in that process (Basilisk does on import when matplotlib is loaded:
 CI on 2026-11-28 saw the report's figures of the suite's process, after the Basilisk tests, laid
@@ -16,7 +17,9 @@ from pathlib import Path
 import numpy as np
 from test_wheels_report import _bag
 
-from sappc.analysis.plots import FigureWorker, _run_jobs, draw_jobs
+from sappc.analysis import plots
+from sappc.analysis.plots import RUN_FIGURE_SHAPES, FigureWorker, _prepare_rows, _run_jobs, draw_jobs, house_style
+from sappc.evaluation.history import History
 from sappc.analysis.report import analyse_bag, write_report
 
 from conftest import SCENARIOS
@@ -27,7 +30,7 @@ _RUN_REPORT = """
 import sys
 from sappc.cli import main
 code = main(["report", sys.argv[1], "--out", sys.argv[2]])
-print(sorted(m for m in ("numba", "scipy", "rclpy") if m in sys.modules))
+print(sorted(m for m in ("numba", "scipy", "rclpy", "matplotlib") if m in sys.modules))
 sys.exit(code)
 """
 
@@ -74,3 +77,33 @@ def test_a_worker_that_was_not_used_or_could_not_start_leaves_the_figures_to_thi
     kwargs = dict(h=a.run.history, out_dir=tmp_path / "figs", title="t", fault_windows=[], zoom_from_s=0.5, run=0, wheels=None)
     paths = draw_jobs(_run_jobs(**kwargs), parallel=False)  # type: ignore[arg-type]
     assert [p.name for p in paths] == ["qev.png", "qev_zoom.png", "qev_log.png", "torque.png", "eps_lyapunov.png"]
+
+
+def _settling_run(seconds: float = 20.0) -> History:
+    """A run's History at 100 Hz whose attitude error decays inside a shrinking band (each
+    figure has lines, a band, log axes of several decades)."""
+    t = np.arange(0.0, seconds + 1e-9, 0.01)
+    decay = np.exp(-t / 3.0)[:, None, None] * np.array([0.3, -0.2, 0.1])
+    wobble = 1e-5 * np.sin(t)[:, None, None]
+    q_ev = decay + wobble
+    q_BR = np.concatenate((q_ev, np.sqrt(1.0 - (q_ev**2).sum(axis=-1, keepdims=True))), axis=-1)
+    rho = 0.4 * np.exp(-t / 2.5)[:, None, None] + 3e-5 * np.ones((1, 1, 3))
+    torque = 0.1 * np.cos(t)[:, None, None] * np.ones((1, 1, 3))
+    zeros = np.zeros_like(rho)
+    return History(t=t, q_BN=q_BR.copy(), omega_BN_B=zeros, q_BR=q_BR, torque_B=torque, torque_cmd_B=torque,
+                   saturated=np.zeros(rho.shape, bool), disturbance_B=zeros, rho=rho, band_lower=-rho, band_upper=rho,
+                   eps=q_ev / rho, z=zeros, V=0.5 * (q_ev / rho) ** 2 + 1e-9)
+
+
+def test_figures_made_in_advance_are_the_figures_made_when_drawn(tmp_path: Path) -> None:
+    """The figure worker makes the run's figures and their first ticks while it waits
+    (``_prepare_rows``); a figure drawn on one is the figure made when drawn, every pixel."""
+    kwargs = dict(h=_settling_run(), title="t", fault_windows=[(4.0, 6.0)], zoom_from_s=5.0, run=0, wheels=None)
+    fresh = draw_jobs(_run_jobs(out_dir=tmp_path / "fresh", **kwargs), parallel=False)  # type: ignore[arg-type]
+    house_style(lambda: [_prepare_rows(*shape) for shape in RUN_FIGURE_SHAPES])()
+    prepared = draw_jobs(_run_jobs(out_dir=tmp_path / "prepared", **kwargs), parallel=False)  # type: ignore[arg-type]
+    assert not any(plots._PREPARED.values())  # each of the five figures was drawn on a prepared one
+    assert [p.name for p in prepared] == [p.name for p in fresh] == ["qev.png", "qev_zoom.png", "qev_log.png", "torque.png", "eps_lyapunov.png"]
+    for mine, theirs in zip(fresh, prepared):
+        a, b = _pixels(mine), _pixels(theirs)
+        assert a.shape == b.shape and (a == b).all(), f"{mine.name}: {int((a != b).any(axis=-1).sum())} pixels differ"
