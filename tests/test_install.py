@@ -106,6 +106,8 @@ def test_the_wheel_installed_outside_the_checkout_runs_the_paper_experiment_by_n
     assert "sappc: compiling the numerical core's loops once" in run.stderr, run.stderr
     assert "sappc: numerical core: the offline loop (one run) with sensor noise ready" in run.stderr, run.stderr
     assert "the controller's step" not in run.stderr and "(batches)" not in run.stderr, run.stderr
+    # the compile's leaf process typed every leaf as the loop calls it (compiled_loop._leaf_calls; else it compiled them in vain)
+    assert "unlike the loop" not in run.stderr, run.stderr
 
     # the bundled files: listed, copied out with the scenario they extend, and the copy loads as it is
     listed = sappc("scenarios")

@@ -52,6 +52,7 @@ rates by the rate kernel; a shared disturbance becomes a (B, 3) table.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import math
@@ -502,19 +503,22 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
         if mode != TRACK:  # the mode's own law (docstring); the controller is inactive
             status = ANSWER_INACTIVE
             law = False
+            # the mode law's inputs: HOLD on the estimate, against the reference (an acquisition) or the
+            # attitude of HOLD's first valid sample (an inertial hold); SAFE on the gyro alone.  One call
+            # of the inlined step below for the three (each call site is typed and compiled again).
+            q_in, w_in, q_to, w_to, wd_to, m_prm = yc[:4], yc[4:], q_hold, zero3, zero3, md_hold
             if mode == HOLD and valid:
-                if md_to_reference:  # an acquisition: MRP feedback on the scenario's reference
-                    controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, yc[:4], yc[4:], grid.ref_q[kb], grid.ref_w[kb], grid.ref_wd[kb], md_hold, coef,
-                                    hctrl, hwork, hout)
-                else:  # an inertial hold of the attitude of HOLD's first valid sample
-                    if np.isnan(q_hold[0]):
-                        for i in range(4):
-                            q_hold[i] = yc[i]
-                    controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, yc[:4], yc[4:], q_hold, zero3, zero3, md_hold, coef, hctrl, hwork, hout)
+                if md_to_reference:
+                    q_to, w_to, wd_to = grid.ref_q[kb], grid.ref_w[kb], grid.ref_wd[kb]
+                elif np.isnan(q_hold[0]):
+                    for i in range(4):
+                        q_hold[i] = yc[i]
                 law = True
             elif mode == SAFE and gyro_in:
-                controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, q_unit, y[4:7], q_unit, zero3, zero3, md_safe, coef, hctrl, hwork, hout)
+                q_in, w_in, q_to, m_prm = q_unit, y[4:7], q_unit, md_safe
                 law = True
+            if law:
+                controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, q_in, w_in, q_to, w_to, wd_to, m_prm, coef, hctrl, hwork, hout)
             law = law and np.isfinite(hout[O_TORQUE, 0] + hout[O_TORQUE, 1] + hout[O_TORQUE, 2])
             for i in range(3):
                 cmd[i] = hout[O_TORQUE, i] if law else 0.0
@@ -1078,7 +1082,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
             on_infeasible: str = "raise", sensor_params: np.ndarray | None = None, sensor_outages: np.ndarray | None = None,
             faults: list[tuple[Any, ...]] | None = None, wheels: list[ReactionWheels] | None = None,
             estimator_params: np.ndarray | None = None, run_keys: list[tuple[int, ...]] | None = None,
-            orbits: np.ndarray | None = None, whole: bool = True) -> CompiledInputs:
+            orbits: np.ndarray | None = None, whole: bool = True, started: bool = True) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
     ``sensor_params``: the sensors' parameters ((13,) or one row per run), their draws then given
@@ -1098,8 +1102,11 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
     disturbance's table: about 200 bytes a sample); else none, each block's made when it runs
     (:meth:`CompiledInputs.blocks`, :func:`run_blocks`).  With flight modes the RPF's policy is
     ``clamp`` whatever ``on_infeasible`` says: the controller starts at each entry into TRACK from
-    whatever error the acquisition left, and a flight does not stop there."""
-    ensure_compiled()
+    whatever error the acquisition left, and a flight does not stop there.  ``started``: false, the
+    inputs before the probe of each run's start (no loop runs, nothing compiles: the compile's leaf
+    process takes its kernels' argument types from them, :func:`_compile_leaves`)."""
+    if started:
+        ensure_compiled()
     if scenario.modes is not None:  # a flight starts its controller at each TRACK entry, whatever the error: an infeasible l is clamped, counted
         on_infeasible = "clamp"
     cfg = scenario.controller_config(controller) if config is None else config
@@ -1142,7 +1149,8 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
         noise=noise,
         mag_noise=_magnetometer_streams(scenario, n, run_keys),
     )
-    return _started(inp.whole() if whole else inp)
+    inp = inp.whole() if whole else inp
+    return _started(inp) if started else inp
 
 
 def _environment(scenario: Scenario, n: int, run_keys: list[tuple[int, ...]] | None = None,
@@ -1475,12 +1483,38 @@ def _compile_in_children(jobs: list[tuple[tuple[str, ...], bool]]) -> None:
         When a child fails (its output above says why).
     """
     import signal
+
+    children = [_start_compile_child(f"_compile_child({groups!r}, parallel={parallel})") for groups, parallel in jobs]
+    try:
+        codes = [child.wait() for child in children]
+    except BaseException:
+        try:  # a second Ctrl-C does not cut the waiting short (the command's entry ignores it afterwards too)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:  # not the main thread: it cannot receive Ctrl-C anyway
+            pass
+        _end_compile_children(children)
+        raise
+    failed = [g for (groups, _), code in zip(jobs, codes) if code != 0 for g in groups]
+    if failed:
+        raise RuntimeError(f"compiling the numerical core's group(s) {failed} failed (exit statuses {codes}); the output above says why")
+
+
+def _start_compile_child(call: str) -> Any:
+    """A child process running ``call`` of this module (a new session unless this process is a
+    compile child itself: :func:`_compile_in_children`)."""
+    import subprocess
+
+    return subprocess.Popen([sys.executable, "-c", f"from sappc.offline.compiled_loop import {call.split('(')[0]}; {call}"],
+                            start_new_session=not _in_compile_child)
+
+
+def _end_compile_children(children: Sequence[Any]) -> None:
+    """Terminate each compile child's group (or the child alone inside a compile child), wait
+    :data:`COMPILE_CHILD_EXIT_S` at most, then kill what is left."""
+    import signal
     import subprocess
 
     own_group = not _in_compile_child
-    children = [subprocess.Popen([sys.executable, "-c", "from sappc.offline.compiled_loop import _compile_child; "
-                                  f"_compile_child({groups!r}, parallel={parallel})"], start_new_session=own_group)
-                for groups, parallel in jobs]
 
     def stop(child: subprocess.Popen[bytes], sig: int) -> None:
         try:
@@ -1491,27 +1525,16 @@ def _compile_in_children(jobs: list[tuple[tuple[str, ...], bool]]) -> None:
         except ProcessLookupError:  # already gone
             pass
 
-    try:
-        codes = [child.wait() for child in children]
-    except BaseException:
-        try:  # a second Ctrl-C does not cut the waiting short (the command's entry ignores it afterwards too)
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-        except ValueError:  # not the main thread: it cannot receive Ctrl-C anyway
-            pass
-        for child in children:
-            stop(child, signal.SIGTERM)
-        for child in children:
-            try:
-                child.wait(timeout=COMPILE_CHILD_EXIT_S)
-            except subprocess.TimeoutExpired:
-                stop(child, signal.SIGKILL)
-                child.wait()
-            if own_group:  # what the child started in its group and left behind
-                stop(child, signal.SIGKILL)
-        raise
-    failed = [g for (groups, _), code in zip(jobs, codes) if code != 0 for g in groups]
-    if failed:
-        raise RuntimeError(f"compiling the numerical core's group(s) {failed} failed (exit statuses {codes}); the output above says why")
+    for child in children:
+        stop(child, signal.SIGTERM)
+    for child in children:
+        try:
+            child.wait(timeout=COMPILE_CHILD_EXIT_S)
+        except subprocess.TimeoutExpired:
+            stop(child, signal.SIGKILL)
+            child.wait()
+        if own_group:  # what the child started in its group and left behind
+            stop(child, signal.SIGKILL)
 
 
 def _compile_child(groups: tuple[str, ...] | str, *, parallel: bool = False) -> None:
@@ -1526,6 +1549,121 @@ def _compile_child(groups: tuple[str, ...] | str, *, parallel: bool = False) -> 
     _in_compile_child = True
     signal.signal(signal.SIGINT, signal.SIG_DFL)  # Python's own handler raises KeyboardInterrupt; SIGTERM's is the default already
     warm_up(groups, parallel=parallel)
+
+
+def _leaf_calls(inp: CompiledInputs) -> list[tuple[Any, tuple[Any, ...]]]:
+    """The kernels :func:`_run_one` calls out of line, in the order the compile's leaf process
+    compiles them (:func:`_compile_leaves`), each with arguments of the types the loop gives it:
+    the loop's own expressions on run 0's rows of ``inp``'s arrays and of a fresh
+    :class:`LoopState` and :class:`LoopRecord` (numba types an array by its dtype, dimensions and
+    layout, not its size, so the warm-up scenario's empty wheel, orbit and mode arrays type as a
+    flight's).
+
+    The order: first those of the sample's first half, as the loop calls them (the run's initial
+    state, the MEKF's step, the faults', the mode manager's, the benchmark laws: numba inlines and
+    rewrites the loop's body for several seconds before its typing reaches them), then the second
+    half's, the last called first, while the loop's typing compiles those from the second half's
+    start; the two meet in the middle, and numba loads each leaf the other
+    finished from the cache where the loop calls it instead of compiling it.  A call site changed
+    in the loop and not here costs only time (the loop compiles that leaf itself); the loop's
+    compile says so in one line (:func:`_leaf_mismatches`), which ``tests/test_install.py`` looks
+    for."""
+    from sappc_controller.core.kernels import blfppc_law, mrp_feedback_law, trappc_transform
+
+    st, rec = _state(inp, 1), _record(inp, 1, 1, 1)
+    n = r = 0
+    ctrl, plant, act, faults, env, mm, md = inp.controller, inp.plant, inp.actuator, inp.faults, inp.environment, inp.momentum, inp.modes
+    t, k, dt = 0.0, 0, inp.grid.dt
+    vec3, x = st.vec3[r], st.x[r]
+    x_q = x[:4]
+    prm, coef, state, work, out = ctrl.prm[n], ctrl.coef[n], st.ctrl[r], st.work[r], st.out[r]
+    J, J_inv, G, G_pinv, wprm = plant.J[n], plant.J_inv[n], act.G[n], act.G_pinv[n], act.params[n]
+    uw, wspeed, wwork, wtmp = st.uw[r], st.wspeed[r], st.wwork[r], st.wtmp[r]
+    e_orbit, e_field, e_gravity, e_Gt, e_mmax, e_mag, e_draws = env.orbit[n], env.field[n], env.gravity[n], env.Gt[n], env.m_max[n], env.mag[n], env.mag_draws[n]
+    r_N, B_N, B_B, L_env, B_meas = vec3[V_R_N], vec3[V_B_N], vec3[V_B_B], vec3[V_L_ENV], vec3[V_B_MEAS]
+    m_cmd, tau_w, m_B, u_cmd, u_last, d = st.m_cmd[r], vec3[V_TAU_W], vec3[V_M_B], vec3[V_U_CMD], vec3[V_U_LAST], vec3[V_D]
+    mm_rows = (mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n], mm.steering[n], mm.m_max[n], mm.orbit[n], mm.field[n])
+    return [
+        (_initial_state, (n, r, plant, inp.sensors, inp.estimator, md, st, rec)),
+        (mekf_step, (inp.estimator.prm[n], t, st.ye[r], st.est[r], st.P[r], st.ework[r], st.eout[r])),
+        (fault_sensor, (t, faults.kind[n], faults.window[n], faults.params[n], faults.samples[n], st.fcount[r], st.fbuf[r], faults.draws[0], st.y[r])),
+        (mode_step, (st.mode[r], st.mode_in[r], md.prm[n])),
+        (attitude_error_angle, (x_q, st.yc[r][:4], st.q_err[r])),
+        (blfppc_law, (prm, coef, state, t, dt, work, out)),
+        (mrp_feedback_law, (prm, state, dt, work, out)),
+        (trappc_transform, (prm, coef, t, work, out)),
+        (propagate_wheels_into, (x, uw, d, dt, plant.substeps, J, J_inv, G, wprm, wwork, wtmp)),
+        (torque_of, (e_orbit, e_gravity, e_Gt, e_mmax, x_q, r_N, B_B, m_cmd, vec3[V_R_B_TMP], vec3[V_L_MTB_TMP], L_env)),
+        (wheel_torques, (tau_w, G_pinv, G, wprm, x, uw)),
+        (momentum_management_step, (*mm_rows, t, wspeed, B_meas, st.q_ff[r], vec3[V_OMEGA_FF], u_last, m_cmd, tau_w, st.mtmp[r], st.mst[r])),
+        (dipole_mapping, (mm.steering[n], m_B, mm.m_max[n], m_cmd)),
+        (bdot_step, (md.bdot[n], B_meas, t, st.bdot[r], m_B)),
+        (wheel_speeds_into, (x, G, wprm, wspeed)),
+        (measured_field_of, (e_mag, e_draws, k, k, B_B, B_meas)),
+        (field_of, (e_orbit, e_field, t, x_q, r_N, B_N, B_B)),
+        (error_quaternion, (x_q, x_q, st.pub[r][O_QBR])),
+        (fault_actuator, (t, faults.kind[n], faults.window[n], faults.params[n], faults.samples[n], st.fcount[r], st.fbuf[r], u_cmd, u_last)),
+    ]
+
+
+def _leaf_signatures(inp: CompiledInputs) -> list[tuple[Any, tuple[Any, ...]]]:
+    """:func:`_leaf_calls` as (kernel, numba argument types)."""
+    from numba import typeof
+
+    return [(kernel, tuple(typeof(a) for a in args)) for kernel, args in _leaf_calls(inp)]
+
+
+def _leaf_inputs() -> CompiledInputs:
+    """The warm-up's inputs before the probe (:func:`prepare` with ``started=False``)."""
+    scenario = _warm_up_scenario()
+    return prepare(scenario, on_infeasible="clamp", sensor_params=white_noise_params(1e-7, 1e-7), q_BN0=np.atleast_2d(scenario.q_BN0),
+                   started=False)
+
+
+def _compile_leaves() -> None:
+    """The entry of the compile's leaf process (:func:`_leaf_process`): compile (or load) each of
+    :func:`_leaf_calls`' kernels in its order; SIGTERM ends it at once (the loop's compile
+    has no use for it once done: :func:`_compile_child` says why nothing is lost)."""
+    import signal
+
+    global _in_compile_child
+    _in_compile_child = True
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    for kernel, sig in _leaf_signatures(_leaf_inputs()):
+        kernel.compile(sig)
+
+
+#: The environment variable that turns the compile's leaf process off (``0``): a machine with one
+#: CPU gains nothing from it (:func:`_leaf_process` starts it only with two or more).
+LEAF_PROCESS_ENV = "SAPPC_COMPILE_LEAVES"
+
+
+@contextlib.contextmanager
+def _leaf_process() -> Iterator[None]:
+    """Around the loop's compile on a cold cache: a child process compiling the loop's leaves
+    (:func:`_leaf_calls`) while this one types the loop from its start, so that the two meet in
+    the middle; ended (terminated, its group with it) when the loop is compiled,
+    or when this process is interrupted.  Only with two or more CPUs and without
+    ``SAPPC_COMPILE_LEAVES=0``."""
+    if (os.cpu_count() or 1) < 2 or os.environ.get(LEAF_PROCESS_ENV, "1") == "0":
+        yield
+        return
+    child = _start_compile_child("_compile_leaves()")
+    try:
+        yield
+    finally:
+        _end_compile_children([child])
+
+
+def _leaf_mismatches() -> list[str]:
+    """After the loop's compile in this process: the leaves whose argument types in
+    :func:`_leaf_calls` are not among those the loop called them with (so the leaf process
+    compiled them in vain)."""
+    names = []
+    for kernel, sig in _leaf_signatures(_leaf_inputs()):
+        if sig not in kernel.dispatcher.overloads:
+            names.append(kernel.__qualname__)
+    return names
 
 
 def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = False) -> None:
@@ -1558,7 +1696,15 @@ def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = 
     scenario = _warm_up_scenario()
     _checked.update(names)
     if "loops" in names:
-        _warm_up_loops(scenario, compiled)
+        if cache_is_warm(("loops",)):
+            _warm_up_loops(scenario, compiled)
+        else:  # a cold loop: its late leaves compiled beside it
+            with _leaf_process():
+                _warm_up_loops(scenario, compiled)
+            mismatched = _leaf_mismatches()
+            if mismatched:
+                print(f"sappc: the compile's leaf process typed {', '.join(mismatched)} unlike the loop (_leaf_calls): "
+                      "it compiled those in vain", file=sys.stderr, flush=True)
     if "batches" in names:
         _warm_up_batches(scenario, compiled)
     if "nodes" in names:
