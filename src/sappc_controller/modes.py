@@ -1,11 +1,11 @@
 """The flight modes' laws of HOLD and SAFE for the controller node (issue 49): its torque outside TRACK.
 
-The offline loop calls the same kernel on the same arrays inline
+The offline loop calls the same kernel on the same arrays
 (:func:`sappc.offline.compiled_loop._run_one`, "Flight modes"); this class holds them for a node,
 one sample at a time, so that a lockstep run's torque equals the offline run's, bit for bit:
 
-- HOLD: Basilisk's MRP feedback (:func:`~sappc_controller.core.kernels.controller_step` with
-  ``KIND_MRP_FEEDBACK`` and the rows of :func:`~sappc_controller.core.mrp_feedback.hold_and_safe_params`)
+- HOLD: Basilisk's MRP feedback (:func:`~sappc_controller.core.kernels.mrp_feedback_step`, the
+  controller's step of ``KIND_MRP_FEEDBACK``, with the rows of :func:`~sappc_controller.core.mrp_feedback.hold_and_safe_params`)
   on the controller's input (the estimate) of a valid sample, towards the scenario's reference
   with its rates (``hold_on_reference``: an acquisition) or the attitude of HOLD's first valid
   sample at rest (an inertial hold);
@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sappc_controller.core.kernels import KIND_MRP_FEEDBACK, N_COEF, N_OUT, N_STATE, N_WORK, O_TORQUE, controller_step
+from sappc_controller.core.kernels import N_COEF, N_OUT, N_STATE, N_WORK, O_TORQUE, mrp_feedback_step
 from sappc_controller.core.common import ActuatorConfig
 from sappc_controller.core.mrp_feedback import MrpFeedbackGains, hold_and_safe_params
 from sappc_modes.core.modes import HOLD, SAFE
@@ -83,15 +83,15 @@ class ModeLaws:
         if mode == HOLD and inputs is not None:
             q, w, q_r, w_r, wd_r = inputs
             if self.hold_on_reference:
-                controller_step(KIND_MRP_FEEDBACK, t_s, dt_s, q, w, q_r, w_r, wd_r, self.hold_prm, self._coef, self._state, self._work, self._out)
+                mrp_feedback_step(t_s, dt_s, q, w, q_r, w_r, wd_r, self.hold_prm, self._coef, self._state, self._work, self._out)
             else:
                 if math.isnan(self._q_hold[0]):
                     self._q_hold[:] = q
-                controller_step(KIND_MRP_FEEDBACK, t_s, dt_s, q, w, self._q_hold, self._zero3, self._zero3, self.hold_prm, self._coef,
+                mrp_feedback_step(t_s, dt_s, q, w, self._q_hold, self._zero3, self._zero3, self.hold_prm, self._coef,
                                 self._state, self._work, self._out)
             law = True
         elif mode == SAFE and gyro_rad_s is not None:
-            controller_step(KIND_MRP_FEEDBACK, t_s, dt_s, self._q_unit, gyro_rad_s, self._q_unit, self._zero3, self._zero3, self.safe_prm,
+            mrp_feedback_step(t_s, dt_s, self._q_unit, gyro_rad_s, self._q_unit, self._zero3, self._zero3, self.safe_prm,
                             self._coef, self._state, self._work, self._out)
             law = True
         torque = self._out[O_TORQUE, :3].tolist()

@@ -69,7 +69,7 @@ from gnc_common.compiled import error_quaternion, jit, jit_parallel
 from sappc_controller.core.base import SingularStartError
 from gnc_common.input_check import REJECT_REASONS, sample_verdicts
 from sappc_controller.core.kernels import N_COEF, N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
-from sappc_controller.core.kernels import KIND_MRP_FEEDBACK, ControllerArrays, controller_step
+from sappc_controller.core.kernels import ControllerArrays, controller_step, mrp_feedback_step
 from sappc_controller.core.mrp_feedback import hold_and_safe_params
 from sappc_controller.core.packing import pack_controller, start_coef
 from sappc_estimator.core.config import pack_estimator
@@ -504,8 +504,8 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
             status = ANSWER_INACTIVE
             law = False
             # the mode law's inputs: HOLD on the estimate, against the reference (an acquisition) or the
-            # attitude of HOLD's first valid sample (an inertial hold); SAFE on the gyro alone.  One call
-            # of the inlined step below for the three (each call site is typed and compiled again).
+            # attitude of HOLD's first valid sample (an inertial hold); SAFE on the gyro alone: one call
+            # of the law compiled on its own (an inlined step is compiled again at each call site).
             q_in, w_in, q_to, w_to, wd_to, m_prm = yc[:4], yc[4:], q_hold, zero3, zero3, md_hold
             if mode == HOLD and valid:
                 if md_to_reference:
@@ -518,7 +518,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
                 q_in, w_in, q_to, m_prm = q_unit, y[4:7], q_unit, md_safe
                 law = True
             if law:
-                controller_step(KIND_MRP_FEEDBACK, t_stamp, dt, q_in, w_in, q_to, w_to, wd_to, m_prm, coef, hctrl, hwork, hout)
+                mrp_feedback_step(t_stamp, dt, q_in, w_in, q_to, w_to, wd_to, m_prm, coef, hctrl, hwork, hout)
             law = law and np.isfinite(hout[O_TORQUE, 0] + hout[O_TORQUE, 1] + hout[O_TORQUE, 2])
             for i in range(3):
                 cmd[i] = hout[O_TORQUE, i] if law else 0.0
@@ -1559,11 +1559,12 @@ def _leaf_calls(inp: CompiledInputs) -> list[tuple[Any, tuple[Any, ...]]]:
     layout, not its size, so the warm-up scenario's empty wheel, orbit and mode arrays type as a
     flight's).
 
-    The order: first those of the sample's first half, as the loop calls them (the run's initial
-    state, the MEKF's step, the faults', the mode manager's, the benchmark laws: numba inlines and
-    rewrites the loop's body for several seconds before its typing reaches them), then the second
-    half's, the last called first, while the loop's typing compiles those from the second half's
-    start; the two meet in the middle, and numba loads each leaf the other
+    The order (measured on a cold cache, two cores): first the two the loop's typing reaches
+    first, the run's initial state and the MEKF's step (numba inlines and rewrites the loop's body
+    for several seconds before its typing begins), then the sample's second half, the last called
+    first, while the loop's typing compiles the middle's (the faults', the mode manager's, the mode
+    and benchmark laws) itself, then the middle's, the last called first; the two processes meet
+    in the middle, and numba loads each leaf the other
     finished from the cache where the loop calls it instead of compiling it.  A call site changed
     in the loop and not here costs only time (the loop compiles that leaf itself); the loop's
     compile says so in one line (:func:`_leaf_mismatches`), which ``tests/test_install.py`` looks
@@ -1586,12 +1587,6 @@ def _leaf_calls(inp: CompiledInputs) -> list[tuple[Any, tuple[Any, ...]]]:
     return [
         (_initial_state, (n, r, plant, inp.sensors, inp.estimator, md, st, rec)),
         (mekf_step, (inp.estimator.prm[n], t, st.ye[r], st.est[r], st.P[r], st.ework[r], st.eout[r])),
-        (fault_sensor, (t, faults.kind[n], faults.window[n], faults.params[n], faults.samples[n], st.fcount[r], st.fbuf[r], faults.draws[0], st.y[r])),
-        (mode_step, (st.mode[r], st.mode_in[r], md.prm[n])),
-        (attitude_error_angle, (x_q, st.yc[r][:4], st.q_err[r])),
-        (blfppc_law, (prm, coef, state, t, dt, work, out)),
-        (mrp_feedback_law, (prm, state, dt, work, out)),
-        (trappc_transform, (prm, coef, t, work, out)),
         (propagate_wheels_into, (x, uw, d, dt, plant.substeps, J, J_inv, G, wprm, wwork, wtmp)),
         (torque_of, (e_orbit, e_gravity, e_Gt, e_mmax, x_q, r_N, B_B, m_cmd, vec3[V_R_B_TMP], vec3[V_L_MTB_TMP], L_env)),
         (wheel_torques, (tau_w, G_pinv, G, wprm, x, uw)),
@@ -1603,6 +1598,13 @@ def _leaf_calls(inp: CompiledInputs) -> list[tuple[Any, tuple[Any, ...]]]:
         (field_of, (e_orbit, e_field, t, x_q, r_N, B_N, B_B)),
         (error_quaternion, (x_q, x_q, st.pub[r][O_QBR])),
         (fault_actuator, (t, faults.kind[n], faults.window[n], faults.params[n], faults.samples[n], st.fcount[r], st.fbuf[r], u_cmd, u_last)),
+        (trappc_transform, (prm, coef, t, work, out)),
+        (mrp_feedback_law, (prm, state, dt, work, out)),
+        (blfppc_law, (prm, coef, state, t, dt, work, out)),
+        (mrp_feedback_step, (t, dt, x_q, x_q, x_q, u_cmd, u_cmd, md.hold_prm[n], coef, st.hctrl[r], st.hwork[r], st.hout[r])),
+        (attitude_error_angle, (x_q, st.yc[r][:4], st.q_err[r])),
+        (mode_step, (st.mode[r], st.mode_in[r], md.prm[n])),
+        (fault_sensor, (t, faults.kind[n], faults.window[n], faults.params[n], faults.samples[n], st.fcount[r], st.fbuf[r], faults.draws[0], st.y[r])),
     ]
 
 
@@ -1617,7 +1619,7 @@ def _leaf_inputs() -> CompiledInputs:
     """The warm-up's inputs before the probe (:func:`prepare` with ``started=False``)."""
     scenario = _warm_up_scenario()
     return prepare(scenario, on_infeasible="clamp", sensor_params=white_noise_params(1e-7, 1e-7), q_BN0=np.atleast_2d(scenario.q_BN0),
-                   started=False)
+                   whole=False, started=False)
 
 
 def _compile_leaves() -> None:

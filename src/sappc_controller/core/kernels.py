@@ -90,6 +90,7 @@ __all__ = [
     "controller_step",
     "controller_step_batch",
     "controller_step_one",
+    "mrp_feedback_step",
     "new_state",
 ]
 
@@ -652,6 +653,14 @@ def controller_step(kind, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN
             trappc_transform(prm, coef, tau, work, out)
         backstepping_law(prm, state, dt, work, out)
     actuator(prm, state, dt, out)
+
+
+@jit
+def mrp_feedback_step(t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, prm, coef, state, work, out):
+    """:func:`controller_step` of MRP feedback, compiled on its own: the flight modes' HOLD and SAFE
+    law (:mod:`sappc_controller.modes`, and the offline loop's, which inlines only the scenario's
+    law: each inlined copy of the step costs its compile seconds)."""
+    controller_step(KIND_MRP_FEEDBACK, t, dt, q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, prm, coef, state, work, out)
 
 
 @jit
