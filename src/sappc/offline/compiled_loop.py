@@ -1447,7 +1447,7 @@ def ensure_compiled(*, in_subprocess: bool = False, groups: tuple[str, ...] = ("
     cold = tuple(g for g in todo if not cache_is_warm((g,)))
     if not cold:
         return
-    print(f"sappc: compiling the numerical core's {' and '.join(cold)} once (~40 s; later runs load them from the cache)...",
+    print(f"sappc: compiling the numerical core's {' and '.join(cold)} once (~30 s; later runs load them from the cache)...",
           file=sys.stderr, flush=True)
     if in_subprocess:
         parallel = (os.cpu_count() or 1) > 1  # warm_up runs one group in place
