@@ -100,10 +100,42 @@ def test_figures_made_in_advance_are_the_figures_made_when_drawn(tmp_path: Path)
     (``_prepare_rows``); a figure drawn on one is the figure made when drawn, every pixel."""
     kwargs = dict(h=_settling_run(), title="t", fault_windows=[(4.0, 6.0)], zoom_from_s=5.0, run=0, wheels=None)
     fresh = draw_jobs(_run_jobs(out_dir=tmp_path / "fresh", **kwargs), parallel=False)  # type: ignore[arg-type]
-    house_style(lambda: [_prepare_rows(*shape) for shape in RUN_FIGURE_SHAPES])()
+    assert set(RUN_FIGURE_SHAPES) == {(3, 7.5), (3, 6.5), (2, 6.0)}
+    house_style(lambda: [_prepare_rows(*shape) for shape in ((3, 7.5),) * 3 + ((3, 6.5), (2, 6.0))])()
     prepared = draw_jobs(_run_jobs(out_dir=tmp_path / "prepared", **kwargs), parallel=False)  # type: ignore[arg-type]
     assert not any(plots._PREPARED.values())  # each of the five figures was drawn on a prepared one
     assert [p.name for p in prepared] == [p.name for p in fresh] == ["qev.png", "qev_zoom.png", "qev_log.png", "torque.png", "eps_lyapunov.png"]
     for mine, theirs in zip(fresh, prepared):
         a, b = _pixels(mine), _pixels(theirs)
         assert a.shape == b.shape and (a == b).all(), f"{mine.name}: {int((a != b).any(axis=-1).sum())} pixels differ"
+
+
+def test_the_figures_png_files_are_matplotlibs_pixels_and_chunks(tmp_path: Path) -> None:
+    """The figures' PNG files are encoded by ``plots._save_png`` (a faster filter than Pillow's):
+    the pixels and the PNG information (``Software``, dpi) of ``savefig``'s own PNG, at every
+    figure size the project draws (a size in pixels that is not a whole number of inches)."""
+    import zlib
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    t = np.linspace(0.0, 10.0, 1001)
+    for size in ((8.0, 7.5), (8.0, 6.5), (12.0, 3.8), (9.0, 3.6), (8.0, 5.5)):
+        fig, ax = plt.subplots(figsize=size)
+        ax.fill_between(t, -np.exp(-t), np.exp(-t), color="tab:blue", alpha=0.18, lw=0)
+        ax.plot(t, np.sin(3 * t) * np.exp(-t), label="ρ₁")
+        ax.legend()
+        ax.set_title("10⁻⁵")
+        plots._save_png(fig, tmp_path / "mine.png")
+        fig.savefig(tmp_path / "theirs.png", dpi=plots.PNG_DPI)
+        plt.close(fig)
+        data = (tmp_path / "mine.png").read_bytes()
+        at = data.index(b"IDAT")
+        length = int.from_bytes(data[at - 4 : at], "big")
+        assert zlib.decompress(data[at + 4 : at + 4 + length])[0] == 2  # written here, filter "Up" (not matplotlib's fallback)
+        with Image.open(tmp_path / "mine.png") as mine, Image.open(tmp_path / "theirs.png") as theirs:
+            assert (mine.mode, mine.size, mine.info) == (theirs.mode, theirs.size, theirs.info), size
+            assert (np.asarray(mine) == np.asarray(theirs)).all(), size
