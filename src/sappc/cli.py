@@ -11,6 +11,7 @@
     sappc compare BAG... [--out DIR] [--json FILE]
     sappc rerun BAG [--params FILE] [--json FILE] [--out DIR]
     sappc replay BAG [--rate X] [--topics T...] [--loop] [--wait-subscribers N] [--start-delay S] [--domain-id N]
+    sappc replay BAG --live [PORT] [--host ADDRESS] [--rate X] [--topics T...] [--loop] [--wait-subscribers N] [--start-delay S] [--linger S]
 
 A SCENARIO is a scenario file or the name of a bundled one (``paper_tracking``; ``sappc
 scenarios`` lists them). A command given no output directory writes into ``runs/<command>/<name>``.
@@ -89,9 +90,10 @@ EXIT_STATUSES: dict[str, tuple[tuple[int, str], ...]] = {
               (1, "a recomputed torque differs from the recorded one, or no sample was re-run (as diff: expected with --params of "
                   "other gains or another controller)"), *_SHARED_EXITS),
     "repair": ((0, "the bag was rewritten readable"), *_SHARED_EXITS),
-    "replay": ((0, "the bag was replayed to its end, or stopped by Ctrl-C or SIGTERM once replaying (--loop ends that way)"),
+    "replay": ((0, "the bag was replayed to its end, or stopped by Ctrl-C or SIGTERM once replaying (--loop ends that way); "
+                   "--live: the bag was served to its end"),
                (1, "a publisher timed out waiting for its subscribers' acknowledgements"), (EXIT_INVALID_INPUT, _SHARED_EXITS[0][1]),
-               (EXIT_INTERRUPTED, "interrupted by Ctrl-C before the replay started")),
+               (EXIT_INTERRUPTED, "interrupted by Ctrl-C before the replay started; --live: at any time (the server is stopped first)")),
 }
 
 
@@ -710,10 +712,21 @@ def _cmd_repair(args: argparse.Namespace) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from sappc.graph.replay import replay
+    if args.live is None:
+        for option, value in (("--host", args.host), ("--linger", args.linger)):
+            if value is not None:
+                raise InputError(f"{option} is an option of --live (the Foxglove WebSocket server); give --live too")
+        from sappc.graph.replay import replay
 
-    return replay(args.bag, rate=args.rate, topics=args.topics, loop=args.loop, wait_subscribers=args.wait_subscribers,
-                  domain_id=args.domain_id, start_delay_s=args.start_delay)
+        return replay(args.bag, rate=args.rate, topics=args.topics, loop=args.loop, wait_subscribers=args.wait_subscribers,
+                      domain_id=args.domain_id, start_delay_s=1.0 if args.start_delay is None else args.start_delay)
+    if args.domain_id is not None:
+        raise InputError("--domain-id is an option of the ROS 2 replay; --live serves Foxglove without ROS")
+    from sappc.bag.live import DEFAULT_HOST, serve_bag
+
+    return serve_bag(args.bag, rate=args.rate, topics=args.topics, loop=args.loop, wait_subscribers=args.wait_subscribers,
+                     start_delay_s=0.0 if args.start_delay is None else args.start_delay,
+                     linger_s=2.0 if args.linger is None else args.linger, host=args.host or DEFAULT_HOST, port=args.live)
 
 
 class _DeprecatedAlias(argparse.Action):
@@ -891,16 +904,29 @@ def _parser() -> argparse.ArgumentParser:
     rpr.add_argument("bag", help="the bag to rewrite in place, " + _BAG_HELP)
     rpr.add_argument("--json", metavar="FILE", help="write what was recovered as JSON ('-': to stdout)")
     rpr.set_defaults(func=_cmd_repair)
-    rp = command("replay", "republish a bag on the ROS 2 graph with its timing and /clock")
+    rp = command("replay", "republish a bag on the ROS 2 graph with its timing and /clock, or (--live) serve it to Foxglove "
+                           "over a Foxglove WebSocket, without ROS")
     rp.add_argument("bag", help="the bag to republish, " + _BAG_HELP)
     rp.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1: the recorded timing)")
-    rp.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all; /clock is always published)")
+    rp.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (default: all; /clock is always published, "
+                    "except with --live)")
     rp.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
     rp.add_argument("--wait-subscribers", type=int, default=0, metavar="N",
                     help="before starting, wait until every replayed topic has N subscribers (default 0)")
-    rp.add_argument("--start-delay", type=float, default=1.0, metavar="S",
-                    help="seconds between creating the publishers and the first message, for discovery (default 1)")
+    rp.add_argument("--start-delay", type=float, default=None, metavar="S",
+                    help="seconds between creating the publishers and the first message, for discovery (default 1; "
+                         "with --live: between starting the server and the first message, default 0)")
     rp.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: ROS_DOMAIN_ID from the environment)")
+    rp.add_argument("--live", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                    help="no ROS graph: serve the bag to Foxglove on a Foxglove WebSocket server at ws://HOST:PORT (default "
+                         "port 8765; 0: any free port), its messages as recorded (CDR, ros2msg schemas), at the bag's pace "
+                         "times --rate; prints the address; clients too slow lose the oldest queued messages")
+    rp.add_argument("--host", metavar="ADDRESS", default=None,
+                    help="with --live: the address to listen on (default 127.0.0.1, this machine only; the view is "
+                         "unauthenticated: 0.0.0.0 lets anyone who reaches the port read every message)")
+    rp.add_argument("--linger", type=float, default=None, metavar="S",
+                    help="with --live: after the last message, keep serving until no client subscribes, at most S seconds "
+                         "(default 2), so that clients receive what is queued")
     rp.set_defaults(func=_cmd_replay)
     return parser
 

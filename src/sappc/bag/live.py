@@ -1,0 +1,395 @@
+"""A Foxglove WebSocket view of recorded messages: ``sappc replay BAG --live [PORT]``.
+
+:class:`LiveServer` is a Foxglove WebSocket server (protocol ``foxglove.websocket.v1``, served by
+``foxglove-sdk``'s Rust core) whose channels are a bag's: each advertised with the bag's topic, its
+message encoding (``cdr``) and its schema as recorded (name, ``ros2msg`` encoding and text), and
+each message forwarded as its recorded bytes with its log time as the message's timestamp: nothing
+is decoded or re-encoded.  It knows nothing of where the bytes come from, so that ``sappc run
+--live`` can feed it from the recorder later; :func:`serve_bag` feeds it from a bag.
+
+:func:`serve_bag` streams the bag a chunk at a time (:class:`~sappc.bag.mcap_scan.McapWalk`): memory
+holds one chunk, whatever the bag's length (a 6 h bag has tens of millions of messages).  The
+channels come from the file's summary section (its schemas and channels, read without the data
+section); a bag cut short, which has none, is walked once for its definitions first.  Each message
+is sent at its log time from the first message, divided by ``rate``: a lockstep bag is logged on
+simulated time (:mod:`sappc.graph.recorder`), so ``rate`` 1 shows the experiment at real-time pace;
+one that cannot keep up sends as fast as it can (the largest lag is reported).  The server also
+announces the bag's time (the protocol's ``time`` capability), which Foxglove's timeline follows.
+
+Each client has a queue of :data:`MESSAGE_BACKLOG` messages: a client slower than the replay loses
+the oldest (the SDK drops them), so a slow viewer costs no memory; playback never waits for it.
+The server listens on 127.0.0.1 unless told otherwise: the view is unauthenticated and anyone who
+reaches the port reads every message.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import foxglove
+import numpy as np
+from foxglove.websocket import Capability, ChannelView, Client, ServerListener
+
+from gnc_common.validation import ConfigError, check_positive
+
+from sappc.bag.errors import BagError
+
+__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "MESSAGE_BACKLOG", "LiveChannel", "LiveServer", "bag_channels", "serve_bag", "ws_url"]
+
+#: The port Foxglove's "Open connection" dialog proposes for a Foxglove WebSocket.
+DEFAULT_PORT = 8765
+#: Where the server listens unless told otherwise: this machine only (the view is unauthenticated).
+DEFAULT_HOST = "127.0.0.1"
+#: Messages queued per client before the oldest is dropped (the SDK's default is 1024; a 100 Hz
+#: flight has about 25 topics, so this is a few seconds of a slow client at rate 1).
+MESSAGE_BACKLOG = 8192
+#: Longest sleep between checks while waiting (Ctrl-C is seen within it) [s].
+_POLL_S = 0.05
+#: How often the server announces the bag's time to clients [s of wall time].
+_TIME_PERIOD_S = 0.05
+
+_MAGIC = b"\x89MCAP0\r\n"
+_OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL = 0x02, 0x03, 0x04
+_RECORD_HEAD = struct.Struct("<BQ")
+_U16, _U32 = struct.Struct("<H"), struct.Struct("<I")
+#: The footer record (opcode, length, summary start u64, summary offset start u64, CRC u32) and the magic.
+_FOOTER_BYTES = 9 + 20 + 8
+
+
+@dataclass(frozen=True)
+class LiveChannel:
+    """A channel to advertise: its id in the bag, topic, message encoding and schema (as recorded)."""
+
+    id: int
+    topic: str
+    message_encoding: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes
+
+
+def _string(buf: bytes, off: int) -> tuple[str, int]:
+    (n,) = _U32.unpack_from(buf, off)
+    if off + 4 + n > len(buf):
+        raise ValueError("string runs past its record")
+    return buf[off + 4 : off + 4 + n].decode("utf-8"), off + 4 + n
+
+
+class _Definitions:
+    """The schemas (with their text) and channels of the records fed to :meth:`record`."""
+
+    def __init__(self) -> None:
+        self.schemas: dict[int, tuple[str, str, bytes]] = {}
+        self.channels: dict[int, tuple[str, int, str]] = {}  # id -> (topic, schema id, message encoding)
+
+    def record(self, op: int, body: bytes) -> None:
+        if op == _OP_SCHEMA:
+            (sid,) = _U16.unpack_from(body, 0)
+            name, pos = _string(body, 2)
+            encoding, pos = _string(body, pos)
+            (n,) = _U32.unpack_from(body, pos)
+            self.schemas[sid] = (name, encoding, body[pos + 4 : pos + 4 + n])
+        elif op == _OP_CHANNEL:
+            cid, sid = struct.unpack_from("<HH", body, 0)
+            topic, pos = _string(body, 4)
+            encoding, _ = _string(body, pos)
+            self.channels[cid] = (topic, sid, encoding)
+
+    def result(self) -> dict[int, LiveChannel]:
+        out = {}
+        for cid, (topic, sid, encoding) in sorted(self.channels.items()):
+            name, schema_encoding, data = self.schemas.get(sid, ("", "", b""))  # schema id 0: none
+            out[cid] = LiveChannel(cid, topic, encoding, name, schema_encoding, data)
+        return out
+
+
+def _summary_definitions(path: Path) -> dict[int, LiveChannel] | None:
+    """The channels of the MCAP file's summary section; ``None`` when it has none (a cut bag)."""
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        if size < 8 + _FOOTER_BYTES:
+            return None
+        f.seek(size - _FOOTER_BYTES)
+        tail = f.read(_FOOTER_BYTES)
+        op, n = _RECORD_HEAD.unpack_from(tail, 0)
+        if tail[-8:] != _MAGIC or op != _OP_FOOTER or n != 20:
+            return None
+        start, offsets_start = struct.unpack_from("<QQ", tail, 9)
+        end = offsets_start or size - _FOOTER_BYTES
+        if start == 0 or not 8 <= start <= end <= size - _FOOTER_BYTES:
+            return None
+        f.seek(start)
+        summary = f.read(end - start)
+    defs, off = _Definitions(), 0
+    while off + 9 <= len(summary):
+        op, n = _RECORD_HEAD.unpack_from(summary, off)
+        if off + 9 + n > len(summary):
+            return None
+        defs.record(op, summary[off + 9 : off + 9 + n])
+        off += 9 + n
+    return defs.result() if defs.channels else None
+
+
+def _walked_definitions(path: Path) -> dict[int, LiveChannel]:
+    """The channels of every schema and channel record of the file, chunks included, read a record
+    at a time (``mcap``'s stream reader): for a bag without a summary."""
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Schema
+    from mcap.stream_reader import StreamReader
+
+    defs = _Definitions()
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f, skip_magic=False, emit_chunks=False).records:
+                if isinstance(record, Schema):
+                    defs.schemas[record.id] = (record.name, record.encoding, bytes(record.data))
+                elif isinstance(record, Channel):
+                    defs.channels[record.id] = (record.topic, record.schema_id, record.message_encoding)
+        except (McapError, EOFError, ValueError, struct.error):  # the torn end of a cut bag: what came before it
+            pass
+    return defs.result()
+
+
+def bag_channels(path: str | Path) -> dict[int, LiveChannel]:
+    """Every channel of the MCAP file at ``path``, by id, with its schema's text.
+
+    Raises
+    ------
+    BagError
+        If the file is not an MCAP file or has no channel.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            if f.read(8) != _MAGIC:
+                raise BagError(f"{path}: not an MCAP file (no MCAP magic at the start)")
+        channels = _summary_definitions(path)
+        if channels is None:
+            channels = _walked_definitions(path)
+    except OSError as exc:
+        raise BagError(f"{path}: cannot read ({exc.strerror})") from None
+    except (ValueError, struct.error, UnicodeDecodeError) as exc:
+        raise BagError(f"{path}: unreadable schema or channel record ({exc})") from None
+    if not channels:
+        raise BagError(f"{path}: no channel in the bag")
+    return channels
+
+
+def ws_url(host: str, port: int) -> str:
+    """The address a client connects to (an IPv6 host in brackets)."""
+    return f"ws://[{host}]:{port}" if ":" in host else f"ws://{host}:{port}"
+
+
+class _Subscriptions(ServerListener):
+    """The server's listener: how many clients subscribe to each channel (called from the server's
+    threads; the protocol's other callbacks do nothing)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.count: dict[int, int] = {}  # SDK channel id -> subscriptions
+
+    def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+        with self.lock:
+            self.count[channel.id] = self.count.get(channel.id, 0) + 1
+
+    def on_unsubscribe(self, client: Client, channel: ChannelView) -> None:  # also when a client disconnects
+        with self.lock:
+            self.count[channel.id] = max(self.count.get(channel.id, 0) - 1, 0)
+
+
+class LiveServer:
+    """A Foxglove WebSocket server advertising ``channels`` (see the module docstring); stop it with
+    :meth:`close` (or use it as a context manager).
+
+    Raises
+    ------
+    ConfigError
+        If it cannot listen on ``host``:``port`` (the port taken, an unknown host).
+    """
+
+    def __init__(self, channels: Iterable[LiveChannel], *, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
+                 name: str = "sappc") -> None:
+        if not 0 <= port <= 65535:
+            raise ConfigError(f"--live: the port must be 0 to 65535, got {port}")
+        self._context = foxglove.Context()  # its own: the SDK's global context and its channels are not touched
+        self._subscriptions = _Subscriptions()
+        try:
+            self._server = foxglove.start_server(name=name, host=host, port=port, capabilities=[Capability.Time],
+                                                 server_listener=self._subscriptions, context=self._context,
+                                                 message_backlog_size=MESSAGE_BACKLOG)
+        except Exception as exc:  # the SDK raises its own error type for a bind failure
+            raise ConfigError(f"--live: cannot listen on {host}:{port} ({exc})") from None
+        self.host = host
+        self.port = self._server.port
+        self.url = ws_url(host, self.port)
+        self._channels: dict[int, Any] = {}  # bag channel id -> the SDK channel (foxglove.Channel.base)
+        self._sdk_ids: dict[int, int] = {}  # bag channel id -> SDK channel id
+        for ch in channels:
+            schema = foxglove.Schema(name=ch.schema_name, encoding=ch.schema_encoding, data=ch.schema_data) if ch.schema_name else None
+            channel = foxglove.Channel(ch.topic, schema=schema, message_encoding=ch.message_encoding, context=self._context)
+            self._channels[ch.id] = channel.base  # BaseChannel.log: the bytes as given, no JSON handling
+            self._sdk_ids[ch.id] = channel.id()
+        self.closed = False
+
+    def __enter__(self) -> LiveServer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def log(self, channel_id: int, payload: bytes, log_time_ns: int) -> None:
+        """Send ``payload`` on the bag's channel ``channel_id`` to its subscribers, stamped ``log_time_ns``."""
+        channel = self._channels.get(channel_id)
+        if channel is not None:
+            channel.log(payload, log_time_ns)
+
+    def broadcast_time(self, ns: int) -> None:
+        """Announce the current time (of the bag, or of the run) to every client [ns]."""
+        self._server.broadcast_time(int(ns))
+
+    def subscriptions(self, channel_id: int) -> int:
+        """How many clients subscribe to the bag's channel ``channel_id``."""
+        with self._subscriptions.lock:
+            return self._subscriptions.count.get(self._sdk_ids.get(channel_id, -1), 0)
+
+    def any_subscription(self) -> bool:
+        """Whether any client subscribes to anything (a client that disconnects unsubscribes)."""
+        with self._subscriptions.lock:
+            return any(self._subscriptions.count.values())
+
+    def status(self, message: str) -> None:
+        """Show ``message`` to every client (Foxglove's problems list)."""
+        from foxglove import StatusLevel
+
+        self._server.publish_status(message, StatusLevel.Info)
+
+    def close(self) -> None:
+        """Stop serving: clients are disconnected, the port is closed."""
+        if self.closed:
+            return
+        self.closed = True
+        for channel in self._channels.values():
+            channel.close()
+        self._server.stop()
+
+
+def _wait(until: Callable[[], bool], timeout_s: float) -> bool:
+    """Poll ``until`` every :data:`_POLL_S` until it holds (True) or ``timeout_s`` has passed (False)."""
+    end = time.monotonic() + timeout_s
+    while not until():
+        left = end - time.monotonic()
+        if left <= 0:
+            return False
+        time.sleep(min(_POLL_S, left))
+    return True
+
+
+@dataclass
+class _Pass:
+    """What one pass over the bag sent."""
+
+    messages: int = 0
+    max_lag_s: float = 0.0
+    truncated: str | None = None
+    last_ns: int | None = None
+
+
+def _play(server: LiveServer, path: Path, keep: set[int], rate: float) -> _Pass:
+    """Send every message of ``keep``'s channels at its log time from the first one, divided by ``rate``."""
+    from sappc.bag.mcap_scan import McapWalk
+
+    done = _Pass()
+    walk = McapWalk(path)
+    first_ns: int | None = None
+    t0 = 0.0
+    next_time = 0.0
+    keep_ids = np.fromiter(keep, dtype=np.int64)
+    for piece in walk.pieces():
+        sel = np.flatnonzero(np.isin(piece.channel_id, keep_ids))
+        if sel.size == 0:
+            continue
+        if first_ns is None:
+            first_ns, t0 = int(piece.log_time_ns[sel[0]]), time.monotonic()
+        data = piece.data
+        due = t0 + (piece.log_time_ns[sel] - first_ns) / 1e9 / rate
+        for cid, log_ns, start, length, at in zip(piece.channel_id[sel].tolist(), piece.log_time_ns[sel].tolist(),
+                                                  piece.start[sel].tolist(), piece.length[sel].tolist(), due.tolist()):
+            now = time.monotonic()
+            while now < at:
+                time.sleep(min(at - now, _POLL_S))
+                now = time.monotonic()
+            done.max_lag_s = max(done.max_lag_s, now - at)
+            server.log(cid, data[start : start + length], log_ns)
+            done.messages += 1
+            if now >= next_time:
+                server.broadcast_time(log_ns)
+                next_time = now + _TIME_PERIOD_S
+            done.last_ns = log_ns
+    if done.last_ns is not None:
+        server.broadcast_time(done.last_ns)
+    done.truncated = walk.truncated
+    return done
+
+
+def serve_bag(path: str | Path, *, rate: float = 1.0, topics: list[str] | None = None, loop: bool = False,
+              wait_subscribers: int = 0, start_delay_s: float = 0.0, linger_s: float = 2.0, host: str = DEFAULT_HOST,
+              port: int = DEFAULT_PORT, say: Callable[[str], object] = print) -> int:
+    """Serve the bag at ``path`` to Foxglove clients (see the module docstring); return the exit status (0).
+
+    Playback starts ``start_delay_s`` after the server does, once every served topic has
+    ``wait_subscribers`` subscriptions; after the last message the server stays up until no client
+    subscribes to anything, at most ``linger_s``, so that clients receive what is queued for them.
+    Ctrl-C stops the server and propagates (the command's exit status 130).
+
+    Raises
+    ------
+    BagError
+        If the bag is not readable, or ``topics`` names a topic it does not have.
+    ConfigError
+        For a bad value, or when the server cannot listen.
+    """
+    from sappc.bag.read import mcap_file
+
+    rate = check_positive("--rate", rate)
+    if wait_subscribers < 0:
+        raise ConfigError(f"--wait-subscribers must be >= 0, got {wait_subscribers}")
+    start_delay_s = check_positive("--start-delay", start_delay_s, allow_zero=True)
+    linger_s = check_positive("--linger", linger_s, allow_zero=True)
+    if not 0 <= port <= 65535:
+        raise ConfigError(f"--live: the port must be 0 to 65535, got {port}")
+    file = mcap_file(Path(path))
+    channels = bag_channels(file)
+    if topics:
+        wanted = {t.lstrip("/") for t in topics}
+        have = {c.topic.lstrip("/") for c in channels.values()}
+        unknown = sorted(wanted - have)
+        if unknown:
+            raise BagError(f"{path}: no topic {unknown[0]!r} in the bag; it has {sorted(c.topic for c in channels.values())}")
+        channels = {cid: c for cid, c in channels.items() if c.topic.lstrip("/") in wanted}
+    with LiveServer(channels.values(), host=host, port=port) as server:
+        say(f"serving {len(channels)} topics of {path} to Foxglove at {server.url} (Foxglove: Open connection, "
+            f"Foxglove WebSocket) at rate {rate:g}" + (", looping" if loop else "") + "; Ctrl-C stops")
+        if wait_subscribers:
+            say(f"waiting for {wait_subscribers} subscriber(s) on every served topic")
+        started = time.monotonic()
+        _wait(lambda: time.monotonic() - started >= start_delay_s
+              and all(server.subscriptions(cid) >= wait_subscribers for cid in channels), float("inf"))
+        passes, sent, max_lag_s = 0, 0, 0.0
+        while True:
+            done = _play(server, file, set(channels), rate)
+            passes, sent, max_lag_s = passes + 1, sent + done.messages, max(max_lag_s, done.max_lag_s)
+            if done.truncated:
+                say(f"the bag ends early: {done.truncated}")
+            if not loop or done.messages == 0:
+                break
+        server.status("sappc replay: the end of the bag")
+        say(f"sent {sent} messages ({passes} pass(es)); largest lag behind schedule {max_lag_s * 1e3:.1f} ms")
+        _wait(lambda: not server.any_subscription(), linger_s)
+    return 0
