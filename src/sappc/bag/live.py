@@ -1,8 +1,8 @@
 """A Foxglove WebSocket view of recorded messages: ``sappc replay BAG --live [PORT]``.
 
-:class:`LiveServer` is a Foxglove WebSocket server (protocol ``foxglove.websocket.v1``, served by
-``foxglove-sdk``'s Rust core) whose channels are a bag's: each advertised with the bag's topic, its
-message encoding (``cdr``) and its schema as recorded (name, ``ros2msg`` encoding and text), and
+:class:`LiveServer` is a Foxglove WebSocket server (the Foxglove WebSocket protocol, which
+``foxglove-sdk`` 0.30 serves as subprotocol ``foxglove.sdk.v1``, from its Rust core) whose
+channels are a bag's: each advertised with the bag's topic, its message encoding (``cdr``) and its schema as recorded (name, ``ros2msg`` encoding and text), and
 each message forwarded as its recorded bytes with its log time as the message's timestamp: nothing
 is decoded or re-encoded.  It knows nothing of where the bytes come from, so that ``sappc run
 --live`` can feed it from the recorder later; :func:`serve_bag` feeds it from a bag.
@@ -10,7 +10,8 @@ is decoded or re-encoded.  It knows nothing of where the bytes come from, so tha
 :func:`serve_bag` streams the bag a chunk at a time (:class:`~sappc.bag.mcap_scan.McapWalk`): memory
 holds one chunk, whatever the bag's length (a 6 h bag has tens of millions of messages).  The
 channels come from the file's summary section (its schemas and channels, read without the data
-section); a bag cut short, which has none, is walked once for its definitions first.  Each message
+section, :func:`~sappc.bag.mcap_scan.summary_channels`); a bag cut short, which has none, is
+walked once for its definitions first.  Each message
 is sent at its log time from the first message, divided by ``rate``: a lockstep bag is logged on
 simulated time (:mod:`sappc.graph.recorder`), so ``rate`` 1 shows the experiment at real-time pace;
 one that cannot keep up sends as fast as it can (the largest lag is reported).  The server also
@@ -40,8 +41,9 @@ from foxglove.websocket import Capability, ChannelView, Client, ServerListener
 from gnc_common.validation import ConfigError, check_positive
 
 from sappc.bag.errors import BagError
+from sappc.bag.mcap_scan import MAGIC, Channel, McapWalk, summary_channels
 
-__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "MESSAGE_BACKLOG", "LiveChannel", "LiveServer", "bag_channels", "serve_bag", "ws_url"]
+__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "MESSAGE_BACKLOG", "LiveServer", "bag_channels", "serve_bag", "ws_url"]
 
 #: The port Foxglove's "Open connection" dialog proposes for a Foxglove WebSocket.
 DEFAULT_PORT = 8765
@@ -55,109 +57,8 @@ _POLL_S = 0.05
 #: How often the server announces the bag's time to clients [s of wall time].
 _TIME_PERIOD_S = 0.05
 
-_MAGIC = b"\x89MCAP0\r\n"
-_OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL = 0x02, 0x03, 0x04
-_RECORD_HEAD = struct.Struct("<BQ")
-_U16, _U32 = struct.Struct("<H"), struct.Struct("<I")
-#: The footer record (opcode, length, summary start u64, summary offset start u64, CRC u32) and the magic.
-_FOOTER_BYTES = 9 + 20 + 8
 
-
-@dataclass(frozen=True)
-class LiveChannel:
-    """A channel to advertise: its id in the bag, topic, message encoding and schema (as recorded)."""
-
-    id: int
-    topic: str
-    message_encoding: str
-    schema_name: str
-    schema_encoding: str
-    schema_data: bytes
-
-
-def _string(buf: bytes, off: int) -> tuple[str, int]:
-    (n,) = _U32.unpack_from(buf, off)
-    if off + 4 + n > len(buf):
-        raise ValueError("string runs past its record")
-    return buf[off + 4 : off + 4 + n].decode("utf-8"), off + 4 + n
-
-
-class _Definitions:
-    """The schemas (with their text) and channels of the records fed to :meth:`record`."""
-
-    def __init__(self) -> None:
-        self.schemas: dict[int, tuple[str, str, bytes]] = {}
-        self.channels: dict[int, tuple[str, int, str]] = {}  # id -> (topic, schema id, message encoding)
-
-    def record(self, op: int, body: bytes) -> None:
-        if op == _OP_SCHEMA:
-            (sid,) = _U16.unpack_from(body, 0)
-            name, pos = _string(body, 2)
-            encoding, pos = _string(body, pos)
-            (n,) = _U32.unpack_from(body, pos)
-            self.schemas[sid] = (name, encoding, body[pos + 4 : pos + 4 + n])
-        elif op == _OP_CHANNEL:
-            cid, sid = struct.unpack_from("<HH", body, 0)
-            topic, pos = _string(body, 4)
-            encoding, _ = _string(body, pos)
-            self.channels[cid] = (topic, sid, encoding)
-
-    def result(self) -> dict[int, LiveChannel]:
-        out = {}
-        for cid, (topic, sid, encoding) in sorted(self.channels.items()):
-            name, schema_encoding, data = self.schemas.get(sid, ("", "", b""))  # schema id 0: none
-            out[cid] = LiveChannel(cid, topic, encoding, name, schema_encoding, data)
-        return out
-
-
-def _summary_definitions(path: Path) -> dict[int, LiveChannel] | None:
-    """The channels of the MCAP file's summary section; ``None`` when it has none (a cut bag)."""
-    with open(path, "rb") as f:
-        size = os.fstat(f.fileno()).st_size
-        if size < 8 + _FOOTER_BYTES:
-            return None
-        f.seek(size - _FOOTER_BYTES)
-        tail = f.read(_FOOTER_BYTES)
-        op, n = _RECORD_HEAD.unpack_from(tail, 0)
-        if tail[-8:] != _MAGIC or op != _OP_FOOTER or n != 20:
-            return None
-        start, offsets_start = struct.unpack_from("<QQ", tail, 9)
-        end = offsets_start or size - _FOOTER_BYTES
-        if start == 0 or not 8 <= start <= end <= size - _FOOTER_BYTES:
-            return None
-        f.seek(start)
-        summary = f.read(end - start)
-    defs, off = _Definitions(), 0
-    while off + 9 <= len(summary):
-        op, n = _RECORD_HEAD.unpack_from(summary, off)
-        if off + 9 + n > len(summary):
-            return None
-        defs.record(op, summary[off + 9 : off + 9 + n])
-        off += 9 + n
-    return defs.result() if defs.channels else None
-
-
-def _walked_definitions(path: Path) -> dict[int, LiveChannel]:
-    """The channels of every schema and channel record of the file, chunks included, read a record
-    at a time (``mcap``'s stream reader): for a bag without a summary."""
-    from mcap.exceptions import McapError
-    from mcap.records import Channel, Schema
-    from mcap.stream_reader import StreamReader
-
-    defs = _Definitions()
-    with open(path, "rb") as f:
-        try:
-            for record in StreamReader(f, skip_magic=False, emit_chunks=False).records:
-                if isinstance(record, Schema):
-                    defs.schemas[record.id] = (record.name, record.encoding, bytes(record.data))
-                elif isinstance(record, Channel):
-                    defs.channels[record.id] = (record.topic, record.schema_id, record.message_encoding)
-        except (McapError, EOFError, ValueError, struct.error):  # the torn end of a cut bag: what came before it
-            pass
-    return defs.result()
-
-
-def bag_channels(path: str | Path) -> dict[int, LiveChannel]:
+def bag_channels(path: str | Path) -> dict[int, Channel]:
     """Every channel of the MCAP file at ``path``, by id, with its schema's text.
 
     Raises
@@ -168,11 +69,14 @@ def bag_channels(path: str | Path) -> dict[int, LiveChannel]:
     path = Path(path)
     try:
         with open(path, "rb") as f:
-            if f.read(8) != _MAGIC:
+            if f.read(len(MAGIC)) != MAGIC:
                 raise BagError(f"{path}: not an MCAP file (no MCAP magic at the start)")
-        channels = _summary_definitions(path)
-        if channels is None:
-            channels = _walked_definitions(path)
+        channels = summary_channels(path)
+        if channels is None:  # a bag cut short: its definitions as a walk finds them, a chunk at a time
+            walk = McapWalk(path)
+            for _ in walk.pieces():
+                pass
+            channels = walk.channels
     except OSError as exc:
         raise BagError(f"{path}: cannot read ({exc.strerror})") from None
     except (ValueError, struct.error, UnicodeDecodeError) as exc:
@@ -214,7 +118,7 @@ class LiveServer:
         If it cannot listen on ``host``:``port`` (the port taken, an unknown host).
     """
 
-    def __init__(self, channels: Iterable[LiveChannel], *, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
+    def __init__(self, channels: Iterable[Channel], *, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
                  name: str = "sappc") -> None:
         if not 0 <= port <= 65535:
             raise ConfigError(f"--live: the port must be 0 to 65535, got {port}")
@@ -303,8 +207,6 @@ class _Pass:
 
 def _play(server: LiveServer, path: Path, keep: set[int], rate: float) -> _Pass:
     """Send every message of ``keep``'s channels at its log time from the first one, divided by ``rate``."""
-    from sappc.bag.mcap_scan import McapWalk
-
     done = _Pass()
     walk = McapWalk(path)
     first_ns: int | None = None

@@ -30,7 +30,7 @@ import numpy as np
 import zstandard
 from numpy.typing import NDArray
 
-__all__ = ["MAGIC", "Channel", "McapWalk", "Piece", "Scan", "scan_mcap"]
+__all__ = ["MAGIC", "Channel", "McapWalk", "Piece", "Scan", "scan_mcap", "summary_channels"]
 
 #: The 8 bytes that open (and close) an MCAP file of major version 0.
 MAGIC = b"\x89MCAP0\r\n"
@@ -47,13 +47,14 @@ _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 
 @dataclass(frozen=True)
 class Channel:
-    """A channel of the file: its topic and the name and encoding of its schema."""
+    """A channel of the file: its topic, the name, encoding and text of its schema."""
 
     id: int
     topic: str
     schema_name: str
     schema_encoding: str
     message_encoding: str
+    schema_data: bytes = b""  # the schema's text as recorded (ros2msg: the message definition)
 
 
 @dataclass
@@ -124,7 +125,7 @@ class _Builder:
         self.log_time: list[int] = []
         self.start: list[int] = []
         self.length: list[int] = []
-        self.schemas: dict[int, tuple[str, str]] = {}
+        self.schemas: dict[int, tuple[str, str, bytes]] = {}
         self.channels: dict[int, Channel] = {}
         self.metadata: dict[str, dict[str, str]] = {}
 
@@ -160,14 +161,17 @@ class _Builder:
         if op == _OP_SCHEMA:
             (sid,) = _U16.unpack_from(buf, body)
             name, pos = _string(buf, body + 2)
-            encoding, _ = _string(buf, pos)
-            self.schemas[sid] = (name, encoding)
+            encoding, pos = _string(buf, pos)
+            (n,) = _U32.unpack_from(buf, pos)
+            if pos + 4 + n > len(buf):
+                raise ValueError("schema data runs past its record")
+            self.schemas[sid] = (name, encoding, bytes(buf[pos + 4 : pos + 4 + n]))
         else:
             cid, sid = struct.unpack_from("<HH", buf, body)
             topic, pos = _string(buf, body + 4)
             msg_enc, _ = _string(buf, pos)
-            name, enc = self.schemas.get(sid, ("", ""))
-            self.channels[cid] = Channel(cid, topic, name, enc, msg_enc)
+            name, enc, data = self.schemas.get(sid, ("", "", b""))  # schema id 0: none
+            self.channels[cid] = Channel(cid, topic, name, enc, msg_enc, data)
 
     def _walk(self, buf: bytes) -> None:
         """Walk the whole records of ``buf`` (a chunk's content); keep ``buf`` if it holds messages."""
@@ -204,6 +208,42 @@ class _Builder:
 
     def _chunk(self, raw: bytes, body: int, end: int) -> None:
         self._walk(_chunk_data(raw, body, end))
+
+
+#: The footer record (opcode, length, summary start u64, summary offset start u64, CRC u32) and the
+#: closing magic: the last bytes of a whole MCAP file.
+_OP_FOOTER = 0x02
+_FOOTER_BYTES = 9 + 20 + 8
+
+
+def summary_channels(path: str | Path) -> dict[int, Channel] | None:
+    """The channels of the MCAP file's summary section (its schema and channel records, read
+    without the data section), by id; ``None`` when the file has none (a bag cut short: its
+    channels are those :class:`McapWalk` has walked once exhausted)."""
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        if size < len(MAGIC) + _FOOTER_BYTES:
+            return None
+        f.seek(size - _FOOTER_BYTES)
+        tail = f.read(_FOOTER_BYTES)
+        op, n = _RECORD_HEAD.unpack_from(tail, 0)
+        if tail[-8:] != MAGIC or op != _OP_FOOTER or n != 20:
+            return None
+        start, offsets_start = struct.unpack_from("<QQ", tail, 9)
+        end = offsets_start or size - _FOOTER_BYTES
+        if start == 0 or not len(MAGIC) <= start <= end <= size - _FOOTER_BYTES:
+            return None
+        f.seek(start)
+        summary = f.read(end - start)
+    defs, off = _Builder(), 0
+    while off + 9 <= len(summary):
+        op, n = _RECORD_HEAD.unpack_from(summary, off)
+        if off + 9 + n > len(summary):
+            return None
+        if op in (_OP_SCHEMA, _OP_CHANNEL):
+            defs._definition(op, summary, off + 9)
+        off += 9 + n
+    return defs.channels or None
 
 
 def scan_mcap(path: str | Path, *, progress: Callable[[int, int], object] | None = None) -> Scan:
