@@ -462,8 +462,10 @@ def draw_jobs(jobs: Sequence[Any], *, parallel: bool | None = None) -> list[Path
     return [p for paths in _draw_each(jobs, parallel=parallel) for p in paths]
 
 
-def _draw_each(jobs: Sequence[Any], *, parallel: bool | None = None) -> list[list[Path]]:
-    """:func:`draw_jobs`, the paths of each job apart (matplotlib imported and its style set by the caller)."""
+def _draw_each(jobs: Sequence[Any], *, parallel: bool | None = None, unreaped: list[int] | None = None) -> list[list[Path]]:
+    """:func:`draw_jobs`, the paths of each job apart (matplotlib imported and its style set by the
+    caller).  ``unreaped``: where a child that sent every path it drew is put, to be waited for by
+    the caller (its exit takes a few ms), instead of being waited for here."""
     import os
 
     jobs = list(jobs)
@@ -498,9 +500,15 @@ def _draw_each(jobs: Sequence[Any], *, parallel: bool | None = None) -> list[lis
         os.close(queue_r)
         with os.fdopen(read_end) as f:
             text = f.read()
-        _, status = os.waitpid(pid, 0)
-    if status == 0 and text:
-        drawn.update({int(i): [Path(p) for p in paths] for i, paths in json.loads(text).items()})
+    try:  # written once the queue is empty: the jobs it took, each done
+        theirs = {int(i): [Path(p) for p in paths] for i, paths in json.loads(text).items()}
+    except ValueError:
+        theirs = {}
+    if unreaped is not None and theirs.keys() | drawn.keys() == set(range(len(jobs))):
+        unreaped.append(pid)
+    else:
+        os.waitpid(pid, 0)
+    drawn.update(theirs)
     for i, job in enumerate(jobs):  # a child that failed: the jobs it took and did not send back
         if i not in drawn:
             drawn[i] = list(job())
@@ -599,9 +607,12 @@ class FigureWorker:
             if task is not None:
                 make_jobs, kwargs, theirs = task
                 jobs = make_jobs(**kwargs)
-                done = house_style(_draw_each)([jobs[i] for i in theirs])
+                helper: list[int] = []
+                done = house_style(_draw_each)([jobs[i] for i in theirs], unreaped=helper)
                 with os.fdopen(done_w, "w") as f:
                     json.dump([[str(p) for p in paths] for paths in done], f)
+                for pid in helper:  # (after the paths are sent)
+                    os.waitpid(pid, 0)
             code = 0
         except BaseException:  # noqa: BLE001  (the parent draws the figures itself)
             traceback.print_exc()
@@ -642,8 +653,13 @@ class FigureWorker:
         with os.fdopen(self._receive, "r") as f:
             self._receive = -1
             text = f.read()
-        status = self._wait()
-        got = json.loads(text) if status == 0 and text else None
+        try:  # the child writes its paths once every job is done; it is waited for in close()
+            got = json.loads(text)
+        except ValueError:
+            got = None
+        if not isinstance(got, list) or len(got) != len(theirs):  # it failed: its jobs are drawn here
+            self._wait()
+            got = None
         drawn = ({i: [Path(p) for p in paths] for i, paths in zip(theirs, got)} if got is not None
                  else house_style(lambda: {i: jobs[i]() for i in theirs})())
         return [p for i in range(len(jobs)) for p in (mine[i] if i in mine else drawn[i])]
