@@ -4,7 +4,7 @@
     sappc simulate --from-campaign DIR --run K [--json FILE] [--out DIR]
     sappc montecarlo SCENARIO --runs N [--seed S] [--workers W] [--scheduler ADDRESS] [--out DIR] [--json FILE] [--resume]
     sappc tune SCENARIO [--controller K] [--trials N] [--runs-per-trial M] [--seed S] [--workers W | --scheduler ADDRESS] [--out DIR] [--resume]
-    sappc run SCENARIO [--out DIR] [--realtime] [--compose] [--plant native|basilisk|external] [--controller K] [--json FILE] [--domain-id N]
+    sappc run SCENARIO [--out DIR] [--realtime] [--compose] [--plant native|basilisk|external] [--controller K] [--json FILE] [--domain-id N] [--live [PORT] [--host ADDRESS] [--wait-subscribers N]]
     sappc params SCENARIO [--controller K | --estimator]
     sappc scenarios [copy NAME [DEST] [--force]]
     sappc report BAG [--json FILE] [--out DIR] [--scenario FILE]
@@ -314,13 +314,17 @@ def _print_modes(metrics: dict[str, Any]) -> None:
 def _print_verdict(scenario: Any, failed: Sequence[str], degraded: str = "") -> None:
     """The run's verdict in one line: ``FAILED: ...`` naming every failure (and, after a degraded
     real-time run, ``degraded``: why), else that it met the scenario's requirements."""
+    print(_verdict_line(scenario, failed, degraded))
+
+
+def _verdict_line(scenario: Any, failed: Sequence[str], degraded: str = "") -> str:
+    """:func:`_print_verdict`'s line (also ``sappc run --live``'s last message to the view)."""
     if failed:
-        print("FAILED: " + "; ".join(failed) + (f" ({degraded})" if degraded else ""))
-    elif scenario.metrics.requirements:
-        print(f"met every requirement of the scenario ({', '.join(f'{k} {v:g}' for k, v in scenario.metrics.requirements.items())}) "
-              "and kept control")
-    else:
-        print("kept control (the scenario states no requirements)")
+        return "FAILED: " + "; ".join(failed) + (f" ({degraded})" if degraded else "")
+    if scenario.metrics.requirements:
+        return (f"met every requirement of the scenario ({', '.join(f'{k} {v:g}' for k, v in scenario.metrics.requirements.items())}) "
+                "and kept control")
+    return "kept control (the scenario states no requirements)"
 
 
 def _simulate_from_campaign(args: argparse.Namespace) -> int:
@@ -392,27 +396,19 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
     return 0 if summary["passed"] == summary["runs"] else 1
 
 
-def _cmd_run(args: argparse.Namespace) -> int:
+def _measure_run(scenario: Any, bag_dir: Path, realtime: bool) -> tuple[Any, dict[str, Any], Any, Any]:
+    """``sappc run``'s reading of its bag: (the run, its metrics, per orbit, the real-time frames
+    lacking an input of their own stamp, None in lockstep), with a line at least every 2 s to the
+    last (issue 46): reading the bag back, aligning it, its metrics."""
     from sappc.bag.read import Ticker, bag_metrics, bag_run, frames_lacking_inputs, read_bag
-    from sappc.graph.launch import run_graph
 
-    try:
-        result = run_graph(args.scenario, out_dir=args.out, controller=args.controller, realtime=args.realtime, domain_id=args.domain_id,
-                           compose=args.compose, plant=args.plant, rt_priority=args.rt_priority)
-    except RuntimeError as exc:
-        if isinstance(exc, RecursionError):  # a bug, not a failed run: its traceback, not "failed"
-            raise
-        print(f"sappc run: failed: {exc}", file=sys.stderr)
-        return 1
-    scenario, kind = result.scenario, result.controller
     ms = scenario.metrics
-    # a line at least every 2 s to the last (issue 46): reading the bag back, aligning it, its metrics
     with Ticker(lambda msg: print(f"sappc run: {msg}", file=sys.stderr, flush=True)) as ticker:
         settings: dict[str, Any] = {"steady_from_s": ms.steady_from_s, "settle_threshold": ms.settle_threshold, "t2_s": ms.t2_s,
                     "fault_windows": scenario.event_windows(), "orbit_bins": scenario.orbit_bins(), "origin": ms.origin}
         frames_lacking = None
-        if args.realtime:  # the frames' own-stamp check reads every message: the bag whole (a real-time run is minutes)
-            bag = read_bag(result.bag_dir, ticker=ticker)
+        if realtime:  # the frames' own-stamp check reads every message: the bag whole (a real-time run is minutes)
+            bag = read_bag(bag_dir, ticker=ticker)
             run = bag_run(bag, duration_s=scenario.duration_s, ticker=ticker)  # the run's span, [0, duration_s]: no sample after it
             metrics, per_orbit = bag_metrics(bag, run=run, ticker=ticker, **settings)
             frames_lacking = frames_lacking_inputs(bag, run, scenario.control_period_s, scenario.duration_s)
@@ -420,11 +416,52 @@ def _cmd_run(args: argparse.Namespace) -> int:
             from sappc.bag.blocks import BagBlocks, NoFigures
             from sappc.bag.errors import BagError
 
-            measured = BagBlocks(result.bag_dir, duration_s=scenario.duration_s, ticker=ticker).measure(figures=lambda t_end_s: NoFigures(),
-                                                                                                     **settings)
+            measured = BagBlocks(bag_dir, duration_s=scenario.duration_s, ticker=ticker).measure(figures=lambda t_end_s: NoFigures(),
+                                                                                             **settings)
             if measured.run is None or measured.metrics is None:
-                raise BagError(measured.problem or f"{result.bag_dir}: no run in the bag")  # bag_run's own message (it names the bag)
+                raise BagError(measured.problem or f"{bag_dir}: no run in the bag")  # bag_run's own message (it names the bag)
             run, metrics, per_orbit = measured.run, measured.metrics, measured.per_orbit
+    return run, metrics, per_orbit, frames_lacking
+
+
+def _node_counts(controller_timing: dict[str, Any]) -> dict[str, Any]:
+    """The controller node's own counts (a rejection in the last frame reaches no diagnostics
+    message the bag could hold)."""
+    return {k: controller_timing[k] for k in ("refused_steps", "rejected_by_reason", "rejected_inputs") if k in controller_timing}
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from sappc.graph.launch import run_graph
+
+    if args.live is None:
+        for option, value in (("--host", args.host), ("--wait-subscribers", args.wait_subscribers)):
+            if value is not None:
+                raise InputError(f"{option} is an option of --live (the Foxglove WebSocket server); give --live too")
+    measured: list[tuple[Any, dict[str, Any], Any, Any]] = []  # the bag's reading, made once: for the live view, then here
+
+    def live_verdict(scenario: Any, run_dir: Path) -> tuple[bool, str]:
+        """--live: the verdict while the recorder still serves (the same reading as below, kept)."""
+        from sappc.evaluation.requirements import failed_requirements
+
+        measured.append(_measure_run(scenario, run_dir / "bag", args.realtime))
+        run, metrics = measured[0][0], dict(measured[0][1])
+        timing = run_dir / "logs" / "controller_timing.json"
+        ctrl = {**run.controller_summary(), **_node_counts(json.loads(timing.read_text()) if timing.exists() else {})}
+        failed = failed_requirements(metrics, scenario.metrics.requirements, ctrl, settle_threshold=scenario.metrics.settle_threshold)
+        return bool(failed), _verdict_line(scenario, failed)
+
+    try:
+        result = run_graph(args.scenario, out_dir=args.out, controller=args.controller, realtime=args.realtime, domain_id=args.domain_id,
+                           compose=args.compose, plant=args.plant, rt_priority=args.rt_priority, live_port=args.live,
+                           live_host=args.host or "127.0.0.1", verdict=live_verdict if args.live is not None else None,
+                           live_wait_subscribers=args.wait_subscribers or 0)
+    except RuntimeError as exc:
+        if isinstance(exc, RecursionError):  # a bug, not a failed run: its traceback, not "failed"
+            raise
+        print(f"sappc run: failed: {exc}", file=sys.stderr)
+        return 1
+    scenario, kind = result.scenario, result.controller
+    run, metrics, per_orbit, frames_lacking = measured[0] if measured else _measure_run(scenario, result.bag_dir, args.realtime)
     metrics["wall_time_s"] = result.run_s
     if result.startup_s is not None:  # from the plant's own timing: none with an external plant
         metrics["startup_s"] = result.startup_s
@@ -433,10 +470,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     _print_metrics(scenario.name, f"{kind.value}, {'real time' if args.realtime else 'lockstep'}, through the ROS 2 graph{' (composed)' if args.compose else ''}", metrics)
     _print_orbits(per_orbit)
     mismatched = result.mismatched_counts()
-    # the node's own counts (a rejection in the last frame reaches no diagnostics message the bag could hold)
-    node_counts: dict[str, Any] = {k: result.controller_timing[k] for k in ("refused_steps", "rejected_by_reason", "rejected_inputs")
-                                   if k in result.controller_timing}
-    ctrl = {**run.controller_summary(), **node_counts}
+    ctrl = {**run.controller_summary(), **_node_counts(result.controller_timing)}
     failed = _print_outcome(scenario, metrics, ctrl)
     missed = int(result.plant_timing.get("missed", {}).get("torque", 0))
     if missed:
@@ -859,6 +893,17 @@ def _parser() -> argparse.ArgumentParser:
                           "a plant you start yourself on the printed domain (it ends once the last sample's torque is recorded); "
                           "default native")
     run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON ('-': to stdout)")
+    run.add_argument("--live", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                     help="watch the run in Foxglove: the recorder also serves every recorded topic on a Foxglove WebSocket server "
+                          "at ws://HOST:PORT (default port 8765; 0: any free port), the bytes it records with their ros2msg schemas, "
+                          "and the run's progress and verdict (status messages, and JSON on /sappc/run); prints the address; "
+                          "the bag and lockstep are unchanged; clients too slow lose the oldest queued messages")
+    run.add_argument("--host", metavar="ADDRESS", default=None,
+                     help="with --live: the address to listen on (default 127.0.0.1, this machine only; the view is "
+                          "unauthenticated: 0.0.0.0 lets anyone who reaches the port read every message)")
+    run.add_argument("--wait-subscribers", type=int, default=None, metavar="N",
+                     help="with --live, lockstep: start the run only once every recorded topic has N Foxglove subscriptions "
+                          "(default 0: at once)")
     run.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: ROS_DOMAIN_ID from the environment, else the first free one of "
                      "SAPPC_DOMAIN_IDS, default 1-101); claimed with a lock file")
     run.set_defaults(func=_cmd_run)

@@ -5,7 +5,7 @@
 channels are a bag's: each advertised with the bag's topic, its message encoding (``cdr``) and its schema as recorded (name, ``ros2msg`` encoding and text), and
 each message forwarded as its recorded bytes with its log time as the message's timestamp: nothing
 is decoded or re-encoded.  It knows nothing of where the bytes come from, so that ``sappc run
---live`` can feed it from the recorder later; :func:`serve_bag` feeds it from a bag.
+--live`` feeds it from the recorder (:mod:`sappc.graph.recorder`); :func:`serve_bag` feeds it from a bag.
 
 :func:`serve_bag` streams the bag a chunk at a time (:class:`~sappc.bag.mcap_scan.McapWalk`): memory
 holds one chunk, whatever the bag's length (a 6 h bag has tens of millions of messages).  The
@@ -168,11 +168,12 @@ class LiveServer:
         with self._subscriptions.lock:
             return any(self._subscriptions.count.values())
 
-    def status(self, message: str) -> None:
-        """Show ``message`` to every client (Foxglove's problems list)."""
+    def status(self, message: str, level: str = "info") -> None:
+        """Show ``message`` to every client (Foxglove's problems list) at ``level`` (info, warning or error)."""
         from foxglove import StatusLevel
 
-        self._server.publish_status(message, StatusLevel.Info)
+        levels = {"info": StatusLevel.Info, "warning": StatusLevel.Warning, "error": StatusLevel.Error}
+        self._server.publish_status(message, levels[level])
 
     def close(self) -> None:
         """Stop serving: clients are disconnected, the port is closed."""

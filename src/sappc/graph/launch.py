@@ -122,6 +122,12 @@ PLANTS = ("native", "basilisk", "external")
 END_FILE = "end_reached"
 #: The recorder's progress file (in the run directory), which ``sappc run``'s progress line reads.
 PROGRESS_FILE = "logs/progress.json"
+#: ``--live``: where the recorder writes the live view's address, where ``sappc run`` writes the
+#: run's verdict for the view, and the file the recorder writes once its bag is closed and it
+#: waits for that verdict (in the run directory; :mod:`sappc.graph.recorder`, "Live view").
+LIVE_FILE = "logs/live.json"
+LIVE_VERDICT_FILE = "logs/live_verdict.json"
+LIVE_WAITING_FILE = "logs/live_verdict.json.wait"
 #: Period of ``sappc run``'s progress line [s]: at least one every 2 s (issue 37), from the
 #: recorder's file, which it rewrites at each flush (0.5 s).
 PROGRESS_PERIOD_S = 1.0
@@ -529,6 +535,8 @@ class GraphResult:
     first_sample_after_up_s: float | None = None
     #: the bring-up's record (:data:`BRINGUP_FILE`): each lifecycle transition made, in order
     bringup: list[dict[str, Any]] = field(default_factory=list)
+    #: ``--live``: the address the recorder's Foxglove WebSocket server listened on (None: no live view)
+    live_url: str | None = None
 
     def mismatched_counts(self) -> dict[str, tuple[int, int]]:
         """Topics whose recorded count differs from the published one: (published, recorded)."""
@@ -674,12 +682,15 @@ class _ProgressLine:
                  + ("; the last sample is in" if self.done else ""))
 
 
-def _stop_nodes(procs: Mapping[str, _Process], stop_order: Sequence[str], bag_dir: Path, ticker: Ticker) -> tuple[dict[str, int], bool]:
+def _stop_nodes(procs: Mapping[str, _Process], stop_order: Sequence[str], bag_dir: Path, ticker: Ticker,
+                on_closed: Callable[[], bool] | None = None) -> tuple[dict[str, int], bool]:
     """Stop the started nodes of ``stop_order`` in that order (publishers first, they wait for
     acknowledgements; the recorder last, it drains its queues), each still running a step of
     ``ticker`` ("stopping the nodes: NAME"; the recorder's, or the composed process's, with the
     size of its bag so far, which is also the stop's sign of progress: :meth:`_Process.stop`);
-    return each one's exit code and whether one had to be killed."""
+    return each one's exit code and whether one had to be killed.  ``on_closed`` (``--live``) is
+    called at each check of the recorder's stop: it writes the run's verdict once the recorder waits
+    for it (:class:`_LiveVerdict`), which counts as progress."""
     exit_codes: dict[str, int] = {}
     killed_any = False
     for name in stop_order:
@@ -689,15 +700,93 @@ def _stop_nodes(procs: Mapping[str, _Process], stop_order: Sequence[str], bag_di
             ticker.step("stopping the nodes", name)
         recording = name in ("recorder", "composed")
 
-        def bag_written() -> int:
+        def bag_written() -> tuple[int, bool]:
             written = _bytes_under(bag_dir)
             ticker.detail(f"{name}, its bag {written / 1e6:.1f} MB so far")  # noqa: B023 (called within this iteration)
-            return written
+            return written, on_closed() if on_closed is not None else False
 
         exit_codes[name], killed = procs[name].stop(progress=bag_written if recording else None)
         killed_any |= killed
     ticker.idle()
     return exit_codes, killed_any
+
+
+def _check_live_port(host: str, port: int) -> None:
+    """``--live``: a port taken or a host that is not this machine's stops the run before anything starts.
+
+    Raises
+    ------
+    ConfigError
+        Naming the address and the system's reason.
+    """
+    import socket
+
+    if not 0 <= port <= 65535:
+        raise ConfigError(f"--live: the port must be 0 to 65535, got {port}")
+    if port == 0:
+        return
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+        with socket.socket(infos[0][0], socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server does: a port in TIME_WAIT is free
+            s.bind(infos[0][4])
+    except OSError as exc:
+        raise ConfigError(f"--live: cannot listen on {host}:{port} ({exc.strerror or exc})") from None
+
+
+class _LiveAddress:
+    """``--live``: the address the recorder writes (:data:`LIVE_FILE`), printed once it is there."""
+
+    def __init__(self, path: Path, host: str) -> None:
+        self.path, self.host = path, host
+        self.url: str | None = None
+
+    def poll(self) -> None:
+        if self.url is not None:
+            return
+        try:
+            self.url = str(json.loads(self.path.read_text())["url"])
+        except (OSError, ValueError, KeyError):
+            return
+        where = "this machine only" if self.host in ("127.0.0.1", "localhost", "::1") else "unauthenticated: anyone who reaches the port reads every topic"
+        print(f"sappc run: live view at {self.url} (Foxglove: Open connection, Foxglove WebSocket; {where})", file=sys.stderr, flush=True)
+
+
+class _LiveVerdict:
+    """``--live``: once the recorder has closed its bag and waits (:data:`LIVE_WAITING_FILE`), the
+    run's verdict to :data:`LIVE_VERDICT_FILE`: ``verdict(scenario, run_dir)`` (called by the run's
+    loop once the last sample is in: the composed process closes its bag before it ends by
+    itself; or in the stop of five processes), or :meth:`fail` for a run that did not end
+    normally (interrupted, failed)."""
+
+    def __init__(self, run_dir: Path, scenario: Scenario, verdict: Callable[[Scenario, Path], tuple[bool, str]] | None) -> None:
+        self.run_dir, self.scenario, self.verdict = run_dir, scenario, verdict
+        self.written = False
+        if verdict is None:  # nothing to compute: written now
+            self._write(False, "the run's verdict is printed by sappc run")
+
+    def fail(self, text: str) -> None:
+        """The run did not end normally: ``text`` is the verdict, now (unless one is written)."""
+        if not self.written:
+            self._write(True, text)
+
+    def _write(self, failed: bool, text: str) -> None:
+        path = self.run_dir / LIVE_VERDICT_FILE
+        tmp = path.with_suffix(".tmp")
+        with contextlib.suppress(OSError):  # the run directory gone: the recorder stops waiting at its limit
+            tmp.write_text(json.dumps({"failed": failed, "text": text}))
+            tmp.replace(path)
+        self.written = True
+
+    def __call__(self) -> bool:
+        """Whether the verdict is written (computing it when due)."""
+        if not self.written and self.verdict is not None and (self.run_dir / LIVE_WAITING_FILE).exists():
+            try:
+                failed, text = self.verdict(self.scenario, self.run_dir)
+            except Exception as exc:  # noqa: BLE001 (sappc run computes it again and reports the error itself)
+                failed, text = True, f"the verdict could not be computed ({type(exc).__name__}: {exc})"
+            self._write(failed, text)
+        return self.written
 
 
 def _fastdds_shm_clean() -> None:
@@ -887,6 +976,10 @@ def run_graph(
     compose: bool = False,
     plant: str = "native",
     rt_priority: int | None = None,
+    live_port: int | None = None,
+    live_host: str = "127.0.0.1",
+    verdict: Callable[[Scenario, Path], tuple[bool, str]] | None = None,
+    live_wait_subscribers: int = 0,
 ) -> GraphResult:
     """Run ``scenario_path`` through the node graph; see the module docstring.
 
@@ -895,6 +988,14 @@ def run_graph(
     ``rt_priority``: real time only: the node processes run under ``SCHED_FIFO`` at this priority
     (:data:`RT_PRIORITIES`; root or ``CAP_SYS_NICE``), so that other work on the host cannot delay
     their frames (docs/how-to/realtime.md has what it changes, measured).
+    ``live_port``: ``--live``: the recorder also serves every recorded topic to Foxglove on a
+    Foxglove WebSocket at ``live_host``:``live_port`` (0: any free port; :mod:`sappc.graph.recorder`,
+    "Live view"), with the run's progress; the address is printed (and is
+    :attr:`GraphResult.live_url`).  ``verdict(scenario, run_dir)``: called once the bag is closed
+    in a run that ended normally, while the recorder still serves: ``(failed, text)``, shown in
+    the view.  ``live_wait_subscribers``: the run starts once every recorded topic has that many
+    live-view subscriptions (lockstep on the bundled plant).  None of them changes the bag or params.yaml (the live parameters are on the recorder's
+    command line).
     ``plant``: one of :data:`PLANTS` (``"basilisk"``: the plant node on Basilisk's dynamics, the
     ``[basilisk]`` extra); with ``"external"`` no time limit applies unless
     ``timeout_s`` is given (the user's plant may start whenever it is ready).
@@ -921,23 +1022,35 @@ def run_graph(
         old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
         try:
             return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
-                              timeout_s=timeout_s, progress=progress, compose=compose, plant=plant, rt_priority=rt_priority)
+                              timeout_s=timeout_s, progress=progress, compose=compose, plant=plant, rt_priority=rt_priority,
+                              live_port=live_port, live_host=live_host, verdict=verdict,
+                              live_wait_subscribers=live_wait_subscribers)
         finally:
             signal.signal(signal.SIGTERM, old_term)
             signal.signal(signal.SIGINT, old_int)
     return _run_graph(scenario_path, out_dir=out_dir, controller=controller, realtime=realtime, domain_id=domain_id,
-                      timeout_s=timeout_s, progress=progress, compose=compose, plant=plant, rt_priority=rt_priority)
+                      timeout_s=timeout_s, progress=progress, compose=compose, plant=plant, rt_priority=rt_priority,
+                      live_port=live_port, live_host=live_host, verdict=verdict,
+                              live_wait_subscribers=live_wait_subscribers)
 
 
 def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, controller: str | None, realtime: bool,
                domain_id: int | None, timeout_s: float | None, progress: bool, compose: bool, plant: str,
-               rt_priority: int | None) -> GraphResult:
+               rt_priority: int | None, live_port: int | None = None, live_host: str = "127.0.0.1",
+               verdict: Callable[[Scenario, Path], tuple[bool, str]] | None = None,
+               live_wait_subscribers: int = 0) -> GraphResult:
     if plant not in PLANTS:
         raise ConfigError(f"plant must be one of {list(PLANTS)}, got {plant!r}")
     if rt_priority is not None:
         if not realtime:
             raise ConfigError("--rt-priority is for real time (--realtime): a lockstep run waits for each message, not for the clock")
         check_rt_priority(rt_priority)
+    if live_port is not None:
+        _check_live_port(live_host, live_port)
+    if live_wait_subscribers and (live_port is None or realtime or plant == "external"):
+        raise ConfigError("--wait-subscribers is for --live in lockstep on the bundled plant (the recorder holds the run's start)")
+    if live_wait_subscribers < 0:
+        raise ConfigError(f"--wait-subscribers must be >= 0, got {live_wait_subscribers}")
     preferred_domain, domain_source = requested_domain_id(domain_id)
     # claimed first: a domain in use stops the run before anything is written or started
     with claim_domain_id(preferred_domain, source=domain_source) as domain:
@@ -1002,6 +1115,14 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         managed = [n for n in MANAGED_NODES if n in nodes]
         node_args = {name: ["--ros-args", "-r", f"__node:={name}", "--params-file", params_path.name, *remaps[name],
                             *(["-p", "managed:=true"] if name in managed else [])] for name in nodes}
+        if live_port is not None:  # on the command line, not in params.yaml, which the bag records
+            node_args["recorder"] += ["-p", f"live_port:={live_port}", "-p", f"live_host:={live_host}", "-p", f"live_file:={LIVE_FILE}",
+                                      "-p", f"live_verdict_file:={LIVE_VERDICT_FILE}",
+                                      "-p", f"live_wait_subscribers:={live_wait_subscribers}"]
+        live = _LiveAddress(run_dir / LIVE_FILE, live_host) if live_port is not None else None
+        # the verdict once the recorder waits for it: in the stop (five processes), or before the composed process ends by itself
+        live_verdict = _LiveVerdict(run_dir, scenario, verdict) if live is not None else None
+        completed = False
         if compose:  # one process: it ends by itself when the plant finishes, the nodes stopping in STOP_ORDER
             composition = run_dir / "composition.json"
             composition.write_text(json.dumps([{"name": name, "args": node_args[name]} for name in nodes], indent=1))
@@ -1032,6 +1153,8 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                         raise RuntimeError(f"node {name} exited early with status {p.proc.returncode}; last log lines:\n{p.tail()}")
                 if time.monotonic() > start + limit:
                     raise RuntimeError(f"the run did not finish within {limit:.0f} s (see {run_dir / 'logs'})")
+                if live is not None:
+                    live.poll()
                 _bring_up(bringup, procs, compose, start, say)
             if external:
                 say(f"sappc run: waiting for your plant on ROS_DOMAIN_ID={domain} (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST): it publishes "
@@ -1054,6 +1177,10 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                     raise RuntimeError(f"the nodes did not stop within {CLOSE_BASE_S + CLOSE_S_PER_SAMPLE * line.last_samples[1]:.0f} s "
                                        f"of the last sample (see {run_dir / 'logs'})")
                 line.update()
+                if live is not None and live_verdict is not None:
+                    live.poll()
+                    if line.done:
+                        live_verdict()
                 if not bringup.done:
                     _bring_up(bringup, procs, compose, start, say)
                 if line.done and not stopping:  # the lead ends by itself: the plant its run, the composed process its nodes
@@ -1063,6 +1190,7 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                 if bringup.done:
                     time.sleep(0.05)
             run_end = time.monotonic()
+            completed = True
             if not external and procs[lead].proc.returncode != 0:
                 raise RuntimeError(f"the {lead} process failed with status {procs[lead].proc.returncode}; last log lines:\n{procs[lead].tail()}")
         finally:
@@ -1072,7 +1200,11 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                 if bringup is not None:  # the lifecycle client let go (whatever happened), its record kept
                     bringup.close()
                     bringup.write(run_dir / BRINGUP_FILE)
-                exit_codes, killed_any = _stop_nodes(procs, stop_order, bag_dir, ticker)
+                if live is not None and live_verdict is not None:
+                    live.poll()
+                    if not (completed and (external or procs[lead].proc.returncode == 0)):
+                        live_verdict.fail("the run did not end normally (interrupted or failed): no verdict")
+                exit_codes, killed_any = _stop_nodes(procs, stop_order, bag_dir, ticker, live_verdict)
                 if killed_any:
                     _fastdds_shm_clean()
         failed = {n: c for n, c in exit_codes.items() if c != 0}
@@ -1108,4 +1240,5 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
         bringup=json.loads((run_dir / BRINGUP_FILE).read_text())["transitions"],
         controller_timing=json.loads(ctrl_timing.read_text()) if (ctrl_timing := run_dir / "logs" / "controller_timing.json").exists() else {},
         plant_timing=timing,
+        live_url=live.url if live is not None else None,
     )

@@ -57,6 +57,23 @@ after the first one (lockstep: the torque of the scenario's last sample), the re
 ``end_file`` (and goes on recording until it is stopped, so what is published after it, the last
 sample's diagnostics included, is still recorded).
 
+Live view (``sappc run --live``, parameter ``live_port`` >= 0): the recorder also serves every
+recorded topic to Foxglove through a :class:`~sappc.bag.live.LiveServer` (on ``live_host``,
+127.0.0.1 unless told otherwise: the view is unauthenticated): the writer thread hands each message
+it writes to the server as the same bytes, on a channel with the bag's topic and ``ros2msg``
+schema, stamped with its log time.  :meth:`LiveServer.log <sappc.bag.live.LiveServer.log>` never
+blocks (the SDK queues :data:`~sappc.bag.live.MESSAGE_BACKLOG` messages per client and drops the
+oldest), so a viewer costs neither the bag nor lockstep anything but the hand-over.  At each flush
+the run's progress goes to the view: Foxglove status messages, and a JSON message on
+:data:`RUN_TOPIC` (``{"phase": "running", "t_s", "state_samples", "messages"}``), with the server's
+time set to the newest log time.  When the bag is closed: ``"phase": "closed"``; then, with
+``live_verdict_file``, the recorder writes ``<live_verdict_file>.wait`` and waits (at most
+``live_verdict_wait_s``) for ``sappc run`` to write the run's verdict there and shows it (``"phase": "verdict"``, ``"failed"``, ``"text"``), and
+stops the server before it exits.  With ``live_wait_subscribers`` (lockstep, with
+``expected_publishers``), the recorder also waits until every recorded topic has that many
+live-view subscriptions before it subscribes to ``/clock``, so the run starts once a viewer
+is there.  The address is written to ``live_file`` as JSON (``{"url"}``).
+
 Parameters: :data:`PARAMETERS` (``python -m sappc.graph.recorder --help``), and those of
 :class:`~sappc_msgs_py.runtime.ProjectNode` (``counts_file`` receives the messages recorded per topic).
 """
@@ -120,6 +137,18 @@ CHUNK_SIZE = 256 * 1024
 #: by less than 1 ns (rounding), and 1 us is far below any control period.
 END_TOLERANCE_NS = 1000
 DEFAULT_TOPICS = tuple(t.name for t in TOPICS + FAULT_TOPICS)
+#: The live view's own channel (``--live``): the run's progress and verdict as JSON.
+RUN_TOPIC = "/sappc/run"
+#: Its JSON schema (Foxglove's Raw Messages and Plot panels read its fields).
+RUN_SCHEMA = json.dumps({"title": "sappc run status", "type": "object", "properties": {
+    "phase": {"type": "string", "enum": ["running", "closed", "verdict"]},
+    "t_s": {"type": "number"}, "state_samples": {"type": "integer"}, "messages": {"type": "integer"},
+    "failed": {"type": "boolean"}, "text": {"type": "string"}}}).encode()
+#: The live view's channel id of :data:`RUN_TOPIC` (the bag's channels have theirs, from 1).
+_RUN_CHANNEL_ID = -1
+#: Longest wait for a client to receive what is queued before the live server stops [s] (only
+#: while a client subscribes).
+LIVE_LINGER_S = 1.0
 _KNOWN = {t.name: t for t in TOPICS + FAULT_TOPICS}
 
 #: The recorder's parameters (``--help``), in the order the node declares them.
@@ -138,6 +167,15 @@ PARAMETERS = (
     Param("expected_publishers", [], "subscribe to /clock only once each listed topic has matched this many publishers on the "
           "recorder's side, as 'topic=count' entries (sappc run: the plant starts when its /clock subscribers are matched); "
           "none: /clock at once", type="string[]", check="topics the recorder records, other than /clock"),
+    Param("live_port", -1, "serve every recorded topic to Foxglove on a Foxglove WebSocket at this port (0: any free port; -1: no "
+          "live view)", check="-1 to 65535"),
+    Param("live_host", "127.0.0.1", "the address the live view listens on (the view is unauthenticated)"),
+    Param("live_file", "", "where the live view's address is written (JSON: url); '' for none"),
+    Param("live_verdict_file", "", "after closing the bag, wait for this file (the run's verdict, JSON: failed, text) and show it "
+          "in the live view; '' for none"),
+    Param("live_wait_subscribers", 0, "lockstep with expected_publishers: subscribe to /clock (which starts the run) only once every "
+          "recorded topic has this many live-view subscriptions (sappc run --live --wait-subscribers)", check=">= 0"),
+    Param("live_verdict_wait_s", 120.0, "the longest wait for live_verdict_file", "s", check="> 0"),
 )
 _P = {p.name: p for p in PARAMETERS}
 
@@ -219,8 +257,20 @@ class RecorderNode(ProjectNode):
         self._newest_state_ns = 0
         self._write_metadata()
         self._file.flush()
+        self.live: Any = None  # the LiveServer of --live
+        self._live_messages = 0
+        live_port = int(self.param(_P["live_port"]))
+        self._live_verdict_file = str(self.param(_P["live_verdict_file"]))
+        self._live_verdict_wait_s = check_positive("live_verdict_wait_s", self.param(_P["live_verdict_wait_s"]))
+        if live_port >= 0:
+            self._start_live(live_port, str(self.param(_P["live_host"])), str(self.param(_P["live_file"])), recorded, schemas)
+        self._live_wait = int(self.param(_P["live_wait_subscribers"]))
+        if self._live_wait < 0:
+            raise ConfigError(f"live_wait_subscribers must be >= 0, got {self._live_wait}")
+        if self._live_wait and (self.live is None or not (self._expected and CLOCK.name in names_recorded)):
+            raise ConfigError("live_wait_subscribers is for a live view (live_port >= 0) of a lockstep run with expected_publishers")
         if self._expected and CLOCK.name in names_recorded:
-            self.start_when(self._publishers_missing, lambda: self._subscribe(CLOCK))
+            self.start_when(lambda: self._publishers_missing() + self._live_missing(), lambda: self._subscribe(CLOCK))
         # the hand-over from the taking thread (the executor's) to the writer thread: (topic, raw CDR, wall time taken [ns])
         self._handover: queue.SimpleQueue[tuple[str, bytes, int] | None] = queue.SimpleQueue()
         self._writer_error: BaseException | None = None
@@ -228,6 +278,73 @@ class RecorderNode(ProjectNode):
         self._writer_thread = threading.Thread(target=self._write_loop, name="recorder-writer", daemon=True)
         self._writer_thread.start()
         self.get_logger().info(f"recording {len(self.topics)} topics into {self.dir} on {'simulated' if self.sim_time else 'wall'} time")
+
+    def _start_live(self, port: int, host: str, live_file: str, recorded: list[Any], schemas: dict[str, int]) -> None:
+        """The live view (module docstring): a channel per recorded topic as the bag has it, and :data:`RUN_TOPIC`."""
+        from sappc.bag.live import LiveServer
+        from sappc.bag.mcap_scan import Channel
+
+        channels = [Channel(self._channels[t.name], resolved, t.type_name, "ros2msg", "cdr", schema_text(t.type_name).encode())
+                    for t, (resolved, _) in zip(recorded, self.topics)]
+        channels.append(Channel(_RUN_CHANNEL_ID, RUN_TOPIC, "sappc.RunStatus", "jsonschema", "json", RUN_SCHEMA))
+        self.live = LiveServer(channels, host=host, port=port, name="sappc run")
+        if live_file:
+            path = Path(live_file)
+            tmp = path.with_suffix(".tmp")
+            tmp.write_text(json.dumps({"url": self.live.url, "port": self.live.port, "host": host}))
+            tmp.replace(path)
+        self.get_logger().info(f"live view at {self.live.url}")
+
+    def _live_missing(self) -> list[str]:
+        """The live-view subscriptions ``live_wait_subscribers`` still waits for, in words."""
+        if not self._live_wait:
+            return []
+        short = [t for (t, _), cid in zip(self.topics, self._channels.values()) if self.live.subscriptions(cid) < self._live_wait]
+        return [f"{self._live_wait} live-view subscription(s) of {len(short)} topic(s), {short[0]} first"] if short else []
+
+    def _live_run(self, phase: str, **fields: Any) -> None:
+        """A message on :data:`RUN_TOPIC`, stamped with the newest log time."""
+        body = {"phase": phase, "t_s": self._t_s(), "state_samples": self._states, "messages": sum(self.counts.values()), **fields}
+        self.live.log(_RUN_CHANNEL_ID, json.dumps(body).encode(), self.end_ns)
+
+    def _t_s(self) -> float:
+        return 0.0 if self._first_state_ns is None else (self._newest_state_ns - self._first_state_ns) / 1e9
+
+    def _live_progress(self) -> None:
+        """The run's progress to the live view (each flush)."""
+        if self.live is None or self._first_state_ns is None:
+            return
+        self.live.broadcast_time(self.end_ns)
+        self.live.status(f"sappc run: t = {self._t_s():.1f} s, {self._states} samples recorded")
+        self._live_run("running")
+
+    def _live_end(self) -> None:
+        """The bag closed, then the run's verdict (``live_verdict_file``), then the server stopped."""
+        live = self.live
+        if live is None:
+            return
+        try:
+            live.broadcast_time(self.end_ns)
+            live.status(f"sappc run: bag closed, {sum(self.counts.values())} messages recorded")
+            self._live_run("closed")
+            if self._live_verdict_file:
+                path = Path(self._live_verdict_file)
+                Path(f"{path}.wait").write_text("")  # sappc run: the bag is closed, the verdict is due
+                end = time.monotonic() + self._live_verdict_wait_s
+                while not path.exists() and time.monotonic() < end:
+                    time.sleep(0.05)
+                try:
+                    verdict = json.loads(path.read_text())
+                except (OSError, ValueError):
+                    verdict = {"failed": True, "text": "no verdict came from sappc run"}
+                failed, text = bool(verdict.get("failed")), str(verdict.get("text", ""))
+                live.status(f"sappc run: {text}", level="warning" if failed else "info")
+                self._live_run("verdict", failed=failed, text=text)
+            end = time.monotonic() + LIVE_LINGER_S  # queued messages reach a subscribed client
+            while live.any_subscription() and time.monotonic() < end:
+                time.sleep(0.05)
+        finally:
+            live.close()
 
     def _subscribe(self, topic: Any) -> None:
         self._recorded_subs[topic.name] = self.create_subscription(topic.msg_class, topic.name, partial(self._on_message, topic.name),
@@ -270,6 +387,7 @@ class RecorderNode(ProjectNode):
                 if time.monotonic() >= next_flush:
                     self.writer.flush()
                     self._write_progress()
+                    self._live_progress()
                     next_flush = time.monotonic() + FLUSH_PERIOD_S
                 time.sleep(WRITE_PASS_PERIOD_S)
         except BaseException as exc:  # noqa: BLE001 (reported by finish, and logged now)
@@ -304,6 +422,10 @@ class RecorderNode(ProjectNode):
                 self._newest_state_ns = max(self._newest_state_ns, stamp_ns)
         self.start_ns, self.end_ns = start, end
         self.writer.add_messages(records)
+        live = self.live
+        if live is not None:  # the same bytes, stamped with their log time; never blocks (module docstring)
+            for cid, _, log_ns, _, data in records:
+                live.log(cid, data, log_ns)
 
     def _write_progress(self) -> None:
         """The run's progress, for ``sappc run``'s progress line (``progress_file``; replaced whole)."""
@@ -350,6 +472,7 @@ class RecorderNode(ProjectNode):
         if self.sim_time:  # the file in time order, whatever order the middleware delivered the topics in
             sort_by_log_time(self.dir / self.mcap_name, chunk_size=CHUNK_SIZE, library=RECORDER_LIBRARY)
         self._write_metadata()
+        self._live_end()
         peak_mib = _peak_rss_mib()
         self.get_logger().info(f"bag {self.dir} closed: {sum(self.counts.values())} messages; the writer thread was at most "
                                f"{self.max_backlog} messages behind; peak memory {peak_mib:.1f} MiB")
