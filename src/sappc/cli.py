@@ -249,7 +249,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                 writer.close()  # (a failed run: what was written, a whole file)
         ticker.idle()
     if writer is not None:
-        print(f"wrote {writer.dir} ({writer.samples} samples of {len(writer.channels)} topics)")
+        from sappc.bag.live import write_layout
+
+        write_layout(writer.dir)  # beside the bag: Foxglove's layout for it
+        print(f"wrote {writer.dir} ({writer.samples} samples of {len(writer.channels)} topics, and its Foxglove layout)")
     _print_metrics(scenario.name, result.controller.value, result.metrics)
     _print_orbits(result.per_orbit)
     failed = _print_outcome(scenario, result.metrics, result.controller_summary)

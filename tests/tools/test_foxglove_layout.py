@@ -72,7 +72,7 @@ def test_the_layout_is_a_foxglove_layout_whose_panels_are_all_placed(layout) -> 
     placed = _leaves(layout["layout"])
     assert sorted(placed) == sorted(layout["configById"]), "every configured panel is placed once, and only those"
     kinds = {panel_id.split("!", 1)[0] for panel_id in placed}
-    assert kinds == {"3D", "Plot", "Indicator"}
+    assert kinds == {"3D", "Plot", "Indicator", "DiagnosticSummary", "DiagnosticStatusPanel"}
     for config in layout["configById"].values():
         for p in config.get("paths", []):
             assert p["enabled"] is True and p["timestampMethod"] == "receiveTime"  # a lockstep bag logs each message at its stamp
@@ -94,6 +94,16 @@ def test_every_message_path_names_a_contract_topic_and_a_field_of_its_type(layou
         assert topic in topics, f"{panel_id}: {path} is not a topic of the contract"
         msg = topics[topic].msg_class()
         index = re.fullmatch(r"data\[(\d+)\]", fields)
+        labelled = {c.ESTIMATOR_DIAGNOSTICS.name: c.ESTIMATOR_DIAGNOSTICS_LAYOUT, c.MODE_STATUS.name: c.MODE_STATUS_LAYOUT,
+                    c.CONTROL_DIPOLE.name: ("time_s", "rod_1", "rod_2", "rod_3")}
+        if index and topics[topic].name in labelled:  # one value per label: the plot's label names it
+            names = labelled[topics[topic].name]
+            assert int(index.group(1)) < len(names) and names[int(index.group(1))] in label.lower(), (panel_id, path, label)
+            continue
+        wheel = re.fullmatch(r"(?:velocity|effort)\[(\d+)\]", fields)
+        if wheel:  # joint_states: one joint per wheel, wheel_1 .. wheel_N (the flights' four)
+            assert topics[topic] is c.WHEEL_STATES and hasattr(msg, fields.split("[")[0]) and label.startswith(f"wheel_{int(wheel.group(1)) + 1} "), (panel_id, path)
+            continue
         if index:  # controller/diagnostics: a flat float64 array of labelled rows of 3
             assert topics[topic] is c.CONTROLLER_DIAGNOSTICS, (panel_id, path)
             i = int(index.group(1))
@@ -137,7 +147,7 @@ def test_the_3d_panel_follows_the_inertial_frame_and_shows_the_contract_frames(l
 def test_the_user_script_reads_contract_topics(layout) -> None:  # type: ignore[no-untyped-def]
     topics = _contract_topics()
     (script,) = _scripts(layout).values()
-    assert script["inputs"] == ["/" + c.STATE_ATTITUDE.name, "/" + c.REFERENCE_ATTITUDE.name]
+    assert script["inputs"] == ["/" + c.STATE_ATTITUDE.name, "/" + c.TRUTH_ATTITUDE.name, "/" + c.REFERENCE_ATTITUDE.name]
     assert all(topics[t].type_name == "geometry_msgs/msg/QuaternionStamped" for t in script["inputs"])
     assert set(script["fields"]) == {"x", "y", "z", "w"}
 
@@ -160,6 +170,17 @@ def _run_script_arithmetic(source: str, q_RN: np.ndarray, q_BN: np.ndarray) -> n
     ret = re.search(r"return \{ x: (.+?), y: (.+?), z: (.+?), w: (.+?) \};", source)
     assert ret, "the script returns {x, y, z, w}"
     return np.array([eval(e, {"__builtins__": {}}, env) for e in ret.groups()])  # noqa: S307
+
+
+def test_the_diagnostics_panels_show_the_health_topic_and_the_mode_managers_status(layout) -> None:  # type: ignore[no-untyped-def]
+    cfg = layout["configById"]
+    assert cfg["DiagnosticSummary!health"]["topicToRender"] == "/" + c.ESTIMATOR_HEALTH.name
+    status = cfg["DiagnosticStatusPanel!mode"]
+    assert status["topicToRender"] == "/" + c.ESTIMATOR_HEALTH.name and status["selectedName"] == c.MODE_HEALTH_NAME
+    assert c.ESTIMATOR_HEALTH.type_name == "diagnostic_msgs/msg/DiagnosticArray"
+    from sappc_modes.core.modes import MODE_NAMES
+
+    assert [(r["rawValue"], r["label"]) for r in cfg["Indicator!mode"]["rules"]] == [(str(i), n) for i, n in enumerate(MODE_NAMES)]
 
 
 def test_the_user_script_computes_q_ev_as_the_project_does(layout, rng) -> None:  # type: ignore[no-untyped-def]

@@ -43,7 +43,8 @@ from gnc_common.validation import ConfigError, check_positive
 from sappc.bag.errors import BagError
 from sappc.bag.mcap_scan import MAGIC, Channel, McapWalk, summary_channels
 
-__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "MESSAGE_BACKLOG", "LiveServer", "bag_channels", "serve_bag", "ws_url"]
+__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "LAYOUT_NAME", "MESSAGE_BACKLOG", "LiveServer", "bag_channels", "serve_bag", "write_layout",
+           "ws_url"]
 
 #: The port Foxglove's "Open connection" dialog proposes for a Foxglove WebSocket.
 DEFAULT_PORT = 8765
@@ -84,6 +85,20 @@ def bag_channels(path: str | Path) -> dict[int, Channel]:
     if not channels:
         raise BagError(f"{path}: no channel in the bag")
     return channels
+
+
+#: The shipped Foxglove layout's name beside a bag (``sappc run``'s and ``sappc simulate --record``'s).
+LAYOUT_NAME = "foxglove_layout.json"
+
+
+def write_layout(bag_dir: str | Path) -> Path:
+    """Copy the layout shipped with the package (``sappc/data/foxglove/sappc_layout.json``) into
+    ``bag_dir`` as :data:`LAYOUT_NAME` (Foxglove: Layouts, Import from file); return its path."""
+    from importlib import resources
+
+    path = Path(bag_dir) / LAYOUT_NAME
+    path.write_bytes((resources.files("sappc") / "data" / "foxglove" / "sappc_layout.json").read_bytes())
+    return path
 
 
 def ws_url(host: str, port: int) -> str:

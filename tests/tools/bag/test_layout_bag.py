@@ -5,9 +5,13 @@ index, in that channel's own ``ros2msg`` schema (the text Foxglove parses, read 
 project's message classes: ``tests/tools/test_foxglove_layout.py`` checks the layout against the
 contract) to a number.
 
-The layout plots experiment 1's topics (attitude error, funnel, torque, the controller's
-diagnostics, the frames); none of a flight's (estimator, wheels, modes), so a tracking bag is the
-one it is validated on.
+Two bags: experiment 1's (attitude error, funnel, torque, the controller's diagnostics, the frames)
+and a flight's (``tests/modes/quick_flight.yaml``: sensors, estimator, wheels, momentum management,
+flight modes).  Every path is in one of them at least; the panels of experiment 1 work on both (a
+flight has no ``state/attitude``: the attitude error's script takes ``truth/attitude``), those of a
+flight on the flight's.  The diagnostics panels read ``/diagnostics``, which only a graph run
+records (the nodes publish it; ``sappc simulate --record`` does not): they are checked against the
+contract in ``tests/tools/test_foxglove_layout.py``.
 """
 
 from __future__ import annotations
@@ -83,15 +87,18 @@ def _resolve(defs: dict[str, list[tuple[str, str]]], root: str, path: str) -> st
     return current
 
 
-@pytest.fixture(scope="module")
-def schemas(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[str, str]]:
-    """topic -> (schema name, schema text) of experiment 1's bag (1 s of ``sappc simulate --record``)."""
+#: The panels of experiment 1, which must work on a flight's bag too.
+EXPERIMENT_1_PANELS = ("Plot!qev_x", "Plot!qev_y", "Plot!qev_z", "Plot!torque", "Plot!status", "Indicator!answer", "3D!attitude")
+
+
+def _recorded_schemas(out: Path, scenario: str, duration: str) -> dict[str, tuple[str, str]]:
+    """topic -> (schema name, schema text) of ``sappc simulate SCENARIO --duration D --record OUT``."""
     from mcap.reader import make_reader
 
-    out = tmp_path_factory.mktemp("layout") / "bag"
-    proc = subprocess.run([sys.executable, "-m", "sappc", "simulate", "paper_tracking", "--duration", "1", "--record", str(out),
+    proc = subprocess.run([sys.executable, "-m", "sappc", "simulate", scenario, "--duration", duration, "--record", str(out),
                            "--no-progress"], capture_output=True, text=True, timeout=600, cwd=ROOT)
-    assert out.is_dir(), proc.stderr
+    assert out.is_dir(), proc.stderr  # the run's verdict (a run cut short settles nowhere) is not the point
+    assert (out / "foxglove_layout.json").read_bytes() == LAYOUT.read_bytes()  # the layout written beside the bag
     with open(next(out.glob("*.mcap")), "rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None
@@ -101,6 +108,18 @@ def schemas(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[str, st
         assert s.encoding == "ros2msg" and c.message_encoding == "cdr", c.topic
         result[c.topic] = (s.name, s.data.decode())
     return result
+
+
+@pytest.fixture(scope="module")
+def schemas(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[str, str]]:
+    """Experiment 1's bag (1 s)."""
+    return _recorded_schemas(tmp_path_factory.mktemp("layout") / "bag", "paper_tracking", "1")
+
+
+@pytest.fixture(scope="module")
+def flight_schemas(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[str, str]]:
+    """A flight's bag (quick_flight, 1 s: every topic of a flight with sensors, estimator, wheels and modes)."""
+    return _recorded_schemas(tmp_path_factory.mktemp("layout_flight") / "bag", str(ROOT / "tests" / "modes" / "quick_flight.yaml"), "1")
 
 
 @pytest.fixture(scope="module")
@@ -142,25 +161,37 @@ def test_the_schema_reader_resolves_what_foxglove_would(schemas: dict[str, tuple
 
 
 def test_every_topic_and_message_path_of_the_layout_is_in_the_bags_schemas(layout: dict[str, Any],
-                                                                             schemas: dict[str, tuple[str, str]]) -> None:
+                                                                             schemas: dict[str, tuple[str, str]],
+                                                                             flight_schemas: dict[str, tuple[str, str]]) -> None:
     scripts = _script_inputs(layout)
     paths = _paths(layout)
-    assert len(paths) >= 20
+    assert len(paths) >= 35
     for panel_id, path in paths:
         topic, _, fields = path.partition(".")
         if topic.startswith(SCRIPT_PREFIX):
             assert topic in scripts, (panel_id, path)  # its inputs: the next test
             continue
-        assert topic in schemas, f"{panel_id}: {topic} is not a topic of the bag ({sorted(schemas)})"
-        name, text = schemas[topic]
-        leaf = _resolve(_definitions(name, text), name.replace("/msg/", "/"), fields)
-        assert leaf in NUMERIC, f"{panel_id}: {path} is a {leaf}, not a number"
+        bags = [b for b in (schemas, flight_schemas) if topic in b]
+        assert bags, f"{panel_id}: {topic} is a topic of neither bag ({sorted(schemas)}, {sorted(flight_schemas)})"
+        if panel_id in EXPERIMENT_1_PANELS:
+            assert len(bags) == 2, f"{panel_id}: {topic} is not in both bags"
+        for bag in bags:
+            name, text = bag[topic]
+            leaf = _resolve(_definitions(name, text), name.replace("/msg/", "/"), fields)
+            assert leaf in NUMERIC, f"{panel_id}: {path} is a {leaf}, not a number"
 
 
-def test_the_scripts_inputs_and_the_3d_panels_topics_are_in_the_bag(layout: dict[str, Any], schemas: dict[str, tuple[str, str]]) -> None:
+@pytest.mark.parametrize("bag", ["tracking", "flight"])
+def test_the_scripts_inputs_and_the_3d_panels_topics_are_in_the_bag(layout: dict[str, Any], bag: str, schemas: dict[str, tuple[str, str]],
+                                                                     flight_schemas: dict[str, tuple[str, str]]) -> None:
+    """The attitude error's script: the reference and a body attitude (state/attitude, or a flight's
+    truth/attitude) in each bag, each input the bag has a quaternion with a stamp."""
+    schemas = schemas if bag == "tracking" else flight_schemas
     for output, inputs in _script_inputs(layout).items():
+        assert "/reference/attitude" in schemas and {"/state/attitude", "/truth/attitude"} & set(schemas), output
         for topic in inputs:
-            assert topic in schemas, f"{output} reads {topic}, which the bag lacks"
+            if topic not in schemas:
+                continue
             name, text = schemas[topic]
             defs = _definitions(name, text)
             for a in ("w", "x", "y", "z"):  # the script reads quaternion.{w,x,y,z} and header.stamp
