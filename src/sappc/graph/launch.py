@@ -1212,6 +1212,10 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
             name = next(iter(failed))
             raise RuntimeError(f"node {name} exited with status {failed[name]}; last log lines:\n{procs[name].tail()}")
 
+    if bag_dir.is_dir():  # beside the bag, once the recorder has closed it: Foxglove's layout for it (not in the MCAP file)
+        from sappc.bag.live import write_layout
+
+        write_layout(bag_dir)
     counts = {p.stem: json.loads(p.read_text()) for p in (run_dir / "counts").glob("*.json")}
     recorded = counts.pop("recorder", {})
     published: dict[str, int] = {}

@@ -188,6 +188,7 @@ def test_a_client_during_the_run_receives_every_topic_as_the_bag_has_it_and_the_
     assert status[-2]["messages"] == 3311 and status[-1]["failed"] is False
     assert status[-1]["text"] == run.out.strip().splitlines()[-1]
     assert _refused(run.port)  # the server is gone with the run
+    assert (out / "bag" / "foxglove_layout.json").read_bytes() == (ROOT / "src" / "sappc" / "data" / "foxglove" / "sappc_layout.json").read_bytes()
     # the bag and metrics equal the run's without --live
     plain_dir, plain = plain_run
     assert (out / "bag" / "bag_0.mcap").read_bytes() == (plain_dir / "bag" / "bag_0.mcap").read_bytes()
