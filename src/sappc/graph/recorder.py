@@ -262,8 +262,9 @@ class RecorderNode(ProjectNode):
         live_port = int(self.param(_P["live_port"]))
         self._live_verdict_file = str(self.param(_P["live_verdict_file"]))
         self._live_verdict_wait_s = check_positive("live_verdict_wait_s", self.param(_P["live_verdict_wait_s"]))
+        live_host, live_file = str(self.param(_P["live_host"])), str(self.param(_P["live_file"]))  # declared either way (the help lists them)
         if live_port >= 0:
-            self._start_live(live_port, str(self.param(_P["live_host"])), str(self.param(_P["live_file"])), recorded, schemas)
+            self._start_live(live_port, live_host, live_file, recorded, schemas)
         self._live_wait = int(self.param(_P["live_wait_subscribers"]))
         if self._live_wait < 0:
             raise ConfigError(f"live_wait_subscribers must be >= 0, got {self._live_wait}")
