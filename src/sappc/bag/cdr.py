@@ -114,7 +114,10 @@ def _add_frame_ids(frames: set[str], rows: NDArray[np.uint8], slen: NDArray[np.i
     length, its NUL included)."""
     for n in np.unique(slen):
         chars = rows[slen == n, _BODY + 12 : _BODY + 12 + int(n) - 1]
-        frames.update(bytes(c).decode("utf-8", "replace") for c in np.unique(chars, axis=0))
+        if (chars == chars[0]).all():  # the usual case, one frame per topic: no sort of the rows (np.unique's)
+            frames.add(bytes(chars[0]).decode("utf-8", "replace"))
+        else:
+            frames.update(bytes(c).decode("utf-8", "replace") for c in np.unique(chars, axis=0))
 
 
 def _decode_stamped(u8: NDArray[np.uint8], start: NDArray[np.int64], length: NDArray[np.int64], n_doubles: int, keep: slice) -> Decoded:

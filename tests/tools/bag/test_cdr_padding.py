@@ -149,3 +149,30 @@ def test_time_references_decode_their_epoch_exactly_and_say_which_name_no_sensor
     assert d.stamps_ns.tolist() == [5_000_000_000, 5_000_000_001, 5_000_000_002, 7_000_000_000]
     assert [int(s) * 1_000_000_000 + int(n) for s, n in d.values[:3, :2]] == [1_795_000_000_123_456_789 + k for k in range(3)]
     assert d.values[:, 2].tolist() == [1.0, 1.0, 1.0, 0.0] and d.frame_ids == ("body", "body_2")
+
+
+def test_frame_ids_of_one_length_are_each_found_and_one_frame_is_found_once() -> None:
+    """The frame ids of a stamped topic's rows of one frame-id length: every distinct one (the sort's
+    path), or the one they all share (the path that skips the sort), the same set either way."""
+    from geometry_msgs.msg import Vector3Stamped
+    from rclpy.serialization import serialize_message
+
+    from sappc.bag.cdr import decode
+
+    def frames(ids: list[str]) -> tuple[str, ...]:
+        msgs = []
+        for k, frame in enumerate(ids):
+            m = Vector3Stamped()
+            m.header.frame_id = frame
+            m.header.stamp.nanosec = k
+            m.vector.x = float(k)
+            msgs.append(m)
+        data = [serialize_message(m) for m in msgs]
+        start = np.cumsum([0] + [len(b) for b in data[:-1]])
+        d = decode("geometry_msgs/msg/Vector3Stamped", b"".join(data), start, np.array([len(b) for b in data]))
+        assert d is not None and d.undecodable == 0 and d.values[:, 0].tolist() == [float(k) for k in range(len(ids))]
+        return d.frame_ids
+
+    assert frames(["ab", "cd", "ab", "ef"]) == ("ab", "cd", "ef")
+    assert frames(["body"] * 5) == ("body",)
+    assert frames(["ab", "ab", "body", "cd"]) == ("ab", "body", "cd")
