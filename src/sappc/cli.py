@@ -809,6 +809,15 @@ class _Parser(argparse.ArgumentParser):
         super()._check_value(action, value)
 
 
+
+def _add_live_options(p: argparse.ArgumentParser, live_help: str) -> None:
+    """``--live [PORT]`` and ``--host ADDRESS``: the Foxglove WebSocket view (``sappc run`` and ``sappc replay``)."""
+    p.add_argument("--live", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help=live_help + "; clients too slow lose the oldest queued messages")
+    p.add_argument("--host", metavar="ADDRESS", default=None,
+                   help="with --live: the address to listen on (default 127.0.0.1, this machine only; the view is "
+                        "unauthenticated: 0.0.0.0 lets anyone who reaches the port read every message)")
+
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.",
                                      epilog=exit_status_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -896,14 +905,10 @@ def _parser() -> argparse.ArgumentParser:
                           "a plant you start yourself on the printed domain (it ends once the last sample's torque is recorded); "
                           "default native")
     run.add_argument("--json", metavar="FILE", help="write metrics, counts and parameters as JSON ('-': to stdout)")
-    run.add_argument("--live", type=int, nargs="?", const=8765, default=None, metavar="PORT",
-                     help="watch the run in Foxglove: the recorder also serves every recorded topic on a Foxglove WebSocket server "
-                          "at ws://HOST:PORT (default port 8765; 0: any free port), the bytes it records with their ros2msg schemas, "
-                          "and the run's progress and verdict (status messages, and JSON on /sappc/run); prints the address; "
-                          "the bag and lockstep are unchanged; clients too slow lose the oldest queued messages")
-    run.add_argument("--host", metavar="ADDRESS", default=None,
-                     help="with --live: the address to listen on (default 127.0.0.1, this machine only; the view is "
-                          "unauthenticated: 0.0.0.0 lets anyone who reaches the port read every message)")
+    _add_live_options(run, "watch the run in Foxglove: the recorder also serves every recorded topic on a Foxglove WebSocket server "
+                           "at ws://HOST:PORT (default port 8765; 0: any free port), the bytes it records with their ros2msg schemas, "
+                           "and the run's progress and verdict (status messages, and JSON on /sappc/run); prints the address; "
+                           "the bag and lockstep are unchanged")
     run.add_argument("--wait-subscribers", type=int, default=None, metavar="N",
                      help="with --live, lockstep: start the run only once every recorded topic has N Foxglove subscriptions "
                           "(default 0: at once)")
@@ -965,13 +970,9 @@ def _parser() -> argparse.ArgumentParser:
                     help="seconds between creating the publishers and the first message, for discovery (default 1; "
                          "with --live: between starting the server and the first message, default 0)")
     rp.add_argument("--domain-id", type=int, default=None, help="ROS domain id (default: ROS_DOMAIN_ID from the environment)")
-    rp.add_argument("--live", type=int, nargs="?", const=8765, default=None, metavar="PORT",
-                    help="no ROS graph: serve the bag to Foxglove on a Foxglove WebSocket server at ws://HOST:PORT (default "
-                         "port 8765; 0: any free port), its messages as recorded (CDR, ros2msg schemas), at the bag's pace "
-                         "times --rate; prints the address; clients too slow lose the oldest queued messages")
-    rp.add_argument("--host", metavar="ADDRESS", default=None,
-                    help="with --live: the address to listen on (default 127.0.0.1, this machine only; the view is "
-                         "unauthenticated: 0.0.0.0 lets anyone who reaches the port read every message)")
+    _add_live_options(rp, "no ROS graph: serve the bag to Foxglove on a Foxglove WebSocket server at ws://HOST:PORT (default "
+                          "port 8765; 0: any free port), its messages as recorded (CDR, ros2msg schemas), at the bag's pace "
+                          "times --rate; prints the address")
     rp.add_argument("--linger", type=float, default=None, metavar="S",
                     help="with --live: after the last message, keep serving until no client subscribes, at most S seconds "
                          "(default 2), so that clients receive what is queued")
