@@ -4,7 +4,8 @@ Runs ``sappc run SCENARIO`` (lockstep, five processes, or ``--compose``) ``--pai
 of three ways, alternating within each round: without ``--live``; with ``--live 0`` and no client;
 with ``--live 0 --wait-subscribers 1`` and a client of the Foxglove WebSocket protocol subscribed
 to every channel for the whole run (it reads every message it is sent, in a thread of this
-process).  The loop time is the run's ``wall_time_s`` (the plant's first sample to its last, from
+process, and each is then looked up in the run's bag: every topic received, every message's
+log time and bytes the bag's).  The loop time is the run's ``wall_time_s`` (the plant's first sample to its last, from
 ``--json``).  Writes JSON: each run's loop time (and the client's message count), the medians and
 the ratios of the medians to the run without ``--live``, the machine and its load average before
 and after.
@@ -34,8 +35,9 @@ ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = ("plain", "live_no_client", "live_client")
 
 
-def _client(url: str, counts: dict[str, int]) -> None:
-    """Subscribe to every channel and read until the run's verdict or the server's end."""
+def _client(url: str, counts: dict[str, int], received: dict[str, list[tuple[int, bytes]]]) -> None:
+    """Subscribe to every channel and read until the run's verdict or the server's end; keep each
+    message's (timestamp, payload) by topic in ``received``."""
     import websockets
 
     async def watch() -> None:
@@ -53,14 +55,35 @@ def _client(url: str, counts: dict[str, int]) -> None:
                                 subscribed = True
                                 await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": c}
                                                                                                 for i, c in enumerate(channels)]}))
-                    elif message[0] == 0x01:
+                    elif message[0] == 0x01:  # message data: opcode, subscription id u32, timestamp u64, payload
                         counts["messages"] += 1
+                        sub = int.from_bytes(message[1:5], "little")
+                        topic = channels[list(channels)[sub]]["topic"]
+                        received.setdefault(topic, []).append((int.from_bytes(message[5:13], "little"), bytes(message[13:])))
                         if b'"phase": "verdict"' in message[13:]:
                             return
             except websockets.ConnectionClosed:
                 return
 
     asyncio.run(watch())
+
+
+def _compare(bag: Path, received: dict[str, list[tuple[int, bytes]]]) -> dict[str, Any]:
+    """The client's messages against the bag (issue 51's "Done means"): the bag's topics the client
+    received none of, and the received messages whose (log time, bytes) the bag's topic does not hold."""
+    from mcap.reader import make_reader
+
+    in_bag: dict[str, set[tuple[int, bytes]]] = {}
+    [path] = sorted(bag.glob("*.mcap"))
+    with open(path, "rb") as f:
+        for _schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            in_bag.setdefault(channel.topic, set()).add((message.log_time, bytes(message.data)))
+    got = {t: m for t, m in received.items() if t in in_bag}
+    return {"bag_topics": len(in_bag), "bag_topics_received": sum(1 for t in in_bag if got.get(t)),
+            "topics_not_received": sorted(t for t in in_bag if not got.get(t)),
+            "received_bag_messages": sum(len(m) for m in got.values()),
+            "received_not_in_bag": sum(1 for t, m in got.items() for x in m if x not in in_bag[t]),
+            "other_topics_received": sorted(t for t in received if t not in in_bag)}
 
 
 def one_run(scenario: str, variant: str, compose: bool, workdir: Path) -> dict[str, Any]:
@@ -70,12 +93,13 @@ def one_run(scenario: str, variant: str, compose: bool, workdir: Path) -> dict[s
     cmd += {"plain": [], "live_no_client": ["--live", "0"], "live_client": ["--live", "0", "--wait-subscribers", "1"]}[variant]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     counts = {"messages": 0}
+    received: dict[str, list[tuple[int, bytes]]] = {}
     client: threading.Thread | None = None
     assert proc.stderr is not None
     for line in proc.stderr:
         m = re.search(r"live view at (ws://\S+)", line)
         if m and variant == "live_client" and client is None:
-            client = threading.Thread(target=_client, args=(m.group(1), counts), daemon=True)
+            client = threading.Thread(target=_client, args=(m.group(1), counts, received), daemon=True)
             client.start()
     rc = proc.wait()
     if client is not None:
@@ -85,6 +109,7 @@ def one_run(scenario: str, variant: str, compose: bool, workdir: Path) -> dict[s
            "messages_recorded": sum(report["recorded"].values())}
     if variant == "live_client":
         row["client_messages"] = counts["messages"]
+        row.update(_compare(out / "bag", received))
     print(json.dumps(row), file=sys.stderr, flush=True)
     return row
 
