@@ -123,19 +123,23 @@ def test_the_figures_png_files_are_matplotlibs_pixels_and_chunks(tmp_path: Path)
     from PIL import Image
 
     t = np.linspace(0.0, 10.0, 1001)
-    for size in ((8.0, 7.5), (8.0, 6.5), (12.0, 3.8), (9.0, 3.6), (8.0, 5.5)):
-        fig, ax = plt.subplots(figsize=size)
-        ax.fill_between(t, -np.exp(-t), np.exp(-t), color="tab:blue", alpha=0.18, lw=0)
-        ax.plot(t, np.sin(3 * t) * np.exp(-t), label="ρ₁")
-        ax.legend()
-        ax.set_title("10⁻⁵")
-        plots._save_png(fig, tmp_path / "mine.png")
-        fig.savefig(tmp_path / "theirs.png", dpi=plots.PNG_DPI)
-        plt.close(fig)
-        data = (tmp_path / "mine.png").read_bytes()
-        at = data.index(b"IDAT")
-        length = int.from_bytes(data[at - 4 : at], "big")
-        assert zlib.decompress(data[at + 4 : at + 4 + length])[0] == 2  # written here, filter "Up" (not matplotlib's fallback)
-        with Image.open(tmp_path / "mine.png") as mine, Image.open(tmp_path / "theirs.png") as theirs:
-            assert (mine.mode, mine.size, mine.info) == (theirs.mode, theirs.size, theirs.info), size
-            assert (np.asarray(mine) == np.asarray(theirs)).all(), size
+    # matplotlib's defaults: a library imported earlier in this process may have changed its globals (Basilisk
+    # sets figure.autolayout, with which each savefig lays the figure out again: two saves, two layouts)
+    with matplotlib.rc_context():  # (restored after)
+        matplotlib.rcdefaults()
+        for size in ((8.0, 7.5), (8.0, 6.5), (12.0, 3.8), (9.0, 3.6), (8.0, 5.5)):
+            fig, ax = plt.subplots(figsize=size)
+            ax.fill_between(t, -np.exp(-t), np.exp(-t), color="tab:blue", alpha=0.18, lw=0)
+            ax.plot(t, np.sin(3 * t) * np.exp(-t), label="ρ₁")
+            ax.legend()
+            ax.set_title("10⁻⁵")
+            plots._save_png(fig, tmp_path / "mine.png")
+            fig.savefig(tmp_path / "theirs.png", dpi=plots.PNG_DPI)
+            plt.close(fig)
+            data = (tmp_path / "mine.png").read_bytes()
+            at = data.index(b"IDAT")
+            length = int.from_bytes(data[at - 4 : at], "big")
+            assert zlib.decompress(data[at + 4 : at + 4 + length])[0] == 2  # written here, filter "Up" (not matplotlib's fallback)
+            with Image.open(tmp_path / "mine.png") as mine, Image.open(tmp_path / "theirs.png") as theirs:
+                assert (mine.mode, mine.size, mine.info) == (theirs.mode, theirs.size, theirs.info), size
+                assert (np.asarray(mine) == np.asarray(theirs)).all(), size
