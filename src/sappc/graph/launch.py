@@ -754,9 +754,9 @@ class _LiveAddress:
 
 class _LiveVerdict:
     """``--live``: once the recorder has closed its bag and waits (:data:`LIVE_WAITING_FILE`), the
-    run's verdict to :data:`LIVE_VERDICT_FILE`: ``verdict(scenario, run_dir)`` (called by the run's
-    loop once the last sample is in: the composed process closes its bag before it ends by
-    itself; or in the stop of five processes), or :meth:`fail` for a run that did not end
+    run's verdict to :data:`LIVE_VERDICT_FILE`: ``verdict(scenario, run_dir)`` (checked at each pass
+    of the run's loop: the composed process closes its bag before it ends by itself; or in the
+    stop of five processes), or :meth:`fail` for a run that did not end
     normally (interrupted, failed)."""
 
     def __init__(self, run_dir: Path, scenario: Scenario, verdict: Callable[[Scenario, Path], tuple[bool, str]] | None) -> None:
@@ -1179,8 +1179,8 @@ def _run_graph(scenario_path: str | Path, *, out_dir: str | Path | None, control
                 line.update()
                 if live is not None and live_verdict is not None:
                     live.poll()
-                    if line.done:
-                        live_verdict()
+                    live_verdict()  # once the recorder waits for it (its .wait file: the bag closed), not on the progress
+                    # line's "last sample is in", which reads the recorder's 0.5 s progress file and may never see the end
                 if not bringup.done:
                     _bring_up(bringup, procs, compose, start, say)
                 if line.done and not stopping:  # the lead ends by itself: the plant its run, the composed process its nodes

@@ -383,7 +383,8 @@ class RecorderNode(ProjectNode):
                     messages = [m for m in batch if m is not None]  # (None only last: the end)
                     self.max_backlog = max(self.max_backlog, len(messages))
                     self._write_batch(messages)
-                    if done:
+                    if done:  # the last samples in the progress file too (sappc run's progress line and its end)
+                        self._write_progress()
                         return
                 if time.monotonic() >= next_flush:
                     self.writer.flush()

@@ -185,7 +185,7 @@ def test_a_client_during_the_run_receives_every_topic_as_the_bag_has_it_and_the_
     # the run's status: the bag closed, then the verdict the run prints as its last line
     status = [json.loads(payload) for _, payload in by_topic["/sappc/run"]]
     assert [s["phase"] for s in status][-2:] == ["closed", "verdict"]
-    assert status[-2]["messages"] == 3311 and status[-1]["failed"] is False
+    assert status[-2]["messages"] == 3311 and status[-1]["failed"] is False, (status[-2:], "".join(run.err))
     assert status[-1]["text"] == run.out.strip().splitlines()[-1]
     assert _refused(run.port)  # the server is gone with the run
     assert (out / "bag" / "foxglove_layout.json").read_bytes() == (ROOT / "src" / "sappc" / "data" / "foxglove" / "sappc_layout.json").read_bytes()
