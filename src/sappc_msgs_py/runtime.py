@@ -46,6 +46,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ACK_TIMEOUT_S",
+    "write_json_whole",
     "LOCKSTEP",
     "MANAGED",
     "MODE",
@@ -474,10 +475,17 @@ class ProjectNode(Node):
             if pub.count and not pub.wait_acked():
                 self.get_logger().warning(f"{pub.resolved_name}: not every subscriber acknowledged within {ACK_TIMEOUT_S} s")
         if self._counts_file:
-            path = Path(self._counts_file)
-            tmp = path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(self.publish_counts(), indent=1, sort_keys=True))
-            tmp.replace(path)
+            write_json_whole(self._counts_file, self.publish_counts(), indent=1, sort_keys=True)
+
+
+def write_json_whole(path: str | Path, value: Any, **dumps: Any) -> None:
+    """``value`` as JSON at ``path``, replaced whole (written beside it, then renamed): a reader in
+    another process sees the old file or the new one, never a part (the nodes' files that
+    ``sappc run`` polls: counts, progress, the live view's address and verdict)."""
+    path = Path(path)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(value, **dumps))
+    tmp.replace(path)
 
 
 #: The closing line of a managed node that was never configured (:meth:`ManagedNode.finished_unconfigured`).

@@ -66,7 +66,7 @@ from typing import Any, cast
 import numpy as np
 import yaml
 
-from sappc_msgs_py.runtime import parse_expected
+from sappc_msgs_py.runtime import parse_expected, write_json_whole
 from sappc_estimator.params import parameters_from_config as estimator_parameters_from_config
 from sappc_modes.core.modes import MODE_NAMES
 from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, CONTROL_WHEEL_TORQUE, ESTIMATOR_COVARIANCE, ESTIMATOR_DIAGNOSTICS,
@@ -771,11 +771,8 @@ class _LiveVerdict:
             self._write(True, text)
 
     def _write(self, failed: bool, text: str) -> None:
-        path = self.run_dir / LIVE_VERDICT_FILE
-        tmp = path.with_suffix(".tmp")
         with contextlib.suppress(OSError):  # the run directory gone: the recorder stops waiting at its limit
-            tmp.write_text(json.dumps({"failed": failed, "text": text}))
-            tmp.replace(path)
+            write_json_whole(self.run_dir / LIVE_VERDICT_FILE, {"failed": failed, "text": text})
         self.written = True
 
     def __call__(self) -> bool:

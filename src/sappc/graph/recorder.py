@@ -105,7 +105,7 @@ from sappc.bag.mcap_write import ChunkBuilder, McapWriter
 from sappc.bag.rosbag2 import bag_metadata, offered_qos_v9, sort_by_log_time, write_bag_metadata
 from sappc_msgs_py.convert import cdr_stamp_ns
 from sappc_msgs_py.parameters import REQUIRED, Param
-from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, parse_expected, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, MODE, ProjectNode, parse_expected, run_node, write_json_whole
 from sappc_msgs_py.schemas import schema_text, type_hash
 from gnc_common.validation import ConfigError, check_positive
 
@@ -290,10 +290,7 @@ class RecorderNode(ProjectNode):
         channels.append(Channel(_RUN_CHANNEL_ID, RUN_TOPIC, "sappc.RunStatus", "jsonschema", "json", RUN_SCHEMA))
         self.live = LiveServer(channels, host=host, port=port, name="sappc run")
         if live_file:
-            path = Path(live_file)
-            tmp = path.with_suffix(".tmp")
-            tmp.write_text(json.dumps({"url": self.live.url, "port": self.live.port, "host": host}))
-            tmp.replace(path)
+            write_json_whole(live_file, {"url": self.live.url, "port": self.live.port, "host": host})
         self.get_logger().info(f"live view at {self.live.url}")
 
     def _live_missing(self) -> list[str]:
@@ -433,10 +430,7 @@ class RecorderNode(ProjectNode):
         """The run's progress, for ``sappc run``'s progress line (``progress_file``; replaced whole)."""
         if not self._progress_file or self._first_state_ns is None:
             return
-        path = Path(self._progress_file)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"state_samples": self._states, "t_s": (self._newest_state_ns - self._first_state_ns) / 1e9}))
-        tmp.replace(path)
+        write_json_whole(self._progress_file, {"state_samples": self._states, "t_s": self._t_s()})
 
     def _check_end(self, torque_ns: int) -> None:
         """``end_file`` once the recorded torques span ``end_after_s`` (module docstring)."""
