@@ -25,7 +25,6 @@ reaches the port reads every message.
 
 from __future__ import annotations
 
-import os
 import struct
 import threading
 import time
