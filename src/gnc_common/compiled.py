@@ -81,11 +81,14 @@ __all__ = [
 #: on its own source file only, so a cached function that calls a kernel of another module would
 #: survive an edit of that kernel; the cache directory is therefore named by a digest of all of
 #: them (``tests/test_layering.py`` checks that every module using :func:`jit` is listed).
-KERNEL_MODULES = ("gnc_common.compiled", "gnc_common.ephemeris", "sappc_controller.core.kernels", "gnc_common.input_check", "sappc_estimator.core.mekf",
+KERNEL_MODULES = ("gnc_common.compiled", "gnc_common.libm", "gnc_common.ephemeris", "sappc_controller.core.kernels", "gnc_common.input_check", "sappc_estimator.core.mekf",
                   "spacecraft_sim.core.kernels", "sappc.offline.compiled_loop", "sappc.evaluation.metrics", "spacecraft_sim.core.wheels",
                   "spacecraft_sim.core.sensors", "spacecraft_sim.core.orbit", "spacecraft_sim.core.magnetic_field",
                   "spacecraft_sim.core.magnetorquers", "spacecraft_sim.core.environment", "sappc_momentum.core.law", "sappc_momentum.core.predictive",
                   "spacecraft_sim.core.magnetometer", "sappc_modes.core.modes", "sappc_modes.core.bdot")
+#: Set to ``0``, :mod:`gnc_common.libm` declares no libmvec variant (every SIMD lane calls the
+#: scalar libm function); part of the cache directory's name.
+LIBMVEC_ENV = "SAPPC_LIBMVEC"
 #: Characters of the sources' SHA-256 digest in the cache directory's name.
 _DIGEST_CHARS = 16
 
@@ -101,6 +104,9 @@ def kernel_sources_digest() -> str:
     for name in KERNEL_MODULES:
         h.update(name.encode())
         h.update((root / Path(*name.split(".")).with_suffix(".py")).read_bytes())
+    # the one setting the machine code depends on beyond the sources and the CPU (numba's cache keys on
+    # the CPU itself): whether gnc_common.libm declares libmvec's variants
+    h.update(f"libmvec={os.environ.get(LIBMVEC_ENV, '1') != '0'}".encode())
     return h.hexdigest()[:_DIGEST_CHARS]
 
 
@@ -141,6 +147,9 @@ def numba_module() -> Any:
     if _NUMBA_IMPORTED_BEFORE:
         _NUMBA_IMPORTED_BEFORE = False
         numba.core.config.reload_config()
+    from gnc_common import libm
+
+    libm.install()  # libmvec loaded before any kernel is compiled or loaded (gnc_common.libm)
     return numba
 
 

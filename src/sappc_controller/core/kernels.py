@@ -71,6 +71,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from gnc_common import libm
 from gnc_common.compiled import dcm_BR_times_of, dot3, error_quaternion, error_quaternion_of, gamma_inverse_of, gamma_inverse_times, jit, matvec3_flat
 from gnc_common.compiled import matvec3_flat_of
 
@@ -182,29 +183,36 @@ def predefined_time_gain(V, p, T, V_floor):
     so evaluating it at ``max(V, V_floor)`` (``0 < V_floor <= 1``) caps the gain at ``M(V_floor)``
     and leaves it unchanged for ``V >= V_floor``.
     """
-    Vp = max(V, V_floor) ** p  # docs/paper_notes.md, error 4
-    return np.exp(Vp) / (Vp * (2.0 * p * T))  # eqs. M_q, M_omega, dSd
+    Vp = libm.pow(max(V, V_floor), p)  # docs/paper_notes.md, error 4
+    return libm.exp(Vp) / (Vp * (2.0 * p * T))  # eqs. M_q, M_omega, dSd
+
+
+@jit(inline="always")
+def error_state_of(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R):
+    """Error state of eq. (errorsystem): ``q_e = q_d^* ⊗ q_s`` (``q_e0 >= 0``, a 4-tuple),
+    ``omega_e = omega_s - C_e omega_d``, ``C_e omega_d`` and ``C_e omegadot_d`` (3-tuples).  The
+    inputs are arrays or tuples (the SIMD lanes' scalars, :mod:`sappc.offline.lanes`)."""
+    x, y, z, q0 = error_quaternion_of(q_RN, q_BN)
+    cwd = dcm_BR_times_of(x, y, z, q0, omega_RN_R[0], omega_RN_R[1], omega_RN_R[2])  # C_e omega_d
+    cwdd = dcm_BR_times_of(x, y, z, q0, omegadot_RN_R[0], omegadot_RN_R[1], omegadot_RN_R[2])  # C_e omegadot_d
+    wbr = (omega_BN_B[0] - cwd[0], omega_BN_B[1] - cwd[1], omega_BN_B[2] - cwd[2])  # omega_e = omega_s - C_e omega_d
+    return (x, y, z, q0), wbr, cwd, cwdd
 
 
 @jit(inline="always")
 def error_state(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R, work):
-    """Error state of eq. (errorsystem) into ``work`` rows ``W_QBR .. W_CWDD``:
-    ``q_e = q_d^* ⊗ q_s`` (``q_e0 >= 0``), ``omega_e = omega_s - C_e omega_d``, ``C_e omega_d``,
-    ``C_e omegadot_d`` and ``omega_s``.  (The laws' helpers pass vectors as scalars and write rows of
-    ``work`` element by element: an array view of a row costs a reference count in the loop.)"""
-    x, y, z, q0 = error_quaternion_of(q_RN, q_BN)
-    work[W_QBR, 0] = x
-    work[W_QBR, 1] = y
-    work[W_QBR, 2] = z
-    work[W_QBR, 3] = q0
-    cwd = dcm_BR_times_of(x, y, z, q0, omega_RN_R[0], omega_RN_R[1], omega_RN_R[2])  # C_e omega_d
-    cwdd = dcm_BR_times_of(x, y, z, q0, omegadot_RN_R[0], omegadot_RN_R[1], omegadot_RN_R[2])  # C_e omegadot_d
+    """:func:`error_state_of` into ``work`` rows ``W_QBR .. W_CWDD`` and ``omega_s`` into ``W_WBN``.
+    (The laws' helpers pass vectors as scalars and write rows of ``work`` element by element: an
+    array view of a row costs a reference count in the loop.)"""
+    q, wbr, cwd, cwdd = error_state_of(q_BN, omega_BN_B, q_RN, omega_RN_R, omegadot_RN_R)
+    for i in range(4):
+        work[W_QBR, i] = q[i]
     for i in range(3):
         work[W_CWD, i] = cwd[i]
         work[W_CWDD, i] = cwdd[i]
     for i in range(3):
         work[W_WBN, i] = omega_BN_B[i]
-        work[W_WBR, i] = omega_BN_B[i] - work[W_CWD, i]  # omega_e = omega_s - C_e omega_d
+        work[W_WBR, i] = wbr[i]
 
 
 @jit(inline="always")
@@ -220,38 +228,51 @@ def filter_update(prm, state, dt, a0, a1, a2):
     update, ``dS_d/dt = -(1 - exp(-M3 dt)) / dt H_d``, whose gain is bounded by ``1 / dt`` and tends
     to eq. (dSd) as ``dt -> 0``.  The filter starts at the first virtual control (``H_d(0) = 0``).
     Returns ``V3``, the output before the update ``S_d`` and its derivative (3-tuples)."""
-    if state[S_FILTER_ON] == 0.0:
-        state[S_SD] = a0
-        state[S_SD + 1] = a1
-        state[S_SD + 2] = a2
-        state[S_FILTER_ON] = 1.0
-    s0, s1, s2 = state[S_SD], state[S_SD + 1], state[S_SD + 2]
+    V3, S_d, S_d_dot, S_next = filter_update_of(prm, dt, state[S_FILTER_ON] != 0.0, (state[S_SD], state[S_SD + 1], state[S_SD + 2]), a0, a1, a2)
+    for i in range(3):
+        state[S_SD + i] = S_next[i]
+    state[S_FILTER_ON] = 1.0
+    return V3, S_d, S_d_dot
+
+
+@jit(inline="always")
+def filter_update_of(prm, dt, filter_on, S_d, a0, a1, a2):
+    """:func:`filter_update` of the filter output ``S_d`` (a 3-tuple; the first virtual control when
+    ``filter_on`` is false): returns ``V3``, ``S_d`` before the update, its derivative and ``S_d``
+    after the update (3-tuples)."""
+    s0 = S_d[0] if filter_on else a0
+    s1 = S_d[1] if filter_on else a1
+    s2 = S_d[2] if filter_on else a2
     h0 = s0 - a0  # H_d = S_d - alpha
     h1 = s1 - a1
     h2 = s2 - a2
     V3 = 0.5 * ((h0 * h0 + h1 * h1) + h2 * h2)
     M3 = predefined_time_gain(V3, prm[P_P], prm[P_T3], prm[P_VFLOOR])  # eq. (dSd)
-    neg_rate = -(-np.expm1(-M3 * dt) / dt)  # exact exponential update (docs/paper_notes.md, error 4)
+    neg_rate = -(-libm.expm1(-M3 * dt) / dt)  # exact exponential update (docs/paper_notes.md, error 4)
     d0 = neg_rate * h0
     d1 = neg_rate * h1
     d2 = neg_rate * h2
-    state[S_SD] = s0 + dt * d0
-    state[S_SD + 1] = s1 + dt * d1
-    state[S_SD + 2] = s2 + dt * d2
-    return V3, (s0, s1, s2), (d0, d1, d2)
+    return V3, (s0, s1, s2), (d0, d1, d2), (s0 + dt * d0, s1 + dt * d1, s2 + dt * d2)
 
 
 @jit(inline="always")
 def w0_plus(prm, work):
+    """:func:`w0_plus_of` of the error state in ``work``."""
+    return w0_plus_of(prm, (work[W_WBR, 0], work[W_WBR, 1], work[W_WBR, 2]), (work[W_CWD, 0], work[W_CWD, 1], work[W_CWD, 2]),
+                      (work[W_CWDD, 0], work[W_CWDD, 1], work[W_CWDD, 2]), (work[W_WBN, 0], work[W_WBN, 1], work[W_WBN, 2]))
+
+
+@jit(inline="always")
+def w0_plus_of(prm, wbr, cwd, cwdd, wbn):
     """``-W0``, ``W0 = J omega_e^x C_e omega_d - J C_e omegadot_d - omega_s^x J omega_s`` (after eq. U),
-    a 3-tuple."""
-    a0, a1, a2 = work[W_WBR, 0], work[W_WBR, 1], work[W_WBR, 2]
-    b0, b1, b2 = work[W_CWD, 0], work[W_CWD, 1], work[W_CWD, 2]
-    t0 = (a1 * b2 - a2 * b1) - work[W_CWDD, 0]
-    t1 = (a2 * b0 - a0 * b2) - work[W_CWDD, 1]
-    t2 = (a0 * b1 - a1 * b0) - work[W_CWDD, 2]
+    a 3-tuple, from ``omega_e``, ``C_e omega_d``, ``C_e omegadot_d`` and ``omega_s`` (3-tuples)."""
+    a0, a1, a2 = wbr[0], wbr[1], wbr[2]
+    b0, b1, b2 = cwd[0], cwd[1], cwd[2]
+    t0 = (a1 * b2 - a2 * b1) - cwdd[0]
+    t1 = (a2 * b0 - a0 * b2) - cwdd[1]
+    t2 = (a0 * b1 - a1 * b0) - cwdd[2]
     Jt = matvec3_flat_of(prm, P_J, t0, t1, t2)  # J (omega_e^x C_e omega_d - C_e omegadot_d)
-    w0, w1, w2 = work[W_WBN, 0], work[W_WBN, 1], work[W_WBN, 2]
+    w0, w1, w2 = wbn[0], wbn[1], wbn[2]
     Jw = matvec3_flat_of(prm, P_J, w0, w1, w2)  # J omega_s
     c0 = w1 * Jw[2] - w2 * Jw[1]
     c1 = w2 * Jw[0] - w0 * Jw[2]
@@ -264,7 +285,7 @@ def low_pass_gain(wc, dt):
     """Gain ``1 - exp(-wc dt)`` of the first-order low-pass ``dy/dt = wc (x - y)`` sampled exactly
     over a step ``dt`` (its pole ``exp(-wc dt)``, matched; docs/design/noise.md): ``y[k] = y[k-1] +
     gain (x[k] - y[k-1])``, in (0, 1) for every ``wc > 0``, ``dt > 0``, so the filter is stable."""
-    return -np.expm1(-wc * dt)  # 1 - exp(-wc dt), exact near wc dt = 0
+    return -libm.expm1(-wc * dt)  # 1 - exp(-wc dt), exact near wc dt = 0
 
 
 @jit(inline="always")
@@ -311,11 +332,18 @@ def actuator(prm, state, dt, out):
             out[O_SAT, i] = 1.0 if abs(u) > umax else 0.0
     else:
         for i in range(3):
-            u = out[O_CMD, i]
-            mag = abs(u)
-            torque = min(max(u, -umax), umax)
-            out[O_TORQUE, i] = 0.0 if mag < umin else torque
-            out[O_SAT, i] = 1.0 if mag > umax else 0.0
+            torque, sat = actuator_of(umax, umin, out[O_CMD, i])
+            out[O_TORQUE, i] = torque
+            out[O_SAT, i] = sat
+
+
+@jit(inline="always")
+def actuator_of(umax, umin, u):
+    """One axis of :func:`actuator` without the torque filter: the torque the actuator produces of
+    the command ``u`` (saturated at ``umax``, 0 below ``umin``) and the saturation flag (1.0/0.0)."""
+    mag = abs(u)
+    torque = min(max(u, -umax), umax)
+    return (0.0 if mag < umin else torque), (1.0 if mag > umax else 0.0)
 
 
 # ============================================================================= SAPPC pieces
@@ -326,17 +354,21 @@ def rpf_evaluate(prm, coef, tau, i):
     """RPF value and slope of component ``i`` at ``tau`` seconds into the run (eq. RPF, with the
     coefficients of docs/paper_notes.md, error 1, from :func:`rpf_coef`): exponential before ``t1``,
     parabola ``a1 (t - t2)^2 + g_inf`` up to ``t2``, ``g_inf`` after; times the sign of ``e(0)``."""
+    return rpf_of(prm, tau, coef[C_SIGN, i], coef[C_T1, i], coef[C_A1, i], coef[C_L, i], coef[C_A, i])
+
+
+@jit(inline="always")
+def rpf_of(prm, tau, sign, t1, a1, l, A):
+    """:func:`rpf_evaluate` of one component's coefficients ``sign, t1, a1, l, A`` (``coef``'s
+    column: :func:`rpf_coef`)."""
     t = max(tau, 0.0)
-    sign = coef[C_SIGN, i]
     g_inf, t2 = prm[P_GINF], prm[P_RPF_T2]
     if t >= t2:
         return sign * g_inf, 0.0
-    if t < coef[C_T1, i]:  # exponential part
-        l = coef[C_L, i]
-        expo = coef[C_A, i] * np.exp(-l * t)
+    if t < t1:  # exponential part
+        expo = A * libm.exp(-l * t)
         return sign * (expo + prm[P_RHO_EINF]), sign * (-l * expo)
-    a1 = coef[C_A1, i]  # parabola a1 (t - t2)^2 + g_inf
-    dt2 = t - t2
+    dt2 = t - t2  # parabola a1 (t - t2)^2 + g_inf
     return sign * (a1 * dt2 * dt2 + g_inf), sign * (2.0 * a1 * dt2)
 
 
@@ -349,29 +381,42 @@ def smetf_solve(z_s, delta, k, has_guess, guess):
     Returns ``eps = R_s(z_s)``, ``z0 - 1 = a arctan(eps)`` (eqs. Rs, chosenfunction: the pre-image
     relative to the band centre, exact where ``1 + (z0 - 1)`` would round) and the number of
     Newton steps taken."""
+    eps, lower, abs_w, a, w = smetf_start(z_s, delta, k, has_guess, guess)
+    a_atan = 0.0
+    steps = 0
+    for _ in range(_MAX_IT):
+        a_atan, done, eps_next = smetf_newton_step(eps, lower, abs_w, a, k)
+        if done:
+            break
+        eps = eps_next
+        steps += 1
+    # a_atan belongs to the final eps (the loop exits right after computing it)
+    return np.copysign(eps, w), np.copysign(a_atan, w), steps
+
+
+@jit(inline="always")
+def smetf_start(z_s, delta, k, has_guess, guess):
+    """:func:`smetf_solve`'s start: the first iterate ``eps``, the lower bound, ``|w|``, ``a`` and ``w``."""
     a = _TWO_OVER_PI * delta
     w = z_s - 1.0
     abs_w = abs(w)
     lower = max(abs_w / (a + k), (abs_w - a * _HALF_PI) / k)  # arctan x <= x, arctan x < pi/2
-    if has_guess:
-        sgn = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else 0.0)
-        eps = max(guess * sgn, lower)
-    else:
-        eps = lower
-    a_atan = 0.0
-    steps = 0
-    for _ in range(_MAX_IT):
-        a_atan = a * np.arctan(eps)
-        k_eps = k * eps
-        resid = a_atan + k_eps - abs_w  # h(eps) - |w|, eq. (solve)
-        if not abs(resid) > _TOL * (a_atan + k_eps + abs_w):
-            break
-        # Newton step, raised to the lower bound: from above the root the step lands at or below
-        # it (concavity), from below the iterates increase monotonically to it.
-        eps = max(eps - resid / (a / (1.0 + eps * eps) + k), lower)
-        steps += 1
-    # a_atan belongs to the final eps (the loop exits right after computing it)
-    return np.copysign(eps, w), np.copysign(a_atan, w), steps
+    sgn = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else 0.0)
+    eps = max(guess * sgn, lower) if has_guess else lower
+    return eps, lower, abs_w, a, w
+
+
+@jit(inline="always")
+def smetf_newton_step(eps, lower, abs_w, a, k):
+    """One iteration of :func:`smetf_solve` at ``eps``: ``a arctan(eps)``, whether ``eps`` solves
+    eq. (solve) to the tolerance, and the next iterate (a Newton step raised to the lower bound:
+    from above the root the step lands at or below it (concavity), from below the iterates increase
+    monotonically to it)."""
+    a_atan = a * libm.atan(eps)
+    k_eps = k * eps
+    resid = a_atan + k_eps - abs_w  # h(eps) - |w|, eq. (solve)
+    done = not abs(resid) > _TOL * (a_atan + k_eps + abs_w)
+    return a_atan, done, max(eps - resid / (a / (1.0 + eps * eps) + k), lower)
 
 
 @jit(inline="always")
@@ -391,34 +436,48 @@ def sappc_transform(prm, coef, state, tau, work, out):
     B0, k = prm[P_B0], prm[P_TANTH]
     has_prev = state[S_HAS_PREV] != 0.0
     for i in range(3):
-        q_ev = work[W_QBR, i]
-        rho, rho_dot = rpf_evaluate(prm, coef, tau, i)  # eq. RPF
-        abs_rho = abs(rho)
-        delta = B0 / abs_rho  # eq. delta_i
-        z = q_ev / rho  # z_qi = q_evi / rho_i
-        guess = 0.0
-        if has_prev:  # warm start: first-order prediction from the previous sample
-            guess = (state[S_PREV + i] + state[S_PREV + 3 + i] * (z - state[S_PREV + 6 + i])) + state[S_PREV + 9 + i] * (
-                delta - state[S_PREV + 12 + i]
-            )
+        rho, rho_dot, delta, z, guess = sappc_axis_start(prm, tau, coef[C_SIGN, i], coef[C_T1, i], coef[C_A1, i], coef[C_L, i], coef[C_A, i],
+                                                         work[W_QBR, i], has_prev, state[S_PREV + i], state[S_PREV + 3 + i],
+                                                         state[S_PREV + 6 + i], state[S_PREV + 9 + i], state[S_PREV + 12 + i])
         eps, z0_offset, _ = smetf_solve(z, delta, k, has_prev, guess)  # eqs. Rs, solve, chosenfunction
-        P_s, d_eps_d_delta = smetf_derivatives(eps, z0_offset, delta, k)  # eq. PS; docs/paper_notes.md, error 3
+        P_s, d_eps_d_delta, psi, eta = sappc_axis_end(k, eps, z0_offset, delta, rho, rho_dot)
         state[S_PREV + i] = eps
         state[S_PREV + 3 + i] = P_s
         state[S_PREV + 6 + i] = z
         state[S_PREV + 9 + i] = d_eps_d_delta
         state[S_PREV + 12 + i] = delta
         work[W_EPS, i] = eps
-        work[W_PSI, i] = P_s / rho  # psi_si = P_si / rho_i (eq. dEpsilon)
-        work[W_ETA, i] = -rho_dot / rho  # eta_si = -rho_dot_i / rho_i
-        # xi_si = (d eps / d delta) delta_dot (eq. dEpsilon) enters no term of the law (eq. virtualcontrol),
-        # so delta_dot (eq. delta_i) is not computed here.
+        work[W_PSI, i] = psi
+        work[W_ETA, i] = eta
         out[O_RHO, i] = rho
         out[O_BL, i] = rho - B0
         out[O_BU, i] = rho + B0
         out[O_EPS, i] = eps
         out[O_Z, i] = z
     state[S_HAS_PREV] = 1.0
+
+
+@jit(inline="always")
+def sappc_axis_start(prm, tau, sign, t1, a1, l, A, q_ev, has_prev, prev_eps, prev_P_s, prev_z, prev_d_eps_d_delta, prev_delta):
+    """One component of :func:`sappc_transform` up to the SMETF's solve: ``rho``, ``rho_dot``
+    (eq. RPF, coefficients ``sign, t1, a1, l, A``), ``delta`` (eq. delta_i), ``z`` and the solve's
+    warm start (a first-order prediction from the previous sample's ``eps, P_s, z, d eps/d delta,
+    delta`` when ``has_prev``, else 0)."""
+    rho, rho_dot = rpf_of(prm, tau, sign, t1, a1, l, A)  # eq. RPF
+    delta = prm[P_B0] / abs(rho)  # eq. delta_i
+    z = q_ev / rho  # z_qi = q_evi / rho_i
+    guess = ((prev_eps + prev_P_s * (z - prev_z)) + prev_d_eps_d_delta * (delta - prev_delta)) if has_prev else 0.0
+    return rho, rho_dot, delta, z, guess
+
+
+@jit(inline="always")
+def sappc_axis_end(k, eps, z0_offset, delta, rho, rho_dot):
+    """One component of :func:`sappc_transform` after the solve: ``P_s``, ``d eps/d delta`` (eq. PS;
+    docs/paper_notes.md, error 3), ``psi = P_s / rho`` and ``eta = -rho_dot / rho`` (eq. dEpsilon).
+    ``xi_si = (d eps / d delta) delta_dot`` (eq. dEpsilon) enters no term of the law (eq.
+    virtualcontrol), so ``delta_dot`` (eq. delta_i) is not computed."""
+    P_s, d_eps_d_delta = smetf_derivatives(eps, z0_offset, delta, k)  # eq. PS; docs/paper_notes.md, error 3
+    return P_s, d_eps_d_delta, P_s / rho, -rho_dot / rho  # psi_si = P_si / rho_i, eta_si = -rho_dot_i / rho_i
 
 
 @jit
@@ -453,34 +512,50 @@ def backstepping_law(prm, state, dt, work, out):
 
     docs/paper_notes.md, observation 7: ``dV1/dt`` contains ``eps^T psi Gamma (z2 + H_d)``, which the
     paper's analysis drops and the published law does not cancel; this is the published law."""
-    e0, e1, e2 = work[W_EPS, 0], work[W_EPS, 1], work[W_EPS, 2]
+    cmd, V, S_next = backstepping_of(prm, dt, (work[W_QBR, 0], work[W_QBR, 1], work[W_QBR, 2], work[W_QBR, 3]),
+                                     (work[W_WBR, 0], work[W_WBR, 1], work[W_WBR, 2]), (work[W_CWD, 0], work[W_CWD, 1], work[W_CWD, 2]),
+                                     (work[W_CWDD, 0], work[W_CWDD, 1], work[W_CWDD, 2]), (work[W_WBN, 0], work[W_WBN, 1], work[W_WBN, 2]),
+                                     (work[W_EPS, 0], work[W_EPS, 1], work[W_EPS, 2]), (work[W_PSI, 0], work[W_PSI, 1], work[W_PSI, 2]),
+                                     (work[W_ETA, 0], work[W_ETA, 1], work[W_ETA, 2]), state[S_FILTER_ON] != 0.0,
+                                     (state[S_SD], state[S_SD + 1], state[S_SD + 2]))
+    for i in range(3):
+        state[S_SD + i] = S_next[i]
+        out[O_CMD, i] = cmd[i]
+        out[O_V, i] = V[i]
+    state[S_FILTER_ON] = 1.0
+
+
+@jit(inline="always")
+def backstepping_of(prm, dt, q, wbr, cwd, cwdd, wbn, eps, psi, eta, filter_on, S_d):
+    """:func:`backstepping_law` of the error state (``q_e`` a 4-tuple, ``omega_e``, ``C_e omega_d``,
+    ``C_e omegadot_d``, ``omega_s``), the transformation's ``eps``, ``psi``, ``eta`` and the
+    dynamic-surface filter's output ``S_d`` (started when ``filter_on``), each a 3-tuple: returns the
+    commanded torque, ``V = (V1, V2, V3)`` and the filter's next output (3-tuples)."""
+    e0, e1, e2 = eps[0], eps[1], eps[2]
     V1 = 0.5 * ((e0 * e0 + e1 * e1) + e2 * e2)  # V1 = z1^T z1 / 2, z1 = eps_q
     M_q = predefined_time_gain(V1, prm[P_P], prm[P_T1], prm[P_VFLOOR])
     neg_kq_mq = -(prm[P_KQ] * M_q)
     # eq. (virtualcontrol): alpha = Gamma^-1 [-psi^-1 M_q K_q eps - eta q_ev]
-    x0 = neg_kq_mq * e0 / work[W_PSI, 0] - work[W_ETA, 0] * work[W_QBR, 0]
-    x1 = neg_kq_mq * e1 / work[W_PSI, 1] - work[W_ETA, 1] * work[W_QBR, 1]
-    x2 = neg_kq_mq * e2 / work[W_PSI, 2] - work[W_ETA, 2] * work[W_QBR, 2]
-    alpha = gamma_inverse_of(work[W_QBR, 0], work[W_QBR, 1], work[W_QBR, 2], work[W_QBR, 3], x0, x1, x2,
-                             prm[P_Q0FLOOR])  # q_e0 floored: docs/paper_notes.md, error 5
-    V3, S_d, S_d_dot = filter_update(prm, state, dt, alpha[0], alpha[1], alpha[2])  # eq. (dSd), exact exponential update
-    z0 = work[W_WBR, 0] - S_d[0]  # z2 = omega_e - S_d
-    z1 = work[W_WBR, 1] - S_d[1]
-    z2 = work[W_WBR, 2] - S_d[2]
+    x0 = neg_kq_mq * e0 / psi[0] - eta[0] * q[0]
+    x1 = neg_kq_mq * e1 / psi[1] - eta[1] * q[1]
+    x2 = neg_kq_mq * e2 / psi[2] - eta[2] * q[2]
+    alpha = gamma_inverse_of(q[0], q[1], q[2], q[3], x0, x1, x2, prm[P_Q0FLOOR])  # q_e0 floored: docs/paper_notes.md, error 5
+    V3, S_d, S_d_dot, S_next = filter_update_of(prm, dt, filter_on, S_d, alpha[0], alpha[1], alpha[2])  # eq. (dSd), exact exponential update
+    z0 = wbr[0] - S_d[0]  # z2 = omega_e - S_d
+    z1 = wbr[1] - S_d[1]
+    z2 = wbr[2] - S_d[2]
     Jz2 = matvec3_flat_of(prm, P_J, z0, z1, z2)
     V2 = 0.5 * ((z0 * Jz2[0] + z1 * Jz2[1]) + z2 * Jz2[2])  # V2 = z2^T J z2 / 2
     M_w = predefined_time_gain(V2, prm[P_P], prm[P_T2], prm[P_VFLOOR])
     kw_mw = prm[P_KW] * M_w
-    minus_w0 = w0_plus(prm, work)
+    minus_w0 = w0_plus_of(prm, wbr, cwd, cwdd, wbn)
     JSdd = matvec3_flat_of(prm, P_J, S_d_dot[0], S_d_dot[1], S_d_dot[2])
     D_m, mu = prm[P_DM], prm[P_MU]
     # eq. (U): u = -W0 + J dS_d/dt - D_m tanh(z2/mu) - M_omega K_omega J z2
-    out[O_CMD, 0] = ((minus_w0[0] + JSdd[0]) - D_m * np.tanh(z0 / mu)) - kw_mw * Jz2[0]
-    out[O_CMD, 1] = ((minus_w0[1] + JSdd[1]) - D_m * np.tanh(z1 / mu)) - kw_mw * Jz2[1]
-    out[O_CMD, 2] = ((minus_w0[2] + JSdd[2]) - D_m * np.tanh(z2 / mu)) - kw_mw * Jz2[2]
-    out[O_V, 0] = V1
-    out[O_V, 1] = V2
-    out[O_V, 2] = V3
+    cmd = (((minus_w0[0] + JSdd[0]) - D_m * libm.tanh(z0 / mu)) - kw_mw * Jz2[0],
+           ((minus_w0[1] + JSdd[1]) - D_m * libm.tanh(z1 / mu)) - kw_mw * Jz2[1],
+           ((minus_w0[2] + JSdd[2]) - D_m * libm.tanh(z2 / mu)) - kw_mw * Jz2[2])
+    return cmd, (V1, V2, V3), S_next
 
 
 # ============================================================================= BLFPPC
