@@ -817,7 +817,8 @@ class CompiledInputs:
     blocks in order, made by ``maker`` (for ``runs``, this batch's runs among the maker's) with
     the sensors' draws from ``noise`` and the magnetometer's from ``mag_noise`` (this batch's
     runs'; a block's ``environment.mag_draws`` are its updates' rows, from the first update at or
-    after ``k_lo``)."""
+    after ``k_lo``).  ``lanes``: step the runs in SIMD lanes where :mod:`sappc.offline.lanes`
+    covers them (a campaign's runs; their libm calls then libmvec's, docs/parity.md)."""
 
     grid: LoopGrid
     controller: ControllerArrays
@@ -838,6 +839,7 @@ class CompiledInputs:
     mag_noise: NoiseStreams | None = None
     runs: tuple[int, int] | None = None
     k_lo: int = 0
+    lanes: bool = False
 
     #: The models, in the kernels' argument order.
     MODELS = ("controller", "plant", "actuator", "sensors", "estimator", "disturbance", "faults", "environment", "momentum", "modes")
@@ -1082,7 +1084,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
             on_infeasible: str = "raise", sensor_params: np.ndarray | None = None, sensor_outages: np.ndarray | None = None,
             faults: list[tuple[Any, ...]] | None = None, wheels: list[ReactionWheels] | None = None,
             estimator_params: np.ndarray | None = None, run_keys: list[tuple[int, ...]] | None = None,
-            orbits: np.ndarray | None = None, whole: bool = True, started: bool = True) -> CompiledInputs:
+            orbits: np.ndarray | None = None, whole: bool = True, started: bool = True, lanes: bool = False) -> CompiledInputs:
     """Arrays of a batch from a scenario (overrides as in :func:`sappc.offline.simulate.run_scenario`),
     with the start checks of the controller core (180 deg singularity, funnel, RPF feasibility).
     ``sensor_params``: the sensors' parameters ((13,) or one row per run), their draws then given
@@ -1148,6 +1150,7 @@ def prepare(scenario: Scenario, controller: Any = None, *, q_BN0: np.ndarray | N
         maker=maker,
         noise=noise,
         mag_noise=_magnetometer_streams(scenario, n, run_keys),
+        lanes=lanes,
     )
     inp = inp.whole() if whole else inp
     return _started(inp) if started else inp
@@ -1331,12 +1334,33 @@ def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: Lo
     command then never compiles the batch kernel)."""
     if stride > 0 and inp.k_lo % stride != 0:
         raise ValueError(f"a block must start at a recorded sample: k_lo {inp.k_lo} is not a multiple of the stride {stride}")
-    if inp.n_runs == 1:
+    if inp.lanes and not probe and _lanes().lanes_refusal(inp) is None:
+        _loop_lanes(stride, inp, rec, st)
+    elif inp.n_runs == 1:
         _with_restarts(lambda: _run_alone(0, probe, stride, inp, rec, st), probe, inp, rec, st, np.zeros(1, dtype=np.int64))
     else:
         ensure_compiled(groups=("batches",))
         _with_restarts(lambda: run_batch_kernel(probe, stride, np.int64(inp.k_lo), *inp.args(), rec, st), probe, inp, rec, st,
                        np.arange(inp.n_runs))
+
+
+def _lanes() -> Any:
+    """:mod:`sappc.offline.lanes` (imported on first use: it imports this module)."""
+    from sappc.offline import lanes
+
+    return lanes
+
+
+def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState) -> None:
+    """:func:`_loop` in SIMD lanes (:func:`sappc.offline.lanes.run_lanes_kernel`), then each run the
+    lanes handed back (an input rejected, a refused answer: the per-run loop's cases) run again over
+    the block by :func:`_run_one`, from the state the block started with (which the lanes left in
+    ``st``)."""
+    ensure_compiled(groups=("batches",))
+    handed_back = np.zeros(inp.n_runs, dtype=np.int8)
+    _lanes().run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back)
+    for n in np.flatnonzero(handed_back):
+        _run_one(np.int64(n), np.int64(n), False, np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st)
 
 
 def _with_restarts(call: Callable[[], None], probe: bool, inp: CompiledInputs, rec: LoopRecord, st: LoopState, runs: np.ndarray) -> None:
@@ -1412,7 +1436,7 @@ def _entry_kernels(group: str) -> tuple[Any, ...]:
     if group == "loops":
         return (_run_one,)
     if group == "batches":
-        return (run_batch_kernel,)
+        return (run_batch_kernel, _lanes().run_lanes_kernel)
     from sappc_controller.core.kernels import controller_step_batch, controller_step_one
     from spacecraft_sim.core.kernels import fault_actuator_one, fault_sensor_one, propagate_runs
 
@@ -1762,6 +1786,11 @@ def _warm_up_batches(scenario: Scenario, compiled: Any) -> None:
         run_batch(case, 1)
         run_batch(case, 0)
     compiled("the offline loop (batches)")
+    from spacecraft_sim.core.disturbance import DisturbanceSum
+
+    shared = DisturbanceSum(scenario.disturbance.models[:1])  # the paper's periodic torque alone, every run's: the lanes' case
+    run_batch(prepare(scenario, on_infeasible="clamp", q_BN0=np.broadcast_to(scenario.q_BN0, (2, 4)), disturbance=shared, lanes=True), 1)
+    compiled("the offline loop (SIMD lanes)")
 
 
 def _warm_up_nodes(scenario: Scenario, compiled: Any) -> None:

@@ -37,7 +37,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from gnc_common.compiled import jit, matvec3, matvec3_of, quat_multiply, quat_normalize
+from gnc_common.compiled import jit, matvec3, matvec3_flat_of, matvec3_of, quat_multiply, quat_normalize
 from gnc_common.validation import ConfigError
 from spacecraft_sim.core.sensors import rotate_by_vector
 
@@ -79,22 +79,29 @@ _TOL = TIME_TOLERANCE_S
 
 
 @jit(inline="always")
+def flat9(M):
+    """The (3, 3) matrix ``M`` as a 9-tuple, row major (what :func:`_rates` and :func:`rk4_of` take)."""
+    return (M[0, 0], M[0, 1], M[0, 2], M[1, 0], M[1, 1], M[1, 2], M[2, 0], M[2, 1], M[2, 2])
+
+
+@jit(inline="always")
 def _rates(s, a0, a1, a2, J, J_inv):
     """``dx/dt`` of the state ``s`` = (q_BN, omega_BN_B), a 7-tuple, given ``J^-1 torque`` =
     (a0, a1, a2) (module dynamics): ``dq/dt = 1/2 q ⊗ (omega, 0)``,
-    ``domega/dt = J^-1 torque - J^-1 (omega × J omega)``; a 7-tuple.  Scalars only (the matrix
-    products by :func:`gnc_common.compiled.matvec3_of`): no array view, so no reference count per
-    call in the loops that inline it."""
+    ``domega/dt = J^-1 torque - J^-1 (omega × J omega)``; a 7-tuple.  ``J`` and ``J_inv`` row major,
+    9 entries (:func:`flat9`).  Scalars only (the matrix products by
+    :func:`gnc_common.compiled.matvec3_flat_of`, the sums of ``matvec3_of``): no array view, so no
+    reference count per call in the loops that inline it (the SIMD lanes' too)."""
     q3 = s[3]
     w0, w1, w2 = s[4], s[5], s[6]
     c0 = s[1] * w2 - s[2] * w1
     c1 = s[2] * w0 - s[0] * w2
     c2 = s[0] * w1 - s[1] * w0
-    Jw = matvec3_of(J, w0, w1, w2)  # J omega
+    Jw = matvec3_flat_of(J, 0, w0, w1, w2)  # J omega
     cr0 = w1 * Jw[2] - w2 * Jw[1]  # omega × J omega
     cr1 = w2 * Jw[0] - w0 * Jw[2]
     cr2 = w0 * Jw[1] - w1 * Jw[0]
-    Jic = matvec3_of(J_inv, cr0, cr1, cr2)
+    Jic = matvec3_flat_of(J_inv, 0, cr0, cr1, cr2)
     return (0.5 * (q3 * w0 + c0), 0.5 * (q3 * w1 + c1), 0.5 * (q3 * w2 + c2), -0.5 * ((s[0] * w0 + s[1] * w1) + s[2] * w2),
             a0 - Jic[0], a1 - Jic[1], a2 - Jic[2])
 
@@ -109,7 +116,7 @@ def _stage(s, h, k):
 def derivative(x, accel_ext, J, J_inv, out):
     """``dx/dt`` of ``x = (q_BN, omega_BN_B)`` (7,) given ``J^-1 torque`` (3,) into ``out`` (7,)
     (:func:`_rates`)."""
-    d = _rates((x[0], x[1], x[2], x[3], x[4], x[5], x[6]), accel_ext[0], accel_ext[1], accel_ext[2], J, J_inv)
+    d = _rates((x[0], x[1], x[2], x[3], x[4], x[5], x[6]), accel_ext[0], accel_ext[1], accel_ext[2], flat9(J), flat9(J_inv))
     for i in range(7):
         out[i] = d[i]
 
@@ -119,18 +126,28 @@ def rk4_step(x, a0, a1, a2, dt, J, J_inv):
     """One classical RK4 step of ``dt`` in place, ``J^-1 torque`` = (a0, a1, a2) held (ZOH), then
     ``q`` renormalised (:meth:`.dynamics.RigidBody.rk4_step`).  The stages are scalars
     (:func:`_rates`): no scratch array."""
+    y = rk4_of((x[0], x[1], x[2], x[3], x[4], x[5], x[6]), a0, a1, a2, dt, flat9(J), flat9(J_inv))
+    for i in range(7):
+        x[i] = y[i]
+
+
+@jit(inline="always")
+def rk4_of(s, a0, a1, a2, dt, J, J_inv):
+    """:func:`rk4_step` of the state ``s`` (a 7-tuple), ``J`` and ``J_inv`` row major (9 entries):
+    the next state, a 7-tuple, ``q`` renormalised."""
     h2 = 0.5 * dt
-    s = (x[0], x[1], x[2], x[3], x[4], x[5], x[6])
     k1 = _rates(s, a0, a1, a2, J, J_inv)
     k2 = _rates(_stage(s, h2, k1), a0, a1, a2, J, J_inv)
     k3 = _rates(_stage(s, h2, k2), a0, a1, a2, J, J_inv)
     k4 = _rates(_stage(s, dt, k3), a0, a1, a2, J, J_inv)
     c = dt / 6.0
-    for i in range(7):
-        x[i] = s[i] + c * ((k1[i] + 2.0 * (k2[i] + k3[i])) + k4[i])
-    n = np.sqrt(((x[0] * x[0] + x[1] * x[1]) + x[2] * x[2]) + x[3] * x[3])
-    for i in range(4):
-        x[i] = x[i] / n
+    y0 = s[0] + c * ((k1[0] + 2.0 * (k2[0] + k3[0])) + k4[0])
+    y1 = s[1] + c * ((k1[1] + 2.0 * (k2[1] + k3[1])) + k4[1])
+    y2 = s[2] + c * ((k1[2] + 2.0 * (k2[2] + k3[2])) + k4[2])
+    y3 = s[3] + c * ((k1[3] + 2.0 * (k2[3] + k3[3])) + k4[3])
+    n = np.sqrt(((y0 * y0 + y1 * y1) + y2 * y2) + y3 * y3)
+    return (y0 / n, y1 / n, y2 / n, y3 / n, s[4] + c * ((k1[4] + 2.0 * (k2[4] + k3[4])) + k4[4]),
+            s[5] + c * ((k1[5] + 2.0 * (k2[5] + k3[5])) + k4[5]), s[6] + c * ((k1[6] + 2.0 * (k2[6] + k3[6])) + k4[6]))
 
 
 @jit(inline="always")
