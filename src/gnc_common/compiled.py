@@ -85,7 +85,8 @@ KERNEL_MODULES = ("gnc_common.compiled", "gnc_common.libm", "gnc_common.ephemeri
                   "spacecraft_sim.core.kernels", "sappc.offline.compiled_loop", "sappc.evaluation.metrics", "spacecraft_sim.core.wheels",
                   "spacecraft_sim.core.sensors", "spacecraft_sim.core.orbit", "spacecraft_sim.core.magnetic_field",
                   "spacecraft_sim.core.magnetorquers", "spacecraft_sim.core.environment", "sappc_momentum.core.law", "sappc_momentum.core.predictive",
-                  "spacecraft_sim.core.magnetometer", "sappc_modes.core.modes", "sappc_modes.core.bdot")
+                  "spacecraft_sim.core.magnetometer", "sappc_modes.core.modes", "sappc_modes.core.bdot",
+                  "sappc.offline.lanes")
 #: Set to ``0``, :mod:`gnc_common.libm` declares no libmvec variant (every SIMD lane calls the
 #: scalar libm function); part of the cache directory's name.
 LIBMVEC_ENV = "SAPPC_LIBMVEC"

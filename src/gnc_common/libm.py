@@ -108,13 +108,19 @@ def _intrinsic(name: str, nargs: int, variants: tuple[tuple[str, int], ...]) -> 
             set.add(fn.attributes, a)  # llvmlite's attribute set accepts only its known names: the string one added as is
         used = [cgutils.get_or_insert_function(mod, ir.FunctionType(ir.VectorType(d, w), [ir.VectorType(d, w)] * nargs), m)
                 for (_, w), m in zip(variants, names)]
-        if used and "llvm.compiler.used" not in mod.globals:
+        if used:  # every function's variants kept: a declaration nothing uses is dropped before the vectorizer looks for it
             pt = ir.PointerType(ir.IntType(8))
-            arr = ir.ArrayType(pt, len(used))
-            g = ir.GlobalVariable(mod, arr, "llvm.compiler.used")
-            g.linkage = "appending"
-            g.section = "llvm.metadata"
-            g.initializer = ir.Constant(arr, [u.bitcast(pt) for u in used])
+            kept = mod.__dict__.setdefault("_sappc_libmvec_kept", {})  # name -> declaration, this module's
+            for u in used:
+                kept.setdefault(u.name, u)
+            arr = ir.ArrayType(pt, len(kept))
+            g = mod.globals.get("llvm.compiler.used")
+            if g is None:
+                g = ir.GlobalVariable(mod, arr, "llvm.compiler.used")
+                g.linkage = "appending"
+                g.section = "llvm.metadata"
+            g.value_type = arr  # the module's one list, grown in place
+            g.initializer = ir.Constant(arr, [u.bitcast(pt) for u in kept.values()])
         return builder.call(fn, args)
 
     if nargs == 1:

@@ -137,6 +137,7 @@ def simulate_runs(
                 run_keys=[(int(k), seed) for k in inputs.runs],  # the magnetometer's draws: the run's own, whatever its chunk
                 orbits=run_orbits(scenario, inputs),
                 per_orbit=False,  # not in the campaign's table
+                lanes=True,  # every run of a campaign in SIMD lanes where they cover it, --from-campaign's too (docs/parity.md)
             )
         except InputError as exc:  # name the campaign's run, not its place in this chunk
             message = re.sub(r"\(run (\d+)\)", lambda m: f"(run {int(inputs.runs[int(m.group(1))])})", str(exc), count=1)

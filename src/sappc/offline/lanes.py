@@ -90,19 +90,53 @@ def lanes_refusal(inp: CompiledInputs) -> str | None:
     return None
 
 
-@jit(inline="always")
-def _lane_prm(PL, w):
-    """Lane ``w``'s controller parameters (``PL``: (N_PARAMS, LANES)) as the tuple the law's pieces
-    index like a parameter row (``prm[P_*]``)."""
-    return (PL[0, w], PL[1, w], PL[2, w], PL[3, w], PL[4, w], PL[5, w], PL[6, w], PL[7, w], PL[8, w], PL[9, w], PL[10, w], PL[11, w],
-            PL[12, w], PL[13, w], PL[14, w], PL[15, w], PL[16, w], PL[17, w], PL[18, w], PL[19, w], PL[20, w], PL[21, w], PL[22, w],
-            PL[23, w], PL[24, w], PL[25, w], PL[26, w], PL[27, w], PL[28, w])
+# The rows of a lane group's one scratch array (row, lane): every lane quantity in one array, so
+# that LLVM sees one base pointer and constant distances between rows (no aliasing to rule out).
+_R_X = 0  # 7: the true state (q_BN, omega_BN_B), the controller's input (exact measurements)
+_R_CS = _R_X + 7  # the controller's state rows S_SD .. S_T0
+_R_PUB = _R_CS + _N_CTRL  # N_OUT x 4: the rows last published, row major
+_R_OUT3 = _R_PUB + 4 * N_OUT  # N_OUT: the per-run loop's out[:, 3] (no law writes it but q_BR's)
+_R_PL = _R_OUT3 + N_OUT  # N_PARAMS: the controller's parameters
+_R_CF = _R_PL + N_PARAMS  # 5 x 3: the start constants (coef), row major
+_R_JL = _R_CF + 15  # 9: J, row major
+_R_JI = _R_JL + 9  # 9: J^-1
+_R_U = _R_JI + 9  # 3: the torque delivered, clipped to the actuator's limit
+_R_STARTED = _R_U + 3  # 1.0 once the controller has started
+_R_NSTARTS = _R_STARTED + 1  # the controller's starts so far
+_R_BAD = _R_NSTARTS + 1  # 1.0 once the lane is handed back
+_R_Q = _R_BAD + 1  # 4: q_BR
+_R_WBR = _R_Q + 4  # 3 each: omega_e, C_e omega_d, C_e omegadot_d, rho, rho_dot, delta, z
+_R_CWD = _R_WBR + 3
+_R_CWDD = _R_CWD + 3
+_R_RHO = _R_CWDD + 3
+_R_RHOD = _R_RHO + 3
+_R_DELTA = _R_RHOD + 3
+_R_Z = _R_DELTA + 3
+_R_EPS = _R_Z + 3  # 3 each: the SMETF's iterate, lower bound, |w|, a, w, a arctan(eps), converged (1.0)
+_R_LOW = _R_EPS + 3
+_R_ABSW = _R_LOW + 3
+_R_A = _R_ABSW + 3
+_R_WW = _R_A + 3
+_R_ATAN = _R_WW + 3
+_R_DONE = _R_ATAN + 3
+_N_ROWS = _R_DONE + 3
 
 
 @jit(inline="always")
-def _nine(M, w):
-    """Lane ``w``'s 3x3 matrix of ``M`` (9, LANES), row major, as a 9-tuple."""
-    return (M[0, w], M[1, w], M[2, w], M[3, w], M[4, w], M[5, w], M[6, w], M[7, w], M[8, w])
+def _lane_prm(S, w):
+    """Lane ``w``'s controller parameters as the tuple the law's pieces index like a parameter row
+    (``prm[P_*]``)."""
+    r = _R_PL
+    return (S[r, w], S[r + 1, w], S[r + 2, w], S[r + 3, w], S[r + 4, w], S[r + 5, w], S[r + 6, w], S[r + 7, w], S[r + 8, w], S[r + 9, w],
+            S[r + 10, w], S[r + 11, w], S[r + 12, w], S[r + 13, w], S[r + 14, w], S[r + 15, w], S[r + 16, w], S[r + 17, w], S[r + 18, w],
+            S[r + 19, w], S[r + 20, w], S[r + 21, w], S[r + 22, w], S[r + 23, w], S[r + 24, w], S[r + 25, w], S[r + 26, w], S[r + 27, w],
+            S[r + 28, w])
+
+
+@jit(inline="always")
+def _nine(S, r, w):
+    """Lane ``w``'s 3x3 matrix in rows ``r .. r + 8`` of ``S``, row major, as a 9-tuple."""
+    return (S[r, w], S[r + 1, w], S[r + 2, w], S[r + 3, w], S[r + 4, w], S[r + 5, w], S[r + 6, w], S[r + 7, w], S[r + 8, w])
 
 
 @jit
@@ -120,60 +154,33 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
         for w in range(W):
             if g0 + w < N:
                 _initial_state(rows[w], rows[w], plant, sens, est, md, st, rec)
-    # the lanes' state, (quantity, lane)
-    X = np.empty((7, W))
-    CS = np.empty((_N_CTRL, W))
-    PUB = np.empty((N_OUT, 4, W))
-    OUT3 = np.empty((N_OUT, W))  # the per-run loop's out[:, 3]: no law writes it but q_BR's (published whole)
-    PL = np.empty((N_PARAMS, W))
-    CF = np.empty((5, 3, W))
-    JL = np.empty((9, W))
-    JI = np.empty((9, W))
-    U = np.empty((3, W))
-    started = np.empty(W, dtype=np.bool_)
-    n_starts = np.empty(W, dtype=np.int64)
-    bad = np.zeros(W, dtype=np.bool_)
+    S = np.empty((_N_ROWS, W))
     for w in range(W):
         r = rows[w]
         for i in range(7):
-            X[i, w] = st.x[r, i]
+            S[_R_X + i, w] = st.x[r, i]
         for i in range(_N_CTRL):
-            CS[i, w] = st.ctrl[r, i]
+            S[_R_CS + i, w] = st.ctrl[r, i]
         for row in range(N_OUT):
             for c in range(4):
-                PUB[row, c, w] = st.pub[r, row, c]
-            OUT3[row, w] = st.out[r, row, 3]
+                S[_R_PUB + 4 * row + c, w] = st.pub[r, row, c]
+            S[_R_OUT3 + row, w] = st.out[r, row, 3]
         for i in range(N_PARAMS):
-            PL[i, w] = ctrl.prm[r, i]
+            S[_R_PL + i, w] = ctrl.prm[r, i]
         for a in range(5):
             for i in range(3):
-                CF[a, i, w] = ctrl.coef[r, a, i]
+                S[_R_CF + 3 * a + i, w] = ctrl.coef[r, a, i]
         for i in range(3):
             for j in range(3):
-                JL[3 * i + j, w] = plant.J[r, i, j]
-                JI[3 * i + j, w] = plant.J_inv[r, i, j]
-        started[w] = st.flags[r, L_STARTED] != 0
-        n_starts[w] = st.flags[r, L_N_STARTS]
-    # the law's per-sample values, (quantity, lane): error state, per-axis transformation, Newton
-    Q = np.empty((4, W))
-    WBR = np.empty((3, W))
-    CWD = np.empty((3, W))
-    CWDD = np.empty((3, W))
-    RHO = np.empty((3, W))
-    RHOD = np.empty((3, W))
-    DELTA = np.empty((3, W))
-    Z = np.empty((3, W))
-    EPS = np.empty((3, W))
-    LOW = np.empty((3, W))
-    ABSW = np.empty((3, W))
-    A = np.empty((3, W))
-    WW = np.empty((3, W))
-    ATAN = np.empty((3, W))
-    DONE = np.empty((3, W), dtype=np.bool_)
+                S[_R_JL + 3 * i + j, w] = plant.J[r, i, j]
+                S[_R_JI + 3 * i + j, w] = plant.J_inv[r, i, j]
+        S[_R_STARTED, w] = 1.0 if st.flags[r, L_STARTED] != 0 else 0.0
+        S[_R_NSTARTS, w] = st.flags[r, L_N_STARTS]
+        S[_R_BAD, w] = 0.0
     dt = grid.dt
     T = grid.n_samples
     umax = act.max_torque_Nm
-    bounds = ctrl.bounds
+    b_norm, b_rate = ctrl.bounds[B_NORM], ctrl.bounds[B_RATE]
     last_ns = 0
     for kb in range(grid.t.shape[0]):
         k = k_lo + kb
@@ -182,106 +189,121 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
         rq = (grid.ref_q[kb, 0], grid.ref_q[kb, 1], grid.ref_q[kb, 2], grid.ref_q[kb, 3])
         rw = (grid.ref_w[kb, 0], grid.ref_w[kb, 1], grid.ref_w[kb, 2])
         rwd = (grid.ref_wd[kb, 0], grid.ref_wd[kb, 1], grid.ref_wd[kb, 2])
-        ref_ok = (quaternion_verdict(rq[0], rq[1], rq[2], rq[3], bounds[B_NORM]) == INPUT_OK
-                  and vector_verdict(rw[0], rw[1], rw[2], bounds[B_REFERENCE_RATE]) == INPUT_OK
-                  and vector_verdict(rwd[0], rwd[1], rwd[2], bounds[B_REFERENCE_ACCELERATION]) == INPUT_OK)
+        ref_ok = (quaternion_verdict(rq[0], rq[1], rq[2], rq[3], b_norm) == INPUT_OK
+                  and vector_verdict(rw[0], rw[1], rw[2], ctrl.bounds[B_REFERENCE_RATE]) == INPUT_OK
+                  and vector_verdict(rwd[0], rwd[1], rwd[2], ctrl.bounds[B_REFERENCE_ACCELERATION]) == INPUT_OK)
+        ref_bad = 0.0 if ref_ok else 1.0
         d0, d1, d2 = dist.table[kb, 0], dist.table[kb, 1], dist.table[kb, 2]
         # stage 1: the input check, the start, the error state, each axis up to the SMETF's solve
         for w in range(W):
-            ok = (ref_ok and quaternion_verdict(X[0, w], X[1, w], X[2, w], X[3, w], bounds[B_NORM]) == INPUT_OK
-                  and vector_verdict(X[4, w], X[5, w], X[6, w], bounds[B_RATE]) == INPUT_OK)
-            bad[w] = bad[w] or not ok
-            T0 = CS[S_T0, w] if started[w] else t_stamp  # the first valid sample fixes the time origin
-            CS[S_T0, w] = T0
-            n_starts[w] = n_starts[w] if started[w] else n_starts[w] + 1
-            started[w] = True
-            q, wbr, cwd, cwdd = error_state_of((X[0, w], X[1, w], X[2, w], X[3, w]), (X[4, w], X[5, w], X[6, w]), rq, rw, rwd)
-            for i in range(4):
-                Q[i, w] = q[i]
-            for i in range(3):
-                WBR[i, w] = wbr[i]
-                CWD[i, w] = cwd[i]
-                CWDD[i, w] = cwdd[i]
-            prm = _lane_prm(PL, w)
+            x = (S[_R_X, w], S[_R_X + 1, w], S[_R_X + 2, w], S[_R_X + 3, w], S[_R_X + 4, w], S[_R_X + 5, w], S[_R_X + 6, w])
+            q_ok = quaternion_verdict(x[0], x[1], x[2], x[3], b_norm) == INPUT_OK
+            w_ok = vector_verdict(x[4], x[5], x[6], b_rate) == INPUT_OK
+            S[_R_BAD, w] = max(max(S[_R_BAD, w], ref_bad), 0.0 if (q_ok and w_ok) else 1.0)
+            was_started = S[_R_STARTED, w] != 0.0
+            T0 = S[_R_CS + S_T0, w] if was_started else t_stamp  # the first valid sample fixes the time origin
+            S[_R_CS + S_T0, w] = T0
+            S[_R_NSTARTS, w] = S[_R_NSTARTS, w] if was_started else S[_R_NSTARTS, w] + 1.0
+            S[_R_STARTED, w] = 1.0
+            q, wbr, cwd, cwdd = error_state_of((x[0], x[1], x[2], x[3]), (x[4], x[5], x[6]), rq, rw, rwd)
+            S[_R_Q, w] = q[0]
+            S[_R_Q + 1, w] = q[1]
+            S[_R_Q + 2, w] = q[2]
+            S[_R_Q + 3, w] = q[3]
+            S[_R_WBR, w], S[_R_WBR + 1, w], S[_R_WBR + 2, w] = wbr
+            S[_R_CWD, w], S[_R_CWD + 1, w], S[_R_CWD + 2, w] = cwd
+            S[_R_CWDD, w], S[_R_CWDD + 1, w], S[_R_CWDD + 2, w] = cwdd
+            prm = _lane_prm(S, w)
             tau = t_stamp - T0
-            has_prev = CS[S_HAS_PREV, w] != 0.0
+            has_prev = S[_R_CS + S_HAS_PREV, w] != 0.0
             for i in range(3):
-                rho, rho_dot, delta, z, guess = sappc_axis_start(prm, tau, CF[C_SIGN, i, w], CF[C_T1, i, w], CF[C_A1, i, w], CF[C_L, i, w],
-                                                                 CF[C_A, i, w], q[i], has_prev, CS[S_PREV + i, w], CS[S_PREV + 3 + i, w],
-                                                                 CS[S_PREV + 6 + i, w], CS[S_PREV + 9 + i, w], CS[S_PREV + 12 + i, w])
+                p = _R_CS + S_PREV + i
+                c = _R_CF + i
+                rho, rho_dot, delta, z, guess = sappc_axis_start(prm, tau, S[c + 3 * C_SIGN, w], S[c + 3 * C_T1, w], S[c + 3 * C_A1, w],
+                                                                 S[c + 3 * C_L, w], S[c + 3 * C_A, w], S[_R_Q + i, w], has_prev, S[p, w],
+                                                                 S[p + 3, w], S[p + 6, w], S[p + 9, w], S[p + 12, w])
                 eps, lower, abs_w, a, ww = smetf_start(z, delta, prm[P_TANTH], has_prev, guess)
-                RHO[i, w] = rho
-                RHOD[i, w] = rho_dot
-                DELTA[i, w] = delta
-                Z[i, w] = z
-                EPS[i, w] = eps
-                LOW[i, w] = lower
-                ABSW[i, w] = abs_w
-                A[i, w] = a
-                WW[i, w] = ww
-                ATAN[i, w] = 0.0
-                DONE[i, w] = False
+                S[_R_RHO + i, w] = rho
+                S[_R_RHOD + i, w] = rho_dot
+                S[_R_DELTA + i, w] = delta
+                S[_R_Z + i, w] = z
+                S[_R_EPS + i, w] = eps
+                S[_R_LOW + i, w] = lower
+                S[_R_ABSW + i, w] = abs_w
+                S[_R_A + i, w] = a
+                S[_R_WW + i, w] = ww
+                S[_R_ATAN + i, w] = 0.0
+                S[_R_DONE + i, w] = 0.0
         # stage 2: the SMETF's Newton iterations, until every lane's solve has converged; each lane
         # frozen from its own convergence on: its iterates are its scalar solve's
         for _ in range(_MAX_NEWTON_ITERATIONS):
-            active = 0
+            active = 0.0
             for i in range(3):
                 for w in range(W):
-                    a_atan, done, eps_next = smetf_newton_step(EPS[i, w], LOW[i, w], ABSW[i, w], A[i, w], PL[P_TANTH, w])
-                    was_done = DONE[i, w]
-                    ATAN[i, w] = ATAN[i, w] if was_done else a_atan
-                    EPS[i, w] = EPS[i, w] if (was_done or done) else eps_next
-                    DONE[i, w] = was_done or done
-                    active += 0 if (was_done or done) else 1
-            if active == 0:
+                    a_atan, done, eps_next = smetf_newton_step(S[_R_EPS + i, w], S[_R_LOW + i, w], S[_R_ABSW + i, w], S[_R_A + i, w],
+                                                               S[_R_PL + P_TANTH, w])
+                    was_done = S[_R_DONE + i, w] != 0.0
+                    S[_R_ATAN + i, w] = S[_R_ATAN + i, w] if was_done else a_atan
+                    S[_R_EPS + i, w] = S[_R_EPS + i, w] if (was_done or done) else eps_next
+                    S[_R_DONE + i, w] = 1.0 if (was_done or done) else 0.0
+                    active += 0.0 if (was_done or done) else 1.0
+            if active == 0.0:
                 break
         # stage 3: the transformation's end, the backstepping law, the actuator, the answer, the plant's input
         for w in range(W):
-            prm = _lane_prm(PL, w)
+            prm = _lane_prm(S, w)
             k_tan = prm[P_TANTH]
             B0 = prm[P_B0]
-            e_s = (np.copysign(EPS[0, w], WW[0, w]), np.copysign(EPS[1, w], WW[1, w]), np.copysign(EPS[2, w], WW[2, w]))
-            P_s0, dd0, psi0, eta0 = sappc_axis_end(k_tan, e_s[0], np.copysign(ATAN[0, w], WW[0, w]), DELTA[0, w], RHO[0, w], RHOD[0, w])
-            P_s1, dd1, psi1, eta1 = sappc_axis_end(k_tan, e_s[1], np.copysign(ATAN[1, w], WW[1, w]), DELTA[1, w], RHO[1, w], RHOD[1, w])
-            P_s2, dd2, psi2, eta2 = sappc_axis_end(k_tan, e_s[2], np.copysign(ATAN[2, w], WW[2, w]), DELTA[2, w], RHO[2, w], RHOD[2, w])
-            P_s = (P_s0, P_s1, P_s2)
-            dd = (dd0, dd1, dd2)
-            for i in range(3):
-                CS[S_PREV + i, w] = e_s[i]
-                CS[S_PREV + 3 + i, w] = P_s[i]
-                CS[S_PREV + 6 + i, w] = Z[i, w]
-                CS[S_PREV + 9 + i, w] = dd[i]
-                CS[S_PREV + 12 + i, w] = DELTA[i, w]
-            CS[S_HAS_PREV, w] = 1.0
-            q = (Q[0, w], Q[1, w], Q[2, w], Q[3, w])
-            cmd, V, S_next = backstepping_of(prm, dt, q, (WBR[0, w], WBR[1, w], WBR[2, w]), (CWD[0, w], CWD[1, w], CWD[2, w]),
-                                             (CWDD[0, w], CWDD[1, w], CWDD[2, w]), (X[4, w], X[5, w], X[6, w]), e_s, (psi0, psi1, psi2),
-                                             (eta0, eta1, eta2), CS[S_FILTER_ON, w] != 0.0, (CS[S_SD, w], CS[S_SD + 1, w], CS[S_SD + 2, w]))
-            CS[S_FILTER_ON, w] = 1.0
-            torques = (actuator_of(prm[P_UMAX], prm[P_UMIN], cmd[0]), actuator_of(prm[P_UMAX], prm[P_UMIN], cmd[1]),
-                       actuator_of(prm[P_UMAX], prm[P_UMIN], cmd[2]))
+            e0 = np.copysign(S[_R_EPS, w], S[_R_WW, w])
+            e1 = np.copysign(S[_R_EPS + 1, w], S[_R_WW + 1, w])
+            e2 = np.copysign(S[_R_EPS + 2, w], S[_R_WW + 2, w])
+            P_s0, dd0, psi0, eta0 = sappc_axis_end(k_tan, e0, np.copysign(S[_R_ATAN, w], S[_R_WW, w]), S[_R_DELTA, w], S[_R_RHO, w],
+                                                   S[_R_RHOD, w])
+            P_s1, dd1, psi1, eta1 = sappc_axis_end(k_tan, e1, np.copysign(S[_R_ATAN + 1, w], S[_R_WW + 1, w]), S[_R_DELTA + 1, w],
+                                                   S[_R_RHO + 1, w], S[_R_RHOD + 1, w])
+            P_s2, dd2, psi2, eta2 = sappc_axis_end(k_tan, e2, np.copysign(S[_R_ATAN + 2, w], S[_R_WW + 2, w]), S[_R_DELTA + 2, w],
+                                                   S[_R_RHO + 2, w], S[_R_RHOD + 2, w])
+            p = _R_CS + S_PREV
+            S[p, w], S[p + 1, w], S[p + 2, w] = e0, e1, e2
+            S[p + 3, w], S[p + 4, w], S[p + 5, w] = P_s0, P_s1, P_s2
+            S[p + 6, w], S[p + 7, w], S[p + 8, w] = S[_R_Z, w], S[_R_Z + 1, w], S[_R_Z + 2, w]
+            S[p + 9, w], S[p + 10, w], S[p + 11, w] = dd0, dd1, dd2
+            S[p + 12, w], S[p + 13, w], S[p + 14, w] = S[_R_DELTA, w], S[_R_DELTA + 1, w], S[_R_DELTA + 2, w]
+            S[_R_CS + S_HAS_PREV, w] = 1.0
+            q = (S[_R_Q, w], S[_R_Q + 1, w], S[_R_Q + 2, w], S[_R_Q + 3, w])
+            sd = _R_CS + S_SD
+            cmd, V, S_next = backstepping_of(prm, dt, q, (S[_R_WBR, w], S[_R_WBR + 1, w], S[_R_WBR + 2, w]),
+                                             (S[_R_CWD, w], S[_R_CWD + 1, w], S[_R_CWD + 2, w]),
+                                             (S[_R_CWDD, w], S[_R_CWDD + 1, w], S[_R_CWDD + 2, w]), (S[_R_X + 4, w], S[_R_X + 5, w], S[_R_X + 6, w]),
+                                             (e0, e1, e2), (psi0, psi1, psi2), (eta0, eta1, eta2), S[_R_CS + S_FILTER_ON, w] != 0.0,
+                                             (S[sd, w], S[sd + 1, w], S[sd + 2, w]))
+            S[_R_CS + S_FILTER_ON, w] = 1.0
+            S[sd, w], S[sd + 1, w], S[sd + 2, w] = S_next
+            tq0, sat0 = actuator_of(prm[P_UMAX], prm[P_UMIN], cmd[0])
+            tq1, sat1 = actuator_of(prm[P_UMAX], prm[P_UMIN], cmd[1])
+            tq2, sat2 = actuator_of(prm[P_UMAX], prm[P_UMIN], cmd[2])
             # the per-run loop's test of a refused answer
-            finite = np.isfinite(torques[0][0] + torques[1][0] + torques[2][0]) and np.isfinite(cmd[0] + cmd[1] + cmd[2])
+            finite = np.isfinite(tq0 + tq1 + tq2) and np.isfinite(cmd[0] + cmd[1] + cmd[2])
+            S[_R_BAD, w] = max(S[_R_BAD, w], 0.0 if finite else 1.0)
+            # the answer, published (the per-run loop's pub = out; no fault: delivered = commanded)
             for row in range(N_OUT):
-                PUB[row, 3, w] = OUT3[row, w]
+                S[_R_PUB + 4 * row + 3, w] = S[_R_OUT3 + row, w]
+            S[_R_PUB + 4 * O_TORQUE, w], S[_R_PUB + 4 * O_TORQUE + 1, w], S[_R_PUB + 4 * O_TORQUE + 2, w] = tq0, tq1, tq2
+            S[_R_PUB + 4 * O_CMD, w], S[_R_PUB + 4 * O_CMD + 1, w], S[_R_PUB + 4 * O_CMD + 2, w] = cmd
+            S[_R_PUB + 4 * O_SAT, w], S[_R_PUB + 4 * O_SAT + 1, w], S[_R_PUB + 4 * O_SAT + 2, w] = sat0, sat1, sat2
             for i in range(3):
-                CS[S_SD + i, w] = S_next[i]
-                torque, sat = torques[i]
-                # the answer, published (the per-run loop's pub = out; nf = 0: delivered = commanded)
-                PUB[O_TORQUE, i, w] = torque
-                PUB[O_CMD, i, w] = cmd[i]
-                PUB[O_SAT, i, w] = sat
-                PUB[O_RHO, i, w] = RHO[i, w]
-                PUB[O_BL, i, w] = RHO[i, w] - B0
-                PUB[O_BU, i, w] = RHO[i, w] + B0
-                PUB[O_EPS, i, w] = e_s[i]
-                PUB[O_Z, i, w] = Z[i, w]
-                PUB[O_V, i, w] = V[i]
-                U[i, w] = min(max(torque, -umax), umax)  # control (clipped by the actuator) + disturbance, held over [t_k, t_k+1]
-            for i in range(4):
-                PUB[O_QBR, i, w] = q[i]
-            bad[w] = bad[w] or not finite
-        U_d = (d0, d1, d2)
+                rho = S[_R_RHO + i, w]
+                S[_R_PUB + 4 * O_RHO + i, w] = rho
+                S[_R_PUB + 4 * O_BL + i, w] = rho - B0
+                S[_R_PUB + 4 * O_BU + i, w] = rho + B0
+                S[_R_PUB + 4 * O_Z + i, w] = S[_R_Z + i, w]
+            S[_R_PUB + 4 * O_EPS, w], S[_R_PUB + 4 * O_EPS + 1, w], S[_R_PUB + 4 * O_EPS + 2, w] = e0, e1, e2
+            S[_R_PUB + 4 * O_V, w], S[_R_PUB + 4 * O_V + 1, w], S[_R_PUB + 4 * O_V + 2, w] = V
+            S[_R_PUB + 4 * O_QBR, w], S[_R_PUB + 4 * O_QBR + 1, w], S[_R_PUB + 4 * O_QBR + 2, w], S[_R_PUB + 4 * O_QBR + 3, w] = q
+            # control (clipped by the actuator), held over [t_k, t_k+1] with the disturbance
+            S[_R_U, w] = min(max(tq0, -umax), umax)
+            S[_R_U + 1, w] = min(max(tq1, -umax), umax)
+            S[_R_U + 2, w] = min(max(tq2, -umax), umax)
         last_ns = t_ns
         if stride > 0 and kb % stride == 0:
             j = kb // stride
@@ -291,48 +313,49 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                     continue
                 for row in range(N_OUT):
                     for c in range(4):
-                        rec.out[r, j, row, c] = PUB[row, c, w]
+                        rec.out[r, j, row, c] = S[_R_PUB + 4 * row + c, w]
                 for i in range(7):
-                    rec.x[r, j, i] = X[i, w]
-                for i in range(3):
-                    rec.d[r, j, i] = U_d[i]
+                    rec.x[r, j, i] = S[_R_X + i, w]
+                rec.d[r, j, 0] = d0
+                rec.d[r, j, 1] = d1
+                rec.d[r, j, 2] = d2
                 rec.status[r, j] = ANSWER_COMMANDED
         if k < T - 1:
             h = dt / plant.substeps
             for _ in range(plant.substeps):
                 for w in range(W):
-                    Jinv = _nine(JI, w)
-                    u0, u1, u2 = U[0, w] + d0, U[1, w] + d1, U[2, w] + d2
+                    Jinv = _nine(S, _R_JI, w)
+                    u0, u1, u2 = S[_R_U, w] + d0, S[_R_U + 1, w] + d1, S[_R_U + 2, w] + d2
                     a0 = (Jinv[0] * u0 + Jinv[1] * u1) + Jinv[2] * u2  # J^-1 torque (spacecraft_sim.core.kernels.propagate)
                     a1 = (Jinv[3] * u0 + Jinv[4] * u1) + Jinv[5] * u2
                     a2 = (Jinv[6] * u0 + Jinv[7] * u1) + Jinv[8] * u2
-                    y = rk4_of((X[0, w], X[1, w], X[2, w], X[3, w], X[4, w], X[5, w], X[6, w]), a0, a1, a2, h, _nine(JL, w), Jinv)
-                    for i in range(7):
-                        X[i, w] = y[i]
+                    y = rk4_of((S[_R_X, w], S[_R_X + 1, w], S[_R_X + 2, w], S[_R_X + 3, w], S[_R_X + 4, w], S[_R_X + 5, w], S[_R_X + 6, w]),
+                               a0, a1, a2, h, _nine(S, _R_JL, w), Jinv)
+                    S[_R_X, w], S[_R_X + 1, w], S[_R_X + 2, w], S[_R_X + 3, w], S[_R_X + 4, w], S[_R_X + 5, w], S[_R_X + 6, w] = y
     # the block's end: each lane's state back into its rows of st (a lane handed back keeps the block's start)
     for w in range(W):
         r = rows[w]
         if g0 + w >= N:
             continue
-        if bad[w]:
+        if S[_R_BAD, w] != 0.0:
             handed_back[r] = 1
             continue
         for i in range(7):
-            st.x[r, i] = X[i, w]
-            rec.x_final[r, i] = X[i, w]
+            st.x[r, i] = S[_R_X + i, w]
+            rec.x_final[r, i] = S[_R_X + i, w]
         for i in range(_N_CTRL):
-            st.ctrl[r, i] = CS[i, w]
+            st.ctrl[r, i] = S[_R_CS + i, w]
         for row in range(N_OUT):
             for c in range(4):
-                st.pub[r, row, c] = PUB[row, c, w]
-                st.out[r, row, c] = PUB[row, c, w]
+                st.pub[r, row, c] = S[_R_PUB + 4 * row + c, w]
+                st.out[r, row, c] = S[_R_PUB + 4 * row + c, w]
         if grid.t.shape[0] > 0:
             st.flags[r, L_STARTED] = 1
             st.flags[r, L_HAS_LAST] = 1
             st.flags[r, L_LAST_STATE_NS] = last_ns
-            st.flags[r, L_N_STARTS] = n_starts[w]
+            st.flags[r, L_N_STARTS] = int(S[_R_NSTARTS, w])
             for i in range(3):
-                torque = PUB[O_TORQUE, i, w]
+                torque = S[_R_PUB + 4 * O_TORQUE + i, w]
                 st.vec3[r, V_CMD, i] = torque
                 st.vec3[r, V_U_CMD, i] = torque
                 st.vec3[r, V_U_LAST, i] = torque

@@ -129,6 +129,7 @@ def run_scenario(
     per_orbit: bool = True,
     sinks: Sequence[Callable[[History], None]] = (),
     sample_progress: Callable[[int], None] | None = None,
+    lanes: bool = False,
 ) -> tuple[MetricsAccumulator, ScenarioRun]:
     """Run the scenario's closed loop, for one run or a batch: the one place that assembles it.
 
@@ -159,6 +160,8 @@ def run_scenario(
     keeps): the figures' envelope (:class:`~sappc.evaluation.envelope.HistoryEnvelope`'s ``add``),
     a recorder.  ``sample_progress(k)``: called after
     each block of the first sub-batch with its samples run so far (a long run's progress).
+    ``lanes``: the runs in SIMD lanes where :mod:`sappc.offline.lanes` covers the scenario (a
+    campaign's runs: their libm calls libmvec's; docs/parity.md), else one at a time.
 
     Raises
     ------
@@ -183,7 +186,7 @@ def run_scenario(
         scenario, config=config, q_BN0=q_BN0, omega_BN_B0=omega_BN_B0_rad_s, inertia_kg_m2=inertia_kg_m2,
         disturbance=disturbance, gains=gains, on_infeasible=str(getattr(on_infeasible, "value", on_infeasible)),
         sensor_params=None if sensors is None else sensors[0], sensor_outages=None if sensors is None else sensors[2],
-        faults=faults, wheels=wheels, run_keys=run_keys, orbits=orbits, whole=keep_history,
+        faults=faults, wheels=wheels, run_keys=run_keys, orbits=orbits, whole=keep_history, lanes=lanes,
     )
     draws = None if sensors is None else sensors[1]
 
