@@ -416,7 +416,7 @@ def quat_rotate(q_BN, v_B, out):
     out[2] = o[2]
 
 
-@jit
+@jit(inline="always")  # inlined: the SIMD lanes' loops vectorise only with no call left in them
 def gamma_inverse_of(q1, q2, q3, q0_raw, x0, x1, x2, q0_floor):
     """``Gamma(q_e)^-1 x = 2 (q0 x - q_v × x + q_v (q_v·x) / q0)`` for ``q_e = (q1, q2, q3, q0_raw)``
     and ``x = (x0, x1, x2)``, ``q0`` floored at ``q0_floor`` (docs/paper_notes.md, error 5): finite

@@ -18,8 +18,9 @@ Why not numba's own routes: PyPI's llvmlite is not patched for Intel's SVML, and
 ``-vector-library`` option does not reach numba's pass builder (both measured:
 docs/performance.md, "Vectorised libm with this llvmlite").
 
-The variants declared are those the compile target's CPU features allow (SSE2 ``b`` always,
-``c`` with AVX, ``d`` with AVX2, ``e`` with AVX-512F; LLVM picks a variant by its width only);
+The variants declared are, for each vector width, the best one the compile target's CPU features
+allow (width 2: SSE2 ``b``; width 4: ``d`` with AVX2, else ``c`` with AVX; width 8: ``e`` with
+AVX-512F): LLVM picks a variant by its width only, the first of that width it is given;
 none when glibc's libmvec cannot be loaded (then a vectorised loop calls the scalar function per
 lane, the same bits as the scalar path).  libmvec is loaded into the process (:func:`install`,
 called by :func:`gnc_common.compiled.numba_module` before any kernel is compiled or loaded from
@@ -77,7 +78,11 @@ def _choose_variants() -> tuple[tuple[str, int], ...]:
     except RuntimeError:
         return ()
     features = _target_features()
-    return tuple((isa, width) for isa, need, width in _ISAS if need is None or (features is not None and need in features))
+    best: dict[int, str] = {}  # one variant per width, the best ISA the target has (LLVM takes the first of a width)
+    for isa, need, width in _ISAS:
+        if need is None or (features is not None and need in features):
+            best[width] = isa
+    return tuple((isa, width) for width, isa in sorted(best.items()))
 
 
 def installed_variants() -> tuple[tuple[str, int], ...]:

@@ -177,6 +177,11 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
         S[_R_STARTED, w] = 1.0 if st.flags[r, L_STARTED] != 0 else 0.0
         S[_R_NSTARTS, w] = st.flags[r, L_N_STARTS]
         S[_R_BAD, w] = 0.0
+    # The lane loops' trip count, LANES, as a value LLVM cannot fold: a constant count of 8 is
+    # unrolled whole before the loop vectorizer sees the loop (and the SMETF's stage is then not
+    # vectorised); at run time it is LANES, a multiple of every vector width, so the vectorised
+    # loops leave no lane to their scalar remainder.
+    nl = W if handed_back.shape[0] >= 0 else 0
     dt = grid.dt
     T = grid.n_samples
     umax = act.max_torque_Nm
@@ -195,7 +200,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
         ref_bad = 0.0 if ref_ok else 1.0
         d0, d1, d2 = dist.table[kb, 0], dist.table[kb, 1], dist.table[kb, 2]
         # stage 1: the input check, the start, the error state, each axis up to the SMETF's solve
-        for w in range(W):
+        for w in range(nl):
             x = (S[_R_X, w], S[_R_X + 1, w], S[_R_X + 2, w], S[_R_X + 3, w], S[_R_X + 4, w], S[_R_X + 5, w], S[_R_X + 6, w])
             q_ok = quaternion_verdict(x[0], x[1], x[2], x[3], b_norm) == INPUT_OK
             w_ok = vector_verdict(x[4], x[5], x[6], b_rate) == INPUT_OK
@@ -237,20 +242,20 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
         # stage 2: the SMETF's Newton iterations, until every lane's solve has converged; each lane
         # frozen from its own convergence on: its iterates are its scalar solve's
         for _ in range(_MAX_NEWTON_ITERATIONS):
-            active = 0.0
+            active = 0
             for i in range(3):
-                for w in range(W):
+                for w in range(nl):
                     a_atan, done, eps_next = smetf_newton_step(S[_R_EPS + i, w], S[_R_LOW + i, w], S[_R_ABSW + i, w], S[_R_A + i, w],
                                                                S[_R_PL + P_TANTH, w])
                     was_done = S[_R_DONE + i, w] != 0.0
                     S[_R_ATAN + i, w] = S[_R_ATAN + i, w] if was_done else a_atan
                     S[_R_EPS + i, w] = S[_R_EPS + i, w] if (was_done or done) else eps_next
                     S[_R_DONE + i, w] = 1.0 if (was_done or done) else 0.0
-                    active += 0.0 if (was_done or done) else 1.0
-            if active == 0.0:
+                    active += 0 if (was_done or done) else 1
+            if active == 0:
                 break
         # stage 3: the transformation's end, the backstepping law, the actuator, the answer, the plant's input
-        for w in range(W):
+        for w in range(nl):
             prm = _lane_prm(S, w)
             k_tan = prm[P_TANTH]
             B0 = prm[P_B0]
@@ -323,7 +328,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
         if k < T - 1:
             h = dt / plant.substeps
             for _ in range(plant.substeps):
-                for w in range(W):
+                for w in range(nl):
                     Jinv = _nine(S, _R_JI, w)
                     u0, u1, u2 = S[_R_U, w] + d0, S[_R_U + 1, w] + d1, S[_R_U + 2, w] + d2
                     a0 = (Jinv[0] * u0 + Jinv[1] * u1) + Jinv[2] * u2  # J^-1 torque (spacecraft_sim.core.kernels.propagate)
