@@ -104,7 +104,7 @@ from sappc.evaluation.metrics import SampleGrid
 from sappc.scenario import Scenario
 
 __all__ = ["BLOCK_RUN_SAMPLES", "CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "LoopState", "NoiseStreams", "SampleMaker",
-           "cache_is_warm", "ensure_compiled", "prepare", "run_batch", "run_blocks", "run_single", "simulate_compiled", "warm_up"]
+           "cache_is_warm", "ensure_compiled", "lanes_refusal", "prepare", "run_batch", "run_blocks", "run_single", "simulate_compiled", "warm_up"]
 
 #: Nanoseconds per second: the controller's and the estimator's time is each sample's stamp in
 #: seconds, as their nodes compute it from the same integer stamps (``k dt`` and
@@ -1334,7 +1334,7 @@ def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: Lo
     command then never compiles the batch kernel)."""
     if stride > 0 and inp.k_lo % stride != 0:
         raise ValueError(f"a block must start at a recorded sample: k_lo {inp.k_lo} is not a multiple of the stride {stride}")
-    if inp.lanes and not probe and _lanes().lanes_refusal(inp) is None:
+    if inp.lanes and not probe and lanes_refusal(inp) is None:
         _loop_lanes(stride, inp, rec, st)
     elif inp.n_runs == 1:
         _with_restarts(lambda: _run_alone(0, probe, stride, inp, rec, st), probe, inp, rec, st, np.zeros(1, dtype=np.int64))
@@ -1342,6 +1342,11 @@ def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: Lo
         ensure_compiled(groups=("batches",))
         _with_restarts(lambda: run_batch_kernel(probe, stride, np.int64(inp.k_lo), *inp.args(), rec, st), probe, inp, rec, st,
                        np.arange(inp.n_runs))
+
+
+def lanes_refusal(inp: CompiledInputs) -> str | None:
+    """Why ``inp``'s runs cannot go in SIMD lanes, or None (:func:`sappc.offline.lanes.lanes_refusal`)."""
+    return _lanes().lanes_refusal(inp)  # type: ignore[no-any-return]
 
 
 def _lanes() -> Any:

@@ -14,6 +14,7 @@ from gnc_common import libm
 from sappc.offline import compiled_loop
 from sappc.offline.lanes import LANES, lanes_refusal
 from sappc.scenario import load_scenario, scenario_from_mapping
+from sappc_msgs_py.contract import ANSWER_NAMES
 
 #: Runs of the batches below: a full group and a padded one.
 N_RUNS = LANES + 3
@@ -116,3 +117,35 @@ def test_the_lanes_in_blocks_are_the_lanes_in_one_block(block_samples: int) -> N
     blocks = _run(sc, q, lanes=True, block_samples=block_samples)
     for name, a, b in zip(compiled_loop.LoopRecord._fields, whole, blocks):
         assert np.array_equal(a, b, equal_nan=True), name
+
+
+#: The columns of a campaign's table from the runs' histories: each a max, a time mean or a
+#: difference with the same rho of |q_ev| (Lipschitz constant 1 in the state), or a torque.
+_QEV_COLUMNS = ("rpf_error_at_t2_per_axis", "steady_mean_abs_qev_per_axis", "steady_max_abs_qev")
+#: Columns counted or timed from thresholds (exact while no sample lies within the bound of one).
+_EXACT_COLUMNS = ("torque_sign_changes_per_s", "torque_reversals_per_s", "settling_time_s", "control_lost_at_s", "finite",
+                  *(f"answers_{name}" for name in ANSWER_NAMES), "rpf_clamped", "rpf_flat")
+
+
+def test_the_3000_run_table_in_lanes_is_the_per_run_table_within_the_bound(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Parity (c), docs/parity.md "Campaign runs in SIMD lanes": every metric of the paper's
+    3000-run campaign table (``sappc montecarlo paper_montecarlo --runs 3000``, seed 0) in lanes
+    against the same table from the per-run loop (``sappc simulate``'s).  Bounds, with no credit
+    for the loop's contraction: the state T * 2 eps (above), which the |q_ev| metrics inherit
+    (Lipschitz 1); the torque 3 libm terms per axis, each within 3 ulps of the largest torque
+    (0.5 N m), in each of the T samples: 9 * 2^-53 * 0.5 N m * T."""
+    from sappc.montecarlo import campaign
+
+    raw = yaml.safe_load((SCENARIOS / "paper_montecarlo.yaml").read_text())
+    runs = list(range(3000))
+    in_lanes, _, _ = campaign.simulate_runs(raw, 0, runs, 0)
+    real = campaign.run_scenario
+    monkeypatch.setattr(campaign, "run_scenario", lambda *a, **k: real(*a, **{**k, "lanes": False}))
+    per_run, _, _ = campaign.simulate_runs(raw, 0, runs, 0)
+    T = round(raw["duration_s"] / raw["control_period_s"]) + 1
+    eps = np.finfo(np.float64).eps
+    for name in _QEV_COLUMNS:
+        assert np.abs(in_lanes[name] - per_run[name]).max() <= T * 2 * eps, name
+    assert np.abs(in_lanes["max_abs_torque_Nm"] - per_run["max_abs_torque_Nm"]).max() <= 9 * 2.0**-53 * 0.5 * T
+    for name in _EXACT_COLUMNS:
+        assert np.array_equal(in_lanes[name], per_run[name], equal_nan=True), name
