@@ -1,9 +1,10 @@
 """The laws' five libm functions, called as scalars and, in a loop over SIMD lanes, as glibc's libmvec.
 
 ``exp``, ``pow``, ``atan``, ``tanh`` and ``expm1`` here are compiled calls of glibc's scalar
-functions whose LLVM declaration also names their vector variants in glibc's libmvec (the vector
-function ABI's ``"vector-function-abi-variant"`` attribute: what ``#pragma omp declare simd``
-declares in C) and says they touch no memory (``memory(none)``: no errno, what
+functions whose LLVM declaration, in the functions of :data:`VECTOR_MODULES` (the SIMD lanes)
+only, also names their vector variants in glibc's libmvec (the vector function ABI's
+``"vector-function-abi-variant"`` attribute: what ``#pragma omp declare simd`` declares in C), and
+says everywhere that they touch no memory (``memory(none)``: no errno, what
 ``-fno-math-errno`` declares).  Outside a vectorised loop nothing changes: the call is the
 scalar glibc function numba calls for ``np.exp`` and the others (the same function, the same
 bits).  Inside a loop that LLVM's loop vectorizer widens (the lane kernel of
@@ -35,7 +36,7 @@ from typing import Any
 
 from gnc_common.compiled import LIBMVEC_ENV, jit
 
-__all__ = ["LIBMVEC", "atan", "exp", "expm1", "install", "installed_variants", "pow", "tanh"]
+__all__ = ["LIBMVEC", "VECTOR_MODULES", "atan", "exp", "expm1", "install", "installed_variants", "pow", "tanh"]
 
 #: glibc's vector math library (glibc >= 2.22 on x86-64).
 LIBMVEC = "libmvec.so.1"
@@ -44,6 +45,13 @@ _FUNCTIONS = {"exp": 1, "pow": 2, "atan": 1, "tanh": 1, "expm1": 1}
 #: The vector function ABI's x86 ISA letters, the CPU feature each needs (None: the x86-64
 #: baseline, SSE2) and the width of a float64 vector (2 in xmm, 4 in ymm, 8 in zmm).
 _ISAS = (("b", None, 2), ("c", "avx", 4), ("d", "avx2", 4), ("e", "avx512f", 8))
+
+#: The modules whose compiled functions call the variants (their functions' mangled names start
+#: so): the SIMD lanes.  Everywhere else the calls are declared scalar only, so that LLVM's SLP
+#: vectorizer cannot pair two calls of the scalar path (the nodes, ``sappc simulate``, the
+#: per-run loop) into a libmvec call: the scalar path keeps the scalar functions' bits.
+VECTOR_MODULES = ("sappc.offline.lanes",)
+_VECTOR_FUNCTIONS = tuple("_ZN" + "".join(f"{len(part)}{part}" for part in m.split(".")) for m in VECTOR_MODULES)
 
 _variants: tuple[tuple[str, int], ...] | None = None  # (isa, width) of each declared variant; None until install()
 _intrinsics: dict[str, Any] = {}
@@ -105,14 +113,15 @@ def _intrinsic(name: str, nargs: int, variants: tuple[tuple[str, int], ...]) -> 
 
     def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:  # noqa: ARG001
         mod = builder.module
+        vector = bool(names) and builder.function.name.startswith(_VECTOR_FUNCTIONS)
         fn = cgutils.get_or_insert_function(mod, ir.FunctionType(d, [d] * nargs), name)
         attrs = ["nounwind", "readnone"]
-        if names:
+        if vector:
             attrs.append('"vector-function-abi-variant"="' + ",".join(f"{m}({m})" for m in names) + '"')
         for a in attrs:
             set.add(fn.attributes, a)  # llvmlite's attribute set accepts only its known names: the string one added as is
         used = [cgutils.get_or_insert_function(mod, ir.FunctionType(ir.VectorType(d, w), [ir.VectorType(d, w)] * nargs), m)
-                for (_, w), m in zip(variants, names)]
+                for (_, w), m in zip(variants, names)] if vector else []
         if used:  # every function's variants kept: a declaration nothing uses is dropped before the vectorizer looks for it
             pt = ir.PointerType(ir.IntType(8))
             kept = mod.__dict__.setdefault("_sappc_libmvec_kept", {})  # name -> declaration, this module's

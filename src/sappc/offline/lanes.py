@@ -24,7 +24,9 @@ iterations), and the RPF's phases are per lane.
 What the lanes cover (:func:`lanes_refusal` says why a batch is not covered; such a batch runs
 per run, as before): the SAPPC law without its noise filters, the ideal actuator, exact
 measurements (no sensors, no estimator), no fault, no orbit, no momentum management, no flight
-modes, a disturbance shared by every run (the table).  In that loop every sample of a healthy run
+modes; the disturbance shared by every run (its table) or each run's own.  What the lanes cover
+depends on the scenario only, never on the batch (one run's disturbance is a table, the batch's
+may not be), so a run re-run alone goes the way it went in its campaign.  In that loop every sample of a healthy run
 is valid and commanded; a lane that meets anything else (an input the controller's check
 rejects, a non-finite torque) is **handed back**: its record and state for the block are
 computed again by :func:`~sappc.offline.compiled_loop._run_one` from the state the block started
@@ -53,7 +55,7 @@ from sappc_controller.core.kernels import O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO
 from sappc_controller.core.kernels import S_FILTER_ON, S_HAS_PREV, S_PREV, S_SD, S_T0
 from sappc_controller.core.kernels import actuator_of, backstepping_of, error_state_of, sappc_axis_end, sappc_axis_start, smetf_newton_step, smetf_start
 from sappc_msgs_py.contract import ANSWER_COMMANDED
-from spacecraft_sim.core.kernels import rk4_of
+from spacecraft_sim.core.kernels import disturbance_at, rk4_of
 
 from sappc.offline.compiled_loop import L_HAS_LAST, L_LAST_STATE_NS, L_N_STARTS, L_STARTED, V_CMD, V_U_CMD, V_U_LAST, _initial_state
 
@@ -82,8 +84,7 @@ def lanes_refusal(inp: CompiledInputs) -> str | None:
         return "a noise filter is on"
     reasons = [(inp.n_wheels > 0, "reaction wheels"), (inp.sensors.draws.shape[1] > 0, "sensor noise"), (inp.estimating, "an estimator"),
                (inp.faults.kind.shape[1] > 0, "faults"), (inp.environment.orbit.shape[1] > 0, "an orbit"),
-               (inp.momentum.prm.shape[1] > 0, "momentum management"), (inp.modes.prm.shape[1] > 0, "flight modes"),
-               (not inp.disturbance.use_table, "a disturbance that differs by run")]
+               (inp.momentum.prm.shape[1] > 0, "momentum management"), (inp.modes.prm.shape[1] > 0, "flight modes")]
     for bad, why in reasons:
         if bad:
             return why
@@ -101,7 +102,8 @@ _R_CF = _R_PL + N_PARAMS  # 5 x 3: the start constants (coef), row major
 _R_JL = _R_CF + 15  # 9: J, row major
 _R_JI = _R_JL + 9  # 9: J^-1
 _R_U = _R_JI + 9  # 3: the torque delivered, clipped to the actuator's limit
-_R_STARTED = _R_U + 3  # 1.0 once the controller has started
+_R_D = _R_U + 3  # 3: the disturbance
+_R_STARTED = _R_D + 3  # 1.0 once the controller has started
 _R_NSTARTS = _R_STARTED + 1  # the controller's starts so far
 _R_BAD = _R_NSTARTS + 1  # 1.0 once the lane is handed back
 _R_Q = _R_BAD + 1  # 4: q_BR
@@ -155,6 +157,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
             if g0 + w < N:
                 _initial_state(rows[w], rows[w], plant, sens, est, md, st, rec)
     S = np.empty((_N_ROWS, W))
+    D = np.empty((W, 3))  # a run's own disturbance (disturbance_at's output)
     for w in range(W):
         r = rows[w]
         for i in range(7):
@@ -198,7 +201,15 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                   and vector_verdict(rw[0], rw[1], rw[2], ctrl.bounds[B_REFERENCE_RATE]) == INPUT_OK
                   and vector_verdict(rwd[0], rwd[1], rwd[2], ctrl.bounds[B_REFERENCE_ACCELERATION]) == INPUT_OK)
         ref_bad = 0.0 if ref_ok else 1.0
-        d0, d1, d2 = dist.table[kb, 0], dist.table[kb, 1], dist.table[kb, 2]
+        if dist.use_table:  # shared by every run: its table
+            for w in range(W):
+                for i in range(3):
+                    S[_R_D + i, w] = dist.table[kb, i]
+        else:  # each run's own (the per-run loop's disturbance_at)
+            for w in range(W):
+                disturbance_at(dist, rows[w], kb, grid.t[kb], D[w])
+                for i in range(3):
+                    S[_R_D + i, w] = D[w, i]
         # stage 1: the input check, the start, the error state, each axis up to the SMETF's solve
         for w in range(nl):
             x = (S[_R_X, w], S[_R_X + 1, w], S[_R_X + 2, w], S[_R_X + 3, w], S[_R_X + 4, w], S[_R_X + 5, w], S[_R_X + 6, w])
@@ -321,16 +332,15 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                         rec.out[r, j, row, c] = S[_R_PUB + 4 * row + c, w]
                 for i in range(7):
                     rec.x[r, j, i] = S[_R_X + i, w]
-                rec.d[r, j, 0] = d0
-                rec.d[r, j, 1] = d1
-                rec.d[r, j, 2] = d2
+                for i in range(3):
+                    rec.d[r, j, i] = S[_R_D + i, w]
                 rec.status[r, j] = ANSWER_COMMANDED
         if k < T - 1:
             h = dt / plant.substeps
             for _ in range(plant.substeps):
                 for w in range(nl):
                     Jinv = _nine(S, _R_JI, w)
-                    u0, u1, u2 = S[_R_U, w] + d0, S[_R_U + 1, w] + d1, S[_R_U + 2, w] + d2
+                    u0, u1, u2 = S[_R_U, w] + S[_R_D, w], S[_R_U + 1, w] + S[_R_D + 1, w], S[_R_U + 2, w] + S[_R_D + 2, w]
                     a0 = (Jinv[0] * u0 + Jinv[1] * u1) + Jinv[2] * u2  # J^-1 torque (spacecraft_sim.core.kernels.propagate)
                     a1 = (Jinv[3] * u0 + Jinv[4] * u1) + Jinv[5] * u2
                     a2 = (Jinv[6] * u0 + Jinv[7] * u1) + Jinv[8] * u2

@@ -149,3 +149,19 @@ def test_the_3000_run_table_in_lanes_is_the_per_run_table_within_the_bound(monke
     assert np.abs(in_lanes["max_abs_torque_Nm"] - per_run["max_abs_torque_Nm"]).max() <= 9 * 2.0**-53 * 0.5 * T
     for name in _EXACT_COLUMNS:
         assert np.array_equal(in_lanes[name], per_run[name], equal_nan=True), name
+
+
+def test_a_campaign_run_alone_is_its_row_when_each_run_has_its_own_disturbance() -> None:
+    """The tuning scenario disperses the disturbance's scale and phase: a batch's disturbance
+    differs by run, one run's is a table.  Both go in lanes (what the lanes cover depends on the
+    scenario, not on the batch), so a run re-run alone is its row of the campaign, bit for bit."""
+    from sappc.montecarlo.campaign import simulate_runs
+
+    raw = yaml.safe_load((SCENARIOS / "paper_tracking_tune.yaml").read_text())
+    raw["duration_s"] = 6.0
+    raw["metrics"].update(steady_from_s=4.0, t2_s=5.0)
+    together, _, _ = simulate_runs(raw, 0, [0, 1, 2], 0)
+    for k in (0, 2):
+        alone, _, _ = simulate_runs(raw, 0, [k], 0)
+        for name in ("rpf_error_at_t2_per_axis", "steady_mean_abs_qev_per_axis", "steady_max_abs_qev", "max_abs_torque_Nm"):
+            assert np.array_equal(np.asarray(together[name])[k], np.asarray(alone[name])[0]), (k, name)
