@@ -417,6 +417,7 @@ def test_a_one_worker_campaign_reports_progress_several_times_before_its_chunk_e
     monkeypatch.setattr(mc, "save_chunk", save)
     monkeypatch.setattr(mc.compiled_loop, "ensure_compiled", lambda **kw: events.append("compiled") if "in_subprocess" in kw else None)  # the campaign's call
     monkeypatch.setattr(mc._Progress, "LOG_PERIOD_S", 0.0)  # print every report (stderr is not a terminal here)
+    monkeypatch.setattr(offline_simulate, "LANES_SUB_BATCH", offline_simulate.SUB_BATCH)  # these runs go in lanes: 32-run sub-batches too
     run_campaign(_short(tmp_path, chunk_runs=70), runs=70, seed=3, out_dir=tmp_path / "p", workers=1, progress=True)
     assert offline_simulate.SUB_BATCH == 32 and events == ["compiled", "clock", 32, 32, 6, "saved"]
     lines = capsys.readouterr().err.splitlines()
