@@ -485,7 +485,7 @@ def run_tuning(
     from sappc.offline import compiled_loop
 
     if scheduler is None:
-        compiled_loop.ensure_compiled(in_subprocess=workers > 1, groups=("loops", "batches"))
+        compiled_loop.ensure_compiled(in_subprocess=workers > 1, groups=compiled_loop.CAMPAIGN_GROUPS)
     executor = ChunkExecutor(workers, scheduler)
     tuning_runs = list(range(cfg.runs_per_trial))
     done = len(_counted(study))

@@ -103,7 +103,7 @@ from sappc.evaluation.history import History
 from sappc.evaluation.metrics import SampleGrid
 from sappc.scenario import Scenario
 
-__all__ = ["BLOCK_RUN_SAMPLES", "CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "LoopState", "NoiseStreams", "SampleMaker",
+__all__ = ["BLOCK_RUN_SAMPLES", "CAMPAIGN_GROUPS", "CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "LoopState", "NoiseStreams", "SampleMaker",
            "cache_is_warm", "ensure_compiled", "lanes_refusal", "prepare", "run_batch", "run_blocks", "run_single", "simulate_compiled", "warm_up"]
 
 #: Nanoseconds per second: the controller's and the estimator's time is each sample's stamp in
@@ -1361,7 +1361,7 @@ def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState
     lanes handed back (an input rejected, a refused answer: the per-run loop's cases) run again over
     the block by :func:`_run_one`, from the state the block started with (which the lanes left in
     ``st``)."""
-    ensure_compiled(groups=("batches",))
+    ensure_compiled(groups=("lanes",))
     handed_back = np.zeros(inp.n_runs, dtype=np.int8)
     _lanes().run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back)
     for n in np.flatnonzero(handed_back):
@@ -1428,7 +1428,10 @@ def simulate_compiled(scenario: Scenario, controller: Any = None) -> CompiledRun
 #: loop's compiled ``_run_one``, so compiled after it, it adds only its own ~9 s) and the kernels
 #: the nodes and ``sappc rerun`` call from Python.  A first ``sappc simulate`` compiles ``loops``
 #: alone.
-WARM_UP_GROUPS = ("loops", "batches", "nodes")
+WARM_UP_GROUPS = ("loops", "batches", "lanes", "nodes")
+#: The groups a campaign calls: the one-run loop (each run's start), the batch loop, the SIMD lanes
+#: (:mod:`sappc.offline.lanes`: a group of its own, compiled beside the other two).
+CAMPAIGN_GROUPS = ("loops", "batches", "lanes")
 #: The groups that compile in one process, in this order, when :func:`warm_up` compiles in parallel.
 _TOGETHER = {"batches": "loops"}
 #: The groups this process has checked (:func:`ensure_compiled`).
@@ -1441,7 +1444,9 @@ def _entry_kernels(group: str) -> tuple[Any, ...]:
     if group == "loops":
         return (_run_one,)
     if group == "batches":
-        return (run_batch_kernel, _lanes().run_lanes_kernel)
+        return (run_batch_kernel,)
+    if group == "lanes":
+        return (_lanes().run_lanes_kernel,)
     from sappc_controller.core.kernels import controller_step_batch, controller_step_one
     from spacecraft_sim.core.kernels import fault_actuator_one, fault_sensor_one, propagate_runs
 
@@ -1738,6 +1743,8 @@ def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = 
                       "it compiled those in vain", file=sys.stderr, flush=True)
     if "batches" in names:
         _warm_up_batches(scenario, compiled)
+    if "lanes" in names:
+        _warm_up_lanes(scenario, compiled)
     if "nodes" in names:
         _warm_up_nodes(scenario, compiled)
 
@@ -1791,10 +1798,12 @@ def _warm_up_batches(scenario: Scenario, compiled: Any) -> None:
         run_batch(case, 1)
         run_batch(case, 0)
     compiled("the offline loop (batches)")
-    from spacecraft_sim.core.disturbance import DisturbanceSum
 
-    shared = DisturbanceSum(scenario.disturbance.models[:1])  # the paper's periodic torque alone, every run's: the lanes' case
-    run_batch(prepare(scenario, on_infeasible="clamp", q_BN0=np.broadcast_to(scenario.q_BN0, (2, 4)), disturbance=shared, lanes=True), 1)
+
+def _warm_up_lanes(scenario: Scenario, compiled: Any) -> None:
+    """The loop in SIMD lanes (:mod:`sappc.offline.lanes`; one compile whatever the disturbance:
+    whether it is a table is a value of its arrays, not a type)."""
+    run_batch(prepare(scenario, on_infeasible="clamp", q_BN0=np.broadcast_to(scenario.q_BN0, (2, 4)), lanes=True), 1)
     compiled("the offline loop (SIMD lanes)")
 
 
