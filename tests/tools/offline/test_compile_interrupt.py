@@ -63,7 +63,7 @@ def test_ctrl_c_during_a_campaigns_first_compile_ends_it_with_one_line_and_leave
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=tmp_path, start_new_session=True)
     assert proc.stderr is not None
     first = proc.stderr.readline().decode()
-    assert first.startswith("sappc: compiling the numerical core's loops and batches once"), first  # the cache is empty: it compiles
+    assert first.startswith("sappc: compiling the numerical core's loops and batches and lanes once"), first  # the cache is empty: it compiles
     time.sleep(after_s)
     assert proc.poll() is None and len(_processes_with(tag)) >= 2, "no compile child: the compile ended before the test's Ctrl-C"
     os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: to every process of the foreground group
