@@ -365,11 +365,21 @@ def _simulate_from_campaign(args: argparse.Namespace) -> int:
 
 
 def _cmd_montecarlo(args: argparse.Namespace) -> int:
+    from sappc.analysis.plots import FigureWorker
+
+    # forked first, before numba is imported (sappc.montecarlo.campaign imports it): the child
+    # imports matplotlib while the runs go, then draws the campaign's figures in two processes
+    # (this process never imports matplotlib)
+    with FigureWorker() as figures:
+        return _montecarlo(args, figures)
+
+
+def _montecarlo(args: argparse.Namespace, figures: Any) -> int:
     from sappc.montecarlo.campaign import run_campaign
 
     out = args.out or str(default_output_dir("montecarlo", f"{Path(args.scenario).stem}-seed{args.seed}"))
     summary = run_campaign(args.scenario, runs=args.runs, seed=args.seed, out_dir=out, workers=args.workers,
-                           scheduler=args.scheduler, resume=args.resume, progress=not args.no_progress)
+                           scheduler=args.scheduler, resume=args.resume, progress=not args.no_progress, figure_worker=figures)
     print(f"campaign {summary['scenario']}: {summary['passed']}/{summary['runs']} runs pass "
           f"(rpf_error_at_t2 < {summary['criteria']['rpf_error_at_t2_max']:g}, "
           f"steady_mean_abs_qev < {summary['criteria']['steady_mean_abs_qev_max']:g})")

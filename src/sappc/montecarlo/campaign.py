@@ -330,11 +330,15 @@ def run_campaign(
     scheduler: str | None = None,
     resume: bool = False,
     progress: bool = True,
+    figure_worker: Any = None,
 ) -> dict[str, Any]:
     """Run (or resume) a campaign and write its results; return the summary.
 
     Everything is validated before the first run.  Finished chunks are written as they
     complete; an interrupt (Ctrl-C) keeps them and ``resume=True`` continues from them.
+    ``figure_worker``: a :class:`sappc.analysis.plots.FigureWorker` started before numba was
+    imported (``sappc montecarlo`` forks it first), which imports matplotlib while the runs go and
+    then draws the figures; without one (or once it is used) they are drawn in this process.
 
     Raises
     ------
@@ -393,7 +397,7 @@ def run_campaign(
         _progress_sink = bar.update  # sub-batches in this process report directly
     try:
         results = executor.run(tasks)
-        if executor.pool is not None or executor.client is not None:
+        if (executor.pool is not None or executor.client is not None) and not (figure_worker is not None and figure_worker.alive):
             import matplotlib.pyplot  # noqa: F401  (the figures need it; import it while the workers compute)
         for item in results:
             if executor.queue is not None:
@@ -412,7 +416,7 @@ def run_campaign(
     finally:
         _progress_sink = None
         executor.close()
-    return assemble(out, scenario, cfg, manifest, wall_s=time.perf_counter() - t0)
+    return assemble(out, scenario, cfg, manifest, wall_s=time.perf_counter() - t0, figure_worker=figure_worker)
 
 
 def load_campaign_run(campaign_dir: str | Path, run: int, *, with_history: bool = False) -> tuple[Scenario, dict[str, Array], dict[str, Any], Any]:

@@ -178,10 +178,20 @@ def _estimator_summary(tab: dict[str, Any], scenario: Scenario) -> dict[str, Any
     return {**{k: _percentiles(np.asarray(tab[k], dtype=np.float64)) for k in ESTIMATOR_COLUMNS}, "nees_consistency": nees}
 
 
-def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[str, Any], *, wall_s: float) -> dict[str, Any]:
+def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[str, Any], *, wall_s: float,
+             figure_worker: Any = None) -> dict[str, Any]:
+    """Write the campaign's table (``runs.csv``), summary (``summary.json``, also returned) and
+    figures (:func:`sappc.analysis.plots.campaign_figures`; ``figure_worker``: the
+    :class:`~sappc.analysis.plots.FigureWorker` that draws them, when one was started)."""
+    from sappc.analysis.plots import campaign_figures
+
     runs, seed = manifest["runs"], manifest["seed"]
     tab = _load_chunks(out, len(chunks(runs, manifest["chunk_runs"])))
     crit = cfg.criteria
+    # sent to the figure worker now, to be drawn while the table is written; waited for (or drawn
+    # here, without a worker) at the end
+    figures = campaign_figures(tab, out, criteria=(crit.rpf_error_at_t2_max, crit.steady_mean_abs_qev_max), title=scenario.name,
+                               nees=nees_consistency(tab, scenario) if "tsum_nees" in tab else None, worker=figure_worker)
     rc = run_criteria(tab, crit)
     t2, steady, finite, ok_t2, ok_steady, passed = rc.rpf_error_at_t2, rc.steady_mean_abs_qev, rc.finite, rc.ok_t2, rc.ok_steady, rc.passed
     lost_at = np.asarray(tab["control_lost_at_s"], dtype=np.float64)
@@ -283,8 +293,5 @@ def assemble(out: Path, scenario: Scenario, cfg: CampaignConfig, manifest: dict[
         "wall_time_s": wall_s,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    from sappc.analysis.plots import plot_campaign
-
-    plot_campaign(tab, out, criteria=(crit.rpf_error_at_t2_max, crit.steady_mean_abs_qev_max), title=scenario.name,
-                  nees=nees_consistency(tab, scenario) if "tsum_nees" in tab else None)
+    figures()
     return summary
