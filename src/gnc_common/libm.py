@@ -169,30 +169,30 @@ _expm1: Any = None
 
 
 @jit(inline="always")
-def exp(x):  # type: ignore[no-untyped-def]  # a numba kernel
+def exp(x):  # a numba kernel
     """``e**x`` (glibc's ``exp``)."""
     return _exp(x)
 
 
 @jit(inline="always")
-def pow(x, y):  # type: ignore[no-untyped-def]  # a numba kernel  # noqa: A001 (libm's name)
+def pow(x, y):  # noqa: A001 (libm's name)  # a numba kernel
     """``x**y`` (glibc's ``pow``)."""
     return _pow(x, y)
 
 
 @jit(inline="always")
-def atan(x):  # type: ignore[no-untyped-def]  # a numba kernel
+def atan(x):  # a numba kernel
     """``arctan x`` (glibc's ``atan``)."""
     return _atan(x)
 
 
 @jit(inline="always")
-def tanh(x):  # type: ignore[no-untyped-def]  # a numba kernel
+def tanh(x):  # a numba kernel
     """``tanh x`` (glibc's ``tanh``)."""
     return _tanh(x)
 
 
 @jit(inline="always")
-def expm1(x):  # type: ignore[no-untyped-def]  # a numba kernel
+def expm1(x):  # a numba kernel
     """``e**x - 1`` (glibc's ``expm1``)."""
     return _expm1(x)

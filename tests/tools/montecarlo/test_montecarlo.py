@@ -81,6 +81,7 @@ def test_dispersion_statistics_and_per_run_reproducibility(tmp_path) -> None:
 def _sub_batch(monkeypatch, runs: int) -> None:  # type: ignore[no-untyped-def]
     """Make the in-process sub-batches (the units of progress inside a chunk) ``runs`` runs long."""
     monkeypatch.setattr(offline_simulate, "SUB_BATCH", runs)
+    monkeypatch.setattr(offline_simulate, "LANES_SUB_BATCH", runs)  # the runs of these scenarios go in lanes
     monkeypatch.setattr(offline_simulate.run_scenario, "__kwdefaults__", {**offline_simulate.run_scenario.__kwdefaults__, "sub_batch": runs})
 
 
