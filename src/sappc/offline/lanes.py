@@ -43,21 +43,21 @@ scalar path.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import prange
 
 from gnc_common.compiled import jit, jit_parallel
 from gnc_common.input_check import B_NORM, B_RATE, B_REFERENCE_ACCELERATION, B_REFERENCE_RATE, INPUT_OK, quaternion_verdict, vector_verdict
-from sappc_controller.core.kernels import _MAX_NEWTON_ITERATIONS, C_A, C_A1, C_L, C_SIGN, C_T1, KIND_SAPPC, N_OUT, N_PARAMS, N_STATE
+from sappc_controller.core.kernels import _MAX_NEWTON_ITERATIONS, C_A, C_A1, C_L, C_SIGN, C_T1, KIND_SAPPC, N_OUT, N_PARAMS
 from sappc_controller.core.kernels import O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, P_B0, P_RATE_WC, P_TANTH, P_TORQUE_WC, P_UMAX, P_UMIN
 from sappc_controller.core.kernels import S_FILTER_ON, S_HAS_PREV, S_PREV, S_SD, S_T0
 from sappc_controller.core.kernels import actuator_of, backstepping_of, error_state_of, sappc_axis_end, sappc_axis_start, smetf_newton_step, smetf_start
 from sappc_msgs_py.contract import ANSWER_COMMANDED
 from spacecraft_sim.core.kernels import disturbance_at, rk4_of
 
-from sappc.offline.compiled_loop import L_HAS_LAST, L_LAST_STATE_NS, L_N_STARTS, L_STARTED, V_CMD, V_U_CMD, V_U_LAST, _initial_state
+from sappc.offline.compiled_loop import _NS_PER_S, L_HAS_LAST, L_LAST_STATE_NS, L_N_STARTS, L_STARTED, V_CMD, V_U_CMD, V_U_LAST, _initial_state
 
 if TYPE_CHECKING:
     from sappc.offline.compiled_loop import CompiledInputs
@@ -67,8 +67,6 @@ __all__ = ["LANES", "lanes_refusal", "run_lanes_kernel"]
 #: Runs per lane group: a multiple of every libmvec width (2, 4 and 8 float64), so that LLVM's
 #: vectorised loops have no scalar remainder (which would call the scalar libm for some lanes).
 LANES = 8
-#: The per-run loop's stamp arithmetic (:data:`sappc.offline.compiled_loop._NS_PER_S`).
-_NS_PER_S = 1_000_000_000
 #: Columns of the lane state kept as (column, lane) arrays: the controller's state rows the SAPPC
 #: law reads (``S_SD .. S_T0``).
 _N_CTRL = S_T0 + 1
