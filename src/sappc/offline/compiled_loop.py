@@ -40,7 +40,11 @@ so the run in blocks is the run in one call, bit for bit); :func:`run_batch_kern
 every run in a ``prange`` (runs are independent: each has its own parameters, state and scratch
 arrays), and one run calls it from Python (:func:`run_single`) with the same argument types, so run
 ``k`` of a batch is the run alone, bit for bit (and a one-run command compiles ``_run_one`` alone:
-its ~9 s of parallel lowering is the batch kernel's).  :func:`run_batch` runs a batch in one block
+its ~9 s of parallel lowering is the batch kernel's).  A campaign's runs go eight at a time in SIMD
+lanes where :mod:`sappc.offline.lanes` covers the scenario (``CompiledInputs.lanes``): the same
+scalar pieces of the law, the plant and the input check in the same order, the libm calls
+libmvec's (docs/parity.md, "Campaign runs in SIMD lanes"); a run they cannot answer as the node
+would goes through :func:`_run_one`.  :func:`run_batch` runs a batch in one block
 (its whole record), :func:`run_blocks` a block of :data:`BLOCK_RUN_SAMPLES` run-samples at a time
 (memory flat in the run's length: docs/design/streaming.md).
 
@@ -1425,9 +1429,9 @@ def simulate_compiled(scenario: Scenario, controller: Any = None) -> CompiledRun
 
 #: The groups of :func:`warm_up`, each compilable in its own process: the one-run loop (``simulate``,
 #: a batch of one run), the batch loop (campaigns, tuning: parallel over runs; it calls the one-run
-#: loop's compiled ``_run_one``, so compiled after it, it adds only its own ~9 s) and the kernels
-#: the nodes and ``sappc rerun`` call from Python.  A first ``sappc simulate`` compiles ``loops``
-#: alone.
+#: loop's compiled ``_run_one``, so compiled after it, it adds only its own ~9 s), the SIMD lanes
+#: (a campaign's runs where :mod:`sappc.offline.lanes` covers them) and the kernels the nodes and
+#: ``sappc rerun`` call from Python.  A first ``sappc simulate`` compiles ``loops`` alone.
 WARM_UP_GROUPS = ("loops", "batches", "lanes", "nodes")
 #: The groups a campaign calls: the one-run loop (each run's start), the batch loop, the SIMD lanes
 #: (:mod:`sappc.offline.lanes`: a group of its own, compiled beside the other two).
