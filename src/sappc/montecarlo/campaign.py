@@ -386,7 +386,7 @@ def run_campaign(
 
     todo = [(i, r) for i, r in chunks(runs, chunk_runs) if not chunk_path(out, i).exists()]
     if todo and scheduler is None:
-        compiled_loop.ensure_compiled(in_subprocess=workers > 1, groups=("loops", "batches"))  # compile once, here, not in every worker
+        compiled_loop.ensure_compiled(in_subprocess=workers > 1, groups=compiled_loop.CAMPAIGN_GROUPS)  # compile once, here, not in every worker
     bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)  # after compiling: the rate is the runs'
     executor = ChunkExecutor(workers, scheduler)
     global _progress_sink

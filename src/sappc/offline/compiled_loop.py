@@ -1806,8 +1806,13 @@ def _warm_up_batches(scenario: Scenario, compiled: Any) -> None:
 
 def _warm_up_lanes(scenario: Scenario, compiled: Any) -> None:
     """The loop in SIMD lanes (:mod:`sappc.offline.lanes`; one compile whatever the disturbance:
-    whether it is a table is a value of its arrays, not a type)."""
-    run_batch(prepare(scenario, on_infeasible="clamp", q_BN0=np.broadcast_to(scenario.q_BN0, (2, 4)), lanes=True), 1)
+    whether it is a table is a value of its arrays, not a type), called directly on inputs before
+    their start's probe (:func:`prepare` with ``started=False``): nothing of the one-run loop runs
+    (its probe, a lane handed back), so this group compiles beside the loops', not after them (its
+    numbers are meaningless: the start constants are zero)."""
+    inp = prepare(scenario, on_infeasible="clamp", q_BN0=np.broadcast_to(scenario.q_BN0, (2, 4)), lanes=True, started=False)
+    _lanes().run_lanes_kernel(np.int64(1), np.int64(0), *inp.args(), _record(inp, 1, inp.n_runs), _state(inp, inp.n_runs),
+                              np.zeros(inp.n_runs, dtype=np.int8))
     compiled("the offline loop (SIMD lanes)")
 
 
