@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numba import prange
 
-from gnc_common.compiled import jit, jit_parallel
+from gnc_common.compiled import jit, jit_parallel, matvec3_flat_of
 from gnc_common.input_check import B_NORM, B_RATE, B_REFERENCE_ACCELERATION, B_REFERENCE_RATE, INPUT_OK, quaternion_verdict, vector_verdict
 from sappc_controller.core.kernels import _MAX_NEWTON_ITERATIONS, C_A, C_A1, C_L, C_SIGN, C_T1, KIND_SAPPC, N_OUT, N_PARAMS
 from sappc_controller.core.kernels import O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, P_B0, P_RATE_WC, P_TANTH, P_TORQUE_WC, P_UMAX, P_UMIN
@@ -339,9 +339,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                 for w in range(nl):
                     Jinv = _nine(S, _R_JI, w)
                     u0, u1, u2 = S[_R_U, w] + S[_R_D, w], S[_R_U + 1, w] + S[_R_D + 1, w], S[_R_U + 2, w] + S[_R_D + 2, w]
-                    a0 = (Jinv[0] * u0 + Jinv[1] * u1) + Jinv[2] * u2  # J^-1 torque (spacecraft_sim.core.kernels.propagate)
-                    a1 = (Jinv[3] * u0 + Jinv[4] * u1) + Jinv[5] * u2
-                    a2 = (Jinv[6] * u0 + Jinv[7] * u1) + Jinv[8] * u2
+                    a0, a1, a2 = matvec3_flat_of(Jinv, 0, u0, u1, u2)  # J^-1 torque (spacecraft_sim.core.kernels.propagate's)
                     y = rk4_of((S[_R_X, w], S[_R_X + 1, w], S[_R_X + 2, w], S[_R_X + 3, w], S[_R_X + 4, w], S[_R_X + 5, w], S[_R_X + 6, w]),
                                a0, a1, a2, h, _nine(S, _R_JL, w), Jinv)
                     S[_R_X, w], S[_R_X + 1, w], S[_R_X + 2, w], S[_R_X + 3, w], S[_R_X + 4, w], S[_R_X + 5, w], S[_R_X + 6, w] = y
