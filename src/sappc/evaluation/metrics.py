@@ -142,7 +142,7 @@ import sys
 import types
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -763,9 +763,11 @@ class MetricsAccumulator:
         self._update(k0, t, x[..., :4], x[..., 4:], torque_B, q_BR, rho, saturated, band_lower, band_upper)
 
     def _update(self, k0: int, t: Array, q_BN: Array, omega: Array, torque_B: Array, q_BR: Array, rho: Array,
-                saturated: NDArray[np.bool_], band_lower: Array, band_upper: Array) -> None:
+                saturated: NDArray[np.bool_], band_lower: Array, band_upper: Array, runs: slice = slice(None)) -> None:
         """:meth:`update` with the state split into attitude and rate: one compiled pass over the block
-        (:func:`_update_kernel`, run by run, in the arrays' own layout: no copies, no temporaries)."""
+        (:func:`_update_kernel`, run by run, in the arrays' own layout: no copies, no temporaries).
+        ``runs``: the arrays hold only those runs, into their state (views), the samples seen left to
+        the caller."""
         t = np.asarray(t, dtype=np.float64).reshape(-1)
         if t.size == 0:
             return
@@ -774,15 +776,52 @@ class MetricsAccumulator:
         def f64(a: Any) -> Array:
             return np.asarray(a, dtype=np.float64)
 
-        _update_function(t.size * self.finite.shape[0])(
+        _update_function(t.size * self.finite[runs].shape[0])(
             int(k0), t, f64(q_BN), f64(omega), f64(torque_B), f64(q_BR), f64(rho), np.asarray(saturated, dtype=np.bool_), f64(band_lower),
-            f64(band_upper), self.origin_k, float(self.settle_threshold), float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
-            self.steady_from_per_run(), self.k_t2_run, hold, fault, self.finite, self.last_unsettled, self.last_controlled, self.steady_sum,
-            self.steady_max, self.rpf_error_t2_axis, self.sign0, self.overshoot, self.max_torque,
-            self.saturated_count, self.outside_count, self.outside_s, self.last_outside, self.left_after_fault,
-            self.torque_sign, self.torque_sign_nonzero, self.torque_sign_changes, self.torque_reversals, self.steady_n, self.steady_first,
+            f64(band_upper), self.origin_k[runs], float(self.settle_threshold), float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
+            self.steady_from_per_run()[runs], self.k_t2_run[runs], hold, fault, self.finite[runs], self.last_unsettled[runs],
+            self.last_controlled[runs], self.steady_sum[runs], self.steady_max[runs], self.rpf_error_t2_axis[runs], self.sign0[runs],
+            self.overshoot[runs], self.max_torque[runs], self.saturated_count[runs], self.outside_count[runs], self.outside_s[runs],
+            self.last_outside[runs], self.left_after_fault[runs], self.torque_sign[runs], self.torque_sign_nonzero[runs],
+            self.torque_sign_changes[runs], self.torque_reversals[runs], self.steady_n[runs], self.steady_first[runs],
         )
-        self.samples += t.size
+        if runs == slice(None):
+            self.samples += t.size
+
+    def online_state(self) -> tuple[MetricArrays, MetricConstants]:
+        """What a loop that computes the metrics online, sample by sample, reads and writes (the
+        SIMD lanes, :func:`sappc.offline.lanes.online_metrics`; every sample's contribution is
+        :func:`metric_sample_of`'s, as in :meth:`add_history`): the per-run arrays
+        (:func:`metric_state_load`, written in place), each run's constants (N, 3) (its steady
+        window's start less the grid's tolerance, its origin, t2's sample; float64, exact), the
+        settling threshold, the loss-of-control bound and the fault's start less the tolerance
+        (NaN: no fault): :class:`MetricArrays` and :class:`MetricConstants`.  Only on a uniform grid without flight modes, wheels, an estimator or
+        orbits (what the lanes cover); the loop then calls :meth:`add_online_block` for every
+        block."""
+        if self.hold_s is not None or self.orbit_bins is not None or self.mode_time_s is not None:
+            raise ValueError("online metrics need a uniform grid without orbits or flight modes")
+        arrays = MetricArrays(*(getattr(self, name) for name in MetricArrays._fields))
+        per_run = np.column_stack((self.steady_from_per_run() - _TIME_TOL_S, self.origin_k.astype(np.float64), self.k_t2_run.astype(np.float64)))
+        fault_from = np.nan if self.fault_start_s is None else float(self.fault_start_s) - _TIME_TOL_S
+        return arrays, MetricConstants(np.int64(1), per_run, float(self.settle_threshold), float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
+                                       fault_from)
+
+    def add_online_block(self, h: History, recorded: Sequence[int], *, block_samples: int | None = None) -> None:
+        """A block of samples whose metrics the loop computed online (:meth:`online_state`) for
+        every run but ``recorded`` (runs the SIMD lanes handed back to the per-run loop), whose
+        samples ``h`` holds (its run ``i`` is run ``recorded[i]``): those runs' metrics from ``h``,
+        as :meth:`add_history`'s, and the block's samples counted as seen."""
+        if h.wheel_speed_rad_s is not None or h.estimate is not None or h.mode is not None:
+            raise ValueError("online metrics cover no wheels, estimator or flight modes")
+        T = h.t.size
+        step = T if block_samples is None or T == 0 else max(1, int(block_samples))
+        for i, r in enumerate(recorded):
+            for lo in range(0, T, step):
+                b = h.samples(lo, min(lo + step, T))
+                run = slice(i, i + 1)
+                self._update(self.samples + lo, b.t, b.q_BN[:, run], b.omega_BN_B[:, run], b.torque_B[:, run], b.q_BR[:, run], b.rho[:, run],
+                             b.saturated[:, run], b.band_lower[:, run], b.band_upper[:, run], runs=slice(int(r), int(r) + 1))
+        self.samples += T
 
     def settling_times(self) -> Array:
         """``settling_time_s`` of every run from its origin, NaN for a run that never settles (or
@@ -942,7 +981,10 @@ def interpreted_update_kernel() -> Callable[..., int]:
     global _interpreted_kernel
     if _interpreted_kernel is None:
         f = _update_kernel.py_func
-        namespace = {**f.__globals__, "_maximum": _maximum.py_func, "_switch": _switch.py_func}
+        namespace = dict(f.__globals__)  # every helper's Python source, calling the others' (never a compiled kernel)
+        for helper in (_maximum, _switch, metric_sample_of, metric_state_load, metric_state_store):
+            g = helper.py_func
+            namespace[g.__name__] = types.FunctionType(g.__code__, namespace, g.__name__, g.__defaults__, g.__closure__)
         _interpreted_kernel = types.FunctionType(f.__code__, namespace, f.__name__, f.__defaults__, f.__closure__)
     return _interpreted_kernel
 
@@ -973,6 +1015,163 @@ def _switch(u, sign, nonzero):  # type: ignore[no-untyped-def]  # a numba kernel
     return s, s, change, (1 if s == -nonzero else 0)  # nonzero 0: no non-zero sample yet
 
 
+class MetricArrays(NamedTuple):
+    """A :class:`MetricsAccumulator`'s per-run arrays that :func:`metric_state_load` reads and
+    :func:`metric_state_store` writes (views: written in place), in their order."""
+
+    finite: NDArray[np.bool_]
+    last_unsettled: NDArray[np.int64]
+    last_outside: NDArray[np.int64]
+    last_controlled: NDArray[np.int64]
+    steady_sum: Array
+    steady_max: Array
+    overshoot: Array
+    max_torque: Array
+    saturated_count: NDArray[np.int64]
+    outside_count: NDArray[np.int64]
+    left_after_fault: NDArray[np.bool_]
+    outside_s: Array
+    sign0: Array
+    torque_sign: Array
+    torque_sign_nonzero: Array
+    torque_sign_changes: NDArray[np.int64]
+    torque_reversals: NDArray[np.int64]
+    steady_n: NDArray[np.int64]
+    steady_first: NDArray[np.int64]
+    rpf_error_t2_axis: Array
+
+
+class MetricConstants(NamedTuple):
+    """What a loop computing the metrics online reads besides :class:`MetricArrays`
+    (:meth:`MetricsAccumulator.online_state`): ``on`` (0: the loop records its samples instead),
+    each run's constants ``per_run`` (N, 3) (its steady window's start less the grid's tolerance,
+    its origin, t2's sample; float64, exact), the settling threshold, the loss-of-control bound,
+    the fault's start less the tolerance (NaN: no fault)."""
+
+    on: np.int64
+    per_run: Array
+    settle_threshold: float
+    loss_bound: float
+    fault_from: float
+
+
+#: One run's metric state as :func:`metric_sample_of` takes and gives it: a tuple of
+#: :data:`N_METRIC_STATE` float64 (sample indices and counts exact below 2**53; flags 1.0 or 0.0),
+#: in this order: finite; the last unsettled, outside and controlled samples; the steady sums of
+#: ``|q_ev,i|``; the steady max; the overshoot; the largest torque; the saturated and outside
+#: samples; left after the fault; the outside time (non-uniform grid); the error's signs at the
+#: origin; per axis the last steady torque sign, the last non-zero one, the sign changes and the
+#: reversals; the steady samples and the first one's index; the RPF's error at t2 per axis.
+N_METRIC_STATE = 34
+
+
+@jit(inline="always")
+def metric_sample_of(m, k, t_k, ok, e0, e1, e2, u0, u1, u2, rho0, rho1, rho2, sat, bl0, bl1, bl2, bu0, bu1, bu2, hold_k, has_hold,  # type: ignore[no-untyped-def]
+                     steady_from, origin, k_t2, settle_threshold, loss_bound, fault_from):
+    """One sample ``k`` (float) at ``t_k`` [s] of one run into its metric state ``m``
+    (:data:`N_METRIC_STATE`; the new state returned): the definitions of the module docstring,
+    the one implementation of every sample's contribution (the batch kernel :func:`_update_kernel`
+    and the SIMD lanes of :mod:`sappc.offline.lanes` call it).  ``ok``: the sample's attitude,
+    rate and torque are finite; ``e`` its error ``q_ev``, ``u`` the torque, ``rho`` the
+    performance function, ``sat`` any axis saturated, ``bl``/``bu`` the band; ``hold_k`` its hold
+    interval, summed only when ``has_hold`` (a non-uniform grid).  The run's constants: its steady
+    window from ``steady_from`` [s] (less the grid's tolerance), its origin ``origin`` (-1: none
+    yet) and t2's sample ``k_t2`` (-1: none), the thresholds, the fault's start less the
+    tolerance ``fault_from`` (NaN: no fault).  Sums run sample after sample and maxima keep the
+    first of equals (NaN wins), so any split of a run into blocks gives the same bits."""
+    (live, lu, lo, lc, s0, s1, s2, smax, over, tmax, n_sat, n_out, left, held, sg0, sg1, sg2, p0, p1, p2, z0, z1, z2,
+     c0, c1, c2, r0, r1, r2, sn, sf, x0, x1, x2) = m
+    live = 1.0 if (live != 0.0 and ok) else 0.0  # a failed run stops at its last finite sample
+    if k == origin:  # the run's origin: the overshoot's initial signs
+        sg0 = 1.0 if e0 >= 0.0 else -1.0
+        sg1 = 1.0 if e1 >= 0.0 else -1.0
+        sg2 = 1.0 if e2 >= 0.0 else -1.0
+    alive = live != 0.0
+    counted = alive and origin >= 0.0 and k >= origin  # from the run's origin on
+    a0, a1, a2 = abs(e0), abs(e1), abs(e2)
+    max_abs_q = _maximum(_maximum(a0, a1), a2)
+    if counted and max_abs_q >= settle_threshold:
+        lu = k
+    if alive and (t_k < steady_from or max_abs_q <= loss_bound):  # control_lost_at_s: a NaN error is not within
+        lc = k
+    steady = t_k >= steady_from
+    if steady:
+        sn = sn + 1.0
+        if sf < 0.0:
+            sf = k
+    if alive and steady:
+        s0 = s0 + a0  # a sequential running sum, sample by sample
+        s1 = s1 + a1
+        s2 = s2 + a2
+        smax = _maximum(smax, max_abs_q)
+        p0, z0, a, b = _switch(u0, p0, z0)
+        c0, r0 = c0 + a, r0 + b
+        p1, z1, a, b = _switch(u1, p1, z1)
+        c1, r1 = c1 + a, r1 + b
+        p2, z2, a, b = _switch(u2, p2, z2)
+        c2, r2 = c2 + a, r2 + b
+    if k == k_t2:
+        x0 = abs(e0 - rho0) if alive else np.nan
+        x1 = abs(e1 - rho1) if alive else np.nan
+        x2 = abs(e2 - rho2) if alive else np.nan
+    if counted:
+        over = _maximum(over, _maximum(_maximum(-sg0 * e0, -sg1 * e1), -sg2 * e2))
+        tmax = _maximum(tmax, _maximum(_maximum(abs(u0), abs(u1)), abs(u2)))
+        if sat:
+            n_sat = n_sat + 1.0
+        # inside: within every component's band; a NaN band (none yet) fails the comparison
+        inside = ((e0 >= bl0 and e0 <= bu0) and (e1 >= bl1 and e1 <= bu1) and (e2 >= bl2 and e2 <= bu2))
+        if not inside:
+            n_out = n_out + 1.0
+            lo = k
+            if t_k >= fault_from:
+                left = 1.0
+            if has_hold:
+                held = held + hold_k  # a sequential running sum
+    # two literals joined: CPython builds a literal of over 30 items through a list, which numba does not type
+    return ((live, lu, lo, lc, s0, s1, s2, smax, over, tmax, n_sat, n_out, left, held, sg0, sg1, sg2)
+            + (p0, p1, p2, z0, z1, z2, c0, c1, c2, r0, r1, r2, sn, sf, x0, x1, x2))
+
+
+@jit(inline="always")
+def metric_state_load(a, n):  # type: ignore[no-untyped-def]
+    """Run ``n``'s metric state (:data:`N_METRIC_STATE`) from the accumulator's per-run arrays
+    ``a`` (:class:`MetricArrays`, or a tuple of them in its order)."""
+    (finite, last_unsettled, last_outside, last_controlled, steady_sum, steady_max, overshoot, max_torque, saturated_count, outside_count,
+     left_after_fault, outside_s, sign0, torque_sign, torque_sign_nonzero, torque_sign_changes, torque_reversals, steady_n, steady_first,
+     rpf_error_t2_axis) = a
+    return (1.0 if finite[n] else 0.0, float(last_unsettled[n]), float(last_outside[n]), float(last_controlled[n]), steady_sum[n, 0],
+            steady_sum[n, 1], steady_sum[n, 2], steady_max[n], overshoot[n], max_torque[n], float(saturated_count[n]), float(outside_count[n]),
+            1.0 if left_after_fault[n] else 0.0, outside_s[n], sign0[n, 0], sign0[n, 1], sign0[n, 2]) + (torque_sign[n, 0], torque_sign[n, 1],
+            torque_sign[n, 2], torque_sign_nonzero[n, 0], torque_sign_nonzero[n, 1], torque_sign_nonzero[n, 2], float(torque_sign_changes[n, 0]),
+            float(torque_sign_changes[n, 1]), float(torque_sign_changes[n, 2]), float(torque_reversals[n, 0]), float(torque_reversals[n, 1]),
+            float(torque_reversals[n, 2]), float(steady_n[n]), float(steady_first[n]), rpf_error_t2_axis[n, 0], rpf_error_t2_axis[n, 1],
+            rpf_error_t2_axis[n, 2])
+
+
+@jit(inline="always")
+def metric_state_store(a, n, m):  # type: ignore[no-untyped-def]
+    """Run ``n``'s metric state ``m`` into the accumulator's per-run arrays ``a`` (the inverse of
+    :func:`metric_state_load`: every conversion exact)."""
+    (finite, last_unsettled, last_outside, last_controlled, steady_sum, steady_max, overshoot, max_torque, saturated_count, outside_count,
+     left_after_fault, outside_s, sign0, torque_sign, torque_sign_nonzero, torque_sign_changes, torque_reversals, steady_n, steady_first,
+     rpf_error_t2_axis) = a
+    finite[n] = m[0] != 0.0
+    last_unsettled[n], last_outside[n], last_controlled[n] = int(m[1]), int(m[2]), int(m[3])
+    steady_sum[n, 0], steady_sum[n, 1], steady_sum[n, 2] = m[4], m[5], m[6]
+    steady_max[n], overshoot[n], max_torque[n] = m[7], m[8], m[9]
+    saturated_count[n], outside_count[n] = int(m[10]), int(m[11])
+    left_after_fault[n] = m[12] != 0.0
+    outside_s[n] = m[13]
+    sign0[n, 0], sign0[n, 1], sign0[n, 2] = m[14], m[15], m[16]
+    torque_sign[n, 0], torque_sign[n, 1], torque_sign[n, 2] = m[17], m[18], m[19]
+    torque_sign_nonzero[n, 0], torque_sign_nonzero[n, 1], torque_sign_nonzero[n, 2] = m[20], m[21], m[22]
+    torque_sign_changes[n, 0], torque_sign_changes[n, 1], torque_sign_changes[n, 2] = int(m[23]), int(m[24]), int(m[25])
+    torque_reversals[n, 0], torque_reversals[n, 1], torque_reversals[n, 2] = int(m[26]), int(m[27]), int(m[28])
+    steady_n[n], steady_first[n] = int(m[29]), int(m[30])
+    rpf_error_t2_axis[n, 0], rpf_error_t2_axis[n, 1], rpf_error_t2_axis[n, 2] = m[31], m[32], m[33]
+
+
 @jit("int64(int64, float64[:], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], "  # type: ignore[no-untyped-call]
      "boolean[:, :, :], float64[:, :, :], float64[:, :, :], int64[:], float64, float64, float64[:], int64[:], float64[:], float64, boolean[:], "
      "int64[:], int64[:], float64[:, :], float64[:], float64[:, :], float64[:, :], float64[:], float64[:], int64[:], int64[:], float64[:], "
@@ -982,44 +1181,28 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
                    sign0, overshoot, max_torque, saturated_count, outside_count, outside_s, last_outside, left_after_fault,
                    torque_sign, torque_sign_nonzero, torque_sign_changes, torque_reversals, steady_n, steady_first):
     """One block of samples ``k0 .. k0 + B - 1`` (arrays (B, N, ...)) into the per-run state of a
-    :class:`MetricsAccumulator` (in place), run by run, sample by sample: the definitions of the
-    module docstring.  Sums run sample by sample in time order, maxima and counts are exact, so a
-    block gives the same bits as its samples one by one.  Each run counts from its origin
-    ``origin_k[n]`` (the sample its tracking starts at: 0, or with flight modes TRACK's first
-    sample; -1: not yet): the samples before it enter no metric but the loss-of-control rule's
-    (they are before the steady window, finite or not) and the run's finiteness; its steady window
-    from ``steady_from_s[n]`` [s] (its origin's time plus the scenario's ``steady_from_s``; infinite
-    before the origin is known), its RPF error at sample ``k_t2[n]`` (-1: none), its error's initial
-    signs (the overshoot's) at its origin.  Counts the steady samples of each run into
-    ``steady_n`` and the first one's index into ``steady_first`` (-1: none yet); returns the
+    :class:`MetricsAccumulator` (in place), run by run, sample by sample
+    (:func:`metric_sample_of`: the definitions of the module docstring).  Each run counts from its
+    origin ``origin_k[n]`` (the sample its tracking starts at: 0, or with flight modes TRACK's
+    first sample; -1: not yet): the samples before it enter no metric but the loss-of-control
+    rule's (they are before the steady window, finite or not) and the run's finiteness; its steady
+    window from ``steady_from_s[n]`` [s] (its origin's time plus the scenario's ``steady_from_s``;
+    infinite before the origin is known), its RPF error at sample ``k_t2[n]`` (-1: none), its
+    error's initial signs (the overshoot's) at its origin.  Counts the steady samples of each run
+    into ``steady_n`` and the first one's index into ``steady_first`` (-1: none yet); returns the
     block's steady run-samples.  ``fault_start_s`` NaN: no faults; ``hold_s`` empty: uniform grid."""
     B = t.shape[0]
-    has_fault = fault_start_s == fault_start_s
-    fault_from = fault_start_s - _TIME_TOL_S
+    fault_from = fault_start_s - _TIME_TOL_S  # NaN: no fault (no time is after it)
+    has_hold = hold_s.shape[0] > 0
+    a = (finite, last_unsettled, last_outside, last_controlled, steady_sum, steady_max, overshoot, max_torque, saturated_count, outside_count,
+         left_after_fault, outside_s, sign0, torque_sign, torque_sign_nonzero, torque_sign_changes, torque_reversals, steady_n, steady_first,
+         rpf_error_t2_axis)
     total_steady = 0
-    n_steady = 0
     for n in range(finite.shape[0]):
         steady_from = steady_from_s[n] - _TIME_TOL_S
-        origin = origin_k[n]
-        if n == 0 or steady_from_s[n] != steady_from_s[n - 1]:  # the block's steady samples (every run's alike without modes)
-            n_steady = 0
-            for k in range(B):
-                if t[k] >= steady_from:
-                    n_steady += 1
-        if n_steady > 0 and steady_first[n] < 0:
-            steady_first[n] = k0 + B - n_steady  # the window is the block's last samples (t increases)
-        steady_n[n] += n_steady
-        total_steady += n_steady
-        live = finite[n]
-        lu, lo, lc = last_unsettled[n], last_outside[n], last_controlled[n]
-        s0, s1, s2 = steady_sum[n, 0], steady_sum[n, 1], steady_sum[n, 2]
-        smax, over, tmax = 0.0, 0.0, 0.0  # block maxima (numpy's reduce: from the first sample on)
-        n_sat, n_out, left = 0, 0, False
-        held = outside_s[n]
-        g0, g1, g2 = -sign0[n, 0], -sign0[n, 1], -sign0[n, 2]
-        p0, p1, p2 = torque_sign[n, 0], torque_sign[n, 1], torque_sign[n, 2]
-        z0, z1, z2 = torque_sign_nonzero[n, 0], torque_sign_nonzero[n, 1], torque_sign_nonzero[n, 2]
-        c0, c1, c2, r0, r1, r2 = 0, 0, 0, 0, 0, 0
+        origin, kt2 = float(origin_k[n]), float(k_t2[n])
+        before = steady_n[n]
+        m = metric_state_load(a, n)
         for k in range(B):
             ok = True
             for i in range(4):
@@ -1028,74 +1211,12 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
                 ok = ok and np.isfinite(omega[k, n, i])
             for i in range(3):
                 ok = ok and np.isfinite(torque[k, n, i])
-            live = live and ok  # a failed run stops at its last finite sample
-            e0, e1, e2 = q_BR[k, n, 0], q_BR[k, n, 1], q_BR[k, n, 2]
-            if k0 + k == origin:  # the run's origin: the overshoot's initial signs
-                sign0[n, 0] = 1.0 if e0 >= 0.0 else -1.0
-                sign0[n, 1] = 1.0 if e1 >= 0.0 else -1.0
-                sign0[n, 2] = 1.0 if e2 >= 0.0 else -1.0
-                g0, g1, g2 = -sign0[n, 0], -sign0[n, 1], -sign0[n, 2]
-            counted = live and origin >= 0 and k0 + k >= origin  # from the run's origin on
-            a0, a1, a2 = abs(e0), abs(e1), abs(e2)
-            max_abs_q = _maximum(_maximum(a0, a1), a2)
-            if counted and max_abs_q >= settle_threshold:
-                lu = k0 + k
-            if live and (t[k] < steady_from or max_abs_q <= loss_bound):  # control_lost_at_s: a NaN error is not within
-                lc = k0 + k
-            if n_steady > 0:
-                use = live and t[k] >= steady_from
-                s0 = s0 + (a0 if use else 0.0)  # a sequential running sum, sample by sample
-                s1 = s1 + (a1 if use else 0.0)
-                s2 = s2 + (a2 if use else 0.0)
-                v = max_abs_q if use else 0.0
-                smax = v if k == 0 else _maximum(smax, v)
-                if use:
-                    p0, z0, a, b = _switch(torque[k, n, 0], p0, z0)
-                    c0, r0 = c0 + a, r0 + b
-                    p1, z1, a, b = _switch(torque[k, n, 1], p1, z1)
-                    c1, r1 = c1 + a, r1 + b
-                    p2, z2, a, b = _switch(torque[k, n, 2], p2, z2)
-                    c2, r2 = c2 + a, r2 + b
-            if k0 + k == k_t2[n]:
-                rpf_error_t2_axis[n, 0] = abs(e0 - rho[k, n, 0]) if live else np.nan
-                rpf_error_t2_axis[n, 1] = abs(e1 - rho[k, n, 1]) if live else np.nan
-                rpf_error_t2_axis[n, 2] = abs(e2 - rho[k, n, 2]) if live else np.nan
-            v = _maximum(_maximum(g0 * e0, g1 * e1), g2 * e2) if counted else -np.inf
-            over = v if k == 0 else _maximum(over, v)
-            v = _maximum(_maximum(abs(torque[k, n, 0]), abs(torque[k, n, 1])), abs(torque[k, n, 2])) if counted else 0.0
-            tmax = v if k == 0 else _maximum(tmax, v)
-            if counted and (saturated[k, n, 0] or saturated[k, n, 1] or saturated[k, n, 2]):
-                n_sat += 1
-            # inside: within every component's band; a NaN band (none yet) fails the comparison
-            inside = ((e0 >= band_lower[k, n, 0] and e0 <= band_upper[k, n, 0]) and (e1 >= band_lower[k, n, 1] and e1 <= band_upper[k, n, 1])
-                      and (e2 >= band_lower[k, n, 2] and e2 <= band_upper[k, n, 2]))
-            outside = counted and not inside
-            if outside:
-                n_out += 1
-                lo = k0 + k
-                if has_fault and t[k] >= fault_from:
-                    left = True
-            if hold_s.shape[0] > 0:
-                held = held + (hold_s[k0 + k] if outside else 0.0)  # a sequential running sum
-        finite[n] = live
-        last_unsettled[n], last_outside[n], last_controlled[n] = lu, lo, lc
-        if n_steady > 0:
-            steady_sum[n, 0], steady_sum[n, 1], steady_sum[n, 2] = s0, s1, s2
-            steady_max[n] = _maximum(steady_max[n], smax)
-            torque_sign[n, 0], torque_sign[n, 1], torque_sign[n, 2] = p0, p1, p2
-            torque_sign_nonzero[n, 0], torque_sign_nonzero[n, 1], torque_sign_nonzero[n, 2] = z0, z1, z2
-            torque_sign_changes[n, 0] += c0
-            torque_sign_changes[n, 1] += c1
-            torque_sign_changes[n, 2] += c2
-            torque_reversals[n, 0] += r0
-            torque_reversals[n, 1] += r1
-            torque_reversals[n, 2] += r2
-        overshoot[n] = _maximum(overshoot[n], over)
-        max_torque[n] = _maximum(max_torque[n], tmax)
-        saturated_count[n] += n_sat
-        outside_count[n] += n_out
-        if hold_s.shape[0] > 0:
-            outside_s[n] = held
-        if left:
-            left_after_fault[n] = True
+            m = metric_sample_of(m, float(k0 + k), t[k], ok, q_BR[k, n, 0], q_BR[k, n, 1], q_BR[k, n, 2], torque[k, n, 0], torque[k, n, 1],
+                                 torque[k, n, 2], rho[k, n, 0], rho[k, n, 1], rho[k, n, 2],
+                                 saturated[k, n, 0] or saturated[k, n, 1] or saturated[k, n, 2], band_lower[k, n, 0], band_lower[k, n, 1],
+                                 band_lower[k, n, 2], band_upper[k, n, 0], band_upper[k, n, 1], band_upper[k, n, 2],
+                                 hold_s[k0 + k] if has_hold else 0.0, has_hold, steady_from, origin, kt2, settle_threshold, loss_bound,
+                                 fault_from)
+        metric_state_store(a, n, m)
+        total_steady += steady_n[n] - before
     return total_steady

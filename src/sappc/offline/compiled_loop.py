@@ -104,7 +104,7 @@ from sappc_msgs_py.convert import seconds_to_ns
 
 from sappc.evaluation.estimation import EstimateHistory
 from sappc.evaluation.history import History
-from sappc.evaluation.metrics import SampleGrid
+from sappc.evaluation.metrics import MetricsAccumulator, SampleGrid
 from sappc.scenario import Scenario
 
 __all__ = ["BLOCK_RUN_SAMPLES", "CAMPAIGN_GROUPS", "CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "LoopState", "NoiseStreams", "SampleMaker",
@@ -985,6 +985,9 @@ class CompiledRun:
 
     t: np.ndarray
     record: LoopRecord
+    #: (N,) bool: the runs whose metrics the loop computed online for this block (their record holds
+    #: only their answers: :func:`run_blocks`' ``metrics``); ``None``: every run recorded.
+    online: np.ndarray | None = None
 
     @property
     def out(self) -> np.ndarray:
@@ -1032,6 +1035,10 @@ class CompiledRun:
         """(N, :data:`~sappc_modes.core.packing.N_MODE_RUN` or 0) each run's mode summary: each
         mode's first entry [s] (NaN: never), its samples, the transitions (``MR_*``)."""
         return self.record.mode_run
+
+    def runs(self, rows: np.ndarray) -> CompiledRun:
+        """Runs ``rows`` of the batch (copies of their rows of the record)."""
+        return CompiledRun(self.t, LoopRecord(*(a[rows] for a in self.record)))
 
     def status_counts(self) -> dict[str, np.ndarray]:
         """Samples of each status per run (N,), by :data:`ANSWER_NAMES`."""
@@ -1304,13 +1311,19 @@ def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = N
     return CompiledRun(inp.t[::stride] if stride else inp.t[:0], rec)
 
 
-def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None = None) -> Iterator[CompiledRun]:
+def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None = None,
+               metrics: MetricsAccumulator | None = None) -> Iterator[CompiledRun]:
     """Every run of ``inp``, block after block of samples (in parallel over runs): yields each
     block's :class:`CompiledRun` (its times and record, every ``stride`` samples), the same bits as
     :func:`run_batch`'s record over those samples.  Memory is one block's inputs and record,
     whatever the run's length: ``block_samples`` samples (default :data:`BLOCK_RUN_SAMPLES` over
     the runs).  The record is one buffer reused from block to block (its views are valid until the
-    next block); its per-run arrays (``rejected``, ``x_final``, ``start``) are the run's so far."""
+    next block); its per-run arrays (``rejected``, ``x_final``, ``start``) are the run's so far.
+    ``metrics``: where the runs go in SIMD lanes, the lanes feed it their metrics online, sample
+    by sample (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_state`: the same bits),
+    and record only their answers; a block's :attr:`CompiledRun.online` then says which runs, and
+    the caller gives ``metrics`` the others' record
+    (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.add_online_block`) before the next block."""
     n = inp.n_runs
     size = max(1, BLOCK_RUN_SAMPLES // max(n, 1)) if block_samples is None else int(block_samples)
     if stride > 0:
@@ -1320,32 +1333,35 @@ def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None =
     rec = _record(inp, stride, n, size)
     for block in inp.blocks(size, stride):
         _check_noise(block)
-        _loop(False, stride, block, rec, st)
+        online = _loop(False, stride, block, rec, st, metrics)
         b = block.t.size
         b_rec = 0 if stride == 0 else (b - 1) // stride + 1
         view = rec if b_rec == rec.out.shape[1] else LoopRecord(*(a[:, :b_rec] if a.ndim >= 2 and name not in _PER_RUN else a
                                                                  for name, a in zip(LoopRecord._fields, rec)))
-        yield CompiledRun(block.t[::stride] if stride else block.t[:0], view)
+        yield CompiledRun(block.t[::stride] if stride else block.t[:0], view, online)
 
 
 #: The fields of :class:`LoopRecord` that are per run, not per sample.
 _PER_RUN = ("rejected", "x_final", "start", "mode_run")
 
 
-def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState) -> None:
+def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState,
+          metrics: MetricsAccumulator | None = None) -> np.ndarray | None:
     """Every run of ``inp`` (its block of samples) into ``rec`` and ``st``: in parallel over runs
     (:func:`run_batch_kernel`), or, for one run, :func:`_run_one` alone (the same bits; a one-run
-    command then never compiles the batch kernel)."""
+    command then never compiles the batch kernel).  ``metrics``: fed online by the SIMD lanes
+    (:func:`run_blocks`); returns the runs whose metrics were (None: none)."""
     if stride > 0 and inp.k_lo % stride != 0:
         raise ValueError(f"a block must start at a recorded sample: k_lo {inp.k_lo} is not a multiple of the stride {stride}")
     if inp.lanes and not probe and lanes_refusal(inp) is None:
-        _loop_lanes(stride, inp, rec, st)
-    elif inp.n_runs == 1:
+        return _loop_lanes(stride, inp, rec, st, metrics)
+    if inp.n_runs == 1:
         _with_restarts(lambda: _run_alone(0, probe, stride, inp, rec, st), probe, inp, rec, st, np.zeros(1, dtype=np.int64))
     else:
         ensure_compiled(groups=("batches",))
         _with_restarts(lambda: run_batch_kernel(probe, stride, np.int64(inp.k_lo), *inp.args(), rec, st), probe, inp, rec, st,
                        np.arange(inp.n_runs))
+    return None
 
 
 def lanes_refusal(inp: CompiledInputs) -> str | None:
@@ -1360,16 +1376,27 @@ def _lanes() -> Any:
     return lanes
 
 
-def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState) -> None:
+def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState, metrics: MetricsAccumulator | None) -> np.ndarray | None:
     """:func:`_loop` in SIMD lanes (:func:`sappc.offline.lanes.run_lanes_kernel`), then each run the
     lanes handed back (an input rejected, a refused answer: the per-run loop's cases) run again over
     the block by :func:`_run_one`, from the state the block started with (which the lanes left in
-    ``st``)."""
+    ``st``), into the record.  With ``metrics`` (fed every sample before the block's, and a record
+    of every sample), the lanes feed it their runs' metrics online; returns those runs (the ones
+    not handed back), else None."""
     ensure_compiled(groups=("lanes",))
+    lanes = _lanes()
     handed_back = np.zeros(inp.n_runs, dtype=np.int8)
-    _lanes().run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back)
+    online = metrics is not None
+    if online:
+        assert metrics is not None
+        if stride != 1 or metrics.samples != inp.k_lo or metrics.finite.shape[0] != inp.n_runs:
+            raise ValueError(f"online metrics need a record of every sample and an accumulator of the block's {inp.n_runs} runs fed "
+                             f"its {inp.k_lo} samples before (stride {stride}, {metrics.finite.shape[0]} runs, {metrics.samples} samples)")
+    ma, mc = lanes.online_metrics(metrics) if metrics is not None else lanes.no_online_metrics()
+    lanes.run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back, ma, mc)
     for n in np.flatnonzero(handed_back):
         _run_one(np.int64(n), np.int64(n), False, np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st)
+    return handed_back == 0 if online else None
 
 
 def _with_restarts(call: Callable[[], None], probe: bool, inp: CompiledInputs, rec: LoopRecord, st: LoopState, runs: np.ndarray) -> None:
@@ -1812,7 +1839,7 @@ def _warm_up_lanes(scenario: Scenario, compiled: Any) -> None:
     numbers are meaningless: the start constants are zero)."""
     inp = prepare(scenario, on_infeasible="clamp", q_BN0=np.broadcast_to(scenario.q_BN0, (2, 4)), lanes=True, started=False)
     _lanes().run_lanes_kernel(np.int64(1), np.int64(0), *inp.args(), _record(inp, 1, inp.n_runs), _state(inp, inp.n_runs),
-                              np.zeros(inp.n_runs, dtype=np.int8))
+                              np.zeros(inp.n_runs, dtype=np.int8), *_lanes().no_online_metrics())
     compiled("the offline loop (SIMD lanes)")
 
 

@@ -57,12 +57,14 @@ from sappc_controller.core.kernels import actuator_of, backstepping_of, error_st
 from sappc_msgs_py.contract import ANSWER_COMMANDED
 from spacecraft_sim.core.kernels import disturbance_at, rk4_of
 
+from sappc.evaluation.metrics import N_METRIC_STATE, MetricArrays, MetricConstants, MetricsAccumulator, SampleGrid
+from sappc.evaluation.metrics import metric_sample_of, metric_state_load, metric_state_store
 from sappc.offline.compiled_loop import _NS_PER_S, L_HAS_LAST, L_LAST_STATE_NS, L_N_STARTS, L_STARTED, V_CMD, V_U_CMD, V_U_LAST, _initial_state
 
 if TYPE_CHECKING:
     from sappc.offline.compiled_loop import CompiledInputs
 
-__all__ = ["LANES", "lanes_refusal", "run_lanes_kernel"]
+__all__ = ["LANES", "lanes_refusal", "no_online_metrics", "online_metrics", "run_lanes_kernel"]
 
 #: Runs per lane group: a multiple of every libmvec width (2, 4 and 8 float64), so that LLVM's
 #: vectorised loops have no scalar remainder (which would call the scalar libm for some lanes).
@@ -71,6 +73,7 @@ LANES = 8
 #: law reads (``S_SD .. S_T0``).
 _N_CTRL = S_T0 + 1
 assert N_PARAMS == 29, "_lane_prm lists the 29 parameters of sappc_controller.core.kernels by index"
+assert N_METRIC_STATE == 34, "_metric_rows lists the 34 values of sappc.evaluation.metrics.metric_sample_of's state"
 
 
 def lanes_refusal(inp: CompiledInputs) -> str | None:
@@ -119,7 +122,47 @@ _R_A = _R_ABSW + 3
 _R_WW = _R_A + 3
 _R_ATAN = _R_WW + 3
 _R_DONE = _R_ATAN + 3
-_N_ROWS = _R_DONE + 3
+_R_M = _R_DONE + 3  # N_METRIC_STATE: the run's metric state (online metrics: sappc.evaluation.metrics.metric_sample_of's)
+_R_MC = _R_M + N_METRIC_STATE  # 3: the run's metric constants: its steady window's start less the tolerance, its origin, t2's sample
+_N_ROWS = _R_MC + 3
+
+
+def online_metrics(acc: MetricsAccumulator) -> tuple[MetricArrays, MetricConstants]:
+    """The lanes' metrics arguments that have them compute ``acc``'s metrics online, sample by
+    sample (:func:`run_lanes_kernel`): ``acc``'s per-run arrays and constants
+    (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_state`), ``acc`` fed every sample
+    before the block's."""
+    return acc.online_state()
+
+
+def no_online_metrics() -> tuple[MetricArrays, MetricConstants]:
+    """The lanes' metrics arguments for a loop that records its samples instead (the same types as
+    :func:`online_metrics`': one compiled kernel)."""
+    arrays, consts = MetricsAccumulator(SampleGrid(1, 1.0), 0, steady_from_s=0.0, settle_threshold=0.0, t2_s=0.0, fault_windows=[]).online_state()
+    return arrays, consts._replace(on=np.int64(0))
+
+
+@jit(inline="always")
+def _metric_rows(S, w):
+    """Lane ``w``'s metric state (rows ``_R_M ..``) as the tuple :func:`metric_sample_of` takes."""
+    r = _R_M
+    return ((S[r, w], S[r + 1, w], S[r + 2, w], S[r + 3, w], S[r + 4, w], S[r + 5, w], S[r + 6, w], S[r + 7, w], S[r + 8, w], S[r + 9, w],
+             S[r + 10, w], S[r + 11, w], S[r + 12, w], S[r + 13, w], S[r + 14, w], S[r + 15, w], S[r + 16, w])
+            + (S[r + 17, w], S[r + 18, w], S[r + 19, w], S[r + 20, w], S[r + 21, w], S[r + 22, w], S[r + 23, w], S[r + 24, w], S[r + 25, w],
+               S[r + 26, w], S[r + 27, w], S[r + 28, w], S[r + 29, w], S[r + 30, w], S[r + 31, w], S[r + 32, w], S[r + 33, w]))
+
+
+@jit(inline="always")
+def _set_metric_rows(S, w, m):
+    """Lane ``w``'s metric state rows set to ``m`` (each item by a constant index: a loop over the
+    tuple would index it by a switch, which stops the lane loop's vectorisation)."""
+    r = _R_M
+    S[r, w], S[r + 1, w], S[r + 2, w], S[r + 3, w], S[r + 4, w], S[r + 5, w] = m[0], m[1], m[2], m[3], m[4], m[5]
+    S[r + 6, w], S[r + 7, w], S[r + 8, w], S[r + 9, w], S[r + 10, w], S[r + 11, w] = m[6], m[7], m[8], m[9], m[10], m[11]
+    S[r + 12, w], S[r + 13, w], S[r + 14, w], S[r + 15, w], S[r + 16, w], S[r + 17, w] = m[12], m[13], m[14], m[15], m[16], m[17]
+    S[r + 18, w], S[r + 19, w], S[r + 20, w], S[r + 21, w], S[r + 22, w], S[r + 23, w] = m[18], m[19], m[20], m[21], m[22], m[23]
+    S[r + 24, w], S[r + 25, w], S[r + 26, w], S[r + 27, w], S[r + 28, w], S[r + 29, w] = m[24], m[25], m[26], m[27], m[28], m[29]
+    S[r + 30, w], S[r + 31, w], S[r + 32, w], S[r + 33, w] = m[30], m[31], m[32], m[33]
 
 
 @jit(inline="always")
@@ -140,11 +183,14 @@ def _nine(S, r, w):
 
 
 @jit
-def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back):
+def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc):
     """Runs ``g0 .. g0 + LANES - 1`` (the last group's missing lanes repeat its last run, written
     nowhere) over one block of samples, from and into their rows of ``st`` and ``rec`` (row = run,
     as :func:`~sappc.offline.compiled_loop.run_batch_kernel`); a lane handed back (module docstring)
-    leaves its rows of ``st`` as they were and sets ``handed_back[run]``."""
+    leaves its rows of ``st`` as they were and sets ``handed_back[run]``.  ``ma``, ``mc``: with
+    ``mc.on`` 1 (:func:`online_metrics`), each run's metrics sample by sample into its rows of the
+    accumulator's arrays (a lane handed back leaves them as they were), and the record only its
+    answers (``rec.status``)."""
     W = LANES
     N = plant.x0.shape[0]
     rows = np.empty(W, dtype=np.int64)
@@ -178,6 +224,13 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
         S[_R_STARTED, w] = 1.0 if st.flags[r, L_STARTED] != 0 else 0.0
         S[_R_NSTARTS, w] = st.flags[r, L_N_STARTS]
         S[_R_BAD, w] = 0.0
+    online = mc.on != 0
+    if online:
+        for w in range(W):
+            _set_metric_rows(S, w, metric_state_load(ma, rows[w]))
+            for i in range(3):
+                S[_R_MC + i, w] = mc.per_run[rows[w], i]
+    settle_threshold, loss_bound, fault_from = mc.settle_threshold, mc.loss_bound, mc.fault_from
     # The lane loops' trip count, LANES, as a value LLVM cannot fold: a constant count of 8 is
     # unrolled whole before the loop vectorizer sees the loop (and the SMETF's stage is then not
     # vectorised); at run time it is LANES, a multiple of every vector width, so the vectorised
@@ -319,11 +372,30 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
             S[_R_U + 1, w] = min(max(tq1, -umax), umax)
             S[_R_U + 2, w] = min(max(tq2, -umax), umax)
         last_ns = t_ns
+        if online:  # stage 4: the sample's metrics (the record's quantities at this sample: the state before the step, the answer)
+            k_f = float(k)
+            t_k = grid.t[kb]
+            for w in range(nl):
+                ok = True
+                for i in range(7):
+                    ok = ok and np.isfinite(S[_R_X + i, w])
+                for i in range(3):
+                    ok = ok and np.isfinite(S[_R_PUB + 4 * O_TORQUE + i, w])
+                qb, tb, rb = _R_PUB + 4 * O_QBR, _R_PUB + 4 * O_TORQUE, _R_PUB + 4 * O_RHO
+                lb, ub, sb = _R_PUB + 4 * O_BL, _R_PUB + 4 * O_BU, _R_PUB + 4 * O_SAT
+                sat = S[sb, w] != 0.0 or S[sb + 1, w] != 0.0 or S[sb + 2, w] != 0.0
+                _set_metric_rows(S, w, metric_sample_of(
+                    _metric_rows(S, w), k_f, t_k, ok, S[qb, w], S[qb + 1, w], S[qb + 2, w], S[tb, w], S[tb + 1, w], S[tb + 2, w], S[rb, w],
+                    S[rb + 1, w], S[rb + 2, w], sat, S[lb, w], S[lb + 1, w], S[lb + 2, w], S[ub, w], S[ub + 1, w], S[ub + 2, w], 0.0, False,
+                    S[_R_MC, w], S[_R_MC + 1, w], S[_R_MC + 2, w], settle_threshold, loss_bound, fault_from))
         if stride > 0 and kb % stride == 0:
             j = kb // stride
             for w in range(W):
                 r = rows[w]
                 if g0 + w >= N:
+                    continue
+                rec.status[r, j] = ANSWER_COMMANDED
+                if online:  # the metrics are taken: the record keeps only the answers
                     continue
                 for row in range(N_OUT):
                     for c in range(4):
@@ -332,7 +404,6 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                     rec.x[r, j, i] = S[_R_X + i, w]
                 for i in range(3):
                     rec.d[r, j, i] = S[_R_D + i, w]
-                rec.status[r, j] = ANSWER_COMMANDED
         if k < T - 1:
             h = dt / plant.substeps
             for _ in range(plant.substeps):
@@ -356,6 +427,8 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
             rec.x_final[r, i] = S[_R_X + i, w]
         for i in range(_N_CTRL):
             st.ctrl[r, i] = S[_R_CS + i, w]
+        if online:
+            metric_state_store(ma, r, _metric_rows(S, w))
         for row in range(N_OUT):
             for c in range(4):
                 st.pub[r, row, c] = S[_R_PUB + 4 * row + c, w]
@@ -373,10 +446,11 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
 
 
 @jit_parallel
-def run_lanes_kernel(stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back):
+def run_lanes_kernel(stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc):
     """Every run of a batch over one block of samples in groups of :data:`LANES` (module
     docstring), the groups in parallel (``prange``); ``handed_back`` (N,) int8 marks the runs to
-    compute per run."""
+    compute per run; ``ma``, ``mc`` (:func:`online_metrics` or :func:`no_online_metrics`): whether
+    the lanes compute the runs' metrics online instead of recording their samples."""
     n_groups = (plant.x0.shape[0] + LANES - 1) // LANES
     for g in prange(n_groups):
-        _lane_group(np.int64(g) * LANES, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back)
+        _lane_group(np.int64(g) * LANES, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc)

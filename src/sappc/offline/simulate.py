@@ -197,7 +197,8 @@ def run_scenario(
     draws = None if sensors is None else sensors[1]
 
     n, T = inp.n_runs, inp.n_samples
-    if lanes and sub_batch == SUB_BATCH and compiled_loop.lanes_refusal(inp) is None:
+    in_lanes = lanes and compiled_loop.lanes_refusal(inp) is None
+    if in_lanes and sub_batch == SUB_BATCH:
         sub_batch = LANES_SUB_BATCH
     step = n if keep_history else max(1, min(sub_batch, n))
     n_traj, traj_stride = trajectory if trajectory is not None else (0, 1)
@@ -217,21 +218,27 @@ def run_scenario(
         for key, value in sub.flags.items():  # each run's start (computed again with its sensor draws)
             flags[key][lo:hi] = value
         acc = metrics_accumulator(scenario, T, float(scenario.control_period_s), hi - lo, per_orbit=per_orbit)
+        m = min(n_traj, hi) - lo  # runs of this sub-batch whose trajectories are kept
         if keep_history:  # the whole record, one block
             buffer = compiled_loop.run_batch(sub, 1, into=buffer)
             blocks: Iterator[compiled_loop.CompiledRun] = iter((buffer,))
+        elif in_lanes and m <= 0 and not sinks:  # the lanes take the metrics online: nothing but the answers recorded (flat memory traffic)
+            blocks = compiled_loop.run_blocks(sub, 1, metrics=acc)
         else:  # a block of samples at a time: memory flat in the run's length
             blocks = compiled_loop.run_blocks(sub, 1)
         del sub
         if hi == n:  # the last sub-batch has started: its whole inputs (reference tables, sensor draws) go before the metrics
             del inp
-        m = min(n_traj, hi) - lo  # runs of this sub-batch whose trajectories are kept
         pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         k_lo = 0
         block = None
         for block in blocks:
-            h = block.history()
-            acc.add_history(h, block_samples=max(1, METRICS_BLOCK // (hi - lo)))
+            if block.online is None:
+                h = block.history()
+                acc.add_history(h, block_samples=max(1, METRICS_BLOCK // (hi - lo)))
+            else:  # the lanes' runs' metrics were taken online; the runs they handed back are in the record
+                recorded = np.flatnonzero(~block.online)
+                acc.add_online_block(block.runs(recorded).history(), recorded.tolist(), block_samples=METRICS_BLOCK)
             for sink in sinks:
                 sink(h)
             for name, count in block.status_counts().items():
@@ -240,7 +247,7 @@ def run_scenario(
                 first = -k_lo % traj_stride
                 pieces.append((h.t[first::traj_stride].copy(), h.q_BR[first::traj_stride, :m, :3].astype(np.float32),
                                h.rho[first::traj_stride, :m].astype(np.float32)))
-            k_lo += h.t.size
+            k_lo += block.t.size
             if sample_progress is not None and lo == 0:
                 sample_progress(k_lo)
             if keep_history:

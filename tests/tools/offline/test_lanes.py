@@ -165,3 +165,42 @@ def test_a_campaign_run_alone_is_its_row_when_each_run_has_its_own_disturbance()
         alone, _, _ = simulate_runs(raw, 0, [k], 0)
         for name in ("rpf_error_at_t2_per_axis", "steady_mean_abs_qev_per_axis", "steady_max_abs_qev", "max_abs_torque_Nm"):
             assert np.array_equal(np.asarray(together[name])[k], np.asarray(alone[name])[0]), (k, name)
+
+
+@pytest.mark.parametrize("block_run_samples", [None, N_RUNS * 97])
+def test_the_lanes_online_metrics_are_their_records_metrics_bit_for_bit(monkeypatch: pytest.MonkeyPatch, block_run_samples: int | None) -> None:
+    """A campaign's runs in lanes compute their metrics online, sample by sample, and record only
+    their answers (sappc.offline.simulate.run_scenario); every sample's contribution is
+    metric_sample_of's, which the record's metrics call too.  So every per-run metric state equals
+    the one computed from the same lanes' record (a sub-batch with trajectories kept goes that
+    way), bit for bit: with a run the lanes hand back (its metrics taken from its record), in one
+    block and over blocks that split the steady window."""
+    from sappc.evaluation.metrics import MetricArrays, MetricsAccumulator
+    from sappc.offline.simulate import run_scenario
+
+    if block_run_samples is not None:
+        monkeypatch.setattr(compiled_loop, "BLOCK_RUN_SAMPLES", block_run_samples)
+    online_blocks: list[list[int]] = []
+    real = MetricsAccumulator.add_online_block
+
+    def spy(self, h, recorded, **kw):  # type: ignore[no-untyped-def]
+        online_blocks.append(list(recorded))
+        real(self, h, recorded, **kw)
+
+    monkeypatch.setattr(MetricsAccumulator, "add_online_block", spy)
+    sc = _scenario()
+    q = _attitudes(N_RUNS)
+    omega = np.zeros((N_RUNS, 3))
+    omega[3] = (50.0, 0.0, 0.0)  # rad/s: rejected at every sample, handed back
+    online, run_online = run_scenario(sc, on_infeasible="clamp", q_BN0=q, omega_BN_B0_rad_s=omega, lanes=True)
+    blocks = len(online_blocks)
+    assert blocks >= (1 if block_run_samples is None else 5) and all(r == [3] for r in online_blocks)
+    recorded, run_recorded = run_scenario(sc, on_infeasible="clamp", q_BN0=q, omega_BN_B0_rad_s=omega, lanes=True, trajectory=(1, 1))
+    assert len(online_blocks) == blocks  # the second went by its record
+    assert online.samples == recorded.samples == round(sc.duration_s / sc.control_period_s) + 1
+    for name in (*MetricArrays._fields, "origin_k", "k_t2_run"):
+        a, b = getattr(online, name), getattr(recorded, name)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
+    for name, counts in run_online.status.items():
+        assert np.array_equal(counts, run_recorded.status[name]), name
+    assert np.array_equal(run_online.x_final, run_recorded.x_final)
