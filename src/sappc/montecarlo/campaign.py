@@ -387,6 +387,8 @@ def run_campaign(
     todo = [(i, r) for i, r in chunks(runs, chunk_runs) if not chunk_path(out, i).exists()]
     if todo and scheduler is None:
         compiled_loop.ensure_compiled(in_subprocess=workers > 1, groups=compiled_loop.CAMPAIGN_GROUPS)  # compile once, here, not in every worker
+        if workers > 1:
+            compiled_loop.load_before_fork(scenario)  # once here, not in every worker
     bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)  # after compiling: the rate is the runs'
     executor = ChunkExecutor(workers, scheduler)
     global _progress_sink

@@ -105,6 +105,7 @@ from sappc_msgs_py.convert import seconds_to_ns
 from sappc.evaluation.estimation import EstimateHistory
 from sappc.evaluation.history import History
 from sappc.evaluation.metrics import MetricsAccumulator, SampleGrid
+from gnc_common.validation import ConfigError
 from sappc.scenario import Scenario
 
 __all__ = ["BLOCK_RUN_SAMPLES", "CAMPAIGN_GROUPS", "CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "LoopState", "NoiseStreams", "SampleMaker",
@@ -783,6 +784,10 @@ class SampleMaker:
     n_runs: int
     faults: tuple[Any, ...]
     fault_noise: bool
+    #: The blocks made so far, up to :data:`MADE_BLOCKS_MAX_BYTES` of them: (k_lo, k_hi, the
+    #: reference's carry before) -> (grid, disturbance, the carry after).  A campaign's sub-batches
+    #: ask for the same blocks in the same order: made once, not once each.
+    made: dict[tuple[int, int, bytes], tuple[LoopGrid, Any, np.ndarray]] = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     def times(self, k_lo: int, k_hi: int) -> tuple[np.ndarray, np.ndarray]:
         """Samples ``k_lo .. k_hi - 1``: their times ``k dt`` [s] (the products of
@@ -797,6 +802,32 @@ class SampleMaker:
         t, t_ns = self.times(k_lo, k_hi)
         ref = self.reference.sample(t, carry)
         return LoopGrid(t, t_ns, self.dt, _f64(ref.q_RN), _f64(ref.omega_RN_R), _f64(ref.omegadot_RN_R), self.n_samples)
+
+    def block(self, k_lo: int, k_hi: int, carry: np.ndarray) -> tuple[LoopGrid, Any]:
+        """:meth:`grid` and the disturbance's arrays of samples ``k_lo .. k_hi - 1`` for every run
+        (:func:`~spacecraft_sim.core.disturbance.pack_disturbance`), each block made once while
+        the blocks kept stay within :data:`MADE_BLOCKS_MAX_BYTES` (their arrays shared: read
+        only)."""
+        key = (k_lo, k_hi, carry.tobytes())
+        hit = self.made.get(key)
+        if hit is not None:
+            grid, made, after = hit
+            carry[...] = after
+            return grid, made
+        grid = self.grid(k_lo, k_hi, carry)
+        made = pack_disturbance(self.disturbance, grid.t, self.n_runs)
+        size = sum(a.nbytes for a in (*grid, *made) if isinstance(a, np.ndarray))
+        kept = sum(a.nbytes for g, m, _ in self.made.values() for a in (*g, *m) if isinstance(a, np.ndarray))
+        if kept + size <= MADE_BLOCKS_MAX_BYTES:
+            self.made[key] = (grid, made, carry.copy())
+        return grid, made
+
+
+#: What :class:`SampleMaker` keeps of the blocks it made, for the next sub-batch: 16 MiB, a whole
+#: run of 50 s at 100 Hz many times over (the grid's 96 bytes a sample, a shared disturbance
+#: table's 24 and its windows'); a long run's later blocks, or a disturbance drawn per run, are
+#: made again for each sub-batch.
+MADE_BLOCKS_MAX_BYTES = 16 << 20
 
 
 #: Run-samples (samples times runs) of one block of :func:`run_blocks`: the block's inputs and
@@ -953,9 +984,8 @@ class CompiledInputs:
         """Samples ``k_lo .. k_hi - 1`` made by ``maker`` (the reference continued from ``carry``)."""
         m = self.maker
         assert m is not None
-        grid = m.grid(k_lo, k_hi, carry)
+        grid, made = m.block(k_lo, k_hi, carry)
         lo, hi = (0, m.n_runs) if self.runs is None else self.runs
-        made = pack_disturbance(m.disturbance, grid.t, m.n_runs)
         dist = self.disturbance._replace(table=made.table, windows=made.windows,
                                          draws=made.draws if (lo, hi) == (0, m.n_runs) else np.ascontiguousarray(made.draws[:, lo:hi]))
         faults = self.faults._replace(draws=noise_draws(m.faults, grid.t_ns)) if m.fault_noise else self.faults
@@ -1778,6 +1808,19 @@ def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = 
         _warm_up_lanes(scenario, compiled)
     if "nodes" in names:
         _warm_up_nodes(scenario, compiled)
+
+
+def load_before_fork(scenario: Scenario) -> None:
+    """Do here, once, what each of a campaign's workers would do first, before they are forked
+    (they share this process's memory): numba's first use of its CPU target (which imports its
+    array functions and, through them, scipy's linear algebra: about 0.4 s of CPU a process) and
+    the start's kernels (the one-run probe, :func:`~sappc_controller.core.packing.start_coef`),
+    by preparing ``scenario``'s own run.  The parallel kernels are left to the workers: loading one
+    starts numba's thread pool, which a forked child cannot use (the workers would then come from a
+    fork server, with nothing loaded).  A scenario whose own run cannot start (a campaign may
+    disperse it away from a singular start) leaves the rest to the workers."""
+    with contextlib.suppress(ConfigError, SingularStartError):
+        prepare(scenario, on_infeasible="clamp")
 
 
 def _warm_up_scenario() -> Scenario:

@@ -183,3 +183,49 @@ def test_a_weeks_run_holds_nothing_of_its_length() -> None:
     week, week_samples = _traced_peak_of_first_blocks(604800.0)
     assert week_samples == 60_480_001 and day_samples == 8_640_001
     assert week - day < 1.0 * (week_samples - day_samples), f"{(week - day) / 2**20:.0f} MiB more for a week"
+
+
+def test_a_campaigns_sub_batches_share_the_blocks_made_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The grid, the reference and the disturbance of each block are the same for every
+    sub-batch of a campaign (functions of the sample only): the inputs' SampleMaker makes each
+    block once and hands the next sub-batch the same arrays, with the reference's carry where the
+    block leaves it; the values are those made afresh.  Beyond MADE_BLOCKS_MAX_BYTES nothing more
+    is kept (a long run's blocks, a disturbance drawn per run)."""
+    sc = _with("paper_montecarlo", 2.0)
+    q = np.broadcast_to(sc.q_BN0, (3, 4)).copy()
+    inp = prepare(sc, on_infeasible="clamp", q_BN0=q, whole=False)
+    first = [(b.grid, b.disturbance) for b in inp.subset(0, 1).blocks(64, 1)]
+    again = [(b.grid, b.disturbance) for b in inp.subset(1, 3).blocks(64, 1)]
+    assert len(first) == len(again) == 4  # 201 samples in blocks of 64
+    for (g1, d1), (g2, d2) in zip(first, again):
+        assert g1 is g2 and d1.table is d2.table
+    monkeypatch.setattr(compiled_loop, "MADE_BLOCKS_MAX_BYTES", 0)
+    fresh = prepare(sc, on_infeasible="clamp", q_BN0=q, whole=False)
+    made = [(b.grid, b.disturbance) for b in fresh.blocks(64, 1)]
+    assert fresh.maker is not None and not fresh.maker.made
+    for (g1, d1), (g2, d2) in zip(first, made):
+        assert g1 is not g2
+        for a, b in zip((*g1, d1.table, d1.windows), (*g2, d2.table, d2.windows)):
+            assert np.array_equal(a, b), "a block kept differs from the block made afresh"
+
+
+def test_the_work_done_before_forking_campaign_workers_keeps_them_forked() -> None:
+    """``sappc montecarlo`` loads numba's CPU target and the start's kernels once, before forking
+    its workers (compiled_loop.load_before_fork), so that they share them.  It must not start
+    numba's thread pool (loading a parallel kernel does): the workers would then come from a fork
+    server, with nothing loaded.  In a fresh interpreter: after the load, numba's array functions
+    (the target's first use) are loaded and the campaign still forks."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from sappc.files import scenario_path\n"
+            "from sappc.scenario import load_scenario\n"
+            "from sappc.offline import compiled_loop\n"
+            "from sappc.montecarlo.campaign import _start_method\n"
+            "assert 'numba.np.arraymath' not in sys.modules\n"
+            "compiled_loop.load_before_fork(load_scenario(scenario_path('paper_montecarlo')))\n"
+            "print('numba.np.arraymath' in sys.modules, _start_method())\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "fork"]
