@@ -788,7 +788,7 @@ class MetricsAccumulator:
         if runs == slice(None):
             self.samples += t.size
 
-    def online_state(self) -> tuple[MetricArrays, MetricConstants]:
+    def online_state(self, keep_record: bool = False) -> tuple[MetricArrays, MetricConstants]:
         """What a loop that computes the metrics online, sample by sample, reads and writes (the
         SIMD lanes, :func:`sappc.offline.lanes.online_metrics`; every sample's contribution is
         :func:`metric_sample_of`'s, as in :meth:`add_history`): the per-run arrays
@@ -803,7 +803,7 @@ class MetricsAccumulator:
         arrays = MetricArrays(*(getattr(self, name) for name in MetricArrays._fields))
         per_run = np.column_stack((self.steady_from_per_run() - _TIME_TOL_S, self.origin_k.astype(np.float64), self.k_t2_run.astype(np.float64)))
         fault_from = np.nan if self.fault_start_s is None else float(self.fault_start_s) - _TIME_TOL_S
-        return arrays, MetricConstants(np.int64(1), per_run, float(self.settle_threshold), float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
+        return arrays, MetricConstants(np.int64(1), np.int64(keep_record), per_run, float(self.settle_threshold), float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
                                        fault_from)
 
     def add_online_block(self, h: History, recorded: Sequence[int], *, block_samples: int | None = None) -> None:
@@ -1044,11 +1044,13 @@ class MetricArrays(NamedTuple):
 class MetricConstants(NamedTuple):
     """What a loop computing the metrics online reads besides :class:`MetricArrays`
     (:meth:`MetricsAccumulator.online_state`): ``on`` (0: the loop records its samples instead),
-    each run's constants ``per_run`` (N, 3) (its steady window's start less the grid's tolerance,
-    its origin, t2's sample; float64, exact), the settling threshold, the loss-of-control bound,
-    the fault's start less the tolerance (NaN: no fault)."""
+    ``keep_record`` (1: it records every sample too, for what else reads them), each run's
+    constants ``per_run`` (N, 3) (its steady window's start less the grid's tolerance, its origin,
+    t2's sample; float64, exact), the settling threshold, the loss-of-control bound, the fault's
+    start less the tolerance (NaN: no fault)."""
 
     on: np.int64
+    keep_record: np.int64
     per_run: Array
     settle_threshold: float
     loss_bound: float
@@ -1065,7 +1067,7 @@ class MetricConstants(NamedTuple):
 N_METRIC_STATE = 34
 
 
-@jit(inline="always")
+@jit(inline="always")  # type: ignore[no-untyped-call]
 def metric_sample_of(m, k, t_k, ok, e0, e1, e2, u0, u1, u2, rho0, rho1, rho2, sat, bl0, bl1, bl2, bu0, bu1, bu2, hold_k, has_hold,  # type: ignore[no-untyped-def]
                      steady_from, origin, k_t2, settle_threshold, loss_bound, fault_from):
     """One sample ``k`` (float) at ``t_k`` [s] of one run into its metric state ``m``
@@ -1133,7 +1135,7 @@ def metric_sample_of(m, k, t_k, ok, e0, e1, e2, u0, u1, u2, rho0, rho1, rho2, sa
             + (p0, p1, p2, z0, z1, z2, c0, c1, c2, r0, r1, r2, sn, sf, x0, x1, x2))
 
 
-@jit(inline="always")
+@jit(inline="always")  # type: ignore[no-untyped-call]
 def metric_state_load(a, n):  # type: ignore[no-untyped-def]
     """Run ``n``'s metric state (:data:`N_METRIC_STATE`) from the accumulator's per-run arrays
     ``a`` (:class:`MetricArrays`, or a tuple of them in its order)."""
@@ -1149,7 +1151,7 @@ def metric_state_load(a, n):  # type: ignore[no-untyped-def]
             rpf_error_t2_axis[n, 2])
 
 
-@jit(inline="always")
+@jit(inline="always")  # type: ignore[no-untyped-call]
 def metric_state_store(a, n, m):  # type: ignore[no-untyped-def]
     """Run ``n``'s metric state ``m`` into the accumulator's per-run arrays ``a`` (the inverse of
     :func:`metric_state_load`: every conversion exact)."""

@@ -1342,7 +1342,7 @@ def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = N
 
 
 def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None = None,
-               metrics: MetricsAccumulator | None = None) -> Iterator[CompiledRun]:
+               metrics: MetricsAccumulator | None = None, keep_record: bool = False) -> Iterator[CompiledRun]:
     """Every run of ``inp``, block after block of samples (in parallel over runs): yields each
     block's :class:`CompiledRun` (its times and record, every ``stride`` samples), the same bits as
     :func:`run_batch`'s record over those samples.  Memory is one block's inputs and record,
@@ -1351,9 +1351,10 @@ def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None =
     next block); its per-run arrays (``rejected``, ``x_final``, ``start``) are the run's so far.
     ``metrics``: where the runs go in SIMD lanes, the lanes feed it their metrics online, sample
     by sample (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_state`: the same bits),
-    and record only their answers; a block's :attr:`CompiledRun.online` then says which runs, and
-    the caller gives ``metrics`` the others' record
-    (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.add_online_block`) before the next block."""
+    and record only their answers (every sample too with ``keep_record``: a campaign's
+    trajectories); a block's :attr:`CompiledRun.online` then says which runs, and the caller gives
+    ``metrics`` the others' record (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.add_online_block`)
+    before the next block."""
     n = inp.n_runs
     size = max(1, BLOCK_RUN_SAMPLES // max(n, 1)) if block_samples is None else int(block_samples)
     if stride > 0:
@@ -1363,7 +1364,7 @@ def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None =
     rec = _record(inp, stride, n, size)
     for block in inp.blocks(size, stride):
         _check_noise(block)
-        online = _loop(False, stride, block, rec, st, metrics)
+        online = _loop(False, stride, block, rec, st, metrics, keep_record)
         b = block.t.size
         b_rec = 0 if stride == 0 else (b - 1) // stride + 1
         view = rec if b_rec == rec.out.shape[1] else LoopRecord(*(a[:, :b_rec] if a.ndim >= 2 and name not in _PER_RUN else a
@@ -1376,15 +1377,15 @@ _PER_RUN = ("rejected", "x_final", "start", "mode_run")
 
 
 def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState,
-          metrics: MetricsAccumulator | None = None) -> np.ndarray | None:
+          metrics: MetricsAccumulator | None = None, keep_record: bool = False) -> np.ndarray | None:
     """Every run of ``inp`` (its block of samples) into ``rec`` and ``st``: in parallel over runs
     (:func:`run_batch_kernel`), or, for one run, :func:`_run_one` alone (the same bits; a one-run
     command then never compiles the batch kernel).  ``metrics``: fed online by the SIMD lanes
-    (:func:`run_blocks`); returns the runs whose metrics were (None: none)."""
+    (:func:`run_blocks`, with ``keep_record``); returns the runs whose metrics were (None: none)."""
     if stride > 0 and inp.k_lo % stride != 0:
         raise ValueError(f"a block must start at a recorded sample: k_lo {inp.k_lo} is not a multiple of the stride {stride}")
     if inp.lanes and not probe and lanes_refusal(inp) is None:
-        return _loop_lanes(stride, inp, rec, st, metrics)
+        return _loop_lanes(stride, inp, rec, st, metrics, keep_record)
     if inp.n_runs == 1:
         _with_restarts(lambda: _run_alone(0, probe, stride, inp, rec, st), probe, inp, rec, st, np.zeros(1, dtype=np.int64))
     else:
@@ -1406,13 +1407,14 @@ def _lanes() -> Any:
     return lanes
 
 
-def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState, metrics: MetricsAccumulator | None) -> np.ndarray | None:
+def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState, metrics: MetricsAccumulator | None,
+                keep_record: bool = False) -> np.ndarray | None:
     """:func:`_loop` in SIMD lanes (:func:`sappc.offline.lanes.run_lanes_kernel`), then each run the
     lanes handed back (an input rejected, a refused answer: the per-run loop's cases) run again over
     the block by :func:`_run_one`, from the state the block started with (which the lanes left in
     ``st``), into the record.  With ``metrics`` (fed every sample before the block's, and a record
-    of every sample), the lanes feed it their runs' metrics online; returns those runs (the ones
-    not handed back), else None."""
+    of every sample), the lanes feed it their runs' metrics online (and record every sample too
+    with ``keep_record``); returns those runs (the ones not handed back), else None."""
     ensure_compiled(groups=("lanes",))
     lanes = _lanes()
     handed_back = np.zeros(inp.n_runs, dtype=np.int8)
@@ -1422,7 +1424,7 @@ def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState
         if stride != 1 or metrics.samples != inp.k_lo or metrics.finite.shape[0] != inp.n_runs:
             raise ValueError(f"online metrics need a record of every sample and an accumulator of the block's {inp.n_runs} runs fed "
                              f"its {inp.k_lo} samples before (stride {stride}, {metrics.finite.shape[0]} runs, {metrics.samples} samples)")
-    ma, mc = lanes.online_metrics(metrics) if metrics is not None else lanes.no_online_metrics()
+    ma, mc = lanes.online_metrics(metrics, keep_record) if metrics is not None else lanes.no_online_metrics()
     lanes.run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back, ma, mc)
     for n in np.flatnonzero(handed_back):
         _run_one(np.int64(n), np.int64(n), False, np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st)

@@ -127,12 +127,12 @@ _R_MC = _R_M + N_METRIC_STATE  # 3: the run's metric constants: its steady windo
 _N_ROWS = _R_MC + 3
 
 
-def online_metrics(acc: MetricsAccumulator) -> tuple[MetricArrays, MetricConstants]:
+def online_metrics(acc: MetricsAccumulator, keep_record: bool = False) -> tuple[MetricArrays, MetricConstants]:
     """The lanes' metrics arguments that have them compute ``acc``'s metrics online, sample by
     sample (:func:`run_lanes_kernel`): ``acc``'s per-run arrays and constants
     (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_state`), ``acc`` fed every sample
-    before the block's."""
-    return acc.online_state()
+    before the block's; ``keep_record``: the lanes record every sample too."""
+    return acc.online_state(keep_record)
 
 
 def no_online_metrics() -> tuple[MetricArrays, MetricConstants]:
@@ -190,7 +190,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
     leaves its rows of ``st`` as they were and sets ``handed_back[run]``.  ``ma``, ``mc``: with
     ``mc.on`` 1 (:func:`online_metrics`), each run's metrics sample by sample into its rows of the
     accumulator's arrays (a lane handed back leaves them as they were), and the record only its
-    answers (``rec.status``)."""
+    answers (``rec.status``) unless ``mc.keep_record``."""
     W = LANES
     N = plant.x0.shape[0]
     rows = np.empty(W, dtype=np.int64)
@@ -395,7 +395,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                 if g0 + w >= N:
                     continue
                 rec.status[r, j] = ANSWER_COMMANDED
-                if online:  # the metrics are taken: the record keeps only the answers
+                if online and mc.keep_record == 0:  # the metrics are taken: the record keeps only the answers
                     continue
                 for row in range(N_OUT):
                     for c in range(4):

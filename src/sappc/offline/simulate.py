@@ -222,8 +222,8 @@ def run_scenario(
         if keep_history:  # the whole record, one block
             buffer = compiled_loop.run_batch(sub, 1, into=buffer)
             blocks: Iterator[compiled_loop.CompiledRun] = iter((buffer,))
-        elif in_lanes and m <= 0 and not sinks:  # the lanes take the metrics online: nothing but the answers recorded (flat memory traffic)
-            blocks = compiled_loop.run_blocks(sub, 1, metrics=acc)
+        elif in_lanes and not sinks:  # the lanes take the metrics online: only the answers recorded, or everything for the trajectories
+            blocks = compiled_loop.run_blocks(sub, 1, metrics=acc, keep_record=m > 0)
         else:  # a block of samples at a time: memory flat in the run's length
             blocks = compiled_loop.run_blocks(sub, 1)
         del sub
@@ -233,17 +233,20 @@ def run_scenario(
         k_lo = 0
         block = None
         for block in blocks:
+            h = block.history() if block.online is None or m > 0 else None  # what the metrics, sinks or trajectories read
             if block.online is None:
-                h = block.history()
+                assert h is not None
                 acc.add_history(h, block_samples=max(1, METRICS_BLOCK // (hi - lo)))
             else:  # the lanes' runs' metrics were taken online; the runs they handed back are in the record
                 recorded = np.flatnonzero(~block.online)
                 acc.add_online_block(block.runs(recorded).history(), recorded.tolist(), block_samples=METRICS_BLOCK)
-            for sink in sinks:
+            for sink in sinks:  # a batch with sinks is recorded (the lanes take no metrics online then)
+                assert h is not None
                 sink(h)
             for name, count in block.status_counts().items():
                 status[name][lo:hi] += count
             if m > 0:  # the trajectories' samples k = 0, stride, 2 stride, ... that fall in this block
+                assert h is not None
                 first = -k_lo % traj_stride
                 pieces.append((h.t[first::traj_stride].copy(), h.q_BR[first::traj_stride, :m, :3].astype(np.float32),
                                h.rho[first::traj_stride, :m].astype(np.float32)))
@@ -251,6 +254,7 @@ def run_scenario(
             if sample_progress is not None and lo == 0:
                 sample_progress(k_lo)
             if keep_history:
+                assert h is not None
                 histories.append(h)
         assert block is not None
         if pieces:

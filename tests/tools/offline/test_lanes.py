@@ -170,11 +170,12 @@ def test_a_campaign_run_alone_is_its_row_when_each_run_has_its_own_disturbance()
 @pytest.mark.parametrize("block_run_samples", [None, N_RUNS * 97])
 def test_the_lanes_online_metrics_are_their_records_metrics_bit_for_bit(monkeypatch: pytest.MonkeyPatch, block_run_samples: int | None) -> None:
     """A campaign's runs in lanes compute their metrics online, sample by sample, and record only
-    their answers (sappc.offline.simulate.run_scenario); every sample's contribution is
-    metric_sample_of's, which the record's metrics call too.  So every per-run metric state equals
-    the one computed from the same lanes' record (a sub-batch with trajectories kept goes that
-    way), bit for bit: with a run the lanes hand back (its metrics taken from its record), in one
-    block and over blocks that split the steady window."""
+    their answers, or every sample too where trajectories are kept (sappc.offline.simulate.run_scenario);
+    every sample's contribution is metric_sample_of's, which the record's metrics call too.  So
+    every per-run metric state equals the one computed from the same lanes' record (run_blocks
+    without an accumulator), bit for bit, and the trajectories are the record's: with a run the
+    lanes hand back (its metrics taken from its record), in one block and over blocks that split
+    the steady window."""
     from sappc.evaluation.metrics import MetricArrays, MetricsAccumulator
     from sappc.offline.simulate import run_scenario
 
@@ -192,15 +193,24 @@ def test_the_lanes_online_metrics_are_their_records_metrics_bit_for_bit(monkeypa
     q = _attitudes(N_RUNS)
     omega = np.zeros((N_RUNS, 3))
     omega[3] = (50.0, 0.0, 0.0)  # rad/s: rejected at every sample, handed back
-    online, run_online = run_scenario(sc, on_infeasible="clamp", q_BN0=q, omega_BN_B0_rad_s=omega, lanes=True)
+    kw = dict(on_infeasible="clamp", q_BN0=q, omega_BN_B0_rad_s=omega, lanes=True)
+    online, run_online = run_scenario(sc, **kw)
+    with_traj, run_with_traj = run_scenario(sc, **kw, trajectory=(N_RUNS, 3))
     blocks = len(online_blocks)
-    assert blocks >= (1 if block_run_samples is None else 5) and all(r == [3] for r in online_blocks)
-    recorded, run_recorded = run_scenario(sc, on_infeasible="clamp", q_BN0=q, omega_BN_B0_rad_s=omega, lanes=True, trajectory=(1, 1))
-    assert len(online_blocks) == blocks  # the second went by its record
-    assert online.samples == recorded.samples == round(sc.duration_s / sc.control_period_s) + 1
-    for name in (*MetricArrays._fields, "origin_k", "k_t2_run"):
-        a, b = getattr(online, name), getattr(recorded, name)
-        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
-    for name, counts in run_online.status.items():
-        assert np.array_equal(counts, run_recorded.status[name]), name
-    assert np.array_equal(run_online.x_final, run_recorded.x_final)
+    assert blocks >= (2 if block_run_samples is None else 10) and all(r == [3] for r in online_blocks)
+    real_blocks = compiled_loop.run_blocks
+    monkeypatch.setattr(compiled_loop, "run_blocks", lambda inp, stride=1, block_samples=None, **_: real_blocks(inp, stride, block_samples))
+    recorded, run_recorded = run_scenario(sc, **kw, trajectory=(N_RUNS, 3))
+    assert len(online_blocks) == blocks  # the last went by its record
+    assert online.samples == with_traj.samples == recorded.samples == round(sc.duration_s / sc.control_period_s) + 1
+    for acc in (online, with_traj):
+        for name in (*MetricArrays._fields, "origin_k", "k_t2_run"):
+            a, b = getattr(acc, name), getattr(recorded, name)
+            assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
+    for run in (run_online, run_with_traj):
+        for name, counts in run.status.items():
+            assert np.array_equal(counts, run_recorded.status[name]), name
+        assert np.array_equal(run.x_final, run_recorded.x_final)
+    assert run_with_traj.trajectory is not None and run_recorded.trajectory is not None
+    for a, b in zip(run_with_traj.trajectory, run_recorded.trajectory):
+        assert np.array_equal(a, b, equal_nan=True)
