@@ -3,8 +3,9 @@
 
 No Python runs per time step: one compiled call runs a whole run (``sappc simulate``) or a
 sub-batch of runs in parallel (campaigns); the metrics are computed from each sub-batch's stored
-history (views of the loop's record, in blocks of bounded size), by the one definition of every
-metric."""
+history (views of the loop's record, in blocks of bounded size), or, for a campaign's runs in SIMD
+lanes, by the lanes themselves as they go (nothing recorded but the answers), by the one
+definition of every metric (:func:`~sappc.evaluation.metrics.metric_sample_of`: the same bits)."""
 
 from __future__ import annotations
 
@@ -149,7 +150,9 @@ def run_scenario(
 
     The runs go through the compiled loop ``sub_batch`` at a time (in parallel over runs); each
     sub-batch's full history feeds the metrics (:data:`METRICS_BLOCK` run-samples at a time: views
-    of the loop's record, no copy) and is dropped unless ``keep_history``.  ``sensors = (params, draws, outages)``: the sensors' parameters
+    of the loop's record, no copy) and is dropped unless ``keep_history``; in SIMD lanes (without
+    ``keep_history`` or ``sinks``) the lanes feed the metrics online and record only the answers,
+    or every sample of a sub-batch whose trajectories are kept.  ``sensors = (params, draws, outages)``: the sensors' parameters
     (:meth:`spacecraft_sim.core.sensors.Sensors.params`, (13,) or one row per run),
     ``draws(lo, hi)`` the standard normals (hi - lo, T, 6 or 9) of runs ``lo .. hi - 1`` and the
     tracker's outages (N, K, 2) [s] per run (``None``: the scenario's for every run); by
