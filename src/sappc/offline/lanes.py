@@ -32,6 +32,12 @@ rejects, a non-finite torque) is **handed back**: its record and state for the b
 computed again by :func:`~sappc.offline.compiled_loop._run_one` from the state the block started
 with (the loop's answers, the watchdog, the held samples: one implementation).
 
+A campaign's metrics are computed here too, as the lanes go (:func:`online_metrics`): after each
+sample's answer a fourth stage feeds each lane's metric state (rows of the scratch array) to
+:func:`~sappc.evaluation.metrics.metric_sample_of`, the per-sample piece the record's metrics
+kernel calls, and the record keeps only the answers (or every sample, ``keep_record``, where the
+first runs' trajectories are kept); a lane handed back leaves its metrics to its record.
+
 Parity (docs/parity.md, "Campaign runs in SIMD lanes"): with the libm calls vectorised, a lane's
 libm results are libmvec's (within 3 ulps of the scalar glibc functions'), everything else the
 same IEEE operations in the same order as the per-run loop (``fastmath`` off: no contraction, no
