@@ -795,15 +795,17 @@ class MetricsAccumulator:
         (:func:`metric_state_load`, written in place), each run's constants (N, 3) (its steady
         window's start less the grid's tolerance, its origin, t2's sample; float64, exact), the
         settling threshold, the loss-of-control bound and the fault's start less the tolerance
-        (NaN: no fault): :class:`MetricArrays` and :class:`MetricConstants`.  Only on a uniform grid without flight modes, wheels, an estimator or
-        orbits (what the lanes cover); the loop then calls :meth:`add_online_block` for every
-        block."""
+        (NaN: no fault): :class:`MetricArrays` and :class:`MetricConstants`.  Only on a uniform
+        grid without flight modes, wheels, an estimator or orbits (what the lanes cover); the loop
+        then calls :meth:`add_online_block` for every block."""
         if self.hold_s is not None or self.orbit_bins is not None or self.mode_time_s is not None:
             raise ValueError("online metrics need a uniform grid without orbits or flight modes")
         arrays = MetricArrays(*(getattr(self, name) for name in MetricArrays._fields))
-        per_run = np.column_stack((self.steady_from_per_run() - _TIME_TOL_S, self.origin_k.astype(np.float64), self.k_t2_run.astype(np.float64)))
+        per_run = np.column_stack((self.steady_from_per_run() - _TIME_TOL_S, self.origin_k.astype(np.float64),
+                                   self.k_t2_run.astype(np.float64)))
         fault_from = np.nan if self.fault_start_s is None else float(self.fault_start_s) - _TIME_TOL_S
-        return arrays, MetricConstants(np.int64(1), np.int64(keep_record), per_run, float(self.settle_threshold), float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
+        settle = float(self.settle_threshold)
+        return arrays, MetricConstants(np.int64(1), np.int64(keep_record), per_run, settle, float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
                                        fault_from)
 
     def add_online_block(self, h: History, recorded: Sequence[int], *, block_samples: int | None = None) -> None:
