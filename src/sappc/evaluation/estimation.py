@@ -100,10 +100,11 @@ def nees(errors: Array, covariance: Array) -> Array:
 
 def nees_band(n_runs: int, probability: float = 0.95, dof: int = N_ERROR_STATES) -> tuple[float, float]:
     """The two-sided ``probability`` band of the NEES averaged over ``n_runs`` independent runs of
-    a consistent filter: ``chi2_{dof n}`` quantiles divided by ``n`` (Bar-Shalom, Li and
-    Kirubarajan, *Estimation with Applications to Tracking and Navigation*, 5.4.2)."""
-    from scipy.stats import chi2
+    a consistent filter: the ``chi2_{dof n}`` band (:func:`sappc_estimator.core.config.chi2_band`,
+    the health monitor's) divided by ``n`` (Bar-Shalom, Li and Kirubarajan, *Estimation with
+    Applications to Tracking and Navigation*, 5.4.2).  Not scipy.stats' ``chi2.ppf``: its import
+    cost a campaign's summary 0.35 s; ``chdtri``'s quantiles are within 1 ulp of it."""
+    from sappc_estimator.core.config import chi2_band
 
-    k = dof * n_runs
-    tail = 0.5 * (1.0 - probability)
-    return float(chi2.ppf(tail, k) / n_runs), float(chi2.ppf(1.0 - tail, k) / n_runs)
+    lo, hi = chi2_band(dof * n_runs, probability)
+    return lo / n_runs, hi / n_runs

@@ -91,7 +91,10 @@ Definitions, per run:
     The largest ``|b_true,i - b_hat,i|`` at the last sample with an estimate [rad/s].
 ``mean_nees``
     The time-mean over ``t >= NEES_FROM_S`` of the normalised estimation error squared
-    (:func:`sappc.evaluation.estimation.nees`, 6 degrees of freedom): 6 for a consistent filter.
+    (:func:`sappc.evaluation.estimation.nees`'s definition, 6 degrees of freedom): 6 for a
+    consistent filter.  Computed by :func:`_estimate_kernel` sample by sample (Gaussian elimination
+    with partial pivoting: within ``10 n cond(P) eps`` of numpy's LAPACK solve, tested); a sample
+    whose covariance is not finite or is singular has none.
 ``estimator_updates``, ``estimator_gate_rejections``, ``estimator_reinitialisations``
     The filter's steps of each status (:data:`sappc_estimator.core.mekf.STATUS_NAMES`).
 ``filter_inconsistent_fraction``
@@ -148,9 +151,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnc_common.compiled import jit
-from sappc.evaluation.estimation import EstimateHistory, attitude_errors, nees
+from sappc.evaluation.estimation import N_ERROR_STATES, EstimateHistory
 from sappc.evaluation.history import History
-from sappc_estimator.core.mekf import MON_ERROR, STATUS_NAMES
+from sappc_estimator.core.mekf import MON_ERROR, STATUS_NAMES, rotation_vector
 from sappc_modes.core.modes import MODE_NAMES, TRACK
 
 __all__ = ["LOSS_OF_CONTROL_FACTOR", "NEES_EXACT_MAX_SAMPLES", "MetricsAccumulator", "SampleGrid", "nees_sample_stride"]
@@ -675,31 +678,29 @@ class MetricsAccumulator:
             self.nees_sum_t, self.nees_runs_t = np.zeros(n_kept), np.zeros(n_kept, dtype=np.int64)
         att_max, att_sq, att_n, bias_last = self.est_att_max, self.est_att_sq, self.est_att_n, self.est_bias_last
         nees_sum, nees_n, status_counts = self.est_nees_sum, self.est_nees_n, self.est_status_counts
-        assert att_sq is not None and att_n is not None and bias_last is not None and nees_sum is not None and nees_n is not None
-        assert status_counts is not None
-        a = attitude_errors(np.asarray(est.q_BN, dtype=np.float64), np.asarray(q_BN, dtype=np.float64))  # (B, N, 3), NaN: no estimate
-        has = np.all(np.isfinite(a), axis=-1)
-        steady = (np.asarray(t)[:, None] >= self.steady_from_per_run()[None, :] - _TIME_TOL_S) & has
-        self.est_att_max = np.maximum(att_max, np.where(steady[..., None], np.abs(a), 0.0).max(axis=0))
-        att_sq[...] = _summed_onto(att_sq, np.where(steady[..., None], a * a, 0.0))
-        att_n += steady.sum(axis=0)
-        if est.gyro_bias_true is not None:
-            db = np.asarray(est.gyro_bias_true, dtype=np.float64) - np.asarray(est.gyro_bias, dtype=np.float64)
-            last = np.where(has.any(axis=0), has.shape[0] - 1 - np.argmax(has[::-1], axis=0), -1)  # per run, the block's last estimate
-            got = last >= 0
-            bias_last[got] = db[last[got], np.flatnonzero(got)]
-            e = nees(np.concatenate((a, db), axis=-1), np.asarray(est.covariance, dtype=np.float64))  # (B, N)
-            counted = (np.asarray(t) >= NEES_FROM_S - _TIME_TOL_S)[:, None] & np.isfinite(e)
-            nees_sum[...] = _summed_onto(nees_sum, np.where(counted, e, 0.0))
-            nees_n += counted.sum(axis=0)
+        assert att_max is not None and att_sq is not None and att_n is not None and bias_last is not None and nees_sum is not None
+        assert nees_n is not None and status_counts is not None
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        B = t.size
+        truth = est.gyro_bias_true is not None
+        def f64(a: Any) -> Array:
+            return np.asarray(a, dtype=np.float64)
+
+        b_true, b_hat = (f64(est.gyro_bias_true), f64(est.gyro_bias)) if truth else (np.zeros((0, n, 3)), np.zeros((0, n, 3)))
+        e = np.zeros((B if truth else 0, n))  # each sample's NEES where counted, else 0
+        counted = np.zeros((B if truth else 0, n), dtype=np.bool_)
+        with np.errstate(divide="ignore", invalid="ignore"):  # (interpreted: a singular covariance's NEES is NaN, not counted)
+            _estimate_function(B * n)(t, self.steady_from_per_run(), f64(est.q_BN), f64(q_BN), b_hat, b_true, f64(est.covariance), att_max,
+                                      att_sq, att_n, bias_last, nees_sum, nees_n, e, counted)
+        if truth:
             # at the block's samples k0 + i kept (k a multiple of nees_stride), into their places k / nees_stride
             # (the sum over runs, then over chunks: its last bits depend on how a campaign is chunked)
             assert self.nees_sum_t is not None and self.nees_runs_t is not None
             s = self.nees_stride
             first = -(-k0 // s) * s
-            rows, kept = slice(first - k0, t.size, s), slice(first // s, first // s + len(range(first - k0, t.size, s)))
-            self.nees_sum_t[kept] += np.where(counted, e, 0.0).sum(axis=1)[rows]
-            self.nees_runs_t[kept] += counted.sum(axis=1)[rows]
+            rows, kept = slice(first - k0, B, s), slice(first // s, first // s + len(range(first - k0, B, s)))
+            self.nees_sum_t[kept] += e[rows].sum(axis=1)
+            self.nees_runs_t[kept] += counted[rows].sum(axis=1)
         status = np.asarray(est.status)
         for code in range(len(STATUS_NAMES)):
             status_counts[:, code] += np.count_nonzero(status == code, axis=0)
@@ -982,13 +983,18 @@ def interpreted_update_kernel() -> Callable[..., int]:
     """:func:`_update_kernel`'s Python source with its helpers' Python sources, run by the interpreter."""
     global _interpreted_kernel
     if _interpreted_kernel is None:
-        f = _update_kernel.py_func
-        namespace = dict(f.__globals__)  # every helper's Python source, calling the others' (never a compiled kernel)
-        for helper in (_maximum, _switch, metric_sample_of, metric_state_load, metric_state_store):
-            g = helper.py_func
-            namespace[g.__name__] = types.FunctionType(g.__code__, namespace, g.__name__, g.__defaults__, g.__closure__)
-        _interpreted_kernel = types.FunctionType(f.__code__, namespace, f.__name__, f.__defaults__, f.__closure__)
+        _interpreted_kernel = _interpreted(_update_kernel, (_maximum, _switch, metric_sample_of, metric_state_load, metric_state_store))
     return _interpreted_kernel
+
+
+def _interpreted(kernel: Any, helpers: tuple[Any, ...]) -> Callable[..., Any]:
+    """``kernel``'s Python source, calling its ``helpers``' Python sources (never a compiled kernel)."""
+    f = kernel.py_func
+    namespace = dict(f.__globals__)
+    for helper in helpers:
+        g = helper.py_func
+        namespace[g.__name__] = types.FunctionType(g.__code__, namespace, g.__name__, g.__defaults__, g.__closure__)
+    return types.FunctionType(f.__code__, namespace, f.__name__, f.__defaults__, f.__closure__)
 
 
 def _summed_onto(total: Array, x: Array) -> Array:
@@ -1224,3 +1230,113 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
         metric_state_store(a, n, m)
         total_steady += steady_n[n] - before
     return total_steady
+
+
+@jit(inline="always")  # type: ignore[no-untyped-call]
+def _nees_of(e, P, A):  # type: ignore[no-untyped-def]  # a numba kernel
+    """``e^T P^-1 e`` of the error ``e`` (6,) and the covariance ``P`` (6, 6) (docs: module
+    docstring's NEES): Gaussian elimination with partial pivoting (LAPACK's ``gesv``'s method, not its
+    operation order) on the scratch ``A`` (6, 7), ``[P | e]``; non-finite for a singular ``P``."""
+    m = N_ERROR_STATES
+    for i in range(m):
+        for j in range(m):
+            A[i, j] = P[i, j]
+        A[i, m] = e[i]
+    for c in range(m):
+        p = c
+        for i in range(c + 1, m):
+            if abs(A[i, c]) > abs(A[p, c]):
+                p = i
+        if p != c:
+            for j in range(c, m + 1):
+                A[c, j], A[p, j] = A[p, j], A[c, j]
+        for i in range(c + 1, m):
+            f = A[i, c] / A[c, c]
+            for j in range(c + 1, m + 1):
+                A[i, j] = A[i, j] - f * A[c, j]
+    quadratic = 0.0
+    for i in range(m - 1, -1, -1):
+        x = A[i, m]
+        for j in range(i + 1, m):
+            x = x - A[i, j] * A[j, m]
+        x = x / A[i, i]
+        A[i, m] = x
+        quadratic = quadratic + e[i] * x
+    return quadratic
+
+
+@jit("void(float64[:], float64[:], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :, :], "  # type: ignore[no-untyped-call]
+     "float64[:, :], float64[:, :], int64[:], float64[:, :], float64[:], int64[:], float64[:, :], boolean[:, :])")
+def _estimate_kernel(t, steady_from_s, q_hat, q_true, b_hat, b_true, P, att_max, att_sq, att_n, bias_last, nees_sum, nees_n, nees_out,  # type: ignore[no-untyped-def]
+                     counted):
+    """One block of the estimator's record (arrays (B, N, ...)) into the estimation metrics' per-run
+    state (in place; module docstring), run by run, sample by sample: the attitude estimation error
+    ``a`` (``rotvec(q_hat^* ⊗ q_true)``, :func:`sappc.evaluation.estimation.attitude_errors`'s
+    definition, by the filter's own :func:`~sappc_estimator.core.mekf.rotation_vector`) in the steady
+    window into ``att_max`` (per axis) and ``att_sq`` (summed), counted in ``att_n``; with the true
+    bias (``b_true`` of B rows, else none), the bias error ``b_true - b_hat`` of the run's last
+    estimate into ``bias_last``, and the NEES (:func:`_nees_of`) from :data:`NEES_FROM_S` into
+    ``nees_sum`` and ``nees_n``, and each sample's into ``nees_out`` (0 where not counted) and
+    ``counted`` (B, N): the campaign's sums over runs."""
+    B = t.shape[0]
+    truth = b_true.shape[0] == B and B > 0
+    nees_from = NEES_FROM_S - _TIME_TOL_S
+    dq, a, err, A = np.empty(4), np.empty(3), np.empty(N_ERROR_STATES), np.empty((N_ERROR_STATES, N_ERROR_STATES + 1))
+    for n in range(att_n.shape[0]):
+        steady_from = steady_from_s[n] - _TIME_TOL_S
+        for k in range(B):
+            ex, ey, ez, ew = -q_hat[k, n, 0], -q_hat[k, n, 1], -q_hat[k, n, 2], q_hat[k, n, 3]
+            tx, ty, tz, tw = q_true[k, n, 0], q_true[k, n, 1], q_true[k, n, 2], q_true[k, n, 3]
+            dq[0] = ew * tx + tw * ex + (ey * tz - ez * ty)
+            dq[1] = ew * ty + tw * ey + (ez * tx - ex * tz)
+            dq[2] = ew * tz + tw * ez + (ex * ty - ey * tx)
+            dq[3] = ew * tw - (ex * tx + ey * ty + ez * tz)
+            rotation_vector(dq, a)
+            has = np.isfinite(a[0]) and np.isfinite(a[1]) and np.isfinite(a[2])  # NaN: no estimate
+            if has and t[k] >= steady_from:
+                for i in range(3):
+                    att_max[n, i] = max(att_max[n, i], abs(a[i]))
+                    att_sq[n, i] = att_sq[n, i] + a[i] * a[i]
+                att_n[n] += 1
+            if not truth:
+                continue
+            ok = True
+            for i in range(3):
+                err[i] = a[i]
+                err[3 + i] = b_true[k, n, i] - b_hat[k, n, i]
+                ok = ok and np.isfinite(err[3 + i])
+            if has:
+                for i in range(3):
+                    bias_last[n, i] = err[3 + i]
+            ok = ok and has
+            for i in range(N_ERROR_STATES):
+                for j in range(N_ERROR_STATES):
+                    ok = ok and np.isfinite(P[k, n, i, j])
+            if ok and t[k] >= nees_from:
+                v = _nees_of(err, P[k, n], A)
+                if np.isfinite(v):
+                    nees_sum[n] = nees_sum[n] + v
+                    nees_n[n] += 1
+                    nees_out[k, n] = v
+                    counted[k, n] = True
+
+
+#: :data:`INTERPRETED_MAX_SAMPLES` for :func:`_estimate_kernel`, whose samples cost the interpreter
+#: about 125 us each (its 6 x 6 elimination): up to this many (0.5 s, about numba's import and
+#: the kernel's load from the cache) it is interpreted, a 40 s record of one run; a 60 s flight
+#: bag's report loads numba.
+ESTIMATE_INTERPRETED_MAX_SAMPLES = 4_000
+_interpreted_estimate_kernel: Callable[..., None] | None = None
+
+
+def _estimate_function(samples: int) -> Callable[..., None]:
+    """:func:`_estimate_kernel` compiled, or (as :func:`_update_function`) its Python source for a
+    small block while numba is not loaded: the same bits (``fastmath=False``; its one
+    transcendental call, ``arctan2``, is the C library's in both)."""
+    global _interpreted_estimate_kernel
+    if samples <= ESTIMATE_INTERPRETED_MAX_SAMPLES and "numba" not in sys.modules:
+        if _interpreted_estimate_kernel is None:
+            _interpreted_estimate_kernel = _interpreted(_estimate_kernel, (_nees_of, rotation_vector))
+        return _interpreted_estimate_kernel
+    return _estimate_kernel  # type: ignore[no-any-return]
+

@@ -85,6 +85,17 @@ def _sub_batch(monkeypatch, runs: int) -> None:  # type: ignore[no-untyped-def]
     monkeypatch.setattr(offline_simulate.run_scenario, "__kwdefaults__", {**offline_simulate.run_scenario.__kwdefaults__, "sub_batch": runs})
 
 
+@pytest.mark.parametrize("runs, most, parallel", [(500, 100, 2), (3000, 3000, 2), (10, 2, 2), (7, 500, 2), (100_000, 3000, 2), (96, 10, 3)])
+def test_each_worker_gets_as_many_chunks_of_at_most_chunk_runs(runs: int, most: int, parallel: int) -> None:
+    """Several workers: chunks of equal size, at most the scenario's ``chunk_runs``, as many for each
+    worker (500 flight runs of at most 100 on two workers: six of 84 and 80, not five of 100 with one
+    worker left alone with the fifth); the chunks cover every run once."""
+    size = mc.balanced_chunk_runs(runs, most, parallel)
+    count = -(-runs // size)
+    assert 1 <= size <= most and count % parallel == 0 and count * size - runs < size
+    assert mc.balanced_chunk_runs(runs, most, 1) == min(most, runs)  # one process: the scenario's chunks
+
+
 def test_results_are_identical_for_any_chunking_and_executor(tmp_path, monkeypatch) -> None:
     a = run_campaign(_short(tmp_path, chunk_runs=5), runs=12, seed=7, out_dir=tmp_path / "a", progress=False)
     b = run_campaign(_short(tmp_path, chunk_runs=3), runs=12, seed=7, out_dir=tmp_path / "b", workers=2, progress=False)
