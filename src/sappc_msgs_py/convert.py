@@ -47,6 +47,7 @@ __all__ = [
     "covariance_from_msg",
     "covariance_msg",
     "covariance_values",
+    "seconds_to_ns_array",
     "estimator_diagnostics_from_msg",
     "estimator_diagnostics_msg",
     "epoch_from_msg",
@@ -157,6 +158,14 @@ def seconds_to_ns(t_s: float) -> int:
     """The integer nanoseconds a stamp of ``t_s`` seconds carries (rounded half to even): the
     plant's stamp of sample ``k`` is ``seconds_to_ns(k * dt)`` (offline runs use the same stamps)."""
     return round(t_s * _NS_PER_S)
+
+
+def seconds_to_ns_array(t_s: NDArray[np.float64]) -> NDArray[np.int64]:
+    """:func:`seconds_to_ns` of every time of ``t_s`` (finite, >= 0, below 2**63 ns) at once: the
+    same integers (the same float64 product, rounded half to even by ``rint``; exact in int64, as
+    every product below 2**53 is and every one above is already an integer)."""
+    out: NDArray[np.int64] = np.rint(np.asarray(t_s, dtype=np.float64) * float(_NS_PER_S)).astype(np.int64)
+    return out
 
 
 #: Types whose CDR body starts with a ``builtin_interfaces/Time`` (a ``std_msgs/Header``'s stamp,

@@ -24,8 +24,8 @@ many samples as fit (not at the History's blocks), so a run written in any block
 file, byte for byte.
 
 Stamps: sample ``k``'s stamp is the plant's, ``seconds_to_ns(k dt)``
-(:func:`~sappc_msgs_py.convert.seconds_to_ns`, computed here for a whole block at once:
-``rint(t * 1e9)``, the same rounding, half to even); the float arrays' ``data[0]`` is
+(:func:`~sappc_msgs_py.convert.seconds_to_ns`, computed here for a whole block at once by
+:func:`~sappc_msgs_py.convert.seconds_to_ns_array`: the same integers); the float arrays' ``data[0]`` is
 ``stamp / 1e9``, as the nodes compute it.
 
 Topics, and what each holds (the names are resolved in the root namespace, ``/state/attitude``):
@@ -133,6 +133,7 @@ from sappc_msgs_py.contract import (
     faulty,
 )
 from sappc_msgs_py import wire
+from sappc_msgs_py.convert import seconds_to_ns_array
 from sappc_msgs_py.schemas import schema_text, type_hash
 from spacecraft_sim.core.faults import FaultSchedule
 
@@ -346,7 +347,7 @@ class OfflineBagWriter:
         ref = self.scenario.reference.sample(history.t, self._carry)  # the carry advances to the block's end
         for lo in range(0, T, piece):
             hi = min(lo + piece, T)
-            t_ns = np.rint(history.t[lo:hi] * 1e9).astype(np.int64)  # seconds_to_ns, for the piece at once
+            t_ns = seconds_to_ns_array(history.t[lo:hi])
             values = self._values(history, lo, hi, t_ns, ref.q_RN[lo:hi], ref.omega_RN_R[lo:hi], ref.omegadot_RN_R[lo:hi])
             rows = self._rows(t_ns, values)
             self.samples += hi - lo

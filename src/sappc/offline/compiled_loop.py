@@ -100,7 +100,7 @@ from sappc_modes.core.packing import MAX_RESTARTS, MR_ENTRY, MR_SAMPLES, MR_TRAN
 from sappc_momentum.core.predictive import MS_TLAST, MS_TNEXT, N_MM_STATE
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_INACTIVE, ANSWER_NAMES, ANSWER_HELD, ANSWER_REFUSED, ANSWER_WATCHDOG_ZERO
 from sappc_msgs_py.contract import ESTIMATOR_NO_INPUT
-from sappc_msgs_py.convert import seconds_to_ns
+from sappc_msgs_py.convert import seconds_to_ns, seconds_to_ns_array
 
 from sappc.evaluation.estimation import EstimateHistory
 from sappc.evaluation.history import History
@@ -793,7 +793,7 @@ class SampleMaker:
         """Samples ``k_lo .. k_hi - 1``: their times ``k dt`` [s] (the products of
         :func:`~spacecraft_sim.core.reference.sample_times`) and the plant's stamps [ns]."""
         t = np.arange(k_lo, k_hi, dtype=np.float64) * self.dt  # k exact in float64: the same products as sample_times
-        t_ns = np.array([seconds_to_ns(float(tk)) for tk in t], dtype=np.int64)
+        t_ns = seconds_to_ns_array(t)
         return t, t_ns
 
     def grid(self, k_lo: int, k_hi: int, carry: np.ndarray) -> LoopGrid:

@@ -62,6 +62,7 @@ __all__ = [
     "propagate_runs",
     "rate_tables",
     "reference_quaternions",
+    "reference_omega",
     "reference_rates",
     "rk4_step",
 ]
@@ -198,15 +199,22 @@ def derivative_runs(x, torque_B, J, J_inv, out):
 
 @jit
 def reference_rates(t, a_rad_s, periods, w_out, wdot_out):
-    """Paper reference (Sec. V.A): ``omega_d = A [cos(t/40), sin(t/30), -cos(t/50)]`` and its
-    derivative, ``A`` in rad/s (:class:`.reference.PaperReference`)."""
+    """Paper reference (Sec. V.A): ``omega_d = A [cos(t/40), sin(t/30), -cos(t/50)]``
+    (:func:`reference_omega`) and its derivative, ``A`` in rad/s (:class:`.reference.PaperReference`)."""
     p0, p1, p2 = periods[0], periods[1], periods[2]
-    w_out[0] = a_rad_s * np.cos(t / p0)
-    w_out[1] = a_rad_s * np.sin(t / p1)
-    w_out[2] = a_rad_s * -np.cos(t / p2)
+    reference_omega(t, a_rad_s, periods, w_out)
     wdot_out[0] = a_rad_s * (-np.sin(t / p0) / p0)
     wdot_out[1] = a_rad_s * (np.cos(t / p1) / p1)
     wdot_out[2] = a_rad_s * (np.sin(t / p2) / p2)
+
+
+@jit(inline="always")
+def reference_omega(t, a_rad_s, periods, w_out):
+    """The paper reference's rate alone (Sec. V.A): ``omega_d = A [cos(t/40), sin(t/30), -cos(t/50)]``
+    [rad/s] (the reference's kinematics need no derivative)."""
+    w_out[0] = a_rad_s * np.cos(t / periods[0])
+    w_out[1] = a_rad_s * np.sin(t / periods[1])
+    w_out[2] = a_rad_s * -np.cos(t / periods[2])
 
 
 @jit
@@ -220,9 +228,9 @@ def rate_tables(t, a_rad_s, periods):
 
 
 @jit(inline="always")
-def _reference_qdot(q, t, a_rad_s, periods, w, wd, out):
-    """``dq_RN/dt = 1/2 q_RN ⊗ (omega_RN_R(t), 0)`` (scalar last; as :func:`gnc_common.attitude.quat_kinematics`)."""
-    reference_rates(t, a_rad_s, periods, w, wd)
+def _reference_qdot(q, w, out):
+    """``dq_RN/dt = 1/2 q_RN ⊗ (omega_RN_R, 0)`` at the rate ``w`` (scalar last; as
+    :func:`gnc_common.attitude.quat_kinematics`)."""
     q0 = q[3]
     c0 = q[1] * w[2] - q[2] * w[1]
     c1 = q[2] * w[0] - q[0] * w[2]
@@ -245,7 +253,7 @@ def reference_quaternions(t, q, t_prev, a_rad_s, periods, max_step_s, out):
     host (docs/parity.md); see :class:`.reference.PaperReference` for the accuracy."""
     qs = np.empty(4)
     k1, k2, k3, k4 = np.empty(4), np.empty(4), np.empty(4), np.empty(4)
-    w, wd = np.empty(3), np.empty(3)
+    w = np.empty(3)
     for j in range(t.shape[0]):
         span = t[j] - t_prev
         n = int(np.ceil(span / max_step_s)) if span > 0.0 else 0
@@ -253,16 +261,19 @@ def reference_quaternions(t, q, t_prev, a_rad_s, periods, max_step_s, out):
             h = span / n
             for s in range(n):
                 ts = t_prev + s * h
-                _reference_qdot(q, ts, a_rad_s, periods, w, wd, k1)
+                reference_omega(ts, a_rad_s, periods, w)
+                _reference_qdot(q, w, k1)
                 for i in range(4):
                     qs[i] = q[i] + 0.5 * h * k1[i]
-                _reference_qdot(qs, ts + 0.5 * h, a_rad_s, periods, w, wd, k2)
+                reference_omega(ts + 0.5 * h, a_rad_s, periods, w)  # k2's and k3's time: one rate for both
+                _reference_qdot(qs, w, k2)
                 for i in range(4):
                     qs[i] = q[i] + 0.5 * h * k2[i]
-                _reference_qdot(qs, ts + 0.5 * h, a_rad_s, periods, w, wd, k3)
+                _reference_qdot(qs, w, k3)
                 for i in range(4):
                     qs[i] = q[i] + h * k3[i]
-                _reference_qdot(qs, ts + h, a_rad_s, periods, w, wd, k4)
+                reference_omega(ts + h, a_rad_s, periods, w)
+                _reference_qdot(qs, w, k4)
                 c = h / 6.0
                 for i in range(4):
                     q[i] = q[i] + c * ((k1[i] + 2.0 * (k2[i] + k3[i])) + k4[i])
