@@ -328,7 +328,8 @@ def balanced_chunk_runs(runs: int, most: int, parallel: int) -> int:
     6.4 s command), else the fewest chunks of equal size (the count rounded up to a multiple)."""
     if parallel <= 1:
         return min(most, runs)
-    rounds = -(-(-(-runs // most)) // parallel)  # the fewest rounds of ``parallel`` chunks
+    fewest = -(-runs // most)  # chunks of at most ``most``
+    rounds = -(-fewest // parallel)  # the fewest rounds of ``parallel`` chunks
     for m in range(rounds, 2 * rounds + 1):
         size = -(-runs // (m * parallel))
         if -(-runs // size) % parallel == 0:
