@@ -1,6 +1,6 @@
 """The orbit, the magnetorquers and momentum management in the offline loop (issue 36): the
-scenario sections and their errors, the rods dumping the wheels' momentum without disturbing the
-attitude, and a batch's run equal to the run alone bit for bit.  (The models against Basilisk:
+scenario sections and their errors, the rods dumping the wheels' momentum and the attitude
+tracked again, and a batch's run equal to the run alone bit for bit.  (The models against Basilisk:
 tests/sim/test_momentum_basilisk.py; the paper scenarios without an orbit stay bit for bit: the
 golden tests of tests/tools/offline/test_paper_experiments.py.)"""
 
@@ -112,20 +112,35 @@ def test_management_needs_reaction_wheels() -> None:
 
 
 @pytest.mark.slow
-def test_the_rods_dump_the_wheels_momentum_without_moving_the_attitude() -> None:
-    """Without disturbance, the wheels keep their 8 N m s without management; with it, the part
+def _total_momentum(sc: Any, run: Any) -> np.ndarray:
+    """|J omega + G h| (T,) [N m s]: the body's and the wheels' angular momentum of a single run's
+    record (its norm, the same in the body and the inertial frame)."""
+    w = run.x[0, :, 4:7]
+    h = sc.wheels.per_wheel("spin_inertia_kg_m2") * (run.wheels[0, :, :, 0] + w @ sc.wheels.G)  # Js (Omega + g . omega)
+    return np.asarray(np.linalg.norm(w @ np.asarray(sc.inertia_kg_m2).T + h @ sc.wheels.G.T, axis=1))
+
+
+def test_the_rods_dump_the_wheels_momentum_and_the_attitude_is_tracked_again() -> None:
+    """Without disturbance, starting with 8 N m s in the wheels: without management nothing leaves
+    the spacecraft (friction is internal, the gravity gradient zero to rounding for this isotropic
+    locked inertia), so its total angular momentum stays 7.96 N m s to RK4's error at 10 ms (about
+    1e-13 of it a step at the 0.7 rad/s this run reaches, 1e-8 over its 60,000 steps; measured
+    4e-10); the wheels' part of it swings as the body turns, and SAPPC, a rigid-body law, does not
+    hold the attitude against the load (|q_ev| up to 0.99: a tumbling run, whose details a change
+    of the last bits anywhere moves).  With management the rods take the momentum out: the part
     normal to the field decays at the rate ``K_p`` and what is left lies along B: over these 600 s
     (a tenth of an orbit) the field turns by about 80 deg, so the part along it is dumped only as it
     turns, and the part normal to it settles near ``nu |h_par| / K_p`` (``nu``: the field
-    direction's turning rate); the feed-forward keeps the attitude error of the run without
-    management (the rods' torque reaches the body only through the controller's own torque), within
-    10 %."""
+    direction's turning rate); the attitude is tracked again once the load is gone (its last 300 s
+    within 1e-4, measured 4e-5)."""
     raw = _base()
     idle = scenario_from_mapping(raw)
     managed = scenario_from_mapping({**raw, "momentum_management": {"gain_per_s": 0.01}})
     runs = {name: run_single(prepare(sc), 0, 1) for name, sc in (("idle", idle), ("managed", managed))}
-    h_idle, h_managed = _wheel_momentum_B(idle, runs["idle"]), _wheel_momentum_B(managed, runs["managed"])
-    assert h_idle[-1] > 0.95 * h_idle[0]  # friction only
+    H_idle, H_managed = _total_momentum(idle, runs["idle"]), _total_momentum(managed, runs["managed"])
+    assert abs(H_idle[0] - 7.96) < 1e-12 and np.max(np.abs(H_idle - H_idle[0])) < 1e-8 * H_idle[0]  # nothing leaves
+    assert H_managed[-1] < 0.5 * H_managed[0]  # measured 0.35
+    h_managed = _wheel_momentum_B(managed, runs["managed"])
     assert h_managed[-1] < 0.5 * h_managed[0]  # measured 0.35
     h_end = runs["managed"].wheels[0, -1, :, 0] * managed.wheels.per_wheel("spin_inertia_kg_m2") @ managed.wheels.G.T
     b = runs["managed"].env[0, :, :3] / np.linalg.norm(runs["managed"].env[0, :, :3], axis=1)[:, None]
@@ -135,10 +150,9 @@ def test_the_rods_dump_the_wheels_momentum_without_moving_the_attitude() -> None
     assert h_perp < 2.0 * nu * h_par / 0.01, (h_perp, nu, h_par)  # the steady lag of a first-order loop chasing a turning field
     assert np.abs(runs["idle"].env[0, :, 9:]).max() == 0.0 and np.abs(runs["managed"].env[0, :, 9:]).max() > 0.0
     assert np.array_equal(runs["managed"].env[0, :, 3:6], runs["managed"].env[0, :, :3])  # no magnetometer: the field read exactly
-    steady = runs["idle"].t >= idle.metrics.steady_from_s
-    q_idle = np.abs(runs["idle"].out[0, steady, 3, :3]).max()
-    q_managed = np.abs(runs["managed"].out[0, steady, 3, :3]).max()
-    assert q_managed <= 1.1 * q_idle, (q_managed, q_idle)
+    late = runs["managed"].t >= 300.0
+    q_managed = np.abs(runs["managed"].out[0, late, 3, :3]).max()
+    assert q_managed < 1e-4, q_managed
 
 
 @pytest.mark.slow
