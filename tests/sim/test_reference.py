@@ -7,7 +7,7 @@ import numpy as np
 
 from sim import oracle
 
-from spacecraft_sim.core.reference import PaperReference, sample_times
+from spacecraft_sim.core.reference import MAX_STEP_S, PaperReference, sample_times
 
 
 def test_rates_equal_the_numpy_oracle_on_every_shape() -> None:
@@ -54,3 +54,22 @@ def test_the_quaternion_is_within_1e_13_of_an_accurate_solution_and_the_same_on_
     # a coarse grid takes ceil(dt / MAX_STEP_S) steps per interval: the same trajectory to the rounding level
     coarse = ref.sample(t[::50]).q_RN
     assert np.max(np.abs(coarse - q[::50])) <= 1e-13
+
+
+def test_the_10_ms_grid_takes_one_rk4_step_a_sample_over_6_hours() -> None:
+    """``MAX_STEP_S`` = 10 ms is one step per sample of the 10 ms grid, though ``k dt``'s differences
+    round a few ulps of ``t`` above 10 ms (64 % of a 6 h grid's intervals, up to 7e-10 of a step
+    above): the samples are the bits of steps allowed twice as long, which every interval takes
+    in one (``REFERENCE_STEP_SLACK``)."""
+    from spacecraft_sim.core import kernels
+
+    ref = PaperReference()
+    t = sample_times(21600.0, 0.01)
+    assert np.mean(np.ceil(np.diff(t) / MAX_STEP_S) > 1) > 0.5  # what a plain ceil would split
+    a_rad_s, periods = float(np.radians(ref.amplitude_deg_s)), np.asarray(ref.periods_s, dtype=np.float64)
+    outs = []
+    for max_step in (MAX_STEP_S, 2.0 * MAX_STEP_S):
+        q, out = np.array(ref.start()[:4]), np.empty((t.size, 4))
+        kernels.reference_quaternions(t, q, 0.0, a_rad_s, periods, max_step, out)
+        outs.append(out)
+    assert outs[0].tobytes() == outs[1].tobytes()

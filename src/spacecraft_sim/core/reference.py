@@ -37,10 +37,9 @@ Array = NDArray[np.float64]
 
 #: Longest RK4 step of the reference quaternion [s]: the local error of RK4 scales as
 #: ``(|omega| h)^5 / 120``, below 1e-20 for the paper's 0.01 rad/s at 10 ms (and 1e-16 up to
-#: 0.17 rad/s, 10 deg/s), so the result is at the rounding level of the steps' sums.  On the
-#: paper's control grid (10 ms) an interval takes one step, or two half steps where ``k dt``'s
-#: differences round a few ulps above 10 ms (``ceil(1 + 1e-12) = 2``: 36 % of a 60 s grid's
-#: intervals, 64 % of a 6 h grid's); the results are those of this rule.
+#: 0.17 rad/s, 10 deg/s), so the result is at the rounding level of the steps' sums; the paper's
+#: control grid (10 ms) takes one step per sample, an interval that ``k dt``'s rounding puts a few
+#: ulps above 10 ms included (:data:`~spacecraft_sim.core.kernels.REFERENCE_STEP_SLACK`).
 MAX_STEP_S = 0.01
 
 
