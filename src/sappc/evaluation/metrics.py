@@ -1234,9 +1234,10 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
 
 @jit(inline="always")  # type: ignore[no-untyped-call]
 def _nees_of(e, P, A):  # type: ignore[no-untyped-def]  # a numba kernel
-    """``e^T P^-1 e`` of the error ``e`` (6,) and the covariance ``P`` (6, 6) (docs: module
-    docstring's NEES): Gaussian elimination with partial pivoting (LAPACK's ``gesv``'s method, not its
-    operation order) on the scratch ``A`` (6, 7), ``[P | e]``; non-finite for a singular ``P``."""
+    """``e^T P^-1 e`` of the error ``e`` (6,) and the covariance ``P`` (6, 6) (the module
+    docstring's ``mean_nees``): Gaussian elimination with partial pivoting (LAPACK's ``gesv``'s
+    method, not its operation order) on the scratch ``A`` (6, 7), ``[P | e]``; non-finite for a
+    singular ``P``."""
     m = N_ERROR_STATES
     for i in range(m):
         for j in range(m):
