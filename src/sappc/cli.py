@@ -365,12 +365,12 @@ def _simulate_from_campaign(args: argparse.Namespace) -> int:
 
 
 def _cmd_montecarlo(args: argparse.Namespace) -> int:
-    from sappc.analysis.plots import FigureWorker
+    from sappc.analysis.plots import CAMPAIGN_FIGURE_SHAPES, FigureWorker
 
     # forked first, before numba is imported (sappc.montecarlo.campaign imports it): the child
-    # imports matplotlib while the runs go, then draws the campaign's figures in two processes
-    # (this process never imports matplotlib)
-    with FigureWorker() as figures:
+    # imports matplotlib and makes the trajectory figure in advance while the runs go, then draws
+    # the campaign's figures in two processes (this process never imports matplotlib)
+    with FigureWorker(prepare=CAMPAIGN_FIGURE_SHAPES) as figures:
         return _montecarlo(args, figures)
 
 

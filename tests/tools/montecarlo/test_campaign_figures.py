@@ -107,3 +107,28 @@ def test_a_figure_worker_draws_the_campaign_figures_one_process_draws(tmp_path: 
     assert out.stdout.strip() == f"True {names}", out.stdout + out.stderr
     for p in sorted((tmp_path / "one").glob("*.png")):
         _same_pixels(p, tmp_path / "two" / p.name)
+
+
+def test_trajectory_figures_made_in_advance_are_the_figures_made_when_drawn(tmp_path: Path) -> None:
+    """``sappc montecarlo``'s figure worker makes the trajectory figure and its first ticks while the
+    runs go (:data:`~sappc.analysis.plots.CAMPAIGN_FIGURE_SHAPES`); both trajectory figures drawn
+    on prepared ones are the figures made when drawn, every pixel (the log axis's too)."""
+    from sappc.analysis import plots
+    from sappc.analysis.plots import CAMPAIGN_FIGURE_SHAPES, _campaign_jobs, _prepare_rows, draw_jobs, house_style
+
+    rng = np.random.default_rng(1)
+    runs, kept, samples = 30, 6, 201
+    t = np.linspace(0.0, 50.0, samples)
+    q = (0.3 * np.exp(-t / 4.0)[:, None, None] * rng.uniform(-1.0, 1.0, (1, kept, 3)) + 1e-5).astype(np.float32)
+    tab = {"run": np.arange(runs), "rpf_error_at_t2_per_axis": rng.uniform(1e-6, 2e-5, (runs, 3)),
+           "steady_mean_abs_qev_per_axis": rng.uniform(1e-6, 4e-5, (runs, 3)), "traj_t": t, "traj_q_ev": q,
+           "traj_rho": (1.2 * np.abs(q) + 3e-5).astype(np.float32)}
+    kw = dict(tab=tab, criteria=(1e-4, 5e-5), title="t", nees=None)
+    fresh = draw_jobs(_campaign_jobs(out_dir=tmp_path / "fresh", **kw)[2:4], parallel=False)  # type: ignore[arg-type]
+    assert CAMPAIGN_FIGURE_SHAPES == ((3, 8.0),)
+    house_style(lambda: [_prepare_rows(*shape) for shape in CAMPAIGN_FIGURE_SHAPES * 2])()
+    prepared = draw_jobs(_campaign_jobs(out_dir=tmp_path / "prepared", **kw)[2:4], parallel=False)  # type: ignore[arg-type]
+    assert not any(plots._PREPARED.values())  # both drawn on prepared figures
+    assert [p.name for p in prepared] == [p.name for p in fresh] == ["montecarlo_trajectories.png", "montecarlo_trajectories_steady.png"]
+    for mine, theirs in zip(fresh, prepared):
+        _same_pixels(mine, theirs)
