@@ -85,18 +85,24 @@ def test_the_campaign_command_draws_its_figures_in_its_figure_worker(tmp_path: P
         _same_pixels(p, tmp_path / "two" / p.name)
 
 
+def _campaign_table(rng: np.random.Generator, runs: int, kept: int, samples: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """A campaign's table for :func:`plot_campaign` (``runs`` runs, ``kept`` trajectories of
+    ``samples`` samples over 50 s, decaying errors under their RPFs) and its trajectories' times."""
+    t = np.linspace(0.0, 50.0, samples)
+    q = (0.3 * np.exp(-t / 4.0)[:, None, None] * rng.uniform(-1.0, 1.0, (1, kept, 3)) + 1e-5).astype(np.float32)
+    return t, {"run": np.arange(runs), "rpf_error_at_t2_per_axis": rng.uniform(1e-6, 2e-5, (runs, 3)),
+               "steady_mean_abs_qev_per_axis": rng.uniform(1e-6, 4e-5, (runs, 3)), "traj_t": t, "traj_q_ev": q,
+               "traj_rho": (1.2 * np.abs(q) + 3e-5).astype(np.float32)}
+
+
 def test_a_figure_worker_draws_the_campaign_figures_one_process_draws(tmp_path: Path) -> None:
     """Every figure of :func:`plot_campaign` (the NEES's too) through a figure worker: the jobs'
     order and pixels of one process's drawing."""
     import pickle
 
     rng = np.random.default_rng(0)
-    runs, kept, samples = 40, 5, 101
-    t = np.linspace(0.0, 50.0, samples)
-    q = (0.3 * np.exp(-t / 4.0)[:, None, None] * rng.uniform(-1.0, 1.0, (1, kept, 3)) + 1e-5).astype(np.float32)
-    tab = {"run": np.arange(runs), "rpf_error_at_t2_per_axis": rng.uniform(1e-6, 2e-5, (runs, 3)),
-           "steady_mean_abs_qev_per_axis": rng.uniform(1e-6, 4e-5, (runs, 3)), "traj_t": t, "traj_q_ev": q,
-           "traj_rho": (1.2 * np.abs(q) + 3e-5).astype(np.float32)}
+    runs, samples = 40, 101
+    t, tab = _campaign_table(rng, runs, 5, samples)
     nees = {"t_s": t, "mean": 6.0 + rng.normal(0.0, 0.5, samples), "band_95": [5.1, 7.0], "runs": runs, "fraction_inside": 0.9}
     (tmp_path / "in.pkl").write_bytes(pickle.dumps((tab, nees)))
     out = subprocess.run([sys.executable, "-c", _DRAW_BOTH, str(tmp_path / "in.pkl"), str(tmp_path / "two"),
@@ -116,13 +122,7 @@ def test_trajectory_figures_made_in_advance_are_the_figures_made_when_drawn(tmp_
     from sappc.analysis import plots
     from sappc.analysis.plots import CAMPAIGN_FIGURE_SHAPES, _campaign_jobs, _prepare_rows, draw_jobs, house_style
 
-    rng = np.random.default_rng(1)
-    runs, kept, samples = 30, 6, 201
-    t = np.linspace(0.0, 50.0, samples)
-    q = (0.3 * np.exp(-t / 4.0)[:, None, None] * rng.uniform(-1.0, 1.0, (1, kept, 3)) + 1e-5).astype(np.float32)
-    tab = {"run": np.arange(runs), "rpf_error_at_t2_per_axis": rng.uniform(1e-6, 2e-5, (runs, 3)),
-           "steady_mean_abs_qev_per_axis": rng.uniform(1e-6, 4e-5, (runs, 3)), "traj_t": t, "traj_q_ev": q,
-           "traj_rho": (1.2 * np.abs(q) + 3e-5).astype(np.float32)}
+    _, tab = _campaign_table(np.random.default_rng(1), 30, 6, 201)
     kw = dict(tab=tab, criteria=(1e-4, 5e-5), title="t", nees=None)
     fresh = draw_jobs(_campaign_jobs(out_dir=tmp_path / "fresh", **kw)[2:4], parallel=False)  # type: ignore[arg-type]
     assert CAMPAIGN_FIGURE_SHAPES == ((3, 8.0),)
