@@ -42,6 +42,7 @@ from sappc_msgs_py.convert import (
     quaternion_from_msg,
     quaternion_msg,
     seconds_to_ns,
+    seconds_to_ns_array,
     star_tracker_from_msg,
     star_tracker_msg,
     stamp_to_ns,
@@ -545,6 +546,15 @@ def test_cdr_stamp_ns_reads_the_encoded_stamp(name: str, rng: np.random.Generato
         assert cdr_stamp_ns(case.type_name, raw) == ns
         msg = deserialize_message(raw, _msg_class(case.type_name))
         assert stamp_to_ns(msg.clock if case.type_name.endswith("Clock") else msg.header.stamp) == ns
+
+
+def test_a_blocks_stamps_at_once_are_each_samples_stamp(rng: np.random.Generator) -> None:
+    """seconds_to_ns_array (the offline loop's and the bag writer's block of stamps) gives the integers
+    seconds_to_ns gives one time at a time: a 6 h grid of 10 ms, random times to 1e6 s, and times
+    whose nanoseconds end in exactly one half (rounded half to even by both)."""
+    t = np.concatenate([np.arange(0, 2_160_001) * 0.01, rng.uniform(0.0, 1e6, 20_000), (np.arange(0, 2000) + 0.5) * 1e-9, [0.0]])
+    got = seconds_to_ns_array(t)
+    assert got.dtype == np.int64 and got.tolist() == [seconds_to_ns(float(x)) for x in t]
 
 
 def test_time_to_ns_is_the_stamp_time_to_stamp_gives(rng: np.random.Generator) -> None:
