@@ -8,6 +8,9 @@ starts a background job (``sappc run ... &``) with SIGINT ignored, and that Ctrl
 otherwise be lost.  Nothing heavier than the standard library is imported before the handler is
 in place, so only the interpreter's own start-up (tens of milliseconds) is left to the default
 action (the process ends by SIGINT, which a shell reports as 130 too, before anything started).
+
+The command's start-up runs with the garbage collector's thresholds raised
+(:func:`gnc_common.collector.hold`; the command settles it, :func:`sappc.cli.main`).
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ EXIT_INTERRUPTED = 128 + signal.SIGINT
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``sappc`` command (:func:`sappc.cli.main`); Ctrl-C: one line and :data:`EXIT_INTERRUPTED`."""
     signal.signal(signal.SIGINT, signal.default_int_handler)  # also when started with SIGINT ignored
+    from gnc_common import collector
+
+    collector.hold()  # the command's start-up (its imports, its kernels): settled by the command (sappc.cli.main)
     try:
         from sappc.cli import main as cli_main
 

@@ -38,6 +38,7 @@ from typing import Any, TextIO
 from pathlib import Path
 from collections.abc import Iterator, Sequence
 
+from gnc_common import collector
 from gnc_common.validation import ConfigError, InputError, did_you_mean
 
 from sappc.files import bag_run_name, default_output_dir
@@ -868,7 +869,7 @@ def _parser() -> argparse.ArgumentParser:
     mc.add_argument("--json", metavar="FILE", help="also write the summary here ('-': to stdout)")
     mc.add_argument("--resume", action="store_true", help="continue an interrupted campaign in --out")
     mc.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
-    mc.set_defaults(func=_cmd_montecarlo)
+    mc.set_defaults(func=_cmd_montecarlo, settles_start_up=True)
     tn = command("tune", "find the controller's free gains with a Monte Carlo campaign in the loop (a 'tuning' section)")
     tn.add_argument("scenario", help=_SCENARIO_HELP.format("paper_tracking_tune"))
     tn.add_argument("--controller", choices=[c.value for c in ControllerKind], default=None,
@@ -1004,6 +1005,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with _stdout_to_stderr() if to_stdout else contextlib.nullcontext(None) as json_out:
             _json_stdout = json_out
+            if not getattr(args, "settles_start_up", False):  # (sappc montecarlo settles just before it forks its workers)
+                collector.settle()  # the start-up's garbage collector thresholds (sappc.__main__) end here
             return int(args.func(args))
     except (ConfigError, InputError) as exc:
         print(f"sappc: error: {exc}", file=sys.stderr)

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from gnc_common import collector
 from gnc_common.validation import ConfigError
 from gnc_common.validation import InputError
 from sappc.montecarlo.config import campaign_config
@@ -407,6 +408,7 @@ def run_campaign(
         if workers > 1:
             compiled_loop.load_before_fork(scenario)  # once here, not in every worker
     bar = _Progress(runs, runs - sum(len(r) for _, r in todo), progress)  # after compiling: the rate is the runs'
+    collector.settle()  # `sappc montecarlo`'s start-up ends here: what it made is frozen before the workers fork (gnc_common.collector)
     executor = ChunkExecutor(workers, scheduler)
     global _progress_sink
     t0 = time.perf_counter()

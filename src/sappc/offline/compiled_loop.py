@@ -69,6 +69,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import prange
 
+from gnc_common import collector
 from gnc_common.compiled import error_quaternion, jit, jit_parallel
 from sappc_controller.core.base import SingularStartError
 from gnc_common.input_check import REJECT_REASONS, sample_verdicts
@@ -1728,8 +1729,9 @@ def _compile_leaves() -> None:
     global _in_compile_child
     _in_compile_child = True
     signal.signal(signal.SIGINT, signal.SIG_DFL)
-    for kernel, sig in _leaf_signatures(_leaf_inputs()):
-        kernel.compile(sig)
+    with collector.held():  # (a compile: gnc_common.collector)
+        for kernel, sig in _leaf_signatures(_leaf_inputs()):
+            kernel.compile(sig)
 
 
 #: The environment variable that turns the compile's leaf process off (``0``): a machine with one
@@ -1785,6 +1787,12 @@ def warm_up(groups: tuple[str, ...] | str = WARM_UP_GROUPS, *, parallel: bool = 
             chains.setdefault(_TOGETHER.get(g, g) if _TOGETHER.get(g) in names else g, []).append(g)
         _compile_in_children([(tuple(sorted(chain, key=WARM_UP_GROUPS.index)), False) for chain in chains.values()])
         return
+    with collector.held():  # numba's compiler makes hundreds of thousands of lasting objects (gnc_common.collector)
+        _warm_up_here(names)
+
+
+def _warm_up_here(names: tuple[str, ...]) -> None:
+    """:func:`warm_up` of ``names`` in this process."""
     import time
 
     started = time.monotonic()
