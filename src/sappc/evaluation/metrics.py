@@ -789,7 +789,7 @@ class MetricsAccumulator:
         if runs == slice(None):
             self.samples += t.size
 
-    def online_state(self, keep_record: bool = False) -> tuple[MetricArrays, MetricConstants]:
+    def online_state(self, keep_stride: int = 0) -> tuple[MetricArrays, MetricConstants]:
         """What a loop that computes the metrics online, sample by sample, reads and writes (the
         SIMD lanes, :func:`sappc.offline.lanes.online_metrics`; every sample's contribution is
         :func:`metric_sample_of`'s, as in :meth:`add_history`): the per-run arrays
@@ -798,7 +798,7 @@ class MetricsAccumulator:
         settling threshold, the loss-of-control bound and the fault's start less the tolerance
         (NaN: no fault): :class:`MetricArrays` and :class:`MetricConstants`.  Only on a uniform
         grid without flight modes, wheels, an estimator or orbits (what the lanes cover); the loop
-        then calls :meth:`add_online_block` for every block."""
+        then calls :meth:`add_online_block` for every block.  ``keep_stride``: :class:`MetricConstants`'."""
         if self.hold_s is not None or self.orbit_bins is not None or self.mode_time_s is not None:
             raise ValueError("online metrics need a uniform grid without orbits or flight modes")
         arrays = MetricArrays(*(getattr(self, name) for name in MetricArrays._fields))
@@ -806,7 +806,7 @@ class MetricsAccumulator:
                                    self.k_t2_run.astype(np.float64)))
         fault_from = np.nan if self.fault_start_s is None else float(self.fault_start_s) - _TIME_TOL_S
         settle = float(self.settle_threshold)
-        return arrays, MetricConstants(np.int64(1), np.int64(keep_record), per_run, settle, float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
+        return arrays, MetricConstants(np.int64(1), np.int64(keep_stride), per_run, settle, float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
                                        fault_from)
 
     def add_online_block(self, h: History, recorded: Sequence[int], *, block_samples: int | None = None) -> None:
@@ -1052,13 +1052,14 @@ class MetricArrays(NamedTuple):
 class MetricConstants(NamedTuple):
     """What a loop computing the metrics online reads besides :class:`MetricArrays`
     (:meth:`MetricsAccumulator.online_state`): ``on`` (0: the loop records its samples instead),
-    ``keep_record`` (1: it records every sample too, for what else reads them), each run's
+    ``keep_stride`` (``s`` > 0: it records every sample of the run whose index is a multiple of
+    ``s`` too, for what else reads them: a campaign's trajectories; 0: none), each run's
     constants ``per_run`` (N, 3) (its steady window's start less the grid's tolerance, its origin,
     t2's sample; float64, exact), the settling threshold, the loss-of-control bound, the fault's
     start less the tolerance (NaN: no fault)."""
 
     on: np.int64
-    keep_record: np.int64
+    keep_stride: np.int64
     per_run: Array
     settle_threshold: float
     loss_bound: float

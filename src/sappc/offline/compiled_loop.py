@@ -838,6 +838,14 @@ MADE_BLOCKS_MAX_BYTES = 16 << 20
 #: 190 MB), while a block still runs for about half a second of the orbit scenario (the call's
 #: cost from Python, and the inputs made per block, stay below a percent).
 BLOCK_RUN_SAMPLES = 1 << 16
+#: Run-samples of one block of :func:`run_blocks` whose runs go in SIMD lanes that take the
+#: metrics online and record only their answers: one byte a run-sample is written (and the block's
+#: inputs, shared by its runs, about 200 bytes a sample; the record's other arrays are allocated
+#: whole but written only for a run the lanes hand back, about 500 bytes a sample of that run).
+#: 2**20 takes a campaign's sub-batch of 128 runs of 50 s in one block, where
+#: :data:`BLOCK_RUN_SAMPLES` made ten, each with about 1 ms of Python (inputs, counts, the metrics'
+#: state) around about 8 ms of lanes.
+ONLINE_BLOCK_RUN_SAMPLES = 1 << 20
 
 
 @dataclass
@@ -1343,21 +1351,23 @@ def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = N
 
 
 def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None = None,
-               metrics: MetricsAccumulator | None = None, keep_record: bool = False) -> Iterator[CompiledRun]:
+               metrics: MetricsAccumulator | None = None, keep_stride: int = 0) -> Iterator[CompiledRun]:
     """Every run of ``inp``, block after block of samples (in parallel over runs): yields each
     block's :class:`CompiledRun` (its times and record, every ``stride`` samples), the same bits as
     :func:`run_batch`'s record over those samples.  Memory is one block's inputs and record,
     whatever the run's length: ``block_samples`` samples (default :data:`BLOCK_RUN_SAMPLES` over
-    the runs).  The record is one buffer reused from block to block (its views are valid until the
+    the runs, :data:`ONLINE_BLOCK_RUN_SAMPLES` where the lanes record only their answers).  The record is one buffer reused from block to block (its views are valid until the
     next block); its per-run arrays (``rejected``, ``x_final``, ``start``) are the run's so far.
     ``metrics``: where the runs go in SIMD lanes, the lanes feed it their metrics online, sample
     by sample (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_state`: the same bits),
-    and record only their answers (every sample too with ``keep_record``: a campaign's
-    trajectories); a block's :attr:`CompiledRun.online` then says which runs, and the caller gives
+    and record only their answers (and every sample whose index in the run is a multiple of
+    ``keep_stride``, when not 0: a campaign's trajectories; the record's other samples are then
+    not those of the block); a block's :attr:`CompiledRun.online` then says which runs, and the caller gives
     ``metrics`` the others' record (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.add_online_block`)
     before the next block."""
     n = inp.n_runs
-    size = max(1, BLOCK_RUN_SAMPLES // max(n, 1)) if block_samples is None else int(block_samples)
+    answers_only = metrics is not None and keep_stride == 0 and inp.lanes and lanes_refusal(inp) is None  # (the lanes then write no more)
+    size = max(1, (ONLINE_BLOCK_RUN_SAMPLES if answers_only else BLOCK_RUN_SAMPLES) // max(n, 1)) if block_samples is None else int(block_samples)
     if stride > 0:
         size = max(stride, size // stride * stride)
     size = min(size, inp.n_samples)
@@ -1365,7 +1375,7 @@ def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None =
     rec = _record(inp, stride, n, size)
     for block in inp.blocks(size, stride):
         _check_noise(block)
-        online = _loop(False, stride, block, rec, st, metrics, keep_record)
+        online = _loop(False, stride, block, rec, st, metrics, keep_stride)
         b = block.t.size
         b_rec = 0 if stride == 0 else (b - 1) // stride + 1
         view = rec if b_rec == rec.out.shape[1] else LoopRecord(*(a[:, :b_rec] if a.ndim >= 2 and name not in _PER_RUN else a
@@ -1378,15 +1388,15 @@ _PER_RUN = ("rejected", "x_final", "start", "mode_run")
 
 
 def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState,
-          metrics: MetricsAccumulator | None = None, keep_record: bool = False) -> np.ndarray | None:
+          metrics: MetricsAccumulator | None = None, keep_stride: int = 0) -> np.ndarray | None:
     """Every run of ``inp`` (its block of samples) into ``rec`` and ``st``: in parallel over runs
     (:func:`run_batch_kernel`), or, for one run, :func:`_run_one` alone (the same bits; a one-run
     command then never compiles the batch kernel).  ``metrics``: fed online by the SIMD lanes
-    (:func:`run_blocks`, with ``keep_record``); returns the runs whose metrics were (None: none)."""
+    (:func:`run_blocks`, with ``keep_stride``); returns the runs whose metrics were (None: none)."""
     if stride > 0 and inp.k_lo % stride != 0:
         raise ValueError(f"a block must start at a recorded sample: k_lo {inp.k_lo} is not a multiple of the stride {stride}")
     if inp.lanes and not probe and lanes_refusal(inp) is None:
-        return _loop_lanes(stride, inp, rec, st, metrics, keep_record)
+        return _loop_lanes(stride, inp, rec, st, metrics, keep_stride)
     if inp.n_runs == 1:
         _with_restarts(lambda: _run_alone(0, probe, stride, inp, rec, st), probe, inp, rec, st, np.zeros(1, dtype=np.int64))
     else:
@@ -1409,13 +1419,14 @@ def _lanes() -> Any:
 
 
 def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState, metrics: MetricsAccumulator | None,
-                keep_record: bool = False) -> np.ndarray | None:
+                keep_stride: int = 0) -> np.ndarray | None:
     """:func:`_loop` in SIMD lanes (:func:`sappc.offline.lanes.run_lanes_kernel`), then each run the
     lanes handed back (an input rejected, a refused answer: the per-run loop's cases) run again over
     the block by :func:`_run_one`, from the state the block started with (which the lanes left in
     ``st``), into the record.  With ``metrics`` (fed every sample before the block's, and a record
-    of every sample), the lanes feed it their runs' metrics online (and record every sample too
-    with ``keep_record``); returns those runs (the ones not handed back), else None."""
+    of every sample), the lanes feed it their runs' metrics online (and record every
+    ``keep_stride``-th sample too, when not 0); returns those runs (the ones not handed back),
+    else None."""
     ensure_compiled(groups=("lanes",))
     lanes = _lanes()
     handed_back = np.zeros(inp.n_runs, dtype=np.int8)
@@ -1425,7 +1436,7 @@ def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState
         if stride != 1 or metrics.samples != inp.k_lo or metrics.finite.shape[0] != inp.n_runs:
             raise ValueError(f"online metrics need a record of every sample and an accumulator of the block's {inp.n_runs} runs fed "
                              f"its {inp.k_lo} samples before (stride {stride}, {metrics.finite.shape[0]} runs, {metrics.samples} samples)")
-    ma, mc = lanes.online_metrics(metrics, keep_record) if metrics is not None else lanes.no_online_metrics()
+    ma, mc = lanes.online_metrics(metrics, keep_stride) if metrics is not None else lanes.no_online_metrics()
     lanes.run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back, ma, mc)
     for n in np.flatnonzero(handed_back):
         _run_one(np.int64(n), np.int64(n), False, np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st)

@@ -35,8 +35,9 @@ with (the loop's answers, the watchdog, the held samples: one implementation).
 A campaign's metrics are computed here too, as the lanes go (:func:`online_metrics`): after each
 sample's answer a fourth stage feeds each lane's metric state (rows of the scratch array) to
 :func:`~sappc.evaluation.metrics.metric_sample_of`, the per-sample piece the record's metrics
-kernel calls, and the record keeps only the answers (or every sample, ``keep_record``, where the
-first runs' trajectories are kept); a lane handed back leaves its metrics to its record.
+kernel calls, and the record keeps only the answers (and, ``keep_stride``, the samples of the
+first runs' trajectories: every ``keep_stride``-th of the run); a lane handed back leaves its
+metrics to its record.
 
 Parity (docs/parity.md, "Campaign runs in SIMD lanes"): with the libm calls vectorised, a lane's
 libm results are libmvec's (within 3 ulps of the scalar glibc functions'), everything else the
@@ -133,12 +134,13 @@ _R_MC = _R_M + N_METRIC_STATE  # 3: the run's metric constants: its steady windo
 _N_ROWS = _R_MC + 3
 
 
-def online_metrics(acc: MetricsAccumulator, keep_record: bool = False) -> tuple[MetricArrays, MetricConstants]:
+def online_metrics(acc: MetricsAccumulator, keep_stride: int = 0) -> tuple[MetricArrays, MetricConstants]:
     """The lanes' metrics arguments that have them compute ``acc``'s metrics online, sample by
     sample (:func:`run_lanes_kernel`): ``acc``'s per-run arrays and constants
     (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_state`), ``acc`` fed every sample
-    before the block's; ``keep_record``: the lanes record every sample too."""
-    return acc.online_state(keep_record)
+    before the block's; ``keep_stride`` ``s`` > 0: the lanes record every sample whose index in
+    the run is a multiple of ``s`` too."""
+    return acc.online_state(keep_stride)
 
 
 def no_online_metrics() -> tuple[MetricArrays, MetricConstants]:
@@ -196,7 +198,8 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
     leaves its rows of ``st`` as they were and sets ``handed_back[run]``.  ``ma``, ``mc``: with
     ``mc.on`` 1 (:func:`online_metrics`), each run's metrics sample by sample into its rows of the
     accumulator's arrays (a lane handed back leaves them as they were), and the record only its
-    answers (``rec.status``) unless ``mc.keep_record``."""
+    answers (``rec.status``), and every sample too whose index ``k`` in the run is a multiple of
+    ``mc.keep_stride`` (when not 0)."""
     W = LANES
     N = plant.x0.shape[0]
     rows = np.empty(W, dtype=np.int64)
@@ -401,8 +404,8 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                 if g0 + w >= N:
                     continue
                 rec.status[r, j] = ANSWER_COMMANDED
-                if online and mc.keep_record == 0:  # the metrics are taken: the record keeps only the answers
-                    continue
+                if online and (mc.keep_stride == 0 or k % mc.keep_stride != 0):  # the metrics are taken: the record keeps only the answers
+                    continue  # (and the samples kept for the trajectories)
                 for row in range(N_OUT):
                     for c in range(4):
                         rec.out[r, j, row, c] = S[_R_PUB + 4 * row + c, w]

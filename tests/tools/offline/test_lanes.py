@@ -170,7 +170,7 @@ def test_a_campaign_run_alone_is_its_row_when_each_run_has_its_own_disturbance()
 @pytest.mark.parametrize("block_run_samples", [None, N_RUNS * 97])
 def test_the_lanes_online_metrics_are_their_records_metrics_bit_for_bit(monkeypatch: pytest.MonkeyPatch, block_run_samples: int | None) -> None:
     """A campaign's runs in lanes compute their metrics online, sample by sample, and record only
-    their answers, or every sample too where trajectories are kept (sappc.offline.simulate.run_scenario);
+    their answers, and the trajectories' samples too where they are kept (sappc.offline.simulate.run_scenario);
     every sample's contribution is metric_sample_of's, which the record's metrics call too.  So
     every per-run metric state equals the one computed from the same lanes' record (run_blocks
     without an accumulator), bit for bit, and the trajectories are the record's: with a run the
@@ -179,8 +179,9 @@ def test_the_lanes_online_metrics_are_their_records_metrics_bit_for_bit(monkeypa
     from sappc.evaluation.metrics import MetricArrays, MetricsAccumulator
     from sappc.offline.simulate import run_scenario
 
-    if block_run_samples is not None:
+    if block_run_samples is not None:  # (the lanes' blocks that record only their answers too)
         monkeypatch.setattr(compiled_loop, "BLOCK_RUN_SAMPLES", block_run_samples)
+        monkeypatch.setattr(compiled_loop, "ONLINE_BLOCK_RUN_SAMPLES", block_run_samples)
     online_blocks: list[list[int]] = []
     real = MetricsAccumulator.add_online_block
 
