@@ -8,19 +8,12 @@ config/scenarios/paper_tracking.yaml``; both sides then run ``sappc report BAG -
 (a fresh process: interpreter start, imports, reading, metrics, figures, the page).  How the
 pairing works and what the JSON holds: :mod:`paired`.
 
-The commands run in this process's environment.  Where it sets ``PYTHONDONTWRITEBYTECODE`` (as
-the sessions of this project's machines do), Python compiles every module of the project's
-``src/`` again in each command (an editable install ships no bytecode; site-packages' is there):
-about 0.1 s of both sides' time.  ``--bytecode`` runs both with Python's bytecode caches, as a
-user's installation has them, kept under a temporary ``PYTHONPYCACHEPREFIX`` (filled by the
-warm-up runs; the checkouts are not written to); the JSON's row then ends in
-``_with_bytecode_cache``.
+``--bytecode``: both sides with Python's bytecode caches (:mod:`paired`).
 """
 
 from __future__ import annotations
 
 import atexit
-import os
 import shutil
 import subprocess
 import sys
@@ -49,11 +42,4 @@ def command(root: Path, tmp: Path) -> tuple[list[str], dict[str, str]]:
 
 
 if __name__ == "__main__":
-    row = "report_experiment1_bag"
-    if "--bytecode" in sys.argv:
-        sys.argv.remove("--bytecode")
-        cache = Path(tempfile.mkdtemp(prefix="sappc-bench-pycache-"))
-        atexit.register(shutil.rmtree, cache, True)
-        os.environ.update(PYTHONDONTWRITEBYTECODE="", PYTHONPYCACHEPREFIX=str(cache))
-        row += "_with_bytecode_cache"
-    paired.main(row, __doc__, command, target="<= 0.6 s")
+    paired.main("report_experiment1_bag", __doc__, command, target="<= 0.6 s")

@@ -11,12 +11,21 @@ candidate / baseline of each pair with its median, so that a drift of the machin
 the run cancels out.  The machine (CPU model, CPUs this process may use, load average before and
 after) is noted.
 
-    python benchmarks/bench_speed_campaign.py --baseline /path/to/checkout-7bdf681 [--repeats 3]
+    python benchmarks/bench_speed_campaign.py --baseline /path/to/checkout-7bdf681 [--repeats 3] [--bytecode]
+
+The commands run in this process's environment.  Where it sets ``PYTHONDONTWRITEBYTECODE`` (as
+the sessions of this project's machines and CI do), a checkout's commands read the bytecode its
+set-up compiled (``./sappcw`` does since 2026-12-07; an older checkout's set-up compiled none, so
+it compiles every module of its ``src/`` again in each command: about 0.12 s).  ``--bytecode``
+gives both sides the same footing: Python's bytecode caches under a temporary
+``PYTHONPYCACHEPREFIX``, filled by the warm-up runs (:func:`with_bytecode_cache`); the JSON's row
+then ends in ``_with_bytecode_cache``.
 """
 
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import os
 import platform
@@ -128,6 +137,17 @@ def paired(command: Command, baseline: Path, candidate: Path, repeats: int, time
     }
 
 
+def with_bytecode_cache(row: str) -> str:
+    """``--bytecode``: this process's environment set for both sides to keep and use Python's
+    bytecode caches under a temporary ``PYTHONPYCACHEPREFIX`` (filled by the warm-up runs, removed
+    at the end; the checkouts are not written to, and their own ``__pycache__`` are not read);
+    returns the row's name for that."""
+    cache = Path(tempfile.mkdtemp(prefix="sappc-bench-pycache-"))
+    atexit.register(shutil.rmtree, cache, True)
+    os.environ.update(PYTHONDONTWRITEBYTECODE="", PYTHONPYCACHEPREFIX=str(cache))
+    return row + "_with_bytecode_cache"
+
+
 def main(row: str, doc: str, command: Command, *, target: str, timeout_s: float = 600.0, repeats: int = 3) -> None:
     """Parse ``--baseline``/``--repeats``, time ``command`` on both sides and print the JSON."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
@@ -135,7 +155,11 @@ def main(row: str, doc: str, command: Command, *, target: str, timeout_s: float 
     parser.add_argument("--repeats", type=int, default=repeats, help=f"counted runs of each side (default {repeats}; >= 3)")
     parser.add_argument("--no-warm-up", action="store_true",
                         help="no uncounted first run of each side (for commands of minutes, where a warm page cache is below the noise)")
+    parser.add_argument("--bytecode", action="store_true",
+                        help="both sides with Python's bytecode caches, kept under a temporary PYTHONPYCACHEPREFIX (module docstring)")
     args = parser.parse_args()
+    if args.bytecode:
+        row = with_bytecode_cache(row)
     baseline = args.baseline.resolve()
     for root in (baseline, ROOT):
         python_of(root)  # both set up, or a clear error now
