@@ -136,12 +136,10 @@ non-finite torque; the node then publishes zero, counts the refused step and say
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -174,6 +172,7 @@ from sappc_msgs_py.convert import (
 from sappc_msgs_py.inputs import screen_input
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import LOCKSTEP, MANAGED, MODE, NEVER_CONFIGURED, REALTIME, CountingPublisher, ManagedNode, StartGate, run_node, unmatched
+from sappc_msgs_py.runtime import write_json_whole
 from gnc_common.timing import LatencyStatistics
 from gnc_common.validation import ConfigError, InputError, check_positive
 
@@ -793,7 +792,7 @@ class ControllerNode(ManagedNode):
                      **({"latency": self.latency_statistics(), "held_reference_steps": self.held_reference_steps,
                          "first_deviating_sample": self.first_deviating_sample,
                          "late_states": self.late_states} if self.mode == REALTIME else {})}
-            Path(self.timing_file).write_text(json.dumps(stats))
+            write_json_whole(self.timing_file, stats)  # whole or not at all (sappc run reads it)
 
 
 def main(argv: list[str] | None = None) -> int:

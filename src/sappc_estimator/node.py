@@ -125,10 +125,8 @@ then wait.
 
 from __future__ import annotations
 
-import json
 import sys
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -177,6 +175,7 @@ from sappc_msgs_py.inputs import (
 )
 from sappc_msgs_py.parameters import Param
 from sappc_msgs_py.runtime import COMMON_PARAMETERS, LOCKSTEP, MANAGED, MODE, REALTIME, ManagedNode, StartGate, run_node, unmatched
+from sappc_msgs_py.runtime import write_json_whole
 from sappc_msgs_py.timeline import MID_FRAME_PHASE, period_ns
 from sappc_msgs_py import wire
 
@@ -580,7 +579,7 @@ class EstimatorNode(ManagedNode):
                                + (f"; {s['late_tracker_samples']} late tracker samples (refused)" if s.get("late_tracker_samples") else ""))
         super().finish()
         if self.timing_file:
-            Path(self.timing_file).write_text(json.dumps(s))
+            write_json_whole(self.timing_file, s)  # whole or not at all (sappc run reads it)
 
 
 def main(argv: list[str] | None = None) -> int:

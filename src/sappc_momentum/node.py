@@ -50,11 +50,9 @@ as :class:`~sappc_msgs_py.runtime.ManagedNode` says for every node; for this one
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -71,7 +69,7 @@ from sappc_msgs_py.inputs import NS_PER_S  # the kernel's time: the stamp in sec
 from sappc_msgs_py import wire
 from sappc_msgs_py.convert import cdr_stamp_ns, magnetic_field_from_msg, time_to_ns, torque_from_msg, wheel_speed_from_msg
 from sappc_msgs_py.parameters import REQUIRED, Param
-from sappc_msgs_py.runtime import LOCKSTEP, MANAGED, MODE, ManagedNode, run_node
+from sappc_msgs_py.runtime import LOCKSTEP, MANAGED, MODE, ManagedNode, run_node, write_json_whole
 
 __all__ = ["INPUTS", "MomentumNode", "PARAMETERS", "RIGHT_INVERSE_TOL", "main"]
 
@@ -336,7 +334,7 @@ class MomentumNode(ManagedNode):
         super().finish()
         if self.timing_file:
             counts = {"samples": self.samples, "rejected": self.rejected, **({"inactive_samples": self.inactive_samples} if self.managed else {})}
-            Path(self.timing_file).write_text(json.dumps(counts))
+            write_json_whole(self.timing_file, counts)  # whole or not at all (sappc run reads it)
 
 
 def _field(values: tuple[float, ...]) -> np.ndarray | None:

@@ -74,7 +74,7 @@ from sappc_msgs_py.contract import (CLOCK, CONTROL_DIPOLE, CONTROL_TORQUE, CONTR
                                     MODE_STATUS, REFERENCE_ATTITUDE, RELAYED_REFERENCE_TOPICS, SENSOR_GYRO, STATE_MAGNETIC_FIELD, STATE_WHEEL_SPEED,
                                     TRUTH_MAGNETIC_FIELD, ESTIMATOR_TOPICS, FAULT_TOPICS, RELAYED_ACTUATOR_TOPICS,
                                     RELAYED_PATHS, RELAYED_SENSOR_TOPICS, RELAYED_SENSOR_TOPICS_FOR_ESTIMATOR, STATE_ATTITUDE,
-                                    STATE_ATTITUDE_EPOCH, STATE_RATE, TOPICS, controller_state_sources, faulty, relay_remaps)
+                                    STATE_RATE, TOPICS, controller_state_sources, faulty, relay_remaps)
 from spacecraft_sim.core.faults import FaultSchedule
 from spacecraft_sim.core.wheels import allocation_matrix
 from gnc_common.validation import ConfigError, safe_load_yaml
