@@ -798,7 +798,8 @@ class MetricsAccumulator:
         settling threshold, the loss-of-control bound and the fault's start less the tolerance
         (NaN: no fault): :class:`MetricArrays` and :class:`MetricConstants`.  Only on a uniform
         grid without flight modes, wheels, an estimator or orbits (what the lanes cover); the loop
-        then calls :meth:`add_online_block` for every block.  ``keep_stride``: :class:`MetricConstants`'."""
+        then calls :meth:`add_online_block` for every block.  ``keep_stride``: which samples the loop
+        records too (:class:`MetricConstants`)."""
         if self.hold_s is not None or self.orbit_bins is not None or self.mode_time_s is not None:
             raise ValueError("online metrics need a uniform grid without orbits or flight modes")
         arrays = MetricArrays(*(getattr(self, name) for name in MetricArrays._fields))

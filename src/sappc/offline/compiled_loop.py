@@ -1356,15 +1356,16 @@ def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None =
     block's :class:`CompiledRun` (its times and record, every ``stride`` samples), the same bits as
     :func:`run_batch`'s record over those samples.  Memory is one block's inputs and record,
     whatever the run's length: ``block_samples`` samples (default :data:`BLOCK_RUN_SAMPLES` over
-    the runs, :data:`ONLINE_BLOCK_RUN_SAMPLES` where the lanes record only their answers).  The record is one buffer reused from block to block (its views are valid until the
-    next block); its per-run arrays (``rejected``, ``x_final``, ``start``) are the run's so far.
+    the runs, :data:`ONLINE_BLOCK_RUN_SAMPLES` where the lanes record only their answers).  The
+    record is one buffer reused from block to block (its views are valid until the next block);
+    its per-run arrays (``rejected``, ``x_final``, ``start``) are the run's so far.
     ``metrics``: where the runs go in SIMD lanes, the lanes feed it their metrics online, sample
     by sample (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_state`: the same bits),
     and record only their answers (and every sample whose index in the run is a multiple of
     ``keep_stride``, when not 0: a campaign's trajectories; the record's other samples are then
-    not those of the block); a block's :attr:`CompiledRun.online` then says which runs, and the caller gives
-    ``metrics`` the others' record (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.add_online_block`)
-    before the next block."""
+    not those of the block); a block's :attr:`CompiledRun.online` then says which runs, and the
+    caller gives ``metrics`` the others' record
+    (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.add_online_block`) before the next block."""
     n = inp.n_runs
     answers_only = metrics is not None and keep_stride == 0 and inp.lanes and lanes_refusal(inp) is None  # (the lanes then write no more)
     size = max(1, (ONLINE_BLOCK_RUN_SAMPLES if answers_only else BLOCK_RUN_SAMPLES) // max(n, 1)) if block_samples is None else int(block_samples)
