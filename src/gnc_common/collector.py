@@ -30,10 +30,11 @@ __all__ = ["START_UP_THRESHOLDS", "held", "hold", "settle"]
 
 #: The collector's thresholds while a process starts up or compiles: a young collection every
 #: 20,000 net container allocations instead of 700, a full one only after 100 middle ones instead
-#: of 10.  Measured on a cold compile of the offline loops (machine A): the collector's time 6.2 s
-#: of 39 s with the defaults, 1.1 s of 33 s with these, 0 s of 32 s switched off; peak memory 426,
-#: 511 and 767 MB.  (20000, 10, 10) gave 1.7 s and 479 MB: these keep most of the gain of
-#: switching it off for a fifth of its memory.
+#: of 10.  Measured on a cold compile of the offline loops (machine A, one compile each, the
+#: thresholds set for the whole process): the collector's time 6.2 s of 39 s with the defaults,
+#: 1.1 s of 33 s with these, 0 s of 32 s switched off; peak memory 426, 511 and 767 MB.
+#: (20000, 10, 10) gave 1.7 s and 479 MB: these keep most of the gain of switching it off for a
+#: fifth of its memory.
 START_UP_THRESHOLDS = (20_000, 10, 100)
 
 #: The thresholds each open :func:`hold` replaced, innermost last.
