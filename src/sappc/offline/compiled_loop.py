@@ -763,10 +763,14 @@ class NoiseStreams:
         return self
 
     def take(self, rows: int) -> np.ndarray:
-        """The next ``rows`` draws of every run, (N, rows, width) float64 C-contiguous."""
+        """The next ``rows`` draws of every run, (N, rows, width) float64 C-contiguous (each run's
+        drawn into its rows: the same values as drawn alone, without a copy)."""
         if not self._open:
             self.open()
-        return np.ascontiguousarray(np.stack([g.standard_normal((rows, self.width)) for g in self._open]).reshape(self.n_runs, rows, self.width))
+        out = np.empty((self.n_runs, rows, self.width))
+        for g, mine in zip(self._open, out):
+            g.standard_normal(out=mine)
+        return out
 
 
 @dataclass
