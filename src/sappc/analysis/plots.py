@@ -191,7 +191,19 @@ _RUN_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "
 def _rows(n: int = 3, height: float = 7.5) -> tuple[Figure, NDArray[np.object_]]:
     """A figure of ``n`` (at least 2) rows sharing the time axis, and its array of Axes: one that
     :func:`_prepare_rows` made in advance when there is one of that shape, else a new one."""
-    pool = _PREPARED.get((n, height))
+    return _figure(n, height, 1)
+
+
+def _columns(cols: int, height: float) -> tuple[Figure, NDArray[np.object_]]:
+    """A figure of one row of ``cols`` (at least 2) axes sharing the y axis, 4 in wide each, and
+    its array of Axes: one made in advance (:func:`_prepare_rows` of ``(1, height, cols)``) when
+    there is one, else a new one."""
+    return _figure(1, height, cols)
+
+
+def _figure(n: int, height: float, cols: int) -> tuple[Figure, NDArray[np.object_]]:
+    """:func:`_rows` (``cols`` 1) or :func:`_columns` (``n`` 1)."""
+    pool = _PREPARED.get((n, height, cols))
     if pool:
         return pool.pop(0)
     import matplotlib
@@ -199,11 +211,18 @@ def _rows(n: int = 3, height: float = 7.5) -> tuple[Figure, NDArray[np.object_]]
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    return plt.subplots(n, 1, figsize=(8, height), sharex=True)
+    if cols == 1:
+        return plt.subplots(n, 1, figsize=(8, height), sharex=True)
+    return plt.subplots(1, cols, figsize=(4.0 * cols, height), sharey=True)
 
 
-#: Figures of :func:`_rows` made in advance (:func:`_prepare_rows`), by (rows, height).
-_PREPARED: dict[tuple[int, float], list[tuple[Figure, NDArray[np.object_]]]] = {}
+#: The shape of a figure made in advance (:func:`_prepare_rows`'s arguments): (rows, height) of
+#: :func:`_rows`, or (1, height, columns) of :func:`_columns`.
+FigureShape = tuple[int, float] | tuple[int, float, int]
+
+#: Figures of :func:`_rows` and :func:`_columns` made in advance (:func:`_prepare_rows`), by
+#: (rows, height, columns).
+_PREPARED: dict[tuple[int, float, int], list[tuple[Figure, NDArray[np.object_]]]] = {}
 
 #: The figures a :class:`FigureWorker` prepares for :func:`plot_run`'s figures of every run while
 #: it waits, in this order (``qev``, ``qev_zoom`` and ``qev_log`` are (3, 7.5), ``torque``
@@ -213,24 +232,26 @@ _PREPARED: dict[tuple[int, float], list[tuple[Figure, NDArray[np.object_]]]] = {
 #: second process's figures and the first's first one.  The first's second is made when drawn,
 #: which evens the two processes out (about 0.16 s each on machine B); a fourth prepared here
 #: would only delay both when the bag's data come while it is being made.
-RUN_FIGURE_SHAPES: tuple[tuple[int, float], ...] = ((3, 7.5), (3, 6.5), (2, 6.0))
+RUN_FIGURE_SHAPES: tuple[FigureShape, ...] = ((3, 7.5), (3, 6.5), (2, 6.0))
 
 #: The figures a :class:`FigureWorker` prepares for :func:`plot_campaign` while the runs go: one
-#: (3, 8.0), the trajectory figures' shape.  The worker's two processes each take one trajectory
-#: figure first (:data:`_CAMPAIGN_JOBS_ORDER`), each on its own copy of the prepared one (both
-#: forked after it was made): 0.03 s of each figure's 0.2 s (machine A), on the critical path at
-#: the campaign's end.
-CAMPAIGN_FIGURE_SHAPES: tuple[tuple[int, float], ...] = ((3, 8.0),)
+#: (3, 8.0), the trajectory figures' shape, then one (1, 3.8, 3), the error figures' (a row of
+#: three).  The worker's two processes each take one trajectory figure first, then one error
+#: figure (:data:`_CAMPAIGN_JOBS_ORDER`), each on its own copy of the prepared ones (both forked
+#: after they were made): 0.03 s of each trajectory figure's 0.2 s, 0.035 s of each error figure's
+#: 0.115 s (machine A, medians of 12), on the critical path at the campaign's end.  They are made
+#: while the command starts, on the core its own start leaves idle.
+CAMPAIGN_FIGURE_SHAPES: tuple[FigureShape, ...] = ((3, 8.0), (1, 3.8, 3))
 
 #: Ticks made in advance on each axis of a prepared figure (:func:`_prepare_rows`): the time axis of
 #: a 60 s run has 9 major tick positions (-10 to 70 s), a y axis 6 to 10.
 _PREPARED_TICKS = (9, 8)
 
 
-def _prepare_rows(n: int, height: float) -> None:
-    """Make a figure of :func:`_rows` now, with its axes' first ticks (each a group of lines and
-    texts: creating them is a third of drawing a figure), for a later :func:`_rows` of that shape
-    to take.  The figure drawn on it is the one a new figure gives: matplotlib creates the ticks
+def _prepare_rows(n: int, height: float, cols: int = 1) -> None:
+    """Make a figure of :func:`_rows` now (or, ``cols`` > 1, of :func:`_columns`, ``n`` 1), with
+    its axes' first ticks (each a group of lines and texts: creating them is a third of drawing a
+    figure), for a later :func:`_rows` (:func:`_columns`) of that shape to take.  The figure drawn on it is the one a new figure gives: matplotlib creates the ticks
     of an axis from its tick settings whenever they are first needed, and applies a change of
     these settings to the ticks already made (``tests/tools/bag/test_report_processes.py`` checks
     every pixel).  Call it with the style the figures are drawn with (:func:`house_style`)."""
@@ -239,12 +260,15 @@ def _prepare_rows(n: int, height: float) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(n, 1, figsize=(8, height), sharex=True)
+    if cols == 1:
+        fig, axes = plt.subplots(n, 1, figsize=(8, height), sharex=True)
+    else:
+        fig, axes = plt.subplots(1, cols, figsize=(4.0 * cols, height), sharey=True)
     for ax in axes:
         for axis, ticks in zip((ax.xaxis, ax.yaxis), _PREPARED_TICKS):
             axis.get_major_ticks(ticks)
             axis.get_minor_ticks(1)
-    _PREPARED.setdefault((n, height), []).append((fig, axes))
+    _PREPARED.setdefault((n, height, cols), []).append((fig, axes))
 
 
 def plot_run(
@@ -555,7 +579,7 @@ def _import_matplotlib() -> None:
         martist.kwdoc = kwdoc
 
 
-def _prepare_until_readable(shapes: Sequence[tuple[int, float]], fd: int) -> None:
+def _prepare_until_readable(shapes: Sequence[FigureShape], fd: int) -> None:
     """:func:`_prepare_rows` of each of ``shapes`` in turn until the file descriptor ``fd`` has
     something to read (a task: its figures are drawn then, in two processes)."""
     import select
@@ -577,7 +601,7 @@ class FigureWorker:
     the figures are drawn here).  Use it as a context manager: leaving it ends the child; a child
     whose parent ended without a word reads the end of its pipe and leaves."""
 
-    def __init__(self, prepare: Sequence[tuple[int, float]] = ()) -> None:
+    def __init__(self, prepare: Sequence[FigureShape] = ()) -> None:
         import os
         import sys
 
@@ -599,7 +623,7 @@ class FigureWorker:
         self.pid, self._send, self._receive = pid, task_w, done_r
 
     @staticmethod
-    def _serve(task_r: int, done_w: int, prepare: tuple[tuple[int, float], ...]) -> None:
+    def _serve(task_r: int, done_w: int, prepare: tuple[FigureShape, ...]) -> None:
         import json
         import os
         import pickle
@@ -982,7 +1006,7 @@ def campaign_figures(tab: dict[str, NDArray[Any]], out_dir: Path, *, criteria: t
 #: The order in which a :class:`FigureWorker`'s two processes take :func:`_campaign_jobs`' jobs
 #: (each the next one left when done with its last): the two trajectory figures first, one in
 #: each process (0.18 to 0.20 s each for 200 trajectories, machine B), then the two error figures
-#: (0.09 to 0.12 s each for 3000 runs), the NEES last.
+#: (0.09 to 0.12 s each for 3000 runs; 0.08 s on a prepared figure, machine A), the NEES last.
 _CAMPAIGN_JOBS_ORDER = (2, 3, 0, 1, 4)
 
 
@@ -995,10 +1019,8 @@ def _campaign_jobs(tab: dict[str, NDArray[Any]], out_dir: Path, *, criteria: tup
     runs = tab["run"]
 
     def errors(name: str, key: str, limit: float, label: str) -> list[Path]:
-        import matplotlib.pyplot as plt
-
         paths: list[Path] = []
-        fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), sharey=True)
+        fig, axes = _columns(3, 3.8)  # (one made in advance by the figure worker: CAMPAIGN_FIGURE_SHAPES)
         for i, ax in enumerate(axes):
             ax.plot(runs, tab[key][:, i], ".", ms=2, color="tab:blue")
             ax.axhline(limit, color="tab:red", ls="--", lw=1, label="criterion")

@@ -115,20 +115,22 @@ def test_a_figure_worker_draws_the_campaign_figures_one_process_draws(tmp_path: 
         _same_pixels(p, tmp_path / "two" / p.name)
 
 
-def test_trajectory_figures_made_in_advance_are_the_figures_made_when_drawn(tmp_path: Path) -> None:
-    """``sappc montecarlo``'s figure worker makes the trajectory figure and its first ticks while the
-    runs go (:data:`~sappc.analysis.plots.CAMPAIGN_FIGURE_SHAPES`); both trajectory figures drawn
-    on prepared ones are the figures made when drawn, every pixel (the log axis's too)."""
+def test_campaign_figures_made_in_advance_are_the_figures_made_when_drawn(tmp_path: Path) -> None:
+    """``sappc montecarlo``'s figure worker makes the trajectory figure and the error figure, with
+    their first ticks, while the runs go (:data:`~sappc.analysis.plots.CAMPAIGN_FIGURE_SHAPES`);
+    both trajectory figures and both error figures drawn on prepared ones are the figures made
+    when drawn, every pixel (the log axes' too)."""
     from sappc.analysis import plots
     from sappc.analysis.plots import CAMPAIGN_FIGURE_SHAPES, _campaign_jobs, _prepare_rows, draw_jobs, house_style
 
     _, tab = _campaign_table(np.random.default_rng(1), 30, 6, 201)
     kw = dict(tab=tab, criteria=(1e-4, 5e-5), title="t", nees=None)
-    fresh = draw_jobs(_campaign_jobs(out_dir=tmp_path / "fresh", **kw)[2:4], parallel=False)  # type: ignore[arg-type]
-    assert CAMPAIGN_FIGURE_SHAPES == ((3, 8.0),)
+    fresh = draw_jobs(_campaign_jobs(out_dir=tmp_path / "fresh", **kw)[:4], parallel=False)  # type: ignore[arg-type]
+    assert CAMPAIGN_FIGURE_SHAPES == ((3, 8.0), (1, 3.8, 3))
     house_style(lambda: [_prepare_rows(*shape) for shape in CAMPAIGN_FIGURE_SHAPES * 2])()
-    prepared = draw_jobs(_campaign_jobs(out_dir=tmp_path / "prepared", **kw)[2:4], parallel=False)  # type: ignore[arg-type]
-    assert not any(plots._PREPARED.values())  # both drawn on prepared figures
-    assert [p.name for p in prepared] == [p.name for p in fresh] == ["montecarlo_trajectories.png", "montecarlo_trajectories_steady.png"]
+    prepared = draw_jobs(_campaign_jobs(out_dir=tmp_path / "prepared", **kw)[:4], parallel=False)  # type: ignore[arg-type]
+    assert not any(plots._PREPARED.values())  # all four drawn on prepared figures
+    assert [p.name for p in prepared] == [p.name for p in fresh] == ["montecarlo_t2_error.png", "montecarlo_steady_error.png",
+                                                                     "montecarlo_trajectories.png", "montecarlo_trajectories_steady.png"]
     for mine, theirs in zip(fresh, prepared):
         _same_pixels(mine, theirs)
