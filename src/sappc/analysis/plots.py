@@ -251,10 +251,12 @@ _PREPARED_TICKS = (9, 8)
 def _prepare_rows(n: int, height: float, cols: int = 1) -> None:
     """Make a figure of :func:`_rows` now (or, ``cols`` > 1, of :func:`_columns`, ``n`` 1), with
     its axes' first ticks (each a group of lines and texts: creating them is a third of drawing a
-    figure), for a later :func:`_rows` (:func:`_columns`) of that shape to take.  The figure drawn on it is the one a new figure gives: matplotlib creates the ticks
-    of an axis from its tick settings whenever they are first needed, and applies a change of
-    these settings to the ticks already made (``tests/tools/bag/test_report_processes.py`` checks
-    every pixel).  Call it with the style the figures are drawn with (:func:`house_style`)."""
+    figure), for a later :func:`_rows` (:func:`_columns`) of that shape to take.  The figure drawn
+    on it is the one a new figure gives: matplotlib creates the ticks of an axis from its tick
+    settings whenever they are first needed, and applies a change of these settings to the ticks
+    already made (``tests/tools/bag/test_report_processes.py`` and
+    ``tests/tools/montecarlo/test_campaign_figures.py`` check every pixel).  Call it with the style
+    the figures are drawn with (:func:`house_style`)."""
     import matplotlib
 
     matplotlib.use("Agg")
