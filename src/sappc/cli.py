@@ -369,7 +369,7 @@ def _cmd_montecarlo(args: argparse.Namespace) -> int:
     from sappc.analysis.plots import CAMPAIGN_FIGURE_SHAPES, FigureWorker
 
     # forked first, before numba is imported (sappc.montecarlo.campaign imports it): the child
-    # imports matplotlib and makes the trajectory figure in advance while the runs go, then draws
+    # imports matplotlib and makes the trajectory and error figures in advance while the runs go, then draws
     # the campaign's figures in two processes (this process never imports matplotlib)
     with FigureWorker(prepare=CAMPAIGN_FIGURE_SHAPES) as figures:
         return _montecarlo(args, figures)

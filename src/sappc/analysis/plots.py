@@ -206,6 +206,12 @@ def _figure(n: int, height: float, cols: int) -> tuple[Figure, NDArray[np.object
     pool = _PREPARED.get((n, height, cols))
     if pool:
         return pool.pop(0)
+    return _new_figure(n, height, cols)
+
+
+def _new_figure(n: int, height: float, cols: int) -> tuple[Figure, NDArray[np.object_]]:
+    """A new figure of :func:`_figure`'s shape: ``n`` rows sharing x, 8 in wide (``cols`` 1), or
+    one row of ``cols`` axes sharing y, 4 in wide each."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -257,15 +263,7 @@ def _prepare_rows(n: int, height: float, cols: int = 1) -> None:
     already made (``tests/tools/bag/test_report_processes.py`` and
     ``tests/tools/montecarlo/test_campaign_figures.py`` check every pixel).  Call it with the style
     the figures are drawn with (:func:`house_style`)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if cols == 1:
-        fig, axes = plt.subplots(n, 1, figsize=(8, height), sharex=True)
-    else:
-        fig, axes = plt.subplots(1, cols, figsize=(4.0 * cols, height), sharey=True)
+    fig, axes = _new_figure(n, height, cols)
     for ax in axes:
         for axis, ticks in zip((ax.xaxis, ax.yaxis), _PREPARED_TICKS):
             axis.get_major_ticks(ticks)
