@@ -41,6 +41,7 @@ FLOORS: dict[str, int] = {
     "sappc_modes": 2,
     "spacecraft_sim": 2,
     "sappc.files": 2,  # the bundled data files and the default output directories: the scenario loader finds its files there
+    "sappc.controllers": 2,  # the controllers' names: the scenario's and the command line's choices (which import no scenario)
     "sappc.scenario": 3,
     "sappc.evaluation": 4,
     "sappc.offline": 5,

@@ -42,7 +42,7 @@ from gnc_common import collector
 from gnc_common.validation import ConfigError, InputError, did_you_mean
 
 from sappc.files import bag_run_name, default_output_dir
-from sappc.scenario import ControllerKind, load_scenario
+from sappc.controllers import ControllerKind
 
 __all__ = ["EXIT_STATUSES", "main"]
 
@@ -217,6 +217,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.run is not None:
         raise ConfigError("--run needs --from-campaign DIR")
     from sappc.offline.simulate import simulate
+    from sappc.scenario import load_scenario
 
     scenario = load_scenario(args.scenario) if args.duration is None else _with_duration(args.scenario, args.duration)
     writer = None
@@ -615,7 +616,7 @@ def _cmd_compare_controllers(args: argparse.Namespace) -> int:
 
 
 def _cmd_params(args: argparse.Namespace) -> int:
-    from sappc.scenario import controller_params_yaml, estimator_params_yaml
+    from sappc.scenario import controller_params_yaml, estimator_params_yaml, load_scenario
 
     scenario = load_scenario(args.scenario)
     print(estimator_params_yaml(scenario) if args.estimator else controller_params_yaml(scenario, args.controller), end="")
@@ -798,6 +799,19 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
+class _Version(argparse.Action):
+    """``--version``: the installed package's version, looked up only when asked (importing
+    :mod:`importlib.metadata` and reading the installed packages' metadata cost every command
+    about 17 ms of its start when the parser looked it up)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option_string: str | None = None) -> None:
+        print(f"{parser.prog} {_version()}")
+        parser.exit()
+
+
 #: What ``sappc`` alone prints after the usage.
 NO_COMMAND_HINT = "sappc: give a command; `sappc --help` describes them, `sappc COMMAND --help` one of them"
 #: An argument that names a scenario (``help`` of each command's positional argument).
@@ -832,7 +846,7 @@ def _add_live_options(p: argparse.ArgumentParser, live_help: str) -> None:
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="sappc", description="SAPPC spacecraft attitude control: offline runs and tools.",
                                      epilog=exit_status_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument("--version", action=_Version, help="show the version of sappc and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def command(name: str, help_text: str) -> argparse.ArgumentParser:

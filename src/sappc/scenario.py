@@ -15,7 +15,6 @@ from collections.abc import Mapping
 
 import dataclasses
 from dataclasses import dataclass, field
-from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +39,7 @@ from gnc_common.ephemeris import dcm_PN_of
 from sappc_controller.core.mrp_feedback import MrpFeedbackGains
 from sappc_modes.core.bdot import detumble_gain, geomagnetic_inclination_rad
 from sappc_modes.core.modes import DETUMBLE, MODE_NAMES, ModeConfig
+from sappc.controllers import ControllerKind
 from sappc.files import SCENARIOS_DIR, scenario_path
 from gnc_common.validation import (
     quoted,
@@ -59,15 +59,6 @@ from gnc_common.validation import (
 __all__ = ["ACTUATOR_KINDS", "BOUNDED_METRICS", "MAX_SCENARIO_BYTES", "ControllerKind", "ControllerNodeSettings", "FlightModes", "controller_node_parameters", "MetricSettings", "OrbitBins", "Scenario", "controller_kind", "controller_params_yaml", "estimator_params_yaml", "load_scenario", "read_scenario_mapping", "scenario_from_mapping"]
 
 Array = NDArray[np.float64]
-
-
-class ControllerKind(str, Enum):
-    """The controllers a scenario can run."""
-
-    SAPPC = "sappc"
-    TRAPPC = "trappc"
-    BLFPPC = "blfppc"
-    MRP_FEEDBACK = "mrp_feedback"
 
 
 #: The largest scenario file read [bytes], 4 MiB: the largest bundled scenario is under 11 kB (the

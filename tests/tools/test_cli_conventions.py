@@ -19,6 +19,7 @@ import yaml
 from conftest import ROOT, SAPPC, SCENARIOS, cli_commands, cut_short
 from gnc_common.validation import ConfigError
 from sappc import cli
+from sappc import scenario as scenario_module
 from sappc.files import OUTPUT_ROOT, SCENARIOS_DIR, bag_run_name, bundled_scenarios, copy_scenario, default_output_dir, scenario_path
 from sappc.scenario import load_scenario, read_scenario_mapping
 
@@ -39,6 +40,17 @@ def _short_scenario(tmp_path: Path, name: str = "paper_tracking", duration_s: fl
 def test_version_prints_the_installed_version() -> None:
     proc = _sappc("--version")
     assert proc.returncode == 0 and proc.stdout == f"sappc {version('sappc')}\n", proc.stdout + proc.stderr
+
+
+def test_the_command_line_parses_without_the_scenario_models_or_the_package_metadata() -> None:
+    # what every command pays before its own work (sappc report forks its figure worker right
+    # after): the parser, with its --controller choices, needs neither sappc.scenario (its models,
+    # ~60 ms) nor importlib.metadata (--version looks the version up only when asked, ~17 ms)
+    code = ("import sys; from sappc import cli; cli._parser().parse_args(['report', 'x']); "
+            "print(sorted(m for m in ('sappc.scenario', 'importlib.metadata', 'yaml') if m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode == 0 and proc.stdout == "[]\n", proc.stdout + proc.stderr
+    assert cli.ControllerKind is scenario_module.ControllerKind  # one class: the scenario's kinds are the choices
 
 
 def test_sappc_alone_prints_the_usage_and_a_hint_without_a_traceback() -> None:
