@@ -242,6 +242,95 @@ class LoopState(NamedTuple):
     q_err: np.ndarray
 
 
+@jit(inline="always")
+def measure_sample(sens, n, k, kb, t, t_stamp_s, measuring, x, held_q, bias, y):
+    """The sensors' part of run ``n``'s sample ``k`` (:func:`_run_one`, the lanes' flight stage):
+    with draws, the star tracker's and the gyro's measurement of the true state ``x`` into ``y``
+    (:func:`~spacecraft_sim.core.sensors.measure_run`), else the true state, measured now."""
+    if measuring:
+        measure_run(sens, n, k, kb, t, t_stamp_s, x, held_q, bias, y)
+    else:  # exact measurements: the true state, measured now
+        for i in range(7):
+            y[i] = x[i]
+        y[Y_EPOCH] = t_stamp_s
+
+
+@jit(inline="always")
+def estimate_sample(eprm, t_stamp_s, state_in, y, delivered_epoch, ye, est_st, P, ework, eout, yc):
+    """The estimator's part of a sample (:func:`_run_one`, the lanes' flight stage): a delivered
+    measurement ``y`` (``state_in``) goes through :func:`~sappc_estimator.core.mekf.mekf_step` with
+    the quaternion of the tracker sample of the latest new epoch (``ye``; ``delivered_epoch`` the
+    latest so far), and the estimate into ``yc``; returns whether the controller is given it (a
+    confirmed estimate), whether the filter had figures, the filter's status and the epoch."""
+    est_status = ESTIMATOR_NO_INPUT  # no measurement delivered: no filter step (the node's code)
+    if state_in:
+        if y[Y_EPOCH] > delivered_epoch:
+            delivered_epoch = y[Y_EPOCH]
+            for i in range(4):
+                ye[i] = y[i]
+        for i in range(4, N_MEAS):
+            ye[i] = y[i]
+        est_status = mekf_step(eprm, t_stamp_s, ye, est_st, P, ework, eout)
+    has_estimate = est_status != STATUS_NONE and est_status != ESTIMATOR_NO_INPUT and eout[EO_USABLE] >= 0.0  # (NaN: not initialised)
+    # an estimate the filter has not confirmed is withheld: "no data" for the controller
+    given = has_estimate and eout[EO_USABLE] == 1.0
+    for i in range(4):
+        yc[i] = eout[EO_Q + i]
+    for i in range(3):
+        yc[4 + i] = eout[EO_OMEGA + i]
+    return given, has_estimate, est_status, delivered_epoch
+
+
+@jit(inline="always")
+def record_wheels(rw, x, G, wprm, wspeed, uw):
+    """A sample's wheel record ``rw`` (W, 2) (:attr:`LoopRecord.wheels`): each wheel's speed
+    relative to the body (from the state ``x``) and its motor torque ``uw``."""
+    wheel_speeds_into(x, G, wprm, wspeed)
+    for i in range(rw.shape[0]):
+        rw[i, 0] = wspeed[i]
+        rw[i, 1] = uw[i]
+
+
+@jit(inline="always")
+def record_estimate(e, has_estimate, state_in, eout, P, est_status, bias_k):
+    """A sample's estimator record ``e`` (:data:`N_EST_RECORD`; the ``R_*`` columns)."""
+    for i in range(N_EST_RECORD):
+        e[i] = np.nan
+    if has_estimate:  # the filter's figures (else the node's "no data")
+        if state_in:  # the estimate itself, unless withheld
+            for i in range(4):
+                e[R_Q + i] = eout[EO_Q + i]
+            for i in range(3):
+                e[R_OMEGA + i] = eout[EO_OMEGA + i]
+        for i in range(3):
+            e[R_B + i] = eout[EO_B + i]
+        for a in range(6):
+            for b in range(6):
+                e[R_P + 6 * a + b] = P[a, b]
+        e[R_NIS] = eout[EO_NIS]
+        e[R_MON_LEVEL] = eout[EO_MON_LEVEL]
+        e[R_MON_NIS] = eout[EO_MON_NIS]
+        e[R_MON_MEAN] = eout[EO_MON_MEAN]
+        e[R_USABLE] = eout[EO_USABLE]
+        e[R_N_RECOVER] = eout[EO_N_RECOVER]
+    e[R_STATUS] = est_status
+    for i in range(3):
+        e[R_BTRUE + i] = bias_k[i]
+
+
+@jit(inline="always")
+def plant_step(x, u_last, uw, d, dt, max_torque, substeps, J, J_inv, G, wprm, wwork, wtmp, u):
+    """The plant over ``[t_k, t_k+1]`` with its inputs held: without wheels the delivered torque
+    ``u_last`` clipped to the actuator's ``max_torque`` plus the disturbance ``d`` (``u`` (3,)
+    scratch), with wheels their motor torques ``uw`` and ``d``."""
+    if wprm.shape[0] == 0:
+        for i in range(3):  # control (clipped by the actuator) + disturbance, held over [t_k, t_k+1]
+            u[i] = min(max(u_last[i], -max_torque), max_torque) + d[i]
+        propagate(x, u, dt, substeps, J, J_inv)
+    else:
+        propagate_wheels_into(x, uw, d, dt, substeps, J, J_inv, G, wprm, wwork, wtmp)
+
+
 @jit
 def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st):
     """The time loop of run ``n`` of the models' arrays (module docstring) over one block of samples,
@@ -417,12 +506,7 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
                 bias_k[i] = bias[i]
             if nf > 0:
                 fault_rate_bias(t, fkind, fwin, fprm, bias_k)
-        if measuring:
-            measure_run(sens, n, k, kb, t, t_stamp_s, x, held_q, bias, y)
-        else:  # exact measurements: the true state, measured now
-            for i in range(7):
-                y[i] = x[i]
-            y[Y_EPOCH] = t_stamp_s
+        measure_sample(sens, n, k, kb, t, t_stamp_s, measuring, x, held_q, bias, y)
         state_in, reference_in = True, True
         if nf > 0:
             state_in = fault_sensor(t, fkind, fwin, fprm, fint, fcount, fbuf, faults.draws[min(kb, faults.draws.shape[0] - 1)], y)
@@ -430,21 +514,8 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
         gyro_in = moding and state_in and np.isfinite(y[4] + y[5] + y[6])  # the gyro's rate delivered (the mode manager's and SAFE's)
         est_status = ESTIMATOR_NO_INPUT  # no measurement delivered: no filter step (the node's code)
         if estimating:
-            if state_in:
-                if y[Y_EPOCH] > delivered_epoch:
-                    delivered_epoch = y[Y_EPOCH]
-                    for i in range(4):
-                        ye[i] = y[i]
-                for i in range(4, N_MEAS):
-                    ye[i] = y[i]
-                est_status = mekf_step(eprm, t_stamp_s, ye, est_st, P, ework, eout)
-            has_estimate = est_status != STATUS_NONE and est_status != ESTIMATOR_NO_INPUT and eout[EO_USABLE] >= 0.0  # (NaN: not initialised)
-            # an estimate the filter has not confirmed is withheld: "no data" for the controller
-            state_in = has_estimate and eout[EO_USABLE] == 1.0
-            for i in range(4):
-                yc[i] = eout[EO_Q + i]
-            for i in range(3):
-                yc[4 + i] = eout[EO_OMEGA + i]
+            state_in, has_estimate, est_status, delivered_epoch = estimate_sample(eprm, t_stamp_s, state_in, y, delivered_epoch, ye, est_st, P,
+                                                                                  ework, eout, yc)
         else:
             for i in range(7):
                 yc[i] = y[i]
@@ -619,41 +690,11 @@ def _run_one(n, r, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist,
                 for i in range(nm):
                     rec.env[r, j, 9 + i] = m_cmd[i]
             if nw > 0:
-                wheel_speeds_into(x, G, wprm, wspeed)
-                for i in range(nw):
-                    rec.wheels[r, j, i, 0] = wspeed[i]
-                    rec.wheels[r, j, i, 1] = uw[i]
+                record_wheels(rec.wheels[r, j], x, G, wprm, wspeed, uw)
             if estimating:
-                e = rec.estimate[r, j]
-                for i in range(N_EST_RECORD):
-                    e[i] = np.nan
-                if has_estimate:  # the filter's figures (else the node's "no data")
-                    if state_in:  # the estimate itself, unless withheld
-                        for i in range(4):
-                            e[R_Q + i] = eout[EO_Q + i]
-                        for i in range(3):
-                            e[R_OMEGA + i] = eout[EO_OMEGA + i]
-                    for i in range(3):
-                        e[R_B + i] = eout[EO_B + i]
-                    for a in range(6):
-                        for b in range(6):
-                            e[R_P + 6 * a + b] = P[a, b]
-                    e[R_NIS] = eout[EO_NIS]
-                    e[R_MON_LEVEL] = eout[EO_MON_LEVEL]
-                    e[R_MON_NIS] = eout[EO_MON_NIS]
-                    e[R_MON_MEAN] = eout[EO_MON_MEAN]
-                    e[R_USABLE] = eout[EO_USABLE]
-                    e[R_N_RECOVER] = eout[EO_N_RECOVER]
-                e[R_STATUS] = est_status
-                for i in range(3):
-                    e[R_BTRUE + i] = bias_k[i]
-        if k < T - 1:
-            if nw == 0:
-                for i in range(3):  # control (clipped by the actuator) + disturbance, held over [t_k, t_k+1]
-                    u[i] = min(max(u_last[i], -act.max_torque_Nm), act.max_torque_Nm) + (d_tot[i] if orbiting else d[i])
-                propagate(x, u, dt, plant.substeps, J, J_inv)
-            else:  # the wheels' motor torques and the disturbance (with an orbit, and the environment's torque), held
-                propagate_wheels_into(x, uw, d_tot if orbiting else d, dt, plant.substeps, J, J_inv, G, wprm, wwork, wtmp)
+                record_estimate(rec.estimate[r, j], has_estimate, state_in, eout, P, est_status, bias_k)
+        if k < T - 1:  # the disturbance with an orbit, and the environment's torque
+            plant_step(x, u_last, uw, d_tot if orbiting else d, dt, act.max_torque_Nm, plant.substeps, J, J_inv, G, wprm, wwork, wtmp, u)
     # the block's end: the scalars back into st (the arrays are st's own rows)
     flags[L_STARTED] = 1 if started else 0
     flags[L_HAS_LAST] = 1 if has_last else 0
