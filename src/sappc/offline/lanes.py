@@ -55,30 +55,33 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numba import prange
 
-from gnc_common.compiled import jit, jit_parallel, matvec3_flat_of
+from gnc_common.compiled import error_quaternion, jit, jit_parallel, matvec3_flat_of
 from gnc_common.input_check import B_NORM, B_RATE, B_REFERENCE_ACCELERATION, B_REFERENCE_RATE, INPUT_OK, quaternion_verdict, vector_verdict
 from sappc_controller.core.kernels import _MAX_NEWTON_ITERATIONS, C_A, C_A1, C_L, C_SIGN, C_T1, KIND_SAPPC, N_OUT, N_PARAMS
 from sappc_controller.core.kernels import O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, P_B0, P_RATE_WC, P_TANTH, P_TORQUE_WC, P_UMAX, P_UMIN
-from sappc_controller.core.kernels import S_FILTER_ON, S_HAS_PREV, S_PREV, S_SD, S_T0
-from sappc_controller.core.kernels import actuator_of, backstepping_of, error_state_of, sappc_axis_end, sappc_axis_start, smetf_newton_step, smetf_start
-from sappc_msgs_py.contract import ANSWER_COMMANDED
+from sappc_controller.core.kernels import N_STATE, S_FILTER_ON, S_HAS_PREV, S_PREV, S_SD, S_T0, S_TORQUE_F, S_TORQUE_F_ON
+from sappc_controller.core.kernels import actuator_of, backstepping_of, error_state_of, filtered_actuator_of, low_pass_gain, sappc_axis_end
+from sappc_controller.core.kernels import sappc_axis_start, smetf_newton_step, smetf_start
+from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_HELD, ANSWER_WATCHDOG_ZERO
 from spacecraft_sim.core.kernels import disturbance_at, rk4_of
+from spacecraft_sim.core.wheels import wheel_torques
 
 from sappc.evaluation.metrics import N_METRIC_STATE, MetricArrays, MetricConstants, MetricsAccumulator, SampleGrid
 from sappc.evaluation.metrics import metric_sample_of, metric_state_load, metric_state_store
-from sappc.offline.compiled_loop import _NS_PER_S, L_HAS_LAST, L_LAST_STATE_NS, L_N_STARTS, L_STARTED, V_CMD, V_U_CMD, V_U_LAST, _initial_state
+from sappc.offline.compiled_loop import _NS_PER_S, L_HAS_ESTIMATE, L_HAS_LAST, L_LAST_STATE_NS, L_N_STARTS, L_STARTED, V_BIAS, V_BIAS_K, V_CMD, V_U
+from sappc.offline.compiled_loop import V_U_CMD, V_U_LAST, _initial_state, estimate_sample, measure_sample, plant_step, record_estimate, record_wheels
 
 if TYPE_CHECKING:
     from sappc.offline.compiled_loop import CompiledInputs
 
-__all__ = ["LANES", "lanes_refusal", "no_online_metrics", "online_metrics", "run_lanes_kernel"]
+__all__ = ["LANES", "lanes_online", "lanes_refusal", "no_online_metrics", "online_metrics", "run_lanes_kernel"]
 
 #: Runs per lane group: a multiple of every libmvec width (2, 4 and 8 float64), so that LLVM's
 #: vectorised loops have no scalar remainder (which would call the scalar libm for some lanes).
 LANES = 8
-#: Columns of the lane state kept as (column, lane) arrays: the controller's state rows the SAPPC
-#: law reads (``S_SD .. S_T0``).
-_N_CTRL = S_T0 + 1
+#: Columns of the lane state kept as (column, lane) arrays: the controller's state rows (the SAPPC
+#: law's ``S_SD .. S_T0``, the torque filter's).
+_N_CTRL = N_STATE
 assert N_PARAMS == 29, "_lane_prm lists the 29 parameters of sappc_controller.core.kernels by index"
 assert N_METRIC_STATE == 34, "_metric_rows lists the 34 values of sappc.evaluation.metrics.metric_sample_of's state"
 
@@ -88,15 +91,26 @@ def lanes_refusal(inp: CompiledInputs) -> str | None:
     ctrl = inp.controller
     if ctrl.kind != KIND_SAPPC:
         return "the controller is not SAPPC"
-    if ctrl.prm.shape[0] and (np.any(ctrl.prm[:, P_RATE_WC] > 0.0) or np.any(ctrl.prm[:, P_TORQUE_WC] > 0.0)):
-        return "a noise filter is on"
-    reasons = [(inp.n_wheels > 0, "reaction wheels"), (inp.sensors.draws.shape[1] > 0, "sensor noise"), (inp.estimating, "an estimator"),
-               (inp.faults.kind.shape[1] > 0, "faults"), (inp.environment.orbit.shape[1] > 0, "an orbit"),
+    if ctrl.prm.shape[0] and np.any(ctrl.prm[:, P_RATE_WC] > 0.0):
+        return "the rate filter is on"
+    reasons = [(inp.faults.kind.shape[1] > 0, "faults"), (inp.environment.orbit.shape[1] > 0, "an orbit"),
                (inp.momentum.prm.shape[1] > 0, "momentum management"), (inp.modes.prm.shape[1] > 0, "flight modes")]
     for bad, why in reasons:
         if bad:
             return why
     return None
+
+
+def _flight(inp: CompiledInputs) -> bool:
+    """Whether ``inp``'s runs have the flight stack the lanes step run by run (module docstring):
+    sensors, an estimator or reaction wheels."""
+    return inp.n_wheels > 0 or inp.sensors.draws.shape[1] > 0 or inp.noise is not None or bool(inp.estimating)  # (noise: drawn per block)
+
+
+def lanes_online(inp: CompiledInputs) -> bool:
+    """Whether the lanes can compute ``inp``'s metrics online (:func:`online_metrics`): runs in
+    lanes without the flight stack (whose estimator and wheel metrics are the record's)."""
+    return lanes_refusal(inp) is None and not _flight(inp)
 
 
 # The rows of a lane group's one scratch array (row, lane): every lane quantity in one array, so
@@ -131,7 +145,18 @@ _R_ATAN = _R_WW + 3
 _R_DONE = _R_ATAN + 3
 _R_M = _R_DONE + 3  # N_METRIC_STATE: the run's metric state (online metrics: sappc.evaluation.metrics.metric_sample_of's)
 _R_MC = _R_M + N_METRIC_STATE  # 3: the run's metric constants: its steady window's start less the tolerance, its origin, t2's sample
-_N_ROWS = _R_MC + 3
+_R_VALID = _R_MC + 3  # 1.0 when the sample is valid (its inputs delivered: the flight stack's estimate confirmed)
+_R_STATUS = _R_VALID + 1  # the sample's answer (ANSWER_*)
+_R_HASLAST = _R_STATUS + 1  # 1.0 once the controller has answered a valid sample (the watchdog's)
+_R_HASEST = _R_HASLAST + 1  # 1.0 when the filter gave the sample its figures
+_R_ESTST = _R_HASEST + 1  # the filter's status at the sample
+_R_CMD = _R_ESTST + 1  # 3: the answer (what a held sample repeats)
+_R_Y = _R_CMD + 3  # 7: the controller's input (the flight stack's: the estimate, or the measurement)
+_R_GAIN = _R_Y + 7  # the torque filter's gain (low_pass_gain of the run's cut-off and the grid's step: the same every sample)
+_R_SAVE = _R_GAIN + 1  # the controller's state and published rows before the sample (a sample without a valid input keeps them)
+_N_SAVE = _N_CTRL + 4 * N_OUT  # (rows _R_CS ..: the state, then the published rows)
+_N_ROWS = _R_SAVE + _N_SAVE
+assert _R_PUB == _R_CS + _N_CTRL
 
 
 def online_metrics(acc: MetricsAccumulator, keep_stride: int = 0) -> tuple[MetricArrays, MetricConstants]:
@@ -205,6 +230,17 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
     rows = np.empty(W, dtype=np.int64)
     for w in range(W):
         rows[w] = min(g0 + w, N - 1)
+    n_real = min(W, N - g0)  # the group's lanes that are runs (the others repeat the last, and compute nothing of the flight stack)
+    measuring = sens.draws.shape[1] > 0
+    estimating = est.prm.shape[1] > 0
+    nw = act.params.shape[1]
+    flight = measuring or estimating or nw > 0  # the flight stack: the true state in st, stepped run by run
+    filtered = False  # a lane with the torque filter
+    for w in range(W):
+        filtered = filtered or ctrl.prm[rows[w], P_TORQUE_WC] > 0.0
+    xin = _R_Y if flight else _R_X  # the controller's input: the flight stack's, or the true state
+    last_ns_w = np.empty(W, dtype=np.int64)  # each lane's last valid sample's stamp [ns]
+    qe = np.empty(4)  # the true error quaternion (a flight lane's record)
     if k_lo == 0:  # the runs' first block: their state before the first sample, as the per-run loop makes it
         for w in range(W):
             if g0 + w < N:
@@ -233,6 +269,18 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
         S[_R_STARTED, w] = 1.0 if st.flags[r, L_STARTED] != 0 else 0.0
         S[_R_NSTARTS, w] = st.flags[r, L_N_STARTS]
         S[_R_BAD, w] = 0.0
+        S[_R_VALID, w] = 1.0 if (w < n_real or not flight) else 0.0  # (a lane that is no run: no input, no Newton iterations)
+        S[_R_STATUS, w] = ANSWER_COMMANDED
+        S[_R_HASLAST, w] = 1.0 if st.flags[r, L_HAS_LAST] != 0 else 0.0
+        S[_R_HASEST, w] = 1.0 if st.flags[r, L_HAS_ESTIMATE] != 0 else 0.0
+        S[_R_ESTST, w] = 0.0
+        last_ns_w[w] = st.flags[r, L_LAST_STATE_NS]
+        for i in range(3):
+            S[_R_CMD + i, w] = st.vec3[r, V_CMD, i]
+        for i in range(7):
+            S[_R_Y + i, w] = 0.0
+        wc = ctrl.prm[r, P_TORQUE_WC]
+        S[_R_GAIN, w] = low_pass_gain(wc, grid.dt) if wc > 0.0 else 0.0  # (the actuator computes it at each sample: the same bits)
     online = mc.on != 0
     if online:
         for w in range(W):
@@ -270,17 +318,43 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                 disturbance_at(dist, rows[w], kb, grid.t[kb], D[w])
                 for i in range(3):
                     S[_R_D + i, w] = D[w, i]
+        if flight:  # stage 0: the sensors and the estimator, run by run (the per-run loop's pieces), into the controller's input
+            for w in range(n_real):
+                r = rows[w]
+                x = st.x[r]
+                if estimating:
+                    for i in range(3):
+                        st.vec3[r, V_BIAS_K, i] = st.vec3[r, V_BIAS, i]
+                measure_sample(sens, r, k, kb, grid.t[kb], t_stamp, measuring, x, st.held_q[r], st.vec3[r, V_BIAS], st.y[r])
+                given = True
+                yc = st.yc[r]
+                if estimating:
+                    given, has_est, est_status, epoch = estimate_sample(est.prm[r], t_stamp, True, st.y[r], st.epoch[r, 0], st.ye[r], st.est[r],
+                                                                        st.P[r], st.ework[r], st.eout[r], yc)
+                    st.epoch[r, 0] = epoch
+                    S[_R_HASEST, w] = 1.0 if has_est else 0.0
+                    S[_R_ESTST, w] = est_status
+                else:
+                    for i in range(7):
+                        yc[i] = st.y[r, i]
+                for i in range(7):
+                    S[_R_Y + i, w] = yc[i]
+                    S[_R_X + i, w] = x[i]  # the true state before the step (the record's)
+                S[_R_VALID, w] = 1.0 if given else 0.0
+                for i in range(_N_SAVE):
+                    S[_R_SAVE + i, w] = S[_R_CS + i, w]
         # stage 1: the input check, the start, the error state, each axis up to the SMETF's solve
         for w in range(nl):
-            x = (S[_R_X, w], S[_R_X + 1, w], S[_R_X + 2, w], S[_R_X + 3, w], S[_R_X + 4, w], S[_R_X + 5, w], S[_R_X + 6, w])
+            x = (S[xin, w], S[xin + 1, w], S[xin + 2, w], S[xin + 3, w], S[xin + 4, w], S[xin + 5, w], S[xin + 6, w])
+            valid = S[_R_VALID, w] != 0.0  # (a sample without a valid input: its results are dropped, stage 4)
             q_ok = quaternion_verdict(x[0], x[1], x[2], x[3], b_norm) == INPUT_OK
             w_ok = vector_verdict(x[4], x[5], x[6], b_rate) == INPUT_OK
-            S[_R_BAD, w] = max(max(S[_R_BAD, w], ref_bad), 0.0 if (q_ok and w_ok) else 1.0)
-            was_started = S[_R_STARTED, w] != 0.0
-            T0 = S[_R_CS + S_T0, w] if was_started else t_stamp  # the first valid sample fixes the time origin
+            S[_R_BAD, w] = max(max(S[_R_BAD, w], ref_bad), 0.0 if ((q_ok and w_ok) or not valid) else 1.0)
+            kept = S[_R_STARTED, w] != 0.0 or not valid
+            T0 = S[_R_CS + S_T0, w] if kept else t_stamp  # the first valid sample fixes the time origin
             S[_R_CS + S_T0, w] = T0
-            S[_R_NSTARTS, w] = S[_R_NSTARTS, w] if was_started else S[_R_NSTARTS, w] + 1.0
-            S[_R_STARTED, w] = 1.0
+            S[_R_NSTARTS, w] = S[_R_NSTARTS, w] if kept else S[_R_NSTARTS, w] + 1.0
+            S[_R_STARTED, w] = 1.0 if (S[_R_STARTED, w] != 0.0 or valid) else 0.0
             q, wbr, cwd, cwdd = error_state_of((x[0], x[1], x[2], x[3]), (x[4], x[5], x[6]), rq, rw, rwd)
             S[_R_Q, w] = q[0]
             S[_R_Q + 1, w] = q[1]
@@ -309,7 +383,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                 S[_R_A + i, w] = a
                 S[_R_WW + i, w] = ww
                 S[_R_ATAN + i, w] = 0.0
-                S[_R_DONE + i, w] = 0.0
+                S[_R_DONE + i, w] = 0.0 if valid else 1.0
         # stage 2: the SMETF's Newton iterations, until every lane's solve has converged; each lane
         # frozen from its own convergence on: its iterates are its scalar solve's
         for _ in range(_MAX_NEWTON_ITERATIONS):
@@ -360,7 +434,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
             tq2, sat2 = actuator_of(prm[P_UMAX], prm[P_UMIN], cmd[2])
             # the per-run loop's test of a refused answer
             finite = np.isfinite(tq0 + tq1 + tq2) and np.isfinite(cmd[0] + cmd[1] + cmd[2])
-            S[_R_BAD, w] = max(S[_R_BAD, w], 0.0 if finite else 1.0)
+            S[_R_BAD, w] = max(S[_R_BAD, w], 0.0 if (finite or S[_R_VALID, w] == 0.0) else 1.0)
             # the answer, published (the per-run loop's pub = out; no fault: delivered = commanded)
             for row in range(N_OUT):
                 S[_R_PUB + 4 * row + 3, w] = S[_R_OUT3 + row, w]
@@ -380,8 +454,57 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
             S[_R_U, w] = min(max(tq0, -umax), umax)
             S[_R_U + 1, w] = min(max(tq1, -umax), umax)
             S[_R_U + 2, w] = min(max(tq2, -umax), umax)
+        if filtered:  # stage 3b: the torque filter (the actuator's filtered branch), where a lane has it
+            for w in range(nl):
+                wc = S[_R_PL + P_TORQUE_WC, w]
+                if wc > 0.0:
+                    lane_umax, lane_umin = S[_R_PL + P_UMAX, w], S[_R_PL + P_UMIN, w]
+                    g = S[_R_GAIN, w]
+                    first = S[_R_CS + S_TORQUE_F_ON, w] == 0.0
+                    S[_R_CS + S_TORQUE_F_ON, w] = 1.0
+                    for i in range(3):
+                        torque, sat, f = filtered_actuator_of(lane_umax, lane_umin, g, first, S[_R_CS + S_TORQUE_F + i, w], S[_R_PUB + 4 * O_CMD + i, w])
+                        S[_R_CS + S_TORQUE_F + i, w] = f
+                        S[_R_PUB + 4 * O_TORQUE + i, w] = torque
+                        S[_R_PUB + 4 * O_SAT + i, w] = sat
+                        S[_R_U + i, w] = min(max(torque, -umax), umax)
+                    finite = np.isfinite(S[_R_PUB + 4 * O_TORQUE, w] + S[_R_PUB + 4 * O_TORQUE + 1, w] + S[_R_PUB + 4 * O_TORQUE + 2, w])
+                    S[_R_BAD, w] = max(S[_R_BAD, w], 0.0 if (finite or S[_R_VALID, w] == 0.0) else 1.0)
+        if flight:  # stage 4: the answer as the per-run loop gives it (a sample without a valid input: held, or the watchdog's zero)
+            for w in range(n_real):
+                r = rows[w]
+                if S[_R_VALID, w] != 0.0:
+                    status = ANSWER_COMMANDED
+                    S[_R_HASLAST, w] = 1.0
+                    last_ns_w[w] = t_ns
+                    for i in range(3):
+                        S[_R_CMD + i, w] = S[_R_PUB + 4 * O_TORQUE + i, w]
+                else:  # the law did not run: its state and rows as they were
+                    for i in range(_N_SAVE):
+                        S[_R_CS + i, w] = S[_R_SAVE + i, w]
+                    if S[_R_HASLAST, w] == 0.0 or t_ns - last_ns_w[w] > ctrl.stale_ns:  # no valid state yet, or too old
+                        status = ANSWER_WATCHDOG_ZERO
+                        for i in range(3):
+                            S[_R_CMD + i, w] = 0.0
+                            S[_R_PUB + 4 * O_CMD + i, w] = 0.0
+                            S[_R_PUB + 4 * O_SAT + i, w] = 0.0
+                    else:
+                        status = ANSWER_HELD
+                S[_R_STATUS, w] = status
+                for i in range(3):  # the answer through the actuator link (no fault: delivered as commanded)
+                    c = S[_R_CMD + i, w]
+                    st.vec3[r, V_CMD, i] = c
+                    st.vec3[r, V_U_CMD, i] = c
+                    st.vec3[r, V_U_LAST, i] = c
+                    S[_R_PUB + 4 * O_TORQUE + i, w] = c
+                if measuring or estimating or status != ANSWER_COMMANDED:  # the true error (metrics)
+                    error_quaternion(grid.ref_q[kb], st.x[r, :4], qe)
+                    for i in range(4):
+                        S[_R_PUB + 4 * O_QBR + i, w] = qe[i]
+                if nw > 0:
+                    wheel_torques(st.vec3[r, V_U_LAST], act.G_pinv[r], act.G[r], act.params[r], st.x[r], st.uw[r])
         last_ns = t_ns
-        if online:  # stage 4: the sample's metrics (the record's quantities at this sample: the state before the step, the answer)
+        if online:  # stage 5: the sample's metrics (the record's quantities at this sample: the state before the step, the answer)
             k_f = float(k)
             t_k = grid.t[kb]
             for w in range(nl):
@@ -403,7 +526,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                 r = rows[w]
                 if g0 + w >= N:
                     continue
-                rec.status[r, j] = ANSWER_COMMANDED
+                rec.status[r, j] = ANSWER_COMMANDED if not flight else np.int8(S[_R_STATUS, w])
                 if online and (mc.keep_stride == 0 or k % mc.keep_stride != 0):  # the metrics are taken: the record keeps only the answers
                     continue  # (and the samples kept for the trajectories)
                 for row in range(N_OUT):
@@ -413,7 +536,19 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                     rec.x[r, j, i] = S[_R_X + i, w]
                 for i in range(3):
                     rec.d[r, j, i] = S[_R_D + i, w]
-        if k < T - 1:
+                if nw > 0:
+                    record_wheels(rec.wheels[r, j], st.x[r], act.G[r], act.params[r], st.wspeed[r], st.uw[r])
+                if estimating:
+                    record_estimate(rec.estimate[r, j], S[_R_HASEST, w] != 0.0, S[_R_VALID, w] != 0.0, st.eout[r], st.P[r], S[_R_ESTST, w],
+                                    st.vec3[r, V_BIAS_K])
+        if k < T - 1 and flight:  # the plant run by run (the per-run loop's piece: the wheels, or the ideal actuator)
+            for w in range(n_real):
+                r = rows[w]
+                for i in range(3):
+                    D[w, i] = S[_R_D + i, w]
+                plant_step(st.x[r], st.vec3[r, V_U_LAST], st.uw[r], D[w], dt, umax, plant.substeps, plant.J[r], plant.J_inv[r], act.G[r],
+                           act.params[r], st.wwork[r], st.wtmp[r], st.vec3[r, V_U])
+        elif k < T - 1:
             h = dt / plant.substeps
             for _ in range(plant.substeps):
                 for w in range(nl):
@@ -431,9 +566,13 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
         if S[_R_BAD, w] != 0.0:
             handed_back[r] = 1
             continue
-        for i in range(7):
-            st.x[r, i] = S[_R_X + i, w]
-            rec.x_final[r, i] = S[_R_X + i, w]
+        if flight:  # (the true state is st's own row)
+            for i in range(st.x.shape[1]):
+                rec.x_final[r, i] = st.x[r, i]
+        else:
+            for i in range(7):
+                st.x[r, i] = S[_R_X + i, w]
+                rec.x_final[r, i] = S[_R_X + i, w]
         for i in range(_N_CTRL):
             st.ctrl[r, i] = S[_R_CS + i, w]
         if online:
@@ -442,7 +581,13 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
             for c in range(4):
                 st.pub[r, row, c] = S[_R_PUB + 4 * row + c, w]
                 st.out[r, row, c] = S[_R_PUB + 4 * row + c, w]
-        if grid.t.shape[0] > 0:
+        if grid.t.shape[0] > 0 and flight:
+            st.flags[r, L_STARTED] = 1 if S[_R_STARTED, w] != 0.0 else 0
+            st.flags[r, L_HAS_LAST] = 1 if S[_R_HASLAST, w] != 0.0 else 0
+            st.flags[r, L_LAST_STATE_NS] = last_ns_w[w]
+            st.flags[r, L_HAS_ESTIMATE] = 1 if S[_R_HASEST, w] != 0.0 else 0
+            st.flags[r, L_N_STARTS] = int(S[_R_NSTARTS, w])
+        elif grid.t.shape[0] > 0:
             st.flags[r, L_STARTED] = 1
             st.flags[r, L_HAS_LAST] = 1
             st.flags[r, L_LAST_STATE_NS] = last_ns

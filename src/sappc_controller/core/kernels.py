@@ -323,18 +323,26 @@ def actuator(prm, state, dt, out):
         first = state[S_TORQUE_F_ON] == 0.0
         state[S_TORQUE_F_ON] = 1.0
         for i in range(3):
-            u = out[O_CMD, i]
-            clipped = min(max(u, -umax), umax)
-            prev = clipped if first else state[S_TORQUE_F + i]
-            torque = prev + g * (clipped - prev)  # first-order low-pass, matched pole
-            state[S_TORQUE_F + i] = torque
-            out[O_TORQUE, i] = 0.0 if abs(torque) < umin else torque
-            out[O_SAT, i] = 1.0 if abs(u) > umax else 0.0
+            torque, sat, filtered = filtered_actuator_of(umax, umin, g, first, state[S_TORQUE_F + i], out[O_CMD, i])
+            state[S_TORQUE_F + i] = filtered
+            out[O_TORQUE, i] = torque
+            out[O_SAT, i] = sat
     else:
         for i in range(3):
             torque, sat = actuator_of(umax, umin, out[O_CMD, i])
             out[O_TORQUE, i] = torque
             out[O_SAT, i] = sat
+
+
+@jit(inline="always")
+def filtered_actuator_of(umax, umin, g, first, prev, u):
+    """One axis of :func:`actuator` with the torque filter (gain ``g``, :func:`low_pass_gain`):
+    the torque the actuator produces of the command ``u``, the saturation flag (1.0/0.0) and the
+    filter's new output, from its last output ``prev`` (ignored at its ``first`` input)."""
+    clipped = min(max(u, -umax), umax)
+    last = clipped if first else prev
+    filtered = last + g * (clipped - last)  # first-order low-pass, matched pole
+    return (0.0 if abs(filtered) < umin else filtered), (1.0 if abs(u) > umax else 0.0), filtered
 
 
 @jit(inline="always")

@@ -12,7 +12,7 @@ import yaml
 from conftest import SCENARIOS
 from gnc_common import libm
 from sappc.offline import compiled_loop
-from sappc.offline.lanes import LANES, lanes_refusal
+from sappc.offline.lanes import LANES, lanes_online, lanes_refusal
 from sappc.scenario import load_scenario, scenario_from_mapping
 from sappc_msgs_py.contract import ANSWER_NAMES
 
@@ -50,7 +50,12 @@ def test_the_lanes_cover_the_paper_campaign_and_say_why_not_the_others() -> None
     paper = compiled_loop.prepare(load_scenario(SCENARIOS / "paper_montecarlo.yaml"), on_infeasible="clamp", lanes=True)
     assert lanes_refusal(paper) is None
     flight = compiled_loop.prepare(load_scenario(SCENARIOS / "paper_tracking_flight.yaml"), lanes=True)
-    assert lanes_refusal(flight) in ("a noise filter is on", "reaction wheels", "sensor noise", "an estimator")
+    assert lanes_refusal(flight) is None and not lanes_online(flight)  # the flight stack: in lanes, its metrics from the record
+    assert lanes_online(paper)
+    orbit = compiled_loop.prepare(load_scenario(SCENARIOS / "paper_tracking_orbit.yaml"), lanes=True)
+    assert lanes_refusal(orbit) == "an orbit"
+    faults = compiled_loop.prepare(load_scenario(SCENARIOS / "flight_tracker_outliers.yaml"), lanes=True)
+    assert lanes_refusal(faults) == "faults"
     trappc = compiled_loop.prepare(load_scenario(SCENARIOS / "paper_comparison.yaml"), "trappc", lanes=True)
     assert lanes_refusal(trappc) == "the controller is not SAPPC"
 
@@ -215,3 +220,89 @@ def test_the_lanes_online_metrics_are_their_records_metrics_bit_for_bit(monkeypa
     assert run_with_traj.trajectory is not None and run_recorded.trajectory is not None
     for a, b in zip(run_with_traj.trajectory, run_recorded.trajectory):
         assert np.array_equal(a, b, equal_nan=True)
+
+
+# ---- the flight stack in lanes: sensors, the estimator, the wheels, the torque filter ----------
+
+
+def _flight_inputs(duration_s: float, *, estimator: bool = True, lanes: bool = True) -> compiled_loop.CompiledInputs:
+    """The flight scenario (a star tracker, a gyro, the MEKF, four wheels, the torque filter) over
+    ``duration_s``, :data:`N_RUNS` runs from dispersed attitudes; ``estimator`` false: the
+    measurements feed the controller."""
+    raw = yaml.safe_load((SCENARIOS / "paper_tracking_flight.yaml").read_text())
+    raw["duration_s"] = duration_s
+    raw["metrics"].update(steady_from_s=duration_s / 2, t2_s=duration_s / 2, requirements={})
+    if not estimator:
+        del raw["estimator"]
+    return compiled_loop.prepare(scenario_from_mapping(raw), on_infeasible="clamp", q_BN0=_attitudes(N_RUNS), lanes=lanes)
+
+
+def _records(inp: compiled_loop.CompiledInputs) -> dict[str, np.ndarray]:
+    return dict(zip(compiled_loop.LoopRecord._fields, compiled_loop.run_batch(inp, 1).record))
+
+
+def _glitch(inp: compiled_loop.CompiledInputs, run: int, samples: slice, value: float) -> None:
+    """The gyro's noise draws of ``run`` over ``samples`` set to ``value`` (NaN: the gyro sends no
+    rate there, a measurement the filter does not take; huge: an implausible rate)."""
+    inp.sensors.draws[run, samples, 3:6] = value
+
+
+def test_the_flight_stack_in_lanes_is_the_per_run_loop_within_the_bound() -> None:
+    """The lanes step the sensors, the filter, the wheels and the plant run by run with the per-run
+    loop's pieces (sappc.offline.compiled_loop.measure_sample, estimate_sample, plant_step and the
+    records'), the law in vector lanes with its torque filter: the same bits but the libm calls
+    LLVM vectorised (libmvec's), so the true state within the bound above, T * 2 eps, and every
+    answer, disturbance and start the same; with no variant declared, every field equal.  Runs 3
+    and 9 lose their gyro for 3 and 40 samples (the estimate then has no measurement: the controller
+    holds its last answer, then the watchdog answers zero), which the lanes answer as the loop does."""
+    per_run, in_lanes = _flight_inputs(4.0, lanes=False), _flight_inputs(4.0)
+    assert lanes_refusal(in_lanes) is None
+    for inp in (per_run, in_lanes):
+        _glitch(inp, 3, slice(150, 153), np.nan)
+        _glitch(inp, 9, slice(200, 240), np.nan)
+    a, b = _records(per_run), _records(in_lanes)
+    for name in ("status", "rejected", "start", "d"):
+        assert np.array_equal(a[name], b[name]), name
+    answers = {name: int(np.count_nonzero(b["status"] == code)) for code, name in enumerate(ANSWER_NAMES)}
+    assert answers["held"] > 0 and answers["watchdog_zero"] > 0 and answers["refused"] == 0, answers
+    assert np.all(b["status"][[0, 1, 2, 4, 5, 6, 7, 8, 10]] == 0)  # the runs without a glitch: every sample commanded
+    T = a["x"].shape[1]
+    bound = T * 2 * np.finfo(np.float64).eps
+    assert np.abs(a["x"] - b["x"]).max() <= bound
+    assert np.abs(a["x_final"][:, :7] - b["x_final"][:, :7]).max() <= bound
+    if not libm.installed_variants():
+        for name in compiled_loop.LoopRecord._fields:
+            assert np.array_equal(a[name], b[name], equal_nan=True), name
+
+
+def test_a_flight_run_the_lanes_hand_back_starts_its_block_again_from_its_state() -> None:
+    """Without the estimator the gyro's rate reaches the controller's input check: run 3's rate
+    implausible at sample 120, a rejected input, which only the per-run loop answers.  The lanes
+    step a flight run's own rows of the loop's state, so a run handed back starts its block again
+    from the state kept before the block (sappc.offline.compiled_loop._loop_lanes).  In one block
+    its record is the per-run loop's, bit for bit.  In blocks of 77 samples its first block goes
+    in lanes and the next starts again from where that block ended: the answers and rejections
+    the per-run loop's, the true state within the lanes' bound (without the state kept, that block
+    would start 77 samples on).  The other runs are the lanes' in one block, and what they are
+    without run 3's glitch."""
+    runs = {}
+    for lanes in (False, True):
+        inp = _flight_inputs(2.0, estimator=False, lanes=lanes)
+        _glitch(inp, 3, slice(120, 121), 1.0e6)
+        runs[lanes] = _records(inp)
+        if lanes:
+            blocks = [[x.copy() for x in blk.record] for blk in compiled_loop.run_blocks(inp, 1, 77)]
+            by_block = {name: (np.concatenate([blk[i] for blk in blocks], axis=1) if blocks[0][i].ndim >= 2 and name not in compiled_loop._PER_RUN
+                               else blocks[-1][i]) for i, name in enumerate(compiled_loop.LoopRecord._fields)}
+    a, b = runs[False], runs[True]
+    assert a["rejected"][3].sum() > 0 and np.any(a["status"][3] != 0)
+    others = [k for k in range(N_RUNS) if k != 3]
+    for name in compiled_loop.LoopRecord._fields:
+        assert np.array_equal(a[name][3], b[name][3], equal_nan=True), name
+        assert np.array_equal(b[name][others], by_block[name][others], equal_nan=True), name
+    for name in ("status", "rejected"):
+        assert np.array_equal(a[name][3], by_block[name][3]), name
+    assert np.abs(a["x"][3] - by_block["x"][3]).max() <= a["x"].shape[1] * 2 * np.finfo(np.float64).eps
+    c = _records(_flight_inputs(2.0, estimator=False))  # (no glitch)
+    for name in ("status", "d", "x", "out"):
+        assert np.array_equal(b[name][others], c[name][others], equal_nan=True), name
