@@ -141,6 +141,7 @@ the samples with ``j T <= t < (j + 1) T``, ``T`` the orbit's period):
 from __future__ import annotations
 
 import copy
+import dataclasses
 import sys
 import types
 from collections.abc import Callable, Sequence
@@ -333,6 +334,8 @@ class MetricsAccumulator:
         self.nees_stride = nees_sample_stride(self.n_grid)
         self.nees_sum_t: Array | None = None
         self.nees_runs_t: NDArray[np.int64] | None = None
+        # a block computed online (online_flight_state): each sample's NEES and whether it was counted (B, N)
+        self._online_nees: tuple[Array, NDArray[np.bool_]] = (np.zeros((0, 0)), np.zeros((0, 0), dtype=np.bool_))
         # only in orbit: per run and orbit the steady max of max_i |q_ev,i|, the steady sums of |q_ev,i|, the
         # wheels' largest and last |h_B| and largest speed, the rods' summed |m| / m_max; per orbit the
         # samples seen and those in the steady window.  The orbit of the last sample seen is open: its
@@ -663,9 +666,8 @@ class MetricsAccumulator:
             out.append(entry)
         return out
 
-    def update_estimate(self, k0: int, t: Array, q_BN: Array, est: EstimateHistory) -> None:
-        """Observe a block of samples ``k0 ..`` (``t`` (B,), arrays (B, N, ...)) of the estimator's
-        record against the true attitude ``q_BN``: the estimation metrics (module docstring)."""
+    def _estimate_arrays(self) -> None:
+        """The estimation metrics' arrays, allocated with their first samples (recorded or online)."""
         n = self.finite.shape[0]
         if self.est_att_max is None:
             self.est_att_max, self.est_att_sq = np.zeros((n, 3)), np.zeros((n, 3))
@@ -676,10 +678,20 @@ class MetricsAccumulator:
             self.est_withheld, self.est_recoveries = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
             n_kept = -(-self.n_grid // self.nees_stride)  # the grid's samples 0, s, 2 s, ...
             self.nees_sum_t, self.nees_runs_t = np.zeros(n_kept), np.zeros(n_kept, dtype=np.int64)
-        att_max, att_sq, att_n, bias_last = self.est_att_max, self.est_att_sq, self.est_att_n, self.est_bias_last
-        nees_sum, nees_n, status_counts = self.est_nees_sum, self.est_nees_n, self.est_status_counts
-        assert att_max is not None and att_sq is not None and att_n is not None and bias_last is not None and nees_sum is not None
-        assert nees_n is not None and status_counts is not None
+
+    def update_estimate(self, k0: int, t: Array, q_BN: Array, est: EstimateHistory, runs: slice = slice(None),
+                        nees: tuple[Array, NDArray[np.bool_]] | None = None) -> None:
+        """Observe a block of samples ``k0 ..`` (``t`` (B,), arrays (B, N, ...)) of the estimator's
+        record against the true attitude ``q_BN``: the estimation metrics (module docstring).
+        ``runs``: the arrays hold only those runs (:meth:`add_online_block`), whose samples' NEES
+        go into ``nees`` (the block's (B, N) NEES and counted flags, which the caller sums over
+        the runs) instead of the sums over runs."""
+        self._estimate_arrays()
+        assert self.est_att_max is not None and self.est_att_sq is not None and self.est_att_n is not None and self.est_bias_last is not None
+        assert self.est_nees_sum is not None and self.est_nees_n is not None and self.est_status_counts is not None
+        att_max, att_sq, att_n, bias_last = self.est_att_max[runs], self.est_att_sq[runs], self.est_att_n[runs], self.est_bias_last[runs]
+        nees_sum, nees_n, status_counts = self.est_nees_sum[runs], self.est_nees_n[runs], self.est_status_counts[runs]
+        n = att_n.shape[0]
         t = np.asarray(t, dtype=np.float64).reshape(-1)
         B = t.size
         truth = est.gyro_bias_true is not None
@@ -690,33 +702,41 @@ class MetricsAccumulator:
         e = np.zeros((B if truth else 0, n))  # each sample's NEES where counted, else 0
         counted = np.zeros((B if truth else 0, n), dtype=np.bool_)
         with np.errstate(divide="ignore", invalid="ignore"):  # (interpreted: a singular covariance's NEES is NaN, not counted)
-            _estimate_function(B * n)(t, self.steady_from_per_run(), f64(est.q_BN), f64(q_BN), b_hat, b_true, f64(est.covariance), att_max,
+            _estimate_function(B * n)(t, self.steady_from_per_run()[runs], f64(est.q_BN), f64(q_BN), b_hat, b_true, f64(est.covariance), att_max,
                                       att_sq, att_n, bias_last, nees_sum, nees_n, e, counted)
-        if truth:
-            # at the block's samples k0 + i kept (k a multiple of nees_stride), into their places k / nees_stride
-            # (the sum over runs, then over chunks: its last bits depend on how a campaign is chunked)
-            assert self.nees_sum_t is not None and self.nees_runs_t is not None
-            s = self.nees_stride
-            first = -(-k0 // s) * s
-            rows, kept = slice(first - k0, B, s), slice(first // s, first // s + len(range(first - k0, B, s)))
-            self.nees_sum_t[kept] += e[rows].sum(axis=1)
-            self.nees_runs_t[kept] += counted[rows].sum(axis=1)
+        if truth and nees is not None:
+            nees[0][:, runs] = e
+            nees[1][:, runs] = counted
+        elif truth:
+            self._add_nees(k0, e, counted)
         status = np.asarray(est.status)
         for code in range(len(STATUS_NAMES)):
             status_counts[:, code] += np.count_nonzero(status == code, axis=0)
         assert self.est_mon_error is not None and self.est_mon_n is not None and self.est_withheld is not None
         assert self.est_recoveries is not None
         if est.monitor_level is None:
-            self.est_mon_n[:] = -1
+            self.est_mon_n[runs] = -1
         else:
             level = np.asarray(est.monitor_level, dtype=np.float64)
-            self.est_mon_n += np.isfinite(level).sum(axis=0)
-            self.est_mon_error += (level == MON_ERROR).sum(axis=0)
+            self.est_mon_n[runs] += np.isfinite(level).sum(axis=0)
+            self.est_mon_error[runs] += (level == MON_ERROR).sum(axis=0)
         if est.usable is not None:
-            self.est_withheld += (np.asarray(est.usable, dtype=np.float64) == 0.0).sum(axis=0)
+            self.est_withheld[runs] += (np.asarray(est.usable, dtype=np.float64) == 0.0).sum(axis=0)
         if est.recoveries is not None:
             rec = np.asarray(est.recoveries, dtype=np.float64)
-            self.est_recoveries[...] = np.maximum(self.est_recoveries, np.where(np.isfinite(rec), rec, 0.0).max(axis=0)).astype(np.int64)
+            self.est_recoveries[runs] = np.maximum(self.est_recoveries[runs], np.where(np.isfinite(rec), rec, 0.0).max(axis=0)).astype(np.int64)
+
+    def _add_nees(self, k0: int, e: Array, counted: NDArray[np.bool_]) -> None:
+        """A block's NEES (B, N) (0 where not counted) and counted flags, samples ``k0 ..``, summed over
+        the runs at the grid's kept samples (k a multiple of nees_stride) into their places k / nees_stride
+        (the sum over runs, then over chunks: its last bits depend on how a campaign is chunked)."""
+        assert self.nees_sum_t is not None and self.nees_runs_t is not None
+        B = e.shape[0]
+        s = self.nees_stride
+        first = -(-k0 // s) * s
+        rows, kept = slice(first - k0, B, s), slice(first // s, first // s + len(range(first - k0, B, s)))
+        self.nees_sum_t[kept] += e[rows].sum(axis=1)
+        self.nees_runs_t[kept] += counted[rows].sum(axis=1)
 
     def mean_nees_over_runs(self) -> tuple[Array, Array]:
         """The NEES averaged over the runs at every sample from :data:`NEES_FROM_S` (NaN where no
@@ -736,14 +756,23 @@ class MetricsAccumulator:
         """The times of the samples of :meth:`mean_nees_over_runs` [s]."""
         return np.asarray(self.time_s(np.arange(0, self.n_grid, self.nees_stride)), dtype=np.float64)
 
-    def update_wheels(self, speed_rad_s: Array, torque_Nm: Array) -> None:
-        """Observe a block of wheel records (B, N, W): speeds relative to the body and motor torques."""
+    def _wheel_arrays(self) -> None:
+        """The wheel metrics' arrays (zero: a maximum of magnitudes, a sum), with their first samples."""
         n = self.finite.shape[0]
-        for attr, block in (("wheel_speed_max", speed_rad_s), ("wheel_torque_max", torque_Nm)):
+        if self.wheel_speed_max is None or self.wheel_torque_max is None or self.wheel_energy is None:
+            self.wheel_speed_max, self.wheel_torque_max, self.wheel_energy = np.zeros(n), np.zeros(n), np.zeros(n)
+
+    def update_wheels(self, speed_rad_s: Array, torque_Nm: Array, runs: slice = slice(None)) -> None:
+        """Observe a block of wheel records (B, N, W): speeds relative to the body and motor torques
+        (``runs``: the arrays hold only those runs).  The same bits as the SIMD lanes' online
+        :func:`wheel_metric_sample`, sample by sample."""
+        self._wheel_arrays()
+        assert self.wheel_speed_max is not None and self.wheel_torque_max is not None and self.wheel_energy is not None
+        n = self.wheel_energy[runs].shape[0]
+        for m, block in ((self.wheel_speed_max, speed_rad_s), (self.wheel_torque_max, torque_Nm)):
             a = np.abs(np.asarray(block, dtype=np.float64))
             block_max = np.where(np.isfinite(a), a, 0.0).max(axis=(0, 2)) if a.size else np.zeros(n)
-            old = getattr(self, attr)
-            setattr(self, attr, block_max if old is None else np.maximum(old, block_max))
+            m[runs] = np.maximum(m[runs], block_max)
         # wheel_energy_J: sum_k sum_i |u_i Omega_i| dt, summed sample by sample in time order (cumsum is
         # sequential), the wheels in their order, so that any blocking gives the same bits
         power = np.abs(np.asarray(speed_rad_s, dtype=np.float64) * np.asarray(torque_Nm, dtype=np.float64))  # |u_i Omega_i| [W], (B, N, W)
@@ -751,8 +780,7 @@ class MetricsAccumulator:
         per_sample = np.zeros(power.shape[:2])
         for i in range(power.shape[2]):
             per_sample = per_sample + power[:, :, i]
-        start = np.zeros(n) if self.wheel_energy is None else self.wheel_energy
-        self.wheel_energy = np.cumsum(np.vstack((start[None, :], per_sample * self.dt)), axis=0)[-1]  # held over dt [J]
+        self.wheel_energy[runs] = np.cumsum(np.vstack((self.wheel_energy[runs][None, :], per_sample * self.dt)), axis=0)[-1]  # held over dt [J]
 
     def update(self, k0: int, t: Array, x: Array, torque_B: Array, q_BR: Array, rho: Array, saturated: NDArray[np.bool_],
                band_lower: Array, band_upper: Array) -> None:
@@ -810,21 +838,56 @@ class MetricsAccumulator:
         return arrays, MetricConstants(np.int64(1), np.int64(keep_stride), per_run, settle, float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
                                        fault_from)
 
+    def online_flight_state(self, block_samples: int, *, wheels: bool, estimating: bool) -> FlightMetricArrays:
+        """:meth:`online_state`'s counterpart for the flight stack's metrics (the SIMD lanes'
+        :func:`wheel_metric_sample` and :func:`estimate_metric_sample`, sample by sample): the
+        wheels' and the estimator's per-run arrays (views, written in place; none where the runs
+        have no wheels, no estimator) and the block's NEES per sample and run (``block_samples``
+        rows), which :meth:`add_online_block` sums over the runs."""
+        n = self.finite.shape[0]
+        none_f, none_i = np.zeros(0), np.zeros(0, dtype=np.int64)
+        if wheels:
+            self._wheel_arrays()
+        if estimating:
+            self._estimate_arrays()
+            self._online_nees = (np.zeros((block_samples, n)), np.zeros((block_samples, n), dtype=np.bool_))
+        w, e = wheels, estimating
+        fa = FlightMetricArrays(
+            np.int64(1 if w else 0), np.int64(1 if e else 0), self.wheel_speed_max if w else none_f, self.wheel_torque_max if w else none_f,
+            self.wheel_energy if w else none_f, float(self.dt), float(NEES_FROM_S - _TIME_TOL_S),
+            self.est_att_max if e else np.zeros((0, 3)), self.est_att_sq if e else np.zeros((0, 3)), self.est_att_n if e else none_i,
+            self.est_bias_last if e else np.zeros((0, 3)), self.est_nees_sum if e else none_f, self.est_nees_n if e else none_i,
+            self.est_status_counts if e else np.zeros((0, len(STATUS_NAMES)), dtype=np.int64), self.est_mon_error if e else none_i,
+            self.est_mon_n if e else none_i, self.est_withheld if e else none_i, self.est_recoveries if e else none_i,
+            self._online_nees[0] if e else np.zeros((0, 0)), self._online_nees[1] if e else np.zeros((0, 0), dtype=np.bool_))
+        return fa  # (the arrays above were allocated when None: mypy cannot see it)
+
     def add_online_block(self, h: History, recorded: Sequence[int], *, block_samples: int | None = None) -> None:
-        """A block of samples whose metrics the loop computed online (:meth:`online_state`) for
-        every run but ``recorded`` (runs the SIMD lanes handed back to the per-run loop), whose
-        samples ``h`` holds (its run ``i`` is run ``recorded[i]``): those runs' metrics from ``h``,
-        as :meth:`add_history`'s, and the block's samples counted as seen."""
-        if h.wheel_speed_rad_s is not None or h.estimate is not None or h.mode is not None:
-            raise ValueError("online metrics cover no wheels, estimator or flight modes")
+        """A block of samples whose metrics the loop computed online (:meth:`online_state`, and
+        :meth:`online_flight_state` with wheels or an estimator) for every run but ``recorded``
+        (runs the SIMD lanes handed back to the per-run loop), whose samples ``h`` holds (its run
+        ``i`` is run ``recorded[i]``): those runs' metrics from ``h``, as :meth:`add_history`'s,
+        the block's NEES summed over the runs, and the block's samples counted as seen."""
+        if h.mode is not None:
+            raise ValueError("online metrics cover no flight modes")
         T = h.t.size
+        nees = self._online_nees if self._online_nees[0].shape[0] else None  # (the block's, when it had an estimator)
         step = T if block_samples is None or T == 0 else max(1, int(block_samples))
         for i, r in enumerate(recorded):
+            run, into = slice(i, i + 1), slice(int(r), int(r) + 1)
             for lo in range(0, T, step):
                 b = h.samples(lo, min(lo + step, T))
-                run = slice(i, i + 1)
                 self._update(self.samples + lo, b.t, b.q_BN[:, run], b.omega_BN_B[:, run], b.torque_B[:, run], b.q_BR[:, run], b.rho[:, run],
-                             b.saturated[:, run], b.band_lower[:, run], b.band_upper[:, run], runs=slice(int(r), int(r) + 1))
+                             b.saturated[:, run], b.band_lower[:, run], b.band_upper[:, run], runs=into)
+                if b.wheel_speed_rad_s is not None and b.wheel_torque_Nm is not None:
+                    self.update_wheels(b.wheel_speed_rad_s[:, run], b.wheel_torque_Nm[:, run], runs=into)
+                if b.estimate is not None and nees is not None:
+                    est = dataclasses.replace(b.estimate, **{f.name: getattr(b.estimate, f.name)[:, run] for f in dataclasses.fields(b.estimate)
+                                                             if getattr(b.estimate, f.name) is not None})
+                    self.update_estimate(self.samples + lo, b.t, b.q_BN[:, run], est, runs=into,
+                                         nees=(nees[0][lo:lo + b.t.size], nees[1][lo:lo + b.t.size]))
+        if nees is not None and T:
+            self._add_nees(self.samples, nees[0][:T], nees[1][:T])
         self.samples += T
 
     def settling_times(self) -> Array:
@@ -1067,6 +1130,55 @@ class MetricConstants(NamedTuple):
     fault_from: float
 
 
+class FlightMetricArrays(NamedTuple):
+    """What a loop computing the flight stack's metrics online writes
+    (:meth:`MetricsAccumulator.online_flight_state`): whether the runs have wheels and an
+    estimator (``wheels``, ``estimating``: 1 or 0; the arrays of what they lack have no rows); per
+    run the wheels' largest speed and motor torque magnitudes and their energy [J]
+    (:func:`wheel_metric_sample`), the grid's step ``dt`` [s], the NEES's start less the grid's
+    tolerance [s], and the estimator's arrays (:func:`estimate_metric_sample`, then the statuses'
+    counts, the samples at the monitor's ERROR and with a level, the withheld ones, the
+    recoveries); per sample of the block and run, its NEES (0 where not counted) and whether it
+    was counted."""
+
+    wheels: np.int64
+    estimating: np.int64
+    wheel_speed_max: Array
+    wheel_torque_max: Array
+    wheel_energy: Array
+    dt: float
+    nees_from: float
+    att_max: Array
+    att_sq: Array
+    att_n: NDArray[np.int64]
+    bias_last: Array
+    nees_sum: Array
+    nees_n: NDArray[np.int64]
+    status_counts: NDArray[np.int64]
+    mon_error: NDArray[np.int64]
+    mon_n: NDArray[np.int64]
+    withheld: NDArray[np.int64]
+    recoveries: NDArray[np.int64]
+    nees_out: Array
+    counted: NDArray[np.bool_]
+
+
+@jit(inline="always")  # type: ignore[no-untyped-call]
+def wheel_metric_sample(n, speed, torque, dt, speed_max, torque_max, energy):  # type: ignore[no-untyped-def]
+    """One sample of run ``n``'s wheel metrics (:meth:`MetricsAccumulator.update_wheels`'s, the same
+    bits): the wheels' speeds relative to the body ``speed`` (W,) [rad/s] and motor torques
+    ``torque`` (W,) [N m] into the largest finite magnitudes and the energy ``sum_i |u_i Omega_i|
+    dt`` (the wheels in their order, then onto the run's sum)."""
+    power = 0.0
+    for i in range(speed.shape[0]):
+        s, u = abs(speed[i]), abs(torque[i])
+        speed_max[n] = max(speed_max[n], s if np.isfinite(s) else 0.0)
+        torque_max[n] = max(torque_max[n], u if np.isfinite(u) else 0.0)
+        p = abs(speed[i] * torque[i])
+        power = power + (p if np.isfinite(p) else 0.0)
+    energy[n] = energy[n] + power * dt
+
+
 #: One run's metric state as :func:`metric_sample_of` takes and gives it: a tuple of
 #: :data:`N_METRIC_STATE` float64 (sample indices and counts exact below 2**53; flags 1.0 or 0.0),
 #: in this order: finite; the last unsettled, outside and controlled samples; the steady sums of
@@ -1268,6 +1380,53 @@ def _nees_of(e, P, A):  # type: ignore[no-untyped-def]  # a numba kernel
     return quadratic
 
 
+@jit(inline="always")  # type: ignore[no-untyped-call]
+def estimate_metric_sample(n, t_k, steady_from, nees_from, truth, q_hat, q_true, b_hat, b_true, P, att_max, att_sq, att_n, bias_last,  # type: ignore[no-untyped-def]
+                           nees_sum, nees_n, dq, a, err, A):
+    """One sample of run ``n``'s estimation metrics (:func:`_estimate_kernel`'s, which calls it for
+    every sample of a record, and the SIMD lanes', which call it as they go): the attitude
+    estimation error ``a`` (``rotvec(q_hat^* ⊗ q_true)``; ``q_hat`` NaN: no estimate) at ``t_k``
+    from ``steady_from`` into ``att_max``, ``att_sq``, ``att_n``; with the true bias (``truth``),
+    the bias error ``b_true - b_hat`` into ``bias_last`` and the NEES (:func:`_nees_of` with the
+    covariance ``P``) from ``nees_from`` into ``nees_sum``, ``nees_n``.  Returns the sample's NEES
+    and whether it was counted (0.0, False where not).  ``dq`` (4), ``a`` (3), ``err`` (6), ``A``
+    (6, 7): scratch."""
+    ex, ey, ez, ew = -q_hat[0], -q_hat[1], -q_hat[2], q_hat[3]
+    tx, ty, tz, tw = q_true[0], q_true[1], q_true[2], q_true[3]
+    dq[0] = ew * tx + tw * ex + (ey * tz - ez * ty)
+    dq[1] = ew * ty + tw * ey + (ez * tx - ex * tz)
+    dq[2] = ew * tz + tw * ez + (ex * ty - ey * tx)
+    dq[3] = ew * tw - (ex * tx + ey * ty + ez * tz)
+    rotation_vector(dq, a)
+    has = np.isfinite(a[0]) and np.isfinite(a[1]) and np.isfinite(a[2])  # NaN: no estimate
+    if has and t_k >= steady_from:
+        for i in range(3):
+            att_max[n, i] = max(att_max[n, i], abs(a[i]))
+            att_sq[n, i] = att_sq[n, i] + a[i] * a[i]
+        att_n[n] += 1
+    if not truth:
+        return 0.0, False
+    ok = True
+    for i in range(3):
+        err[i] = a[i]
+        err[3 + i] = b_true[i] - b_hat[i]
+        ok = ok and np.isfinite(err[3 + i])
+    if has:
+        for i in range(3):
+            bias_last[n, i] = err[3 + i]
+    ok = ok and has
+    for i in range(N_ERROR_STATES):
+        for j in range(N_ERROR_STATES):
+            ok = ok and np.isfinite(P[i, j])
+    if ok and t_k >= nees_from:
+        v = _nees_of(err, P, A)
+        if np.isfinite(v):
+            nees_sum[n] = nees_sum[n] + v
+            nees_n[n] += 1
+            return v, True
+    return 0.0, False
+
+
 @jit("void(float64[:], float64[:], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :, :], "  # type: ignore[no-untyped-call]
      "float64[:, :], float64[:, :], int64[:], float64[:, :], float64[:], int64[:], float64[:, :], boolean[:, :])")
 def _estimate_kernel(t, steady_from_s, q_hat, q_true, b_hat, b_true, P, att_max, att_sq, att_n, bias_last, nees_sum, nees_n, nees_out,  # type: ignore[no-untyped-def]
@@ -1288,40 +1447,15 @@ def _estimate_kernel(t, steady_from_s, q_hat, q_true, b_hat, b_true, P, att_max,
     for n in range(att_n.shape[0]):
         steady_from = steady_from_s[n] - _TIME_TOL_S
         for k in range(B):
-            ex, ey, ez, ew = -q_hat[k, n, 0], -q_hat[k, n, 1], -q_hat[k, n, 2], q_hat[k, n, 3]
-            tx, ty, tz, tw = q_true[k, n, 0], q_true[k, n, 1], q_true[k, n, 2], q_true[k, n, 3]
-            dq[0] = ew * tx + tw * ex + (ey * tz - ez * ty)
-            dq[1] = ew * ty + tw * ey + (ez * tx - ex * tz)
-            dq[2] = ew * tz + tw * ez + (ex * ty - ey * tx)
-            dq[3] = ew * tw - (ex * tx + ey * ty + ez * tz)
-            rotation_vector(dq, a)
-            has = np.isfinite(a[0]) and np.isfinite(a[1]) and np.isfinite(a[2])  # NaN: no estimate
-            if has and t[k] >= steady_from:
-                for i in range(3):
-                    att_max[n, i] = max(att_max[n, i], abs(a[i]))
-                    att_sq[n, i] = att_sq[n, i] + a[i] * a[i]
-                att_n[n] += 1
-            if not truth:
-                continue
-            ok = True
-            for i in range(3):
-                err[i] = a[i]
-                err[3 + i] = b_true[k, n, i] - b_hat[k, n, i]
-                ok = ok and np.isfinite(err[3 + i])
-            if has:
-                for i in range(3):
-                    bias_last[n, i] = err[3 + i]
-            ok = ok and has
-            for i in range(N_ERROR_STATES):
-                for j in range(N_ERROR_STATES):
-                    ok = ok and np.isfinite(P[k, n, i, j])
-            if ok and t[k] >= nees_from:
-                v = _nees_of(err, P[k, n], A)
-                if np.isfinite(v):
-                    nees_sum[n] = nees_sum[n] + v
-                    nees_n[n] += 1
+            if truth:
+                v, c = estimate_metric_sample(n, t[k], steady_from, nees_from, True, q_hat[k, n], q_true[k, n], b_hat[k, n], b_true[k, n],
+                                              P[k, n], att_max, att_sq, att_n, bias_last, nees_sum, nees_n, dq, a, err, A)
+                if c:
                     nees_out[k, n] = v
                     counted[k, n] = True
+            else:
+                estimate_metric_sample(n, t[k], steady_from, nees_from, False, q_hat[k, n], q_true[k, n], a, a, P[k, n], att_max, att_sq, att_n,
+                                       bias_last, nees_sum, nees_n, dq, a, err, A)
 
 
 #: :data:`INTERPRETED_MAX_SAMPLES` for :func:`_estimate_kernel`, whose samples cost the interpreter
@@ -1339,7 +1473,7 @@ def _estimate_function(samples: int) -> Callable[..., None]:
     global _interpreted_estimate_kernel
     if samples <= ESTIMATE_INTERPRETED_MAX_SAMPLES and "numba" not in sys.modules:
         if _interpreted_estimate_kernel is None:
-            _interpreted_estimate_kernel = _interpreted(_estimate_kernel, (_nees_of, rotation_vector))
+            _interpreted_estimate_kernel = _interpreted(_estimate_kernel, (_nees_of, rotation_vector, estimate_metric_sample))
         return _interpreted_estimate_kernel
     return _estimate_kernel  # type: ignore[no-any-return]
 

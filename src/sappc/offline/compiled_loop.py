@@ -1412,7 +1412,7 @@ def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None =
     caller gives ``metrics`` the others' record
     (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.add_online_block`) before the next block."""
     n = inp.n_runs
-    answers_only = metrics is not None and keep_stride == 0 and inp.lanes and lanes_online(inp)  # (the lanes then write no more)
+    answers_only = metrics is not None and keep_stride == 0 and inp.lanes and lanes_refusal(inp) is None  # (the lanes then write no more)
     size = max(1, (ONLINE_BLOCK_RUN_SAMPLES if answers_only else BLOCK_RUN_SAMPLES) // max(n, 1)) if block_samples is None else int(block_samples)
     if stride > 0:
         size = max(stride, size // stride * stride)
@@ -1457,11 +1457,6 @@ def lanes_refusal(inp: CompiledInputs) -> str | None:
     return _lanes().lanes_refusal(inp)  # type: ignore[no-any-return]
 
 
-def lanes_online(inp: CompiledInputs) -> bool:
-    """Whether ``inp``'s runs go in SIMD lanes that take their metrics online (:func:`sappc.offline.lanes.lanes_online`)."""
-    return bool(_lanes().lanes_online(inp))
-
-
 def _lanes() -> Any:
     """:mod:`sappc.offline.lanes` (imported on first use: it imports this module)."""
     from sappc.offline import lanes
@@ -1482,21 +1477,22 @@ def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState
     lanes = _lanes()
     handed_back = np.zeros(inp.n_runs, dtype=np.int8)
     online = metrics is not None
-    # the flight stack's lanes step the runs' own rows of st (the sensors, the filter, the true
-    # state): a run they hand back starts its block again from the state kept here
-    kept = [a.copy() for a in st] if lanes._flight(inp) else None
+    flight = lanes._flight(inp)
     if online:
         assert metrics is not None
-        if not lanes.lanes_online(inp):
-            raise ValueError("the lanes take no metrics online for runs with sensors, an estimator or wheels: record their samples")
         if stride != 1 or metrics.samples != inp.k_lo or metrics.finite.shape[0] != inp.n_runs:
             raise ValueError(f"online metrics need a record of every sample and an accumulator of the block's {inp.n_runs} runs fed "
                              f"its {inp.k_lo} samples before (stride {stride}, {metrics.finite.shape[0]} runs, {metrics.samples} samples)")
     ma, mc = lanes.online_metrics(metrics, keep_stride) if metrics is not None else lanes.no_online_metrics()
-    lanes.run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back, ma, mc)
+    fa = lanes.flight_metrics(metrics if flight else None, inp)
+    # the flight stack's lanes step the runs' own rows of st (the sensors, the filter, the true
+    # state) and of its metrics: a run they hand back starts its block again from what is kept here
+    per_run = [getattr(fa, name) for name in lanes.FLIGHT_METRICS_PER_RUN if getattr(fa, name).shape[0] == inp.n_runs]
+    kept = [a.copy() for a in list(st) + per_run] if flight else None
+    lanes.run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back, ma, mc, fa)
     back = np.flatnonzero(handed_back)
     if kept is not None and back.size:
-        for a, b in zip(st, kept):
+        for a, b in zip(list(st) + per_run, kept):
             a[back] = b[back]
     for n in back:
         _run_one(np.int64(n), np.int64(n), False, np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st)
@@ -1963,7 +1959,7 @@ def _warm_up_lanes(scenario: Scenario, compiled: Any) -> None:
     numbers are meaningless: the start constants are zero)."""
     inp = prepare(scenario, on_infeasible="clamp", q_BN0=np.broadcast_to(scenario.q_BN0, (2, 4)), lanes=True, started=False)
     _lanes().run_lanes_kernel(np.int64(1), np.int64(0), *inp.args(), _record(inp, 1, inp.n_runs), _state(inp, inp.n_runs),
-                              np.zeros(inp.n_runs, dtype=np.int8), *_lanes().no_online_metrics())
+                              np.zeros(inp.n_runs, dtype=np.int8), *_lanes().no_online_metrics(), _lanes().flight_metrics(None, inp))
     compiled("the offline loop (SIMD lanes)")
 
 

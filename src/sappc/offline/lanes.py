@@ -66,15 +66,17 @@ from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_HELD, ANSWER_WATCHDO
 from spacecraft_sim.core.kernels import disturbance_at, rk4_of
 from spacecraft_sim.core.wheels import wheel_torques
 
-from sappc.evaluation.metrics import N_METRIC_STATE, MetricArrays, MetricConstants, MetricsAccumulator, SampleGrid
-from sappc.evaluation.metrics import metric_sample_of, metric_state_load, metric_state_store
+from sappc.evaluation.metrics import N_METRIC_STATE, FlightMetricArrays, MetricArrays, MetricConstants, MetricsAccumulator, SampleGrid
+from sappc.evaluation.metrics import estimate_metric_sample, metric_sample_of, metric_state_load, metric_state_store, wheel_metric_sample
+from sappc_estimator.core.mekf import EO_B, EO_MON_LEVEL, EO_N_RECOVER, EO_Q, EO_USABLE, MON_ERROR
+from spacecraft_sim.core.wheels import wheel_speeds_into
 from sappc.offline.compiled_loop import _NS_PER_S, L_HAS_ESTIMATE, L_HAS_LAST, L_LAST_STATE_NS, L_N_STARTS, L_STARTED, V_BIAS, V_BIAS_K, V_CMD, V_U
 from sappc.offline.compiled_loop import V_U_CMD, V_U_LAST, _initial_state, estimate_sample, measure_sample, plant_step, record_estimate, record_wheels
 
 if TYPE_CHECKING:
     from sappc.offline.compiled_loop import CompiledInputs
 
-__all__ = ["LANES", "lanes_online", "lanes_refusal", "no_online_metrics", "online_metrics", "run_lanes_kernel"]
+__all__ = ["LANES", "flight_metrics", "lanes_refusal", "no_online_metrics", "online_metrics", "run_lanes_kernel"]
 
 #: Runs per lane group: a multiple of every libmvec width (2, 4 and 8 float64), so that LLVM's
 #: vectorised loops have no scalar remainder (which would call the scalar libm for some lanes).
@@ -107,15 +109,9 @@ def _flight(inp: CompiledInputs) -> bool:
     return inp.n_wheels > 0 or inp.sensors.draws.shape[1] > 0 or inp.noise is not None or bool(inp.estimating)  # (noise: drawn per block)
 
 
-def lanes_online(inp: CompiledInputs) -> bool:
-    """Whether the lanes can compute ``inp``'s metrics online (:func:`online_metrics`): runs in
-    lanes without the flight stack (whose estimator and wheel metrics are the record's)."""
-    return lanes_refusal(inp) is None and not _flight(inp)
-
-
 # The rows of a lane group's one scratch array (row, lane): every lane quantity in one array, so
 # that LLVM sees one base pointer and constant distances between rows (no aliasing to rule out).
-_R_X = 0  # 7: the true state (q_BN, omega_BN_B), the controller's input (exact measurements)
+_R_X = 0  # 7: the true state (q_BN, omega_BN_B)
 _R_CS = _R_X + 7  # the controller's state rows S_SD .. S_T0
 _R_PUB = _R_CS + _N_CTRL  # N_OUT x 4: the rows last published, row major
 _R_OUT3 = _R_PUB + 4 * N_OUT  # N_OUT: the per-run loop's out[:, 3] (no law writes it but q_BR's)
@@ -151,7 +147,7 @@ _R_HASLAST = _R_STATUS + 1  # 1.0 once the controller has answered a valid sampl
 _R_HASEST = _R_HASLAST + 1  # 1.0 when the filter gave the sample its figures
 _R_ESTST = _R_HASEST + 1  # the filter's status at the sample
 _R_CMD = _R_ESTST + 1  # 3: the answer (what a held sample repeats)
-_R_Y = _R_CMD + 3  # 7: the controller's input (the flight stack's: the estimate, or the measurement)
+_R_Y = _R_CMD + 3  # 7: the controller's input: the true state (exact measurements), or the flight stack's (the estimate, the measurement)
 _R_GAIN = _R_Y + 7  # the torque filter's gain (low_pass_gain of the run's cut-off and the grid's step: the same every sample)
 _R_SAVE = _R_GAIN + 1  # the controller's state and published rows before the sample (a sample without a valid input keeps them)
 _N_SAVE = _N_CTRL + 4 * N_OUT  # (rows _R_CS ..: the state, then the published rows)
@@ -166,6 +162,22 @@ def online_metrics(acc: MetricsAccumulator, keep_stride: int = 0) -> tuple[Metri
     before the block's; ``keep_stride`` ``s`` > 0: the lanes record every sample whose index in
     the run is a multiple of ``s`` too."""
     return acc.online_state(keep_stride)
+
+
+#: The fields of :class:`~sappc.evaluation.metrics.FlightMetricArrays` with a row per run (the others:
+#: flags, constants, the block's NEES per sample).
+FLIGHT_METRICS_PER_RUN = ("wheel_speed_max", "wheel_torque_max", "wheel_energy", "att_max", "att_sq", "att_n", "bias_last", "nees_sum", "nees_n",
+                          "status_counts", "mon_error", "mon_n", "withheld", "recoveries")
+
+
+def flight_metrics(acc: MetricsAccumulator | None, inp: CompiledInputs) -> FlightMetricArrays:
+    """The lanes' flight-stack metrics argument: ``acc``'s wheel and estimator arrays for ``inp``'s
+    block (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_flight_state`; ``acc`` None:
+    none, the same types)."""
+    if acc is None:
+        acc = MetricsAccumulator(SampleGrid(1, 1.0), 0, steady_from_s=0.0, settle_threshold=0.0, t2_s=0.0, fault_windows=[])
+        return acc.online_flight_state(0, wheels=False, estimating=False)
+    return acc.online_flight_state(inp.t.size, wheels=inp.n_wheels > 0, estimating=bool(inp.estimating))
 
 
 def no_online_metrics() -> tuple[MetricArrays, MetricConstants]:
@@ -216,7 +228,7 @@ def _nine(S, r, w):
 
 
 @jit
-def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc):
+def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc, fa):
     """Runs ``g0 .. g0 + LANES - 1`` (the last group's missing lanes repeat its last run, written
     nowhere) over one block of samples, from and into their rows of ``st`` and ``rec`` (row = run,
     as :func:`~sappc.offline.compiled_loop.run_batch_kernel`); a lane handed back (module docstring)
@@ -238,9 +250,9 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
     filtered = False  # a lane with the torque filter
     for w in range(W):
         filtered = filtered or ctrl.prm[rows[w], P_TORQUE_WC] > 0.0
-    xin = _R_Y if flight else _R_X  # the controller's input: the flight stack's, or the true state
     last_ns_w = np.empty(W, dtype=np.int64)  # each lane's last valid sample's stamp [ns]
     qe = np.empty(4)  # the true error quaternion (a flight lane's record)
+    qh, m_dq, m_a, m_err, m_A = np.empty(4), np.empty(4), np.empty(3), np.empty(6), np.empty((6, 7))  # the estimation metrics' scratch
     if k_lo == 0:  # the runs' first block: their state before the first sample, as the per-run loop makes it
         for w in range(W):
             if g0 + w < N:
@@ -318,7 +330,11 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                 disturbance_at(dist, rows[w], kb, grid.t[kb], D[w])
                 for i in range(3):
                     S[_R_D + i, w] = D[w, i]
-        if flight:  # stage 0: the sensors and the estimator, run by run (the per-run loop's pieces), into the controller's input
+        if not flight:  # the controller's input: the true state (rows at constant distances: a row chosen at run time would
+            for w in range(nl):  # keep LLVM from vectorising the stages that read it)
+                for i in range(7):
+                    S[_R_Y + i, w] = S[_R_X + i, w]
+        else:  # stage 0: the sensors and the estimator, run by run (the per-run loop's pieces), into the controller's input
             for w in range(n_real):
                 r = rows[w]
                 x = st.x[r]
@@ -345,7 +361,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                     S[_R_SAVE + i, w] = S[_R_CS + i, w]
         # stage 1: the input check, the start, the error state, each axis up to the SMETF's solve
         for w in range(nl):
-            x = (S[xin, w], S[xin + 1, w], S[xin + 2, w], S[xin + 3, w], S[xin + 4, w], S[xin + 5, w], S[xin + 6, w])
+            x = (S[_R_Y, w], S[_R_Y + 1, w], S[_R_Y + 2, w], S[_R_Y + 3, w], S[_R_Y + 4, w], S[_R_Y + 5, w], S[_R_Y + 6, w])
             valid = S[_R_VALID, w] != 0.0  # (a sample without a valid input: its results are dropped, stage 4)
             q_ok = quaternion_verdict(x[0], x[1], x[2], x[3], b_norm) == INPUT_OK
             w_ok = vector_verdict(x[4], x[5], x[6], b_rate) == INPUT_OK
@@ -424,7 +440,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
             sd = _R_CS + S_SD
             cmd, V, S_next = backstepping_of(prm, dt, q, (S[_R_WBR, w], S[_R_WBR + 1, w], S[_R_WBR + 2, w]),
                                              (S[_R_CWD, w], S[_R_CWD + 1, w], S[_R_CWD + 2, w]),
-                                             (S[_R_CWDD, w], S[_R_CWDD + 1, w], S[_R_CWDD + 2, w]), (S[_R_X + 4, w], S[_R_X + 5, w], S[_R_X + 6, w]),
+                                             (S[_R_CWDD, w], S[_R_CWDD + 1, w], S[_R_CWDD + 2, w]), (S[_R_Y + 4, w], S[_R_Y + 5, w], S[_R_Y + 6, w]),
                                              (e0, e1, e2), (psi0, psi1, psi2), (eta0, eta1, eta2), S[_R_CS + S_FILTER_ON, w] != 0.0,
                                              (S[sd, w], S[sd + 1, w], S[sd + 2, w]))
             S[_R_CS + S_FILTER_ON, w] = 1.0
@@ -520,6 +536,32 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                     _metric_rows(S, w), k_f, t_k, ok, S[qb, w], S[qb + 1, w], S[qb + 2, w], S[tb, w], S[tb + 1, w], S[tb + 2, w], S[rb, w],
                     S[rb + 1, w], S[rb + 2, w], sat, S[lb, w], S[lb + 1, w], S[lb + 2, w], S[ub, w], S[ub + 1, w], S[ub + 2, w], 0.0, False,
                     S[_R_MC, w], S[_R_MC + 1, w], S[_R_MC + 2, w], settle_threshold, loss_bound, fault_from))
+            for w in range(n_real if flight else 0):  # the wheels' and the estimator's metrics, run by run (the record's pieces)
+                r = rows[w]
+                if fa.wheels != 0:
+                    wheel_speeds_into(st.x[r], act.G[r], act.params[r], st.wspeed[r])
+                    wheel_metric_sample(r, st.wspeed[r], st.uw[r], fa.dt, fa.wheel_speed_max, fa.wheel_torque_max, fa.wheel_energy)
+                if fa.estimating != 0:  # what the record holds (compiled_loop.record_estimate): NaN where the filter had no figures
+                    has_est = S[_R_HASEST, w] != 0.0
+                    eo = st.eout[r]
+                    for i in range(4):
+                        qh[i] = eo[EO_Q + i] if (has_est and S[_R_VALID, w] != 0.0) else np.nan
+                    v, counted = estimate_metric_sample(r, t_k, mc.per_run[r, 0], fa.nees_from, True, qh, st.x[r], eo[EO_B:EO_B + 3],
+                                                        st.vec3[r, V_BIAS_K], st.P[r], fa.att_max, fa.att_sq, fa.att_n, fa.bias_last, fa.nees_sum,
+                                                        fa.nees_n, m_dq, m_a, m_err, m_A)
+                    if counted:
+                        fa.nees_out[kb, r] = v
+                        fa.counted[kb, r] = True
+                    code = int(S[_R_ESTST, w])
+                    if 0 <= code < fa.status_counts.shape[1]:
+                        fa.status_counts[r, code] += 1
+                    if has_est:
+                        level = eo[EO_MON_LEVEL]
+                        fa.mon_n[r] += 1 if np.isfinite(level) else 0
+                        fa.mon_error[r] += 1 if level == MON_ERROR else 0
+                        fa.withheld[r] += 1 if eo[EO_USABLE] == 0.0 else 0
+                        if np.isfinite(eo[EO_N_RECOVER]):
+                            fa.recoveries[r] = max(fa.recoveries[r], np.int64(eo[EO_N_RECOVER]))
         if stride > 0 and kb % stride == 0:
             j = kb // stride
             for w in range(W):
@@ -600,11 +642,11 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
 
 
 @jit_parallel
-def run_lanes_kernel(stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc):
+def run_lanes_kernel(stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc, fa):
     """Every run of a batch over one block of samples in groups of :data:`LANES` (module
     docstring), the groups in parallel (``prange``); ``handed_back`` (N,) int8 marks the runs to
     compute per run; ``ma``, ``mc`` (:func:`online_metrics` or :func:`no_online_metrics`): whether
     the lanes compute the runs' metrics online instead of recording their samples."""
     n_groups = (plant.x0.shape[0] + LANES - 1) // LANES
     for g in prange(n_groups):
-        _lane_group(np.int64(g) * LANES, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc)
+        _lane_group(np.int64(g) * LANES, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc, fa)

@@ -225,8 +225,7 @@ def run_scenario(
         if keep_history:  # the whole record, one block
             buffer = compiled_loop.run_batch(sub, 1, into=buffer)
             blocks: Iterator[compiled_loop.CompiledRun] = iter((buffer,))
-        elif in_lanes and not sinks and compiled_loop.lanes_online(sub):  # the lanes take the metrics online (without the flight
-            # stack, whose estimator's and wheels' metrics are the record's): only the answers recorded, and the trajectories' samples
+        elif in_lanes and not sinks:  # the lanes take the metrics online: only the answers recorded, and the trajectories' samples
             blocks = compiled_loop.run_blocks(sub, 1, metrics=acc, keep_stride=traj_stride if m > 0 else 0)
         else:  # a block of samples at a time: memory flat in the run's length
             blocks = compiled_loop.run_blocks(sub, 1)

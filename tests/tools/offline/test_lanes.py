@@ -12,7 +12,7 @@ import yaml
 from conftest import SCENARIOS
 from gnc_common import libm
 from sappc.offline import compiled_loop
-from sappc.offline.lanes import LANES, lanes_online, lanes_refusal
+from sappc.offline.lanes import LANES, lanes_refusal
 from sappc.scenario import load_scenario, scenario_from_mapping
 from sappc_msgs_py.contract import ANSWER_NAMES
 
@@ -50,8 +50,7 @@ def test_the_lanes_cover_the_paper_campaign_and_say_why_not_the_others() -> None
     paper = compiled_loop.prepare(load_scenario(SCENARIOS / "paper_montecarlo.yaml"), on_infeasible="clamp", lanes=True)
     assert lanes_refusal(paper) is None
     flight = compiled_loop.prepare(load_scenario(SCENARIOS / "paper_tracking_flight.yaml"), lanes=True)
-    assert lanes_refusal(flight) is None and not lanes_online(flight)  # the flight stack: in lanes, its metrics from the record
-    assert lanes_online(paper)
+    assert lanes_refusal(flight) is None  # the flight stack: sensors, the estimator, the wheels, the torque filter
     orbit = compiled_loop.prepare(load_scenario(SCENARIOS / "paper_tracking_orbit.yaml"), lanes=True)
     assert lanes_refusal(orbit) == "an orbit"
     faults = compiled_loop.prepare(load_scenario(SCENARIOS / "flight_tracker_outliers.yaml"), lanes=True)
@@ -232,6 +231,9 @@ def _flight_inputs(duration_s: float, *, estimator: bool = True, lanes: bool = T
     raw = yaml.safe_load((SCENARIOS / "paper_tracking_flight.yaml").read_text())
     raw["duration_s"] = duration_s
     raw["metrics"].update(steady_from_s=duration_s / 2, t2_s=duration_s / 2, requirements={})
+    # an inertia with products (the scenario's J = 4 I makes the law's omega x J omega exactly zero,
+    # whatever rate it is given: a test of which rate the law reads needs one that is not)
+    raw["plant"]["inertia_kg_m2"] = [[4.0, 0.2, -0.1], [0.2, 5.0, 0.3], [-0.1, 0.3, 3.0]]
     if not estimator:
         del raw["estimator"]
     return compiled_loop.prepare(scenario_from_mapping(raw), on_infeasible="clamp", q_BN0=_attitudes(N_RUNS), lanes=lanes)
@@ -306,3 +308,75 @@ def test_a_flight_run_the_lanes_hand_back_starts_its_block_again_from_its_state(
     c = _records(_flight_inputs(2.0, estimator=False))  # (no glitch)
     for name in ("status", "d", "x", "out"):
         assert np.array_equal(b[name][others], c[name][others], equal_nan=True), name
+
+
+class _Rows:
+    """A stream of given rows in place of a generator's normals (``standard_normal(out=...)``)."""
+
+    def __init__(self, rows: np.ndarray) -> None:
+        self.rows, self.next = rows, 0
+
+    def standard_normal(self, out: np.ndarray) -> None:
+        out[...] = self.rows[self.next:self.next + out.shape[0]]
+        self.next += out.shape[0]
+
+
+#: The accumulator's arrays of the flight stack's metrics (besides the law's MetricArrays).
+_FLIGHT_METRICS = ("wheel_speed_max", "wheel_torque_max", "wheel_energy", "est_att_max", "est_att_sq", "est_att_n", "est_bias_last", "est_nees_sum",
+                   "est_nees_n", "est_status_counts", "est_mon_error", "est_mon_n", "est_withheld", "est_recoveries", "nees_sum_t", "nees_runs_t")
+
+
+@pytest.mark.parametrize("block_run_samples", [None, N_RUNS * 97])
+def test_the_flight_stacks_online_metrics_are_their_records_metrics_bit_for_bit(monkeypatch: pytest.MonkeyPatch, block_run_samples: int | None) -> None:
+    """The lanes take the flight stack's metrics online too: the wheels' (wheel_metric_sample, the
+    same bits as update_wheels) and the estimator's (estimate_metric_sample, the per-sample piece of
+    the record's kernel; the NEES of each sample summed over the runs once the block is done), and
+    record only the answers.  Every metric array equals the one from the same lanes' record, bit
+    for bit, in one block and over blocks: with run 9's gyro silent for 40 samples (held and zero
+    answers, no estimate) and run 3's gyro reading about 4 rad/s for 3 samples, which the filter
+    takes and the controller's input check (its bound lowered to 1 rad/s) rejects, so that the
+    lanes hand run 3 back and its metrics come from its record."""
+    from sappc.evaluation.metrics import MetricArrays, MetricsAccumulator
+    from sappc.offline.simulate import run_scenario
+
+    if block_run_samples is not None:
+        monkeypatch.setattr(compiled_loop, "BLOCK_RUN_SAMPLES", block_run_samples)
+        monkeypatch.setattr(compiled_loop, "ONLINE_BLOCK_RUN_SAMPLES", block_run_samples)
+    online_blocks: list[list[int]] = []
+    real = MetricsAccumulator.add_online_block
+
+    def spy(self, h, recorded, **kw):  # type: ignore[no-untyped-def]
+        online_blocks.append(list(recorded))
+        real(self, h, recorded, **kw)
+
+    monkeypatch.setattr(MetricsAccumulator, "add_online_block", spy)
+    raw = yaml.safe_load((SCENARIOS / "paper_tracking_flight.yaml").read_text())
+    raw["duration_s"] = 6.0  # (the NEES is counted from 5 s)
+    raw["metrics"].update(steady_from_s=3.0, t2_s=3.0, requirements={})
+    raw["plant"]["inertia_kg_m2"] = [[4.0, 0.2, -0.1], [0.2, 5.0, 0.3], [-0.1, 0.3, 3.0]]
+    raw["controller_node"] = {"max_body_rate_rad_s": 1.0}
+    sc = scenario_from_mapping(raw)
+    T = round(sc.duration_s / sc.control_period_s) + 1
+    draws = np.array(np.broadcast_to(sc.sensors.draws(T), (N_RUNS,) + sc.sensors.draws(T).shape))
+    draws[9, 400:440, 3:6] = np.nan
+    draws[3, 120:123, 3] = 3.0e5  # x sigma_g = 1.45e-5 rad/s: 4.4 rad/s
+    # each run's draws as a campaign's (compiled_loop.NoiseStreams: drawn block by block), from the table above
+    streams = compiled_loop.NoiseStreams([lambda run=run: _Rows(draws[run]) for run in range(N_RUNS)], draws.shape[2])  # type: ignore[misc]
+    sensors = (sc.sensors.params(sc.control_period_s), streams.runs, None)
+    kw = dict(on_infeasible="clamp", q_BN0=_attitudes(N_RUNS), sensors=sensors, lanes=True)
+    online, run_online = run_scenario(sc, **kw)
+    blocks = len(online_blocks)
+    assert blocks >= (1 if block_run_samples is None else 6) and [3] in online_blocks and all(r in ([], [3]) for r in online_blocks)
+    real_blocks = compiled_loop.run_blocks
+    monkeypatch.setattr(compiled_loop, "run_blocks", lambda inp, stride=1, block_samples=None, **_: real_blocks(inp, stride, block_samples))
+    recorded, run_recorded = run_scenario(sc, **kw)
+    assert len(online_blocks) == blocks  # the second run went by its record
+    assert run_recorded.rejected["implausible"][3] > 0 and run_recorded.status["held"][9] > 0 and run_recorded.status["watchdog_zero"][9] > 0
+    assert online.samples == recorded.samples == T
+    assert recorded.est_nees_n is not None and recorded.est_nees_n.min() > 0 and recorded.wheel_energy is not None
+    for name in (*MetricArrays._fields, *_FLIGHT_METRICS, "origin_k", "k_t2_run"):
+        a, b = getattr(online, name), getattr(recorded, name)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
+    for name, counts in run_online.status.items():
+        assert np.array_equal(counts, run_recorded.status[name]), name
+    assert np.array_equal(run_online.x_final, run_recorded.x_final)
