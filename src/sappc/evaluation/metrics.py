@@ -825,8 +825,9 @@ class MetricsAccumulator:
         window's start less the grid's tolerance, its origin, t2's sample; float64, exact), the
         settling threshold, the loss-of-control bound and the fault's start less the tolerance
         (NaN: no fault): :class:`MetricArrays` and :class:`MetricConstants`.  Only on a uniform
-        grid without flight modes, wheels, an estimator or orbits (what the lanes cover); the loop
-        then calls :meth:`add_online_block` for every block.  ``keep_stride``: which samples the loop
+        grid without flight modes or orbits (what the lanes cover; the wheels' and the estimator's
+        metrics: :meth:`online_flight_state`); the loop then calls :meth:`add_online_block` for
+        every block.  ``keep_stride``: which samples the loop
         records too (:class:`MetricConstants`)."""
         if self.hold_s is not None or self.orbit_bins is not None or self.mode_time_s is not None:
             raise ValueError("online metrics need a uniform grid without orbits or flight modes")

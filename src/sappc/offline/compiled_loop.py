@@ -43,7 +43,9 @@ arrays), and one run calls it from Python (:func:`run_single`) with the same arg
 its ~9 s of parallel lowering is the batch kernel's).  A campaign's runs go eight at a time in SIMD
 lanes where :mod:`sappc.offline.lanes` covers the scenario (``CompiledInputs.lanes``): the same
 scalar pieces of the law, the plant and the input check in the same order, the libm calls
-libmvec's (docs/parity.md, "Campaign runs in SIMD lanes"); a run they cannot answer as the node
+libmvec's (docs/parity.md, "Campaign runs in SIMD lanes"), the flight stack's pieces run by run
+(:func:`measure_sample`, :func:`estimate_sample`, :func:`plant_step`, :func:`record_wheels`,
+:func:`record_estimate`, which :func:`_run_one` calls too); a run they cannot answer as the node
 would goes through :func:`_run_one`.  :func:`run_batch` runs a batch in one block
 (its whole record), :func:`run_blocks` a block of :data:`BLOCK_RUN_SAMPLES` run-samples at a time
 (memory flat in the run's length: docs/design/streaming.md).

@@ -22,15 +22,27 @@ converged, each lane frozen from its own convergence on (so each lane takes exac
 iterations), and the RPF's phases are per lane.
 
 What the lanes cover (:func:`lanes_refusal` says why a batch is not covered; such a batch runs
-per run, as before): the SAPPC law without its noise filters, the ideal actuator, exact
-measurements (no sensors, no estimator), no fault, no orbit, no momentum management, no flight
-modes; the disturbance shared by every run (its table) or each run's own.  What the lanes cover
-depends on the scenario only, never on the batch (one run's disturbance is a table, the batch's
-may not be), so a run re-run alone goes the way it went in its campaign.  In that loop every sample of a healthy run
-is valid and commanded; a lane that meets anything else (an input the controller's check
-rejects, a non-finite torque) is **handed back**: its record and state for the block are
-computed again by :func:`~sappc.offline.compiled_loop._run_one` from the state the block started
-with (the loop's answers, the watchdog, the held samples: one implementation).
+per run, as before): the SAPPC law with its torque filter (not its rate filter), the ideal
+actuator or reaction wheels, exact measurements or the star tracker and the gyro, with or without
+the MEKF, no fault, no orbit, no momentum management, no flight modes; the disturbance shared by
+every run (its table) or each run's own.  What the lanes cover depends on the scenario only,
+never on the batch (one run's disturbance is a table, the batch's may not be), so a run re-run
+alone goes the way it went in its campaign.
+
+**The flight stack** (sensors, an estimator or wheels) is stepped run by run inside the lanes, by
+the per-run loop's own pieces (:func:`~sappc.offline.compiled_loop.measure_sample`,
+:func:`~sappc.offline.compiled_loop.estimate_sample`, :func:`~sappc.offline.compiled_loop.plant_step`,
+the wheels' torques and the records' pieces): the true state lives in the run's rows of the
+loop's state, the controller's input (the estimate, or the measurement) goes to the law's vector
+stages, and the answer is the per-run loop's (stage 4): a sample whose input is not valid (the
+filter gave no confirmed estimate: no data, as the estimator node publishes it) keeps the law's
+state and rows, and is answered with the last answer held, or the watchdog's zero.  Its metrics
+are online too (the wheels' and the estimator's per-sample pieces of
+:mod:`sappc.evaluation.metrics`).  A lane that meets anything the per-run loop alone answers (an
+input the controller's check rejects, a non-finite torque) is **handed back**: its record and
+state for the block are computed again by :func:`~sappc.offline.compiled_loop._run_one` from the
+state the block started with (kept by the caller for the flight stack, whose lanes step the
+run's rows in place).
 
 A campaign's metrics are computed here too, as the lanes go (:func:`online_metrics`): after each
 sample's answer a fourth stage feeds each lane's metric state (rows of the scratch array) to
