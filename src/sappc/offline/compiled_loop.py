@@ -1491,7 +1491,7 @@ def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState
     # state) and of its metrics: a run they hand back starts its block again from what is kept here
     per_run = [getattr(fa, name) for name in lanes.FLIGHT_METRICS_PER_RUN if getattr(fa, name).shape[0] == inp.n_runs]
     kept = [a.copy() for a in list(st) + per_run] if flight else None
-    lanes.run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back, ma, mc, fa)
+    lanes.run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back, ma, mc, fa, lanes.group_kind(flight))
     back = np.flatnonzero(handed_back)
     if kept is not None and back.size:
         for a, b in zip(list(st) + per_run, kept):
@@ -1955,13 +1955,16 @@ def _warm_up_batches(scenario: Scenario, compiled: Any) -> None:
 
 def _warm_up_lanes(scenario: Scenario, compiled: Any) -> None:
     """The loop in SIMD lanes (:mod:`sappc.offline.lanes`; one compile whatever the disturbance:
-    whether it is a table is a value of its arrays, not a type), called directly on inputs before
+    whether it is a table is a value of its arrays, not a type; two for the flight stack, with and
+    without it: :func:`~sappc.offline.lanes.group_kind`), called directly on inputs before
     their start's probe (:func:`prepare` with ``started=False``): nothing of the one-run loop runs
     (its probe, a lane handed back), so this group compiles beside the loops', not after them (its
     numbers are meaningless: the start constants are zero)."""
     inp = prepare(scenario, on_infeasible="clamp", q_BN0=np.broadcast_to(scenario.q_BN0, (2, 4)), lanes=True, started=False)
-    _lanes().run_lanes_kernel(np.int64(1), np.int64(0), *inp.args(), _record(inp, 1, inp.n_runs), _state(inp, inp.n_runs),
-                              np.zeros(inp.n_runs, dtype=np.int8), *_lanes().no_online_metrics(), _lanes().flight_metrics(None, inp))
+    for flight in (False, True):  # both compiled versions (the flight stack's runs on these inputs' exact measurements)
+        _lanes().run_lanes_kernel(np.int64(1), np.int64(0), *inp.args(), _record(inp, 1, inp.n_runs), _state(inp, inp.n_runs),
+                                  np.zeros(inp.n_runs, dtype=np.int8), *_lanes().no_online_metrics(), _lanes().flight_metrics(None, inp),
+                                  _lanes().group_kind(flight))
     compiled("the offline loop (SIMD lanes)")
 
 

@@ -88,7 +88,7 @@ from sappc.offline.compiled_loop import V_U_CMD, V_U_LAST, _initial_state, estim
 if TYPE_CHECKING:
     from sappc.offline.compiled_loop import CompiledInputs
 
-__all__ = ["LANES", "flight_metrics", "lanes_refusal", "no_online_metrics", "online_metrics", "run_lanes_kernel"]
+__all__ = ["LANES", "flight_metrics", "group_kind", "lanes_refusal", "no_online_metrics", "online_metrics", "run_lanes_kernel"]
 
 #: Runs per lane group: a multiple of every libmvec width (2, 4 and 8 float64), so that LLVM's
 #: vectorised loops have no scalar remainder (which would call the scalar libm for some lanes).
@@ -182,6 +182,12 @@ FLIGHT_METRICS_PER_RUN = ("wheel_speed_max", "wheel_torque_max", "wheel_energy",
                           "status_counts", "mon_error", "mon_n", "withheld", "recoveries")
 
 
+def group_kind(flight: bool) -> np.ndarray:
+    """The lanes' kernel's last argument: an empty array of two dimensions for runs with the flight
+    stack (:func:`_flight`), of one without; its type picks the kernel's compiled version."""
+    return np.zeros((0, 0)) if flight else np.zeros(0)
+
+
 def flight_metrics(acc: MetricsAccumulator | None, inp: CompiledInputs) -> FlightMetricArrays:
     """The lanes' flight-stack metrics argument: ``acc``'s wheel and estimator arrays for ``inp``'s
     block (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_flight_state`; ``acc`` None:
@@ -240,7 +246,7 @@ def _nine(S, r, w):
 
 
 @jit
-def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc, fa):
+def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc, fa, kind):
     """Runs ``g0 .. g0 + LANES - 1`` (the last group's missing lanes repeat its last run, written
     nowhere) over one block of samples, from and into their rows of ``st`` and ``rec`` (row = run,
     as :func:`~sappc.offline.compiled_loop.run_batch_kernel`); a lane handed back (module docstring)
@@ -258,7 +264,13 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
     measuring = sens.draws.shape[1] > 0
     estimating = est.prm.shape[1] > 0
     nw = act.params.shape[1]
-    flight = measuring or estimating or nw > 0  # the flight stack: the true state in st, stepped run by run
+    # the flight stack: the true state in st, stepped run by run.  A constant of the compiled
+    # function (``kind``'s number of dimensions, :func:`group_kind`): the kernel is compiled twice,
+    # and the one without the flight stack has none of its code (fused into the vector stages'
+    # function, it slowed them by 8 to 15 %)
+    flight = kind.ndim == 2
+    if not flight and (measuring or estimating or nw > 0):
+        raise ValueError("a batch with the flight stack in the lanes' kernel compiled without it")
     filtered = False  # a lane with the torque filter
     for w in range(W):
         filtered = filtered or ctrl.prm[rows[w], P_TORQUE_WC] > 0.0
@@ -655,11 +667,14 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
 
 
 @jit_parallel
-def run_lanes_kernel(stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc, fa):
+def run_lanes_kernel(stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc, fa, kind):
     """Every run of a batch over one block of samples in groups of :data:`LANES` (module
     docstring), the groups in parallel (``prange``); ``handed_back`` (N,) int8 marks the runs to
     compute per run; ``ma``, ``mc`` (:func:`online_metrics` or :func:`no_online_metrics`): whether
-    the lanes compute the runs' metrics online instead of recording their samples."""
+    the lanes compute the runs' metrics online instead of recording their samples; ``fa``
+    (:func:`flight_metrics`): the flight stack's metrics; ``kind`` (:func:`group_kind`): whether the
+    runs have the flight stack."""
     n_groups = (plant.x0.shape[0] + LANES - 1) // LANES
     for g in prange(n_groups):
-        _lane_group(np.int64(g) * LANES, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc, fa)
+        _lane_group(np.int64(g) * LANES, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st, handed_back, ma, mc, fa,
+                    kind)
