@@ -852,16 +852,18 @@ class MetricsAccumulator:
         if estimating:
             self._estimate_arrays()
             self._online_nees = (np.zeros((block_samples, n)), np.zeros((block_samples, n), dtype=np.bool_))
+        def own(a: NDArray[Any] | None, on: bool, empty: NDArray[Any]) -> NDArray[Any]:
+            return a if on and a is not None else empty  # (allocated above where on)
+
         w, e = wheels, estimating
-        fa = FlightMetricArrays(
-            np.int64(1 if w else 0), np.int64(1 if e else 0), self.wheel_speed_max if w else none_f, self.wheel_torque_max if w else none_f,
-            self.wheel_energy if w else none_f, float(self.dt), float(NEES_FROM_S - _TIME_TOL_S),
-            self.est_att_max if e else np.zeros((0, 3)), self.est_att_sq if e else np.zeros((0, 3)), self.est_att_n if e else none_i,
-            self.est_bias_last if e else np.zeros((0, 3)), self.est_nees_sum if e else none_f, self.est_nees_n if e else none_i,
-            self.est_status_counts if e else np.zeros((0, len(STATUS_NAMES)), dtype=np.int64), self.est_mon_error if e else none_i,
-            self.est_mon_n if e else none_i, self.est_withheld if e else none_i, self.est_recoveries if e else none_i,
-            self._online_nees[0] if e else np.zeros((0, 0)), self._online_nees[1] if e else np.zeros((0, 0), dtype=np.bool_))
-        return fa  # (the arrays above were allocated when None: mypy cannot see it)
+        return FlightMetricArrays(
+            np.int64(1 if w else 0), np.int64(1 if e else 0), own(self.wheel_speed_max, w, none_f), own(self.wheel_torque_max, w, none_f),
+            own(self.wheel_energy, w, none_f), float(self.dt), float(NEES_FROM_S - _TIME_TOL_S), own(self.est_att_max, e, np.zeros((0, 3))),
+            own(self.est_att_sq, e, np.zeros((0, 3))), own(self.est_att_n, e, none_i), own(self.est_bias_last, e, np.zeros((0, 3))),
+            own(self.est_nees_sum, e, none_f), own(self.est_nees_n, e, none_i),
+            own(self.est_status_counts, e, np.zeros((0, len(STATUS_NAMES)), dtype=np.int64)), own(self.est_mon_error, e, none_i),
+            own(self.est_mon_n, e, none_i), own(self.est_withheld, e, none_i), own(self.est_recoveries, e, none_i),
+            own(self._online_nees[0], e, np.zeros((0, 0))), own(self._online_nees[1], e, np.zeros((0, 0), dtype=np.bool_)))
 
     def add_online_block(self, h: History, recorded: Sequence[int], *, block_samples: int | None = None) -> None:
         """A block of samples whose metrics the loop computed online (:meth:`online_state`, and
@@ -1428,7 +1430,7 @@ def estimate_metric_sample(n, t_k, steady_from, nees_from, truth, q_hat, q_true,
     return 0.0, False
 
 
-@jit  # type: ignore[no-untyped-call]
+@jit
 def estimate_metric_call(n, t_k, steady_from, nees_from, q_hat, q_true, b_hat, b_true, P, att_max, att_sq, att_n, bias_last, nees_sum,  # type: ignore[no-untyped-def]
                          nees_n, dq, a, err, A):
     """:func:`estimate_metric_sample` with the true bias, compiled on its own: the SIMD lanes call it

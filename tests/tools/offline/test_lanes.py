@@ -171,19 +171,13 @@ def test_a_campaign_run_alone_is_its_row_when_each_run_has_its_own_disturbance()
             assert np.array_equal(np.asarray(together[name])[k], np.asarray(alone[name])[0]), (k, name)
 
 
-@pytest.mark.parametrize("block_run_samples", [None, N_RUNS * 97])
-def test_the_lanes_online_metrics_are_their_records_metrics_bit_for_bit(monkeypatch: pytest.MonkeyPatch, block_run_samples: int | None) -> None:
-    """A campaign's runs in lanes compute their metrics online, sample by sample, and record only
-    their answers, and the trajectories' samples too where they are kept (sappc.offline.simulate.run_scenario);
-    every sample's contribution is metric_sample_of's, which the record's metrics call too.  So
-    every per-run metric state equals the one computed from the same lanes' record (run_blocks
-    without an accumulator), bit for bit, and the trajectories are the record's: with a run the
-    lanes hand back (its metrics taken from its record), in one block and over blocks that split
-    the steady window."""
-    from sappc.evaluation.metrics import MetricArrays, MetricsAccumulator
-    from sappc.offline.simulate import run_scenario
+def _watch_online_blocks(monkeypatch: pytest.MonkeyPatch, block_run_samples: int | None) -> list[list[int]]:
+    """The runs of each block whose metrics the lanes handed to their record
+    (``MetricsAccumulator.add_online_block``'s ``recorded``), block by block, as they come; with
+    ``block_run_samples``, the blocks of the lanes that record only their answers that size too."""
+    from sappc.evaluation.metrics import MetricsAccumulator
 
-    if block_run_samples is not None:  # (the lanes' blocks that record only their answers too)
+    if block_run_samples is not None:
         monkeypatch.setattr(compiled_loop, "BLOCK_RUN_SAMPLES", block_run_samples)
         monkeypatch.setattr(compiled_loop, "ONLINE_BLOCK_RUN_SAMPLES", block_run_samples)
     online_blocks: list[list[int]] = []
@@ -194,6 +188,22 @@ def test_the_lanes_online_metrics_are_their_records_metrics_bit_for_bit(monkeypa
         real(self, h, recorded, **kw)
 
     monkeypatch.setattr(MetricsAccumulator, "add_online_block", spy)
+    return online_blocks
+
+
+@pytest.mark.parametrize("block_run_samples", [None, N_RUNS * 97])
+def test_the_lanes_online_metrics_are_their_records_metrics_bit_for_bit(monkeypatch: pytest.MonkeyPatch, block_run_samples: int | None) -> None:
+    """A campaign's runs in lanes compute their metrics online, sample by sample, and record only
+    their answers, and the trajectories' samples too where they are kept (sappc.offline.simulate.run_scenario);
+    every sample's contribution is metric_sample_of's, which the record's metrics call too.  So
+    every per-run metric state equals the one computed from the same lanes' record (run_blocks
+    without an accumulator), bit for bit, and the trajectories are the record's: with a run the
+    lanes hand back (its metrics taken from its record), in one block and over blocks that split
+    the steady window."""
+    from sappc.evaluation.metrics import MetricArrays
+    from sappc.offline.simulate import run_scenario
+
+    online_blocks = _watch_online_blocks(monkeypatch, block_run_samples)
     sc = _scenario()
     q = _attitudes(N_RUNS)
     omega = np.zeros((N_RUNS, 3))
@@ -336,20 +346,10 @@ def test_the_flight_stacks_online_metrics_are_their_records_metrics_bit_for_bit(
     answers, no estimate) and run 3's gyro reading about 4 rad/s for 3 samples, which the filter
     takes and the controller's input check (its bound lowered to 1 rad/s) rejects, so that the
     lanes hand run 3 back and its metrics come from its record."""
-    from sappc.evaluation.metrics import MetricArrays, MetricsAccumulator
+    from sappc.evaluation.metrics import MetricArrays
     from sappc.offline.simulate import run_scenario
 
-    if block_run_samples is not None:
-        monkeypatch.setattr(compiled_loop, "BLOCK_RUN_SAMPLES", block_run_samples)
-        monkeypatch.setattr(compiled_loop, "ONLINE_BLOCK_RUN_SAMPLES", block_run_samples)
-    online_blocks: list[list[int]] = []
-    real = MetricsAccumulator.add_online_block
-
-    def spy(self, h, recorded, **kw):  # type: ignore[no-untyped-def]
-        online_blocks.append(list(recorded))
-        real(self, h, recorded, **kw)
-
-    monkeypatch.setattr(MetricsAccumulator, "add_online_block", spy)
+    online_blocks = _watch_online_blocks(monkeypatch, block_run_samples)
     raw = yaml.safe_load((SCENARIOS / "paper_tracking_flight.yaml").read_text())
     raw["duration_s"] = 6.0  # (the NEES is counted from 5 s)
     raw["metrics"].update(steady_from_s=3.0, t2_s=3.0, requirements={})
