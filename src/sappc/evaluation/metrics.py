@@ -1166,6 +1166,12 @@ class FlightMetricArrays(NamedTuple):
     counted: NDArray[np.bool_]
 
 
+#: The fields of :class:`FlightMetricArrays` with a row per run (the others: flags, constants, the
+#: block's NEES per sample).
+FLIGHT_METRICS_PER_RUN = ("wheel_speed_max", "wheel_torque_max", "wheel_energy", "att_max", "att_sq", "att_n", "bias_last", "nees_sum", "nees_n",
+                          "status_counts", "mon_error", "mon_n", "withheld", "recoveries")
+
+
 @jit(inline="always")  # type: ignore[no-untyped-call]
 def wheel_metric_sample(n, speed, torque, dt, speed_max, torque_max, energy):  # type: ignore[no-untyped-def]
     """One sample of run ``n``'s wheel metrics (:meth:`MetricsAccumulator.update_wheels`'s, the same

@@ -107,7 +107,7 @@ from sappc_msgs_py.convert import seconds_to_ns, seconds_to_ns_array
 
 from sappc.evaluation.estimation import EstimateHistory
 from sappc.evaluation.history import History
-from sappc.evaluation.metrics import MetricsAccumulator, SampleGrid
+from sappc.evaluation.metrics import FLIGHT_METRICS_PER_RUN, MetricsAccumulator, SampleGrid
 from gnc_common.validation import ConfigError
 from sappc.scenario import Scenario
 
@@ -1479,7 +1479,7 @@ def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState
     lanes = _lanes()
     handed_back = np.zeros(inp.n_runs, dtype=np.int8)
     online = metrics is not None
-    flight = lanes._flight(inp)
+    flight = lanes.has_flight_stack(inp)
     if online:
         assert metrics is not None
         if stride != 1 or metrics.samples != inp.k_lo or metrics.finite.shape[0] != inp.n_runs:
@@ -1489,7 +1489,7 @@ def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState
     fa = lanes.flight_metrics(metrics if flight else None, inp)
     # the flight stack's lanes step the runs' own rows of st (the sensors, the filter, the true
     # state) and of its metrics: a run they hand back starts its block again from what is kept here
-    per_run = [getattr(fa, name) for name in lanes.FLIGHT_METRICS_PER_RUN if getattr(fa, name).shape[0] == inp.n_runs]
+    per_run = [getattr(fa, name) for name in FLIGHT_METRICS_PER_RUN if getattr(fa, name).shape[0] == inp.n_runs]
     kept = [a.copy() for a in list(st) + per_run] if flight else None
     lanes.run_lanes_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st, handed_back, ma, mc, fa, lanes.group_kind(flight))
     back = np.flatnonzero(handed_back)

@@ -88,7 +88,7 @@ from sappc.offline.compiled_loop import V_U_CMD, V_U_LAST, _initial_state, estim
 if TYPE_CHECKING:
     from sappc.offline.compiled_loop import CompiledInputs
 
-__all__ = ["LANES", "flight_metrics", "group_kind", "lanes_refusal", "no_online_metrics", "online_metrics", "run_lanes_kernel"]
+__all__ = ["LANES", "flight_metrics", "group_kind", "has_flight_stack", "lanes_refusal", "no_online_metrics", "online_metrics", "run_lanes_kernel"]
 
 #: Runs per lane group: a multiple of every libmvec width (2, 4 and 8 float64), so that LLVM's
 #: vectorised loops have no scalar remainder (which would call the scalar libm for some lanes).
@@ -115,7 +115,7 @@ def lanes_refusal(inp: CompiledInputs) -> str | None:
     return None
 
 
-def _flight(inp: CompiledInputs) -> bool:
+def has_flight_stack(inp: CompiledInputs) -> bool:
     """Whether ``inp``'s runs have the flight stack the lanes step run by run (module docstring):
     sensors, an estimator or reaction wheels."""
     return inp.n_wheels > 0 or inp.sensors.draws.shape[1] > 0 or inp.noise is not None or bool(inp.estimating)  # (noise: drawn per block)
@@ -176,15 +176,9 @@ def online_metrics(acc: MetricsAccumulator, keep_stride: int = 0) -> tuple[Metri
     return acc.online_state(keep_stride)
 
 
-#: The fields of :class:`~sappc.evaluation.metrics.FlightMetricArrays` with a row per run (the others:
-#: flags, constants, the block's NEES per sample).
-FLIGHT_METRICS_PER_RUN = ("wheel_speed_max", "wheel_torque_max", "wheel_energy", "att_max", "att_sq", "att_n", "bias_last", "nees_sum", "nees_n",
-                          "status_counts", "mon_error", "mon_n", "withheld", "recoveries")
-
-
 def group_kind(flight: bool) -> np.ndarray:
     """The lanes' kernel's last argument: an empty array of two dimensions for runs with the flight
-    stack (:func:`_flight`), of one without; its type picks the kernel's compiled version."""
+    stack (:func:`has_flight_stack`), of one without; its type picks the kernel's compiled version."""
     return np.zeros((0, 0)) if flight else np.zeros(0)
 
 
