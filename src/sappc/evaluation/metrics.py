@@ -1358,34 +1358,28 @@ def _update_kernel(k0, t, q_BN, omega, torque, q_BR, rho, saturated, band_lower,
 @jit(inline="always")  # type: ignore[no-untyped-call]
 def _nees_of(e, P, A):  # type: ignore[no-untyped-def]  # a numba kernel
     """``e^T P^-1 e`` of the error ``e`` (6,) and the covariance ``P`` (6, 6) (the module
-    docstring's ``mean_nees``): Gaussian elimination with partial pivoting (LAPACK's ``gesv``'s
-    method, not its operation order) on the scratch ``A`` (6, 7), ``[P | e]``; non-finite for a
-    singular ``P``."""
+    docstring's ``mean_nees``) by ``P = L D L^T`` (symmetric Gaussian elimination, no pivoting:
+    a covariance is symmetric positive definite, where this factorisation is backward stable,
+    Higham, *Accuracy and Stability of Numerical Algorithms*, ch. 10): ``sum_c z_c^2 / d_c`` with
+    ``z = L^-1 e``, from ``P``'s upper triangle (the filter keeps ``P`` symmetric) on the scratch
+    ``A`` (6, 7), ``[P | e]``; each pivot's reciprocal taken once.  Non-finite for a singular
+    ``P`` (a zero pivot).  About half the products of elimination with partial pivoting and 6
+    divisions instead of 21: the estimator's metrics run at every sample of a flight campaign."""
     m = N_ERROR_STATES
     for i in range(m):
-        for j in range(m):
+        for j in range(i, m):
             A[i, j] = P[i, j]
         A[i, m] = e[i]
-    for c in range(m):
-        p = c
-        for i in range(c + 1, m):
-            if abs(A[i, c]) > abs(A[p, c]):
-                p = i
-        if p != c:
-            for j in range(c, m + 1):
-                A[c, j], A[p, j] = A[p, j], A[c, j]
-        for i in range(c + 1, m):
-            f = A[i, c] / A[c, c]
-            for j in range(c + 1, m + 1):
-                A[i, j] = A[i, j] - f * A[c, j]
     quadratic = 0.0
-    for i in range(m - 1, -1, -1):
-        x = A[i, m]
-        for j in range(i + 1, m):
-            x = x - A[i, j] * A[j, m]
-        x = x / A[i, i]
-        A[i, m] = x
-        quadratic = quadratic + e[i] * x
+    for c in range(m):
+        inv = 1.0 / A[c, c]  # 1 / d_c
+        z = A[c, m]  # z_c: every earlier pivot's elimination done
+        quadratic = quadratic + z * z * inv
+        for i in range(c + 1, m):
+            f = A[c, i] * inv  # L[i, c] (A[c, i] = d_c L[i, c], the upper triangle)
+            for j in range(i, m):
+                A[i, j] = A[i, j] - f * A[c, j]
+            A[i, m] = A[i, m] - f * z
     return quadratic
 
 

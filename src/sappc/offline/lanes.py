@@ -76,7 +76,7 @@ from sappc_controller.core.kernels import actuator_of, backstepping_of, error_st
 from sappc_controller.core.kernels import sappc_axis_start, smetf_newton_step, smetf_start
 from sappc_msgs_py.contract import ANSWER_COMMANDED, ANSWER_HELD, ANSWER_WATCHDOG_ZERO
 from spacecraft_sim.core.kernels import disturbance_at, rk4_of
-from spacecraft_sim.core.wheels import wheel_torques
+from spacecraft_sim.core.wheels import LANE_L, LANE_U, LANE_X, MAX_LANE_WHEELS, N_WHEEL_LANE_ROWS, propagate_wheels_lanes, wheel_lane_params, wheel_torques
 
 from sappc.evaluation.metrics import N_METRIC_STATE, FlightMetricArrays, MetricArrays, MetricConstants, MetricsAccumulator, SampleGrid
 from sappc.evaluation.metrics import estimate_metric_call, metric_sample_of, metric_state_load, metric_state_store, wheel_metric_sample
@@ -108,7 +108,8 @@ def lanes_refusal(inp: CompiledInputs) -> str | None:
     if ctrl.prm.shape[0] and np.any(ctrl.prm[:, P_RATE_WC] > 0.0):
         return "the rate filter is on"
     reasons = [(inp.faults.kind.shape[1] > 0, "faults"), (inp.environment.orbit.shape[1] > 0, "an orbit"),
-               (inp.momentum.prm.shape[1] > 0, "momentum management"), (inp.modes.prm.shape[1] > 0, "flight modes")]
+               (inp.momentum.prm.shape[1] > 0, "momentum management"), (inp.modes.prm.shape[1] > 0, "flight modes"),
+               (inp.n_wheels > MAX_LANE_WHEELS, f"more than {MAX_LANE_WHEELS} reaction wheels")]
     for bad, why in reasons:
         if bad:
             return why
@@ -311,6 +312,11 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
             S[_R_Y + i, w] = 0.0
         wc = ctrl.prm[r, P_TORQUE_WC]
         S[_R_GAIN, w] = low_pass_gain(wc, grid.dt) if wc > 0.0 else 0.0  # (the actuator computes it at each sample: the same bits)
+    # the wheels' lanes (propagate_wheels_lanes: one array, its rows at constant offsets)
+    FL = np.zeros((N_WHEEL_LANE_ROWS if nw > 0 else 0, W))
+    for w in range(W if nw > 0 else 0):
+        r = rows[w]
+        wheel_lane_params(plant.J[r], plant.J_inv[r], act.G[r], act.params[r], FL, w)
     online = mc.on != 0
     if online:
         for w in range(W):
@@ -602,7 +608,21 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                 if estimating:
                     record_estimate(rec.estimate[r, j], S[_R_HASEST, w] != 0.0, S[_R_VALID, w] != 0.0, st.eout[r], st.P[r], S[_R_ESTST, w],
                                     st.vec3[r, V_BIAS_K])
-        if k < T - 1 and flight:  # the plant run by run (the per-run loop's piece: the wheels, or the ideal actuator)
+        if k < T - 1 and flight and nw > 0:  # the plant with wheels in lanes (the per-run loop's pieces, its bits)
+            for w in range(n_real):
+                r = rows[w]
+                for i in range(7 + nw):
+                    FL[LANE_X + i, w] = st.x[r, i]
+                for i in range(nw):
+                    FL[LANE_U + i, w] = st.uw[r, i]
+                for i in range(3):
+                    FL[LANE_L + i, w] = S[_R_D + i, w]
+            propagate_wheels_lanes(FL, nw, dt, plant.substeps, nl)
+            for w in range(n_real):
+                r = rows[w]
+                for i in range(7 + nw):
+                    st.x[r, i] = FL[LANE_X + i, w]
+        elif k < T - 1 and flight:  # the plant run by run (the per-run loop's piece: the ideal actuator)
             for w in range(n_real):
                 r = rows[w]
                 for i in range(3):

@@ -222,18 +222,34 @@ def wheel_torques(tau_cmd_B, G_pinv, G, prm, x, u_out):
 
 
 @jit(inline="always")
+def _q_dot_of(x0, x1, x2, q0, w0, w1, w2):
+    """``dq/dt = 1/2 q ⊗ (omega, 0)`` of ``q = (x0, x1, x2, q0)`` (scalar last), a 4-tuple."""
+    c0 = x1 * w2 - x2 * w1
+    c1 = x2 * w0 - x0 * w2
+    c2 = x0 * w1 - x1 * w0
+    return 0.5 * (q0 * w0 + c0), 0.5 * (q0 * w1 + c1), 0.5 * (q0 * w2 + c2), -0.5 * ((x0 * w0 + x1 * w1) + x2 * w2)
+
+
+@jit(inline="always")
+def _h_dot_of(h, g0, g1, g2, Js, coulomb, speed_c, viscous, u, w0, w1, w2):
+    """``dh/dt = u - f(Omega)`` of one wheel (module docstring's friction)."""
+    Om = _speed(h, g0, g1, g2, Js, w0, w1, w2)
+    f = coulomb * min(max(Om / speed_c, -1.0), 1.0) + viscous * Om
+    return u - f
+
+
+@jit(inline="always")
+def _rate_rhs_of(L0, L1, L2, n0, n1, n2, H0, H1, H2, w0, w1, w2):
+    """``L_ext - G (u - f) - omega x H`` (``J domega/dt``), with ``n = G (u - f)``, a 3-tuple."""
+    return L0 - n0 - (w1 * H2 - w2 * H1), L1 - n1 - (w2 * H0 - w0 * H2), L2 - n2 - (w0 * H1 - w1 * H0)
+
+
+@jit(inline="always")
 def _derivative(x, u, L, J, J_inv, G, prm, out, tmp):
     """``dx/dt`` (7 + N) of the body with wheels (module docstring); ``tmp`` (3, 3) scratch."""
     n = u.shape[0]
-    q0 = x[3]
     w0, w1, w2 = x[4], x[5], x[6]
-    c0 = x[1] * w2 - x[2] * w1
-    c1 = x[2] * w0 - x[0] * w2
-    c2 = x[0] * w1 - x[1] * w0
-    out[0] = 0.5 * (q0 * w0 + c0)
-    out[1] = 0.5 * (q0 * w1 + c1)
-    out[2] = 0.5 * (q0 * w2 + c2)
-    out[3] = -0.5 * ((x[0] * w0 + x[1] * w1) + x[2] * w2)
+    out[0], out[1], out[2], out[3] = _q_dot_of(x[0], x[1], x[2], x[3], w0, w1, w2)
     H = tmp[0]
     matvec3(J, x[4:7], H)  # J omega + G h, and the net wheel torque G (u - f) on the body
     net = tmp[1]
@@ -241,18 +257,20 @@ def _derivative(x, u, L, J, J_inv, G, prm, out, tmp):
     net[1] = 0.0
     net[2] = 0.0
     for i in range(n):
-        Om = _speed(x[7 + i], G[0, i], G[1, i], G[2, i], prm[i, _JS], w0, w1, w2)
-        f = prm[i, _COUL] * min(max(Om / prm[i, _WC], -1.0), 1.0) + prm[i, _VISC] * Om
-        hdot = u[i] - f
+        hdot = _h_dot_of(x[7 + i], G[0, i], G[1, i], G[2, i], prm[i, _JS], prm[i, _COUL], prm[i, _WC], prm[i, _VISC], u[i], w0, w1, w2)
         out[7 + i] = hdot
         for k in range(3):
             H[k] += G[k, i] * x[7 + i]
             net[k] += G[k, i] * hdot
     rhs = tmp[2]
-    rhs[0] = L[0] - net[0] - (w1 * H[2] - w2 * H[1])
-    rhs[1] = L[1] - net[1] - (w2 * H[0] - w0 * H[2])
-    rhs[2] = L[2] - net[2] - (w0 * H[1] - w1 * H[0])
+    rhs[0], rhs[1], rhs[2] = _rate_rhs_of(L[0], L[1], L[2], net[0], net[1], net[2], H[0], H[1], H[2], w0, w1, w2)
     matvec3(J_inv, rhs, out[4:7])
+
+
+@jit(inline="always")
+def _rk4_sum_of(x, c, k1, k2, k3, k4):
+    """RK4's step of one state: ``x + c ((k1 + 2 (k2 + k3)) + k4)`` with ``c = h / 6``."""
+    return x + c * ((k1 + 2.0 * (k2 + k3)) + k4)
 
 
 @jit
@@ -277,8 +295,120 @@ def propagate_wheels_into(x, u, L, dt, substeps, J, J_inv, G, prm, work, tmp):
         _derivative(xs, u, L, J, J_inv, G, prm, k4, tmp)
         c = h / 6.0
         for i in range(m):
-            x[i] = x[i] + c * ((k1[i] + 2.0 * (k2[i] + k3[i])) + k4[i])
+            x[i] = _rk4_sum_of(x[i], c, k1[i], k2[i], k3[i], k4[i])
         quat_normalize(x[:4], x[:4])
+
+
+#: The most wheels :func:`propagate_wheels_lanes` takes (its rows are laid out for this many:
+#: constant offsets, which let LLVM vectorise its lane loops; a batch with more runs per run).
+MAX_LANE_WHEELS = 8
+_LANE_M = 7 + MAX_LANE_WHEELS
+#: Rows of :func:`propagate_wheels_lanes`' array (rows, W), one run a column: the state ``x``,
+#: the motor torques ``u`` and the external torque ``L`` (the caller's, every step), ``J`` and
+#: ``J^-1`` row major and the wheels' constants (:func:`wheel_lane_params`, once a block), then
+#: scratch (the RK4 stage state, its four slopes, ``J omega + G h`` and ``G (u - f)``).
+LANE_X, LANE_U, LANE_L, LANE_J, LANE_J_INV = 0, _LANE_M, _LANE_M + MAX_LANE_WHEELS, _LANE_M + MAX_LANE_WHEELS + 3, _LANE_M + MAX_LANE_WHEELS + 12
+#: Rows of one wheel among the constants: its axis g (3), Js, the Coulomb friction, the Coulomb
+#: speed and the viscous friction.
+_WHEEL_ROWS = 7
+_LANE_WP = LANE_J_INV + 9
+_LANE_XS = _LANE_WP + _WHEEL_ROWS * MAX_LANE_WHEELS
+_LANE_K = _LANE_XS + _LANE_M  # k1 .. k4, _LANE_M rows each
+_LANE_HN = _LANE_K + 4 * _LANE_M
+N_WHEEL_LANE_ROWS = _LANE_HN + 6
+
+
+@jit(inline="always")
+def wheel_lane_params(J, J_inv, G, prm, F, w):
+    """Lane ``w``'s constants into its column of ``F`` (:data:`N_WHEEL_LANE_ROWS`, W)
+    (:func:`propagate_wheels_lanes`): the inertia ``J`` and its inverse (3, 3), the wheels' axes
+    ``G`` (3, N) and parameters; once a block."""
+    for i in range(3):
+        for j in range(3):
+            F[LANE_J + 3 * i + j, w] = J[i, j]
+            F[LANE_J_INV + 3 * i + j, w] = J_inv[i, j]
+    for i in range(G.shape[1]):
+        b = _LANE_WP + _WHEEL_ROWS * i
+        F[b, w], F[b + 1, w], F[b + 2, w] = G[0, i], G[1, i], G[2, i]
+        F[b + 3, w], F[b + 4, w], F[b + 5, w], F[b + 6, w] = prm[i, _JS], prm[i, _COUL], prm[i, _WC], prm[i, _VISC]
+
+
+@jit(inline="always")
+def _derivative_lanes(F, x0, out, n, nl):
+    """:func:`_derivative` of the state at rows ``x0 ..`` of ``F`` (:data:`N_WHEEL_LANE_ROWS`, W)
+    into rows ``out ..``, lanes ``0 .. nl - 1``, ``n`` wheels: each lane's sums in
+    :func:`_derivative`'s order, so its bits; the lane loops innermost, so that they vectorise."""
+    hn = _LANE_HN
+    for w in range(nl):
+        w0, w1, w2 = F[x0 + 4, w], F[x0 + 5, w], F[x0 + 6, w]
+        F[out, w], F[out + 1, w], F[out + 2, w], F[out + 3, w] = _q_dot_of(F[x0, w], F[x0 + 1, w], F[x0 + 2, w], F[x0 + 3, w], w0, w1, w2)
+        F[hn, w] = (F[LANE_J, w] * w0 + F[LANE_J + 1, w] * w1) + F[LANE_J + 2, w] * w2  # matvec3's sums
+        F[hn + 1, w] = (F[LANE_J + 3, w] * w0 + F[LANE_J + 4, w] * w1) + F[LANE_J + 5, w] * w2
+        F[hn + 2, w] = (F[LANE_J + 6, w] * w0 + F[LANE_J + 7, w] * w1) + F[LANE_J + 8, w] * w2
+        F[hn + 3, w] = 0.0
+        F[hn + 4, w] = 0.0
+        F[hn + 5, w] = 0.0
+    for i in range(n):
+        b = _LANE_WP + _WHEEL_ROWS * i
+        for w in range(nl):
+            h = F[x0 + 7 + i, w]
+            g0, g1, g2 = F[b, w], F[b + 1, w], F[b + 2, w]
+            hdot = _h_dot_of(h, g0, g1, g2, F[b + 3, w], F[b + 4, w], F[b + 5, w], F[b + 6, w], F[LANE_U + i, w], F[x0 + 4, w], F[x0 + 5, w],
+                             F[x0 + 6, w])
+            F[out + 7 + i, w] = hdot
+            F[hn, w] += g0 * h  # (written out: a loop here would be the innermost, not the lanes')
+            F[hn + 1, w] += g1 * h
+            F[hn + 2, w] += g2 * h
+            F[hn + 3, w] += g0 * hdot
+            F[hn + 4, w] += g1 * hdot
+            F[hn + 5, w] += g2 * hdot
+    for w in range(nl):
+        r0, r1, r2 = _rate_rhs_of(F[LANE_L, w], F[LANE_L + 1, w], F[LANE_L + 2, w], F[hn + 3, w], F[hn + 4, w], F[hn + 5, w], F[hn, w], F[hn + 1, w],
+                                  F[hn + 2, w], F[x0 + 4, w], F[x0 + 5, w], F[x0 + 6, w])
+        F[out + 4, w] = (F[LANE_J_INV, w] * r0 + F[LANE_J_INV + 1, w] * r1) + F[LANE_J_INV + 2, w] * r2
+        F[out + 5, w] = (F[LANE_J_INV + 3, w] * r0 + F[LANE_J_INV + 4, w] * r1) + F[LANE_J_INV + 5, w] * r2
+        F[out + 6, w] = (F[LANE_J_INV + 6, w] * r0 + F[LANE_J_INV + 7, w] * r1) + F[LANE_J_INV + 8, w] * r2
+
+
+@jit(inline="always")
+def propagate_wheels_lanes(F, n, dt, substeps, nl):
+    """:func:`propagate_wheels_into` of lanes ``0 .. nl - 1`` with ``n`` (at most
+    :data:`MAX_LANE_WHEELS`) wheels (the SIMD lanes' flight stack), on the rows of ``F``
+    (:data:`N_WHEEL_LANE_ROWS`, W): the state at :data:`LANE_X` (7 + n rows) advanced in place,
+    the motor torques at :data:`LANE_U` and the external torque at :data:`LANE_L` held, the
+    constants of :func:`wheel_lane_params`; each lane's bits those of
+    :func:`propagate_wheels_into` (the same pieces in the same order, no libm).  One array, the
+    rows at constant offsets: LLVM vectorises the lane loops (separate arrays it would have to
+    check against each other for overlap)."""
+    m = 7 + n
+    xs, k1, k2, k3, k4 = _LANE_XS, _LANE_K, _LANE_K + _LANE_M, _LANE_K + 2 * _LANE_M, _LANE_K + 3 * _LANE_M
+    h = dt / substeps
+    a = 0.5 * h
+    for _ in range(substeps):
+        _derivative_lanes(F, LANE_X, k1, n, nl)
+        for i in range(m):
+            for w in range(nl):
+                F[xs + i, w] = F[LANE_X + i, w] + a * F[k1 + i, w]
+        _derivative_lanes(F, xs, k2, n, nl)
+        for i in range(m):
+            for w in range(nl):
+                F[xs + i, w] = F[LANE_X + i, w] + a * F[k2 + i, w]
+        _derivative_lanes(F, xs, k3, n, nl)
+        for i in range(m):
+            for w in range(nl):
+                F[xs + i, w] = F[LANE_X + i, w] + h * F[k3 + i, w]
+        _derivative_lanes(F, xs, k4, n, nl)
+        c = h / 6.0
+        for i in range(m):
+            for w in range(nl):
+                F[LANE_X + i, w] = _rk4_sum_of(F[LANE_X + i, w], c, F[k1 + i, w], F[k2 + i, w], F[k3 + i, w], F[k4 + i, w])
+        for w in range(nl):  # quat_normalize's sums and divisions
+            norm = np.sqrt(((F[LANE_X, w] * F[LANE_X, w] + F[LANE_X + 1, w] * F[LANE_X + 1, w]) + F[LANE_X + 2, w] * F[LANE_X + 2, w])
+                           + F[LANE_X + 3, w] * F[LANE_X + 3, w])
+            F[LANE_X, w] = F[LANE_X, w] / norm
+            F[LANE_X + 1, w] = F[LANE_X + 1, w] / norm
+            F[LANE_X + 2, w] = F[LANE_X + 2, w] / norm
+            F[LANE_X + 3, w] = F[LANE_X + 3, w] / norm
 
 
 @jit
