@@ -1,7 +1,8 @@
 """Reaction wheels (spacecraft_sim.core.wheels): the compiled dynamics against an independent
 oracle in another formulation (wheel speeds instead of momenta, integrated by scipy to 1e-12),
 total angular momentum conserved without external torque whatever the motors and friction do,
-the torque path (minimum-norm allocation, motor limit, speed limit), presets and validation."""
+the torque path (minimum-norm allocation, motor limit, speed limit), presets and validation, and
+the SIMD lanes' RK4 (propagate_wheels_lanes) bit for bit the per-run one's."""
 
 from __future__ import annotations
 
@@ -12,7 +13,9 @@ from scipy.integrate import solve_ivp
 from gnc_common.attitude import quat_to_dcm_BN
 from gnc_common.validation import ConfigError
 from spacecraft_sim.core.wheels import PRESETS, PYRAMID_CANT_DEG, ReactionWheels, allocation_matrix, angular_momentum_B, propagate_wheels
-from spacecraft_sim.core.wheels import wheel_speeds, wheel_torques
+from gnc_common.compiled import jit
+from spacecraft_sim.core.wheels import LANE_L, LANE_U, LANE_X, MAX_LANE_WHEELS, N_WHEEL_LANE_ROWS, propagate_wheels_into, propagate_wheels_lanes
+from spacecraft_sim.core.wheels import wheel_lane_params, wheel_speeds, wheel_torques
 
 J = np.array([[4.0, 0.1, -0.05], [0.1, 3.5, 0.02], [-0.05, 0.02, 4.5]])
 WHEELS = ReactionWheels(spin_axes_B="pyramid", spin_inertia_kg_m2=[0.02, 0.025, 0.02, 0.03], max_torque_Nm=0.2, max_speed_rad_s=600.0,
@@ -140,3 +143,102 @@ def test_a_bad_wheel_set_is_refused_naming_the_value(change: dict[str, object], 
     base = {"spin_axes_B": "pyramid", "spin_inertia_kg_m2": 0.02, "max_torque_Nm": 0.2, "max_speed_rad_s": 600.0}
     with pytest.raises(ConfigError, match=match):
         ReactionWheels(**{**base, **change})  # type: ignore[arg-type]
+
+
+# ---- the wheels' RK4 in SIMD lanes (propagate_wheels_lanes) ------------------------------------
+
+
+@jit(cache=False)  # type: ignore[no-untyped-call]  # the project's options (error_model="numpy", no fastmath); not cached
+def _lane_constants(F, J, J_inv, G, prm):  # type: ignore[no-untyped-def]
+    """Each lane ``w``'s constants (``J[w]``, ``J_inv[w]``, ``G[w]``, ``prm[w]``) into its column of ``F``
+    (wheel_lane_params is inline="always": it is called from compiled code)."""
+    for w in range(F.shape[1]):
+        wheel_lane_params(J[w], J_inv[w], G[w], prm[w], F, w)
+
+
+@jit(cache=False)  # type: ignore[no-untyped-call]
+def _lanes_step(F, n, dt, substeps, nl):  # type: ignore[no-untyped-def]
+    """propagate_wheels_lanes (inline="always") of lanes ``0 .. nl - 1``."""
+    propagate_wheels_lanes(F, n, dt, substeps, nl)
+
+
+def _spd_inertia(rng: np.random.Generator) -> np.ndarray:
+    """A full symmetric positive definite inertia: distinct principal moments 3 to 6 kg m^2 in a random frame."""
+    Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    J = Q @ np.diag(rng.uniform(3.0, 6.0, 3)) @ Q.T
+    sym: np.ndarray = (J + J.T) / 2
+    return sym
+
+
+def _lane_wheels(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` random unit spin axes ``G`` (3, n) and per-wheel parameters (n, 6), each wheel its own
+    ``Js``, Coulomb friction, Coulomb speed and viscous friction (the limits are the torque path's)."""
+    a = rng.normal(size=(3, n))
+    G = np.ascontiguousarray(a / np.linalg.norm(a, axis=0))
+    assert np.linalg.matrix_rank(G) == 3
+    prm = np.column_stack((rng.uniform(0.015, 0.04, n), np.full(n, 0.2), np.full(n, 600.0), rng.uniform(5e-4, 3e-3, n),
+                           rng.uniform(1e-5, 5e-5, n), rng.uniform(0.05, 0.2, n)))
+    return G, np.ascontiguousarray(prm)
+
+
+def _lane_speeds(x: np.ndarray, G: np.ndarray, prm: np.ndarray) -> np.ndarray:
+    """``Omega = h / Js - G^T omega`` (n,) of one state."""
+    Om: np.ndarray = x[7:] / prm[:, 0] - G.T @ x[4:7]
+    return Om
+
+
+@pytest.mark.parametrize("nl", [8, 5], ids=["all-lanes", "5-of-8-lanes"])
+@pytest.mark.parametrize("substeps", [1, 3])
+@pytest.mark.parametrize("n", [3, 4, 6])
+def test_the_wheels_rk4_in_lanes_is_the_per_run_rk4_bit_for_bit(n: int, substeps: int, nl: int) -> None:
+    """propagate_wheels_lanes over W = 8 lanes, each lane its own wheel set (random unit axes, its
+    own Js, Coulomb friction, Coulomb speed and viscous friction per wheel), its own full inertia
+    with products (J^-1 its inverse) and its own state (unit quaternion, rates ~0.05 rad/s, wheel
+    speeds within +-0.3 rad/s of zero), 20 consecutive 0.1 s periods, each with its own motor and
+    external torques: every lane's state equals propagate_wheels_into's on the same inputs bit for
+    bit after every period (its docstring's claim: the same operations in the same order, no libm).
+    The speeds start in both the Coulomb friction's linear region (|Omega| < Omega_c) and its
+    saturated one, and some cross zero during the periods (asserted), so both branches of the
+    friction's clip are compared.  With nl = 5 the lanes 5 .. 7 are not touched: their whole
+    column of the array, state, inputs, constants and scratch, keeps its bytes.  The rows the
+    lanes must not read (scratch in the first period, the torques and constants of wheels n .. 7)
+    are NaN, which such a read would carry into the state.  (A reordered sum moves the state by a
+    fraction of an ulp per step, which rounding often absorbs: hence 20 periods and the 12 cases;
+    each of four one-operation changes of the lanes' arithmetic failed at least 8 of them.)"""
+    rng = np.random.default_rng(100 + 10 * n + substeps)
+    W, dt = 8, 0.1
+    assert n <= MAX_LANE_WHEELS
+    J = np.array([_spd_inertia(rng) for _ in range(W)])
+    J_inv = np.array([np.linalg.inv(Jw) for Jw in J])
+    wheels = [_lane_wheels(rng, n) for _ in range(W)]
+    G = np.array([g for g, _ in wheels])
+    prm = np.array([p for _, p in wheels])
+    x = np.empty((W, 7 + n))
+    for w in range(W):
+        q = rng.normal(size=4)
+        omega = rng.normal(0.0, 0.05, 3)
+        Om = rng.uniform(-0.3, 0.3, n)  # around the Coulomb speeds 0.05 .. 0.2: both regions
+        x[w] = np.concatenate((q / np.linalg.norm(q), omega, prm[w, :, 0] * (G[w].T @ omega + Om)))
+    F = np.full((N_WHEEL_LANE_ROWS, W), np.nan)
+    _lane_constants(F, J, J_inv, G, prm)
+    F[LANE_X:LANE_X + 7 + n] = x.T
+    linear = saturated = crossings = 0
+    for _ in range(20):
+        u = rng.uniform(-0.05, 0.05, (W, n))  # up to 3 rad/s^2 on a wheel: 0.3 rad/s in a period
+        L = rng.uniform(-0.01, 0.01, (W, 3))
+        F[LANE_U:LANE_U + n] = u.T
+        F[LANE_L:LANE_L + 3] = L.T
+        before = F.copy()
+        _lanes_step(F, n, dt, substeps, nl)
+        for w in range(W):
+            if w >= nl:
+                assert F[:, w].tobytes() == before[:, w].tobytes(), w  # not a lane of this call
+                continue
+            Om0 = _lane_speeds(x[w], G[w], prm[w])
+            linear += int(np.count_nonzero(np.abs(Om0) < prm[w, :, 5]))
+            saturated += int(np.count_nonzero(np.abs(Om0) > prm[w, :, 5]))
+            propagate_wheels_into(x[w], u[w], L[w], dt, substeps, J[w], J_inv[w], G[w], prm[w], np.empty((5, 7 + n)), np.empty((3, 3)))
+            crossings += int(np.count_nonzero(np.sign(_lane_speeds(x[w], G[w], prm[w])) != np.sign(Om0)))
+            lane = np.ascontiguousarray(F[LANE_X:LANE_X + 7 + n, w])
+            assert lane.tobytes() == x[w].tobytes(), (w, np.max(np.abs(lane - x[w])))
+    assert linear > 0 and saturated > 0 and crossings > 0, (linear, saturated, crossings)

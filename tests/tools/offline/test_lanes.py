@@ -15,6 +15,7 @@ from sappc.offline import compiled_loop
 from sappc.offline.lanes import LANES, lanes_refusal
 from sappc.scenario import load_scenario, scenario_from_mapping
 from sappc_msgs_py.contract import ANSWER_NAMES
+from spacecraft_sim.core.wheels import MAX_LANE_WHEELS, PRESETS
 
 #: Runs of the batches below: a full group and a padded one.
 N_RUNS = LANES + 3
@@ -57,6 +58,37 @@ def test_the_lanes_cover_the_paper_campaign_and_say_why_not_the_others() -> None
     assert lanes_refusal(faults) == "faults"
     trappc = compiled_loop.prepare(load_scenario(SCENARIOS / "paper_comparison.yaml"), "trappc", lanes=True)
     assert lanes_refusal(trappc) == "the controller is not SAPPC"
+
+
+def _flight_with_wheels(n_wheels: int, *, lanes: bool = True) -> compiled_loop.CompiledInputs:
+    """The flight scenario over 0.2 s, two runs, with ``n_wheels`` wheels: the pyramid's four axes,
+    then the body axes, then two diagonals (every wheel the scenario's HR16)."""
+    raw = yaml.safe_load((SCENARIOS / "paper_tracking_flight.yaml").read_text())
+    raw["duration_s"] = 0.2
+    raw["metrics"].update(steady_from_s=0.1, t2_s=0.1, requirements={})
+    axes = [list(a) for a in PRESETS["pyramid"]] + [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 1.0, 1.0], [1.0, -1.0, 0.0]]
+    raw["actuator"]["wheels"]["spin_axes_B"] = axes[:n_wheels]
+    return compiled_loop.prepare(scenario_from_mapping(raw), on_infeasible="clamp", q_BN0=_attitudes(2), lanes=lanes)
+
+
+def test_the_lanes_refuse_more_wheels_than_their_rows_hold_and_the_loop_runs_them(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The lanes' wheel rows hold MAX_LANE_WHEELS (8) wheels (wheels.propagate_wheels_lanes):
+    a batch of 9 is refused with the reason naming the count, 8 and the flight scenario's 4 are
+    taken.  The refused batch, asked for lanes, runs in the per-run loop (the lanes' entry is
+    never called) with all nine wheels: its record is the one of the same batch not asked for
+    lanes, bit for bit."""
+    assert MAX_LANE_WHEELS == 8
+    flight = compiled_loop.prepare(load_scenario(SCENARIOS / "paper_tracking_flight.yaml"), lanes=True)
+    assert flight.n_wheels == 4 and lanes_refusal(flight) is None
+    eight, nine = _flight_with_wheels(8), _flight_with_wheels(9)
+    assert eight.n_wheels == 8 and lanes_refusal(eight) is None
+    assert nine.n_wheels == 9 and lanes_refusal(nine) == "more than 8 reaction wheels"
+    assert compiled_loop.lanes_refusal(nine) == "more than 8 reaction wheels"  # (what the loop asks before it takes the lanes)
+    monkeypatch.setattr(compiled_loop, "_loop_lanes", lambda *a, **k: pytest.fail("the lanes took a batch they refuse"))
+    a, b = _records(_flight_with_wheels(9, lanes=False)), _records(nine)
+    assert b["x_final"].shape == (2, 7 + 9) and np.all(b["x_final"][:, 7:] != 0.0)  # every wheel driven
+    for name in compiled_loop.LoopRecord._fields:
+        assert np.array_equal(a[name], b[name], equal_nan=True), name
 
 
 def test_a_run_in_lanes_is_the_same_run_alone_bit_for_bit() -> None:
