@@ -92,9 +92,9 @@ Definitions, per run:
 ``mean_nees``
     The time-mean over ``t >= NEES_FROM_S`` of the normalised estimation error squared
     (:func:`sappc.evaluation.estimation.nees`'s definition, 6 degrees of freedom): 6 for a
-    consistent filter.  Computed by :func:`_estimate_kernel` sample by sample (Gaussian elimination
-    with partial pivoting: within ``10 n cond(P) eps`` of numpy's LAPACK solve, tested); a sample
-    whose covariance is not finite or is singular has none.
+    consistent filter.  Computed by :func:`_estimate_kernel` sample by sample (``P = L D L^T`` from
+    the covariance's upper triangle: within ``10 n cond(P) eps`` of numpy's LAPACK solve, tested); a
+    sample whose covariance is not finite or is singular has none.
 ``estimator_updates``, ``estimator_gate_rejections``, ``estimator_reinitialisations``
     The filter's steps of each status (:data:`sappc_estimator.core.mekf.STATUS_NAMES`).
 ``filter_inconsistent_fraction``
