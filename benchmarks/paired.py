@@ -148,8 +148,12 @@ def with_bytecode_cache(row: str) -> str:
     return row + "_with_bytecode_cache"
 
 
-def main(row: str, doc: str, command: Command, *, target: str, timeout_s: float = 600.0, repeats: int = 3) -> None:
-    """Parse ``--baseline``/``--repeats``, time ``command`` on both sides and print the JSON."""
+def main(row: str, doc: str, command: Command, *, target: str, timeout_s: float = 600.0, repeats: int = 3,
+         warm_command: Command | None = None) -> None:
+    """Parse ``--baseline``/``--repeats``, time ``command`` on both sides and print the JSON.
+    ``warm_command``: the same command on a warm cache, timed the same way after it (its warm-up
+    run fills the cache); the JSON then has its times under ``"warm"`` and, per side, the
+    difference of the medians, ``"cold_minus_warm_s"`` (what the cold cache cost: the compile)."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--baseline", type=Path, required=True, help="a checkout of the baseline commit with its .venv set up")
     parser.add_argument("--repeats", type=int, default=repeats, help=f"counted runs of each side (default {repeats}; >= 3)")
@@ -165,6 +169,12 @@ def main(row: str, doc: str, command: Command, *, target: str, timeout_s: float 
         python_of(root)  # both set up, or a clear error now
     load_before = os.getloadavg()[0]
     result = paired(command, baseline, ROOT, max(1, args.repeats), timeout_s, warm_up=not args.no_warm_up)
+    if warm_command is not None:
+        warm = paired(warm_command, baseline, ROOT, max(1, args.repeats), timeout_s, warm_up=True)
+        cold_wall, warm_wall = result["wall_s"], warm["wall_s"]
+        assert isinstance(cold_wall, dict) and isinstance(warm_wall, dict)
+        result = {**result, "warm": warm, "cold_minus_warm_s": {side: cold_wall[side]["median"] - warm_wall[side]["median"]
+                                                                for side in ("baseline", "candidate")}}
     print(json.dumps({
         "row": row,
         "target": target,

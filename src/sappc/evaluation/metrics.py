@@ -1430,15 +1430,6 @@ def estimate_metric_sample(n, t_k, steady_from, nees_from, truth, q_hat, q_true,
     return 0.0, False
 
 
-@jit
-def estimate_metric_call(n, t_k, steady_from, nees_from, q_hat, q_true, b_hat, b_true, P, att_max, att_sq, att_n, bias_last, nees_sum,  # type: ignore[no-untyped-def]
-                         nees_n, dq, a, err, A):
-    """:func:`estimate_metric_sample` with the true bias, compiled on its own: the SIMD lanes call it
-    (inlined into their kernel, its elimination ran at half the speed it runs at alone)."""
-    return estimate_metric_sample(n, t_k, steady_from, nees_from, True, q_hat, q_true, b_hat, b_true, P, att_max, att_sq, att_n, bias_last,
-                                  nees_sum, nees_n, dq, a, err, A)
-
-
 @jit("void(float64[:], float64[:], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :], float64[:, :, :, :], "  # type: ignore[no-untyped-call]
      "float64[:, :], float64[:, :], int64[:], float64[:, :], float64[:], int64[:], float64[:, :], boolean[:, :])")
 def _estimate_kernel(t, steady_from_s, q_hat, q_true, b_hat, b_true, P, att_max, att_sq, att_n, bias_last, nees_sum, nees_n, nees_out,  # type: ignore[no-untyped-def]

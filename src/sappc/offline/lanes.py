@@ -79,7 +79,7 @@ from spacecraft_sim.core.kernels import disturbance_at, rk4_of
 from spacecraft_sim.core.wheels import LANE_L, LANE_U, LANE_X, MAX_LANE_WHEELS, N_WHEEL_LANE_ROWS, propagate_wheels_lanes, wheel_lane_params, wheel_torques
 
 from sappc.evaluation.metrics import N_METRIC_STATE, FlightMetricArrays, MetricArrays, MetricConstants, MetricsAccumulator, SampleGrid
-from sappc.evaluation.metrics import estimate_metric_call, metric_sample_of, metric_state_load, metric_state_store, wheel_metric_sample
+from sappc.evaluation.metrics import estimate_metric_sample, metric_sample_of, metric_state_load, metric_state_store, wheel_metric_sample
 from sappc_estimator.core.mekf import EO_B, EO_MON_LEVEL, EO_N_RECOVER, EO_Q, EO_USABLE, MON_ERROR
 from spacecraft_sim.core.wheels import wheel_speeds_into
 from sappc.offline.compiled_loop import _NS_PER_S, L_HAS_ESTIMATE, L_HAS_LAST, L_LAST_STATE_NS, L_N_STARTS, L_STARTED, V_BIAS, V_BIAS_K, V_CMD, V_U
@@ -571,7 +571,7 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                     eo = st.eout[r]
                     for i in range(4):
                         qh[i] = eo[EO_Q + i] if (has_est and S[_R_VALID, w] != 0.0) else np.nan
-                    v, counted = estimate_metric_call(r, t_k, mc.per_run[r, 0], fa.nees_from, qh, st.x[r], eo[EO_B:EO_B + 3],
+                    v, counted = estimate_metric_sample(r, t_k, mc.per_run[r, 0], fa.nees_from, True, qh, st.x[r], eo[EO_B:EO_B + 3],
                                                         st.vec3[r, V_BIAS_K], st.P[r], fa.att_max, fa.att_sq, fa.att_n, fa.bias_last, fa.nees_sum,
                                                         fa.nees_n, m_dq, m_a, m_err, m_A)
                     if counted:
