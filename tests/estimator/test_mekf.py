@@ -1260,3 +1260,37 @@ def test_a_consistent_filter_fails_its_monitor_less_than_once_an_hour() -> None:
           f"{int(st[mekf.ES_N_REJ])} gate rejections")
     assert st[mekf.ES_N_UPD] > 0.99 * FALSE_ALARM_HOURS * 3600.0 * TRACKER_HZ  # the monitor judged every sample but the gate's few
     assert failures <= FALSE_ALARMS_PER_HOUR_MAX * FALSE_ALARM_HOURS
+
+
+def test_the_transitions_congruence_is_the_full_congruence_bit_for_bit() -> None:
+    """``_transition_congruence`` (``Phi P Phi^T`` with the terms of ``Phi``'s exact ``[0, I]``
+    lower rows skipped) gives the full index-order congruence's bytes: for transitions at rates
+    from zero (``Phi``'s upper blocks then hold exact zeros too) to 1 rad a step, covariances with
+    correlations, negative zeros among their entries (the full sum turns ``-0.0`` into ``0.0``,
+    which the skipped terms must too), and non-finite ones (an ``inf``, a NaN: the full product's
+    ``0 * inf`` is NaN, which the fallback keeps)."""
+    rng = np.random.default_rng(64)
+    Phi, T = np.zeros((6, 6)), np.zeros((6, 6))
+    cases = 0
+    for x in (0.0, 1e-6, 0.005, 0.3, 1.0):
+        for h in (0.01, 1.0):
+            axis = rng.standard_normal(3)
+            w = axis / np.linalg.norm(axis) * (x / h)
+            mekf.transition(w[0], w[1], w[2], h, Phi)
+            A = rng.standard_normal((6, 6))
+            base = 1e-8 * (A @ A.T + np.eye(6))
+            zeros = base.copy()
+            zeros[3:, :3] = -0.0  # a cross-covariance of negative zeros, as a start can leave it
+            zeros[:3, 3:] = -0.0
+            zeros[4, 4] = -0.0
+            inf = base.copy()
+            inf[2, 5] = np.inf
+            nan = base.copy()
+            nan[5, 1] = np.nan
+            for P in (base, zeros, inf, nan):
+                full, skipped = P.copy(), P.copy()
+                mekf._congruence(Phi, full, T)
+                mekf._transition_congruence(Phi, skipped, T)
+                assert skipped.tobytes() == full.tobytes(), (x, h)
+                cases += 1
+    assert cases == 40
