@@ -313,8 +313,8 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
         wc = ctrl.prm[r, P_TORQUE_WC]
         S[_R_GAIN, w] = low_pass_gain(wc, grid.dt) if wc > 0.0 else 0.0  # (the actuator computes it at each sample: the same bits)
     # the wheels' lanes (propagate_wheels_lanes: one array, its rows at constant offsets)
-    FL = np.zeros((N_WHEEL_LANE_ROWS if nw > 0 else 0, W))
-    for w in range(W if nw > 0 else 0):
+    FL = np.zeros((N_WHEEL_LANE_ROWS if flight else 0, W))  # (none in the version without the flight stack: its code is then dead)
+    for w in range(W if (flight and nw > 0) else 0):
         r = rows[w]
         wheel_lane_params(plant.J[r], plant.J_inv[r], act.G[r], act.params[r], FL, w)
     online = mc.on != 0
