@@ -1802,7 +1802,7 @@ def _compile_leaves() -> None:
         for kernel, sig in _leaf_signatures(_leaf_inputs()):
             kernel.compile(sig)
         for kernel in _metrics_kernels():  # then what an offline command calls once the loop is done
-            kernel.dispatcher  # noqa: B018  (their explicit signatures: made is compiled, or loaded)
+            kernel.dispatcher  # noqa: B018  (made with its explicit signature: compiled, or loaded from the cache)
 
 
 def _metrics_kernels() -> tuple[Any, ...]:

@@ -23,8 +23,9 @@ iterations), and the RPF's phases are per lane.
 
 What the lanes cover (:func:`lanes_refusal` says why a batch is not covered; such a batch runs
 per run, as before): the SAPPC law with its torque filter (not its rate filter), the ideal
-actuator or reaction wheels, exact measurements or the star tracker and the gyro, with or without
-the MEKF, no fault, no orbit, no momentum management, no flight modes; the disturbance shared by
+actuator or reaction wheels (at most :data:`~spacecraft_sim.core.wheels.MAX_LANE_WHEELS`), exact
+measurements or the star tracker and the gyro, with or without the MEKF, no fault, no orbit, no
+momentum management, no flight modes; the disturbance shared by
 every run (its table) or each run's own.  What the lanes cover depends on the scenario only,
 never on the batch (one run's disturbance is a table, the batch's may not be), so a run re-run
 alone goes the way it went in its campaign.
@@ -32,7 +33,9 @@ alone goes the way it went in its campaign.
 **The flight stack** (sensors, an estimator or wheels) is stepped run by run inside the lanes, by
 the per-run loop's own pieces (:func:`~sappc.offline.compiled_loop.measure_sample`,
 :func:`~sappc.offline.compiled_loop.estimate_sample`, :func:`~sappc.offline.compiled_loop.plant_step`,
-the wheels' torques and the records' pieces): the true state lives in the run's rows of the
+the wheels' torques and the records' pieces), but for the plant with wheels, stepped in lanes by
+the per-run RK4's own pieces (:func:`~spacecraft_sim.core.wheels.propagate_wheels_lanes`, its
+bits): the true state lives in the run's rows of the
 loop's state, the controller's input (the estimate, or the measurement) goes to the law's vector
 stages, and the answer is the per-run loop's (stage 4): a sample whose input is not valid (the
 filter gave no confirmed estimate: no data, as the estimator node publishes it) keeps the law's
