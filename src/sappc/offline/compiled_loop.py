@@ -1666,13 +1666,14 @@ def _compile_in_children(jobs: list[tuple[tuple[str, ...], bool]]) -> None:
         raise RuntimeError(f"compiling the numerical core's group(s) {failed} failed (exit statuses {codes}); the output above says why")
 
 
-def _start_compile_child(call: str) -> Any:
+def _start_compile_child(call: str, env: dict[str, str] | None = None) -> Any:
     """A child process running ``call`` of this module (a new session unless this process is a
-    compile child itself: :func:`_compile_in_children`)."""
+    compile child itself: :func:`_compile_in_children`), with ``env`` added to this process's
+    environment."""
     import subprocess
 
     return subprocess.Popen([sys.executable, "-c", f"from sappc.offline.compiled_loop import {call.split('(')[0]}; {call}"],
-                            start_new_session=not _in_compile_child)
+                            start_new_session=not _in_compile_child, env={**os.environ, **env} if env else None)
 
 
 def _end_compile_children(children: Sequence[Any]) -> None:
@@ -1726,13 +1727,15 @@ def _leaf_calls(inp: CompiledInputs) -> list[tuple[Any, tuple[Any, ...]]]:
     layout, not its size, so the warm-up scenario's empty wheel, orbit and mode arrays type as a
     flight's).
 
-    The order (measured on a cold cache, two cores): first the two the loop's typing reaches
-    first, the run's initial state and the MEKF's step (numba inlines and rewrites the loop's body
-    for several seconds before its typing begins), then the sample's second half, the last called
-    first, while the loop's typing compiles the middle's (the faults', the mode manager's, the mode
-    and benchmark laws) itself, then the middle's, the last called first; the two processes meet
-    in the middle, and numba loads each leaf the other
-    finished from the cache where the loop calls it instead of compiling it.  A call site changed
+    The order (measured on a cold cache, two cores, by numba's compile events in both processes):
+    first the two the loop's typing reaches first, the run's initial state and the sensor fault,
+    which the leaf process finishes while numba inlines and rewrites the loop's body (about 5 s
+    before its typing begins); then the benchmark and mode laws (the HOLD/SAFE step is a copy of
+    the law: 2 s); then the sample's second half, the last called first; the MEKF's step last:
+    the loop's typing reaches it first, at about 6 s, and compiles it itself.  Each leaf is
+    compiled by the first of the two processes to claim it (:func:`_leaf_process`): the loop's
+    typing goes forward, the leaf process mostly backward, and they meet in the middle; numba
+    loads each leaf the other compiled from the cache.  A call site changed
     in the loop and not here costs only time (the loop compiles that leaf itself); the loop's
     compile says so in one line (:func:`_leaf_mismatches`), which ``tests/test_install.py`` looks
     for."""
@@ -1753,25 +1756,25 @@ def _leaf_calls(inp: CompiledInputs) -> list[tuple[Any, tuple[Any, ...]]]:
     mm_rows = (mm.prm[n], mm.Gs[n], mm.Js[n], mm.Gs_pinv[n], mm.u_max[n], mm.Gt[n], mm.steering[n], mm.m_max[n], mm.orbit[n], mm.field[n])
     return [
         (_initial_state, (n, r, plant, inp.sensors, inp.estimator, md, st, rec)),
-        (mekf_step, (inp.estimator.prm[n], t, st.ye[r], st.est[r], st.P[r], st.ework[r], st.eout[r])),
-        (propagate_wheels_into, (x, uw, d, dt, plant.substeps, J, J_inv, G, wprm, wwork, wtmp)),
-        (torque_of, (e_orbit, e_gravity, e_Gt, e_mmax, x_q, r_N, B_B, m_cmd, vec3[V_R_B_TMP], vec3[V_L_MTB_TMP], L_env)),
-        (wheel_torques, (tau_w, G_pinv, G, wprm, x, uw)),
-        (momentum_management_step, (*mm_rows, t, wspeed, B_meas, st.q_ff[r], vec3[V_OMEGA_FF], u_last, m_cmd, tau_w, st.mtmp[r], st.mst[r])),
-        (dipole_mapping, (mm.steering[n], m_B, mm.m_max[n], m_cmd)),
-        (bdot_step, (md.bdot[n], B_meas, t, st.bdot[r], m_B)),
-        (wheel_speeds_into, (x, G, wprm, wspeed)),
-        (measured_field_of, (e_mag, e_draws, k, k, B_B, B_meas)),
-        (field_of, (e_orbit, e_field, t, x_q, r_N, B_N, B_B)),
-        (error_quaternion, (x_q, x_q, st.pub[r][O_QBR])),
-        (fault_actuator, (t, faults.kind[n], faults.window[n], faults.params[n], faults.samples[n], st.fcount[r], st.fbuf[r], u_cmd, u_last)),
+        (fault_sensor, (t, faults.kind[n], faults.window[n], faults.params[n], faults.samples[n], st.fcount[r], st.fbuf[r], faults.draws[0], st.y[r])),
         (trappc_transform, (prm, coef, t, work, out)),
         (mrp_feedback_law, (prm, state, dt, work, out)),
         (blfppc_law, (prm, coef, state, t, dt, work, out)),
         (mrp_feedback_step, (t, dt, x_q, x_q, x_q, u_cmd, u_cmd, md.hold_prm[n], coef, st.hctrl[r], st.hwork[r], st.hout[r])),
-        (attitude_error_angle, (x_q, st.yc[r][:4], st.q_err[r])),
+        (wheel_torques, (tau_w, G_pinv, G, wprm, x, uw)),
+        (torque_of, (e_orbit, e_gravity, e_Gt, e_mmax, x_q, r_N, B_B, m_cmd, vec3[V_R_B_TMP], vec3[V_L_MTB_TMP], L_env)),
+        (propagate_wheels_into, (x, uw, d, dt, plant.substeps, J, J_inv, G, wprm, wwork, wtmp)),
+        (momentum_management_step, (*mm_rows, t, wspeed, B_meas, st.q_ff[r], vec3[V_OMEGA_FF], u_last, m_cmd, tau_w, st.mtmp[r], st.mst[r])),
+        (dipole_mapping, (mm.steering[n], m_B, mm.m_max[n], m_cmd)),
+        (bdot_step, (md.bdot[n], B_meas, t, st.bdot[r], m_B)),
+        (measured_field_of, (e_mag, e_draws, k, k, B_B, B_meas)),
+        (field_of, (e_orbit, e_field, t, x_q, r_N, B_N, B_B)),
+        (fault_actuator, (t, faults.kind[n], faults.window[n], faults.params[n], faults.samples[n], st.fcount[r], st.fbuf[r], u_cmd, u_last)),
         (mode_step, (st.mode[r], st.mode_in[r], md.prm[n])),
-        (fault_sensor, (t, faults.kind[n], faults.window[n], faults.params[n], faults.samples[n], st.fcount[r], st.fbuf[r], faults.draws[0], st.y[r])),
+        (attitude_error_angle, (x_q, st.yc[r][:4], st.q_err[r])),
+        (wheel_speeds_into, (x, G, wprm, wspeed)),
+        (error_quaternion, (x_q, x_q, st.pub[r][O_QBR])),
+        (mekf_step, (inp.estimator.prm[n], t, st.ye[r], st.est[r], st.P[r], st.ework[r], st.eout[r])),
     ]
 
 
@@ -1798,9 +1801,14 @@ def _compile_leaves() -> None:
     global _in_compile_child
     _in_compile_child = True
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+    claims = os.environ.get(_LEAF_CLAIMS_ENV, "")
     with collector.held():  # (a compile: gnc_common.collector)
         for kernel, sig in _leaf_signatures(_leaf_inputs()):
+            if claims and not _claim(claims, kernel):
+                continue  # the loop's compile has claimed it (compiled, or compiling it)
             kernel.compile(sig)
+            if claims:
+                _claim(claims, kernel, ".done")
         for kernel in _metrics_kernels():  # then what an offline command calls once the loop is done
             kernel.dispatcher  # noqa: B018  (made with its explicit signature: compiled, or loaded from the cache)
 
@@ -1817,6 +1825,47 @@ def _metrics_kernels() -> tuple[Any, ...]:
 #: The environment variable that turns the compile's leaf process off (``0``): a machine with one
 #: CPU gains nothing from it (:func:`_leaf_process` starts it only with two or more).
 LEAF_PROCESS_ENV = "SAPPC_COMPILE_LEAVES"
+#: The environment variable that gives the compile's leaf process the folder of the leaves' claims
+#: (:func:`_claim`).
+_LEAF_CLAIMS_ENV = "SAPPC_COMPILE_LEAF_CLAIMS"
+#: How often the loop's compile looks again whether a leaf it waits for is compiled [s].
+_CLAIM_POLL_S = 0.01
+
+
+def _claim(folder: str, kernel: Any, suffix: str = "") -> bool:
+    """Create ``kernel``'s claim file in ``folder`` (with ``suffix`` ``.done``: its mark that the
+    claim's compile is done) unless it exists (an exclusive create); whether this call created it.
+    Of the loop's compile and the leaf process, the first to claim a leaf compiles it, and the
+    other does not (:func:`_leaf_process`)."""
+    try:
+        os.close(os.open(os.path.join(folder, f"{kernel.__module__}.{kernel.__qualname__}{suffix}"), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return False
+    return True
+
+
+def _claimed_load(load: Callable[..., Any], folder: str, kernel: Any, child: Any) -> Callable[..., Any]:
+    """``kernel``'s cache lookup ``load`` (numba's ``load_overload``) in the loop's compile: a miss
+    claims the leaf for this process (then compiles it), unless the leaf process has claimed it:
+    then it waits for that compile (or for the leaf process's end) and looks again (a signature
+    the leaf process did not compile is a miss again: this process compiles it)."""
+    import time
+
+    done = os.path.join(folder, f"{kernel.__module__}.{kernel.__qualname__}.done")
+    mine = []  # whether this process holds the claim
+
+    def claimed_load(sig: Any, target_context: Any) -> Any:
+        cres = load(sig, target_context)
+        if cres is not None or mine:
+            return cres
+        if _claim(folder, kernel):
+            mine.append(True)
+            return None
+        while not os.path.exists(done) and child.poll() is None:
+            time.sleep(_CLAIM_POLL_S)
+        return load(sig, target_context)
+
+    return claimed_load
 
 
 @contextlib.contextmanager
@@ -1825,15 +1874,36 @@ def _leaf_process() -> Iterator[None]:
     (:func:`_leaf_calls`) while this one types the loop from its start, so that the two meet in
     the middle; ended (terminated, its group with it) when the loop is compiled,
     or when this process is interrupted.  Only with two or more CPUs and without
-    ``SAPPC_COMPILE_LEAVES=0``."""
+    ``SAPPC_COMPILE_LEAVES=0``.
+
+    No leaf is compiled twice: each is claimed (:func:`_claim`, a file in a temporary folder) by
+    the first of the two processes to need it; the leaf process passes over a leaf the loop's
+    typing has claimed, and the loop's typing, at a leaf the leaf process is compiling, waits for
+    it and loads it from the cache (numba's cache lookup of each leaf wrapped for the compile:
+    :func:`_claimed_load`; where numba's internals have moved, no wait, only a compile twice)."""
     if (os.cpu_count() or 1) < 2 or os.environ.get(LEAF_PROCESS_ENV, "1") == "0":
         yield
         return
-    child = _start_compile_child("_compile_leaves()")
+    import shutil
+    import tempfile
+
+    folder = tempfile.mkdtemp(prefix="sappc-leaves-")
+    child = _start_compile_child("_compile_leaves()", {_LEAF_CLAIMS_ENV: folder})
+    wrapped = []
     try:
+        for kernel, _ in _leaf_calls(_leaf_inputs()):
+            try:
+                cache = kernel.dispatcher._cache
+                cache.load_overload = _claimed_load(cache.load_overload, folder, kernel, child)
+            except AttributeError:  # numba's internals moved: this leaf may be compiled twice
+                continue
+            wrapped.append(cache)
         yield
     finally:
+        for cache in wrapped:
+            del cache.load_overload  # (numba's own method again)
         _end_compile_children([child])
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _leaf_mismatches() -> list[str]:
