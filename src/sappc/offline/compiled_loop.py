@@ -1852,7 +1852,7 @@ def _claimed_load(load: Callable[..., Any], folder: str, kernel: Any, child: Any
     import time
 
     done = os.path.join(folder, f"{kernel.__module__}.{kernel.__qualname__}.done")
-    mine = []  # whether this process holds the claim
+    mine: list[bool] = []  # whether this process holds the claim
 
     def claimed_load(sig: Any, target_context: Any) -> Any:
         cres = load(sig, target_context)
