@@ -72,7 +72,7 @@ import numpy as np
 from numba import prange
 
 from gnc_common import collector
-from gnc_common.compiled import error_quaternion, jit, jit_parallel
+from gnc_common.compiled import CACHE_DIR, error_quaternion, jit, jit_parallel
 from sappc_controller.core.base import SingularStartError
 from gnc_common.input_check import REJECT_REASONS, sample_verdicts
 from sappc_controller.core.kernels import N_COEF, N_OUT, N_STATE, N_WORK, O_BL, O_BU, O_CMD, O_EPS, O_QBR, O_RHO, O_SAT, O_TORQUE, O_V, O_Z, S_T0
@@ -1832,6 +1832,28 @@ _LEAF_CLAIMS_ENV = "SAPPC_COMPILE_LEAF_CLAIMS"
 _CLAIM_POLL_S = 0.01
 
 
+#: The name of a claims folder (:func:`_leaf_process`): this prefix, the compiling process's id, a
+#: dash and a random part; in numba's cache directory.
+_CLAIMS_PREFIX = "leaf-claims-"
+
+
+def _remove_stale_claims(cache_dir: str) -> None:
+    """Remove the claims folders in ``cache_dir`` whose compiling process is gone: a compile
+    ended by a signal (Ctrl-C ends a compile child at once: :func:`_compile_child`) leaves its
+    folder behind, and the next compile removes it."""
+    import shutil
+
+    for entry in os.scandir(cache_dir):
+        if not (entry.is_dir() and entry.name.startswith(_CLAIMS_PREFIX)):
+            continue
+        try:
+            os.kill(int(entry.name[len(_CLAIMS_PREFIX):].split("-", 1)[0]), 0)
+        except ProcessLookupError:  # its process is gone
+            shutil.rmtree(entry.path, ignore_errors=True)
+        except (ValueError, PermissionError):  # not a name of ours, or another user's live process
+            continue
+
+
 def _claim(folder: str, kernel: Any, suffix: str = "") -> bool:
     """Create ``kernel``'s claim file in ``folder`` (with ``suffix`` ``.done``: its mark that the
     claim's compile is done) unless it exists (an exclusive create); whether this call created it.
@@ -1876,7 +1898,8 @@ def _leaf_process() -> Iterator[None]:
     or when this process is interrupted.  Only with two or more CPUs and without
     ``SAPPC_COMPILE_LEAVES=0``.
 
-    No leaf is compiled twice: each is claimed (:func:`_claim`, a file in a temporary folder) by
+    No leaf is compiled twice: each is claimed (:func:`_claim`, a file in a folder of numba's cache
+    directory, removed afterwards; :func:`_remove_stale_claims` removes one a signal left) by
     the first of the two processes to need it; the leaf process passes over a leaf the loop's
     typing has claimed, and the loop's typing, at a leaf the leaf process is compiling, waits for
     it and loads it from the cache (numba's cache lookup of each leaf wrapped for the compile:
@@ -1887,7 +1910,9 @@ def _leaf_process() -> Iterator[None]:
     import shutil
     import tempfile
 
-    folder = tempfile.mkdtemp(prefix="sappc-leaves-")
+    os.makedirs(CACHE_DIR, exist_ok=True)  # (numba makes it at its first save)
+    _remove_stale_claims(CACHE_DIR)
+    folder = tempfile.mkdtemp(prefix=f"{_CLAIMS_PREFIX}{os.getpid()}-", dir=CACHE_DIR)
     child = _start_compile_child("_compile_leaves()", {_LEAF_CLAIMS_ENV: folder})
     wrapped = []
     try:

@@ -12,9 +12,14 @@ loop calls it).
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
+
+import pytest
 
 from sappc.offline import compiled_loop
 
@@ -102,3 +107,22 @@ def test_a_hit_is_returned_as_it_is_without_a_claim(tmp_path: Path) -> None:
     claimed = compiled_loop._claimed_load(_Load(compiled), str(tmp_path), _Kernel(), _Child(alive=True))
     assert claimed("sig", None) is compiled
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_claims_folder_whose_process_is_gone_is_removed_and_a_live_ones_kept(tmp_path: Path) -> None:
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True)
+    dead_pid = int(gone.stdout)  # (its process has exited; a pid is not reused within this test in practice: checked below)
+    try:
+        os.kill(dead_pid, 0)
+        pytest.skip(f"pid {dead_pid} was reused meanwhile")
+    except ProcessLookupError:
+        pass
+    stale = tmp_path / f"{compiled_loop._CLAIMS_PREFIX}{dead_pid}-abc"
+    live = tmp_path / f"{compiled_loop._CLAIMS_PREFIX}{os.getpid()}-def"
+    other = tmp_path / "index-and-cache-files"
+    for d in (stale, live, other):
+        d.mkdir()
+        (d / "somewhere.kernels.leaf").touch()
+    (tmp_path / f"{compiled_loop._CLAIMS_PREFIX}not-a-pid").mkdir()
+    compiled_loop._remove_stale_claims(str(tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, other.name, f"{compiled_loop._CLAIMS_PREFIX}not-a-pid"])
