@@ -1854,13 +1854,18 @@ def _remove_stale_claims(cache_dir: str) -> None:
             continue
 
 
+def _claim_path(folder: str, kernel: Any, suffix: str = "") -> str:
+    """The file of ``kernel``'s claim in ``folder`` (``suffix`` ``.done``: its mark of done)."""
+    return os.path.join(folder, f"{kernel.__module__}.{kernel.__qualname__}{suffix}")
+
+
 def _claim(folder: str, kernel: Any, suffix: str = "") -> bool:
     """Create ``kernel``'s claim file in ``folder`` (with ``suffix`` ``.done``: its mark that the
     claim's compile is done) unless it exists (an exclusive create); whether this call created it.
     Of the loop's compile and the leaf process, the first to claim a leaf compiles it, and the
     other does not (:func:`_leaf_process`)."""
     try:
-        os.close(os.open(os.path.join(folder, f"{kernel.__module__}.{kernel.__qualname__}{suffix}"), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        os.close(os.open(_claim_path(folder, kernel, suffix), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
     except FileExistsError:
         return False
     return True
@@ -1873,7 +1878,7 @@ def _claimed_load(load: Callable[..., Any], folder: str, kernel: Any, child: Any
     the leaf process did not compile is a miss again: this process compiles it)."""
     import time
 
-    done = os.path.join(folder, f"{kernel.__module__}.{kernel.__qualname__}.done")
+    done = _claim_path(folder, kernel, ".done")
     mine: list[bool] = []  # whether this process holds the claim
 
     def claimed_load(sig: Any, target_context: Any) -> Any:
@@ -1891,9 +1896,9 @@ def _claimed_load(load: Callable[..., Any], folder: str, kernel: Any, child: Any
 
 
 @contextlib.contextmanager
-def _leaf_process() -> Iterator[None]:
+def _leaf_process(leaves: CompiledInputs) -> Iterator[None]:
     """Around the loop's compile on a cold cache: a child process compiling the loop's leaves
-    (:func:`_leaf_calls`) while this one types the loop from its start, so that the two meet in
+    (:func:`_leaf_calls`; ``leaves`` their inputs here, :func:`_leaf_inputs`) while this one types the loop from its start, so that the two meet in
     the middle; ended (terminated, its group with it) when the loop is compiled,
     or when this process is interrupted.  Only with two or more CPUs and without
     ``SAPPC_COMPILE_LEAVES=0``.
@@ -1916,7 +1921,7 @@ def _leaf_process() -> Iterator[None]:
     child = _start_compile_child("_compile_leaves()", {_LEAF_CLAIMS_ENV: folder})
     wrapped = []
     try:
-        for kernel, _ in _leaf_calls(_leaf_inputs()):
+        for kernel, _ in _leaf_calls(leaves):
             try:
                 cache = kernel.dispatcher._cache
                 cache.load_overload = _claimed_load(cache.load_overload, folder, kernel, child)
@@ -1931,12 +1936,12 @@ def _leaf_process() -> Iterator[None]:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def _leaf_mismatches() -> list[str]:
+def _leaf_mismatches(leaves: CompiledInputs) -> list[str]:
     """After the loop's compile in this process: the leaves whose argument types in
-    :func:`_leaf_calls` are not among those the loop called them with (so the leaf process
-    compiled them in vain)."""
+    :func:`_leaf_calls` (of ``leaves``, :func:`_leaf_inputs`) are not among those the loop called
+    them with (so the leaf process compiled them in vain)."""
     names = []
-    for kernel, sig in _leaf_signatures(_leaf_inputs()):
+    for kernel, sig in _leaf_signatures(leaves):
         if sig not in kernel.dispatcher.overloads:
             names.append(kernel.__qualname__)
     return names
@@ -1981,9 +1986,10 @@ def _warm_up_here(names: tuple[str, ...]) -> None:
         if cache_is_warm(("loops",)):
             _warm_up_loops(scenario, compiled)
         else:  # a cold loop: its late leaves compiled beside it
-            with _leaf_process():
+            leaves = _leaf_inputs()  # (once: the claims' kernels, then the check below)
+            with _leaf_process(leaves):
                 _warm_up_loops(scenario, compiled)
-            mismatched = _leaf_mismatches()
+            mismatched = _leaf_mismatches(leaves)
             if mismatched:
                 print(f"sappc: the compile's leaf process typed {', '.join(mismatched)} unlike the loop (_leaf_calls): "
                       "it compiled those in vain", file=sys.stderr, flush=True)
