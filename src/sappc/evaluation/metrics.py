@@ -817,7 +817,7 @@ class MetricsAccumulator:
         if runs == slice(None):
             self.samples += t.size
 
-    def online_state(self, keep_stride: int = 0) -> tuple[MetricArrays, MetricConstants]:
+    def online_state(self, keep_stride: int = 0, trajectory: Array | None = None) -> tuple[MetricArrays, MetricConstants]:
         """What a loop that computes the metrics online, sample by sample, reads and writes (the
         SIMD lanes, :func:`sappc.offline.lanes.online_metrics`; every sample's contribution is
         :func:`metric_sample_of`'s, as in :meth:`add_history`): the per-run arrays
@@ -827,8 +827,8 @@ class MetricsAccumulator:
         (NaN: no fault): :class:`MetricArrays` and :class:`MetricConstants`.  Only on a uniform
         grid without flight modes or orbits (what the lanes cover; the wheels' and the estimator's
         metrics: :meth:`online_flight_state`); the loop then calls :meth:`add_online_block` for
-        every block.  ``keep_stride``: which samples the loop
-        records too (:class:`MetricConstants`)."""
+        every block.  ``keep_stride``, ``trajectory``: the trajectories' samples and where the loop
+        writes them (:class:`MetricConstants`; ``None``: no trajectory)."""
         if self.hold_s is not None or self.orbit_bins is not None or self.mode_time_s is not None:
             raise ValueError("online metrics need a uniform grid without orbits or flight modes")
         arrays = MetricArrays(*(getattr(self, name) for name in MetricArrays._fields))
@@ -836,7 +836,8 @@ class MetricsAccumulator:
                                    self.k_t2_run.astype(np.float64)))
         fault_from = np.nan if self.fault_start_s is None else float(self.fault_start_s) - _TIME_TOL_S
         settle = float(self.settle_threshold)
-        return arrays, MetricConstants(np.int64(1), np.int64(keep_stride), per_run, settle, float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
+        trajectory = np.zeros((0, 0, 6)) if trajectory is None else trajectory
+        return arrays, MetricConstants(np.int64(1), np.int64(keep_stride), trajectory, per_run, settle, float(LOSS_OF_CONTROL_FACTOR * self.settle_threshold),
                                        fault_from)
 
     def online_flight_state(self, block_samples: int, *, wheels: bool, estimating: bool) -> FlightMetricArrays:
@@ -1119,14 +1120,18 @@ class MetricArrays(NamedTuple):
 class MetricConstants(NamedTuple):
     """What a loop computing the metrics online reads besides :class:`MetricArrays`
     (:meth:`MetricsAccumulator.online_state`): ``on`` (0: the loop records its samples instead),
-    ``keep_stride`` (``s`` > 0: it records every sample of the run whose index is a multiple of
-    ``s`` too, for what else reads them: a campaign's trajectories; 0: none), each run's
+    ``keep_stride`` (``s`` > 0: every sample of the run whose index is a multiple of ``s`` is a
+    trajectory's, for a campaign's figures; 0: none), ``trajectory`` (K, M, 6) where the loop writes
+    those samples of the first M runs (the block's K such samples in order: the error
+    quaternion's vector part ``q_BR[:3]`` and the funnel ``rho`` (3), as the record holds them;
+    (0, 0, 6): none), each run's
     constants ``per_run`` (N, 3) (its steady window's start less the grid's tolerance, its origin,
     t2's sample; float64, exact), the settling threshold, the loss-of-control bound, the fault's
     start less the tolerance (NaN: no fault)."""
 
     on: np.int64
     keep_stride: np.int64
+    trajectory: Array
     per_run: Array
     settle_threshold: float
     loss_bound: float

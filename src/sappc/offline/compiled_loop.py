@@ -761,6 +761,19 @@ def run_batch_kernel(probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dis
         _run_one(n, n, probe, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st)
 
 
+@jit
+def probe_batch_kernel(stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st):
+    """The start's probe (:func:`_run_one`'s first pass, each run's first valid sample into
+    ``rec.start``) of every run of a batch over one block of samples, one run after the other on
+    one thread: a probe ends at each run's first valid sample (usually the first), so threads
+    would gain nothing, and a kernel that is not parallel can be loaded by a campaign's parent
+    before its workers fork (:func:`load_before_fork`), where each worker would otherwise load
+    :func:`run_batch_kernel` for its first probe."""
+    for i in range(plant.x0.shape[0]):
+        n = np.int64(i)
+        _run_one(n, n, True, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, faults, env, mm, md, rec, st)
+
+
 def _run_alone(n: int, probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState) -> None:
     """Run ``n`` of ``inp`` alone (its block of samples) into index 0 of ``rec`` and ``st``:
     :func:`_run_one` called from Python with :func:`run_batch_kernel`'s argument types (``int64``
@@ -1074,6 +1087,10 @@ class CompiledRun:
     #: (N,) bool: the runs whose metrics the loop computed online for this block (their record holds
     #: only their answers: :func:`run_blocks`' ``metrics``); ``None``: every run recorded.
     online: np.ndarray | None = None
+    #: (K, M, 6) the first M runs' trajectory samples in this block (:func:`run_blocks`' ``keep_runs``:
+    #: ``q_BR[:3]`` and ``rho``, every ``keep_stride``-th sample of the run), where the loop wrote them
+    #: apart from the record; ``None``: read them from the record.
+    trajectory: np.ndarray | None = None
 
     @property
     def out(self) -> np.ndarray:
@@ -1398,7 +1415,7 @@ def run_batch(inp: CompiledInputs, stride: int = 0, into: CompiledRun | None = N
 
 
 def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None = None,
-               metrics: MetricsAccumulator | None = None, keep_stride: int = 0) -> Iterator[CompiledRun]:
+               metrics: MetricsAccumulator | None = None, keep_runs: int = 0, keep_stride: int = 1) -> Iterator[CompiledRun]:
     """Every run of ``inp``, block after block of samples (in parallel over runs): yields each
     block's :class:`CompiledRun` (its times and record, every ``stride`` samples), the same bits as
     :func:`run_batch`'s record over those samples.  Memory is one block's inputs and record,
@@ -1408,27 +1425,34 @@ def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None =
     its per-run arrays (``rejected``, ``x_final``, ``start``) are the run's so far.
     ``metrics``: where the runs go in SIMD lanes, the lanes feed it their metrics online, sample
     by sample (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_state`: the same bits),
-    and record only their answers (and every sample whose index in the run is a multiple of
-    ``keep_stride``, when not 0: a campaign's trajectories; the record's other samples are then
-    not those of the block); a block's :attr:`CompiledRun.online` then says which runs, and the
-    caller gives ``metrics`` the others' record
-    (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.add_online_block`) before the next block."""
+    and record only their answers (the other samples of the record are then not those of the
+    block); a block's :attr:`CompiledRun.online` then says which runs, and the caller gives
+    ``metrics`` the others' record
+    (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.add_online_block`) before the next block.
+    ``keep_runs`` M > 0 with ``metrics`` (a campaign's trajectories): the first M runs' every
+    ``keep_stride``-th sample of the run (``q_BR[:3]``, ``rho``), written apart from the record, into
+    the block's :attr:`CompiledRun.trajectory` (the lanes' and the runs they hand back: every run's);
+    where the lanes do not cover the runs, the record holds every sample and ``trajectory`` is
+    ``None``."""
     n = inp.n_runs
-    answers_only = metrics is not None and keep_stride == 0 and inp.lanes and lanes_refusal(inp) is None  # (the lanes then write no more)
+    answers_only = metrics is not None and inp.lanes and lanes_refusal(inp) is None  # (the lanes then write no more)
     size = max(1, (ONLINE_BLOCK_RUN_SAMPLES if answers_only else BLOCK_RUN_SAMPLES) // max(n, 1)) if block_samples is None else int(block_samples)
     if stride > 0:
         size = max(stride, size // stride * stride)
     size = min(size, inp.n_samples)
     st = _state(inp, n)
     rec = _record(inp, stride, n, size)
+    keep_runs = min(keep_runs, n) if answers_only else 0
     for block in inp.blocks(size, stride):
         _check_noise(block)
-        online = _loop(False, stride, block, rec, st, metrics, keep_stride)
+        kept = -(-(block.k_lo + block.t.size) // keep_stride) - -(-block.k_lo // keep_stride)  # multiples of keep_stride in the block
+        traj = np.empty((kept, keep_runs, 6)) if keep_runs > 0 else None
+        online = _loop(False, stride, block, rec, st, metrics, keep_stride if traj is not None else 0, traj)
         b = block.t.size
         b_rec = 0 if stride == 0 else (b - 1) // stride + 1
         view = rec if b_rec == rec.out.shape[1] else LoopRecord(*(a[:, :b_rec] if a.ndim >= 2 and name not in _PER_RUN else a
                                                                  for name, a in zip(LoopRecord._fields, rec)))
-        yield CompiledRun(block.t[::stride] if stride else block.t[:0], view, online)
+        yield CompiledRun(block.t[::stride] if stride else block.t[:0], view, online, traj)
 
 
 #: The fields of :class:`LoopRecord` that are per run, not per sample.
@@ -1436,17 +1460,20 @@ _PER_RUN = ("rejected", "x_final", "start", "mode_run")
 
 
 def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState,
-          metrics: MetricsAccumulator | None = None, keep_stride: int = 0) -> np.ndarray | None:
+          metrics: MetricsAccumulator | None = None, keep_stride: int = 0, trajectory: np.ndarray | None = None) -> np.ndarray | None:
     """Every run of ``inp`` (its block of samples) into ``rec`` and ``st``: in parallel over runs
     (:func:`run_batch_kernel`), or, for one run, :func:`_run_one` alone (the same bits; a one-run
     command then never compiles the batch kernel).  ``metrics``: fed online by the SIMD lanes
-    (:func:`run_blocks`, with ``keep_stride``); returns the runs whose metrics were (None: none)."""
+    (:func:`run_blocks`, with ``keep_stride`` and ``trajectory``); returns the runs whose metrics
+    were (None: none)."""
     if stride > 0 and inp.k_lo % stride != 0:
         raise ValueError(f"a block must start at a recorded sample: k_lo {inp.k_lo} is not a multiple of the stride {stride}")
     if inp.lanes and not probe and lanes_refusal(inp) is None:
-        return _loop_lanes(stride, inp, rec, st, metrics, keep_stride)
+        return _loop_lanes(stride, inp, rec, st, metrics, keep_stride, trajectory)
     if inp.n_runs == 1:
         _with_restarts(lambda: _run_alone(0, probe, stride, inp, rec, st), probe, inp, rec, st, np.zeros(1, dtype=np.int64))
+    elif probe:
+        probe_batch_kernel(np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st)
     else:
         ensure_compiled(groups=("batches",))
         _with_restarts(lambda: run_batch_kernel(probe, stride, np.int64(inp.k_lo), *inp.args(), rec, st), probe, inp, rec, st,
@@ -1467,14 +1494,14 @@ def _lanes() -> Any:
 
 
 def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState, metrics: MetricsAccumulator | None,
-                keep_stride: int = 0) -> np.ndarray | None:
+                keep_stride: int = 0, trajectory: np.ndarray | None = None) -> np.ndarray | None:
     """:func:`_loop` in SIMD lanes (:func:`sappc.offline.lanes.run_lanes_kernel`), then each run the
     lanes handed back (an input rejected, a refused answer: the per-run loop's cases) run again over
     the block by :func:`_run_one`, from the state the block started with (which the lanes left in
     ``st``), into the record.  With ``metrics`` (fed every sample before the block's, and a record
-    of every sample), the lanes feed it their runs' metrics online (and record every
-    ``keep_stride``-th sample too, when not 0); returns those runs (the ones not handed back),
-    else None."""
+    of every sample), the lanes feed it their runs' metrics online (and write the trajectories'
+    samples into ``trajectory``, every ``keep_stride``-th, when not 0: a run handed back's from its
+    record); returns those runs (the ones not handed back), else None."""
     ensure_compiled(groups=("lanes",))
     lanes = _lanes()
     handed_back = np.zeros(inp.n_runs, dtype=np.int8)
@@ -1485,7 +1512,7 @@ def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState
         if stride != 1 or metrics.samples != inp.k_lo or metrics.finite.shape[0] != inp.n_runs:
             raise ValueError(f"online metrics need a record of every sample and an accumulator of the block's {inp.n_runs} runs fed "
                              f"its {inp.k_lo} samples before (stride {stride}, {metrics.finite.shape[0]} runs, {metrics.samples} samples)")
-    ma, mc = lanes.online_metrics(metrics, keep_stride) if metrics is not None else lanes.no_online_metrics()
+    ma, mc = lanes.online_metrics(metrics, keep_stride, trajectory) if metrics is not None else lanes.no_online_metrics()
     fa = lanes.flight_metrics(metrics if flight else None, inp)
     # the flight stack's lanes step the runs' own rows of st (the sensors, the filter, the true
     # state) and of its metrics: a run they hand back starts its block again from what is kept here
@@ -1498,6 +1525,10 @@ def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState
             a[back] = b[back]
     for n in back:
         _run_one(np.int64(n), np.int64(n), False, np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st)
+        if trajectory is not None and n < trajectory.shape[1] and keep_stride > 0:  # its samples from its record (stride 1)
+            first = -inp.k_lo % keep_stride
+            trajectory[:, n, :3] = rec.out[n, first:inp.t.size:keep_stride, O_QBR, :3]
+            trajectory[:, n, 3:] = rec.out[n, first:inp.t.size:keep_stride, O_RHO, :3]
     return handed_back == 0 if online else None
 
 
@@ -2005,13 +2036,19 @@ def load_before_fork(scenario: Scenario) -> None:
     """Do here, once, what each of a campaign's workers would do first, before they are forked
     (they share this process's memory): numba's first use of its CPU target (which imports its
     array functions and, through them, scipy's linear algebra: about 0.4 s of CPU a process) and
-    the start's kernels (the one-run probe, :func:`~sappc_controller.core.packing.start_coef`),
-    by preparing ``scenario``'s own run.  The parallel kernels are left to the workers: loading one
-    starts numba's thread pool, which a forked child cannot use (the workers would then come from a
-    fork server, with nothing loaded).  A scenario whose own run cannot start (a campaign may
-    disperse it away from a singular start) leaves the rest to the workers."""
+    the start's kernels (the batch's probe :func:`probe_batch_kernel`,
+    :func:`~sappc_controller.core.packing.start_coef`), by preparing two runs of ``scenario``.  The
+    parallel kernels are left to the workers: loading one starts numba's thread pool, which a
+    forked child cannot use (the workers would then come from a fork server, with nothing loaded).
+    A scenario whose own run cannot start (a campaign may disperse it away from a singular start)
+    leaves the rest to the workers."""
     with contextlib.suppress(ConfigError, SingularStartError):
-        prepare(scenario, on_infeasible="clamp")
+        prepare(scenario, on_infeasible="clamp", q_BN0=np.broadcast_to(scenario.q_BN0, (PROBED_RUNS, 4)))
+
+
+#: Runs :func:`load_before_fork` prepares: more than one, so that the start's probe is the batch's
+#: (:func:`probe_batch_kernel`, what a worker's chunk calls), not the one-run loop's.
+PROBED_RUNS = 2
 
 
 def _warm_up_scenario() -> Scenario:

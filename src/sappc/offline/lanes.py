@@ -50,8 +50,8 @@ run's rows in place).
 A campaign's metrics are computed here too, as the lanes go (:func:`online_metrics`): after each
 sample's answer a fourth stage feeds each lane's metric state (rows of the scratch array) to
 :func:`~sappc.evaluation.metrics.metric_sample_of`, the per-sample piece the record's metrics
-kernel calls, and the record keeps only the answers (and, ``keep_stride``, the samples of the
-first runs' trajectories: every ``keep_stride``-th of the run); a lane handed back leaves its
+kernel calls, and the record keeps only the answers (and, ``keep_stride``, the first runs'
+trajectories, every ``keep_stride``-th sample of the run, go to an array of their own); a lane handed back leaves its
 metrics to its record.
 
 Parity (docs/parity.md, "Campaign runs in SIMD lanes"): with the libm calls vectorised, a lane's
@@ -171,13 +171,14 @@ _N_ROWS = _R_SAVE + _N_SAVE
 assert _R_PUB == _R_CS + _N_CTRL
 
 
-def online_metrics(acc: MetricsAccumulator, keep_stride: int = 0) -> tuple[MetricArrays, MetricConstants]:
+def online_metrics(acc: MetricsAccumulator, keep_stride: int = 0, trajectory: np.ndarray | None = None) -> tuple[MetricArrays, MetricConstants]:
     """The lanes' metrics arguments that have them compute ``acc``'s metrics online, sample by
     sample (:func:`run_lanes_kernel`): ``acc``'s per-run arrays and constants
     (:meth:`~sappc.evaluation.metrics.MetricsAccumulator.online_state`), ``acc`` fed every sample
-    before the block's; ``keep_stride`` ``s`` > 0: the lanes record every sample whose index in
-    the run is a multiple of ``s`` too."""
-    return acc.online_state(keep_stride)
+    before the block's; ``keep_stride`` ``s`` > 0: the lanes write every sample whose index in the
+    run is a multiple of ``s`` of the first runs into ``trajectory`` (K, M, 6) too
+    (:class:`~sappc.evaluation.metrics.MetricConstants`)."""
+    return acc.online_state(keep_stride, trajectory)
 
 
 def group_kind(flight: bool) -> np.ndarray:
@@ -251,8 +252,8 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
     leaves its rows of ``st`` as they were and sets ``handed_back[run]``.  ``ma``, ``mc``: with
     ``mc.on`` 1 (:func:`online_metrics`), each run's metrics sample by sample into its rows of the
     accumulator's arrays (a lane handed back leaves them as they were), and the record only its
-    answers (``rec.status``), and every sample too whose index ``k`` in the run is a multiple of
-    ``mc.keep_stride`` (when not 0)."""
+    answers (``rec.status``), and the first runs' samples whose index ``k`` in the run is a
+    multiple of ``mc.keep_stride`` (when not 0) into ``mc.trajectory``."""
     W = LANES
     N = plant.x0.shape[0]
     rows = np.empty(W, dtype=np.int64)
@@ -597,8 +598,14 @@ def _lane_group(g0, stride, k_lo, grid, ctrl, plant, act, sens, est, dist, fault
                 if g0 + w >= N:
                     continue
                 rec.status[r, j] = ANSWER_COMMANDED if not flight else np.int8(S[_R_STATUS, w])
-                if online and (mc.keep_stride == 0 or k % mc.keep_stride != 0):  # the metrics are taken: the record keeps only the answers
-                    continue  # (and the samples kept for the trajectories)
+                if online:  # the metrics are taken: the record keeps only the answers (and the trajectories their samples)
+                    ks = mc.keep_stride
+                    if ks > 0 and k % ks == 0 and r < mc.trajectory.shape[1]:
+                        jt = k // ks - (k_lo + ks - 1) // ks  # the block's kept samples start at the first multiple of ks
+                        for i in range(3):
+                            mc.trajectory[jt, r, i] = S[_R_PUB + 4 * O_QBR + i, w]
+                            mc.trajectory[jt, r, 3 + i] = S[_R_PUB + 4 * O_RHO + i, w]
+                    continue
                 for row in range(N_OUT):
                     for c in range(4):
                         rec.out[r, j, row, c] = S[_R_PUB + 4 * row + c, w]
