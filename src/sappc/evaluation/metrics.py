@@ -1422,11 +1422,11 @@ def estimate_metric_sample(n, t_k, steady_from, nees_from, truth, q_hat, q_true,
     if has:
         for i in range(3):
             bias_last[n, i] = err[3 + i]
-    ok = ok and has
+    n_bad = 0  # P's non-finite entries: a count, not a chain of tests (one branch, not 36)
     for i in range(N_ERROR_STATES):
         for j in range(N_ERROR_STATES):
-            ok = ok and np.isfinite(P[i, j])
-    if ok and t_k >= nees_from:
+            n_bad += 0 if np.isfinite(P[i, j]) else 1
+    if ok and has and n_bad == 0 and t_k >= nees_from:
         v = _nees_of(err, P, A)
         if np.isfinite(v):
             nees_sum[n] = nees_sum[n] + v

@@ -102,6 +102,30 @@ def test_the_start_is_the_first_valid_sample_in_every_run_of_a_batch_and_run_k_i
         assert abs(batch.out[n, first[n], O_RHO, 1]) == 0.4  # the RPF's start value, at its own first sample
 
 
+def test_the_probe_of_inputs_made_block_by_block_finds_starts_after_its_first_block(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A campaign's inputs are made block by block, and the start's probe (probe_batch_kernel, every
+    run of the batch on one thread) takes a first block of PROBE_FIRST_SAMPLES samples alone, then
+    goes on in the usual blocks: runs whose first valid samples (30, 50) lie beyond it start there
+    as with the whole run's inputs, and their records are the same bits; the probe's first block
+    made was that short one."""
+    assert FIRST_VALID > 30 > compiled_loop.PROBE_FIRST_SAMPLES
+    scenario = scenario_from_mapping(_raw(OUTAGES["state"]))
+    short = faults_from_list([{"kind": "sensor_dropout", "start_s": 0.0, "end_s": 0.3}])
+    q0 = np.tile(scenario.q_BN0, (3, 1))
+    kw = dict(q_BN0=q0, faults=[scenario.faults, short, scenario.faults])
+    made_blocks: list[tuple[int, int]] = []
+    real_made = compiled_loop.CompiledInputs._made
+    monkeypatch.setattr(compiled_loop.CompiledInputs, "_made", lambda self, k_lo, k_hi, carry: made_blocks.append((k_lo, k_hi)) or real_made(self, k_lo, k_hi, carry))
+    made = compiled_loop.prepare(scenario, whole=False, **kw)
+    assert made_blocks[0] == (0, compiled_loop.PROBE_FIRST_SAMPLES) and made_blocks[1][0] == compiled_loop.PROBE_FIRST_SAMPLES
+    whole = compiled_loop.prepare(scenario, **kw)
+    assert np.array_equal(made.controller.coef, whole.controller.coef)
+    a, b = compiled_loop.run_batch(whole, 1), compiled_loop.run_batch(made, 1)
+    assert [int(np.argmax(b.status[n] == ANSWER_COMMANDED)) for n in range(3)] == [FIRST_VALID, 30, FIRST_VALID]
+    for name in a.record._fields:
+        assert np.array_equal(getattr(a.record, name), getattr(b.record, name), equal_nan=True), name
+
+
 def test_a_run_whose_controller_never_commands_has_the_metrics_of_an_error_never_in_a_band() -> None:
     """Sensor dropout from 0 s to the end: every sample answered with zero by the watchdog, zero
     torque, nothing saturated, no performance function (no ``rpf_error_at_t2``), every sample outside
