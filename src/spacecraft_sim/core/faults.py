@@ -299,11 +299,16 @@ def pack_faults(per_run: list[tuple[Any, ...]], stamps_ns: NDArray[np.int64]) ->
     """A batch's faults for the whole-run loop (:class:`~.kernels.FaultArrays`): one fault list per
     run (a campaign's dispersed faults: the same kinds in the same slots), the noise faults' draws
     at the samples' stamps (those of the first run's list: the draws depend on the seed and the
-    stamp only)."""
-    enc = [encode_faults(tuple(f)) for f in per_run]
+    stamp only).  Each list is encoded once however many runs share it (a campaign without
+    dispersed faults: every run's list is the scenario's)."""
+    encoded: dict[int, EncodedFaults] = {}  # by the list's identity (per_run holds them all while this runs)
+    for f in per_run:
+        if id(f) not in encoded:
+            encoded[id(f)] = encode_faults(tuple(f))
+    enc = [encoded[id(f)] for f in per_run]
     if any(e.kind.shape != enc[0].kind.shape for e in enc):
         raise ValueError("every run's faults must have the same number of entries")
-    draws = noise_draws(tuple(per_run[0]), stamps_ns) if any(e.has_noise for e in enc) else np.zeros((1, enc[0].n, 6))
+    draws = noise_draws(tuple(per_run[0]), stamps_ns) if any(e.has_noise for e in encoded.values()) else np.zeros((1, enc[0].n, 6))
     return kernels.FaultArrays(np.ascontiguousarray(np.stack([e.kind for e in enc]), dtype=np.int64),
                                np.ascontiguousarray(np.stack([e.window for e in enc]), dtype=np.float64),
                                np.ascontiguousarray(np.stack([e.params for e in enc]), dtype=np.float64),
