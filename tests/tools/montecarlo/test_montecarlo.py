@@ -8,6 +8,7 @@ import copy
 import csv
 import json
 import os
+import pathlib
 import subprocess
 import sys
 
@@ -94,6 +95,30 @@ def test_each_worker_gets_as_many_chunks_of_at_most_chunk_runs(runs: int, most: 
     count = -(-runs // size)
     assert 1 <= size <= most and count % parallel == 0 and count * size - runs < size
     assert mc.balanced_chunk_runs(runs, most, 1) == min(most, runs)  # one process: the scenario's chunks
+
+
+def test_a_processs_chunks_parse_their_scenario_once(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """A worker's chunks share their scenario's mapping: it is parsed once per process (the
+    campaign's own parse, before its workers fork, counts), a mapping that differs is parsed again,
+    and the chunks' results are those of a fresh parse."""
+    raw = yaml.safe_load(pathlib.Path(_short(tmp_path, chunk_runs=4)).read_text())
+    parses = []
+    real = mc.scenario_from_mapping
+    monkeypatch.setattr(mc, "scenario_from_mapping", lambda data, **kw: parses.append(1) or real(data, **kw))
+    monkeypatch.setattr(mc, "_last_parsed", None)
+    first = mc.run_chunk(copy.deepcopy(raw), 7, [0, 1], 0)
+    again = mc.run_chunk(copy.deepcopy(raw), 7, [0, 1], 0)  # (a copy, as a task's pickled mapping)
+    assert len(parses) == 1
+    for key in first:
+        assert np.array_equal(first[key], again[key], equal_nan=True), key
+    other = copy.deepcopy(raw)
+    other["duration_s"] = raw["duration_s"] / 2
+    mc.run_chunk(other, 7, [0, 1], 0)
+    assert len(parses) == 2
+    scenario = real(raw)
+    mc._remember(scenario, campaign_config(scenario))  # what run_campaign leaves before forking its workers
+    mc.run_chunk(copy.deepcopy(raw), 7, [0, 1], 0)
+    assert len(parses) == 2
 
 
 def test_results_are_identical_for_any_chunking_and_executor(tmp_path, monkeypatch) -> None:
