@@ -92,8 +92,8 @@ _last_parsed: tuple[dict[str, Any], Scenario, CampaignConfig] | None = None
 
 def _parsed(raw: dict[str, Any]) -> tuple[Scenario, CampaignConfig]:
     """The scenario of the mapping ``raw`` and its campaign settings, parsed once per process for
-    the chunks that share it (every chunk of a campaign: 13 ms of a flight chunk's 0.5 s, its four
-    controllers' configurations validated again); :func:`run_campaign` leaves its own here before
+    the chunks that share it (every chunk of a campaign: 13 ms of a flight chunk's 0.5 s, every
+    controller's configuration validated again); :func:`run_campaign` leaves its own here before
     its workers fork, so that they start with it.  A mapping not equal to the last one's is parsed
     (the objects are frozen: the chunks share them)."""
     global _last_parsed
