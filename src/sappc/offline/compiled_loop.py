@@ -112,7 +112,7 @@ from gnc_common.validation import ConfigError
 from sappc.scenario import Scenario
 
 __all__ = ["BLOCK_RUN_SAMPLES", "CAMPAIGN_GROUPS", "CompiledInputs", "CompiledRun", "LoopGrid", "LoopRecord", "LoopState", "NoiseStreams", "SampleMaker",
-           "cache_is_warm", "ensure_compiled", "lanes_refusal", "prepare", "run_batch", "run_blocks", "run_single", "simulate_compiled", "warm_up"]
+           "cache_is_warm", "ensure_compiled", "lanes_refusal", "prepare", "run_batch", "run_blocks", "run_single", "simulate_compiled", "trajectory_samples", "warm_up"]
 
 #: Nanoseconds per second: the controller's and the estimator's time is each sample's stamp in
 #: seconds, as their nodes compute it from the same integer stamps (``k dt`` and
@@ -1471,6 +1471,15 @@ def run_blocks(inp: CompiledInputs, stride: int = 1, block_samples: int | None =
 _PER_RUN = ("rejected", "x_final", "start", "mode_run")
 
 
+def trajectory_samples(out: np.ndarray, k_lo: int, keep_stride: int) -> np.ndarray:
+    """A campaign's trajectory samples of the record rows ``out`` (R, B, N_OUT, 4) of a block of B
+    samples from sample ``k_lo``, recorded at every sample: each sample whose index in the run is a
+    multiple of ``keep_stride``, (K, R, 6), the error quaternion's vector part ``q_BR[:3]`` and
+    ``rho`` (3): what the lanes write apart from the record (:attr:`CompiledRun.trajectory`)."""
+    kept = out[:, -k_lo % keep_stride::keep_stride]
+    return np.concatenate((kept[:, :, O_QBR, :3], kept[:, :, O_RHO, :3]), axis=2).swapaxes(0, 1)
+
+
 def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState,
           metrics: MetricsAccumulator | None = None, keep_stride: int = 0, trajectory: np.ndarray | None = None) -> np.ndarray | None:
     """Every run of ``inp`` (its block of samples) into ``rec`` and ``st``: in parallel over runs
@@ -1539,9 +1548,7 @@ def _loop_lanes(stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState
     for n in back:
         _run_one(np.int64(n), np.int64(n), False, np.int64(stride), np.int64(inp.k_lo), *inp.args(), rec, st)
         if trajectory is not None and n < trajectory.shape[1] and keep_stride > 0:  # its samples from its record (stride 1)
-            first = -inp.k_lo % keep_stride
-            trajectory[:, n, :3] = rec.out[n, first:inp.t.size:keep_stride, O_QBR, :3]
-            trajectory[:, n, 3:] = rec.out[n, first:inp.t.size:keep_stride, O_RHO, :3]
+            trajectory[:, n] = trajectory_samples(rec.out[n:n + 1, :inp.t.size], inp.k_lo, keep_stride)[:, 0]
     return handed_back == 0 if online else None
 
 

@@ -236,7 +236,7 @@ def run_scenario(
         k_lo = 0
         block = None
         for block in blocks:
-            h = block.history() if block.online is None or (m > 0 and block.trajectory is None) else None  # what the metrics, sinks or trajectories read
+            h = block.history() if block.online is None else None  # what the metrics and sinks read
             if block.online is None:
                 assert h is not None
                 acc.add_history(h, block_samples=max(1, METRICS_BLOCK // (hi - lo)))
@@ -249,14 +249,10 @@ def run_scenario(
             for name, count in block.status_counts().items():
                 status[name][lo:hi] += count
             if m > 0:  # the trajectories' samples k = 0, stride, 2 stride, ... that fall in this block
+                # written apart from the record by the lanes, else the record's (every sample)
+                tr = block.trajectory if block.trajectory is not None else compiled_loop.trajectory_samples(block.out[:m], k_lo, traj_stride)
                 first = -k_lo % traj_stride
-                if block.trajectory is not None:  # written apart from the record (the lanes')
-                    tr = block.trajectory
-                    pieces.append((block.t[first::traj_stride].copy(), tr[:, :, :3].astype(np.float32), tr[:, :, 3:].astype(np.float32)))
-                else:
-                    assert h is not None
-                    pieces.append((h.t[first::traj_stride].copy(), h.q_BR[first::traj_stride, :m, :3].astype(np.float32),
-                                   h.rho[first::traj_stride, :m].astype(np.float32)))
+                pieces.append((block.t[first::traj_stride].copy(), tr[:, :, :3].astype(np.float32), tr[:, :, 3:].astype(np.float32)))
             k_lo += block.t.size
             if sample_progress is not None and lo == 0:
                 sample_progress(k_lo)

@@ -306,7 +306,7 @@ def pack_faults(per_run: list[tuple[Any, ...]], stamps_ns: NDArray[np.int64]) ->
         if id(f) not in encoded:
             encoded[id(f)] = encode_faults(tuple(f))
     enc = [encoded[id(f)] for f in per_run]
-    if any(e.kind.shape != enc[0].kind.shape for e in enc):
+    if any(e.kind.shape != enc[0].kind.shape for e in encoded.values()):
         raise ValueError("every run's faults must have the same number of entries")
     draws = noise_draws(tuple(per_run[0]), stamps_ns) if any(e.has_noise for e in encoded.values()) else np.zeros((1, enc[0].n, 6))
     return kernels.FaultArrays(np.ascontiguousarray(np.stack([e.kind for e in enc]), dtype=np.int64),
