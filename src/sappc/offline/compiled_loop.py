@@ -1477,7 +1477,8 @@ def trajectory_samples(out: np.ndarray, k_lo: int, keep_stride: int) -> np.ndarr
     multiple of ``keep_stride``, (K, R, 6), the error quaternion's vector part ``q_BR[:3]`` and
     ``rho`` (3): what the lanes write apart from the record (:attr:`CompiledRun.trajectory`)."""
     kept = out[:, -k_lo % keep_stride::keep_stride]
-    return np.concatenate((kept[:, :, O_QBR, :3], kept[:, :, O_RHO, :3]), axis=2).swapaxes(0, 1)
+    samples: np.ndarray = np.concatenate((kept[:, :, O_QBR, :3], kept[:, :, O_RHO, :3]), axis=2).swapaxes(0, 1)
+    return samples
 
 
 def _loop(probe: bool, stride: int, inp: CompiledInputs, rec: LoopRecord, st: LoopState,
