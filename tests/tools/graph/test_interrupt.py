@@ -8,8 +8,8 @@ The moments are made certain rather than waited for:
 ``imports``
     The command runs with ``-X importtime``: it writes a line on stderr after each import.  Its
     stderr is a pipe of one page that the test stops reading once the first module of the
-    command line's own imports (``gnc_common``) is reported; the child then blocks on its next
-    writes, in the middle of hundreds of imports still to come, and the test sends SIGINT once
+    command line's own imports (``gnc_common``) is reported and what the pipe holds then is read
+    (at most a page: tens of the import lines); the child then blocks on its next writes, in the middle of hundreds of imports still to come, and the test sends SIGINT once
     the pipe is full (it is blocked there, not merely slow).
 ``node_start``
     The launcher is stopped (SIGSTOP) as soon as its first node process exists, interrupted,
@@ -80,10 +80,29 @@ def _read_until(fd: int, pattern: re.Pattern[bytes], seen: bytearray) -> None:
     pytest.fail(f"no line {pattern.pattern!r} within {_STEP_TIMEOUT_S} s:\n{seen.decode(errors='replace')}")
 
 
-def _pipe_full(fd: int) -> bool:
+def _queued(fd: int) -> int:
+    """Bytes in the pipe ``fd`` not read yet (FIONREAD)."""
     queued = bytearray(4)
     fcntl.ioctl(fd, termios.FIONREAD, queued)
-    return int.from_bytes(queued, sys.byteorder) > _PIPE_BYTES - _IMPORTTIME_LINE_MAX
+    return int.from_bytes(queued, sys.byteorder)
+
+
+def _drain(fd: int, seen: bytearray) -> None:
+    """Read all that the pipe holds, in one read, so that it holds no page afterwards.
+
+    A Linux pipe appends a write to its last page only where the page has room past the bytes
+    already read from it: a page that was read from in part has less room than its capacity
+    less what it holds, so a writer can block while FIONREAD still shows room for a line (the
+    test waited for a full pipe that never came: CI, stop 66).  A read that empties the pipe
+    releases its page; the writes after it fill a fresh page from its start, and the writer
+    blocks only once FIONREAD is within a line of the capacity.
+    """
+    if _queued(fd):
+        seen += os.read(fd, 16 * _PIPE_BYTES)  # more than the pipe holds: one read takes it all
+
+
+def _pipe_full(fd: int) -> bool:
+    return _queued(fd) > _PIPE_BYTES - _IMPORTTIME_LINE_MAX
 
 
 @pytest.mark.parametrize(("moment", "sigint_ignored"), [("imports", False), ("imports", True), ("node_start", False), ("nodes_up", True)])
@@ -106,6 +125,7 @@ def test_ctrl_c_early_in_sappc_run_stops_it_with_one_line_and_status_130(tmp_pat
         try:
             if moment == "imports":
                 _read_until(read_fd, _FIRST_OWN_IMPORT, seen)
+                _drain(read_fd, seen)  # the child wrote at most a pipe's worth past that line
                 deadline = time.monotonic() + _STEP_TIMEOUT_S
                 while not _pipe_full(read_fd):  # the child is blocked writing, inside the imports
                     assert time.monotonic() < deadline and proc.poll() is None, seen.decode(errors="replace")
