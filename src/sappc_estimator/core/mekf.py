@@ -461,9 +461,14 @@ def transition(w0, w1, w2, h, Phi):
         Phi[3 + r, 3 + r] = 1.0
 
 
-@jit(inline="always")
+@jit
 def _propagate(prm, st, P, w0, w1, w2, h, work):
-    """Step 3 of the module docstring: ``q_hat`` and ``P`` over ``h`` at the rate ``w`` (bias removed)."""
+    """Step 3 of the module docstring: ``q_hat`` and ``P`` over ``h`` at the rate ``w`` (bias removed).
+
+    Compiled on its own, not inlined into :func:`mekf_step` by numba (``inline="always"``): numba's
+    inliner runs a callee's untyped passes again and copies its IR twice at each call site, which
+    cost this one 2.7 s of a cold ``sappc simulate``'s compile; compiled on its own it takes 1.1 s,
+    and the step (one call a sample) runs as fast (docs/performance.md, issue 50: the compile)."""
     # attitude: q_hat <- normalise(q_hat ⊗ dq(w h))
     dq = work[_W_V]
     rotation_quaternion(w0 * h, w1 * h, w2 * h, dq)
