@@ -255,15 +255,21 @@ def _play(server: LiveServer, path: Path, keep: set[int], rate: float) -> _Pass:
     return done
 
 
+def _say_now(line: str) -> None:
+    """:func:`serve_bag`'s lines on stdout, each at once even into a pipe (a client waits for the address)."""
+    print(line, flush=True)
+
+
 def serve_bag(path: str | Path, *, rate: float = 1.0, topics: list[str] | None = None, loop: bool = False,
               wait_subscribers: int = 0, start_delay_s: float = 0.0, linger_s: float = 2.0, host: str = DEFAULT_HOST,
-              port: int = DEFAULT_PORT, say: Callable[[str], object] = print) -> int:
+              port: int = DEFAULT_PORT, say: Callable[[str], object] | None = None) -> int:
     """Serve the bag at ``path`` to Foxglove clients (see the module docstring); return the exit status (0).
 
     Playback starts ``start_delay_s`` after the server does, once every served topic has
     ``wait_subscribers`` subscriptions; after the last message the server stays up until no client
     subscribes to anything, at most ``linger_s``, so that clients receive what is queued for them.
-    Ctrl-C stops the server and propagates (the command's exit status 130).
+    Ctrl-C stops the server and propagates (the command's exit status 130).  ``say``: where its
+    lines go (default: stdout, each flushed at once).
 
     Raises
     ------
@@ -274,6 +280,7 @@ def serve_bag(path: str | Path, *, rate: float = 1.0, topics: list[str] | None =
     """
     from sappc.bag.read import mcap_file
 
+    say = _say_now if say is None else say
     rate = check_positive("--rate", rate)
     if wait_subscribers < 0:
         raise ConfigError(f"--wait-subscribers must be >= 0, got {wait_subscribers}")

@@ -211,11 +211,20 @@ def test_a_subscription_receives_every_message_as_recorded_and_the_server_ends_w
 
 
 def test_a_topic_list_serves_only_those_topics(bag: Path, serve: Any) -> None:
-    server = serve(bag, "--topics", "control/torque", "/controller/diagnostics", "--rate", "50", "--linger", "0")
+    # --wait-subscribers: the bag is played only once this client has subscribed, so the server
+    # cannot have played it (50 times its speed: 40 ms) and closed before the client connects;
+    # --linger: the server then stays until the client has its end-of-bag status and leaves
+    server = serve(bag, "--topics", "control/torque", "/controller/diagnostics", "--wait-subscribers", "1", "--rate", "50",
+                   "--linger", str(TIMEOUT_S))
 
     async def client() -> dict[int, dict[str, Any]]:
         async with _connect(server.url) as ws:
-            return await _advertised(ws, 2)
+            channels = await _advertised(ws, 2)
+            await ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": s, "channelId": c} for s, c in enumerate(channels)]}))
+            while True:  # subscribed until the bag's end (the server's status), so the server sees the subscriptions
+                message = await asyncio.wait_for(ws.recv(), TIMEOUT_S)
+                if isinstance(message, str) and json.loads(message).get("op") == "status":
+                    return channels  # leaving: the client disconnects, and the lingering server ends
 
     assert sorted(c["topic"] for c in asyncio.run(client()).values()) == ["/control/torque", "/controller/diagnostics"]
     rc, out, err = server.wait()

@@ -190,6 +190,21 @@ def test_a_real_time_flight_run_with_the_estimator_ends_on_its_last_frame(tmp_pa
     assert np.array_equal(run.history.q_BN[:upto, 0], offline.history.q_BN[:upto, 0])
 
 
+def _runs_a_node(pid: int) -> bool:
+    """Whether the process ``pid`` runs a node (``python -m MODULE`` of a node, as the launcher starts
+    them): the launcher's other children are not counted, its SCHED_FIFO probe
+    (``check_rt_priority``, ``python -S -c``, alive for tens of milliseconds before the nodes
+    start) nor a child not yet past its ``exec`` (its command line still the launcher's)."""
+    from sappc.graph.container import NODE_CLASSES
+
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:  # exited meanwhile
+        return False
+    modules = {module for module, _ in NODE_CLASSES.values()}
+    return any(a == b"-m" and i + 1 < len(argv) and argv[i + 1].decode() in modules for i, a in enumerate(argv))
+
+
 @pytest.mark.skipif(not _rt_priority_allowed(), reason="this user may not use SCHED_FIFO (needs root or CAP_SYS_NICE)")
 def test_rt_priority_runs_every_node_under_sched_fifo(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """``--rt-priority N``: every node process runs under SCHED_FIFO at N (the threads it starts inherit
@@ -210,7 +225,7 @@ def test_rt_priority_runs_every_node_under_sched_fifo(tmp_path) -> None:  # type
         deadline = time.monotonic() + 120
         while proc.poll() is None and time.monotonic() < deadline:
             children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
-            for pid in map(int, children):
+            for pid in filter(_runs_a_node, map(int, children)):
                 try:
                     seen[pid] = (os.sched_getscheduler(pid), os.sched_getparam(pid).sched_priority)
                 except OSError:  # exited meanwhile
