@@ -12,8 +12,9 @@ The moments are made certain rather than waited for:
     (at most a page: tens of the import lines); the child then blocks on its next writes, in the middle of hundreds of imports still to come, and the test sends SIGINT once
     the pipe is full (it is blocked there, not merely slow).
 ``node_start``
-    The launcher is stopped (SIGSTOP) as soon as its first node process exists, interrupted,
-    and continued: the signal arrives while it is starting the nodes.
+    The launcher stops itself (SIGSTOP) once its first node process is started
+    (:data:`_STOP_AFTER_FIRST_NODE` wraps its node start), is interrupted and continued: the
+    signal arrives while it is starting the nodes, with four still to start.
 ``nodes_up``
     SIGINT as soon as the launcher says the nodes are started (they are still importing).
 """
@@ -51,6 +52,29 @@ _IMPORTTIME_LINE_MAX = 200
 _STEP_TIMEOUT_S = 120.0
 #: How often the test looks at the child while it waits [s].
 _POLL_S = 0.001
+#: ``sappc`` (``argv[1:]``) whose launcher stops itself (SIGSTOP) right after it has started its
+#: first node: the moment the test interrupts it is then certain, where polling for the first child
+#: and stopping the launcher from here could come after the fifth (they start within milliseconds).
+_STOP_AFTER_FIRST_NODE = """
+import os, signal, sys
+
+import sappc.graph.launch as launch
+from sappc.__main__ import main
+
+start = launch._Process.__init__
+stopped = []
+
+
+def start_then_stop(self, *args, **kwargs):
+    start(self, *args, **kwargs)
+    if not stopped:
+        stopped.append(True)
+        os.kill(os.getpid(), signal.SIGSTOP)
+
+
+launch._Process.__init__ = start_then_stop
+sys.exit(main(sys.argv[1:]))
+"""
 
 
 def _children(pid: int) -> list[int]:
@@ -58,6 +82,15 @@ def _children(pid: int) -> list[int]:
         return [int(p) for p in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
     except FileNotFoundError:
         return []
+
+
+def _state(pid: int) -> str:
+    """The process's state letter (``/proc/PID/stat``; ``T``: stopped)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return ""
+    return stat[stat.rindex(")") + 2]
 
 
 def _read_until(fd: int, pattern: re.Pattern[bytes], seen: bytearray) -> None:
@@ -113,6 +146,8 @@ def test_ctrl_c_early_in_sappc_run_stops_it_with_one_line_and_status_130(tmp_pat
     path.write_text(yaml.safe_dump(scenario))
     out = tmp_path / "run"
     command = [sys.executable, "-X", "importtime", "-m", "sappc", "run", str(path), "--out", str(out)]
+    if moment == "node_start":
+        command = [sys.executable, "-c", _STOP_AFTER_FIRST_NODE, "run", str(path), "--out", str(out)]
     if sigint_ignored:  # what `sappc run ... &` in a shell script does
         command = ["bash", "-c", "trap '' INT; exec " + shlex.join(command)]
     read_fd, write_fd = os.pipe()
@@ -133,17 +168,16 @@ def test_ctrl_c_early_in_sappc_run_stops_it_with_one_line_and_status_130(tmp_pat
                 proc.send_signal(signal.SIGINT)
             elif moment == "node_start":
                 deadline = time.monotonic() + _STEP_TIMEOUT_S
-                while not _children(proc.pid):  # drained meanwhile: the child never blocks on stderr
+                while _state(proc.pid) != "T":  # stopped by itself; drained meanwhile: the child never blocks on stderr
                     assert time.monotonic() < deadline and proc.poll() is None, seen.decode(errors="replace")
                     if select.select([read_fd], [], [], 0)[0]:
                         seen += os.read(read_fd, 65536)
                     time.sleep(_POLL_S)
-                proc.send_signal(signal.SIGSTOP)
                 started = len(_children(proc.pid))
-                watch.sample()  # the nodes started so far, before they stop
+                watch.sample()  # the node started so far, before it stops
                 proc.send_signal(signal.SIGINT)
                 proc.send_signal(signal.SIGCONT)
-                assert started < 5, f"{started} nodes had started: the signal did not arrive during the start"
+                assert started == 1, f"{started} nodes had started when the launcher stopped itself after its first"
             else:
                 _read_until(read_fd, re.compile(rb"^sappc run: .* domain \d+"), seen)
                 watch.sample()  # the five nodes, started before that line; they may stop within a poll period
