@@ -197,11 +197,17 @@ def test_replay_publishes_clock_and_messages_as_recorded_with_their_timing(ros_c
     att = np.array([[m.quaternion.x, m.quaternion.y, m.quaternion.z, m.quaternion.w] for _, m in att_msgs])
     assert np.array_equal(att, bag.series["/state/attitude"].values)
     # Paced by simulated time: message k is never published before (clock_k - clock_0) / rate after the
-    # first.  Measured on receipt, so the only slack is the first message's own delivery delay: 0.5 s
-    # against a 6 s schedule (unpaced, the 12,002 messages take about 1.5 s).
+    # first, so its receipt less that schedule is at least the first one's publication.  That origin is
+    # taken as the smallest receipt less schedule over the first second of the schedule: the first
+    # publication plus that second's smallest delivery delay (a stall of this listener delays a burst
+    # of messages, not a whole second of them; the first message's own receipt alone would make any
+    # stall of it over the slack a failure).  0.5 s of slack against a 6 s schedule: unpaced, the
+    # 12,002 messages take about 1.5 s, and the last would come about 4.5 s before its time.
     schedule = (clock_ns - clock_ns[0]) / 1e9 / rate
-    assert np.all(receipt - receipt[0] >= schedule - 0.5)
-    assert receipt[-1] - receipt[0] >= 60.0 / rate - 0.5
+    lag = receipt - schedule
+    origin = lag[schedule <= 1.0].min()
+    assert np.all(lag >= origin - 0.5)
+    assert schedule[-1] >= 60.0 / rate - 0.01  # (the whole run's schedule, which the line above holds the last message to)
 
 
 def test_replay_of_a_bag_without_clock_publishes_one_from_the_recording_time(ros_context, tmp_path) -> None:  # type: ignore[no-untyped-def]
