@@ -9,8 +9,9 @@ The moments are made certain rather than waited for:
     The command runs with ``-X importtime``: it writes a line on stderr after each import.  Its
     stderr is a pipe of one page that the test stops reading once the first module of the
     command line's own imports (``gnc_common``) is reported and what the pipe holds then is read
-    (at most a page: tens of the import lines); the child then blocks on its next writes, in the middle of hundreds of imports still to come, and the test sends SIGINT once
-    the pipe is full (it is blocked there, not merely slow).
+    (at most a page: tens of the import lines); the child then blocks on its next writes, in the
+    middle of hundreds of imports still to come (70 kB of their lines), and the test sends SIGINT
+    once the pipe is full (it is blocked there, not merely slow).
 ``node_start``
     The launcher stops itself (SIGSTOP) once its first node process is started
     (:data:`_STOP_AFTER_FIRST_NODE` wraps its node start), is interrupted and continued: the
