@@ -468,8 +468,8 @@ def _propagate(prm, st, P, w0, w1, w2, h, work):
     Compiled on its own, not inlined into :func:`mekf_step` by numba (``inline="always"``): numba's
     inliner runs a callee's untyped passes again and copies its IR twice at each call site, which
     cost this one 2.7 s of a cold ``sappc simulate``'s compile; compiled on its own it takes 1.1 s,
-    and the step (one call a sample) runs as fast (docs/performance.md, "The estimator's propagation
-    compiled on its own")."""
+    and the step (one call a sample) showed no loss beyond the measurement's noise (docs/performance.md,
+    "The estimator's propagation compiled on its own")."""
     # attitude: q_hat <- normalise(q_hat ⊗ dq(w h))
     dq = work[_W_V]
     rotation_quaternion(w0 * h, w1 * h, w2 * h, dq)
