@@ -375,19 +375,47 @@ def _symmetrise(P):
 
 @jit(inline="always")
 def _congruence(A, P, T):
-    """``P <- A P A^T`` for (6, 6) matrices, sums in index order; ``T`` (6, 6) scratch."""
+    """``P <- A P A^T`` for (6, 6) matrices, sums in index order; ``T`` (6, 6) scratch.  Each row's
+    (then column's) six sums in registers (:func:`_row_times`, :func:`_column_times`)."""
     for i in range(6):
-        for j in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += A[i, k] * P[k, j]
-            T[i, j] = acc
-    for i in range(6):
-        for j in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += T[i, k] * A[j, k]
-            P[i, j] = acc
+        _row_times(A, i, P, T)
+    for j in range(6):
+        _column_times(T, A, j, P)
+
+
+@jit(inline="always")
+def _row_times(A, i, P, T):
+    """Row ``i`` of ``T = A P`` for (6, 6) matrices, each sum ``sum_k A[i, k] P[k, j]`` in index
+    order from 0.0.  The six sums are held in registers, not in ``T``: numba's arrays may alias,
+    so sums read back from ``T``'s memory kept LLVM from holding them in vector registers (the
+    same products and sums in the same order, so the same bits; 0.57 of the time in isolation,
+    docs/performance.md)."""
+    t0 = t1 = t2 = t3 = t4 = t5 = 0.0
+    for k in range(6):
+        a = A[i, k]
+        t0 += a * P[k, 0]
+        t1 += a * P[k, 1]
+        t2 += a * P[k, 2]
+        t3 += a * P[k, 3]
+        t4 += a * P[k, 4]
+        t5 += a * P[k, 5]
+    T[i, 0], T[i, 1], T[i, 2], T[i, 3], T[i, 4], T[i, 5] = t0, t1, t2, t3, t4, t5
+
+
+@jit(inline="always")
+def _column_times(T, A, j, P):
+    """Column ``j`` of ``P = T A^T`` for (6, 6) matrices, each sum ``sum_k T[i, k] A[j, k]`` in
+    index order from 0.0, held in registers (:func:`_row_times`)."""
+    p0 = p1 = p2 = p3 = p4 = p5 = 0.0
+    for k in range(6):
+        b = A[j, k]
+        p0 += T[0, k] * b
+        p1 += T[1, k] * b
+        p2 += T[2, k] * b
+        p3 += T[3, k] * b
+        p4 += T[4, k] * b
+        p5 += T[5, k] * b
+    P[0, j], P[1, j], P[2, j], P[3, j], P[4, j], P[5, j] = p0, p1, p2, p3, p4, p5
 
 
 @jit(inline="always")
@@ -407,20 +435,13 @@ def _transition_congruence(Phi, P, T):
         _congruence(Phi, P, T)
         return
     for i in range(3):  # T = Phi P: the upper rows in full, in index order (as _congruence)
-        for j in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += Phi[i, k] * P[k, j]
-            T[i, j] = acc
+        _row_times(Phi, i, P, T)
     for i in range(3, 6):  # the lower rows: [0, I] P
         for j in range(6):
             T[i, j] = 0.0 + P[i, j]
-    for i in range(6):  # P = T Phi^T: the left columns in full, the right ones T [0, I]^T
-        for j in range(3):
-            acc = 0.0
-            for k in range(6):
-                acc += T[i, k] * Phi[j, k]
-            P[i, j] = acc
+    for j in range(3):  # P = T Phi^T: the left columns in full, the right ones T [0, I]^T
+        _column_times(T, Phi, j, P)
+    for i in range(6):
         for j in range(3, 6):
             P[i, j] = 0.0 + T[i, j]
 
