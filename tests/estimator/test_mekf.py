@@ -1262,6 +1262,53 @@ def test_a_consistent_filter_fails_its_monitor_less_than_once_an_hour() -> None:
     assert failures <= FALSE_ALARMS_PER_HOUR_MAX * FALSE_ALARM_HOURS
 
 
+def _congruence_in_index_order(A: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``A P A^T`` in Python floats (IEEE doubles, one rounding an operation): ``T = A P`` then
+    ``T A^T``, each sum from 0.0 in index order, as :func:`mekf._congruence` documents."""
+    T = [[0.0] * 6 for _ in range(6)]
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += float(A[i, k]) * float(P[k, j])
+            T[i][j] = acc
+    out = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += T[i][k] * float(A[j, k])
+            out[i, j] = acc
+    return out
+
+
+def test_the_congruence_is_its_sums_in_index_order_bit_for_bit() -> None:
+    """``_congruence`` (its sums held in registers, six at a time) gives the bytes of the
+    documented sums in index order, computed apart in Python floats: for general matrices, a
+    covariance with negative zeros and one with an ``inf`` and a NaN (there the NaNs' places).  An oracle of its own, so
+    that the congruence and the transition's congruence (tested against it below) cannot share a
+    wrong order."""
+    rng = np.random.default_rng(68)
+    T = np.zeros((6, 6))
+    for case in range(6):
+        A = rng.standard_normal((6, 6))
+        B = rng.standard_normal((6, 6))
+        P = B @ B.T
+        if case == 1:
+            P[3:, :3] = -0.0
+            P[:3, 3:] = -0.0
+        if case == 2:
+            P[2, 5], P[5, 1] = np.inf, np.nan
+        expected = _congruence_in_index_order(A, P)
+        got = P.copy()
+        mekf._congruence(A, got, T)
+        # NaN where the reference has NaN (a NaN's sign and payload are not IEEE arithmetic's to
+        # fix, and a compiler may order a sum's two NaN operands either way), the bytes elsewhere
+        assert np.array_equal(np.isnan(got), np.isnan(expected)), case
+        keep = ~np.isnan(expected)
+        assert got[keep].tobytes() == expected[keep].tobytes(), case
+
+
 def test_the_transitions_congruence_is_the_full_congruence_bit_for_bit() -> None:
     """``_transition_congruence`` (``Phi P Phi^T`` with the terms of ``Phi``'s exact ``[0, I]``
     lower rows skipped) gives the full index-order congruence's bytes: for transitions at rates
