@@ -14,8 +14,8 @@ object code numba loaded, which this script keeps (numba drops it once loaded). 
 numba's private ``CPUCodeLibrary._set_compiled_object``: a measurement aid for numba 0.68, not
 product code.  The maps are left in ``/tmp`` (``perf report`` needs them); remove them after.
 
-Used for docs/performance.md, "The covariance's sums in registers; where a flight worker's time
-goes" (issue 50).
+Used for docs/performance.md, "The covariance's sums side by side; issue 50's rows on the final
+code" (where a flight worker's time goes).
 """
 
 from __future__ import annotations

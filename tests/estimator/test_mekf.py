@@ -1285,9 +1285,9 @@ def _congruence_in_index_order(A: np.ndarray, P: np.ndarray) -> np.ndarray:
 def test_the_congruence_is_its_sums_in_index_order_bit_for_bit() -> None:
     """``_congruence`` (its sums held in registers, six at a time) gives the bytes of the
     documented sums in index order, computed apart in Python floats: for general matrices, a
-    covariance with negative zeros and one with an ``inf`` and a NaN (there the NaNs' places).  An oracle of its own, so
-    that the congruence and the transition's congruence (tested against it below) cannot share a
-    wrong order."""
+    covariance with negative zeros, and one with an ``inf`` and a NaN (there the NaNs' places).
+    An oracle of its own, so that the congruence and the transition's congruence (tested against
+    it below) cannot share a wrong order."""
     rng = np.random.default_rng(68)
     T = np.zeros((6, 6))
     for case in range(6):

@@ -375,8 +375,8 @@ def _symmetrise(P):
 
 @jit(inline="always")
 def _congruence(A, P, T):
-    """``P <- A P A^T`` for (6, 6) matrices, sums in index order; ``T`` (6, 6) scratch.  Each row's
-    (then column's) six sums in registers (:func:`_row_times`, :func:`_column_times`)."""
+    """``P <- A P A^T`` for (6, 6) matrices, sums in index order; ``T`` (6, 6) scratch.  A row's
+    (then a column's) six sums side by side (:func:`_row_times`, :func:`_column_times`)."""
     for i in range(6):
         _row_times(A, i, P, T)
     for j in range(6):
@@ -386,9 +386,11 @@ def _congruence(A, P, T):
 @jit(inline="always")
 def _row_times(A, i, P, T):
     """Row ``i`` of ``T = A P`` for (6, 6) matrices, each sum ``sum_k A[i, k] P[k, j]`` in index
-    order from 0.0.  The six sums are held in registers, not in ``T``: numba's arrays may alias,
-    so sums read back from ``T``'s memory kept LLVM from holding them in vector registers (the
-    same products and sums in the same order, so the same bits; 0.57 of the time in isolation,
+    order from 0.0.  The six sums run side by side (``k`` outer: six independent chains of
+    additions, each term's loads a row of ``P``), stored at the end.  One entry at a time, each
+    chain of six dependent additions ran alone: its store into ``T``, which numba's arrays may
+    alias with ``P``, kept LLVM from starting the next entry's loads before it (the same products
+    and sums in the same order, so the same bits; the congruence 0.57 of its time in isolation,
     docs/performance.md)."""
     t0 = t1 = t2 = t3 = t4 = t5 = 0.0
     for k in range(6):
@@ -405,7 +407,7 @@ def _row_times(A, i, P, T):
 @jit(inline="always")
 def _column_times(T, A, j, P):
     """Column ``j`` of ``P = T A^T`` for (6, 6) matrices, each sum ``sum_k T[i, k] A[j, k]`` in
-    index order from 0.0, held in registers (:func:`_row_times`)."""
+    index order from 0.0, the six side by side (:func:`_row_times`)."""
     p0 = p1 = p2 = p3 = p4 = p5 = 0.0
     for k in range(6):
         b = A[j, k]
