@@ -387,10 +387,10 @@ def _congruence(A, P, T):
 def _row_times(A, i, P, T):
     """Row ``i`` of ``T = A P`` for (6, 6) matrices, each sum ``sum_k A[i, k] P[k, j]`` in index
     order from 0.0.  The six sums run side by side (``k`` outer: six independent chains of
-    additions, each term's loads a row of ``P``), stored at the end.  One entry at a time, each
-    chain of six dependent additions ran alone: its store into ``T``, which numba's arrays may
-    alias with ``P``, kept LLVM from starting the next entry's loads before it (the same products
-    and sums in the same order, so the same bits; the congruence 0.57 of its time in isolation,
+    additions sharing each load of ``A[i, k]``), stored at the end, instead of one entry's chain
+    at a time with its store into ``T`` between, which numba's arrays may alias with ``A`` and
+    ``P`` (so their entries are loaded again after it).  The same products and sums in the same
+    order, so the same bits; the congruence 0.57 of its time in isolation (scalar code both ways:
     docs/performance.md)."""
     t0 = t1 = t2 = t3 = t4 = t5 = 0.0
     for k in range(6):
