@@ -48,7 +48,7 @@ def write_perf_map() -> int:
     return how many."""
     from numba.core.dispatcher import Dispatcher
 
-    libraries = {id(cres.library): cres.library for obj in gc.get_objects() if isinstance(obj, Dispatcher)
+    libraries = {id(cres.library): cres.library for obj in gc.get_objects() if isinstance(obj, Dispatcher)  # type: ignore[attr-defined]
                  for cres in obj.overloads.values()}
     lines = []
     for library in libraries.values():
@@ -78,7 +78,7 @@ def write_perf_map() -> int:
 def _after(module: ModuleType, name: str, once: bool) -> None:
     """Write the map after ``module.name`` returns (after its first call only, with ``once``)."""
     function = getattr(module, name)
-    calls = []
+    calls: list[int] = []
 
     @functools.wraps(function)
     def wrapped(*args: Any, **kwargs: Any) -> Any:
